@@ -31,6 +31,12 @@ else
     if [[ -f "$_slam_root/ros2_ws/install/setup.bash" ]]; then
       # shellcheck disable=SC1091
       source "$_slam_root/ros2_ws/install/setup.bash"
+      # No `ros2 run` without the ROS CLI: put the packages' executables on PATH instead.
+      for _d in "$_slam_root"/ros2_ws/install/*/lib/*/; do
+        [[ "$_d" == */python3.*/ ]] && continue
+        case ":$PATH:" in *":${_d%/}:"*) ;; *) PATH="${_d%/}:$PATH" ;; esac
+      done
+      export PATH; unset _d
     else
       echo "scripts/env.sh: ros2_ws is not built; run scripts/bootstrap.sh" >&2
     fi

@@ -1,0 +1,1 @@
+"""Bring-up of the dynamic-SLAM suite: bag tools, graph runner, launch helpers, test harness."""

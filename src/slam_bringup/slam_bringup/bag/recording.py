@@ -1,0 +1,88 @@
+"""ROS-free recording: an mcap rosbag2 writer that appears at its final path only when closed.
+
+The bag is written inside a hidden staging directory next to the target and renamed into
+place by ``close()``, so a reader never sees a half-written bag under the target name.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from rosbags.interfaces import Connection, Qos
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from slam_bringup.errors import BagError
+
+
+@dataclass(frozen=True)
+class TopicRecord:
+    """A recorded topic: its writer connection and how many messages it got."""
+
+    connection: Connection
+    msgtype: str
+
+
+class AtomicBagWriter:
+    """Writes one mcap bag; ``close()`` finalizes it and moves it to ``target``."""
+
+    def __init__(self, target: Path) -> None:
+        self.target = Path(target).expanduser().absolute()
+        if self.target.exists():
+            raise BagError(f'output {str(self.target)!r} exists already; choose another name')
+        if not self.target.parent.is_dir():
+            raise BagError(f'output {str(self.target)!r}: directory {str(self.target.parent)!r} '
+                           'does not exist')
+        self.staging_root = self.target.parent / f'.{self.target.name}.recording-{os.getpid()}'
+        self.staging = self.staging_root / self.target.name
+        try:
+            self.staging_root.mkdir()
+            self._writer = Writer(self.staging, version=9, storage_plugin=StoragePlugin.MCAP)
+            self._writer.open()
+        except OSError as err:
+            raise BagError(f'output {str(self.target)!r} cannot be written: {err}') from None
+        self.counts: dict[str, int] = {}
+        self._topics: dict[str, TopicRecord] = {}
+        self.closed = False
+
+    def add_topic(
+        self, topic: str, msgtype: str, *, msgdef: str, rihs01: str, offered_qos: Sequence[Qos]
+    ) -> None:
+        """Register a topic before writing its first message."""
+        connection = self._writer.add_connection(
+            topic, msgtype, msgdef=msgdef, rihs01=rihs01, offered_qos_profiles=offered_qos
+        )
+        self._topics[topic] = TopicRecord(connection, msgtype)
+        self.counts[topic] = 0
+
+    def has_topic(self, topic: str) -> bool:
+        """True when ``topic`` was registered."""
+        return topic in self._topics
+
+    def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
+        """Append one CDR message received at ``timestamp_ns``."""
+        self._writer.write(self._topics[topic].connection, timestamp_ns, data)
+        self.counts[topic] += 1
+
+    @property
+    def message_count(self) -> int:
+        """Messages written so far."""
+        return sum(self.counts.values())
+
+    def close(self) -> Path:
+        """Finalize the bag (index, metadata.yaml) and move it to the target; idempotent."""
+        if not self.closed:
+            self.closed = True
+            self._writer.close()
+            try:
+                self.staging.rename(self.target)
+            except OSError as err:
+                raise BagError(
+                    f'output {str(self.target)!r} cannot be created: {err}; the finished bag '
+                    f'is at {str(self.staging)!r}'
+                ) from None
+            shutil.rmtree(self.staging_root, ignore_errors=True)
+        return self.target

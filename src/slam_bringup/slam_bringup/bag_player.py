@@ -1,0 +1,303 @@
+"""bag_player: replay a ROS 2 (mcap, sqlite3) or ROS 1 bag onto live topics.
+
+Publishes every selected topic's raw CDR with the topic's recorded QoS (ROS 1 topics:
+reliable, transient-local if latched), at the recorded timing scaled by ``rate``, and
+publishes ``/clock`` with the bag time. Shows a progress bar with rate and ETA on a
+terminal, periodic log lines otherwise.
+
+Topics:
+  publishes  every recorded topic (or those in ``topics``), renamed by ``remap``;
+             ``/clock`` (rosgraph_msgs/Clock, best effort, depth 1) when clock_hz > 0.
+
+Parameters:
+  bag_path (string)                 bag directory, .mcap, .db3 or ROS 1 .bag. Required.
+  rate (double, 1.0)                playback speed factor, > 0.
+  start_offset_s (double, 0.0)      skip this many seconds from the bag start, >= 0.
+  topics (string[], all)            play only these recorded topic names.
+  remap (string[], none)            'recorded:=published' topic renames.
+  loop (bool, false)                start over at the end.
+  clock_hz (double, 100.0)          /clock publish rate; 0 disables /clock.
+  wait_for_subscribers_s (double, 0) wait up to this long for every topic to have a
+                                    subscriber before starting (0: start at once).
+  progress_period_s (double, 5.0)   period of progress log lines when not on a terminal.
+
+Frames: none (messages keep their recorded frame ids).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+from slam_bringup.bag.playback import LatenessStats, PlaybackConfig, Prefetcher, TimeMapping
+from slam_bringup.bag.source import BagSource
+from slam_bringup.cli import console_main
+from slam_bringup.errors import BagError, ParameterError, SlamError
+from slam_bringup.params import (
+    ParamSpec,
+    check,
+    check_finite_non_negative,
+    check_finite_positive,
+    declare_parameters,
+    parse_remaps,
+)
+from slam_bringup.progress import ProgressReporter
+from slam_bringup.qos import profile_from_recorded
+from slam_bringup.typesys import message_class
+
+PARAMETERS = (
+    ParamSpec('bag_path', '', 'bag directory, .mcap, .db3 or ROS 1 .bag to play'),
+    ParamSpec('rate', 1.0, 'playback speed factor (> 0)'),
+    ParamSpec('start_offset_s', 0.0, 'seconds to skip from the start of the bag (>= 0)'),
+    ParamSpec('topics', [], 'recorded topics to play; empty plays all', 'string_array'),
+    ParamSpec('remap', [], "topic renames 'recorded:=published'", 'string_array'),
+    ParamSpec('loop', False, 'start over when the bag ends'),
+    ParamSpec('clock_hz', 100.0, 'rate of /clock messages in Hz; 0 disables /clock'),
+    ParamSpec(
+        'wait_for_subscribers_s',
+        0.0,
+        'wait up to this long for every played topic to have a subscriber; 0 starts at once',
+    ),
+    ParamSpec('progress_period_s', 5.0, 'period of progress log lines off a terminal (> 0)'),
+)
+
+CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+WAIT_POLL_S = 0.01
+
+
+def config_from_parameters(values: dict[str, object]) -> PlaybackConfig:
+    """Validate parameter values into a PlaybackConfig (raises ParameterError)."""
+    bag_path = str(values['bag_path'])
+    check(bool(bag_path), 'bag_path', bag_path, 'is required: the bag to play')
+    rate = float(values['rate'])  # type: ignore[arg-type]
+    check_finite_positive('rate', rate)
+    start_offset_s = float(values['start_offset_s'])  # type: ignore[arg-type]
+    check_finite_non_negative('start_offset_s', start_offset_s)
+    clock_hz = float(values['clock_hz'])  # type: ignore[arg-type]
+    check_finite_non_negative('clock_hz', clock_hz)
+    wait_s = float(values['wait_for_subscribers_s'])  # type: ignore[arg-type]
+    check_finite_non_negative('wait_for_subscribers_s', wait_s)
+    period_s = float(values['progress_period_s'])  # type: ignore[arg-type]
+    check_finite_positive('progress_period_s', period_s)
+    topics = tuple(str(t) for t in values['topics'])  # type: ignore[attr-defined]
+    return PlaybackConfig(
+        bag_path=Path(bag_path).expanduser(),
+        rate=rate,
+        start_offset_s=start_offset_s,
+        topics=topics,
+        remaps=parse_remaps('remap', [str(r) for r in values['remap']]),  # type: ignore[attr-defined]
+        loop=bool(values['loop']),
+        clock_hz=clock_hz,
+        wait_for_subscribers_s=wait_s,
+        progress_period_s=period_s,
+    )
+
+
+class BagPlayerNode(Node):
+    """Replays a bag in a background thread; ``finished`` is set when it is done."""
+
+    def __init__(self, **kwargs: object) -> None:
+        super().__init__('bag_player', **kwargs)  # type: ignore[arg-type]
+        self.config = config_from_parameters(declare_parameters(self, PARAMETERS))
+        self.source = BagSource(self.config.bag_path).__enter__()
+        self.topics = self._select_topics()
+        self.publishers_by_topic: dict[str, Publisher] = {}
+        for name in self.topics:
+            summary = self.source.topics()[name]
+            cls = message_class(summary.msgtype, topic=name)
+            qos = profile_from_recorded(summary.offered_qos, latched=summary.latched)
+            published = self.config.remaps.get(name, name)
+            self.publishers_by_topic[name] = self.create_publisher(cls, published, qos)
+        self.clock_publisher = (
+            self.create_publisher(Clock, '/clock', CLOCK_QOS) if self.config.clock_hz > 0 else None
+        )
+        self.lateness = LatenessStats()
+        self.published = 0
+        self.error: SlamError | None = None
+        self.finished = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._play_safely, name='bag-player', daemon=True)
+        self._thread.start()
+
+    def _select_topics(self) -> tuple[str, ...]:
+        recorded = self.source.topics()
+        if not self.config.topics:
+            return tuple(sorted(recorded))
+        for topic in self.config.topics:
+            if topic not in recorded:
+                raise ParameterError(
+                    f'parameter topics: topic {topic!r} is not in bag '
+                    f'{str(self.config.bag_path)!r} (it has: {", ".join(sorted(recorded))})'
+                )
+        return self.config.topics
+
+    # -- playback thread ------------------------------------------------------------------
+    def _play_safely(self) -> None:
+        try:
+            self._wait_for_subscribers()
+            while not self._stop.is_set():
+                self._play_once()
+                if not self.config.loop:
+                    break
+        except SlamError as err:
+            self.error = err
+            self.get_logger().error(str(err))
+        finally:
+            self.finished.set()
+
+    def _wait_for_subscribers(self) -> None:
+        deadline = time.monotonic() + self.config.wait_for_subscribers_s
+        waiting = list(self.publishers_by_topic.values())
+        while waiting and time.monotonic() < deadline and not self._stop.is_set():
+            waiting = [p for p in waiting if p.get_subscription_count() == 0]
+            if waiting:
+                self._stop.wait(WAIT_POLL_S)
+        if waiting and self.config.wait_for_subscribers_s > 0:
+            names = ', '.join(p.topic_name for p in waiting)
+            self.get_logger().warning(f'starting without subscribers on: {names}')
+
+    def _play_once(self) -> None:
+        config = self.config
+        bag_start = self.source.start_ns + round(config.start_offset_s * 1e9)
+        total_s = max(self.source.end_ns - bag_start, 0) / 1e9
+        progress = ProgressReporter(
+            total_s,
+            label=f'bag_player {config.bag_path.name}',
+            unit='s',
+            stream=sys.stderr if sys.stderr.isatty() else None,
+            log=None if sys.stderr.isatty() else self.get_logger().info,
+            period_s=config.progress_period_s,
+        )
+        clock_period_ns = round(1e9 / config.clock_hz) if self.clock_publisher else 0
+        prefetch = Prefetcher(self.source, self.topics, bag_start)
+        mapping: TimeMapping | None = None
+        next_clock_ns = 0
+        try:
+            for message in prefetch:
+                if mapping is None:  # anchor wall time once the first message is ready
+                    mapping = TimeMapping(bag_start, time.monotonic_ns(), config.rate)
+                    next_clock_ns = mapping.wall_start_ns
+                deadline = mapping.wall_deadline_ns(message.timestamp_ns)
+                next_clock_ns = self._sleep_until(deadline, mapping, next_clock_ns, clock_period_ns)
+                if self._stop.is_set():
+                    return
+                self.publishers_by_topic[message.topic].publish(message.data)
+                self.lateness.add(time.monotonic_ns() - deadline)
+                self.published += 1
+                progress.update((message.timestamp_ns - bag_start) / 1e9, items=self.published)
+        finally:
+            prefetch.close()
+            progress.finish()
+
+    def _sleep_until(
+        self, deadline_ns: int, mapping: TimeMapping, next_clock_ns: int, clock_period_ns: int
+    ) -> int:
+        """Sleep until ``deadline_ns``, publishing /clock on its period; return next tick."""
+        while not self._stop.is_set():
+            now = time.monotonic_ns()
+            if clock_period_ns and now >= next_clock_ns:
+                self._publish_clock(mapping.bag_time_ns(min(now, deadline_ns)))
+                next_clock_ns = max(next_clock_ns + clock_period_ns, now - clock_period_ns)
+                continue
+            if now >= deadline_ns:
+                break
+            wake = min(deadline_ns, next_clock_ns) if clock_period_ns else deadline_ns
+            self._stop.wait(max(wake - now, 0) / 1e9)
+        return next_clock_ns
+
+    def _publish_clock(self, bag_ns: int) -> None:
+        assert self.clock_publisher is not None
+        message = Clock()
+        message.clock.sec, message.clock.nanosec = divmod(bag_ns, 1_000_000_000)
+        self.clock_publisher.publish(message)
+
+    def stop(self) -> None:
+        """Stop playback and wait for the playback thread."""
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+    def destroy_node(self) -> None:
+        self.stop()
+        self.source.__exit__(None, None, None)
+        super().destroy_node()
+
+    def summary(self) -> str:
+        """Return a one-line summary of the playback so far."""
+        late = self.lateness.summary_ms()
+        return (
+            f'published {self.published} messages from {str(self.config.bag_path)!r}; '
+            f'lateness median {late["median_ms"]:.2f} ms, p95 {late["p95_ms"]:.2f} ms'
+        )
+
+
+def build_arg_parser() -> argparse.ArgumentParser:
+    """Command-line options; each maps onto a node parameter."""
+    parser = argparse.ArgumentParser(
+        prog='bag_player', description='Replay a ROS 2 (mcap/sqlite3) or ROS 1 bag.'
+    )
+    parser.add_argument('bag', nargs='?', help='bag directory, .mcap, .db3 or .bag file')
+    parser.add_argument('-r', '--rate', type=float, help='speed factor (default 1.0)')
+    parser.add_argument('-s', '--start-offset', type=float, help='seconds to skip')
+    parser.add_argument('--topics', nargs='+', help='recorded topics to play (default all)')
+    parser.add_argument(
+        '--remap', nargs='+', metavar='FROM:=TO', help='rename recorded topics when publishing'
+    )
+    parser.add_argument('-l', '--loop', action='store_true', default=None, help='loop forever')
+    parser.add_argument('--clock-hz', type=float, help='/clock rate in Hz, 0 disables it')
+    parser.add_argument(
+        '--wait-for-subscribers', type=float, metavar='S',
+        help='wait up to S seconds for subscribers on every topic before starting',
+    )
+    return parser
+
+
+def overrides_from_args(args: argparse.Namespace) -> list[rclpy.parameter.Parameter]:
+    """Turn given command-line options into parameter overrides."""
+    mapping = {
+        'bag_path': args.bag, 'rate': args.rate, 'start_offset_s': args.start_offset,
+        'topics': args.topics, 'remap': args.remap, 'loop': args.loop,
+        'clock_hz': args.clock_hz, 'wait_for_subscribers_s': args.wait_for_subscribers,
+    }
+    return [
+        rclpy.parameter.Parameter(name, value=value)
+        for name, value in mapping.items()
+        if value is not None
+    ]
+
+
+@console_main('bag_player')
+def main(argv: list[str] | None = None) -> int:
+    """Play a bag until it ends (or forever with --loop); exit 0 when it played fully."""
+    argv = sys.argv[1:] if argv is None else argv
+    ros_args = rclpy.utilities.remove_ros_args(['bag_player', *argv])[1:]
+    args = build_arg_parser().parse_args(ros_args)
+    rclpy.init(args=['bag_player', *argv])
+    node = None
+    try:
+        node = BagPlayerNode(parameter_overrides=overrides_from_args(args))
+        while rclpy.ok() and not node.finished.is_set():
+            rclpy.spin_once(node, timeout_sec=0.1)
+        if node.error is not None:
+            raise node.error
+        node.get_logger().info(node.summary())
+        return 0
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 130
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

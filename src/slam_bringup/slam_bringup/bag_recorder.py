@@ -1,0 +1,214 @@
+"""bag_recorder: record live topics into an mcap bag (rosbag2 format, readable by ros2 bag).
+
+Subscribes to the selected topics (or to every topic it discovers) and writes each raw CDR
+message with its receive time (the node clock, so ``use_sim_time`` records bag time). The
+QoS of each subscription adapts to the publishers (reliable only if all publishers are,
+transient-local only if all are), and their offered profiles go into the bag's metadata.
+The bag is written in a hidden staging directory and moved to ``output`` when finalized.
+On Ctrl-C (SIGINT) or SIGTERM, messages already received are drained and the bag finalized.
+
+Topics:
+  subscribes  ``topics`` (or all discovered topics except ``exclude``), raw CDR.
+
+Parameters:
+  output (string, rosbag2_<date>_<time>)  bag directory to create; must not exist.
+  topics (string[], all)                  topics to record; empty records all.
+  exclude (string[], [/rosout, /parameter_events])  topics skipped when recording all.
+  discovery_period_s (double, 0.5)        how often to look for new topics, > 0.
+  queue_depth (int, 1000)                 subscription history depth, >= 1.
+
+Frames: none (messages are stored as received).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from datetime import datetime
+from pathlib import Path
+from types import FrameType
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from slam_bringup.bag.recording import AtomicBagWriter
+from slam_bringup.cli import console_main
+from slam_bringup.errors import SlamError
+from slam_bringup.params import ParamSpec, check, check_finite_positive, declare_parameters
+from slam_bringup.qos import recorded_from_profile
+from slam_bringup.typesys import TypeRegistry, message_class
+
+PARAMETERS = (
+    ParamSpec('output', '', 'bag directory to create (default rosbag2_<date>_<time>)'),
+    ParamSpec('topics', [], 'topics to record; empty records every topic', 'string_array'),
+    ParamSpec(
+        'exclude', ['/rosout', '/parameter_events'], 'topics skipped when recording all topics'
+    ),
+    ParamSpec('discovery_period_s', 0.5, 'period of the search for new topics, s (> 0)'),
+    ParamSpec('queue_depth', 1000, 'subscription history depth (>= 1)'),
+)
+DRAIN_TIMEOUT_S = 2.0
+
+
+def default_output_name() -> str:
+    """Return rosbag2's default bag name for now."""
+    return datetime.now().strftime('rosbag2_%Y_%m_%d-%H_%M_%S')
+
+
+class BagRecorderNode(Node):
+    """Records topics into an AtomicBagWriter; ``finalize()`` closes the bag."""
+
+    def __init__(self, **kwargs: object) -> None:
+        super().__init__('bag_recorder', **kwargs)  # type: ignore[arg-type]
+        values = declare_parameters(self, PARAMETERS)
+        self.discovery_period_s = float(values['discovery_period_s'])
+        check_finite_positive('discovery_period_s', self.discovery_period_s)
+        self.queue_depth = int(values['queue_depth'])
+        check(self.queue_depth >= 1, 'queue_depth', self.queue_depth, 'must be >= 1')
+        self.selected = tuple(values['topics'])
+        self.exclude = frozenset(values['exclude'])
+        self.writer = AtomicBagWriter(Path(values['output'] or default_output_name()))
+        self.types = TypeRegistry()
+        self._unavailable: dict[str, str] = {}
+        self._lock = threading.Lock()
+        self.get_logger().info(
+            f'recording {", ".join(self.selected) or "all topics"} to '
+            f'{str(self.writer.target)!r} (staged in {str(self.writer.staging)!r})'
+        )
+        self._discover()
+        self.create_timer(self.discovery_period_s, self._discover)
+
+    def _wanted(self, topic: str) -> bool:
+        if self.selected:
+            return topic in self.selected
+        return topic not in self.exclude
+
+    def _discover(self) -> None:
+        for topic, types in self.get_topic_names_and_types():
+            if not self._wanted(topic) or self.writer.has_topic(topic) or self.writer.closed:
+                continue
+            if len(types) > 1:
+                self.get_logger().warning(f'topic {topic!r} has several types {types}; '
+                                          f'recording {types[0]!r}')
+            try:
+                self._subscribe(topic, types[0])
+            except SlamError as err:
+                if self._unavailable.get(topic) != str(err):
+                    self._unavailable[topic] = str(err)
+                    self.get_logger().error(f'not recording {topic!r}: {err}')
+
+    def _subscribe(self, topic: str, msgtype: str) -> None:
+        cls = message_class(msgtype, topic=topic)
+        msgdef, rihs01 = self.types.msgdef_and_hash(msgtype)
+        publishers = self.get_publishers_info_by_topic(topic)
+        offered = [info.qos_profile for info in publishers]
+        self.writer.add_topic(
+            topic, msgtype, msgdef=msgdef, rihs01=rihs01,
+            offered_qos=[recorded_from_profile(q) for q in offered],
+        )
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=self.queue_depth,
+            reliability=ReliabilityPolicy.RELIABLE
+            if offered and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
+            else ReliabilityPolicy.BEST_EFFORT,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL
+            if offered and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+            else DurabilityPolicy.VOLATILE,
+        )
+        self.create_subscription(
+            cls, topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True
+        )
+        self.get_logger().info(f'recording {topic!r} ({msgtype})')
+
+    def _on_message(self, topic: str, data: bytes) -> None:
+        with self._lock:
+            if not self.writer.closed:
+                self.writer.write(topic, self.get_clock().now().nanoseconds, data)
+
+    def finalize(self) -> Path:
+        """Close the bag and move it to its output path; return that path."""
+        with self._lock:
+            path = self.writer.close()
+        counts = ', '.join(f'{t}: {n}' for t, n in sorted(self.writer.counts.items()))
+        self.get_logger().info(
+            f'wrote {self.writer.message_count} messages to {str(path)!r} ({counts or "none"})'
+        )
+        return path
+
+    def destroy_node(self) -> None:
+        if not self.writer.closed:
+            self.finalize()
+        super().destroy_node()
+
+
+def drain(executor: SingleThreadedExecutor, node: BagRecorderNode, timeout_s: float) -> None:
+    """Execute callbacks until no new message arrives for one poll, or until timeout."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        before = node.writer.message_count
+        executor.spin_once(timeout_sec=0.05)
+        if node.writer.message_count == before:
+            return
+
+
+def build_arg_parser() -> argparse.ArgumentParser:
+    """Command-line options; each maps onto a node parameter."""
+    parser = argparse.ArgumentParser(prog='bag_recorder', description='Record topics to mcap.')
+    parser.add_argument('topics', nargs='*', help='topics to record (with -a: all)')
+    parser.add_argument('-a', '--all', action='store_true', help='record every topic')
+    parser.add_argument('-o', '--output', help='bag directory to create')
+    parser.add_argument('--exclude', nargs='+', help='topics to skip with --all')
+    return parser
+
+
+@console_main('bag_recorder')
+def main(argv: list[str] | None = None) -> int:
+    """Record until Ctrl-C or SIGTERM, then finalize the bag; exit 0 when it was written."""
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_arg_parser().parse_args(rclpy.utilities.remove_ros_args(['x', *argv])[1:])
+    if bool(args.topics) == bool(args.all):
+        print('bag_recorder: error: give topics to record, or --all', file=sys.stderr)  # noqa: T201
+        return 2
+    overrides = [rclpy.parameter.Parameter('topics', value=list(args.topics))] if args.topics else []
+    if args.output:
+        overrides.append(rclpy.parameter.Parameter('output', value=args.output))
+    if args.exclude:
+        overrides.append(rclpy.parameter.Parameter('exclude', value=list(args.exclude)))
+
+    stop = threading.Event()
+
+    def request_stop(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    rclpy.init(args=['bag_recorder', *argv], signal_handler_options=SignalHandlerOptions.NO)
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    executor = SingleThreadedExecutor()
+    node = None
+    try:
+        node = BagRecorderNode(parameter_overrides=overrides)
+        executor.add_node(node)
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+        drain(executor, node, DRAIN_TIMEOUT_S)
+        node.finalize()
+        return 0
+    except ExternalShutdownException:
+        return 130
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        if node is not None:
+            executor.remove_node(node)
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

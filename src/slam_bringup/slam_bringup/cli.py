@@ -1,0 +1,36 @@
+"""Console-script plumbing: one-line errors, exit codes, no tracebacks for user errors."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable
+
+from slam_bringup.errors import SlamError
+
+EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+def console_main(prog: str) -> Callable[[Callable[[list[str] | None], int]], Callable[..., int]]:
+    """Wrap a ``main(argv) -> int`` so user errors print ``prog: error: ...`` and exit 2."""
+
+    def decorate(main: Callable[[list[str] | None], int]) -> Callable[..., int]:
+        @functools.wraps(main)
+        def wrapper(argv: list[str] | None = None) -> int:
+            try:
+                return main(argv)
+            except SlamError as err:
+                print(f'{prog}: error: {err}', file=sys.stderr)  # noqa: T201
+                return EXIT_USER_ERROR
+            except KeyboardInterrupt:
+                return EXIT_INTERRUPTED
+
+        return wrapper
+
+    return decorate
+
+
+def exit_with(main: Callable[[], int]) -> None:
+    """Entry-point helper: ``sys.exit(main())``."""
+    sys.exit(main())

@@ -1,0 +1,27 @@
+"""User-facing errors of the bring-up tools.
+
+Every error names its culprit (a file, topic, parameter or GRAPH key) and says what to do,
+so that command-line tools can print it on one line without a traceback.
+"""
+
+from __future__ import annotations
+
+
+class SlamError(Exception):
+    """Base class of errors a user can act on; str(err) is a complete one-line message."""
+
+
+class BagError(SlamError):
+    """A bag is missing, unreadable, corrupt or not writable."""
+
+
+class TypeDefinitionError(SlamError):
+    """A message type has no definition (no .msg, no Python module) in this environment."""
+
+
+class ParameterError(SlamError):
+    """A node parameter has an invalid value."""
+
+
+class GraphError(SlamError):
+    """A GRAPH file is missing or invalid."""

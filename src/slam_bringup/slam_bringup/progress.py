@@ -1,0 +1,97 @@
+"""Progress for long work: a bar on a terminal, periodic log lines otherwise.
+
+Both show done/total, rate and ETA. ``ProgressReporter`` is ROS-free; nodes pass their
+logger's ``info`` as ``log`` so that non-terminal output lands in the ROS log.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from typing import TextIO
+
+BAR_WIDTH = 28
+
+
+def format_seconds(seconds: float) -> str:
+    """Return ``seconds`` as ``1h02m``, ``3m05s`` or ``12.3s``."""
+    if seconds != seconds or seconds == float('inf'):  # NaN or inf
+        return '--'
+    if seconds >= 3600:
+        return f'{int(seconds // 3600)}h{int(seconds % 3600 // 60):02d}m'
+    if seconds >= 60:
+        return f'{int(seconds // 60)}m{int(seconds % 60):02d}s'
+    return f'{seconds:.1f}s'
+
+
+class ProgressReporter:
+    """Report progress of ``total`` units of work (e.g. bag seconds or iterations)."""
+
+    def __init__(
+        self,
+        total: float,
+        *,
+        label: str,
+        unit: str = '',
+        stream: TextIO | None = None,
+        log: Callable[[str], None] | None = None,
+        period_s: float = 5.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.total = max(float(total), 0.0)
+        self.label = label
+        self.unit = unit
+        self.stream = stream if stream is not None else sys.stderr
+        self.is_tty = self.stream.isatty() if log is None or stream is not None else False
+        self.log = log
+        self.period_s = period_s if not self.is_tty else 0.1
+        self.clock = clock
+        self.started = clock()
+        self.last_report = float('-inf')
+        self.done = 0.0
+        self.items = 0
+
+    def update(self, done: float, *, items: int | None = None, force: bool = False) -> None:
+        """Set the amount done (same unit as total); report if the period has passed."""
+        self.done = done
+        if items is not None:
+            self.items = items
+        now = self.clock()
+        if force or now - self.last_report >= self.period_s:
+            self.last_report = now
+            self._emit(self.line(now))
+
+    def finish(self) -> None:
+        """Emit the final state and end the terminal line."""
+        self._emit(self.line(self.clock()))
+        if self.is_tty:
+            self.stream.write('\n')
+            self.stream.flush()
+
+    def line(self, now: float) -> str:
+        """Return the progress text at time ``now``."""
+        elapsed = max(now - self.started, 1e-9)
+        fraction = min(self.done / self.total, 1.0) if self.total > 0 else 1.0
+        rate = self.done / elapsed
+        eta = (self.total - self.done) / rate if rate > 0 else float('inf')
+        item_rate = f' {self.items} msgs ({self.items / elapsed:.1f}/s)' if self.items else ''
+        bar = ''
+        if self.is_tty:
+            filled = int(round(fraction * BAR_WIDTH))
+            bar = '[' + '#' * filled + '-' * (BAR_WIDTH - filled) + '] '
+        return (
+            f'{self.label} {bar}{100 * fraction:5.1f}% {self.done:.1f}/{self.total:.1f}'
+            f'{self.unit}{item_rate} rate {rate:.2f}{self.unit}/s '
+            f'elapsed {format_seconds(elapsed)} ETA {format_seconds(eta)}'
+        )
+
+    def _emit(self, text: str) -> None:
+        if self.is_tty:
+            self.stream.write('\r' + text)
+            self.stream.flush()
+        elif self.log is not None:
+            self.log(text)
+        else:
+            self.stream.write(text + '\n')
+            self.stream.flush()

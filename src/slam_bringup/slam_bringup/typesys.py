@@ -1,0 +1,120 @@
+"""Message types: rosbags definitions for (de)serialization and rclpy classes for publishing.
+
+``TypeRegistry`` starts from rosbags' Jazzy type store and learns every other type (ours in
+``slam_interfaces``, a vendored ``tf2_msgs``, anything on ``AMENT_PREFIX_PATH``) from the
+``share/<pkg>/msg/<Name>.msg`` files that ROS packages install. ``message_class`` imports the
+rclpy class of a type name such as ``sensor_msgs/msg/Image``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from pathlib import Path
+
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.base import Nodetype
+from rosbags.typesys.store import Typestore
+
+from slam_bringup.errors import TypeDefinitionError
+
+
+def split_type_name(msgtype: str) -> tuple[str, str, str]:
+    """Return (package, kind, name) of ``pkg/msg/Name``; accept ``pkg/Name`` as msg."""
+    parts = msgtype.split('/')
+    if len(parts) == 2:
+        return parts[0], 'msg', parts[1]
+    if len(parts) == 3 and all(parts):
+        return parts[0], parts[1], parts[2]
+    raise TypeDefinitionError(f'malformed message type name {msgtype!r}; expected pkg/msg/Name')
+
+
+def ament_prefixes() -> list[Path]:
+    """Return the install prefixes on AMENT_PREFIX_PATH, in lookup order."""
+    return [Path(p) for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+
+
+def find_msg_file(msgtype: str, prefixes: list[Path] | None = None) -> Path | None:
+    """Return the installed ``.msg`` file of ``msgtype``, or None."""
+    package, kind, name = split_type_name(msgtype)
+    for prefix in ament_prefixes() if prefixes is None else prefixes:
+        candidate = prefix / 'share' / package / kind / f'{name}.msg'
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+class TypeRegistry:
+    """A rosbags type store that grows on demand from installed ``.msg`` files."""
+
+    def __init__(self, *, typestore: Typestore | None = None) -> None:
+        self.typestore = typestore if typestore is not None else get_typestore(Stores.ROS2_JAZZY)
+
+    def ensure(self, msgtype: str, *, context: str = '') -> None:
+        """Make ``msgtype`` and everything it contains known to the type store.
+
+        Raises:
+            TypeDefinitionError: no definition of it (or of a field type) can be found.
+
+        """
+        pending = [msgtype]
+        while pending:
+            current = pending.pop()
+            if current in self.typestore.fielddefs:
+                continue
+            path = find_msg_file(current)
+            if path is None:
+                where = f' ({context})' if context else ''
+                raise TypeDefinitionError(
+                    f'message type {current!r}{where} has no definition: no '
+                    f'share/{"/".join(split_type_name(current))}.msg on AMENT_PREFIX_PATH. '
+                    'Build its interface package and source scripts/env.sh'
+                )
+            types = get_types_from_msg(path.read_text(encoding='utf-8'), current)
+            self.typestore.register(types)
+            for _, fields in types.values():
+                pending.extend(_referenced_types(fields))
+
+    def msgdef_and_hash(self, msgtype: str) -> tuple[str, str]:
+        """Return the ROS 2 message definition text and RIHS01 hash of ``msgtype``."""
+        self.ensure(msgtype)
+        msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
+        return msgdef, self.typestore.hash_rihs01(msgtype)
+
+
+def _referenced_types(fields: object) -> list[str]:
+    """Return the complex type names that a rosbags field list refers to."""
+    names = []
+    for _, (nodetype, detail) in fields:  # type: ignore[attr-defined]
+        if nodetype == Nodetype.NAME:
+            names.append(detail)
+        elif nodetype in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+            inner_type, inner_detail = detail[0]
+            if inner_type == Nodetype.NAME:
+                names.append(inner_detail)
+    return names
+
+
+def message_class(msgtype: str, *, topic: str | None = None) -> type:
+    """Import and return the rclpy message class of ``msgtype`` (e.g. ``nav_msgs/msg/Odometry``).
+
+    Raises:
+        TypeDefinitionError: the interface package is not built or not on the Python path.
+
+    """
+    package, kind, name = split_type_name(msgtype)
+    where = f'topic {topic!r} has type {msgtype!r}' if topic else f'type {msgtype!r}'
+    try:
+        module = importlib.import_module(f'{package}.{kind}')
+    except ImportError as err:
+        raise TypeDefinitionError(
+            f'{where}, which has no definition in this ROS environment (cannot import '
+            f'{package}.{kind}: {err}). Build its interface package, or leave the topic out'
+        ) from None
+    cls = getattr(module, name, None)
+    if not isinstance(cls, type):
+        raise TypeDefinitionError(
+            f'{where}, which has no definition in this ROS environment ({package}.{kind} '
+            f'has no {name}). Build its interface package, or leave the topic out'
+        )
+    return cls
