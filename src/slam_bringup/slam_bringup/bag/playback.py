@@ -101,7 +101,7 @@ class Prefetcher:
 
     def _run(self, source: BagSource, topics: tuple[str, ...] | None, start_ns: int | None) -> None:
         try:
-            for message in source.messages(topics, start_ns=start_ns):
+            for message in source.messages(topics, start_ns=start_ns, validate=True):
                 while not self._stop.is_set():
                     try:
                         self._queue.put(message, timeout=0.1)

@@ -74,7 +74,9 @@ class BagSource:
             raise BagError(f'bag {str(self.path)!r} does not exist')
         self.storage = storage_kind(self.path)
         try:
-            self._reader = AnyReader([self.path])
+            self._reader = AnyReader(
+                [self.path], default_typestore=get_typestore(Stores.ROS2_JAZZY)
+            )
         except Exception as err:
             raise BagError(f'bag {str(self.path)!r} cannot be read: {err}') from None
         self._converters: dict[str, Callable[[bytes], bytes]] = {}
@@ -155,9 +157,18 @@ class BagSource:
         return summaries
 
     def messages(
-        self, topics: Collection[str] | None = None, *, start_ns: int | None = None
+        self,
+        topics: Collection[str] | None = None,
+        *,
+        start_ns: int | None = None,
+        validate: bool = False,
     ) -> Iterator[BagMessage]:
-        """Yield messages in stamp order, as ROS 2 CDR, optionally from ``start_ns`` on."""
+        """Yield messages in stamp order, as ROS 2 CDR, optionally from ``start_ns`` on.
+
+        With ``validate`` every message is decoded once, so a damaged payload raises a
+        BagError naming its topic and stamp (mcap chunks written without CRC carry no other
+        integrity check).
+        """
         connections = [
             c for c in self._reader.connections if topics is None or c.topic in topics
         ]
@@ -169,11 +180,14 @@ class BagSource:
                 connections=connections, start=start_ns
             ):
                 stamp = timestamp
+                data = self._to_cdr(connection, raw)
+                if validate and not self.is_ros1:  # ROS 1 data was decoded to convert it
+                    self._check_payload(connection, timestamp, data)
                 yield BagMessage(
                     topic=connection.topic,
                     msgtype=self._ros2_name(connection.msgtype),
                     timestamp_ns=timestamp,
-                    data=self._to_cdr(connection, raw),
+                    data=data,
                 )
         except BagError:
             raise
@@ -181,6 +195,15 @@ class BagSource:
             at = '' if stamp is None else f' after stamp {stamp} ns'
             raise BagError(
                 f'bag {str(self.path)!r} is corrupt or truncated{at}: {_describe(err)}'
+            ) from None
+
+    def _check_payload(self, connection: Connection, timestamp: int, data: bytes) -> None:
+        try:
+            self._reader.typestore.deserialize_cdr(data, connection.msgtype)
+        except Exception as err:
+            raise BagError(
+                f'bag {str(self.path)!r} is corrupt: message on {connection.topic!r} at stamp '
+                f'{timestamp} ns does not decode as {connection.msgtype}: {_describe(err)}'
             ) from None
 
     @staticmethod
