@@ -59,8 +59,10 @@ if ((${#missing_apt[@]})); then
 fi
 
 # --- virtual environment ---------------------------------------------------------------
-if [[ ! -x "$VENV/bin/python" ]] || ! grep -q "^slam-mode = $MODE\$" "$VENV/pyvenv.cfg" 2>/dev/null; then
-  [[ -d "$VENV" ]] && { say "recreating .venv (ROS mode is now '$MODE')"; rm -rf "$VENV"; }
+if [[ -d "$VENV" ]] && ! grep -q "^slam-mode = $MODE\$" "$VENV/pyvenv.cfg" 2>/dev/null; then
+  die ".venv was set up for another ROS mode than '$MODE' (or is incomplete). Remove it (rm -rf .venv) and run again."
+fi
+if [[ ! -x "$VENV/bin/python" ]]; then
   say "creating .venv with $PY ($MODE mode)"
   if [[ "$MODE" == system ]]; then
     "$PY" -m venv --system-site-packages "$VENV"

@@ -35,7 +35,8 @@ def snake_case(name: str) -> str:
 def all_test_topics() -> tuple[BagTopic, ...]:
     """Standard sensor topics plus one topic per slam_interfaces message."""
     ours = tuple(
-        BagTopic(f'/slam/{snake_case(t.rsplit("/", 1)[1])}', t, 5.0) for t in slam_interface_types()
+        BagTopic(f'/slam/{snake_case(t.rsplit("/", 1)[1])}', t, 5.0)
+        for t in slam_interface_types()
     )
     return STANDARD_TOPICS + ours
 

@@ -30,9 +30,7 @@ def test_player_delivers_every_message_in_order(ros_harness: RosHarness, tmp_pat
     topics = all_test_topics()
     written = write_bag(tmp_path / 'input', topics, duration_s=1.0, seed=1)
     expected = by_topic(written)
-    collectors = {
-        t.name: ros_harness.collect(t.name, message_class(t.msgtype)) for t in topics
-    }
+    collectors = {t.name: ros_harness.collect(t.name, message_class(t.msgtype)) for t in topics}
 
     player = ros_harness.start_process(
         'player',
@@ -92,13 +90,22 @@ def test_recorder_killed_mid_run_keeps_everything_received(
     written = write_bag(tmp_path / 'input', topics, duration_s=6.0, seed=3)
     # Probe /clock, not a bag topic: the player must wait for the recorder's subscriptions.
     clock = ros_harness.collect(
-        '/clock', message_class('rosgraph_msgs/msg/Clock'),
+        '/clock',
+        message_class('rosgraph_msgs/msg/Clock'),
         QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT),
     )
     recorder = ros_harness.start_process(
         'recorder',
-        ['bag_recorder', '-a', '--exclude', '/clock', '/rosout', '/parameter_events',
-         '-o', str(tmp_path / 'recorded')],
+        [
+            'bag_recorder',
+            '-a',
+            '--exclude',
+            '/clock',
+            '/rosout',
+            '/parameter_events',
+            '-o',
+            str(tmp_path / 'recorded'),
+        ],
         env=tool_env(),
     )
     ros_harness.start_process(
@@ -127,8 +134,11 @@ def test_player_replays_sqlite3_and_ros1_bags(ros_harness: RosHarness, tmp_path:
     from rosbags.typesys import Stores, get_typestore
 
     written = write_bag(
-        tmp_path / 'sqlite', (BagTopic('/odom', 'nav_msgs/msg/Odometry', 20.0),),
-        duration_s=0.5, storage='sqlite3', seed=4,
+        tmp_path / 'sqlite',
+        (BagTopic('/odom', 'nav_msgs/msg/Odometry', 20.0),),
+        duration_s=0.5,
+        storage='sqlite3',
+        seed=4,
     )
     ros1 = get_typestore(Stores.ROS1_NOETIC)
     header_cls = ros1.types['std_msgs/msg/Header']
@@ -138,18 +148,23 @@ def test_player_replays_sqlite3_and_ros1_bags(ros_harness: RosHarness, tmp_path:
     with Ros1Writer(tmp_path / 'legacy.bag') as writer:
         connection = writer.add_connection('/wheel_odom', 'nav_msgs/msg/Odometry', typestore=ros1)
         for i, x in enumerate(ros1_x):
-            template.header = header_cls(seq=i, stamp=time_cls(sec=100 + i, nanosec=7),
-                                         frame_id='odom')
+            template.header = header_cls(
+                seq=i, stamp=time_cls(sec=100 + i, nanosec=7), frame_id='odom'
+            )
             template.pose.pose.position.x = float(x)
-            writer.write(connection, (100 + i) * 10**9 + 7,
-                         bytes(ros1.serialize_ros1(template, 'nav_msgs/msg/Odometry')))
+            writer.write(
+                connection,
+                (100 + i) * 10**9 + 7,
+                bytes(ros1.serialize_ros1(template, 'nav_msgs/msg/Odometry')),
+            )
 
     odometry = message_class('nav_msgs/msg/Odometry')
     from_sqlite = ros_harness.collect('/odom', odometry)
     from_ros1 = ros_harness.collect('/wheel_odom', odometry)
     for name, bag in (('sqlite', tmp_path / 'sqlite'), ('ros1', tmp_path / 'legacy.bag')):
         player = ros_harness.start_process(
-            name, ['bag_player', str(bag), '--wait-for-subscribers', '20', '--rate', '5'],
+            name,
+            ['bag_player', str(bag), '--wait-for-subscribers', '20', '--rate', '5'],
             env=tool_env(),
         )
         assert player.process.wait(timeout=60) == 0, player.log()

@@ -18,7 +18,11 @@ ODOM = (BagTopic('/odom', 'nav_msgs/msg/Odometry', 50.0),)
 
 def run_tool(*command: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        list(command), capture_output=True, text=True, timeout=timeout_s, env=tool_env(),
+        list(command),
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        env=tool_env(),
         check=False,
     )
 
@@ -56,8 +60,12 @@ def test_truncated_mcap_is_named(tool: str, odom_bag: Path) -> None:
     path = mcap_file(odom_bag)
     data = path.read_bytes()
     path.write_bytes(data[: len(data) * 6 // 10])
-    assert_one_line_error(run_tool(tool, str(path), '--rate', '20') if tool == 'bag_player'
-                          else run_tool(tool, str(path)), str(path))
+    assert_one_line_error(
+        run_tool(tool, str(path), '--rate', '20')
+        if tool == 'bag_player'
+        else run_tool(tool, str(path)),
+        str(path),
+    )
 
 
 def test_corrupt_payload_is_named_during_playback(odom_bag: Path) -> None:
@@ -90,16 +98,24 @@ def write_unknown_type_bag(path: Path) -> None:
     msgdef, rihs01 = registry.msgdef_and_hash('nav_msgs/msg/Odometry')
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         widgets = writer.add_connection(
-            '/widgets', 'widget_msgs/msg/Widget', typestore=registry.typestore,
+            '/widgets',
+            'widget_msgs/msg/Widget',
+            typestore=registry.typestore,
             offered_qos_profiles=[RELIABLE_QOS],
         )
         writer.add_connection(
-            '/odom', 'nav_msgs/msg/Odometry', msgdef=msgdef, rihs01=rihs01,
+            '/odom',
+            'nav_msgs/msg/Odometry',
+            msgdef=msgdef,
+            rihs01=rihs01,
             offered_qos_profiles=[RELIABLE_QOS],
         )
         for i in range(3):
-            writer.write(widgets, 10**9 + i, registry.typestore.serialize_cdr(
-                widget, 'widget_msgs/msg/Widget'))
+            writer.write(
+                widgets,
+                10**9 + i,
+                registry.typestore.serialize_cdr(widget, 'widget_msgs/msg/Widget'),
+            )
 
 
 def test_topic_without_type_definition_is_named(tmp_path: Path) -> None:
@@ -121,8 +137,12 @@ def test_unknown_topic_selection_is_named(odom_bag: Path) -> None:
 
 @pytest.mark.parametrize(
     ('option', 'value', 'parameter'),
-    [('--rate', '0', 'rate'), ('--rate', 'nan', 'rate'), ('--start-offset', '-1', 'start_offset_s'),
-     ('--clock-hz', '-5', 'clock_hz')],
+    [
+        ('--rate', '0', 'rate'),
+        ('--rate', 'nan', 'rate'),
+        ('--start-offset', '-1', 'start_offset_s'),
+        ('--clock-hz', '-5', 'clock_hz'),
+    ],
 )
 def test_invalid_player_option_names_parameter(
     odom_bag: Path, option: str, value: str, parameter: str
@@ -138,5 +158,6 @@ def test_invalid_parameter_file_value_names_parameter(odom_bag: Path, tmp_path: 
 
 
 def test_recorder_refuses_existing_output(odom_bag: Path) -> None:
-    assert_one_line_error(run_tool('bag_recorder', '-a', '-o', str(odom_bag)), str(odom_bag),
-                          'exists')
+    assert_one_line_error(
+        run_tool('bag_recorder', '-a', '-o', str(odom_bag)), str(odom_bag), 'exists'
+    )

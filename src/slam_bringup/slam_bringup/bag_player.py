@@ -42,7 +42,7 @@ from rosgraph_msgs.msg import Clock
 from slam_bringup.bag.playback import LatenessStats, PlaybackConfig, Prefetcher, TimeMapping
 from slam_bringup.bag.source import BagSource
 from slam_bringup.cli import console_main
-from slam_bringup.errors import BagError, ParameterError, SlamError
+from slam_bringup.errors import ParameterError, SlamError
 from slam_bringup.params import (
     ParamSpec,
     check,
@@ -150,8 +150,7 @@ class BagPlayerNode(Node):
                 if not self.config.loop:
                     break
         except SlamError as err:
-            self.error = err
-            self.get_logger().error(str(err))
+            self.error = err  # reported by whoever runs the node (CLI or graph runner)
         finally:
             self.finished.set()
 
@@ -188,7 +187,9 @@ class BagPlayerNode(Node):
                     mapping = TimeMapping(bag_start, time.monotonic_ns(), config.rate)
                     next_clock_ns = mapping.wall_start_ns
                 deadline = mapping.wall_deadline_ns(message.timestamp_ns)
-                next_clock_ns = self._sleep_until(deadline, mapping, next_clock_ns, clock_period_ns)
+                next_clock_ns = self._sleep_until(
+                    deadline, mapping, next_clock_ns, clock_period_ns
+                )
                 if self._stop.is_set():
                     return
                 self.publishers_by_topic[message.topic].publish(message.data)
@@ -255,7 +256,9 @@ def build_arg_parser() -> argparse.ArgumentParser:
     parser.add_argument('-l', '--loop', action='store_true', default=None, help='loop forever')
     parser.add_argument('--clock-hz', type=float, help='/clock rate in Hz, 0 disables it')
     parser.add_argument(
-        '--wait-for-subscribers', type=float, metavar='S',
+        '--wait-for-subscribers',
+        type=float,
+        metavar='S',
         help='wait up to S seconds for subscribers on every topic before starting',
     )
     return parser
@@ -264,9 +267,14 @@ def build_arg_parser() -> argparse.ArgumentParser:
 def overrides_from_args(args: argparse.Namespace) -> list[rclpy.parameter.Parameter]:
     """Turn given command-line options into parameter overrides."""
     mapping = {
-        'bag_path': args.bag, 'rate': args.rate, 'start_offset_s': args.start_offset,
-        'topics': args.topics, 'remap': args.remap, 'loop': args.loop,
-        'clock_hz': args.clock_hz, 'wait_for_subscribers_s': args.wait_for_subscribers,
+        'bag_path': args.bag,
+        'rate': args.rate,
+        'start_offset_s': args.start_offset,
+        'topics': args.topics,
+        'remap': args.remap,
+        'loop': args.loop,
+        'clock_hz': args.clock_hz,
+        'wait_for_subscribers_s': args.wait_for_subscribers,
     }
     return [
         rclpy.parameter.Parameter(name, value=value)

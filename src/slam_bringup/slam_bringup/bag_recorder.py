@@ -23,6 +23,7 @@ Frames: none (messages are stored as received).
 from __future__ import annotations
 
 import argparse
+import functools
 import signal
 import sys
 import threading
@@ -94,8 +95,9 @@ class BagRecorderNode(Node):
             if not self._wanted(topic) or self.writer.has_topic(topic) or self.writer.closed:
                 continue
             if len(types) > 1:
-                self.get_logger().warning(f'topic {topic!r} has several types {types}; '
-                                          f'recording {types[0]!r}')
+                self.get_logger().warning(
+                    f'topic {topic!r} has several types {types}; recording {types[0]!r}'
+                )
             try:
                 self._subscribe(topic, types[0])
             except SlamError as err:
@@ -109,7 +111,10 @@ class BagRecorderNode(Node):
         publishers = self.get_publishers_info_by_topic(topic)
         offered = [info.qos_profile for info in publishers]
         self.writer.add_topic(
-            topic, msgtype, msgdef=msgdef, rihs01=rihs01,
+            topic,
+            msgtype,
+            msgdef=msgdef,
+            rihs01=rihs01,
             offered_qos=[recorded_from_profile(q) for q in offered],
         )
         qos = QoSProfile(
@@ -123,7 +128,7 @@ class BagRecorderNode(Node):
             else DurabilityPolicy.VOLATILE,
         )
         self.create_subscription(
-            cls, topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True
+            cls, topic, functools.partial(self._on_message, topic), qos, raw=True
         )
         self.get_logger().info(f'recording {topic!r} ({msgtype})')
 
@@ -176,7 +181,9 @@ def main(argv: list[str] | None = None) -> int:
     if bool(args.topics) == bool(args.all):
         print('bag_recorder: error: give topics to record, or --all', file=sys.stderr)  # noqa: T201
         return 2
-    overrides = [rclpy.parameter.Parameter('topics', value=list(args.topics))] if args.topics else []
+    overrides = (
+        [rclpy.parameter.Parameter('topics', value=list(args.topics))] if args.topics else []
+    )
     if args.output:
         overrides.append(rclpy.parameter.Parameter('output', value=args.output))
     if args.exclude:

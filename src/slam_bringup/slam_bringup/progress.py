@@ -78,7 +78,7 @@ class ProgressReporter:
         item_rate = f' {self.items} msgs ({self.items / elapsed:.1f}/s)' if self.items else ''
         bar = ''
         if self.is_tty:
-            filled = int(round(fraction * BAR_WIDTH))
+            filled = round(fraction * BAR_WIDTH)
             bar = '[' + '#' * filled + '-' * (BAR_WIDTH - filled) + '] '
         return (
             f'{self.label} {bar}{100 * fraction:5.1f}% {self.done:.1f}/{self.total:.1f}'

@@ -12,8 +12,8 @@ import importlib
 import os
 from pathlib import Path
 
+from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from rosbags.typesys.base import Nodetype
 from rosbags.typesys.store import Typestore
 
 from slam_bringup.errors import TypeDefinitionError

@@ -62,8 +62,12 @@ class LatenessStats:
     def summary_ms(self) -> dict[str, float]:
         """Return count, median, p95 and max lateness in milliseconds."""
         if not self.samples_ns:
-            return {'count': 0, 'median_ms': float('nan'), 'p95_ms': float('nan'),
-                    'max_ms': float('nan')}
+            return {
+                'count': 0,
+                'median_ms': float('nan'),
+                'p95_ms': float('nan'),
+                'max_ms': float('nan'),
+            }
         ordered = sorted(self.samples_ns)
         p95 = ordered[min(len(ordered) - 1, int(0.95 * len(ordered)))]
         return {
@@ -99,7 +103,9 @@ class Prefetcher:
         )
         self._thread.start()
 
-    def _run(self, source: BagSource, topics: tuple[str, ...] | None, start_ns: int | None) -> None:
+    def _run(
+        self, source: BagSource, topics: tuple[str, ...] | None, start_ns: int | None
+    ) -> None:
         try:
             for message in source.messages(topics, start_ns=start_ns, validate=True):
                 while not self._stop.is_set():

@@ -34,8 +34,10 @@ class AtomicBagWriter:
         if self.target.exists():
             raise BagError(f'output {str(self.target)!r} exists already; choose another name')
         if not self.target.parent.is_dir():
-            raise BagError(f'output {str(self.target)!r}: directory {str(self.target.parent)!r} '
-                           'does not exist')
+            raise BagError(
+                f'output {str(self.target)!r}: directory {str(self.target.parent)!r} '
+                'does not exist'
+            )
         self.staging_root = self.target.parent / f'.{self.target.name}.recording-{os.getpid()}'
         self.staging = self.staging_root / self.target.name
         try:

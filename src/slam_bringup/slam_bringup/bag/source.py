@@ -169,9 +169,7 @@ class BagSource:
         BagError naming its topic and stamp (mcap chunks written without CRC carry no other
         integrity check).
         """
-        connections = [
-            c for c in self._reader.connections if topics is None or c.topic in topics
-        ]
+        connections = [c for c in self._reader.connections if topics is None or c.topic in topics]
         if not connections:
             return
         stamp = start_ns
@@ -232,8 +230,14 @@ class BagSource:
         cache: dict[str, object] = {}
         return lambda raw: bytes(
             migrate_bytes(
-                source_store, target_store, msgtype, msgtype, cache, raw,
-                src_is2=False, dst_is2=True,
+                source_store,
+                target_store,
+                msgtype,
+                msgtype,
+                cache,
+                raw,
+                src_is2=False,
+                dst_is2=True,
             )
         )
 

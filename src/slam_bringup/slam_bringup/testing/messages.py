@@ -9,25 +9,47 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability
-from rosbags.interfaces import QosTime
-from rosbags.typesys.base import Nodetype
+from rosbags.interfaces import (
+    Nodetype,
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 
 from slam_bringup.typesys import TypeRegistry
 
 _NUMPY_TYPES = {
-    'bool': np.bool_, 'byte': np.uint8, 'char': np.uint8, 'int8': np.int8, 'uint8': np.uint8,
-    'int16': np.int16, 'uint16': np.uint16, 'int32': np.int32, 'uint32': np.uint32,
-    'int64': np.int64, 'uint64': np.uint64, 'float32': np.float32, 'float64': np.float64,
+    'bool': np.bool_,
+    'byte': np.uint8,
+    'char': np.uint8,
+    'int8': np.int8,
+    'uint8': np.uint8,
+    'int16': np.int16,
+    'uint16': np.uint16,
+    'int32': np.int32,
+    'uint32': np.uint32,
+    'int64': np.int64,
+    'uint64': np.uint64,
+    'float32': np.float32,
+    'float64': np.float64,
 }
 _INFINITE = QosTime(0x7FFFFFFF, 0xFFFFFFFF)
 
 RELIABLE_QOS = Qos(
-    history=QosHistory.KEEP_LAST, depth=100, reliability=QosReliability.RELIABLE,
-    durability=QosDurability.VOLATILE, deadline=_INFINITE, lifespan=_INFINITE,
-    liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=_INFINITE,
+    history=QosHistory.KEEP_LAST,
+    depth=100,
+    reliability=QosReliability.RELIABLE,
+    durability=QosDurability.VOLATILE,
+    deadline=_INFINITE,
+    lifespan=_INFINITE,
+    liveliness=QosLiveliness.AUTOMATIC,
+    liveliness_lease_duration=_INFINITE,
     avoid_ros_namespace_conventions=False,
 )
 
@@ -63,15 +85,18 @@ def random_message(
     registry.ensure(msgtype)
     store = registry.typestore
     _, fields = store.fielddefs[msgtype]
-    values: dict[str, object] = {}
-    for name, (nodetype, detail) in fields:
+    values: dict[str, Any] = {}
+    for name, (nodetype, field_detail) in fields:
+        detail: Any = field_detail  # rosbags' field union; its shape depends on nodetype
         if nodetype == Nodetype.BASE:
             values[name] = _scalar(detail[0], rng)
         elif nodetype == Nodetype.NAME:
             values[name] = random_message(registry, detail, rng, max_sequence=max_sequence)
         else:
             (inner_type, inner_detail), bound = detail
-            length = bound if nodetype == Nodetype.ARRAY else int(rng.integers(1, max_sequence + 1))
+            length = (
+                bound if nodetype == Nodetype.ARRAY else int(rng.integers(1, max_sequence + 1))
+            )
             if inner_type == Nodetype.BASE:
                 values[name] = _array(inner_detail[0], length, rng)
             else:
@@ -134,7 +159,10 @@ def write_bag(
         for topic in topics:
             msgdef, rihs01 = registry.msgdef_and_hash(topic.msgtype)
             connections[topic.name] = writer.add_connection(
-                topic.name, topic.msgtype, msgdef=msgdef, rihs01=rihs01,
+                topic.name,
+                topic.msgtype,
+                msgdef=msgdef,
+                rihs01=rihs01,
                 offered_qos_profiles=[qos],
             )
         schedule = sorted(
