@@ -93,6 +93,9 @@ def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]
             value = list(spec.default) if isinstance(spec.default, list) else spec.default
         elif isinstance(value, (list, tuple)) or hasattr(value, 'tolist'):
             value = list(value)
+            if ptype == Parameter.Type.STRING_ARRAY:
+                # YAML parameter files cannot hold an empty list; [''] stands for one.
+                value = [item for item in value if item != '']
         values[spec.name] = value
     return values
 

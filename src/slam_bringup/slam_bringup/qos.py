@@ -70,9 +70,10 @@ def _duration(value: QosTime) -> Duration | None:
 def profile_from_recorded(offered: Sequence[Qos], *, latched: bool = False) -> QoSProfile:
     """Return the publisher QoS to replay a topic with, from its recorded offered profiles.
 
-    With several recorded publishers the most permissive-to-match profile is kept: reliable
-    only if all were reliable, transient-local only if all were. ROS 1 topics (no profiles)
-    replay reliable, and transient-local when they were latched.
+    As rosbag2's player: profiles that all agree replay as recorded. Publishers that
+    disagreed replay reliable (a reliable publisher matches every subscriber) and
+    transient-local only if all were. ROS 1 topics (no profiles) replay reliable, and
+    transient-local when they were latched.
     """
     if not offered:
         return QoSProfile(
@@ -81,15 +82,16 @@ def profile_from_recorded(offered: Sequence[Qos], *, latched: bool = False) -> Q
             durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
         )
     first = offered[0]
-    all_reliable = all(q.reliability == QosReliability.RELIABLE for q in offered)
+    agree = all(q.reliability == first.reliability for q in offered)
     all_latched = all(q.durability == QosDurability.TRANSIENT_LOCAL for q in offered)
-    keep_all = first.history == QosHistory.KEEP_ALL
     profile = QoSProfile(
-        history=HistoryPolicy.KEEP_ALL if keep_all else HistoryPolicy.KEEP_LAST,
+        history=HistoryPolicy.KEEP_ALL
+        if first.history == QosHistory.KEEP_ALL
+        else HistoryPolicy.KEEP_LAST,
         depth=max(q.depth for q in offered) or DEFAULT_DEPTH,
-        reliability=_RELIABILITY[QosReliability.RELIABLE]
-        if all_reliable
-        else _RELIABILITY.get(first.reliability, ReliabilityPolicy.BEST_EFFORT),
+        reliability=_RELIABILITY.get(first.reliability, ReliabilityPolicy.RELIABLE)
+        if agree
+        else ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if all_latched else DurabilityPolicy.VOLATILE,
     )
     if (deadline := _duration(first.deadline)) is not None:

@@ -1,0 +1,32 @@
+"""Each node's docstring and config YAML agree with the parameters it declares."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from slam_bringup import bag_player, bag_recorder
+from slam_bringup.testing.node_contract import config_mismatches, undocumented_parameters
+
+CONFIG = Path(__file__).resolve().parents[1] / 'config'
+NODES = [(bag_player, 'bag_player.yaml'), (bag_recorder, 'bag_recorder.yaml')]
+
+
+@pytest.mark.parametrize(('module', 'config'), NODES, ids=[c for _, c in NODES])
+def test_docstring_lists_every_parameter(module: object, config: str) -> None:
+    assert undocumented_parameters(module) == []  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(('module', 'config'), NODES, ids=[c for _, c in NODES])
+def test_config_yaml_matches_declared_parameters(module: object, config: str) -> None:
+    assert config_mismatches(module, CONFIG / config) == []  # type: ignore[arg-type]
+
+
+def test_contract_check_catches_a_stray_key(tmp_path: Path) -> None:
+    stray = tmp_path / 'bad.yaml'
+    stray.write_text('/**:\n  ros__parameters:\n    rate: fast\n    speed: 2.0\n')
+    problems = config_mismatches(bag_player, stray)  # type: ignore[arg-type]
+    assert any('speed is not a parameter' in p for p in problems)
+    assert any('rate=' in p for p in problems)
+    assert any('bag_path is missing' in p for p in problems)
