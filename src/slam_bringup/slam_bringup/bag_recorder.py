@@ -33,6 +33,7 @@ from pathlib import Path
 from types import FrameType
 
 import rclpy
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -83,7 +84,10 @@ class BagRecorderNode(Node):
             f'{str(self.writer.target)!r} (staged in {str(self.writer.staging)!r})'
         )
         self._discover()
-        self.create_timer(self.discovery_period_s, self._discover)
+        # Steady clock: with use_sim_time a ROS-time timer would wait for /clock to move.
+        self.create_timer(
+            self.discovery_period_s, self._discover, clock=Clock(clock_type=ClockType.STEADY_TIME)
+        )
 
     def _wanted(self, topic: str) -> bool:
         if self.selected:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -133,7 +133,9 @@ class RosHarness:
     def __init__(self, log_dir: Path, *, name: str = 'test_harness') -> None:
         self.log_dir = log_dir
         self.node = Node(name)
-        self.executor = MultiThreadedExecutor(num_threads=4)
+        # Single-threaded on purpose: Jazzy's MultiThreadedExecutor busy-loops while
+        # callbacks are queued (ros2/rclpy#1452) and starves other Python threads.
+        self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
         self._nodes: list[Node] = []
         self._processes: list[NodeProcess] = []
