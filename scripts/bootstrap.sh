@@ -19,10 +19,18 @@ die() { printf '[bootstrap] error: %s\n' "$*" >&2; exit 1; }
 hash_of() { { cat "$@" 2>/dev/null || true; } | sha256sum | cut -c1-16; }
 
 # --- ROS mode --------------------------------------------------------------------------
-if [[ "${ROS_DISTRO:-}" == "jazzy" && -n "${AMENT_PREFIX_PATH:-}" ]]; then
-  MODE=system            # a sourced /opt/ros/jazzy (or another Jazzy underlay)
-elif [[ -n "${ROS_DISTRO:-}" ]]; then
-  die "ROS_DISTRO=$ROS_DISTRO is sourced, but this suite targets Jazzy. Open a shell without it, or source /opt/ros/jazzy/setup.bash."
+# System mode: a sourced Jazzy underlay (e.g. /opt/ros/jazzy) that provides rclpy. Prefixes
+# inside this repository (our .venv and ros2_ws/install, as set by scripts/env.sh) do not count.
+system_prefix=""
+IFS=':' read -r -a _prefixes <<<"${AMENT_PREFIX_PATH:-}"
+for prefix in "${_prefixes[@]}"; do
+  [[ -n "$prefix" && "$prefix" != "$ROOT"/* && -f "$prefix/share/rclpy/package.xml" ]] || continue
+  system_prefix="$prefix"; break
+done
+if [[ -n "$system_prefix" ]]; then
+  [[ "${ROS_DISTRO:-}" == "jazzy" ]] ||
+    die "ROS_DISTRO=${ROS_DISTRO:-unset} is sourced from $system_prefix, but this suite targets Jazzy. Open a shell without it, or source /opt/ros/jazzy/setup.bash."
+  MODE=system
 else
   MODE=wheels
 fi

@@ -1,0 +1,661 @@
+"""GRAPH files: the YAML description of a node graph, read by slam_run and graph.launch.py.
+
+A GRAPH file holds one ``graph`` mapping (only ``name``, ``package`` and ``executable`` of
+each node are required)::
+
+    graph:
+      description: Replay a bag and record it
+      use_sim_time: true            # set on every node when given
+      exit_when_player_done: true   # stop the graph once the player has played the bag
+      nodes:                        # may be empty or absent
+        - name: odometry_ingest     # node name, unique (with its namespace) in the graph
+          package: em_sam_node      # ROS package of the executable
+          executable: odometry_ingest   # console script in lib/<package>/
+          plugin: em_sam_node.odometry_ingest.node:OdometryIngestNode  # in-process class
+          namespace: ''
+          parameters: [../config/odometry_ingest.yaml, {max_gap_s: 0.5}]  # later wins
+          remappings: {odom: /wheel/odom}   # or ['odom:=/wheel/odom']
+      player:                       # a bag_player node named bag_player
+        bag: ../../../bags/sample   # or --bag; parameters as bag_player's (rate, topics, ...)
+      recorder:                     # a bag_recorder node named bag_recorder
+        output: out/run             # or --record; topics: [...] (empty: all topics)
+
+Parameter files and ``player.bag`` are relative to the GRAPH file's directory;
+``recorder.output`` is relative to the current directory, like ``ros2 bag record -o``.
+
+``load_graph`` validates a file into frozen dataclasses and raises ``GraphError`` naming the
+file and the key path; ``node_descriptions`` turns a graph into plain node descriptions
+(package, executable, plugin, name, namespace, parameters, remappings), which the launch file
+maps onto launch_ros ``Node`` actions and slam_run onto nodes or processes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import os
+import re
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+from slam_bringup.errors import GraphError
+
+PLAYER_PLUGIN = 'slam_bringup.bag_player:BagPlayerNode'
+RECORDER_PLUGIN = 'slam_bringup.bag_recorder:BagRecorderNode'
+
+_NAME = re.compile(r'[A-Za-z_][A-Za-z0-9_]*')
+_PACKAGE = re.compile(r'[A-Za-z][A-Za-z0-9_]*')
+_PLUGIN = re.compile(r'[A-Za-z_][A-Za-z0-9_.]*:[A-Za-z_][A-Za-z0-9_]*')
+_NAMESPACE = re.compile(r'/?([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?')
+_TOPIC = re.compile(r'[~/A-Za-z_{][A-Za-z0-9_/{}~]*')
+_PARAMETER = re.compile(r'[A-Za-z_][A-Za-z0-9_.]*')
+
+ParameterSource = Path | dict[str, Any]
+Remapping = tuple[str, str]
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One entry of ``graph.nodes``; ``key`` is its path in the file (``graph.nodes[2]``)."""
+
+    key: str
+    name: str
+    package: str
+    executable: str
+    plugin: str | None
+    namespace: str
+    parameters: tuple[ParameterSource, ...]
+    remappings: tuple[Remapping, ...]
+
+
+@dataclass(frozen=True)
+class PlayerSpec:
+    """``graph.player``: bag_player parameters; None leaves the node's default."""
+
+    bag: Path | None = None
+    rate: float | None = None
+    start_offset_s: float | None = None
+    topics: tuple[str, ...] = ()
+    remap: tuple[Remapping, ...] = ()
+    loop: bool | None = None
+    clock_hz: float | None = None
+    wait_for_subscribers_s: float | None = None
+    progress_period_s: float | None = None
+
+
+@dataclass(frozen=True)
+class RecorderSpec:
+    """``graph.recorder``: bag_recorder parameters; None leaves the node's default."""
+
+    output: Path | None = None
+    topics: tuple[str, ...] = ()
+    exclude: tuple[str, ...] | None = None
+    discovery_period_s: float | None = None
+    queue_depth: int | None = None
+
+
+@dataclass(frozen=True)
+class Graph:
+    """A validated GRAPH file."""
+
+    path: Path
+    description: str
+    nodes: tuple[NodeSpec, ...]
+    player: PlayerSpec | None
+    recorder: RecorderSpec | None
+    use_sim_time: bool | None
+    exit_when_player_done: bool
+
+    def error(self, key: str, message: str) -> GraphError:
+        """Return a GraphError ``graph '<file>': <key>: <message>``."""
+        return graph_error(self.path, key, message)
+
+
+def graph_error(path: Path, key: str, message: str) -> GraphError:
+    """Return a GraphError ``graph '<file>': <key>: <message>``."""
+    return GraphError(f'graph {str(path)!r}: {key}: {message}')
+
+
+@dataclass(frozen=True)
+class NodeDescription:
+    """A node to start: what launch_ros ``Node`` takes, plus the in-process class.
+
+    ``parameters`` are files and inline dicts in order (later wins); ``arguments`` go on the
+    executable's command line before ``--ros-args`` (process mode and launch only);
+    ``role`` is ``node``, ``player`` or ``recorder``; ``key`` is the GRAPH key it came from.
+    """
+
+    key: str
+    role: str
+    name: str
+    package: str
+    executable: str
+    plugin: str | None
+    namespace: str
+    parameters: tuple[ParameterSource, ...]
+    remappings: tuple[Remapping, ...]
+    arguments: tuple[str, ...] = ()
+
+    @property
+    def fully_qualified_name(self) -> str:
+        """Return ``/namespace/name``."""
+        return f'{self.namespace.rstrip("/")}/{self.name}'
+
+
+# -- YAML ---------------------------------------------------------------------------------
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """A SafeLoader that rejects duplicate mapping keys instead of keeping the last one."""
+
+
+def _construct_unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> Any:
+    seen: set[object] = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node)
+        if isinstance(key, str | int | float | bool) and key in seen:
+            raise yaml.constructor.ConstructorError(
+                None, None, f'duplicate key {key!r}', key_node.start_mark
+            )
+        seen.add(key)
+    return loader.construct_mapping(node)
+
+
+_UniqueKeyLoader.add_constructor(
+    yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
+    _construct_unique_mapping,
+)
+
+
+def read_yaml(path: Path, label: str) -> Any:
+    """Parse a YAML file; raise GraphError ``<label>: ...`` naming the line of a syntax error."""
+    try:
+        text = path.read_text(encoding='utf-8')
+    except FileNotFoundError:
+        raise GraphError(f'{label} does not exist') from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise GraphError(f'{label} cannot be read: {err}') from None
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)
+    except yaml.MarkedYAMLError as err:
+        mark = err.problem_mark or err.context_mark
+        where = f'line {mark.line + 1}, column {mark.column + 1}: ' if mark else ''
+        problem = err.problem or err.context or 'invalid YAML'
+        raise GraphError(f'{label}: {where}YAML syntax error: {problem}') from None
+    except yaml.YAMLError as err:
+        raise GraphError(f'{label}: YAML error: {err}') from None
+
+
+# -- validation helpers -------------------------------------------------------------------
+class _Checker:
+    """Type and key checks that raise GraphError naming the file and the key path."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def error(self, key: str, message: str) -> GraphError:
+        return graph_error(self.path, key, message)
+
+    def mapping(
+        self, value: object, key: str, required: tuple[str, ...], optional: tuple[str, ...]
+    ) -> dict[str, Any]:
+        """Check a mapping's keys; ``key`` is its path, '' for the top level of the file."""
+        if not isinstance(value, dict):
+            raise self.error(key or 'top level', f'must be a mapping, got {_describe(value)}')
+        allowed = (*required, *optional)
+        for name in value:
+            if name not in allowed:
+                close = difflib.get_close_matches(str(name), allowed, n=1)
+                hint = f"did you mean '{close[0]}'? " if close else ''
+                raise self.error(
+                    _join(key, name), f'unknown key; {hint}allowed keys: {", ".join(allowed)}'
+                )
+        for name in required:
+            if name not in value:
+                raise self.error(_join(key, name), 'missing required key')
+        return value
+
+    def string(self, value: object, key: str, pattern: re.Pattern[str] | None = None) -> str:
+        if not isinstance(value, str):
+            raise self.error(key, f'must be a string, got {_describe(value)}')
+        if pattern is not None and not pattern.fullmatch(value):
+            raise self.error(key, f'{value!r} is not a valid name (pattern {pattern.pattern})')
+        return value
+
+    def boolean(self, value: object, key: str) -> bool:
+        if not isinstance(value, bool):
+            raise self.error(key, f'must be true or false, got {_describe(value)}')
+        return value
+
+    def number(self, value: object, key: str, *, positive: bool = False) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.error(key, f'must be a number, got {_describe(value)}')
+        if value != value or value < 0 or (positive and value == 0):  # NaN fails the first
+            raise self.error(key, f'{value!r} must be {"> 0" if positive else ">= 0"}')
+        return float(value)
+
+    def positive(self, value: object, key: str) -> float:
+        return self.number(value, key, positive=True)
+
+    def integer(self, value: object, key: str) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise self.error(key, f'must be an integer >= 1, got {_describe(value)}')
+        return value
+
+    def strings(self, value: object, key: str) -> tuple[str, ...]:
+        if not isinstance(value, list):
+            raise self.error(key, f'must be a list of strings, got {_describe(value)}')
+        return tuple(self.string(item, f'{key}[{i}]', _TOPIC) for i, item in enumerate(value))
+
+    def remappings(self, value: object, key: str) -> tuple[Remapping, ...]:
+        """Accept ``{from: to}`` or ``['from:=to']``; reject bad names and repeated sources."""
+        pairs: list[tuple[str, object, object]] = []
+        if isinstance(value, dict):
+            pairs = [(f'{key}.{source}', source, target) for source, target in value.items()]
+        elif isinstance(value, list):
+            for index, entry in enumerate(value):
+                where = f'{key}[{index}]'
+                text = self.string(entry, where)
+                source, sep, target = text.partition(':=')
+                if not sep:
+                    raise self.error(where, f"{text!r} is not of the form 'from:=to'")
+                pairs.append((where, source.strip(), target.strip()))
+        else:
+            raise self.error(
+                key,
+                f"must be a mapping {{from: to}} or a list of 'from:=to', got {_describe(value)}",
+            )
+        remaps: dict[str, str] = {}
+        for where, raw_source, raw_target in pairs:
+            names = [self._topic(name, where) for name in (raw_source, raw_target)]
+            if names[0].startswith('__'):
+                raise self.error(where, f'set {names[0]!r} with the name and namespace keys')
+            if names[0] in remaps:
+                raise self.error(where, f'{names[0]!r} is remapped twice')
+            remaps[names[0]] = names[1]
+        return tuple(remaps.items())
+
+    def _topic(self, name: object, key: str) -> str:
+        if not isinstance(name, str) or not _TOPIC.fullmatch(name):
+            raise self.error(key, f'{name!r} is not a valid topic or service name')
+        return name
+
+    def path_relative(self, value: object, key: str) -> Path:
+        text = self.string(value, key)
+        if not text:
+            raise self.error(key, 'must not be empty')
+        path = Path(text).expanduser()
+        return path if path.is_absolute() else self.path.parent / path
+
+
+def _join(key: str, name: object) -> str:
+    return f'{key}.{name}' if key else str(name)
+
+
+def _describe(value: object) -> str:
+    if value is None:
+        return 'nothing (null)'
+    return f'{type(value).__name__} {value!r}'
+
+
+# -- sections -----------------------------------------------------------------------------
+_NODE_REQUIRED = ('name', 'package', 'executable')
+_NODE_OPTIONAL = ('plugin', 'namespace', 'parameters', 'remappings')
+_PLAYER_KEYS = (
+    'bag',
+    'rate',
+    'start_offset_s',
+    'topics',
+    'remap',
+    'loop',
+    'clock_hz',
+    'wait_for_subscribers_s',
+    'progress_period_s',
+)
+_RECORDER_KEYS = ('output', 'topics', 'exclude', 'discovery_period_s', 'queue_depth')
+_GRAPH_KEYS = (
+    'description',
+    'nodes',
+    'player',
+    'recorder',
+    'use_sim_time',
+    'exit_when_player_done',
+)
+
+
+def _namespace(check: _Checker, value: object, key: str) -> str:
+    text = check.string(value, key).strip()
+    if not _NAMESPACE.fullmatch(text):
+        raise check.error(key, f'{text!r} is not a valid namespace (like robot1 or /robot1)')
+    return '/' + text.strip('/') if text.strip('/') else ''
+
+
+def _parameter_file(check: _Checker, value: object, key: str) -> Path:
+    path = check.path_relative(value, key)
+    if not path.is_file():
+        looked = '' if str(path) == value else f' (looked for {str(path)!r})'
+        raise check.error(key, f'file {value!r} does not exist{looked}')
+    content = read_yaml(path, f'graph {str(check.path)!r}: {key}: file {str(path)!r}')
+    if not _has_ros_parameters(content):
+        raise check.error(
+            key,
+            f"file {str(path)!r} has no 'ros__parameters' key; parameter files look like "
+            "'/**: {ros__parameters: {name: value}}'",
+        )
+    return path
+
+
+def _has_ros_parameters(content: object) -> bool:
+    if not isinstance(content, dict):
+        return False
+    return 'ros__parameters' in content or any(_has_ros_parameters(v) for v in content.values())
+
+
+def _parameter_value(check: _Checker, value: object, key: str) -> None:
+    scalar = {bool, int, float, str}
+    if isinstance(value, dict):
+        _inline_parameters(check, value, key)
+    elif isinstance(value, list):
+        if not value:
+            raise check.error(key, 'an empty list has no ROS parameter type; leave it out')
+        kinds = {type(item) for item in value}  # bool is not int here
+        if len(kinds) > 1 or not kinds <= scalar:
+            raise check.error(
+                key,
+                f'a list must hold values of one type (bool, int, float or string; '
+                f'write 1.0 for a float), got {value!r}',
+            )
+    elif type(value) not in scalar:
+        raise check.error(
+            key, f'must be a bool, number, string, list or mapping, got {_describe(value)}'
+        )
+
+
+def _inline_parameters(check: _Checker, value: dict[Any, Any], key: str) -> dict[str, Any]:
+    for name, item in value.items():
+        if not isinstance(name, str) or not _PARAMETER.fullmatch(name):
+            raise check.error(f'{key}.{name}', 'is not a valid parameter name')
+        _parameter_value(check, item, f'{key}.{name}')
+    return value
+
+
+def _node(check: _Checker, value: object, key: str) -> NodeSpec:
+    entry = check.mapping(value, key, _NODE_REQUIRED, _NODE_OPTIONAL)
+    plugin = entry.get('plugin')
+    parameters: list[ParameterSource] = []
+    raw_parameters = entry.get('parameters', [])
+    if not isinstance(raw_parameters, list):
+        raise check.error(
+            f'{key}.parameters',
+            f'must be a list of files and mappings, got {_describe(raw_parameters)}',
+        )
+    for index, item in enumerate(raw_parameters):
+        where = f'{key}.parameters[{index}]'
+        if isinstance(item, dict):
+            parameters.append(_inline_parameters(check, item, where))
+        else:
+            parameters.append(_parameter_file(check, item, where))
+    return NodeSpec(
+        key=key,
+        name=check.string(entry['name'], f'{key}.name', _NAME),
+        package=check.string(entry['package'], f'{key}.package', _PACKAGE),
+        executable=check.string(entry['executable'], f'{key}.executable', _NAME),
+        plugin=None if plugin is None else check.string(plugin, f'{key}.plugin', _PLUGIN),
+        namespace=_namespace(check, entry.get('namespace', ''), f'{key}.namespace'),
+        parameters=tuple(parameters),
+        remappings=check.remappings(entry.get('remappings', {}), f'{key}.remappings'),
+    )
+
+
+def _optional(
+    entry: dict[str, Any], name: str, convert: Callable[[object, str], Any], key: str
+) -> Any:
+    return convert(entry[name], f'{key}.{name}') if name in entry else None
+
+
+def _player(check: _Checker, value: object, key: str) -> PlayerSpec:
+    entry = check.mapping(value, key, (), _PLAYER_KEYS)
+    positive = check.positive
+    return PlayerSpec(
+        bag=_optional(entry, 'bag', check.path_relative, key),
+        rate=_optional(entry, 'rate', positive, key),
+        start_offset_s=_optional(entry, 'start_offset_s', check.number, key),
+        topics=_optional(entry, 'topics', check.strings, key) or (),
+        remap=_optional(entry, 'remap', check.remappings, key) or (),
+        loop=_optional(entry, 'loop', check.boolean, key),
+        clock_hz=_optional(entry, 'clock_hz', check.number, key),
+        wait_for_subscribers_s=_optional(entry, 'wait_for_subscribers_s', check.number, key),
+        progress_period_s=_optional(entry, 'progress_period_s', positive, key),
+    )
+
+
+def _recorder(check: _Checker, value: object, key: str) -> RecorderSpec:
+    entry = check.mapping(value, key, (), _RECORDER_KEYS)
+    output = _optional(entry, 'output', check.string, key)
+    if output == '':
+        raise check.error(f'{key}.output', 'must not be empty; leave it out for the default')
+    return RecorderSpec(
+        output=None if output is None else Path(output).expanduser(),
+        topics=_optional(entry, 'topics', check.strings, key) or (),
+        exclude=_optional(entry, 'exclude', check.strings, key),
+        discovery_period_s=_optional(entry, 'discovery_period_s', check.positive, key),
+        queue_depth=_optional(entry, 'queue_depth', check.integer, key),
+    )
+
+
+def load_graph(path: Path | str) -> Graph:
+    """Read and validate a GRAPH file (raises GraphError naming the file and the key)."""
+    path = Path(path)
+    check = _Checker(path)
+    content = read_yaml(path, f'graph {str(path)!r}')
+    if content is None:
+        raise GraphError(f"graph {str(path)!r} is empty; it needs a 'graph' mapping")
+    root = check.mapping(content, '', ('graph',), ())
+    if root['graph'] is None:
+        root['graph'] = {}
+    entry = check.mapping(root['graph'], 'graph', (), _GRAPH_KEYS)
+    raw_nodes = entry.get('nodes') or []
+    if not isinstance(raw_nodes, list):
+        raise check.error('graph.nodes', f'must be a list, got {_describe(raw_nodes)}')
+    nodes = tuple(_node(check, item, f'graph.nodes[{i}]') for i, item in enumerate(raw_nodes))
+    player = (
+        None if entry.get('player') is None else _player(check, entry['player'], 'graph.player')
+    )
+    recorder = entry.get('recorder')
+    graph = Graph(
+        path=path,
+        description=check.string(entry.get('description', ''), 'graph.description'),
+        nodes=nodes,
+        player=player,
+        recorder=None if recorder is None else _recorder(check, recorder, 'graph.recorder'),
+        use_sim_time=_optional(entry, 'use_sim_time', check.boolean, 'graph'),
+        exit_when_player_done=bool(
+            _optional(entry, 'exit_when_player_done', check.boolean, 'graph')
+        ),
+    )
+    _check_unique_names(graph)
+    return graph
+
+
+def _check_unique_names(graph: Graph) -> None:
+    seen: dict[str, str] = {}
+    if graph.player is not None:
+        seen['/bag_player'] = 'graph.player'
+    if graph.recorder is not None:
+        seen['/bag_recorder'] = 'graph.recorder'
+    for node in graph.nodes:
+        name = f'{node.namespace}/{node.name}'
+        if name in seen:
+            raise graph.error(f'{node.key}.name', f'node {name!r} is also {seen[name]}')
+        seen[name] = node.key
+
+
+# -- overrides and node descriptions ------------------------------------------------------
+def with_overrides(
+    graph: Graph,
+    *,
+    bag: Path | None = None,
+    rate: float | None = None,
+    record: Path | None = None,
+    exit_when_player_done: bool = False,
+) -> Graph:
+    """Return ``graph`` with command-line overrides applied.
+
+    ``bag`` replaces ``player.bag`` (and adds a player if there is none); ``record`` replaces
+    ``recorder.output`` (and adds a recorder of every topic if there is none).
+    """
+    player = graph.player
+    if bag is not None:
+        player = dataclasses.replace(player or PlayerSpec(), bag=bag)
+    if rate is not None:
+        if player is None:
+            raise GraphError(f'graph {str(graph.path)!r} has no player, so a rate cannot be set')
+        player = dataclasses.replace(player, rate=rate)
+    recorder = graph.recorder
+    if record is not None:
+        recorder = dataclasses.replace(recorder or RecorderSpec(), output=record)
+    return dataclasses.replace(
+        graph,
+        player=player,
+        recorder=recorder,
+        exit_when_player_done=graph.exit_when_player_done or exit_when_player_done,
+    )
+
+
+def _sim_time(graph: Graph) -> tuple[dict[str, Any], ...]:
+    return () if graph.use_sim_time is None else ({'use_sim_time': graph.use_sim_time},)
+
+
+def _player_description(graph: Graph, player: PlayerSpec) -> NodeDescription:
+    if player.bag is None:
+        raise graph.error('graph.player.bag', 'no bag to play; set it in the GRAPH or give --bag')
+    if not player.bag.exists():
+        raise graph.error('graph.player.bag', f'bag {str(player.bag)!r} does not exist')
+    values: dict[str, Any] = {'bag_path': str(player.bag)}
+    for field in dataclasses.fields(PlayerSpec):
+        value = getattr(player, field.name)
+        if field.name in ('bag', 'topics', 'remap') or value is None:
+            continue
+        values[field.name] = value
+    if player.topics:
+        values['topics'] = list(player.topics)
+    if player.remap:
+        values['remap'] = [f'{source}:={target}' for source, target in player.remap]
+    return NodeDescription(
+        key='graph.player',
+        role='player',
+        name='bag_player',
+        package='slam_bringup',
+        executable='bag_player',
+        plugin=PLAYER_PLUGIN,
+        namespace='',
+        parameters=(values, *_sim_time(graph)),
+        remappings=(),
+    )
+
+
+def _recorder_description(graph: Graph, recorder: RecorderSpec) -> NodeDescription:
+    values: dict[str, Any] = {}
+    if recorder.output is not None:
+        values['output'] = str(recorder.output)
+    if recorder.topics:
+        values['topics'] = list(recorder.topics)
+    if recorder.exclude:
+        values['exclude'] = list(recorder.exclude)
+    for name in ('discovery_period_s', 'queue_depth'):
+        if getattr(recorder, name) is not None:
+            values[name] = getattr(recorder, name)
+    # bag_recorder's command line wants the topics, or --all.
+    arguments = recorder.topics or ('--all',)
+    return NodeDescription(
+        key='graph.recorder',
+        role='recorder',
+        name='bag_recorder',
+        package='slam_bringup',
+        executable='bag_recorder',
+        plugin=RECORDER_PLUGIN,
+        namespace='',
+        parameters=(*((values,) if values else ()), *_sim_time(graph)),
+        remappings=(),
+        arguments=tuple(arguments),
+    )
+
+
+def node_descriptions(graph: Graph) -> tuple[NodeDescription, ...]:
+    """Return the nodes to start, in start order: graph nodes, player, then recorder.
+
+    The recorder starts last so that its first topic discovery, at construction, already
+    sees the publishers of the player and of the nodes; the player holds the bag back until
+    every played topic has a subscriber (``wait_for_subscribers_s``). Raises GraphError when
+    the player has no bag, or an exit on the player is asked for without a player.
+    """
+    if graph.exit_when_player_done and graph.player is None:
+        raise graph.error('graph.exit_when_player_done', 'is set but the graph has no player')
+    descriptions = [
+        NodeDescription(
+            key=node.key,
+            role='node',
+            name=node.name,
+            package=node.package,
+            executable=node.executable,
+            plugin=node.plugin,
+            namespace=node.namespace,
+            parameters=(*node.parameters, *_sim_time(graph)),
+            remappings=node.remappings,
+        )
+        for node in graph.nodes
+    ]
+    if graph.player is not None:
+        descriptions.append(_player_description(graph, graph.player))
+    if graph.recorder is not None:
+        descriptions.append(_recorder_description(graph, graph.recorder))
+    return tuple(descriptions)
+
+
+def write_parameter_file(values: Mapping[str, Any], path: Path) -> Path:
+    """Write inline parameters as a ``/**: ros__parameters:`` YAML file; return ``path``."""
+    path.write_text(
+        yaml.safe_dump({'/**': {'ros__parameters': dict(values)}}, sort_keys=False),
+        encoding='utf-8',
+    )
+    return path
+
+
+def ros_arguments(description: NodeDescription, scratch_dir: Path) -> list[str]:
+    """Return ``--ros-args`` for a node: name, namespace, parameter files, remaps.
+
+    Inline parameter dicts are written to files in ``scratch_dir`` (which must exist and
+    outlive the node's start) so that every parameter source keeps its order.
+    """
+    arguments = ['--ros-args', '-r', f'__node:={description.name}']
+    if description.namespace:
+        arguments += ['-r', f'__ns:={description.namespace}']
+    stem = description.fully_qualified_name.strip('/').replace('/', '.')
+    for index, parameters in enumerate(description.parameters):
+        if isinstance(parameters, dict):
+            parameters = write_parameter_file(parameters, scratch_dir / f'{stem}.{index}.yaml')
+        arguments += ['--params-file', str(parameters)]
+    for source, target in description.remappings:
+        arguments += ['-r', f'{source}:={target}']
+    return arguments
+
+
+def find_graph(text: str) -> Path:
+    """Return the GRAPH file ``text``: a path, or a name in slam_bringup's installed graphs/.
+
+    Raises GraphError when neither exists.
+    """
+    path = Path(text).expanduser()
+    if path.exists() or os.sep in text:
+        return path
+    try:
+        share = Path(get_package_share_directory('slam_bringup')) / 'graphs'
+    except (PackageNotFoundError, ValueError):
+        return path
+    for candidate in (share / text, share / f'{text}.yaml'):
+        if candidate.is_file():
+            return candidate
+    return path

@@ -1,0 +1,439 @@
+"""slam_run: start the nodes of a GRAPH file, in one process or one process per node.
+
+In one process (the default), each node class (the GRAPH's ``plugin``) is constructed with
+its own ``--ros-args`` and ``use_global_arguments=False`` in a private rclpy context, and
+all are spun by one SingleThreadedExecutor in a background thread. Not multi-threaded: in
+rclpy 7.1 (Jazzy) the MultiThreadedExecutor's spin loop re-submits callbacks that have not
+started yet and returns at once while any is queued (ros2/rclpy#1452, fixed by #1547 after
+Jazzy), so it holds the GIL and starved the player's publishing thread (lateness of 0.1 to
+1 s against 0.2 ms here). Callbacks of all nodes therefore run one at a time; a node with
+long callbacks (a batch optimization) is better run with ``--processes``.
+
+With ``--processes``, each node is ``lib/<package>/<executable> --ros-args ...`` in its own
+process group, so a terminal's Ctrl-C reaches only slam_run, which stops the children in
+order.
+
+The graph stops on Ctrl-C or SIGTERM, or when the player has played the bag if
+``exit_when_player_done``. The player stops first and the recorder finalizes its bag last.
+In one process, the recorder drains what is in flight while the other nodes still run, then
+finalizes, and the nodes are destroyed. With processes, the player, then the nodes, then the
+recorder (which drains and finalizes on SIGINT) get SIGINT, then SIGTERM, then SIGKILL.
+
+Exit status: 0 done; 1 a node failed (an exception in a callback, a process that exited
+with an error); 2 a user error (an invalid GRAPH, a node that rejects its parameters, a bad
+bag); 130 interrupted before the player finished, when the graph was to end with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import importlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager, suppress
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import try_shutdown
+
+from slam_bringup.bag_player import BagPlayerNode
+from slam_bringup.bag_recorder import DRAIN_TIMEOUT_S, BagRecorderNode
+from slam_bringup.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main
+from slam_bringup.errors import SlamError
+from slam_bringup.graph import (
+    Graph,
+    NodeDescription,
+    find_graph,
+    load_graph,
+    node_descriptions,
+    ros_arguments,
+    with_overrides,
+)
+
+EXIT_NODE_FAILED = 1
+POLL_S = 0.05
+QUIET_S = 0.25  # the recorder has drained when nothing new arrived for this long
+INTERRUPT_TIMEOUT_S = 10.0  # then SIGTERM
+TERMINATE_TIMEOUT_S = 5.0  # then SIGKILL
+CLEAN_STOP_CODES = frozenset({0, 130, 143, -signal.SIGINT, -signal.SIGTERM})
+STOP_ORDER = {'player': 0, 'node': 1, 'recorder': 2}
+
+
+def say(message: str) -> None:
+    """Print a status line of the runner on stderr."""
+    print(f'slam_run: {message}', file=sys.stderr, flush=True)  # noqa: T201
+
+
+@contextmanager
+def stop_on_signals(stop: threading.Event) -> Iterator[None]:
+    """Set ``stop`` on SIGINT and SIGTERM inside the block (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def request_stop(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+# -- in one process -----------------------------------------------------------------------
+class Spinner:
+    """Spins an executor in a background thread; keeps the exception that ended it."""
+
+    def __init__(self, executor: SingleThreadedExecutor) -> None:
+        self.executor = executor
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._spin, name='slam_run-executor', daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except ExternalShutdownException:
+            pass
+        except BaseException as err:  # a node callback raised; reported by the runner
+            self.error = err
+
+    def stop(self) -> None:
+        """Shut the executor down and wait for the thread."""
+        self.executor.shutdown(timeout_sec=TERMINATE_TIMEOUT_S)
+        self._thread.join(timeout=TERMINATE_TIMEOUT_S)
+
+
+def node_class(graph: Graph, description: NodeDescription) -> Callable[..., Node]:
+    """Import the ``module:Class`` of a node (raises GraphError naming the plugin key)."""
+    key = f'{description.key}.plugin'
+    if description.plugin is None:
+        raise graph.error(
+            key,
+            'not set; running in one process needs the node class '
+            "('module:Class'), or run with --processes",
+        )
+    module_name, _, class_name = description.plugin.partition(':')
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as err:
+        raise graph.error(key, f'cannot import {module_name!r}: {err}') from None
+    cls = getattr(module, class_name, None)
+    if not (isinstance(cls, type) and issubclass(cls, Node)):
+        raise graph.error(key, f'{description.plugin!r} is not an rclpy Node class')
+    return cls
+
+
+def construct(graph: Graph, description: NodeDescription, context: Context, scratch: Path) -> Node:
+    """Construct one node; a SlamError or a rejected argument becomes a GraphError."""
+    cls = node_class(graph, description)
+    try:
+        return cls(
+            context=context,
+            cli_args=ros_arguments(description, scratch),
+            use_global_arguments=False,
+        )
+    except SlamError as err:
+        raise graph.error(description.key, f'node {description.name!r}: {err}') from None
+    except _rclpy.RCLError as err:
+        first_line = str(err).strip().splitlines()[0]
+        raise graph.error(description.key, f'node {description.name!r}: {first_line}') from None
+
+
+def wait_for_end(
+    graph: Graph, player: BagPlayerNode | None, spinner: Spinner, stop: threading.Event
+) -> bool:
+    """Wait for a stop request, a failed callback or the player; True if the player ended it."""
+    announced = False
+    while not stop.wait(POLL_S):
+        if spinner.error is not None:
+            return False
+        if player is not None and player.finished.is_set():
+            if player.error is not None or graph.exit_when_player_done:
+                return True
+            if not announced:
+                say('the player has finished; Ctrl-C stops the graph')
+                announced = True
+    return False
+
+
+def wait_until_drained(recorder: BagRecorderNode) -> None:
+    """Wait until the recorder got nothing new for QUIET_S (at most DRAIN_TIMEOUT_S)."""
+    deadline = time.monotonic() + DRAIN_TIMEOUT_S
+    count = recorder.writer.message_count
+    quiet_since = time.monotonic()
+    while time.monotonic() < deadline and time.monotonic() - quiet_since < QUIET_S:
+        time.sleep(POLL_S)
+        if recorder.writer.message_count != count:
+            count = recorder.writer.message_count
+            quiet_since = time.monotonic()
+
+
+def run_in_process(
+    graph: Graph, descriptions: Sequence[NodeDescription], scratch: Path, stop: threading.Event
+) -> int:
+    """Run every node in this process until the graph ends; return the exit status."""
+    context = Context()
+    rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
+    executor = SingleThreadedExecutor(context=context)
+    nodes: list[tuple[NodeDescription, Node]] = []
+    spinner: Spinner | None = None
+    try:
+        for description in descriptions:
+            node = construct(graph, description, context, scratch)
+            nodes.append((description, node))
+            executor.add_node(node)
+        player = next((n for _, n in nodes if isinstance(n, BagPlayerNode)), None)
+        recorder = next((n for _, n in nodes if isinstance(n, BagRecorderNode)), None)
+        spinner = Spinner(executor)
+        player_ended = wait_for_end(graph, player, spinner, stop)
+        summary = finish_playback_and_recording(player, recorder)
+    finally:
+        if spinner is not None:
+            spinner.stop()
+        else:
+            executor.shutdown(timeout_sec=TERMINATE_TIMEOUT_S)
+        for _, node in sorted(nodes, key=lambda item: STOP_ORDER[item[0].role]):
+            node.destroy_node()  # a recorder finalizes its bag here if still open
+        try_shutdown(context=context)
+    for line in summary:
+        print(f'slam_run: {line}')  # noqa: T201
+    if spinner.error is not None:
+        traceback.print_exception(spinner.error)
+        say(f'error: a node callback raised {type(spinner.error).__name__}: {spinner.error}')
+        return EXIT_NODE_FAILED
+    if player is not None and player.error is not None:
+        raise player.error
+    return EXIT_INTERRUPTED if graph.exit_when_player_done and not player_ended else 0
+
+
+def finish_playback_and_recording(
+    player: BagPlayerNode | None, recorder: BagRecorderNode | None
+) -> list[str]:
+    """Stop the player, drain and finalize the recorder (executor still spinning).
+
+    Returns the summary lines of both.
+    """
+    summary = []
+    if player is not None:
+        player.stop()
+        summary.append(f'bag_player: {player.summary()}')
+    if recorder is not None:
+        wait_until_drained(recorder)
+        path = recorder.finalize()
+        counts = ', '.join(f'{t}: {n}' for t, n in sorted(recorder.writer.counts.items()))
+        summary.append(
+            f'bag_recorder: wrote {recorder.writer.message_count} messages to '
+            f'{str(path)!r} ({counts or "no topics"})'
+        )
+    return summary
+
+
+# -- one process per node -----------------------------------------------------------------
+@dataclass
+class Child:
+    """A node process and what is known about its end."""
+
+    description: NodeDescription
+    process: subprocess.Popen[bytes]
+    reported: bool = False
+
+
+def executable(graph: Graph, description: NodeDescription) -> str:
+    """Find ``lib/<package>/<executable>`` under AMENT_PREFIX_PATH, else on PATH."""
+    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
+        candidate = Path(prefix) / 'lib' / description.package / description.executable
+        if prefix and candidate.is_file() and os.access(candidate, os.X_OK):
+            return str(candidate)
+    found = shutil.which(description.executable)
+    if found is None:
+        raise graph.error(
+            f'{description.key}.executable',
+            f'{description.executable!r} is in neither lib/{description.package}/ of '
+            'AMENT_PREFIX_PATH nor PATH; build the workspace and source scripts/env.sh',
+        )
+    return found
+
+
+def _die_with_parent() -> Callable[[], None] | None:
+    """Return a pre-exec hook that makes a child get SIGTERM when slam_run dies (Linux).
+
+    Resolved in the parent, so the child only makes one call between fork and exec.
+    """
+    if sys.platform != 'linux':
+        return None
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    set_parent_death_signal = 1  # PR_SET_PDEATHSIG
+    return lambda: prctl(set_parent_death_signal, signal.SIGTERM)
+
+
+def start_children(
+    graph: Graph, descriptions: Sequence[NodeDescription], scratch: Path, children: list[Child]
+) -> None:
+    """Start one process per node, appending each to ``children`` as it starts."""
+    commands = [
+        [executable(graph, d), *d.arguments, *ros_arguments(d, scratch)] for d in descriptions
+    ]
+    pre_exec = _die_with_parent()
+    for description, command in zip(descriptions, commands, strict=True):
+        process = subprocess.Popen(
+            command, stdin=subprocess.DEVNULL, process_group=0, preexec_fn=pre_exec
+        )
+        children.append(Child(description, process))
+
+
+def watch_children(
+    graph: Graph, children: Sequence[Child], stop: threading.Event
+) -> tuple[bool, Child | None]:
+    """Wait for a stop request, the player's end or a failed child.
+
+    Returns (the player ended the graph, the child that failed if any).
+    """
+    while not stop.wait(POLL_S):
+        for child in children:
+            code = child.process.poll()
+            if code is None or child.reported:
+                continue
+            child.reported = True
+            if code != 0:
+                return False, child
+            if child.description.role == 'player' and graph.exit_when_player_done:
+                return True, None
+            say(f'node {child.description.name!r} exited')
+        if all(child.reported for child in children):
+            return False, None
+    return False, None
+
+
+def stop_children(children: Sequence[Child]) -> list[Child]:
+    """Stop the player, then the nodes, then the recorder; return those that stopped badly.
+
+    Each group gets SIGINT, then SIGTERM, then SIGKILL, each after a timeout.
+    """
+    failed: list[Child] = []
+    for rank in sorted(set(STOP_ORDER.values())):
+        group = [c for c in children if STOP_ORDER[c.description.role] == rank]
+        for sig, timeout_s in (
+            (signal.SIGINT, INTERRUPT_TIMEOUT_S),
+            (signal.SIGTERM, TERMINATE_TIMEOUT_S),
+            (signal.SIGKILL, TERMINATE_TIMEOUT_S),
+        ):
+            running = [c for c in group if c.process.poll() is None]
+            for child in running:
+                if sig != signal.SIGINT:
+                    say(f'node {child.description.name!r} did not stop; sending {sig.name}')
+                with suppress(ProcessLookupError):
+                    os.killpg(child.process.pid, sig)
+            deadline = time.monotonic() + timeout_s
+            for child in running:
+                with suppress(subprocess.TimeoutExpired):
+                    child.process.wait(timeout=max(deadline - time.monotonic(), 0.0))
+        failed += [
+            c for c in group if not c.reported and c.process.returncode not in CLEAN_STOP_CODES
+        ]
+    return failed
+
+
+def run_processes(
+    graph: Graph, descriptions: Sequence[NodeDescription], scratch: Path, stop: threading.Event
+) -> int:
+    """Run one process per node until the graph ends; return the exit status."""
+    children: list[Child] = []
+    failed: list[Child] = []
+    try:
+        start_children(graph, descriptions, scratch, children)
+        player_ended, failure = watch_children(graph, children, stop)
+        if failure is not None:
+            failed.append(failure)
+    finally:
+        failed += stop_children(children)
+    for child in children:
+        print(  # noqa: T201
+            f'slam_run: {child.description.name}: exit code {child.process.returncode}'
+        )
+    for child in failed:
+        error = graph.error(
+            child.description.key,
+            f'node {child.description.name!r} exited with code {child.process.returncode}',
+        )
+        say(f'error: {error}')
+    if failed:
+        first = failed[0].process.returncode
+        return EXIT_USER_ERROR if first == EXIT_USER_ERROR else EXIT_NODE_FAILED
+    return EXIT_INTERRUPTED if graph.exit_when_player_done and not player_ended else 0
+
+
+# -- command line -------------------------------------------------------------------------
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
+    if not value > 0 or value == float('inf'):
+        raise argparse.ArgumentTypeError(f'{text!r} must be a finite number > 0')
+    return value
+
+
+def build_arg_parser() -> argparse.ArgumentParser:
+    """Command-line options of slam_run."""
+    parser = argparse.ArgumentParser(
+        prog='slam_run',
+        description='Run the nodes of a GRAPH file (the graph that graph.launch.py launches).',
+    )
+    parser.add_argument('graph', help="GRAPH file, or the name of one in slam_bringup's graphs/")
+    parser.add_argument(
+        '--processes', action='store_true', help='one process per node (default: one process)'
+    )
+    parser.add_argument(
+        '--exit-when-player-done', action='store_true', help='stop once the bag has played'
+    )
+    parser.add_argument('--bag', type=Path, help="bag to play (replaces the GRAPH's player.bag)")
+    parser.add_argument('--rate', type=_positive_float, help='playback speed factor')
+    parser.add_argument(
+        '--record', type=Path, metavar='PATH', help='bag to record to (replaces recorder.output)'
+    )
+    return parser
+
+
+@console_main('slam_run')
+def main(argv: list[str] | None = None) -> int:
+    """Run a GRAPH until it ends (see the module docstring for the exit status)."""
+    args = build_arg_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    graph = with_overrides(
+        load_graph(find_graph(args.graph)),
+        bag=args.bag,
+        rate=args.rate,
+        record=args.record,
+        exit_when_player_done=args.exit_when_player_done,
+    )
+    descriptions = node_descriptions(graph)
+    if not descriptions:
+        raise graph.error('graph', 'has no nodes, player or recorder to run')
+    mode = 'one process per node' if args.processes else 'one process'
+    say(f'running {str(graph.path)!r} ({len(descriptions)} nodes, {mode})')
+    stop = threading.Event()
+    with tempfile.TemporaryDirectory(prefix='slam_run-') as scratch, stop_on_signals(stop):
+        run = run_processes if args.processes else run_in_process
+        return run(graph, descriptions, Path(scratch), stop)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
