@@ -37,25 +37,31 @@ fi
 
 # --- prerequisites ---------------------------------------------------------------------
 find_python() {
+  # wheels: the Jazzy wheels are cp311. system: the interpreter the sourced ROS was built for.
+  local candidate
   for candidate in "${PYTHON:-}" python3.11 python3; do
-    [[ -n "$candidate" ]] || continue
-    if command -v "$candidate" >/dev/null 2>&1 &&
-       "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then
-      command -v "$candidate"; return 0
+    [[ -n "$candidate" ]] && command -v "$candidate" >/dev/null 2>&1 || continue
+    if [[ "$MODE" == wheels ]]; then
+      "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null || continue
+    else
+      "$candidate" -c 'import rclpy' 2>/dev/null || continue
     fi
+    command -v "$candidate"; return 0
   done
   return 1
 }
-PY="$(find_python)" || die "Python 3.11 not found (the Jazzy wheels are cp311). Install python3.11, or set PYTHON=/path/to/python3.11."
+if [[ "$MODE" == wheels ]]; then
+  PY="$(find_python)" || die "Python 3.11 not found (the Jazzy wheels are cp311). Install python3.11, or set PYTHON=/path/to/python3.11."
+else
+  PY="$(find_python)" || die "no Python that can import the sourced ROS 2's rclpy (from $system_prefix). Set PYTHON=/path/to/python3."
+fi
 
 missing_apt=()
 "$PY" -c 'import venv, ensurepip' 2>/dev/null || missing_apt+=(python3-venv)
-if [[ "$MODE" == wheels ]]; then
-  inc="$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')"
-  [[ -f "$inc/Python.h" ]] || missing_apt+=(python3-dev)
-  command -v g++ >/dev/null 2>&1 || missing_apt+=(g++)
-  command -v make >/dev/null 2>&1 || missing_apt+=(make)
-fi
+inc="$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')"
+[[ -f "$inc/Python.h" ]] || missing_apt+=(python3-dev)   # rosidl builds Python extensions
+command -v g++ >/dev/null 2>&1 || missing_apt+=(g++)
+command -v make >/dev/null 2>&1 || missing_apt+=(make)
 if ((${#missing_apt[@]})); then
   if [[ $(id -u) == 0 ]] && command -v apt-get >/dev/null 2>&1; then
     say "installing system packages: ${missing_apt[*]}"
@@ -82,16 +88,20 @@ fi
 mkdir -p "$STAMPS"
 VPY="$VENV/bin/python"
 
-req_files=("$REQ/python.txt" "$REQ/dev.txt")
-[[ "$MODE" == wheels ]] && req_files+=("$REQ/ros-jazzy-wheels.txt" "$REQ/ros-build.txt")
+pip_args=(-q --disable-pip-version-check)
+if [[ "$MODE" == wheels ]]; then
+  req_files=("$REQ/python.txt" "$REQ/dev.txt" "$REQ/ros-jazzy-wheels.txt" "$REQ/ros-build.txt")
+  pip_args+=(-c "$REQ/constraints.txt")
+  command -v cmake >/dev/null 2>&1 || pip_args+=("cmake==3.31.10")  # no system CMake
+else
+  # Keep the system numpy: the apt message packages' C extensions are built against it.
+  req_files=("$REQ/python-system.txt" "$REQ/dev.txt")
+  system_numpy="$("$VPY" -c 'import numpy; print(numpy.__version__)')"
+  pip_args+=("numpy==$system_numpy")
+fi
 req_hash="$(hash_of "${req_files[@]}" "$REQ/constraints.txt")-$MODE"
 if [[ "$(cat "$STAMPS/requirements" 2>/dev/null)" != "$req_hash" ]]; then
   say "installing Python packages (${req_files[*]##*/})"
-  pip_args=(-q --disable-pip-version-check)
-  [[ -f "$REQ/constraints.txt" && "$MODE" == wheels ]] && pip_args+=(-c "$REQ/constraints.txt")
-  if ! command -v cmake >/dev/null 2>&1 && [[ "$MODE" == wheels ]]; then
-    pip_args+=("cmake==3.31.10")   # no system CMake: use the PyPI build
-  fi
   for f in "${req_files[@]}"; do pip_args+=(-r "$f"); done
   "$VPY" -m pip install "${pip_args[@]}" 2> >(grep -v "^WARNING: Location" >&2)
   echo "$req_hash" >"$STAMPS/requirements"
