@@ -33,6 +33,8 @@ import time
 from pathlib import Path
 
 import rclpy
+from rclpy.clock import Clock as RosClock
+from rclpy.clock import ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -73,6 +75,8 @@ PARAMETERS = (
 
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 WAIT_POLL_S = 0.01
+PRIME_TIMEOUT_S = 2.0
+PROGRESS_TICK_S = 0.1
 
 
 def config_from_parameters(values: dict[str, object]) -> PlaybackConfig:
@@ -123,6 +127,22 @@ class BagPlayerNode(Node):
         )
         self.lateness = LatenessStats()
         self.published = 0
+        self._position_ns = self._pass_start_ns = self.source.start_ns
+        on_terminal = sys.stderr.isatty()
+        self.progress = ProgressReporter(
+            max(self.source.end_ns - self.source.start_ns, 0) / 1e9 - self.config.start_offset_s,
+            label=f'bag_player {self.config.bag_path.name}',
+            unit='s',
+            stream=sys.stderr if on_terminal else None,
+            log=None if on_terminal else self.get_logger().info,
+            period_s=self.config.progress_period_s,
+        )
+        self._progress_closed = False
+        self.create_timer(
+            PROGRESS_TICK_S if on_terminal else self.config.progress_period_s,
+            self.report_progress,
+            clock=RosClock(clock_type=ClockType.STEADY_TIME),
+        )
         self.error: SlamError | None = None
         self.finished = threading.Event()
         self._stop = threading.Event()
@@ -168,24 +188,16 @@ class BagPlayerNode(Node):
     def _play_once(self) -> None:
         config = self.config
         bag_start = self.source.start_ns + round(config.start_offset_s * 1e9)
-        total_s = max(self.source.end_ns - bag_start, 0) / 1e9
-        progress = ProgressReporter(
-            total_s,
-            label=f'bag_player {config.bag_path.name}',
-            unit='s',
-            stream=sys.stderr if sys.stderr.isatty() else None,
-            log=None if sys.stderr.isatty() else self.get_logger().info,
-            period_s=config.progress_period_s,
-        )
+        self._pass_start_ns = bag_start
         clock_period_ns = round(1e9 / config.clock_hz) if self.clock_publisher else 0
         prefetch = Prefetcher(self.source, self.topics, bag_start)
-        mapping: TimeMapping | None = None
-        next_clock_ns = 0
+        # Start the wall clock from a warm buffer: the first seconds of reading and decoding
+        # would otherwise compete with publishing for the GIL.
+        prefetch.wait_primed(PRIME_TIMEOUT_S)
+        mapping = TimeMapping(bag_start, time.monotonic_ns(), config.rate)
+        next_clock_ns = mapping.wall_start_ns
         try:
             for message in prefetch:
-                if mapping is None:  # anchor wall time once the first message is ready
-                    mapping = TimeMapping(bag_start, time.monotonic_ns(), config.rate)
-                    next_clock_ns = mapping.wall_start_ns
                 deadline = mapping.wall_deadline_ns(message.timestamp_ns)
                 next_clock_ns = self._sleep_until(
                     deadline, mapping, next_clock_ns, clock_period_ns
@@ -195,10 +207,9 @@ class BagPlayerNode(Node):
                 self.publishers_by_topic[message.topic].publish(message.data)
                 self.lateness.add(time.monotonic_ns() - deadline)
                 self.published += 1
-                progress.update((message.timestamp_ns - bag_start) / 1e9, items=self.published)
+                self._position_ns = message.timestamp_ns
         finally:
             prefetch.close()
-            progress.finish()
 
     def _sleep_until(
         self, deadline_ns: int, mapping: TimeMapping, next_clock_ns: int, clock_period_ns: int
@@ -208,13 +219,25 @@ class BagPlayerNode(Node):
             now = time.monotonic_ns()
             if clock_period_ns and now >= next_clock_ns:
                 self._publish_clock(mapping.bag_time_ns(min(now, deadline_ns)))
-                next_clock_ns = max(next_clock_ns + clock_period_ns, now - clock_period_ns)
+                next_clock_ns += clock_period_ns
+                if next_clock_ns <= now:  # after a stall: one tick now, not a burst
+                    next_clock_ns = now + clock_period_ns
                 continue
             if now >= deadline_ns:
                 break
             wake = min(deadline_ns, next_clock_ns) if clock_period_ns else deadline_ns
             self._stop.wait(max(wake - now, 0) / 1e9)
         return next_clock_ns
+
+    def report_progress(self) -> None:
+        """Timer callback: progress is drawn here, never in the timing-critical thread."""
+        if self._progress_closed:
+            return
+        done_s = max(self._position_ns - self._pass_start_ns, 0) / 1e9
+        self.progress.update(done_s, items=self.published)
+        if self.finished.is_set():
+            self.progress.finish()
+            self._progress_closed = True
 
     def _publish_clock(self, bag_ns: int) -> None:
         assert self.clock_publisher is not None
@@ -297,6 +320,7 @@ def main(argv: list[str] | None = None) -> int:
             rclpy.spin_once(node, timeout_sec=0.1)
         if node.error is not None:
             raise node.error
+        node.report_progress()
         node.get_logger().info(node.summary())
         return 0
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -82,7 +82,7 @@ def test_prefetcher_yields_in_order_and_reraises_errors(tmp_path: Path) -> None:
         tmp_path / 'bag', (BagTopic('/odom', 'nav_msgs/msg/Odometry', 100.0),), duration_s=2.0
     )
     with BagSource(tmp_path / 'bag') as source:
-        prefetch = Prefetcher(source, None, None, depth=8)
+        prefetch = Prefetcher(source, None, None, max_bytes=4096)
         stamps = [m.timestamp_ns for m in prefetch]
         prefetch.close()
     assert stamps == [m.timestamp_ns for m in written]

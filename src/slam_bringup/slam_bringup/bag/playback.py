@@ -6,7 +6,7 @@ benchmark and tests can use it directly.
 
 from __future__ import annotations
 
-import queue
+import collections
 import statistics
 import threading
 from collections.abc import Iterator
@@ -79,13 +79,16 @@ class LatenessStats:
 
 
 _END = object()
+DEFAULT_PREFETCH_BYTES = 64 * 2**20
 
 
 class Prefetcher:
-    """Reads a bag in a background thread into a bounded queue, so I/O never delays a publish.
+    """Reads a bag in a background thread into a buffer bounded in bytes, so that I/O and
+    decoding never delay a publish.
 
     Iterating yields ``BagMessage``; an error in the reader (a corrupt bag) is re-raised in
-    the consumer.
+    the consumer at the point of the stream where it happened. ``wait_primed`` blocks until
+    the buffer is full or the bag is read, so playback can start from a warm buffer.
     """
 
     def __init__(
@@ -94,9 +97,13 @@ class Prefetcher:
         topics: tuple[str, ...] | None,
         start_ns: int | None,
         *,
-        depth: int = 512,
+        max_bytes: int = DEFAULT_PREFETCH_BYTES,
     ) -> None:
-        self._queue: queue.Queue[object] = queue.Queue(maxsize=depth)
+        self.max_bytes = max_bytes
+        self._items: collections.deque[object] = collections.deque()
+        self._bytes = 0
+        self._condition = threading.Condition()
+        self._primed = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(
             target=self._run, args=(source, topics, start_ns), name='bag-prefetch', daemon=True
@@ -108,29 +115,38 @@ class Prefetcher:
     ) -> None:
         try:
             for message in source.messages(topics, start_ns=start_ns, validate=True):
-                while not self._stop.is_set():
-                    try:
-                        self._queue.put(message, timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if self._stop.is_set():
-                    return
-            self._put_final(_END)
+                with self._condition:
+                    while self._bytes >= self.max_bytes and not self._stop.is_set():
+                        self._primed.set()
+                        self._condition.wait(0.1)
+                    if self._stop.is_set():
+                        return
+                    self._items.append(message)
+                    self._bytes += len(message.data)
+                    self._condition.notify_all()
+            self._finish(_END)
         except BaseException as err:  # handed to the consumer, which re-raises it
-            self._put_final(err)
+            self._finish(err)
 
-    def _put_final(self, item: object) -> None:
-        while not self._stop.is_set():
-            try:
-                self._queue.put(item, timeout=0.1)
-                return
-            except queue.Full:
-                continue
+    def _finish(self, item: object) -> None:
+        with self._condition:
+            self._items.append(item)
+            self._primed.set()
+            self._condition.notify_all()
+
+    def wait_primed(self, timeout_s: float) -> bool:
+        """Block until the buffer is full or the bag is read (or timeout); True if primed."""
+        return self._primed.wait(timeout_s)
 
     def __iter__(self) -> Iterator[BagMessage]:
         while True:
-            item = self._queue.get()
+            with self._condition:
+                while not self._items:
+                    self._condition.wait()
+                item = self._items.popleft()
+                if isinstance(item, BagMessage):
+                    self._bytes -= len(item.data)
+                    self._condition.notify_all()
             if item is _END:
                 return
             if isinstance(item, BaseException):
@@ -140,4 +156,6 @@ class Prefetcher:
     def close(self) -> None:
         """Stop the reader thread and wait for it."""
         self._stop.set()
+        with self._condition:
+            self._condition.notify_all()
         self._thread.join(timeout=5.0)
