@@ -6,7 +6,7 @@ Jazzy store plus installed ``.msg`` files such as ``slam_interfaces``) can be ge
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -142,11 +142,13 @@ def write_bag(
     start_ns: int = 1_700_000_000 * 10**9,
     storage: str = 'mcap',
     qos: Qos = RELIABLE_QOS,
+    message_factory: Callable[[np.random.Generator], object] | None = None,
 ) -> list[WrittenMessage]:
     """Write a rosbag2 bag of random messages; return them in stamp order.
 
     Each topic gets messages at its rate from ``start_ns`` for ``duration_s``, with header
-    stamps equal to the bag stamps. ``storage`` is 'mcap' or 'sqlite3'.
+    stamps equal to the bag stamps. ``storage`` is 'mcap' or 'sqlite3'. A
+    ``message_factory`` replaces the random message of every topic (e.g. realistic images).
     """
     from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -172,7 +174,11 @@ def write_bag(
         )
         for stamp_ns, index in schedule:
             topic = topics[index]
-            message = random_message(registry, topic.msgtype, rng)
+            message = (
+                message_factory(rng)
+                if message_factory is not None
+                else random_message(registry, topic.msgtype, rng)
+            )
             set_stamp(message, stamp_ns)
             data = bytes(registry.typestore.serialize_cdr(message, topic.msgtype))
             writer.write(connections[topic.name], stamp_ns, data)
