@@ -50,11 +50,6 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosbags.interfaces import (
     Qos,
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-    QosTime,
 )
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
@@ -62,6 +57,7 @@ from rosbags.typesys.store import Typestore
 
 from slam_bringup.bag.playback import LatenessStats
 from slam_bringup.bag_player import BagPlayerNode
+from slam_bringup.qos import output_qos, recorded_from_profile
 from slam_bringup.typesys import message_class
 
 BENCH_DIR = Path(__file__).resolve().parent
@@ -100,18 +96,7 @@ class BagSpec:
 
 def recorded_qos() -> Qos:
     """Reliable, volatile, keep last 10: what a typical sensor driver offers."""
-    unspecified = QosTime(sec=0, nsec=0)
-    return Qos(
-        history=QosHistory.KEEP_LAST,
-        depth=10,
-        reliability=QosReliability.RELIABLE,
-        durability=QosDurability.VOLATILE,
-        deadline=unspecified,
-        lifespan=unspecified,
-        liveliness=QosLiveliness.AUTOMATIC,
-        liveliness_lease_duration=unspecified,
-        avoid_ros_namespace_conventions=False,
-    )
+    return recorded_from_profile(output_qos())
 
 
 def _image(store: Typestore, stamp_ns: int, rng: np.random.Generator) -> object:

@@ -15,13 +15,9 @@ import numpy as np
 from rosbags.interfaces import (
     Nodetype,
     Qos,
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-    QosTime,
 )
 
+from slam_bringup.qos import output_qos, recorded_from_profile
 from slam_bringup.typesys import TypeRegistry
 
 _NUMPY_TYPES = {
@@ -39,19 +35,8 @@ _NUMPY_TYPES = {
     'float32': np.float32,
     'float64': np.float64,
 }
-_INFINITE = QosTime(0x7FFFFFFF, 0xFFFFFFFF)
-
-RELIABLE_QOS = Qos(
-    history=QosHistory.KEEP_LAST,
-    depth=100,
-    reliability=QosReliability.RELIABLE,
-    durability=QosDurability.VOLATILE,
-    deadline=_INFINITE,
-    lifespan=_INFINITE,
-    liveliness=QosLiveliness.AUTOMATIC,
-    liveliness_lease_duration=_INFINITE,
-    avoid_ros_namespace_conventions=False,
-)
+# What the synthetic bags record as offered QoS: reliable, volatile, keep last 100.
+RELIABLE_QOS = recorded_from_profile(output_qos(depth=100))
 
 
 def _scalar(typename: str, rng: np.random.Generator) -> object:
