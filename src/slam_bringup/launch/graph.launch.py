@@ -3,9 +3,9 @@
     ros2 launch slam_bringup graph.launch.py graph:=bag_replay.yaml bag:=bags/sample \\
         record:=out/replay
 
-The GRAPH is read and validated by ``slam_bringup.graph``; this file only maps its node
-descriptions onto launch_ros ``Node`` actions. When the GRAPH (or ``exit_when_player_done``)
-asks for it, the end of the player shuts the launch down.
+The GRAPH is read and validated by ``slam_bringup.graph``; this file only maps the node
+descriptions of ``slam_bringup.graph_nodes`` onto launch_ros ``Node`` actions. When the GRAPH
+(or ``exit_when_player_done``) asks for it, the end of the player shuts the launch down.
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ from launch import LaunchContext, LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, Shutdown
 from launch_ros.actions import Node
 
-from slam_bringup.graph import find_graph, load_graph, node_descriptions, with_overrides
+from slam_bringup.graph import load_graph
+from slam_bringup.graph_nodes import find_graph, node_descriptions, with_overrides
 
 
 def _optional_path(text: str) -> Path | None:

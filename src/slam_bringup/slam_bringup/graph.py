@@ -24,29 +24,21 @@ Parameter files and ``player.bag`` are relative to the GRAPH file's directory;
 ``recorder.output`` is relative to the current directory, like ``ros2 bag record -o``.
 
 ``load_graph`` validates a file into frozen dataclasses and raises ``GraphError`` naming the
-file and the key path; ``node_descriptions`` turns a graph into plain node descriptions
-(package, executable, plugin, name, namespace, parameters, remappings), which the launch file
-maps onto launch_ros ``Node`` actions and slam_run onto nodes or processes.
+file and the key path. ``slam_bringup.graph_nodes`` turns a graph into node descriptions.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import difflib
-import os
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
-from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
 from slam_bringup.errors import GraphError
-
-PLAYER_PLUGIN = 'slam_bringup.bag_player:BagPlayerNode'
-RECORDER_PLUGIN = 'slam_bringup.bag_recorder:BagRecorderNode'
 
 _NAME = re.compile(r'[A-Za-z_][A-Za-z0-9_]*')
 _PACKAGE = re.compile(r'[A-Za-z][A-Za-z0-9_]*')
@@ -119,32 +111,6 @@ class Graph:
 def graph_error(path: Path, key: str, message: str) -> GraphError:
     """Return a GraphError ``graph '<file>': <key>: <message>``."""
     return GraphError(f'graph {str(path)!r}: {key}: {message}')
-
-
-@dataclass(frozen=True)
-class NodeDescription:
-    """A node to start: what launch_ros ``Node`` takes, plus the in-process class.
-
-    ``parameters`` are files and inline dicts in order (later wins); ``arguments`` go on the
-    executable's command line before ``--ros-args`` (process mode and launch only);
-    ``role`` is ``node``, ``player`` or ``recorder``; ``key`` is the GRAPH key it came from.
-    """
-
-    key: str
-    role: str
-    name: str
-    package: str
-    executable: str
-    plugin: str | None
-    namespace: str
-    parameters: tuple[ParameterSource, ...]
-    remappings: tuple[Remapping, ...]
-    arguments: tuple[str, ...] = ()
-
-    @property
-    def fully_qualified_name(self) -> str:
-        """Return ``/namespace/name``."""
-        return f'{self.namespace.rstrip("/")}/{self.name}'
 
 
 # -- YAML ---------------------------------------------------------------------------------
@@ -491,171 +457,3 @@ def _check_unique_names(graph: Graph) -> None:
         if name in seen:
             raise graph.error(f'{node.key}.name', f'node {name!r} is also {seen[name]}')
         seen[name] = node.key
-
-
-# -- overrides and node descriptions ------------------------------------------------------
-def with_overrides(
-    graph: Graph,
-    *,
-    bag: Path | None = None,
-    rate: float | None = None,
-    record: Path | None = None,
-    exit_when_player_done: bool = False,
-) -> Graph:
-    """Return ``graph`` with command-line overrides applied.
-
-    ``bag`` replaces ``player.bag`` (and adds a player if there is none); ``record`` replaces
-    ``recorder.output`` (and adds a recorder of every topic if there is none).
-    """
-    player = graph.player
-    if bag is not None:
-        player = dataclasses.replace(player or PlayerSpec(), bag=bag)
-    if rate is not None:
-        if player is None:
-            raise GraphError(f'graph {str(graph.path)!r} has no player, so a rate cannot be set')
-        player = dataclasses.replace(player, rate=rate)
-    recorder = graph.recorder
-    if record is not None:
-        recorder = dataclasses.replace(recorder or RecorderSpec(), output=record)
-    return dataclasses.replace(
-        graph,
-        player=player,
-        recorder=recorder,
-        exit_when_player_done=graph.exit_when_player_done or exit_when_player_done,
-    )
-
-
-def _sim_time(graph: Graph) -> tuple[dict[str, Any], ...]:
-    return () if graph.use_sim_time is None else ({'use_sim_time': graph.use_sim_time},)
-
-
-def _player_description(graph: Graph, player: PlayerSpec) -> NodeDescription:
-    if player.bag is None:
-        raise graph.error('graph.player.bag', 'no bag to play; set it in the GRAPH or give --bag')
-    if not player.bag.exists():
-        raise graph.error('graph.player.bag', f'bag {str(player.bag)!r} does not exist')
-    values: dict[str, Any] = {'bag_path': str(player.bag)}
-    for field in dataclasses.fields(PlayerSpec):
-        value = getattr(player, field.name)
-        if field.name in ('bag', 'topics', 'remap') or value is None:
-            continue
-        values[field.name] = value
-    if player.topics:
-        values['topics'] = list(player.topics)
-    if player.remap:
-        values['remap'] = [f'{source}:={target}' for source, target in player.remap]
-    return NodeDescription(
-        key='graph.player',
-        role='player',
-        name='bag_player',
-        package='slam_bringup',
-        executable='bag_player',
-        plugin=PLAYER_PLUGIN,
-        namespace='',
-        parameters=(values, *_sim_time(graph)),
-        remappings=(),
-    )
-
-
-def _recorder_description(graph: Graph, recorder: RecorderSpec) -> NodeDescription:
-    values: dict[str, Any] = {}
-    if recorder.output is not None:
-        values['output'] = str(recorder.output)
-    if recorder.topics:
-        values['topics'] = list(recorder.topics)
-    if recorder.exclude:
-        values['exclude'] = list(recorder.exclude)
-    for name in ('discovery_period_s', 'queue_depth'):
-        if getattr(recorder, name) is not None:
-            values[name] = getattr(recorder, name)
-    # bag_recorder's command line wants the topics, or --all.
-    arguments = recorder.topics or ('--all',)
-    return NodeDescription(
-        key='graph.recorder',
-        role='recorder',
-        name='bag_recorder',
-        package='slam_bringup',
-        executable='bag_recorder',
-        plugin=RECORDER_PLUGIN,
-        namespace='',
-        parameters=(*((values,) if values else ()), *_sim_time(graph)),
-        remappings=(),
-        arguments=tuple(arguments),
-    )
-
-
-def node_descriptions(graph: Graph) -> tuple[NodeDescription, ...]:
-    """Return the nodes to start, in start order: graph nodes, player, then recorder.
-
-    The recorder starts last so that its first topic discovery, at construction, already
-    sees the publishers of the player and of the nodes; the player holds the bag back until
-    every played topic has a subscriber (``wait_for_subscribers_s``). Raises GraphError when
-    the player has no bag, or an exit on the player is asked for without a player.
-    """
-    if graph.exit_when_player_done and graph.player is None:
-        raise graph.error('graph.exit_when_player_done', 'is set but the graph has no player')
-    descriptions = [
-        NodeDescription(
-            key=node.key,
-            role='node',
-            name=node.name,
-            package=node.package,
-            executable=node.executable,
-            plugin=node.plugin,
-            namespace=node.namespace,
-            parameters=(*node.parameters, *_sim_time(graph)),
-            remappings=node.remappings,
-        )
-        for node in graph.nodes
-    ]
-    if graph.player is not None:
-        descriptions.append(_player_description(graph, graph.player))
-    if graph.recorder is not None:
-        descriptions.append(_recorder_description(graph, graph.recorder))
-    return tuple(descriptions)
-
-
-def write_parameter_file(values: Mapping[str, Any], path: Path) -> Path:
-    """Write inline parameters as a ``/**: ros__parameters:`` YAML file; return ``path``."""
-    path.write_text(
-        yaml.safe_dump({'/**': {'ros__parameters': dict(values)}}, sort_keys=False),
-        encoding='utf-8',
-    )
-    return path
-
-
-def ros_arguments(description: NodeDescription, scratch_dir: Path) -> list[str]:
-    """Return ``--ros-args`` for a node: name, namespace, parameter files, remaps.
-
-    Inline parameter dicts are written to files in ``scratch_dir`` (which must exist and
-    outlive the node's start) so that every parameter source keeps its order.
-    """
-    arguments = ['--ros-args', '-r', f'__node:={description.name}']
-    if description.namespace:
-        arguments += ['-r', f'__ns:={description.namespace}']
-    stem = description.fully_qualified_name.strip('/').replace('/', '.')
-    for index, parameters in enumerate(description.parameters):
-        if isinstance(parameters, dict):
-            parameters = write_parameter_file(parameters, scratch_dir / f'{stem}.{index}.yaml')
-        arguments += ['--params-file', str(parameters)]
-    for source, target in description.remappings:
-        arguments += ['-r', f'{source}:={target}']
-    return arguments
-
-
-def find_graph(text: str) -> Path:
-    """Return the GRAPH file ``text``: a path, or a name in slam_bringup's installed graphs/.
-
-    Raises GraphError when neither exists.
-    """
-    path = Path(text).expanduser()
-    if path.exists() or os.sep in text:
-        return path
-    try:
-        share = Path(get_package_share_directory('slam_bringup')) / 'graphs'
-    except (PackageNotFoundError, ValueError):
-        return path
-    for candidate in (share / text, share / f'{text}.yaml'):
-        if candidate.is_file():
-            return candidate
-    return path

@@ -56,11 +56,10 @@ from slam_bringup.bag_player import BagPlayerNode
 from slam_bringup.bag_recorder import DRAIN_TIMEOUT_S, BagRecorderNode
 from slam_bringup.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main
 from slam_bringup.errors import SlamError
-from slam_bringup.graph import (
-    Graph,
+from slam_bringup.graph import Graph, load_graph
+from slam_bringup.graph_nodes import (
     NodeDescription,
     find_graph,
-    load_graph,
     node_descriptions,
     ros_arguments,
     with_overrides,

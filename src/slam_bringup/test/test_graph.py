@@ -3,25 +3,22 @@
 from __future__ import annotations
 
 import ast
-import os
 from pathlib import Path
 
 import pytest
 import yaml
 
 from slam_bringup import graph as graph_module
+from slam_bringup import graph_nodes
 from slam_bringup.errors import GraphError
-from slam_bringup.graph import (
+from slam_bringup.graph import load_graph
+from slam_bringup.graph_nodes import (
     PLAYER_PLUGIN,
     RECORDER_PLUGIN,
-    load_graph,
     node_descriptions,
     ros_arguments,
     with_overrides,
 )
-
-# An isolated DDS domain for the rclpy test below, unless a harness chose one already.
-os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 100))
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 
@@ -354,15 +351,16 @@ def test_bag_replay_plays_and_records(tmp_path: Path) -> None:
 
 
 def test_launch_file_uses_only_existing_graph_functions() -> None:
-    """The launch file cannot be imported here (no launch); check what it takes from graph."""
+    """The launch file cannot be imported here (no launch); check what it takes from us."""
     tree = ast.parse((PACKAGE_DIR / 'launch' / 'graph.launch.py').read_text())
+    modules = {'slam_bringup.graph': graph_module, 'slam_bringup.graph_nodes': graph_nodes}
     imported = [
-        alias.name
+        (node.module, alias.name)
         for node in ast.walk(tree)
-        if isinstance(node, ast.ImportFrom) and node.module == 'slam_bringup.graph'
+        if isinstance(node, ast.ImportFrom) and node.module in modules
         for alias in node.names
     ]
-    assert {'load_graph', 'node_descriptions'} <= set(imported)
-    assert all(hasattr(graph_module, name) for name in imported)
+    assert {'load_graph', 'node_descriptions'} <= {name for _, name in imported}
+    assert all(hasattr(modules[module], name) for module, name in imported)
     functions = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
     assert 'generate_launch_description' in functions
