@@ -1,0 +1,24 @@
+from setuptools import find_packages, setup
+
+package_name = 'slam_sim'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='dynamic-slam maintainers',
+    maintainer_email='dev@example.com',
+    description='Seeded simulated worlds for the dynamic-SLAM suite, written as rosbag2 bags',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'office_sim = slam_sim.office_bag:main',
+        ],
+    },
+)

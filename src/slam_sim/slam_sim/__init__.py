@@ -1,0 +1,1 @@
+"""Seeded simulated worlds with ground truth, written as rosbag2 bags."""

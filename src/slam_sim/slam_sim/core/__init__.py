@@ -1,0 +1,1 @@
+"""ROS-free simulation cores: numpy only; randomness comes in as ``np.random.Generator``."""

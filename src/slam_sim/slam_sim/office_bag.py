@@ -1,0 +1,382 @@
+"""office_sim: simulate the EM-SAM office experiment and write it as a rosbag2 mcap bag.
+
+Topics (bag receive stamp = header stamp, ``start_ns`` + run time; all offered reliable):
+
+- ``/odom`` (nav_msgs/msg/Odometry, ``odom`` -> ``base_link``, at ``--odom-hz``, volatile):
+  wheel odometry pose and twist; covariances as a diff-drive controller fills them (a fixed
+  pose diagonal, a twist diagonal from the noise model at full speed).
+- ``/landmark_observations`` (slam_interfaces/msg/LandmarkObservationArray, ``base_link``,
+  volatile): one message per camera frame with at least one detection, stamped with the
+  frame time.
+- ``/ground_truth/pose`` (nav_msgs/msg/Odometry, ``map`` -> ``base_link``, at the odometry
+  stamps, volatile): the true pose and body velocity, zero covariance.
+- ``/ground_truth/landmarks`` (slam_interfaces/msg/LandmarkMap, ``map``, transient-local):
+  every marker's true position at the start and again at the move time; weight 1.0,
+  ``moveable`` the ground-truth flag (a desk marker, moved or not), ``num_observations`` the
+  non-outlier observations of the marker while it stays at that position.
+
+Bags are written zstd chunk-compressed under a hidden staging name and moved into place
+when complete; ``--single-file`` keeps only the ``.mcap`` (which carries its own rosbag2
+metadata, so rosbags, ``bag_info`` and ``ros2 bag`` read it without ``metadata.yaml``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
+
+from slam_bringup.cli import console_main
+from slam_bringup.errors import BagError
+from slam_bringup.progress import ProgressReporter
+from slam_bringup.qos import latched_qos, output_qos, recorded_from_profile
+from slam_bringup.typesys import TypeRegistry
+from slam_sim.core.detector import Observations
+from slam_sim.core.office import OfficeConfig, OfficeRun, Variant, simulate_office
+
+DEFAULT_START_NS = 1_700_000_000 * 10**9
+ODOM_TOPIC = '/odom'
+OBSERVATIONS_TOPIC = '/landmark_observations'
+TRUE_POSE_TOPIC = '/ground_truth/pose'
+TRUE_LANDMARKS_TOPIC = '/ground_truth/landmarks'
+ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
+OBSERVATIONS_TYPE = 'slam_interfaces/msg/LandmarkObservationArray'
+LANDMARK_MAP_TYPE = 'slam_interfaces/msg/LandmarkMap'
+# (topic, type, latched); at equal stamps messages are written in this order.
+TOPICS = (
+    (TRUE_LANDMARKS_TOPIC, LANDMARK_MAP_TYPE, True),
+    (TRUE_POSE_TOPIC, ODOMETRY_TYPE, False),
+    (ODOM_TOPIC, ODOMETRY_TYPE, False),
+    (OBSERVATIONS_TOPIC, OBSERVATIONS_TYPE, False),
+)
+# Pose covariance of /odom, diagonal of (x, y, z, roll, pitch, yaw): diff_drive_controller's
+# usual configuration; wheel odometry does not estimate its own drift.
+ODOM_POSE_COVARIANCE_DIAGONAL = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-2)
+_UNUSED_TWIST_VARIANCE = 1e-3
+
+
+@dataclass(frozen=True)
+class WrittenBag:
+    """A written bag: its path (directory or .mcap), messages per topic and size in bytes."""
+
+    path: Path
+    counts: dict[str, int]
+    size_bytes: int
+
+
+def odom_twist_covariance_diagonal(config: OfficeConfig) -> tuple[float, ...]:
+    """Return the /odom twist variance diagonal (vx, vy, vz, wx, wy, wz) at full speed.
+
+    The twist is the measured motion over one odometry period T, so by the odometry noise
+    model var(v) = sd^2 v_max / T and var(w) = (sr^2 w_max + sq^2 v_max) / T.
+    """
+    noise, motion = config.odometry_noise, config.motion
+    v_var = noise.distance_sigma_per_sqrt_m**2 * motion.max_speed_mps * config.odom_rate_hz
+    w_var = (
+        noise.rotation_sigma_per_sqrt_rad**2 * motion.max_turn_rate_radps
+        + noise.rotation_sigma_per_sqrt_m**2 * motion.max_speed_mps
+    ) * config.odom_rate_hz
+    unused = _UNUSED_TWIST_VARIANCE
+    return (v_var, unused, unused, unused, unused, w_var)
+
+
+class _Builder:
+    """Builds rosbags message objects of the bag's types."""
+
+    def __init__(self, registry: TypeRegistry) -> None:
+        for _, msgtype, _ in TOPICS:
+            registry.ensure(msgtype)
+        self.types: dict[str, Any] = registry.typestore.types
+
+    def _type(self, msgtype: str) -> Any:
+        return self.types[msgtype]
+
+    def header(self, stamp_ns: int, frame_id: str) -> Any:
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        stamp = self._type('builtin_interfaces/msg/Time')(sec=sec, nanosec=nanosec)
+        return self._type('std_msgs/msg/Header')(stamp=stamp, frame_id=frame_id)
+
+    def odometry(
+        self,
+        stamp_ns: int,
+        frame_id: str,
+        pose: np.ndarray,
+        twist: np.ndarray,
+        pose_covariance: np.ndarray,
+        twist_covariance: np.ndarray,
+    ) -> Any:
+        """Return an Odometry of a planar pose (x, y, theta) and twist (v, w) in base_link."""
+        geometry = 'geometry_msgs/msg/'
+        point = self._type(geometry + 'Point')(x=float(pose[0]), y=float(pose[1]), z=0.0)
+        half = 0.5 * float(pose[2])
+        orientation = self._type(geometry + 'Quaternion')(
+            x=0.0, y=0.0, z=float(np.sin(half)), w=float(np.cos(half))
+        )
+        vector = self._type(geometry + 'Vector3')
+        body_twist = self._type(geometry + 'Twist')(
+            linear=vector(x=float(twist[0]), y=0.0, z=0.0),
+            angular=vector(x=0.0, y=0.0, z=float(twist[1])),
+        )
+        return self._type(ODOMETRY_TYPE)(
+            header=self.header(stamp_ns, frame_id),
+            child_frame_id='base_link',
+            pose=self._type(geometry + 'PoseWithCovariance')(
+                pose=self._type(geometry + 'Pose')(position=point, orientation=orientation),
+                covariance=pose_covariance,
+            ),
+            twist=self._type(geometry + 'TwistWithCovariance')(
+                twist=body_twist, covariance=twist_covariance
+            ),
+        )
+
+    def observations(self, stamp_ns: int, frame: Observations) -> Any:
+        """Return the LandmarkObservationArray of one camera frame's observations."""
+        item = self._type('slam_interfaces/msg/LandmarkObservation')
+        return self._type(OBSERVATIONS_TYPE)(
+            header=self.header(stamp_ns, 'base_link'),
+            observations=[
+                item(
+                    landmark_id=int(frame.landmark_ids[k]),
+                    range_m=float(frame.range_m[k]),
+                    bearing_rad=float(frame.bearing_rad[k]),
+                    covariance=frame.covariance[k].reshape(4).astype(np.float64),
+                )
+                for k in range(len(frame))
+            ],
+        )
+
+    def landmark_map(
+        self, stamp_ns: int, run: OfficeRun, after: bool, counts: dict[int, int]
+    ) -> Any:
+        """Return the true LandmarkMap before (``after`` False) or after the move."""
+        truth = run.landmarks
+        positions = truth.positions_after_m if after else truth.positions_before_m
+        point = self._type('geometry_msgs/msg/Point')
+        estimate = self._type('slam_interfaces/msg/LandmarkEstimate')
+        return self._type(LANDMARK_MAP_TYPE)(
+            header=self.header(stamp_ns, 'map'),
+            landmarks=[
+                estimate(
+                    landmark_id=int(landmark_id),
+                    position=point(x=float(xy[0]), y=float(xy[1]), z=0.0),
+                    covariance=np.zeros(4),
+                    weight=1.0,
+                    moveable=bool(moveable),
+                    num_observations=counts.get(int(landmark_id), 0),
+                )
+                for landmark_id, xy, moveable in zip(
+                    truth.ids, positions, truth.moveable, strict=True
+                )
+            ],
+        )
+
+
+def _observation_counts(run: OfficeRun, after: bool) -> dict[int, int]:
+    """Non-outlier observations per landmark id before (or from) the move time."""
+    observations = run.observations
+    in_interval = run.landmarks.after_move(observations.stamps_ns) == after
+    ids, counts = np.unique(
+        observations.landmark_ids[in_interval & ~observations.is_outlier], return_counts=True
+    )
+    return dict(zip(ids.tolist(), counts.tolist(), strict=True))
+
+
+def _schedule(run: OfficeRun) -> tuple[list[tuple[int, int, int]], list[int]]:
+    """Return every message as (run stamp ns, TOPICS index, item index), sorted, and bounds.
+
+    Camera frame i's observations are rows ``bounds[i]:bounds[i + 1]`` of run.observations.
+    """
+    rank = {topic: index for index, (topic, _, _) in enumerate(TOPICS)}
+    schedule = [(0, rank[TRUE_LANDMARKS_TOPIC], 0)]
+    if run.landmarks.move_time_ns is not None:
+        schedule.append((run.landmarks.move_time_ns, rank[TRUE_LANDMARKS_TOPIC], 1))
+    for index, stamp in enumerate(run.odometry.stamps_ns.tolist()):
+        schedule.append((stamp, rank[TRUE_POSE_TOPIC], index))
+        schedule.append((stamp, rank[ODOM_TOPIC], index))
+    frame_stamps, frame_starts = np.unique(run.observations.stamps_ns, return_index=True)
+    for index, stamp in enumerate(frame_stamps.tolist()):
+        schedule.append((stamp, rank[OBSERVATIONS_TOPIC], index))
+    return sorted(schedule), [*frame_starts.tolist(), len(run.observations)]
+
+
+def office_messages(
+    run: OfficeRun, registry: TypeRegistry, *, start_ns: int
+) -> Iterator[tuple[str, int, Any]]:
+    """Yield (topic, bag stamp int ns, rosbags message) of the whole run, in stamp order."""
+    build = _Builder(registry)
+    schedule, frame_bounds = _schedule(run)
+    odometry = run.odometry
+    true_poses = run.truth.poses_at(odometry.stamps_ns)
+    true_twists = run.truth.twists_at(odometry.stamps_ns)
+    zeros = np.zeros(36)
+    odom_pose_cov = np.diag(ODOM_POSE_COVARIANCE_DIAGONAL).reshape(36)
+    odom_twist_cov = np.diag(odom_twist_covariance_diagonal(run.config)).reshape(36)
+    for stamp, topic_rank, index in schedule:
+        topic, bag_ns = TOPICS[topic_rank][0], start_ns + stamp
+        if topic == TRUE_LANDMARKS_TOPIC:
+            after = bool(index)
+            message = build.landmark_map(bag_ns, run, after, _observation_counts(run, after))
+        elif topic == TRUE_POSE_TOPIC:
+            message = build.odometry(
+                bag_ns, 'map', true_poses[index], true_twists[index], zeros, zeros
+            )
+        elif topic == ODOM_TOPIC:
+            message = build.odometry(
+                bag_ns,
+                'odom',
+                odometry.poses[index],
+                odometry.twists[index],
+                odom_pose_cov,
+                odom_twist_cov,
+            )
+        else:
+            rows = slice(frame_bounds[index], frame_bounds[index + 1])
+            message = build.observations(bag_ns, run.observations.select(rows))
+        yield topic, bag_ns, message
+
+
+def write_office_bag(
+    run: OfficeRun,
+    path: Path | str,
+    *,
+    start_ns: int = DEFAULT_START_NS,
+    single_file: bool = False,
+    registry: TypeRegistry | None = None,
+    progress: Callable[[float, int], None] | None = None,
+) -> WrittenBag:
+    """Write ``run`` as an mcap rosbag2 bag at ``path``; return where and what was written.
+
+    ``single_file`` writes one bare ``.mcap`` file (``path`` must end in ``.mcap``) instead
+    of a bag directory. ``progress(run seconds written, messages written)`` is called
+    every 500 messages.
+
+    Raises:
+        BagError: ``path`` exists, its directory does not, or it cannot be written.
+
+    """
+    target = Path(path).expanduser().absolute()
+    if target.exists():
+        raise BagError(f'output {str(target)!r} exists already; remove it or choose another')
+    if not target.parent.is_dir():
+        raise BagError(f'output {str(target)!r}: directory {str(target.parent)!r} is missing')
+    if single_file != (target.suffix == '.mcap'):
+        raise BagError(
+            f'output {str(target)!r}: a single-file bag must end in .mcap and a bag '
+            'directory must not; use --single-file for a .mcap file'
+        )
+    registry = registry if registry is not None else TypeRegistry()
+    staging_root = target.parent / f'.{target.name}.writing-{os.getpid()}'
+    staging = staging_root / (target.stem if single_file else target.name)
+    counts = {topic: 0 for topic, _, _ in TOPICS}
+    try:
+        staging_root.mkdir()
+        writer = Writer(staging, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        with writer:
+            connections = {}
+            for topic, msgtype, latched in TOPICS:
+                msgdef, rihs01 = registry.msgdef_and_hash(msgtype)
+                profile = latched_qos() if latched else output_qos()
+                connections[topic] = writer.add_connection(
+                    topic,
+                    msgtype,
+                    msgdef=msgdef,
+                    rihs01=rihs01,
+                    offered_qos_profiles=[recorded_from_profile(profile)],
+                )
+            for topic, bag_ns, message in office_messages(run, registry, start_ns=start_ns):
+                data = registry.typestore.serialize_cdr(message, message.__msgtype__)
+                writer.write(connections[topic], bag_ns, bytes(data))
+                counts[topic] += 1
+                written = sum(counts.values())
+                if progress is not None and written % 500 == 0:
+                    progress((bag_ns - start_ns) / 1e9, written)
+        if single_file:
+            (staging / f'{staging.name}.mcap').rename(target)
+        else:
+            staging.rename(target)
+    except (OSError, WriterError) as err:
+        raise BagError(f'output {str(target)!r} cannot be written: {err}') from None
+    finally:
+        shutil.rmtree(staging_root, ignore_errors=True)
+    size = (
+        target.stat().st_size if single_file else sum(p.stat().st_size for p in target.iterdir())
+    )
+    return WrittenBag(path=target, counts=counts, size_bytes=size)
+
+
+def summary(run: OfficeRun, written: WrittenBag) -> str:
+    """Return the one-line summary of a written office run."""
+    moved = run.landmarks.ids[run.landmarks.moved]
+    both = run.seen_at_both_positions.tolist()
+    return (
+        f'office_sim: wrote {written.path} ({written.size_bytes / 1e6:.2f} MB): seed '
+        f'{run.seed} variant {run.variant.value}, {run.duration_s:.1f} s, '
+        f'{written.counts[ODOM_TOPIC]} odometry, {written.counts[OBSERVATIONS_TOPIC]} camera '
+        f'frames with {len(run.observations)} observations, '
+        f'{written.counts[TRUE_LANDMARKS_TOPIC]} ground-truth maps; moveable landmarks seen '
+        f'at both positions {len(both)}/{len(moved)} {both}'
+    )
+
+
+@console_main('office_sim')
+def main(argv: list[str] | None = None) -> int:
+    """Simulate one office run and write it as a bag."""
+    parser = argparse.ArgumentParser(
+        prog='office_sim', description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    parser.add_argument('--seed', type=int, required=True, help='random seed of the run')
+    parser.add_argument(
+        '--variant',
+        default=Variant.STANDARD.value,
+        choices=[v.value for v in Variant],
+        help='what the moveable markers do',
+    )
+    parser.add_argument(
+        '--output',
+        required=True,
+        type=Path,
+        help='bag directory to create (or .mcap file with --single-file)',
+    )
+    parser.add_argument('--odom-hz', type=float, default=20.0, help='odometry rate, Hz')
+    parser.add_argument(
+        '--start-ns',
+        type=int,
+        default=DEFAULT_START_NS,
+        help='bag time of the run start, int ns since the epoch',
+    )
+    parser.add_argument(
+        '--single-file',
+        action='store_true',
+        help='write one bare .mcap file instead of a bag directory',
+    )
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        config = OfficeConfig(odom_rate_hz=args.odom_hz)
+    except ValueError as err:
+        parser.error(f'--odom-hz: {err}')
+    run = simulate_office(args.seed, args.variant, config=config)
+    reporter = ProgressReporter(run.duration_s, label='office_sim', unit='s')
+    written = write_office_bag(
+        run,
+        args.output,
+        start_ns=args.start_ns,
+        single_file=args.single_file,
+        progress=lambda done_s, items: reporter.update(done_s, items=items),
+    )
+    reporter.update(run.duration_s, items=sum(written.counts.values()))
+    reporter.finish()
+    print(summary(run, written))  # noqa: T201
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
