@@ -11,7 +11,6 @@ from rclpy.qos import (
     LivelinessPolicy,
     QoSProfile,
     ReliabilityPolicy,
-    qos_profile_sensor_data,
 )
 from rosbags.interfaces import (
     Qos,
@@ -40,9 +39,14 @@ _LIVELINESS = {
 }
 
 
-def sensor_qos() -> QoSProfile:
-    """Sensor inputs: best effort, volatile, keep last 5 (rclpy's sensor-data profile)."""
-    return qos_profile_sensor_data
+def sensor_qos(depth: int = 5) -> QoSProfile:
+    """Sensor inputs: best effort, volatile, keep last ``depth`` (rclpy's sensor-data profile)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
 
 
 def output_qos(depth: int = DEFAULT_DEPTH) -> QoSProfile:

@@ -1,0 +1,1 @@
+"""EM-SAM: batch SAM with EM weights that find moveable landmarks (paper 000)."""

@@ -1,0 +1,86 @@
+"""Messages <-> em_sam_node core types. Fields are read by name, so rclpy messages and
+rosbags-deserialized messages both work."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from em_sam_node.core.problem import FloatArray
+from em_sam_node.ingest import Increment
+from em_sam_node.mapper import Observation
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """Return a builtin_interfaces/Time as int nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def ns_to_stamp(stamp_ns: int, stamp: Any) -> Any:
+    """Fill a builtin_interfaces/Time message from int nanoseconds and return it."""
+    stamp.sec, stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return stamp
+
+
+def yaw_from_quaternion(q: Any) -> float:
+    """Return the heading (rad) of a geometry_msgs/Quaternion (rotation about z)."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def quaternion_from_yaw(yaw: float, q: Any) -> Any:
+    """Fill a geometry_msgs/Quaternion with a rotation of ``yaw`` rad about z and return it."""
+    q.x, q.y, q.z, q.w = 0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)
+    return q
+
+
+def odometry_pose(message: Any) -> tuple[int, FloatArray]:
+    """Return (stamp ns, pose (x m, y m, theta rad)) of a nav_msgs/Odometry."""
+    pose = message.pose.pose
+    return stamp_to_ns(message.header.stamp), np.array(
+        [pose.position.x, pose.position.y, yaw_from_quaternion(pose.orientation)]
+    )
+
+
+def observations_from_message(message: Any) -> list[Observation]:
+    """Return the Observations of a slam_interfaces/LandmarkObservationArray."""
+    stamp_ns = stamp_to_ns(message.header.stamp)
+    return [
+        Observation(
+            stamp_ns=stamp_ns,
+            landmark_id=int(o.landmark_id),
+            z=np.array([o.range_m, o.bearing_rad], dtype=float),
+            covariance=np.asarray(o.covariance, dtype=float).reshape(2, 2),
+        )
+        for o in message.observations
+    ]
+
+
+def increment_to_message(increment: Increment, message: Any, *, base_frame: str,
+                         odom_frame: str) -> Any:
+    """Fill a slam_interfaces/OdometryIncrement from an Increment and return it."""
+    message.header.frame_id = base_frame
+    ns_to_stamp(increment.stamp_to_ns, message.header.stamp)
+    ns_to_stamp(increment.stamp_from_ns, message.stamp_from)
+    ns_to_stamp(increment.stamp_to_ns, message.stamp_to)
+    message.forward_m, message.side_m, message.angular_rad = (float(v) for v in increment.u)
+    message.covariance = [float(v) for v in increment.covariance.reshape(9)]
+    message.odom_frame_id = odom_frame
+    message.odom_pose_from = [float(v) for v in increment.odom_pose_from]
+    message.odom_pose_to = [float(v) for v in increment.odom_pose_to]
+    message.reset = bool(increment.reset)
+    return message
+
+
+def increment_from_message(message: Any) -> Increment:
+    """Return the Increment of a slam_interfaces/OdometryIncrement."""
+    return Increment(
+        stamp_from_ns=stamp_to_ns(message.stamp_from),
+        stamp_to_ns=stamp_to_ns(message.stamp_to),
+        u=np.array([message.forward_m, message.side_m, message.angular_rad], dtype=float),
+        covariance=np.asarray(message.covariance, dtype=float).reshape(3, 3),
+        odom_pose_from=np.asarray(message.odom_pose_from, dtype=float),
+        odom_pose_to=np.asarray(message.odom_pose_to, dtype=float),
+        reset=bool(message.reset),
+    )

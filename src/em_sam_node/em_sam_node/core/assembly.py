@@ -1,0 +1,145 @@
+"""From keyframed mapping data (stamps, odometry increments, observations) to a SlamProblem.
+
+Landmarks are known by id in the data and by a dense index in a problem; ``build_problem``
+keeps the mapping. Covariances become square-root information matrices here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+from dataclasses import dataclass
+
+import numpy as np
+
+from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.se2 import range_bearing_to_point
+
+
+@dataclass(frozen=True)
+class MappingData:
+    """Everything the mapper collected, with landmark ids (not indices).
+
+    Keyframes are ordered by stamp (int ns, (N,)). Odometry increment m goes from keyframe
+    ``odometry_from[m]`` to ``odometry_to[m]`` ((M,), (M,3) as (u0 m, u1 m, u2 rad), (M,3,3)).
+    Observation k is made at keyframe ``obs_keyframe[k]`` of landmark ``obs_landmark_id[k]``
+    with (range m, bearing rad) ``obs_z[k]`` and covariance ``obs_cov[k]`` ((K,), (K,2),
+    (K,2,2)). ``prior_pose`` (3,) and ``prior_cov`` (3,3) anchor keyframe 0.
+    """
+
+    keyframe_stamps_ns: IntArray
+    odometry_from: IntArray
+    odometry_to: IntArray
+    odometry_u: FloatArray
+    odometry_cov: FloatArray
+    obs_keyframe: IntArray
+    obs_landmark_id: IntArray
+    obs_z: FloatArray
+    obs_cov: FloatArray
+    prior_pose: FloatArray
+    prior_cov: FloatArray
+
+    @property
+    def num_keyframes(self) -> int:
+        """N, the number of keyframes."""
+        return int(self.keyframe_stamps_ns.shape[0])
+
+    @property
+    def obs_stamp_ns(self) -> IntArray:
+        """Stamp of every observation (K,), int ns."""
+        return self.keyframe_stamps_ns[self.obs_keyframe]
+
+
+def sqrt_information(covariance: FloatArray) -> FloatArray:
+    """Return W (n,d,d) with W^T W = covariance^-1 for a batch of SPD covariances (n,d,d).
+
+    Raises:
+        ValueError: a covariance is not symmetric positive definite.
+
+    """
+    symmetric = 0.5 * (covariance + np.swapaxes(covariance, -1, -2))
+    try:
+        lower = np.linalg.cholesky(symmetric)
+    except np.linalg.LinAlgError as err:
+        raise ValueError(f'a covariance is not positive definite: {err}') from None
+    identity = np.broadcast_to(np.eye(covariance.shape[-1]), covariance.shape)
+    result: FloatArray = np.linalg.solve(lower, identity)
+    return result
+
+
+def landmark_ids(data: MappingData) -> IntArray:
+    """Return the sorted distinct landmark ids observed in ``data``."""
+    return np.unique(data.obs_landmark_id).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class BuiltProblem:
+    """A SlamProblem and how it maps back to the data.
+
+    ``landmark_ids[j]`` is the id of landmark index j; ``observation_rows[k]`` is the index
+    in ``MappingData`` of the problem's observation k.
+    """
+
+    problem: SlamProblem
+    landmark_ids: IntArray
+    observation_rows: IntArray
+
+
+def build_problem(data: MappingData, *, exclude_ids: Collection[int] = ()) -> BuiltProblem:
+    """Return the SAM problem of ``data`` without the landmarks in ``exclude_ids``."""
+    excluded = np.isin(data.obs_landmark_id, np.fromiter(exclude_ids, dtype=np.int64))
+    rows = np.flatnonzero(~excluded).astype(np.int64)
+    ids, obs_landmark = np.unique(data.obs_landmark_id[rows], return_inverse=True)
+    problem = SlamProblem(
+        num_poses=data.num_keyframes,
+        num_landmarks=int(ids.shape[0]),
+        odometry_from=data.odometry_from.astype(np.int64),
+        odometry_to=data.odometry_to.astype(np.int64),
+        odometry_u=data.odometry_u.astype(np.float64),
+        odometry_sqrt_info=sqrt_information(data.odometry_cov)
+        if len(data.odometry_cov)
+        else np.zeros((0, 3, 3)),
+        obs_pose=data.obs_keyframe[rows].astype(np.int64),
+        obs_landmark=obs_landmark.astype(np.int64),
+        obs_z=data.obs_z[rows].astype(np.float64),
+        obs_sqrt_info=sqrt_information(data.obs_cov[rows]) if len(rows) else np.zeros((0, 2, 2)),
+        prior_mean=data.prior_pose.astype(np.float64),
+        prior_sqrt_info=sqrt_information(data.prior_cov[None])[0],
+    )
+    return BuiltProblem(problem, ids.astype(np.int64), rows)
+
+
+def dead_reckoning(data: MappingData) -> FloatArray:
+    """Return keyframe poses (N,3) composed from the prior and the odometry increments.
+
+    A keyframe with no incoming increment (after an odometry reset) starts where the
+    previous keyframe ended.
+    """
+    steps = np.zeros((data.num_keyframes, 3))  # increment into each keyframe, 0 if none
+    chained = data.odometry_to == data.odometry_from + 1
+    steps[data.odometry_to[chained]] = data.odometry_u[chained]
+    steps[0] = 0.0
+    headings = data.prior_pose[2] + np.cumsum(steps[:, 2])
+    mid_headings = headings - steps[:, 2] / 2.0  # theta~ = theta_{i-1} + u2 / 2 (eq. 2)
+    cos, sin = np.cos(mid_headings), np.sin(mid_headings)
+    dx = steps[:, 0] * cos - steps[:, 1] * sin
+    dy = steps[:, 0] * sin + steps[:, 1] * cos
+    poses = np.column_stack(
+        [data.prior_pose[0] + np.cumsum(dx), data.prior_pose[1] + np.cumsum(dy), headings]
+    )
+    poses[:, 2] = np.arctan2(np.sin(poses[:, 2]), np.cos(poses[:, 2]))
+    return poses
+
+
+def initial_landmarks(problem: SlamProblem, poses: FloatArray) -> FloatArray:
+    """Return landmark positions (L,2) from each landmark's first observation in ``poses``."""
+    landmarks = np.zeros((problem.num_landmarks, 2))
+    order = np.argsort(problem.obs_landmark, kind='stable')
+    first = order[np.unique(problem.obs_landmark[order], return_index=True)[1]]
+    points = range_bearing_to_point(poses[problem.obs_pose[first]], problem.obs_z[first])
+    landmarks[problem.obs_landmark[first]] = points
+    return landmarks
+
+
+def initial_estimate(problem: SlamProblem, poses: FloatArray) -> Estimate:
+    """Return an Estimate with ``poses`` and landmarks placed from their first sighting."""
+    return Estimate(poses.copy(), initial_landmarks(problem, poses))

@@ -1,0 +1,104 @@
+"""Graph structure: which poses and landmarks hang together, and how to anchor every piece.
+
+A problem splits into pieces when odometry is missing between keyframes (an odometry reset)
+and no landmark ties the two sides together, or when removing moveable landmarks cuts the
+only link. Each piece without the prior gets a weak prior on its first pose, so the solve is
+well-posed and the piece keeps its initial placement.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from numpy.typing import NDArray
+
+from em_sam_node.core.problem import FloatArray, IntArray, SlamProblem
+
+# A weak anchor: effectively free in position and heading, but not singular.
+WEAK_PRIOR_SIGMA = np.array([1e3, 1e3, 1e2])
+
+
+def _find(parent: NDArray[np.int64], node: int) -> int:
+    root = node
+    while parent[root] != root:
+        root = int(parent[root])
+    while parent[node] != root:
+        parent[node], node = root, int(parent[node])
+    return root
+
+
+def connected_pieces(problem: SlamProblem) -> IntArray:
+    """Return a piece label (N + L,) for every pose then landmark; labels are 0..P-1."""
+    count = problem.num_poses + problem.num_landmarks
+    parent = np.arange(count, dtype=np.int64)
+    edges_a = np.concatenate([problem.odometry_from, problem.obs_pose])
+    edges_b = np.concatenate([problem.odometry_to, problem.num_poses + problem.obs_landmark])
+    for a, b in zip(edges_a.tolist(), edges_b.tolist(), strict=True):
+        root_a, root_b = _find(parent, a), _find(parent, b)
+        if root_a != root_b:
+            parent[max(root_a, root_b)] = min(root_a, root_b)
+    roots = np.array([_find(parent, i) for i in range(count)], dtype=np.int64)
+    _, labels = np.unique(roots, return_inverse=True)
+    return labels.astype(np.int64)
+
+
+@dataclasses.dataclass(frozen=True)
+class AnchoredProblem:
+    """A problem plus the weak priors that anchor its pieces (one row each, (P-1,) ...)."""
+
+    problem: SlamProblem
+    extra_prior_poses: IntArray
+    extra_prior_means: FloatArray
+    num_pieces: int
+
+
+def anchor_pieces(problem: SlamProblem, initial_poses: FloatArray) -> AnchoredProblem:
+    """Return the pieces of ``problem`` and weak priors on the first pose of unanchored ones.
+
+    The priors are expressed as extra odometry-free factors by the caller (see
+    ``with_weak_priors``); landmarks observed by no pose are reported as their own pieces
+    and must be removed by the caller before solving.
+    """
+    labels = connected_pieces(problem)
+    pose_labels = labels[: problem.num_poses]
+    anchored_label = pose_labels[problem.prior_pose_index]
+    firsts = []
+    for label in np.unique(pose_labels):
+        if label == anchored_label:
+            continue
+        firsts.append(int(np.flatnonzero(pose_labels == label)[0]))
+    indices = np.array(firsts, dtype=np.int64)
+    return AnchoredProblem(
+        problem=problem,
+        extra_prior_poses=indices,
+        extra_prior_means=initial_poses[indices].copy() if len(indices) else np.zeros((0, 3)),
+        num_pieces=int(len(np.unique(pose_labels))),
+    )
+
+
+def with_weak_priors(
+    problem: SlamProblem, pose_indices: IntArray, means: FloatArray
+) -> SlamProblem:
+    """Return ``problem`` with a weak prior on each given pose, as odometry-like factors.
+
+    A weak prior on pose p is written as an odometry factor from the anchored prior pose to
+    p whose increment reproduces ``means[p]`` from the prior's mean and whose information is
+    tiny (WEAK_PRIOR_SIGMA), so it fixes the gauge of p's piece without pulling on it.
+    """
+    if len(pose_indices) == 0:
+        return problem
+    from em_sam_node.core.se2 import increment_between
+
+    anchor = problem.prior_pose_index
+    count = len(pose_indices)
+    anchor_means = np.repeat(problem.prior_mean[None, :], count, axis=0)
+    increments = increment_between(anchor_means, means)
+    sqrt_info = np.repeat(np.diag(1.0 / WEAK_PRIOR_SIGMA)[None, :, :], count, axis=0)
+    return dataclasses.replace(
+        problem,
+        odometry_from=np.concatenate([problem.odometry_from, np.full(count, anchor)]),
+        odometry_to=np.concatenate([problem.odometry_to, pose_indices]),
+        odometry_u=np.concatenate([problem.odometry_u, increments]),
+        odometry_sqrt_info=np.concatenate([problem.odometry_sqrt_info, sqrt_info]),
+    )

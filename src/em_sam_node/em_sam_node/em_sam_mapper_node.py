@@ -1,0 +1,302 @@
+"""em_sam_mapper: EM-SAM batch mapping with moveable-landmark detection.
+
+Collects odometry increments and landmark observations, and re-solves EM-SAM on a timer
+(warm-started from the previous solution) and on request. Publishes the trajectory, the
+landmark map with EM weights, the moveable landmarks with every sighting (most recent
+first), a MarkerArray like the paper's Fig. 5, and TF map->odom. Writes a report (JSON and
+PNG figures, atomically) on request and on shutdown.
+
+Topics:
+  subscribes  odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000)
+              landmark_observations (slam_interfaces/LandmarkObservationArray, reliable,
+              depth 100)
+  publishes   em_sam/path (nav_msgs/Path), em_sam/landmarks (slam_interfaces/LandmarkMap),
+              em_sam/moveable (slam_interfaces/MoveableLandmarkArray),
+              em_sam/markers (visualization_msgs/MarkerArray): reliable, transient-local, 1
+              /tf (tf2_msgs/TFMessage): map->odom, every tf_period_s
+Services:
+  ~/optimize (std_srvs/Trigger)          solve now and publish.
+  ~/find_landmark (slam_interfaces/FindLandmark)  sightings of a landmark, most recent first.
+  ~/write_report (std_srvs/Trigger)      write the report now.
+
+Parameters:
+  mode ('robust')                 'paper' (as published) or 'robust'.
+  lagrange_lambda (50.0)          lambda of the paper's eq. 14 ('paper' mode), > 0.
+  moveable_threshold (0.5)        weights below this are moveable, in (0, 1).
+  max_em_iterations (20), weight_tolerance (0.001)  EM stopping rule.
+  false_alarm_probability (0.001) 'robust': per-landmark test level.
+  gate_probability (0.0001), max_gated_fraction (0.1)  'robust': outlier gate per sighting.
+  huber_threshold (1.345)         'robust': Huber kernel of the first E-step, in sigmas.
+  solver_method ('levenberg_marquardt')  or 'gauss_newton'.
+  optimize_period_s (2.0)         re-solve period when new data came; 0 = only on request.
+  stamp_tolerance_s (0.005)       how close an observation's stamp must be to a keyframe's.
+  prior_sigma ([0.001, 0.001, 0.001])  std. dev. of the prior on the first keyframe.
+  map_frame ('map'), odom_frame ('odom')  frame ids.
+  tf_period_s (0.1)               period of the map->odom broadcast, > 0.
+  report_dir ('')                 where to write em_sam_report.json and figures; '' = none.
+
+Frames: the map frame is the odometry frame at the first keyframe.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+from nav_msgs.msg import Path as PathMessage
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from slam_interfaces.msg import (
+    LandmarkMap,
+    LandmarkObservationArray,
+    MoveableLandmarkArray,
+    OdometryIncrement,
+)
+from slam_interfaces.srv import FindLandmark
+from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import MarkerArray
+
+from em_sam_node.conversions import increment_from_message, observations_from_message
+from em_sam_node.core.em import EmConfig
+from em_sam_node.mapper import MapperConfig, MapperProcessor
+from em_sam_node.mapper_outputs import (
+    landmark_map_message,
+    map_to_odom_tf,
+    markers_message,
+    moveable_message,
+    path_message,
+    sighting_messages,
+)
+from em_sam_node.report import write_report
+from slam_bringup.cli import console_main
+from slam_bringup.errors import ParameterError
+from slam_bringup.params import ParamSpec, check, check_finite_non_negative, declare_parameters
+from slam_bringup.params import check_finite_positive
+from slam_bringup.qos import latched_qos, output_qos
+
+PARAMETERS = (
+    ParamSpec('mode', 'robust', "EM-SAM mode: 'paper' (as published) or 'robust'"),
+    ParamSpec('lagrange_lambda', 50.0, 'lambda of eq. 14 in paper mode (> 0)'),
+    ParamSpec('moveable_threshold', 0.5, 'weights below this are moveable, in (0, 1)'),
+    ParamSpec('max_em_iterations', 20, 'maximum EM iterations (>= 1)'),
+    ParamSpec('weight_tolerance', 0.001, 'EM stops when no weight changes more than this'),
+    ParamSpec('false_alarm_probability', 0.001, 'robust: per-landmark test level'),
+    ParamSpec('gate_probability', 0.0001, 'robust: per-sighting outlier gate level'),
+    ParamSpec('max_gated_fraction', 0.1, "robust: largest share of a landmark's sightings gated"),
+    ParamSpec('huber_threshold', 1.345, 'robust: Huber threshold of the first E-step, sigmas'),
+    ParamSpec('solver_method', 'levenberg_marquardt', "'levenberg_marquardt' or 'gauss_newton'"),
+    ParamSpec('optimize_period_s', 2.0, 're-solve period when new data came, s; 0 = on request'),
+    ParamSpec('stamp_tolerance_s', 0.005, 'observation-to-keyframe stamp tolerance, s'),
+    ParamSpec('prior_sigma', [0.001, 0.001, 0.001], 'std. dev. of the first keyframe prior'),
+    ParamSpec('map_frame', 'map', 'map frame id'),
+    ParamSpec('odom_frame', 'odom', 'odometry frame id'),
+    ParamSpec('tf_period_s', 0.1, 'period of the map->odom broadcast, s (> 0)'),
+    ParamSpec('report_dir', '', "directory for the report (JSON + PNG); '' writes none"),
+)
+SOLVER_METHODS = ('levenberg_marquardt', 'gauss_newton')
+
+
+def config_from_parameters(values: dict[str, Any]) -> MapperConfig:
+    """Validate parameter values into a MapperConfig (raises ParameterError)."""
+    check(values['solver_method'] in SOLVER_METHODS, 'solver_method', values['solver_method'],
+          f'must be one of {SOLVER_METHODS}')
+    try:
+        em = EmConfig(
+            mode=str(values['mode']),
+            lagrange_lambda=float(values['lagrange_lambda']),
+            moveable_threshold=float(values['moveable_threshold']),
+            max_iterations=int(values['max_em_iterations']),
+            weight_tolerance=float(values['weight_tolerance']),
+            false_alarm_probability=float(values['false_alarm_probability']),
+            gate_probability=float(values['gate_probability']),
+            max_gated_fraction=float(values['max_gated_fraction']),
+            huber_threshold=float(values['huber_threshold']),
+            solver_method=str(values['solver_method']),
+        )
+        return MapperConfig(
+            em=em,
+            stamp_tolerance_s=float(values['stamp_tolerance_s']),
+            prior_sigma=tuple(float(s) for s in values['prior_sigma']),  # type: ignore[arg-type]
+        )
+    except ValueError as err:
+        raise ParameterError(str(err).replace('EM-SAM setting ', 'parameter ')) from None
+
+
+class EmSamMapperNode(Node):
+    """Thin adapter around MapperProcessor."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('em_sam_mapper', **kwargs)
+        values = declare_parameters(self, PARAMETERS)
+        self.mapper = MapperProcessor(config_from_parameters(values), warn=self._warn)
+        self.optimize_period_s = float(values['optimize_period_s'])
+        check_finite_non_negative('optimize_period_s', self.optimize_period_s)
+        tf_period_s = float(values['tf_period_s'])
+        check_finite_positive('tf_period_s', tf_period_s)
+        self.map_frame = str(values['map_frame'])
+        self.odom_frame = str(values['odom_frame'])
+        self.report_dir = Path(values['report_dir']).expanduser() if values['report_dir'] else None
+
+        latched = latched_qos()
+        self.path_publisher = self.create_publisher(PathMessage, 'em_sam/path', latched)
+        self.map_publisher = self.create_publisher(LandmarkMap, 'em_sam/landmarks', latched)
+        self.moveable_publisher = self.create_publisher(
+            MoveableLandmarkArray, 'em_sam/moveable', latched
+        )
+        self.marker_publisher = self.create_publisher(MarkerArray, 'em_sam/markers', latched)
+        self.tf_publisher = self.create_publisher(TFMessage, '/tf', output_qos(depth=100))
+        self.create_subscription(
+            OdometryIncrement, 'odometry_increments', self._on_increment, output_qos(depth=1000)
+        )
+        self.create_subscription(
+            LandmarkObservationArray, 'landmark_observations', self._on_observations,
+            output_qos(depth=100),
+        )
+        self.create_service(Trigger, '~/optimize', self._on_optimize)
+        self.create_service(Trigger, '~/write_report', self._on_write_report)
+        self.create_service(FindLandmark, '~/find_landmark', self._on_find_landmark)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if self.optimize_period_s > 0:
+            self.create_timer(self.optimize_period_s, self._on_timer, clock=steady)
+        self.create_timer(tf_period_s, self._publish_tf, clock=steady)
+        self._dirty = False
+        self.solves = 0
+
+    def _warn(self, message: str) -> None:
+        self.get_logger().warning(message, throttle_duration_sec=2.0)
+
+    # -- inputs ---------------------------------------------------------------------------
+    def _on_increment(self, message: OdometryIncrement) -> None:
+        self.mapper.add_increment(increment_from_message(message))
+        self._dirty = True
+
+    def _on_observations(self, message: LandmarkObservationArray) -> None:
+        for observation in observations_from_message(message):
+            self.mapper.add_observation(observation)
+        self._dirty = True
+
+    # -- solving and publishing -----------------------------------------------------------
+    def _on_timer(self) -> None:
+        if self._dirty:
+            self.optimize()
+
+    def optimize(self) -> str:
+        """Solve EM-SAM now and publish the results; return a one-line summary."""
+        self._dirty = False
+        started = time.perf_counter()
+        result = self.mapper.optimize()
+        if result is None:
+            return 'not enough data to optimize'
+        self.solves += 1
+        stamp = self.get_clock().now().to_msg()
+        stamps = np.array(self.mapper.stamps_ns[: self.mapper.result_keyframes])
+        self.path_publisher.publish(path_message(result, stamps, self.map_frame, stamp))
+        self.map_publisher.publish(landmark_map_message(result, self.map_frame, stamp))
+        self.moveable_publisher.publish(moveable_message(result, self.map_frame, stamp))
+        self.marker_publisher.publish(markers_message(result, self.map_frame, stamp))
+        self._publish_tf()
+        summary = (
+            f'EM-SAM ({result.mode}): {len(stamps)} keyframes, {len(result.landmark_ids)} '
+            f'landmarks, moveable {result.landmark_ids[result.moveable].tolist()}, '
+            f'{result.em_iterations} EM iterations in {time.perf_counter() - started:.3f} s'
+        )
+        self.get_logger().info(summary)
+        return summary
+
+    def _publish_tf(self) -> None:
+        transform = self.mapper.map_to_odom()
+        if transform is not None:
+            stamp = self.get_clock().now().to_msg()
+            self.tf_publisher.publish(
+                map_to_odom_tf(transform, self.map_frame, self.odom_frame, stamp)
+            )
+
+    def write_report(self) -> list[Path]:
+        """Solve if needed and write the report; return the files written."""
+        if self.report_dir is None:
+            return []
+        if self._dirty or self.mapper.result is None:
+            # Solve without publishing: on shutdown the ROS context may be gone already.
+            self._dirty = False
+            self.mapper.optimize()
+        result = self.mapper.result
+        if result is None:
+            self.get_logger().warning('no report written: nothing was solved')
+            return []
+        stamps = np.array(self.mapper.stamps_ns[: self.mapper.result_keyframes])
+        extra = {
+            'dropped_observations': self.mapper.dropped_observations,
+            'parameters': {s.name: self.get_parameter(s.name).value for s in PARAMETERS},
+        }
+        paths = write_report(result, stamps, self.report_dir, extra)
+        self.get_logger().info(f'report written to {str(self.report_dir)!r}')
+        return paths
+
+    # -- services -------------------------------------------------------------------------
+    def _on_optimize(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        response.message = self.optimize()
+        response.success = self.mapper.result is not None
+        return response
+
+    def _on_write_report(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        if self.report_dir is None:
+            response.success, response.message = False, 'report_dir is not set'
+            return response
+        paths = self.write_report()
+        response.success = bool(paths)
+        response.message = ', '.join(str(p) for p in paths) or 'nothing to report yet'
+        return response
+
+    def _on_find_landmark(self, request: Any, response: Any) -> Any:
+        if self._dirty or self.mapper.result is None:
+            self.optimize()
+        sightings = self.mapper.find_landmark(int(request.landmark_id))
+        response.frame_id = self.map_frame
+        if sightings is None:
+            response.found = False
+            response.message = f'landmark {request.landmark_id} has never been observed'
+            return response
+        result = self.mapper.result
+        assert result is not None
+        index = int(np.flatnonzero(result.landmark_ids == request.landmark_id)[0])
+        response.found = True
+        response.moveable = bool(result.moveable[index])
+        response.weight = float(result.weights[index])
+        response.sightings = sighting_messages(sightings)
+        response.message = f'{len(response.sightings)} sightings, most recent first'
+        return response
+
+    def destroy_node(self) -> None:
+        """Write the final report before going away."""
+        try:
+            self.write_report()
+        except Exception as err:  # a report must never prevent the node from shutting down
+            self.get_logger().error(f'could not write the report: {err}')
+        super().destroy_node()
+
+
+@console_main('em_sam_mapper')
+def main(argv: list[str] | None = None) -> int:
+    """Run the node until Ctrl-C; the report is written on the way out."""
+    rclpy.init(args=sys.argv if argv is None else ['em_sam_mapper', *argv])
+    node = None
+    try:
+        node = EmSamMapperNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,221 @@
+"""em_sam_evaluate: score EM-SAM against ground truth on simulated bags.
+
+    em_sam_evaluate BAG [BAG ...] [--output DIR]
+    em_sam_evaluate --simulate 0-9 [--variant standard] [--output DIR]
+
+For every bag (or simulated seed), the odometry and observations are replayed through the
+nodes' processors and five methods are compared: odometry only, plain SAM (every landmark
+static), EM-SAM 'paper', EM-SAM 'robust', and an oracle with the truly moveable landmarks
+removed. Columns: ATE RMSE (m, after SE(2) alignment), static landmark map error (m, same
+alignment), moveable precision and recall (positives: moved landmarks seen at both
+positions), runtime. Writes results.md, results.json and figures (the paper's Figs. 2-5 and
+weights per EM iteration) into the output directory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
+from em_sam_node.core.em import EmConfig, EmResult, run_em
+from em_sam_node.core.evaluation import align_se2, ate_rmse, classify, landmark_rmse
+from em_sam_node.core.problem import FloatArray
+from em_sam_node.core.solver import solve
+from em_sam_node.core.structure import anchor_pieces, with_weak_priors
+from em_sam_node.offline import GroundTruth, read_ground_truth, replay_bag, seen_at_both_positions
+from em_sam_node.report import write_atomically, write_figures, write_json
+from slam_bringup.cli import console_main
+from slam_bringup.progress import ProgressReporter
+
+METHODS = ('odometry', 'plain_sam', 'em_sam_paper', 'em_sam_robust', 'oracle')
+
+
+@dataclass(frozen=True)
+class Score:
+    """One method on one run."""
+
+    run: str
+    method: str
+    ate_m: float
+    map_error_m: float
+    precision: float
+    recall: float
+    flagged_static: int
+    runtime_s: float
+
+
+@dataclass(frozen=True)
+class MethodOutput:
+    """A method's trajectory (N,3), static landmark estimates and flagged ids."""
+
+    poses: FloatArray
+    landmark_ids: np.ndarray
+    positions: FloatArray
+    flagged: set[int]
+    runtime_s: float
+    em: EmResult | None = None
+
+
+def _solve_all_static(data: MappingData, exclude: list[int]) -> tuple[FloatArray, np.ndarray,
+                                                                        FloatArray]:
+    built = build_problem(data, exclude_ids=exclude)
+    poses0 = dead_reckoning(data)
+    anchored = anchor_pieces(built.problem, poses0)
+    problem = with_weak_priors(built.problem, anchored.extra_prior_poses,
+                               anchored.extra_prior_means)
+    result = solve(problem, initial_estimate(problem, poses0), method='levenberg_marquardt')
+    return result.estimate.poses, built.landmark_ids, result.estimate.landmarks
+
+
+def run_methods(data: MappingData, truth: GroundTruth) -> dict[str, MethodOutput]:
+    """Run the five methods on one run's data."""
+    outputs: dict[str, MethodOutput] = {}
+    started = time.perf_counter()
+    poses = dead_reckoning(data)
+    outputs['odometry'] = MethodOutput(poses, np.zeros(0, dtype=np.int64), np.zeros((0, 2)),
+                                       set(), time.perf_counter() - started)
+    for method, exclude in (('plain_sam', []),
+                            ('oracle', truth.landmark_ids[truth.moveable].tolist())):
+        started = time.perf_counter()
+        poses, ids, positions = _solve_all_static(data, exclude)
+        outputs[method] = MethodOutput(poses, ids, positions, set(),
+                                       time.perf_counter() - started)
+    for mode in ('paper', 'robust'):
+        started = time.perf_counter()
+        result = run_em(data, EmConfig(mode=mode), record_snapshots=False)
+        runtime = time.perf_counter() - started
+        static = ~result.moveable
+        outputs[f'em_sam_{mode}'] = MethodOutput(
+            result.poses, result.landmark_ids[static], result.positions[static],
+            set(result.landmark_ids[result.moveable].tolist()), runtime, result,
+        )
+    return outputs
+
+
+def score(run: str, data: MappingData, truth: GroundTruth,
+          outputs: dict[str, MethodOutput]) -> list[Score]:
+    """Return the metrics of every method on one run."""
+    true_xy = truth.poses_at(data.keyframe_stamps_ns)[:, :2]
+    positives = seen_at_both_positions(data, truth)
+    negatives = set(truth.landmark_ids[~truth.moveable].tolist())
+    static_truth = dict(zip(truth.landmark_ids.tolist(), truth.positions_before, strict=True))
+    scores = []
+    for method, output in outputs.items():
+        alignment = align_se2(output.poses[:, :2], true_xy)
+        keep = [i for i, lid in enumerate(output.landmark_ids.tolist()) if lid in negatives]
+        map_error = landmark_rmse(
+            output.positions[keep],
+            np.array([static_truth[int(output.landmark_ids[i])] for i in keep]).reshape(-1, 2),
+            alignment,
+        )
+        counts = classify(output.flagged, positives, negatives)
+        em_method = method.startswith('em_sam')
+        scores.append(Score(
+            run=run, method=method, ate_m=ate_rmse(output.poses[:, :2], true_xy),
+            map_error_m=map_error,
+            precision=counts.precision if em_method else float('nan'),
+            recall=counts.recall if em_method else float('nan'),
+            flagged_static=counts.false_positives, runtime_s=output.runtime_s,
+        ))
+    return scores
+
+
+def markdown_table(scores: list[Score]) -> str:
+    """Return per-method means over runs as a Markdown table."""
+    lines = [
+        '| method | runs | ATE RMSE m | map error m | moveable precision | moveable recall '
+        '| static flagged (total) | runtime s |',
+        '|---|---:|---:|---:|---:|---:|---:|---:|',
+    ]
+    for method in METHODS:
+        mine = [s for s in scores if s.method == method]
+        if not mine:
+            continue
+
+        def mean(values: list[float]) -> str:
+            finite = [v for v in values if np.isfinite(v)]
+            return f'{np.mean(finite):.3f}' if finite else '-'
+
+        lines.append(
+            f'| {method} | {len(mine)} | {mean([s.ate_m for s in mine])} | '
+            f'{mean([s.map_error_m for s in mine])} | {mean([s.precision for s in mine])} | '
+            f'{mean([s.recall for s in mine])} | {sum(s.flagged_static for s in mine)} | '
+            f'{mean([s.runtime_s for s in mine])} |'
+        )
+    return '\n'.join(lines)
+
+
+def evaluate_bag(path: Path, output: Path | None) -> tuple[list[Score], dict[str, MethodOutput]]:
+    """Replay one bag, run the methods, score them, and write its figures if asked."""
+    replay = replay_bag(path)
+    truth = read_ground_truth(path)
+    outputs = run_methods(replay.data, truth)
+    if output is not None:
+        for mode in ('paper', 'robust'):
+            figures = run_em(replay.data, EmConfig(mode=mode), record_snapshots=True)
+            write_figures(figures, output / path.stem, prefix=f'em_sam_{mode}')
+    return score(path.stem, replay.data, truth, outputs), outputs
+
+
+def _seed_range(text: str) -> list[int]:
+    if '-' in text:
+        low, high = text.split('-', 1)
+        return list(range(int(low), int(high) + 1))
+    return [int(part) for part in text.split(',')]
+
+
+def _simulated_bags(seeds: list[int], variant: str, directory: Path) -> list[Path]:
+    from slam_sim.core.office import simulate_office
+    from slam_sim.office_bag import write_office_bag
+
+    paths = []
+    for seed in seeds:
+        path = directory / f'office_{variant}_seed{seed}'
+        write_office_bag(simulate_office(seed, variant), path)
+        paths.append(path)
+    return paths
+
+
+@console_main('em_sam_evaluate')
+def main(argv: list[str] | None = None) -> int:
+    """Evaluate bags or simulated seeds; print the table; write results and figures."""
+    parser = argparse.ArgumentParser(prog='em_sam_evaluate', description=__doc__.splitlines()[0])
+    parser.add_argument('bags', nargs='*', type=Path, help='simulated bags with ground truth')
+    parser.add_argument('--simulate', metavar='SEEDS', help="simulate seeds, e.g. '0-9' or '1,4'")
+    parser.add_argument('--variant', default='standard', help='simulation variant')
+    parser.add_argument('--output', type=Path, help='directory for results and figures')
+    parser.add_argument('--no-figures', action='store_true', help='skip the figures')
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if not args.bags and not args.simulate:
+        parser.error('give bags, or --simulate SEEDS')
+    with tempfile.TemporaryDirectory(prefix='em_sam_eval_') as scratch:
+        bags = list(args.bags)
+        if args.simulate:
+            bags += _simulated_bags(_seed_range(args.simulate), args.variant, Path(scratch))
+        progress = ProgressReporter(len(bags), label='em_sam_evaluate', unit=' runs',
+                                    period_s=0.0)
+        scores: list[Score] = []
+        for index, bag in enumerate(bags):
+            figures_dir = None if args.no_figures or args.output is None else args.output
+            run_scores, _ = evaluate_bag(bag, figures_dir if index == 0 else None)
+            scores += run_scores
+            progress.update(index + 1)
+        progress.finish()
+    table = markdown_table(scores)
+    print(table)  # noqa: T201
+    if args.output is not None:
+        write_atomically(args.output / 'results.md', (table + '\n').encode())
+        write_json(args.output / 'results.json', {'scores': [asdict(s) for s in scores]})
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

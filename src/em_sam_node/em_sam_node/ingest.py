@@ -1,0 +1,272 @@
+"""odometry_ingest's processor: wheel odometry in, keyframe-to-keyframe increments out.
+
+Keyframes are made at every observation stamp (the odometry pose interpolated there) and
+whenever the robot has moved ``keyframe_distance_m`` or turned ``keyframe_angle_rad`` or
+``keyframe_interval_s`` has passed since the last keyframe. Keyframes are emitted once the
+odometry is ``observation_delay_s`` past them, so observations that arrive late (camera
+processing) still get their keyframe. Each increment is the paper's eq. 2 parameterization
+(u0 forward, u1 side, u2 angular) with a covariance that grows with the motion:
+
+    var(u0) = var(u1) = a3 d^2 + a4 phi^2 + min_sigma_xy^2
+    var(u2)           = a1 phi^2 + a2 d^2 + min_sigma_theta^2    (d = distance, phi = |u2|)
+
+(Thrun's odometry motion model alphas, ``noise_alphas`` = [a1, a2, a3, a4]).
+
+Bad input: samples with a non-finite pose or stamp are dropped; samples older than the last
+one are dropped (out-of-order); a jump of more than ``reset_jump_m`` between consecutive
+samples, or the stamp going back by more than ``reset_backwards_s``, is an odometry reset:
+the chain continues across it with a zero-motion increment of covariance ``reset_sigma``.
+Every drop and reset is reported through ``warn``.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from em_sam_node.core.problem import FloatArray
+from em_sam_node.core.se2 import increment_between, wrap_angle
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    """Validated odometry_ingest settings (SI units)."""
+
+    keyframe_distance_m: float = 0.5
+    keyframe_angle_rad: float = 0.35
+    keyframe_interval_s: float = 5.0
+    observation_delay_s: float = 0.5
+    noise_alphas: tuple[float, float, float, float] = (0.05, 0.001, 0.01, 0.001)
+    min_sigma_xy_m: float = 0.002
+    min_sigma_theta_rad: float = 0.002
+    reset_jump_m: float = 1.0
+    reset_backwards_s: float = 1.0
+    reset_sigma: tuple[float, float, float] = (1.0, 1.0, 0.5)
+    max_buffer_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        positive = {
+            'keyframe_distance_m': self.keyframe_distance_m,
+            'keyframe_angle_rad': self.keyframe_angle_rad,
+            'keyframe_interval_s': self.keyframe_interval_s,
+            'min_sigma_xy_m': self.min_sigma_xy_m,
+            'min_sigma_theta_rad': self.min_sigma_theta_rad,
+            'reset_jump_m': self.reset_jump_m,
+            'reset_backwards_s': self.reset_backwards_s,
+            'max_buffer_s': self.max_buffer_s,
+        }
+        for name, value in positive.items():
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f'parameter {name}={value!r}: must be a finite number > 0')
+        if not (math.isfinite(self.observation_delay_s) and self.observation_delay_s >= 0):
+            raise ValueError(
+                f'parameter observation_delay_s={self.observation_delay_s!r}: must be >= 0'
+            )
+        if len(self.noise_alphas) != 4 or not all(
+            math.isfinite(a) and a >= 0 for a in self.noise_alphas
+        ):
+            raise ValueError(
+                f'parameter noise_alphas={list(self.noise_alphas)!r}: must be 4 numbers >= 0'
+            )
+        if len(self.reset_sigma) != 3 or not all(
+            math.isfinite(s) and s > 0 for s in self.reset_sigma
+        ):
+            raise ValueError(
+                f'parameter reset_sigma={list(self.reset_sigma)!r}: must be 3 numbers > 0'
+            )
+
+
+@dataclass(frozen=True)
+class Increment:
+    """Motion between two keyframes (eq. 2): u = (u0 m, u1 m, u2 rad), covariance (3,3).
+
+    ``odom_pose_from``/``odom_pose_to`` are the keyframes' poses in the odometry frame
+    (x m, y m, theta rad); ``reset`` marks a zero-motion bridge over an odometry reset.
+    """
+
+    stamp_from_ns: int
+    stamp_to_ns: int
+    u: FloatArray
+    covariance: FloatArray
+    odom_pose_from: FloatArray
+    odom_pose_to: FloatArray
+    reset: bool = False
+
+
+def motion_covariance(config: IngestConfig, u: FloatArray) -> FloatArray:
+    """Return the (3,3) covariance of increment ``u`` under the odometry noise model."""
+    a1, a2, a3, a4 = config.noise_alphas
+    distance2 = float(u[0] ** 2 + u[1] ** 2)
+    turn2 = float(u[2] ** 2)
+    var_xy = a3 * distance2 + a4 * turn2 + config.min_sigma_xy_m**2
+    var_theta = a1 * turn2 + a2 * distance2 + config.min_sigma_theta_rad**2
+    return np.diag([var_xy, var_xy, var_theta])
+
+
+def interpolate_pose(
+    stamp_ns: int, before: tuple[int, FloatArray], after: tuple[int, FloatArray]
+) -> FloatArray:
+    """Return the pose (3,) at ``stamp_ns`` between two stamped poses (linear, shortest turn)."""
+    (t0, p0), (t1, p1) = before, after
+    if t1 == t0:
+        return p0.copy()
+    alpha = (stamp_ns - t0) / (t1 - t0)
+    pose = p0 + alpha * (p1 - p0)
+    pose[2] = wrap_angle(np.array([p0[2] + alpha * wrap_angle(np.array([p1[2] - p0[2]]))[0]]))[0]
+    return pose
+
+
+@dataclass
+class _State:
+    samples: list[tuple[int, FloatArray]] = field(default_factory=list)  # (stamp, pose)
+    pending_stamps: list[int] = field(default_factory=list)  # observation stamps, sorted
+    keyframe: tuple[int, FloatArray] | None = None  # last emitted keyframe
+    reset_pending: bool = False
+
+
+class OdometryIngest:
+    """Turns odometry samples and observation stamps into keyframe increments."""
+
+    def __init__(self, config: IngestConfig, warn: Callable[[str], None] | None = None) -> None:
+        self.config = config
+        self.warn = warn if warn is not None else (lambda _message: None)
+        self._state = _State()
+        self.dropped_samples = 0
+        self.resets = 0
+
+    # -- input ----------------------------------------------------------------------------
+    def add_odometry(self, stamp_ns: int, pose: FloatArray) -> list[Increment]:
+        """Add one odometry pose (x m, y m, theta rad) in the odom frame; return new increments."""
+        state = self._state
+        if not np.all(np.isfinite(pose)):
+            self.dropped_samples += 1
+            self.warn(f'odometry at stamp {stamp_ns} ns has a non-finite pose {pose.tolist()}; '
+                      'dropped')
+            return []
+        pose = np.array([pose[0], pose[1], wrap_angle(np.array([pose[2]]))[0]], dtype=float)
+        if state.samples:
+            last_stamp, last_pose = state.samples[-1]
+            backwards_s = (last_stamp - stamp_ns) / 1e9
+            jump_m = float(np.hypot(*(pose[:2] - last_pose[:2])))
+            if backwards_s > self.config.reset_backwards_s or jump_m > self.config.reset_jump_m:
+                return self._reset(stamp_ns, pose, backwards_s, jump_m)
+            if stamp_ns <= last_stamp:
+                self.dropped_samples += 1
+                self.warn(f'odometry stamp {stamp_ns} ns is not after the previous one '
+                          f'({last_stamp} ns); out-of-order sample dropped')
+                return []
+        state.samples.append((stamp_ns, pose))
+        if state.keyframe is None:
+            state.keyframe = (stamp_ns, pose.copy())  # the first keyframe: the first sample
+        return self._emit(horizon_ns=stamp_ns - round(self.config.observation_delay_s * 1e9))
+
+    def add_observation_stamp(self, stamp_ns: int) -> list[Increment]:
+        """Ask for a keyframe at an observation stamp; return increments that became ready."""
+        state = self._state
+        if state.keyframe is not None and stamp_ns <= state.keyframe[0]:
+            if stamp_ns != state.keyframe[0]:
+                self.warn(f'observation stamp {stamp_ns} ns is older than the last keyframe '
+                          f'({state.keyframe[0]} ns); raise observation_delay_s to keep it')
+            return []
+        if not state.samples:
+            self.warn(f'observation at stamp {stamp_ns} ns came before any odometry; '
+                      'it gets no keyframe')
+            return []
+        index = bisect.bisect_left(state.pending_stamps, stamp_ns)
+        if index == len(state.pending_stamps) or state.pending_stamps[index] != stamp_ns:
+            state.pending_stamps.insert(index, stamp_ns)
+        latest = state.samples[-1][0]
+        return self._emit(horizon_ns=latest - round(self.config.observation_delay_s * 1e9))
+
+    def flush(self) -> list[Increment]:
+        """Emit every keyframe the odometry covers (at shutdown or at the end of a bag)."""
+        if not self._state.samples:
+            return []
+        return self._emit(horizon_ns=self._state.samples[-1][0], final=True)
+
+    # -- keyframing -----------------------------------------------------------------------
+    def _emit(self, horizon_ns: int, *, final: bool = False) -> list[Increment]:
+        state = self._state
+        out: list[Increment] = []
+        if state.keyframe is None:
+            return out
+        samples = state.samples
+        start = bisect.bisect_right([s for s, _ in samples], state.keyframe[0])
+        for index in range(start, len(samples)):
+            stamp, pose = samples[index]
+            while state.pending_stamps and state.pending_stamps[0] <= min(stamp, horizon_ns):
+                wanted = state.pending_stamps.pop(0)
+                interpolated = interpolate_pose(wanted, samples[index - 1], samples[index])
+                out.append(self._keyframe(wanted, interpolated))
+            if stamp > horizon_ns:
+                break
+            if self._moved_enough(stamp, pose) or (final and index == len(samples) - 1):
+                out.append(self._keyframe(stamp, pose))
+        self._trim()
+        return out
+
+    def _moved_enough(self, stamp_ns: int, pose: FloatArray) -> bool:
+        assert self._state.keyframe is not None
+        last_stamp, last_pose = self._state.keyframe
+        if stamp_ns <= last_stamp:
+            return False
+        config = self.config
+        return bool(
+            np.hypot(*(pose[:2] - last_pose[:2])) >= config.keyframe_distance_m
+            or abs(wrap_angle(np.array([pose[2] - last_pose[2]]))[0]) >= config.keyframe_angle_rad
+            or (stamp_ns - last_stamp) / 1e9 >= config.keyframe_interval_s
+        )
+
+    def _keyframe(self, stamp_ns: int, pose: FloatArray) -> Increment:
+        state = self._state
+        assert state.keyframe is not None
+        last_stamp, last_pose = state.keyframe
+        if state.reset_pending:
+            state.reset_pending = False
+            increment = Increment(
+                last_stamp, stamp_ns, np.zeros(3),
+                np.diag(np.square(np.array(self.config.reset_sigma))),
+                last_pose.copy(), pose.copy(), reset=True,
+            )
+        else:
+            u = increment_between(last_pose[None], pose[None])[0]
+            increment = Increment(
+                last_stamp, stamp_ns, u, motion_covariance(self.config, u),
+                last_pose.copy(), pose.copy(),
+            )
+        state.keyframe = (stamp_ns, pose.copy())
+        return increment
+
+    def _reset(self, stamp_ns: int, pose: FloatArray, backwards_s: float, jump_m: float) -> list[Increment]:
+        """Start a new odometry chain; bridge it to the old one with a weak zero increment."""
+        state = self._state
+        self.resets += 1
+        self.warn(f'odometry reset at stamp {stamp_ns} ns (jump {jump_m:.2f} m, stamp back '
+                  f'{max(backwards_s, 0.0):.2f} s); bridging with a zero-motion increment')
+        out = self.flush()
+        if state.keyframe is None:
+            state.keyframe = (stamp_ns, pose.copy())
+        state.samples = [(stamp_ns, pose)]
+        state.pending_stamps = [s for s in state.pending_stamps if s > stamp_ns]
+        if stamp_ns > state.keyframe[0]:
+            state.reset_pending = True
+            out.append(self._keyframe(stamp_ns, pose))
+        else:
+            # The stamp went backwards: restart the keyframe chain at the new samples.
+            state.keyframe = (stamp_ns, pose.copy())
+        return out
+
+    def _trim(self) -> None:
+        """Forget odometry older than the last keyframe (keep one sample before it)."""
+        state = self._state
+        if state.keyframe is None or len(state.samples) < 2:
+            return
+        stamps = [s for s, _ in state.samples]
+        keep_from = max(bisect.bisect_right(stamps, state.keyframe[0]) - 1, 0)
+        horizon = stamps[-1] - round(self.config.max_buffer_s * 1e9)
+        keep_from = max(keep_from, bisect.bisect_left(stamps, horizon) - 1, 0)
+        del state.samples[:keep_from]

@@ -1,0 +1,201 @@
+"""em_sam_mapper's processor: collects increments and observations, runs EM-SAM on demand.
+
+Keyframes come from the increments (each increment's stamp_to is a keyframe; the first
+increment's stamp_from is keyframe 0, anchored at its odometry pose: the map frame is the
+odometry frame at the start). An observation attaches to the keyframe with its stamp (within
+``stamp_tolerance_s``); one whose keyframe has not arrived yet waits for it, and one that can
+never get a keyframe (older than the chain, or seen before any odometry) is dropped with a
+warning that names it.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning
+from em_sam_node.core.em import EmConfig, EmResult, Sightings, run_em, sightings_of
+from em_sam_node.core.problem import Estimate, FloatArray
+from em_sam_node.core.se2 import apply_increment, compose, inverse
+from em_sam_node.ingest import Increment
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One range-bearing sighting: stamp int ns, landmark id, (range m, bearing rad), (2,2)."""
+
+    stamp_ns: int
+    landmark_id: int
+    z: FloatArray
+    covariance: FloatArray
+
+
+@dataclass(frozen=True)
+class MapperConfig:
+    """Validated em_sam_mapper settings."""
+
+    em: EmConfig
+    stamp_tolerance_s: float = 0.005
+    prior_sigma: tuple[float, float, float] = (1e-3, 1e-3, 1e-3)
+    pending_timeout_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.stamp_tolerance_s) and self.stamp_tolerance_s >= 0):
+            raise ValueError(f'parameter stamp_tolerance_s={self.stamp_tolerance_s!r}: '
+                             'must be >= 0')
+        if len(self.prior_sigma) != 3 or not all(s > 0 for s in self.prior_sigma):
+            raise ValueError(f'parameter prior_sigma={list(self.prior_sigma)!r}: '
+                             'must be 3 numbers > 0')
+        if not (math.isfinite(self.pending_timeout_s) and self.pending_timeout_s > 0):
+            raise ValueError(f'parameter pending_timeout_s={self.pending_timeout_s!r}: '
+                             'must be > 0')
+
+
+class MapperProcessor:
+    """The mapper's state: keyframe chain, observations, and the latest EM-SAM result."""
+
+    def __init__(self, config: MapperConfig, warn: Callable[[str], None] | None = None) -> None:
+        self.config = config
+        self.warn = warn if warn is not None else (lambda _message: None)
+        self.stamps_ns: list[int] = []
+        self.odom_poses: list[FloatArray] = []
+        self.increments: list[Increment] = []  # increments[i] ends at keyframe i + 1
+        self.observations: list[tuple[int, Observation]] = []  # (keyframe, observation)
+        self.pending: list[Observation] = []
+        self.result: EmResult | None = None
+        self.result_keyframes = 0
+        self.dropped_observations = 0
+
+    # -- input ----------------------------------------------------------------------------
+    def add_increment(self, increment: Increment) -> None:
+        """Append an increment; it must start at the latest keyframe."""
+        if not (np.all(np.isfinite(increment.u)) and np.all(np.isfinite(increment.covariance))):
+            self.warn(f'increment {increment.stamp_from_ns}->{increment.stamp_to_ns} ns has '
+                      'non-finite values; dropped')
+            return
+        if not self.stamps_ns:
+            self.stamps_ns.append(increment.stamp_from_ns)
+            self.odom_poses.append(increment.odom_pose_from.copy())
+        elif increment.stamp_from_ns != self.stamps_ns[-1]:
+            self.warn(f'increment starts at {increment.stamp_from_ns} ns but the last keyframe '
+                      f'is {self.stamps_ns[-1]} ns; dropped (out of order or missing increments)')
+            return
+        if increment.stamp_to_ns <= increment.stamp_from_ns:
+            self.warn(f'increment {increment.stamp_from_ns}->{increment.stamp_to_ns} ns does not '
+                      'go forward in time; dropped')
+            return
+        self.stamps_ns.append(increment.stamp_to_ns)
+        self.odom_poses.append(increment.odom_pose_to.copy())
+        self.increments.append(increment)
+        self._attach_pending()
+
+    def add_observation(self, observation: Observation) -> None:
+        """Attach an observation to its keyframe, or keep it until the keyframe arrives."""
+        z, cov = observation.z, observation.covariance
+        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(cov)) and z[0] > 0):
+            self.dropped_observations += 1
+            self.warn(f'observation of landmark {observation.landmark_id} at '
+                      f'{observation.stamp_ns} ns has an invalid range/bearing/covariance; dropped')
+            return
+        if not self._attach(observation):
+            self.pending.append(observation)
+
+    def _attach(self, observation: Observation) -> bool:
+        tolerance = round(self.config.stamp_tolerance_s * 1e9)
+        index = bisect.bisect_left(self.stamps_ns, observation.stamp_ns - tolerance)
+        if index < len(self.stamps_ns) and abs(self.stamps_ns[index] - observation.stamp_ns) <= tolerance:
+            self.observations.append((index, observation))
+            return True
+        return False
+
+    def _attach_pending(self) -> None:
+        if not self.pending:
+            return
+        latest = self.stamps_ns[-1]
+        timeout = round(self.config.pending_timeout_s * 1e9)
+        still = []
+        for observation in self.pending:
+            if self._attach(observation):
+                continue
+            if observation.stamp_ns < self.stamps_ns[0] or latest - observation.stamp_ns > timeout:
+                self.dropped_observations += 1
+                self.warn(f'observation of landmark {observation.landmark_id} at '
+                          f'{observation.stamp_ns} ns matches no keyframe (seen before any '
+                          'odometry, or its keyframe never came); dropped')
+                continue
+            still.append(observation)
+        self.pending = still
+
+    # -- solving --------------------------------------------------------------------------
+    @property
+    def num_keyframes(self) -> int:
+        """Keyframes collected so far."""
+        return len(self.stamps_ns)
+
+    def data(self) -> MappingData:
+        """Return everything collected as MappingData (keyframe 0 anchored at its odom pose)."""
+        count = len(self.increments)
+        observations = sorted(self.observations, key=lambda item: item[0])
+        sigma = np.array(self.config.prior_sigma)
+        return MappingData(
+            keyframe_stamps_ns=np.array(self.stamps_ns, dtype=np.int64),
+            odometry_from=np.arange(count, dtype=np.int64),
+            odometry_to=np.arange(1, count + 1, dtype=np.int64),
+            odometry_u=np.array([i.u for i in self.increments]).reshape(count, 3),
+            odometry_cov=np.array([i.covariance for i in self.increments]).reshape(count, 3, 3),
+            obs_keyframe=np.array([k for k, _ in observations], dtype=np.int64),
+            obs_landmark_id=np.array([o.landmark_id for _, o in observations], dtype=np.int64),
+            obs_z=np.array([o.z for _, o in observations]).reshape(-1, 2),
+            obs_cov=np.array([o.covariance for _, o in observations]).reshape(-1, 2, 2),
+            prior_pose=self.odom_poses[0].copy() if self.odom_poses else np.zeros(3),
+            prior_cov=np.diag(sigma**2),
+        )
+
+    def optimize(self, *, record_snapshots: bool = False) -> EmResult | None:
+        """Run EM-SAM on everything collected, warm-started from the previous result."""
+        if self.num_keyframes < 2:
+            self.warn('nothing to optimize yet: fewer than two keyframes')
+            return None
+        data = self.data()
+        self.result = run_em(
+            data, self.config.em, initial_poses=self._warm_start(data),
+            record_snapshots=record_snapshots,
+        )
+        self.result_keyframes = data.num_keyframes
+        return self.result
+
+    def _warm_start(self, data: MappingData) -> FloatArray | None:
+        """Previous poses for old keyframes, odometry composed onto them for new ones."""
+        if self.result is None:
+            return None
+        poses = dead_reckoning(data)
+        known = min(self.result_keyframes, data.num_keyframes)
+        poses[:known] = self.result.poses[:known]
+        for index in range(known, data.num_keyframes):
+            poses[index] = apply_increment(poses[index - 1][None], data.odometry_u[index - 1][None])[0]
+        return poses
+
+    # -- queries --------------------------------------------------------------------------
+    def map_to_odom(self) -> FloatArray | None:
+        """Return the map->odom transform (x, y, theta) at the latest solved keyframe."""
+        if self.result is None:
+            return None
+        index = self.result_keyframes - 1
+        return compose(self.result.poses[index][None], inverse(self.odom_poses[index][None]))[0]
+
+    def find_landmark(self, landmark_id: int) -> Sightings | None:
+        """Return every sighting of a landmark placed in the map, most recent first."""
+        if self.result is None or landmark_id not in set(self.result.landmark_ids.tolist()):
+            return None
+        if landmark_id in self.result.sightings:
+            return self.result.sightings[landmark_id]
+        data = self.data()
+        result = self.result
+        built = build_problem(data, exclude_ids=result.landmark_ids[result.moveable].tolist())
+        keep = np.isin(result.landmark_ids, built.landmark_ids)
+        solved = Estimate(result.poses, result.positions[keep])
+        return sightings_of(data, built.problem, solved, [landmark_id])[landmark_id]

@@ -1,0 +1,160 @@
+"""odometry_ingest: wheel odometry in, keyframe-to-keyframe OdometryIncrement out.
+
+Makes a keyframe at every observation stamp (odometry interpolated there) and at motion
+thresholds; each increment carries the paper's eq. 2 motion (forward, side, angular) and a
+covariance that grows with the motion (see em_sam_node.ingest). Copes with odometry resets,
+out-of-order stamps and NaN poses (dropped with a throttled warning). When odometry stops
+(end of a bag) for ``idle_flush_s``, the keyframes still held back are emitted.
+
+Topics:
+  subscribes  odom (nav_msgs/Odometry, sensor-data QoS, depth 100)
+              landmark_observations (slam_interfaces/LandmarkObservationArray, reliable,
+              depth 100; only the stamps are used)
+  publishes   odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000)
+
+Parameters:
+  keyframe_distance_m (0.5), keyframe_angle_rad (0.35), keyframe_interval_s (5.0)
+      a keyframe when the robot moved, turned or waited this much since the last one.
+  observation_delay_s (0.5)   keyframes are emitted this long after the odometry passed
+                              them, so late observations still get one.
+  noise_alphas ([0.05, 0.001, 0.01, 0.001])  a1..a4 of the motion noise model.
+  min_sigma_xy_m (0.002), min_sigma_theta_rad (0.002)  noise floor of an increment.
+  reset_jump_m (1.0), reset_backwards_s (1.0)  what counts as an odometry reset.
+  reset_sigma ([1.0, 1.0, 0.5])  std. dev. of the zero-motion increment bridging a reset.
+  max_buffer_s (30.0)         odometry kept for interpolation.
+  idle_flush_s (1.0)          emit held-back keyframes after this long without odometry.
+  base_frame ('base_link'), odom_frame ('odom')  frame ids written into the increments.
+
+Frames: increments are motion of base_frame, expressed in odom_frame poses.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from slam_interfaces.msg import LandmarkObservationArray, OdometryIncrement
+
+from em_sam_node.conversions import increment_to_message, odometry_pose, stamp_to_ns
+from em_sam_node.ingest import Increment, IngestConfig, OdometryIngest
+from slam_bringup.cli import console_main
+from slam_bringup.errors import ParameterError
+from slam_bringup.params import ParamSpec, check_finite_positive, declare_parameters
+from slam_bringup.qos import output_qos, sensor_qos
+
+PARAMETERS = (
+    ParamSpec('keyframe_distance_m', 0.5, 'keyframe after this much travel, m'),
+    ParamSpec('keyframe_angle_rad', 0.35, 'keyframe after this much turning, rad'),
+    ParamSpec('keyframe_interval_s', 5.0, 'keyframe after this long, s'),
+    ParamSpec('observation_delay_s', 0.5, 'hold keyframes back this long for late observations'),
+    ParamSpec('noise_alphas', [0.05, 0.001, 0.01, 0.001], 'motion noise alphas a1..a4'),
+    ParamSpec('min_sigma_xy_m', 0.002, 'noise floor of an increment in x and y, m'),
+    ParamSpec('min_sigma_theta_rad', 0.002, 'noise floor of an increment in heading, rad'),
+    ParamSpec('reset_jump_m', 1.0, 'a jump larger than this between samples is a reset, m'),
+    ParamSpec('reset_backwards_s', 1.0, 'a stamp going back more than this is a reset, s'),
+    ParamSpec('reset_sigma', [1.0, 1.0, 0.5], 'std. dev. of the increment bridging a reset'),
+    ParamSpec('max_buffer_s', 30.0, 'odometry kept for interpolation, s'),
+    ParamSpec('idle_flush_s', 1.0, 'emit held-back keyframes after this long without odometry'),
+    ParamSpec('base_frame', 'base_link', 'robot base frame id'),
+    ParamSpec('odom_frame', 'odom', 'odometry frame id'),
+)
+
+
+def config_from_parameters(values: dict[str, Any]) -> IngestConfig:
+    """Validate parameter values into an IngestConfig (raises ParameterError)."""
+    try:
+        return IngestConfig(
+            keyframe_distance_m=float(values['keyframe_distance_m']),
+            keyframe_angle_rad=float(values['keyframe_angle_rad']),
+            keyframe_interval_s=float(values['keyframe_interval_s']),
+            observation_delay_s=float(values['observation_delay_s']),
+            noise_alphas=tuple(float(a) for a in values['noise_alphas']),  # type: ignore[arg-type]
+            min_sigma_xy_m=float(values['min_sigma_xy_m']),
+            min_sigma_theta_rad=float(values['min_sigma_theta_rad']),
+            reset_jump_m=float(values['reset_jump_m']),
+            reset_backwards_s=float(values['reset_backwards_s']),
+            reset_sigma=tuple(float(s) for s in values['reset_sigma']),  # type: ignore[arg-type]
+            max_buffer_s=float(values['max_buffer_s']),
+        )
+    except ValueError as err:
+        raise ParameterError(str(err)) from None
+
+
+class OdometryIngestNode(Node):
+    """Thin adapter around OdometryIngest."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('odometry_ingest', **kwargs)
+        values = declare_parameters(self, PARAMETERS)
+        self.ingest = OdometryIngest(config_from_parameters(values), warn=self._warn)
+        self.idle_flush_s = float(values['idle_flush_s'])
+        check_finite_positive('idle_flush_s', self.idle_flush_s)
+        self.base_frame = str(values['base_frame'])
+        self.odom_frame = str(values['odom_frame'])
+        self.publisher = self.create_publisher(
+            OdometryIncrement, 'odometry_increments', output_qos(depth=1000)
+        )
+        self.create_subscription(Odometry, 'odom', self._on_odometry, sensor_qos(depth=100))
+        self.create_subscription(
+            LandmarkObservationArray, 'landmark_observations', self._on_observations,
+            output_qos(depth=100),
+        )
+        self._last_odometry_wall = time.monotonic()
+        self._flushed = True
+        self.published = 0
+        self.create_timer(
+            self.idle_flush_s / 2.0, self._flush_when_idle,
+            clock=Clock(clock_type=ClockType.STEADY_TIME),
+        )
+
+    def _warn(self, message: str) -> None:
+        self.get_logger().warning(message, throttle_duration_sec=2.0)
+
+    def _on_odometry(self, message: Odometry) -> None:
+        stamp_ns, pose = odometry_pose(message)
+        self._last_odometry_wall = time.monotonic()
+        self._flushed = False
+        self._publish(self.ingest.add_odometry(stamp_ns, pose))
+
+    def _on_observations(self, message: LandmarkObservationArray) -> None:
+        self._publish(self.ingest.add_observation_stamp(stamp_to_ns(message.header.stamp)))
+
+    def _flush_when_idle(self) -> None:
+        if not self._flushed and time.monotonic() - self._last_odometry_wall > self.idle_flush_s:
+            self._flushed = True
+            self._publish(self.ingest.flush())
+
+    def _publish(self, increments: list[Increment]) -> None:
+        for increment in increments:
+            self.publisher.publish(increment_to_message(
+                increment, OdometryIncrement(), base_frame=self.base_frame,
+                odom_frame=self.odom_frame,
+            ))
+            self.published += 1
+
+
+@console_main('odometry_ingest')
+def main(argv: list[str] | None = None) -> int:
+    """Run the node until Ctrl-C (the Jazzy shutdown pattern)."""
+    rclpy.init(args=sys.argv if argv is None else ['odometry_ingest', *argv])
+    node = None
+    try:
+        node = OdometryIngestNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
