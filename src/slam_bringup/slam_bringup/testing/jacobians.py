@@ -1,0 +1,115 @@
+"""Finite-difference Jacobians for checking analytic ones: the one shared helper of the suite.
+
+Central differences, ``(f(x + eps e_c) - f(x - eps e_c)) / (2 eps)`` for each input
+coordinate c. Outputs that are angles can have their differences wrapped to (-pi, pi] so that
+a residual crossing +-pi does not produce a 2 pi jump.
+
+Two ways to use it:
+
+* **One function, one point.** ``f`` maps x (n,) to (m,); the Jacobian is (m, n)::
+
+      analytic = my_jacobian(x)  # (m, n)
+      assert_jacobian_close(analytic, my_function, x, atol=1e-7)
+
+* **A batch of independent factors** (``batched=True``). ``f`` maps x (B, n) to (B, m),
+  and output row b depends only on input row b (true of vectorized factor residuals). Each
+  coordinate c is perturbed in all B rows at once, so 2 n calls of ``f`` give all B Jacobians,
+  (B, m, n). For a factor with several variables, check one variable at a time and hold the
+  others fixed, e.g. for an odometry factor r(x_from, x_to) with Jacobians (M, 3, 3) each::
+
+      assert_jacobian_close(
+          jac_from, lambda x: residual(x, x_to), x_from, batched=True, wrap=[2], atol=1e-6
+      )
+      assert_jacobian_close(
+          jac_to, lambda x: residual(x_from, x), x_to, batched=True, wrap=[2], atol=1e-6
+      )
+
+``wrap`` lists the output indices (within one factor's m outputs) that are angles. Wrap only
+outputs that are plain angles; after whitening by a non-diagonal matrix an output mixes
+units, so check the unwhitened error there (or make sure no difference crosses +-pi).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+def numerical_jacobian(
+    f: Callable[[FloatArray], ArrayLike],
+    x: ArrayLike,
+    *,
+    eps: float = 1e-6,
+    wrap: Sequence[int] | None = None,
+    batched: bool = False,
+) -> FloatArray:
+    """Return the central-difference Jacobian of f at x: (m, n), or (B, m, n) when batched."""
+    x0 = np.array(x, dtype=np.float64)
+    if eps <= 0.0:
+        raise ValueError(f'eps must be positive, got {eps}')
+    if batched and x0.ndim != 2:
+        raise ValueError(f'batched x must have shape (B, n), got {x0.shape}')
+    if not batched and x0.ndim != 1:
+        raise ValueError(f'x must have shape (n,) (use batched=True for (B, n)), got {x0.shape}')
+    columns = []
+    for coordinate in range(x0.shape[-1]):
+        plus, minus = x0.copy(), x0.copy()
+        plus[..., coordinate] += eps
+        minus[..., coordinate] -= eps
+        difference = _as_output(f(plus), batched) - _as_output(f(minus), batched)
+        if wrap is not None:
+            angles = list(wrap)
+            difference[..., angles] = _wrap(difference[..., angles])
+        columns.append(difference / (2.0 * eps))
+    return np.stack(columns, axis=-1)
+
+
+def assert_jacobian_close(
+    analytic: ArrayLike,
+    f: Callable[[FloatArray], ArrayLike],
+    x: ArrayLike,
+    *,
+    atol: float,
+    rtol: float = 1e-5,
+    eps: float = 1e-6,
+    wrap: Sequence[int] | None = None,
+    batched: bool = False,
+) -> None:
+    """Raise AssertionError naming the worst entry if analytic differs from finite differences."""
+    numeric = numerical_jacobian(f, x, eps=eps, wrap=wrap, batched=batched)
+    expected = np.asarray(analytic, dtype=np.float64)
+    if expected.shape != numeric.shape:
+        raise AssertionError(
+            f'analytic Jacobian has shape {expected.shape}, finite differences {numeric.shape}'
+        )
+    excess = np.abs(expected - numeric) - (atol + rtol * np.abs(numeric))
+    if expected.size and np.max(excess) > 0.0:
+        worst = np.unravel_index(int(np.argmax(excess)), excess.shape)
+        bad = int(np.count_nonzero(excess > 0.0))
+        raise AssertionError(
+            f'{bad} of {expected.size} Jacobian entries differ from central differences; '
+            f'worst at index {tuple(int(i) for i in worst)}: analytic {expected[worst]:.9g}, '
+            f'numeric {numeric[worst]:.9g} (atol {atol:g}, rtol {rtol:g}, eps {eps:g})'
+        )
+
+
+def _as_output(value: ArrayLike, batched: bool) -> FloatArray:
+    out = np.array(value, dtype=np.float64)
+    if batched:
+        if out.ndim == 1:
+            out = out[:, None]  # one scalar output per batch row
+        if out.ndim != 2:
+            raise ValueError(f'batched f must return (B, m), got {out.shape}')
+    else:
+        out = out.reshape(-1)
+    return out
+
+
+def _wrap(angle_rad: FloatArray) -> FloatArray:
+    # Local copy of the wrap to (-pi, pi]: slam_bringup sits below the algorithm packages.
+    wrapped = np.pi - np.mod(np.pi - angle_rad, 2.0 * np.pi)
+    return np.where(wrapped <= -np.pi, wrapped + 2.0 * np.pi, wrapped)
