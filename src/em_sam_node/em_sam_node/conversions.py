@@ -57,8 +57,9 @@ def observations_from_message(message: Any) -> list[Observation]:
     ]
 
 
-def increment_to_message(increment: Increment, message: Any, *, base_frame: str,
-                         odom_frame: str) -> Any:
+def increment_to_message(
+    increment: Increment, message: Any, *, base_frame: str, odom_frame: str
+) -> Any:
     """Fill a slam_interfaces/OdometryIncrement from an Increment and return it."""
     message.header.frame_id = base_frame
     ns_to_stamp(increment.stamp_to_ns, message.header.stamp)

@@ -26,7 +26,11 @@ Parameters:
   max_em_iterations (20), weight_tolerance (0.001)  EM stopping rule.
   false_alarm_probability (0.001) 'robust': per-landmark test level.
   gate_probability (0.0001), max_gated_fraction (0.1)  'robust': outlier gate per sighting.
-  huber_threshold (1.345)         'robust': Huber kernel of the first E-step, in sigmas.
+  seed_kernel ('cauchy'), seed_kernel_scale (2.3849)  'robust': kernel of the first E-step
+                                  ('cauchy' or 'huber'), its scale in sigmas.
+  seed_chunk_s (20.0), seed_split_distance_m (0.5)  'robust': time prefixes of the first
+                                  E-step, and how far new sightings may lie from a mapped
+                                  landmark before they count as a new (moved) one.
   solver_method ('levenberg_marquardt')  or 'gauss_newton'.
   optimize_period_s (2.0)         re-solve period when new data came; 0 = only on request.
   stamp_tolerance_s (0.005)       how close an observation's stamp must be to a keyframe's.
@@ -51,13 +55,6 @@ from nav_msgs.msg import Path as PathMessage
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from slam_interfaces.msg import (
-    LandmarkMap,
-    LandmarkObservationArray,
-    MoveableLandmarkArray,
-    OdometryIncrement,
-)
-from slam_interfaces.srv import FindLandmark
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
@@ -76,9 +73,21 @@ from em_sam_node.mapper_outputs import (
 from em_sam_node.report import write_report
 from slam_bringup.cli import console_main
 from slam_bringup.errors import ParameterError
-from slam_bringup.params import ParamSpec, check, check_finite_non_negative, declare_parameters
-from slam_bringup.params import check_finite_positive
+from slam_bringup.params import (
+    ParamSpec,
+    check,
+    check_finite_non_negative,
+    check_finite_positive,
+    declare_parameters,
+)
 from slam_bringup.qos import latched_qos, output_qos
+from slam_interfaces.msg import (
+    LandmarkMap,
+    LandmarkObservationArray,
+    MoveableLandmarkArray,
+    OdometryIncrement,
+)
+from slam_interfaces.srv import FindLandmark
 
 PARAMETERS = (
     ParamSpec('mode', 'robust', "EM-SAM mode: 'paper' (as published) or 'robust'"),
@@ -89,7 +98,10 @@ PARAMETERS = (
     ParamSpec('false_alarm_probability', 0.001, 'robust: per-landmark test level'),
     ParamSpec('gate_probability', 0.0001, 'robust: per-sighting outlier gate level'),
     ParamSpec('max_gated_fraction', 0.1, "robust: largest share of a landmark's sightings gated"),
-    ParamSpec('huber_threshold', 1.345, 'robust: Huber threshold of the first E-step, sigmas'),
+    ParamSpec('seed_kernel', 'cauchy', "robust: first E-step kernel, 'cauchy' or 'huber'"),
+    ParamSpec('seed_kernel_scale', 2.3849, 'robust: first E-step kernel scale, sigmas (> 0)'),
+    ParamSpec('seed_chunk_s', 20.0, 'robust: first E-step time prefix length, s (> 0)'),
+    ParamSpec('seed_split_distance_m', 0.5, 'robust: distance that splits a moved landmark, m'),
     ParamSpec('solver_method', 'levenberg_marquardt', "'levenberg_marquardt' or 'gauss_newton'"),
     ParamSpec('optimize_period_s', 2.0, 're-solve period when new data came, s; 0 = on request'),
     ParamSpec('stamp_tolerance_s', 0.005, 'observation-to-keyframe stamp tolerance, s'),
@@ -104,8 +116,12 @@ SOLVER_METHODS = ('levenberg_marquardt', 'gauss_newton')
 
 def config_from_parameters(values: dict[str, Any]) -> MapperConfig:
     """Validate parameter values into a MapperConfig (raises ParameterError)."""
-    check(values['solver_method'] in SOLVER_METHODS, 'solver_method', values['solver_method'],
-          f'must be one of {SOLVER_METHODS}')
+    check(
+        values['solver_method'] in SOLVER_METHODS,
+        'solver_method',
+        values['solver_method'],
+        f'must be one of {SOLVER_METHODS}',
+    )
     try:
         em = EmConfig(
             mode=str(values['mode']),
@@ -116,7 +132,10 @@ def config_from_parameters(values: dict[str, Any]) -> MapperConfig:
             false_alarm_probability=float(values['false_alarm_probability']),
             gate_probability=float(values['gate_probability']),
             max_gated_fraction=float(values['max_gated_fraction']),
-            huber_threshold=float(values['huber_threshold']),
+            seed_kernel=str(values['seed_kernel']),
+            seed_kernel_scale=float(values['seed_kernel_scale']),
+            seed_chunk_s=float(values['seed_chunk_s']),
+            seed_split_distance_m=float(values['seed_split_distance_m']),
             solver_method=str(values['solver_method']),
         )
         return MapperConfig(
@@ -155,7 +174,9 @@ class EmSamMapperNode(Node):
             OdometryIncrement, 'odometry_increments', self._on_increment, output_qos(depth=1000)
         )
         self.create_subscription(
-            LandmarkObservationArray, 'landmark_observations', self._on_observations,
+            LandmarkObservationArray,
+            'landmark_observations',
+            self._on_observations,
             output_qos(depth=100),
         )
         self.create_service(Trigger, '~/optimize', self._on_optimize)

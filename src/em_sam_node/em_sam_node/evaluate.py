@@ -15,7 +15,6 @@ weights per EM iteration) into the output directory.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -64,13 +63,15 @@ class MethodOutput:
     em: EmResult | None = None
 
 
-def _solve_all_static(data: MappingData, exclude: list[int]) -> tuple[FloatArray, np.ndarray,
-                                                                        FloatArray]:
+def _solve_all_static(
+    data: MappingData, exclude: list[int]
+) -> tuple[FloatArray, np.ndarray, FloatArray]:
     built = build_problem(data, exclude_ids=exclude)
     poses0 = dead_reckoning(data)
     anchored = anchor_pieces(built.problem, poses0)
-    problem = with_weak_priors(built.problem, anchored.extra_prior_poses,
-                               anchored.extra_prior_means)
+    problem = with_weak_priors(
+        built.problem, anchored.extra_prior_poses, anchored.extra_prior_means
+    )
     result = solve(problem, initial_estimate(problem, poses0), method='levenberg_marquardt')
     return result.estimate.poses, built.landmark_ids, result.estimate.landmarks
 
@@ -80,28 +81,35 @@ def run_methods(data: MappingData, truth: GroundTruth) -> dict[str, MethodOutput
     outputs: dict[str, MethodOutput] = {}
     started = time.perf_counter()
     poses = dead_reckoning(data)
-    outputs['odometry'] = MethodOutput(poses, np.zeros(0, dtype=np.int64), np.zeros((0, 2)),
-                                       set(), time.perf_counter() - started)
-    for method, exclude in (('plain_sam', []),
-                            ('oracle', truth.landmark_ids[truth.moveable].tolist())):
+    outputs['odometry'] = MethodOutput(
+        poses, np.zeros(0, dtype=np.int64), np.zeros((0, 2)), set(), time.perf_counter() - started
+    )
+    for method, exclude in (
+        ('plain_sam', []),
+        ('oracle', truth.landmark_ids[truth.moveable].tolist()),
+    ):
         started = time.perf_counter()
         poses, ids, positions = _solve_all_static(data, exclude)
-        outputs[method] = MethodOutput(poses, ids, positions, set(),
-                                       time.perf_counter() - started)
+        outputs[method] = MethodOutput(poses, ids, positions, set(), time.perf_counter() - started)
     for mode in ('paper', 'robust'):
         started = time.perf_counter()
         result = run_em(data, EmConfig(mode=mode), record_snapshots=False)
         runtime = time.perf_counter() - started
         static = ~result.moveable
         outputs[f'em_sam_{mode}'] = MethodOutput(
-            result.poses, result.landmark_ids[static], result.positions[static],
-            set(result.landmark_ids[result.moveable].tolist()), runtime, result,
+            result.poses,
+            result.landmark_ids[static],
+            result.positions[static],
+            set(result.landmark_ids[result.moveable].tolist()),
+            runtime,
+            result,
         )
     return outputs
 
 
-def score(run: str, data: MappingData, truth: GroundTruth,
-          outputs: dict[str, MethodOutput]) -> list[Score]:
+def score(
+    run: str, data: MappingData, truth: GroundTruth, outputs: dict[str, MethodOutput]
+) -> list[Score]:
     """Return the metrics of every method on one run."""
     true_xy = truth.poses_at(data.keyframe_stamps_ns)[:, :2]
     positives = seen_at_both_positions(data, truth)
@@ -118,13 +126,18 @@ def score(run: str, data: MappingData, truth: GroundTruth,
         )
         counts = classify(output.flagged, positives, negatives)
         em_method = method.startswith('em_sam')
-        scores.append(Score(
-            run=run, method=method, ate_m=ate_rmse(output.poses[:, :2], true_xy),
-            map_error_m=map_error,
-            precision=counts.precision if em_method else float('nan'),
-            recall=counts.recall if em_method else float('nan'),
-            flagged_static=counts.false_positives, runtime_s=output.runtime_s,
-        ))
+        scores.append(
+            Score(
+                run=run,
+                method=method,
+                ate_m=ate_rmse(output.poses[:, :2], true_xy),
+                map_error_m=map_error,
+                precision=counts.precision if em_method else float('nan'),
+                recall=counts.recall if em_method else float('nan'),
+                flagged_static=counts.false_positives,
+                runtime_s=output.runtime_s,
+            )
+        )
     return scores
 
 
@@ -200,8 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         bags = list(args.bags)
         if args.simulate:
             bags += _simulated_bags(_seed_range(args.simulate), args.variant, Path(scratch))
-        progress = ProgressReporter(len(bags), label='em_sam_evaluate', unit=' runs',
-                                    period_s=0.0)
+        progress = ProgressReporter(len(bags), label='em_sam_evaluate', unit=' runs', period_s=0.0)
         scores: list[Score] = []
         for index, bag in enumerate(bags):
             figures_dir = None if args.no_figures or args.output is None else args.output

@@ -144,8 +144,9 @@ class OdometryIngest:
         state = self._state
         if not np.all(np.isfinite(pose)):
             self.dropped_samples += 1
-            self.warn(f'odometry at stamp {stamp_ns} ns has a non-finite pose {pose.tolist()}; '
-                      'dropped')
+            self.warn(
+                f'odometry at stamp {stamp_ns} ns has a non-finite pose {pose.tolist()}; dropped'
+            )
             return []
         pose = np.array([pose[0], pose[1], wrap_angle(np.array([pose[2]]))[0]], dtype=float)
         if state.samples:
@@ -156,8 +157,10 @@ class OdometryIngest:
                 return self._reset(stamp_ns, pose, backwards_s, jump_m)
             if stamp_ns <= last_stamp:
                 self.dropped_samples += 1
-                self.warn(f'odometry stamp {stamp_ns} ns is not after the previous one '
-                          f'({last_stamp} ns); out-of-order sample dropped')
+                self.warn(
+                    f'odometry stamp {stamp_ns} ns is not after the previous one '
+                    f'({last_stamp} ns); out-of-order sample dropped'
+                )
                 return []
         state.samples.append((stamp_ns, pose))
         if state.keyframe is None:
@@ -169,12 +172,15 @@ class OdometryIngest:
         state = self._state
         if state.keyframe is not None and stamp_ns <= state.keyframe[0]:
             if stamp_ns != state.keyframe[0]:
-                self.warn(f'observation stamp {stamp_ns} ns is older than the last keyframe '
-                          f'({state.keyframe[0]} ns); raise observation_delay_s to keep it')
+                self.warn(
+                    f'observation stamp {stamp_ns} ns is older than the last keyframe '
+                    f'({state.keyframe[0]} ns); raise observation_delay_s to keep it'
+                )
             return []
         if not state.samples:
-            self.warn(f'observation at stamp {stamp_ns} ns came before any odometry; '
-                      'it gets no keyframe')
+            self.warn(
+                f'observation at stamp {stamp_ns} ns came before any odometry; it gets no keyframe'
+            )
             return []
         index = bisect.bisect_left(state.pending_stamps, stamp_ns)
         if index == len(state.pending_stamps) or state.pending_stamps[index] != stamp_ns:
@@ -228,25 +234,37 @@ class OdometryIngest:
         if state.reset_pending:
             state.reset_pending = False
             increment = Increment(
-                last_stamp, stamp_ns, np.zeros(3),
+                last_stamp,
+                stamp_ns,
+                np.zeros(3),
                 np.diag(np.square(np.array(self.config.reset_sigma))),
-                last_pose.copy(), pose.copy(), reset=True,
+                last_pose.copy(),
+                pose.copy(),
+                reset=True,
             )
         else:
             u = increment_between(last_pose[None], pose[None])[0]
             increment = Increment(
-                last_stamp, stamp_ns, u, motion_covariance(self.config, u),
-                last_pose.copy(), pose.copy(),
+                last_stamp,
+                stamp_ns,
+                u,
+                motion_covariance(self.config, u),
+                last_pose.copy(),
+                pose.copy(),
             )
         state.keyframe = (stamp_ns, pose.copy())
         return increment
 
-    def _reset(self, stamp_ns: int, pose: FloatArray, backwards_s: float, jump_m: float) -> list[Increment]:
+    def _reset(
+        self, stamp_ns: int, pose: FloatArray, backwards_s: float, jump_m: float
+    ) -> list[Increment]:
         """Start a new odometry chain; bridge it to the old one with a weak zero increment."""
         state = self._state
         self.resets += 1
-        self.warn(f'odometry reset at stamp {stamp_ns} ns (jump {jump_m:.2f} m, stamp back '
-                  f'{max(backwards_s, 0.0):.2f} s); bridging with a zero-motion increment')
+        self.warn(
+            f'odometry reset at stamp {stamp_ns} ns (jump {jump_m:.2f} m, stamp back '
+            f'{max(backwards_s, 0.0):.2f} s); bridging with a zero-motion increment'
+        )
         out = self.flush()
         if state.keyframe is None:
             state.keyframe = (stamp_ns, pose.copy())

@@ -45,14 +45,17 @@ class MapperConfig:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.stamp_tolerance_s) and self.stamp_tolerance_s >= 0):
-            raise ValueError(f'parameter stamp_tolerance_s={self.stamp_tolerance_s!r}: '
-                             'must be >= 0')
+            raise ValueError(
+                f'parameter stamp_tolerance_s={self.stamp_tolerance_s!r}: must be >= 0'
+            )
         if len(self.prior_sigma) != 3 or not all(s > 0 for s in self.prior_sigma):
-            raise ValueError(f'parameter prior_sigma={list(self.prior_sigma)!r}: '
-                             'must be 3 numbers > 0')
+            raise ValueError(
+                f'parameter prior_sigma={list(self.prior_sigma)!r}: must be 3 numbers > 0'
+            )
         if not (math.isfinite(self.pending_timeout_s) and self.pending_timeout_s > 0):
-            raise ValueError(f'parameter pending_timeout_s={self.pending_timeout_s!r}: '
-                             'must be > 0')
+            raise ValueError(
+                f'parameter pending_timeout_s={self.pending_timeout_s!r}: must be > 0'
+            )
 
 
 class MapperProcessor:
@@ -74,19 +77,25 @@ class MapperProcessor:
     def add_increment(self, increment: Increment) -> None:
         """Append an increment; it must start at the latest keyframe."""
         if not (np.all(np.isfinite(increment.u)) and np.all(np.isfinite(increment.covariance))):
-            self.warn(f'increment {increment.stamp_from_ns}->{increment.stamp_to_ns} ns has '
-                      'non-finite values; dropped')
+            self.warn(
+                f'increment {increment.stamp_from_ns}->{increment.stamp_to_ns} ns has '
+                'non-finite values; dropped'
+            )
             return
         if not self.stamps_ns:
             self.stamps_ns.append(increment.stamp_from_ns)
             self.odom_poses.append(increment.odom_pose_from.copy())
         elif increment.stamp_from_ns != self.stamps_ns[-1]:
-            self.warn(f'increment starts at {increment.stamp_from_ns} ns but the last keyframe '
-                      f'is {self.stamps_ns[-1]} ns; dropped (out of order or missing increments)')
+            self.warn(
+                f'increment starts at {increment.stamp_from_ns} ns but the last keyframe '
+                f'is {self.stamps_ns[-1]} ns; dropped (out of order or missing increments)'
+            )
             return
         if increment.stamp_to_ns <= increment.stamp_from_ns:
-            self.warn(f'increment {increment.stamp_from_ns}->{increment.stamp_to_ns} ns does not '
-                      'go forward in time; dropped')
+            self.warn(
+                f'increment {increment.stamp_from_ns}->{increment.stamp_to_ns} ns does not '
+                'go forward in time; dropped'
+            )
             return
         self.stamps_ns.append(increment.stamp_to_ns)
         self.odom_poses.append(increment.odom_pose_to.copy())
@@ -98,8 +107,10 @@ class MapperProcessor:
         z, cov = observation.z, observation.covariance
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(cov)) and z[0] > 0):
             self.dropped_observations += 1
-            self.warn(f'observation of landmark {observation.landmark_id} at '
-                      f'{observation.stamp_ns} ns has an invalid range/bearing/covariance; dropped')
+            self.warn(
+                f'observation of landmark {observation.landmark_id} at '
+                f'{observation.stamp_ns} ns has an invalid range/bearing/covariance; dropped'
+            )
             return
         if not self._attach(observation):
             self.pending.append(observation)
@@ -107,7 +118,10 @@ class MapperProcessor:
     def _attach(self, observation: Observation) -> bool:
         tolerance = round(self.config.stamp_tolerance_s * 1e9)
         index = bisect.bisect_left(self.stamps_ns, observation.stamp_ns - tolerance)
-        if index < len(self.stamps_ns) and abs(self.stamps_ns[index] - observation.stamp_ns) <= tolerance:
+        if (
+            index < len(self.stamps_ns)
+            and abs(self.stamps_ns[index] - observation.stamp_ns) <= tolerance
+        ):
             self.observations.append((index, observation))
             return True
         return False
@@ -123,9 +137,11 @@ class MapperProcessor:
                 continue
             if observation.stamp_ns < self.stamps_ns[0] or latest - observation.stamp_ns > timeout:
                 self.dropped_observations += 1
-                self.warn(f'observation of landmark {observation.landmark_id} at '
-                          f'{observation.stamp_ns} ns matches no keyframe (seen before any '
-                          'odometry, or its keyframe never came); dropped')
+                self.warn(
+                    f'observation of landmark {observation.landmark_id} at '
+                    f'{observation.stamp_ns} ns matches no keyframe (seen before any '
+                    'odometry, or its keyframe never came); dropped'
+                )
                 continue
             still.append(observation)
         self.pending = still
@@ -162,7 +178,9 @@ class MapperProcessor:
             return None
         data = self.data()
         self.result = run_em(
-            data, self.config.em, initial_poses=self._warm_start(data),
+            data,
+            self.config.em,
+            initial_poses=self._warm_start(data),
             record_snapshots=record_snapshots,
         )
         self.result_keyframes = data.num_keyframes
@@ -176,7 +194,9 @@ class MapperProcessor:
         known = min(self.result_keyframes, data.num_keyframes)
         poses[:known] = self.result.poses[:known]
         for index in range(known, data.num_keyframes):
-            poses[index] = apply_increment(poses[index - 1][None], data.odometry_u[index - 1][None])[0]
+            poses[index] = apply_increment(
+                poses[index - 1][None], data.odometry_u[index - 1][None]
+            )[0]
         return poses
 
     # -- queries --------------------------------------------------------------------------

@@ -6,19 +6,13 @@ green, moveable landmarks in blue with their sightings joined by a dotted blue l
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import Point, PoseStamped, TransformStamped
 from nav_msgs.msg import Path
-from slam_interfaces.msg import (
-    LandmarkEstimate,
-    LandmarkMap,
-    LandmarkSighting,
-    MoveableLandmark,
-    MoveableLandmarkArray,
-)
 from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
@@ -26,6 +20,13 @@ from visualization_msgs.msg import Marker, MarkerArray
 from em_sam_node.conversions import ns_to_stamp, quaternion_from_yaw
 from em_sam_node.core.em import EmResult, Sightings
 from em_sam_node.core.problem import FloatArray
+from slam_interfaces.msg import (
+    LandmarkEstimate,
+    LandmarkMap,
+    LandmarkSighting,
+    MoveableLandmark,
+    MoveableLandmarkArray,
+)
 
 RED = ColorRGBA(r=0.85, g=0.1, b=0.1, a=1.0)
 GREEN = ColorRGBA(r=0.1, g=0.7, b=0.1, a=1.0)
@@ -93,8 +94,15 @@ def moveable_message(result: EmResult, frame: str, stamp: Time) -> MoveableLandm
     return message
 
 
-def _marker(namespace: str, marker_id: int, kind: int, frame: str, stamp: Time,
-            color: ColorRGBA, scale: float) -> Marker:
+def _marker(
+    namespace: str,
+    marker_id: int,
+    kind: int,
+    frame: str,
+    stamp: Time,
+    color: ColorRGBA,
+    scale: float,
+) -> Marker:
     marker = Marker()
     marker.header.frame_id = frame
     marker.header.stamp = stamp
@@ -124,20 +132,29 @@ def markers_message(result: EmResult, frame: str, stamp: Time) -> MarkerArray:
     static = _marker('static_landmarks', 0, Marker.SPHERE_LIST, frame, stamp, GREEN, 0.2)
     static.points = _points(result.positions[~result.moveable])
     markers.append(static)
-    for index in np.flatnonzero(result.moveable):
-        landmark_id = int(result.landmark_ids[index])
-        history = result.sightings[landmark_id].positions[::-1]  # oldest first
-        points = _marker('moveable_sightings', landmark_id, Marker.SPHERE_LIST, frame, stamp,
-                         BLUE, 0.12)
+    for index in np.flatnonzero(result.moveable).tolist():
+        moveable_id = int(result.landmark_ids[index])
+        history = result.sightings[moveable_id].positions[::-1]  # oldest first
+        points = _marker(
+            'moveable_sightings', moveable_id, Marker.SPHERE_LIST, frame, stamp, BLUE, 0.12
+        )
         points.points = _points(history)
         markers.append(points)
-        dotted = _marker('moveable_history', landmark_id, Marker.LINE_LIST, frame, stamp,
-                         BLUE, 0.02)
+        dotted = _marker(
+            'moveable_history', moveable_id, Marker.LINE_LIST, frame, stamp, BLUE, 0.02
+        )
         dotted.points = _points(_dotted_segments(history))
         markers.append(dotted)
     for index, landmark_id in enumerate(result.landmark_ids.tolist()):
-        label = _marker('labels', int(landmark_id), Marker.TEXT_VIEW_FACING, frame, stamp,
-                        BLUE if result.moveable[index] else GREEN, 0.2)
+        label = _marker(
+            'labels',
+            int(landmark_id),
+            Marker.TEXT_VIEW_FACING,
+            frame,
+            stamp,
+            BLUE if result.moveable[index] else GREEN,
+            0.2,
+        )
         label.pose.position.x, label.pose.position.y = (float(v) for v in result.positions[index])
         label.pose.position.z = 0.3
         label.text = str(landmark_id)
@@ -150,7 +167,7 @@ def markers_message(result: EmResult, frame: str, stamp: Time) -> MarkerArray:
 def _dotted_segments(points: FloatArray, dash_m: float = 0.1) -> FloatArray:
     """Return LINE_LIST endpoints (2n,2) drawing a dotted polyline through ``points``."""
     segments = []
-    for start, end in zip(points[:-1], points[1:], strict=True):
+    for start, end in itertools.pairwise(points):
         length = float(np.hypot(*(end - start)))
         count = max(int(length / (2 * dash_m)), 1)
         for k in range(count):
@@ -160,8 +177,9 @@ def _dotted_segments(points: FloatArray, dash_m: float = 0.1) -> FloatArray:
     return np.array(segments).reshape(-1, 2)
 
 
-def map_to_odom_tf(transform: FloatArray, map_frame: str, odom_frame: str,
-                   stamp: Time) -> TFMessage:
+def map_to_odom_tf(
+    transform: FloatArray, map_frame: str, odom_frame: str, stamp: Time
+) -> TFMessage:
     """Return a TFMessage with the map->odom transform (x m, y m, theta rad)."""
     message = TransformStamped()
     message.header.frame_id = map_frame

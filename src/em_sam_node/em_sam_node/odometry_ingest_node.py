@@ -39,7 +39,6 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from slam_interfaces.msg import LandmarkObservationArray, OdometryIncrement
 
 from em_sam_node.conversions import increment_to_message, odometry_pose, stamp_to_ns
 from em_sam_node.ingest import Increment, IngestConfig, OdometryIngest
@@ -47,6 +46,7 @@ from slam_bringup.cli import console_main
 from slam_bringup.errors import ParameterError
 from slam_bringup.params import ParamSpec, check_finite_positive, declare_parameters
 from slam_bringup.qos import output_qos, sensor_qos
+from slam_interfaces.msg import LandmarkObservationArray, OdometryIncrement
 
 PARAMETERS = (
     ParamSpec('keyframe_distance_m', 0.5, 'keyframe after this much travel, m'),
@@ -102,14 +102,17 @@ class OdometryIngestNode(Node):
         )
         self.create_subscription(Odometry, 'odom', self._on_odometry, sensor_qos(depth=100))
         self.create_subscription(
-            LandmarkObservationArray, 'landmark_observations', self._on_observations,
+            LandmarkObservationArray,
+            'landmark_observations',
+            self._on_observations,
             output_qos(depth=100),
         )
         self._last_odometry_wall = time.monotonic()
         self._flushed = True
         self.published = 0
         self.create_timer(
-            self.idle_flush_s / 2.0, self._flush_when_idle,
+            self.idle_flush_s / 2.0,
+            self._flush_when_idle,
             clock=Clock(clock_type=ClockType.STEADY_TIME),
         )
 
@@ -132,10 +135,14 @@ class OdometryIngestNode(Node):
 
     def _publish(self, increments: list[Increment]) -> None:
         for increment in increments:
-            self.publisher.publish(increment_to_message(
-                increment, OdometryIncrement(), base_frame=self.base_frame,
-                odom_frame=self.odom_frame,
-            ))
+            self.publisher.publish(
+                increment_to_message(
+                    increment,
+                    OdometryIncrement(),
+                    base_frame=self.base_frame,
+                    odom_frame=self.odom_frame,
+                )
+            )
             self.published += 1
 
 

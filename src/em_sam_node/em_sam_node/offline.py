@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -109,19 +110,23 @@ def read_ground_truth(path: Path) -> GroundTruth:
                 poses.append(pose)
             else:
                 maps.append(decoded)
-    first = maps[0]
-    ids = np.array([lm.landmark_id for lm in first.landmarks], dtype=np.int64)  # type: ignore[attr-defined]
-    before = np.array([[lm.position.x, lm.position.y] for lm in first.landmarks])  # type: ignore[attr-defined]
-    moveable = np.array([lm.moveable for lm in first.landmarks], dtype=bool)  # type: ignore[attr-defined]
+    first: Any = maps[0]
+    ids = np.array([lm.landmark_id for lm in first.landmarks], dtype=np.int64)
+    before = np.array([[lm.position.x, lm.position.y] for lm in first.landmarks])
+    moveable = np.array([bool(lm.moveable) for lm in first.landmarks])
     after, move_stamp = before.copy(), None
     if len(maps) > 1:
-        last = maps[-1]
-        by_id = {lm.landmark_id: lm for lm in last.landmarks}  # type: ignore[attr-defined]
+        last: Any = maps[-1]
+        by_id = {lm.landmark_id: lm for lm in last.landmarks}
         after = np.array([[by_id[i].position.x, by_id[i].position.y] for i in ids.tolist()])
-        move_stamp = stamp_to_ns(last.header.stamp)  # type: ignore[attr-defined]
+        move_stamp = stamp_to_ns(last.header.stamp)
     return GroundTruth(
-        stamps_ns=np.array(stamps, dtype=np.int64), poses=np.array(poses), landmark_ids=ids,
-        positions_before=before, positions_after=after, moveable=moveable,
+        stamps_ns=np.array(stamps, dtype=np.int64),
+        poses=np.array(poses),
+        landmark_ids=ids,
+        positions_before=before,
+        positions_after=after,
+        moveable=moveable,
         move_stamp_ns=move_stamp,
     )
 

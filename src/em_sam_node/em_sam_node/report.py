@@ -33,7 +33,7 @@ def write_atomically(path: Path, data: bytes) -> Path:
     try:
         with os.fdopen(handle, 'wb') as stream:
             stream.write(data)
-        os.replace(temporary, path)
+        Path(temporary).replace(path)
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
@@ -90,15 +90,22 @@ def _figure_bytes(figure: Any) -> bytes:
     return buffer.getvalue()
 
 
-def draw_map(axes: Any, poses: np.ndarray, ids: np.ndarray, positions: np.ndarray,
-             moveable: np.ndarray | None, sightings: Mapping[int, Any] | None,
-             title: str) -> None:
+def draw_map(
+    axes: Any,
+    poses: np.ndarray,
+    ids: np.ndarray,
+    positions: np.ndarray,
+    moveable: np.ndarray | None,
+    sightings: Mapping[int, Any] | None,
+    title: str,
+) -> None:
     """Draw poses (red), static landmarks (green), moveable ones (blue, dotted history)."""
     axes.plot(poses[:, 0], poses[:, 1], '-', color='tab:red', lw=0.8, label='poses')
     flags = np.zeros(len(ids), dtype=bool) if moveable is None else moveable
     static = ~flags
-    axes.scatter(positions[static, 0], positions[static, 1], c='tab:green', s=18,
-                 label='static', zorder=3)
+    axes.scatter(
+        positions[static, 0], positions[static, 1], c='tab:green', s=18, label='static', zorder=3
+    )
     for index in np.flatnonzero(flags):
         history = (sightings or {}).get(int(ids[index]))
         if history is not None:
@@ -124,8 +131,15 @@ def write_figures(result: EmResult, directory: Path, *, prefix: str = 'em_sam') 
 
     written = []
     figure, axes = plt.subplots(figsize=(9, 4.5))
-    draw_map(axes, result.poses, result.landmark_ids, result.positions, result.moveable,
-             result.sightings, f'EM-SAM ({result.mode}): final map')
+    draw_map(
+        axes,
+        result.poses,
+        result.landmark_ids,
+        result.positions,
+        result.moveable,
+        result.sightings,
+        f'EM-SAM ({result.mode}): final map',
+    )
     axes.legend(loc='best', fontsize=8)
     written.append(write_atomically(directory / f'{prefix}_map.png', _figure_bytes(figure)))
     plt.close(figure)
@@ -136,11 +150,16 @@ def write_figures(result: EmResult, directory: Path, *, prefix: str = 'em_sam') 
         for axes, stage in zip(np.atleast_1d(grid), stages, strict=True):
             snapshot: Snapshot = result.snapshots[stage]
             final = stage == 'final'
-            draw_map(axes, snapshot.poses, snapshot.landmark_ids, snapshot.landmarks,
-                     result.moveable if final else None, result.sightings if final else None,
-                     SNAPSHOT_TITLES[stage])
-        written.append(write_atomically(directory / f'{prefix}_stages.png',
-                                        _figure_bytes(figure)))
+            draw_map(
+                axes,
+                snapshot.poses,
+                snapshot.landmark_ids,
+                snapshot.landmarks,
+                result.moveable if final else None,
+                result.sightings if final else None,
+                SNAPSHOT_TITLES[stage],
+            )
+        written.append(write_atomically(directory / f'{prefix}_stages.png', _figure_bytes(figure)))
         plt.close(figure)
 
     figure, axes = plt.subplots(figsize=(7, 4))
@@ -159,8 +178,12 @@ def write_figures(result: EmResult, directory: Path, *, prefix: str = 'em_sam') 
     return written
 
 
-def write_report(result: EmResult, stamps_ns: np.ndarray, directory: Path,
-                 extra: Mapping[str, Any] | None = None) -> list[Path]:
+def write_report(
+    result: EmResult,
+    stamps_ns: np.ndarray,
+    directory: Path,
+    extra: Mapping[str, Any] | None = None,
+) -> list[Path]:
     """Write em_sam_report.json and the figures into ``directory``; return the paths."""
     content = result_summary(result, stamps_ns)
     if extra:

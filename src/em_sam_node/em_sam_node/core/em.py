@@ -81,6 +81,7 @@ class EmConfig:
     seed_split_distance_m: float = 0.5
     solver_method: str = 'levenberg_marquardt'
     max_solver_iterations: int = 50
+    solver_tolerance: float = 1e-6
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str, object, str]] = [
@@ -117,13 +118,25 @@ class EmConfig:
                 self.max_gated_fraction,
                 'must be in [0, 1)',
             ),
-            (self.seed_kernel in SEED_KERNELS, 'seed_kernel', self.seed_kernel,
-             f'must be one of {tuple(SEED_KERNELS)}'),
-            (self.seed_kernel_scale > 0, 'seed_kernel_scale', self.seed_kernel_scale,
-             'must be > 0'),
+            (
+                self.seed_kernel in SEED_KERNELS,
+                'seed_kernel',
+                self.seed_kernel,
+                f'must be one of {tuple(SEED_KERNELS)}',
+            ),
+            (
+                self.seed_kernel_scale > 0,
+                'seed_kernel_scale',
+                self.seed_kernel_scale,
+                'must be > 0',
+            ),
             (self.seed_chunk_s > 0, 'seed_chunk_s', self.seed_chunk_s, 'must be > 0'),
-            (self.seed_split_distance_m > 0, 'seed_split_distance_m',
-             self.seed_split_distance_m, 'must be > 0'),
+            (
+                self.seed_split_distance_m > 0,
+                'seed_split_distance_m',
+                self.seed_split_distance_m,
+                'must be > 0',
+            ),
             (
                 self.max_solver_iterations >= 1,
                 'max_solver_iterations',
@@ -185,7 +198,10 @@ class EmResult:
 
 
 def m_step(
-    config: EmConfig, mahalanobis: FloatArray, obs_landmark: IntArray, num_landmarks: int,
+    config: EmConfig,
+    mahalanobis: FloatArray,
+    obs_landmark: IntArray,
+    num_landmarks: int,
     included: np.ndarray,
 ) -> FloatArray:
     """Return new landmark weights (L,) in [0, 1] from squared Mahalanobis innovations (K,).
@@ -193,8 +209,9 @@ def m_step(
     Only ``included`` sightings count (the robust mode's gate excludes some).
     """
     counts = np.bincount(obs_landmark[included], minlength=num_landmarks)
-    sums = np.bincount(obs_landmark[included], weights=mahalanobis[included],
-                       minlength=num_landmarks)
+    sums = np.bincount(
+        obs_landmark[included], weights=mahalanobis[included], minlength=num_landmarks
+    )
     if config.mode == 'paper':
         return np.clip(1.0 - sums / (2.0 * config.lagrange_lambda), 0.0, 1.0)
     dof = np.maximum(2 * counts - 2, 1)
@@ -255,6 +272,7 @@ def _solve(
         estimate,
         method=config.solver_method,
         max_iterations=config.max_solver_iterations,
+        relative_cost_tolerance=config.solver_tolerance,
         **kwargs,  # type: ignore[arg-type]
     )
     return result.estimate
@@ -289,7 +307,9 @@ def run_em(
         all_static = _solve(config, problem, estimate)
         if record_snapshots:
             snapshots['all_static'] = _snapshot(all_static, built.landmark_ids)
-    estimate = all_static if config.mode == 'paper' else _robust_seed(config, data, built, estimate)
+    estimate = (
+        all_static if config.mode == 'paper' else _robust_seed(config, data, built, estimate)
+    )
     timings['first_e_step'] = time.perf_counter() - started
 
     num_landmarks = problem.num_landmarks
@@ -470,7 +490,9 @@ def _robust_seed(
         return _solve(config, problem, start, robust_kernel=kernel)
 
     poses, by_id = incremental_seed(
-        data, robust_solve, chunk_s=config.seed_chunk_s,
+        data,
+        robust_solve,
+        chunk_s=config.seed_chunk_s,
         split_distance_m=config.seed_split_distance_m,
     )
     landmarks = fallback.landmarks.copy()

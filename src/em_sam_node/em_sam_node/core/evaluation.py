@@ -25,7 +25,7 @@ class Alignment:
 
 
 def align_se2(estimate_xy: FloatArray, truth_xy: FloatArray) -> Alignment:
-    """Return the rigid 2D transform minimizing sum ||truth - T(estimate)||^2 (Umeyama, no scale)."""
+    """Return the rigid 2D transform minimizing sum ||truth - T(estimate)||^2 (Umeyama)."""
     if estimate_xy.shape != truth_xy.shape or estimate_xy.shape[0] < 2:
         raise ValueError('alignment needs two equally long point sets of at least 2 points')
     mean_est, mean_true = estimate_xy.mean(axis=0), truth_xy.mean(axis=0)

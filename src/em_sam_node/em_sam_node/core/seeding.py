@@ -68,8 +68,13 @@ def _extend_poses(data: MappingData, solved: FloatArray, count: int) -> FloatArr
 
 
 def _split_moved(
-    data: MappingData, virtual_ids: np.ndarray, rows: np.ndarray, poses: FloatArray,
-    landmarks: dict[int, FloatArray], split_distance_m: float, next_virtual: int,
+    data: MappingData,
+    virtual_ids: np.ndarray,
+    rows: np.ndarray,
+    poses: FloatArray,
+    landmarks: dict[int, FloatArray],
+    split_distance_m: float,
+    next_virtual: int,
 ) -> int:
     """Give sightings in ``rows`` that disagree with their landmark's map position a new id.
 
@@ -106,8 +111,9 @@ def incremental_seed(
         poses = _extend_poses(data, solved_poses, count)
         rows = np.flatnonzero((data.obs_keyframe >= done) & (data.obs_keyframe < count))
         before = next_virtual
-        next_virtual = _split_moved(data, virtual_ids, rows, poses, landmarks,
-                                    split_distance_m, next_virtual)
+        next_virtual = _split_moved(
+            data, virtual_ids, rows, poses, landmarks, split_distance_m, next_virtual
+        )
         for new_id in range(before, next_virtual, -1):
             source = data.obs_landmark_id[virtual_ids == new_id]
             origin[new_id] = int(source[0])
@@ -128,8 +134,7 @@ def incremental_seed(
                     poses[problem.obs_pose[first]][None], problem.obs_z[first][None]
                 )[0]
         anchored = anchor_pieces(problem, poses)
-        problem = with_weak_priors(problem, anchored.extra_prior_poses,
-                                   anchored.extra_prior_means)
+        problem = with_weak_priors(problem, anchored.extra_prior_poses, anchored.extra_prior_means)
         estimate = solver(problem, Estimate(poses, initial))
         solved_poses = estimate.poses
         for index, landmark_id in enumerate(built.landmark_ids.tolist()):

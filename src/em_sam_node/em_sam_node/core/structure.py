@@ -73,7 +73,7 @@ def anchor_pieces(problem: SlamProblem, initial_poses: FloatArray) -> AnchoredPr
         problem=problem,
         extra_prior_poses=indices,
         extra_prior_means=initial_poses[indices].copy() if len(indices) else np.zeros((0, 3)),
-        num_pieces=int(len(np.unique(pose_labels))),
+        num_pieces=len(np.unique(pose_labels)),
     )
 
 
