@@ -108,7 +108,7 @@ class OdometryIngestNode(Node):
             output_qos(depth=100),
         )
         self._last_odometry_wall = time.monotonic()
-        self._flushed = True
+        self.flushed = True
         self.published = 0
         self.create_timer(
             self.idle_flush_s / 2.0,
@@ -122,15 +122,15 @@ class OdometryIngestNode(Node):
     def _on_odometry(self, message: Odometry) -> None:
         stamp_ns, pose = odometry_pose(message)
         self._last_odometry_wall = time.monotonic()
-        self._flushed = False
+        self.flushed = False
         self._publish(self.ingest.add_odometry(stamp_ns, pose))
 
     def _on_observations(self, message: LandmarkObservationArray) -> None:
         self._publish(self.ingest.add_observation_stamp(stamp_to_ns(message.header.stamp)))
 
     def _flush_when_idle(self) -> None:
-        if not self._flushed and time.monotonic() - self._last_odometry_wall > self.idle_flush_s:
-            self._flushed = True
+        if not self.flushed and time.monotonic() - self._last_odometry_wall > self.idle_flush_s:
+            self.flushed = True
             self._publish(self.ingest.flush())
 
     def _publish(self, increments: list[Increment]) -> None:

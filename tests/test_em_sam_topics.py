@@ -1,0 +1,145 @@
+"""Topic-level: a simulated office bag through odometry_ingest and em_sam_mapper (real rclpy).
+
+The bag (bags/office_moveable.mcap, seed 7) has 29 static wall markers and 10 desk markers
+(ids 100-109) that move from office 1 to office 2 while the robot is in the corridor.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+from bag_fixtures import tool_env
+from rclpy.parameter import Parameter
+from std_srvs.srv import Trigger
+
+from em_sam_node.em_sam_mapper_node import EmSamMapperNode
+from em_sam_node.odometry_ingest_node import OdometryIngestNode
+from slam_bringup.bag_player import BagPlayerNode
+from slam_bringup.qos import latched_qos
+from slam_bringup.testing.harness import RosHarness, wait_until
+from slam_interfaces.msg import LandmarkMap, MoveableLandmarkArray
+from slam_interfaces.srv import FindLandmark
+
+pytestmark = pytest.mark.topic
+
+BAG = Path(__file__).resolve().parents[1] / 'bags' / 'office_moveable.mcap'
+MOVED = set(range(100, 110))
+
+
+def call(
+    harness: RosHarness, service_type: type, name: str, request: object, timeout_s: float = 60.0
+) -> object:
+    client = harness.node.create_client(service_type, name)
+    assert client.wait_for_service(timeout_sec=timeout_s), name
+    future = client.call_async(request)
+    wait_until(future.done, timeout_s=timeout_s, what=f'the reply of {name}')
+    return future.result()
+
+
+@pytest.fixture
+def mapped(ros_harness: RosHarness, tmp_path: Path) -> tuple[RosHarness, EmSamMapperNode]:
+    """Play the office bag at 20x through both nodes and solve once at the end."""
+    ingest = ros_harness.add_node(OdometryIngestNode())
+    mapper = ros_harness.add_node(
+        EmSamMapperNode(
+            parameter_overrides=[
+                Parameter('optimize_period_s', value=0.0),
+                Parameter('report_dir', value=str(tmp_path / 'report')),
+            ]
+        )
+    )
+    player = ros_harness.add_node(
+        BagPlayerNode(
+            parameter_overrides=[
+                Parameter('bag_path', value=str(BAG)),
+                Parameter('rate', value=20.0),
+                Parameter('topics', value=['/odom', '/landmark_observations']),
+                Parameter(
+                    'remap', value=['/odom:=odom', '/landmark_observations:=landmark_observations']
+                ),
+                Parameter('wait_for_subscribers_s', value=20.0),
+            ]
+        )
+    )
+    assert player.finished.wait(120) and player.error is None
+    wait_until(lambda: ingest.flushed, timeout_s=20, what='odometry_ingest to flush')
+    reply = call(ros_harness, Trigger, '/em_sam_mapper/optimize', Trigger.Request())
+    assert reply.success, reply.message  # type: ignore[attr-defined]
+    return ros_harness, mapper  # type: ignore[return-value]
+
+
+def test_moveable_landmarks_and_map(mapped: tuple[RosHarness, EmSamMapperNode]) -> None:
+    harness, _ = mapped
+    moveable = harness.collect('em_sam/moveable', MoveableLandmarkArray, latched_qos())
+    landmarks = harness.collect('em_sam/landmarks', LandmarkMap, latched_qos())
+    moveable_message = moveable.wait_for_count(1)[-1]
+    map_message = landmarks.wait_for_count(1)[-1]
+
+    assert {m.landmark_id for m in moveable_message.landmarks} == MOVED
+    for landmark in moveable_message.landmarks:
+        stamps = [s.stamp.sec * 10**9 + s.stamp.nanosec for s in landmark.sightings]
+        assert stamps == sorted(stamps, reverse=True)  # most recent first
+        assert len(stamps) > 20
+        assert landmark.weight < 0.5
+
+    by_id = {e.landmark_id: e for e in map_message.landmarks}
+    assert len(by_id) == 39
+    assert {i for i, e in by_id.items() if e.moveable} == MOVED
+    static = [e for i, e in by_id.items() if i not in MOVED]
+    assert all(e.weight > 0.5 and e.num_observations > 0 for e in static)
+    assert all(e.covariance[0] > 0 and e.covariance[3] > 0 for e in static)
+    assert map_message.header.frame_id == 'map'
+
+
+def test_find_landmark(mapped: tuple[RosHarness, EmSamMapperNode]) -> None:
+    harness, mapper = mapped
+    request = FindLandmark.Request(landmark_id=104)
+    reply = call(harness, FindLandmark, '/em_sam_mapper/find_landmark', request)
+    assert reply.found and reply.moveable  # type: ignore[attr-defined]
+    stamps = [s.stamp.sec * 10**9 + s.stamp.nanosec for s in reply.sightings]  # type: ignore[attr-defined]
+    assert stamps == sorted(stamps, reverse=True) and len(stamps) > 20
+    # The most recent sightings are in office 2, the oldest in office 1 (about 12 m apart).
+    newest, oldest = reply.sightings[0].position, reply.sightings[-1].position  # type: ignore[attr-defined]
+    assert ((newest.x - oldest.x) ** 2 + (newest.y - oldest.y) ** 2) ** 0.5 > 8.0
+
+    static = call(
+        harness, FindLandmark, '/em_sam_mapper/find_landmark', FindLandmark.Request(landmark_id=3)
+    )
+    assert static.found and not static.moveable  # type: ignore[attr-defined]
+    missing = call(
+        harness,
+        FindLandmark,
+        '/em_sam_mapper/find_landmark',
+        FindLandmark.Request(landmark_id=999),
+    )
+    assert not missing.found and '999' in missing.message  # type: ignore[attr-defined]
+
+    report = mapper.write_report()
+    assert {p.name for p in report} >= {'em_sam_report.json', 'em_sam_map.png'}
+
+
+@pytest.mark.parametrize(
+    ('executable', 'parameter', 'value'),
+    [
+        ('em_sam_mapper', 'lagrange_lambda', '0.0'),
+        ('em_sam_mapper', 'lagrange_lambda', '-5.0'),
+        ('em_sam_mapper', 'mode', 'fancy'),
+        ('odometry_ingest', 'keyframe_distance_m', '-1.0'),
+        ('odometry_ingest', 'noise_alphas', '[0.1, 0.2]'),
+    ],
+)
+def test_invalid_parameter_is_named(executable: str, parameter: str, value: str) -> None:
+    result = subprocess.run(
+        [executable, '--ros-args', '-p', f'{parameter}:={value}'],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=tool_env(),
+        check=False,
+    )
+    assert result.returncode == 2, result.stderr
+    assert 'Traceback' not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if ': error: ' in line]
+    assert len(errors) == 1 and parameter in errors[0], result.stderr
