@@ -1,9 +1,14 @@
 #!/usr/bin/env bash
 # Set everything up (scripts/bootstrap.sh), then run the main job on the bundled sample bag
-# and print what it found. Results go to out/demo/.
+# and print what it found. Results and figures go to out/demo/.
 #
-# Today the main job is the bring-up pipeline: the sample bag is replayed through the graph
-# runner (graphs/bag_replay.yaml) and recorded back, and both bags are summarized.
+# The main job is EM-SAM on bags/office_moveable.mcap, a simulated run of the paper's office
+# experiment (seed 7): 29 static wall markers, and 10 desk markers (ids 100-109) that move
+# from office 1 to office 2 while the robot is in the corridor. The bag is replayed at 20x
+# through odometry_ingest and em_sam_mapper (real rclpy, graph em_sam_office.yaml); the
+# mapper writes its report (JSON + PNG) on shutdown. Then em_sam_evaluate replays the same
+# bag through the same processors offline and scores five methods against ground truth,
+# plus the live mapper's own result.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$ROOT/scripts/bootstrap.sh"
@@ -11,18 +16,28 @@ bash "$ROOT/scripts/bootstrap.sh"
 source "$ROOT/scripts/env.sh"
 cd "$ROOT"
 
-SAMPLE="$ROOT/bags/ubiquity_aruco"
+SAMPLE="$ROOT/bags/office_moveable.mcap"
 OUT="$ROOT/out/demo"
-rm -rf "$OUT"
+rm -rf "$OUT" "$ROOT/out/em_sam"
 mkdir -p "$OUT"
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$((100 + $$ % 100))}"
 
 echo "== sample bag"
 bag_info "$SAMPLE"
 echo
-echo "== replaying it through slam_run (graph: bag_replay.yaml) and recording the topics"
-slam_run "$ROOT/src/slam_bringup/graphs/bag_replay.yaml" \
-  --bag "$SAMPLE" --record "$OUT/replayed" --exit-when-player-done
+echo "== EM-SAM nodes on the bag (slam_run em_sam_office.yaml, 20x)"
+slam_run em_sam_office.yaml --bag "$SAMPLE" --rate 20 --exit-when-player-done
+mv "$ROOT/out/em_sam" "$OUT/live_mapper"
 echo
-echo "== what the recorder captured"
-bag_info "$OUT/replayed"
+echo "== evaluation against ground truth (em_sam_evaluate)"
+em_sam_evaluate "$SAMPLE" --output "$OUT/evaluation" \
+  --live-report "$OUT/live_mapper/em_sam_report.json"
+echo
+python - "$OUT/live_mapper/em_sam_report.json" <<'PYEOF'
+import json, sys
+report = json.load(open(sys.argv[1]))
+print(f"live em_sam_mapper ({report['mode']}): {report['num_keyframes']} keyframes, "
+      f"{report['num_landmarks']} landmarks, moveable ids {report['moveable_ids']}, "
+      f"{report['em_iterations']} EM iterations, {report['timings_s']['total']:.2f} s")
+PYEOF
+echo "figures: $OUT/live_mapper/*.png and $OUT/evaluation/office_moveable/*.png"

@@ -15,6 +15,7 @@ weights per EM iteration) into the output directory.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 import time
@@ -34,7 +35,7 @@ from em_sam_node.report import write_atomically, write_figures, write_json
 from slam_bringup.cli import console_main
 from slam_bringup.progress import ProgressReporter
 
-METHODS = ('odometry', 'plain_sam', 'em_sam_paper', 'em_sam_robust', 'oracle')
+METHODS = ('odometry', 'plain_sam', 'em_sam_paper', 'em_sam_robust', 'oracle', 'live_mapper')
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,7 @@ class MethodOutput:
     flagged: set[int]
     runtime_s: float
     em: EmResult | None = None
+    stamps_ns: np.ndarray | None = None  # keyframe stamps, when not the replayed ones
 
 
 def _solve_all_static(
@@ -117,7 +119,8 @@ def score(
     static_truth = dict(zip(truth.landmark_ids.tolist(), truth.positions_before, strict=True))
     scores = []
     for method, output in outputs.items():
-        alignment = align_se2(output.poses[:, :2], true_xy)
+        truth_xy = true_xy if output.stamps_ns is None else truth.poses_at(output.stamps_ns)[:, :2]
+        alignment = align_se2(output.poses[:, :2], truth_xy)
         keep = [i for i, lid in enumerate(output.landmark_ids.tolist()) if lid in negatives]
         map_error = landmark_rmse(
             output.positions[keep],
@@ -125,12 +128,12 @@ def score(
             alignment,
         )
         counts = classify(output.flagged, positives, negatives)
-        em_method = method.startswith('em_sam')
+        em_method = method.startswith('em_sam') or method == 'live_mapper'
         scores.append(
             Score(
                 run=run,
                 method=method,
-                ate_m=ate_rmse(output.poses[:, :2], true_xy),
+                ate_m=ate_rmse(output.poses[:, :2], truth_xy),
                 map_error_m=map_error,
                 precision=counts.precision if em_method else float('nan'),
                 recall=counts.recall if em_method else float('nan'),
@@ -166,16 +169,35 @@ def markdown_table(scores: list[Score]) -> str:
     return '\n'.join(lines)
 
 
-def evaluate_bag(path: Path, output: Path | None) -> tuple[list[Score], dict[str, MethodOutput]]:
+def evaluate_bag(
+    path: Path, output: Path | None, live_report: Path | None = None
+) -> tuple[list[Score], dict[str, MethodOutput]]:
     """Replay one bag, run the methods, score them, and write its figures if asked."""
     replay = replay_bag(path)
     truth = read_ground_truth(path)
     outputs = run_methods(replay.data, truth)
+    if live_report is not None:
+        outputs['live_mapper'] = live_output(live_report)
     if output is not None:
         for mode in ('paper', 'robust'):
             figures = run_em(replay.data, EmConfig(mode=mode), record_snapshots=True)
             write_figures(figures, output / path.stem, prefix=f'em_sam_{mode}')
     return score(path.stem, replay.data, truth, outputs), outputs
+
+
+def live_output(report_path: Path) -> MethodOutput:
+    """Return the em_sam_mapper node's own result (its report JSON) as a MethodOutput,
+    scored at the node's own keyframe stamps."""
+    report = json.loads(report_path.read_text(encoding='utf-8'))
+    static = [lm for lm in report['landmarks'] if not lm['moveable']]
+    return MethodOutput(
+        poses=np.array(report['trajectory']['poses'], dtype=float).reshape(-1, 3),
+        landmark_ids=np.array([lm['id'] for lm in static], dtype=np.int64),
+        positions=np.array([lm['position_m'] for lm in static], dtype=float).reshape(-1, 2),
+        flagged=set(report['moveable_ids']),
+        runtime_s=float(report['timings_s'].get('total', float('nan'))),
+        stamps_ns=np.array(report['trajectory']['stamps_ns'], dtype=np.int64),
+    )
 
 
 def _seed_range(text: str) -> list[int]:
@@ -206,6 +228,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--variant', default='standard', help='simulation variant')
     parser.add_argument('--output', type=Path, help='directory for results and figures')
     parser.add_argument('--no-figures', action='store_true', help='skip the figures')
+    parser.add_argument(
+        '--live-report',
+        type=Path,
+        metavar='JSON',
+        help="em_sam_mapper's em_sam_report.json for the (first) bag: adds a live_mapper row",
+    )
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if not args.bags and not args.simulate:
         parser.error('give bags, or --simulate SEEDS')
@@ -217,7 +245,9 @@ def main(argv: list[str] | None = None) -> int:
         scores: list[Score] = []
         for index, bag in enumerate(bags):
             figures_dir = None if args.no_figures or args.output is None else args.output
-            run_scores, _ = evaluate_bag(bag, figures_dir if index == 0 else None)
+            run_scores, _ = evaluate_bag(
+                bag, figures_dir if index == 0 else None, args.live_report if index == 0 else None
+            )
             scores += run_scores
             progress.update(index + 1)
         progress.finish()

@@ -14,7 +14,8 @@ processing) still get their keyframe. Each increment is the paper's eq. 2 parame
 
 Bad input: samples with a non-finite pose or stamp are dropped; samples older than the last
 one are dropped (out-of-order); a jump of more than ``reset_jump_m`` between consecutive
-samples, or the stamp going back by more than ``reset_backwards_s``, is an odometry reset:
+samples at more than ``reset_speed_mps`` (a gap of lost messages is not a reset: it is
+interpolated), or the stamp going back by more than ``reset_backwards_s``, is an odometry reset:
 the chain continues across it with a zero-motion increment of covariance ``reset_sigma``.
 Every drop and reset is reported through ``warn``.
 """
@@ -45,6 +46,7 @@ class IngestConfig:
     min_sigma_theta_rad: float = 0.002
     reset_jump_m: float = 1.0
     reset_backwards_s: float = 1.0
+    reset_speed_mps: float = 5.0
     reset_sigma: tuple[float, float, float] = (1.0, 1.0, 0.5)
     max_buffer_s: float = 30.0
 
@@ -57,6 +59,7 @@ class IngestConfig:
             'min_sigma_theta_rad': self.min_sigma_theta_rad,
             'reset_jump_m': self.reset_jump_m,
             'reset_backwards_s': self.reset_backwards_s,
+            'reset_speed_mps': self.reset_speed_mps,
             'max_buffer_s': self.max_buffer_s,
         }
         for name, value in positive.items():
@@ -153,7 +156,11 @@ class OdometryIngest:
             last_stamp, last_pose = state.samples[-1]
             backwards_s = (last_stamp - stamp_ns) / 1e9
             jump_m = float(np.hypot(*(pose[:2] - last_pose[:2])))
-            if backwards_s > self.config.reset_backwards_s or jump_m > self.config.reset_jump_m:
+            speed_mps = jump_m / max(-backwards_s, 1e-9)
+            teleported = (
+                jump_m > self.config.reset_jump_m and speed_mps > self.config.reset_speed_mps
+            )
+            if backwards_s > self.config.reset_backwards_s or teleported:
                 return self._reset(stamp_ns, pose, backwards_s, jump_m)
             if stamp_ns <= last_stamp:
                 self.dropped_samples += 1
@@ -180,6 +187,12 @@ class OdometryIngest:
         if not state.samples:
             self.warn(
                 f'observation at stamp {stamp_ns} ns came before any odometry; it gets no keyframe'
+            )
+            return []
+        if stamp_ns < state.samples[0][0]:
+            self.warn(
+                f'observation stamp {stamp_ns} ns is older than the buffered odometry (from '
+                f'{state.samples[0][0]} ns); it gets no keyframe (raise max_buffer_s to keep it)'
             )
             return []
         index = bisect.bisect_left(state.pending_stamps, stamp_ns)
@@ -210,7 +223,8 @@ class OdometryIngest:
                 out.append(self._keyframe(wanted, interpolated))
             if stamp > horizon_ns:
                 break
-            if self._moved_enough(stamp, pose) or (final and index == len(samples) - 1):
+            last = final and index == len(samples) - 1 and stamp > state.keyframe[0]
+            if self._moved_enough(stamp, pose) or last:
                 out.append(self._keyframe(stamp, pose))
         self._trim()
         return out

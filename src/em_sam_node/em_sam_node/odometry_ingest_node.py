@@ -7,7 +7,8 @@ out-of-order stamps and NaN poses (dropped with a throttled warning). When odome
 (end of a bag) for ``idle_flush_s``, the keyframes still held back are emitted.
 
 Topics:
-  subscribes  odom (nav_msgs/Odometry, sensor-data QoS, depth 100)
+  subscribes  odom (nav_msgs/Odometry, best effort, depth 1000: deep, so a long callback of
+              another node in the same executor loses no samples)
               landmark_observations (slam_interfaces/LandmarkObservationArray, reliable,
               depth 100; only the stamps are used)
   publishes   odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000)
@@ -19,7 +20,8 @@ Parameters:
                               them, so late observations still get one.
   noise_alphas ([0.05, 0.001, 0.01, 0.001])  a1..a4 of the motion noise model.
   min_sigma_xy_m (0.002), min_sigma_theta_rad (0.002)  noise floor of an increment.
-  reset_jump_m (1.0), reset_backwards_s (1.0)  what counts as an odometry reset.
+  reset_jump_m (1.0), reset_speed_mps (5.0), reset_backwards_s (1.0)  what counts as an
+                              odometry reset: a jump this large at this speed, or time going back.
   reset_sigma ([1.0, 1.0, 0.5])  std. dev. of the zero-motion increment bridging a reset.
   max_buffer_s (30.0)         odometry kept for interpolation.
   idle_flush_s (1.0)          emit held-back keyframes after this long without odometry.
@@ -57,6 +59,7 @@ PARAMETERS = (
     ParamSpec('min_sigma_xy_m', 0.002, 'noise floor of an increment in x and y, m'),
     ParamSpec('min_sigma_theta_rad', 0.002, 'noise floor of an increment in heading, rad'),
     ParamSpec('reset_jump_m', 1.0, 'a jump larger than this between samples is a reset, m'),
+    ParamSpec('reset_speed_mps', 5.0, 'a jump is a reset only above this speed, m/s'),
     ParamSpec('reset_backwards_s', 1.0, 'a stamp going back more than this is a reset, s'),
     ParamSpec('reset_sigma', [1.0, 1.0, 0.5], 'std. dev. of the increment bridging a reset'),
     ParamSpec('max_buffer_s', 30.0, 'odometry kept for interpolation, s'),
@@ -79,6 +82,7 @@ def config_from_parameters(values: dict[str, Any]) -> IngestConfig:
             min_sigma_theta_rad=float(values['min_sigma_theta_rad']),
             reset_jump_m=float(values['reset_jump_m']),
             reset_backwards_s=float(values['reset_backwards_s']),
+            reset_speed_mps=float(values['reset_speed_mps']),
             reset_sigma=tuple(float(s) for s in values['reset_sigma']),  # type: ignore[arg-type]
             max_buffer_s=float(values['max_buffer_s']),
         )
@@ -100,7 +104,7 @@ class OdometryIngestNode(Node):
         self.publisher = self.create_publisher(
             OdometryIncrement, 'odometry_increments', output_qos(depth=1000)
         )
-        self.create_subscription(Odometry, 'odom', self._on_odometry, sensor_qos(depth=100))
+        self.create_subscription(Odometry, 'odom', self._on_odometry, sensor_qos(depth=1000))
         self.create_subscription(
             LandmarkObservationArray,
             'landmark_observations',

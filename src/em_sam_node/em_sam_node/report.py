@@ -130,7 +130,7 @@ def write_figures(result: EmResult, directory: Path, *, prefix: str = 'em_sam') 
     import matplotlib.pyplot as plt
 
     written = []
-    figure, axes = plt.subplots(figsize=(9, 4.5))
+    figure, axes = plt.subplots(figsize=(9, 4.5), layout='constrained')
     draw_map(
         axes,
         result.poses,
@@ -146,7 +146,9 @@ def write_figures(result: EmResult, directory: Path, *, prefix: str = 'em_sam') 
 
     if result.snapshots:
         stages = [s for s in SNAPSHOT_TITLES if s in result.snapshots]
-        figure, grid = plt.subplots(len(stages), 1, figsize=(9, 3.2 * len(stages)))
+        figure, grid = plt.subplots(
+            1, len(stages), figsize=(4.2 * len(stages), 6), layout='constrained'
+        )
         for axes, stage in zip(np.atleast_1d(grid), stages, strict=True):
             snapshot: Snapshot = result.snapshots[stage]
             final = stage == 'final'
@@ -162,7 +164,7 @@ def write_figures(result: EmResult, directory: Path, *, prefix: str = 'em_sam') 
         written.append(write_atomically(directory / f'{prefix}_stages.png', _figure_bytes(figure)))
         plt.close(figure)
 
-    figure, axes = plt.subplots(figsize=(7, 4))
+    figure, axes = plt.subplots(figsize=(7, 4), layout='constrained')
     history = result.weight_history
     iterations = np.arange(history.shape[0])
     for index in range(len(result.landmark_ids)):

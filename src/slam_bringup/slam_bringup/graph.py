@@ -20,7 +20,8 @@ each node are required)::
       recorder:                     # a bag_recorder node named bag_recorder
         output: out/run             # or --record; topics: [...] (empty: all topics)
 
-Parameter files and ``player.bag`` are relative to the GRAPH file's directory;
+Parameter files and ``player.bag`` are relative to the GRAPH file's directory, or written
+``package://<package>/<path>`` for a file in an installed package's share directory;
 ``recorder.output`` is relative to the current directory, like ``ros2 bag record -o``.
 
 ``load_graph`` validates a file into frozen dataclasses and raises ``GraphError`` naming the
@@ -37,9 +38,11 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
 from slam_bringup.errors import GraphError
 
+PACKAGE_SCHEME = 'package://'
 _NAME = re.compile(r'[A-Za-z_][A-Za-z0-9_]*')
 _PACKAGE = re.compile(r'[A-Za-z][A-Za-z0-9_]*')
 _PLUGIN = re.compile(r'[A-Za-z_][A-Za-z0-9_.]*:[A-Za-z_][A-Za-z0-9_]*')
@@ -250,9 +253,21 @@ class _Checker:
         return name
 
     def path_relative(self, value: object, key: str) -> Path:
+        """Resolve a path: ``package://<pkg>/<path>`` in the package's share directory
+        (found through the ament index), else relative to the GRAPH file."""
         text = self.string(value, key)
         if not text:
             raise self.error(key, 'must not be empty')
+        if text.startswith(PACKAGE_SCHEME):
+            package, _, relative = text[len(PACKAGE_SCHEME) :].partition('/')
+            try:
+                return Path(get_package_share_directory(package)) / relative
+            except (PackageNotFoundError, ValueError):
+                raise self.error(
+                    key,
+                    f'package {package!r} of {text!r} is not installed (not on '
+                    'AMENT_PREFIX_PATH); build the workspace and source scripts/env.sh',
+                ) from None
         path = Path(text).expanduser()
         return path if path.is_absolute() else self.path.parent / path
 

@@ -50,6 +50,7 @@ class ProgressReporter:
         self.started = clock()
         self.last_report = float('-inf')
         self.done = 0.0
+        self._last_done: float | None = None
         self.items = 0
 
     def update(self, done: float, *, items: int | None = None, force: bool = False) -> None:
@@ -60,11 +61,13 @@ class ProgressReporter:
         now = self.clock()
         if force or now - self.last_report >= self.period_s:
             self.last_report = now
+            self._last_done = done
             self._emit(self.line(now))
 
     def finish(self) -> None:
-        """Emit the final state and end the terminal line."""
-        self._emit(self.line(self.clock()))
+        """Emit the final state (unless just reported) and end the terminal line."""
+        if self.is_tty or self.done != self._last_done:
+            self._emit(self.line(self.clock()))
         if self.is_tty:
             self.stream.write('\n')
             self.stream.flush()
