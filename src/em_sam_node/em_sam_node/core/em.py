@@ -79,6 +79,7 @@ class EmConfig:
     seed_kernel_scale: float = 2.3849
     seed_chunk_s: float = 20.0
     seed_split_distance_m: float = 0.5
+    seed_window_s: float = 60.0
     solver_method: str = 'levenberg_marquardt'
     max_solver_iterations: int = 50
     solver_tolerance: float = 1e-6
@@ -131,6 +132,12 @@ class EmConfig:
                 'must be > 0',
             ),
             (self.seed_chunk_s > 0, 'seed_chunk_s', self.seed_chunk_s, 'must be > 0'),
+            (
+                self.seed_window_s >= self.seed_chunk_s,
+                'seed_window_s',
+                self.seed_window_s,
+                'must be >= seed_chunk_s',
+            ),
             (
                 self.seed_split_distance_m > 0,
                 'seed_split_distance_m',
@@ -494,6 +501,7 @@ def _robust_seed(
         robust_solve,
         chunk_s=config.seed_chunk_s,
         split_distance_m=config.seed_split_distance_m,
+        window_s=config.seed_window_s,
     )
     landmarks = fallback.landmarks.copy()
     for index, landmark_id in enumerate(built.landmark_ids.tolist()):

@@ -44,6 +44,10 @@ class SlamProblem:
     prior_mean: FloatArray
     prior_sqrt_info: FloatArray
     prior_pose_index: int = 0
+    fixed_landmarks: NDArray[np.bool_] | None = None
+
+    # ``fixed_landmarks`` (L,) marks landmarks held at their initial value: their
+    # observations constrain the poses only (a known map, e.g. in a sliding-window solve).
 
     @property
     def num_odometry(self) -> int:

@@ -10,6 +10,11 @@ per-sighting kernel cannot reject, so the seed splits them: when a mapped landma
 sightings (placed through the odometry-extended trajectory) lie more than
 ``split_distance_m`` from where it was mapped, they start a new, virtual landmark. The
 redescending kernel then only has isolated outliers to deal with.
+
+Each step solves only a window of the recent ``window_s`` of keyframes, anchored at the
+window's first pose as solved before; landmarks mapped before the window are held fixed, a
+known map that the window's poses are localized against (which closes loops). The cost per
+step is bounded by the window, so the seed grows linearly with the run.
 """
 
 from __future__ import annotations
@@ -94,20 +99,47 @@ def _split_moved(
     return next_virtual
 
 
+def window(data: MappingData, start: int, end: int, anchor: FloatArray) -> MappingData:
+    """Return keyframes [start, end) re-indexed from 0, with the prior at ``anchor`` (3,)."""
+    odometry = (data.odometry_from >= start) & (data.odometry_to < end)
+    observations = (data.obs_keyframe >= start) & (data.obs_keyframe < end)
+    return dataclasses.replace(
+        data,
+        keyframe_stamps_ns=data.keyframe_stamps_ns[start:end],
+        odometry_from=data.odometry_from[odometry] - start,
+        odometry_to=data.odometry_to[odometry] - start,
+        odometry_u=data.odometry_u[odometry],
+        odometry_cov=data.odometry_cov[odometry],
+        obs_keyframe=data.obs_keyframe[observations] - start,
+        obs_landmark_id=data.obs_landmark_id[observations],
+        obs_z=data.obs_z[observations],
+        obs_cov=data.obs_cov[observations],
+        prior_pose=anchor.copy(),
+        prior_cov=np.diag([1e-6, 1e-6, 1e-6]),
+    )
+
+
 def incremental_seed(
-    data: MappingData, solver: Solver, *, chunk_s: float = 20.0, split_distance_m: float = 0.5
+    data: MappingData,
+    solver: Solver,
+    *,
+    chunk_s: float = 20.0,
+    split_distance_m: float = 0.5,
+    window_s: float = 60.0,
 ) -> tuple[FloatArray, dict[int, FloatArray]]:
-    """Return poses (N,3) and landmark positions by (real) id from prefix-by-prefix solves.
+    """Return poses (N,3) and landmark positions by (real) id from windowed robust solves.
 
     A landmark split in the seed reports the position of its first mapped cluster.
     """
     virtual_ids = data.obs_landmark_id.copy()
     next_virtual = min(int(virtual_ids.min(initial=0)), 0) - 1
     origin = {int(i): int(i) for i in np.unique(virtual_ids).tolist()}
+    first_seen: dict[int, int] = {}  # landmark (virtual) id -> keyframe of its first sighting
     solved_poses = np.zeros((0, 3))
     landmarks: dict[int, FloatArray] = {}
     done = 0
-    for count in chunk_ends(data.keyframe_stamps_ns, chunk_s):
+    stamps = data.keyframe_stamps_ns
+    for count in chunk_ends(stamps, chunk_s):
         poses = _extend_poses(data, solved_poses, count)
         rows = np.flatnonzero((data.obs_keyframe >= done) & (data.obs_keyframe < count))
         before = next_virtual
@@ -115,29 +147,38 @@ def incremental_seed(
             data, virtual_ids, rows, poses, landmarks, split_distance_m, next_virtual
         )
         for new_id in range(before, next_virtual, -1):
-            source = data.obs_landmark_id[virtual_ids == new_id]
-            origin[new_id] = int(source[0])
+            origin[new_id] = int(data.obs_landmark_id[virtual_ids == new_id][0])
+        for row in rows.tolist():
+            first_seen.setdefault(int(virtual_ids[row]), int(data.obs_keyframe[row]))
+        start = int(np.searchsorted(stamps, stamps[max(done, 1) - 1] - round(window_s * 1e9)))
+        start = min(start, max(done - 1, 0))
         done = count
-        part = prefix(dataclasses.replace(data, obs_landmark_id=virtual_ids), count)
+        part = window(
+            dataclasses.replace(data, obs_landmark_id=virtual_ids), start, count, poses[start]
+        )
         built = build_problem(part)
         if built.problem.num_landmarks == 0:
             solved_poses = poses
             continue
-        problem = built.problem
+        ids = built.landmark_ids.tolist()
+        fixed = np.array([lid in landmarks and first_seen[lid] < start for lid in ids])
+        problem = dataclasses.replace(built.problem, fixed_landmarks=fixed)
+        local = poses[start:count]
         initial = np.zeros((problem.num_landmarks, 2))
-        for index, landmark_id in enumerate(built.landmark_ids.tolist()):
+        for index, landmark_id in enumerate(ids):
             if landmark_id in landmarks:
                 initial[index] = landmarks[landmark_id]
             else:  # first sighting, through the extended trajectory
                 first = int(np.flatnonzero(problem.obs_landmark == index)[0])
                 initial[index] = range_bearing_to_point(
-                    poses[problem.obs_pose[first]][None], problem.obs_z[first][None]
+                    local[problem.obs_pose[first]][None], problem.obs_z[first][None]
                 )[0]
-        anchored = anchor_pieces(problem, poses)
+        anchored = anchor_pieces(problem, local)
         problem = with_weak_priors(problem, anchored.extra_prior_poses, anchored.extra_prior_means)
-        estimate = solver(problem, Estimate(poses, initial))
-        solved_poses = estimate.poses
-        for index, landmark_id in enumerate(built.landmark_ids.tolist()):
-            landmarks[landmark_id] = estimate.landmarks[index]
+        estimate = solver(problem, Estimate(local, initial))
+        solved_poses = np.concatenate([poses[:start], estimate.poses])
+        for index, landmark_id in enumerate(ids):
+            if not fixed[index]:
+                landmarks[landmark_id] = estimate.landmarks[index]
     real = {lid: pos for lid, pos in landmarks.items() if origin[lid] == lid}
     return solved_poses, real

@@ -303,6 +303,9 @@ def _linearize(problem: SlamProblem, estimate: Estimate, row_scale: FloatArray) 
     prior = linearize_prior(problem, estimate)
     odometry = linearize_odometry(problem, estimate)
     obs = linearize_observations(problem, estimate)
+    if problem.fixed_landmarks is not None:
+        # A fixed landmark gets no information, so the solver holds it at its value.
+        obs.jacobian[problem.fixed_landmarks[problem.obs_landmark], :, 3:] = 0.0
     return _Linearization(
         prior.residual,
         prior.jacobian,
