@@ -84,7 +84,7 @@ def tile(data: MappingData, copies: int) -> MappingData:
     )
 
 
-def measure_size(copies: int, queue: multiprocessing.Queue) -> None:  # type: ignore[type-arg]
+def measure_size(copies: int, queue: multiprocessing.Queue) -> None:
     """In a fresh process: EM-SAM robust on ``copies`` tiled office runs."""
     data = tile(replay_bag(BAG).data, copies)
     started = time.perf_counter()

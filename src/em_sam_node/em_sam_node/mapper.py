@@ -70,6 +70,7 @@ class MapperProcessor:
         self.observations: list[tuple[int, Observation]] = []  # (keyframe, observation)
         self.pending: list[Observation] = []
         self.result: EmResult | None = None
+        self.result_data: MappingData | None = None  # what self.result was solved from
         self.result_keyframes = 0
         self.dropped_observations = 0
 
@@ -183,6 +184,7 @@ class MapperProcessor:
             initial_poses=self._warm_start(data),
             record_snapshots=record_snapshots,
         )
+        self.result_data = data
         self.result_keyframes = data.num_keyframes
         return self.result
 
@@ -209,12 +211,12 @@ class MapperProcessor:
 
     def find_landmark(self, landmark_id: int) -> Sightings | None:
         """Return every sighting of a landmark placed in the map, most recent first."""
-        if self.result is None or landmark_id not in set(self.result.landmark_ids.tolist()):
+        result, data = self.result, self.result_data
+        if result is None or data is None or landmark_id not in set(result.landmark_ids.tolist()):
             return None
-        if landmark_id in self.result.sightings:
-            return self.result.sightings[landmark_id]
-        data = self.data()
-        result = self.result
+        if landmark_id in result.sightings:
+            return result.sightings[landmark_id]
+        # ``data`` is what ``result`` was solved from: newer keyframes have no solution yet.
         built = build_problem(data, exclude_ids=result.landmark_ids[result.moveable].tolist())
         keep = np.isin(result.landmark_ids, built.landmark_ids)
         solved = Estimate(result.poses, result.positions[keep])

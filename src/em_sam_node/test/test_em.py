@@ -1,0 +1,292 @@
+"""EM-SAM: moveable landmarks on a synthetic room, the M-step, the gate, and edge cases."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from synthetic_room import MOVEABLE_IDS, STATIC_IDS, STATIC_POSITIONS, Room, make_room
+
+from em_sam_node.core.assembly import MappingData, dead_reckoning
+from em_sam_node.core.em import EmConfig, EmResult, gate_outliers, m_step, run_em
+from em_sam_node.core.evaluation import ate_rmse
+from em_sam_node.core.se2 import between
+
+SETTINGS = settings(derandomize=True, max_examples=200, deadline=None)
+
+
+def select_observations(data: MappingData, keep: np.ndarray) -> MappingData:
+    return dataclasses.replace(
+        data,
+        obs_keyframe=data.obs_keyframe[keep],
+        obs_landmark_id=data.obs_landmark_id[keep],
+        obs_z=data.obs_z[keep],
+        obs_cov=data.obs_cov[keep],
+    )
+
+
+def flagged(result: EmResult) -> list[int]:
+    return sorted(result.landmark_ids[result.moveable].tolist())
+
+
+@pytest.fixture(scope='module')
+def room() -> Room:
+    return make_room(0)
+
+
+@pytest.fixture(scope='module')
+def robust(room: Room) -> EmResult:
+    return run_em(room.data, EmConfig(mode='robust'))
+
+
+@pytest.fixture(scope='module')
+def paper(room: Room) -> EmResult:
+    return run_em(room.data, EmConfig(mode='paper'))
+
+
+# --- the synthetic room ---------------------------------------------------------------------
+
+
+def test_robust_mode_flags_exactly_the_moved_landmarks(robust: EmResult) -> None:
+    assert robust.mode == 'robust'
+    assert flagged(robust) == list(MOVEABLE_IDS)
+    assert sorted(robust.landmark_ids.tolist()) == sorted(STATIC_IDS + MOVEABLE_IDS)
+    static = np.isin(robust.landmark_ids, STATIC_IDS)
+    assert np.all(robust.weights[static] > 0.9)
+    assert np.all(robust.weights[~static] < 0.1)
+    assert robust.converged
+
+
+def test_robust_mode_recovers_the_trajectory_and_the_static_map(
+    room: Room, robust: EmResult
+) -> None:
+    truth = room.true_poses
+    odometry_error = np.abs(dead_reckoning(room.data)[:, :2] - truth[:, :2]).max()
+    error = np.abs(robust.poses[:, :2] - truth[:, :2]).max()
+    assert error < 0.15 and error < 0.5 * odometry_error
+    assert ate_rmse(robust.poses[:, :2], truth[:, :2], align=False) < 0.08
+    static = np.isin(robust.landmark_ids, STATIC_IDS)
+    order = robust.landmark_ids[static]
+    np.testing.assert_allclose(robust.positions[static], STATIC_POSITIONS[order], atol=0.15)
+
+
+def test_robust_mode_places_a_moved_landmark_at_its_latest_sighting(robust: EmResult) -> None:
+    index = int(np.flatnonzero(robust.landmark_ids == 100)[0])
+    sightings = robust.sightings[100]
+    np.testing.assert_array_equal(robust.positions[index], sightings.positions[0])
+    np.testing.assert_allclose(sightings.positions[0], [3.0, 3.0], atol=0.2)
+    np.testing.assert_allclose(sightings.positions[-1], [3.0, 0.0], atol=0.2)
+
+
+def test_paper_mode_reports_weights_and_their_history(room: Room, paper: EmResult) -> None:
+    assert paper.mode == 'paper'
+    count = len(paper.landmark_ids)
+    assert np.all((paper.weights >= 0.0) & (paper.weights <= 1.0))
+    assert paper.weight_history.shape == (paper.em_iterations + 1, count)
+    np.testing.assert_array_equal(paper.weight_history[0], np.ones(count))
+    np.testing.assert_array_equal(paper.weight_history[-1], paper.weights)
+    assert np.all((paper.weight_history >= 0.0) & (paper.weight_history <= 1.0))
+    np.testing.assert_array_equal(paper.moveable, paper.weights < 0.5)
+    assert paper.poses.shape == room.true_poses.shape
+    assert not paper.gated.any()  # the paper has no gate
+
+
+def test_sightings_are_most_recent_first_with_symmetric_psd_covariances(
+    room: Room, robust: EmResult
+) -> None:
+    data = room.data
+    assert set(robust.sightings) == set(MOVEABLE_IDS)
+    for landmark_id, sightings in robust.sightings.items():
+        expected = np.sort(data.obs_stamp_ns[data.obs_landmark_id == landmark_id])[::-1]
+        np.testing.assert_array_equal(sightings.stamps_ns, expected)
+        covariances = sightings.covariances
+        np.testing.assert_array_equal(covariances, np.swapaxes(covariances, 1, 2))
+        assert np.all(np.linalg.eigvalsh(covariances) >= 0.0)
+
+
+# --- M-step and gate ------------------------------------------------------------------------
+
+
+@SETTINGS
+@given(
+    mode=st.sampled_from(('paper', 'robust')),
+    lagrange_lambda=st.floats(1e-3, 1e4),
+    rows=st.lists(
+        st.tuples(
+            st.integers(0, 5),
+            st.floats(0.0, 1e9, allow_nan=False, allow_infinity=False),
+            st.booleans(),
+        ),
+        min_size=0,
+        max_size=60,
+    ),
+)
+def test_m_step_weights_are_always_in_zero_one(
+    mode: str, lagrange_lambda: float, rows: list[tuple[int, float, bool]]
+) -> None:
+    config = EmConfig(mode=mode, lagrange_lambda=lagrange_lambda)
+    landmarks = np.array([r[0] for r in rows], dtype=np.int64)
+    mahalanobis = np.array([r[1] for r in rows], dtype=float)
+    included = np.array([r[2] for r in rows], dtype=bool)
+    weights = m_step(config, mahalanobis, landmarks, 6, included)
+    assert weights.shape == (6,)
+    assert np.all((weights >= 0.0) & (weights <= 1.0))
+
+
+def test_m_step_paper_mode_is_eq_14() -> None:
+    config = EmConfig(mode='paper', lagrange_lambda=10.0)
+    mahalanobis = np.array([1.0, 3.0, 8.0, 30.0])
+    weights = m_step(config, mahalanobis, np.array([0, 0, 1, 2]), 3, np.ones(4, dtype=bool))
+    np.testing.assert_allclose(weights, [1.0 - 4.0 / 20.0, 1.0 - 8.0 / 20.0, 0.0])
+
+
+def test_m_step_robust_mode_keeps_a_consistent_landmark_and_drops_a_moved_one() -> None:
+    config = EmConfig(mode='robust')
+    count = 40
+    # A static landmark's sum stays below its dof 2n - 2 = 78; a moved one's is far above.
+    static = np.full(count, 1.5)
+    moved = static + 25.0
+    landmarks = np.repeat([0, 1], count)
+    weights = m_step(
+        config, np.concatenate([static, moved]), landmarks, 2, np.ones(2 * count, dtype=bool)
+    )
+    assert weights[0] == 1.0 and weights[1] == 0.0
+
+
+def test_a_landmark_seen_once_keeps_weight_one_in_robust_mode() -> None:
+    weights = m_step(
+        EmConfig(mode='robust'),
+        np.array([1e6, 0.5, 0.7]),
+        np.array([0, 1, 1]),
+        2,
+        np.ones(3, dtype=bool),
+    )
+    assert weights[0] == 1.0
+    paper = m_step(EmConfig(mode='paper'), np.array([1e6]), np.array([0]), 1, np.ones(1, bool))
+    assert paper[0] == 0.0  # the paper's eq. 14 has no such rule
+
+
+def test_a_landmark_seen_once_in_the_room_keeps_weight_one(room: Room) -> None:
+    data = room.data
+    pose_index = 10
+    extra = dataclasses.replace(
+        data,
+        obs_keyframe=np.append(data.obs_keyframe, pose_index),
+        obs_landmark_id=np.append(data.obs_landmark_id, 55),
+        obs_z=np.vstack([data.obs_z, [[2.5, 0.4]]]),
+        obs_cov=np.concatenate([data.obs_cov, data.obs_cov[:1]]),
+    )
+    result = run_em(extra, EmConfig(mode='robust'))
+    index = int(np.flatnonzero(result.landmark_ids == 55)[0])
+    assert result.weights[index] == 1.0 and not result.moveable[index]
+    assert result.num_observations[index] == 1
+
+
+def test_gate_outliers_gates_an_isolated_outlier_but_not_a_disagreeing_landmark() -> None:
+    config = EmConfig(mode='robust', max_gated_fraction=0.1)
+    count = 20
+    landmarks = np.repeat([0, 1], count)
+    mahalanobis = np.full(2 * count, 1.5)
+    mahalanobis[3] = 400.0  # landmark 0: one gross outlier
+    mahalanobis[count : count + 12] += np.linspace(100.0, 200.0, 12)  # landmark 1: moved
+    gated = gate_outliers(config, mahalanobis, landmarks, 2)
+    assert np.flatnonzero(gated[:count]).tolist() == [3]
+    # Landmark 1: only floor(0.1 * 20) = 2 of its 12 large sightings, the largest ones.
+    assert np.flatnonzero(gated[count:]).tolist() == [10, 11]
+    weights = m_step(config, mahalanobis, landmarks, 2, ~gated)
+    assert weights[0] == 1.0 and weights[1] == 0.0
+
+
+def test_gate_outliers_needs_enough_sightings_to_gate_any() -> None:
+    config = EmConfig(mode='robust', max_gated_fraction=0.1)
+    mahalanobis = np.array([500.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])  # 9 sightings
+    gated = gate_outliers(config, mahalanobis, np.zeros(9, dtype=np.int64), 1)
+    assert not gated.any()
+
+
+def test_a_gross_outlier_sighting_is_gated_not_a_moved_landmark(room: Room) -> None:
+    data = room.data
+    row = int(np.flatnonzero(data.obs_landmark_id == 3)[5])
+    z = data.obs_z.copy()
+    z[row, 0] += 2.0  # one sighting 2 m too far: ~67 sigma
+    result = run_em(dataclasses.replace(data, obs_z=z), EmConfig(mode='robust'))
+    assert result.gated[row]
+    assert result.gated.sum() <= 2 * 3 + 1  # the moved landmarks' few, and this one
+    assert flagged(result) == list(MOVEABLE_IDS)
+    assert np.abs(result.poses[:, :2] - room.true_poses[:, :2]).max() < 0.15
+
+
+# --- structure and edge cases ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize('mode', ['robust', 'paper'])
+def test_all_landmarks_moveable_leaves_the_odometry_trajectory(mode: str) -> None:
+    data = make_room(0, with_static=False).data
+    assert set(data.obs_landmark_id.tolist()) == set(MOVEABLE_IDS)
+    result = run_em(data, EmConfig(mode=mode))
+    assert flagged(result) == list(MOVEABLE_IDS)
+    np.testing.assert_allclose(result.poses, dead_reckoning(data), atol=1e-12)
+    assert set(result.sightings) == set(MOVEABLE_IDS)
+
+
+@pytest.mark.parametrize('mode', ['robust', 'paper'])
+def test_a_graph_in_two_pieces_solves_and_reports_two_pieces(mode: str) -> None:
+    room = make_room(0, moving=False)
+    data = room.data
+    split = 36  # the end of the first loop: no odometry from keyframe 36 to 37
+    keep_odometry = data.odometry_from != split
+    ids = np.where(data.obs_keyframe > split, data.obs_landmark_id + 10, data.obs_landmark_id)
+    pieces = dataclasses.replace(
+        data,
+        odometry_from=data.odometry_from[keep_odometry],
+        odometry_to=data.odometry_to[keep_odometry],
+        odometry_u=data.odometry_u[keep_odometry],
+        odometry_cov=data.odometry_cov[keep_odometry],
+        obs_landmark_id=ids,
+    )
+    pieces = select_observations(pieces, np.isin(data.obs_landmark_id, STATIC_IDS))
+    result = run_em(pieces, EmConfig(mode=mode))
+    assert result.num_pieces == 2
+    assert np.all(np.isfinite(result.poses)) and np.all(np.isfinite(result.positions))
+    if mode == 'paper':
+        return  # its one lambda flags static landmarks too: only robust mode is accurate
+    truth = room.true_poses
+    np.testing.assert_allclose(result.poses[: split + 1, :2], truth[: split + 1, :2], atol=0.15)
+    # The second piece keeps its shape (where it sits is free).
+    shape = between(np.repeat(result.poses[split + 1 :][:1], 36, 0), result.poses[split + 1 :])
+    true_shape = between(np.repeat(truth[split + 1 :][:1], 36, 0), truth[split + 1 :])
+    np.testing.assert_allclose(shape[:, :2], true_shape[:, :2], atol=0.15)
+
+
+def test_empty_data_gives_an_odometry_only_result() -> None:
+    data = select_observations(make_room(0).data, np.zeros(0, dtype=np.int64))
+    for mode in ('robust', 'paper'):
+        result = run_em(data, EmConfig(mode=mode))
+        np.testing.assert_allclose(result.poses, dead_reckoning(data))
+        assert result.landmark_ids.shape == (0,) and result.weights.shape == (0,)
+        assert result.positions.shape == (0, 2) and result.covariances.shape == (0, 2, 2)
+        assert result.weight_history.shape == (1, 0)
+        assert result.sightings == {} and result.num_pieces == 1 and result.converged
+
+
+@pytest.mark.parametrize(
+    ('setting', 'value'),
+    [
+        ('lagrange_lambda', 0.0),
+        ('lagrange_lambda', -5.0),
+        ('lagrange_lambda', math.nan),
+        ('lagrange_lambda', math.inf),
+        ('mode', 'fancy'),
+        ('moveable_threshold', 1.0),
+        ('false_alarm_probability', 0.0),
+        ('max_gated_fraction', 1.0),
+        ('seed_kernel', 'tukey'),
+    ],
+)
+def test_em_config_rejects_bad_settings_naming_them(setting: str, value: object) -> None:
+    with pytest.raises(ValueError, match=f'EM-SAM setting {setting}='):
+        EmConfig(**{setting: value})  # type: ignore[arg-type]

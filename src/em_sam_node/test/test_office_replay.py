@@ -1,0 +1,141 @@
+"""Offline replay of simulated office bags (slam_sim) through the ingest and mapper processors.
+
+Each bag is written in tmp_path by the simulator's own writer, replayed with
+``offline.replay_bag`` and scored against its ground truth with ``evaluate``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from em_sam_node import evaluate
+from em_sam_node.core.em import EmConfig, run_em
+from em_sam_node.offline import (
+    OBSERVATION_TOPIC,
+    ODOM_TOPIC,
+    Replay,
+    read_ground_truth,
+    replay_bag,
+    seen_at_both_positions,
+)
+from em_sam_node.report import write_report
+from slam_bringup.errors import BagError
+from slam_bringup.typesys import TypeRegistry
+from slam_sim.core.office import simulate_office
+from slam_sim.office_bag import write_office_bag
+
+pytestmark = pytest.mark.replay
+
+SEED = 3
+
+
+@dataclass(frozen=True)
+class Evaluated:
+    """One replayed bag: the replay, the positives, the methods' outputs and scores."""
+
+    replay: Replay
+    positives: set[int]
+    outputs: dict[str, evaluate.MethodOutput]
+    scores: dict[str, evaluate.Score]
+
+
+def evaluate_office(directory: Path, variant: str) -> Evaluated:
+    path = directory / f'office_{variant}_seed{SEED}'
+    write_office_bag(simulate_office(SEED, variant), path)
+    replay = replay_bag(path)
+    truth = read_ground_truth(path)
+    outputs = evaluate.run_methods(replay.data, truth)
+    scores = evaluate.score(path.name, replay.data, truth, outputs)
+    return Evaluated(
+        replay,
+        seen_at_both_positions(replay.data, truth),
+        outputs,
+        {s.method: s for s in scores},
+    )
+
+
+@pytest.fixture(scope='module')
+def standard(tmp_path_factory: pytest.TempPathFactory) -> Evaluated:
+    return evaluate_office(tmp_path_factory.mktemp('standard'), 'standard')
+
+
+@pytest.fixture(scope='module')
+def all_moveable(tmp_path_factory: pytest.TempPathFactory) -> Evaluated:
+    return evaluate_office(tmp_path_factory.mktemp('all_moveable'), 'all_moveable')
+
+
+def test_the_replay_is_clean_and_sees_moved_landmarks_at_both_positions(
+    standard: Evaluated,
+) -> None:
+    assert standard.replay.warnings == ()
+    assert len(standard.positives) >= 5  # enough to make recall mean something
+
+
+def test_robust_mode_finds_every_moved_landmark_and_flags_no_static_one(
+    standard: Evaluated,
+) -> None:
+    robust = standard.scores['em_sam_robust']
+    assert robust.recall == 1.0
+    assert standard.positives <= standard.outputs['em_sam_robust'].flagged
+    assert robust.flagged_static == 0
+
+
+def test_robust_mode_is_as_accurate_as_the_oracle(standard: Evaluated) -> None:
+    ate = {method: score.ate_m for method, score in standard.scores.items()}
+    assert ate['em_sam_robust'] <= 1.2 * ate['oracle']
+    assert ate['em_sam_robust'] <= 0.3 * ate['plain_sam']
+
+
+def test_all_moveable_flags_every_landmark_and_keeps_the_odometry(all_moveable: Evaluated) -> None:
+    data = all_moveable.replay.data
+    robust = all_moveable.outputs['em_sam_robust']
+    observed = set(data.obs_landmark_id.tolist())
+    assert observed and robust.flagged == observed
+    assert all_moveable.scores['em_sam_robust'].flagged_static == 0
+    assert np.allclose(robust.poses, all_moveable.outputs['odometry'].poses)
+
+
+def write_empty_bag(path: Path) -> None:
+    """A bag with the replayed topics declared but not one message on them."""
+    registry = TypeRegistry()
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        for topic, msgtype in (
+            (ODOM_TOPIC, 'nav_msgs/msg/Odometry'),
+            (OBSERVATION_TOPIC, 'slam_interfaces/msg/LandmarkObservationArray'),
+        ):
+            msgdef, rihs01 = registry.msgdef_and_hash(msgtype)
+            writer.add_connection(topic, msgtype, msgdef=msgdef, rihs01=rihs01)
+
+
+def test_replaying_an_empty_bag_raises_a_bag_error_naming_it(tmp_path: Path) -> None:
+    path = tmp_path / 'empty_bag'
+    write_empty_bag(path)
+    with pytest.raises(BagError) as raised:
+        replay_bag(path)
+    assert str(path) in str(raised.value)
+
+
+def test_write_report_writes_json_and_figures_and_no_temporary_files(
+    standard: Evaluated, tmp_path: Path
+) -> None:
+    data = standard.replay.data
+    result = run_em(data, EmConfig(mode='robust'), record_snapshots=True)
+    directory = tmp_path / 'report'
+    paths = write_report(result, data.keyframe_stamps_ns, directory, {'run': 'seed3'})
+    names = {'em_sam_report.json', 'em_sam_map.png', 'em_sam_stages.png', 'em_sam_weights.png'}
+    assert {p.name for p in paths} == names
+    assert {p.name for p in directory.iterdir()} == names  # no temporary files left behind
+    report = json.loads((directory / 'em_sam_report.json').read_text(encoding='utf-8'))
+    assert set(report['moveable_ids']) == set(result.landmark_ids[result.moveable].tolist())
+    assert standard.positives <= set(report['moveable_ids'])
+    assert report['run'] == 'seed3'
+    assert report['num_keyframes'] == data.num_keyframes
+    assert len(report['trajectory']['stamps_ns']) == data.num_keyframes
+    for name in names - {'em_sam_report.json'}:
+        assert (directory / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
