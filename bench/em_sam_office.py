@@ -51,8 +51,12 @@ def best_of(repeats: int, function: object) -> tuple[float, object]:
 
 def plain_solve(data: MappingData, exclude: list[int]) -> None:
     built = build_problem(data, exclude_ids=exclude)
-    solve(built.problem, initial_estimate(built.problem, dead_reckoning(data)),
-          method='levenberg_marquardt', relative_cost_tolerance=1e-6)
+    solve(
+        built.problem,
+        initial_estimate(built.problem, dead_reckoning(data)),
+        method='levenberg_marquardt',
+        relative_cost_tolerance=1e-6,
+    )
 
 
 def tile(data: MappingData, copies: int) -> MappingData:
@@ -80,7 +84,8 @@ def tile(data: MappingData, copies: int) -> MappingData:
         parts['obs_cov'].append(data.obs_cov)
     return MappingData(
         **{name: np.concatenate(values) for name, values in parts.items() if values},
-        prior_pose=data.prior_pose, prior_cov=data.prior_cov,
+        prior_pose=data.prior_pose,
+        prior_cov=data.prior_cov,
     )
 
 
@@ -91,14 +96,20 @@ def measure_size(copies: int, queue: multiprocessing.Queue) -> None:
     result = run_em(data, EmConfig(mode='robust'), record_snapshots=False)
     total = time.perf_counter() - started
     rounds = max(result.em_iterations, 1)
-    queue.put({
-        'copies': copies, 'poses': data.num_keyframes, 'observations': len(data.obs_z),
-        'em_rounds': result.em_iterations,
-        'per_round_s': result.timings_s['em'] / rounds,
-        'first_e_step_s': result.timings_s['first_e_step'], 'total_s': total,
-        'flagged': int(result.moveable.sum()), 'expected_flagged': 10 * copies,
-        'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-    })
+    queue.put(
+        {
+            'copies': copies,
+            'poses': data.num_keyframes,
+            'observations': len(data.obs_z),
+            'em_rounds': result.em_iterations,
+            'per_round_s': result.timings_s['em'] / rounds,
+            'first_e_step_s': result.timings_s['first_e_step'],
+            'total_s': total,
+            'flagged': int(result.moveable.sum()),
+            'expected_flagged': 10 * copies,
+            'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        }
+    )
 
 
 def exponent(x: list[float], y: list[float]) -> float:
@@ -111,16 +122,24 @@ def main() -> int:
     parser.add_argument('--repeats', type=int, default=5)
     parser.add_argument('--max-copies', type=int, default=28)
     parser.add_argument('--output', type=Path, default=ROOT / 'bench' / 'results')
-    parser.add_argument('--time-limit-s', type=float, default=600.0,
-                        help='skip larger sizes once one size takes longer than this')
+    parser.add_argument(
+        '--time-limit-s',
+        type=float,
+        default=600.0,
+        help='skip larger sizes once one size takes longer than this',
+    )
     args = parser.parse_args()
     data = replay_bag(BAG).data
     rows = []
     for name, function in (
-        ('EM-SAM robust (whole batch)',
-         lambda: run_em(data, EmConfig(mode='robust'), record_snapshots=False)),
-        ('EM-SAM paper (whole batch)',
-         lambda: run_em(data, EmConfig(mode='paper'), record_snapshots=False)),
+        (
+            'EM-SAM robust (whole batch)',
+            lambda: run_em(data, EmConfig(mode='robust'), record_snapshots=False),
+        ),
+        (
+            'EM-SAM paper (whole batch)',
+            lambda: run_em(data, EmConfig(mode='paper'), record_snapshots=False),
+        ),
         ('reference: one plain SAM solve, all static', lambda: plain_solve(data, [])),
         ('reference: one oracle solve, moved removed', lambda: plain_solve(data, MOVED_IDS)),
     ):
@@ -128,10 +147,13 @@ def main() -> int:
         rows.append((name, seconds))
     oracle_s = rows[3][1]
     lines = [
-        '# EM-SAM benchmark', '',
+        '# EM-SAM benchmark',
+        '',
         f'Office run: {data.num_keyframes} keyframes, {len(data.obs_z)} observations, '
-        f'best of {args.repeats}.', '',
-        '| what | wall s | ratio to oracle solve |', '|---|---:|---:|',
+        f'best of {args.repeats}.',
+        '',
+        '| what | wall s | ratio to oracle solve |',
+        '|---|---:|---:|',
         *[f'| {name} | {s:.3f} | {s / oracle_s:.1f} |' for name, s in rows],
         '',
         f'Target, full office run with EM <= {TARGET_S} s: '
@@ -152,18 +174,22 @@ def main() -> int:
             break
     poses = [r['poses'] for r in scaling]
     lines += [
-        '## Scaling (office run tiled, robust mode, one process per size)', '',
+        '## Scaling (office run tiled, robust mode, one process per size)',
+        '',
         '| copies | poses | observations | EM rounds | s per EM round | first E-step s | '
         'whole batch s | flagged / expected | peak RSS MB |',
         '|---:|---:|---:|---:|---:|---:|---:|---:|---:|',
-        *[f"| {r['copies']} | {r['poses']} | {r['observations']} | {r['em_rounds']} | "
-          f"{r['per_round_s']:.3f} | {r['first_e_step_s']:.2f} | {r['total_s']:.2f} | "
-          f"{r['flagged']} / {r['expected_flagged']} | {r['peak_rss_mb']:.0f} |" for r in scaling],
+        *[
+            f'| {r["copies"]} | {r["poses"]} | {r["observations"]} | {r["em_rounds"]} | '
+            f'{r["per_round_s"]:.3f} | {r["first_e_step_s"]:.2f} | {r["total_s"]:.2f} | '
+            f'{r["flagged"]} / {r["expected_flagged"]} | {r["peak_rss_mb"]:.0f} |'
+            for r in scaling
+        ],
         '',
-        f"Growth exponents (log-log): per EM round "
-        f"{exponent(poses, [r['per_round_s'] for r in scaling]):.2f}, first E-step "
-        f"{exponent(poses, [r['first_e_step_s'] for r in scaling]):.2f}, whole batch "
-        f"{exponent(poses, [r['total_s'] for r in scaling]):.2f}.",
+        f'Growth exponents (log-log): per EM round '
+        f'{exponent(poses, [r["per_round_s"] for r in scaling]):.2f}, first E-step '
+        f'{exponent(poses, [r["first_e_step_s"] for r in scaling]):.2f}, whole batch '
+        f'{exponent(poses, [r["total_s"] for r in scaling]):.2f}.',
     ]
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / 'em_sam_office.md').write_text('\n'.join(lines) + '\n', encoding='utf-8')
@@ -173,8 +199,11 @@ def main() -> int:
     import matplotlib.pyplot as plt
 
     figure, axes = plt.subplots(figsize=(6, 4), layout='constrained')
-    for key, label in (('per_round_s', 'per EM round'), ('first_e_step_s', 'first E-step'),
-                       ('total_s', 'whole batch')):
+    for key, label in (
+        ('per_round_s', 'per EM round'),
+        ('first_e_step_s', 'first E-step'),
+        ('total_s', 'whole batch'),
+    ):
         axes.loglog(poses, [r[key] for r in scaling], 'o-', label=label)
     axes.set_xlabel('poses (keyframes)')
     axes.set_ylabel('wall time [s]')
