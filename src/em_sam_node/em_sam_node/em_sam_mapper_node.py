@@ -50,10 +50,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 from nav_msgs.msg import Path as PathMessage
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -81,6 +79,7 @@ from slam_bringup.params import (
     declare_parameters,
 )
 from slam_bringup.qos import latched_qos, output_qos
+from slam_bringup.spin import spin_node
 from slam_interfaces.msg import (
     LandmarkMap,
     LandmarkObservationArray,
@@ -305,18 +304,7 @@ class EmSamMapperNode(Node):
 @console_main('em_sam_mapper')
 def main(argv: list[str] | None = None) -> int:
     """Run the node until Ctrl-C; the report is written on the way out."""
-    rclpy.init(args=sys.argv if argv is None else ['em_sam_mapper', *argv])
-    node = None
-    try:
-        node = EmSamMapperNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return spin_node('em_sam_mapper', EmSamMapperNode, argv)
 
 
 if __name__ == '__main__':

@@ -36,10 +36,8 @@ import sys
 import time
 from typing import Any
 
-import rclpy
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from em_sam_node.conversions import increment_to_message, odometry_pose, stamp_to_ns
@@ -48,6 +46,7 @@ from slam_bringup.cli import console_main
 from slam_bringup.errors import ParameterError
 from slam_bringup.params import ParamSpec, check_finite_positive, declare_parameters
 from slam_bringup.qos import output_qos, sensor_qos
+from slam_bringup.spin import spin_node
 from slam_interfaces.msg import LandmarkObservationArray, OdometryIncrement
 
 PARAMETERS = (
@@ -153,18 +152,7 @@ class OdometryIngestNode(Node):
 @console_main('odometry_ingest')
 def main(argv: list[str] | None = None) -> int:
     """Run the node until Ctrl-C (the Jazzy shutdown pattern)."""
-    rclpy.init(args=sys.argv if argv is None else ['odometry_ingest', *argv])
-    node = None
-    try:
-        node = OdometryIngestNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return spin_node('odometry_ingest', OdometryIngestNode, argv)
 
 
 if __name__ == '__main__':

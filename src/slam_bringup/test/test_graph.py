@@ -317,7 +317,7 @@ def test_ros_arguments_are_accepted_by_rcl(tmp_path: Path) -> None:
     context.init(['test'])
     try:
         node = Node(
-            'placeholder',
+            'renamed_by_the_arguments',
             context=context,
             cli_args=ros_arguments(description, tmp_path),
             use_global_arguments=False,
