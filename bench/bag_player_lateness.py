@@ -45,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from bench_common import source_revision
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -372,28 +373,6 @@ def summary_ms(samples_ns: Iterable[int]) -> dict[str, float]:
 def jitter_ns(arrivals_ns: list[int], period_ns: int) -> list[int]:
     """Return ``|interval - period|`` of consecutive arrivals, int ns."""
     return [abs(b - a - period_ns) for a, b in itertools.pairwise(arrivals_ns)]
-
-
-def source_revision() -> str:
-    """Return the git commit of the measured code, with '+changes' if the tree is dirty."""
-    try:
-        commit = subprocess.run(
-            ['git', 'rev-parse', '--short', 'HEAD'],
-            cwd=BENCH_DIR,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ['git', 'status', '--porcelain', '--untracked-files=no'],
-            cwd=BENCH_DIR,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return 'unknown (no git)'
-    return f'{commit}+changes' if dirty else commit
 
 
 def _ratio(ours: float, reference: float) -> str:

@@ -41,7 +41,6 @@ import datetime
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -50,6 +49,7 @@ from pathlib import Path
 import numpy as np
 import scipy
 import scipy.linalg
+from bench_common import source_revision
 from scipy.spatial import cKDTree
 
 from em_sam_node.core.factors import range_bearing_predict
@@ -259,28 +259,6 @@ def growth_exponent(sizes: list[int], times_ms: list[float]) -> float:
         return float('nan')
     slope, _ = np.polyfit(np.log(sizes), np.log(times_ms), 1)
     return float(slope)
-
-
-def source_revision() -> str:
-    """Return the git commit of the measured code, with '+changes' if the tree is dirty."""
-    try:
-        commit = subprocess.run(
-            ['git', 'rev-parse', '--short', 'HEAD'],
-            cwd=BENCH_DIR,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ['git', 'status', '--porcelain'],
-            cwd=BENCH_DIR,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return 'unknown (no git)'
-    return commit + ('+changes' if dirty else '')
 
 
 @dataclass(frozen=True)
