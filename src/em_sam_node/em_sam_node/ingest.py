@@ -15,9 +15,14 @@ processing) still get their keyframe. Each increment is the paper's eq. 2 parame
 Bad input: samples with a non-finite pose or stamp are dropped; samples older than the last
 one are dropped (out-of-order); a jump of more than ``reset_jump_m`` between consecutive
 samples at more than ``reset_speed_mps`` (a gap of lost messages is not a reset: it is
-interpolated), or the stamp going back by more than ``reset_backwards_s``, is an odometry reset:
-the chain continues across it with a zero-motion increment of covariance ``reset_sigma``.
-Every drop and reset is reported through ``warn``.
+interpolated) is an odometry reset: the chain continues across it with a zero-motion
+increment of covariance ``reset_sigma``. The stamp going back by more than
+``reset_backwards_s`` (a restarted base, a clock correction, a looped bag) rewinds the clock
+under keyframes already emitted, which the mapper cannot take back: everything the odometry
+covered is emitted, then samples are dropped until their stamps pass the last keyframe, and
+the chain resumes there with a zero-motion reset increment (the pose may have jumped too).
+Every drop, rewind and reset is reported through ``warn``; a looped bag or a new session
+needs a restarted mapper.
 """
 
 from __future__ import annotations
@@ -68,6 +73,11 @@ class IngestConfig:
         if not (math.isfinite(self.observation_delay_s) and self.observation_delay_s >= 0):
             raise ValueError(
                 f'parameter observation_delay_s={self.observation_delay_s!r}: must be >= 0'
+            )
+        if self.observation_delay_s >= self.max_buffer_s:
+            raise ValueError(
+                f'parameter observation_delay_s={self.observation_delay_s!r}: must be less than '
+                f'max_buffer_s={self.max_buffer_s!r}, or held-back keyframes lose their odometry'
             )
         if len(self.noise_alphas) != 4 or not all(
             math.isfinite(a) and a >= 0 for a in self.noise_alphas
@@ -129,6 +139,8 @@ class _State:
     pending_stamps: list[int] = field(default_factory=list)  # observation stamps, sorted
     keyframe: tuple[int, FloatArray] | None = None  # last emitted keyframe
     reset_pending: bool = False
+    rewound_until_ns: int | None = None  # dropping samples up to this stamp
+    rewound_dropped: int = 0
 
 
 class OdometryIngest:
@@ -152,6 +164,8 @@ class OdometryIngest:
             )
             return []
         pose = np.array([pose[0], pose[1], wrap_angle(np.array([pose[2]]))[0]], dtype=float)
+        if state.rewound_until_ns is not None:
+            return self._after_rewind(stamp_ns, pose)
         if state.samples:
             last_stamp, last_pose = state.samples[-1]
             backwards_s = (last_stamp - stamp_ns) / 1e9
@@ -160,8 +174,8 @@ class OdometryIngest:
             teleported = (
                 jump_m > self.config.reset_jump_m and speed_mps > self.config.reset_speed_mps
             )
-            if backwards_s > self.config.reset_backwards_s or teleported:
-                return self._reset(stamp_ns, pose, backwards_s, jump_m)
+            if backwards_s > self.config.reset_backwards_s:
+                return self._rewind(stamp_ns, backwards_s)
             if stamp_ns <= last_stamp:
                 self.dropped_samples += 1
                 self.warn(
@@ -169,6 +183,8 @@ class OdometryIngest:
                     f'({last_stamp} ns); out-of-order sample dropped'
                 )
                 return []
+            if teleported:
+                return self._reset(stamp_ns, pose, jump_m)
         state.samples.append((stamp_ns, pose))
         if state.keyframe is None:
             state.keyframe = (stamp_ns, pose.copy())  # the first keyframe: the first sample
@@ -183,6 +199,12 @@ class OdometryIngest:
                     f'observation stamp {stamp_ns} ns is older than the last keyframe '
                     f'({state.keyframe[0]} ns); raise observation_delay_s to keep it'
                 )
+            return []
+        if state.rewound_until_ns is not None:
+            self.warn(
+                f'observation at stamp {stamp_ns} ns came while the odometry clock is rewound '
+                f'(see the earlier warning); it gets no keyframe'
+            )
             return []
         if not state.samples:
             self.warn(
@@ -269,28 +291,57 @@ class OdometryIngest:
         state.keyframe = (stamp_ns, pose.copy())
         return increment
 
-    def _reset(
-        self, stamp_ns: int, pose: FloatArray, backwards_s: float, jump_m: float
-    ) -> list[Increment]:
+    def _reset(self, stamp_ns: int, pose: FloatArray, jump_m: float) -> list[Increment]:
         """Start a new odometry chain; bridge it to the old one with a weak zero increment."""
         state = self._state
         self.resets += 1
         self.warn(
-            f'odometry reset at stamp {stamp_ns} ns (jump {jump_m:.2f} m, stamp back '
-            f'{max(backwards_s, 0.0):.2f} s); bridging with a zero-motion increment'
+            f'odometry reset at stamp {stamp_ns} ns (jump {jump_m:.2f} m); bridging with a '
+            f'zero-motion increment'
         )
         out = self.flush()
         if state.keyframe is None:
             state.keyframe = (stamp_ns, pose.copy())
         state.samples = [(stamp_ns, pose)]
         state.pending_stamps = [s for s in state.pending_stamps if s > stamp_ns]
-        if stamp_ns > state.keyframe[0]:
-            state.reset_pending = True
-            out.append(self._keyframe(stamp_ns, pose))
-        else:
-            # The stamp went backwards: restart the keyframe chain at the new samples.
-            state.keyframe = (stamp_ns, pose.copy())
+        state.reset_pending = True
+        out.append(self._keyframe(stamp_ns, pose))
         return out
+
+    def _rewind(self, stamp_ns: int, backwards_s: float) -> list[Increment]:
+        """The clock went back: emit what the odometry covers, then wait for it to pass."""
+        state = self._state
+        out = self.flush()
+        assert state.keyframe is not None
+        state.rewound_until_ns = state.keyframe[0]
+        state.rewound_dropped = 1
+        self.dropped_samples += 1
+        state.samples = []
+        state.pending_stamps = []
+        self.warn(
+            f'odometry stamp went back {backwards_s:.2f} s (to {stamp_ns} ns): a restarted '
+            f'base, a clock correction or a looped bag? Dropping odometry until its stamps pass '
+            f'the last keyframe ({state.rewound_until_ns} ns); restart the mapper for a new '
+            f'session'
+        )
+        return out
+
+    def _after_rewind(self, stamp_ns: int, pose: FloatArray) -> list[Increment]:
+        state = self._state
+        assert state.rewound_until_ns is not None and state.keyframe is not None
+        if stamp_ns <= state.rewound_until_ns:
+            state.rewound_dropped += 1
+            self.dropped_samples += 1
+            return []
+        self.resets += 1
+        self.warn(
+            f'odometry resumed at stamp {stamp_ns} ns after {state.rewound_dropped} samples '
+            f'dropped behind the rewound clock; bridging with a zero-motion increment'
+        )
+        state.rewound_until_ns = None
+        state.samples = [(stamp_ns, pose)]
+        state.reset_pending = True
+        return [self._keyframe(stamp_ns, pose)]
 
     def _trim(self) -> None:
         """Forget odometry older than the last keyframe (keep one sample before it)."""

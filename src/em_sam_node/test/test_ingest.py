@@ -367,43 +367,42 @@ def test_an_odometry_jump_is_a_reset_bridged_by_a_zero_motion_increment() -> Non
     np.testing.assert_allclose(after[-1].odom_pose_to, jumped[-1], atol=1e-12)
 
 
-def test_a_stamp_going_backwards_is_a_reset_with_a_warning() -> None:
+def test_a_stamp_going_backwards_drops_odometry_until_the_clock_passes_the_last_keyframe() -> None:
     ingest, warnings = make_ingest(observation_delay_s=0.0, **ONLY_OBSERVATIONS)
     stamps, poses = straight_line(30, 0.01)
-    feed(ingest, stamps, poses)
-    ingest.add_odometry(int(stamps[5]), poses[-1])  # 2.4 s back, same place
-    assert ingest.resets == 1 and ingest.dropped_samples == 0
-    assert len(warnings.messages) == 1 and 'reset' in warnings.messages[0]
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        'ingest bug: when the odometry stamp goes back by more than reset_backwards_s, '
-        '_reset only restarts the keyframe chain at the new (older) stamp and emits no '
-        'zero-motion reset increment, although the module docstring and the warning say it '
-        'bridges the reset; the next increments then start at a stamp older than the '
-        "mapper's last keyframe and MapperProcessor drops every one of them"
-    ),
-)
-def test_a_stamp_going_backwards_is_bridged_by_a_zero_motion_increment() -> None:
-    ingest, _ = make_ingest(observation_delay_s=0.0, **ONLY_OBSERVATIONS)
-    stamps, poses = straight_line(30, 0.01)
     increments = feed(ingest, stamps, poses)
-    increments += ingest.add_odometry(int(stamps[5]), poses[-1])
-    onwards = poses[-1] + np.column_stack([0.01 * np.arange(1, 15), np.zeros(14), np.zeros(14)])
-    increments += feed(ingest, stamps[6:20], onwards)
+    last_keyframe_ns = int(stamps[-1])  # emitted by the rewind's flush
+    rewound = stamps[5] + np.arange(40, dtype=np.int64) * STEP_NS  # 2.4 s back, then onwards
+    onwards = poses[-1] + np.column_stack([0.01 * np.arange(1, 41), np.zeros(40), np.zeros(40)])
+    increments += feed(ingest, rewound, onwards)
     increments += ingest.flush()
+    behind = int(np.count_nonzero(rewound <= last_keyframe_ns))
+    assert ingest.dropped_samples == behind
+    assert ingest.resets == 1
+    assert any('went back 2.40 s' in m for m in warnings.messages)
+    assert any(f'after {behind} samples dropped' in m for m in warnings.messages)
     resets = [i for i in increments if i.reset]
     assert len(resets) == 1
+    assert resets[0].stamp_from_ns == last_keyframe_ns
+    assert resets[0].stamp_to_ns == int(rewound[behind])
     np.testing.assert_array_equal(resets[0].u, np.zeros(3))
     np.testing.assert_allclose(
         resets[0].covariance, np.diag(np.square(IngestConfig().reset_sigma))
     )
+    assert_chained(increments)
     mapper = MapperProcessor(MapperConfig(em=EmConfig()))
     for increment in increments:
         mapper.add_increment(increment)
     assert mapper.num_keyframes == len(increments) + 1
+
+
+def test_an_observation_while_the_clock_is_rewound_gets_no_keyframe_and_a_warning() -> None:
+    ingest, warnings = make_ingest(observation_delay_s=0.0, **ONLY_OBSERVATIONS)
+    stamps, poses = straight_line(30, 0.01)
+    feed(ingest, stamps, poses)
+    ingest.add_odometry(int(stamps[5]), poses[-1])
+    assert ingest.add_observation_stamp(int(stamps[-1]) + STEP_NS) == []
+    assert 'rewound' in warnings.messages[-1]
 
 
 # --- flush --------------------------------------------------------------------------------
@@ -451,6 +450,7 @@ def test_flush_before_any_odometry_is_empty() -> None:
         ('keyframe_interval_s', math.inf),
         ('observation_delay_s', -0.5),
         ('observation_delay_s', math.nan),
+        ('observation_delay_s', 30.0),
         ('min_sigma_xy_m', 0.0),
         ('min_sigma_theta_rad', math.nan),
         ('reset_jump_m', -1.0),

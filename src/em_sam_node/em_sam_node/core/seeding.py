@@ -5,7 +5,17 @@ reckoning over a whole run is not one: odometry drift makes most late sightings 
 landmarks look like outliers. Solving prefixes of the run in time order, each warm-started
 from the previous solution and odometry for the new part, keeps the static sightings
 consistent as they come in, while a landmark that moved disagrees with where it was first
-mapped. Sightings of one landmark form two self-consistent clusters when it moved, which a
+mapped.
+
+Odometry drifts most where few landmarks are seen (a corridor), so the odometry-extended
+poses of a new chunk can come back to a mapped area a metre off. Nothing about that is
+robust: a redescending kernel would reject the loop-closing sightings as outliers, and the
+split test below would take every static landmark for a moved one. So each chunk is first
+relocalized: a rigid SE(2) correction of its new poses, the consensus of its sightings of
+mapped landmarks (two-landmark hypotheses, scored by how many landmarks they bring within
+``relocalize_inlier_m``, the smaller correction winning ties), is applied before the test
+and the solve. Landmarks that moved independently do not agree on one correction; the
+static ones do. Sightings of one landmark form two self-consistent clusters when it moved, which a
 per-sighting kernel cannot reject, so the seed splits them: when a mapped landmark's new
 sightings (placed through the odometry-extended trajectory) lie more than
 ``split_distance_m`` from where it was mapped, they start a new, virtual landmark. The
@@ -21,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from itertools import combinations
 
 import numpy as np
 
@@ -63,13 +74,97 @@ def _extend_poses(data: MappingData, solved: FloatArray, count: int) -> FloatArr
     known = len(solved)
     poses[:known] = solved
     incoming = {int(t): m for m, t in enumerate(data.odometry_to.tolist())}
-    for index in range(known, count):
+    for index in range(max(known, 1), count):  # keyframe 0 keeps the prior
         m = incoming.get(index)
         if m is not None and data.odometry_from[m] == index - 1:
             poses[index] = apply_increment(poses[index - 1][None], data.odometry_u[m][None])[0]
         else:
             poses[index] = poses[index - 1]
     return poses
+
+
+@dataclasses.dataclass(frozen=True)
+class Correction:
+    """A rigid SE(2) correction p' = R(angle) p + translation of poses and points."""
+
+    angle: float
+    translation: FloatArray  # (2,)
+
+    def apply_points(self, points: FloatArray) -> FloatArray:
+        """Return the corrected points (n,2)."""
+        c, s = np.cos(self.angle), np.sin(self.angle)
+        result: FloatArray = points @ np.array([[c, s], [-s, c]]) + self.translation
+        return result
+
+    def apply_poses(self, poses: FloatArray) -> FloatArray:
+        """Return the corrected poses (n,3), headings wrapped."""
+        heading = poses[:, 2] + self.angle
+        return np.column_stack(
+            [self.apply_points(poses[:, :2]), np.arctan2(np.sin(heading), np.cos(heading))]
+        )
+
+
+def _fit_rigid(source: FloatArray, target: FloatArray) -> Correction:
+    """Least-squares rigid transform taking ``source`` (n,2) onto ``target`` (n,2)."""
+    source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
+    a, b = source - source_mean, target - target_mean
+    angle = float(np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a * b)))
+    rotated = Correction(angle, np.zeros(2)).apply_points(source_mean[None])[0]
+    return Correction(angle, target_mean - rotated)
+
+
+def relocalization(
+    points: FloatArray,
+    ids: np.ndarray,
+    landmarks: dict[int, FloatArray],
+    inlier_m: float,
+    *,
+    poses: FloatArray,
+    max_shift_m: float,
+    max_angle: float,
+) -> Correction | None:
+    """Return the consensus correction that maps sightings onto their mapped landmarks.
+
+    ``points`` (n,2) are sightings placed through the uncorrected poses, ``ids`` (n,) their
+    landmark ids. Each mapped landmark votes once, at the median of its sightings. Returns
+    None when no hypothesis brings more landmarks within ``inlier_m`` than no correction
+    does, or when fewer than two mapped landmarks were seen. A correction is plausible only
+    if it turns by at most ``max_angle`` rad and moves none of ``poses`` (n,3), the poses
+    it would correct, by more than ``max_shift_m``; a hypothesis needs a pair of landmarks
+    at least 4 ``inlier_m`` apart, so its rotation is defined.
+    """
+    known = [i for i in np.unique(ids).tolist() if i in landmarks]
+    if len(known) < 2:
+        return None
+    source = np.array([np.median(points[ids == i], axis=0) for i in known])
+    target = np.array([landmarks[i] for i in known])
+
+    def inliers(correction: Correction) -> np.ndarray:
+        distance = np.linalg.norm(correction.apply_points(source) - target, axis=1)
+        result: np.ndarray = distance < inlier_m
+        return result
+
+    identity = Correction(0.0, np.zeros(2))
+    best, best_key = identity, (int(inliers(identity).sum()), 0.0)
+    for a, b in combinations(range(len(known)), 2):
+        seen, mapped = source[b] - source[a], target[b] - target[a]
+        if np.linalg.norm(mapped) < 4 * inlier_m:
+            continue  # too short a baseline to define a rotation
+        if abs(np.linalg.norm(seen) - np.linalg.norm(mapped)) > inlier_m:
+            continue  # no rigid motion maps this pair
+        hypothesis = _fit_rigid(source[[a, b]], target[[a, b]])
+        mask = inliers(hypothesis)
+        if mask.sum() < 2:
+            continue
+        refined = _fit_rigid(source[mask], target[mask])
+        shift = np.linalg.norm(refined.apply_points(poses[:, :2]) - poses[:, :2], axis=1)
+        if abs(refined.angle) > max_angle or shift.max(initial=0.0) > max_shift_m:
+            continue
+        size = float(np.linalg.norm(refined.translation)) + abs(refined.angle)
+        key = (int(inliers(refined).sum()), -size)
+        if key > best_key:
+            best, best_key = refined, key
+    return None if best is identity else best
 
 
 def _split_moved(
@@ -126,6 +221,9 @@ def incremental_seed(
     chunk_s: float = 20.0,
     split_distance_m: float = 0.5,
     window_s: float = 60.0,
+    relocalize_inlier_m: float = 0.25,
+    relocalize_max_shift_m: float = 2.0,
+    relocalize_max_angle: float = 0.3,
 ) -> tuple[FloatArray, dict[int, FloatArray]]:
     """Return poses (N,3) and landmark positions by (real) id from windowed robust solves.
 
@@ -142,6 +240,17 @@ def incremental_seed(
     for count in chunk_ends(stamps, chunk_s):
         poses = _extend_poses(data, solved_poses, count)
         rows = np.flatnonzero((data.obs_keyframe >= done) & (data.obs_keyframe < count))
+        correction = relocalization(
+            range_bearing_to_point(poses[data.obs_keyframe[rows]], data.obs_z[rows]),
+            virtual_ids[rows],
+            landmarks,
+            relocalize_inlier_m,
+            poses=poses[done:],
+            max_shift_m=relocalize_max_shift_m,
+            max_angle=relocalize_max_angle,
+        )
+        if correction is not None and done > 0:
+            poses[done:] = correction.apply_poses(poses[done:])
         before = next_virtual
         next_virtual = _split_moved(
             data, virtual_ids, rows, poses, landmarks, split_distance_m, next_virtual
