@@ -14,11 +14,16 @@ setup(
     zip_safe=True,
     maintainer='dynamic-slam maintainers',
     maintainer_email='dev@example.com',
-    description='Seeded simulated worlds for the dynamic-SLAM suite, written as rosbag2 bags',
+    description=(
+        'Seeded simulated worlds and real-data importers for the dynamic-SLAM suite, '
+        'written as rosbag2 bags'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'office_sim = slam_sim.office_bag:main',
+            'victoria_park_import = slam_sim.victoria_park_bag:main',
+            'mrclam_import = slam_sim.mrclam_bag:main',
         ],
     },
 )

@@ -22,11 +22,13 @@ from em_sam_node.core.factors import (
     range_bearing_error,
     range_bearing_error_jacobians,
     range_bearing_predict,
+    se2_between_error,
+    se2_between_error_jacobians,
     validate_problem,
     whiten,
 )
 from em_sam_node.core.problem import Estimate, SlamProblem
-from em_sam_node.core.se2 import apply_increment, range_bearing_to_point
+from em_sam_node.core.se2 import apply_increment, between, compose, range_bearing_to_point
 from slam_bringup.testing.jacobians import assert_jacobian_close
 
 PI = math.pi
@@ -79,6 +81,59 @@ def test_odometry_jacobian_known_answer_for_a_straight_step() -> None:
     # turns the midpoint heading by dtheta/2 and the side error by dtheta/2 * u0.
     np.testing.assert_allclose(jac_to, [[-1, 0, 0], [0, -1, 0.5], [0, 0, -1]], atol=1e-15)
     np.testing.assert_allclose(jac_from, [[1, 0, 0], [0, 1, 0.5], [0, 0, 1]], atol=1e-15)
+
+
+def test_se2_between_error_is_zero_for_the_measured_relative_pose(
+    rng: np.random.Generator,
+) -> None:
+    start = random_poses(rng, COUNT)
+    measured = np.column_stack([rng.uniform(-2, 2, (COUNT, 2)), rng.uniform(-3, 3, COUNT)])
+    end = compose(start, measured)
+    np.testing.assert_allclose(se2_between_error(start, end, measured), 0, atol=1e-12)
+    np.testing.assert_allclose(between(start, end), measured, atol=1e-12)
+
+
+def test_se2_between_error_known_answer_is_the_se2_log() -> None:
+    # E = (t = (1, 0), w = pi/2): Log(E) = (M t, w), a = (pi/4) cot(pi/4) = pi/4, M t =
+    # (a, -w/2) = (pi/4, -pi/4).
+    error = se2_between_error(np.zeros(3), np.array([1.0, 0.0, PI / 2]), np.zeros(3))
+    np.testing.assert_allclose(error, [PI / 4, -PI / 4, PI / 2], atol=1e-15)
+    # Small turns use the series; it agrees with the closed form at its boundary.
+    for w in (0.999e-3, 1.001e-3, 1e-9):
+        error = se2_between_error(np.zeros(3), np.array([1.0, 2.0, w]), np.zeros(3))
+        a = (w / 2) / math.tan(w / 2)
+        np.testing.assert_allclose(error, [a + w, -w / 2 + 2 * a, w], rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize('turns', ['any', 'small'])
+def test_se2_between_jacobians_match_finite_differences(
+    rng: np.random.Generator, turns: str
+) -> None:
+    start, end = random_poses(rng, COUNT), random_poses(rng, COUNT)
+    measured = rng.normal(0.0, 1.0, (COUNT, 3))
+    if turns == 'small':  # the residual angle near 0, both sides of the series switch
+        measured[:, 2] = end[:, 2] - start[:, 2] + rng.uniform(-2e-3, 2e-3, COUNT)
+    jac_from, jac_to = se2_between_error_jacobians(start, end, measured)
+    options = {'batched': True, 'wrap': [2], 'atol': 1e-6, 'rtol': 1e-6}
+    assert_jacobian_close(
+        jac_from, lambda x: se2_between_error(x, end, measured), start, **options
+    )
+    assert_jacobian_close(jac_to, lambda x: se2_between_error(start, x, measured), end, **options)
+
+
+def test_se2_between_error_equals_gtsams_when_it_is_installed(rng: np.random.Generator) -> None:
+    gtsam = pytest.importorskip('gtsam', reason='gtsam is a benchmark-only dependency')
+    start, end = random_poses(rng, 20), random_poses(rng, 20)
+    measured = rng.normal(0.0, 1.0, (20, 3))
+    ours = se2_between_error(start, end, measured)
+    for k in range(20):
+        factor = gtsam.BetweenFactorPose2(
+            0, 1, gtsam.Pose2(*measured[k]), gtsam.noiseModel.Unit.Create(3)
+        )
+        values = gtsam.Values()
+        values.insert(0, gtsam.Pose2(*start[k]))
+        values.insert(1, gtsam.Pose2(*end[k]))
+        np.testing.assert_allclose(factor.unwhitenedError(values), ours[k], atol=1e-12)
 
 
 def test_range_bearing_known_answers() -> None:
@@ -249,6 +304,9 @@ def test_validate_problem_names_the_bad_field(rng: np.random.Generator) -> None:
     negative = SlamProblem(**{**problem.__dict__, 'odometry_to': -problem.odometry_to})
     with pytest.raises(ValueError, match='odometry_to refers to pose -'):
         validate_problem(negative)
+    unknown_model = SlamProblem(**{**problem.__dict__, 'odometry_model': 'ackermann'})
+    with pytest.raises(ValueError, match="odometry_model 'ackermann'"):
+        validate_problem(unknown_model)
     bad_shape = SlamProblem(**{**problem.__dict__, 'obs_z': problem.obs_z[:, :1]})
     with pytest.raises(ValueError, match=r'obs_z must have shape \(10, 2\)'):
         validate_problem(bad_shape)

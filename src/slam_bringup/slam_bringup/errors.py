@@ -25,3 +25,7 @@ class ParameterError(SlamError):
 
 class GraphError(SlamError):
     """A GRAPH file is missing or invalid."""
+
+
+class DatasetError(SlamError):
+    """A dataset file is missing or malformed; the message names the file and 1-based line."""

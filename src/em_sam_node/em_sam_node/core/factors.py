@@ -16,6 +16,17 @@ the variables in their (x m, y m, theta rad) and (x m, y m) coordinates.
       d u / d x_to   = [[ c,  s,  u1/2], [-s,  c, -u0/2], [0, 0,  1]],  c, s = cos t~, sin t~
 
   (t~ moves by 1/2 for a unit change of either heading; d(u0, u1)/d t~ = (u1, -u0)).
+* SE(2) between (``odometry_model='se2_between'``, GTSAM's BetweenFactor<Pose2>): e =
+  Log(Z^-1 x_from^-1 x_to) for the measured relative pose Z. With E = Z^-1 x_from^-1 x_to =
+  (t_E, w), w wrapped, Log(E) = (M(w) t_E, w), M(w) = [[a, w/2], [-w/2, a]],
+  a = (w/2) cot(w/2) (the inverse of SE(2)'s V matrix). With A = R(-theta_Z - theta_from)
+  and d = p_to - p_from:
+
+      d e_xy / d p_to = M A,  d e_xy / d p_from = -M A,
+      d e_xy / d theta_to = M'(w) t_E,  d e_xy / d theta_from = -M'(w) t_E - M A J d,
+      d w / d theta_to = 1,  d w / d theta_from = -1,   J = [[0, -1], [1, 0]].
+
+  The sign is GTSAM's (predicted relative to measured); only the squares enter the cost.
 * Range-bearing (eq. 3): eta = z - h(x, l), h = (rho, atan2(dy, dx) - theta), (dx, dy) =
   l - p, rho^2 = q = dx^2 + dy^2:
 
@@ -36,6 +47,9 @@ from numpy.typing import NDArray
 
 from em_sam_node.core.problem import Estimate, FloatArray, SlamProblem
 from em_sam_node.core.se2 import wrap_angle
+
+ODOMETRY_MODELS = ('differential_drive', 'se2_between')
+_SMALL_ANGLE_RAD = 1e-3
 
 _MIN_RANGE_SQ_M2 = 1e-18
 
@@ -103,6 +117,21 @@ def odometry_error_jacobians(
     return jacobian[..., :3], jacobian[..., 3:]
 
 
+def se2_between_error(
+    poses_from: FloatArray, poses_to: FloatArray, measured: FloatArray
+) -> FloatArray:
+    """Return e = Log(measured^-1 x_from^-1 x_to), (M, 3) as (m, m, rad) (GTSAM's error)."""
+    return _se2_between(poses_from, poses_to, measured, want_jacobian=False)[0]
+
+
+def se2_between_error_jacobians(
+    poses_from: FloatArray, poses_to: FloatArray, measured: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Return d e / d x_from and d e / d x_to of the SE(2) between error, each (M, 3, 3)."""
+    jacobian = _se2_between(poses_from, poses_to, measured, want_jacobian=True)[1]
+    return jacobian[..., :3], jacobian[..., 3:]
+
+
 def range_bearing_predict(poses: FloatArray, landmarks: FloatArray) -> FloatArray:
     """Return h(x, l) = (range m, bearing rad in the body frame, wrapped), shape (K, 2)."""
     poses = np.asarray(poses, dtype=np.float64)
@@ -149,9 +178,13 @@ def odometry_residuals(problem: SlamProblem, estimate: Estimate) -> FloatArray:
     """Return the whitened odometry residuals W (u - increment_between), shape (M, 3)."""
     _check_estimate(problem, estimate)
     poses = estimate.poses
-    error = odometry_error(
-        poses[problem.odometry_from], poses[problem.odometry_to], problem.odometry_u
-    )
+    kernel = _se2_between if problem.odometry_model == 'se2_between' else _odometry
+    error = kernel(
+        poses[problem.odometry_from],
+        poses[problem.odometry_to],
+        problem.odometry_u,
+        want_jacobian=False,
+    )[0]
     return whiten(problem.odometry_sqrt_info, error)
 
 
@@ -186,7 +219,8 @@ def linearize_odometry(problem: SlamProblem, estimate: Estimate) -> OdometryLine
     """Return the whitened odometry residuals (M, 3) and Jacobian (M, 3, 6) [from, to]."""
     _check_estimate(problem, estimate)
     poses = estimate.poses
-    error, jacobian = _odometry(
+    kernel = _se2_between if problem.odometry_model == 'se2_between' else _odometry
+    error, jacobian = kernel(
         poses[problem.odometry_from],
         poses[problem.odometry_to],
         problem.odometry_u,
@@ -251,6 +285,11 @@ def validate_problem(problem: SlamProblem) -> None:
         ('obs_landmark', n_landmarks, 'landmark'),
     ):
         _check_indices(np.asarray(getattr(problem, name)), limit, f'SlamProblem.{name}', what)
+    if problem.odometry_model not in ODOMETRY_MODELS:
+        raise ValueError(
+            f'SlamProblem.odometry_model {problem.odometry_model!r} is not one of '
+            f'{", ".join(ODOMETRY_MODELS)}'
+        )
     if not 0 <= problem.prior_pose_index < n_poses:
         raise ValueError(
             f'SlamProblem.prior_pose_index {problem.prior_pose_index} is not a pose index '
@@ -332,6 +371,82 @@ def _odometry(
     jacobian[..., 2, 2] = 1.0
     jacobian[..., :2, 3:5] = -jacobian[..., :2, 0:2]
     jacobian[..., 2, 5] = -1.0
+    return error, jacobian
+
+
+@overload
+def _se2_between(
+    poses_from: FloatArray,
+    poses_to: FloatArray,
+    measured: FloatArray,
+    *,
+    want_jacobian: Literal[True],
+) -> tuple[FloatArray, FloatArray]: ...
+
+
+@overload
+def _se2_between(
+    poses_from: FloatArray,
+    poses_to: FloatArray,
+    measured: FloatArray,
+    *,
+    want_jacobian: Literal[False],
+) -> tuple[FloatArray, None]: ...
+
+
+def _se2_between(
+    poses_from: FloatArray, poses_to: FloatArray, measured: FloatArray, *, want_jacobian: bool
+) -> tuple[FloatArray, FloatArray | None]:
+    """Return the SE(2) between error (M, 3) and, if wanted, its Jacobian (M, 3, 6)."""
+    poses_from = np.asarray(poses_from, dtype=np.float64)
+    poses_to = np.asarray(poses_to, dtype=np.float64)
+    measured = np.asarray(measured, dtype=np.float64)
+    d_x = poses_to[..., 0] - poses_from[..., 0]
+    d_y = poses_to[..., 1] - poses_from[..., 1]
+    angle = poses_from[..., 2] + measured[..., 2]  # A = R(-angle)
+    cos_a, sin_a = np.cos(angle), np.sin(angle)
+    # t_E = R(-theta_Z) (R(-theta_from) d - t_Z) = A d - R(-theta_Z) t_Z
+    cos_z, sin_z = np.cos(measured[..., 2]), np.sin(measured[..., 2])
+    t_x = cos_a * d_x + sin_a * d_y - (cos_z * measured[..., 0] + sin_z * measured[..., 1])
+    t_y = -sin_a * d_x + cos_a * d_y - (-sin_z * measured[..., 0] + cos_z * measured[..., 1])
+    w = np.asarray(wrap_angle(poses_to[..., 2] - poses_from[..., 2] - measured[..., 2]))
+    small = np.abs(w) < _SMALL_ANGLE_RAD
+    half = 0.5 * w
+    safe_half = np.where(small, 1.0, half)
+    a = np.where(small, 1.0 - w * w / 12.0, safe_half / np.tan(safe_half))
+    error = np.empty((*w.shape, 3))
+    error[..., 0] = a * t_x + half * t_y
+    error[..., 1] = -half * t_x + a * t_y
+    error[..., 2] = w
+    if not want_jacobian:
+        return error, None
+    sin_half = np.sin(safe_half)
+    da = np.where(
+        small,
+        -w / 6.0,
+        0.5 / np.tan(safe_half) - 0.25 * w / np.where(small, 1.0, sin_half * sin_half),
+    )
+    # M A (2x2 per factor): rows of M = [[a, w/2], [-w/2, a]], A = [[c, s], [-s, c]].
+    ma = np.empty((*w.shape, 2, 2))
+    ma[..., 0, 0] = a * cos_a - half * sin_a
+    ma[..., 0, 1] = a * sin_a + half * cos_a
+    ma[..., 1, 0] = -half * cos_a - a * sin_a
+    ma[..., 1, 1] = -half * sin_a + a * cos_a
+    # M'(w) t_E, M' = [[a', 1/2], [-1/2, a']]
+    dm_t_x = da * t_x + 0.5 * t_y
+    dm_t_y = -0.5 * t_x + da * t_y
+    # M A J d, J d = (-d_y, d_x)
+    maj_x = ma[..., 0, 0] * -d_y + ma[..., 0, 1] * d_x
+    maj_y = ma[..., 1, 0] * -d_y + ma[..., 1, 1] * d_x
+    jacobian = np.zeros((*w.shape, 3, 6))
+    jacobian[..., :2, 0:2] = -ma
+    jacobian[..., :2, 3:5] = ma
+    jacobian[..., 0, 2] = -dm_t_x - maj_x
+    jacobian[..., 1, 2] = -dm_t_y - maj_y
+    jacobian[..., 0, 5] = dm_t_x
+    jacobian[..., 1, 5] = dm_t_y
+    jacobian[..., 2, 2] = -1.0
+    jacobian[..., 2, 5] = 1.0
     return error, jacobian
 
 

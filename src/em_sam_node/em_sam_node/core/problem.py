@@ -27,6 +27,11 @@ class SlamProblem:
     Observation k (eq. 3) of landmark ``obs_landmark[k]`` from pose ``obs_pose[k]`` measures
     ``obs_z[k] = (range m, bearing rad)``. The prior anchors pose ``prior_pose_index``.
 
+    ``odometry_model`` ``'se2_between'`` reads ``odometry_u[m]`` instead as a measured
+    relative pose (dx m, dy m, dtheta rad) in the frame of pose ``odometry_from[m]``, with
+    GTSAM's BetweenFactor<Pose2> error Log(u^-1 x_from^-1 x_to), for data recorded that way
+    (the Victoria Park file) and for side-by-side comparisons with GTSAM.
+
     Shapes: odometry_* (M,), (M, 3), (M, 3, 3); obs_* (K,), (K,), (K, 2), (K, 2, 2);
     prior_mean (3,), prior_sqrt_info (3, 3).
     """
@@ -45,6 +50,7 @@ class SlamProblem:
     prior_sqrt_info: FloatArray
     prior_pose_index: int = 0
     fixed_landmarks: NDArray[np.bool_] | None = None
+    odometry_model: str = 'differential_drive'
 
     # ``fixed_landmarks`` (L,) marks landmarks held at their initial value: their
     # observations constrain the poses only (a known map, e.g. in a sliding-window solve).

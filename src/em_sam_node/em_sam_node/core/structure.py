@@ -88,12 +88,13 @@ def with_weak_priors(
     """
     if len(pose_indices) == 0:
         return problem
-    from em_sam_node.core.se2 import increment_between
+    from em_sam_node.core.se2 import between, increment_between
 
     anchor = problem.prior_pose_index
     count = len(pose_indices)
     anchor_means = np.repeat(problem.prior_mean[None, :], count, axis=0)
-    increments = increment_between(anchor_means, means)
+    relative = between if problem.odometry_model == 'se2_between' else increment_between
+    increments = relative(anchor_means, means)
     sqrt_info = np.repeat(np.diag(1.0 / WEAK_PRIOR_SIGMA)[None, :, :], count, axis=0)
     return dataclasses.replace(
         problem,

@@ -1,0 +1,360 @@
+"""UTIAS Multi-Robot Cooperative Localization and Mapping (MRCLAM) runs, parsed without ROS.
+
+One data set directory holds, for robots N = 1..5 (Leung, Halpern, Barfoot and Liu, IJRR
+30(8), 2011):
+
+- ``Barcodes.dat``: subject -> barcode; subjects 1-5 are the robots, 6-20 the landmarks.
+- ``RobotN_Odometry.dat``: time s, forward velocity v m/s, angular velocity w rad/s.
+- ``RobotN_Measurement.dat``: time s, BARCODE (the header says "Subject #", but the numbers
+  are barcodes), range m, bearing rad. ``RobotN_Measurement_x.dat`` (a subject-mapped copy
+  made by someone else) is not read.
+- ``RobotN_Groundtruth.dat``: time s, x m, y m, theta rad (Vicon, ``map`` frame).
+- ``Landmark_Groundtruth.dat``: subject, x m, y m, x std-dev m, y std-dev m.
+
+Lines starting with ``#`` are comments; columns are separated by blanks or tabs. Times are
+converted to int nanoseconds exactly.
+
+What the parser does with the data:
+
+- Sightings are mapped from barcodes to subjects. Sightings of an unknown barcode and of the
+  robot's own subject are dropped (kept in ``dropped_unknown``/``dropped_own`` for the
+  counts); sightings of the other robots (subjects 1-5) are kept: they are real moving
+  landmarks, and ``robot_truth`` holds where each robot truly was.
+- Odometry is integrated into poses in an ``odom`` frame that starts at (0, 0, 0):
+  pose k+1 = pose k moved by v_k dt along the midpoint heading theta_k + w_k dt / 2,
+  dt = t_{k+1} - t_k. A sample whose time equals the previous sample's is dropped, keeping
+  the last sample of each repeated time (it is the reading in effect for the next interval;
+  the integrated poses are the same as with the repeats kept, since their dt is 0). The
+  count is ``duplicate_odometry_stamps``. A time going backwards is an error.
+- Measurement times must not decrease (several sightings share a time); ground-truth times
+  must increase.
+
+Every problem raises ``DatasetError`` naming ``file:line``.
+
+Data set 6 as found: no odometry time goes backwards, but robots 2-5 repeat 1, 8, 10 and 4
+odometry times (6 of the 23 repeats with different readings); robots 1, 3 and 4 see unknown
+barcodes 43 (once), 34 (twice) and 50 (3 times); no robot sees its own barcode. Robot 1's
+Vicon track ends about 128 s before its odometry does, so the last sightings of robot 1 by
+the others have no ground truth (``true_targets`` marks them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from slam_bringup.errors import DatasetError
+from slam_sim.core.dataset_text import Kind, Table, read_table
+from slam_sim.core.geometry import BoolArray, FloatArray, IntArray, wrap_angle
+from slam_sim.core.odometry import integrate_increments
+
+ROBOT_SUBJECTS = (1, 2, 3, 4, 5)
+UNKNOWN_SUBJECT = 0
+# Scale of the median absolute deviation that estimates a Gaussian's standard deviation.
+MAD_TO_SIGMA = 1.4826
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Ground-truth poses (T, 3) (x m, y m, theta rad) in ``map`` at ``stamps_ns`` (T,)."""
+
+    stamps_ns: IntArray
+    poses: FloatArray
+
+    def covers(self, stamps_ns: IntArray) -> BoolArray:
+        """Return which stamps (n,) lie within the trajectory's time span."""
+        stamps = np.asarray(stamps_ns, dtype=np.int64)
+        first, last = int(self.stamps_ns[0]), int(self.stamps_ns[-1])
+        return np.logical_and(stamps >= first, stamps <= last)
+
+    def poses_at(self, stamps_ns: IntArray) -> FloatArray:
+        """Return poses (n, 3) linearly interpolated at ``stamps_ns`` (clamped at the ends)."""
+        stamps = np.asarray(stamps_ns, dtype=np.int64)
+        relative = (stamps - self.stamps_ns[0]).astype(np.float64)
+        knots = (self.stamps_ns - self.stamps_ns[0]).astype(np.float64)
+        x = np.interp(relative, knots, self.poses[:, 0])
+        y = np.interp(relative, knots, self.poses[:, 1])
+        theta = np.interp(relative, knots, np.unwrap(self.poses[:, 2]))
+        return np.stack([x, y, wrap_angle(theta)], axis=-1)
+
+    def until(self, end_ns: int) -> Trajectory:
+        """Return the samples at or before ``end_ns``."""
+        keep = self.stamps_ns <= end_ns
+        return Trajectory(self.stamps_ns[keep], self.poses[keep])
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """Wheel odometry: ``stamps_ns`` (N,), ``twists`` (N, 2) (v m/s, w rad/s) as measured,
+    ``poses`` (N, 3) integrated in ``odom`` (x m, y m, theta rad), pose 0 at the origin."""
+
+    stamps_ns: IntArray
+    twists: FloatArray
+    poses: FloatArray
+
+    def until(self, end_ns: int) -> Odometry:
+        """Return the samples at or before ``end_ns`` (poses unchanged: a prefix)."""
+        keep = self.stamps_ns <= end_ns
+        return Odometry(self.stamps_ns[keep], self.twists[keep], self.poses[keep])
+
+
+@dataclass(frozen=True)
+class Sightings:
+    """Range-bearing sightings: ``stamps_ns``, ``barcodes``, ``subjects`` (0 = unknown
+    barcode), ``range_m``, ``bearing_rad``, and their 1-based ``line_numbers`` in the
+    measurement file; all (K,)."""
+
+    stamps_ns: IntArray
+    barcodes: IntArray
+    subjects: IntArray
+    range_m: FloatArray
+    bearing_rad: FloatArray
+    line_numbers: IntArray
+
+    def __len__(self) -> int:
+        """Return the number of sightings."""
+        return len(self.stamps_ns)
+
+    def select(self, rows: BoolArray | IntArray) -> Sightings:
+        """Return the sightings at ``rows`` (a mask or indices)."""
+        return Sightings(
+            self.stamps_ns[rows],
+            self.barcodes[rows],
+            self.subjects[rows],
+            self.range_m[rows],
+            self.bearing_rad[rows],
+            self.line_numbers[rows],
+        )
+
+
+@dataclass(frozen=True)
+class LandmarkTruth:
+    """Static landmarks: ``subjects`` (L,), ``positions`` (L, 2) m and ``std_m`` (L, 2) m
+    (Vicon standard deviations of x and y) in ``map``."""
+
+    subjects: IntArray
+    positions: FloatArray
+    std_m: FloatArray
+
+
+@dataclass(frozen=True)
+class MrclamRun:
+    """One robot of an MRCLAM data set, with the ground truth of everything it can see."""
+
+    dataset_dir: Path
+    robot: int
+    barcode_of: dict[int, int]
+    odometry: Odometry
+    sightings: Sightings
+    dropped_unknown: Sightings
+    dropped_own: Sightings
+    duplicate_odometry_stamps: int
+    truth: Trajectory
+    robot_truth: dict[int, Trajectory]
+    landmarks: LandmarkTruth
+
+    @property
+    def dropped_counts(self) -> dict[str, int]:
+        """Return the number of dropped sightings per reason."""
+        return {'unknown_barcode': len(self.dropped_unknown), 'own_subject': len(self.dropped_own)}
+
+    @property
+    def other_robots(self) -> tuple[int, ...]:
+        """Return the subjects of the other robots, ascending."""
+        return tuple(sorted(self.robot_truth))
+
+    def until(self, end_ns: int) -> MrclamRun:
+        """Return the run with every stamped item after ``end_ns`` removed."""
+
+        def crop(sightings: Sightings) -> Sightings:
+            return sightings.select(sightings.stamps_ns <= end_ns)
+
+        return replace(
+            self,
+            odometry=self.odometry.until(end_ns),
+            sightings=crop(self.sightings),
+            dropped_unknown=crop(self.dropped_unknown),
+            dropped_own=crop(self.dropped_own),
+            truth=self.truth.until(end_ns),
+            robot_truth={k: t.until(end_ns) for k, t in self.robot_truth.items()},
+        )
+
+
+def _read_barcodes(path: Path) -> dict[int, int]:
+    table = read_table(path, [('subject', Kind.INT), ('barcode', Kind.INT)])
+    barcode_of: dict[int, int] = {}
+    seen: dict[int, int] = {}
+    for row, (subject, barcode) in enumerate(
+        zip(table.ints('subject').tolist(), table.ints('barcode').tolist(), strict=True)
+    ):
+        if subject <= 0:
+            raise table.error(row, f'subject {subject} must be > 0')
+        if subject in barcode_of or barcode in seen:
+            raise table.error(row, f'subject {subject} or barcode {barcode} is listed twice')
+        barcode_of[subject] = barcode
+        seen[barcode] = subject
+    missing = [s for s in ROBOT_SUBJECTS if s not in barcode_of]
+    if missing:
+        raise DatasetError(f'{path}: no barcode for the robot subjects {missing}')
+    return barcode_of
+
+
+def _read_landmarks(path: Path, barcode_of: dict[int, int]) -> LandmarkTruth:
+    columns = [('subject', Kind.INT), ('x', Kind.FLOAT), ('y', Kind.FLOAT)]
+    table = read_table(path, [*columns, ('x_std', Kind.FLOAT), ('y_std', Kind.FLOAT)])
+    subjects = table.ints('subject')
+    std = np.column_stack([table.floats('x_std'), table.floats('y_std')])
+    for row, subject in enumerate(subjects.tolist()):
+        if subject not in barcode_of or subject in ROBOT_SUBJECTS:
+            raise table.error(row, f'subject {subject} is not a landmark in Barcodes.dat')
+        if subject in subjects[:row]:
+            raise table.error(row, f'landmark {subject} is listed twice')
+        if np.any(std[row] < 0.0):
+            raise table.error(row, f'negative standard deviation {std[row].tolist()}')
+    positions = np.column_stack([table.floats('x'), table.floats('y')])
+    return LandmarkTruth(subjects, positions, std)
+
+
+def _check_time_order(table: Table, stamps_ns: IntArray, *, strict: bool, what: str) -> None:
+    steps = np.diff(stamps_ns)
+    bad = np.flatnonzero(steps <= 0 if strict else steps < 0)
+    if len(bad):
+        row = int(bad[0]) + 1
+        relation = 'not after' if strict else 'before'
+        raise table.error(
+            row,
+            f'time {stamps_ns[row] / 1e9:.6f} s is {relation} the previous one '
+            f'({stamps_ns[row - 1] / 1e9:.6f} s, line {table.line_numbers[row - 1]}); '
+            f'{what} times must {"increase" if strict else "not decrease"}',
+        )
+
+
+def _read_odometry(path: Path) -> tuple[Odometry, int]:
+    columns = [('time', Kind.STAMP), ('v', Kind.FLOAT), ('w', Kind.FLOAT)]
+    table = read_table(path, columns)
+    stamps = table.ints('time')
+    _check_time_order(table, stamps, strict=False, what='odometry')
+    keep = np.ones(len(stamps), dtype=bool)
+    keep[:-1] = np.diff(stamps) != 0  # of equal times keep the last
+    stamps = stamps[keep]
+    if len(stamps) < 2:
+        raise DatasetError(f'{path}: fewer than 2 odometry samples')
+    twists = np.column_stack([table.floats('v'), table.floats('w')])[keep]
+    dt_s = np.diff(stamps).astype(np.float64) / 1e9
+    poses = integrate_increments(twists[:-1, 0] * dt_s, twists[:-1, 1] * dt_s)
+    return Odometry(stamps, twists, poses), int(np.count_nonzero(~keep))
+
+
+def _read_measurements(path: Path, barcode_of: dict[int, int]) -> Sightings:
+    columns = [('time', Kind.STAMP), ('barcode', Kind.INT)]
+    table = read_table(path, [*columns, ('range', Kind.FLOAT), ('bearing', Kind.FLOAT)])
+    stamps = table.ints('time')
+    _check_time_order(table, stamps, strict=False, what='measurement')
+    range_m = table.floats('range')
+    bad = np.flatnonzero(range_m <= 0.0)
+    if len(bad):
+        raise table.error(int(bad[0]), f'range {range_m[bad[0]]} m must be > 0')
+    subject_of = {barcode: subject for subject, barcode in barcode_of.items()}
+    barcodes = table.ints('barcode')
+    subjects = np.array([subject_of.get(b, UNKNOWN_SUBJECT) for b in barcodes.tolist()])
+    return Sightings(
+        stamps,
+        barcodes,
+        subjects.astype(np.int64),
+        range_m,
+        table.floats('bearing'),
+        table.line_numbers,
+    )
+
+
+def _read_groundtruth(path: Path) -> Trajectory:
+    columns = [('time', Kind.STAMP), ('x', Kind.FLOAT), ('y', Kind.FLOAT)]
+    table = read_table(path, [*columns, ('theta', Kind.FLOAT)])
+    stamps = table.ints('time')
+    if len(stamps) < 2:
+        raise DatasetError(f'{path}: fewer than 2 ground-truth poses')
+    _check_time_order(table, stamps, strict=True, what='ground-truth')
+    poses = np.column_stack([table.floats('x'), table.floats('y'), table.floats('theta')])
+    return Trajectory(stamps, poses)
+
+
+def parse_mrclam(dataset_dir: Path | str, robot: int) -> MrclamRun:
+    """Return robot ``robot`` (1-5) of the MRCLAM data set in ``dataset_dir``.
+
+    Raises:
+        ValueError: ``robot`` is not 1-5.
+        DatasetError: a file is missing or malformed (wrong column count, a value that is not
+            a finite number, times out of order, ...); the message names file:line.
+
+    """
+    if robot not in ROBOT_SUBJECTS:
+        raise ValueError(f'robot must be one of {ROBOT_SUBJECTS}, got {robot}')
+    directory = Path(dataset_dir)
+    if not directory.is_dir():
+        raise DatasetError(f'{directory}: no such data set directory')
+    barcode_of = _read_barcodes(directory / 'Barcodes.dat')
+    landmarks = _read_landmarks(directory / 'Landmark_Groundtruth.dat', barcode_of)
+    odometry, duplicates = _read_odometry(directory / f'Robot{robot}_Odometry.dat')
+    sightings = _read_measurements(directory / f'Robot{robot}_Measurement.dat', barcode_of)
+    truth = {k: _read_groundtruth(directory / f'Robot{k}_Groundtruth.dat') for k in ROBOT_SUBJECTS}
+    unknown = sightings.subjects == UNKNOWN_SUBJECT
+    own = sightings.subjects == robot
+    return MrclamRun(
+        dataset_dir=directory,
+        robot=robot,
+        barcode_of=barcode_of,
+        odometry=odometry,
+        sightings=sightings.select(~unknown & ~own),
+        dropped_unknown=sightings.select(unknown),
+        dropped_own=sightings.select(own),
+        duplicate_odometry_stamps=duplicates,
+        truth=truth[robot],
+        robot_truth={k: t for k, t in truth.items() if k != robot},
+        landmarks=landmarks,
+    )
+
+
+def true_targets(run: MrclamRun, sightings: Sightings) -> tuple[FloatArray, BoolArray]:
+    """Return the true target positions (K, 2) m in ``map`` of sightings, and a mask (K,) of
+    those with ground truth (a static landmark, or a robot inside its Vicon span)."""
+    positions = np.full((len(sightings), 2), np.nan)
+    known = np.zeros(len(sightings), dtype=bool)
+    landmark_rows = {int(s): k for k, s in enumerate(run.landmarks.subjects.tolist())}
+    for subject in np.unique(sightings.subjects).tolist():
+        rows = sightings.subjects == subject
+        if subject in landmark_rows:
+            positions[rows] = run.landmarks.positions[landmark_rows[subject]]
+            known[rows] = True
+        elif subject in run.robot_truth:
+            trajectory = run.robot_truth[subject]
+            positions[rows] = trajectory.poses_at(sightings.stamps_ns[rows])[:, :2]
+            known[rows] = trajectory.covers(sightings.stamps_ns[rows])
+    return positions, known
+
+
+def sighting_residuals(run: MrclamRun) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Return measured minus true range m (K,) and bearing rad (K,) of the kept sightings,
+    from the Vicon poses of the robot and its targets, and a mask (K,) of the sightings that
+    have ground truth (elsewhere the residuals are NaN)."""
+    sightings = run.sightings
+    targets, known = true_targets(run, sightings)
+    known &= run.truth.covers(sightings.stamps_ns)
+    sensor = run.truth.poses_at(sightings.stamps_ns)
+    offset = targets - sensor[:, :2]
+    range_residual = sightings.range_m - np.hypot(offset[:, 0], offset[:, 1])
+    bearing = np.arctan2(offset[:, 1], offset[:, 0]) - sensor[:, 2]
+    bearing_residual = wrap_angle(sightings.bearing_rad - bearing)
+    range_residual[~known] = np.nan
+    bearing_residual[~known] = np.nan
+    return range_residual, bearing_residual, known
+
+
+def robust_sigma(residuals: FloatArray) -> float:
+    """Return 1.4826 times the median absolute deviation of ``residuals`` (n,) (NaN ignored)."""
+    values = np.asarray(residuals, dtype=np.float64)
+    values = values[np.isfinite(values)]
+    if len(values) == 0:
+        raise ValueError('robust_sigma needs at least one finite residual')
+    return float(MAD_TO_SIGMA * np.median(np.abs(values - np.median(values))))

@@ -1,0 +1,254 @@
+"""Shared by the dataset importers: an atomic mcap bag writer and a message factory.
+
+``write_bag`` writes messages (already in stamp order) into a zstd chunk-compressed mcap
+rosbag2 bag under a hidden staging name next to the output and renames it into place only
+when complete, so that an error or an interrupt leaves nothing at the output path (the same
+scheme as ``office_sim``). ``MessageFactory`` builds rosbags message objects of the planar
+types the EM-SAM nodes read.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rclpy.qos import QoSProfile
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
+
+from slam_bringup.errors import BagError
+from slam_bringup.qos import recorded_from_profile
+from slam_bringup.typesys import TypeRegistry
+from slam_sim.office_bag import WrittenBag
+
+ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
+OBSERVATIONS_TYPE = 'slam_interfaces/msg/LandmarkObservationArray'
+LANDMARK_MAP_TYPE = 'slam_interfaces/msg/LandmarkMap'
+INCREMENT_TYPE = 'slam_interfaces/msg/OdometryIncrement'
+PROGRESS_EVERY = 2000
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """One topic of a bag: name, message type and the QoS its publisher offered."""
+
+    name: str
+    msgtype: str
+    qos: QoSProfile
+
+
+def check_output(path: Path | str, *, single_file: bool) -> Path:
+    """Return ``path`` made absolute if a bag can be created there.
+
+    Raises:
+        BagError: it exists, its directory is missing, or its suffix does not match
+            ``single_file`` (a single-file bag ends in ``.mcap``, a bag directory does not).
+
+    """
+    target = Path(path).expanduser().absolute()
+    if target.exists():
+        raise BagError(f'output {str(target)!r} exists already; remove it or choose another')
+    if not target.parent.is_dir():
+        raise BagError(f'output {str(target)!r}: directory {str(target.parent)!r} is missing')
+    if single_file != (target.suffix == '.mcap'):
+        raise BagError(
+            f'output {str(target)!r}: a single-file bag must end in .mcap and a bag '
+            'directory must not; use --single-file for a .mcap file'
+        )
+    return target
+
+
+def write_bag(
+    path: Path | str,
+    topics: Sequence[TopicSpec],
+    messages: Iterable[tuple[str, int, Any]],
+    *,
+    registry: TypeRegistry,
+    single_file: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> WrittenBag:
+    """Write (topic, bag stamp int ns, rosbags message) items as a bag at ``path``.
+
+    ``progress(bag stamp ns, messages written)`` is called every ``PROGRESS_EVERY`` messages.
+    Whatever goes wrong (including an exception raised by ``messages``), nothing is left at
+    ``path`` and the staging directory is removed.
+
+    Raises:
+        BagError: ``path`` is not a valid new output (see ``check_output``) or cannot be
+            written.
+
+    """
+    target = check_output(path, single_file=single_file)
+    staging_root = target.parent / f'.{target.name}.writing-{os.getpid()}'
+    staging = staging_root / (target.stem if single_file else target.name)
+    counts = {topic.name: 0 for topic in topics}
+    written = 0
+    try:
+        staging_root.mkdir()
+        writer = Writer(staging, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        with writer:
+            connections = {}
+            for topic in topics:
+                msgdef, rihs01 = registry.msgdef_and_hash(topic.msgtype)
+                connections[topic.name] = writer.add_connection(
+                    topic.name,
+                    topic.msgtype,
+                    msgdef=msgdef,
+                    rihs01=rihs01,
+                    offered_qos_profiles=[recorded_from_profile(topic.qos)],
+                )
+            for name, bag_ns, message in messages:
+                data = registry.typestore.serialize_cdr(message, message.__msgtype__)
+                writer.write(connections[name], bag_ns, bytes(data))
+                counts[name] += 1
+                written += 1
+                if progress is not None and written % PROGRESS_EVERY == 0:
+                    progress(bag_ns, written)
+        if single_file:
+            (staging / f'{staging.name}.mcap').rename(target)
+        else:
+            staging.rename(target)
+    except (OSError, WriterError) as err:
+        raise BagError(f'output {str(target)!r} cannot be written: {err}') from None
+    finally:
+        shutil.rmtree(staging_root, ignore_errors=True)
+    size = (
+        target.stat().st_size if single_file else sum(p.stat().st_size for p in target.iterdir())
+    )
+    return WrittenBag(path=target, counts=counts, size_bytes=size)
+
+
+class MessageFactory:
+    """Builds rosbags message objects; the registry must know every type used."""
+
+    def __init__(self, registry: TypeRegistry, msgtypes: Iterable[str]) -> None:
+        for msgtype in msgtypes:
+            registry.ensure(msgtype)
+        self.types: dict[str, Any] = registry.typestore.types
+
+    def _type(self, msgtype: str) -> Any:
+        return self.types[msgtype]
+
+    def stamp(self, stamp_ns: int) -> Any:
+        """Return a builtin_interfaces/Time of int nanoseconds."""
+        sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        return self._type('builtin_interfaces/msg/Time')(sec=sec, nanosec=nanosec)
+
+    def header(self, stamp_ns: int, frame_id: str) -> Any:
+        """Return a std_msgs/Header."""
+        return self._type('std_msgs/msg/Header')(stamp=self.stamp(stamp_ns), frame_id=frame_id)
+
+    def odometry(
+        self,
+        stamp_ns: int,
+        frames: tuple[str, str],
+        pose: np.ndarray,
+        twist: np.ndarray,
+        covariances: tuple[np.ndarray, np.ndarray],
+    ) -> Any:
+        """Return an Odometry: ``frames`` (frame_id, child_frame_id), a planar pose
+        (x m, y m, theta rad), twist (v m/s, w rad/s) in the child frame, and the 6x6 pose and
+        twist covariances as 36-vectors."""
+        geometry = 'geometry_msgs/msg/'
+        point = self._type(geometry + 'Point')(x=float(pose[0]), y=float(pose[1]), z=0.0)
+        half = 0.5 * float(pose[2])
+        orientation = self._type(geometry + 'Quaternion')(
+            x=0.0, y=0.0, z=float(np.sin(half)), w=float(np.cos(half))
+        )
+        vector = self._type(geometry + 'Vector3')
+        body_twist = self._type(geometry + 'Twist')(
+            linear=vector(x=float(twist[0]), y=0.0, z=0.0),
+            angular=vector(x=0.0, y=0.0, z=float(twist[1])),
+        )
+        return self._type(ODOMETRY_TYPE)(
+            header=self.header(stamp_ns, frames[0]),
+            child_frame_id=frames[1],
+            pose=self._type(geometry + 'PoseWithCovariance')(
+                pose=self._type(geometry + 'Pose')(position=point, orientation=orientation),
+                covariance=covariances[0],
+            ),
+            twist=self._type(geometry + 'TwistWithCovariance')(
+                twist=body_twist, covariance=covariances[1]
+            ),
+        )
+
+    def observations(
+        self,
+        stamp_ns: int,
+        landmark_ids: np.ndarray,
+        range_bearing: np.ndarray,
+        covariances: np.ndarray,
+    ) -> Any:
+        """Return a LandmarkObservationArray in base_link: ids (n,), (range m, bearing rad)
+        (n, 2) and covariances (n, 2, 2)."""
+        item = self._type('slam_interfaces/msg/LandmarkObservation')
+        return self._type(OBSERVATIONS_TYPE)(
+            header=self.header(stamp_ns, 'base_link'),
+            observations=[
+                item(
+                    landmark_id=int(landmark_id),
+                    range_m=float(z[0]),
+                    bearing_rad=float(z[1]),
+                    covariance=np.asarray(cov, dtype=np.float64).reshape(4),
+                )
+                for landmark_id, z, cov in zip(
+                    landmark_ids, range_bearing, covariances, strict=True
+                )
+            ],
+        )
+
+    def landmark_map(
+        self,
+        stamp_ns: int,
+        landmark_ids: np.ndarray,
+        positions: np.ndarray,
+        covariances: np.ndarray,
+        moveable: np.ndarray,
+        num_observations: np.ndarray,
+    ) -> Any:
+        """Return a LandmarkMap in ``map``: ids (L,), positions (L, 2) m, covariances
+        (L, 2, 2) m^2, moveable flags (L,), observation counts (L,); weights 1.0."""
+        point = self._type('geometry_msgs/msg/Point')
+        estimate = self._type('slam_interfaces/msg/LandmarkEstimate')
+        return self._type(LANDMARK_MAP_TYPE)(
+            header=self.header(stamp_ns, 'map'),
+            landmarks=[
+                estimate(
+                    landmark_id=int(landmark_ids[k]),
+                    position=point(x=float(positions[k, 0]), y=float(positions[k, 1]), z=0.0),
+                    covariance=np.asarray(covariances[k], dtype=np.float64).reshape(4),
+                    weight=1.0,
+                    moveable=bool(moveable[k]),
+                    num_observations=int(num_observations[k]),
+                )
+                for k in range(len(landmark_ids))
+            ],
+        )
+
+    def increment(
+        self,
+        stamps_ns: tuple[int, int],
+        u: np.ndarray,
+        covariance: np.ndarray,
+        odom_poses: tuple[np.ndarray, np.ndarray],
+    ) -> Any:
+        """Return an OdometryIncrement in base_link from ``stamps_ns`` (from, to): eq. 2
+        increment u (3,), its (3, 3) covariance, and the (from, to) poses in ``odom``."""
+        return self._type(INCREMENT_TYPE)(
+            header=self.header(stamps_ns[1], 'base_link'),
+            stamp_from=self.stamp(stamps_ns[0]),
+            stamp_to=self.stamp(stamps_ns[1]),
+            forward_m=float(u[0]),
+            side_m=float(u[1]),
+            angular_rad=float(u[2]),
+            covariance=np.asarray(covariance, dtype=np.float64).reshape(9),
+            odom_frame_id='odom',
+            odom_pose_from=np.asarray(odom_poses[0], dtype=np.float64),
+            odom_pose_to=np.asarray(odom_poses[1], dtype=np.float64),
+            reset=False,
+        )
