@@ -141,6 +141,8 @@ class _State:
     reset_pending: bool = False
     rewound_until_ns: int | None = None  # dropping samples up to this stamp
     rewound_dropped: int = 0
+    # Samples up to this stamp were found not to have moved enough from the current keyframe.
+    checked_ns: int | None = None
 
 
 class OdometryIngest:
@@ -236,7 +238,7 @@ class OdometryIngest:
         if state.keyframe is None:
             return out
         samples = state.samples
-        start = bisect.bisect_right([s for s, _ in samples], state.keyframe[0])
+        start = bisect.bisect_right(samples, state.keyframe[0], key=lambda sample: sample[0])
         for index in range(start, len(samples)):
             stamp, pose = samples[index]
             while state.pending_stamps and state.pending_stamps[0] <= min(stamp, horizon_ns):
@@ -246,8 +248,13 @@ class OdometryIngest:
             if stamp > horizon_ns:
                 break
             last = final and index == len(samples) - 1 and stamp > state.keyframe[0]
-            if self._moved_enough(stamp, pose) or last:
+            if last or (
+                (state.checked_ns is None or stamp > state.checked_ns)
+                and self._moved_enough(stamp, pose)
+            ):
                 out.append(self._keyframe(stamp, pose))
+            elif stamp > state.keyframe[0]:
+                state.checked_ns = max(stamp, state.checked_ns or stamp)
         self._trim()
         return out
 
@@ -258,8 +265,9 @@ class OdometryIngest:
             return False
         config = self.config
         return bool(
-            np.hypot(*(pose[:2] - last_pose[:2])) >= config.keyframe_distance_m
-            or abs(wrap_angle(np.array([pose[2] - last_pose[2]]))[0]) >= config.keyframe_angle_rad
+            math.hypot(pose[0] - last_pose[0], pose[1] - last_pose[1])
+            >= config.keyframe_distance_m
+            or abs(math.remainder(pose[2] - last_pose[2], math.tau)) >= config.keyframe_angle_rad
             or (stamp_ns - last_stamp) / 1e9 >= config.keyframe_interval_s
         )
 
@@ -289,6 +297,7 @@ class OdometryIngest:
                 pose.copy(),
             )
         state.keyframe = (stamp_ns, pose.copy())
+        state.checked_ns = None
         return increment
 
     def _reset(self, stamp_ns: int, pose: FloatArray, jump_m: float) -> list[Increment]:
