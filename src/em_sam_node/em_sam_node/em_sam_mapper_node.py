@@ -28,9 +28,11 @@ Parameters:
   gate_probability (0.0001), max_gated_fraction (0.1)  'robust': outlier gate per sighting.
   seed_kernel ('cauchy'), seed_kernel_scale (2.3849)  'robust': kernel of the first E-step
                                   ('cauchy' or 'huber'), its scale in sigmas.
-  seed_chunk_s (20.0), seed_split_distance_m (0.5)  'robust': time prefixes of the first
+  seed_chunk_s (20.0), seed_split_distance_m (1.0)  'robust': time prefixes of the first
                                   E-step, and how far new sightings may lie from a mapped
                                   landmark before they count as a new (moved) one.
+  estimate_noise_scale (true)     'robust': inflate the sighting covariances by the
+                                  a-posteriori variance factor when the data are noisier.
   solver_method ('levenberg_marquardt')  or 'gauss_newton'.
   optimize_period_s (2.0)         re-solve period when new data came; 0 = only on request.
   stamp_tolerance_s (0.005)       how close an observation's stamp must be to a keyframe's.
@@ -100,7 +102,10 @@ PARAMETERS = (
     ParamSpec('seed_kernel', 'cauchy', "robust: first E-step kernel, 'cauchy' or 'huber'"),
     ParamSpec('seed_kernel_scale', 2.3849, 'robust: first E-step kernel scale, sigmas (> 0)'),
     ParamSpec('seed_chunk_s', 20.0, 'robust: first E-step time prefix length, s (> 0)'),
-    ParamSpec('seed_split_distance_m', 0.5, 'robust: distance that splits a moved landmark, m'),
+    ParamSpec('seed_split_distance_m', 1.0, 'robust: distance that splits a moved landmark, m'),
+    ParamSpec(
+        'estimate_noise_scale', True, 'robust: inflate sighting covariances by the variance factor'
+    ),
     ParamSpec('solver_method', 'levenberg_marquardt', "'levenberg_marquardt' or 'gauss_newton'"),
     ParamSpec('optimize_period_s', 2.0, 're-solve period when new data came, s; 0 = on request'),
     ParamSpec('stamp_tolerance_s', 0.005, 'observation-to-keyframe stamp tolerance, s'),
@@ -135,6 +140,7 @@ def config_from_parameters(values: dict[str, Any]) -> MapperConfig:
             seed_kernel_scale=float(values['seed_kernel_scale']),
             seed_chunk_s=float(values['seed_chunk_s']),
             seed_split_distance_m=float(values['seed_split_distance_m']),
+            estimate_noise_scale=bool(values['estimate_noise_scale']),
             solver_method=str(values['solver_method']),
         )
         return MapperConfig(

@@ -30,6 +30,7 @@ landmarks are kept at a tiny scale (ROW_SCALE_FLOOR) so their positions stay def
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -78,11 +79,12 @@ class EmConfig:
     seed_kernel: str = 'cauchy'
     seed_kernel_scale: float = 2.3849
     seed_chunk_s: float = 20.0
-    seed_split_distance_m: float = 0.5
+    seed_split_distance_m: float = 1.0
     seed_window_s: float = 60.0
     solver_method: str = 'levenberg_marquardt'
     max_solver_iterations: int = 50
     solver_tolerance: float = 1e-6
+    estimate_noise_scale: bool = True
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str, object, str]] = [
@@ -202,6 +204,22 @@ class EmResult:
     converged: bool
     num_pieces: int
     timings_s: dict[str, float] = field(default_factory=dict)
+    noise_scale: float = 1.0
+
+
+def observation_noise_scale(mahalanobis: FloatArray) -> float:
+    """Return the a-posteriori variance factor of the sightings, at least 1.
+
+    A sensor model tighter than the data (heavy tails, a range bias, a calibration off)
+    raises every landmark's residual sum and, through the per-landmark test, flags static
+    landmarks. The factor is the median squared Mahalanobis distance over its expected
+    value for 2 degrees of freedom (chi2 median 1.386): robust to moved landmarks and
+    outliers while they are under half the sightings. Only ever inflates: a model looser
+    than the data only makes the test less sensitive.
+    """
+    if mahalanobis.size == 0:
+        return 1.0
+    return max(1.0, float(np.median(mahalanobis)) / float(chi2.median(2)))
 
 
 def m_step(
@@ -318,6 +336,13 @@ def run_em(
         all_static if config.mode == 'paper' else _robust_seed(config, data, built, estimate)
     )
     timings['first_e_step'] = time.perf_counter() - started
+    noise_scale = 1.0
+    if config.mode == 'robust' and config.estimate_noise_scale:
+        noise_scale = observation_noise_scale(observation_mahalanobis(problem, estimate))
+        if noise_scale > 1.0:
+            data = dataclasses.replace(data, obs_cov=data.obs_cov * noise_scale)
+            built = build_problem(data)
+            problem, num_pieces = _anchored(built, poses0)
 
     num_landmarks = problem.num_landmarks
     weights = np.ones(num_landmarks)
@@ -371,6 +396,7 @@ def run_em(
         converged=converged,
         num_pieces=max(num_pieces, final.num_pieces),
         timings_s=timings,
+        noise_scale=noise_scale,
     )
 
 

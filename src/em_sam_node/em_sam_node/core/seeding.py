@@ -224,6 +224,7 @@ def incremental_seed(
     relocalize_inlier_m: float = 0.25,
     relocalize_max_shift_m: float = 2.0,
     relocalize_max_angle: float = 0.3,
+    refine: bool = True,
 ) -> tuple[FloatArray, dict[int, FloatArray]]:
     """Return poses (N,3) and landmark positions by (real) id from windowed robust solves.
 
@@ -289,5 +290,29 @@ def incremental_seed(
         for index, landmark_id in enumerate(ids):
             if not fixed[index]:
                 landmarks[landmark_id] = estimate.landmarks[index]
+    if refine:
+        solved_poses, landmarks = _refine(
+            dataclasses.replace(data, obs_landmark_id=virtual_ids), solver, solved_poses, landmarks
+        )
     real = {lid: pos for lid, pos in landmarks.items() if origin[lid] == lid}
     return solved_poses, real
+
+
+def _refine(
+    data: MappingData, solver: Solver, poses: FloatArray, landmarks: dict[int, FloatArray]
+) -> tuple[FloatArray, dict[int, FloatArray]]:
+    """One robust solve of the whole run (split ids) from the windowed solution.
+
+    The windows hold landmarks mapped before them fixed, so a map made from a short early
+    baseline stays as first mapped; solving everything at once lets later sightings improve
+    it (and the poses with it).
+    """
+    built = build_problem(data)
+    ids = built.landmark_ids.tolist()
+    initial = np.array([landmarks[lid] for lid in ids]) if ids else np.zeros((0, 2))
+    anchored = anchor_pieces(built.problem, poses)
+    problem = with_weak_priors(
+        built.problem, anchored.extra_prior_poses, anchored.extra_prior_means
+    )
+    estimate = solver(problem, Estimate(poses, initial))
+    return estimate.poses, {lid: estimate.landmarks[i] for i, lid in enumerate(ids)}
