@@ -187,6 +187,44 @@ def test_larger_random_walk_matches_between_gauss_newton_and_lm() -> None:
     assert gn.extra['accepted_steps'] >= 1
 
 
+LM_VARIANTS = [
+    {'damping': 'levenberg', 'damping_update': 'factor_10', 'retraction': 'expmap'},
+    {'damping': 'marquardt', 'damping_update': 'factor_10', 'retraction': 'additive'},
+    {'damping': 'levenberg', 'damping_update': 'nielsen', 'retraction': 'expmap'},
+]
+
+
+@pytest.mark.parametrize('variant', LM_VARIANTS, ids=lambda v: '-'.join(v.values()))
+def test_lm_variants_reach_the_same_optimum(variant: dict[str, str]) -> None:
+    problem, start = random_walk(60, seed=5)
+    reference = solve(problem, start, method='gauss_newton')
+    result = solve(
+        problem,
+        start,
+        method='levenberg_marquardt',
+        initial_damping=1e-5,
+        max_step_halvings=0,
+        max_iterations=200,
+        **variant,
+    )
+    assert result.converged
+    assert result.final_cost == pytest.approx(reference.final_cost, rel=1e-8)
+    assert np.all(np.diff(result.cost_history) <= 0)
+
+
+def test_expmap_retraction_moves_a_pose_along_the_se2_exponential() -> None:
+    # A unit step forward with a quarter turn, from a pose heading +y: the SE(2) exponential
+    # of (1, 0, pi/2) in the body frame ends at (2/pi, 2/pi) body = (-2/pi, 2/pi) map.
+    estimate = Estimate(np.array([[1.0, 2.0, PI / 2]]), np.zeros((0, 2)))
+    step = np.array([0.0, 1.0, PI / 2])  # map-frame translation (body forward) and turn
+    moved = solver._retract(estimate, step, 1, True)
+    np.testing.assert_allclose(moved.poses[0], [1 - 2 / PI, 2 + 2 / PI, PI], atol=1e-12)
+    additive = solver._retract(estimate, step, 1, False)
+    np.testing.assert_allclose(additive.poses[0], [1.0, 3.0, PI], atol=1e-12)
+    tiny = solver._retract(estimate, 1e-8 * step, 1, True)  # agrees to first order
+    np.testing.assert_allclose(tiny.poses[0], estimate.poses[0] + 1e-8 * step, atol=1e-15)
+
+
 def test_a_landmark_started_behind_the_robot_needs_the_line_search() -> None:
     # The bearing is off by ~pi: the full Gauss-Newton step overshoots and raises the cost.
     pose = np.zeros((1, 3))
@@ -467,6 +505,12 @@ def test_bad_arguments_are_rejected_with_reasons() -> None:
     start = Estimate(SQUARE_POSES, SQUARE_LANDMARKS)
     with pytest.raises(ValueError, match='method must be'):
         solve(problem, start, method='newton')
+    with pytest.raises(ValueError, match="damping must be 'marquardt' or 'levenberg'"):
+        solve(problem, start, method='levenberg_marquardt', damping='trust')
+    with pytest.raises(ValueError, match='damping_update must be'):
+        solve(problem, start, method='levenberg_marquardt', damping_update='x2')
+    with pytest.raises(ValueError, match='retraction must be'):
+        solve(problem, start, retraction='cayley')
     with pytest.raises(ValueError, match=r'obs_row_scale must have shape \(32,\)'):
         solve(problem, start, obs_row_scale=np.ones(3))
     with pytest.raises(ValueError, match='finite and >= 0'):

@@ -598,6 +598,9 @@ class _Settings:
     initial_damping: float
     max_damping: float
     max_step_halvings: int
+    identity_damping: bool = False
+    factor_10: bool = False
+    expmap: bool = False
 
 
 @dataclass(frozen=True)
@@ -622,6 +625,9 @@ def solve(
     initial_damping: float = 1e-10,
     max_damping: float = 1e12,
     max_step_halvings: int = 8,
+    damping: str = 'marquardt',
+    damping_update: str = 'nielsen',
+    retraction: str = 'additive',
 ) -> SolveResult:
     """Return the estimate minimizing the (row-scaled, robust) cost, relinearized from initial.
 
@@ -633,7 +639,29 @@ def solve(
     ``initial_damping`` is LM's lambda relative to diag(J^T J). ``extra`` reports accepted
     and rejected steps, step halvings, held (uninformed) variables, the final damping and
     the time spent linearizing, factorizing and in total (s).
+
+    Levenberg-Marquardt variants (GTSAM's defaults are levenberg, factor_10, expmap):
+
+    - ``damping``: ``'marquardt'`` adds lambda diag(J^T J) (scale-invariant); ``'levenberg'``
+      adds lambda I (lambda absolute, in the units of the cost per unit step squared).
+    - ``damping_update``: ``'nielsen'`` lowers lambda by max(1/3, 1 - (2 rho - 1)^3) after
+      an accepted step of gain ratio rho and raises it by a doubling factor after a
+      rejected one; ``'factor_10'`` divides by 10 after an accepted step and multiplies
+      by 10 after a rejected one.
+    - ``retraction``: ``'additive'`` adds the step to (x, y, theta); ``'expmap'`` moves each
+      pose along the SE(2) exponential of its step expressed in the pose's frame (the
+      translation follows an arc when the heading changes). Both agree to first order, so
+      the linearization is valid for both; on large steps from a poor start (a long
+      trajectory composed from odometry) the arc keeps the chain's shape.
     """
+    if damping not in ('marquardt', 'levenberg'):
+        raise ValueError(f"damping must be 'marquardt' or 'levenberg', got {damping!r}")
+    if damping_update not in ('nielsen', 'factor_10'):
+        raise ValueError(
+            f"damping_update must be 'nielsen' or 'factor_10', got {damping_update!r}"
+        )
+    if retraction not in ('additive', 'expmap'):
+        raise ValueError(f"retraction must be 'additive' or 'expmap', got {retraction!r}")
     if method not in ('gauss_newton', 'levenberg_marquardt'):
         raise ValueError(f"method must be 'gauss_newton' or 'levenberg_marquardt', got {method!r}")
     if max_iterations < 0 or max_step_halvings < 0:
@@ -649,6 +677,9 @@ def solve(
         initial_damping=initial_damping,
         max_damping=max_damping,
         max_step_halvings=max_step_halvings,
+        identity_damping=damping == 'levenberg',
+        factor_10=damping_update == 'factor_10',
+        expmap=retraction == 'expmap',
     )
     layout = system_layout(problem)
     base_scale = _row_scale(problem, obs_row_scale)
@@ -757,7 +788,10 @@ class _Optimizer:
     def accept(self, trial: _Trial) -> None:
         """Move to the trial point; LM lowers its damping by Nielsen's rule."""
         if not self.settings.gauss_newton:
-            self.damping *= max(1.0 / 3.0, 1.0 - (2.0 * trial.gain - 1.0) ** 3)
+            if self.settings.factor_10:
+                self.damping /= 10.0
+            else:
+                self.damping *= max(1.0 / 3.0, 1.0 - (2.0 * trial.gain - 1.0) ** 3)
             self.damping = max(self.damping, _MIN_DAMPING)
             self.nu = 2.0
         self.estimate = trial.estimate
@@ -767,8 +801,11 @@ class _Optimizer:
     def reject(self) -> tuple[str, bool] | None:
         """Count a rejected LM step and raise the damping (Nielsen: times nu, nu doubles)."""
         self.rejected += 1
-        self.damping *= self.nu
-        self.nu *= 2.0
+        if self.settings.factor_10:
+            self.damping *= 10.0
+        else:
+            self.damping *= self.nu
+            self.nu *= 2.0
         if self.damping > self.settings.max_damping:
             return ('damping_limit', False)
         return None
@@ -797,9 +834,12 @@ class _Optimizer:
         if self.damping > 0.0:
             data = data.copy()
             slots = self.layout.diagonal_slots
-            damping_diagonal = self.damping * np.clip(
-                data[slots], _MIN_DAMPING_DIAGONAL, _MAX_DAMPING_DIAGONAL
-            )
+            if self.settings.identity_damping:
+                damping_diagonal = np.full(slots.shape, self.damping)
+            else:
+                damping_diagonal = self.damping * np.clip(
+                    data[slots], _MIN_DAMPING_DIAGONAL, _MAX_DAMPING_DIAGONAL
+                )
             data[slots] += damping_diagonal
         try:
             step = -_factorize(self.layout, data, check_rank=check_rank).solve(gradient)
@@ -819,7 +859,9 @@ class _Optimizer:
         cost = self.history[-1]
         fraction = 1.0
         for halving in range(self.settings.max_step_halvings + 1):
-            estimate = _retract(self.estimate, fraction * step, self.problem.num_poses)
+            estimate = _retract(
+                self.estimate, fraction * step, self.problem.num_poses, self.settings.expmap
+            )
             trial_cost = self.cost(estimate)
             if trial_cost < cost:
                 self.halvings += halving
@@ -831,11 +873,33 @@ class _Optimizer:
         return None
 
 
-def _retract(estimate: Estimate, step: FloatArray, num_poses: int) -> Estimate:
-    poses = estimate.poses + step[: 3 * num_poses].reshape(-1, 3)
+def _retract(estimate: Estimate, step: FloatArray, num_poses: int, expmap: bool) -> Estimate:
+    delta = step[: 3 * num_poses].reshape(-1, 3)
+    if expmap:
+        poses = estimate.poses.copy()
+        poses[:, :2] += _arc(estimate.poses[:, 2], delta)
+        poses[:, 2] += delta[:, 2]
+    else:
+        poses = estimate.poses + delta
     poses[:, 2] = wrap_angle(poses[:, 2])
     landmarks = estimate.landmarks + step[3 * num_poses :].reshape(-1, 2)
     return Estimate(poses, landmarks)
+
+
+def _arc(headings: FloatArray, delta: FloatArray) -> FloatArray:
+    """Return R(theta) V(dtheta) R(theta)^T (dx, dy) per pose (N,2): the SE(2) exponential's
+    translation for a step (N,3) in map coordinates, V = [[A, -B], [B, A]], A = sin w / w,
+    B = (1 - cos w) / w (series below 1e-6 rad)."""
+    w = delta[:, 2]
+    small = np.abs(w) < 1e-6
+    safe = np.where(small, 1.0, w)
+    a = np.where(small, 1.0 - w * w / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 * w, (1.0 - np.cos(safe)) / safe)
+    cos, sin = np.cos(headings), np.sin(headings)
+    body_x = cos * delta[:, 0] + sin * delta[:, 1]
+    body_y = -sin * delta[:, 0] + cos * delta[:, 1]
+    arc_x, arc_y = a * body_x - b * body_y, b * body_x + a * body_y
+    return np.column_stack([cos * arc_x - sin * arc_y, sin * arc_x + cos * arc_y])
 
 
 def _norm(estimate: Estimate) -> float:
