@@ -212,6 +212,30 @@ def test_lm_variants_reach_the_same_optimum(variant: dict[str, str]) -> None:
     assert np.all(np.diff(result.cost_history) <= 0)
 
 
+def test_the_hybrid_switches_to_gauss_newton_and_reaches_the_same_optimum() -> None:
+    problem, start = random_walk(60, seed=5)
+    far = Estimate(start.poses * 1.3, start.landmarks + 1.0)  # a poor start: LM first
+    reference = solve(problem, start, method='gauss_newton')
+    options = {
+        'method': 'levenberg_marquardt',
+        'damping': 'levenberg',
+        'damping_update': 'factor_10',
+        'retraction': 'expmap',
+        'initial_damping': 1e-5,
+        'max_step_halvings': 0,
+        'max_iterations': 300,
+    }
+    hybrid = solve(problem, far, gauss_newton_below=0.05, **options)
+    plain = solve(problem, far, **options)
+    assert hybrid.converged and plain.converged
+    assert hybrid.final_cost == pytest.approx(reference.final_cost, rel=1e-8)
+    assert hybrid.extra['gauss_newton_from_step'] > 0
+    assert plain.extra['gauss_newton_from_step'] == -1
+    assert np.all(np.diff(hybrid.cost_history) <= 0)
+    with pytest.raises(ValueError, match='gauss_newton_below must be in'):
+        solve(problem, far, gauss_newton_below=1.5, **options)
+
+
 def test_expmap_retraction_moves_a_pose_along_the_se2_exponential() -> None:
     # A unit step forward with a quarter turn, from a pose heading +y: the SE(2) exponential
     # of (1, 0, pi/2) in the body frame ends at (2/pi, 2/pi) body = (-2/pi, 2/pi) map.

@@ -79,6 +79,7 @@ from em_sam_node.core.se2 import wrap_angle
 
 Method = Literal['gauss_newton', 'levenberg_marquardt']
 
+_HYBRID_HALVINGS = 8  # step halvings of the hybrid's Gauss-Newton phase
 _MIN_DAMPING = 1e-12  # LM lambda floor, relative to diag(J^T J)
 _MIN_DAMPING_DIAGONAL = 1e-6
 _MAX_DAMPING_DIAGONAL = 1e32
@@ -601,6 +602,7 @@ class _Settings:
     identity_damping: bool = False
     factor_10: bool = False
     expmap: bool = False
+    gauss_newton_below: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -628,6 +630,7 @@ def solve(
     damping: str = 'marquardt',
     damping_update: str = 'nielsen',
     retraction: str = 'additive',
+    gauss_newton_below: float = 0.0,
 ) -> SolveResult:
     """Return the estimate minimizing the (row-scaled, robust) cost, relinearized from initial.
 
@@ -653,7 +656,13 @@ def solve(
       translation follows an arc when the heading changes). Both agree to first order, so
       the linearization is valid for both; on large steps from a poor start (a long
       trajectory composed from odometry) the arc keeps the chain's shape.
+    - ``gauss_newton_below`` (> 0: a hybrid): once an accepted LM step lowers the cost by
+      less than this fraction of it, the basin is found and the model fits; the solve goes
+      on as Gauss-Newton with up to 8 step halvings (no damping, no rejected factorizations)
+      and falls back to LM at the damping it had if a Gauss-Newton step fails.
     """
+    if not (math.isfinite(gauss_newton_below) and 0.0 <= gauss_newton_below < 1.0):
+        raise ValueError(f'gauss_newton_below must be in [0, 1), got {gauss_newton_below!r}')
     if damping not in ('marquardt', 'levenberg'):
         raise ValueError(f"damping must be 'marquardt' or 'levenberg', got {damping!r}")
     if damping_update not in ('nielsen', 'factor_10'):
@@ -680,6 +689,7 @@ def solve(
         identity_damping=damping == 'levenberg',
         factor_10=damping_update == 'factor_10',
         expmap=retraction == 'expmap',
+        gauss_newton_below=gauss_newton_below,
     )
     layout = system_layout(problem)
     base_scale = _row_scale(problem, obs_row_scale)
@@ -704,6 +714,9 @@ class _Optimizer:
         self.settings = settings
         self.damping = 0.0 if settings.gauss_newton else settings.initial_damping
         self.nu = 2.0
+        self.hybrid_damping: float | None = None  # LM's damping while in the GN phase
+        self.hybrid_left = False  # the GN phase ended; the hybrid does not switch twice
+        self.hybrid_switch = -1  # accepted steps before the GN phase began (-1: never)
         self.iterations = self.rejected = self.halvings = 0
         self.linearize_time_s = self.factorize_time_s = 0.0
         self.history: list[float] = []
@@ -740,6 +753,7 @@ class _Optimizer:
                 'step_halvings': float(self.halvings),
                 'held_variables': float(held.size),
                 'final_damping': float(self.damping),
+                'gauss_newton_from_step': float(self.hybrid_switch),
                 'linearize_time_s': self.linearize_time_s,
                 'factorize_time_s': self.factorize_time_s,
                 'total_time_s': time.perf_counter() - started,
@@ -762,8 +776,12 @@ class _Optimizer:
         except SingularSystemError:
             if settings.gauss_newton:
                 raise
+            if self.hybrid_damping is not None:
+                return self.leave_gauss_newton()
             return self.reject()  # LM: an exactly singular damped system needs more damping
         trial = self.backtrack(step, gradient, curvature)
+        if trial is None and self.hybrid_damping is not None:
+            return self.leave_gauss_newton()
         step_norm = math.sqrt(float(step @ step))
         negligible = settings.step_tolerance * (_norm(self.estimate) + settings.step_tolerance)
         if trial is None:
@@ -781,13 +799,21 @@ class _Optimizer:
         self.accept(trial)
         if previous - trial.cost <= settings.relative_cost_tolerance * previous:
             return ('cost_tolerance', True)
+        if (
+            self.hybrid_damping is None
+            and not self.hybrid_left
+            and not settings.gauss_newton
+            and previous - trial.cost < settings.gauss_newton_below * previous
+        ):
+            self.hybrid_damping, self.damping = self.damping, 0.0
+            self.hybrid_switch = len(self.history) - 1
         if trial.fraction * step_norm <= negligible:
             return ('step_tolerance', True)
         return None
 
     def accept(self, trial: _Trial) -> None:
-        """Move to the trial point; LM lowers its damping by Nielsen's rule."""
-        if not self.settings.gauss_newton:
+        """Move to the trial point; LM lowers its damping (Nielsen's rule or by 10)."""
+        if not self.settings.gauss_newton and self.hybrid_damping is None:
             if self.settings.factor_10:
                 self.damping /= 10.0
             else:
@@ -797,6 +823,14 @@ class _Optimizer:
         self.estimate = trial.estimate
         self.history.append(trial.cost)
         self.linearization = None
+
+    def leave_gauss_newton(self) -> tuple[str, bool] | None:
+        """A Gauss-Newton step of the hybrid failed: count it, go back to LM's damping."""
+        assert self.hybrid_damping is not None
+        self.rejected += 1
+        self.damping, self.hybrid_damping = self.hybrid_damping, None
+        self.hybrid_left = True
+        return None
 
     def reject(self) -> tuple[str, bool] | None:
         """Count a rejected LM step and raise the damping (Nielsen: times nu, nu doubles)."""
@@ -858,7 +892,9 @@ class _Optimizer:
         slope = float(gradient @ step)
         cost = self.history[-1]
         fraction = 1.0
-        for halving in range(self.settings.max_step_halvings + 1):
+        halvings = _HYBRID_HALVINGS if self.hybrid_damping is not None else None
+        max_halvings = self.settings.max_step_halvings if halvings is None else halvings
+        for halving in range(max_halvings + 1):
             estimate = _retract(
                 self.estimate, fraction * step, self.problem.num_poses, self.settings.expmap
             )
@@ -869,7 +905,7 @@ class _Optimizer:
                 gain = (cost - trial_cost) / predicted if predicted > 0.0 else 0.0
                 return _Trial(estimate, trial_cost, fraction, gain)
             fraction *= 0.5
-        self.halvings += self.settings.max_step_halvings
+        self.halvings += max_halvings
         return None
 
 
