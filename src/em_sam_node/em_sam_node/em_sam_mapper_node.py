@@ -33,6 +33,9 @@ Parameters:
                                   landmark before they count as a new (moved) one.
   estimate_noise_scale (true)     'robust': inflate the sighting covariances by the
                                   a-posteriori variance factor when the data are noisier.
+  max_noise_scale (10.0)          'robust': cap of that factor (>= 1).
+  model_error_m (0.15)            'robust': position error the moveable test tolerates
+                                  (sensor biases no noise model carries), m (>= 0).
   solver_method ('levenberg_marquardt')  or 'gauss_newton'.
   optimize_period_s (2.0)         re-solve period when new data came; 0 = only on request.
   stamp_tolerance_s (0.005)       how close an observation's stamp must be to a keyframe's.
@@ -106,6 +109,8 @@ PARAMETERS = (
     ParamSpec(
         'estimate_noise_scale', True, 'robust: inflate sighting covariances by the variance factor'
     ),
+    ParamSpec('max_noise_scale', 10.0, 'robust: cap of the sighting variance factor (>= 1)'),
+    ParamSpec('model_error_m', 0.15, 'robust: position error the moveable test tolerates, m'),
     ParamSpec('solver_method', 'levenberg_marquardt', "'levenberg_marquardt' or 'gauss_newton'"),
     ParamSpec('optimize_period_s', 2.0, 're-solve period when new data came, s; 0 = on request'),
     ParamSpec('stamp_tolerance_s', 0.005, 'observation-to-keyframe stamp tolerance, s'),
@@ -141,6 +146,8 @@ def config_from_parameters(values: dict[str, Any]) -> MapperConfig:
             seed_chunk_s=float(values['seed_chunk_s']),
             seed_split_distance_m=float(values['seed_split_distance_m']),
             estimate_noise_scale=bool(values['estimate_noise_scale']),
+            max_noise_scale=float(values['max_noise_scale']),
+            model_error_m=float(values['model_error_m']),
             solver_method=str(values['solver_method']),
         )
         return MapperConfig(

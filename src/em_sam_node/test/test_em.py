@@ -285,8 +285,34 @@ def test_empty_data_gives_an_odometry_only_result() -> None:
         ('false_alarm_probability', 0.0),
         ('max_gated_fraction', 1.0),
         ('seed_kernel', 'tukey'),
+        ('max_noise_scale', 0.5),
+        ('model_error_m', -0.1),
+        ('model_error_m', math.nan),
     ],
 )
 def test_em_config_rejects_bad_settings_naming_them(setting: str, value: object) -> None:
     with pytest.raises(ValueError, match=f'EM-SAM setting {setting}='):
         EmConfig(**{setting: value})  # type: ignore[arg-type]
+
+
+def test_the_noise_scale_is_the_median_over_its_chi_square_expectation_and_never_below_1() -> None:
+    from em_sam_node.core.em import observation_noise_scale
+
+    rng = np.random.default_rng(3)
+    wide = rng.chisquare(2, 20000) * 4.0  # sightings twice as noisy as modelled
+    assert observation_noise_scale(wide) == pytest.approx(4.0, rel=0.05)
+    assert observation_noise_scale(rng.chisquare(2, 20000) * 0.25) == 1.0
+    assert observation_noise_scale(np.zeros(0)) == 1.0
+
+
+def test_model_error_widens_the_test_covariance_by_a_position_error() -> None:
+    from em_sam_node.core.em import _test_covariances
+
+    cov = np.repeat(np.diag([0.01, 0.0001])[None], 2, axis=0)
+    z = np.array([[2.0, 0.1], [4.0, -0.3]])
+    widened = _test_covariances(EmConfig(mode='robust', model_error_m=0.2), cov, z)
+    assert widened is not None
+    np.testing.assert_allclose(widened[:, 0, 0], 0.01 + 0.04)
+    np.testing.assert_allclose(widened[:, 1, 1], 0.0001 + (0.2 / z[:, 0]) ** 2)
+    assert _test_covariances(EmConfig(mode='paper'), cov, z) is None
+    assert _test_covariances(EmConfig(mode='robust', model_error_m=0.0), cov, z) is None

@@ -45,7 +45,7 @@ from em_sam_node.core.assembly import (
     dead_reckoning,
     initial_estimate,
 )
-from em_sam_node.core.factors import observation_mahalanobis
+from em_sam_node.core.factors import observation_innovations, observation_mahalanobis
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
 from em_sam_node.core.se2 import range_bearing_to_point, wrap_angle
 from em_sam_node.core.seeding import incremental_seed
@@ -85,6 +85,8 @@ class EmConfig:
     max_solver_iterations: int = 50
     solver_tolerance: float = 1e-6
     estimate_noise_scale: bool = True
+    max_noise_scale: float = 10.0
+    model_error_m: float = 0.15
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str, object, str]] = [
@@ -102,6 +104,18 @@ class EmConfig:
                 'must be in (0, 1)',
             ),
             (self.max_iterations >= 1, 'max_iterations', self.max_iterations, 'must be >= 1'),
+            (
+                np.isfinite(self.max_noise_scale) and self.max_noise_scale >= 1,
+                'max_noise_scale',
+                self.max_noise_scale,
+                'must be a finite number >= 1',
+            ),
+            (
+                np.isfinite(self.model_error_m) and self.model_error_m >= 0,
+                'model_error_m',
+                self.model_error_m,
+                'must be a finite number >= 0',
+            ),
             (self.weight_tolerance > 0, 'weight_tolerance', self.weight_tolerance, 'must be > 0'),
             (
                 0 < self.false_alarm_probability < 1,
@@ -207,6 +221,32 @@ class EmResult:
     noise_scale: float = 1.0
 
 
+def _test_covariances(
+    config: EmConfig, obs_cov: FloatArray, obs_z: FloatArray
+) -> FloatArray | None:
+    """Sighting covariances (K,2,2) for the robust mode's test, or None to use the model's.
+
+    Real sensors have per-landmark biases (MRCLAM: 0.1-0.2 m in range for some barcodes,
+    2 sigma of the noise) that no noise model carries; the test would call such a static
+    landmark moveable. ``model_error_m`` adds an isotropic position error of that size
+    (range variance + m^2, bearing variance + (m / range)^2) to the test only: moves much
+    smaller than it go undetected, moves of metres do not.
+    """
+    if config.mode != 'robust' or config.model_error_m == 0 or len(obs_cov) == 0:
+        return None
+    extra = np.zeros_like(obs_cov)
+    extra[:, 0, 0] = config.model_error_m**2
+    extra[:, 1, 1] = (config.model_error_m / np.maximum(obs_z[:, 0], 1e-3)) ** 2
+    result: FloatArray = obs_cov + extra
+    return result
+
+
+def _mahalanobis(innovations: FloatArray, covariances: FloatArray) -> FloatArray:
+    solved = np.linalg.solve(covariances, innovations[..., None])[..., 0]
+    result: FloatArray = np.einsum('ki,ki->k', innovations, solved)
+    return result
+
+
 def observation_noise_scale(mahalanobis: FloatArray) -> float:
     """Return the a-posteriori variance factor of the sightings, at least 1.
 
@@ -215,7 +255,9 @@ def observation_noise_scale(mahalanobis: FloatArray) -> float:
     landmarks. The factor is the median squared Mahalanobis distance over its expected
     value for 2 degrees of freedom (chi2 median 1.386): robust to moved landmarks and
     outliers while they are under half the sightings. Only ever inflates: a model looser
-    than the data only makes the test less sensitive.
+    than the data only makes the test less sensitive. The caller caps it
+    (``max_noise_scale``): when most sightings are of moved landmarks (the all-moveable
+    case) the median measures the moves, not the noise.
     """
     if mahalanobis.size == 0:
         return 1.0
@@ -338,7 +380,10 @@ def run_em(
     timings['first_e_step'] = time.perf_counter() - started
     noise_scale = 1.0
     if config.mode == 'robust' and config.estimate_noise_scale:
-        noise_scale = observation_noise_scale(observation_mahalanobis(problem, estimate))
+        noise_scale = min(
+            observation_noise_scale(observation_mahalanobis(problem, estimate)),
+            config.max_noise_scale,
+        )
         if noise_scale > 1.0:
             data = dataclasses.replace(data, obs_cov=data.obs_cov * noise_scale)
             built = build_problem(data)
@@ -350,8 +395,12 @@ def run_em(
     gated = np.zeros(problem.num_observations, dtype=bool)
     converged = False
     iterations = 0
+    test_cov = _test_covariances(config, data.obs_cov[built.observation_rows], problem.obs_z)
     for iteration in range(config.max_iterations):
-        mahalanobis = observation_mahalanobis(problem, estimate)
+        if test_cov is None:
+            mahalanobis = observation_mahalanobis(problem, estimate)
+        else:
+            mahalanobis = _mahalanobis(observation_innovations(problem, estimate), test_cov)
         if config.mode == 'robust':
             gated = gate_outliers(config, mahalanobis, problem.obs_landmark, num_landmarks)
         new_weights = m_step(config, mahalanobis, problem.obs_landmark, num_landmarks, ~gated)

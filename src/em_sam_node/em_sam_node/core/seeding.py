@@ -41,6 +41,7 @@ from em_sam_node.core.se2 import apply_increment, range_bearing_to_point
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
 
 Solver = Callable[[SlamProblem, Estimate], Estimate]
+MAX_MERGE_ROUNDS = 3
 
 
 def prefix(data: MappingData, count: int) -> MappingData:
@@ -291,11 +292,54 @@ def incremental_seed(
             if not fixed[index]:
                 landmarks[landmark_id] = estimate.landmarks[index]
     if refine:
-        solved_poses, landmarks = _refine(
-            dataclasses.replace(data, obs_landmark_id=virtual_ids), solver, solved_poses, landmarks
-        )
+        for _ in range(MAX_MERGE_ROUNDS):
+            solved_poses, landmarks = _refine(
+                dataclasses.replace(data, obs_landmark_id=virtual_ids),
+                solver,
+                solved_poses,
+                landmarks,
+            )
+            if not _merge_agreeing(virtual_ids, origin, landmarks, split_distance_m):
+                break
     real = {lid: pos for lid, pos in landmarks.items() if origin[lid] == lid}
     return solved_poses, real
+
+
+def _merge_agreeing(
+    virtual_ids: np.ndarray,
+    origin: dict[int, int],
+    landmarks: dict[int, FloatArray],
+    split_distance_m: float,
+) -> bool:
+    """Merge split clusters of one landmark that the refined solve put back together.
+
+    Drift can split a static landmark as if it moved; once solved as a whole, its clusters
+    land within ``split_distance_m`` of each other, and merging them restores the loop
+    closure they stand for. Changes ``virtual_ids`` and ``landmarks`` in place; returns
+    whether anything merged.
+    """
+    merged = False
+    clusters: dict[int, list[int]] = {}
+    for lid in sorted(landmarks, key=lambda v: (origin[v] != v, -v)):  # real id first
+        clusters.setdefault(origin[lid], []).append(lid)
+    for members in clusters.values():
+        kept: list[int] = []
+        for lid in members:
+            target = next(
+                (
+                    k
+                    for k in kept
+                    if np.linalg.norm(landmarks[k] - landmarks[lid]) < split_distance_m
+                ),
+                None,
+            )
+            if target is None:
+                kept.append(lid)
+                continue
+            virtual_ids[virtual_ids == lid] = target
+            del landmarks[lid]
+            merged = True
+    return merged
 
 
 def _refine(
