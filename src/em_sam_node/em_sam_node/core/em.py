@@ -87,6 +87,7 @@ class EmConfig:
     estimate_noise_scale: bool = True
     max_noise_scale: float = 10.0
     model_error_m: float = 0.15
+    final_kernel: str = 'cauchy'
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str, object, str]] = [
@@ -104,6 +105,12 @@ class EmConfig:
                 'must be in (0, 1)',
             ),
             (self.max_iterations >= 1, 'max_iterations', self.max_iterations, 'must be >= 1'),
+            (
+                self.final_kernel in ('none', *SEED_KERNELS),
+                'final_kernel',
+                self.final_kernel,
+                "must be 'none', 'cauchy' or 'huber'",
+            ),
             (
                 np.isfinite(self.max_noise_scale) and self.max_noise_scale >= 1,
                 'max_noise_scale',
@@ -479,7 +486,11 @@ def _final_solve(
         start = Estimate(estimate.poses.copy(), estimate.landmarks[keep].copy())
         gated_rows = np.isin(static.observation_rows, built.observation_rows[gated])
         scale = np.where(gated_rows, ROW_SCALE_FLOOR, 1.0)
-        solved = _solve(config, problem, start, obs_row_scale=scale)
+        kernel = None
+        if config.mode == 'robust' and config.final_kernel != 'none':
+            # Heavy tails of real sensors: the kept static sightings get the seed's kernel.
+            kernel = SEED_KERNELS[config.final_kernel](config.seed_kernel_scale)
+        solved = _solve(config, problem, start, obs_row_scale=scale, robust_kernel=kernel)
         poses = solved.poses
         positions[keep] = solved.landmarks
         covariances[keep] = marginal_landmark_covariances(problem, solved, obs_row_scale=scale)
