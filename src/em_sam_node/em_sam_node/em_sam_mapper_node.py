@@ -36,6 +36,8 @@ Parameters:
   max_noise_scale (10.0)          'robust': cap of that factor (>= 1).
   model_error_m (0.15)            'robust': position error the moveable test tolerates
                                   (sensor biases no noise model carries), m (>= 0).
+  final_kernel ('cauchy'), final_kernel_scale (2.3849)  'robust': kernel on the static
+                                  sightings of the final solve ('none' for least squares).
   solver_method ('levenberg_marquardt')  or 'gauss_newton'.
   optimize_period_s (2.0)         re-solve period when new data came; 0 = only on request.
   stamp_tolerance_s (0.005)       how close an observation's stamp must be to a keyframe's.
@@ -111,6 +113,8 @@ PARAMETERS = (
     ),
     ParamSpec('max_noise_scale', 10.0, 'robust: cap of the sighting variance factor (>= 1)'),
     ParamSpec('model_error_m', 0.15, 'robust: position error the moveable test tolerates, m'),
+    ParamSpec('final_kernel', 'cauchy', "robust: final solve kernel, 'cauchy', 'huber' or 'none'"),
+    ParamSpec('final_kernel_scale', 2.3849, 'robust: final solve kernel scale, sigmas (> 0)'),
     ParamSpec('solver_method', 'levenberg_marquardt', "'levenberg_marquardt' or 'gauss_newton'"),
     ParamSpec('optimize_period_s', 2.0, 're-solve period when new data came, s; 0 = on request'),
     ParamSpec('stamp_tolerance_s', 0.005, 'observation-to-keyframe stamp tolerance, s'),
@@ -148,6 +152,8 @@ def config_from_parameters(values: dict[str, Any]) -> MapperConfig:
             estimate_noise_scale=bool(values['estimate_noise_scale']),
             max_noise_scale=float(values['max_noise_scale']),
             model_error_m=float(values['model_error_m']),
+            final_kernel=str(values['final_kernel']),
+            final_kernel_scale=float(values['final_kernel_scale']),
             solver_method=str(values['solver_method']),
         )
         return MapperConfig(

@@ -288,6 +288,8 @@ def test_empty_data_gives_an_odometry_only_result() -> None:
         ('max_noise_scale', 0.5),
         ('model_error_m', -0.1),
         ('model_error_m', math.nan),
+        ('final_kernel', 'tukey'),
+        ('final_kernel_scale', 0.0),
     ],
 )
 def test_em_config_rejects_bad_settings_naming_them(setting: str, value: object) -> None:

@@ -88,6 +88,7 @@ class EmConfig:
     max_noise_scale: float = 10.0
     model_error_m: float = 0.15
     final_kernel: str = 'cauchy'
+    final_kernel_scale: float = 2.3849
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str, object, str]] = [
@@ -105,6 +106,12 @@ class EmConfig:
                 'must be in (0, 1)',
             ),
             (self.max_iterations >= 1, 'max_iterations', self.max_iterations, 'must be >= 1'),
+            (
+                np.isfinite(self.final_kernel_scale) and self.final_kernel_scale > 0,
+                'final_kernel_scale',
+                self.final_kernel_scale,
+                'must be a finite number > 0',
+            ),
             (
                 self.final_kernel in ('none', *SEED_KERNELS),
                 'final_kernel',
@@ -489,7 +496,7 @@ def _final_solve(
         kernel = None
         if config.mode == 'robust' and config.final_kernel != 'none':
             # Heavy tails of real sensors: the kept static sightings get the seed's kernel.
-            kernel = SEED_KERNELS[config.final_kernel](config.seed_kernel_scale)
+            kernel = SEED_KERNELS[config.final_kernel](config.final_kernel_scale)
         solved = _solve(config, problem, start, obs_row_scale=scale, robust_kernel=kernel)
         poses = solved.poses
         positions[keep] = solved.landmarks
