@@ -1,10 +1,9 @@
-"""Shared by the dataset importers: an atomic mcap bag writer and a message factory.
+"""Shared by every bag slam_sim writes: an atomic mcap bag writer and a message factory.
 
 ``write_bag`` writes messages (already in stamp order) into a zstd chunk-compressed mcap
 rosbag2 bag under a hidden staging name next to the output and renames it into place only
-when complete, so that an error or an interrupt leaves nothing at the output path (the same
-scheme as ``office_sim``). ``MessageFactory`` builds rosbags message objects of the planar
-types the EM-SAM nodes read.
+when complete, so that an error or an interrupt leaves nothing at the output path.
+``MessageFactory`` builds rosbags message objects of the planar types the EM-SAM nodes read.
 """
 
 from __future__ import annotations
@@ -23,13 +22,21 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, W
 from slam_bringup.errors import BagError
 from slam_bringup.qos import recorded_from_profile
 from slam_bringup.typesys import TypeRegistry
-from slam_sim.office_bag import WrittenBag
 
 ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
 OBSERVATIONS_TYPE = 'slam_interfaces/msg/LandmarkObservationArray'
 LANDMARK_MAP_TYPE = 'slam_interfaces/msg/LandmarkMap'
 INCREMENT_TYPE = 'slam_interfaces/msg/OdometryIncrement'
 PROGRESS_EVERY = 2000
+
+
+@dataclass(frozen=True)
+class WrittenBag:
+    """A written bag: its path (directory or .mcap), messages per topic and size in bytes."""
+
+    path: Path
+    counts: dict[str, int]
+    size_bytes: int
 
 
 @dataclass(frozen=True)

@@ -59,10 +59,11 @@ from slam_sim.dataset_bag import (
     ODOMETRY_TYPE,
     MessageFactory,
     TopicSpec,
+    WrittenBag,
     check_output,
     write_bag,
 )
-from slam_sim.office_bag import ODOM_POSE_COVARIANCE_DIAGONAL, WrittenBag
+from slam_sim.office_bag import ODOM_POSE_COVARIANCE_DIAGONAL
 
 PROG = 'mrclam_import'
 DATASET_DIR = 'mrclam/MRCLAM_Dataset6'

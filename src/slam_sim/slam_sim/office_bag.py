@@ -23,33 +23,33 @@ metadata, so rosbags, ``bag_info`` and ``ros2 bag`` read it without ``metadata.y
 from __future__ import annotations
 
 import argparse
-import os
-import shutil
 import sys
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
 
 from slam_bringup.cli import console_main
-from slam_bringup.errors import BagError
 from slam_bringup.progress import ProgressReporter
-from slam_bringup.qos import latched_qos, output_qos, recorded_from_profile
+from slam_bringup.qos import latched_qos, output_qos
 from slam_bringup.typesys import TypeRegistry
-from slam_sim.core.detector import Observations
 from slam_sim.core.office import OfficeConfig, OfficeRun, Variant, simulate_office
+from slam_sim.dataset_bag import (
+    LANDMARK_MAP_TYPE,
+    OBSERVATIONS_TYPE,
+    ODOMETRY_TYPE,
+    MessageFactory,
+    TopicSpec,
+    WrittenBag,
+    write_bag,
+)
 
 DEFAULT_START_NS = 1_700_000_000 * 10**9
 ODOM_TOPIC = '/odom'
 OBSERVATIONS_TOPIC = '/landmark_observations'
 TRUE_POSE_TOPIC = '/ground_truth/pose'
 TRUE_LANDMARKS_TOPIC = '/ground_truth/landmarks'
-ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
-OBSERVATIONS_TYPE = 'slam_interfaces/msg/LandmarkObservationArray'
-LANDMARK_MAP_TYPE = 'slam_interfaces/msg/LandmarkMap'
 # (topic, type, latched); at equal stamps messages are written in this order.
 TOPICS = (
     (TRUE_LANDMARKS_TOPIC, LANDMARK_MAP_TYPE, True),
@@ -61,15 +61,6 @@ TOPICS = (
 # usual configuration; wheel odometry does not estimate its own drift.
 ODOM_POSE_COVARIANCE_DIAGONAL = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-2)
 _UNUSED_TWIST_VARIANCE = 1e-3
-
-
-@dataclass(frozen=True)
-class WrittenBag:
-    """A written bag: its path (directory or .mcap), messages per topic and size in bytes."""
-
-    path: Path
-    counts: dict[str, int]
-    size_bytes: int
 
 
 def odom_twist_covariance_diagonal(config: OfficeConfig) -> tuple[float, ...]:
@@ -86,97 +77,6 @@ def odom_twist_covariance_diagonal(config: OfficeConfig) -> tuple[float, ...]:
     ) * config.odom_rate_hz
     unused = _UNUSED_TWIST_VARIANCE
     return (v_var, unused, unused, unused, unused, w_var)
-
-
-class _Builder:
-    """Builds rosbags message objects of the bag's types."""
-
-    def __init__(self, registry: TypeRegistry) -> None:
-        for _, msgtype, _ in TOPICS:
-            registry.ensure(msgtype)
-        self.types: dict[str, Any] = registry.typestore.types
-
-    def _type(self, msgtype: str) -> Any:
-        return self.types[msgtype]
-
-    def header(self, stamp_ns: int, frame_id: str) -> Any:
-        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-        stamp = self._type('builtin_interfaces/msg/Time')(sec=sec, nanosec=nanosec)
-        return self._type('std_msgs/msg/Header')(stamp=stamp, frame_id=frame_id)
-
-    def odometry(
-        self,
-        stamp_ns: int,
-        frame_id: str,
-        pose: np.ndarray,
-        twist: np.ndarray,
-        pose_covariance: np.ndarray,
-        twist_covariance: np.ndarray,
-    ) -> Any:
-        """Return an Odometry of a planar pose (x, y, theta) and twist (v, w) in base_link."""
-        geometry = 'geometry_msgs/msg/'
-        point = self._type(geometry + 'Point')(x=float(pose[0]), y=float(pose[1]), z=0.0)
-        half = 0.5 * float(pose[2])
-        orientation = self._type(geometry + 'Quaternion')(
-            x=0.0, y=0.0, z=float(np.sin(half)), w=float(np.cos(half))
-        )
-        vector = self._type(geometry + 'Vector3')
-        body_twist = self._type(geometry + 'Twist')(
-            linear=vector(x=float(twist[0]), y=0.0, z=0.0),
-            angular=vector(x=0.0, y=0.0, z=float(twist[1])),
-        )
-        return self._type(ODOMETRY_TYPE)(
-            header=self.header(stamp_ns, frame_id),
-            child_frame_id='base_link',
-            pose=self._type(geometry + 'PoseWithCovariance')(
-                pose=self._type(geometry + 'Pose')(position=point, orientation=orientation),
-                covariance=pose_covariance,
-            ),
-            twist=self._type(geometry + 'TwistWithCovariance')(
-                twist=body_twist, covariance=twist_covariance
-            ),
-        )
-
-    def observations(self, stamp_ns: int, frame: Observations) -> Any:
-        """Return the LandmarkObservationArray of one camera frame's observations."""
-        item = self._type('slam_interfaces/msg/LandmarkObservation')
-        return self._type(OBSERVATIONS_TYPE)(
-            header=self.header(stamp_ns, 'base_link'),
-            observations=[
-                item(
-                    landmark_id=int(frame.landmark_ids[k]),
-                    range_m=float(frame.range_m[k]),
-                    bearing_rad=float(frame.bearing_rad[k]),
-                    covariance=frame.covariance[k].reshape(4).astype(np.float64),
-                )
-                for k in range(len(frame))
-            ],
-        )
-
-    def landmark_map(
-        self, stamp_ns: int, run: OfficeRun, after: bool, counts: dict[int, int]
-    ) -> Any:
-        """Return the true LandmarkMap before (``after`` False) or after the move."""
-        truth = run.landmarks
-        positions = truth.positions_after_m if after else truth.positions_before_m
-        point = self._type('geometry_msgs/msg/Point')
-        estimate = self._type('slam_interfaces/msg/LandmarkEstimate')
-        return self._type(LANDMARK_MAP_TYPE)(
-            header=self.header(stamp_ns, 'map'),
-            landmarks=[
-                estimate(
-                    landmark_id=int(landmark_id),
-                    position=point(x=float(xy[0]), y=float(xy[1]), z=0.0),
-                    covariance=np.zeros(4),
-                    weight=1.0,
-                    moveable=bool(moveable),
-                    num_observations=counts.get(int(landmark_id), 0),
-                )
-                for landmark_id, xy, moveable in zip(
-                    truth.ids, positions, truth.moveable, strict=True
-                )
-            ],
-        )
 
 
 def _observation_counts(run: OfficeRun, after: bool) -> dict[int, int]:
@@ -211,35 +111,50 @@ def office_messages(
     run: OfficeRun, registry: TypeRegistry, *, start_ns: int
 ) -> Iterator[tuple[str, int, Any]]:
     """Yield (topic, bag stamp int ns, rosbags message) of the whole run, in stamp order."""
-    build = _Builder(registry)
+    build = MessageFactory(registry, {msgtype for _, msgtype, _ in TOPICS})
     schedule, frame_bounds = _schedule(run)
     odometry = run.odometry
     true_poses = run.truth.poses_at(odometry.stamps_ns)
     true_twists = run.truth.twists_at(odometry.stamps_ns)
     zeros = np.zeros(36)
-    odom_pose_cov = np.diag(ODOM_POSE_COVARIANCE_DIAGONAL).reshape(36)
-    odom_twist_cov = np.diag(odom_twist_covariance_diagonal(run.config)).reshape(36)
+    odom_cov = (
+        np.diag(ODOM_POSE_COVARIANCE_DIAGONAL).reshape(36),
+        np.diag(odom_twist_covariance_diagonal(run.config)).reshape(36),
+    )
+    truth = run.landmarks
     for stamp, topic_rank, index in schedule:
         topic, bag_ns = TOPICS[topic_rank][0], start_ns + stamp
         if topic == TRUE_LANDMARKS_TOPIC:
             after = bool(index)
-            message = build.landmark_map(bag_ns, run, after, _observation_counts(run, after))
+            counts = _observation_counts(run, after)
+            message = build.landmark_map(
+                bag_ns,
+                truth.ids,
+                truth.positions_after_m if after else truth.positions_before_m,
+                np.zeros((len(truth.ids), 2, 2)),
+                truth.moveable,
+                np.array([counts.get(int(i), 0) for i in truth.ids], dtype=np.int64),
+            )
         elif topic == TRUE_POSE_TOPIC:
             message = build.odometry(
-                bag_ns, 'map', true_poses[index], true_twists[index], zeros, zeros
+                bag_ns, ('map', 'base_link'), true_poses[index], true_twists[index], (zeros, zeros)
             )
         elif topic == ODOM_TOPIC:
             message = build.odometry(
                 bag_ns,
-                'odom',
+                ('odom', 'base_link'),
                 odometry.poses[index],
                 odometry.twists[index],
-                odom_pose_cov,
-                odom_twist_cov,
+                odom_cov,
             )
         else:
-            rows = slice(frame_bounds[index], frame_bounds[index + 1])
-            message = build.observations(bag_ns, run.observations.select(rows))
+            frame = run.observations.select(slice(frame_bounds[index], frame_bounds[index + 1]))
+            message = build.observations(
+                bag_ns,
+                frame.landmark_ids,
+                np.column_stack([frame.range_m, frame.bearing_rad]),
+                frame.covariance,
+            )
         yield topic, bag_ns, message
 
 
@@ -256,61 +171,27 @@ def write_office_bag(
 
     ``single_file`` writes one bare ``.mcap`` file (``path`` must end in ``.mcap``) instead
     of a bag directory. ``progress(run seconds written, messages written)`` is called
-    every 500 messages.
+    every ``dataset_bag.PROGRESS_EVERY`` messages.
 
     Raises:
         BagError: ``path`` exists, its directory does not, or it cannot be written.
 
     """
-    target = Path(path).expanduser().absolute()
-    if target.exists():
-        raise BagError(f'output {str(target)!r} exists already; remove it or choose another')
-    if not target.parent.is_dir():
-        raise BagError(f'output {str(target)!r}: directory {str(target.parent)!r} is missing')
-    if single_file != (target.suffix == '.mcap'):
-        raise BagError(
-            f'output {str(target)!r}: a single-file bag must end in .mcap and a bag '
-            'directory must not; use --single-file for a .mcap file'
-        )
     registry = registry if registry is not None else TypeRegistry()
-    staging_root = target.parent / f'.{target.name}.writing-{os.getpid()}'
-    staging = staging_root / (target.stem if single_file else target.name)
-    counts = {topic: 0 for topic, _, _ in TOPICS}
-    try:
-        staging_root.mkdir()
-        writer = Writer(staging, version=9, storage_plugin=StoragePlugin.MCAP)
-        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        with writer:
-            connections = {}
-            for topic, msgtype, latched in TOPICS:
-                msgdef, rihs01 = registry.msgdef_and_hash(msgtype)
-                profile = latched_qos() if latched else output_qos()
-                connections[topic] = writer.add_connection(
-                    topic,
-                    msgtype,
-                    msgdef=msgdef,
-                    rihs01=rihs01,
-                    offered_qos_profiles=[recorded_from_profile(profile)],
-                )
-            for topic, bag_ns, message in office_messages(run, registry, start_ns=start_ns):
-                data = registry.typestore.serialize_cdr(message, message.__msgtype__)
-                writer.write(connections[topic], bag_ns, bytes(data))
-                counts[topic] += 1
-                written = sum(counts.values())
-                if progress is not None and written % 500 == 0:
-                    progress((bag_ns - start_ns) / 1e9, written)
-        if single_file:
-            (staging / f'{staging.name}.mcap').rename(target)
-        else:
-            staging.rename(target)
-    except (OSError, WriterError) as err:
-        raise BagError(f'output {str(target)!r} cannot be written: {err}') from None
-    finally:
-        shutil.rmtree(staging_root, ignore_errors=True)
-    size = (
-        target.stat().st_size if single_file else sum(p.stat().st_size for p in target.iterdir())
+    topics = [
+        TopicSpec(topic, msgtype, latched_qos() if latched else output_qos())
+        for topic, msgtype, latched in TOPICS
+    ]
+    return write_bag(
+        path,
+        topics,
+        office_messages(run, registry, start_ns=start_ns),
+        registry=registry,
+        single_file=single_file,
+        progress=None
+        if progress is None
+        else lambda bag_ns, written: progress((bag_ns - start_ns) / 1e9, written),
     )
-    return WrittenBag(path=target, counts=counts, size_bytes=size)
 
 
 def summary(run: OfficeRun, written: WrittenBag) -> str:

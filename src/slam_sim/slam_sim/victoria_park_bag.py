@@ -54,10 +54,11 @@ from slam_sim.dataset_bag import (
     OBSERVATIONS_TYPE,
     MessageFactory,
     TopicSpec,
+    WrittenBag,
     check_output,
     write_bag,
 )
-from slam_sim.office_bag import DEFAULT_START_NS, WrittenBag
+from slam_sim.office_bag import DEFAULT_START_NS
 
 PROG = 'victoria_park_import'
 DATASET_FILE = 'victoria_park/victoria_park.txt'
