@@ -156,7 +156,10 @@ def timed(function: Any) -> tuple[float, Any]:
     return time.perf_counter() - started, value
 
 
-def evaluate_robot(gtsam: Any, bag: Path, robot: int) -> tuple[list[Row], dict[int, int]]:
+def evaluate_robot(
+    gtsam: Any, bag: Path, robot: int
+) -> tuple[list[Row], dict[int, int], np.ndarray]:
+    """The rows of one robot, its sightings per landmark id, and its Vicon poses."""
     data = replay_bag(bag).data
     truth = read_ground_truth(bag)
     covered = (data.keyframe_stamps_ns >= truth.stamps_ns[0]) & (
@@ -182,7 +185,7 @@ def evaluate_robot(gtsam: Any, bag: Path, robot: int) -> tuple[list[Row], dict[i
     seconds, poses = timed(lambda: plain_sam(data, robots))
     rows.append(Row('oracle (other robots removed)', ate(poses), set(), seconds, poses))
     ids, counts = np.unique(data.obs_landmark_id, return_counts=True)
-    return rows, dict(zip(ids.tolist(), counts.tolist(), strict=True))
+    return rows, dict(zip(ids.tolist(), counts.tolist(), strict=True)), truth.poses
 
 
 def main() -> int:
@@ -208,7 +211,7 @@ def main() -> int:
         for robot in args.robots:
             bag = Path(directory) / f'robot{robot}'
             mrclam_bag.main(['--robot', str(robot), '--output', str(bag)])
-            rows, counts = evaluate_robot(gtsam, bag, robot)
+            rows, counts, truth_poses = evaluate_robot(gtsam, bag, robot)
             positives = {r for r in ROBOT_IDS if r != robot and counts.get(r, 0) >= MIN_SIGHTINGS}
             negatives = {i for i in counts if i > max(ROBOT_IDS)}
             lines += [
@@ -238,8 +241,7 @@ def main() -> int:
                 ),
             ]
             lines.append('')
-            truth = read_ground_truth(bag)
-            figures.append((robot, rows, truth.poses))
+            figures.append((robot, rows, truth_poses))
             print(f'robot {robot} done', flush=True)
     lines += ['## Acceptance (EM-SAM robust)', '']
     lines += [f'- {name}: **{"PASS" if ok else "FAIL"}**' for name, ok in checks]

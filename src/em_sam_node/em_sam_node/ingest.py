@@ -254,7 +254,9 @@ class OdometryIngest:
             ):
                 out.append(self._keyframe(stamp, pose))
             elif stamp > state.keyframe[0]:
-                state.checked_ns = max(stamp, state.checked_ns or stamp)
+                state.checked_ns = (
+                    stamp if state.checked_ns is None else max(stamp, state.checked_ns)
+                )
         self._trim()
         return out
 
