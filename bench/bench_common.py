@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import subprocess
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
+
+T = TypeVar('T')
 
 BENCH_DIR = Path(__file__).resolve().parent
 
@@ -28,3 +33,15 @@ def source_revision() -> str:
     except (OSError, subprocess.CalledProcessError):
         return 'unknown (no git)'
     return commit + ('+changes' if dirty else '')
+
+
+def best_of(repeats: int, function: Callable[[], T]) -> tuple[float, T]:
+    """Return the shortest wall time (s) of max(repeats, 1) calls and the last result."""
+    best = float('inf')
+    for _ in range(max(repeats, 1) - 1):
+        started = time.perf_counter()
+        function()
+        best = min(best, time.perf_counter() - started)
+    started = time.perf_counter()
+    result = function()
+    return min(best, time.perf_counter() - started), result

@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_common import best_of
 
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
 from em_sam_node.core.em import EmConfig, run_em
@@ -40,16 +41,6 @@ ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'office_moveable.mcap'
 MOVED_IDS = list(range(100, 110))
 TARGET_S = 1.0
-
-
-def best_of(repeats: int, function: object) -> tuple[float, object]:
-    """Return the shortest wall time of ``repeats`` calls and the last result."""
-    best, result = float('inf'), None
-    for _ in range(repeats):
-        started = time.perf_counter()
-        result = function()  # type: ignore[operator]
-        best = min(best, time.perf_counter() - started)
-    return best, result
 
 
 def plain_solve(data: MappingData, exclude: list[int]) -> None:

@@ -32,14 +32,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_common import source_revision
+from bench_common import best_of, source_revision
 
 from em_sam_node.core.assembly import initial_landmarks, sqrt_information
 from em_sam_node.core.problem import Estimate, SlamProblem
@@ -93,27 +92,28 @@ def our_problem(data: VictoriaPark) -> tuple[SlamProblem, Estimate]:
 
 def gtsam_graph(gtsam: Any, data: VictoriaPark, start: Estimate) -> tuple[Any, Any]:
     """The same factors and initial values as GTSAM objects (keys: pose i, symbol l j)."""
-    g = gtsam
-    graph = g.NonlinearFactorGraph()
-    noise = g.noiseModel
-    graph.add(g.PriorFactorPose2(0, g.Pose2(0.0, 0.0, 0.0), noise.Diagonal.Sigmas(PRIOR_SIGMA)))
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel
+    graph.add(
+        gtsam.PriorFactorPose2(0, gtsam.Pose2(0.0, 0.0, 0.0), noise.Diagonal.Sigmas(PRIOR_SIGMA))
+    )
     for m in range(len(data.odometry_from)):
         graph.add(
-            g.BetweenFactorPose2(
+            gtsam.BetweenFactorPose2(
                 int(data.odometry_from[m]),
                 int(data.odometry_to[m]),
-                g.Pose2(*data.odometry_between[m]),
+                gtsam.Pose2(*data.odometry_between[m]),
                 noise.Gaussian.Covariance(data.odometry_cov[m]),
             )
         )
     landmark_ids = np.unique(data.obs_landmark)
-    keys = {int(j): g.symbol('l', int(j)) for j in landmark_ids}
+    keys = {int(j): gtsam.symbol('l', int(j)) for j in landmark_ids}
     for k in range(len(data.obs_range)):
         graph.add(
-            g.BearingRangeFactor2D(
+            gtsam.BearingRangeFactor2D(
                 int(data.obs_pose[k]),
                 keys[int(data.obs_landmark[k])],
-                g.Rot2(float(data.obs_bearing[k])),
+                gtsam.Rot2(float(data.obs_bearing[k])),
                 float(data.obs_range[k]),
                 noise.Diagonal.Sigmas(
                     np.array([data.obs_sigma_bearing[k], data.obs_sigma_range[k]])
@@ -125,33 +125,19 @@ def gtsam_graph(gtsam: Any, data: VictoriaPark, start: Estimate) -> tuple[Any, A
 
 def to_values(gtsam: Any, landmark_ids: np.ndarray, estimate: Estimate) -> Any:
     """gtsam.Values of an estimate of ours."""
-    g = gtsam
-    values = g.Values()
+    values = gtsam.Values()
     for i, pose in enumerate(estimate.poses):
-        values.insert(i, g.Pose2(*pose))
+        values.insert(i, gtsam.Pose2(*pose))
     for j, point in zip(landmark_ids.tolist(), estimate.landmarks, strict=True):
-        values.insert(g.symbol('l', j), np.asarray(point, dtype=float))
+        values.insert(gtsam.symbol('l', j), np.asarray(point, dtype=float))
     return values
 
 
 def from_values(gtsam: Any, values: Any, num_poses: int, landmark_ids: np.ndarray) -> Estimate:
     """Our Estimate from gtsam.Values."""
-    g = gtsam
     poses = np.array([[(p := values.atPose2(i)).x(), p.y(), p.theta()] for i in range(num_poses)])
-    landmarks = np.array([values.atPoint2(g.symbol('l', int(j))) for j in landmark_ids])
+    landmarks = np.array([values.atPoint2(gtsam.symbol('l', int(j))) for j in landmark_ids])
     return Estimate(poses, landmarks)
-
-
-def best_of(
-    repeats: int, function: Callable[[], tuple[Estimate, str, str]]
-) -> tuple[float, Estimate, str, str]:
-    best, outcome = float('inf'), None
-    for _ in range(repeats):
-        started = time.perf_counter()
-        outcome = function()
-        best = min(best, time.perf_counter() - started)
-    assert outcome is not None
-    return (best, *outcome)
 
 
 def main() -> int:
@@ -238,7 +224,7 @@ def main() -> int:
     ]
     runs = []
     for name, function in candidates:
-        seconds, estimate, iterations, status = best_of(args.repeats, function)
+        seconds, (estimate, iterations, status) = best_of(args.repeats, function)
         cost = float(graph.error(to_values(gtsam, landmark_ids, estimate)))
         runs.append(
             Run(name, seconds, cost, iterations, status, estimate.poses, estimate.landmarks)
