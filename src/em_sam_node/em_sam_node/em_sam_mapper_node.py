@@ -31,9 +31,11 @@ Parameters:
   seed_chunk_s (20.0), seed_split_distance_m (1.0)  'robust': time prefixes of the first
                                   E-step, and how far new sightings may lie from a mapped
                                   landmark before they count as a new (moved) one.
-  estimate_noise_scale (true)     'robust': inflate the sighting covariances by the
-                                  a-posteriori variance factor when the data are noisier.
-  max_noise_scale (10.0)          'robust': cap of that factor (>= 1).
+  estimate_noise_scale (true)     'robust': inflate the range and the bearing variances
+                                  by their a-posteriori variance factors when the data are
+                                  noisier (estimated for the test from the first E-step,
+                                  again for the final solve from the static sightings).
+  max_noise_scale (10.0)          'robust': cap of those factors (>= 1).
   model_error_m (0.15)            'robust': position error the moveable test tolerates
                                   (sensor biases no noise model carries), m (>= 0).
   final_kernel ('cauchy'), final_kernel_scale (2.3849)  'robust': kernel on the static
@@ -109,9 +111,11 @@ PARAMETERS = (
     ParamSpec('seed_chunk_s', 20.0, 'robust: first E-step time prefix length, s (> 0)'),
     ParamSpec('seed_split_distance_m', 1.0, 'robust: distance that splits a moved landmark, m'),
     ParamSpec(
-        'estimate_noise_scale', True, 'robust: inflate sighting covariances by the variance factor'
+        'estimate_noise_scale',
+        True,
+        'robust: inflate range/bearing variances by their variance factors',
     ),
-    ParamSpec('max_noise_scale', 10.0, 'robust: cap of the sighting variance factor (>= 1)'),
+    ParamSpec('max_noise_scale', 10.0, 'robust: cap of the sighting variance factors (>= 1)'),
     ParamSpec('model_error_m', 0.15, 'robust: position error the moveable test tolerates, m'),
     ParamSpec('final_kernel', 'cauchy', "robust: final solve kernel, 'cauchy', 'huber' or 'none'"),
     ParamSpec('final_kernel_scale', 2.3849, 'robust: final solve kernel scale, sigmas (> 0)'),

@@ -67,6 +67,16 @@ def result_summary(result: EmResult, stamps_ns: np.ndarray) -> dict[str, Any]:
         'em_iterations': result.em_iterations,
         'converged': result.converged,
         'num_pieces': result.num_pieces,
+        'sighting_variance_factors': {
+            'em_test': {
+                'range': float(result.noise_scale[0]),
+                'bearing': float(result.noise_scale[1]),
+            },
+            'final_solve': {
+                'range': float(result.final_noise_scale[0]),
+                'bearing': float(result.final_noise_scale[1]),
+            },
+        },
         'timings_s': result.timings_s,
         'weight_history': result.weight_history.tolist(),
         'landmarks': landmarks,

@@ -297,14 +297,49 @@ def test_em_config_rejects_bad_settings_naming_them(setting: str, value: object)
         EmConfig(**{setting: value})  # type: ignore[arg-type]
 
 
-def test_the_noise_scale_is_the_median_over_its_chi_square_expectation_and_never_below_1() -> None:
-    from em_sam_node.core.em import observation_noise_scale
+def test_noise_scales_are_per_component_medians_over_their_chi_square_expectation() -> None:
+    from em_sam_node.core.em import observation_noise_scales
 
     rng = np.random.default_rng(3)
-    wide = rng.chisquare(2, 20000) * 4.0  # sightings twice as noisy as modelled
-    assert observation_noise_scale(wide) == pytest.approx(4.0, rel=0.05)
-    assert observation_noise_scale(rng.chisquare(2, 20000) * 0.25) == 1.0
-    assert observation_noise_scale(np.zeros(0)) == 1.0
+    sigma = np.array([0.1, 0.01])  # modelled range (m) and bearing (rad) sigmas
+    cov = np.tile(np.diag(sigma**2), (20000, 1, 1))
+    # Ranges twice as noisy as modelled, bearings as modelled.
+    innovations = rng.normal(0.0, 1.0, (20000, 2)) * sigma * np.array([2.0, 1.0])
+    np.testing.assert_allclose(observation_noise_scales(innovations, cov), [4.0, 1.0], rtol=0.05)
+    # Never below 1: a model looser than the data is kept.
+    assert observation_noise_scales(0.5 * innovations, cov)[1] == 1.0
+    np.testing.assert_array_equal(observation_noise_scales(np.zeros((0, 2)), cov[:0]), [1, 1])
+
+
+def test_with_noise_scales_scales_variances_and_the_correlation_consistently(room: Room) -> None:
+    from em_sam_node.core.em import with_noise_scales
+
+    data = dataclasses.replace(room.data, obs_cov=room.data.obs_cov.copy())
+    data.obs_cov[:, 0, 1] = data.obs_cov[:, 1, 0] = 1e-5
+    scaled = with_noise_scales(data, np.array([4.0, 9.0]))
+    np.testing.assert_allclose(scaled.obs_cov[:, 0, 0], 4.0 * data.obs_cov[:, 0, 0])
+    np.testing.assert_allclose(scaled.obs_cov[:, 1, 1], 9.0 * data.obs_cov[:, 1, 1])
+    np.testing.assert_allclose(scaled.obs_cov[:, 0, 1], 6.0 * data.obs_cov[:, 0, 1])
+    assert data.obs_cov[0, 0, 0] == room.data.obs_cov[0, 0, 0]  # the input is not modified
+
+
+def test_robust_mode_estimates_a_range_noise_wider_than_modelled(room: Room) -> None:
+    """Ranges 3x noisier than the model: the factors find it, and nothing static is flagged."""
+    rng = np.random.default_rng(11)
+    z = room.data.obs_z.copy()
+    sigma_r = np.sqrt(room.data.obs_cov[:, 0, 0])
+    z[:, 0] += rng.normal(0.0, 1.0, len(z)) * np.sqrt(8.0) * sigma_r  # total 3 sigma
+    noisy = dataclasses.replace(room.data, obs_z=z)
+    result = run_em(noisy, EmConfig(mode='robust'), record_snapshots=False)
+    assert 5.0 < result.noise_scale[0] < 12.0
+    assert result.noise_scale[1] < 1.5
+    assert 5.0 < result.final_noise_scale[0] < 12.0
+    assert flagged(result) == list(MOVEABLE_IDS)
+    off = run_em(
+        noisy, EmConfig(mode='robust', estimate_noise_scale=False), record_snapshots=False
+    )
+    np.testing.assert_array_equal(off.noise_scale, [1.0, 1.0])
+    np.testing.assert_array_equal(off.final_noise_scale, [1.0, 1.0])
 
 
 def test_model_error_widens_the_test_covariance_by_a_position_error() -> None:

@@ -137,5 +137,11 @@ def test_write_report_writes_json_and_figures_and_no_temporary_files(
     assert report['run'] == 'seed3'
     assert report['num_keyframes'] == data.num_keyframes
     assert len(report['trajectory']['stamps_ns']) == data.num_keyframes
+    factors = report['sighting_variance_factors']
+    assert factors['em_test'] == {
+        'range': result.noise_scale[0],
+        'bearing': result.noise_scale[1],
+    }
+    assert factors['final_solve']['range'] >= 1.0 and factors['final_solve']['bearing'] >= 1.0
     for name in names - {'em_sam_report.json'}:
         assert (directory / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'

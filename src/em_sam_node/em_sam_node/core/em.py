@@ -213,7 +213,9 @@ class EmResult:
     flags, ``positions`` (static: final map; moveable: most recent sighting), their 2x2
     ``covariances`` and ``num_observations``. ``weight_history`` is (T+1, L): the weights
     before EM (all 1) and after each M-step. ``gated`` (K,) marks sightings gated as
-    outliers (robust mode). ``poses`` (N,3) is the final trajectory.
+    outliers (robust mode). ``poses`` (N,3) is the final trajectory. ``noise_scale`` (2,)
+    holds the variance factors of range and bearing the EM test used, ``final_noise_scale``
+    (2,) those of the final solve (both 1 unless the robust mode estimated them).
     """
 
     mode: str
@@ -232,7 +234,8 @@ class EmResult:
     converged: bool
     num_pieces: int
     timings_s: dict[str, float] = field(default_factory=dict)
-    noise_scale: float = 1.0
+    noise_scale: FloatArray = field(default_factory=lambda: np.ones(2))
+    final_noise_scale: FloatArray = field(default_factory=lambda: np.ones(2))
 
 
 def _test_covariances(
@@ -261,21 +264,52 @@ def _mahalanobis(innovations: FloatArray, covariances: FloatArray) -> FloatArray
     return result
 
 
-def observation_noise_scale(mahalanobis: FloatArray) -> float:
-    """Return the a-posteriori variance factor of the sightings, at least 1.
+def observation_noise_scales(innovations: FloatArray, obs_cov: FloatArray) -> FloatArray:
+    """Return the a-posteriori variance factors (2,) of range and bearing, each at least 1.
 
     A sensor model tighter than the data (heavy tails, a range bias, a calibration off)
     raises every landmark's residual sum and, through the per-landmark test, flags static
-    landmarks. The factor is the median squared Mahalanobis distance over its expected
-    value for 2 degrees of freedom (chi2 median 1.386): robust to moved landmarks and
-    outliers while they are under half the sightings. Only ever inflates: a model looser
-    than the data only makes the test less sensitive. The caller caps it
-    (``max_noise_scale``): when most sightings are of moved landmarks (the all-moveable
-    case) the median measures the moves, not the noise.
+    landmarks. Range and bearing are estimated apart (variance components): real range
+    noise often grows with distance while bearing noise does not (MRCLAM: range 2x its
+    nominal sigma, bearing at it), and one shared factor would dilute the bearings. Each
+    factor is the median squared standardized innovation over its expectation for one
+    degree of freedom (chi2 median 0.455): robust to moved landmarks and outliers while
+    they are under half the sightings. Only ever inflates: a model looser than the data
+    only makes the test less sensitive. The caller caps it (``max_noise_scale``): when most
+    sightings are of moved landmarks (the all-moveable case) the median measures the moves,
+    not the noise.
     """
-    if mahalanobis.size == 0:
-        return 1.0
-    return max(1.0, float(np.median(mahalanobis)) / float(chi2.median(2)))
+    if len(innovations) == 0:
+        return np.ones(2)
+    variances = np.stack([obs_cov[:, 0, 0], obs_cov[:, 1, 1]], axis=1)
+    factors = np.median(innovations**2 / variances, axis=0) / float(chi2.median(1))
+    result: FloatArray = np.maximum(factors, 1.0)
+    return result
+
+
+def with_noise_scales(data: MappingData, factors: FloatArray) -> MappingData:
+    """Return ``data`` with every sighting covariance scaled by D C D, D = diag(sqrt(factors))."""
+    root = np.sqrt(np.asarray(factors, dtype=np.float64))
+    return dataclasses.replace(
+        data, obs_cov=data.obs_cov * root[None, :, None] * root[None, None, :]
+    )
+
+
+def _noise_scales(
+    config: EmConfig,
+    data: MappingData,
+    built: BuiltProblem,
+    problem: SlamProblem,
+    estimate: Estimate,
+) -> FloatArray:
+    """The capped variance factors of ``problem``'s sightings at ``estimate``."""
+    if config.mode != 'robust' or not config.estimate_noise_scale:
+        return np.ones(2)
+    factors = observation_noise_scales(
+        observation_innovations(problem, estimate), data.obs_cov[built.observation_rows]
+    )
+    result: FloatArray = np.minimum(factors, config.max_noise_scale)
+    return result
 
 
 def m_step(
@@ -392,16 +426,12 @@ def run_em(
         all_static if config.mode == 'paper' else _robust_seed(config, data, built, estimate)
     )
     timings['first_e_step'] = time.perf_counter() - started
-    noise_scale = 1.0
-    if config.mode == 'robust' and config.estimate_noise_scale:
-        noise_scale = min(
-            observation_noise_scale(observation_mahalanobis(problem, estimate)),
-            config.max_noise_scale,
-        )
-        if noise_scale > 1.0:
-            data = dataclasses.replace(data, obs_cov=data.obs_cov * noise_scale)
-            built = build_problem(data)
-            problem, num_pieces = _anchored(built, poses0)
+    sensor_data = data
+    noise_scale = _noise_scales(config, data, built, problem, estimate)
+    if np.any(noise_scale > 1.0):
+        data = with_noise_scales(sensor_data, noise_scale)
+        built = build_problem(data)
+        problem, num_pieces = _anchored(built, poses0)
 
     num_landmarks = problem.num_landmarks
     weights = np.ones(num_landmarks)
@@ -438,7 +468,7 @@ def run_em(
     timings['em'] = time.perf_counter() - started - timings['first_e_step']
 
     moveable = weights < config.moveable_threshold
-    final = _final_solve(config, data, built, estimate, moveable, gated)
+    final = _final_solve(config, sensor_data, built, estimate, moveable, gated)
     timings['total'] = time.perf_counter() - started
     if record_snapshots:
         snapshots['final'] = Snapshot(final.poses, final.landmark_ids, final.positions)
@@ -460,6 +490,7 @@ def run_em(
         num_pieces=max(num_pieces, final.num_pieces),
         timings_s=timings,
         noise_scale=noise_scale,
+        final_noise_scale=final.noise_scale,
     )
 
 
@@ -471,6 +502,7 @@ class _Final:
     covariances: FloatArray
     sightings: dict[int, Sightings]
     num_pieces: int
+    noise_scale: FloatArray
 
 
 def _final_solve(
@@ -481,16 +513,27 @@ def _final_solve(
     moveable: np.ndarray,
     gated: np.ndarray,
 ) -> _Final:
-    """Re-optimize without the moveable landmarks; place every moveable sighting in the map."""
+    """Re-optimize without the moveable landmarks; place every moveable sighting in the map.
+
+    ``data`` carries the sensor model as given: in the robust mode the variance factors are
+    estimated again from the static sightings alone (the EM test's came from every sighting
+    of the seed, moved landmarks among them) and scale the sightings of this solve.
+    """
     moveable_ids = built.landmark_ids[moveable]
     static = build_problem(data, exclude_ids=moveable_ids.tolist())
-    problem, num_pieces = _anchored(static, estimate.poses)
+    noise_scale = np.ones(2)
     positions = estimate.landmarks.copy()
     covariances = np.zeros((len(built.landmark_ids), 2, 2))
     poses = estimate.poses
+    keep = np.isin(built.landmark_ids, static.landmark_ids)
+    start = Estimate(estimate.poses.copy(), estimate.landmarks[keep].copy())
     if static.problem.num_landmarks:
-        keep = np.isin(built.landmark_ids, static.landmark_ids)
-        start = Estimate(estimate.poses.copy(), estimate.landmarks[keep].copy())
+        noise_scale = _noise_scales(config, data, static, static.problem, start)
+        if np.any(noise_scale > 1.0):
+            data = with_noise_scales(data, noise_scale)
+            static = build_problem(data, exclude_ids=moveable_ids.tolist())
+    problem, num_pieces = _anchored(static, estimate.poses)
+    if static.problem.num_landmarks:
         gated_rows = np.isin(static.observation_rows, built.observation_rows[gated])
         scale = np.where(gated_rows, ROW_SCALE_FLOOR, 1.0)
         kernel = None
@@ -509,7 +552,9 @@ def _final_solve(
         latest = sightings[int(built.landmark_ids[index])]
         positions[index] = latest.positions[0]
         covariances[index] = latest.covariances[0]
-    return _Final(poses, built.landmark_ids, positions, covariances, sightings, num_pieces)
+    return _Final(
+        poses, built.landmark_ids, positions, covariances, sightings, num_pieces, noise_scale
+    )
 
 
 def sightings_of(
