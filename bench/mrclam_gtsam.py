@@ -236,7 +236,7 @@ def main() -> int:
                 ),
                 (
                     f'robot {robot}: ATE no worse than GNC '
-                    f'({robust.ate_m:.3f} vs {gnc.ate_m:.3f} m)',
+                    f'({robust.ate_m:.4f} vs {gnc.ate_m:.4f} m)',
                     robust.ate_m <= gnc.ate_m,
                 ),
             ]
