@@ -11,17 +11,7 @@ import numpy as np
 from em_sam_node.core.problem import FloatArray
 from em_sam_node.ingest import Increment
 from em_sam_node.mapper import Observation
-
-
-def stamp_to_ns(stamp: Any) -> int:
-    """Return a builtin_interfaces/Time as int nanoseconds."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def ns_to_stamp(stamp_ns: int, stamp: Any) -> Any:
-    """Fill a builtin_interfaces/Time message from int nanoseconds and return it."""
-    stamp.sec, stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    return stamp
+from slam_bringup.stamps import ns_to_stamp, stamp_to_ns
 
 
 def yaw_from_quaternion(q: Any) -> float:

@@ -40,13 +40,14 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
-from em_sam_node.conversions import increment_to_message, odometry_pose, stamp_to_ns
+from em_sam_node.conversions import increment_to_message, odometry_pose
 from em_sam_node.ingest import Increment, IngestConfig, OdometryIngest
 from slam_bringup.cli import console_main
 from slam_bringup.errors import ParameterError
 from slam_bringup.params import ParamSpec, check_finite_positive, declare_parameters
 from slam_bringup.qos import output_qos, sensor_qos
 from slam_bringup.spin import spin_node
+from slam_bringup.stamps import stamp_to_ns
 from slam_interfaces.msg import LandmarkObservationArray, OdometryIncrement
 
 PARAMETERS = (

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from em_sam_node.conversions import observations_from_message, odometry_pose, stamp_to_ns
+from em_sam_node.conversions import observations_from_message, odometry_pose
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.em import EmConfig
 from em_sam_node.core.problem import FloatArray, IntArray
@@ -23,6 +23,7 @@ from em_sam_node.ingest import IngestConfig, OdometryIngest
 from em_sam_node.mapper import MapperConfig, MapperProcessor
 from slam_bringup.bag.source import BagSource
 from slam_bringup.errors import BagError
+from slam_bringup.stamps import stamp_to_ns
 from slam_bringup.typesys import TypeRegistry
 
 ODOM_TOPIC = '/odom'
