@@ -9,8 +9,18 @@
 # mapper writes its report (JSON + PNG) on shutdown. Then em_sam_evaluate replays the same
 # bag through the same processors offline and scores five methods against ground truth,
 # plus the live mapper's own result.
+#
+# With --camera the main job starts from pixels instead: bags/office_camera.mcap (the same
+# office run seen by a simulated camera, AprilTag 36h11 markers) is replayed through
+# marker_detector -> odometry_ingest -> em_sam_mapper (graph em_sam_office_camera.yaml), then
+# marker_detect_bag runs the same detector offline and em_sam_evaluate scores the result.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+case "${1:-}" in
+  "") ;;
+  --camera) exec bash "$ROOT/scripts/demo_camera.sh" ;;
+  *) echo "usage: bash scripts/demo.sh [--camera]" >&2; exit 2 ;;
+esac
 bash "$ROOT/scripts/bootstrap.sh"
 # shellcheck source=scripts/env.sh
 source "$ROOT/scripts/env.sh"

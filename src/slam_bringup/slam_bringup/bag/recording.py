@@ -88,3 +88,12 @@ class AtomicBagWriter:
                 ) from None
             shutil.rmtree(self.staging_root, ignore_errors=True)
         return self.target
+
+    def abort(self) -> None:
+        """Discard the bag: nothing appears at the target (for a conversion that failed)."""
+        if not self.closed:
+            self.closed = True
+            try:
+                self._writer.close()
+            finally:
+                shutil.rmtree(self.staging_root, ignore_errors=True)

@@ -1,0 +1,95 @@
+"""Messages <-> marker_detector core types. Fields are read by name, so rclpy messages and
+rosbags-deserialized messages both work."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from marker_detector.core.images import decode_compressed, decode_raw
+from marker_detector.processor import FrameOutput
+from slam_bringup.stamps import ns_to_stamp
+
+
+def image_from_message(message: Any) -> np.ndarray:
+    """Return the gray image of a sensor_msgs/Image or CompressedImage (raises ImageError)."""
+    if hasattr(message, 'encoding'):
+        return decode_raw(
+            str(message.encoding),
+            int(message.width),
+            int(message.height),
+            int(message.step),
+            bytes(message.data),
+        )
+    return decode_compressed(str(message.format), bytes(message.data))
+
+
+def camera_info_fields(message: Any) -> dict[str, Any]:
+    """Return the keyword arguments of MarkerProcessor.set_camera_info for a CameraInfo."""
+    return {
+        'frame_id': str(message.header.frame_id),
+        'width': int(message.width),
+        'height': int(message.height),
+        'k': [float(v) for v in message.k],
+        'd': [float(v) for v in message.d],
+        'distortion_model': str(message.distortion_model),
+    }
+
+
+def transform_matrix(transform: Any) -> np.ndarray:
+    """Return the 4x4 matrix of a geometry_msgs/Transform."""
+    q = transform.rotation
+    matrix = np.eye(4)
+    matrix[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    t = transform.translation
+    matrix[:3, 3] = [t.x, t.y, t.z]
+    return matrix
+
+
+def fill_fiducials(output: FrameOutput, message: Any, make_detection: Any) -> Any:
+    """Fill a slam_interfaces/FiducialArray from ``output`` and return it.
+
+    ``make_detection`` constructs an empty FiducialDetection (the message class).
+    """
+    ns_to_stamp(output.stamp_ns, message.header.stamp)
+    message.header.frame_id = output.camera_frame
+    detections = []
+    for detection in output.detections:
+        item = make_detection()
+        item.id = int(detection.id)
+        item.dictionary = detection.dictionary
+        item.corners_px = [float(v) for v in np.asarray(detection.corners_px).ravel()]
+        position = item.pose.position
+        position.x, position.y, position.z = (float(v) for v in detection.translation_m)
+        x, y, z, w = Rotation.from_matrix(detection.rotation).as_quat()
+        orientation = item.pose.orientation
+        orientation.x, orientation.y, orientation.z, orientation.w = (
+            float(x),
+            float(y),
+            float(z),
+            float(w),
+        )
+        item.pose_covariance = [float(v) for v in np.asarray(detection.covariance).ravel()]
+        item.reprojection_error_px = float(detection.reprojection_error_px)
+        item.marker_size_m = float(detection.marker_size_m)
+        detections.append(item)
+    message.detections = detections
+    return message
+
+
+def fill_observations(output: FrameOutput, message: Any, make_observation: Any) -> Any:
+    """Fill a slam_interfaces/LandmarkObservationArray from ``output`` and return it."""
+    ns_to_stamp(output.stamp_ns, message.header.stamp)
+    message.header.frame_id = output.base_frame
+    observations = []
+    for observation in output.observations:
+        item = make_observation()
+        item.landmark_id = int(observation.id)
+        item.range_m = float(observation.range_m)
+        item.bearing_rad = float(observation.bearing_rad)
+        item.covariance = [float(v) for v in np.asarray(observation.covariance).ravel()]
+        observations.append(item)
+    message.observations = observations
+    return message

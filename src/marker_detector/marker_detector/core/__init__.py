@@ -1,0 +1,1 @@
+"""ROS-free fiducial detection: dictionaries, detection, pose and covariance, base frame."""

@@ -1,0 +1,299 @@
+"""marker_detector: camera images in, fiducial poses and range-bearing observations out.
+
+Detects square fiducials (cv2.aruco; AprilTag 36h11 by default) in each image, refines the
+corners to subpixel accuracy, solves each marker's pose (IPPE square) with a covariance from
+the reprojection Jacobian and the pixel noise, applies the quality gates and converts the
+marker centres into range and bearing in the robot base frame. The lens (plumb-bob or
+rational polynomial from camera_info) is undistorted inside the pose solution. Bad inputs
+(an unsupported encoding, an empty or corrupt image, no camera_info yet, no camera mount)
+are logged with the reason, and the node goes on with the next image.
+
+Topics:
+  subscribes  camera/image_raw (sensor_msgs/Image: mono8, bgr8, rgb8, bgra8, rgba8) when
+              image_transport is 'raw', or camera/image_raw/compressed
+              (sensor_msgs/CompressedImage) when it is 'compressed'; best effort
+              camera/camera_info (sensor_msgs/CameraInfo, best effort)
+              /tf_static (tf2_msgs/TFMessage, transient local) when extrinsics_source is
+              'tf_static'
+  publishes   fiducials (slam_interfaces/FiducialArray, camera optical frame, every image)
+              landmark_observations (slam_interfaces/LandmarkObservationArray, base frame,
+              only for images with at least one accepted marker)
+              ~/debug_image (sensor_msgs/Image bgr8, when publish_debug_image is true)
+
+Parameters:
+  dictionary ('DICT_APRILTAG_36h11')  cv2.aruco dictionary: AprilTag 16h5/25h9/36h10/36h11,
+                              ArUco DICT_4X4_50 ... DICT_7X7_1000, DICT_ARUCO_ORIGINAL.
+  marker_size_m (0.16)        side of the black square of every marker, m (> 0).
+  marker_sizes_m ([])         per-id sizes overriding it, entries 'id:size_m' (e.g. '7:0.14').
+  corner_refinement ('subpix')  'subpix', 'contour', 'apriltag' or 'none'.
+  min_side_px (12.0)          reject markers whose shortest side is shorter, px.
+  max_reprojection_error_px (2.0)  reject poses whose RMS corner reprojection error is larger.
+  max_range_m (8.0)           reject markers farther from the camera, m.
+  max_viewing_angle_rad (1.22)  reject markers seen more obliquely (normal vs line of sight).
+  allowed_ids ([])            only these ids, entries 'id' or 'first-last' (e.g. '0-28');
+                              empty: all.
+  pixel_noise_px (0.5)        corner noise sigma behind the pose covariance, px.
+  image_transport ('raw')     'raw' (Image) or 'compressed' (CompressedImage).
+  base_frame ('base_link')    frame of the range-bearing observations.
+  extrinsics_source ('tf_static')  'tf_static' (chain base_frame -> image frame on
+                              /tf_static) or 'parameters' (camera_xyz_m, camera_rpy_rad).
+  camera_xyz_m ([0, 0, 0]), camera_rpy_rad ([0, 0, 0])  camera_link in base_frame; the
+                              optical frame follows REP 103 (z forward, x right, y down).
+  publish_debug_image (false)  publish the image with the detections drawn.
+
+The detector settings (dictionary to pixel_noise_px) can be changed at run time with
+`ros2 param set`; an invalid value (e.g. a marker size <= 0) is refused with the reason and
+the node keeps its previous settings.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+import cv2
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from tf2_msgs.msg import TFMessage
+
+from marker_detector.conversions import (
+    camera_info_fields,
+    fill_fiducials,
+    fill_observations,
+    image_from_message,
+    transform_matrix,
+)
+from marker_detector.core.images import ImageError
+from marker_detector.processor import FrameOutput, InputError, MarkerProcessor
+from marker_detector.settings import detector_config, extrinsics_config
+from slam_bringup.cli import console_main
+from slam_bringup.errors import ParameterError
+from slam_bringup.params import ParamSpec, declare_parameters
+from slam_bringup.qos import latched_qos, output_qos, sensor_qos
+from slam_bringup.spin import spin_node
+from slam_bringup.stamps import stamp_to_ns
+from slam_interfaces.msg import (
+    FiducialArray,
+    FiducialDetection,
+    LandmarkObservation,
+    LandmarkObservationArray,
+)
+
+DETECTOR_PARAMETERS = (
+    ParamSpec('dictionary', 'DICT_APRILTAG_36h11', 'cv2.aruco dictionary name', read_only=False),
+    ParamSpec('marker_size_m', 0.16, 'black square side of every marker, m', read_only=False),
+    ParamSpec(
+        'marker_sizes_m',
+        [],
+        "per-id marker sizes, entries 'id:size_m'",
+        array_type='string_array',
+        read_only=False,
+    ),
+    ParamSpec(
+        'corner_refinement', 'subpix', "'subpix', 'contour', 'apriltag' or 'none'", read_only=False
+    ),
+    ParamSpec('min_side_px', 12.0, 'shortest accepted marker side, px', read_only=False),
+    ParamSpec(
+        'max_reprojection_error_px',
+        2.0,
+        'largest accepted RMS reprojection error, px',
+        read_only=False,
+    ),
+    ParamSpec('max_range_m', 8.0, 'farthest accepted marker, m', read_only=False),
+    ParamSpec(
+        'max_viewing_angle_rad',
+        1.22,
+        'most oblique accepted view of a marker, rad',
+        read_only=False,
+    ),
+    ParamSpec(
+        'allowed_ids',
+        [],
+        "accepted marker ids, entries 'id' or 'first-last' (empty: all)",
+        array_type='string_array',
+        read_only=False,
+    ),
+    ParamSpec(
+        'pixel_noise_px', 0.5, 'corner noise sigma for the pose covariance, px', read_only=False
+    ),
+)
+PARAMETERS = (
+    *DETECTOR_PARAMETERS,
+    ParamSpec('image_transport', 'raw', "'raw' (Image) or 'compressed' (CompressedImage)"),
+    ParamSpec('base_frame', 'base_link', 'frame of the range-bearing observations'),
+    ParamSpec('extrinsics_source', 'tf_static', "'tf_static' or 'parameters'"),
+    ParamSpec('camera_xyz_m', [0.0, 0.0, 0.0], 'camera_link position in base_frame, m'),
+    ParamSpec('camera_rpy_rad', [0.0, 0.0, 0.0], 'camera_link roll, pitch, yaw in base_frame'),
+    ParamSpec('publish_debug_image', False, 'publish the image with the detections drawn'),
+)
+IMAGE_TRANSPORTS = ('raw', 'compressed')
+STATUS_PERIOD_S = 10.0
+
+
+def draw_detections(image: np.ndarray, output: FrameOutput) -> np.ndarray:
+    """Return a BGR copy of ``image`` with accepted markers (green) and their ids drawn."""
+    canvas = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
+    for detection in output.detections:
+        corners = np.round(np.asarray(detection.corners_px)).astype(np.int32)
+        cv2.polylines(canvas, [corners], isClosed=True, color=(0, 255, 0), thickness=2)
+        cv2.circle(canvas, tuple(int(v) for v in corners[0]), 4, (0, 0, 255), -1)
+        label = f'{detection.id} {detection.range_m:.2f}m'
+        cv2.putText(
+            canvas,
+            label,
+            tuple(int(v) for v in corners[0]),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.5,
+            (255, 0, 0),
+            1,
+        )
+    return canvas
+
+
+class MarkerDetectorNode(Node):
+    """Thin adapter around MarkerProcessor."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('marker_detector', **kwargs)
+        values = declare_parameters(self, PARAMETERS)
+        transport = str(values['image_transport'])
+        if transport not in IMAGE_TRANSPORTS:
+            raise ParameterError(
+                f'parameter image_transport={transport!r}: must be one of {IMAGE_TRANSPORTS}'
+            )
+        try:
+            self.processor = MarkerProcessor(
+                detector_config(values), extrinsics_config(values), warn=self._warn
+            )
+        except ValueError as err:
+            raise ParameterError(str(err)) from None
+        self._values = values
+        self.publish_debug = bool(values['publish_debug_image'])
+        self.images = 0
+        self.dropped = 0
+        self.detections = 0
+        self._status_time = time.monotonic()
+        self._status_images = 0
+        self.fiducials_publisher = self.create_publisher(FiducialArray, 'fiducials', output_qos())
+        self.observations_publisher = self.create_publisher(
+            LandmarkObservationArray, 'landmark_observations', output_qos(depth=100)
+        )
+        self.debug_publisher = (
+            self.create_publisher(Image, '~/debug_image', output_qos(depth=2))
+            if self.publish_debug
+            else None
+        )
+        if transport == 'raw':
+            self.create_subscription(
+                Image, 'camera/image_raw', self._on_image, sensor_qos(depth=5)
+            )
+        else:
+            self.create_subscription(
+                CompressedImage, 'camera/image_raw/compressed', self._on_image, sensor_qos(depth=5)
+            )
+        self.create_subscription(
+            CameraInfo, 'camera/camera_info', self._on_camera_info, sensor_qos()
+        )
+        if self.processor.extrinsics.source == 'tf_static':
+            self.create_subscription(
+                TFMessage, '/tf_static', self._on_tf_static, latched_qos(depth=100)
+            )
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+    def _warn(self, message: str) -> None:
+        self.get_logger().warning(message, throttle_duration_sec=2.0)
+
+    def _error(self, message: str) -> None:
+        self.get_logger().error(message, throttle_duration_sec=2.0)
+
+    def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        values = dict(self._values)
+        for parameter in parameters:
+            if parameter.name in values:
+                value = parameter.value
+                values[parameter.name] = list(value) if isinstance(value, (list, tuple)) else value
+        try:
+            config = detector_config(values)
+        except (ValueError, TypeError) as err:
+            self.get_logger().error(f'parameter change refused, settings kept: {err}')
+            return SetParametersResult(successful=False, reason=str(err))
+        self.processor.reconfigure(config)
+        self._values = values
+        self.get_logger().info(
+            'detector settings changed: ' + ', '.join(p.name for p in parameters)
+        )
+        return SetParametersResult(successful=True)
+
+    def _on_camera_info(self, message: CameraInfo) -> None:
+        try:
+            self.processor.set_camera_info(**camera_info_fields(message))
+        except InputError as err:
+            self._error(str(err))
+
+    def _on_tf_static(self, message: TFMessage) -> None:
+        for transform in message.transforms:
+            try:
+                self.processor.transforms.add(
+                    transform.header.frame_id,
+                    transform.child_frame_id,
+                    transform_matrix(transform.transform),
+                )
+            except InputError as err:
+                self._error(str(err))
+
+    def _on_image(self, message: Image | CompressedImage) -> None:
+        self.images += 1
+        stamp_ns = stamp_to_ns(message.header.stamp)
+        try:
+            image = image_from_message(message)
+            output = self.processor.process(stamp_ns, message.header.frame_id, image)
+        except (ImageError, InputError) as err:
+            self.dropped += 1
+            self._error(f'image dropped ({self.dropped} so far): {err}')
+            return
+        self.detections += len(output.detections)
+        self.fiducials_publisher.publish(
+            fill_fiducials(output, FiducialArray(), FiducialDetection)
+        )
+        if output.observations:
+            self.observations_publisher.publish(
+                fill_observations(output, LandmarkObservationArray(), LandmarkObservation)
+            )
+        if self.debug_publisher is not None and self.debug_publisher.get_subscription_count():
+            self.debug_publisher.publish(self._debug_image(image, output, message))
+        self._report_status()
+
+    def _debug_image(self, image: np.ndarray, output: FrameOutput, source: Any) -> Image:
+        canvas = draw_detections(image, output)
+        debug = Image()
+        debug.header = source.header
+        debug.height, debug.width = canvas.shape[:2]
+        debug.encoding = 'bgr8'
+        debug.step = canvas.shape[1] * 3
+        debug.data = canvas.tobytes()
+        return debug
+
+    def _report_status(self) -> None:
+        now = time.monotonic()
+        if now - self._status_time < STATUS_PERIOD_S:
+            return
+        rate = (self.images - self._status_images) / (now - self._status_time)
+        self.get_logger().info(
+            f'{self.images} images ({rate:.1f}/s), {self.detections} markers accepted, '
+            f'{self.dropped} images dropped'
+        )
+        self._status_time, self._status_images = now, self.images
+
+
+@console_main('marker_detector')
+def main(argv: list[str] | None = None) -> int:
+    """Run the node until Ctrl-C (the Jazzy shutdown pattern)."""
+    return spin_node('marker_detector', MarkerDetectorNode, argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,271 @@
+"""marker_detect_bag: run the marker detector over a recorded camera bag, offline.
+
+Reads a bag with camera images (sensor_msgs/Image or CompressedImage), camera_info and,
+unless the camera mount is given as parameters, /tf_static; runs every image through the
+same conversions and processor as the marker_detector node; and writes a new bag with every
+other topic copied unchanged plus /fiducials and /landmark_observations at the images'
+receive stamps (the images themselves only with --keep-images). The node's YAML file
+(``--params``) configures it exactly as it would the node. The result is what the live node
+would have published, at any replay speed, and feeds ``em_sam_evaluate`` or the EM-SAM nodes.
+
+    marker_detect_bag bags/office_camera.mcap --output out/office_detected
+    em_sam_evaluate out/office_detected
+
+Images that cannot be used (corrupt, no camera_info yet...) are counted and reported with
+their reasons; the output is written atomically (nothing at --output unless complete).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rclpy.serialization import serialize_message
+
+from marker_detector.conversions import (
+    camera_info_fields,
+    fill_fiducials,
+    fill_observations,
+    image_from_message,
+    transform_matrix,
+)
+from marker_detector.core.images import ImageError
+from marker_detector.processor import InputError, MarkerProcessor
+from marker_detector.settings import (
+    apply_overrides,
+    detector_config,
+    extrinsics_config,
+    parameters_from_yaml,
+)
+from slam_bringup.bag.recording import AtomicBagWriter
+from slam_bringup.bag.source import BagSource
+from slam_bringup.cli import console_main
+from slam_bringup.errors import BagError, ParameterError
+from slam_bringup.progress import ProgressReporter
+from slam_bringup.qos import output_qos, recorded_from_profile
+from slam_bringup.stamps import stamp_to_ns
+from slam_bringup.typesys import TypeRegistry
+from slam_interfaces.msg import (
+    FiducialArray,
+    FiducialDetection,
+    LandmarkObservation,
+    LandmarkObservationArray,
+)
+
+PROG = 'marker_detect_bag'
+IMAGE_TOPICS = ('/camera/image_raw/compressed', '/camera/image_raw')
+CAMERA_INFO_TOPIC = '/camera/camera_info'
+TF_STATIC_TOPIC = '/tf_static'
+FIDUCIALS_TOPIC = '/fiducials'
+OBSERVATIONS_TOPIC = '/landmark_observations'
+FIDUCIALS_TYPE = 'slam_interfaces/msg/FiducialArray'
+OBSERVATIONS_TYPE = 'slam_interfaces/msg/LandmarkObservationArray'
+
+
+@dataclass
+class DetectStats:
+    """What a run of the offline detector did."""
+
+    images: int = 0
+    images_with_markers: int = 0
+    detections: int = 0
+    dropped: Counter[str] = field(default_factory=Counter)
+    rejections: Counter[str] = field(default_factory=Counter)
+    camera_info_errors: Counter[str] = field(default_factory=Counter)
+    output: Path | None = None
+
+    def summary(self) -> str:
+        """One paragraph for the terminal."""
+        lines = [
+            f'{PROG}: {self.images} images, {self.images_with_markers} with markers, '
+            f'{self.detections} markers accepted; wrote {self.output}'
+        ]
+        for reason, count in self.dropped.most_common():
+            lines.append(f'  dropped {count} images: {reason}')
+        for reason, count in self.camera_info_errors.most_common():
+            lines.append(f'  {count} camera_info messages unusable: {reason}')
+        for gate, count in self.rejections.most_common():
+            lines.append(f'  rejected {count} markers: {gate}')
+        return '\n'.join(lines)
+
+
+def _gate(reason: str) -> str:
+    """The gate of a rejection reason ('side 9.3 px < min_side_px 12' -> 'min_side_px')."""
+    words = [w for w in reason.replace(':', ' ').split() if '_' in w or w.isalpha()]
+    named = [w for w in words if w.startswith(('min_', 'max_', 'allowed'))]
+    return named[0] if named else reason
+
+
+def detect_bag(
+    source_path: Path,
+    output: Path,
+    values: dict[str, Any],
+    *,
+    image_topic: str | None = None,
+    keep_images: bool = False,
+    progress: bool = True,
+) -> DetectStats:
+    """Run the detector over ``source_path``; write ``output``; return the statistics.
+
+    Raises:
+        BagError: the input has no image or camera_info topic, or cannot be read or written.
+        ParameterError: ``values`` hold an invalid setting.
+    """
+    try:
+        processor = MarkerProcessor(detector_config(values), extrinsics_config(values))
+    except ValueError as err:
+        raise ParameterError(str(err)) from None
+    registry = TypeRegistry()
+    stats = DetectStats()
+    with BagSource(source_path) as source:
+        topics = source.topics()
+        if image_topic is None:
+            image_topic = next((t for t in IMAGE_TOPICS if t in topics), None)
+        if image_topic is None or image_topic not in topics:
+            raise BagError(
+                f'bag {str(source_path)!r} has no image topic '
+                f'({image_topic or " or ".join(IMAGE_TOPICS)}); '
+                f'topics: {", ".join(sorted(topics))}'
+            )
+        if CAMERA_INFO_TOPIC not in topics:
+            raise BagError(f'bag {str(source_path)!r} has no {CAMERA_INFO_TOPIC} topic')
+        for name in (image_topic, CAMERA_INFO_TOPIC, TF_STATIC_TOPIC):
+            if name in topics:
+                registry.ensure(topics[name].msgtype)
+        store = registry.typestore
+        writer = AtomicBagWriter(output)
+        try:
+            copied = [t for t in topics if keep_images or t != image_topic]
+            for name in copied:
+                if name in (FIDUCIALS_TOPIC, OBSERVATIONS_TOPIC):
+                    continue  # replaced by this run's detections
+                summary = topics[name]
+                msgdef, rihs01 = registry.msgdef_and_hash(summary.msgtype)
+                writer.add_topic(
+                    name,
+                    summary.msgtype,
+                    msgdef=msgdef,
+                    rihs01=rihs01,
+                    offered_qos=list(summary.offered_qos),
+                )
+            for name, msgtype in (
+                (FIDUCIALS_TOPIC, FIDUCIALS_TYPE),
+                (OBSERVATIONS_TOPIC, OBSERVATIONS_TYPE),
+            ):
+                msgdef, rihs01 = registry.msgdef_and_hash(msgtype)
+                writer.add_topic(
+                    name,
+                    msgtype,
+                    msgdef=msgdef,
+                    rihs01=rihs01,
+                    offered_qos=[recorded_from_profile(output_qos())],
+                )
+            reporter = (
+                ProgressReporter(source.duration_ns / 1e9, label=PROG, unit='s')
+                if progress
+                else None
+            )
+            for message in source.messages():
+                if writer.has_topic(message.topic) and message.topic not in (
+                    FIDUCIALS_TOPIC,
+                    OBSERVATIONS_TOPIC,
+                ):
+                    writer.write(message.topic, message.timestamp_ns, message.data)
+                if message.topic == CAMERA_INFO_TOPIC:
+                    info = store.deserialize_cdr(message.data, message.msgtype)
+                    try:
+                        processor.set_camera_info(**camera_info_fields(info))
+                    except InputError as err:
+                        stats.camera_info_errors[str(err)] += 1
+                elif message.topic == TF_STATIC_TOPIC:
+                    tf_message: Any = store.deserialize_cdr(message.data, message.msgtype)
+                    for transform in tf_message.transforms:
+                        processor.transforms.add(
+                            transform.header.frame_id,
+                            transform.child_frame_id,
+                            transform_matrix(transform.transform),
+                        )
+                elif message.topic == image_topic:
+                    _detect_one(processor, store, message, writer, stats)
+                    if reporter is not None:
+                        reporter.update(
+                            (message.timestamp_ns - source.start_ns) / 1e9, items=stats.images
+                        )
+            if reporter is not None:
+                reporter.finish()
+        except BaseException:
+            writer.abort()
+            raise
+        stats.output = writer.close()
+    return stats
+
+
+def _detect_one(
+    processor: MarkerProcessor,
+    store: Any,
+    message: Any,
+    writer: AtomicBagWriter,
+    stats: DetectStats,
+) -> None:
+    stats.images += 1
+    decoded: Any = store.deserialize_cdr(message.data, message.msgtype)
+    try:
+        image = image_from_message(decoded)
+        output = processor.process(
+            stamp_to_ns(decoded.header.stamp), str(decoded.header.frame_id), image
+        )
+    except (ImageError, InputError) as err:
+        reason = str(err).split(': ', 1)[-1] if str(err).startswith('image at') else str(err)
+        stats.dropped[reason] += 1
+        return
+    stats.detections += len(output.detections)
+    for rejection in output.rejections:
+        stats.rejections[_gate(rejection.reason)] += 1
+    fiducials = fill_fiducials(output, FiducialArray(), FiducialDetection)
+    writer.write(FIDUCIALS_TOPIC, message.timestamp_ns, serialize_message(fiducials))
+    if output.observations:
+        stats.images_with_markers += 1
+        observations = fill_observations(output, LandmarkObservationArray(), LandmarkObservation)
+        writer.write(OBSERVATIONS_TOPIC, message.timestamp_ns, serialize_message(observations))
+
+
+@console_main(PROG)
+def main(argv: list[str] | None = None) -> int:
+    """Command line: see the module docstring."""
+    from marker_detector.marker_detector_node import PARAMETERS
+
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    parser.add_argument('bag', type=Path, help='input bag (mcap or sqlite3 rosbag2, or ROS 1)')
+    parser.add_argument('--output', type=Path, required=True, help='output bag directory (new)')
+    parser.add_argument('--params', type=Path, help="the node's YAML parameter file")
+    parser.add_argument(
+        '--image-topic', help=f'image topic (default: {" or ".join(IMAGE_TOPICS)})'
+    )
+    parser.add_argument(
+        '--set',
+        action='append',
+        default=[],
+        metavar='NAME=VALUE',
+        help='override one parameter (YAML value, e.g. marker_size_m=0.25); repeatable',
+    )
+    parser.add_argument('--keep-images', action='store_true', help='copy the images too')
+    args = parser.parse_args(argv)
+    defaults = {spec.name: spec.default for spec in PARAMETERS}
+    try:
+        values = parameters_from_yaml(args.params, defaults) if args.params else defaults
+        values = apply_overrides(values, args.set)
+    except ValueError as err:
+        raise ParameterError(str(err)) from None
+    stats = detect_bag(
+        args.bag, args.output, values, image_topic=args.image_topic, keep_images=args.keep_images
+    )
+    print(stats.summary())  # noqa: T201
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,203 @@
+"""The marker_detector's ROS-free processor: camera model, extrinsics and per-image detection.
+
+The node hands it camera_info fields, static transforms and decoded images; it returns, per
+image, the detections in the camera optical frame, the rejected markers with their reasons,
+and range-bearing observations in the robot base frame. Inputs it cannot use raise
+``InputError`` with the reason (no camera_info yet, no transform from the camera to the base
+frame yet, an image the camera model does not fit); the node logs it and goes on.
+
+Extrinsics come from one of two sources:
+
+- ``tf_static``: the transforms received on /tf_static, chained from the base frame to the
+  image's frame id (the camera optical frame);
+- ``parameters``: camera_link in the base frame as x, y, z and roll, pitch, yaw; the optical
+  frame is camera_link rotated by REP 103's optical convention (z forward, x right, y down).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from marker_detector.core.base_frame import (
+    RangeBearing,
+    optical_from_link,
+    to_range_bearing,
+    transform_from_xyz_rpy,
+)
+from marker_detector.core.camera import CameraModel
+from marker_detector.core.detection import (
+    DetectionResult,
+    DetectorConfig,
+    MarkerDetection,
+    Rejection,
+    detect_markers,
+    make_detector,
+)
+
+EXTRINSICS_SOURCES = ('tf_static', 'parameters')
+
+
+class InputError(ValueError):
+    """An input the processor cannot use now; the message names it and says why."""
+
+
+@dataclass(frozen=True)
+class ExtrinsicsConfig:
+    """Where the camera sits on the robot (see the module docstring)."""
+
+    source: str = 'tf_static'
+    base_frame: str = 'base_link'
+    camera_xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    camera_rpy_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if self.source not in EXTRINSICS_SOURCES:
+            raise ValueError(
+                f'marker_detector setting extrinsics_source={self.source!r}: must be one of '
+                f'{EXTRINSICS_SOURCES}'
+            )
+        if not self.base_frame:
+            raise ValueError('marker_detector setting base_frame: must not be empty')
+        for name, values in (
+            ('camera_xyz_m', self.camera_xyz_m),
+            ('camera_rpy_rad', self.camera_rpy_rad),
+        ):
+            if len(values) != 3 or not np.all(np.isfinite(values)):
+                raise ValueError(
+                    f'marker_detector setting {name}={list(values)}: must be 3 finite numbers'
+                )
+
+
+@dataclass
+class StaticTransforms:
+    """A tree of static transforms: child frame -> (parent frame, T_parent_child 4x4)."""
+
+    parents: dict[str, tuple[str, np.ndarray]] = field(default_factory=dict)
+
+    def add(self, parent: str, child: str, transform: np.ndarray) -> None:
+        """Add or replace the transform of ``child`` in ``parent``."""
+        if parent == child:
+            raise InputError(f'static transform from {parent!r} to itself')
+        self.parents[child.lstrip('/')] = (parent.lstrip('/'), np.asarray(transform, float))
+
+    def _in_root(self, frame: str) -> tuple[str, np.ndarray]:
+        """Return the root of ``frame``'s tree and T_root_frame (4x4)."""
+        transform = np.eye(4)
+        seen = {frame}
+        while frame in self.parents:
+            parent, parent_from_frame = self.parents[frame]
+            if parent in seen:
+                raise InputError(f'static transforms form a loop through {parent!r}')
+            seen.add(parent)
+            transform = parent_from_frame @ transform
+            frame = parent
+        return frame, transform
+
+    def lookup(self, target: str, source: str) -> np.ndarray | None:
+        """Return T_target_source (4x4), or None when the two frames are not connected."""
+        target_root, root_from_target = self._in_root(target.lstrip('/'))
+        source_root, root_from_source = self._in_root(source.lstrip('/'))
+        if target_root != source_root:
+            return None
+        result: np.ndarray = np.linalg.inv(root_from_target) @ root_from_source
+        return result
+
+
+@dataclass(frozen=True)
+class FrameOutput:
+    """What one image gave: detections (camera frame), rejections, base-frame observations."""
+
+    stamp_ns: int
+    camera_frame: str
+    base_frame: str
+    detections: list[MarkerDetection]
+    rejections: list[Rejection]
+    observations: list[RangeBearing]
+
+
+class MarkerProcessor:
+    """Camera model, extrinsics and detector settings; turns images into FrameOutputs."""
+
+    def __init__(
+        self,
+        config: DetectorConfig,
+        extrinsics: ExtrinsicsConfig,
+        warn: Callable[[str], None] | None = None,
+    ) -> None:
+        self.config = config
+        self.extrinsics = extrinsics
+        self.detector = make_detector(config)
+        self.camera: CameraModel | None = None
+        self.camera_frame = ''
+        self.transforms = StaticTransforms()
+        self._warn = warn or (lambda message: None)
+        self._fixed_extrinsics: np.ndarray | None = None
+        if extrinsics.source == 'parameters':
+            self._fixed_extrinsics = (
+                transform_from_xyz_rpy(extrinsics.camera_xyz_m, extrinsics.camera_rpy_rad)
+                @ optical_from_link()
+            )
+
+    def reconfigure(self, config: DetectorConfig) -> None:
+        """Use new detector settings from the next image on."""
+        self.detector = make_detector(config)
+        self.config = config
+
+    def set_camera_info(
+        self,
+        frame_id: str,
+        width: int,
+        height: int,
+        k: list[float],
+        d: list[float],
+        distortion_model: str,
+    ) -> None:
+        """Take a camera_info; raise InputError naming the field when it is unusable."""
+        try:
+            camera = CameraModel.from_camera_info(width, height, k, d, distortion_model)
+        except ValueError as err:
+            raise InputError(f'camera_info (frame {frame_id!r}) rejected: {err}') from None
+        self.camera = camera
+        self.camera_frame = frame_id
+
+    def base_from_camera(self, camera_frame: str) -> np.ndarray:
+        """T_base_camera (4x4) of the image's frame; raise InputError when unknown."""
+        if self._fixed_extrinsics is not None:
+            return self._fixed_extrinsics
+        transform = self.transforms.lookup(self.extrinsics.base_frame, camera_frame)
+        if transform is None:
+            known = ', '.join(sorted(self.transforms.parents)) or 'none yet'
+            raise InputError(
+                f'no static transform from {self.extrinsics.base_frame!r} to the camera frame '
+                f'{camera_frame!r} (frames on /tf_static: {known}); set extrinsics_source to '
+                "'parameters' or publish the camera mount on /tf_static"
+            )
+        return transform
+
+    def process(self, stamp_ns: int, frame_id: str, image: np.ndarray) -> FrameOutput:
+        """Detect markers in ``image`` (gray or BGR) taken at ``stamp_ns`` in ``frame_id``."""
+        if self.camera is None:
+            raise InputError(
+                f'no camera_info received yet: image at {stamp_ns} ns (frame {frame_id!r}) '
+                'dropped; is camera/camera_info published?'
+            )
+        camera_frame = frame_id or self.camera_frame
+        base_from_camera = self.base_from_camera(camera_frame)
+        try:
+            result: DetectionResult = detect_markers(
+                image, self.camera, self.config, self.detector
+            )
+        except ValueError as err:
+            raise InputError(f'image at {stamp_ns} ns: {err}') from None
+        observations = [to_range_bearing(d, base_from_camera) for d in result.detections]
+        return FrameOutput(
+            stamp_ns=stamp_ns,
+            camera_frame=camera_frame,
+            base_frame=self.extrinsics.base_frame,
+            detections=list(result.detections),
+            rejections=list(result.rejections),
+            observations=observations,
+        )

@@ -1,0 +1,227 @@
+"""Topic-level: rendered office camera images through the marker_detector node (real rclpy).
+
+Frames of the simulated office run (slam_sim's renderer: AprilTag 36h11 markers on walls and
+desks, lens distortion, lighting, blur, noise, JPEG) are published as CompressedImage with
+their camera_info and the camera mount on /tf_static; the node's landmark_observations are
+compared with the ground truth (marker ids, range and bearing in base_link). Then bad inputs:
+an image before any camera_info of a fresh node, an unsupported encoding, an empty and a
+corrupt image, and a refused marker size; the node logs each and keeps working.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+
+import cv2
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from tf2_msgs.msg import TFMessage
+
+from marker_detector.marker_detector_node import MarkerDetectorNode
+from slam_bringup.qos import latched_qos
+from slam_bringup.stamps import ns_to_stamp
+from slam_bringup.testing.harness import RosHarness, wait_until
+from slam_interfaces.msg import FiducialArray, LandmarkObservationArray
+from slam_sim.core.camera import SceneStyle
+from slam_sim.core.office import simulate_office
+from slam_sim.office_camera_bag import (
+    CAMERA_FORWARD_M,
+    CAMERA_HEIGHT_M,
+    CameraFrame,
+    CameraRig,
+    render_frames,
+)
+
+pytestmark = pytest.mark.topic
+
+SEED = 3
+NUM_FRAMES = 40
+MIN_SIDE_PX = 30.0
+OPTICAL = 'camera_optical_frame'
+
+
+def rendered_frames() -> list[CameraFrame]:
+    run = simulate_office(SEED, 'standard')
+    frames: Iterator[CameraFrame] = render_frames(run, CameraRig(), end_ns=int(12e9))
+    return [frame for _, frame in zip(range(NUM_FRAMES), frames, strict=False)]
+
+
+def camera_info(rig: CameraRig) -> CameraInfo:
+    fields = rig.camera.camera_info()
+    info = CameraInfo()
+    info.header.frame_id = OPTICAL
+    info.width, info.height = fields.width, fields.height
+    info.distortion_model = fields.distortion_model
+    info.d = [float(v) for v in fields.d]
+    info.k = [float(v) for v in fields.k]
+    info.r = [float(v) for v in fields.r]
+    info.p = [float(v) for v in fields.p]
+    return info
+
+
+def tf_static() -> TFMessage:
+    from geometry_msgs.msg import TransformStamped
+    from scipy.spatial.transform import Rotation
+
+    link = TransformStamped()
+    link.header.frame_id, link.child_frame_id = 'base_link', 'camera_link'
+    link.transform.translation.x, link.transform.translation.z = CAMERA_FORWARD_M, CAMERA_HEIGHT_M
+    link.transform.rotation.w = 1.0
+    optical = TransformStamped()
+    optical.header.frame_id, optical.child_frame_id = 'camera_link', OPTICAL
+    x, y, z, w = Rotation.from_euler('xyz', [-math.pi / 2, 0.0, -math.pi / 2]).as_quat()
+    optical.transform.rotation.x, optical.transform.rotation.y = float(x), float(y)
+    optical.transform.rotation.z, optical.transform.rotation.w = float(z), float(w)
+    return TFMessage(transforms=[link, optical])
+
+
+def compressed(frame: CameraFrame, stamp_ns: int) -> CompressedImage:
+    ok, data = cv2.imencode('.jpg', frame.image, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    assert ok
+    message = CompressedImage(format='jpeg', data=data.tobytes())
+    ns_to_stamp(stamp_ns, message.header.stamp)
+    message.header.frame_id = OPTICAL
+    return message
+
+
+def truth_in_base(frame: CameraFrame) -> dict[int, tuple[float, float, float]]:
+    """id -> (range m, bearing rad, side px; 0 unless fully visible) of the markers in front
+    of the camera, in base_link."""
+    optical_in_base = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    truth = frame.truth
+    result = {}
+    for k in range(len(truth.ids)):
+        centre = optical_in_base @ truth.translation_m[k] + [
+            CAMERA_FORWARD_M,
+            0.0,
+            CAMERA_HEIGHT_M,
+        ]
+        result[int(truth.ids[k])] = (
+            math.hypot(centre[0], centre[1]),
+            math.atan2(centre[1], centre[0]),
+            float(truth.side_px[k]) if truth.visible[k] else 0.0,
+        )
+    return result
+
+
+@pytest.fixture(scope='module')
+def frames() -> list[CameraFrame]:
+    return rendered_frames()
+
+
+def make_node(**overrides: object) -> MarkerDetectorNode:
+    parameters = {
+        'image_transport': 'compressed',
+        'marker_size_m': SceneStyle().side_m,
+        **overrides,
+    }
+    return MarkerDetectorNode(
+        parameter_overrides=[Parameter(name, value=value) for name, value in parameters.items()]
+    )
+
+
+def test_observations_match_the_rendered_ground_truth(
+    ros_harness: RosHarness, frames: list[CameraFrame]
+) -> None:
+    node = ros_harness.add_node(make_node())
+    observations = ros_harness.collect('landmark_observations', LandmarkObservationArray)
+    fiducials = ros_harness.collect('fiducials', FiducialArray)
+    tf = ros_harness.publisher('/tf_static', TFMessage, latched_qos(depth=10))
+    tf.publish(tf_static())
+    info = ros_harness.publisher('camera/camera_info', CameraInfo)
+    images = ros_harness.publisher('camera/image_raw/compressed', CompressedImage)
+    ros_harness.wait_for_subscribers(images)
+    ros_harness.wait_for_subscribers(info)
+    rig = CameraRig()
+    info.publish(camera_info(rig))
+    wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
+    for index, frame in enumerate(frames):
+        stamp_ns = 1_000_000_000 + index * 100_000_000
+        images.publish(compressed(frame, stamp_ns))
+        # one image at a time: the node's input queue is a best-effort sensor queue
+        wait_until(lambda i=index: len(fiducials) > i, what=f'the fiducials of image {index}')
+    by_stamp = {
+        m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: m for m in observations.messages
+    }
+    assert all(m.header.frame_id == 'base_link' for m in observations.messages)
+    expected = found = 0
+    range_errors, bearing_errors = [], []
+    for index, frame in enumerate(frames):
+        truth = truth_in_base(frame)
+        message = by_stamp.get(1_000_000_000 + index * 100_000_000)
+        seen = {o.landmark_id: o for o in message.observations} if message else {}
+        assert set(seen) <= set(truth), f'image {index}: wrong ids {set(seen) - set(truth)}'
+        big = {i for i, (_, _, side) in truth.items() if side >= MIN_SIDE_PX}
+        expected += len(big)
+        found += len(big & set(seen))
+        for landmark_id, observation in seen.items():
+            true_range, true_bearing, _ = truth[landmark_id]
+            range_errors.append(abs(observation.range_m - true_range) / true_range)
+            bearing_errors.append(abs(observation.bearing_rad - true_bearing))
+            cov = np.reshape(observation.covariance, (2, 2))
+            assert cov[0, 0] > 0 and cov[1, 1] > 0 and np.allclose(cov, cov.T)
+    assert expected > 40, 'the frames should show markers'
+    assert found / expected >= 0.95
+    assert np.median(range_errors) < 0.01
+    assert np.degrees(np.median(bearing_errors)) < 0.5
+    detections = [d for m in fiducials.messages for d in m.detections]
+    assert all(d.dictionary == 'DICT_APRILTAG_36h11' for d in detections)
+    assert all(d.marker_size_m == pytest.approx(SceneStyle().side_m) for d in detections)
+    assert node.dropped == 0
+
+
+def test_bad_inputs_are_logged_and_the_node_keeps_working(
+    ros_harness: RosHarness, frames: list[CameraFrame]
+) -> None:
+    node = ros_harness.add_node(
+        make_node(
+            image_transport='raw',
+            extrinsics_source='parameters',
+            camera_xyz_m=[CAMERA_FORWARD_M, 0.0, CAMERA_HEIGHT_M],
+        )
+    )
+    fiducials = ros_harness.collect('fiducials', FiducialArray)
+    images = ros_harness.publisher('camera/image_raw', Image)
+    info = ros_harness.publisher('camera/camera_info', CameraInfo)
+    ros_harness.wait_for_subscribers(images)
+    ros_harness.wait_for_subscribers(info)
+    frame = next(f for f in frames if np.sum(f.truth.visible & (f.truth.side_px > 40)) >= 2)
+
+    def raw(encoding: str, data: bytes, width: int, height: int, step: int) -> Image:
+        message = Image(encoding=encoding, width=width, height=height, step=step, data=data)
+        message.header.frame_id = OPTICAL
+        return message
+
+    height, width = frame.image.shape
+    good = raw('mono8', frame.image.tobytes(), width, height, width)
+    images.publish(good)  # before any camera_info
+    wait_until(lambda: node.dropped == 1, what='the image without camera_info to be dropped')
+    info.publish(camera_info(CameraRig()))
+    wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
+    bad = [
+        raw('yuv422', bytes(width * height * 2), width, height, width * 2),
+        raw('mono8', b'', 0, 0, 0),
+        raw('mono8', frame.image.tobytes()[: width * 10], width, height, width),
+    ]
+    for number, message in enumerate(bad, start=2):
+        images.publish(message)
+        wait_until(lambda n=number: node.dropped == n, what=f'bad image {number} to be dropped')
+    images.publish(good)
+    wait_until(lambda: len(fiducials) >= 1, what='fiducials after the bad images')
+    assert len(fiducials.messages[-1].detections) >= 2
+
+    refused = node.set_parameters([Parameter('marker_size_m', value=-0.3)])
+    assert not refused[0].successful and 'marker' in refused[0].reason
+    refused = node.set_parameters([Parameter('marker_sizes_m', value=['5:0.0'])])
+    assert not refused[0].successful
+    accepted = node.set_parameters([Parameter('marker_size_m', value=0.6)])
+    assert accepted[0].successful
+    images.publish(good)
+    wait_until(lambda: len(fiducials) >= 2, what='fiducials after the size change')
+    before = {d.id: d.pose.position.z for d in fiducials.messages[0].detections}
+    after = {d.id: d.pose.position.z for d in fiducials.messages[1].detections}
+    for marker_id in before.keys() & after.keys():
+        assert after[marker_id] == pytest.approx(2.0 * before[marker_id], rel=1e-6)
