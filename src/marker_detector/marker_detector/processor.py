@@ -50,8 +50,8 @@ class ExtrinsicsConfig:
 
     source: str = 'tf_static'
     base_frame: str = 'base_link'
-    camera_xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    camera_rpy_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    camera_xyz_m: tuple[float, ...] = (0.0, 0.0, 0.0)
+    camera_rpy_rad: tuple[float, ...] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if self.source not in EXTRINSICS_SOURCES:

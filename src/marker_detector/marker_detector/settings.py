@@ -77,8 +77,8 @@ def extrinsics_config(values: dict[str, Any]) -> ExtrinsicsConfig:
     return ExtrinsicsConfig(
         source=str(values['extrinsics_source']),
         base_frame=str(values['base_frame']),
-        camera_xyz_m=tuple(float(v) for v in values['camera_xyz_m']),  # type: ignore[arg-type]
-        camera_rpy_rad=tuple(float(v) for v in values['camera_rpy_rad']),  # type: ignore[arg-type]
+        camera_xyz_m=tuple(float(v) for v in values['camera_xyz_m']),
+        camera_rpy_rad=tuple(float(v) for v in values['camera_rpy_rad']),
     )
 
 

@@ -48,16 +48,14 @@ from slam_bringup.qos import latched_qos, output_qos
 from slam_bringup.typesys import TypeRegistry
 from slam_sim.core.camera import (
     DICTIONARY_NAME,
-    CameraEffects,
-    ImageEffects,
     LevelPose,
     Markers,
     MarkerTruth,
     PinholeCamera,
     Renderer,
     SceneStyle,
-    encode_jpeg,
 )
+from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
 from slam_sim.core.geometry import FloatArray, IntArray
 from slam_sim.core.office import OfficeConfig, OfficeRun, Variant, simulate_office
 from slam_sim.dataset_bag import MessageFactory, TopicSpec, WrittenBag, write_bag

@@ -9,18 +9,16 @@ import numpy as np
 import pytest
 
 from slam_sim.core.camera import (
-    CameraEffects,
-    ImageEffects,
     LevelPose,
     Markers,
     MarkerTruth,
     PinholeCamera,
     Renderer,
     SceneStyle,
-    encode_jpeg,
     marker_texture,
     pixel_rays,
 )
+from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
 
 CAMERA = PinholeCamera()
 STYLE = SceneStyle()
