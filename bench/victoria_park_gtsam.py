@@ -149,7 +149,7 @@ def main() -> int:
     )
     args = parser.parse_args()
     try:
-        gtsam: Any = importlib.import_module('gtsam')  # no stubs needed: used untyped
+        gtsam: Any = importlib.import_module('gtsam')  # Any: gtsam has no type hints
     except ImportError:
         print('victoria_park_gtsam: gtsam is not installed: pip install -r requirements/bench.txt')
         return 2

@@ -26,7 +26,8 @@ mv "$ROOT/out/em_sam_camera" "$OUT/live_mapper"
 echo
 echo "== the same detector offline (marker_detect_bag)"
 marker_detect_bag "$SAMPLE" --output "$OUT/detected" \
-  --params "$ROOT/src/marker_detector/config/marker_detector.yaml" --set marker_size_m=0.30
+  --params "$ROOT/src/marker_detector/config/marker_detector.yaml" \
+  --params "$ROOT/src/marker_detector/config/office_camera.yaml"
 echo
 echo "== evaluation against ground truth (em_sam_evaluate)"
 em_sam_evaluate "$OUT/detected" --output "$OUT/evaluation" \

@@ -223,5 +223,6 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
     wait_until(lambda: len(fiducials) >= 2, what='fiducials after the size change')
     before = {d.id: d.pose.position.z for d in fiducials.messages[0].detections}
     after = {d.id: d.pose.position.z for d in fiducials.messages[1].detections}
+    assert before.keys() & after.keys(), 'the same markers should be detected again'
     for marker_id in before.keys() & after.keys():
         assert after[marker_id] == pytest.approx(2.0 * before[marker_id], rel=1e-6)

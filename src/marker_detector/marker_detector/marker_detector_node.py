@@ -166,9 +166,7 @@ class MarkerDetectorNode(Node):
                 f'parameter image_transport={transport!r}: must be one of {IMAGE_TRANSPORTS}'
             )
         try:
-            self.processor = MarkerProcessor(
-                detector_config(values), extrinsics_config(values), warn=self._warn
-            )
+            self.processor = MarkerProcessor(detector_config(values), extrinsics_config(values))
         except ValueError as err:
             raise ParameterError(str(err)) from None
         self._values = values
@@ -203,9 +201,6 @@ class MarkerDetectorNode(Node):
                 TFMessage, '/tf_static', self._on_tf_static, latched_qos(depth=100)
             )
         self.add_on_set_parameters_callback(self._on_set_parameters)
-
-    def _warn(self, message: str) -> None:
-        self.get_logger().warning(message, throttle_duration_sec=2.0)
 
     def _error(self, message: str) -> None:
         self.get_logger().error(message, throttle_duration_sec=2.0)

@@ -93,13 +93,6 @@ class DetectStats:
         return '\n'.join(lines)
 
 
-def _gate(reason: str) -> str:
-    """The gate of a rejection reason ('side 9.3 px < min_side_px 12' -> 'min_side_px')."""
-    words = [w for w in reason.replace(':', ' ').split() if '_' in w or w.isalpha()]
-    named = [w for w in words if w.startswith(('min_', 'max_', 'allowed'))]
-    return named[0] if named else reason
-
-
 def detect_bag(
     source_path: Path,
     output: Path,
@@ -224,7 +217,7 @@ def _detect_one(
         return
     stats.detections += len(output.detections)
     for rejection in output.rejections:
-        stats.rejections[_gate(rejection.reason)] += 1
+        stats.rejections[rejection.gate] += 1
     fiducials = fill_fiducials(output, FiducialArray(), FiducialDetection)
     writer.write(FIDUCIALS_TOPIC, message.timestamp_ns, serialize_message(fiducials))
     if output.observations:
@@ -241,7 +234,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     parser.add_argument('bag', type=Path, help='input bag (mcap or sqlite3 rosbag2, or ROS 1)')
     parser.add_argument('--output', type=Path, required=True, help='output bag directory (new)')
-    parser.add_argument('--params', type=Path, help="the node's YAML parameter file")
+    parser.add_argument(
+        '--params',
+        type=Path,
+        action='append',
+        default=[],
+        help='a node YAML parameter file; repeatable, later files override earlier ones',
+    )
     parser.add_argument(
         '--image-topic', help=f'image topic (default: {" or ".join(IMAGE_TOPICS)})'
     )
@@ -256,7 +255,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     defaults = {spec.name: spec.default for spec in PARAMETERS}
     try:
-        values = parameters_from_yaml(args.params, defaults) if args.params else defaults
+        values = defaults
+        for path in args.params:
+            values = parameters_from_yaml(path, values)
         values = apply_overrides(values, args.set)
     except ValueError as err:
         raise ParameterError(str(err)) from None

@@ -16,7 +16,6 @@ Extrinsics come from one of two sources:
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -125,7 +124,6 @@ class MarkerProcessor:
         self,
         config: DetectorConfig,
         extrinsics: ExtrinsicsConfig,
-        warn: Callable[[str], None] | None = None,
     ) -> None:
         self.config = config
         self.extrinsics = extrinsics
@@ -133,7 +131,6 @@ class MarkerProcessor:
         self.camera: CameraModel | None = None
         self.camera_frame = ''
         self.transforms = StaticTransforms()
-        self._warn = warn or (lambda message: None)
         self._fixed_extrinsics: np.ndarray | None = None
         if extrinsics.source == 'parameters':
             self._fixed_extrinsics = (

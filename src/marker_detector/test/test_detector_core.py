@@ -374,6 +374,7 @@ def test_each_quality_gate_rejects_with_a_reason(
     for rejection in result.rejections:
         assert rejection.corners_px is not None and rejection.corners_px.shape == (4, 2)
         assert re.search(reason, rejection.reason), rejection.reason
+        assert rejection.gate == next(iter(settings))  # the setting that dropped it
 
 
 def test_a_rejected_candidate_is_decoded_from_refined_corners(rng: np.random.Generator) -> None:

@@ -15,7 +15,6 @@ aruco_detect published for that very frame (``aruco_transforms.bag``); and ``403
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 from typing import Any
@@ -31,9 +30,8 @@ from marker_detector.core.camera import CameraModel
 from marker_detector.core.candidates import MarkerCorners, locate_markers
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
 from marker_detector.core.pose import rotation_vector
-from slam_bringup.datasets import DATA_ENV
+from slam_bringup.datasets import DATA_ENV, data_root, dataset
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
 APRILTAG_PHOTOS = (
     '33369213973_9d9bb4cc96_c',
     '34085369442_304b6bafd9_c',
@@ -46,14 +44,10 @@ UBIQUITY = DetectorConfig(dictionary='DICT_5X5_1000', default_marker_size_m=0.14
 
 
 def data_dir(relative: str) -> Path:
-    """Return ``$SLAM_DATA_DIR/relative`` (else next to this repository), or skip the test."""
-    # Anchored on this file, not on the working directory: pytest may run from anywhere.
-    root = (
-        Path(os.environ[DATA_ENV]) if DATA_ENV in os.environ else REPO_ROOT.parent / 'shared/data'
-    )
-    path = root / relative
-    if not path.exists():
-        pytest.skip(f'{relative} not found in {root} (set {DATA_ENV})')
+    """Return ``data_root()/relative`` ($SLAM_DATA_DIR, else next to the repository), or skip."""
+    path = dataset(relative)
+    if path is None:
+        pytest.skip(f'{relative} not found in {data_root()} (set {DATA_ENV})')
     return path
 
 

@@ -164,9 +164,12 @@ class MarkerDetection:
 
 @dataclass(frozen=True, eq=False)
 class Rejection:
-    """A decoded marker dropped by a quality gate; ``reason`` names the gate's setting."""
+    """A decoded marker dropped by a quality gate: ``gate`` is the setting that dropped it
+    (e.g. 'max_range_m'; 'no_pose' or 'degenerate_pose' when no usable pose exists),
+    ``reason`` the sentence with the measured value."""
 
     id: int
+    gate: str
     reason: str
     corners_px: FloatArray | None = None
 
@@ -286,9 +289,9 @@ def detect_markers(
     rejections: list[Rejection] = []
     candidates: list[MarkerCorners] = []
     for marker in locate_markers(gray, config, detector, camera):
-        reason = _image_gate(marker, config)
-        if reason:
-            rejections.append(Rejection(marker.id, reason, marker.corners_px))
+        rejection = _image_gate(marker, config)
+        if rejection is not None:
+            rejections.append(rejection)
         else:
             candidates.append(marker)
     poses = solve_marker_poses(
@@ -305,14 +308,21 @@ def detect_markers(
     return DetectionResult(detections, rejections)
 
 
-def _image_gate(marker: MarkerCorners, config: DetectorConfig) -> str:
-    """Return why a marker fails the gates that need no pose ('' if it passes them)."""
+def _image_gate(marker: MarkerCorners, config: DetectorConfig) -> Rejection | None:
+    """Return the rejection by the gates that need no pose (None if it passes them)."""
     if config.allowed_ids and marker.id not in config.allowed_ids:
-        return f'id {marker.id} not in allowed_ids'
+        return Rejection(
+            marker.id, 'allowed_ids', f'id {marker.id} not in allowed_ids', marker.corners_px
+        )
     side_px = float(side_lengths(marker.corners_px).min())
     if side_px < config.min_side_px:
-        return f'side {side_px:.1f} px < min_side_px {config.min_side_px:g}'
-    return ''
+        return Rejection(
+            marker.id,
+            'min_side_px',
+            f'side {side_px:.1f} px < min_side_px {config.min_side_px:g}',
+            marker.corners_px,
+        )
+    return None
 
 
 def _evaluate(
@@ -321,29 +331,35 @@ def _evaluate(
     """Return the detection of one marker, or the first pose quality gate it fails."""
     corners = marker.corners_px
 
-    def reject(reason: str) -> Rejection:
-        return Rejection(marker.id, reason, corners)
+    def reject(gate: str, reason: str) -> Rejection:
+        return Rejection(marker.id, gate, reason, corners)
 
     if pose is None:
-        return reject('no pose: solvePnP IPPE_SQUARE found no solution in front of the camera')
+        return reject(
+            'no_pose', 'no pose: solvePnP IPPE_SQUARE found no solution in front of the camera'
+        )
     if pose.reprojection_error_px > config.max_reprojection_error_px:
         return reject(
+            'max_reprojection_error_px',
             f'reprojection error {pose.reprojection_error_px:.2f} px > '
-            f'max_reprojection_error_px {config.max_reprojection_error_px:g}'
+            f'max_reprojection_error_px {config.max_reprojection_error_px:g}',
         )
     range_m = float(np.linalg.norm(pose.translation_m))
     if range_m > config.max_range_m:
-        return reject(f'range {range_m:.2f} m > max_range_m {config.max_range_m:g}')
+        return reject('max_range_m', f'range {range_m:.2f} m > max_range_m {config.max_range_m:g}')
     angle = viewing_angle_rad(pose.rotation, pose.translation_m)
     limit = config.max_viewing_angle_rad
     if angle > limit:
         return reject(
+            'max_viewing_angle_rad',
             f'viewing angle {math.degrees(angle):.1f} deg > max_viewing_angle_rad '
-            f'{limit:g} ({math.degrees(limit):.1f} deg)'
+            f'{limit:g} ({math.degrees(limit):.1f} deg)',
         )
     covariance = pose_covariance(pose.jacobian, config.pixel_noise_px)
     if covariance is None:
-        return reject('degenerate corner geometry: the pose covariance is undefined')
+        return reject(
+            'degenerate_pose', 'degenerate corner geometry: the pose covariance is undefined'
+        )
     return MarkerDetection(
         id=marker.id,
         dictionary=config.dictionary,

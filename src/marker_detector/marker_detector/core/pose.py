@@ -116,7 +116,7 @@ def _ippe_poses(
     corners: FloatArray, objects: FloatArray, camera: CameraModel
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Return both SOLVEPNP_IPPE_SQUARE poses of each marker, R (M, 2, 3, 3) and t (M, 2, 3),
-    and (M, 2) which exist in front of the camera (the others are placeholders)."""
+    and (M, 2) which exist in front of the camera (the others are identity fillers, masked)."""
     rotations = np.tile(np.eye(3), (len(corners), 2, 1, 1))
     translations = np.tile([0.0, 0.0, 1.0], (len(corners), 2, 1))
     solved = np.zeros((len(corners), 2), dtype=bool)

@@ -1,0 +1,92 @@
+"""marker_detect_bag: the detector over a short rendered office camera bag, offline."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from rosbags.typesys import Stores, get_typestore
+
+from marker_detector.marker_detector_node import PARAMETERS
+from marker_detector.offline import detect_bag, main
+from marker_detector.settings import parameters_from_yaml
+from slam_bringup.bag.source import BagSource
+from slam_bringup.errors import BagError
+from slam_bringup.typesys import TypeRegistry
+from slam_sim.core.office import simulate_office
+from slam_sim.office_camera_bag import IMAGE_TOPIC, TRUE_FIDUCIALS_TOPIC, write_office_camera_bag
+
+CONFIG = Path(__file__).resolve().parents[1] / 'config'
+
+
+@pytest.fixture(scope='module')
+def camera_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp('camera') / 'office_camera'
+    write_office_camera_bag(simulate_office(7, 'standard'), path, end_s=6.0)
+    return path
+
+
+def office_values() -> dict[str, object]:
+    values: dict[str, object] = {spec.name: spec.default for spec in PARAMETERS}
+    for name in ('marker_detector.yaml', 'office_camera.yaml'):
+        values = parameters_from_yaml(CONFIG / name, values)
+    return values
+
+
+def decoded(path: Path, topic: str) -> list[object]:
+    registry = TypeRegistry(typestore=get_typestore(Stores.ROS2_JAZZY))
+    with BagSource(path) as source:
+        registry.ensure(source.topics()[topic].msgtype)
+        return [
+            registry.typestore.deserialize_cdr(m.data, m.msgtype) for m in source.messages([topic])
+        ]
+
+
+def test_the_office_overlay_sets_compressed_images_and_the_marker_size() -> None:
+    values = office_values()
+    assert values['image_transport'] == 'compressed'
+    assert values['marker_size_m'] == pytest.approx(0.30)
+
+
+def test_detections_match_the_true_fiducials_and_other_topics_are_copied(
+    camera_bag: Path, tmp_path: Path
+) -> None:
+    output = tmp_path / 'detected'
+    stats = detect_bag(camera_bag, output, office_values(), progress=False)
+    with BagSource(camera_bag) as source:
+        original = {name: t.count for name, t in source.topics().items()}
+    with BagSource(output) as source:
+        topics = {name: t.count for name, t in source.topics().items()}
+    assert IMAGE_TOPIC not in topics  # images only with keep_images
+    for name, count in original.items():
+        if name != IMAGE_TOPIC:
+            assert topics[name] == count, name
+    assert topics['/fiducials'] == stats.images == original[IMAGE_TOPIC]
+    assert topics['/landmark_observations'] == stats.images_with_markers > 0
+    assert not stats.dropped
+    truth = {
+        (m.header.stamp.sec, m.header.stamp.nanosec): {d.id for d in m.detections}
+        for m in decoded(camera_bag, TRUE_FIDUCIALS_TOPIC)  # type: ignore[attr-defined]
+    }
+    found = expected = 0
+    for message in decoded(output, '/fiducials'):
+        ids = {d.id for d in message.detections}  # type: ignore[attr-defined]
+        visible = truth[(message.header.stamp.sec, message.header.stamp.nanosec)]  # type: ignore[attr-defined]
+        expected += len(visible)
+        found += len(visible & ids)
+    assert expected > 0 and found / expected > 0.9
+
+
+def test_a_bag_without_images_is_rejected_and_nothing_is_written(
+    camera_bag: Path, tmp_path: Path
+) -> None:
+    output = tmp_path / 'detected'
+    with pytest.raises(BagError, match='no image topic'):
+        detect_bag(camera_bag, output, office_values(), image_topic='/nope', progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_command_line_names_a_bad_parameter(camera_bag: Path, tmp_path: Path) -> None:
+    code = main([str(camera_bag), '--output', str(tmp_path / 'x'), '--set', 'marker_size_m=-1'])
+    assert code == 2
+    assert list(tmp_path.iterdir()) == []
