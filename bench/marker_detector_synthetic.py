@@ -6,10 +6,13 @@ Each seed's office run (slam_sim.office_camera_bag.render_frames: AprilTag 36h11
 0.30 m on walls and desks, 640x480 with lens distortion, lighting drift, vignetting, blur,
 noise) is rendered; every frame goes through the marker_detector processor (the node's
 defaults, marker_size_m 0.30, camera mount as on the office robot), once with each corner
-refinement. The frames are JPEG-compressed at the bag's quality first, like the bag.
+refinement, and once more with subpix and the range and viewing-angle gates open (the
+detector's own recall: the default gates drop markers beyond 8 m or seen at more than 70 deg
+on purpose). The frames are JPEG-compressed at the bag's quality first, like the bag.
 
 Scores, against the renderer's truth:
-- recall: fully visible markers at least 30 px wide that are detected (the target is 99%);
+- recall: fully visible markers whose shortest side is at least 30 px that are detected (the
+  target is 99%; scored with the gates open), and the same within the default gates;
 - wrong ids: detections whose id is not a marker in front of the camera (target 0);
 - range error: |range - true| / true in base_link, median and 95th percentile (target: median
   at most 1% of range); bearing error in base_link, median (target 0.5 deg);
@@ -21,6 +24,7 @@ Writes marker_detector_synthetic.md.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -57,12 +61,16 @@ def _passes_gates(truth: MarkerTruth, k: int, config: DetectorConfig) -> bool:
     return distance <= config.max_range_m and angle <= config.max_viewing_angle_rad
 
 
-def evaluate(seeds: list[int], refinement: str) -> dict[str, float]:
+def evaluate(seeds: list[int], refinement: str, *, gates_open: bool = False) -> dict[str, float]:
     rig = CameraRig()
     info = rig.camera.camera_info()
     config = DetectorConfig(
         default_marker_size_m=SceneStyle().side_m, corner_refinement=refinement
     )
+    if gates_open:
+        config = dataclasses.replace(
+            config, max_range_m=math.inf, max_viewing_angle_rad=math.pi / 2
+        )
     extrinsics = ExtrinsicsConfig(source='parameters', camera_xyz_m=tuple(MOUNT.tolist()))
     processor = MarkerProcessor(config, extrinsics)
     processor.set_camera_info(
@@ -136,10 +144,14 @@ def main() -> int:
     args = parser.parse_args()
     cv2.setNumThreads(1)
     rows = {}
-    for refinement in ('subpix', 'none'):
-        rows[refinement] = evaluate(args.seeds, refinement)
-        print(f'{refinement}: {rows[refinement]}', flush=True)
-    best = rows['subpix']
+    for name, refinement, gates_open in (
+        ('subpix', 'subpix', False),
+        ('none', 'none', False),
+        ('subpix, range and angle gates open', 'subpix', True),
+    ):
+        rows[name] = evaluate(args.seeds, refinement, gates_open=gates_open)
+        print(f'{name}: {rows[name]}', flush=True)
+    best, detector = rows['subpix'], rows['subpix, range and angle gates open']
     lines = [
         '# marker_detector on rendered office frames (exact ground truth)',
         '',
@@ -160,12 +172,12 @@ def main() -> int:
             f'{row["ms_per_frame"]:.1f} |'
         )
     checks = [
-        ('recall >= 99 % for markers >= 30 px', best['recall'] >= 0.99),
+        ('recall >= 99 % for markers >= 30 px (gates open)', detector['recall'] >= 0.99),
         (
-            'recall >= 99 % for markers >= 30 px within the range and angle gates',
+            'recall >= 99 % for markers >= 30 px within the default range and angle gates',
             best['recall_gated'] >= 0.99,
         ),
-        ('no wrong ids', best['wrong'] == 0),
+        ('no wrong ids (every variant)', all(row['wrong'] == 0 for row in rows.values())),
         ('median range error <= 1 % of range', best['range_median_pct'] <= 1.0),
         ('median bearing error <= 0.5 deg', best['bearing_median_deg'] <= 0.5),
     ]

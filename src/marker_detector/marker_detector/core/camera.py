@@ -112,10 +112,9 @@ class CameraModel:
         if not self.has_distortion:
             out = points.copy()
         else:
-            undistorted = cv2.undistortPointsIter(
-                points.reshape(-1, 1, 2), self.K, self.dist_coeffs, np.eye(3), self.K,
-                _UNDISTORT_CRITERIA,
-            )  # fmt: skip
+            undistorted = _undistort_iteratively(
+                points.reshape(-1, 1, 2), self.K, self.dist_coeffs
+            )
             out = np.asarray(undistorted, dtype=np.float64).reshape(-1, 2)
         if normalized:
             return np.asarray(np.linalg.solve(self.K[:2, :2], (out - self.K[:2, 2]).T).T)
@@ -188,3 +187,14 @@ def _as_points(values: ArrayLike, name: str) -> FloatArray:
 def _short(values: ArrayLike) -> str:
     flat = np.asarray(values, dtype=np.float64).reshape(-1)
     return '[' + ', '.join(f'{v:g}' if math.isfinite(v) else str(v) for v in flat) + ']'
+
+
+def _undistort_iteratively(points: FloatArray, k: FloatArray, d: FloatArray) -> FloatArray:
+    """Return cv2's iterative undistortion of raw pixels (N, 1, 2) to ideal pixels, to
+    _UNDISTORT_CRITERIA: undistortPointsIter on OpenCV 4.x, undistortPoints with a
+    ``criteria`` argument on 5.x (which dropped undistortPointsIter)."""
+    if hasattr(cv2, 'undistortPointsIter'):
+        return np.asarray(cv2.undistortPointsIter(points, k, d, np.eye(3), k, _UNDISTORT_CRITERIA))
+    return np.asarray(
+        cv2.undistortPoints(points, k, d, R=np.eye(3), P=k, criteria=_UNDISTORT_CRITERIA)
+    )

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from marker_detector.core.detection import DetectorConfig
 
 REDECODE_SIDE_SLACK_PX = 2.0  # rough contour corners sit up to ~1 px inside at each end
+OPENCV_MIN_PERIMETER_RATE = 0.03  # cv2.aruco's default minMarkerPerimeterRate
 
 
 @dataclass(frozen=True)
@@ -35,10 +36,10 @@ DETECTOR_PROFILES = {
     'fast': DetectorProfile((5, 25, 20), 1),
 }
 """``accurate``: thresholds with 3, 13 and 23 px windows (OpenCV's default set), edges fitted
-twice. ``fast``: 5 and 25 px windows (one pass fewer), edges fitted once: about 1.2x the
-frame rate (bench/marker_detector_speed.py), slightly lower recall of small low-contrast
-markers (the AprilTag photos: 9 of 10 tags instead of 10 on one), the same corner accuracy
-on the benchmark's renders."""
+twice (106 frames/s on bench/marker_detector_speed.py). ``fast``: 5 and 25 px windows (one
+pass fewer), edges fitted once: about 1.2x the frame rate, slightly lower recall of small
+low-contrast markers (the AprilTag photos: 9 of 10 tags instead of 10 on one), the same
+corner accuracy on the benchmark's renders."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,9 +68,13 @@ def locate_markers(
     sides (up to ~1 px short at each end) may reach ``min_side_px``. ``camera`` (optional)
     lets the edge fit undistort; without it edges are fitted as straight lines.
     """
+    params = detector.getDetectorParameters()
+    floor = candidate_perimeter_rate(config.min_side_px, gray.shape)
+    if params.minMarkerPerimeterRate != floor:
+        params.minMarkerPerimeterRate = floor
+        detector.setDetectorParameters(params)
     corners, ids, rejected = detector.detectMarkers(gray)
     dictionary = detector.getDictionary()
-    params = detector.getDetectorParameters()
     cells = int(dictionary.markerSize) + 2 * int(params.markerBorderBits)
     found = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
     marker_ids = [] if ids is None else [int(i) for i in ids.ravel()]
@@ -89,6 +94,16 @@ def locate_markers(
     if config.redecode_rejected:
         markers += _redecode(image, rejected, markers, cells, detector, config, camera, edges)
     return markers
+
+
+def candidate_perimeter_rate(min_side_px: float, shape: tuple[int, ...]) -> float:
+    """Return cv2.aruco's minMarkerPerimeterRate for an image of ``shape`` (H, W, ...): the
+    contours it drops (perimeter below rate * max(H, W)) are those whose rough sides could
+    not reach ``min_side_px`` anyway (REDECODE_SIDE_SLACK_PX short), so they are never
+    thresholded into candidates, decoded or refined (~0.6 ms of ~10 per 640x480 frame with
+    the default 12 px gate, bench/marker_detector_speed.py). Never below OpenCV's default."""
+    perimeter = 4.0 * max(min_side_px - REDECODE_SIDE_SLACK_PX, 0.0)
+    return max(OPENCV_MIN_PERIMETER_RATE, perimeter / max(shape[0], shape[1]))
 
 
 def _redecode(

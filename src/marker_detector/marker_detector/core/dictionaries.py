@@ -1,11 +1,12 @@
 """Marker dictionaries by name: the AprilTag families and the ArUco dictionaries of cv2.aruco.
 
-OpenCV ships its AprilTag dictionaries with ``maxCorrectionBits = 0``, so ``cv2.aruco`` corrects
-no bit errors on them at all, whatever ``errorCorrectionRate`` says (the AprilTag library itself
-corrects 2 bits by default). ``get_dictionary`` gives each AprilTag family the correction
-capability its minimum Hamming distance h allows, (h - 1) // 2 bits (the number in the family
-name: 36h11 -> 5), and the detector's ``errorCorrectionRate`` scales it as for every other
-dictionary (0.6 -> 3 bits for 36h11). The ArUco dictionaries keep OpenCV's values.
+OpenCV 4.x ships its AprilTag dictionaries with ``maxCorrectionBits = 0``, so ``cv2.aruco``
+corrects no bit errors on them at all, whatever ``errorCorrectionRate`` says (the AprilTag
+library itself corrects 2 bits by default; OpenCV 5.x ships the values below).
+``get_dictionary`` gives each AprilTag family the correction capability its minimum Hamming
+distance h allows, (h - 1) // 2 bits (the number in the family name: 36h11 -> 5), and the
+detector's ``errorCorrectionRate`` scales it as for every other dictionary (0.6 -> 3 bits for
+36h11). The ArUco dictionaries keep OpenCV's values.
 """
 
 from __future__ import annotations
