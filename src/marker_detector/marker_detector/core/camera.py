@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -195,6 +196,5 @@ def _undistort_iteratively(points: FloatArray, k: FloatArray, d: FloatArray) -> 
     ``criteria`` argument on 5.x (which dropped undistortPointsIter)."""
     if hasattr(cv2, 'undistortPointsIter'):
         return np.asarray(cv2.undistortPointsIter(points, k, d, np.eye(3), k, _UNDISTORT_CRITERIA))
-    return np.asarray(
-        cv2.undistortPoints(points, k, d, R=np.eye(3), P=k, criteria=_UNDISTORT_CRITERIA)
-    )
+    undistort: Any = cv2.undistortPoints  # OpenCV 4.x's stubs lack the 5.x criteria argument
+    return np.asarray(undistort(points, k, d, R=np.eye(3), P=k, criteria=_UNDISTORT_CRITERIA))

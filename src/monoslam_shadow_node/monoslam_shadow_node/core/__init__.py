@@ -1,0 +1,1 @@
+"""ROS-free cores: uncertain projective geometry, the Shadow filter and its classifier."""

@@ -1,0 +1,292 @@
+"""The Shadow filter's EKF (paper 001, eq. 1-5), for N features at once.
+
+State of one feature (eq. 1), 7 values: x = (X0, w, v)
+
+- (X0, w) = (x_f, y_f, z_f, w_f): the feature's homogeneous position in the current camera
+  frame C_k (optical: x right, y down, z forward). The filter keeps |X0| = 1, so X0 is the unit
+  viewing direction and w the inverse distance along it (1/m): the Euclidean point is X0 / w;
+- v = (v_x, v_y, v_z): the velocity (m/s) in the feature frame F_k, the camera frame C_k's axes
+  translated to the feature.
+
+Why homogeneous with w as inverse distance rather than a Euclidean point with a large depth
+variance (issue 6 lets us choose): a new feature's depth is unknown between a few decimetres
+and infinity. A Gaussian in depth cannot describe that (it puts mass behind the camera and
+none at infinity); a Gaussian in w can (w = 0 is infinity), and the projection is nearly
+linear in w, so the EKF stays consistent from the first frame (Montiel, Civera and Davison's
+inverse depth, here in the paper's homogeneous form). A feature starts at w0 with sigma_w0
+along its first viewing ray; the direction's covariance comes from the pixel noise.
+
+Motion (eq. 2), from camera frame C_k to C_k+1 with R, t (X_k+1 = R X_k + t for points):
+constant velocity with white acceleration noise, velocity first, as the simulation integrates
+it: v' = R (v + a), X0' = R (X0 + w (v + a) dt) + w t, w' = w, with a ~ N(0, q dt I3) (q in
+m^2/s^3). The camera motion itself can be uncertain: ``camera_translation_sigma_m`` and
+``camera_rotation_sigma_rad`` per frame (zero for known poses, as in the paper's Fig. 3).
+
+Measurement (eq. 3-5): the raw pixel of X0 through M and the lens (``camera``); w and v do
+not enter it. Updates use the Joseph form and a chi-square gate on the innovation. After
+every step the state is renormalized to |X0| = 1 (with the normalization's Jacobian), which
+removes the homogeneous scale from the covariance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from monoslam_shadow_node.core.camera import CameraModel, homogeneous_projection
+from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
+
+BoolArray = NDArray[np.bool_]
+STATE_SIZE = 7
+MIN_FRONT_Z = 1e-3  # a direction with z below this is not in front of the camera
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """Noise model of the Shadow filter's EKF (units in the names)."""
+
+    pixel_sigma_px: float = 1.0
+    initial_inverse_depth_per_m: float = 0.25
+    initial_inverse_depth_sigma_per_m: float = 0.25
+    velocity_sigma_m_s: float = 0.5
+    acceleration_psd_m2_s3: float = 0.05
+    camera_translation_sigma_m: float = 0.0
+    camera_rotation_sigma_rad: float = 0.0
+    innovation_gate_probability: float = 0.9999
+
+    def __post_init__(self) -> None:
+        checks = (
+            ('pixel_sigma_px', self.pixel_sigma_px, self.pixel_sigma_px > 0),
+            ('initial_inverse_depth_per_m', self.initial_inverse_depth_per_m,
+             self.initial_inverse_depth_per_m >= 0),
+            ('initial_inverse_depth_sigma_per_m', self.initial_inverse_depth_sigma_per_m,
+             self.initial_inverse_depth_sigma_per_m > 0),
+            ('velocity_sigma_m_s', self.velocity_sigma_m_s, self.velocity_sigma_m_s >= 0),
+            ('acceleration_psd_m2_s3', self.acceleration_psd_m2_s3,
+             self.acceleration_psd_m2_s3 >= 0),
+            ('camera_translation_sigma_m', self.camera_translation_sigma_m,
+             self.camera_translation_sigma_m >= 0),
+            ('camera_rotation_sigma_rad', self.camera_rotation_sigma_rad,
+             self.camera_rotation_sigma_rad >= 0),
+            ('innovation_gate_probability', self.innovation_gate_probability,
+             0 < self.innovation_gate_probability < 1),
+        )  # fmt: skip
+        for name, value, ok in checks:
+            if not (isinstance(value, int | float) and np.isfinite(value) and ok):
+                raise ValueError(f'{name}={value!r} is out of range')
+
+
+def initial_states(
+    directions: FloatArray, direction_covariances: FloatArray, config: EkfConfig
+) -> tuple[FloatArray, FloatArray]:
+    """Return the states (N, 7) and covariances (N, 7, 7) of new features seen along unit
+    camera-frame directions (N, 3) with covariances (N, 3, 3) (from the pixel noise)."""
+    count = len(directions)
+    states = np.zeros((count, STATE_SIZE))
+    states[:, :3] = directions
+    states[:, 3] = config.initial_inverse_depth_per_m
+    covariances = np.zeros((count, STATE_SIZE, STATE_SIZE))
+    covariances[:, :3, :3] = direction_covariances
+    covariances[:, 3, 3] = config.initial_inverse_depth_sigma_per_m**2
+    covariances[:, 4:, 4:] = config.velocity_sigma_m_s**2 * np.eye(3)
+    return states, covariances
+
+
+def predict(
+    states: FloatArray,
+    covariances: FloatArray,
+    rotation: FloatArray,
+    translation: FloatArray,
+    dt: float,
+    config: EkfConfig,
+) -> tuple[FloatArray, FloatArray]:
+    """Return states and covariances moved to the next camera frame (eq. 2).
+
+    ``rotation`` (3, 3) and ``translation`` (3,) map points of the previous camera frame into
+    the new one (R = R_wc'^T R_wc, t = R_wc'^T (C - C')); ``dt`` s since the previous frame.
+    """
+    count = len(states)
+    direction, w, velocity = states[:, :3], states[:, 3], states[:, 4:]
+    moved = direction + (w * dt)[:, None] * velocity
+    new = np.empty_like(states)
+    new[:, :3] = moved @ rotation.T + w[:, None] * translation
+    new[:, 3] = w
+    new[:, 4:] = velocity @ rotation.T
+    jacobian = np.zeros((count, STATE_SIZE, STATE_SIZE))
+    jacobian[:, :3, :3] = rotation
+    jacobian[:, :3, 3] = (velocity * dt) @ rotation.T + translation
+    jacobian[:, :3, 4:] = (w * dt)[:, None, None] * rotation
+    jacobian[:, 3, 3] = 1.0
+    jacobian[:, 4:, 4:] = rotation
+    covariance = jacobian @ covariances @ np.swapaxes(jacobian, 1, 2)
+    # acceleration noise, entering through the velocity: G = [R w dt; 0; R]
+    noise = np.zeros((count, STATE_SIZE, 3))
+    noise[:, :3, :] = (w * dt)[:, None, None] * rotation
+    noise[:, 4:, :] = rotation
+    covariance += config.acceleration_psd_m2_s3 * dt * noise @ np.swapaxes(noise, 1, 2)
+    if config.camera_translation_sigma_m > 0 or config.camera_rotation_sigma_rad > 0:
+        covariance += _camera_motion_noise(new, config)
+    return renormalize(new, covariance)
+
+
+def _camera_motion_noise(states: FloatArray, config: EkfConfig) -> FloatArray:
+    """Return the covariance (N, 7, 7) the camera motion's own uncertainty adds: a translation
+    error dt moves X0 by w dt, a rotation error dtheta turns X0 and v by -[.]x dtheta."""
+    count = len(states)
+    jac_t = np.zeros((count, STATE_SIZE, 3))
+    jac_t[:, :3, :] = states[:, 3, None, None] * np.eye(3)
+    jac_r = np.zeros((count, STATE_SIZE, 3))
+    jac_r[:, :3, :] = -_skew_rows(states[:, :3])
+    jac_r[:, 4:, :] = -_skew_rows(states[:, 4:])
+    return np.asarray(
+        config.camera_translation_sigma_m**2 * jac_t @ np.swapaxes(jac_t, 1, 2)
+        + config.camera_rotation_sigma_rad**2 * jac_r @ np.swapaxes(jac_r, 1, 2)
+    )
+
+
+def _skew_rows(v: FloatArray) -> FloatArray:
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2] = -v[:, 2], v[:, 1]
+    out[:, 1, 0], out[:, 1, 2] = v[:, 2], -v[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = -v[:, 1], v[:, 0]
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class UpdateResult:
+    """States and covariances after an update, with per feature: the innovation (N, 2) px,
+    its normalized squared size (N,), and whether the measurement was used (N,) (False: the
+    gate rejected it, or the feature was not in front of the camera)."""
+
+    states: FloatArray
+    covariances: FloatArray
+    innovation: FloatArray
+    nis: FloatArray
+    used: BoolArray
+
+
+def update(
+    states: FloatArray,
+    covariances: FloatArray,
+    pixels: FloatArray,
+    camera: CameraModel,
+    config: EkfConfig,
+) -> UpdateResult:
+    """Return the EKF update of features with their measured raw pixels (N, 2) (eq. 3-5)."""
+    count = len(states)
+    in_front = states[:, 2] > MIN_FRONT_Z
+    innovation = np.full((count, 2), np.nan)
+    nis = np.full(count, np.nan)
+    used = np.zeros(count, dtype=bool)
+    new_states, new_covariances = states.copy(), covariances.copy()
+    index = np.flatnonzero(in_front)
+    if len(index) == 0:
+        return UpdateResult(new_states, new_covariances, innovation, nis, used)
+    x, p = states[index], covariances[index]
+    predicted, jac = homogeneous_projection(camera, x[:, :4])
+    h = np.zeros((len(index), 2, STATE_SIZE))
+    h[:, :, :4] = jac
+    residual = pixels[index] - predicted
+    h_t = np.swapaxes(h, 1, 2)
+    s = h @ p @ h_t + config.pixel_sigma_px**2 * np.eye(2)
+    s_inv = np.linalg.inv(s)
+    squared = np.einsum('ni,nij,nj->n', residual, s_inv, residual)
+    innovation[index], nis[index] = residual, squared
+    accept = squared <= chi2_quantile(config.innovation_gate_probability, 2)
+    if np.any(accept):
+        rows = index[accept]
+        gain = p[accept] @ h_t[accept] @ s_inv[accept]  # (M, 7, 2)
+        x_new = x[accept] + (gain @ residual[accept][:, :, None])[:, :, 0]
+        joseph = np.eye(STATE_SIZE) - gain @ h[accept]
+        p_new = joseph @ p[accept] @ np.swapaxes(
+            joseph, 1, 2
+        ) + config.pixel_sigma_px**2 * gain @ np.swapaxes(gain, 1, 2)
+        x_new, p_new = renormalize(x_new, p_new)
+        new_states[rows], new_covariances[rows] = x_new, p_new
+        used[rows] = True
+    return UpdateResult(new_states, new_covariances, innovation, nis, used)
+
+
+def renormalize(states: FloatArray, covariances: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Return states scaled to |X0| = 1 (the homogeneous position divided by |X0|; v kept)
+    and covariances through the scaling's Jacobian, symmetrized."""
+    norms = np.linalg.norm(states[:, :3], axis=1)
+    scaled = states.copy()
+    scaled[:, :4] /= norms[:, None]
+    # d(X / n)/dX for the homogeneous part: (I4 - X' [u, 0]') / n with u = X0 / n
+    jacobian = np.tile(np.eye(STATE_SIZE), (len(states), 1, 1))
+    unit = np.zeros((len(states), 4))
+    unit[:, :3] = scaled[:, :3]
+    jacobian[:, :4, :4] = (np.eye(4) - scaled[:, :4, None] * unit[:, None, :]) / norms[
+        :, None, None
+    ]
+    covariance = jacobian @ covariances @ np.swapaxes(jacobian, 1, 2)
+    return scaled, 0.5 * (covariance + np.swapaxes(covariance, 1, 2))
+
+
+@dataclass(frozen=True, eq=False)
+class EuclideanEstimate:
+    """World-frame estimates of features: positions (N, 3) m with covariances (N, 3, 3),
+    velocities (N, 3) m/s with covariances (N, 3, 3), and whether the position is defined
+    (w more than ``min_inverse_depth_sigmas`` standard deviations above zero)."""
+
+    position: FloatArray
+    position_covariance: FloatArray
+    velocity: FloatArray
+    velocity_covariance: FloatArray
+    defined: BoolArray
+
+
+def world_estimates(
+    states: FloatArray,
+    covariances: FloatArray,
+    rotation: FloatArray,
+    centre: FloatArray,
+    *,
+    max_distance_m: float = 1000.0,
+    min_inverse_depth_sigmas: float = 3.0,
+) -> EuclideanEstimate:
+    """Return world-frame position and velocity estimates of features in the camera frame
+    with pose R_world_camera ``rotation`` (3, 3) and ``centre`` (3,).
+
+    p = R X0 / w + C, by first-order propagation. Where w is not clearly positive the
+    position is put at ``max_distance_m`` along the ray (never NaN) and flagged undefined; its
+    covariance is still the propagated one (huge), so it says how little is known.
+    """
+    direction, w = states[:, :3], states[:, 3]
+    w_safe = np.maximum(w, 1.0 / max_distance_m)
+    sigma_w = np.sqrt(np.maximum(covariances[:, 3, 3], 0.0))
+    defined = w > min_inverse_depth_sigmas * sigma_w
+    camera_point = direction / w_safe[:, None]
+    jacobian = np.zeros((len(states), 3, 4))
+    jacobian[:, :, :3] = np.eye(3) / w_safe[:, None, None]
+    jacobian[:, :, 3] = -direction / (w_safe**2)[:, None]
+    jacobian = rotation @ jacobian
+    position_covariance = jacobian @ covariances[:, :4, :4] @ np.swapaxes(jacobian, 1, 2)
+    velocity_covariance = rotation @ covariances[:, 4:, 4:] @ rotation.T
+    return EuclideanEstimate(
+        camera_point @ rotation.T + centre,
+        0.5 * (position_covariance + np.swapaxes(position_covariance, 1, 2)),
+        states[:, 4:] @ rotation.T,
+        0.5 * (velocity_covariance + np.swapaxes(velocity_covariance, 1, 2)),
+        defined,
+    )
+
+
+def static_hypothesis(
+    states: FloatArray, covariances: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Return the states (N, 7) and covariances (N, 7, 7) conditioned on zero velocity (the
+    feature is static): x_p - P_pv P_vv^-1 v and P_pp - P_pv P_vv^-1 P_vp for the position
+    part, v = 0 with zero covariance. Features with a singular P_vv use its pseudo-inverse."""
+    p_xv, p_vv = covariances[:, :4, 4:], covariances[:, 4:, 4:]
+    gain = p_xv @ np.linalg.pinv(p_vv)
+    conditioned = states.copy()
+    conditioned[:, :4] -= (gain @ states[:, 4:, None])[:, :, 0]
+    conditioned[:, 4:] = 0.0
+    reduced = np.zeros_like(covariances)
+    reduced[:, :4, :4] = covariances[:, :4, :4] - gain @ np.swapaxes(p_xv, 1, 2)
+    reduced = 0.5 * (reduced + np.swapaxes(reduced, 1, 2))
+    return conditioned, reduced
