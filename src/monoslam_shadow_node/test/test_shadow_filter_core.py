@@ -191,11 +191,13 @@ def test_lifecycle_static_points_are_handed_over_and_moving_ones_tracked() -> No
 
 
 def test_default_rule_waits_until_motion_would_have_been_visible() -> None:
-    """The default rule (0.2 m/s must be visible) never hands over a moving point here; on this
-    nearly straight camera path it keeps the static points PENDING for the 5 s run."""
+    """The default rule (0.2 m/s must be visible) calls every moving point DYNAMIC here; on
+    this nearly straight camera path no static point reaches that visibility in the 5 s run,
+    so none is handed over (they stay PENDING, or DYNAMIC at the test's false-alarm rate)."""
     status, handed, _ = _run_scene(ShadowConfig())
     assert all(status.get(i) == DYNAMIC for i in range(40, 60))
-    assert not any(i >= 40 for i in handed)
+    assert handed == {}
+    assert sum(status.get(i) == DYNAMIC for i in range(40)) <= 4
 
 
 def test_bad_input_is_named_and_leaves_the_filter_usable() -> None:

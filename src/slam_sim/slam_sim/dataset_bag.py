@@ -13,7 +13,7 @@ import shutil
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from rclpy.qos import QoSProfile
@@ -130,6 +130,25 @@ def write_bag(
     return WrittenBag(path=target, counts=counts, size_bytes=size)
 
 
+class CameraInfoLike(Protocol):
+    """The sensor_msgs/CameraInfo fields a simulated camera provides (k, r, p row-major)."""
+
+    @property
+    def height(self) -> int: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def distortion_model(self) -> str: ...
+    @property
+    def d(self) -> Any: ...
+    @property
+    def k(self) -> Any: ...
+    @property
+    def r(self) -> Any: ...
+    @property
+    def p(self) -> Any: ...
+
+
 class MessageFactory:
     """Builds rosbags message objects; the registry must know every type used."""
 
@@ -149,6 +168,24 @@ class MessageFactory:
     def header(self, stamp_ns: int, frame_id: str) -> Any:
         """Return a std_msgs/Header."""
         return self._type('std_msgs/msg/Header')(stamp=self.stamp(stamp_ns), frame_id=frame_id)
+
+    def camera_info(self, stamp_ns: int, frame_id: str, info: CameraInfoLike) -> Any:
+        """Return a sensor_msgs/CameraInfo of ``info``'s fields (no binning, full-image ROI)."""
+        return self._type('sensor_msgs/msg/CameraInfo')(
+            header=self.header(stamp_ns, frame_id),
+            height=info.height,
+            width=info.width,
+            distortion_model=info.distortion_model,
+            d=info.d,
+            k=info.k,
+            r=info.r,
+            p=info.p,
+            binning_x=0,
+            binning_y=0,
+            roi=self._type('sensor_msgs/msg/RegionOfInterest')(
+                x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+            ),
+        )
 
     def odometry(
         self,

@@ -91,22 +91,7 @@ class _Messages:
 
     def camera_info(self, stamp_ns: int) -> Any:
         """Return the CameraInfo of the run's camera."""
-        info = self.info
-        return self.types[CAMERA_INFO_TYPE](
-            header=self.build.header(stamp_ns, OPTICAL_FRAME),
-            height=info.height,
-            width=info.width,
-            distortion_model=info.distortion_model,
-            d=info.d,
-            k=info.k,
-            r=info.r,
-            p=info.p,
-            binning_x=0,
-            binning_y=0,
-            roi=self.types['sensor_msgs/msg/RegionOfInterest'](
-                x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-            ),
-        )
+        return self.build.camera_info(stamp_ns, OPTICAL_FRAME, self.info)
 
     def pose(self, frame: FeatureFrame) -> Any:
         """Return the true optical-frame pose in map, zero covariance."""

@@ -31,7 +31,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.projective import (
     FloatArray,
@@ -281,6 +280,3 @@ def pixel_ray_directions(
     jacobian = rotation @ d_unit @ ray_jacobians  # (N, 3, 2)
     covariance = pixel_sigma**2 * jacobian @ np.swapaxes(jacobian, 1, 2)
     return units @ rotation.T, covariance
-
-
-BoolArray = NDArray[np.bool_]
