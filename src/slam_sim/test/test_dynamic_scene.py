@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ from slam_sim.core.dynamic_scene import (
     DynamicSceneConfig,
     DynamicSceneRun,
     SceneCamera,
+    build_scene,
     simulate_dynamic_scene,
 )
 from slam_sim.dynamic_features_bag import (
@@ -185,8 +187,14 @@ def test_scene_geometry_is_continuous_in_time() -> None:
     samples = np.linspace(0.1, 2.9, 13)
     numeric = (path.positions_at(samples + h) - path.positions_at(samples - h)) / (2 * h)
     np.testing.assert_allclose(path.velocities_at(samples), numeric, atol=1e-6)
-    speed = np.linalg.norm(path.velocities_at(np.linspace(0.0, 20.0, 400)), axis=1)
-    assert speed.min() > 0.15 and speed.max() < 1.0
+    times = np.linspace(0.0, 20.0, 400)
+    speed = np.linalg.norm(path.velocities_at(times), axis=1)
+    assert speed.max() < 1.6  # walking loop plus the hand's sweep
+    steady = build_scene(dataclasses.replace(run.config, hand_motion_m=0.0), 0).camera_path
+    walk = np.linalg.norm(steady.velocities_at(times), axis=1)
+    assert walk.min() > 0.15 and walk.max() < 1.0  # the loop alone: walking pace
+    hand = path.velocities_at(times) - steady.velocities_at(times)
+    assert 0.1 < np.linalg.norm(hand, axis=1).max() < 1.0  # ±0.1 m at 0.4-0.9 Hz per axis
 
 
 def test_focal_length_outside_150_to_500_px_is_rejected_by_name() -> None:

@@ -226,47 +226,6 @@ def _concurrency(
     return distance, [jac_l1, jac_l2, jac_l3]
 
 
-def triangulate(
-    views: list[View], start: FloatArray, iterations: int = 6
-) -> tuple[FloatArray, FloatArray] | None:
-    """Return the static point (3,) that best explains all views' rays and its covariance
-    (3, 3), or None if the rays do not fix it (e.g. no baseline).
-
-    Gauss-Newton from ``start`` on the rays' angular residuals r_i = B_i' (P - C_i) / rho_i
-    (B_i an orthonormal basis across ray i, rho_i the depth along it), weighted by each ray's
-    direction covariance across the ray; the covariance is the inverse normal matrix.
-    Camera pose uncertainty is not included (the views' poses are taken as known).
-    """
-    directions = np.array([view.direction for view in views])
-    centres = np.array([view.centre for view in views])
-    helper = np.where(np.abs(directions[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    first = np.cross(directions, helper)
-    first /= np.linalg.norm(first, axis=1, keepdims=True)
-    basis = np.stack([first, np.cross(directions, first)], axis=2)  # (N, 3, 2)
-    across = np.swapaxes(basis, 1, 2) @ np.array([v.direction_covariance for v in views]) @ basis
-    weights = np.linalg.inv(across + 1e-18 * np.eye(2))  # (N, 2, 2)
-    point = np.asarray(start, dtype=np.float64).copy()
-    normal = np.eye(3)
-    for _ in range(iterations):
-        offset = point - centres
-        depth = np.einsum('ni,ni->n', directions, offset)
-        if np.any(depth <= 0):
-            return None
-        jacobian = np.swapaxes(basis, 1, 2) / depth[:, None, None]  # (N, 2, 3)
-        residual = (jacobian @ offset[:, :, None])[:, :, 0]
-        weighted = np.swapaxes(jacobian, 1, 2) @ weights
-        normal = np.sum(weighted @ jacobian, axis=0)
-        gradient = np.sum((weighted @ residual[:, :, None])[:, :, 0], axis=0)
-        if np.linalg.cond(normal) > 1e12:
-            return None
-        step = np.linalg.solve(normal, gradient)
-        point = point - step
-        if np.linalg.norm(step) < 1e-9 * (1.0 + np.linalg.norm(point)):
-            break
-    covariance = np.linalg.inv(normal)
-    return point, 0.5 * (covariance + covariance.T)
-
-
 def pixel_ray_directions(
     rays_camera: FloatArray, ray_jacobians: FloatArray, rotation: FloatArray, pixel_sigma: float
 ) -> tuple[FloatArray, FloatArray]:

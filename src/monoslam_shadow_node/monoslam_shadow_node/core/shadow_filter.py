@@ -2,26 +2,28 @@
 classifier, with the feature lifecycle of the paper's Fig. 1.
 
 Every new feature starts PENDING: the Shadow filter tracks it (``shadow_ekf``) and keeps its
-views. Once the feature has been seen with enough parallax, the three-ray test
-(``rays.three_ray_test``) decides:
+views. Once the feature has been seen with enough parallax, two tests of the static
+hypothesis decide (``ClassifierConfig``): the paper's three-ray test
+(``rays.three_ray_test``) and the score test over all views (``static_fit``):
 
-- rejected: DYNAMIC. The feature stays in the Shadow filter and is tracked as it moves;
-- accepted where the geometry could have seen motion: STATIC. It is handed over
+- either rejects: DYNAMIC. The feature stays in the Shadow filter and is tracked as it moves;
+- both accept where the geometry could have seen motion: STATIC. It is handed over
   (``Handover``: the world position and covariance triangulated from all its views as a
-  static point) and released;
-  the SLAM filter owns it from then on, and its later sightings are ignored here.
+  static point) and released; the SLAM filter owns it from then on, and its later sightings
+  are ignored here.
 
-Each decisive test runs at alpha / static_confirmations (Bonferroni), so a static feature is
-called dynamic with probability at most ``alpha`` overall, while a moving feature has to pass
-every test, the last over a longer time and baseline, to be called static.
+Why two tests: three rays see motion that keeps them concurrent to first order (along the
+viewing ray of a distant point, or parallel to a camera moving straight) only weakly, and in
+the simulated room those are common; the all-view test sees it as soon as the camera path
+bends or the depth changes. The three-ray test stays as the paper's classifier; the second
+test only adds rejections, and both share alpha.
 
 Minimum-parallax rule: test j waits until the first and the current ray are at least
-``min_parallax_rad * confirmation_parallax_factor**(j - 1)`` apart as seen from the
-feature's position estimated as if it were static (the EKF conditioned on zero velocity; its
-depth must be known: w above 3 sigma), the camera has moved
-``min_baseline_m``, and some earlier camera centre lies between the first and the current one
-(at least ``middle_min_fraction`` of their distance from both); until then nothing is
-decided.
+``min_parallax_rad * parallax_growth**j`` apart as seen from the feature's position
+estimated as if it were static (the EKF conditioned on zero velocity; its depth must be
+known: w above 3 sigma), the camera has moved ``min_baseline_m``, and some earlier camera
+centre lies between the first and the current one (at least ``middle_min_fraction`` of their
+distance from both); until then nothing is decided.
 
 Camera poses come from outside (the SLAM filter, or ground truth in the paper's Fig. 3
 experiment) with their covariance; the filter assumes them independent between frames.
@@ -46,7 +48,6 @@ from monoslam_shadow_node.core.rays import (
     pixel_ray_directions,
     ray_angle,
     three_ray_test,
-    triangulate,
 )
 from monoslam_shadow_node.core.shadow_ekf import (
     STATE_SIZE,
@@ -58,13 +59,9 @@ from monoslam_shadow_node.core.shadow_ekf import (
     update,
     world_estimates,
 )
+from monoslam_shadow_node.core.static_fit import MOTION_DOF, motion_score_test
 
 PENDING, STATIC, DYNAMIC = 0, 1, 2
-SENSITIVITY_INDEX = 1
-"""Which principal direction of motion must be visible before STATIC: the second least
-visible. The least visible one is motion parallel to a camera that moves in a straight line,
-which no set of rays can tell from a static point at another depth (it only shows where the
-camera path bends), so requiring it would keep most features PENDING."""
 TEST_DELAY_FRAMES = 1
 """A test triggered in frame k uses the view of frame k + 1 as its last ray, whose noise did
 not take part in the trigger (the EKF estimate just updated with frame k's ray)."""
@@ -80,13 +77,20 @@ class InputError(ValueError):
 class ClassifierConfig:
     """The static/dynamic decision (units in the names).
 
-    ``alpha``: the probability of calling a static feature dynamic, split evenly over the
-    ``max_tests`` tests a feature may get. Test j waits for a parallax of
-    ``min_parallax_rad * parallax_growth**j``. A feature is called STATIC when a test accepts
-    and the geometry could have seen motion: a feature moving at ``min_detectable_speed_m_s``
-    in the second least visible direction would have been rejected with probability
-    ``detection_power`` (0 m/s: any accepted test decides). After ``max_tests`` tests without
-    a decision the feature stays PENDING.
+    Test j waits for a parallax of ``min_parallax_rad * parallax_growth**j``, and runs two
+    tests of the static hypothesis, each at ``test_alpha`` = alpha / (2 max_tests)
+    (Bonferroni over everything a feature may get, so a static feature is called dynamic with
+    probability at most ``alpha``): the paper's three-ray test and the score test over all
+    views (``static_fit``). Either rejecting makes the feature DYNAMIC. Both accepting makes
+    it STATIC once the geometry could have seen motion: a feature moving at
+    ``min_detectable_speed_m_s`` along any principal direction of motion except the
+    ``unchecked_directions`` least visible ones would have been rejected by the score test with
+    probability ``detection_power``; otherwise it waits for the next test. With
+    ``unchecked_directions`` = 0 that holds for every direction (a guarantee that can take
+    long: motion along the viewing ray of a distant point, or parallel to a camera moving
+    straight, shows only at second order in time); 1 (the default) leaves the least visible
+    direction unchecked. After ``max_tests`` tests without a decision the feature stays
+    PENDING.
     """
 
     alpha: float = 0.05
@@ -95,8 +99,9 @@ class ClassifierConfig:
     max_tests: int = 6
     min_baseline_m: float = 0.05
     middle_min_fraction: float = 0.25
-    min_detectable_speed_m_s: float = 0.2
+    min_detectable_speed_m_s: float = 0.3
     detection_power: float = 0.99
+    unchecked_directions: int = 1
 
     def __post_init__(self) -> None:
         checks = (
@@ -113,6 +118,8 @@ class ClassifierConfig:
              self.min_detectable_speed_m_s >= 0, 'must be >= 0 m/s'),
             ('detection_power', self.detection_power, 0 < self.detection_power < 1,
              'must be in (0, 1)'),
+            ('unchecked_directions', self.unchecked_directions,
+             self.unchecked_directions in (0, 1, 2), 'must be 0, 1 or 2'),
         )  # fmt: skip
         for name, value, ok, rule in checks:
             if isinstance(value, bool) or not isinstance(value, int | float):
@@ -122,8 +129,8 @@ class ClassifierConfig:
 
     @property
     def test_alpha(self) -> float:
-        """The level of each test (alpha split over the tests, Bonferroni)."""
-        return self.alpha / self.max_tests
+        """The level of each test (alpha split over both tests of every round, Bonferroni)."""
+        return self.alpha / (2 * self.max_tests)
 
     def parallax_for_test(self, index: int) -> float:
         """Return the parallax (rad) test ``index`` (0-based) waits for."""
@@ -131,17 +138,17 @@ class ClassifierConfig:
 
     @property
     def required_noncentrality(self) -> float:
-        """The noncentrality at which a test at ``test_alpha`` rejects with probability
-        ``detection_power``."""
+        """The noncentrality at which the score test at ``test_alpha`` rejects with
+        probability ``detection_power``."""
         return _required_noncentrality(self.test_alpha, self.detection_power)
 
 
 @lru_cache(maxsize=32)
 def _required_noncentrality(alpha: float, power: float) -> float:
-    threshold = chi2_quantile(1.0 - alpha, THREE_RAY_DOF)
+    threshold = chi2_quantile(1.0 - alpha, MOTION_DOF)
 
     def shortfall(noncentrality: float) -> float:
-        return float(ncx2.sf(threshold, THREE_RAY_DOF, noncentrality)) - power
+        return float(ncx2.sf(threshold, MOTION_DOF, noncentrality)) - power
 
     return float(brentq(shortfall, 1e-6, 1e4))
 
@@ -245,12 +252,32 @@ class _Track:
     id: int
     status: int
     first_frame: int
-    views: list[View]
+    first_stamp_ns: int
+    views: list[View] = field(default_factory=list)
+    # per view: camera centre (N, 3), direction (N, 3), its precision (N, 3, 3) (the
+    # pseudo-inverse of its covariance) and time since first sight (N,) s, for
+    # ShadowFilter._predicted_visibility
+    centres: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    directions: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    precisions: FloatArray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    taus: FloatArray = field(default_factory=lambda: np.zeros(0))
     tests_run: int = 0
     scheduled_frame: int = -1
     statistic: float = math.nan
     decided_frame: int = -1
     missed: int = 0
+    handover: tuple[FloatArray, FloatArray] | None = None
+    visibility_wait: float = 0.0
+    predicted_visible: float = 0.0
+    milestone_due: bool = False
+
+    def add_view(self, view: View, precision: FloatArray) -> None:
+        """Keep a view (and its arrays for the visibility prediction)."""
+        self.views.append(view)
+        self.centres = np.vstack([self.centres, view.centre])
+        self.directions = np.vstack([self.directions, view.direction])
+        self.precisions = np.concatenate([self.precisions, precision[None]])
+        self.taus = np.append(self.taus, (view.stamp_ns - self.first_stamp_ns) * 1e-9)
     trajectory: list[FloatArray] = field(default_factory=list)
 
 
@@ -299,7 +326,7 @@ class ShadowFilter:
         new = [
             k for k, i in enumerate(ids) if int(i) not in row_of and int(i) not in self._released
         ]
-        views = self._views(frame, pixels)
+        views, precisions = self._views(frame, pixels)
         seen_rows = set()
         if observed:
             columns = np.array([k for k, _ in observed])
@@ -316,20 +343,21 @@ class ShadowFilter:
                 if not used:
                     warnings.append(f'feature {track.id}: measurement outside the innovation gate')
                 if track.status == PENDING:
-                    track.views.append(views[k])
+                    track.add_view(views[k], precisions[k])
         for row, track in enumerate(self._tracks):
             if row not in seen_rows:
                 track.missed += 1
         if new:
-            self._start(frame, ids[new], pixels[new], [views[k] for k in new])
+            self._start(frame, ids[new], [views[k] for k in new], precisions[new])
         decisions: list[Decision] = []
         estimate = world_estimates(self._states, self._covariances, frame.rotation, frame.centre)
         static = world_estimates(
             *static_hypothesis(self._states, self._covariances), frame.rotation, frame.centre
         )
+        visibility = self._predicted_visibility(static.position, static.defined, frame.centre)
         for row, track in enumerate(self._tracks):
             if track.status == PENDING and track.missed == 0 and static.defined[row]:
-                decision = self._classify(track, static.position[row], warnings)
+                decision = self._classify(track, static.position[row], visibility[row], warnings)
                 if decision is not None:
                     decisions.append(decision)
         reports, handovers = self._reports(frame, estimate)
@@ -376,20 +404,23 @@ class ShadowFilter:
             self._states, self._covariances, rotation, translation, dt, self.config.ekf
         )
 
-    def _views(self, frame: FrameInput, pixels: FloatArray) -> list[View]:
+    def _views(self, frame: FrameInput, pixels: FloatArray) -> tuple[list[View], FloatArray]:
+        """Return the frame's views and their ray precisions (N, 3, 3): the pseudo-inverse
+        of each direction's covariance (rank 2, pixel noise only)."""
         if not len(pixels):
-            return []
+            return [], np.zeros((0, 3, 3))
         rays, jacobians = pixel_rays(self.camera, pixels)
         directions, covariances = pixel_ray_directions(
             rays, jacobians, frame.rotation, self.config.ekf.pixel_sigma_px
         )
-        return [
+        views = [
             View(self._frame, frame.stamp_ns, frame.centre, d, c, frame.pose_covariance)
             for d, c in zip(directions, covariances, strict=True)
         ]
+        return views, np.linalg.pinv(covariances, rcond=1e-9, hermitian=True)
 
     def _start(
-        self, frame: FrameInput, ids: IntArray, pixels: FloatArray, views: list[View]
+        self, frame: FrameInput, ids: IntArray, views: list[View], precisions: FloatArray
     ) -> None:
         camera_directions = np.array([frame.rotation.T @ v.direction for v in views])
         camera_covariances = np.array(
@@ -400,13 +431,53 @@ class ShadowFilter:
         )
         self._states = np.concatenate([self._states, states])
         self._covariances = np.concatenate([self._covariances, covariances])
-        for track_id, view in zip(ids, views, strict=True):
-            self._tracks.append(_Track(int(track_id), PENDING, self._frame, [view]))
+        for track_id, view, precision in zip(ids, views, precisions, strict=True):
+            track = _Track(int(track_id), PENDING, self._frame, frame.stamp_ns)
+            track.add_view(view, precision)
+            self._tracks.append(track)
+
+    def _predicted_visibility(
+        self, positions: FloatArray, defined: NDArray[np.bool_], centre: FloatArray
+    ) -> FloatArray:
+        """Return, per held feature, the score test's noncentrality per (m/s)^2 along the
+        direction ``unchecked_directions`` from the least visible (0 where not computed).
+
+        This is ``static_fit``'s S evaluated at the feature's static EKF estimate instead of
+        the fitted point, without the pose covariance and the small r d' term of the
+        Jacobian: J_i' W_i J_i = M_i / rho_i^2 with M_i the direction's precision and
+        rho_i = d_i' (P - C_i) its depth. It only says when to test (the decision uses the
+        exact S). Only features past the minimum parallax are evaluated; the per-view
+        depths matter (with one depth for all views, motion parallel to the camera path
+        would look visible when it is not)."""
+        result = np.zeros(len(self._tracks))
+        index = self.config.classifier.unchecked_directions
+        for row, track in enumerate(self._tracks):
+            if not (track.status == PENDING and track.missed == 0 and defined[row]):
+                continue
+            if track.scheduled_frame >= 0 or len(track.taus) < 3:
+                continue
+            offset = positions[row] - track.centres
+            depth = np.einsum('ni,ni->n', track.directions, offset)
+            if np.any(depth <= 0.0):
+                continue
+            weighted = track.precisions / (depth**2)[:, None, None]
+            tau = track.taus - track.taus.mean()
+            a0 = weighted.sum(axis=0)
+            a1 = np.einsum('n,nij->ij', tau, weighted)
+            a2 = np.einsum('n,nij->ij', tau * tau, weighted)
+            try:
+                schur = a2 - a1 @ np.linalg.solve(a0, a1)
+            except np.linalg.LinAlgError:
+                continue
+            values = np.linalg.eigvalsh(0.5 * (schur + schur.T))
+            result[row] = max(float(values[index]), 0.0)
+        return result
 
     def _classify(
-        self, track: _Track, position: FloatArray, warnings: list[str]
+        self, track: _Track, position: FloatArray, visibility: float, warnings: list[str]
     ) -> Decision | None:
-        """Run the next three-ray test once the geometry allows it.
+        """Run the next pair of tests once the geometry allows it: at the next parallax
+        milestone, or as soon as the predicted visibility of motion suffices for a decision.
 
         When to test and which middle view to use are decided from the camera centres and the
         EKF's position estimate, never from the three measured rays themselves: choosing the
@@ -419,41 +490,61 @@ class ShadowFilter:
             return None
         first, last = track.views[0], track.views[-1]
         baseline = float(np.linalg.norm(last.centre - first.centre))
+        speed = settings.min_detectable_speed_m_s
         if track.scheduled_frame < 0:
             if baseline < settings.min_baseline_m:
                 return None
             parallax = ray_angle(_unit(position - first.centre), _unit(position - last.centre))
-            if parallax >= settings.parallax_for_test(track.tests_run):
+            visible = visibility * speed**2
+            track.milestone_due = parallax >= settings.parallax_for_test(track.tests_run)
+            if track.milestone_due or (
+                speed > 0
+                and parallax >= settings.min_parallax_rad
+                and visible >= settings.required_noncentrality
+                and visible >= track.visibility_wait
+            ):
                 track.scheduled_frame = self._frame + TEST_DELAY_FRAMES
+                track.predicted_visible = visible
             return None
         if self._frame < track.scheduled_frame:
             return None
+        track.scheduled_frame = -1
         parallax = ray_angle(_unit(position - first.centre), _unit(position - last.centre))
         middle = _middle_view(track.views, settings.middle_min_fraction * baseline)
         if middle is None:
             return None
+        level = settings.test_alpha
+        motion = motion_score_test(track.views, level, position)
+        if motion is None:
+            warnings.append(f'feature {track.id}: its views do not fix a static point yet')
+            return None
+        # Whether a decision is possible is geometry (S), not the test's outcome: when it
+        # is not and no parallax milestone is due, nothing is tested and no alpha is spent.
+        decisive = speed == 0 or (
+            motion.visibility[settings.unchecked_directions] * speed**2
+            >= settings.required_noncentrality
+        )
+        if not decisive:
+            # the prediction was optimistic: ask it for half as much again before retrying
+            track.visibility_wait = 1.5 * track.predicted_visible
+            if not track.milestone_due:
+                return None
         try:
-            test = three_ray_test(first, middle, last, settings.test_alpha, point=position)
+            test = three_ray_test(first, middle, last, level, point=position)
         except ValueError as error:
             warnings.append(f'feature {track.id}: test skipped, degenerate geometry ({error})')
-            track.scheduled_frame = -1
             return None
         track.statistic = test.result.statistic
-        track.scheduled_frame = -1
         track.tests_run += 1
         frames = self._frame - track.first_frame
-        if test.result.rejected:
+        if test.result.rejected or motion.result.rejected:
             track.status, track.decided_frame = DYNAMIC, self._frame
             track.views = []
             return Decision(track.id, DYNAMIC, frames, parallax, baseline, track.statistic)
-        visible = test.motion_noncentrality
-        speed = settings.min_detectable_speed_m_s
-        if speed > 0 and (
-            visible is None
-            or visible[SENSITIVITY_INDEX] * speed**2 < settings.required_noncentrality
-        ):
-            return None  # accepted, but motion could have gone unseen: wait for more parallax
+        if not decisive:
+            return None  # accepted, but motion could have gone unseen: wait for more views
         track.status, track.decided_frame = STATIC, self._frame
+        track.handover = (motion.point, motion.covariance)
         return Decision(track.id, STATIC, frames, parallax, baseline, track.statistic)
 
     def _reports(
@@ -466,11 +557,8 @@ class ShadowFilter:
                 continue
             position = estimate.position[row]
             covariance = estimate.position_covariance[row]
-            if track.status == STATIC:
-                position, covariance = self._static_position(row, frame)
-                solved = triangulate(track.views, position)
-                if solved is not None:
-                    position, covariance = solved
+            if track.status == STATIC and track.handover is not None:
+                position, covariance = track.handover
                 handovers.append(
                     Handover(
                         track.id, frame.stamp_ns, position, covariance, self._frame,
@@ -490,14 +578,6 @@ class ShadowFilter:
                 )
             )  # fmt: skip
         return reports, handovers
-
-    def _static_position(self, row: int, frame: FrameInput) -> tuple[FloatArray, FloatArray]:
-        """World position and covariance of a feature conditioned on v = 0 (it is static)."""
-        conditioned, reduced = static_hypothesis(
-            self._states[row : row + 1], self._covariances[row : row + 1]
-        )
-        estimate = world_estimates(conditioned, reduced, frame.rotation, frame.centre)
-        return estimate.position[0], estimate.position_covariance[0]
 
     def _drop_finished(self) -> None:
         """Release STATIC features and forget features not seen for too long."""

@@ -4,7 +4,9 @@ The world frame is ``map`` (x, y on the floor, z up, metres). The room spans [0,
 x [0, 3] m: static points lie on its far wall (x = 10), side walls, floor and ceiling and on
 the faces of a few cabinets along the walls. The camera walks a smooth closed loop near the
 back wall (x ~ 1-3 m, 1.5 m high, ~0.3-0.8 m/s) and looks at a slowly wandering point across
-the room, with a small hand shake; its optical frame is x right, y down, z forward.
+the room, with a small hand shake and the hand's sweep (``hand_motion_m``, ±0.1 m at 0.4-0.9
+Hz per axis by default; 0 gives a camera carried steadily along the loop); its optical frame
+is x right, y down, z forward.
 
 Moving objects live in the free space in front of the camera (x in [4.8, 9.2] m, 2-8 m away).
 An object is a rigid cluster of points within ``object_radius_m`` of its centre that
@@ -149,6 +151,7 @@ class DynamicSceneConfig:
     turn_rate_radps: tuple[float, float] = (0.3, 1.0)
     stop_duration_s: tuple[float, float] = (0.3, 0.8)
     go_duration_s: tuple[float, float] = (1.0, 3.0)
+    hand_motion_m: float = 0.1
     velocity_prior_sigma_m_s: float = 0.5
     acceleration_psd: float = 0.05  # q, m^2/s^3
     max_range_m: float = 15.0
@@ -177,6 +180,8 @@ class DynamicSceneConfig:
             _check(
                 name, len(pair) == 2 and 0.0 < pair[0] <= pair[1], pair, 'a pair 0 < min <= max'
             )
+        _check('hand_motion_m', 0.0 <= self.hand_motion_m <= 0.5, self.hand_motion_m,
+               '[0, 0.5] m')  # fmt: skip
         for name in ('velocity_prior_sigma_m_s', 'acceleration_psd'):
             _check(name, getattr(self, name) >= 0.0, getattr(self, name), '>= 0')
         _check('max_range_m', self.max_range_m > MIN_DEPTH_M, self.max_range_m, '> 0.2 m')
@@ -256,9 +261,14 @@ class CameraPath:
         return np.asarray(level @ _rodrigues(self.shake_rad.value_at(times_s)), np.float64)
 
 
-def sample_camera_path(rng: np.random.Generator) -> CameraPath:
+def sample_camera_path(rng: np.random.Generator, hand_motion_m: float = 0.0) -> CameraPath:
     """Return a random hand-held path: an elliptic loop (x 0.7-1 m, y 1.3-1.7 m radii, 12-18 s
-    period) with slow drift and a walking bob, panning over the room, shaking 0.1-0.35 deg."""
+    period) with slow drift and a walking bob, panning over the room, shaking 0.1-0.35 deg,
+    plus the hand's own sweep: ``hand_motion_m`` amplitude along each map axis at 0.4-0.9 Hz
+    (0.1 m gives up to ~1.7 m/s^2, the acceleration a person waving a camera reaches).
+
+    The sweep is drawn last from ``rng``, so the rest of the path does not depend on it.
+    """
     period_s, phase = rng.uniform(12.0, 18.0), rng.uniform(0.0, 2.0 * np.pi)
     radius_x, radius_y = rng.uniform(0.7, 1.0), rng.choice([-1.0, 1.0]) * rng.uniform(1.3, 1.7)
     drift_heading = rng.uniform(0.0, 2.0 * np.pi)
@@ -279,6 +289,13 @@ def sample_camera_path(rng: np.random.Generator) -> CameraPath:
         np.append(rng.uniform(2.0, 6.0, 6), rng.uniform(0.08, 0.12)),
         rng.uniform(0.0, 2 * np.pi, 7),
     )
+    hand_hz, hand_phase = rng.uniform(0.4, 0.9, 3), rng.uniform(0.0, 2 * np.pi, 3)
+    if hand_motion_m > 0.0:
+        sway = Sinusoids(
+            np.vstack([sway.amplitudes, hand_motion_m * np.eye(3)]),
+            np.append(sway.frequencies_hz, hand_hz),
+            np.append(sway.phases_rad, hand_phase),
+        )
     return CameraPath(np.array(_CAMERA_CENTER_M), sway, np.array(_LOOK_CENTER_M), look_sway, shake)
 
 
@@ -534,7 +551,8 @@ def build_scene(config: DynamicSceneConfig, seed: int) -> DynamicScene:
         radius = config.object_radius_m * object_rng.random((count, 1)) ** (1.0 / 3.0)
         offsets.append(np.zeros((1, 3)) if kind == 'model' else direction * radius)
     static = sample_static_points(room_rng, room, config.static_points)
-    return DynamicScene(room, sample_camera_path(path_rng), static, tuple(objects), tuple(offsets))
+    path = sample_camera_path(path_rng, config.hand_motion_m)
+    return DynamicScene(room, path, static, tuple(objects), tuple(offsets))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,182 @@
+"""All views of one feature at once: the static point that best explains them, and the score
+test of that static hypothesis against a point moving at constant velocity.
+
+The three-ray test (``rays``) looks at three rays. Motion that keeps three rays concurrent to
+first order (along the viewing ray, or parallel to a camera moving straight) shows only at
+second order in time, where three rays carry little of the information that all the views
+seen so far hold. This module uses every view, against the motion the Shadow filter itself
+assumes (eq. 2: constant velocity):
+
+- ``triangulate``: Gauss-Newton for the point P minimizing sum_i r_i' W_i r_i, with the
+  angular residual r_i = B_i' (P - C_i) / rho_i across ray i (B_i an orthonormal basis across
+  the measured direction d_i, rho_i = d_i' (P - C_i) the depth along it) and W_i the inverse
+  of the residual's covariance (pixel noise through the ray, plus the camera pose covariance
+  when given).
+- ``motion_score_test``: Rao's score test at that point of H0: v = 0 in the model
+  P(t) = P + v (t - t_0). With the Jacobians J_P,i = (B_i' - r_i d_i') / rho_i and
+  J_v,i = tau_i J_P,i,
+  the score g = sum_i J_v,i' W_i r_i and the velocity information with P eliminated,
+  S = I_vv - I_vP I_PP^-1 I_Pv, T = g' S^-1 g is chi-square(3) under H0 (P's own score is
+  zero at the fit). Under a true velocity v, T is noncentral with noncentrality v' S v, so
+  the eigenvalues of S say how visible motion in each direction has been so far (per
+  (m/s)^2): the test's power against a given speed, independent of the noise in the rays.
+
+The views' pose errors are taken as independent between images, as everywhere in the Shadow
+filter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile, skew
+from monoslam_shadow_node.core.rays import View
+
+MOTION_DOF = 3
+_CONDITION_LIMIT = 1e12
+
+
+@dataclass(frozen=True, eq=False)
+class MotionScoreTest:
+    """The score test of v = 0 over ``views`` views: ``result`` (T against chi-square(3)), the
+    static ``point`` (3,) m with its ``covariance`` (3, 3), and ``visibility`` (3,): the
+    ascending eigenvalues of S, the noncentrality per (m/s)^2 of motion along each of its
+    principal directions."""
+
+    result: RelationTest
+    point: FloatArray
+    covariance: FloatArray
+    visibility: FloatArray
+    views: int
+
+
+@dataclass(frozen=True, eq=False)
+class _Geometry:
+    """Per view at a point: the residual (N, 2), its Jacobian with respect to the point
+    (N, 2, 3) and its weight (N, 2, 2)."""
+
+    residual: FloatArray
+    jacobian: FloatArray
+    weight: FloatArray
+
+
+def _bases(directions: FloatArray) -> FloatArray:
+    """Return orthonormal bases (N, 3, 2) across unit directions (N, 3)."""
+    helper = np.where(np.abs(directions[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    first = np.cross(directions, helper)
+    first /= np.linalg.norm(first, axis=1, keepdims=True)
+    return np.stack([first, np.cross(directions, first)], axis=2)
+
+
+def _geometry(views: list[View], basis: FloatArray, point: FloatArray) -> _Geometry | None:
+    """Residuals and weights of all views at ``point``; None if it is behind a camera."""
+    centres = np.array([view.centre for view in views])
+    directions = np.array([view.direction for view in views])
+    offset = point - centres
+    depth = np.einsum('ni,ni->n', directions, offset)
+    if np.any(depth <= 0):
+        return None
+    across = np.swapaxes(basis, 1, 2)  # (N, 2, 3)
+    covariance = across @ np.array([view.direction_covariance for view in views]) @ basis
+    for row, view in enumerate(views):
+        if view.pose_covariance is not None:
+            # r = B' (P - C) / rho: dr/dC = -B' / rho; a rotation dtheta of the camera turns
+            # the measured ray, i.e. the offset by -dtheta: dr/dtheta = B' [P - C]x / rho.
+            pose_jacobian = np.hstack([-across[row], across[row] @ skew(offset[row])])
+            pose_jacobian /= depth[row]
+            covariance[row] += pose_jacobian @ view.pose_covariance @ pose_jacobian.T
+    residual = (across @ offset[:, :, None])[:, :, 0] / depth[:, None]
+    # The exact derivative, including the depth's: dr/dP = (B' - r d') / rho. Dropping the
+    # second term (r is small) looks harmless but biases the fit along the rays by about one
+    # standard deviation at 1 px noise: sum_i d_i |r_i|^2 / rho_i does not average out.
+    jacobian = (across - residual[:, :, None] * directions[:, None, :]) / depth[:, None, None]
+    weight = np.linalg.inv(covariance + 1e-18 * np.eye(2))
+    return _Geometry(residual, jacobian, weight)
+
+
+def _fit(
+    views: list[View], start: FloatArray, iterations: int
+) -> tuple[FloatArray, FloatArray, _Geometry] | None:
+    """Gauss-Newton for the static point; returns it, its normal matrix and the geometry."""
+    basis = _bases(np.array([view.direction for view in views]))
+    point = np.asarray(start, dtype=np.float64).copy()
+    for _ in range(iterations):
+        geometry = _geometry(views, basis, point)
+        if geometry is None:
+            return None
+        jacobian = geometry.jacobian
+        weighted = np.swapaxes(jacobian, 1, 2) @ geometry.weight
+        normal = np.sum(weighted @ jacobian, axis=0)
+        gradient = np.sum((weighted @ geometry.residual[:, :, None])[:, :, 0], axis=0)
+        if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > _CONDITION_LIMIT:
+            return None
+        step = np.linalg.solve(normal, gradient)
+        point = point - step
+        if np.linalg.norm(step) < 1e-9 * (1.0 + np.linalg.norm(point)):
+            break
+    final = _geometry(views, basis, point)
+    if final is None:
+        return None
+    jacobian = final.jacobian
+    normal = np.sum(np.swapaxes(jacobian, 1, 2) @ final.weight @ jacobian, axis=0)
+    return point, normal, final
+
+
+def triangulate(
+    views: list[View], start: FloatArray, iterations: int = 6
+) -> tuple[FloatArray, FloatArray] | None:
+    """Return the static point (3,) that best explains all views' rays and its covariance
+    (3, 3) (the inverse normal matrix), or None if the rays do not fix it (e.g. no
+    baseline)."""
+    fitted = _fit(views, start, iterations)
+    if fitted is None:
+        return None
+    point, normal, _ = fitted
+    covariance = np.linalg.inv(normal)
+    return point, 0.5 * (covariance + covariance.T)
+
+
+def motion_score_test(
+    views: list[View], alpha: float, start: FloatArray, iterations: int = 6
+) -> MotionScoreTest | None:
+    """Test the static hypothesis of one feature over all its views (module docstring) at
+    level ``alpha``; None if the views do not fix a static point."""
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f'alpha={alpha!r}: the significance level must be in (0, 1)')
+    if len(views) < 3:
+        return None
+    fitted = _fit(views, start, iterations)
+    if fitted is None:
+        return None
+    point, normal, geometry = fitted
+    stamps = np.array([view.stamp_ns for view in views], dtype=np.int64)
+    tau = (stamps - stamps[0]) * 1e-9
+    tau -= tau.mean()  # any origin gives the same S and g; the mean keeps I well conditioned
+    jacobian = geometry.jacobian  # J_P; J_v = tau J_P
+    weighted = np.swapaxes(jacobian, 1, 2) @ geometry.weight  # (N, 3, 2)
+    information_pp = normal
+    information_pv = np.sum(weighted @ jacobian * tau[:, None, None], axis=0)
+    information_vv = np.sum(weighted @ jacobian * (tau**2)[:, None, None], axis=0)
+    score = np.sum((weighted @ geometry.residual[:, :, None])[:, :, 0] * tau[:, None], axis=0)
+    eliminated = np.linalg.solve(information_pp, information_pv)
+    schur = information_vv - information_pv.T @ eliminated
+    schur = 0.5 * (schur + schur.T)
+    values, vectors = np.linalg.eigh(schur)
+    values = np.maximum(values, 0.0)
+    if not values[-1] > 0.0:
+        return None
+    kept = values > 1e-12 * values[-1]
+    projected = vectors[:, kept].T @ score
+    statistic = float(np.sum(projected**2 / values[kept]))
+    dof = int(np.count_nonzero(kept))
+    threshold = chi2_quantile(1.0 - alpha, dof)
+    covariance = np.linalg.inv(normal)
+    return MotionScoreTest(
+        RelationTest(statistic, dof, threshold, statistic > threshold),
+        point,
+        0.5 * (covariance + covariance.T),
+        values,
+        len(views),
+    )
