@@ -238,3 +238,22 @@ def test_invalid_classifier_settings_name_the_field() -> None:
         ClassifierConfig(max_tests=0)
     with pytest.raises(ValueError, match='pixel_sigma_px'):
         EkfConfig(pixel_sigma_px=0.0)
+
+
+def test_a_feature_that_keeps_missing_the_gate_restarts_its_filter() -> None:
+    """A feature whose pixel jumps far from its prediction (it moved faster than the process
+    noise allows) is gated out, and after three such frames its EKF restarts from the new
+    ray and follows it again; its id stays."""
+    shadow = ShadowFilter(CAMERA)
+    rotation, ids = np.eye(3), np.array([7])
+    warnings: list[str] = []
+    for k in range(12):
+        pixel = [320.0 + k, 240.0] if k < 6 else [120.0 + k, 60.0]
+        centre = np.array([0.02 * k, 0.0, 0.0])
+        result = shadow.process(FrameInput(1 + k * 33_000_000, rotation, centre, ids, [pixel]))
+        warnings += result.warnings
+        assert [t.id for t in result.tracks] == [7]
+    assert sum('outside the innovation gate' in w for w in warnings) >= 3
+    assert any('restarts from this ray' in w for w in warnings)
+    state = shadow._states[0]  # the restarted filter predicts the new pixel again
+    assert np.linalg.norm(CAMERA.project(state[None, :3]) - [131.0, 60.0]) < 5.0

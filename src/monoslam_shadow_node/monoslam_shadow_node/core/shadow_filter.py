@@ -65,6 +65,10 @@ PENDING, STATIC, DYNAMIC = 0, 1, 2
 TEST_DELAY_FRAMES = 1
 """A test triggered in frame k uses the view of frame k + 1 as its last ray, whose noise did
 not take part in the trigger (the EKF estimate just updated with frame k's ray)."""
+RESTART_AFTER_GATED = 3
+"""A feature whose measurements fall outside the innovation gate this many frames in a row
+has lost its track (it moved faster or turned harder than the process noise allows): its EKF
+restarts from the latest ray, keeping its id, status and views."""
 STATUS_NAMES = {PENDING: 'PENDING', STATIC: 'STATIC', DYNAMIC: 'DYNAMIC'}
 IntArray = NDArray[np.int64]
 
@@ -266,6 +270,7 @@ class _Track:
     statistic: float = math.nan
     decided_frame: int = -1
     missed: int = 0
+    gated: int = 0
     handover: tuple[FloatArray, FloatArray] | None = None
     visibility_wait: float = 0.0
     predicted_visible: float = 0.0
@@ -278,6 +283,7 @@ class _Track:
         self.directions = np.vstack([self.directions, view.direction])
         self.precisions = np.concatenate([self.precisions, precision[None]])
         self.taus = np.append(self.taus, (view.stamp_ns - self.first_stamp_ns) * 1e-9)
+
     trajectory: list[FloatArray] = field(default_factory=list)
 
 
@@ -336,14 +342,28 @@ class ShadowFilter:
                 self.config.ekf,
             )  # fmt: skip
             self._states[rows], self._covariances[rows] = result.states, result.covariances
+            restart: list[tuple[int, int]] = []
             for (k, row), used in zip(observed, result.used, strict=True):
                 track = self._tracks[row]
                 track.missed = 0
                 seen_rows.add(row)
-                if not used:
+                track.gated = 0 if used else track.gated + 1
+                if track.gated >= RESTART_AFTER_GATED:
+                    warnings.append(
+                        f'feature {track.id}: {track.gated} measurements in a row outside the '
+                        'innovation gate; its filter restarts from this ray'
+                    )
+                    restart.append((k, row))
+                    track.gated = 0
+                elif not used:
                     warnings.append(f'feature {track.id}: measurement outside the innovation gate')
                 if track.status == PENDING:
                     track.add_view(views[k], precisions[k])
+            if restart:
+                again = [row for _, row in restart]
+                self._states[again], self._covariances[again] = self._initial(
+                    frame, [views[k] for k, _ in restart]
+                )
         for row, track in enumerate(self._tracks):
             if row not in seen_rows:
                 track.missed += 1
@@ -419,16 +439,18 @@ class ShadowFilter:
         ]
         return views, np.linalg.pinv(covariances, rcond=1e-9, hermitian=True)
 
-    def _start(
-        self, frame: FrameInput, ids: IntArray, views: list[View], precisions: FloatArray
-    ) -> None:
+    def _initial(self, frame: FrameInput, views: list[View]) -> tuple[FloatArray, FloatArray]:
+        """EKF states and covariances of features first seen (or restarted) along views."""
         camera_directions = np.array([frame.rotation.T @ v.direction for v in views])
         camera_covariances = np.array(
             [frame.rotation.T @ v.direction_covariance @ frame.rotation for v in views]
         )
-        states, covariances = initial_states(
-            camera_directions, camera_covariances, self.config.ekf
-        )
+        return initial_states(camera_directions, camera_covariances, self.config.ekf)
+
+    def _start(
+        self, frame: FrameInput, ids: IntArray, views: list[View], precisions: FloatArray
+    ) -> None:
+        states, covariances = self._initial(frame, views)
         self._states = np.concatenate([self._states, states])
         self._covariances = np.concatenate([self._covariances, covariances])
         for track_id, view, precision in zip(ids, views, precisions, strict=True):
