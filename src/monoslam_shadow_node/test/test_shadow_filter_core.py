@@ -202,10 +202,11 @@ def test_default_rule_hands_over_only_where_motion_would_have_been_visible() -> 
     assert sum(status.get(i) == DYNAMIC for i in range(40)) <= 4
     quick = _run_scene(ShadowConfig(classifier=ClassifierConfig(min_detectable_speed_m_s=0.0)))
     strict = _run_scene(ShadowConfig(classifier=ClassifierConfig(unchecked_directions=0)))
+    runs = {'quick': quick[1], 'default': handed, 'strict': strict[1]}
     frames = {
-        name: np.median([h.frame for h in run[1].values()])  # type: ignore[attr-defined]
-        for name, run in (('quick', quick), ('default', (status, handed, None)), ('strict', strict))
-        if run[1]
+        name: np.median([h.frame for h in given.values()])  # type: ignore[attr-defined]
+        for name, given in runs.items()
+        if given
     }
     assert frames['quick'] < frames['default']
     assert 'strict' not in frames or frames['strict'] > frames['default']
