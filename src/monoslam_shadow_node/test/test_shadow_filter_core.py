@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from marker_detector.core.camera import CameraModel
+from monoslam_shadow_node.core.rays import View
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
     initial_states,
@@ -24,6 +25,7 @@ from monoslam_shadow_node.core.shadow_filter import (
     ShadowConfig,
     ShadowFilter,
 )
+from monoslam_shadow_node.core.static_fit import motion_score_test
 from slam_bringup.testing.jacobians import assert_jacobian_close
 
 CAMERA = CameraModel(
@@ -258,3 +260,17 @@ def test_a_feature_that_keeps_missing_the_gate_restarts_its_filter() -> None:
     assert any('restarts from this ray' in w for w in warnings)
     state = shadow._states[0]  # the restarted filter predicts the new pixel again
     assert np.linalg.norm(CAMERA.project(state[None, :3]) - [131.0, 60.0]) < 5.0
+
+
+def test_score_test_declines_views_that_do_not_fix_a_point() -> None:
+    """Views from one camera centre (no baseline) or along one line cannot fix a static
+    point: the score test returns None instead of raising."""
+    direction = np.array([0.0, 0.0, 1.0])
+    covariance = 1e-5 * (np.eye(3) - np.outer(direction, direction))
+    views = [View(k, 1 + k * 33_000_000, np.zeros(3), direction, covariance) for k in range(10)]
+    assert motion_score_test(views, 0.01, np.array([0.0, 0.0, 5.0])) is None
+    along = [
+        View(k, 1 + k * 33_000_000, np.array([0.0, 0.0, 0.1 * k]), direction, covariance)
+        for k in range(10)
+    ]
+    assert motion_score_test(along, 0.01, np.array([0.0, 0.0, 5.0])) is None

@@ -437,7 +437,8 @@ class ShadowFilter:
             View(self._frame, frame.stamp_ns, frame.centre, d, c, frame.pose_covariance)
             for d, c in zip(directions, covariances, strict=True)
         ]
-        return views, np.linalg.pinv(covariances, rcond=1e-9, hermitian=True)
+        precisions = np.linalg.pinv(covariances, rcond=1e-9, hermitian=True)
+        return views, np.asarray(precisions, dtype=np.float64)
 
     def _initial(self, frame: FrameInput, views: list[View]) -> tuple[FloatArray, FloatArray]:
         """EKF states and covariances of features first seen (or restarted) along views."""

@@ -121,6 +121,8 @@ def _fit(
         return None
     jacobian = final.jacobian
     normal = np.sum(np.swapaxes(jacobian, 1, 2) @ final.weight @ jacobian, axis=0)
+    if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > _CONDITION_LIMIT:
+        return None
     return point, normal, final
 
 
@@ -160,7 +162,10 @@ def motion_score_test(
     information_pv = np.sum(weighted @ jacobian * tau[:, None, None], axis=0)
     information_vv = np.sum(weighted @ jacobian * (tau**2)[:, None, None], axis=0)
     score = np.sum((weighted @ geometry.residual[:, :, None])[:, :, 0] * tau[:, None], axis=0)
-    eliminated = np.linalg.solve(information_pp, information_pv)
+    try:
+        eliminated = np.linalg.solve(information_pp, information_pv)
+    except np.linalg.LinAlgError:
+        return None  # the views do not fix the point (no parallax left after the fit)
     schur = information_vv - information_pv.T @ eliminated
     schur = 0.5 * (schur + schur.T)
     values, vectors = np.linalg.eigh(schur)
