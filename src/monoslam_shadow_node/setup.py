@@ -21,6 +21,9 @@ setup(
     description='MonoSLAM with moving objects: the Shadow filter and its classifier',
     license='Apache-2.0',
     entry_points={
-        'console_scripts': [],
+        'console_scripts': [
+            'shadow_filter = monoslam_shadow_node.shadow_filter_node:main',
+            'shadow_evaluate = monoslam_shadow_node.evaluate:main',
+        ],
     },
 )

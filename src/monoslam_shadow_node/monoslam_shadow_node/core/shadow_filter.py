@@ -553,7 +553,7 @@ class ShadowFilter:
             if not track.milestone_due:
                 return None
         try:
-            test = three_ray_test(first, middle, last, level, point=position)
+            test = three_ray_test(first, middle, last, level)
         except ValueError as error:
             warnings.append(f'feature {track.id}: test skipped, degenerate geometry ({error})')
             return None

@@ -1,0 +1,520 @@
+"""The shadow_filter node without DDS: its parameter contract (docstring, YAML, core configs),
+the conversions between messages and the core, the stamp synchronizer and the launch file."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import math
+import sys
+from pathlib import Path
+from types import ModuleType, SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import Point
+from scipy.spatial.transform import Rotation
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from monoslam_shadow_node import settings, shadow_filter_node
+from monoslam_shadow_node.conversions import (
+    NO_TEST_STATISTIC,
+    UNKNOWN_COVARIANCE,
+    CameraPose,
+    Features,
+    MarkerTypes,
+    camera_from_info,
+    camera_info_key,
+    features_from_message,
+    fill_markers,
+    fill_track_array,
+    frame_input,
+    handover_fields,
+    pose_from_message,
+    rotation_from_quaternion,
+    track_fields,
+)
+from monoslam_shadow_node.core.shadow_ekf import EkfConfig
+from monoslam_shadow_node.core.shadow_filter import (
+    DYNAMIC,
+    PENDING,
+    STATIC,
+    ClassifierConfig,
+    Handover,
+    ShadowConfig,
+    TrackReport,
+)
+from monoslam_shadow_node.shadow_filter_node import FrameSynchronizer
+from slam_bringup.errors import ParameterError
+from slam_bringup.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
+
+PACKAGE_DIR = Path(__file__).resolve().parents[1]
+CONFIG = PACKAGE_DIR / 'config' / 'shadow_filter.yaml'
+LAUNCH = PACKAGE_DIR / 'launch' / 'shadow_filter.launch.py'
+MS = 1_000_000
+
+
+# --- parameters ----------------------------------------------------------------------------
+
+
+def test_docstring_lists_every_parameter() -> None:
+    assert undocumented_parameters(shadow_filter_node) == []
+
+
+def test_config_yaml_matches_declared_parameters() -> None:
+    assert config_mismatches(shadow_filter_node, CONFIG) == []
+
+
+def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None:
+    values = settings.parameters_from_yaml(CONFIG)
+    assert values == settings.defaults()
+    assert settings.shadow_config(values) == ShadowConfig()
+    node = settings.node_settings(values)
+    assert node.pose_topic == 'monoslam/pose' and node.stamp_tolerance_ns == 0
+    assert node.sync_horizon_ns == 10**9 and node.queue_size == 100 and node.publish_markers
+
+
+def test_every_core_setting_has_a_parameter() -> None:
+    """A field added to the core's configs needs a parameter (and a YAML entry)."""
+    mapped = {(s.section, s.field) for s in settings.CORE_SETTINGS}
+    fields = {('ekf', f.name) for f in dataclasses.fields(EkfConfig)}
+    fields |= {('classifier', f.name) for f in dataclasses.fields(ClassifierConfig)}
+    fields |= {
+        ('shadow', f.name)
+        for f in dataclasses.fields(ShadowConfig)
+        if f.name not in ('ekf', 'classifier')
+    }
+    assert mapped == fields
+
+
+def test_parameters_reach_the_core_config() -> None:
+    values = {
+        **settings.defaults(),
+        'alpha': 0.01,
+        'min_parallax_deg': 3,
+        'max_tests': 4,
+        'pixel_sigma_px': 0.5,
+        'trajectory_length': 0,
+    }
+    config = settings.shadow_config(values)
+    assert config.classifier.alpha == 0.01 and config.classifier.max_tests == 4
+    assert config.classifier.min_parallax_rad == pytest.approx(math.radians(3.0))
+    assert config.ekf.pixel_sigma_px == 0.5 and config.trajectory_length == 0
+
+
+@pytest.mark.parametrize(
+    ('name', 'value', 'message'),
+    [
+        ('alpha', 1.5, r'parameter alpha=1\.5: must be in \(0, 1\)'),
+        ('min_parallax_deg', 0.0, r'parameter min_parallax_deg=0\.0: must be in \(0, 180\) deg'),
+        ('min_parallax_deg', 180.0, r'min_parallax_deg=180\.0'),
+        ('max_tests', 0, r'parameter max_tests=0: must be an integer >= 1'),
+        ('max_tests', 2.5, r'parameter max_tests=2\.5: must be an integer'),
+        ('max_tests', True, r'parameter max_tests=True: must be an integer'),
+        ('pixel_sigma_px', 0.0, r'parameter pixel_sigma_px=0\.0 is out of range'),
+        ('velocity_sigma_m_s', math.nan, r'parameter velocity_sigma_m_s=nan: must be a finite'),
+        ('unchecked_directions', 3, r'parameter unchecked_directions=3'),
+        ('max_missed_frames', -1, r'parameter max_missed_frames=-1'),
+        ('alpha', 'high', r"parameter alpha='high': must be a number"),
+    ],
+)
+def test_invalid_core_parameters_are_named(name: str, value: object, message: str) -> None:
+    with pytest.raises(ParameterError, match=message):
+        settings.shadow_config({**settings.defaults(), name: value})
+
+
+@pytest.mark.parametrize(
+    ('name', 'value', 'message'),
+    [
+        ('pose_topic', ' ', r"parameter pose_topic=' ': must name a topic"),
+        ('stamp_tolerance_s', -0.001, r'parameter stamp_tolerance_s=-0\.001: must be >= 0 s'),
+        ('sync_horizon_s', 0.0, r'parameter sync_horizon_s=0\.0: must be > 0 s'),
+        ('queue_size', 0, r'parameter queue_size=0: must be >= 1'),
+        ('publish_markers', 1, r'parameter publish_markers=1: must be true or false'),
+    ],
+)
+def test_invalid_node_parameters_are_named(name: str, value: object, message: str) -> None:
+    with pytest.raises(ParameterError, match=message):
+        settings.node_settings({**settings.defaults(), name: value})
+
+
+def test_horizon_must_exceed_the_tolerance() -> None:
+    values = {**settings.defaults(), 'stamp_tolerance_s': 0.5, 'sync_horizon_s': 0.5}
+    with pytest.raises(
+        ParameterError, match=r'sync_horizon_s=0\.5: must exceed stamp_tolerance_s'
+    ):
+        settings.node_settings(values)
+
+
+def test_parameter_file_errors_name_the_file_and_key(tmp_path: Path) -> None:
+    stray = tmp_path / 'stray.yaml'
+    stray.write_text('/**:\n  ros__parameters:\n    alpha: 0.01\n    speed: 2.0\n')
+    with pytest.raises(ParameterError, match=r'stray\.yaml.*speed is not a shadow_filter'):
+        settings.parameters_from_yaml(stray)
+    empty = tmp_path / 'empty.yaml'
+    empty.write_text('shadow_filter: {}\n')
+    with pytest.raises(ParameterError, match='no "/\\*\\*: ros__parameters:"'):
+        settings.parameters_from_yaml(empty)
+    named = tmp_path / 'named.yaml'
+    named.write_text('shadow_filter:\n  ros__parameters:\n    alpha: 0.01\n')
+    assert settings.parameters_from_yaml(named)['alpha'] == 0.01
+
+
+# --- conversions ---------------------------------------------------------------------------
+
+
+def _stamp(stamp_ns: int) -> SimpleNamespace:
+    return SimpleNamespace(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+
+
+def _pose_message(
+    stamp_ns: int, quaternion: tuple[float, ...], centre: tuple[float, ...], covariance: Any
+) -> SimpleNamespace:
+    x, y, z, w = quaternion
+    pose = SimpleNamespace(
+        position=SimpleNamespace(x=centre[0], y=centre[1], z=centre[2]),
+        orientation=SimpleNamespace(x=x, y=y, z=z, w=w),
+    )
+    return SimpleNamespace(
+        header=SimpleNamespace(stamp=_stamp(stamp_ns), frame_id='map'),
+        pose=SimpleNamespace(pose=pose, covariance=list(covariance)),
+    )
+
+
+def test_quaternions_become_rotations() -> None:
+    rotation = Rotation.from_rotvec([0.3, -1.2, 2.0])
+    x, y, z, w = rotation.as_quat()
+    np.testing.assert_allclose(
+        rotation_from_quaternion(x, y, z, w), rotation.as_matrix(), atol=1e-12
+    )
+    scaled = rotation_from_quaternion(1.0005 * x, 1.0005 * y, 1.0005 * z, 1.0005 * w)
+    np.testing.assert_allclose(scaled, rotation.as_matrix(), atol=1e-12)  # float noise: normalized
+    far = rotation_from_quaternion(2 * x, 2 * y, 2 * z, 2 * w)
+    assert not np.allclose(far.T @ far, np.eye(3))  # left for the core to reject
+    assert not np.all(np.isfinite(rotation_from_quaternion(math.nan, 0.0, 0.0, 1.0)))
+
+
+def test_pose_covariance_is_passed_on_in_ros_order() -> None:
+    """ROS (x, y, z, rot X, rot Y, rot Z) about the parent axes is the core's (position,
+    rotation about the world axes): no reordering."""
+    rotation = Rotation.from_rotvec([0.1, 0.2, -0.3])
+    covariance = np.arange(36.0).reshape(6, 6)
+    covariance = covariance + covariance.T
+    message = _pose_message(
+        5 * 10**9 + 7, tuple(rotation.as_quat()), (1.0, 2.0, 3.0), covariance.ravel()
+    )
+    pose = pose_from_message(message)
+    assert pose.stamp_ns == 5 * 10**9 + 7 and pose.frame_id == 'map'
+    np.testing.assert_allclose(pose.rotation, rotation.as_matrix(), atol=1e-12)
+    np.testing.assert_array_equal(pose.centre, [1.0, 2.0, 3.0])
+    assert pose.covariance is not None
+    np.testing.assert_array_equal(pose.covariance, covariance)
+    known = pose_from_message(_pose_message(1, (0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0), [0.0] * 36))
+    assert known.covariance is None
+
+
+def test_features_and_frame_input() -> None:
+    message = SimpleNamespace(
+        header=SimpleNamespace(stamp=_stamp(42), frame_id='camera_optical_frame'),
+        tracks=[SimpleNamespace(id=7, u=10.5, v=20.0), SimpleNamespace(id=9, u=math.nan, v=1.0)],
+    )
+    features = features_from_message(message)
+    assert features.stamp_ns == 42 and features.ids.tolist() == [7, 9]
+    assert features.pixels.shape == (2, 2) and features.pixels[0].tolist() == [10.5, 20.0]
+    empty = features_from_message(SimpleNamespace(header=message.header, tracks=[]))
+    assert empty.ids.shape == (0,) and empty.pixels.shape == (0, 2)
+    pose = CameraPose(42, 'map', np.eye(3), np.zeros(3), None)
+    frame = frame_input(features, pose)
+    assert frame.stamp_ns == 42 and frame.ids is features.ids and frame.pose_covariance is None
+
+
+def _camera_info(**changes: Any) -> SimpleNamespace:
+    fields = {
+        'width': 640,
+        'height': 480,
+        'k': [300.0, 0.0, 320.0, 0.0, 300.0, 240.0, 0.0, 0.0, 1.0],
+        'd': [-0.05, 0.0, 0.0, 0.0, 0.0],
+        'distortion_model': 'plumb_bob',
+        **changes,
+    }
+    return SimpleNamespace(**fields)
+
+
+def test_camera_info_becomes_a_camera_model_and_changes_are_seen() -> None:
+    camera = camera_from_info(_camera_info())
+    assert camera.width == 640 and camera.K[0, 0] == 300.0
+    assert camera_info_key(_camera_info()) == camera_info_key(_camera_info())
+    assert camera_info_key(_camera_info()) != camera_info_key(_camera_info(d=[0.0] * 5))
+    with pytest.raises(ValueError, match='focal lengths must be > 0'):
+        camera_from_info(_camera_info(k=[0.0] * 9))
+
+
+def _report(**changes: Any) -> TrackReport:
+    fields: dict[str, Any] = {
+        'id': 3,
+        'status': PENDING,
+        'position': np.array([1.0, 2.0, 3.0]),
+        'position_covariance': np.eye(3),
+        'velocity': np.array([0.1, 0.0, 0.0]),
+        'velocity_covariance': 0.25 * np.eye(3),
+        'test_statistic': 2.5,
+        'test_dof': 3,
+        'defined': True,
+        'first_frame': 0,
+        'decided_frame': -1,
+        'trajectory': np.zeros((0, 3)),
+        **changes,
+    }
+    return TrackReport(**fields)
+
+
+def test_track_fields_never_hold_nan() -> None:
+    fields = track_fields(_report())
+    assert fields is not None
+    assert fields.position == (1.0, 2.0, 3.0) and fields.position_covariance[0] == 1.0
+    assert fields.test_statistic == 2.5 and fields.test_dof == 3
+
+    untested = track_fields(_report(test_statistic=math.nan, test_dof=0, defined=False))
+    assert untested is not None
+    assert untested.test_statistic == NO_TEST_STATISTIC and untested.test_dof == 0
+    assert untested.position_covariance == UNKNOWN_COVARIANCE
+    assert untested.position == (1.0, 2.0, 3.0)  # the point on the ray stays (bearing)
+
+    handed = track_fields(_report(status=STATIC, defined=False))
+    assert handed is not None and handed.position_covariance[0] == 1.0  # the triangulation
+
+    bad_velocity = track_fields(_report(velocity=np.array([math.nan, 0.0, 0.0])))
+    assert bad_velocity is not None
+    assert bad_velocity.velocity == (0.0, 0.0, 0.0)
+    assert bad_velocity.velocity_covariance == UNKNOWN_COVARIANCE
+    bad_covariance = track_fields(_report(position_covariance=np.full((3, 3), math.inf)))
+    assert bad_covariance is not None and bad_covariance.position_covariance == UNKNOWN_COVARIANCE
+    assert track_fields(_report(position=np.array([math.nan, 0.0, 0.0]))) is None
+
+
+def test_handover_fields_are_static_with_zero_velocity() -> None:
+    handover = Handover(5, 99, np.array([4.0, 5.0, 6.0]), 0.01 * np.eye(3), 12, 0.1)
+    fields = handover_fields(handover, 1.5, 3)
+    assert fields is not None and fields.status == STATIC and fields.id == 5
+    assert fields.velocity == (0.0, 0.0, 0.0) and not any(fields.velocity_covariance)
+    assert fields.position_covariance[0] == 0.01 and fields.test_statistic == 1.5
+    untested = handover_fields(handover, math.nan, 3)
+    assert untested is not None and untested.test_statistic == NO_TEST_STATISTIC
+    assert untested.test_dof == 0
+    broken = Handover(5, 99, np.array([4.0, 5.0, 6.0]), np.full((3, 3), math.nan), 12, 0.1)
+    assert handover_fields(broken, 1.5, 3) is None
+
+
+def test_track_arrays_are_filled() -> None:
+    fields = [track_fields(_report(id=i)) for i in (1, 2)]
+    message = fill_track_array(
+        [f for f in fields if f is not None], 3 * 10**9 + 5, 'map', ShadowTrackArray(), ShadowTrack
+    )
+    assert message.header.frame_id == 'map'
+    assert (message.header.stamp.sec, message.header.stamp.nanosec) == (3, 5)
+    assert [t.id for t in message.tracks] == [1, 2]
+    assert message.tracks[0].position.z == 3.0 and message.tracks[0].test_dof == 3
+    assert list(message.tracks[0].velocity_covariance) == [0.25, 0, 0, 0, 0.25, 0, 0, 0, 0.25]
+
+
+def test_markers_colour_the_statuses_and_draw_dynamic_trajectories() -> None:
+    trajectory = np.array([[1.0, 0.0, 1.0], [1.1, 0.0, 1.0], [math.nan, 0.0, 0.0]])
+    reports = [
+        _report(id=1),
+        _report(id=2, defined=False),  # not drawn: depth unknown
+        _report(id=3, status=DYNAMIC, trajectory=trajectory),
+        _report(id=2**40 + 4, status=DYNAMIC, trajectory=trajectory[:1]),  # one point: no line
+    ]
+    message = fill_markers(
+        reports,
+        [np.array([5.0, 5.0, 1.0])],
+        7,
+        'map',
+        MarkerArray(),
+        MarkerTypes(Marker, Point, ColorRGBA),
+    )
+    first, *markers = message.markers
+    assert first.action == Marker.DELETEALL
+    by_ns = {(m.ns, m.id): m for m in markers}
+    assert set(by_ns) == {
+        ('pending', 0),
+        ('static', 0),
+        ('dynamic', 0),
+        ('dynamic_trajectories', 3),
+    }
+    assert len(by_ns['pending', 0].points) == 1 and by_ns['pending', 0].color.r > 0.5
+    assert by_ns['static', 0].color.b > 0.5 and by_ns['dynamic', 0].color.g > 0.5
+    assert len(by_ns['dynamic', 0].points) == 2
+    line = by_ns['dynamic_trajectories', 3]
+    assert line.type == Marker.LINE_STRIP and len(line.points) == 2  # the NaN point is left out
+    assert all(m.header.frame_id == 'map' and m.header.stamp.nanosec == 7 for m in markers)
+
+
+# --- synchronizer --------------------------------------------------------------------------
+
+
+def _sync(tolerance_ns: int = 0, horizon_ns: int = 300 * MS, size: int = 5) -> FrameSynchronizer:
+    return FrameSynchronizer(
+        tolerance_ns=tolerance_ns, horizon_ns=horizon_ns, max_entries=size, pose_topic='pose'
+    )
+
+
+def _features(stamp_ns: int) -> Features:
+    return Features(stamp_ns, 'camera', np.array([1]), np.array([[1.0, 2.0]]))
+
+
+def _pose(stamp_ns: int) -> CameraPose:
+    return CameraPose(stamp_ns, 'map', np.eye(3), np.zeros(3), None)
+
+
+def _stamps(pairs: list[tuple[Features, CameraPose]]) -> list[tuple[int, int]]:
+    return [(f.stamp_ns, p.stamp_ns) for f, p in pairs]
+
+
+def test_frames_pair_by_stamp_in_either_arrival_order() -> None:
+    sync = _sync()
+    assert sync.add_pose(_pose(100 * MS)) == []
+    assert sync.pop() == ([], [])
+    sync.add_features(_features(100 * MS))
+    sync.add_features(_features(133 * MS))
+    pairs, drops = sync.pop()
+    assert _stamps(pairs) == [(100 * MS, 100 * MS)] and drops == []
+    sync.add_pose(_pose(133 * MS))
+    assert _stamps(sync.pop()[0]) == [(133 * MS, 133 * MS)]
+    assert sync.waiting_features == sync.waiting_poses == 0
+
+
+def test_tolerance_pairs_the_nearest_pose() -> None:
+    sync = _sync(tolerance_ns=2 * MS)
+    sync.add_pose(_pose(99 * MS))
+    sync.add_pose(_pose(101 * MS + 500_000))
+    sync.add_features(_features(100 * MS + 900_000))
+    assert _stamps(sync.pop()[0]) == [(100 * MS + 900_000, 101 * MS + 500_000)]
+
+
+def test_hold_waits_for_the_camera_then_releases_in_stamp_order() -> None:
+    sync = _sync()
+    for stamp in (200, 100):
+        sync.add_features(_features(stamp * MS))
+        sync.add_pose(_pose(stamp * MS))
+    assert sync.pop(hold=True) == ([], [])
+    assert _stamps(sync.pop()[0]) == [(100 * MS, 100 * MS), (200 * MS, 200 * MS)]
+
+
+def test_unpaired_frames_and_poses_are_dropped_after_the_horizon() -> None:
+    sync = _sync()
+    sync.add_features(_features(100 * MS))  # its pose never comes
+    sync.add_pose(_pose(105 * MS))  # no features with this stamp
+    sync.add_features(_features(133 * MS))
+    sync.add_pose(_pose(133 * MS))
+    assert sync.pop() == ([], [])  # frame 133 waits behind frame 100
+    sync.add_features(_features(450 * MS))
+    pairs, drops = sync.pop()
+    assert _stamps(pairs) == [(133 * MS, 133 * MS)]
+    assert [(d.kind, d.stamp_ns) for d in drops] == [
+        ('no_pose', 100 * MS),
+        ('no_features', 105 * MS),
+    ]
+    assert drops[0].text.startswith(
+        f'features frame at stamp {100 * MS} ns dropped: no camera pose'
+    )
+    assert drops[1].text.startswith(
+        f'camera pose at stamp {105 * MS} ns on pose matches no features'
+    )
+    assert f'nearest features stamp {100 * MS} ns, -5.000 ms away' in drops[1].text
+
+
+def test_flush_drops_frames_without_pose_when_the_inputs_stop() -> None:
+    sync = _sync()
+    sync.add_features(_features(100 * MS))
+    sync.add_features(_features(133 * MS))
+    sync.add_pose(_pose(133 * MS))
+    pairs, drops = sync.pop(flush=True)
+    assert _stamps(pairs) == [(133 * MS, 133 * MS)]
+    assert [(d.kind, d.stamp_ns) for d in drops] == [('no_pose', 100 * MS)]
+
+
+def test_out_of_order_repeated_and_overflowing_inputs_are_named() -> None:
+    sync = _sync(size=2)
+    sync.add_features(_features(200 * MS))
+    sync.add_pose(_pose(200 * MS))
+    sync.pop()
+    sync.add_features(_features(100 * MS))
+    _, drops = sync.pop()
+    assert [str(d) for d in drops] == [
+        f'features frame at stamp {100 * MS} ns dropped: not after the frame processed last '
+        f'({200 * MS} ns); frames must come in stamp order'
+    ]
+    sync.add_pose(_pose(100 * MS))
+    sync.add_features(_features(900 * MS))
+    assert sync.pop()[1] == []  # the late frame's pose goes quietly: it was reported already
+    assert sync.add_features(_features(900 * MS))[0].kind == 'repeated'
+    assert sync.add_pose(_pose(950 * MS)) == []
+    assert 'one with this stamp is waiting' in sync.add_pose(_pose(950 * MS))[0].text
+    sync.add_features(_features(1000 * MS))
+    overflow = sync.add_features(_features(1100 * MS))
+    assert [str(d) for d in overflow] == [
+        f'features frame at stamp {900 * MS} ns dropped: queue_size=2 frames are waiting already'
+    ]
+
+
+# --- launch file ---------------------------------------------------------------------------
+
+
+class _Recorded:
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.args, self.kwargs = args, kwargs
+
+
+def _fake_launch_modules() -> dict[str, ModuleType]:
+    modules = {}
+    for name, classes in {
+        'launch': ['LaunchDescription'],
+        'launch.actions': ['DeclareLaunchArgument'],
+        'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
+        'launch_ros': [],
+        'launch_ros.actions': ['Node'],
+        'launch_ros.parameter_descriptions': ['ParameterValue'],
+        'launch_ros.substitutions': ['FindPackageShare'],
+    }.items():
+        module = ModuleType(name)
+        for class_name in classes:
+            setattr(module, class_name, type(class_name, (_Recorded,), {}))
+        modules[name] = module
+    return modules
+
+
+def test_launch_file_starts_the_installed_executable_with_its_config(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """launch is not installed here: run the launch file against recording stand-ins."""
+    for name, module in _fake_launch_modules().items():
+        monkeypatch.setitem(sys.modules, name, module)
+    spec = importlib.util.spec_from_file_location('shadow_filter_launch', LAUNCH)
+    assert spec is not None and spec.loader is not None
+    launch_file = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(launch_file)
+    (entities,) = launch_file.generate_launch_description().args
+    arguments = {
+        e.args[0]: e.kwargs for e in entities if type(e).__name__ == 'DeclareLaunchArgument'
+    }
+    (node,) = [e for e in entities if type(e).__name__ == 'Node']
+    assert all(kwargs.get('description') for kwargs in arguments.values())
+    setup = (PACKAGE_DIR / 'setup.py').read_text()
+    executable = node.kwargs['executable']
+    assert f"'{executable} = monoslam_shadow_node.shadow_filter_node:main'" in setup
+    assert node.kwargs['package'] == 'monoslam_shadow_node'
+    remapped = {source for source, _ in node.kwargs['remappings']}
+    assert remapped == {
+        shadow_filter_node.FEATURES_TOPIC,
+        settings.defaults()['pose_topic'],
+        shadow_filter_node.CAMERA_INFO_TOPIC,
+    }
+    used = {target.args[0] for _, target in node.kwargs['remappings']}
+    assert used <= set(arguments)
+    share, *parts = arguments['params_file']['default_value'].args[0]
+    assert share.args == ('monoslam_shadow_node',)
+    assert PACKAGE_DIR.joinpath(*parts) == CONFIG
