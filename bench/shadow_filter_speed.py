@@ -44,7 +44,6 @@ import json
 import os
 import platform
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -70,6 +69,7 @@ from monoslam_shadow_node.core.shadow_filter import (
     ShadowFilter,
 )
 from monoslam_shadow_node.core.static_fit import motion_score_test
+from slam_bringup.files import write_atomically
 from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 
 S = TypeVar('S')
@@ -668,17 +668,6 @@ def acceptance_of(result: dict[str, Any]) -> dict[str, Any]:
         'test_p95_ms': slowest['p95_us'] * 1e-3,
         'test_passed': slowest['median_us'] * 1e-3 <= ACCEPT_TEST_MS,
     }
-
-
-def write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same directory."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile(
-        'w', encoding='utf-8', dir=path.parent, prefix=f'.{path.name}.', delete=False
-    ) as handle:
-        handle.write(text)
-    Path(handle.name).chmod(0o644)  # NamedTemporaryFile makes it 0600
-    Path(handle.name).replace(path)
 
 
 def build_arg_parser() -> argparse.ArgumentParser:

@@ -7,9 +7,6 @@ estimate at the paper's stages (Figs. 2-5), and the weight of every landmark per
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -17,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from em_sam_node.core.em import EmResult, Snapshot
+from slam_bringup.files import write_atomically, write_json
 
 SNAPSHOT_TITLES = {
     'initial': 'initial (odometry)',
@@ -24,20 +22,6 @@ SNAPSHOT_TITLES = {
     'em_iteration_2': 'after two EM iterations',
     'final': 'final, moveable landmarks removed',
 }
-
-
-def write_atomically(path: Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a temporary file in the same directory."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
-    try:
-        with os.fdopen(handle, 'wb') as stream:
-            stream.write(data)
-        Path(temporary).replace(path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def result_summary(result: EmResult, stamps_ns: np.ndarray) -> dict[str, Any]:
@@ -85,11 +69,6 @@ def result_summary(result: EmResult, stamps_ns: np.ndarray) -> dict[str, Any]:
             'poses': result.poses.tolist(),
         },
     }
-
-
-def write_json(path: Path, content: Mapping[str, Any]) -> Path:
-    """Write ``content`` as indented JSON, atomically."""
-    return write_atomically(path, json.dumps(content, indent=2).encode('utf-8'))
 
 
 def _figure_bytes(figure: Any) -> bytes:

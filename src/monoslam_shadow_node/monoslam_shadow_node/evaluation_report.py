@@ -17,15 +17,14 @@ Figures (paper 001's Figs. 2-4 and what they claim):
 from __future__ import annotations
 
 import io
-import json
 import math
-import os
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from slam_bringup.files import write_atomically
 
 STATUS_COLOURS = {'PENDING': 'tab:red', 'STATIC': 'tab:blue', 'DYNAMIC': 'tab:green'}
 STATUS_CODES = {'PENDING': 0, 'STATIC': 1, 'DYNAMIC': 2}  # the core's PENDING/STATIC/DYNAMIC
@@ -34,50 +33,6 @@ NEES_PANELS = ('moving', 'moving_first_seen_in_frame_0', 'static', 'static_class
 
 
 # --- files ----------------------------------------------------------------------------------
-
-
-def write_atomically(path: Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a temporary file in the same directory, with the
-    permissions a new file gets under the umask (mkstemp's are 0600)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
-    try:
-        os.fchmod(handle, 0o666 & ~_umask())
-        with os.fdopen(handle, 'wb') as stream:
-            stream.write(data)
-        Path(temporary).replace(path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def jsonable(value: Any) -> Any:
-    """Return ``value`` with numpy values, tuples and paths made JSON types and non-finite
-    floats made None (strict JSON has no NaN)."""
-    if isinstance(value, Mapping):
-        return {str(key): jsonable(item) for key, item in value.items()}
-    if isinstance(value, list | tuple | np.ndarray):
-        return [jsonable(item) for item in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
-def write_json(path: Path, content: Mapping[str, Any]) -> Path:
-    """Write ``content`` as indented strict JSON, atomically."""
-    text = json.dumps(jsonable(content), indent=2, allow_nan=False)
-    return write_atomically(path, (text + '\n').encode('utf-8'))
 
 
 # --- printed summary ------------------------------------------------------------------------

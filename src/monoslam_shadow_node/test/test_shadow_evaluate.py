@@ -39,7 +39,7 @@ from monoslam_shadow_node.evaluate import (
     view_parallax_rad,
     within_sigma,
 )
-from monoslam_shadow_node.evaluation_report import jsonable
+from slam_bringup.files import jsonable
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'

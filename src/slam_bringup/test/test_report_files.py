@@ -1,0 +1,42 @@
+"""slam_bringup.files: atomic writes leave no temporary file and honour the umask; JSON is
+strict (NaN becomes null)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slam_bringup.files import write_atomically, write_json
+
+
+def test_atomic_write_replaces_the_file_and_leaves_nothing_else(tmp_path: Path) -> None:
+    target = tmp_path / 'sub' / 'report.md'
+    write_atomically(target, 'first')
+    write_atomically(target, b'second')
+    assert target.read_text() == 'second'
+    assert [p.name for p in target.parent.iterdir()] == ['report.md']
+    assert target.stat().st_mode & 0o777 == 0o666 & ~_umask()
+
+
+def test_a_failed_write_keeps_the_old_file(tmp_path: Path) -> None:
+    target = tmp_path / 'report.json'
+    write_json(target, {'a': 1})
+    with pytest.raises(TypeError):
+        write_json(target, {'a': object()})
+    assert json.loads(target.read_text()) == {'a': 1}
+    assert [p.name for p in tmp_path.iterdir()] == ['report.json']
+
+
+def test_json_is_strict(tmp_path: Path) -> None:
+    target = write_json(tmp_path / 'r.json', {'x': np.float64('nan'), 'y': (np.int64(3),)})
+    assert json.loads(target.read_text()) == {'x': None, 'y': [3]}
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
