@@ -29,7 +29,7 @@ from slam_bringup.files import write_atomically
 STATUS_COLOURS = {'PENDING': 'tab:red', 'STATIC': 'tab:blue', 'DYNAMIC': 'tab:green'}
 STATUS_CODES = {'PENDING': 0, 'STATIC': 1, 'DYNAMIC': 2}  # the core's PENDING/STATIC/DYNAMIC
 STATUS_ORDER = ('STATIC', 'DYNAMIC', 'PENDING')
-NEES_PANELS = ('moving', 'moving_first_seen_in_frame_0', 'static', 'static_classification_runs')
+NEES_PANELS = ('moving', 'moving_first_seen_at_birth', 'static', 'static_classification_runs')
 
 
 # --- files ----------------------------------------------------------------------------------
@@ -75,13 +75,18 @@ def summary_text(content: Mapping[str, Any]) -> str:
             f'{_percent(latency["within_window_of_all"])} of all'
         )
     seeds = _seed_text(config['consistency_seeds'])
-    lines.append(f'consistency, model motion (seeds {seeds}) and classification runs (static):')
+    lines.append(
+        f'consistency: tracker only on model motion (seeds {seeds}); handovers and '
+        'static_classification_runs from the classification runs:'
+    )
     for name, entry in content['consistency']['totals'].items():
-        sigma = entry['within_3sigma']
+        sigma, tracks = entry['within_3sigma'], entry['nees_track_means']
+        low, high = tracks['ci95']
         lines.append(
             f'  {name}: {entry["samples"]} samples of {entry["tracks"]} tracks; NEES mean '
             f'{_number(entry["nees_mean"], 2)}, median {_number(entry["nees_median"], 2)} '
-            f'(expected 3, 2.37); above chi2 95 %: '
+            f'(expected 3, 2.37); per-track mean {_number(tracks["mean"], 2)}, 95 % interval '
+            f'[{_number(low, 2)}, {_number(high, 2)}]; above chi2 95 %: '
             f'{_percent(entry["fraction_nees_above_chi2_95"])}; within 3 sigma x/y/z '
             f'{_percent(sigma["x"])}/{_percent(sigma["y"])}/{_percent(sigma["z"])}; '
             f'ages in 95 % band: {_percent(entry["by_age"]["fraction_of_ages_inside_band_95"])}'

@@ -111,6 +111,7 @@ CORE_SETTINGS = (
     _core(
         'shadow', 'trajectory_length', 'positions kept per feature for the trajectory (0: none)'
     ),
+    _core('shadow', 'classify', 'false: track only, every feature stays PENDING (no handover)'),
 )
 NODE_SETTINGS = (
     Setting('pose_topic', 'monoslam/pose', 'camera pose topic (PoseWithCovarianceStamped)'),

@@ -79,6 +79,7 @@ config/shadow_filter.yaml (a test keeps the two equal).
   innovation_gate_probability     chi-square gate of the measurement updates.
   max_missed_frames               a feature unseen this many frames is forgotten.
   trajectory_length               positions kept per feature for its trajectory (0: none).
+  classify                        false: a tracker only; every feature stays PENDING.
 Parameters (node):
   pose_topic ('monoslam/pose')    camera pose topic.
   stamp_tolerance_s (0.0)         largest features-to-pose stamp difference, s.

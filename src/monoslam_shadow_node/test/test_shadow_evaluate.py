@@ -3,6 +3,7 @@ answers, the sample selection on a tiny simulated run, and a --quick smoke run."
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -158,6 +159,19 @@ def test_consistency_summary_flags_errors_twice_their_sigma() -> None:
     assert summary['nees_mean'] == pytest.approx(12.0, rel=0.1)
     assert summary['within_3sigma']['pooled'] < 0.9
     assert summary['by_age']['fraction_of_ages_inside_band_95'] < 0.1
+
+
+def test_track_means_test_the_nees_over_independent_tracks() -> None:
+    good = _samples(np.random.default_rng(5), 1.0)
+    tracks = np.repeat(np.arange(60), 100)  # 60 tracks of 100 samples
+    good = dataclasses.replace(good, track_ids=tracks)
+    summary, _ = consistency_summary(ErrorSamples.concatenate([good, good]))
+    per_track = summary['nees_track_means']
+    assert per_track['tracks'] == 120  # the same ids in two runs are different tracks
+    assert per_track['consistent'] and per_track['ci95'][0] < 3.0 < per_track['ci95'][1]
+    bad = dataclasses.replace(_samples(np.random.default_rng(6), 1.3), track_ids=tracks)
+    summary, _ = consistency_summary(bad)
+    assert summary['nees_track_means']['consistent'] is False  # 1.3 sigma: mean 5
 
 
 def test_view_parallax_is_the_angle_at_the_point() -> None:

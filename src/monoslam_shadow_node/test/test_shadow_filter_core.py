@@ -14,6 +14,7 @@ from monoslam_shadow_node.core.shadow_ekf import (
     renormalize,
     static_hypothesis,
     update,
+    world_estimates,
 )
 from monoslam_shadow_node.core.shadow_filter import (
     DYNAMIC,
@@ -46,18 +47,19 @@ def _states(rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarra
         directions, np.tile(1e-6 * np.eye(3), (count, 1, 1)), EkfConfig()
     )
     states[:, 3] = rng.uniform(0.1, 0.5, count)
-    states[:, 4:] = rng.normal(0, 0.5, (count, 3))
+    states[:, 4:] = states[:, 3:4] * rng.normal(0, 0.5, (count, 3))  # u = w v
     return states, covariances
 
 
 def test_predict_moves_a_point_like_the_camera_motion_says() -> None:
     rotation, translation = _rotation(np.array([0.01, -0.02, 0.03])), np.array([0.05, 0, -0.1])
     point, velocity, dt = np.array([0.4, -0.2, 4.0]), np.array([0.3, 0.1, -0.2]), 0.1
-    state = np.concatenate([point / np.linalg.norm(point), [1 / np.linalg.norm(point)], velocity])
+    w = 1 / np.linalg.norm(point)
+    state = np.concatenate([point * w, [w], w * velocity])  # u = w v
     moved, _ = predict(state[None], np.eye(7)[None] * 1e-4, rotation, translation, dt, EkfConfig())
     expected = rotation @ (point + velocity * dt) + translation
     np.testing.assert_allclose(moved[0, :3] / moved[0, 3], expected, rtol=1e-12)
-    np.testing.assert_allclose(moved[0, 4:], rotation @ velocity)
+    np.testing.assert_allclose(moved[0, 4:] / moved[0, 3], rotation @ velocity, rtol=1e-12)
     assert np.linalg.norm(moved[0, :3]) == pytest.approx(1.0)
 
 
@@ -87,7 +89,7 @@ def test_predict_covariance_uses_the_motion_jacobian() -> None:
 def test_renormalize_jacobian_and_static_hypothesis() -> None:
     rng = np.random.default_rng(5)
     states, covariances = _states(rng, 3)
-    scaled = states * np.array([2.0, 2.0, 2.0, 2.0, 1.0, 1.0, 1.0])
+    scaled = states * 2.0  # the whole homogeneous state (X0, w, u) scales together
     unit, _ = renormalize(scaled, covariances)
     np.testing.assert_allclose(unit, states, atol=1e-12)
     assert_jacobian_close(
@@ -106,10 +108,48 @@ def test_renormalize_jacobian_and_static_hypothesis() -> None:
 def _renormalize_jacobian(state: np.ndarray) -> np.ndarray:
     """d(renormalized)/d(state) by the formula in shadow_ekf.renormalize's docstring."""
     norm = np.linalg.norm(state[:3])
-    unit = np.append(state[:3] / norm, 0.0)
-    jacobian = np.eye(7)
-    jacobian[:4, :4] = (np.eye(4) - np.outer(state[:4] / norm, unit)) / norm
-    return jacobian
+    unit = np.concatenate([state[:3] / norm, np.zeros(4)])
+    return (np.eye(7) - np.outer(state / norm, unit)) / norm
+
+
+def test_world_estimates_propagate_position_and_velocity_by_their_jacobians() -> None:
+    rng = np.random.default_rng(8)
+    states, _ = _states(rng, 1)
+    rotation, centre = _rotation(np.array([0.1, -0.3, 0.2])), np.array([1.0, 2.0, 0.5])
+    covariance = np.diag(rng.uniform(1e-6, 1e-4, 7))
+
+    def world(x: np.ndarray) -> np.ndarray:
+        estimate = world_estimates(x[None], covariance[None], rotation, centre)
+        return np.concatenate([estimate.position[0], estimate.velocity[0]])
+
+    estimate = world_estimates(states, covariance[None], rotation, centre)
+    point = rotation @ (states[0, :3] / states[0, 3]) + centre
+    np.testing.assert_allclose(estimate.position[0], point, rtol=1e-12)
+    np.testing.assert_allclose(estimate.velocity[0], rotation @ states[0, 4:] / states[0, 3])
+    jacobian = np.zeros((6, 7))
+    for c in range(7):
+        step = np.zeros(7)
+        step[c] = 1e-7
+        jacobian[:, c] = (world(states[0] + step) - world(states[0] - step)) / 2e-7
+    expected = jacobian @ covariance @ jacobian.T
+    np.testing.assert_allclose(estimate.position_covariance[0], expected[:3, :3], atol=1e-10)
+    np.testing.assert_allclose(estimate.velocity_covariance[0], expected[3:, 3:], atol=1e-10)
+
+
+def test_tracker_only_mode_keeps_every_feature_pending() -> None:
+    shadow = ShadowFilter(CAMERA, ShadowConfig(classify=False))
+    rng = np.random.default_rng(4)
+    points = np.column_stack(
+        [rng.uniform(3, 7, 60), rng.uniform(-1, 1.5, 60), rng.uniform(0.5, 2.5, 60)]
+    )
+    velocities = np.zeros((60, 3))
+    velocities[40:] = rng.normal(0, 0.5, (20, 3))
+    for frame in _scene_frames(velocities, points, rng):
+        result = shadow.process(frame)
+        assert not result.decisions and not result.handovers
+    assert len(result.tracks) > 40 and {track.status for track in result.tracks} == {PENDING}
+    with pytest.raises(ValueError, match='classify'):
+        ShadowConfig(classify=1)  # type: ignore[arg-type]
 
 
 def test_update_pulls_the_estimate_to_the_measurement_and_gates_outliers() -> None:

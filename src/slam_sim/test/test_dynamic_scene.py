@@ -168,13 +168,18 @@ def test_model_objects_follow_the_shadow_filter_process_model() -> None:
     dt_s = 1.0 / config.rate_hz
     points = _object_points(run, 'model')
     assert len(points) == 20 and np.count_nonzero(run.point_moving) == 20  # one point each
-    velocity = run.point_velocities[:, points]
-    increments = np.diff(velocity, axis=0)
-    np.testing.assert_allclose(increments.var(), config.acceleration_psd * dt_s, rtol=0.05)
-    assert abs(np.corrcoef(increments[1:].ravel(), increments[:-1].ravel())[0, 1]) < 0.05
-    steps = np.diff(run.point_positions[:, points], axis=0)
-    np.testing.assert_allclose(steps, velocity[1:] * dt_s, atol=1e-12)
-    assert 0.25 < velocity[0].std() < 0.8  # v0 ~ N(0, 0.5^2) per axis, 60 samples
+    increments, later = [], []
+    for point in points:  # the walk after each object's birth frame
+        birth = run.point_birth_frame[point]
+        velocity = run.point_velocities[birth:, point]
+        increments.append(np.diff(velocity, axis=0))
+        steps = np.diff(run.point_positions[birth:, point], axis=0)
+        np.testing.assert_allclose(steps, velocity[1:] * dt_s, atol=1e-12)
+        later.append(increments[-1][1:])
+    every = np.concatenate(increments)
+    np.testing.assert_allclose(every.var(), config.acceleration_psd * dt_s, rtol=0.05)
+    lagged = np.concatenate([i[:-1] for i in increments])
+    assert abs(np.corrcoef(np.concatenate(later).ravel(), lagged.ravel())[0, 1]) < 0.05
 
 
 def test_scene_geometry_is_continuous_in_time() -> None:
@@ -285,3 +290,18 @@ def test_command_line_writes_refuses_to_overwrite_and_replaces_with_force(
     with pytest.raises(SystemExit):
         main([*argv, '--force', '--focal-px', '600'])
     assert '--focal-px' in capsys.readouterr().err
+
+
+def test_model_objects_are_born_with_the_filter_prior_and_unseen_before() -> None:
+    config = DynamicSceneConfig(duration_s=10.0, motions=('model',), objects=40)
+    run = _run(5, config)
+    points = _object_points(run, 'model')
+    births = run.point_birth_frame[points]
+    assert births.min() >= 0 and births.max() < config.frame_count // 2
+    assert len(np.unique(births)) > 20  # spread over the first half, not all at frame 0
+    for frame in run.frames[: config.frame_count // 2]:
+        index = run.frames.index(frame)
+        assert np.all(run.point_birth_frame[frame.point_ids] <= index)  # unseen before birth
+    at_birth = run.point_velocities[births, points]
+    assert 0.35 < at_birth.std() < 0.65  # v_b ~ N(0, 0.5^2) per axis, 120 samples
+    assert np.all(run.point_birth_frame[~run.point_moving] == 0)

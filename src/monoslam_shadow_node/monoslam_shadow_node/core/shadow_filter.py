@@ -159,14 +159,20 @@ def _required_noncentrality(alpha: float, power: float) -> float:
 
 @dataclass(frozen=True)
 class ShadowConfig:
-    """Everything the Shadow filter needs besides the camera."""
+    """Everything the Shadow filter needs besides the camera. ``classify`` False makes it a
+    bearing-only tracker alone: every feature stays PENDING in its EKF for as long as it is
+    tracked (the paper's Fig. 3 experiment; the consistency evaluation uses it, because
+    handing features over would select which estimates remain)."""
 
     ekf: EkfConfig = field(default_factory=EkfConfig)
     classifier: ClassifierConfig = field(default_factory=ClassifierConfig)
     max_missed_frames: int = 5
     trajectory_length: int = 100
+    classify: bool = True
 
     def __post_init__(self) -> None:
+        if not isinstance(self.classify, bool):
+            raise ValueError(f'classify={self.classify!r}: must be true or false')
         for name in ('max_missed_frames', 'trajectory_length'):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
@@ -357,7 +363,7 @@ class ShadowFilter:
                     track.gated = 0
                 elif not used:
                     warnings.append(f'feature {track.id}: measurement outside the innovation gate')
-                if track.status == PENDING:
+                if track.status == PENDING and self.config.classify:
                     track.add_view(views[k], precisions[k])
             if restart:
                 again = [row for _, row in restart]
@@ -371,21 +377,29 @@ class ShadowFilter:
             self._start(frame, ids[new], [views[k] for k in new], precisions[new])
         decisions: list[Decision] = []
         estimate = world_estimates(self._states, self._covariances, frame.rotation, frame.centre)
-        static = world_estimates(
-            *static_hypothesis(self._states, self._covariances), frame.rotation, frame.centre
-        )
-        visibility = self._predicted_visibility(static.position, static.defined, frame.centre)
-        for row, track in enumerate(self._tracks):
-            if track.status == PENDING and track.missed == 0 and static.defined[row]:
-                decision = self._classify(track, static.position[row], visibility[row], warnings)
-                if decision is not None:
-                    decisions.append(decision)
+        if self.config.classify:
+            decisions = self._classify_pending(frame, warnings)
         reports, handovers = self._reports(frame, estimate)
         self._drop_finished()
         self._last = frame
         return FrameResult(frame.stamp_ns, self._frame, reports, handovers, decisions, warnings)
 
     # --- steps ------------------------------------------------------------------------------
+
+    def _classify_pending(self, frame: FrameInput, warnings: list[str]) -> list[Decision]:
+        """Classify every PENDING feature observed in this frame whose static estimate is
+        defined (``_classify``); return the decisions."""
+        static = world_estimates(
+            *static_hypothesis(self._states, self._covariances), frame.rotation, frame.centre
+        )
+        visibility = self._predicted_visibility(static.position, static.defined, frame.centre)
+        decisions = []
+        for row, track in enumerate(self._tracks):
+            if track.status == PENDING and track.missed == 0 and static.defined[row]:
+                decision = self._classify(track, static.position[row], visibility[row], warnings)
+                if decision is not None:
+                    decisions.append(decision)
+        return decisions
 
     def _validated(self, frame: FrameInput) -> FrameInput:
         rotation = np.asarray(frame.rotation, dtype=np.float64)

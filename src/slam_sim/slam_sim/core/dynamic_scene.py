@@ -17,14 +17,19 @@ translates without rotating, so every point has its object's velocity. Motion ki
 - ``turning``: constant speed on one circle (constant turn rate, sign random) inside it.
 - ``stop_and_go``: straight moving stretches at constant velocity, separated by complete
   stops (velocity exactly zero).
-- ``model``: the Shadow filter's own process model on the frame grid (dt = 1 / rate_hz):
-  v_0 ~ N(0, sigma^2 I3), v_{k+1} = v_k + a_k with a_k ~ N(0, q dt I3), p_{k+1} = p_k +
-  v_{k+1} dt, in 3D; for the state x = (p, v): x_{k+1} = F x_k + G a_k, F = [[I, dt I],
-  [0, I]], G = [dt I; I], Q = q dt G G^T. Such an object is one point (a cluster would give
+- ``model``: the Shadow filter's own process model on the frame grid (dt = 1 / rate_hz),
+  for a consistency test: the object appears at a birth frame b, drawn uniformly from the
+  run's first half, with v_b ~ N(0, sigma^2 I3) (the filter's prior for a new feature), then
+  v_{k+1} = v_k + a_k with a_k ~ N(0, q dt I3), p_{k+1} = p_k + v_{k+1} dt, in 3D; for the
+  state x = (p, v): x_{k+1} = F x_k + G a_k, F = [[I, dt I], [0, I]], G = [dt I; I],
+  Q = q dt G G^T. Before its birth it is not observed (an object born at frame 0 exists
+  throughout). A birth frame rather than one walk from t = 0 matters: a walk from t = 0 has
+  the velocity variance sigma^2 + q t at time t, so a feature first seen late would start
+  with a wider spread than the prior says. Such an object is one point (a cluster would give
   features that share one process-noise draw, so their NEES samples would not be
-  independent). The start is picked after the increments, putting the trajectory's mean at a
-  random point of the free space; this leaves the velocities and increments exactly as the
-  model says, but nothing keeps the object in the room or in view.
+  independent). The start is picked after the increments, putting the mean of the walk after
+  birth at a random point of the free space; this leaves the velocities and increments
+  exactly as the model says, but nothing keeps the object in the room or in view.
 
 All object motion is stored as segments (``ObjectMotion``) evaluable at any time, and the
 camera path as sums of sinusoids, so a renderer can reproduce this world at any instant.
@@ -39,6 +44,7 @@ the camera path, the objects, the pixel noise and the track drops, in that order
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -367,13 +373,15 @@ class ObjectMotion:
     """An object centre's motion as segments: segment s starts at ``start_s[s]`` (run s) at
     ``start_m[s]`` (3,) m with velocity ``velocity_m_s[s]`` (3,) m/s whose horizontal part
     turns at ``turn_rate_radps[s]``. A time on a boundary belongs to the earlier segment, so
-    velocities there are left limits; times before the first start extrapolate it."""
+    velocities there are left limits; times before the first start extrapolate it. The
+    object exists (can be observed) from ``appears_s`` on."""
 
     kind: str
     start_s: FloatArray
     start_m: FloatArray
     velocity_m_s: FloatArray
     turn_rate_radps: FloatArray
+    appears_s: float = -math.inf  # not observed before this run time (s)
 
     def states_at(self, times_s: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Return centre positions (K, 3) m and velocities (K, 3) m/s at run times (K,) s."""
@@ -481,16 +489,19 @@ def _model_walk(
 ) -> ObjectMotion:
     """model: the filter's discrete constant-velocity model exactly, on the frame grid."""
     count, dt_s = config.frame_count, 1.0 / config.rate_hz
+    birth = int(rng.integers(0, max(count // 2, 1)))
+    count -= birth  # frames from the birth on: b .. K-1
     v0 = rng.normal(0.0, config.velocity_prior_sigma_m_s, 3)
     accelerations = rng.normal(0.0, math.sqrt(config.acceleration_psd * dt_s), (count - 1, 3))
-    velocities = np.vstack([v0, v0 + np.cumsum(accelerations, axis=0)])  # v_0 .. v_{K-1}
+    velocities = np.vstack([v0, v0 + np.cumsum(accelerations, axis=0)])  # v_b .. v_{K-1}
     relative = np.vstack([np.zeros(3), np.cumsum(velocities[1:] * dt_s, axis=0)])
     start = rng.uniform(room.object_space_min_m, room.object_space_max_m) - relative.mean(axis=0)
     positions = start + relative
-    # Segment k spans (t_{k-1}, t_k] with velocity v_k; segment 0 starts at -dt before p_0.
-    starts = np.arange(-1, count - 1) / config.rate_hz
+    # Segment k spans (t_{k-1}, t_k] with velocity v_k; the first starts at -dt before p_b.
+    starts = np.arange(birth - 1, birth + count - 1) / config.rate_hz
     before = np.vstack([start - v0 * dt_s, positions[:-1]])
-    return _motion('model', list(starts), list(before), list(velocities))
+    motion = _motion('model', list(starts), list(before), list(velocities))
+    return dataclasses.replace(motion, appears_s=birth / config.rate_hz if birth else -math.inf)
 
 
 @dataclass(frozen=True)
@@ -522,6 +533,14 @@ class DynamicScene:
             positions.append(center[:, None, :] + offsets[None, :, :])
             velocities.append(np.repeat(velocity[:, None, :], len(offsets), axis=1))
         return np.concatenate(positions, axis=1), np.concatenate(velocities, axis=1)
+
+    def points_exist_at(self, times_s: FloatArray) -> BoolArray:
+        """Return (K, P): whether each point exists (its object has appeared) at each time."""
+        parts = [np.ones((len(times_s), len(self.static_points_m)), dtype=bool)]
+        for motion, offsets in zip(self.objects, self.object_offsets_m, strict=True):
+            born = np.asarray(times_s) >= motion.appears_s - 1e-9
+            parts.append(np.repeat(born[:, None], len(offsets), axis=1))
+        return np.concatenate(parts, axis=1)
 
 
 def _streams(seed: int) -> list[np.random.Generator]:
@@ -588,6 +607,14 @@ class DynamicSceneRun:
     object_motion: tuple[str, ...]
     track_point: dict[int, int]
 
+    @property
+    def point_birth_frame(self) -> IntArray:
+        """(P,) the first frame at which each point exists (0 for static points and for
+        objects present from the start)."""
+        times = np.arange(len(self.frames)) / self.config.rate_hz
+        exists = self.scene.points_exist_at(times)
+        return np.asarray(np.argmax(exists, axis=0), dtype=np.int64)
+
 
 def observe(
     camera: SceneCamera, points_camera: FloatArray, config: DynamicSceneConfig
@@ -620,12 +647,14 @@ def simulate_dynamic_scene(
     rotations = scene.camera_path.rotations_at(times_s)
     centres = scene.camera_path.positions_at(times_s)
     positions, velocities = scene.point_states_at(times_s)
+    exists = scene.points_exist_at(times_s)
     point_object = scene.point_object
     current = np.zeros(len(point_object), dtype=np.int64)  # track id per point, 0: none
     next_id, frames = 1, []
     track_point: dict[int, int] = {}
     for k in range(config.frame_count):
         observed, true_pixels = observe(camera, (positions[k] - centres[k]) @ rotations[k], config)
+        observed &= exists[k]
         if config.track_drop_probability > 0.0:
             observed &= drop_rng.random(len(observed)) >= config.track_drop_probability
         current[~observed] = 0
