@@ -665,6 +665,7 @@ class Settings:
     window_frames: int
     consistency_objects: int
     out: Path
+    unchecked_directions: int = ClassifierConfig().unchecked_directions
 
     def scene(self) -> DynamicSceneConfig:
         """Return the classification runs' scene (the default motions, 1 px noise)."""
@@ -683,8 +684,10 @@ class Settings:
         )
 
     def shadow(self, alpha: float) -> ShadowConfig:
-        """Return the filter's configuration: the defaults with ``alpha``."""
-        return ShadowConfig(classifier=dataclasses.replace(ClassifierConfig(), alpha=alpha))
+        """Return the filter's configuration: the defaults with ``alpha`` and the rule's
+        ``unchecked_directions``."""
+        classifier = ClassifierConfig(alpha=alpha, unchecked_directions=self.unchecked_directions)
+        return ShadowConfig(classifier=classifier)
 
 
 @dataclass
@@ -980,6 +983,13 @@ def _arguments(argv: list[str] | None) -> Settings:
         help='model-motion objects per consistency run (default 12)',
     )
     parser.add_argument(
+        '--unchecked-directions',
+        type=int,
+        default=ClassifierConfig().unchecked_directions,
+        help='directions of motion the STATIC rule may leave unchecked: 0 (strict: no moving '
+        'feature handed over, slow), 1 (default) or 2',
+    )
+    parser.add_argument(
         '--quick',
         action='store_true',
         help=f'smoke run: seed 0, {QUICK_DURATION_S:g} s, no alpha sweep',
@@ -1004,6 +1014,7 @@ def _arguments(argv: list[str] | None) -> Settings:
             args.window_frames,
             args.consistency_objects,
             args.out,
+            args.unchecked_directions,
         )
         (
             settings.scene(),

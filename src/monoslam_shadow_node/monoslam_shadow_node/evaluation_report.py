@@ -47,7 +47,8 @@ def summary_text(content: Mapping[str, Any]) -> str:
     lines = [
         f'Shadow filter on seeds {_seed_text(config["seeds"])}: {scene["duration_s"]:g} s at '
         f'{scene["rate_hz"]:g} Hz, focal {scene["focal_px"]:g} px, '
-        f'{scene["pixel_noise_px"]:g} px noise, true poses, alpha {config["alpha"]:g}',
+        f'{scene["pixel_noise_px"]:g} px noise, true poses, alpha {config["alpha"]:g}, '
+        f'unchecked directions {config["shadow"]["classifier"]["unchecked_directions"]}',
         f'classification, {totals["tracks"]} tracks (truth x final status):',
         f'  {"":8s}' + ''.join(f'{name:>9s}' for name in STATUS_ORDER),
     ]

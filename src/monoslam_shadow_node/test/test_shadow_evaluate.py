@@ -265,13 +265,21 @@ def test_jsonable_makes_strict_json() -> None:
 
 def test_quick_cli_writes_a_json_report_and_png_figures(tmp_path: Path) -> None:
     out = tmp_path / 'eval'
-    assert main(['--quick', '--duration-s', '3', '--out', str(out)]) == 0
+    assert (
+        main(['--quick', '--duration-s', '3', '--unchecked-directions', '0', '--out', str(out)])
+        == 0
+    )
 
     def reject(constant: str) -> None:
         raise ValueError(f'non-strict JSON constant {constant}')
 
     content = json.loads((out / 'shadow_eval.json').read_text(), parse_constant=reject)
     assert content['config']['seeds'] == [0]
+    assert content['config']['shadow']['classifier']['unchecked_directions'] == 0  # strict rule
+    assert {'moving_first_seen_at_birth', 'static_handovers'} <= set(
+        content['consistency']['totals']
+    )
+    assert content['consistency']['totals']['moving']['nees_track_means']['tracks'] >= 1
     confusion = content['classification']['totals']['confusion']
     assert (
         sum(sum(row.values()) for row in confusion.values())
@@ -285,6 +293,13 @@ def test_quick_cli_writes_a_json_report_and_png_figures(tmp_path: Path) -> None:
     for name in content['figures']:
         assert (out / name).read_bytes()[:8] == PNG_MAGIC
     assert not list(out.glob('.*'))  # no temporary files left behind
+
+
+def test_an_invalid_rule_is_refused_by_name(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as stopped:
+        main(['--quick', '--unchecked-directions', '3'])
+    assert stopped.value.code == 2
+    assert 'unchecked_directions=3' in capsys.readouterr().err
 
 
 def test_a_run_the_filter_raises_on_is_reported_and_fails_the_exit_status(
