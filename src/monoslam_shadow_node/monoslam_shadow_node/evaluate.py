@@ -502,6 +502,11 @@ class ErrorSamples:
     skipped_undefined: int = 0
     runs: IntArray | None = None  # (S,) which concatenated part (run) each sample came from
 
+    def track_keys(self) -> IntArray:
+        """Return (S,) one key per track: track ids are per run, so the run is part of it."""
+        runs = self.runs if self.runs is not None else np.zeros(len(self.ages), np.int64)
+        return np.asarray(runs * (1 << 32) + self.track_ids, dtype=np.int64)
+
     @staticmethod
     def concatenate(parts: Sequence[ErrorSamples]) -> ErrorSamples:
         """Return all parts' samples in one (track ids are per run: not unique across parts)."""
@@ -576,9 +581,7 @@ def track_mean_nees(samples: ErrorSamples, values: FloatArray) -> dict[str, Any]
     per-track means is sound: a consistent filter has E[mean] = 3, and ``consistent`` says
     whether 3 lies inside the interval."""
     finite = np.isfinite(values)
-    runs = samples.runs if samples.runs is not None else np.zeros(len(values), np.int64)
-    keys = runs[finite] * (1 << 32) + samples.track_ids[finite]
-    _, inverse = np.unique(keys, return_inverse=True)
+    _, inverse = np.unique(samples.track_keys()[finite], return_inverse=True)
     counts = np.bincount(inverse)
     means = np.bincount(inverse, weights=values[finite]) / np.maximum(counts, 1)
     if len(means) < 2:
@@ -611,7 +614,7 @@ def consistency_summary(
     per_track = track_mean_nees(samples, values)
     summary = {
         'samples': len(values),
-        'tracks': len(np.unique(samples.track_ids)),
+        'tracks': len(np.unique(samples.track_keys())),
         'skipped_undefined': samples.skipped_undefined,
         'singular_or_nonfinite': int(np.count_nonzero(~finite)),
         'nees_mean': float(values[finite].mean()) if finite.any() else math.nan,
@@ -697,8 +700,9 @@ class Collected:
     per_seed: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     outcomes: dict[float, list[Outcome]] = dataclasses.field(default_factory=dict)
     moving_called_static: list[dict[str, Any]] = dataclasses.field(default_factory=list)
-    static_samples: list[ErrorSamples] = dataclasses.field(default_factory=list)
-    handovers: dict[str, list[ErrorSamples]] = dataclasses.field(default_factory=dict)
+    classification_samples: dict[str, list[ErrorSamples]] = dataclasses.field(
+        default_factory=dict
+    )  # EKF and handover errors of the classification runs, by name
     timeline: dict[str, Any] = dataclasses.field(default_factory=dict)
     consistency_per_seed: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     consistency: dict[str, list[ErrorSamples]] = dataclasses.field(default_factory=dict)
@@ -749,13 +753,12 @@ def classify_seed(settings: Settings, seed: int, collected: Collected) -> int:
             }
         )
         collected.moving_called_static += moving_called_static_details(run, record, outcomes)
-        collected.static_samples.append(error_samples(run, record, moving=False))
-        collected.handovers.setdefault('static_handovers', []).append(
-            handover_samples(run, record, moving=False)
-        )
-        collected.handovers.setdefault('moving_handovers', []).append(
-            handover_samples(run, record, moving=True)
-        )
+        for name, part in (
+            ('static_classification_runs', error_samples(run, record, moving=False)),
+            ('static_handovers', handover_samples(run, record, moving=False)),
+            ('moving_handovers', handover_samples(run, record, moving=True)),
+        ):
+            collected.classification_samples.setdefault(name, []).append(part)
         if not collected.timeline:
             collected.timeline = timeline_data(run, record)
     return len(settings.alphas)
@@ -845,11 +848,11 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
         sweep.append({'alpha': alpha, 'confusion': table, 'rates': classification_rates(table)})
     consistency = {}
     curves = {}
-    for name, parts in (*collected.consistency.items(), *collected.handovers.items()):
+    for name, parts in (
+        *collected.consistency.items(),
+        *collected.classification_samples.items(),
+    ):
         consistency[name], curves[name] = consistency_summary(ErrorSamples.concatenate(parts))
-    consistency['static_classification_runs'], curves['static_classification_runs'] = (
-        consistency_summary(ErrorSamples.concatenate(collected.static_samples))
-    )
     feature = collected.feature
     return {
         'config': {

@@ -168,6 +168,7 @@ def test_track_means_test_the_nees_over_independent_tracks() -> None:
     summary, _ = consistency_summary(ErrorSamples.concatenate([good, good]))
     per_track = summary['nees_track_means']
     assert per_track['tracks'] == 120  # the same ids in two runs are different tracks
+    assert summary['tracks'] == 120
     assert per_track['consistent'] and per_track['ci95'][0] < 3.0 < per_track['ci95'][1]
     bad = dataclasses.replace(_samples(np.random.default_rng(6), 1.3), track_ids=tracks)
     summary, _ = consistency_summary(bad)

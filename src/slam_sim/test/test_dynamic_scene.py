@@ -299,8 +299,7 @@ def test_model_objects_are_born_with_the_filter_prior_and_unseen_before() -> Non
     births = run.point_birth_frame[points]
     assert births.min() >= 0 and births.max() < config.frame_count // 2
     assert len(np.unique(births)) > 20  # spread over the first half, not all at frame 0
-    for frame in run.frames[: config.frame_count // 2]:
-        index = run.frames.index(frame)
+    for index, frame in enumerate(run.frames):
         assert np.all(run.point_birth_frame[frame.point_ids] <= index)  # unseen before birth
     at_birth = run.point_velocities[births, points]
     assert 0.35 < at_birth.std() < 0.65  # v_b ~ N(0, 0.5^2) per axis, 120 samples
