@@ -1,0 +1,132 @@
+"""Starting the MonoSLAM filter from known static points (paper 001 starts from a checkerboard).
+
+A monocular camera cannot observe scale; a set of points whose world positions are known (the
+four corners of a fiducial marker of known size and pose, or any known point set) fixes it.
+``camera_from_known_points`` solves the perspective-n-point problem for the camera pose and
+returns it with its first-order covariance, which the filter takes as its initial camera
+state; the known points stay in the filter as measurements of zero-uncertainty landmarks
+(Davison et al. 2007 start the same way), so the scale stays anchored while they are in view.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from monoslam_shadow_node.core.camera import CameraModel
+from monoslam_shadow_node.core.monoslam_model import (
+    CAMERA_SIZE,
+    Q_SLICE,
+    R_SLICE,
+    FloatArray,
+    exp_quaternion,
+    project_known_point,
+    quaternion_from_rotation,
+    quaternion_product,
+    right_matrix,
+    rotation,
+)
+
+MIN_KNOWN_POINTS = 4
+_REFINE_ITERATIONS = 10
+
+
+@dataclass(frozen=True, eq=False)
+class PoseFix:
+    """A camera pose from known points: R_world_camera (3, 3), optical centre (3,) m, the
+    state's (r, q) part (7,) and its covariance (7, 7), the RMS reprojection error (px) and the
+    number of points used."""
+
+    rotation: FloatArray
+    centre: FloatArray
+    pose_state: FloatArray
+    pose_covariance: FloatArray
+    rms_error_px: float
+    points: int
+
+
+def camera_from_known_points(
+    camera: CameraModel, points_m: FloatArray, pixels: FloatArray, pixel_sigma_px: float
+) -> PoseFix | None:
+    """Return the camera pose that sees known world points (N, 3) m at raw pixels (N, 2), with
+    its covariance for pixel noise sigma (px), or None when fewer than ``MIN_KNOWN_POINTS``
+    are given or the points do not determine a pose (degenerate, behind the camera)."""
+    points = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    observed = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    if len(points) < MIN_KNOWN_POINTS or len(points) != len(observed):
+        return None
+    normalized = camera.undistort_points(observed, normalized=True)
+    coplanar = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)[2] < 1e-6 * max(
+        1.0, float(np.ptp(points))
+    )
+    method = cv2.SOLVEPNP_IPPE if coplanar else cv2.SOLVEPNP_EPNP
+    ok, rvec, tvec = cv2.solvePnP(points, normalized, np.eye(3), None, flags=method)
+    if not ok:
+        return None
+    rvec, tvec = cv2.solvePnPRefineLM(points, normalized, np.eye(3), None, rvec, tvec)
+    rotation_cw, _ = cv2.Rodrigues(rvec)
+    rotation_wc = np.asarray(rotation_cw, dtype=np.float64).T
+    centre = -rotation_wc @ np.asarray(tvec, dtype=np.float64).reshape(3)
+    state = np.zeros(CAMERA_SIZE)
+    state[R_SLICE] = centre
+    state[Q_SLICE] = quaternion_from_rotation(rotation_wc)
+    state, jacobian, residuals = _refine(camera, state, points, observed)
+    if state is None or jacobian is None:
+        return None
+    rms = float(np.sqrt(np.mean(residuals**2)))
+    # Covariance in (r, theta about world axes), then to (r, q): q = dq(theta) (x) q_hat.
+    information = jacobian.T @ jacobian / pixel_sigma_px**2
+    if np.linalg.cond(information) > 1e12:
+        return None
+    covariance_r_theta = np.linalg.inv(information)
+    to_state = np.zeros((7, 6))
+    to_state[:3, :3] = np.eye(3)
+    to_state[3:, 3:] = 0.5 * right_matrix(state[Q_SLICE])[:, 1:]
+    covariance = to_state @ covariance_r_theta @ to_state.T
+    return PoseFix(
+        rotation(state[Q_SLICE]),
+        state[R_SLICE].copy(),
+        state[:7].copy(),
+        0.5 * (covariance + covariance.T),
+        rms,
+        len(points),
+    )
+
+
+def _refine(
+    camera: CameraModel, state: FloatArray, points: FloatArray, observed: FloatArray
+) -> tuple[FloatArray | None, FloatArray | None, FloatArray]:
+    """Gauss-Newton on the raw-pixel reprojection error in (r, theta); return the state, the
+    Jacobian (2N, 6) of the pixels with respect to (r, theta) and the residuals (2N,)."""
+    for iteration in range(_REFINE_ITERATIONS + 1):
+        linearized = _linearize(camera, state, points, observed)
+        if linearized is None:
+            return None, None, np.zeros(0)
+        residuals, jacobian = linearized
+        if iteration == _REFINE_ITERATIONS:
+            break
+        step, *_ = np.linalg.lstsq(jacobian, residuals, rcond=None)
+        state[R_SLICE] += step[:3]
+        state[Q_SLICE] = quaternion_product(exp_quaternion(step[3:])[0], state[Q_SLICE])
+        state[Q_SLICE] /= np.linalg.norm(state[Q_SLICE])
+    return state, jacobian, residuals
+
+
+def _linearize(
+    camera: CameraModel, state: FloatArray, points: FloatArray, observed: FloatArray
+) -> tuple[FloatArray, FloatArray] | None:
+    """Return the residuals (2N,) px and their Jacobian (2N, 6) with respect to (r, theta),
+    or None when a point is behind the camera."""
+    residuals = np.zeros(2 * len(points))
+    jacobian = np.zeros((2 * len(points), 6))
+    d_q_d_theta = 0.5 * right_matrix(state[Q_SLICE])[:, 1:]  # q = dq(theta) (x) q_hat
+    for row, point in enumerate(points):
+        pixel, d_camera, depth = project_known_point(camera, state, point)
+        if depth <= 0.0:
+            return None
+        residuals[2 * row : 2 * row + 2] = observed[row] - pixel
+        jacobian[2 * row : 2 * row + 2, :3] = d_camera[:, R_SLICE]
+        jacobian[2 * row : 2 * row + 2, 3:] = d_camera[:, Q_SLICE] @ d_q_d_theta
+    return residuals, jacobian

@@ -1,0 +1,343 @@
+"""The models of the MonoSLAM filter with their analytic Jacobians (Davison et al. 2007;
+Civera, Davison and Montiel 2008).
+
+Camera state x_c (13,) = (r, q, v, w):
+
+- r (3,) m: the optical centre in the world (``map``) frame;
+- q (4,) = (qw, qx, qy, qz): the unit quaternion of R_world_camera (the optical frame: x
+  right, y down, z forward). ``rotation`` is the quadratic form of q, exactly a rotation for
+  |q| = 1; the filter renormalizes after every update;
+- v (3,) m/s: linear velocity in the world frame; w (3,) rad/s: angular velocity in the camera
+  frame.
+
+Constant velocity model over dt (``predict_camera``): unknown linear and angular
+accelerations a, alpha of spectral densities ``sigma_a^2`` (m^2/s^3) and ``sigma_alpha^2``
+(rad^2/s^3) give velocity impulses V = a dt, Omega = alpha dt with covariance diag(sigma_a^2
+dt, sigma_alpha^2 dt) and
+
+    r' = r + (v + V) dt,   q' = q (x) exp((w + Omega) dt),   v' = v + V,   w' = w + Omega,
+
+F = dx'/dx and G = dx'/d(V, Omega), Q = G diag(.) G^T.
+
+Point features, two parametrizations:
+
+- inverse depth (Civera et al.), y (6,) = (x0, y0, z0, theta, phi, rho): the point is
+  p = p0 + m(theta, phi) / rho, p0 the optical centre when the feature was first seen,
+  m = R_ref (cos phi sin theta, -sin phi, cos phi cos theta) a unit ray and rho > 0 the inverse
+  depth along it (1/m). R_ref is a constant per feature: the camera's orientation estimate
+  when the feature was added, so the angles are small and far from the parametrization's
+  singularity (phi = +-90 deg) for any ray the camera could see. The measurement is linear in
+  y near infinite depth (rho -> 0), which makes undelayed initialization possible;
+- Euclidean, y (3,) = p. A feature moves to it once its linearity index (``linearity_index``,
+  Civera et al. eq. 16) says the Euclidean measurement model is close to linear over its depth
+  uncertainty: 3 states instead of 6.
+
+Why inverse depth and not the inverse scaling of paper 001's reference [11] (Marzorati et
+al., a homogeneous point (x, y, z, w) with w = 1/s): both give measurement equations that are
+nearly linear for distant and newly seen points, and [11] reports the same accuracy; inverse
+depth has an established test for when a point may be converted to 3 Euclidean states, and
+its anchor ties each feature to the camera that first saw it, which keeps the covariance of a
+newly added feature exactly the first-order propagation of that camera's and that ray's
+uncertainty. The Shadow filter keeps the homogeneous form (its per-feature EKF needs w = 0 for
+points at infinity); the two meet only in the handover, a Euclidean point with covariance.
+
+Measurement (``project_feature``): h_c = R^T (rho (p0 - r) + m) for inverse depth, R^T (p - r)
+for Euclidean (a direction in the camera frame; scaling by rho > 0 does not change the pixel),
+then the lens model of ``CameraModel`` (pinhole + plumb_bob / rational distortion).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from monoslam_shadow_node.core.camera import CameraModel
+from monoslam_shadow_node.core.projective import skew
+
+FloatArray = NDArray[np.float64]
+
+CAMERA_SIZE = 13
+INVERSE_DEPTH_SIZE = 6
+EUCLIDEAN_SIZE = 3
+R_SLICE, Q_SLICE, V_SLICE, W_SLICE = slice(0, 3), slice(3, 7), slice(7, 10), slice(10, 13)
+
+
+# --- quaternions (w, x, y, z), Hamilton product ----------------------------------------------
+
+
+def quaternion_product(p: ArrayLike, q: ArrayLike) -> FloatArray:
+    """Return the Hamilton product p (x) q (4,) of quaternions (w, x, y, z)."""
+    pw, pv = float(np.asarray(p)[0]), np.asarray(p, dtype=np.float64)[1:]
+    qw, qv = float(np.asarray(q)[0]), np.asarray(q, dtype=np.float64)[1:]
+    return np.concatenate([[pw * qw - pv @ qv], pw * qv + qw * pv + np.cross(pv, qv)])
+
+
+def left_matrix(p: ArrayLike) -> FloatArray:
+    """Return L(p) (4, 4) with p (x) q = L(p) q."""
+    w, x, y, z = np.asarray(p, dtype=np.float64)
+    return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
+
+
+def right_matrix(q: ArrayLike) -> FloatArray:
+    """Return R(q) (4, 4) with p (x) q = R(q) p."""
+    w, x, y, z = np.asarray(q, dtype=np.float64)
+    return np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
+
+
+def conjugate(q: ArrayLike) -> FloatArray:
+    """Return the conjugate (4,) of a quaternion (w, x, y, z)."""
+    out = np.array(q, dtype=np.float64)
+    out[1:] *= -1.0
+    return out
+
+
+def rotation(q: ArrayLike) -> FloatArray:
+    """Return the quadratic-form matrix (3, 3) of q; R_world_camera when |q| = 1."""
+    w, x, y, z = np.asarray(q, dtype=np.float64)
+    return np.array(
+        [
+            [w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z],
+        ]
+    )
+
+
+def quaternion_from_rotation(matrix: ArrayLike) -> FloatArray:
+    """Return the unit quaternion (w, x, y, z) (4,) with qw >= 0 of a rotation matrix."""
+    m = np.asarray(matrix, dtype=np.float64)
+    trace = float(np.trace(m))
+    candidates = np.array([trace, m[0, 0], m[1, 1], m[2, 2]])
+    k = int(np.argmax(candidates))
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + trace)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    else:
+        i, j, l = k - 1, k % 3, (k + 1) % 3
+        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[l, l])
+        q = [0.0, 0.0, 0.0, 0.0]
+        q[0] = (m[l, j] - m[j, l]) / s
+        q[1 + i] = 0.25 * s
+        q[1 + j] = (m[j, i] + m[i, j]) / s
+        q[1 + l] = (m[l, i] + m[i, l]) / s
+    out = np.array(q, dtype=np.float64)
+    return out if out[0] >= 0.0 else -out
+
+
+def rotate_transposed_jacobian(q: ArrayLike, a: ArrayLike) -> FloatArray:
+    """Return d(rotation(q)^T a)/dq (3, 4) for a vector a (3,)."""
+    w, u = float(np.asarray(q)[0]), np.asarray(q, dtype=np.float64)[1:]
+    a = np.asarray(a, dtype=np.float64)
+    out = np.empty((3, 4))
+    out[:, 0] = 2.0 * w * a - 2.0 * np.cross(u, a)
+    out[:, 1:] = -2.0 * np.outer(a, u) + 2.0 * np.outer(u, a) + 2.0 * (u @ a) * np.eye(3)
+    out[:, 1:] += 2.0 * w * skew(a)
+    return out
+
+
+def rotate_jacobian(q: ArrayLike, a: ArrayLike) -> FloatArray:
+    """Return d(rotation(q) a)/dq (3, 4) for a vector a (3,)."""
+    conj = conjugate(q)
+    return rotate_transposed_jacobian(conj, a) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def exp_quaternion(rotation_vector: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Return the unit quaternion (4,) of a rotation vector (3,) rad and its Jacobian (4, 3)."""
+    vector = np.asarray(rotation_vector, dtype=np.float64)
+    angle = float(np.linalg.norm(vector))
+    half = 0.5 * angle
+    if angle < 1e-8:  # second-order series: sin(h)/angle ~ 1/2 - angle^2/48
+        quaternion = np.concatenate([[1.0 - angle * angle / 8.0], 0.5 * vector])
+        jacobian = np.vstack([-0.25 * vector, 0.5 * np.eye(3)])
+        return quaternion, jacobian
+    sinc = np.sin(half) / angle  # sin(angle/2) / angle
+    axis = vector / angle
+    quaternion = np.concatenate([[np.cos(half)], sinc * vector])
+    d_sinc = (0.5 * np.cos(half) * angle - np.sin(half)) / (angle * angle)  # d(sinc)/d(angle)
+    jacobian = np.vstack(
+        [-0.5 * np.sin(half) * axis, sinc * np.eye(3) + d_sinc * np.outer(vector, axis)]
+    )
+    return quaternion, jacobian
+
+
+def log_rotation(matrix: ArrayLike) -> FloatArray:
+    """Return the rotation vector (3,) rad of a rotation matrix (angle in [0, pi])."""
+    q = quaternion_from_rotation(matrix)
+    vector_norm = float(np.linalg.norm(q[1:]))
+    if vector_norm < 1e-12:
+        return np.zeros(3)
+    angle = 2.0 * np.arctan2(vector_norm, q[0])
+    return np.asarray(q[1:] / vector_norm * angle, dtype=np.float64)
+
+
+def world_angle_jacobian(q: ArrayLike) -> FloatArray:
+    """Return d(theta)/dq (3, 4) at q: theta the small rotation about the world axes with
+    R = exp([theta]x) R(q_hat), i.e. theta = 2 vec(q (x) conj(q_hat)) to first order."""
+    return 2.0 * right_matrix(conjugate(q))[1:, :]
+
+
+# --- motion model ------------------------------------------------------------------------------
+
+
+def predict_camera(
+    camera: ArrayLike, dt_s: float, sigma_a: float, sigma_alpha: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Return the predicted camera state (13,), F = dx'/dx (13, 13) and Q (13, 13) after dt_s
+    seconds of the constant velocity model (module docstring)."""
+    x = np.asarray(camera, dtype=np.float64)
+    r, q, v, w = x[R_SLICE], x[Q_SLICE], x[V_SLICE], x[W_SLICE]
+    dq, d_dq = exp_quaternion(w * dt_s)
+    out = np.concatenate([r + v * dt_s, quaternion_product(q, dq), v, w])
+    f = np.eye(CAMERA_SIZE)
+    f[R_SLICE, V_SLICE] = dt_s * np.eye(3)
+    f[Q_SLICE, Q_SLICE] = right_matrix(dq)
+    dq_dw = left_matrix(q) @ d_dq * dt_s  # (4, 3)
+    f[Q_SLICE, W_SLICE] = dq_dw
+    g = np.zeros((CAMERA_SIZE, 6))
+    g[R_SLICE, :3] = dt_s * np.eye(3)
+    g[Q_SLICE, 3:] = dq_dw
+    g[V_SLICE, :3] = np.eye(3)
+    g[W_SLICE, 3:] = np.eye(3)
+    impulses = np.concatenate([np.full(3, sigma_a**2 * dt_s), np.full(3, sigma_alpha**2 * dt_s)])
+    return out, f, (g * impulses) @ g.T
+
+
+# --- features ------------------------------------------------------------------------------------
+
+
+def ray_from_angles(
+    reference: FloatArray, theta: float, phi: float
+) -> tuple[FloatArray, FloatArray]:
+    """Return the unit ray m (3,) in the world of angles (theta, phi) rad about R_ref (3, 3)
+    and dm/d(theta, phi) (3, 2)."""
+    st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)
+    local = np.array([cp * st, -sp, cp * ct])
+    d_local = np.array([[cp * ct, -sp * st], [0.0, -cp], [-cp * st, -sp * ct]])
+    return reference @ local, reference @ d_local
+
+
+def angles_from_ray(reference: FloatArray, ray: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Return (theta, phi) (2,) rad of a world direction (3,) (any length) about R_ref and
+    their Jacobian (2, 3) with respect to the direction."""
+    d = np.asarray(reference, dtype=np.float64).T @ np.asarray(ray, dtype=np.float64)
+    x, y, z = d
+    horizontal2 = x * x + z * z
+    horizontal = np.sqrt(horizontal2)
+    norm2 = horizontal2 + y * y
+    angles = np.array([np.arctan2(x, z), np.arctan2(-y, horizontal)])
+    d_local = np.array(
+        [
+            [z / horizontal2, 0.0, -x / horizontal2],
+            [x * y / (norm2 * horizontal), -horizontal / norm2, z * y / (norm2 * horizontal)],
+        ]
+    )
+    return angles, d_local @ np.asarray(reference, dtype=np.float64).T
+
+
+def feature_direction(
+    kind_size: int, feature: FloatArray, reference: FloatArray | None, centre: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Return a feature's world direction d (3,) from the optical centre (any positive scale),
+    dd/d(feature) (3, n) and dd/dr (3, 3), for a Euclidean (n = 3) or inverse-depth (n = 6)
+    feature."""
+    if kind_size == EUCLIDEAN_SIZE:
+        return feature - centre, np.eye(3), -np.eye(3)
+    if reference is None:
+        raise ValueError('an inverse-depth feature needs its reference rotation')
+    anchor, theta, phi, rho = feature[:3], feature[3], feature[4], feature[5]
+    ray, d_ray = ray_from_angles(reference, float(theta), float(phi))
+    direction = rho * (anchor - centre) + ray
+    jacobian = np.empty((3, INVERSE_DEPTH_SIZE))
+    jacobian[:, :3] = rho * np.eye(3)
+    jacobian[:, 3:5] = d_ray
+    jacobian[:, 5] = anchor - centre
+    return direction, jacobian, -rho * np.eye(3)
+
+
+def project_feature(
+    camera_model: CameraModel,
+    camera: FloatArray,
+    feature: FloatArray,
+    reference: FloatArray | None,
+) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+    """Return the predicted raw pixel (2,) of a feature, d(pixel)/d(camera state) (2, 13),
+    d(pixel)/d(feature) (2, n) and the depth sign check value h_c[2] (> 0: in front)."""
+    r, q = camera[R_SLICE], camera[Q_SLICE]
+    direction, d_feature, d_centre = feature_direction(len(feature), feature, reference, r)
+    rot_t = rotation(q).T
+    h_c = rot_t @ direction
+    if h_c[2] <= 0.0:
+        return np.full(2, np.nan), np.zeros((2, CAMERA_SIZE)), np.zeros((2, len(feature))), h_c[2]
+    pixel, d_pixel = camera_model.project_with_jacobian(h_c[None])
+    d_pixel_hc = d_pixel[0]
+    d_camera = np.zeros((2, CAMERA_SIZE))
+    d_camera[:, R_SLICE] = d_pixel_hc @ rot_t @ d_centre
+    d_camera[:, Q_SLICE] = d_pixel_hc @ rotate_transposed_jacobian(q, direction)
+    return pixel[0], d_camera, d_pixel_hc @ rot_t @ d_feature, float(h_c[2])
+
+
+def project_known_point(
+    camera_model: CameraModel, camera: FloatArray, point: FloatArray
+) -> tuple[FloatArray, FloatArray, float]:
+    """Return the raw pixel (2,) of a point of known world position (3,) m, d(pixel)/d(camera
+    state) (2, 13) and h_c[2]."""
+    pixel, d_camera, _, depth = project_feature(camera_model, camera, point, None)
+    return pixel, d_camera, depth
+
+
+def new_inverse_depth_feature(
+    camera_model: CameraModel,
+    camera: FloatArray,
+    pixel: ArrayLike,
+    rho: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Return a new inverse-depth feature (6,) seen at a raw pixel (2,) with inverse depth rho
+    (1/m), its reference rotation R_ref (3, 3), dy/d(camera state) (6, 13) and dy/d(pixel)
+    (6, 2). The caller adds rho's own variance on the last entry."""
+    r, q = camera[R_SLICE], camera[Q_SLICE]
+    normalized = camera_model.undistort_points(np.asarray(pixel, dtype=np.float64)[None],
+                                               normalized=True)[0]  # fmt: skip
+    h_c = np.array([normalized[0], normalized[1], 1.0])
+    _, d_lens = camera_model.project_with_jacobian(h_c[None])
+    d_hc_pixel = np.zeros((3, 2))
+    d_hc_pixel[:2, :] = np.linalg.inv(d_lens[0][:, :2])
+    reference = rotation(q / np.linalg.norm(q))
+    world_ray = rotation(q) @ h_c
+    angles, d_angles = angles_from_ray(reference, world_ray)
+    feature = np.concatenate([r, angles, [rho]])
+    d_camera = np.zeros((INVERSE_DEPTH_SIZE, CAMERA_SIZE))
+    d_camera[:3, R_SLICE] = np.eye(3)
+    d_camera[3:5, Q_SLICE] = d_angles @ rotate_jacobian(q, h_c)
+    d_pixel = np.zeros((INVERSE_DEPTH_SIZE, 2))
+    d_pixel[3:5] = d_angles @ rotation(q) @ d_hc_pixel
+    return feature, reference, d_camera, d_pixel
+
+
+def euclidean_point(feature: FloatArray, reference: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Return the Euclidean point (3,) m of an inverse-depth feature (6,) and dp/dy (3, 6)."""
+    ray, d_ray = ray_from_angles(reference, float(feature[3]), float(feature[4]))
+    rho = float(feature[5])
+    jacobian = np.empty((3, INVERSE_DEPTH_SIZE))
+    jacobian[:, :3] = np.eye(3)
+    jacobian[:, 3:5] = d_ray / rho
+    jacobian[:, 5] = -ray / rho**2
+    return feature[:3] + ray / rho, jacobian
+
+
+def linearity_index(
+    feature: FloatArray, reference: FloatArray, rho_variance: float, centre: FloatArray
+) -> float:
+    """Return Civera et al.'s linearity index L_d of an inverse-depth feature seen from the
+    optical centre (3,): 4 sigma_d / d_1 |cos alpha|, sigma_d = sigma_rho / rho^2 the depth
+    uncertainty, d_1 the distance from the centre, alpha the angle between the feature's ray
+    and the current one. Below ~0.1 the Euclidean model is linear enough to switch."""
+    point, _ = euclidean_point(feature, reference)
+    ray, _ = ray_from_angles(reference, float(feature[3]), float(feature[4]))
+    sight = point - centre
+    distance = float(np.linalg.norm(sight))
+    rho = float(feature[5])
+    if distance <= 0.0 or rho <= 0.0:
+        return float('inf')
+    sigma_depth = np.sqrt(max(rho_variance, 0.0)) / rho**2
+    cos_alpha = float(ray @ sight) / distance
+    return float(4.0 * sigma_depth / distance * abs(cos_alpha))
