@@ -24,6 +24,7 @@ setup(
             'office_sim = slam_sim.office_bag:main',
             'office_camera_sim = slam_sim.office_camera_bag:main',
             'dynamic_features_sim = slam_sim.dynamic_features_bag:main',
+            'dynamic_camera_sim = slam_sim.dynamic_camera_bag:main',
             'victoria_park_import = slam_sim.victoria_park_bag:main',
             'mrclam_import = slam_sim.mrclam_bag:main',
         ],

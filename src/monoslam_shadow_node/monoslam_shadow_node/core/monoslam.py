@@ -78,8 +78,8 @@ class MonoSlamConfig:
 
     known_points: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     pixel_sigma_px: float = 1.0
-    linear_acceleration_sigma: float = 1.0  # m/s^2/sqrt(Hz)
-    angular_acceleration_sigma: float = 1.0  # rad/s^2/sqrt(Hz)
+    linear_acceleration_sigma: float = 2.0  # m/s^2/sqrt(Hz)
+    angular_acceleration_sigma: float = 8.0  # rad/s^2/sqrt(Hz): hand tremor at 2-6 Hz
     initial_velocity_sigma_m_s: float = 0.5
     initial_angular_velocity_sigma_rad_s: float = 0.5
     initial_inverse_depth: float = 0.2  # 1/m
@@ -267,7 +267,8 @@ class MonoSlam:
         if feature_id in self._owned_ids:
             return None
         if self.config.initialize != 'handover':
-            return f'handover of feature {feature_id}: ignored (initialize={self.config.initialize})'
+            mode = self.config.initialize
+            return f'handover of feature {feature_id}: ignored (initialize={mode})'
         self._handovers[feature_id] = _Handover(feature_id, position, covariance, self._frame)
         return None
 
@@ -426,23 +427,23 @@ class MonoSlam:
         camera = self._x[:CAMERA_SIZE]
         rows: list[FloatArray] = []
         residuals: list[FloatArray] = []
-        measured, rejected = [], []
+        measured: list[int] = []
+        rejected: list[int] = []
         sigma2 = self.config.pixel_sigma_px**2
         gate = self.config.gate
         c = slice(0, CAMERA_SIZE)
-        candidates: list[tuple[int | None, FloatArray, FloatArray | None, _Feature | None]] = []
-        for key, pixel in zip(keys.tolist(), known_pixels, strict=True):
-            candidates.append((None, pixel, self._known[key], None))
-        for feature in self._features:
-            if feature.id in observed:
-                candidates.append((feature.id, observed[feature.id], None, feature))
+        # (pixel, known point or None, feature or None): known points first, then features
+        candidates: list[tuple[FloatArray, FloatArray | None, _Feature | None]] = [
+            (pixel, self._known[key], None)
+            for key, pixel in zip(keys.tolist(), known_pixels, strict=True)
+        ]
+        candidates += [(observed[f.id], None, f) for f in self._features if f.id in observed]
         known_used = 0
-        for feature_id, pixel, point, feature in candidates:
-            if feature is None:
-                assert point is not None
+        for pixel, point, feature in candidates:
+            block: slice | None = None
+            if feature is None and point is not None:
                 predicted, h_c, h_f, depth = project_feature(self.camera, camera, point, None)
-                block = None
-            else:
+            elif feature is not None:
                 block = slice(feature.start, feature.start + feature.size)
                 predicted, h_c, h_f, depth = project_feature(
                     self.camera, camera, self._x[block], feature.reference
@@ -560,7 +561,8 @@ class MonoSlam:
     def _insert(self, feature_id: int, pixel: FloatArray, handover: _Handover | None) -> bool:
         """Append an inverse-depth feature seen at ``pixel``; True if it went in."""
         camera = self._x[:CAMERA_SIZE]
-        rho, rho_variance = self.config.initial_inverse_depth, self.config.initial_inverse_depth_sigma**2
+        rho = self.config.initial_inverse_depth
+        rho_variance = self.config.initial_inverse_depth_sigma**2
         if handover is not None:
             offset = handover.position - camera[R_SLICE]
             depth = float(np.linalg.norm(offset))
@@ -589,8 +591,9 @@ class MonoSlam:
         self._p = p
         self._x = np.concatenate([self._x, feature])
         source = 'handover' if handover is not None else 'new'
+        frame = self._frame
         self._features.append(
-            _Feature(feature_id, n, INVERSE_DEPTH_SIZE, reference, source, self._frame, self._frame)
+            _Feature(feature_id, n, INVERSE_DEPTH_SIZE, reference, source, frame, frame)
         )
         self._owned_ids.add(feature_id)
         return True
@@ -677,8 +680,10 @@ class MonoSlam:
         warnings: list[str],
     ) -> MonoSlamResult:
         if status == WAITING or len(self._x) < CAMERA_SIZE:
-            return MonoSlamResult(stamp_ns, self._frame, status, None, None, None, None, None,
-                                  measured, rejected, added, removed, known_used, warnings)  # fmt: skip
+            return MonoSlamResult(
+                stamp_ns, self._frame, status, None, None, None, None, None, measured,
+                rejected, added, removed, known_used, warnings,
+            )  # fmt: skip
         x, p = self._x, self._p
         q = x[Q_SLICE]
         to_pose = np.zeros((6, CAMERA_SIZE))

@@ -72,9 +72,10 @@ def camera_from_known_points(
     state = np.zeros(CAMERA_SIZE)
     state[R_SLICE] = centre
     state[Q_SLICE] = quaternion_from_rotation(rotation_wc)
-    state, jacobian, residuals = _refine(camera, state, points, observed)
-    if state is None or jacobian is None:
+    refined, jacobian, residuals = _refine(camera, state, points, observed)
+    if refined is None or jacobian is None:
         return None
+    state = refined
     rms = float(np.sqrt(np.mean(residuals**2)))
     # Covariance in (r, theta about world axes), then to (r, q): q = dq(theta) (x) q_hat.
     information = jacobian.T @ jacobian / pixel_sigma_px**2

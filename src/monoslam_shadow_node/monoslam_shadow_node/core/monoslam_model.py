@@ -113,13 +113,13 @@ def quaternion_from_rotation(matrix: ArrayLike) -> FloatArray:
         s = 2.0 * np.sqrt(1.0 + trace)
         q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
     else:
-        i, j, l = k - 1, k % 3, (k + 1) % 3
-        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[l, l])
+        i, j, h = k - 1, k % 3, (k + 1) % 3
+        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[h, h])
         q = [0.0, 0.0, 0.0, 0.0]
-        q[0] = (m[l, j] - m[j, l]) / s
+        q[0] = (m[h, j] - m[j, h]) / s
         q[1 + i] = 0.25 * s
         q[1 + j] = (m[j, i] + m[i, j]) / s
-        q[1 + l] = (m[l, i] + m[i, l]) / s
+        q[1 + h] = (m[h, i] + m[i, h]) / s
     out = np.array(q, dtype=np.float64)
     return out if out[0] >= 0.0 else -out
 
@@ -138,7 +138,7 @@ def rotate_transposed_jacobian(q: ArrayLike, a: ArrayLike) -> FloatArray:
 def rotate_jacobian(q: ArrayLike, a: ArrayLike) -> FloatArray:
     """Return d(rotation(q) a)/dq (3, 4) for a vector a (3,)."""
     conj = conjugate(q)
-    return rotate_transposed_jacobian(conj, a) * np.array([1.0, -1.0, -1.0, -1.0])
+    return np.asarray(rotate_transposed_jacobian(conj, a) * np.array([1.0, -1.0, -1.0, -1.0]))
 
 
 def exp_quaternion(rotation_vector: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -150,7 +150,7 @@ def exp_quaternion(rotation_vector: ArrayLike) -> tuple[FloatArray, FloatArray]:
         quaternion = np.concatenate([[1.0 - angle * angle / 8.0], 0.5 * vector])
         jacobian = np.vstack([-0.25 * vector, 0.5 * np.eye(3)])
         return quaternion, jacobian
-    sinc = np.sin(half) / angle  # sin(angle/2) / angle
+    sinc = float(np.sin(half)) / angle  # sin(angle/2) / angle
     axis = vector / angle
     quaternion = np.concatenate([[np.cos(half)], sinc * vector])
     d_sinc = (0.5 * np.cos(half) * angle - np.sin(half)) / (angle * angle)  # d(sinc)/d(angle)

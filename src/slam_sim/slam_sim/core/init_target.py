@@ -29,7 +29,8 @@ from slam_sim.core.geometry import BoolArray, FloatArray
 
 TARGET_DICTIONARY = 'DICT_APRILTAG_36h11'
 _FACING_MINUS_X = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-"""R_map_marker of a marker facing -x (towards the camera): x right = -y_map, y up = z_map, z out = -x_map."""
+"""R_map_marker of a marker facing -x (towards the camera): x right = -y_map, y up = z_map,
+z out = -x_map."""
 
 
 @dataclass(frozen=True)

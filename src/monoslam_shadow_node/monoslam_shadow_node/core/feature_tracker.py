@@ -1,0 +1,505 @@
+"""Image feature tracking for the monocular SLAM front end (ROS-free; OpenCV and numpy).
+
+Per image (``FeatureTracker.track``):
+
+1. Tracking. Every track of the previous image is followed by pyramidal Lucas-Kanade
+   (cv2.calcOpticalFlowPyrLK), starting from a predicted pixel where one is given for its id
+   (e.g. the SLAM filter's projection of its map point; cv2.OPTFLOW_USE_INITIAL_FLOW) and from
+   its previous pixel otherwise (a non-finite prediction is ignored). A track is dropped, for
+   the first reason that applies, when LK loses it (status 0, or a non-finite result:
+   ``lost``), its patch error is above ``max_lk_error`` (``error``), it ends within
+   ``border_margin_px`` of the image edge or was predicted outside the image (``border``),
+   tracking it back into the previous image lands more than ``fb_threshold_px`` from where
+   it started (``forward_backward``), or it came closer than half of ``min_distance_px`` to
+   an older track (``crowded``: both follow the same image structure now; the younger goes).
+2. Detection, every ``detect_every_n_frames`` images (and whenever no track is left), only
+   where tracks are missing: Shi-Tomasi corners (cv2.goodFeaturesToTrack) or FAST corners,
+   at least ``min_distance_px`` from every track and from each other, outside the border
+   margin, then refined to subpixel accuracy (cv2.cornerSubPix, which moves a corner by at
+   most ``SUBPIXEL_HALF_WINDOW_PX``). The image is split into
+   ``grid_rows`` x ``grid_cols`` cells that each take up to ceil(max_features / cells)
+   features first, the strongest corners first; what textureless cells leave unused goes to
+   the strongest remaining corners anywhere, up to ``max_features`` in all.
+
+Ids are int64, start at 1 and are never reused in a tracker's life: a restart (``reset``, or
+an image of another size) drops the tracks but the numbering goes on. Pixels are in the raw
+(distorted) image, OpenCV's convention: u right, v down, pixel centres at integer
+coordinates. Nothing returned is ever NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+GrayImage = NDArray[np.uint8]
+
+DETECTORS = ('shi_tomasi', 'fast')
+DROP_REASONS = ('lost', 'error', 'border', 'forward_backward', 'crowded', 'reset')
+SHI_TOMASI_BLOCK_PX = 3
+"""Neighbourhood of the Shi-Tomasi structure tensor (cv2.goodFeaturesToTrack's blockSize)."""
+SUBPIXEL_HALF_WINDOW_PX = 4
+"""cv2.cornerSubPix looks at (2 * this + 1)^2 pixels; a corner it moves farther than this
+keeps its detected pixel."""
+SUBPIXEL_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 15, 0.01)
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Detection and tracking settings (units in the names; see the module docstring).
+
+    ``detector`` is 'shi_tomasi' (``quality_level``: corners weaker than this share of the
+    strongest minimum eigenvalue where features are missing are ignored) or 'fast'
+    (``fast_threshold``: intensity difference, gray levels). ``lk_window_px`` is the side of
+    the LK patch, ``lk_pyramid_levels`` the number of levels above the image,
+    ``lk_max_iterations`` and ``lk_epsilon_px`` its stopping rule per level.
+    ``max_lk_error`` is the largest mean absolute patch difference (gray levels) and
+    ``fb_threshold_px`` the largest forward-backward distance; 0 switches either check off.
+    Invalid values raise ValueError naming the field.
+    """
+
+    max_features: int = 150
+    detector: str = 'shi_tomasi'
+    quality_level: float = 0.01
+    fast_threshold: int = 20
+    min_distance_px: float = 10.0
+    grid_rows: int = 4
+    grid_cols: int = 4
+    detect_every_n_frames: int = 1
+    subpixel_refinement: bool = True
+    lk_window_px: int = 21
+    lk_pyramid_levels: int = 3
+    lk_max_iterations: int = 30
+    lk_epsilon_px: float = 0.01
+    max_lk_error: float = 30.0
+    fb_threshold_px: float = 1.0
+    border_margin_px: float = 10.0
+
+    def __post_init__(self) -> None:
+        for item in fields(self):
+            value = getattr(self, item.name)
+            expected: type = type(item.default)
+            if expected is bool or expected is str:
+                if not isinstance(value, expected):
+                    raise ValueError(f'{item.name}={value!r}: must be a {expected.__name__}')
+            elif isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f'{item.name}={value!r}: must be a number')
+            elif expected is int and not isinstance(value, int):
+                raise ValueError(f'{item.name}={value!r}: must be an integer')
+            elif not math.isfinite(value):
+                raise ValueError(f'{item.name}={value!r}: must be finite')
+        checks = (
+            ('max_features', self.max_features >= 1, 'must be >= 1'),
+            ('detector', self.detector in DETECTORS, f'must be one of {DETECTORS}'),
+            ('quality_level', 0 < self.quality_level < 1, 'must be in (0, 1)'),
+            ('fast_threshold', 1 <= self.fast_threshold <= 254, 'must be in [1, 254]'),
+            ('min_distance_px', self.min_distance_px >= 1, 'must be >= 1 px'),
+            ('grid_rows', 1 <= self.grid_rows <= 64, 'must be in [1, 64]'),
+            ('grid_cols', 1 <= self.grid_cols <= 64, 'must be in [1, 64]'),
+            ('detect_every_n_frames', self.detect_every_n_frames >= 1, 'must be >= 1'),
+            ('lk_window_px', 5 <= self.lk_window_px <= 101, 'must be in [5, 101] px'),
+            ('lk_pyramid_levels', 0 <= self.lk_pyramid_levels <= 8, 'must be in [0, 8]'),
+            ('lk_max_iterations', self.lk_max_iterations >= 1, 'must be >= 1'),
+            ('lk_epsilon_px', self.lk_epsilon_px > 0, 'must be > 0 px'),
+            ('max_lk_error', self.max_lk_error >= 0, 'must be >= 0 (0: no check)'),
+            ('fb_threshold_px', self.fb_threshold_px >= 0, 'must be >= 0 px (0: no check)'),
+            ('border_margin_px', self.border_margin_px >= 0, 'must be >= 0 px'),
+        )
+        for name, ok, rule in checks:
+            if not ok:
+                raise ValueError(f'{name}={getattr(self, name)!r}: {rule}')
+
+    @property
+    def cell_quota(self) -> int:
+        """Features a grid cell takes before the strongest corners elsewhere get the rest."""
+        return math.ceil(self.max_features / (self.grid_rows * self.grid_cols))
+
+
+@dataclass(frozen=True)
+class TrackCounts:
+    """What happened in one image: tracks carried over from the previous image
+    (``tracked``, of them ``predicted`` from a predicted pixel), tracks started (``new``) and
+    tracks dropped, by reason (``DROP_REASONS``; ``reset``: by a restart)."""
+
+    tracked: int = 0
+    predicted: int = 0
+    new: int = 0
+    lost: int = 0
+    error: int = 0
+    border: int = 0
+    forward_backward: int = 0
+    crowded: int = 0
+    reset: int = 0
+
+    @property
+    def dropped(self) -> int:
+        """All tracks dropped in this image."""
+        return sum(getattr(self, reason) for reason in DROP_REASONS)
+
+    def dropped_by_reason(self) -> dict[str, int]:
+        """Return the drops by reason (DROP_REASONS order)."""
+        return {reason: getattr(self, reason) for reason in DROP_REASONS}
+
+
+@dataclass(frozen=True, eq=False)
+class Predictions:
+    """Predicted pixels of some tracks in the image about to be tracked: ids (K,) int64 and
+    raw-image pixels (K, 2) float64. Ids not tracked and non-finite pixels are ignored; a
+    track predicted outside the image is dropped (it is expected to have left the view)."""
+
+    ids: IntArray
+    pixels: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class TrackedFeatures:
+    """The features of one image: ids (N,) int64 ascending, raw-image pixels (N, 2) float64
+    (finite), ages (N,) int64 (images each track has been seen in; 1 = new), and the counts."""
+
+    ids: IntArray
+    pixels: FloatArray
+    ages: IntArray
+    counts: TrackCounts
+
+
+def as_gray_image(image: object) -> GrayImage:
+    """Return ``image`` as a C-contiguous (H, W) uint8 array; raise ValueError if it is not a
+    non-empty 2-D uint8 array."""
+    if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
+        what = f'{image.ndim}-D {image.dtype}' if isinstance(image, np.ndarray) else type(image)
+        raise ValueError(f'the tracker takes 2-D uint8 (gray) images, got {what}')
+    if image.size == 0:
+        raise ValueError(f'empty image ({image.shape[1]}x{image.shape[0]} px)')
+    return np.ascontiguousarray(image)
+
+
+class FeatureTracker:
+    """Detects and tracks features image after image (see the module docstring)."""
+
+    def __init__(self, config: TrackerConfig | None = None) -> None:
+        self.config = config if config is not None else TrackerConfig()
+        self._next_id = 1
+        self._previous: GrayImage | None = None
+        self._ids: IntArray = np.zeros(0, np.int64)
+        self._pixels = np.zeros((0, 2), np.float32)
+        self._ages: IntArray = np.zeros(0, np.int64)
+        self._images = 0
+        self._pending_reset = 0
+        self._fast = (
+            cv2.FastFeatureDetector.create(self.config.fast_threshold, True)
+            if self.config.detector == 'fast'
+            else None
+        )
+
+    @property
+    def next_id(self) -> int:
+        """The id the next new track gets."""
+        return self._next_id
+
+    @property
+    def track_count(self) -> int:
+        """Tracks held (those of the last image)."""
+        return len(self._ids)
+
+    def reset(self) -> int:
+        """Drop every track (the next image starts over; ids go on); return how many were
+        dropped. The next ``track`` counts them as ``reset``."""
+        dropped = len(self._ids)
+        self._pending_reset += dropped
+        self._clear()
+        return dropped
+
+    def track(self, image: object, predictions: Predictions | None = None) -> TrackedFeatures:
+        """Return the features of ``image`` (2-D uint8, raw): the tracks of the previous image
+        followed into it, then new ones where features are missing. ``predictions`` give LK's
+        starting pixels for some ids. Raises ValueError for an image that is not 2-D uint8 or
+        is empty (the tracker is then unchanged)."""
+        gray = as_gray_image(image)
+        drops = dict.fromkeys(DROP_REASONS, 0)
+        if self._previous is not None and self._previous.shape != gray.shape:
+            self.reset()
+        drops['reset'], self._pending_reset = self._pending_reset, 0
+        tracked = predicted = 0
+        if self._previous is not None and len(self._ids):
+            predicted = self._follow(self._previous, gray, predictions, drops)
+            tracked = len(self._ids)
+        new = 0
+        due = self._images % self.config.detect_every_n_frames == 0 or not len(self._ids)
+        if due and len(self._ids) < self.config.max_features:
+            new = self._detect(gray)
+        self._previous = gray
+        self._images += 1
+        return TrackedFeatures(
+            self._ids.copy(),
+            self._pixels.astype(np.float64),
+            self._ages.copy(),
+            TrackCounts(tracked=tracked, predicted=predicted, new=new, **drops),
+        )
+
+    # --- tracking ---------------------------------------------------------------------------
+
+    def _lk(
+        self,
+        before: GrayImage,
+        after: GrayImage,
+        start: NDArray[np.float32],
+        guess: NDArray[np.float32],
+    ) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.float32]]:
+        """Return LK's end pixels (M, 2), status (M,) and patch errors (M,) of ``start`` (M, 2)
+        from ``before`` into ``after``, iterations starting at ``guess``."""
+        config = self.config
+        end, status, error = cv2.calcOpticalFlowPyrLK(
+            before,
+            after,
+            start.reshape(-1, 1, 2),
+            guess.reshape(-1, 1, 2).copy(),
+            winSize=(config.lk_window_px, config.lk_window_px),
+            maxLevel=config.lk_pyramid_levels,
+            criteria=(
+                cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT,
+                config.lk_max_iterations,
+                config.lk_epsilon_px,
+            ),
+            flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+        )
+        return (
+            np.asarray(end, np.float32).reshape(-1, 2),
+            np.asarray(status).reshape(-1) != 0,
+            np.asarray(error, np.float32).reshape(-1),
+        )
+
+    def _guesses(
+        self, predictions: Predictions | None, shape: tuple[int, ...]
+    ) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.bool_]]:
+        """Return LK's starting pixels (N, 2) for the held tracks, which start from a
+        prediction (N,) and which are predicted outside the image (N,)."""
+        guess = self._pixels.copy()
+        used = np.zeros(len(self._ids), bool)
+        leaving = np.zeros(len(self._ids), bool)
+        if predictions is None or not len(predictions.ids):
+            return guess, used, leaving
+        ids = np.asarray(predictions.ids, np.int64).reshape(-1)
+        pixels = np.asarray(predictions.pixels, np.float64).reshape(-1, 2)
+        if len(ids) != len(pixels):
+            raise ValueError(f'predictions: {len(ids)} ids but {len(pixels)} pixels')
+        finite = np.all(np.isfinite(pixels), axis=1)
+        ids, pixels = ids[finite], pixels[finite]
+        rows = np.searchsorted(self._ids, ids)  # self._ids is ascending
+        known = rows < len(self._ids)
+        known[known] = self._ids[rows[known]] == ids[known]
+        rows, pixels = rows[known], pixels[known]
+        height, width = shape
+        inside = (
+            (pixels[:, 0] >= 0)
+            & (pixels[:, 0] <= width - 1)
+            & (pixels[:, 1] >= 0)
+            & (pixels[:, 1] <= height - 1)
+        )
+        guess[rows[inside]] = pixels[inside]
+        used[rows[inside]] = True
+        leaving[rows[~inside]] = True
+        return guess, used, leaving
+
+    def _follow(
+        self,
+        previous: GrayImage,
+        gray: GrayImage,
+        predictions: Predictions | None,
+        drops: dict[str, int],
+    ) -> int:
+        """Track the held features from ``previous`` into ``gray`` and drop the failures
+        (counted in ``drops``); return how many kept tracks started from a prediction."""
+        config = self.config
+        start = self._pixels
+        guess, used, leaving = self._guesses(predictions, gray.shape)
+        end, ok, error = self._lk(previous, gray, start, guess)
+        keep = ok & np.all(np.isfinite(end), axis=1) & ~leaving
+        drops['lost'] = int(np.count_nonzero(~keep & ~leaving))
+        if config.max_lk_error > 0:
+            bad = keep & ~(error <= config.max_lk_error)
+            drops['error'] = int(np.count_nonzero(bad))
+            keep &= ~bad
+        height, width = gray.shape
+        margin = config.border_margin_px
+        outside = keep & (
+            (end[:, 0] < margin)
+            | (end[:, 0] > width - 1 - margin)
+            | (end[:, 1] < margin)
+            | (end[:, 1] > height - 1 - margin)
+        )
+        drops['border'] = int(np.count_nonzero(outside | leaving))
+        keep &= ~outside
+        if config.fb_threshold_px > 0 and np.any(keep):
+            rows = np.flatnonzero(keep)
+            # Back from the end, starting where the guess's offset says the start should be
+            # (the start itself for tracks without a prediction).
+            back_guess = end[rows] - (guess[rows] - start[rows])
+            back, back_ok, _ = self._lk(gray, previous, end[rows], back_guess)
+            distance = np.linalg.norm(back - start[rows], axis=1)
+            failed = ~(back_ok & (distance <= config.fb_threshold_px))
+            drops['forward_backward'] = int(np.count_nonzero(failed))
+            keep[rows[failed]] = False
+        self._ids, self._ages = self._ids[keep], self._ages[keep] + 1
+        self._pixels = np.ascontiguousarray(end[keep], np.float32)
+        predicted = int(np.count_nonzero(used[keep]))
+        crowded = self._crowded()
+        if np.any(crowded):
+            predicted -= int(np.count_nonzero(used[keep][crowded]))
+            drops['crowded'] = int(np.count_nonzero(crowded))
+            self._ids, self._ages = self._ids[~crowded], self._ages[~crowded]
+            self._pixels = self._pixels[~crowded]
+        return predicted
+
+    def _crowded(self) -> NDArray[np.bool_]:
+        """Return which held tracks lie within half of min_distance_px of an older one
+        (older: more images; equal age: smaller id)."""
+        count = len(self._ids)
+        crowded = np.zeros(count, bool)
+        if count < 2:
+            return crowded
+        radius = 0.5 * self.config.min_distance_px
+        pixels = self._pixels.astype(np.float64)
+        close = np.sum((pixels[:, None, :] - pixels[None, :, :]) ** 2, axis=2) < radius**2
+        np.fill_diagonal(close, False)
+        if not np.any(close):
+            return crowded
+        for row in np.lexsort((self._ids, -self._ages)):  # oldest first
+            if not crowded[row]:
+                crowded |= close[row] & (
+                    (self._ages < self._ages[row])
+                    | ((self._ages == self._ages[row]) & (self._ids > self._ids[row]))
+                )
+        return crowded
+
+    # --- detection --------------------------------------------------------------------------
+
+    def _free_mask(self, shape: tuple[int, ...]) -> GrayImage:
+        """Return 255 where a new feature may go: outside the border margin and at least
+        min_distance_px from every held track; 0 elsewhere."""
+        height, width = shape
+        mask = np.zeros((height, width), np.uint8)
+        margin = math.ceil(self.config.border_margin_px)
+        if height > 2 * margin and width > 2 * margin:
+            mask[margin : height - margin, margin : width - margin] = 255
+        radius = math.ceil(self.config.min_distance_px)
+        for u, v in np.rint(self._pixels).astype(np.int64):
+            cv2.circle(mask, (int(u), int(v)), radius, 0, -1)
+        return mask
+
+    def _candidates(self, gray: GrayImage, mask: GrayImage) -> NDArray[np.float32]:
+        """Return corners (M, 2) where ``mask`` allows, strongest first, at least
+        min_distance_px apart."""
+        config = self.config
+        if self._fast is None:
+            corners = cv2.goodFeaturesToTrack(
+                gray,
+                0,
+                config.quality_level,
+                config.min_distance_px,
+                mask=mask,
+                blockSize=SHI_TOMASI_BLOCK_PX,
+            )
+            if corners is None:
+                return np.zeros((0, 2), np.float32)
+            return np.asarray(corners, np.float32).reshape(-1, 2)
+        keypoints = self._fast.detect(gray, mask)
+        if not keypoints:
+            return np.zeros((0, 2), np.float32)
+        points = np.array([k.pt for k in keypoints], np.float32)
+        order = np.argsort([-k.response for k in keypoints], kind='stable')
+        return _spaced(points[order], config.min_distance_px, gray.shape)
+
+    def _select(self, corners: NDArray[np.float32], shape: tuple[int, ...]) -> NDArray[np.int64]:
+        """Return the rows of ``corners`` (strongest first) that become tracks: per grid cell
+        up to the cell quota minus the tracks there, then the strongest of the rest, up to
+        max_features in all; in strength order."""
+        config = self.config
+        room = config.max_features - len(self._ids)
+        cells = _cells(corners, shape, config.grid_rows, config.grid_cols)
+        held = np.bincount(
+            _cells(self._pixels, shape, config.grid_rows, config.grid_cols),
+            minlength=config.grid_rows * config.grid_cols,
+        )
+        order = np.argsort(cells, kind='stable')  # by cell, strongest first within each
+        sorted_cells = cells[order]
+        rank = np.empty(len(cells), np.int64)
+        rank[order] = np.arange(len(cells)) - np.searchsorted(sorted_cells, sorted_cells)
+        first = held[cells] + rank < config.cell_quota
+        chosen = np.flatnonzero(first)[:room]
+        if len(chosen) < room:
+            rest = np.flatnonzero(~first)[: room - len(chosen)]
+            chosen = np.sort(np.concatenate([chosen, rest]))
+        return chosen
+
+    def _detect(self, gray: GrayImage) -> int:
+        """Start tracks where features are missing; return how many."""
+        corners = self._candidates(gray, self._free_mask(gray.shape))
+        if not len(corners):
+            return 0
+        corners = corners[self._select(corners, gray.shape)]
+        if self.config.subpixel_refinement and len(corners):
+            corners = _refined(gray, corners, self.config.border_margin_px)
+        count = len(corners)
+        self._ids = np.concatenate([self._ids, np.arange(self._next_id, self._next_id + count)])
+        self._pixels = np.ascontiguousarray(np.concatenate([self._pixels, corners]), np.float32)
+        self._ages = np.concatenate([self._ages, np.ones(count, np.int64)])
+        self._next_id += count
+        return count
+
+    def _clear(self) -> None:
+        self._previous = None
+        self._ids = np.zeros(0, np.int64)
+        self._pixels = np.zeros((0, 2), np.float32)
+        self._ages = np.zeros(0, np.int64)
+
+
+def _cells(
+    pixels: NDArray[np.float32], shape: tuple[int, ...], rows: int, cols: int
+) -> NDArray[np.int64]:
+    """Return the grid cell index (row-major) of each pixel (M, 2)."""
+    height, width = shape
+    col = np.clip((pixels[:, 0] * (cols / width)).astype(np.int64), 0, cols - 1)
+    row = np.clip((pixels[:, 1] * (rows / height)).astype(np.int64), 0, rows - 1)
+    return row * cols + col
+
+
+def _spaced(
+    points: NDArray[np.float32], distance_px: float, shape: tuple[int, ...]
+) -> NDArray[np.float32]:
+    """Return ``points`` (M, 2, strongest first) greedily thinned to at least ``distance_px``
+    apart (the stronger point stays)."""
+    taken = np.zeros(shape, np.uint8)
+    radius = math.ceil(distance_px)
+    kept = []
+    for index, (u, v) in enumerate(np.rint(points).astype(np.int64)):
+        if taken[v, u] == 0:
+            kept.append(index)
+            cv2.circle(taken, (int(u), int(v)), radius, 1, -1)
+    return points[kept]
+
+
+def _refined(
+    gray: GrayImage, corners: NDArray[np.float32], margin_px: float
+) -> NDArray[np.float32]:
+    """Return ``corners`` (M, 2) refined by cv2.cornerSubPix; a corner that moves more than
+    SUBPIXEL_HALF_WINDOW_PX, or into the border margin, keeps its detected pixel."""
+    window = (SUBPIXEL_HALF_WINDOW_PX, SUBPIXEL_HALF_WINDOW_PX)
+    refined = cv2.cornerSubPix(
+        gray, corners.reshape(-1, 1, 2).copy(), window, (-1, -1), SUBPIXEL_CRITERIA
+    ).reshape(-1, 2)
+    height, width = gray.shape
+    good = (
+        np.all(np.isfinite(refined), axis=1)
+        & np.all(np.abs(refined - corners) <= SUBPIXEL_HALF_WINDOW_PX, axis=1)
+        & (refined[:, 0] >= margin_px)
+        & (refined[:, 0] <= width - 1 - margin_px)
+        & (refined[:, 1] >= margin_px)
+        & (refined[:, 1] <= height - 1 - margin_px)
+    )
+    return np.where(good[:, None], refined, corners).astype(np.float32)

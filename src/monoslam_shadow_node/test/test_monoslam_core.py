@@ -1,0 +1,266 @@
+"""MonoSLAM core: analytic Jacobians against finite differences, the start from known points,
+the filter on a short simulated run, handovers and bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from monoslam_shadow_node.core.camera import CameraModel
+from monoslam_shadow_node.core.monoslam import (
+    TRACKING,
+    WAITING,
+    MonoSlam,
+    MonoSlamConfig,
+    MonoSlamFrame,
+    MonoSlamInputError,
+)
+from monoslam_shadow_node.core.monoslam_init import camera_from_known_points
+from monoslam_shadow_node.core.monoslam_model import (
+    CAMERA_SIZE,
+    angles_from_ray,
+    euclidean_point,
+    exp_quaternion,
+    log_rotation,
+    new_inverse_depth_feature,
+    predict_camera,
+    project_feature,
+    quaternion_from_rotation,
+    rotate_jacobian,
+    rotate_transposed_jacobian,
+    rotation,
+    world_angle_jacobian,
+)
+from slam_bringup.testing.jacobians import assert_jacobian_close
+from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
+from slam_sim.core.init_target import InitTarget, target_pixels
+
+CAMERA = CameraModel(
+    640, 480, np.array([[300.0, 0, 320.7], [0, 300.0, 238.9], [0, 0, 1]]),
+    np.array([-0.05, 0.01, 0.0, 0.0, 0.0]),
+)  # fmt: skip
+
+
+def _camera_state(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    return np.concatenate([rng.normal(size=3), q, rng.normal(size=3), 0.5 * rng.normal(size=3)])
+
+
+def _point_in_front(state: np.ndarray, offset=(0.3, -0.2, 4.0)) -> np.ndarray:
+    return state[:3] + rotation(state[3:7]) @ np.array(offset)
+
+
+@pytest.mark.parametrize('seed', range(3))
+def test_quaternion_jacobians_match_finite_differences(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    q, a = rng.normal(size=4), rng.normal(size=3)
+    assert_jacobian_close(rotate_transposed_jacobian(q, a), lambda x: rotation(x).T @ a, q,
+                          atol=1e-7)  # fmt: skip
+    assert_jacobian_close(rotate_jacobian(q, a), lambda x: rotation(x) @ a, q, atol=1e-7)
+    for vector in (0.3 * rng.normal(size=3), 1e-10 * rng.normal(size=3)):
+        assert_jacobian_close(
+            exp_quaternion(vector)[1], lambda x: exp_quaternion(x)[0], vector, atol=1e-7,
+            eps=1e-7,
+        )  # fmt: skip
+
+
+def test_rotation_round_trips_and_world_angles() -> None:
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        q = q if q[0] >= 0 else -q
+        assert np.allclose(quaternion_from_rotation(rotation(q)), q, atol=1e-12)
+    theta = np.array([0.01, -0.02, 0.015])
+    q_hat = np.array([0.9, 0.1, -0.3, 0.2])
+    q_hat /= np.linalg.norm(q_hat)
+    perturbed = quaternion_from_rotation(rotation(exp_quaternion(theta)[0]) @ rotation(q_hat))
+    assert np.allclose(log_rotation(rotation(perturbed) @ rotation(q_hat).T), theta, atol=1e-12)
+    # to first order theta = J (q - q_hat)
+    assert np.allclose(world_angle_jacobian(q_hat) @ (perturbed - q_hat), theta, atol=1e-4)
+
+
+@pytest.mark.parametrize('seed', range(3))
+def test_motion_model_jacobian(seed: int) -> None:
+    state = _camera_state(np.random.default_rng(seed))
+    _, f, q = predict_camera(state, 1 / 30, 2.0, 8.0)
+    assert_jacobian_close(f, lambda x: predict_camera(x, 1 / 30, 2.0, 8.0)[0], state, atol=1e-7)
+    assert np.allclose(q, q.T) and np.min(np.linalg.eigvalsh(q)) > -1e-15
+
+
+@pytest.mark.parametrize('seed', range(3))
+def test_measurement_jacobians_euclidean_and_inverse_depth(seed: int) -> None:
+    state = _camera_state(np.random.default_rng(seed))
+    point = _point_in_front(state)
+    _, h_camera, h_point, depth = project_feature(CAMERA, state, point, None)
+    assert depth > 0
+    assert_jacobian_close(h_camera, lambda x: project_feature(CAMERA, x, point, None)[0], state,
+                          atol=1e-6)  # fmt: skip
+    assert_jacobian_close(h_point, lambda y: project_feature(CAMERA, state, y, None)[0], point,
+                          atol=1e-6)  # fmt: skip
+    pixel = project_feature(CAMERA, state, point, None)[0]
+    feature, reference, _, _ = new_inverse_depth_feature(CAMERA, state, pixel, 0.3)
+    _, h_camera, h_feature, _ = project_feature(CAMERA, state, feature, reference)
+    assert_jacobian_close(
+        h_camera, lambda x: project_feature(CAMERA, x, feature, reference)[0], state, atol=1e-6
+    )
+    assert_jacobian_close(
+        h_feature, lambda y: project_feature(CAMERA, state, y, reference)[0], feature, atol=1e-6
+    )
+    _, d_point = euclidean_point(feature, reference)
+    assert_jacobian_close(d_point, lambda y: euclidean_point(y, reference)[0], feature, atol=1e-7)
+
+
+def test_new_inverse_depth_feature_lies_on_the_ray_and_its_jacobians() -> None:
+    state = _camera_state(np.random.default_rng(7))
+    point = _point_in_front(state, (-0.5, 0.4, 3.0))
+    pixel = project_feature(CAMERA, state, point, None)[0]
+    rho = 1.0 / float(np.linalg.norm(point - state[:3]))
+    feature, reference, d_camera, d_pixel = new_inverse_depth_feature(CAMERA, state, pixel, rho)
+    assert np.allclose(euclidean_point(feature, reference)[0], point, atol=1e-6)
+
+    def from_camera(x: np.ndarray) -> np.ndarray:  # the reference rotation stays fixed
+        normalized = CAMERA.undistort_points(pixel[None], normalized=True)[0]
+        angles, _ = angles_from_ray(reference, rotation(x[3:7]) @ [*normalized, 1.0])
+        return np.concatenate([x[:3], angles, [rho]])
+
+    def from_pixel(u: np.ndarray) -> np.ndarray:
+        normalized = CAMERA.undistort_points(u[None], normalized=True)[0]
+        angles, _ = angles_from_ray(reference, rotation(state[3:7]) @ [*normalized, 1.0])
+        return np.concatenate([state[:3], angles, [rho]])
+
+    assert_jacobian_close(d_camera, from_camera, state, atol=1e-7)
+    assert_jacobian_close(d_pixel, from_pixel, pixel, atol=1e-7, eps=1e-4)
+
+
+def test_pose_from_known_points_is_exact_without_noise_and_covariance_scales() -> None:
+    target = InitTarget()
+    run = simulate_dynamic_scene(3, DynamicSceneConfig(duration_s=0.2, static_points=10))
+    frame = run.frames[0]
+    pixels = target_pixels(target, run.camera, frame.camera_rotation, frame.camera_position)
+    assert pixels is not None
+    info = run.camera.camera_info()
+    camera = CameraModel.from_camera_info(info.width, info.height, info.k, info.d, 'plumb_bob')
+    fix = camera_from_known_points(camera, target.corners_m, pixels, 1.0)
+    assert fix is not None
+    assert np.allclose(fix.centre, frame.camera_position, atol=1e-8)
+    assert np.allclose(fix.rotation, frame.camera_rotation, atol=1e-8)
+    half = camera_from_known_points(camera, target.corners_m, pixels, 0.5)
+    assert half is not None
+    assert np.allclose(half.pose_covariance, fix.pose_covariance / 4.0)
+    assert camera_from_known_points(camera, target.corners_m[:3], pixels[:3], 1.0) is None
+
+
+def _frames(run, target, rng, *, static_only: bool):  # type: ignore[no-untyped-def]
+    for frame in run.frames:
+        pixels = target_pixels(target, run.camera, frame.camera_rotation, frame.camera_position)
+        keys = np.arange(4) if pixels is not None else np.zeros(0, np.int64)
+        known = np.zeros((0, 2)) if pixels is None else pixels + rng.normal(size=(4, 2))
+        keep = ~run.point_moving[frame.point_ids] if static_only else np.ones(
+            len(frame.point_ids), bool)  # fmt: skip
+        yield frame, MonoSlamFrame(frame.stamp_ns, frame.track_ids[keep], frame.pixels[keep],
+                                   keys, known)  # fmt: skip
+
+
+def _filter(run) -> MonoSlam:  # type: ignore[no-untyped-def]
+    info = run.camera.camera_info()
+    camera = CameraModel.from_camera_info(info.width, info.height, info.k, info.d, 'plumb_bob')
+    known = {k: tuple(p) for k, p in enumerate(InitTarget().corners_m)}
+    return MonoSlam(camera, MonoSlamConfig(known_points=known))
+
+
+def test_filter_tracks_static_scene_consistently() -> None:
+    run = simulate_dynamic_scene(2, DynamicSceneConfig(duration_s=4.0, objects=0))
+    slam = _filter(run)
+    errors, nees = [], []
+    for frame, measurements in _frames(run, InitTarget(), np.random.default_rng(0),
+                                       static_only=True):  # fmt: skip
+        result = slam.process(measurements)
+        assert result.status == TRACKING
+        assert result.centre is not None and result.rotation is not None
+        assert result.pose_covariance is not None
+        error = np.concatenate([
+            result.centre - frame.camera_position,
+            log_rotation(result.rotation @ frame.camera_rotation.T),
+        ])  # fmt: skip
+        errors.append(np.linalg.norm(error[:3]))
+        nees.append(error @ np.linalg.solve(result.pose_covariance, error))
+    assert np.sqrt(np.mean(np.square(errors[30:]))) < 0.05  # measured ~0.02 m
+    assert 2.0 < np.mean(nees) < 15.0  # 6 DoF: 6 expected
+    points = slam.map_points()
+    assert len(points) > 20
+    assert slam.state_size <= CAMERA_SIZE + 6 * slam.config.max_features
+    truth = run.point_positions[0]
+    euclidean = [p for p in points if p.parametrization == 'euclidean']
+    assert euclidean, 'no feature converted to Euclidean'
+    distances = [np.linalg.norm(p.position - truth[run.track_point[p.id]]) for p in euclidean]
+    assert np.median(distances) < 0.15
+
+
+def test_filter_waits_without_known_points_and_rejects_bad_frames() -> None:
+    run = simulate_dynamic_scene(1, DynamicSceneConfig(duration_s=0.3, objects=0))
+    slam = _filter(run)
+    frame = run.frames[0]
+    result = slam.process(MonoSlamFrame(frame.stamp_ns, frame.track_ids, frame.pixels))
+    assert result.status == WAITING and result.centre is None
+    assert any('waiting for the initialization target' in w for w in result.warnings)
+    with pytest.raises(MonoSlamInputError, match='does not advance'):
+        slam.process(MonoSlamFrame(frame.stamp_ns, frame.track_ids, frame.pixels))
+    with pytest.raises(MonoSlamInputError, match='counts must match'):
+        slam.process(MonoSlamFrame(frame.stamp_ns + 1, frame.track_ids[:2], frame.pixels))
+
+
+def test_handovers_are_validated_and_enter_when_observed() -> None:
+    run = simulate_dynamic_scene(4, DynamicSceneConfig(duration_s=1.0, objects=0))
+    info = run.camera.camera_info()
+    camera = CameraModel.from_camera_info(info.width, info.height, info.k, info.d, 'plumb_bob')
+    known = {k: tuple(p) for k, p in enumerate(InitTarget().corners_m)}
+    slam = MonoSlam(camera, MonoSlamConfig(known_points=known, initialize='handover'))
+    frames = list(_frames(run, InitTarget(), np.random.default_rng(1), static_only=True))
+    first = slam.process(frames[0][1])
+    assert first.status == TRACKING and first.added_ids == []  # nothing without handovers
+    track_id = int(frames[1][0].track_ids[0])
+    truth = run.point_positions[0, run.track_point[track_id]]
+    assert 'not finite' in (slam.add_handover(track_id, np.array([np.nan, 0, 0]), np.eye(3))
+                            or '')  # fmt: skip
+    assert 'positive semi-definite' in (slam.add_handover(track_id, truth, -np.eye(3)) or '')
+    assert slam.add_handover(track_id, truth, 0.01 * np.eye(3)) is None
+    second = slam.process(frames[1][1])
+    assert second.added_ids == [track_id]
+    assert track_id in slam.owned_ids
+    (point,) = [p for p in slam.map_points() if p.id == track_id]
+    assert point.source == 'handover'
+    assert np.linalg.norm(point.position - truth) < 0.5
+
+
+def test_losing_every_measurement_reports_lost_and_restarts() -> None:
+    run = simulate_dynamic_scene(5, DynamicSceneConfig(duration_s=2.0, objects=0))
+    slam = _filter(run)
+    frames = list(_frames(run, InitTarget(), np.random.default_rng(2), static_only=True))
+    statuses = [slam.process(m).status for _, m in frames[:10]]
+    assert statuses == [TRACKING] * 10
+    lost_at = None
+    for index, (frame, _) in enumerate(frames[10:40], start=10):
+        empty = MonoSlamFrame(frame.stamp_ns, np.zeros(0, np.int64), np.zeros((0, 2)))
+        result = slam.process(empty)
+        if result.status != TRACKING:
+            lost_at = index
+            assert any('tracking lost' in w for w in result.warnings)
+            break
+    assert lost_at is not None and lost_at - 10 <= slam.config.lost_after_frames
+    assert slam.status == WAITING
+    assert any(not p.active for p in slam.map_points())  # the map was retired, not dropped
+    _, again = frames[lost_at + 1]
+    assert slam.process(again).status == TRACKING
+
+
+def test_config_rejects_bad_values() -> None:
+    with pytest.raises(ValueError, match='gate_probability'):
+        MonoSlamConfig(gate_probability=1.0)
+    with pytest.raises(ValueError, match='initialize'):
+        MonoSlamConfig(initialize='sometimes')
+    with pytest.raises(ValueError, match='max_features'):
+        MonoSlamConfig(max_features=0)
+    with pytest.raises(ValueError, match='known point 3'):
+        MonoSlamConfig(known_points={3: (0.0, float('nan'), 1.0)})
