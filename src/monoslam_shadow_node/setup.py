@@ -23,6 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'shadow_filter = monoslam_shadow_node.shadow_filter_node:main',
+            'feature_tracker = monoslam_shadow_node.feature_tracker_node:main',
             'shadow_evaluate = monoslam_shadow_node.evaluate:main',
         ],
     },

@@ -1,0 +1,293 @@
+"""feature_tracker: camera images in, tracked image features with persistent ids out.
+
+The front end of the monocular SLAM pipeline (paper 001): corners are detected where the
+image lacks features (Shi-Tomasi or FAST, spread over a grid, refined to subpixel
+accuracy) and followed image to image by pyramidal Lucas-Kanade with a forward-backward
+check; each keeps its id for as long as it is tracked. The algorithm is
+``core.feature_tracker.FeatureTracker``; ``feature_tracking.FeatureTrackingProcessor`` adds
+stamp order, camera_info and predictions; this node decodes, feeds and publishes.
+
+Topics:
+  subscribes  camera/image_raw (sensor_msgs/Image: mono8, 8UC1, bgr8, rgb8, bgra8, rgba8;
+              decoded by marker_detector.conversions.image_from_message) when
+              image_transport is 'raw', or camera/image_raw/compressed
+              (sensor_msgs/CompressedImage) when it is 'compressed'; best effort, depth 5.
+              camera/camera_info (sensor_msgs/CameraInfo, best effort): optional, see below.
+              features/predicted (slam_interfaces/FeatureTrackArray, reliable, depth 10), when
+              use_predictions is true: predicted raw pixels of some track ids (e.g. the SLAM
+              filter's projection of its map) for the image whose stamp is header.stamp; LK
+              starts from them. Used only for the image with exactly that stamp; an image
+              waits up to prediction_timeout_s (wall time) for its prediction, then is tracked
+              without one. Ids not tracked and predictions for images already tracked are
+              ignored.
+  publishes   features (slam_interfaces/FeatureTrackArray, reliable, depth 10), one per image
+              tracked (also when it holds no feature): header.stamp = the image stamp,
+              header.frame_id = the image's frame id (the camera optical frame; the
+              camera_info's when the image has none); per feature its int64 id (from 1, never
+              reused, also not after a restart) and raw (distorted) pixel u right, v down,
+              pixel centres at integer coordinates (OpenCV). Never NaN.
+
+camera_info is not needed for tracking, so the node tracks without it (and says so once).
+Once one has come it is used to check the image size (an image of another size is dropped
+with an error naming both sizes), to fill an empty image frame id, and to notice a camera
+change (size, intrinsics or distortion): the tracks then restart, ids go on, logged once.
+
+Bad input is logged with its culprit (per kind at most every 2 s, with a count of the lines
+left out) and the node goes on: an image it cannot decode (unsupported encoding, empty,
+corrupt), an image of the wrong size, an image whose stamp is not after the one before
+(dropped, naming both stamps) unless it is restart_backstep_s or more older (the source
+restarted: tracks restart, ids go on), an unusable camera_info (ignored).
+
+Every 10 s the node logs images tracked per second, features per image, tracks started and
+dropped by reason, images dropped and the time spent per image.
+
+Parameters (tracker): the fields of the core's TrackerConfig, one to one; their defaults are
+the core's, written out in config/feature_tracker.yaml (a test keeps the two equal).
+  max_features (150)              most features tracked at once.
+  detector ('shi_tomasi')         'shi_tomasi' (cv2.goodFeaturesToTrack) or 'fast'.
+  quality_level (0.01)            Shi-Tomasi: weakest corner kept, share of the strongest.
+  fast_threshold (20)             FAST: intensity difference, gray levels.
+  min_distance_px (10.0)          smallest distance of a new feature to any other, px; tracks
+                                  closer than half of it to an older one are dropped.
+  grid_rows, grid_cols (4, 4)     grid of cells that each get up to max_features / cells new
+                                  features first, so that they spread over the image.
+  detect_every_n_frames (1)       look for new features every n-th image (and whenever none
+                                  is left).
+  subpixel_refinement (true)      refine new corners with cv2.cornerSubPix.
+  lk_window_px (21)               side of the Lucas-Kanade patch, px.
+  lk_pyramid_levels (3)           pyramid levels above the image.
+  lk_max_iterations (30), lk_epsilon_px (0.01)  LK stopping rule per level (px).
+  max_lk_error (30.0)             largest mean absolute patch difference, gray levels
+                                  (0: no check).
+  fb_threshold_px (1.0)           largest forward-backward distance, px (0: no check).
+  border_margin_px (10.0)         tracks closer to the image edge are dropped, px (LK patches
+                                  reaching past the edge are biased: about lk_window_px / 2).
+Parameters (node):
+  image_transport ('raw')         'raw' (Image) or 'compressed' (CompressedImage).
+  use_predictions (false)         subscribe to features/predicted and use it.
+  prediction_timeout_s (0.02)     longest an image waits for its prediction, s (0: never
+                                  waits; predictions that came first are still used).
+  restart_backstep_s (1.0)        a stamp at least this far before the previous one restarts
+                                  tracking; a smaller step back drops the image, s.
+All are read-only; a bad value stops the node with an error naming the parameter.
+
+Frames: features are in the camera optical frame of the images (REP 103).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+
+from marker_detector.conversions import camera_info_fields, image_from_message
+from marker_detector.core.images import ImageError
+from monoslam_shadow_node.conversions import features_from_message
+from monoslam_shadow_node.feature_tracker_settings import (
+    NODE_NAME,
+    SETTINGS,
+    node_settings,
+    tracker_config,
+)
+from monoslam_shadow_node.feature_tracking import (
+    FeatureFrame,
+    FeatureTrackingProcessor,
+    Notice,
+    Outcome,
+    fill_feature_array,
+    status_line,
+)
+from slam_bringup.cli import console_main
+from slam_bringup.params import ParamSpec, declare_parameters
+from slam_bringup.qos import output_qos, sensor_qos
+from slam_bringup.spin import spin_node
+from slam_bringup.stamps import stamp_to_ns
+from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
+
+PARAMETERS = tuple(ParamSpec(s.name, s.default, s.description) for s in SETTINGS)
+IMAGE_TOPIC = 'camera/image_raw'
+COMPRESSED_TOPIC = 'camera/image_raw/compressed'
+CAMERA_INFO_TOPIC = 'camera/camera_info'
+FEATURES_TOPIC = 'features'
+PREDICTIONS_TOPIC = 'features/predicted'
+IMAGE_DEPTH = 5
+STATUS_PERIOD_S = 10.0
+REPEAT_PERIOD_S = 2.0
+MIN_POLL_PERIOD_S = 0.001
+
+
+class KindThrottle:
+    """Lets a log line of each kind through at most every ``period_s`` (monotonic clock), and
+    counts the lines held back, to be told with the next one of that kind."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self._last: dict[str, float] = {}
+        self._held: dict[str, int] = {}
+
+    def admit(self, kind: str, now_s: float) -> int | None:
+        """Return None to hold the line back, else how many of its kind were held back."""
+        last = self._last.get(kind)
+        if last is not None and now_s - last < self.period_s:
+            self._held[kind] = self._held.get(kind, 0) + 1
+            return None
+        self._last[kind] = now_s
+        return self._held.pop(kind, 0)
+
+
+class FeatureTrackerNode(Node):
+    """Thin adapter around FeatureTrackingProcessor: decode, track, publish."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        values = declare_parameters(self, PARAMETERS)
+        self.config = tracker_config(values)
+        self.settings = node_settings(values)
+        self.processor = FeatureTrackingProcessor(
+            self.config,
+            use_predictions=self.settings.use_predictions,
+            prediction_timeout_s=self.settings.prediction_timeout_s,
+            restart_backstep_ns=self.settings.restart_backstep_ns,
+            camera_info_topic=CAMERA_INFO_TOPIC,
+        )
+        self.undecodable = 0
+        self.busy_s = 0.0
+        self._throttle = KindThrottle(REPEAT_PERIOD_S)
+        self._status_time, self._status_seen = time.monotonic(), (0, 0, 0)
+        self.features_publisher = self.create_publisher(
+            FeatureTrackArray, FEATURES_TOPIC, output_qos()
+        )
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if self.settings.image_transport == 'raw':
+            image_topic = IMAGE_TOPIC
+            self.create_subscription(Image, IMAGE_TOPIC, self._on_image, sensor_qos(IMAGE_DEPTH))
+        else:
+            image_topic = COMPRESSED_TOPIC
+            self.create_subscription(
+                CompressedImage, COMPRESSED_TOPIC, self._on_image, sensor_qos(IMAGE_DEPTH)
+            )
+        self.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self._on_camera_info, sensor_qos())
+        self._poll_timer = None
+        if self.settings.use_predictions:
+            self.create_subscription(
+                FeatureTrackArray, PREDICTIONS_TOPIC, self._on_predictions, output_qos()
+            )
+            # Runs only while an image waits for its prediction (see _arm_poll).
+            self._poll_timer = self.create_timer(
+                max(self.settings.prediction_timeout_s / 4, MIN_POLL_PERIOD_S),
+                self._poll,
+                clock=steady,
+            )
+            self._poll_timer.cancel()
+        self.create_timer(STATUS_PERIOD_S, self._report_status, clock=steady)
+        predictions = (
+            f' and predictions on {PREDICTIONS_TOPIC}' if self.settings.use_predictions else ''
+        )
+        self.get_logger().info(
+            f'tracking up to {self.config.max_features} {self.config.detector} features in '
+            f'{image_topic}{predictions}; publishing {FEATURES_TOPIC}'
+        )
+
+    # --- inputs -----------------------------------------------------------------------------
+
+    def _on_image(self, message: Image | CompressedImage) -> None:
+        started = time.perf_counter()
+        stamp_ns = stamp_to_ns(message.header.stamp)
+        try:
+            image = image_from_message(message)
+        except ImageError as err:
+            self.undecodable += 1
+            self._log(
+                Notice('undecodable', 'error', f'image at stamp {stamp_ns} ns dropped: {err}')
+            )
+            return
+        self._handle(
+            self.processor.add_image(
+                stamp_ns, str(message.header.frame_id), image, now_s=time.monotonic()
+            )
+        )
+        self.busy_s += time.perf_counter() - started
+
+    def _on_camera_info(self, message: CameraInfo) -> None:
+        notice = self.processor.set_camera_info(**camera_info_fields(message))
+        if notice is not None:
+            self._log(notice)
+
+    def _on_predictions(self, message: FeatureTrackArray) -> None:
+        predicted = features_from_message(message)
+        self._handle(
+            self.processor.add_predictions(predicted.stamp_ns, predicted.ids, predicted.pixels)
+        )
+
+    def _poll(self) -> None:
+        self._handle(self.processor.poll(now_s=time.monotonic()))
+
+    def _arm_poll(self) -> None:
+        timer = self._poll_timer
+        if timer is None:
+            return
+        if self.processor.waiting and timer.is_canceled():
+            timer.reset()
+        elif not self.processor.waiting and not timer.is_canceled():
+            timer.cancel()
+
+    # --- outputs ----------------------------------------------------------------------------
+
+    def _handle(self, outcomes: list[Outcome]) -> None:
+        for outcome in outcomes:
+            if isinstance(outcome, FeatureFrame):
+                self.features_publisher.publish(
+                    fill_feature_array(outcome, FeatureTrackArray(), FeatureTrack)
+                )
+            else:
+                self._log(outcome)
+        self._arm_poll()
+
+    def _log(self, notice: Notice) -> None:
+        held = self._throttle.admit(notice.kind, time.monotonic())
+        if held is None:
+            return
+        text = notice.text + (f' ({held} more like this not logged)' if held else '')
+        # One call site per severity: rclpy refuses a call site that changes severity.
+        if notice.level == 'info':
+            self.get_logger().info(text)
+        elif notice.level == 'warning':
+            self.get_logger().warning(text)
+        else:
+            self.get_logger().error(text)
+
+    def _report_status(self) -> None:
+        now, frames = time.monotonic(), self.processor.stats.frames
+        seen = (frames, sum(self.processor.stats.images_dropped.values()), self.undecodable)
+        if seen == self._status_seen:
+            return  # nothing came since the last line
+        rate = (frames - self._status_seen[0]) / (now - self._status_time)
+        self.get_logger().info(self.status_line(rate))
+        self._status_time, self._status_seen = now, seen
+
+    def status_line(self, rate_hz: float | None = None) -> str:
+        """Return the progress summary: images, features, tracks, drops, time per image."""
+        stats = self.processor.stats
+        busy = f', {1e3 * self.busy_s / stats.frames:.1f} ms per image' if stats.frames else ''
+        undecodable = f', {self.undecodable} undecodable' if self.undecodable else ''
+        return status_line(stats, rate_hz) + undecodable + busy
+
+    def destroy_node(self) -> None:
+        """Log the final summary, then destroy."""
+        if self.processor.stats.frames or self.undecodable:
+            self.get_logger().info(f'done: {self.status_line()}')
+        super().destroy_node()
+
+
+@console_main(NODE_NAME)
+def main(argv: list[str] | None = None) -> int:
+    """Run the node until Ctrl-C (the Jazzy shutdown pattern)."""
+    return spin_node(NODE_NAME, FeatureTrackerNode, argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

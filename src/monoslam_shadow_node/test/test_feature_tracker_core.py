@@ -1,0 +1,388 @@
+"""The feature tracker's core on real images through OpenCV: a seeded random texture warped
+by known homographies, so that where every tracked point should be is known exactly."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from monoslam_shadow_node.core.feature_tracker import (
+    DROP_REASONS,
+    SUBPIXEL_HALF_WINDOW_PX,
+    FeatureTracker,
+    Predictions,
+    TrackedFeatures,
+    TrackerConfig,
+)
+
+WIDTH, HEIGHT = 640, 480
+ACCURACY_PX = 0.3
+
+
+def texture(height: int, width: int, seed: int, sigma_px: float = 2.0) -> np.ndarray:
+    """A smooth random texture (float32 gray levels around 128, std 45)."""
+    noise = np.random.default_rng(seed).uniform(0.0, 255.0, (height, width)).astype(np.float32)
+    smooth = cv2.GaussianBlur(noise, (0, 0), sigma_px)
+    return np.clip((smooth - smooth.mean()) / smooth.std() * 45.0 + 128.0, 0.0, 255.0)
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+def warped(source: np.ndarray, homography: np.ndarray) -> np.ndarray:
+    """The (HEIGHT, WIDTH) uint8 image of ``source`` moved by ``homography`` (source pixel
+    -> image pixel; OpenCV's pixel-centre convention on both sides)."""
+    image = cv2.warpPerspective(
+        source, homography, (WIDTH, HEIGHT), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
+    )
+    return to_gray(image)
+
+
+def moved(homography: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """Apply a homography to pixels (N, 2)."""
+    points = np.column_stack([pixels, np.ones(len(pixels))]) @ homography.T
+    return points[:, :2] / points[:, 2:]
+
+
+def shifted(du: float, dv: float, base: np.ndarray | None = None) -> np.ndarray:
+    """``base`` (default: identity) followed by a translation of (du, dv) px."""
+    shift = np.array([[1.0, 0.0, du], [0.0, 1.0, dv], [0.0, 0.0, 1.0]])
+    return shift @ (np.eye(3) if base is None else base)
+
+
+def camera_motion(k: int) -> np.ndarray:
+    """Frame k of a slow camera motion: translation, rotation, zoom and a little perspective."""
+    angle, scale = 0.003 * k, 1.0 + 0.004 * k
+    cos, sin = scale * np.cos(angle), scale * np.sin(angle)
+    return np.array([[cos, -sin, 1.7 * k], [sin, cos, -0.9 * k], [2e-6 * k, 1e-6 * k, 1.0]])
+
+
+def cell_counts(pixels: np.ndarray, rows: int = 4, cols: int = 4) -> np.ndarray:
+    """Features per cell of a rows x cols grid over the image (rows, cols)."""
+    col = np.clip((pixels[:, 0] * cols / WIDTH).astype(int), 0, cols - 1)
+    row = np.clip((pixels[:, 1] * rows / HEIGHT).astype(int), 0, rows - 1)
+    return np.bincount(row * cols + col, minlength=rows * cols).reshape(rows, cols)
+
+
+def by_id(result: TrackedFeatures) -> dict[int, np.ndarray]:
+    return dict(zip(result.ids.tolist(), result.pixels, strict=True))
+
+
+def check_output(result: TrackedFeatures, config: TrackerConfig) -> None:
+    """What every result must satisfy: shapes and types, finite pixels inside the margin,
+    ascending unique ids from 1, counts that add up."""
+    count = len(result.ids)
+    assert result.ids.dtype == np.int64 and result.pixels.dtype == np.float64
+    assert result.pixels.shape == (count, 2) and result.ages.shape == (count,)
+    assert np.all(np.isfinite(result.pixels))
+    assert np.all(np.diff(result.ids) > 0) and (count == 0 or result.ids[0] >= 1)
+    assert count <= config.max_features
+    margin = config.border_margin_px
+    assert np.all(result.pixels >= margin - 1e-3)
+    assert np.all(result.pixels[:, 0] <= WIDTH - 1 - margin + 1e-3)
+    assert np.all(result.pixels[:, 1] <= HEIGHT - 1 - margin + 1e-3)
+    assert result.counts.tracked + result.counts.new == count
+    assert int(np.sum(result.ages == 1)) == result.counts.new
+
+
+@pytest.fixture(scope='module')
+def scene() -> np.ndarray:
+    return texture(HEIGHT, WIDTH, seed=0)
+
+
+@pytest.mark.parametrize('detector', ['shi_tomasi', 'fast'])
+def test_tracks_follow_the_known_motion_within_a_third_of_a_pixel(
+    scene: np.ndarray, detector: str
+) -> None:
+    config = TrackerConfig(detector=detector)
+    tracker = FeatureTracker(config)
+    origin: dict[int, np.ndarray] = {}  # id -> where in the texture it was first seen
+    errors = []
+    first_ids: set[int] = set()
+    for k in range(10):
+        motion = camera_motion(k)
+        result = tracker.track(warped(scene, motion), None)
+        check_output(result, config)
+        if k == 0:
+            first_ids = set(result.ids.tolist())
+            assert len(first_ids) == config.max_features
+        inverse = np.linalg.inv(motion)
+        for track_id, pixel in by_id(result).items():
+            if track_id in origin:
+                errors.append(np.linalg.norm(moved(motion, origin[track_id][None])[0] - pixel))
+            else:
+                origin[track_id] = moved(inverse, pixel[None])[0]
+    assert len(errors) > 1000
+    assert max(errors) < ACCURACY_PX
+    survivors = first_ids & set(result.ids.tolist())
+    assert len(survivors) >= 0.85 * len(first_ids)  # some leave the image: it moves 15 px
+
+
+def test_ids_start_at_one_persist_and_are_never_reused(scene: np.ndarray) -> None:
+    tracker = FeatureTracker(TrackerConfig(max_features=50))
+    first = tracker.track(warped(scene, np.eye(3)))
+    assert first.ids.tolist() == list(range(1, 51))
+    second = tracker.track(warped(scene, shifted(0.5, 0.25)))
+    assert set(second.ids.tolist()) == set(first.ids.tolist())
+    assert second.counts.tracked == 50 and second.counts.new == 0
+    assert np.all(second.ages == 2)
+
+    assert tracker.reset() == 50
+    after_reset = tracker.track(warped(scene, shifted(0.5, 0.25)))
+    assert after_reset.counts.reset == 50 and after_reset.counts.tracked == 0
+    assert after_reset.ids.min() == 51 and np.all(after_reset.ages == 1)
+
+    smaller = to_gray(scene[:240, :320])  # another image size: a restart too
+    resized = tracker.track(smaller)
+    assert resized.counts.reset == len(after_reset.ids)
+    assert resized.ids.min() > after_reset.ids.max()
+    assert tracker.next_id == resized.ids.max() + 1
+
+
+def test_forward_backward_check_drops_a_point_whose_look_alike_disappears() -> None:
+    """Frame 0 holds a copy of a corner's neighbourhood 20 px to its right; in frame 1 (the
+    scene shifted by (-2, -1) px) the copy is gone. LK still finds an end for the copy's
+    track (status 1), 7 px off; tracked back from there it lands 10 px from where it
+    started: the forward-backward check drops it (the patch error check alone would too)."""
+    source = texture(960, 1280, seed=1)
+    base = shifted(-300.0, -200.0)
+    plain, after = warped(source, base), warped(source, shifted(-2.0, -1.0, base))
+    corner = np.rint(FeatureTracker().track(plain).pixels[0]).astype(int)  # the strongest
+    u, v, half, offset = corner[0], corner[1], 12, 20
+    with_copy = plain.copy()
+    with_copy[v - half : v + half + 1, u + offset - half : u + offset + half + 1] = plain[
+        v - half : v + half + 1, u - half : u + half + 1
+    ]
+
+    def track_copy(config: TrackerConfig) -> tuple[bool, bool, TrackedFeatures]:
+        tracker = FeatureTracker(config)
+        first = tracker.track(with_copy)
+        distances = np.linalg.norm(first.pixels - (corner + np.array([offset, 0])), axis=1)
+        assert distances.min() < 1.0, 'the copy should be detected'
+        copy_id = int(first.ids[np.argmin(distances)])
+        original_id = int(first.ids[np.argmin(np.linalg.norm(first.pixels - corner, axis=1))])
+        result = tracker.track(after)
+        return copy_id in result.ids, original_id in result.ids, result
+
+    copy_kept, original_kept, result = track_copy(TrackerConfig(max_lk_error=0.0))
+    assert not copy_kept and original_kept
+    assert result.counts.forward_backward >= 1 and result.counts.lost == 0
+    copy_kept, original_kept, _ = track_copy(TrackerConfig(max_lk_error=0.0, fb_threshold_px=0.0))
+    assert copy_kept and original_kept  # nothing else stops it
+    copy_kept, original_kept, _ = track_copy(TrackerConfig())
+    assert not copy_kept and original_kept
+
+
+def test_occluded_points_are_dropped(scene: np.ndarray) -> None:
+    """A 161 px square of other texture covers part of the scene in frame 1: no track under
+    it survives (the patch error and forward-backward checks), the others all do."""
+    tracker = FeatureTracker()
+    first = tracker.track(warped(scene, np.eye(3)))
+    image = warped(scene, shifted(2.0, 1.0))
+    centre, half = np.array([320, 240]), 80
+    image[centre[1] - half : centre[1] + half + 1, centre[0] - half : centre[0] + half + 1] = (
+        to_gray(texture(2 * half + 1, 2 * half + 1, seed=9))
+    )
+    result = tracker.track(image)
+    where = first.pixels + np.array([2.0, 1.0])
+    covered = np.all(np.abs(where - centre) <= half - 10, axis=1)  # whole LK patch covered
+    clear = np.any(np.abs(where - centre) >= half + 12, axis=1)
+    assert covered.sum() >= 3
+    kept = set(result.ids.tolist())
+    assert not kept & set(first.ids[covered].tolist())
+    assert set(first.ids[clear].tolist()) <= kept
+
+
+def test_new_features_cover_every_cell_of_a_uniform_texture(scene: np.ndarray) -> None:
+    config = TrackerConfig()
+    result = FeatureTracker(config).track(warped(scene, np.eye(3)))
+    counts = cell_counts(result.pixels)
+    assert len(result.ids) == 150
+    assert counts.min() >= 5  # cells take up to config.cell_quota = 10 first
+
+
+def test_the_grid_spreads_features_where_texture_is_weak() -> None:
+    """Contrast fades from 1 at the left edge to 0.1 at the right: without the grid nearly
+    all corners go left; with it every cell gets its share."""
+    gain = np.linspace(1.0, 0.1, WIDTH)[None, :]
+    image = to_gray((texture(HEIGHT, WIDTH, seed=3) - 128.0) * gain + 128.0)
+    spread = cell_counts(FeatureTracker().track(image).pixels)
+    assert spread.min() >= 5
+    one_cell = cell_counts(
+        FeatureTracker(TrackerConfig(grid_rows=1, grid_cols=1)).track(image).pixels
+    )
+    assert one_cell[:, 2:].sum() < 10  # the right half: what the grid is for
+
+
+def test_detection_fills_only_where_tracks_were_lost(scene: np.ndarray) -> None:
+    """A cell-sized patch changes to other texture in frame 1 (an object passes): its tracks
+    die, and the new features of that frame start there; the other tracks go on."""
+    tracker = FeatureTracker()
+    first = tracker.track(warped(scene, np.eye(3)))
+    changed = warped(scene, shifted(1.0, 0.5))
+    changed[120:240, 160:320] = to_gray(texture(120, 160, seed=5))  # cell (1, 1) of 4x4
+    second = tracker.track(changed)
+    where = first.pixels + np.array([1.0, 0.5])
+    inside = np.all((where >= [172, 132]) & (where < [308, 228]), axis=1)  # whole LK patch
+    outside = np.any((where < [150, 110]) | (where >= [330, 250]), axis=1)
+    assert inside.sum() >= 3
+    assert not set(first.ids[inside].tolist()) & set(second.ids.tolist())
+    assert set(first.ids[outside].tolist()) <= set(second.ids.tolist())
+    new = second.pixels[second.ages == 1]
+    assert second.counts.new >= inside.sum()
+    assert np.all((new >= [160 - 12, 120 - 12]) & (new < [320 + 12, 240 + 12]))  # and its edges
+
+
+def test_cells_without_texture_leave_their_share_to_the_others() -> None:
+    """The left half is flat: all max_features features go to the right half."""
+    image = to_gray(texture(HEIGHT, WIDTH, seed=4))
+    image[:, : WIDTH // 2] = 90
+    result = FeatureTracker().track(image)
+    assert len(result.ids) == 150 and np.all(result.pixels[:, 0] > WIDTH // 2 - 10)
+
+
+@pytest.mark.parametrize('detector', ['shi_tomasi', 'fast'])
+@pytest.mark.parametrize('subpixel', [False, True])
+def test_max_features_and_min_distance_hold_over_a_sequence(
+    scene: np.ndarray, detector: str, subpixel: bool
+) -> None:
+    config = TrackerConfig(
+        max_features=40, detector=detector, min_distance_px=15.0, subpixel_refinement=subpixel
+    )
+    # Detection keeps min_distance_px between pixels (existing tracks rounded); refinement
+    # then moves a new corner by at most SUBPIXEL_HALF_WINDOW_PX.
+    least = config.min_distance_px - 1.0 - (SUBPIXEL_HALF_WINDOW_PX if subpixel else 0.0)
+    tracker = FeatureTracker(config)
+    for k in range(6):
+        result = tracker.track(warped(scene, camera_motion(3 * k)))
+        check_output(result, config)
+        assert len(result.ids) == 40
+        new = result.pixels[result.ages == 1]
+        if len(new):
+            gaps = np.linalg.norm(new[:, None, :] - result.pixels[None, :, :], axis=2)
+            gaps[gaps == 0.0] = np.inf  # each new feature itself
+            assert gaps.min() >= least
+
+
+def test_crowded_tracks_keep_the_older_one(scene: np.ndarray) -> None:
+    """Zooming out draws the features together: a track that comes within half of
+    min_distance_px of an older one is dropped."""
+    config = TrackerConfig(min_distance_px=20.0)
+    tracker = FeatureTracker(config)
+    crowded = 0
+    centre = shifted(320.0, 240.0)
+    for k in range(8):
+        zoom = np.diag([0.92**k, 0.92**k, 1.0])
+        result = tracker.track(warped(scene, centre @ zoom @ np.linalg.inv(centre)))
+        crowded += result.counts.crowded
+        gaps = np.linalg.norm(result.pixels[:, None, :] - result.pixels[None, :, :], axis=2)
+        np.fill_diagonal(gaps, np.inf)
+        assert gaps.min() >= 0.5 * config.min_distance_px
+    assert crowded > 0
+
+
+def test_predictions_catch_a_jump_that_plain_lk_misses() -> None:
+    """A 60 px jump is beyond two pyramid levels: plain LK loses every track. Started from
+    predictions 0.7 px off, the tracks land within a third of a pixel, and those predicted
+    outside the image are dropped."""
+    source = texture(960, 1280, seed=2)
+    base = shifted(-300.0, -200.0)
+    jump = shifted(60.0, 20.0, base)
+    config = TrackerConfig(lk_pyramid_levels=2)
+
+    def run(predict: bool) -> tuple[int, int, TrackedFeatures]:
+        tracker = FeatureTracker(config)
+        first = tracker.track(warped(source, base))
+        truth = moved(jump @ np.linalg.inv(base), first.pixels)
+        noise = np.random.default_rng(0).normal(0.0, 0.7, truth.shape)
+        predictions = Predictions(first.ids, truth + noise) if predict else None
+        result = tracker.track(warped(source, jump), predictions)
+        check_output(result, config)
+        found = by_id(result)
+        errors = [
+            np.linalg.norm(found[i] - t)
+            for i, t in zip(first.ids.tolist(), truth, strict=True)
+            if i in found
+        ]
+        good = sum(e < ACCURACY_PX for e in errors)
+        return good, len(errors) - good, result
+
+    good, bad, plain = run(predict=False)
+    assert good == 0 and bad <= 3 and plain.counts.predicted == 0
+    good, bad, predicted = run(predict=True)
+    assert good >= 100 and bad == 0
+    assert predicted.counts.predicted == good and predicted.counts.border >= 5
+
+
+def test_unusable_predictions_are_ignored_and_leaving_ones_drop_the_track(
+    scene: np.ndarray,
+) -> None:
+    tracker = FeatureTracker(TrackerConfig(max_features=30))
+    first = tracker.track(warped(scene, np.eye(3)))
+    ids = np.array([first.ids[0], first.ids[1], first.ids[2], 10**12])
+    pixels = np.array([[np.nan, 5.0], [-3.0, 10.0], [WIDTH + 5.0, 10.0], [100.0, 100.0]])
+    result = tracker.track(warped(scene, shifted(1.0, 1.0)), Predictions(ids, pixels))
+    assert result.counts.predicted == 0 and result.counts.tracked == 28
+    assert result.counts.border == 2 and first.ids[0] in result.ids  # NaN: ignored
+    assert not {int(first.ids[1]), int(first.ids[2])} & set(result.ids.tolist())
+    with pytest.raises(ValueError, match='2 ids but 1 pixels'):
+        tracker.track(warped(scene, shifted(2.0, 2.0)), Predictions(ids[:2], pixels[:1]))
+
+
+@pytest.mark.parametrize(
+    ('image', 'message'),
+    [
+        (np.zeros((0, 0), np.uint8), r'empty image \(0x0 px\)'),
+        (np.zeros((480, 640, 3), np.uint8), '2-D uint8 .* got 3-D uint8'),
+        (np.zeros((480, 640), np.float32), 'got 2-D float32'),
+        ([[1, 2], [3, 4]], 'got <class .list.>'),
+    ],
+)
+def test_images_the_tracker_cannot_use_are_refused_and_change_nothing(
+    scene: np.ndarray, image: object, message: str
+) -> None:
+    tracker = FeatureTracker()
+    first = tracker.track(warped(scene, np.eye(3)))
+    with pytest.raises(ValueError, match=message):
+        tracker.track(image)
+    after = tracker.track(warped(scene, shifted(0.5, 0.5)))
+    assert after.counts.tracked == len(first.ids) and after.counts.reset == 0
+
+
+def test_a_flat_image_gives_no_features_and_no_nan() -> None:
+    tracker = FeatureTracker()
+    flat = np.full((HEIGHT, WIDTH), 77, np.uint8)
+    for _ in range(2):
+        result = tracker.track(flat)
+        assert len(result.ids) == 0 and result.pixels.shape == (0, 2)
+
+
+def test_counts_name_every_drop_reason() -> None:
+    counts = dataclasses.fields(
+        FeatureTracker().track(np.full((8, 8), 1, np.uint8)).counts.__class__
+    )
+    assert set(DROP_REASONS) <= {field.name for field in counts}
+
+
+@pytest.mark.parametrize(
+    ('field', 'value', 'message'),
+    [
+        ('max_features', 0, r'max_features=0: must be >= 1'),
+        ('max_features', 2.5, r'max_features=2\.5: must be an integer'),
+        ('detector', 'orb', r"detector='orb': must be one of"),
+        ('quality_level', 1.0, r'quality_level=1\.0: must be in \(0, 1\)'),
+        ('min_distance_px', 0.5, r'min_distance_px=0\.5: must be >= 1 px'),
+        ('lk_window_px', 3, r'lk_window_px=3: must be in \[5, 101\] px'),
+        ('fb_threshold_px', -1.0, r'fb_threshold_px=-1\.0: must be >= 0 px'),
+        ('fb_threshold_px', float('inf'), r'fb_threshold_px=inf: must be finite'),
+        ('subpixel_refinement', 1, r'subpixel_refinement=1: must be a bool'),
+        ('grid_rows', True, r'grid_rows=True: must be a number'),
+    ],
+)
+def test_invalid_settings_name_the_field(field: str, value: object, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        TrackerConfig(**{field: value})  # type: ignore[arg-type]
