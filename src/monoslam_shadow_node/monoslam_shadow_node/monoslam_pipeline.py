@@ -1,0 +1,337 @@
+"""The measurement-level MonoSLAM pipeline of paper 001's Fig. 5, ROS-free.
+
+Three variants run over the same frames (``run_variant``):
+
+- ``a``: MonoSLAM (``initialize='all'``) fed only static features: the features on moving
+  objects are removed by ground truth (``MeasurementFrame.moving``);
+- ``b``: MonoSLAM (``initialize='all'``) fed every feature, moving ones included;
+- ``c``: MonoSLAM (``initialize='handover'``) with the Shadow filter: SLAM gets every feature
+  but only adds those the Shadow filter hands over as STATIC. Per frame the Shadow filter gets
+  SLAM's pose (R_world_camera, centre, 6 x 6 pose covariance) and the features SLAM does not
+  own (``MonoSlam.owned_ids``); its handovers go to ``MonoSlam.add_handover`` and enter the
+  map when next observed. The pose gate ``PipelineConfig.shadow_max_pose_sigma`` = (position
+  m, rotation rad): the Shadow filter only processes frames whose pose standard deviations
+  (sqrt of the covariance diagonal, max over the 3 position and the 3 rotation entries) are
+  within both; other frames are skipped for it and counted. Frames without a pose (waiting)
+  or in which tracking was lost are not given to it either.
+
+Frames come from the dynamic-scene simulation (``simulation_frames``: its features, and the
+initialization target's 4 corners as the known points 0-3 with N(0, pixel_noise_px) noise),
+or from anything else that can fill ``MeasurementFrame`` (a tracker and a marker detector,
+with truth from an association to the simulation). Truth travels with the frames; the
+filters never see it except through the ``moving`` selection of variant ``a``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from monoslam_shadow_node.core.camera import CameraModel
+from monoslam_shadow_node.core.monoslam import (
+    LOST,
+    TRACKING,
+    MapPoint,
+    MonoSlam,
+    MonoSlamConfig,
+    MonoSlamFrame,
+    MonoSlamResult,
+)
+from monoslam_shadow_node.core.shadow_filter import (
+    DYNAMIC,
+    STATIC,
+    FrameInput,
+    ShadowConfig,
+    ShadowFilter,
+)
+from slam_sim.core.dynamic_scene import DynamicSceneRun
+from slam_sim.core.init_target import InitTarget, target_pixels
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+VARIANTS = ('a', 'b', 'c')
+VARIANT_TITLES = {
+    'a': 'MonoSLAM, static features only',
+    'b': 'MonoSLAM, all features',
+    'c': 'MonoSLAM + Shadow filter',
+}
+DEFAULT_SHADOW_MAX_POSE_SIGMA = (0.03, 0.01)
+"""The pose gate of the Shadow filter: (position m, rotation rad) standard deviations."""
+
+
+class PipelineError(RuntimeError):
+    """A filter raised on a frame (the message names the variant and the frame)."""
+
+
+@dataclass(frozen=True, eq=False)
+class MeasurementFrame:
+    """One image's measurements for SLAM (``measurements``: features and known points) with
+    their truth: per feature (N,) whether it lies on a moving object, and the true camera pose
+    R_world_camera (3, 3) and optical centre (3,) m in map."""
+
+    measurements: MonoSlamFrame
+    moving: BoolArray
+    true_rotation: FloatArray
+    true_centre: FloatArray
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """The filters' settings. ``slam.initialize`` is set by the variant; ``slam.known_points``
+    must hold the known points the frames measure (``target_known_points``)."""
+
+    slam: MonoSlamConfig = field(default_factory=MonoSlamConfig)
+    shadow: ShadowConfig = field(default_factory=ShadowConfig)
+    shadow_max_pose_sigma: tuple[float, float] = DEFAULT_SHADOW_MAX_POSE_SIGMA
+
+    def __post_init__(self) -> None:
+        """Reject a pose gate that is not two numbers > 0 (inf disables it)."""
+        gate = self.shadow_max_pose_sigma
+        if len(gate) != 2 or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) and v > 0 for v in gate
+        ):
+            raise ValueError(
+                f'shadow_max_pose_sigma={gate!r}: must be (position m, rotation rad), both > 0 '
+                '(inf disables the gate)'
+            )
+
+
+@dataclass(frozen=True)
+class HandoverEvent:
+    """A Shadow handover passed to SLAM: the frame index, the feature, whether it is truly on
+    a moving object, and why SLAM refused it (None: queued)."""
+
+    frame: int
+    feature_id: int
+    moving: bool
+    refused: str | None
+
+
+@dataclass(frozen=True, eq=False)
+class VariantRecord:
+    """What one variant produced over K frames: stamps (K,) int ns, SLAM status (K,), camera
+    centre (K, 3) m, R_world_camera (K, 3, 3) and pose covariance (K, 6, 6) (position, rotation
+    about the world axes; NaN while waiting), features measured (K,), the final map, the
+    moving features that entered the map (ids), frames at which tracking was lost, and for
+    variant ``c`` the handovers, the Shadow decisions and how many frames the Shadow filter
+    processed or skipped (by the pose gate; without a usable pose); filter wall time (s)."""
+
+    variant: str
+    stamps_ns: IntArray
+    status: tuple[str, ...]
+    centres: FloatArray
+    rotations: FloatArray
+    pose_covariances: FloatArray
+    measured: IntArray
+    map_points: list[MapPoint]
+    dynamic_in_map: list[int]
+    lost_frames: list[int]
+    handovers: list[HandoverEvent]
+    static_decisions: int
+    dynamic_decisions: int
+    shadow_frames: int
+    shadow_gated_frames: int
+    shadow_no_pose_frames: int
+    runtime_s: float
+
+    @property
+    def tracked(self) -> BoolArray:
+        """(K,) frames with a pose estimate."""
+        return np.asarray(np.all(np.isfinite(self.centres), axis=1), dtype=bool)
+
+
+def target_known_points(target: InitTarget) -> dict[int, tuple[float, float, float]]:
+    """Return the target's corners as SLAM's known points: key = corner index 0-3, (3,) m."""
+    return {k: (float(x), float(y), float(z)) for k, (x, y, z) in enumerate(target.corners_m)}
+
+
+def simulation_frames(
+    run: DynamicSceneRun, target: InitTarget, *, rng: np.random.Generator
+) -> list[MeasurementFrame]:
+    """Return the run's frames for SLAM: its tracked features (noisy pixels), the target's 4
+    corners (keys 0-3) where all are in view, with N(0, pixel_noise_px) noise from ``rng``,
+    and the truth (moving flags, true pose)."""
+    sigma_px = run.config.pixel_noise_px
+    frames = []
+    for frame in run.frames:
+        pixels = target_pixels(target, run.camera, frame.camera_rotation, frame.camera_position)
+        keys = np.zeros(0, dtype=np.int64)
+        known = np.zeros((0, 2))
+        if pixels is not None:
+            keys = np.arange(4, dtype=np.int64)
+            known = pixels + sigma_px * rng.standard_normal((4, 2))
+        measurements = MonoSlamFrame(frame.stamp_ns, frame.track_ids, frame.pixels, keys, known)
+        frames.append(
+            MeasurementFrame(
+                measurements,
+                np.asarray(run.point_moving[frame.point_ids], dtype=bool),
+                frame.camera_rotation,
+                frame.camera_position,
+            )
+        )
+    return frames
+
+
+def pose_within(covariance: FloatArray, max_sigma: tuple[float, float]) -> bool:
+    """Return whether a pose covariance (6, 6) (position m, rotation rad) has every position
+    standard deviation <= max_sigma[0] and every rotation one <= max_sigma[1]."""
+    variances = np.diagonal(np.asarray(covariance, dtype=np.float64))
+    if not np.all(np.isfinite(variances)):
+        return False
+    sigma = np.sqrt(np.maximum(variances, 0.0))
+    return bool(sigma[:3].max() <= max_sigma[0] and sigma[3:].max() <= max_sigma[1])
+
+
+@dataclass
+class _Bookkeeping:
+    moving: dict[int, bool] = field(default_factory=dict)
+    dynamic_in_map: list[int] = field(default_factory=list)
+    handovers: list[HandoverEvent] = field(default_factory=list)
+    static_decisions: int = 0
+    dynamic_decisions: int = 0
+    shadow_frames: int = 0
+    gated: int = 0
+    no_pose: int = 0
+
+
+def run_variant(
+    variant: str,
+    frames: Sequence[MeasurementFrame],
+    camera: CameraModel,
+    config: PipelineConfig | None = None,
+) -> VariantRecord:
+    """Run ``variant`` ('a', 'b' or 'c', module docstring) over ``frames``; return its record.
+    Raises PipelineError (naming the variant and frame) if a filter rejects a frame
+    (MonoSlamInputError, InputError) or fails on it (e.g. LinAlgError), or a frame's moving
+    flags do not match its features."""
+    if variant not in VARIANTS:
+        raise ValueError(f'variant {variant!r}: must be one of {", ".join(VARIANTS)}')
+    config = config or PipelineConfig()
+    initialize = 'handover' if variant == 'c' else 'all'
+    slam = MonoSlam(camera, dataclasses.replace(config.slam, initialize=initialize))
+    shadow = ShadowFilter(camera, config.shadow) if variant == 'c' else None
+    count = len(frames)
+    centres, rotations = np.full((count, 3), np.nan), np.full((count, 3, 3), np.nan)
+    covariances, measured = np.full((count, 6, 6), np.nan), np.zeros(count, dtype=np.int64)
+    status: list[str] = []
+    lost: list[int] = []
+    books = _Bookkeeping()
+    started = time.perf_counter()
+    for index, frame in enumerate(frames):
+        ids = frame.measurements.ids
+        if len(frame.moving) != len(ids):
+            raise PipelineError(
+                f'variant {variant}, frame {index}: {len(frame.moving)} moving flags for '
+                f'{len(ids)} features'
+            )
+        books.moving.update(zip(ids.tolist(), frame.moving.tolist(), strict=True))
+        measurements = frame.measurements
+        if variant == 'a':
+            static = ~frame.moving
+            measurements = dataclasses.replace(
+                measurements, ids=ids[static], pixels=measurements.pixels[static]
+            )
+        try:
+            result = slam.process(measurements)
+            if shadow is not None:
+                _shadow_step(slam, shadow, result, frame, index, config, books)
+        except (ValueError, ArithmeticError) as error:  # input errors, LinAlgError
+            raise PipelineError(
+                f'variant {variant}, frame {index}: {type(error).__name__}: {error}'
+            ) from error
+        status.append(result.status)
+        measured[index] = len(result.measured_ids)
+        books.dynamic_in_map += [i for i in result.added_ids if books.moving.get(i, False)]
+        if result.status == LOST:
+            lost.append(index)
+        pose = _pose(result)
+        if pose is not None:
+            centres[index], rotations[index], covariances[index] = pose
+    return VariantRecord(
+        variant,
+        np.array([f.measurements.stamp_ns for f in frames], dtype=np.int64),
+        tuple(status),
+        centres,
+        rotations,
+        covariances,
+        measured,
+        slam.map_points(),
+        books.dynamic_in_map,
+        lost,
+        books.handovers,
+        books.static_decisions,
+        books.dynamic_decisions,
+        books.shadow_frames,
+        books.gated,
+        books.no_pose,
+        time.perf_counter() - started,
+    )
+
+
+def _pose(result: MonoSlamResult) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """Return a result's centre (3,), R_world_camera (3, 3) and pose covariance (6, 6), or
+    None while it has none."""
+    if result.centre is None or result.rotation is None or result.pose_covariance is None:
+        return None
+    return result.centre, result.rotation, result.pose_covariance
+
+
+def _shadow_step(
+    slam: MonoSlam,
+    shadow: ShadowFilter,
+    result: MonoSlamResult,
+    frame: MeasurementFrame,
+    index: int,
+    config: PipelineConfig,
+    books: _Bookkeeping,
+) -> None:
+    """Give the Shadow filter SLAM's pose and the features SLAM does not own (if the pose
+    passes the gate) and pass its handovers to SLAM."""
+    pose = _pose(result)
+    if result.status != TRACKING or pose is None:
+        books.no_pose += 1
+        return
+    centre, rotation, covariance = pose
+    if not pose_within(covariance, config.shadow_max_pose_sigma):
+        books.gated += 1
+        return
+    owned = slam.owned_ids
+    ids, pixels = frame.measurements.ids, frame.measurements.pixels
+    free = np.array([int(i) not in owned for i in ids], dtype=bool).reshape(-1)
+    output = shadow.process(
+        FrameInput(
+            frame.measurements.stamp_ns, rotation, centre, ids[free], pixels[free], covariance
+        )
+    )
+    books.shadow_frames += 1
+    books.static_decisions += sum(d.status == STATIC for d in output.decisions)
+    books.dynamic_decisions += sum(d.status == DYNAMIC for d in output.decisions)
+    for handover in output.handovers:
+        refused = slam.add_handover(handover.id, handover.position, handover.position_covariance)
+        moving = books.moving.get(handover.id, False)
+        books.handovers.append(HandoverEvent(index, handover.id, moving, refused))
+
+
+def parse_pose_gate(text: str) -> tuple[float, float]:
+    """Return (position m, rotation rad) from 'p,r' or one 'inf' (no gate); ValueError naming
+    the text if malformed or not > 0."""
+    parts = [part.strip() for part in text.split(',')]
+    if parts == ['inf']:
+        parts = ['inf', 'inf']
+    try:
+        values = [float(part) for part in parts]
+    except ValueError:
+        values = []
+    if len(values) != 2 or not all(v > 0 and not math.isnan(v) for v in values):
+        raise ValueError(
+            f'shadow max pose sigma {text!r}: use position m,rotation rad, both > 0, e.g. '
+            '0.03,0.01 (inf disables the gate)'
+        )
+    return values[0], values[1]
