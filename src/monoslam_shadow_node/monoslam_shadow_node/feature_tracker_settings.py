@@ -17,13 +17,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from monoslam_shadow_node.core.feature_tracker import TrackerConfig
 
-# The shadow_filter's parameter plumbing is generic; reused rather than copied (its private
-# helper _value checks presence and type).
-from monoslam_shadow_node.settings import Setting, SettingValue, _value
+# The shadow_filter's parameter plumbing is generic and shared: setting_value checks presence
+# and type, read_parameter_file reads a node YAML.
+from monoslam_shadow_node.settings import (
+    Setting,
+    SettingValue,
+    read_parameter_file,
+    setting_value,
+)
 from slam_bringup.errors import ParameterError
 
 NODE_NAME = 'feature_tracker'
@@ -87,7 +90,7 @@ def _fail(name: str, value: object, rule: str) -> ParameterError:
 
 def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
     """Validate the tracker's parameters into a TrackerConfig (raises ParameterError)."""
-    fields: dict[str, Any] = {s.field: _value(values, s) for s in CORE_SETTINGS}
+    fields: dict[str, Any] = {s.field: setting_value(values, s) for s in CORE_SETTINGS}
     try:
         return TrackerConfig(**fields)
     except ValueError as err:  # the core names the field, which is the parameter's name
@@ -96,7 +99,7 @@ def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
 
 def node_settings(values: Mapping[str, Any]) -> NodeSettings:
     """Validate the node's own parameters (raises ParameterError)."""
-    by_name = {setting.name: _value(values, setting) for setting in NODE_SETTINGS}
+    by_name = {setting.name: setting_value(values, setting) for setting in NODE_SETTINGS}
     transport = str(by_name['image_transport'])
     if transport not in IMAGE_TRANSPORTS:
         raise _fail('image_transport', transport, f'must be one of {IMAGE_TRANSPORTS}')
@@ -122,21 +125,4 @@ def defaults() -> dict[str, SettingValue]:
 def parameters_from_yaml(path: Path) -> dict[str, Any]:
     """Return the defaults updated with a node YAML file's ``/**: ros__parameters`` (or
     ``feature_tracker:``) section; raise ParameterError naming the file and a bad key."""
-    try:
-        document: Any = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
-    except (OSError, yaml.YAMLError) as err:
-        raise ParameterError(f'parameter file {str(path)!r}: {err}') from None
-    section = document.get('/**', document.get(NODE_NAME)) if isinstance(document, dict) else None
-    if not isinstance(section, dict) or not isinstance(section.get('ros__parameters'), dict):
-        raise ParameterError(
-            f'parameter file {str(path)!r}: no "/**: ros__parameters:" (or '
-            f'"{NODE_NAME}: ros__parameters:") mapping'
-        )
-    values: dict[str, Any] = defaults()
-    for name, value in section['ros__parameters'].items():
-        if name not in values:
-            raise ParameterError(
-                f'parameter file {str(path)!r}: {name} is not a {NODE_NAME} parameter'
-            )
-        values[name] = value
-    return values
+    return read_parameter_file(path, NODE_NAME, defaults())

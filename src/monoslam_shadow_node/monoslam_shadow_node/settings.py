@@ -171,7 +171,7 @@ def _typed(setting: Setting, value: object) -> SettingValue:
     return float(value)
 
 
-def _value(values: Mapping[str, Any], setting: Setting) -> SettingValue:
+def setting_value(values: Mapping[str, Any], setting: Setting) -> SettingValue:
     if setting.name not in values:
         raise ParameterError(f'parameter {setting.name} is missing ({setting.description})')
     return _typed(setting, values[setting.name])
@@ -182,7 +182,7 @@ def shadow_config(values: Mapping[str, Any]) -> ShadowConfig:
     fields: dict[str, dict[str, Any]] = {'ekf': {}, 'classifier': {}, 'shadow': {}}
     by_field = {}
     for setting in CORE_SETTINGS:
-        value = _value(values, setting)
+        value = setting_value(values, setting)
         if setting.to_field is not None:
             if not 0.0 < float(value) < 180.0:
                 raise _fail(setting.name, value, 'must be in (0, 180) deg')
@@ -211,7 +211,7 @@ def _core_error(err: ValueError, by_field: Mapping[str, Setting]) -> ParameterEr
 
 def node_settings(values: Mapping[str, Any]) -> NodeSettings:
     """Validate the node's own parameters (raises ParameterError)."""
-    by_name = {setting.name: _value(values, setting) for setting in NODE_SETTINGS}
+    by_name = {setting.name: setting_value(values, setting) for setting in NODE_SETTINGS}
     topic = str(by_name['pose_topic'])
     if not topic.strip():
         raise _fail('pose_topic', topic, 'must name a topic')
@@ -243,21 +243,28 @@ def defaults() -> dict[str, SettingValue]:
 def parameters_from_yaml(path: Path) -> dict[str, Any]:
     """Return the defaults updated with a node YAML file's ``/**: ros__parameters`` (or
     ``shadow_filter:``) section; raise ParameterError naming the file and a bad key."""
+    return read_parameter_file(path, NODE_NAME, defaults())
+
+
+def read_parameter_file(path: Path, node_name: str, values: dict[str, Any]) -> dict[str, Any]:
+    """Return ``values`` (a node's defaults) updated with the ``/**: ros__parameters`` (or
+    ``<node_name>:``) section of a node YAML file; raise ParameterError naming the file and a
+    key that is not one of ``values``."""
     try:
         document: Any = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
     except (OSError, yaml.YAMLError) as err:
         raise ParameterError(f'parameter file {str(path)!r}: {err}') from None
-    section = document.get('/**', document.get(NODE_NAME)) if isinstance(document, dict) else None
+    section = document.get('/**', document.get(node_name)) if isinstance(document, dict) else None
     if not isinstance(section, dict) or not isinstance(section.get('ros__parameters'), dict):
         raise ParameterError(
             f'parameter file {str(path)!r}: no "/**: ros__parameters:" (or '
-            f'"{NODE_NAME}: ros__parameters:") mapping'
+            f'"{node_name}: ros__parameters:") mapping'
         )
-    values: dict[str, Any] = defaults()
+    updated = dict(values)
     for name, value in section['ros__parameters'].items():
-        if name not in values:
+        if name not in updated:
             raise ParameterError(
-                f'parameter file {str(path)!r}: {name} is not a {NODE_NAME} parameter'
+                f'parameter file {str(path)!r}: {name} is not a {node_name} parameter'
             )
-        values[name] = value
-    return values
+        updated[name] = value
+    return updated
