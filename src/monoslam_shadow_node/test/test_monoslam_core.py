@@ -264,3 +264,26 @@ def test_config_rejects_bad_values() -> None:
         MonoSlamConfig(max_features=0)
     with pytest.raises(ValueError, match='known point 3'):
         MonoSlamConfig(known_points={3: (0.0, float('nan'), 1.0)})
+
+
+def test_predictions_are_where_the_next_frame_sees_the_features() -> None:
+    run = simulate_dynamic_scene(6, DynamicSceneConfig(duration_s=2.0, objects=0))
+    slam = _filter(run)
+    frames = list(_frames(run, InitTarget(), np.random.default_rng(3), static_only=True))
+    for _, measurements in frames[:40]:
+        slam.process(measurements)
+    following, _ = frames[40]
+    ids, pixels, regions = slam.predictions(following.stamp_ns)
+    assert len(ids) >= 10
+    seen = {int(i): p for i, p in zip(following.track_ids, following.true_pixels, strict=True)}
+    distances = []
+    for track_id, pixel, region in zip(ids, pixels, regions, strict=True):
+        assert np.all(np.linalg.eigvalsh(region) > 0.0)
+        if int(track_id) in seen:
+            error = seen[int(track_id)] - pixel
+            distances.append(float(error @ np.linalg.solve(region, error)))
+    assert len(distances) >= 10
+    # true pixels fall inside the active search regions (chi-square 2 dof, 99.9 %: 13.8)
+    assert np.median(distances) < 2.0 and max(distances) < 13.8
+    _, _, only = slam.predictions(following.stamp_ns, [int(ids[0])])
+    assert len(only) == 1

@@ -236,9 +236,10 @@ def test_cli_writes_a_parsable_report_and_figures(
 ) -> None:
     out = tmp_path / 'eval'
     arguments = ['--out', str(out), '--seeds', '0', '--duration-s', '1.5', '--variants', 'a,c']
-    assert main([*arguments, '--shadow-max-pose-sigma', 'inf']) == 0
+    assert main([*arguments, '--shadow-max-pose-sigma', 'inf', '--unchecked-directions', '0']) == 0
     content = _strict_json(out / 'monoslam_eval.json')
     assert content['config']['pipeline']['shadow_max_pose_sigma'] == [None, None]
+    assert content['config']['pipeline']['shadow']['classifier']['unchecked_directions'] == 0
     variants = content['variants']
     assert set(variants) == {'a', 'c'}
     assert variants['c']['totals']['shadow']['frames_skipped_pose_gate'] == 0
@@ -257,6 +258,7 @@ def test_cli_writes_a_parsable_report_and_figures(
         (['--shadow-max-pose-sigma', '-1,0.01'], '--shadow-max-pose-sigma'),
         (['--seeds', 'x'], '--seeds'),
         (['--duration-s', '0'], '--duration-s'),
+        (['--unchecked-directions', '3'], '--unchecked-directions'),
     ],
 )
 def test_cli_rejects_bad_arguments_naming_them(
