@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
+
+import cv2
 
 T = TypeVar('T')
 
@@ -45,3 +48,13 @@ def best_of(repeats: int, function: Callable[[], T]) -> tuple[float, T]:
     started = time.perf_counter()
     result = function()
     return min(best, time.perf_counter() - started), result
+
+
+def pin_to_one_core(cpu: int | None) -> str:
+    """Pin this process to one CPU (the last allowed one unless ``cpu``); return its name."""
+    cv2.setNumThreads(1)
+    if not hasattr(os, 'sched_setaffinity'):
+        return 'not pinned (no sched_setaffinity)'
+    chosen = sorted(os.sched_getaffinity(0))[-1] if cpu is None else cpu
+    os.sched_setaffinity(0, {chosen})
+    return f'CPU {chosen}'

@@ -54,8 +54,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from bench_common import best_of, source_revision
-from shadow_filter_speed import pin_to_one_core
+from bench_common import best_of, pin_to_one_core, source_revision
 
 from marker_detector.conversions import image_from_message
 from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig

@@ -54,7 +54,7 @@ from unittest import mock
 
 import cv2
 import numpy as np
-from bench_common import best_of, source_revision
+from bench_common import best_of, pin_to_one_core, source_revision
 
 from monoslam_shadow_node.core import shadow_filter as shadow_filter_module
 from monoslam_shadow_node.core.camera import CameraModel, pixel_rays
@@ -83,16 +83,6 @@ FEATURE_COUNTS = (10, 20, 50, 150)
 POSE_COVARIANCE = np.diag([0.01**2] * 3 + [0.005**2] * 3)  # 1 cm, 0.29 deg per axis
 EKF = EkfConfig()
 CLASSIFIER = ClassifierConfig()
-
-
-def pin_to_one_core(cpu: int | None) -> str:
-    """Pin this process to one CPU (the last allowed one unless ``cpu``); return its name."""
-    cv2.setNumThreads(1)
-    if not hasattr(os, 'sched_setaffinity'):
-        return 'not pinned (no sched_setaffinity)'
-    chosen = sorted(os.sched_getaffinity(0))[-1] if cpu is None else cpu
-    os.sched_setaffinity(0, {chosen})
-    return f'CPU {chosen}'
 
 
 def best_prepared(
