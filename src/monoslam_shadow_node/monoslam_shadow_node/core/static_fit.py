@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile, skew
+from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile
 from monoslam_shadow_node.core.rays import View
 
 MOTION_DOF = 3
@@ -70,6 +70,15 @@ def _bases(directions: FloatArray) -> FloatArray:
     return np.stack([first, np.cross(directions, first)], axis=2)
 
 
+def _skews(vectors: FloatArray) -> FloatArray:
+    """Return [v]x (N, 3, 3) of vectors (N, 3)."""
+    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
+    zero = np.zeros_like(x)
+    return np.stack(
+        [np.stack([zero, -z, y], 1), np.stack([z, zero, -x], 1), np.stack([-y, x, zero], 1)], 1
+    )
+
+
 def _geometry(views: list[View], basis: FloatArray, point: FloatArray) -> _Geometry | None:
     """Residuals and weights of all views at ``point``; None if it is behind a camera."""
     centres = np.array([view.centre for view in views])
@@ -80,13 +89,18 @@ def _geometry(views: list[View], basis: FloatArray, point: FloatArray) -> _Geome
         return None
     across = np.swapaxes(basis, 1, 2)  # (N, 2, 3)
     covariance = across @ np.array([view.direction_covariance for view in views]) @ basis
-    for row, view in enumerate(views):
-        if view.pose_covariance is not None:
-            # r = B' (P - C) / rho: dr/dC = -B' / rho; a rotation dtheta of the camera turns
-            # the measured ray, i.e. the offset by -dtheta: dr/dtheta = B' [P - C]x / rho.
-            pose_jacobian = np.hstack([-across[row], across[row] @ skew(offset[row])])
-            pose_jacobian /= depth[row]
-            covariance[row] += pose_jacobian @ view.pose_covariance @ pose_jacobian.T
+    posed = np.array([view.pose_covariance is not None for view in views], dtype=bool)
+    if np.any(posed):
+        # r = B' (P - C) / rho: dr/dC = -B' / rho; a rotation dtheta of the camera turns
+        # the measured ray, i.e. the offset by -dtheta: dr/dtheta = B' [P - C]x / rho.
+        pose_covariances = np.array(
+            [v.pose_covariance for v in views if v.pose_covariance is not None]
+        )
+        pose_jacobian = (
+            np.concatenate([-across[posed], across[posed] @ _skews(offset[posed])], axis=2)
+            / depth[posed, None, None]
+        )
+        covariance[posed] += pose_jacobian @ pose_covariances @ np.swapaxes(pose_jacobian, 1, 2)
     residual = (across @ offset[:, :, None])[:, :, 0] / depth[:, None]
     # The exact derivative, including the depth's: dr/dP = (B' - r d') / rho. Dropping the
     # second term (r is small) looks harmless but biases the fit along the rays by about one
