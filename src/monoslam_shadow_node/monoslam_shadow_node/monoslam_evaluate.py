@@ -36,7 +36,6 @@ and logs progress (rate, ETA) on stderr. A run a filter raises on is listed unde
 from __future__ import annotations
 
 import argparse
-import ctypes
 import dataclasses
 import math
 import sys
@@ -68,6 +67,7 @@ from monoslam_shadow_node.monoslam_pipeline import (
     simulation_frames,
     target_known_points,
 )
+from slam_bringup.blas import single_threaded_blas
 from slam_bringup.cli import console_main
 from slam_bringup.files import write_atomically, write_json
 from slam_bringup.progress import ProgressReporter
@@ -675,35 +675,6 @@ def _nees_over_time(figure: Any, curves: Mapping[str, Any]) -> None:
 
 
 # --- command line ---------------------------------------------------------------------------
-
-
-def single_threaded_blas() -> int:
-    """Limit the loaded OpenBLAS libraries to one thread; return how many were limited.
-
-    The filters' matrices are small (a few hundred rows): on a shared 2-core machine two
-    OpenBLAS threads spin against each other and a run takes ~10 times longer."""
-    try:
-        maps = Path('/proc/self/maps').read_text().splitlines()
-    except OSError:
-        return 0
-    paths = {line.split()[-1] for line in maps if 'openblas' in line and '/' in line}
-    limited = 0
-    for path in sorted(paths):
-        try:
-            library = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for name in (
-            'scipy_openblas_set_num_threads64_',
-            'scipy_openblas_set_num_threads',
-            'openblas_set_num_threads64_',
-            'openblas_set_num_threads',
-        ):
-            if hasattr(library, name):
-                getattr(library, name)(1)
-                limited += 1
-                break
-    return limited
 
 
 def parse_variants(text: str) -> tuple[str, ...]:

@@ -3,9 +3,9 @@
 ``SETTINGS`` lists every parameter of the node: its name (with a unit suffix), default and
 meaning. The Shadow filter's parameters map one to one onto the fields of the core's
 ``EkfConfig``, ``ClassifierConfig`` and ``ShadowConfig`` (their defaults are the core's), the
-rest configure the node (pose topic, stamp synchronization, markers). The node declares them
-(``shadow_filter_node.PARAMETERS``); offline tools can read the node's YAML file with
-``parameters_from_yaml`` and validate it the same way, so both accept exactly the same
+rest configure the node (pose topic, stamp synchronization, pose gate, markers). The node
+declares them (``shadow_filter_node.PARAMETERS``); offline tools can read the node's YAML file
+with ``parameters_from_yaml`` and validate it the same way, so both accept exactly the same
 settings. Every rejection raises ParameterError naming the parameter and the rule.
 """
 
@@ -31,7 +31,7 @@ SettingValue = bool | int | float | str
 class Setting:
     """One parameter: name, default and meaning; ``section`` and ``field`` say which core
     config field it sets ('' for node settings), ``to_field`` converts the parameter's unit
-    into the field's."""
+    into the field's; ``infinite_ok``: a float parameter may be +inf (e.g. 'no limit')."""
 
     name: str
     default: SettingValue
@@ -39,6 +39,7 @@ class Setting:
     section: str = ''
     field: str = ''
     to_field: Callable[[float], float] | None = None
+    infinite_ok: bool = False
 
 
 _EKF, _CLASSIFIER = EkfConfig(), ClassifierConfig()
@@ -126,6 +127,20 @@ NODE_SETTINGS = (
         'how long (stamp time) a frame waits for its partner before it is dropped, s (> 0)',
     ),
     Setting('queue_size', 100, 'feature frames and poses held while waiting, each (>= 1)'),
+    Setting(
+        'max_pose_position_sigma_m',
+        math.inf,
+        'pose gate: frames whose pose has a position std. dev. above this are skipped, m '
+        '(> 0; .inf: no gate)',
+        infinite_ok=True,
+    ),
+    Setting(
+        'max_pose_rotation_sigma_rad',
+        math.inf,
+        'pose gate: frames whose pose has a rotation std. dev. above this are skipped, rad '
+        '(> 0; .inf: no gate)',
+        infinite_ok=True,
+    ),
     Setting('publish_markers', True, 'publish shadow/markers for RViz'),
 )
 SETTINGS = CORE_SETTINGS + NODE_SETTINGS
@@ -134,13 +149,21 @@ SETTINGS = CORE_SETTINGS + NODE_SETTINGS
 @dataclass(frozen=True)
 class NodeSettings:
     """The node's own settings: pose topic, stamp tolerance and waiting horizon (int ns),
-    queue bound (frames per stream) and whether to publish markers."""
+    queue bound (frames per stream), the pose gate (largest position m and rotation rad
+    standard deviation of a pose whose frame is processed; inf: none) and whether to publish
+    markers."""
 
     pose_topic: str
     stamp_tolerance_ns: int
     sync_horizon_ns: int
     queue_size: int
+    max_pose_sigma: tuple[float, float]
     publish_markers: bool
+
+    @property
+    def pose_gate(self) -> bool:
+        """Whether any pose gate is set."""
+        return any(math.isfinite(limit) for limit in self.max_pose_sigma)
 
 
 def _fail(name: str, value: object, rule: str) -> ParameterError:
@@ -166,8 +189,9 @@ def _typed(setting: Setting, value: object) -> SettingValue:
         if not isinstance(value, int):
             raise _fail(setting.name, value, 'must be an integer')
         return value
-    if not math.isfinite(value):
-        raise _fail(setting.name, value, 'must be a finite number')
+    if not math.isfinite(value) and not (setting.infinite_ok and value == math.inf):
+        rule = 'must be a finite number' + (' or .inf' if setting.infinite_ok else '')
+        raise _fail(setting.name, value, rule)
     return float(value)
 
 
@@ -226,11 +250,18 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
     queue_size = int(by_name['queue_size'])
     if queue_size < 1:
         raise _fail('queue_size', queue_size, 'must be >= 1')
+    gate = []
+    for name in ('max_pose_position_sigma_m', 'max_pose_rotation_sigma_rad'):
+        limit = float(by_name[name])
+        if not limit > 0.0:
+            raise _fail(name, limit, 'must be > 0 (.inf: no gate)')
+        gate.append(limit)
     return NodeSettings(
         pose_topic=topic,
         stamp_tolerance_ns=round(tolerance * 1e9),
         sync_horizon_ns=round(horizon * 1e9),
         queue_size=queue_size,
+        max_pose_sigma=(gate[0], gate[1]),
         publish_markers=bool(by_name['publish_markers']),
     )
 

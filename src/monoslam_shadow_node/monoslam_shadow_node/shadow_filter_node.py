@@ -85,6 +85,18 @@ Parameters (node):
   stamp_tolerance_s (0.0)         largest features-to-pose stamp difference, s.
   sync_horizon_s (1.0)            how long a frame waits for its partner, s (stamp time).
   queue_size (100)                waiting feature frames and poses, each.
+  max_pose_position_sigma_m (.inf), max_pose_rotation_sigma_rad (.inf)  the pose gate: a
+                                  frame whose pose has a position standard deviation above
+                                  the first (m) or a rotation one above the second (rad)
+                                  (sqrt of the covariance diagonal, the largest of the three
+                                  each) is skipped, not given to the filter, debug-logged
+                                  and counted in the status line. Paper 001's Shadow filter
+                                  relies on SLAM's pose; a poor one (just after a start or a
+                                  long occlusion) makes static features look like moving
+                                  ones. .inf (the default): no gate; the MonoSLAM pipeline
+                                  uses 0.03 m and 0.01 rad (monoslam_pipeline's
+                                  DEFAULT_SHADOW_MAX_POSE_SIGMA). A known pose (all-zero
+                                  covariance) always passes.
   publish_markers (true)          publish shadow/markers.
 All are read-only; a bad value stops the node with an error naming the parameter.
 
@@ -94,14 +106,12 @@ camera optical frame of the camera_info.
 
 from __future__ import annotations
 
-import bisect
 import sys
 import time
-from collections import OrderedDict, deque
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections import OrderedDict
 from typing import Any
 
+import numpy as np
 from geometry_msgs.msg import Point, PoseWithCovarianceStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -134,6 +144,7 @@ from monoslam_shadow_node.core.shadow_filter import (
     InputError,
     ShadowFilter,
 )
+from monoslam_shadow_node.frame_sync import Drop, FrameSynchronizer
 from monoslam_shadow_node.settings import NODE_NAME, SETTINGS, node_settings, shadow_config
 from slam_bringup.cli import console_main
 from slam_bringup.params import ParamSpec, declare_parameters
@@ -157,169 +168,24 @@ INPUT_WARNING = 'non-finite'
 GATE_WARNING = 'outside the innovation gate'
 
 
-@dataclass(frozen=True)
-class Drop:
-    """An input the synchronizer let go: its kind (one of ``DROP_KINDS``), stamp (int ns) and
-    the log line naming it."""
-
-    kind: str
-    stamp_ns: int
-    text: str
-
-    def __str__(self) -> str:
-        return self.text
-
-
-DROP_KINDS = ('repeated', 'overflow', 'out_of_order', 'no_pose', 'no_features')
-
-
-class FrameSynchronizer:
-    """Pairs feature frames with camera poses by stamp, and hands pairs out in stamp order
-    (ROS-free; the rules are in the module docstring). Every input that is let go comes back
-    once as a ``Drop``."""
-
-    def __init__(
-        self, *, tolerance_ns: int, horizon_ns: int, max_entries: int, pose_topic: str
-    ) -> None:
-        self.tolerance_ns = tolerance_ns
-        self.horizon_ns = horizon_ns
-        self.max_entries = max_entries
-        self.pose_topic = pose_topic
-        self._features: list[Features] = []  # sorted by stamp
-        self._poses: list[CameraPose] = []  # sorted by stamp
-        self._newest_ns: int | None = None
-        self._last_ns: int | None = None
-        self._seen_ns: deque[int] = deque(maxlen=max_entries)
-        self._out_of_order_ns: deque[int] = deque(maxlen=max_entries)
-
-    @property
-    def waiting_features(self) -> int:
-        """Feature frames waiting for a pose or for the camera."""
-        return len(self._features)
-
-    @property
-    def waiting_poses(self) -> int:
-        """Poses waiting for their feature frame."""
-        return len(self._poses)
-
-    def add_features(self, features: Features) -> list[Drop]:
-        """Queue a feature frame; return drops (a repeated stamp, a full queue)."""
-        stamp_ns = features.stamp_ns
-        stamps = [f.stamp_ns for f in self._features]
-        if stamp_ns in stamps:
-            text = f'features frame at stamp {stamp_ns} ns dropped: one with this stamp is waiting'
-            return [Drop('repeated', stamp_ns, text)]
-        self._features.insert(bisect.bisect(stamps, stamp_ns), features)
-        self._seen_ns.append(stamp_ns)
-        self._see(stamp_ns)
-        drops = []
-        while len(self._features) > self.max_entries:
-            oldest = self._features.pop(0).stamp_ns
-            text = (
-                f'features frame at stamp {oldest} ns dropped: queue_size={self.max_entries} '
-                'frames are waiting already'
-            )
-            drops.append(Drop('overflow', oldest, text))
-        return drops
-
-    def add_pose(self, pose: CameraPose) -> list[Drop]:
-        """Queue a camera pose; return drops (a repeated stamp, a full queue)."""
-        stamp_ns = pose.stamp_ns
-        stamps = [p.stamp_ns for p in self._poses]
-        where = f'camera pose at stamp {stamp_ns} ns on {self.pose_topic}'
-        if stamp_ns in stamps:
-            return [Drop('repeated', stamp_ns, f'{where} dropped: one with this stamp is waiting')]
-        self._poses.insert(bisect.bisect(stamps, stamp_ns), pose)
-        self._see(stamp_ns)
-        drops = []
-        while len(self._poses) > self.max_entries:
-            oldest = self._poses.pop(0).stamp_ns
-            text = (
-                f'camera pose at stamp {oldest} ns on {self.pose_topic} dropped: '
-                f'queue_size={self.max_entries} poses are waiting already'
-            )
-            drops.append(Drop('overflow', oldest, text))
-        return drops
-
-    def pop(
-        self, *, hold: bool = False, flush: bool = False
-    ) -> tuple[list[tuple[Features, CameraPose]], list[Drop]]:
-        """Return the pairs ready in stamp order and the drops. ``hold``: pair nothing yet
-        (no camera), only drop what expired; ``flush``: the inputs stopped, so frames still
-        without a pose are dropped now."""
-        pairs: list[tuple[Features, CameraPose]] = []
-        drops: list[Drop] = []
-        while self._features:
-            stamp_ns = self._features[0].stamp_ns
-            match = self._match(stamp_ns)
-            if match is not None:
-                if hold:
-                    break
-                pairs.append((self._features.pop(0), self._poses.pop(match)))
-                if self._last_ns is None or stamp_ns > self._last_ns:
-                    self._last_ns = stamp_ns
-                continue
-            if self._last_ns is not None and stamp_ns <= self._last_ns:
-                self._out_of_order_ns.append(stamp_ns)
-                text = (
-                    f'features frame at stamp {stamp_ns} ns dropped: not after the frame '
-                    f'processed last ({self._last_ns} ns); frames must come in stamp order'
-                )
-                drops.append(Drop('out_of_order', stamp_ns, text))
-            elif flush or self._expired(stamp_ns):
-                text = (
-                    f'features frame at stamp {stamp_ns} ns dropped: no camera pose with its '
-                    f'stamp came on {self.pose_topic} within sync_horizon_s '
-                    f'({self.horizon_ns / 1e9:g} s)'
-                )
-                drops.append(Drop('no_pose', stamp_ns, text))
-            else:
-                break
-            self._features.pop(0)
-        return pairs, drops + self._drop_stale_poses()
-
-    def _see(self, stamp_ns: int) -> None:
-        if self._newest_ns is None or stamp_ns > self._newest_ns:
-            self._newest_ns = stamp_ns
-
-    def _expired(self, stamp_ns: int) -> bool:
-        return self._newest_ns is not None and stamp_ns < self._newest_ns - self.horizon_ns
-
-    def _match(self, stamp_ns: int) -> int | None:
-        """Index of the waiting pose nearest to ``stamp_ns`` within the tolerance."""
-        best, best_gap = None, self.tolerance_ns
-        for index, pose in enumerate(self._poses):
-            gap = abs(pose.stamp_ns - stamp_ns)
-            if gap <= best_gap:
-                best, best_gap = index, gap
-        return best
-
-    def _near(self, stamp_ns: int, stamps: Iterable[int]) -> bool:
-        return any(abs(s - stamp_ns) <= self.tolerance_ns for s in stamps)
-
-    def _drop_stale_poses(self) -> list[Drop]:
-        drops, kept = [], []
-        waiting = [f.stamp_ns for f in self._features]
-        for pose in self._poses:
-            if self._near(pose.stamp_ns, waiting) or not self._expired(pose.stamp_ns):
-                kept.append(pose)
-            elif not self._near(pose.stamp_ns, self._out_of_order_ns):  # else: said already
-                text = (
-                    f'camera pose at stamp {pose.stamp_ns} ns on {self.pose_topic} matches no '
-                    f'features frame{self._nearest_hint(pose.stamp_ns)}; dropped'
-                )
-                drops.append(Drop('no_features', pose.stamp_ns, text))
-        self._poses = kept
-        return drops
-
-    def _nearest_hint(self, stamp_ns: int) -> str:
-        if not self._seen_ns:
-            return ' (none seen yet)'
-        nearest = min(self._seen_ns, key=lambda s: abs(s - stamp_ns))
+def pose_gate_excess(covariance: FloatArray | None, max_sigma: tuple[float, float]) -> str | None:
+    """Return why a pose covariance (6, 6) (position m, rotation rad) fails the pose gate
+    (position, rotation) standard deviations, or None when it passes. A known pose (None) and
+    a covariance that is not finite (the core rejects it with its reason) pass."""
+    if covariance is None:
+        return None
+    variances = np.diagonal(covariance)
+    if not np.all(np.isfinite(variances)):
+        return None
+    sigma = np.sqrt(np.maximum(variances, 0.0))
+    position, rotation = float(sigma[:3].max()), float(sigma[3:].max())
+    if position > max_sigma[0]:
+        return f'position sigma {position:.3g} m > max_pose_position_sigma_m ({max_sigma[0]:g})'
+    if rotation > max_sigma[1]:
         return (
-            f' (nearest features stamp {nearest} ns, {(nearest - stamp_ns) / 1e6:+.3f} ms '
-            f'away; stamp_tolerance_s is {self.tolerance_ns / 1e9:g} s)'
+            f'rotation sigma {rotation:.3g} rad > max_pose_rotation_sigma_rad ({max_sigma[1]:g})'
         )
+    return None
 
 
 class ShadowFilterNode(Node):
@@ -338,7 +204,7 @@ class ShadowFilterNode(Node):
             max_entries=self.settings.queue_size,
             pose_topic=self.settings.pose_topic,
         )
-        self.frames = self.skipped = self.dropped = self.gated = 0
+        self.frames = self.skipped = self.dropped = self.gated = self.pose_gated = 0
         self._poses_seen = self._dropped_waiting = 0
         self.static_total = self.dynamic_total = self.omitted = 0
         self._held = {PENDING: 0, DYNAMIC: 0}
@@ -452,6 +318,13 @@ class ShadowFilterNode(Node):
     def _process(self, features: Features, pose: CameraPose) -> None:
         if self.shadow is None:  # cannot happen: pop(hold=True) pairs nothing before a camera
             return
+        excess = pose_gate_excess(pose.covariance, self.settings.max_pose_sigma)
+        if excess is not None:
+            self.pose_gated += 1
+            self.get_logger().debug(
+                f'frame at stamp {features.stamp_ns} ns skipped by the pose gate: {excess}'
+            )
+            return
         try:
             result = self.shadow.process(frame_input(features, pose))
         except InputError as err:
@@ -535,13 +408,13 @@ class ShadowFilterNode(Node):
             f'{self.frames} frames{rate}: holding {self._held[PENDING]} pending and '
             f'{self._held[DYNAMIC]} dynamic features; {self.static_total} handed over as '
             f'static, {self.dynamic_total} called dynamic so far; {self.skipped} frames '
-            f'skipped, {self.dropped} inputs dropped, {self.gated} measurements outside the '
-            'innovation gate'
+            f'skipped, {self.pose_gated} over the pose gate, {self.dropped} inputs dropped, '
+            f'{self.gated} measurements outside the innovation gate'
         )
 
     def destroy_node(self) -> None:
         """Log the final summary, then destroy."""
-        if self.frames or self.dropped or self.skipped:
+        if self.frames or self.dropped or self.skipped or self.pose_gated:
             self.get_logger().info(f'done: {self.status_line()}')
         super().destroy_node()
 

@@ -22,7 +22,6 @@ from monoslam_shadow_node.monoslam_evaluate import (
     nees_summary,
     pose_errors,
     rms,
-    single_threaded_blas,
     trajectory_metrics,
     umeyama_alignment,
 )
@@ -37,6 +36,7 @@ from monoslam_shadow_node.monoslam_pipeline import (
     simulation_frames,
     target_known_points,
 )
+from slam_bringup.blas import single_threaded_blas
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, target_pixels
 

@@ -54,6 +54,7 @@ from rclpy.utilities import try_shutdown
 
 from slam_bringup.bag_player import BagPlayerNode
 from slam_bringup.bag_recorder import DRAIN_TIMEOUT_S, BagRecorderNode
+from slam_bringup.blas import single_threaded_blas
 from slam_bringup.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main
 from slam_bringup.errors import SlamError
 from slam_bringup.graph import Graph, load_graph
@@ -191,6 +192,7 @@ def run_in_process(
 ) -> int:
     """Run every node in this process until the graph ends; return the exit status."""
     context = Context()
+    single_threaded_blas()
     rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor(context=context)
     nodes: list[tuple[NodeDescription, Node]] = []

@@ -9,6 +9,8 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
+from slam_bringup.blas import single_threaded_blas
+
 
 def spin_node(prog: str, factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     """Run the node ``factory()`` builds until Ctrl-C or shutdown; return exit code 0.
@@ -16,6 +18,7 @@ def spin_node(prog: str, factory: Callable[[], Node], argv: list[str] | None = N
     ``destroy_node`` always runs, so nodes that finalize (write reports) do it there. Errors
     raised by the constructor propagate (wrap main with cli.console_main to print them).
     """
+    single_threaded_blas()
     rclpy.init(args=sys.argv if argv is None else [prog, *argv])
     node = None
     try:

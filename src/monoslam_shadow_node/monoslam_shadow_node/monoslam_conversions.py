@@ -1,0 +1,276 @@
+"""Messages <-> MonoSLAM core types. Fields are read by name, so rclpy messages and
+rosbags-deserialized messages both work; output messages are filled from factories (the
+message classes) passed in, as ``conversions`` does for the Shadow filter.
+
+Inputs: a slam_interfaces/FiducialArray is reduced to the initialization target's corner
+pixels (``TargetSighting``), which become the known points 0-3 of a ``MonoSlamFrame`` beside
+the features of the same image; a ShadowTrackArray of handovers becomes ``HandoverInput``s.
+
+Outputs never hold NaN: a pose that is not finite gives no ``PoseFields`` (nothing is
+published), map points without a defined position (inverse depth within 3 sigma of zero) or
+with a non-finite one are left out of the cloud, as are non-finite predictions.
+
+Pose covariance: ``MonoSlamResult.pose_covariance`` is over (position, rotation about the
+world axes), which is geometry_msgs/PoseWithCovariance's order and convention (see
+``conversions``), so it is published unchanged, row-major.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
+from monoslam_shadow_node.core.monoslam import MapPoint, MonoSlamFrame, MonoSlamResult
+from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
+from slam_bringup.stamps import ns_to_stamp, stamp_to_ns
+
+FLOAT32, FLOAT64, UINT8 = 7, 8, 2
+"""sensor_msgs/PointField datatype constants."""
+POINT_FIELDS = (
+    ('x', 0, FLOAT32),
+    ('y', 4, FLOAT32),
+    ('z', 8, FLOAT32),
+    ('sigma_m', 12, FLOAT32),
+    ('id', 16, FLOAT64),
+    ('active', 24, UINT8),
+    ('handover', 25, UINT8),
+)
+"""One point of monoslam/map: (name, byte offset, datatype). Position (m), the largest
+standard deviation (m), track id (float64: PointField has no int64; exact up to 2^53), in the
+filter (1) or retired (0), entered by a handover (1) or as a new feature (0)."""
+_FORMATS = {FLOAT32: '<f4', FLOAT64: '<f8', UINT8: 'u1'}
+POINT_DTYPE = np.dtype(
+    {
+        'names': [name for name, _, _ in POINT_FIELDS],
+        'formats': [_FORMATS[datatype] for _, _, datatype in POINT_FIELDS],
+        'offsets': [offset for _, offset, _ in POINT_FIELDS],
+        'itemsize': 32,
+    }
+)
+
+
+@dataclass(frozen=True, eq=False)
+class TargetSighting:
+    """One FiducialArray reduced to the target: image stamp (int ns), camera frame, the
+    target's raw corner pixels (4, 2) in OpenCV order (None: not detected, or unusable), what
+    was detected as (dictionary, id) pairs, and why a detection of the target was not used
+    (None: nothing wrong)."""
+
+    stamp_ns: int
+    frame_id: str
+    corners_px: FloatArray | None
+    detected: tuple[tuple[str, int], ...]
+    problem: str | None = None
+
+    def describe_detected(self) -> str:
+        """Return 'no marker detected' or 'detected: DICT_5X5_50 id 3, ...' for the log."""
+        if not self.detected:
+            return 'no marker detected'
+        return 'detected: ' + ', '.join(f'{d} id {i}' for d, i in self.detected)
+
+
+@dataclass(frozen=True, eq=False)
+class HandoverInput:
+    """One handed-over feature: track id, status (ShadowTrack constant), world position (3,) m
+    and covariance (3, 3) m^2 as received (may hold NaN: the filter refuses those)."""
+
+    id: int
+    status: int
+    position: FloatArray
+    covariance: FloatArray
+
+
+@dataclass(frozen=True)
+class PoseFields:
+    """The finite numbers of one camera pose: image stamp (int ns), optical centre (3) m,
+    orientation quaternion (x, y, z, w) of R_world_camera and covariance (36, row-major,
+    position then rotation about the world axes)."""
+
+    stamp_ns: int
+    position: tuple[float, float, float]
+    orientation: tuple[float, float, float, float]
+    covariance: tuple[float, ...]
+
+    @property
+    def sigmas(self) -> tuple[float, float]:
+        """Largest position (m) and rotation (rad) standard deviation."""
+        variances = np.diagonal(np.reshape(self.covariance, (6, 6)))
+        sigma = np.sqrt(np.maximum(variances, 0.0))
+        return float(sigma[:3].max()), float(sigma[3:].max())
+
+    def describe(self) -> str:
+        """Return 'camera at (x, y, z) m, sigma 0.02 m / 0.004 rad' for the log."""
+        x, y, z = self.position
+        position_sigma, rotation_sigma = self.sigmas
+        return (
+            f'camera at ({x:.3f}, {y:.3f}, {z:.3f}) m, sigma {position_sigma:.3f} m / '
+            f'{rotation_sigma:.4f} rad'
+        )
+
+
+def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> TargetSighting:
+    """Return the target's corners in a slam_interfaces/FiducialArray (the detection of
+    ``marker_id`` in ``dictionary`` with the smallest reprojection error)."""
+    detections = list(message.detections)
+    detected = tuple((str(d.dictionary), int(d.id)) for d in detections)
+    stamp_ns, frame_id = stamp_to_ns(message.header.stamp), str(message.header.frame_id)
+    target = [d for d in detections if int(d.id) == marker_id and d.dictionary == dictionary]
+    if not target:
+        return TargetSighting(stamp_ns, frame_id, None, detected)
+    best = min(target, key=lambda d: float(d.reprojection_error_px))
+    corners = np.asarray(best.corners_px, dtype=np.float64)
+    if corners.size != 2 * TARGET_CORNERS or not np.all(np.isfinite(corners)):
+        problem = f'target corners {corners.tolist()} are not {TARGET_CORNERS} finite pixels'
+        return TargetSighting(stamp_ns, frame_id, None, detected, problem)
+    return TargetSighting(stamp_ns, frame_id, corners.reshape(TARGET_CORNERS, 2), detected)
+
+
+def monoslam_frame(features: Features, sighting: TargetSighting | None) -> MonoSlamFrame:
+    """Return the filter's input for one image: its features, and the target's corners as
+    the known points 0-3 when they were seen."""
+    if sighting is None or sighting.corners_px is None:
+        return MonoSlamFrame(features.stamp_ns, features.ids, features.pixels)
+    keys: IntArray = np.arange(TARGET_CORNERS, dtype=np.int64)
+    return MonoSlamFrame(
+        features.stamp_ns, features.ids, features.pixels, keys, sighting.corners_px
+    )
+
+
+def handovers_from_message(message: Any) -> list[HandoverInput]:
+    """Return the handovers of a slam_interfaces/ShadowTrackArray (shadow/static_features)."""
+    return [
+        HandoverInput(
+            int(track.id),
+            int(track.status),
+            np.array([float(track.position.x), float(track.position.y), float(track.position.z)]),
+            np.asarray(track.position_covariance, dtype=np.float64).reshape(3, 3),
+        )
+        for track in message.tracks
+    ]
+
+
+def pose_fields(result: MonoSlamResult) -> PoseFields | None:
+    """Return the pose of a result as finite numbers, None while it has none or when any of
+    it is not finite."""
+    if result.rotation is None or result.centre is None or result.pose_covariance is None:
+        return None
+    arrays = (result.rotation, result.centre, result.pose_covariance)
+    if not all(np.all(np.isfinite(a)) for a in arrays):
+        return None
+    x, y, z, w = Rotation.from_matrix(result.rotation).as_quat()
+    cx, cy, cz = (float(v) for v in result.centre)
+    covariance = np.asarray(result.pose_covariance, dtype=np.float64).reshape(36)
+    return PoseFields(
+        result.stamp_ns,
+        (cx, cy, cz),
+        (float(x), float(y), float(z), float(w)),
+        tuple(float(v) for v in covariance),
+    )
+
+
+def _fill_pose(fields: PoseFields, pose: Any) -> Any:
+    pose.position.x, pose.position.y, pose.position.z = fields.position
+    q = pose.orientation
+    q.x, q.y, q.z, q.w = fields.orientation
+    return pose
+
+
+def fill_pose_with_covariance(fields: PoseFields, frame_id: str, message: Any) -> Any:
+    """Fill a geometry_msgs/PoseWithCovarianceStamped and return it."""
+    ns_to_stamp(fields.stamp_ns, message.header.stamp)
+    message.header.frame_id = frame_id
+    _fill_pose(fields, message.pose.pose)
+    message.pose.covariance = list(fields.covariance)
+    return message
+
+
+def fill_pose_stamped(fields: PoseFields, frame_id: str, message: Any) -> Any:
+    """Fill a geometry_msgs/PoseStamped (a monoslam/path entry) and return it."""
+    ns_to_stamp(fields.stamp_ns, message.header.stamp)
+    message.header.frame_id = frame_id
+    _fill_pose(fields, message.pose)
+    return message
+
+
+def fill_transform(fields: PoseFields, parent: str, child: str, message: Any) -> Any:
+    """Fill a geometry_msgs/TransformStamped parent -> child (the camera optical frame's pose
+    in the map) and return it."""
+    ns_to_stamp(fields.stamp_ns, message.header.stamp)
+    message.header.frame_id = parent
+    message.child_frame_id = child
+    translation = message.transform.translation
+    translation.x, translation.y, translation.z = fields.position
+    rotation = message.transform.rotation
+    rotation.x, rotation.y, rotation.z, rotation.w = fields.orientation
+    return message
+
+
+def cloud_points(points: Iterable[MapPoint]) -> np.ndarray:
+    """Return the map points with a defined, finite position as a ``POINT_DTYPE`` array."""
+    rows = []
+    for point in points:
+        if point.covariance is None or not np.all(np.isfinite(point.position)):
+            continue
+        covariance = 0.5 * (point.covariance + point.covariance.T)
+        if not np.all(np.isfinite(covariance)):
+            continue
+        sigma = math.sqrt(max(float(np.max(np.linalg.eigvalsh(covariance))), 0.0))
+        x, y, z = (float(v) for v in point.position)
+        rows.append((x, y, z, sigma, float(point.id), point.active, point.source == 'handover'))
+    return np.array(rows, dtype=POINT_DTYPE)
+
+
+def fill_cloud(
+    points: np.ndarray, stamp_ns: int, frame_id: str, message: Any, make_field: Callable[..., Any]
+) -> Any:
+    """Fill a sensor_msgs/PointCloud2 (unordered, little-endian) with ``POINT_DTYPE`` points
+    and return it; ``make_field`` constructs a sensor_msgs/PointField (the message class)."""
+    ns_to_stamp(stamp_ns, message.header.stamp)
+    message.header.frame_id = frame_id
+    message.height, message.width = 1, len(points)
+    message.fields = [
+        make_field(name=name, offset=offset, datatype=datatype, count=1)
+        for name, offset, datatype in POINT_FIELDS
+    ]
+    message.is_bigendian = False
+    message.point_step = POINT_DTYPE.itemsize
+    message.row_step = POINT_DTYPE.itemsize * len(points)
+    message.data = points.tobytes()
+    message.is_dense = True
+    return message
+
+
+def fill_predictions(
+    ids: IntArray,
+    pixels: FloatArray,
+    stamp_ns: int,
+    frame_id: str,
+    message: Any,
+    make_track: Callable[..., Any],
+) -> Any:
+    """Fill a slam_interfaces/FeatureTrackArray with predicted raw pixels (M, 2) of track ids
+    (M,) and return it; non-finite predictions are left out."""
+    ns_to_stamp(stamp_ns, message.header.stamp)
+    message.header.frame_id = frame_id
+    message.tracks = [
+        make_track(id=int(i), u=float(u), v=float(v))
+        for i, (u, v) in zip(ids.tolist(), np.asarray(pixels).reshape(-1, 2), strict=True)
+        if math.isfinite(u) and math.isfinite(v)
+    ]
+    return message
+
+
+def tum_text(poses: Sequence[PoseFields]) -> str:
+    """Return a trajectory in the TUM format: one line 'stamp_s x y z qx qy qz qw' per pose."""
+    lines = [
+        f'{p.stamp_ns // 10**9}.{p.stamp_ns % 10**9:09d} '
+        + ' '.join(f'{v:.9f}' for v in (*p.position, *p.orientation))
+        for p in poses
+    ]
+    return ''.join(f'{line}\n' for line in lines)

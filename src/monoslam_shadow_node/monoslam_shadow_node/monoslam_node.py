@@ -1,0 +1,546 @@
+"""monoslam: tracked features and the initialization target in, camera pose and map out.
+
+The MonoSLAM filter of paper 001 (sec. II): one EKF over the camera and a map of static point
+features. It starts from the four corners of a fiducial marker of known size and pose (the
+paper's checkerboard: a monocular camera cannot observe scale), and with the Shadow filter
+(``initialize`` 'handover') it adds only the features the Shadow filter hands over as static;
+the Shadow filter in turn takes this node's pose. The algorithm is ``core.monoslam.MonoSlam``;
+this node pairs each FeatureTrackArray with the FiducialArray of the same image, feeds the
+frames in stamp order and publishes the result.
+
+Topics:
+  subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100): track ids and
+              raw (distorted) pixels of one image, header.stamp = the image stamp.
+              fiducials (slam_interfaces/FiducialArray, reliable, depth 100): marker_detector's
+              detections in the same image (one message per image, empty when nothing was
+              found); the target's corners (TL, TR, BR, BL raw pixels) are the known points
+              0-3 of the frame.
+              camera/camera_info (sensor_msgs/CameraInfo, best effort): intrinsics and
+              plumb_bob/rational_polynomial distortion; a change is applied from the next
+              frame on and logged. With publish_predictions it also triggers the predictions
+              for the image of its stamp (it comes once per image, before the tracker tracks
+              that image).
+              shadow/static_features (slam_interfaces/ShadowTrackArray, reliable, depth 100),
+              when initialize is 'handover': features the Shadow filter handed over as STATIC
+              (world position and covariance in map_frame); each enters the map when next
+              observed. A handover that is not STATIC, not finite, not positive
+              semi-definite or in another frame is refused and logged with its id.
+  publishes   monoslam/pose (geometry_msgs/PoseWithCovarianceStamped, reliable, depth 10),
+              every frame with a pose (tracking): the pose of the camera OPTICAL frame (x right,
+              y down, z forward) in map_frame, R_world_camera and the optical centre, covariance
+              in ROS order (x, y, z, rotation about the map's X, Y, Z axes) -- what
+              shadow_filter's pose_topic expects.
+              monoslam/path (nav_msgs/Path, reliable, depth 1), every frame with a pose while
+              someone subscribes: the latest path_length poses.
+              monoslam/map (sensor_msgs/PointCloud2, reliable, transient local), at most every
+              map_period_s when it changed: every map point with a defined position (active
+              and retired), fields x, y, z (float32, m), sigma_m (float32, the largest
+              standard deviation, m), id (float64, the track id), active (uint8: 1 in the
+              filter, 0 retired), handover (uint8: 1 handed over by the Shadow filter).
+              /tf (tf2_msgs/TFMessage, reliable, depth 100), when publish_tf is true: map_frame
+              -> the features' header.frame_id (the camera optical frame) at the image stamp.
+              The optical frame then has map_frame as its TF parent; in a robot's TF tree
+              (camera_link -> camera_optical_frame) turn it off and use monoslam/pose.
+              features/predicted (slam_interfaces/FeatureTrackArray, reliable, depth 10), when
+              publish_predictions is true: per camera_info stamp after the last processed
+              frame, the predicted raw pixels of the features the filter owns (empty while it
+              has none or is not tracking), for feature_tracker's use_predictions.
+  Nothing published is ever NaN: a pose that is not finite is not published (an error is
+  logged), and map points or predictions that are not finite are left out.
+
+Synchronization (frame_sync): features and fiducials pair when their stamps differ by at most
+stamp_tolerance_s, and are processed in stamp order. A features frame whose fiducials have
+not come once the newest stamp seen is sync_horizon_s past it (or no input came for
+sync_horizon_s of wall time) is processed without them once the filter has started (said in
+a throttled warning), and dropped before (the filter needs the target to start). Features
+before any camera_info are held until it comes.
+
+Logs: the camera; waiting for the target (throttled, with what was detected instead); the
+start (stamp, initial pose and its sigma); tracking lost (why) and the re-initialization from
+the target when it is seen again; a camera_info change; and every bad input with its culprit,
+after which the node goes on: an unusable camera_info, a frame out of stamp order, NaN
+pixels (those features are ignored), NaN target corners, a refused handover. Every 10 s a
+status line: frames per second, state, map size, features measured, handovers accepted and
+refused, losses, skips and drops.
+
+Parameters (filter): the fields of the core's MonoSlamConfig, one to one (four renamed with
+their unit); their defaults are the core's, written out in config/monoslam.yaml (a test
+keeps the two equal).
+  pixel_sigma_px                  feature and target corner pixel noise, px.
+  linear_acceleration_sigma_m_s2, angular_acceleration_sigma_rad_s2  constant velocity
+                                  model noise, m/s^2 and rad/s^2 per sqrt(Hz).
+  initial_velocity_sigma_m_s, initial_angular_velocity_sigma_rad_s  camera velocity
+                                  uncertainty at the start, m/s and rad/s.
+  initial_inverse_depth_per_m, initial_inverse_depth_sigma_per_m  a new feature's inverse
+                                  depth and its sigma (initialize 'all'), 1/m.
+  gate_probability                chi-square gate of each measurement.
+  linearity_threshold             inverse depth -> Euclidean below this linearity index.
+  max_features                    most features in the filter.
+  target_measured, max_new_per_frame, min_new_spacing_px  initialize 'all': add features
+                                  while fewer are measured, at most this many per frame,
+                                  at least this far apart (px).
+  max_unseen_frames               a feature unseen longer is retired to the map.
+  failure_window, min_success_ratio, max_consecutive_failures  deleting failing features.
+  lost_after_frames, max_position_sigma_m  tracking is lost after this many frames measuring
+                                  nothing, or when the position sigma exceeds this (m).
+  max_gap_s                       a longer gap between frames is logged, s.
+  initialize ('handover')         'handover' (with the Shadow filter) or 'all' (classic
+                                  MonoSLAM alone, from every new track).
+Parameters (initialization target): its four corners are the known points.
+  target_id (0), target_dictionary ('DICT_APRILTAG_36h11')  the marker, as marker_detector
+                                  reports it.
+  target_size_m (0.16)            side of its black square, m (marker_detector's default
+                                  marker size; set it to the printed marker's).
+  target_xyz_m ([0, 0, 0]), target_rpy_rad ([0, 0, 0])  the pose of the marker frame (x right,
+                                  y up, z out of the printed face) in map_frame: centre, m,
+                                  and roll, pitch, yaw about the fixed X, Y, Z axes, rad. The
+                                  default puts the marker at the map origin: it defines the
+                                  map.
+Parameters (node):
+  map_frame ('map')               frame of the pose, path, map and TF.
+  publish_tf (true)               publish the TF above.
+  publish_predictions (false)     publish features/predicted.
+  path_length (3000)              poses kept in monoslam/path.
+  map_period_s (1.0)              shortest period of monoslam/map, s.
+  stamp_tolerance_s (0.0)         largest features-to-fiducials stamp difference, s.
+  sync_horizon_s (0.5)            how long a features frame waits for its fiducials, s.
+  queue_size (100)                waiting feature frames and fiducial arrays, each.
+  trajectory_file ('')            on shutdown (Ctrl-C too) write the trajectory there as
+                                  TUM text ('stamp_s x y z qx qy qz qw' per pose, the
+                                  optical frame in map_frame), atomically; '' for none.
+All are read-only; a bad value stops the node with an error naming the parameter.
+
+Frames: map_frame is defined by the target's pose; features and fiducials are in the camera
+optical frame of the camera_info.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TransformStamped
+from nav_msgs.msg import Path
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
+from tf2_msgs.msg import TFMessage
+
+from monoslam_shadow_node.conversions import (
+    Features,
+    camera_from_info,
+    camera_info_key,
+    describe_camera,
+    features_from_message,
+)
+from monoslam_shadow_node.core.monoslam import (
+    LOST,
+    TRACKING,
+    WAITING,
+    MonoSlam,
+    MonoSlamInputError,
+    MonoSlamResult,
+)
+from monoslam_shadow_node.frame_sync import Drop, StampSync, SyncNames
+from monoslam_shadow_node.monoslam_conversions import (
+    HandoverInput,
+    PoseFields,
+    TargetSighting,
+    cloud_points,
+    fill_cloud,
+    fill_pose_stamped,
+    fill_pose_with_covariance,
+    fill_predictions,
+    fill_transform,
+    handovers_from_message,
+    monoslam_frame,
+    pose_fields,
+    target_from_fiducials,
+    tum_text,
+)
+from monoslam_shadow_node.monoslam_settings import (
+    NODE_NAME,
+    SCALAR_SETTINGS,
+    TARGET_POSE_SETTINGS,
+    monoslam_config,
+    node_settings,
+    target_settings,
+)
+from slam_bringup.cli import console_main
+from slam_bringup.files import write_atomically
+from slam_bringup.params import ParamSpec, declare_parameters
+from slam_bringup.qos import latched_qos, output_qos, sensor_qos
+from slam_bringup.spin import spin_node
+from slam_bringup.stamps import stamp_to_ns
+from slam_interfaces.msg import (
+    FeatureTrack,
+    FeatureTrackArray,
+    FiducialArray,
+    ShadowTrack,
+    ShadowTrackArray,
+)
+
+PARAMETERS = (
+    *(ParamSpec(s.name, s.default, s.description) for s in SCALAR_SETTINGS),
+    *(ParamSpec(s.name, list(s.default), s.description) for s in TARGET_POSE_SETTINGS),
+)
+FEATURES_TOPIC = 'features'
+FIDUCIALS_TOPIC = 'fiducials'
+CAMERA_INFO_TOPIC = 'camera/camera_info'
+HANDOVER_TOPIC = 'shadow/static_features'
+POSE_TOPIC = 'monoslam/pose'
+PATH_TOPIC = 'monoslam/path'
+MAP_TOPIC = 'monoslam/map'
+PREDICTIONS_TOPIC = 'features/predicted'
+INPUT_DEPTH = 100
+STATUS_PERIOD_S = 10.0
+WAITING_LOG_PERIOD_S = 5.0
+DEFAULT_CAMERA_FRAME = 'camera_optical_frame'
+SYNC_NAMES = SyncNames(
+    primary='features frame',
+    primary_plural='frames',
+    primary_short='features',
+    partner='fiducials',
+    partner_plural='fiducial arrays',
+    partner_topic=FIDUCIALS_TOPIC,
+    missing_partner_kind='no_fiducials',
+    missing_primary_kind='no_features',
+)
+# The core's warnings are text; these are reported through the status changes instead.
+STATUS_WARNINGS = ('waiting for the initialization target', 'started from', 'tracking lost')
+
+
+class MonoSlamNode(Node):
+    """Thin adapter around MonoSlam: pairs features with fiducials, publishes pose and map."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        values = declare_parameters(self, PARAMETERS)
+        self.target = target_settings(values)
+        self.config = monoslam_config(values, self.target)
+        self.settings = node_settings(values)
+        self.slam: MonoSlam | None = None
+        self._camera_key: tuple[object, ...] | None = None
+        self._camera_frame = DEFAULT_CAMERA_FRAME
+        self.sync: StampSync[Features, TargetSighting] = StampSync(
+            tolerance_ns=self.settings.stamp_tolerance_ns,
+            horizon_ns=self.settings.sync_horizon_ns,
+            max_entries=self.settings.queue_size,
+            names=SYNC_NAMES,
+        )
+        self.frames = self.skipped = self.dropped = self.alone = self.lost = 0
+        self.accepted = self.refused = self.measured = self.fiducials_seen = 0
+        self.status = WAITING
+        self.trajectory: list[PoseFields] = []
+        self._path: deque[PoseStamped] = deque(maxlen=self.settings.path_length)
+        self._map_changed = False
+        self._predicted_ns: int | None = None
+        self._last_input = time.monotonic()
+        self._status_time, self._status_seen = time.monotonic(), (0, 0, 0)
+        self.pose_publisher = self.create_publisher(
+            PoseWithCovarianceStamped, POSE_TOPIC, output_qos()
+        )
+        self.path_publisher = self.create_publisher(Path, PATH_TOPIC, output_qos(depth=1))
+        self.map_publisher = self.create_publisher(PointCloud2, MAP_TOPIC, latched_qos())
+        self.tf_publisher = (
+            self.create_publisher(TFMessage, '/tf', output_qos(depth=100))
+            if self.settings.publish_tf
+            else None
+        )
+        self.predictions_publisher = (
+            self.create_publisher(FeatureTrackArray, PREDICTIONS_TOPIC, output_qos())
+            if self.settings.publish_predictions
+            else None
+        )
+        inputs = output_qos(depth=INPUT_DEPTH)
+        self.create_subscription(FeatureTrackArray, FEATURES_TOPIC, self._on_features, inputs)
+        self.create_subscription(FiducialArray, FIDUCIALS_TOPIC, self._on_fiducials, inputs)
+        self.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self._on_camera_info, sensor_qos())
+        if self.config.initialize == 'handover':
+            self.create_subscription(ShadowTrackArray, HANDOVER_TOPIC, self._on_handovers, inputs)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        horizon_s = self.settings.sync_horizon_ns / 1e9
+        self.create_timer(max(horizon_s / 2, 0.05), self._flush_when_idle, clock=steady)
+        self.create_timer(self.settings.map_period_s, self._publish_map, clock=steady)
+        self.create_timer(STATUS_PERIOD_S, self._report_status, clock=steady)
+        handovers = f' and {HANDOVER_TOPIC}' if self.config.initialize == 'handover' else ''
+        self.get_logger().info(
+            f'initialize={self.config.initialize}: waiting for {FEATURES_TOPIC}, '
+            f'{FIDUCIALS_TOPIC}{handovers} and {CAMERA_INFO_TOPIC}; initialization target '
+            f'{self.target.describe()} in {self.settings.map_frame}'
+        )
+
+    # --- inputs -----------------------------------------------------------------------------
+
+    def _on_camera_info(self, message: CameraInfo) -> None:
+        self._apply_camera(message)
+        if self.predictions_publisher is not None:
+            self._publish_predictions(stamp_to_ns(message.header.stamp), message.header.frame_id)
+
+    def _apply_camera(self, message: CameraInfo) -> None:
+        key = camera_info_key(message)
+        if key == self._camera_key:
+            return
+        try:
+            camera = camera_from_info(message)
+        except ValueError as err:
+            self.get_logger().error(
+                f'{CAMERA_INFO_TOPIC} rejected ({err}); '
+                + ('still waiting for a usable one' if self.slam is None else 'camera kept'),
+                throttle_duration_sec=WAITING_LOG_PERIOD_S,
+            )
+            return
+        if message.header.frame_id:
+            self._camera_frame = str(message.header.frame_id)
+        if self.slam is None:
+            self.slam = MonoSlam(camera, self.config)
+            self.get_logger().info(f'camera: {describe_camera(camera)}')
+        else:
+            self.slam.set_camera(camera)
+            self.get_logger().warning(
+                f'{CAMERA_INFO_TOPIC} changed: now {describe_camera(camera)} (used from the '
+                'next frame on)'
+            )
+        self._camera_key = key
+        self._drain()
+
+    def _on_features(self, message: FeatureTrackArray) -> None:
+        self._last_input = time.monotonic()
+        self._report_drops(self.sync.add_primary(features_from_message(message)))
+        if self.slam is None:
+            self.get_logger().warning(
+                f'no {CAMERA_INFO_TOPIC} received yet: holding {self.sync.waiting_primaries} '
+                'feature frame(s) until it comes',
+                throttle_duration_sec=WAITING_LOG_PERIOD_S,
+            )
+        self._drain()
+
+    def _on_fiducials(self, message: FiducialArray) -> None:
+        self._last_input = time.monotonic()
+        self.fiducials_seen += 1
+        sighting = target_from_fiducials(message, self.target.marker_id, self.target.dictionary)
+        self._report_drops(self.sync.add_partner(sighting))
+        self._drain()
+
+    def _on_handovers(self, message: ShadowTrackArray) -> None:
+        frame_id = str(message.header.frame_id)
+        for handover in handovers_from_message(message):
+            reason = self._refusal(handover, frame_id)
+            if reason is None:
+                self.accepted += 1
+                continue
+            self.refused += 1
+            self.get_logger().warning(f'{HANDOVER_TOPIC}: {reason}; refused')
+
+    def _refusal(self, handover: HandoverInput, frame_id: str) -> str | None:
+        """Queue a handover in the filter; return why it was refused, or None."""
+        where = f'handover of feature {handover.id}'
+        if self.slam is None:
+            return f'{where}: no camera yet'
+        if frame_id != self.settings.map_frame:
+            return f'{where}: in frame {frame_id!r}, not map_frame {self.settings.map_frame!r}'
+        if handover.status != ShadowTrack.STATIC:
+            return f'{where}: status {handover.status}, not STATIC'
+        return self.slam.add_handover(handover.id, handover.position, handover.covariance)
+
+    def _flush_when_idle(self) -> None:
+        idle_s = time.monotonic() - self._last_input
+        if self.sync.waiting_primaries and idle_s > self.settings.sync_horizon_ns / 1e9:
+            self._drain(flush=True)
+
+    # --- processing -------------------------------------------------------------------------
+
+    def _drain(self, *, flush: bool = False) -> None:
+        started = self.status == TRACKING
+        pairs, drops = self.sync.pop(hold=self.slam is None, flush=flush, alone=started)
+        self._report_drops(drops)
+        for features, sighting in pairs:
+            self._process(features, sighting)
+
+    def _report_drops(self, drops: list[Drop]) -> None:
+        """Log every drop once; frames without fiducials before the start (every frame when
+        no marker_detector runs) are summarized in a throttled line instead."""
+        for drop in drops:
+            self.dropped += 1
+            if drop.kind == SYNC_NAMES.missing_partner_kind:
+                hint = '' if self.fiducials_seen else ' Is marker_detector running, and remapped?'
+                self.get_logger().warning(
+                    f'{drop.text}; the filter needs the target on {FIDUCIALS_TOPIC} to start '
+                    f'({self.dropped} inputs dropped so far).{hint}',
+                    throttle_duration_sec=WAITING_LOG_PERIOD_S,
+                )
+            else:
+                self.get_logger().warning(drop.text)
+
+    def _process(self, features: Features, sighting: TargetSighting | None) -> None:
+        if self.slam is None:  # cannot happen: pop(hold=True) pairs nothing before a camera
+            return
+        if sighting is None:
+            self.alone += 1
+            self.get_logger().warning(
+                f'features frame at stamp {features.stamp_ns} ns processed without fiducials '
+                f'(none came on {FIDUCIALS_TOPIC} within sync_horizon_s); {self.alone} so far',
+                throttle_duration_sec=WAITING_LOG_PERIOD_S,
+            )
+        elif sighting.problem is not None:
+            self.get_logger().warning(
+                f'fiducials at stamp {sighting.stamp_ns} ns: {sighting.problem}; not used'
+            )
+        try:
+            result = self.slam.process(monoslam_frame(features, sighting))
+        except (MonoSlamInputError, np.linalg.LinAlgError) as err:
+            self.skipped += 1
+            self.get_logger().error(
+                f'features frame at stamp {features.stamp_ns} ns skipped: {err}'
+            )
+            return
+        self.frames += 1
+        self.measured = len(result.measured_ids)
+        for warning in result.warnings:
+            if not warning.startswith(STATUS_WARNINGS):
+                self.get_logger().warning(f'frame at stamp {result.stamp_ns} ns: {warning}')
+        fields = pose_fields(result)
+        self._report_state(result, sighting, fields)
+        if result.status == TRACKING:
+            self._publish_pose(result, fields, features.frame_id or self._camera_frame)
+        self._map_changed = True
+
+    def _report_state(
+        self, result: MonoSlamResult, sighting: TargetSighting | None, fields: PoseFields | None
+    ) -> None:
+        """Log the start, the loss of tracking and waiting for the target."""
+        previous, self.status = self.status, result.status
+        stamp = f'at stamp {result.stamp_ns} ns'
+        if result.status == LOST:
+            self.lost += 1
+            self.status = WAITING
+            why = next((w for w in result.warnings if w.startswith('tracking lost')), 'lost')
+            self.get_logger().warning(
+                f'{why.split(";")[0]} {stamp}: re-initializing from the target '
+                f'({self.target.describe()}) when it is seen again'
+            )
+        elif result.status == TRACKING and previous != TRACKING:
+            how = next((w for w in result.warnings if w.startswith('started from')), '')
+            how = how.removeprefix('started ')
+            pose = fields.describe() if fields is not None else 'pose not finite'
+            again = 're-initialized' if self.lost else 'started'
+            self.get_logger().info(f'{again} {stamp} {how}: {pose}')
+        elif result.status != TRACKING:
+            self.get_logger().info(
+                self._waiting_text(result.stamp_ns, sighting),
+                throttle_duration_sec=WAITING_LOG_PERIOD_S,
+            )
+
+    def _waiting_text(self, stamp_ns: int, sighting: TargetSighting | None) -> str:
+        target = f'initialization target ({self.target.describe()})'
+        if sighting is not None and sighting.corners_px is not None:
+            return (
+                f'{target} seen at stamp {stamp_ns} ns, but no camera pose fits its corners '
+                f'{sighting.corners_px.round(1).tolist()} (check target_size_m and the '
+                'camera_info): waiting'
+            )
+        seen = sighting.describe_detected() if sighting is not None else 'no fiducials'
+        return f'no {target} in view yet: waiting ({seen} at stamp {stamp_ns} ns)'
+
+    # --- outputs ----------------------------------------------------------------------------
+
+    def _publish_pose(self, result: MonoSlamResult, fields: PoseFields | None, child: str) -> None:
+        if fields is None:
+            self.get_logger().error(
+                f'pose at stamp {result.stamp_ns} ns is not finite (a filter fault); not published'
+            )
+            return
+        frame = self.settings.map_frame
+        self.pose_publisher.publish(
+            fill_pose_with_covariance(fields, frame, PoseWithCovarianceStamped())
+        )
+        self._path.append(fill_pose_stamped(fields, frame, PoseStamped()))
+        if self.path_publisher.get_subscription_count():
+            path = Path(poses=list(self._path))
+            path.header = self._path[-1].header
+            self.path_publisher.publish(path)
+        if self.tf_publisher is not None:
+            transform = fill_transform(fields, frame, child, TransformStamped())
+            self.tf_publisher.publish(TFMessage(transforms=[transform]))
+        if self.settings.trajectory_file is not None:
+            self.trajectory.append(fields)
+
+    def _publish_map(self) -> None:
+        if self.slam is None or not self._map_changed:
+            return
+        self._map_changed = False
+        stamp_ns = self.sync.last_ns or 0
+        points = cloud_points(self.slam.map_points())
+        self.map_publisher.publish(
+            fill_cloud(points, stamp_ns, self.settings.map_frame, PointCloud2(), PointField)
+        )
+
+    def _publish_predictions(self, stamp_ns: int, frame_id: str) -> None:
+        """Predict the owned features' pixels for the image at ``stamp_ns`` (once per stamp,
+        only for an image after the last processed one)."""
+        last_ns = self.sync.last_ns
+        if self.slam is None or self.predictions_publisher is None:
+            return
+        if stamp_ns == self._predicted_ns or (last_ns is not None and stamp_ns <= last_ns):
+            return
+        self._predicted_ns = stamp_ns
+        ids, pixels, _ = self.slam.predictions(stamp_ns)
+        self.predictions_publisher.publish(
+            fill_predictions(
+                ids, pixels, stamp_ns, frame_id or self._camera_frame, FeatureTrackArray(),
+                FeatureTrack,
+            )
+        )  # fmt: skip
+
+    def _report_status(self) -> None:
+        now, seen = time.monotonic(), (self.frames, self.skipped, self.dropped)
+        if seen == self._status_seen:
+            return  # nothing came since the last line
+        rate = (self.frames - self._status_seen[0]) / (now - self._status_time)
+        self.get_logger().info(self.status_line(rate))
+        self._status_time, self._status_seen = now, seen
+
+    def status_line(self, rate_hz: float | None = None) -> str:
+        """Return the progress summary: frames, state, map, measurements, handovers, problems."""
+        rate = f' ({rate_hz:.1f}/s)' if rate_hz is not None else ''
+        points = self.slam.map_points() if self.slam is not None else []
+        active = sum(p.active for p in points)
+        return (
+            f'{self.frames} frames{rate}, {self.status}: map {active} active and '
+            f'{len(points) - active} retired points, {self.measured} features measured in the '
+            f'latest frame; handovers {self.accepted} accepted, {self.refused} refused; lost '
+            f'{self.lost} times, {self.skipped} frames skipped, {self.alone} without '
+            f'fiducials, {self.dropped} inputs dropped'
+        )
+
+    def write_trajectory(self) -> None:
+        """Write the trajectory file (TUM text, atomically), if one is configured."""
+        path = self.settings.trajectory_file
+        if path is None:
+            return
+        try:
+            write_atomically(path, tum_text(self.trajectory))
+        except OSError as err:
+            self.get_logger().error(f'trajectory_file {str(path)!r} not written: {err}')
+            return
+        self.get_logger().info(f'trajectory ({len(self.trajectory)} poses) written to {path}')
+
+    def destroy_node(self) -> None:
+        """Write the trajectory, log the final summary, then destroy."""
+        self.write_trajectory()
+        if self.frames or self.dropped or self.skipped:
+            self.get_logger().info(f'done: {self.status_line()}')
+        super().destroy_node()
+
+
+@console_main(NODE_NAME)
+def main(argv: list[str] | None = None) -> int:
+    """Run the node until Ctrl-C (the Jazzy shutdown pattern)."""
+    return spin_node(NODE_NAME, MonoSlamNode, argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

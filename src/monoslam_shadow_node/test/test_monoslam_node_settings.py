@@ -1,0 +1,512 @@
+"""The monoslam node without DDS: its parameter contract (docstring, YAML, core config, the
+initialization target), the conversions between messages and the core, the stamp pairing of
+features with fiducials, the launch file; and the shadow_filter's pose gate it relies on."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import math
+import sys
+from pathlib import Path
+from types import ModuleType, SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from sensor_msgs.msg import PointCloud2, PointField
+
+from monoslam_shadow_node import monoslam_node, monoslam_settings, settings
+from monoslam_shadow_node.conversions import Features
+from monoslam_shadow_node.core.monoslam import MapPoint, MonoSlamConfig, MonoSlamResult
+from monoslam_shadow_node.frame_sync import StampSync
+from monoslam_shadow_node.monoslam_conversions import (
+    POINT_DTYPE,
+    PoseFields,
+    TargetSighting,
+    cloud_points,
+    fill_cloud,
+    fill_predictions,
+    handovers_from_message,
+    monoslam_frame,
+    pose_fields,
+    target_from_fiducials,
+    tum_text,
+)
+from monoslam_shadow_node.shadow_filter_node import pose_gate_excess
+from slam_bringup.errors import ParameterError
+from slam_bringup.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_sim.core.init_target import InitTarget
+
+PACKAGE_DIR = Path(__file__).resolve().parents[1]
+CONFIG = PACKAGE_DIR / 'config' / 'monoslam.yaml'
+SIMULATION_CONFIG = PACKAGE_DIR / 'config' / 'monoslam_dynamic_camera.yaml'
+LAUNCH = PACKAGE_DIR / 'launch' / 'monoslam.launch.py'
+MS = 1_000_000
+DEFAULTS = monoslam_settings.defaults()
+
+
+# --- parameters ----------------------------------------------------------------------------
+
+
+def test_docstring_lists_every_parameter() -> None:
+    assert undocumented_parameters(monoslam_node) == []
+
+
+def test_config_yaml_matches_declared_parameters() -> None:
+    assert config_mismatches(monoslam_node, CONFIG) == []
+
+
+def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None:
+    values = monoslam_settings.parameters_from_yaml(CONFIG)
+    assert values == DEFAULTS
+    target = monoslam_settings.target_settings(values)
+    config = monoslam_settings.monoslam_config(values, target)
+    assert config == MonoSlamConfig(known_points=target.known_points(), initialize='handover')
+    node = monoslam_settings.node_settings(values)
+    assert node.map_frame == 'map' and node.publish_tf and not node.publish_predictions
+    assert node.sync_horizon_ns == 500 * MS and node.trajectory_file is None
+
+
+def test_every_core_setting_has_a_parameter() -> None:
+    """A field added to MonoSlamConfig needs a parameter (and a YAML entry)."""
+    mapped = {s.field for s in monoslam_settings.CORE_SETTINGS}
+    fields = {f.name for f in dataclasses.fields(MonoSlamConfig)} - {'known_points'}
+    assert mapped == fields
+
+
+def test_parameters_reach_the_core_config() -> None:
+    values = {
+        **DEFAULTS,
+        'linear_acceleration_sigma_m_s2': 3,
+        'initial_inverse_depth_per_m': 0.5,
+        'max_features': 80,
+        'initialize': 'all',
+    }
+    target = monoslam_settings.target_settings(values)
+    config = monoslam_settings.monoslam_config(values, target)
+    assert config.linear_acceleration_sigma == 3.0 and config.initial_inverse_depth == 0.5
+    assert config.max_features == 80 and config.initialize == 'all'
+
+
+def test_the_default_target_defines_the_map() -> None:
+    target = monoslam_settings.target_settings(DEFAULTS)
+    half = 0.08  # target_size_m 0.16
+    expected = [[-half, half, 0.0], [half, half, 0.0], [half, -half, 0.0], [-half, -half, 0.0]]
+    np.testing.assert_allclose(target.corners_m, expected, atol=1e-15)
+    assert list(target.known_points()) == [0, 1, 2, 3]
+
+
+def test_the_simulation_config_places_the_simulated_target() -> None:
+    """monoslam_dynamic_camera.yaml sets only parameters, and puts the corners where
+    slam_sim draws them."""
+    values = monoslam_settings.parameters_from_yaml(SIMULATION_CONFIG)
+    target = monoslam_settings.target_settings(values)
+    simulated = InitTarget()
+    np.testing.assert_allclose(target.corners_m, simulated.corners_m, atol=1e-12)
+    np.testing.assert_allclose(target.rotation, simulated.rotation, atol=1e-12)
+    assert target.marker_id == simulated.marker_id and target.dictionary == simulated.dictionary
+
+
+@pytest.mark.parametrize(
+    ('name', 'value', 'message'),
+    [
+        ('pixel_sigma_px', 0.0, r'parameter pixel_sigma_px=0\.0: must be a finite number > 0'),
+        (
+            'linear_acceleration_sigma_m_s2',
+            -1.0,
+            r'parameter linear_acceleration_sigma_m_s2=-1\.0: must be a finite number > 0',
+        ),
+        ('gate_probability', 1.0, r'parameter gate_probability=1\.0: must be in \(0, 1\)'),
+        ('max_features', 0, r'parameter max_features=0: must be an integer >= 1'),
+        ('max_features', 2.5, r'parameter max_features=2\.5: must be an integer'),
+        ('initialize', 'some', r"parameter initialize='some': must be one of all, handover"),
+        ('max_gap_s', math.nan, r'parameter max_gap_s=nan: must be a finite number'),
+    ],
+)
+def test_invalid_filter_parameters_are_named(name: str, value: object, message: str) -> None:
+    values = {**DEFAULTS, name: value}
+    with pytest.raises(ParameterError, match=message):
+        monoslam_settings.monoslam_config(values, monoslam_settings.target_settings(values))
+
+
+@pytest.mark.parametrize(
+    ('name', 'value', 'message'),
+    [
+        ('target_id', -1, r'parameter target_id=-1: must be >= 0'),
+        ('target_dictionary', 'DICT_QR', r"parameter target_dictionary='DICT_QR': must be one"),
+        ('target_size_m', 0.0, r'parameter target_size_m=0\.0: must be > 0 m'),
+        ('target_xyz_m', [1.0, 2.0], r'target_xyz_m=\[1\.0, 2\.0\]: must be a list of 3 finite'),
+        ('target_rpy_rad', [0.0, math.inf, 0.0], r'parameter target_rpy_rad=\[0\.0, inf, 0\.0\]'),
+        ('target_xyz_m', [1.0, True, 2.0], r'parameter target_xyz_m=\[1\.0, True, 2\.0\]'),
+    ],
+)
+def test_invalid_target_parameters_are_named(name: str, value: object, message: str) -> None:
+    with pytest.raises(ParameterError, match=message):
+        monoslam_settings.target_settings({**DEFAULTS, name: value})
+
+
+@pytest.mark.parametrize(
+    ('name', 'value', 'message'),
+    [
+        ('map_frame', '/map', r"parameter map_frame='/map': must name a frame"),
+        ('path_length', 0, r'parameter path_length=0: must be >= 1'),
+        ('map_period_s', 0.0, r'parameter map_period_s=0\.0: must be > 0 s'),
+        ('stamp_tolerance_s', -0.1, r'parameter stamp_tolerance_s=-0\.1: must be >= 0 s'),
+        ('sync_horizon_s', 0.0, r'parameter sync_horizon_s=0\.0: must exceed stamp_tolerance_s'),
+        ('queue_size', 0, r'parameter queue_size=0: must be >= 1'),
+        ('publish_tf', 'yes', r"parameter publish_tf='yes': must be true or false"),
+    ],
+)
+def test_invalid_node_parameters_are_named(name: str, value: object, message: str) -> None:
+    with pytest.raises(ParameterError, match=message):
+        monoslam_settings.node_settings({**DEFAULTS, name: value})
+
+
+def test_trajectory_file_must_not_be_a_directory(tmp_path: Path) -> None:
+    with pytest.raises(ParameterError, match=r'trajectory_file=.*is a directory'):
+        monoslam_settings.node_settings({**DEFAULTS, 'trajectory_file': str(tmp_path)})
+    named = monoslam_settings.node_settings({**DEFAULTS, 'trajectory_file': '~/run.tum'})
+    assert named.trajectory_file == Path('~/run.tum').expanduser()
+
+
+def test_parameter_file_errors_name_the_file_and_key(tmp_path: Path) -> None:
+    stray = tmp_path / 'stray.yaml'
+    stray.write_text('/**:\n  ros__parameters:\n    target_size_m: 0.3\n    speed: 2.0\n')
+    with pytest.raises(ParameterError, match=r'stray\.yaml.*speed is not a monoslam'):
+        monoslam_settings.parameters_from_yaml(stray)
+
+
+# --- conversions ---------------------------------------------------------------------------
+
+
+def _stamp(stamp_ns: int) -> SimpleNamespace:
+    return SimpleNamespace(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+
+
+def _detection(marker_id: int, corners: list[float], error_px: float = 0.2) -> SimpleNamespace:
+    return SimpleNamespace(
+        id=marker_id,
+        dictionary='DICT_APRILTAG_36h11',
+        corners_px=corners,
+        reprojection_error_px=error_px,
+    )
+
+
+def _fiducials(*detections: SimpleNamespace) -> SimpleNamespace:
+    header = SimpleNamespace(stamp=_stamp(5 * 10**9 + 1), frame_id='camera_optical_frame')
+    return SimpleNamespace(header=header, detections=list(detections))
+
+
+CORNERS = [10.0, 20.0, 30.0, 20.0, 30.0, 40.0, 10.0, 40.0]
+
+
+def test_the_target_is_picked_out_of_the_fiducials() -> None:
+    sighting = target_from_fiducials(
+        _fiducials(_detection(3, [0.0] * 8), _detection(0, CORNERS, 0.1),
+                   _detection(0, [1.0] * 8, 0.9)),
+        0,
+        'DICT_APRILTAG_36h11',
+    )  # fmt: skip
+    assert sighting.stamp_ns == 5 * 10**9 + 1 and sighting.problem is None
+    assert sighting.corners_px is not None
+    np.testing.assert_array_equal(sighting.corners_px, np.reshape(CORNERS, (4, 2)))
+    assert sighting.describe_detected() == (
+        'detected: DICT_APRILTAG_36h11 id 3, DICT_APRILTAG_36h11 id 0, DICT_APRILTAG_36h11 id 0'
+    )
+    other = target_from_fiducials(_fiducials(_detection(0, CORNERS)), 0, 'DICT_4X4_50')
+    assert other.corners_px is None and other.problem is None
+    empty = target_from_fiducials(_fiducials(), 0, 'DICT_APRILTAG_36h11')
+    assert empty.describe_detected() == 'no marker detected'
+    broken = target_from_fiducials(
+        _fiducials(_detection(0, [math.nan, *CORNERS[1:]])), 0, 'DICT_APRILTAG_36h11'
+    )
+    assert broken.corners_px is None and 'not 4 finite pixels' in str(broken.problem)
+
+
+def test_frames_carry_the_target_corners_as_known_points_0_to_3() -> None:
+    features = Features(7, 'camera', np.array([4, 9]), np.array([[1.0, 2.0], [3.0, 4.0]]))
+    sighting = TargetSighting(7, 'camera', np.reshape(CORNERS, (4, 2)), ())
+    frame = monoslam_frame(features, sighting)
+    assert frame.known_keys.tolist() == [0, 1, 2, 3] and frame.known_pixels.shape == (4, 2)
+    assert frame.ids is features.ids and frame.stamp_ns == 7
+    unseen = TargetSighting(7, 'camera', None, ())
+    for alone in (monoslam_frame(features, None), monoslam_frame(features, unseen)):
+        assert alone.known_keys.shape == (0,) and alone.known_pixels.shape == (0, 2)
+
+
+def _result(**changes: Any) -> MonoSlamResult:
+    fields: dict[str, Any] = {
+        'stamp_ns': 3 * 10**9 + 7,
+        'frame': 4,
+        'status': 'tracking',
+        'rotation': Rotation.from_rotvec([0.2, -0.4, 1.0]).as_matrix(),
+        'centre': np.array([1.0, 2.0, 3.0]),
+        'pose_covariance': np.diag([1e-4, 2e-4, 3e-4, 1e-5, 2e-5, 4e-5]),
+        'linear_velocity': np.zeros(3),
+        'angular_velocity': np.zeros(3),
+        'measured_ids': [],
+        'rejected_ids': [],
+        'added_ids': [],
+        'removed': {},
+        'known_points_used': 4,
+        'warnings': [],
+        **changes,
+    }
+    return MonoSlamResult(**fields)
+
+
+def test_pose_fields_are_finite_in_ros_order() -> None:
+    result = _result()
+    fields = pose_fields(result)
+    assert fields is not None and fields.stamp_ns == result.stamp_ns
+    assert fields.position == (1.0, 2.0, 3.0)
+    x, y, z, w = fields.orientation
+    assert result.rotation is not None
+    np.testing.assert_allclose(
+        Rotation.from_quat([x, y, z, w]).as_matrix(), result.rotation, atol=1e-12
+    )
+    assert fields.covariance[0] == 1e-4 and fields.covariance[35] == 4e-5  # row-major 6x6
+    assert fields.sigmas == pytest.approx((math.sqrt(3e-4), math.sqrt(4e-5)))
+    assert fields.describe() == 'camera at (1.000, 2.000, 3.000) m, sigma 0.017 m / 0.0063 rad'
+    assert pose_fields(_result(rotation=None, centre=None, pose_covariance=None)) is None
+    assert pose_fields(_result(centre=np.array([math.nan, 0.0, 0.0]))) is None
+    assert pose_fields(_result(pose_covariance=np.full((6, 6), math.inf))) is None
+
+
+def _point(point_id: int, **changes: Any) -> MapPoint:
+    fields: dict[str, Any] = {
+        'id': point_id,
+        'position': np.array([1.0, 2.0, 3.0]),
+        'covariance': np.diag([0.01, 0.04, 0.0]),
+        'parametrization': 'euclidean',
+        'active': True,
+        'source': 'handover',
+        **changes,
+    }
+    return MapPoint(**fields)
+
+
+def test_the_map_cloud_holds_defined_finite_points() -> None:
+    points = cloud_points(
+        [
+            _point(2**40),
+            _point(5, active=False, source='new'),
+            _point(6, covariance=None),  # depth unknown: left out
+            _point(7, position=np.array([math.nan, 0.0, 0.0])),
+            _point(8, covariance=np.full((3, 3), math.nan)),
+        ]
+    )
+    assert points['id'].tolist() == [2**40, 5]
+    assert points['sigma_m'].tolist() == pytest.approx([0.2, 0.2])
+    assert points['active'].tolist() == [1, 0] and points['handover'].tolist() == [1, 0]
+    cloud = fill_cloud(points, 9 * 10**9, 'map', PointCloud2(), PointField)
+    assert (cloud.width, cloud.height, cloud.point_step) == (2, 1, 32)
+    assert cloud.row_step == 64 and len(cloud.data) == 64 and cloud.is_dense
+    layout = {f.name: (f.offset, f.datatype) for f in cloud.fields}
+    assert layout['x'] == (0, PointField.FLOAT32) and layout['id'] == (16, PointField.FLOAT64)
+    assert layout['active'] == (24, PointField.UINT8)
+    back = np.frombuffer(bytes(cloud.data), dtype=POINT_DTYPE)
+    assert back['z'].tolist() == [3.0, 3.0] and cloud.header.frame_id == 'map'
+    empty = fill_cloud(cloud_points([]), 0, 'map', PointCloud2(), PointField)
+    assert empty.width == 0 and len(empty.data) == 0
+
+
+def test_predictions_leave_out_non_finite_pixels() -> None:
+    message = fill_predictions(
+        np.array([3, 4, 5]),
+        np.array([[1.0, 2.0], [math.nan, 2.0], [5.0, 6.0]]),
+        11,
+        'camera_optical_frame',
+        SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(), frame_id='')),
+        SimpleNamespace,
+    )
+    assert [(t.id, t.u, t.v) for t in message.tracks] == [(3, 1.0, 2.0), (5, 5.0, 6.0)]
+    assert message.header.stamp.nanosec == 11
+
+
+def test_handovers_are_read_and_the_trajectory_written_as_tum() -> None:
+    track = SimpleNamespace(
+        id=12,
+        status=1,
+        position=SimpleNamespace(x=1.0, y=math.nan, z=3.0),
+        position_covariance=list(np.eye(3).ravel()),
+    )
+    (handover,) = handovers_from_message(SimpleNamespace(tracks=[track]))
+    assert handover.id == 12 and handover.status == 1 and handover.covariance.shape == (3, 3)
+    assert math.isnan(handover.position[1])
+    pose = PoseFields(1_700_000_000_033_333_333, (1.0, 2.0, 3.0), (0.0, 0.0, 0.0, 1.0),
+                      (0.0,) * 36)  # fmt: skip
+    assert tum_text([pose]) == (
+        '1700000000.033333333 1.000000000 2.000000000 3.000000000 0.000000000 0.000000000 '
+        '0.000000000 1.000000000\n'
+    )
+    assert tum_text([]) == ''
+
+
+# --- pairing features with fiducials -------------------------------------------------------
+
+
+def _sync() -> StampSync[Features, TargetSighting]:
+    return StampSync(
+        tolerance_ns=0, horizon_ns=300 * MS, max_entries=5, names=monoslam_node.SYNC_NAMES
+    )
+
+
+def _features(stamp_ns: int) -> Features:
+    return Features(stamp_ns, 'camera', np.array([1]), np.array([[1.0, 2.0]]))
+
+
+def _sighting(stamp_ns: int) -> TargetSighting:
+    return TargetSighting(stamp_ns, 'camera', None, ())
+
+
+def test_features_without_fiducials_go_alone_once_started_and_are_dropped_before() -> None:
+    sync = _sync()
+    sync.add_primary(_features(100 * MS))  # its fiducials never come
+    sync.add_primary(_features(133 * MS))
+    sync.add_partner(_sighting(133 * MS))
+    sync.add_primary(_features(450 * MS))
+    pairs, drops = sync.pop()
+    assert [(f.stamp_ns, s is None) for f, s in pairs] == [(133 * MS, False)]
+    assert [(d.kind, d.stamp_ns) for d in drops] == [('no_fiducials', 100 * MS)]
+    assert drops[0].text.startswith(
+        f'features frame at stamp {100 * MS} ns dropped: no fiducials with its stamp came on '
+        'fiducials within sync_horizon_s (0.3 s)'
+    )
+    started = _sync()
+    started.add_primary(_features(100 * MS))
+    started.add_primary(_features(133 * MS))
+    started.add_partner(_sighting(133 * MS))
+    started.add_primary(_features(450 * MS))
+    pairs, drops = started.pop(alone=True)
+    assert [(f.stamp_ns, s is None) for f, s in pairs] == [(100 * MS, True), (133 * MS, False)]
+    assert drops == [] and started.last_ns == 133 * MS
+    # the inputs stopped: the last frame goes alone at once when flushed
+    assert [s for _, s in started.pop(alone=True, flush=True)[0]] == [None]
+    assert started.last_ns == 450 * MS
+
+
+def test_fiducials_without_features_are_named() -> None:
+    sync = _sync()
+    sync.add_partner(_sighting(105 * MS))
+    sync.add_primary(_features(133 * MS))
+    sync.add_partner(_sighting(133 * MS))
+    sync.add_primary(_features(500 * MS))
+    _, drops = sync.pop()
+    assert [(d.kind, d.stamp_ns) for d in drops] == [('no_features', 105 * MS)]
+    assert drops[0].text.startswith(
+        f'fiducials at stamp {105 * MS} ns on fiducials matches no features frame (nearest '
+        f'features stamp {133 * MS} ns, +28.000 ms away'
+    )
+
+
+# --- the shadow_filter's pose gate ---------------------------------------------------------
+
+
+def test_pose_gate_parameters_default_to_no_gate() -> None:
+    node = settings.node_settings(settings.defaults())
+    assert node.max_pose_sigma == (math.inf, math.inf) and not node.pose_gate
+    gated = settings.node_settings(
+        {
+            **settings.defaults(),
+            'max_pose_position_sigma_m': 0.03,
+            'max_pose_rotation_sigma_rad': 0.01,
+        }
+    )
+    assert gated.max_pose_sigma == (0.03, 0.01) and gated.pose_gate
+
+
+@pytest.mark.parametrize(
+    ('name', 'value', 'message'),
+    [
+        ('max_pose_position_sigma_m', 0.0, r'max_pose_position_sigma_m=0\.0: must be > 0'),
+        ('max_pose_rotation_sigma_rad', -math.inf, r'must be a finite number or \.inf'),
+        ('max_pose_rotation_sigma_rad', math.nan, r'must be a finite number or \.inf'),
+    ],
+)
+def test_invalid_pose_gates_are_named(name: str, value: float, message: str) -> None:
+    with pytest.raises(ParameterError, match=message):
+        settings.node_settings({**settings.defaults(), name: value})
+
+
+def test_the_pose_gate_compares_the_largest_standard_deviations() -> None:
+    gate = (0.03, 0.01)
+    covariance = np.diag([0.02, 0.025, 0.01, 0.005, 0.009, 0.001]) ** 2
+    assert pose_gate_excess(covariance, gate) is None
+    assert pose_gate_excess(None, gate) is None  # a known pose
+    assert pose_gate_excess(np.full((6, 6), math.nan), gate) is None  # the core names it
+    wide = covariance.copy()
+    wide[1, 1] = 0.04**2
+    assert pose_gate_excess(wide, gate) == (
+        'position sigma 0.04 m > max_pose_position_sigma_m (0.03)'
+    )
+    turned = covariance.copy()
+    turned[5, 5] = 0.02**2
+    assert (
+        pose_gate_excess(turned, gate)
+        == 'rotation sigma 0.02 rad > max_pose_rotation_sigma_rad (0.01)'
+    )
+    assert pose_gate_excess(wide, (math.inf, math.inf)) is None
+
+
+# --- launch file ---------------------------------------------------------------------------
+
+
+class _Recorded:
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.args, self.kwargs = args, kwargs
+
+
+def _fake_launch_modules() -> dict[str, ModuleType]:
+    modules = {}
+    for name, classes in {
+        'launch': ['LaunchDescription'],
+        'launch.actions': ['DeclareLaunchArgument'],
+        'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
+        'launch_ros': [],
+        'launch_ros.actions': ['Node'],
+        'launch_ros.parameter_descriptions': ['ParameterValue'],
+        'launch_ros.substitutions': ['FindPackageShare'],
+    }.items():
+        module = ModuleType(name)
+        for class_name in classes:
+            setattr(module, class_name, type(class_name, (_Recorded,), {}))
+        modules[name] = module
+    return modules
+
+
+def test_launch_file_starts_the_installed_executable_with_its_config(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """launch is not installed here: run the launch file against recording stand-ins."""
+    for name, module in _fake_launch_modules().items():
+        monkeypatch.setitem(sys.modules, name, module)
+    spec = importlib.util.spec_from_file_location('monoslam_launch', LAUNCH)
+    assert spec is not None and spec.loader is not None
+    launch_file = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(launch_file)
+    (entities,) = launch_file.generate_launch_description().args
+    arguments = {
+        e.args[0]: e.kwargs for e in entities if type(e).__name__ == 'DeclareLaunchArgument'
+    }
+    (node,) = [e for e in entities if type(e).__name__ == 'Node']
+    assert all(kwargs.get('description') for kwargs in arguments.values())
+    setup = (PACKAGE_DIR / 'setup.py').read_text()
+    executable = node.kwargs['executable']
+    assert f"'{executable} = monoslam_shadow_node.monoslam_node:main'" in setup
+    assert node.kwargs['package'] == 'monoslam_shadow_node'
+    remapped = {source for source, _ in node.kwargs['remappings']}
+    assert remapped == {
+        monoslam_node.FEATURES_TOPIC,
+        monoslam_node.FIDUCIALS_TOPIC,
+        monoslam_node.CAMERA_INFO_TOPIC,
+        monoslam_node.HANDOVER_TOPIC,
+        monoslam_node.PREDICTIONS_TOPIC,
+    }
+    used = {target.args[0] for _, target in node.kwargs['remappings']}
+    assert used <= set(arguments)
+    share, *parts = arguments['params_file']['default_value'].args[0]
+    assert share.args == ('monoslam_shadow_node',)
+    assert PACKAGE_DIR.joinpath(*parts) == CONFIG
