@@ -14,12 +14,17 @@
 # office run seen by a simulated camera, AprilTag 36h11 markers) is replayed through
 # marker_detector -> odometry_ingest -> em_sam_mapper (graph em_sam_office_camera.yaml), then
 # marker_detect_bag runs the same detector offline and em_sam_evaluate scores the result.
+#
+# With --monoslam it runs paper 001's monocular pipeline instead (scripts/demo_monoslam.sh):
+# bags/dynamic_camera.mcap through marker_detector, feature_tracker, monoslam and
+# shadow_filter, then the Fig. 5 evaluation of the same bag offline.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 case "${1:-}" in
   "") ;;
   --camera) exec bash "$ROOT/scripts/demo_camera.sh" ;;
-  *) echo "usage: bash scripts/demo.sh [--camera]" >&2; exit 2 ;;
+  --monoslam) exec bash "$ROOT/scripts/demo_monoslam.sh" ;;
+  *) echo "usage: bash scripts/demo.sh [--camera | --monoslam]" >&2; exit 2 ;;
 esac
 bash "$ROOT/scripts/bootstrap.sh"
 # shellcheck source=scripts/env.sh
