@@ -48,6 +48,7 @@ _CORE_DESCRIPTIONS = {
     'lk_epsilon_px': 'Lucas-Kanade stops when a step is shorter, px (> 0)',
     'max_lk_error': 'largest mean absolute patch difference, gray levels (0: no check)',
     'fb_threshold_px': 'largest forward-backward distance, px (0: no check)',
+    'max_drift_px': 'largest distance of a track from its template, px (0: no check)',
     'border_margin_px': 'tracks this close to the image edge are dropped, px (>= 0)',
 }
 CORE_SETTINGS = tuple(

@@ -10,8 +10,19 @@ Per image (``FeatureTracker.track``):
    ``lost``), its patch error is above ``max_lk_error`` (``error``), it ends within
    ``border_margin_px`` of the image edge or was predicted outside the image (``border``),
    tracking it back into the previous image lands more than ``fb_threshold_px`` from where
-   it started (``forward_backward``), or it came closer than half of ``min_distance_px`` to
-   an older track (``crowded``: both follow the same image structure now; the younger goes).
+   it started (``forward_backward``), it drifted from what it looked like when it was
+   detected (``drift``, below), or it came closer than half of ``min_distance_px`` to an
+   older track (``crowded``: both follow the same image structure now; the younger goes).
+
+   Drift. Image-to-image LK lets a track slide slowly: where a near edge crosses a far one
+   (a T-junction), or where an object passes in front of a static corner, each step is small
+   and passes the checks above, and the track ends up on another 3-D point. Shi and Tomasi
+   ("Good features to track", 1994) monitor the feature against its first appearance. Here
+   each track keeps the patch around its detected pixel (its template), and every image the
+   template is registered into the image by LK (translation only, no pyramid, starting at
+   the tracked pixel); a track whose template lands more than ``max_drift_px`` away from
+   the tracked pixel, or does not converge, is dropped. A slow scale change moves the
+   template's centre little, so tracks survive the camera's approach within limits.
 2. Detection, every ``detect_every_n_frames`` images (and whenever no track is left), only
    where tracks are missing: Shi-Tomasi corners (cv2.goodFeaturesToTrack) or FAST corners,
    at least ``min_distance_px`` from every track and from each other, outside the border
@@ -39,15 +50,18 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 GrayImage = NDArray[np.uint8]
+GrayStack = NDArray[np.uint8]
 
 DETECTORS = ('shi_tomasi', 'fast')
-DROP_REASONS = ('lost', 'error', 'border', 'forward_backward', 'crowded', 'reset')
+DROP_REASONS = ('lost', 'error', 'border', 'forward_backward', 'drift', 'crowded', 'reset')
 SHI_TOMASI_BLOCK_PX = 3
 """Neighbourhood of the Shi-Tomasi structure tensor (cv2.goodFeaturesToTrack's blockSize)."""
 SUBPIXEL_HALF_WINDOW_PX = 4
 """cv2.cornerSubPix looks at (2 * this + 1)^2 pixels; a corner it moves farther than this
 keeps its detected pixel."""
 SUBPIXEL_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 15, 0.01)
+TEMPLATE_MARGIN_PX = 4
+"""A template is the LK window plus this much on each side (LK reads a pixel past it)."""
 
 
 @dataclass(frozen=True)
@@ -60,7 +74,8 @@ class TrackerConfig:
     the LK patch, ``lk_pyramid_levels`` the number of levels above the image,
     ``lk_max_iterations`` and ``lk_epsilon_px`` its stopping rule per level.
     ``max_lk_error`` is the largest mean absolute patch difference (gray levels) and
-    ``fb_threshold_px`` the largest forward-backward distance; 0 switches either check off.
+    ``fb_threshold_px`` the largest forward-backward distance and ``max_drift_px`` the
+    largest distance of the template from the tracked pixel; 0 switches each check off.
     Invalid values raise ValueError naming the field.
     """
 
@@ -79,6 +94,7 @@ class TrackerConfig:
     lk_epsilon_px: float = 0.01
     max_lk_error: float = 30.0
     fb_threshold_px: float = 1.0
+    max_drift_px: float = 2.0
     border_margin_px: float = 10.0
 
     def __post_init__(self) -> None:
@@ -109,6 +125,7 @@ class TrackerConfig:
             ('lk_epsilon_px', self.lk_epsilon_px > 0, 'must be > 0 px'),
             ('max_lk_error', self.max_lk_error >= 0, 'must be >= 0 (0: no check)'),
             ('fb_threshold_px', self.fb_threshold_px >= 0, 'must be >= 0 px (0: no check)'),
+            ('max_drift_px', self.max_drift_px >= 0, 'must be >= 0 px (0: no check)'),
             ('border_margin_px', self.border_margin_px >= 0, 'must be >= 0 px'),
         )
         for name, ok, rule in checks:
@@ -134,6 +151,7 @@ class TrackCounts:
     error: int = 0
     border: int = 0
     forward_backward: int = 0
+    drift: int = 0
     crowded: int = 0
     reset: int = 0
 
@@ -189,6 +207,8 @@ class FeatureTracker:
         self._ids: IntArray = np.zeros(0, np.int64)
         self._pixels = np.zeros((0, 2), np.float32)
         self._ages: IntArray = np.zeros(0, np.int64)
+        self._side = self.config.lk_window_px + 2 * TEMPLATE_MARGIN_PX
+        self._templates: GrayStack = np.zeros((0, self._side, self._side), np.uint8)
         self._images = 0
         self._pending_reset = 0
         self._fast = (
@@ -250,9 +270,11 @@ class FeatureTracker:
         after: GrayImage,
         start: NDArray[np.float32],
         guess: NDArray[np.float32],
+        levels: int | None = None,
     ) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.float32]]:
         """Return LK's end pixels (M, 2), status (M,) and patch errors (M,) of ``start`` (M, 2)
-        from ``before`` into ``after``, iterations starting at ``guess``."""
+        from ``before`` into ``after``, iterations starting at ``guess``, on ``levels``
+        pyramid levels above the image (default: lk_pyramid_levels)."""
         config = self.config
         end, status, error = cv2.calcOpticalFlowPyrLK(
             before,
@@ -260,7 +282,7 @@ class FeatureTracker:
             start.reshape(-1, 1, 2),
             guess.reshape(-1, 1, 2).copy(),
             winSize=(config.lk_window_px, config.lk_window_px),
-            maxLevel=config.lk_pyramid_levels,
+            maxLevel=config.lk_pyramid_levels if levels is None else levels,
             criteria=(
                 cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT,
                 config.lk_max_iterations,
@@ -345,8 +367,14 @@ class FeatureTracker:
             failed = ~(back_ok & (distance <= config.fb_threshold_px))
             drops['forward_backward'] = int(np.count_nonzero(failed))
             keep[rows[failed]] = False
+        if config.max_drift_px > 0 and np.any(keep):
+            rows = np.flatnonzero(keep)
+            drifted = self._drifted(gray, rows, end[rows])
+            drops['drift'] = int(np.count_nonzero(drifted))
+            keep[rows[drifted]] = False
         self._ids, self._ages = self._ids[keep], self._ages[keep] + 1
         self._pixels = np.ascontiguousarray(end[keep], np.float32)
+        self._templates = self._templates[keep]
         predicted = int(np.count_nonzero(used[keep]))
         crowded = self._crowded()
         if np.any(crowded):
@@ -354,7 +382,49 @@ class FeatureTracker:
             drops['crowded'] = int(np.count_nonzero(crowded))
             self._ids, self._ages = self._ids[~crowded], self._ages[~crowded]
             self._pixels = self._pixels[~crowded]
+            self._templates = self._templates[~crowded]
         return predicted
+
+    def _drifted(
+        self, gray: GrayImage, rows: IntArray, pixels: NDArray[np.float32]
+    ) -> NDArray[np.bool_]:
+        """Return which tracks ``rows`` (M,), now at ``pixels`` (M, 2), drifted from their
+        templates (module docstring). The templates are laid out side by side on a canvas of
+        the image's size (LK wants two images of one size), as many at a time as fit."""
+        side = self._side
+        height, width = gray.shape
+        per_row, per_column = width // side, height // side
+        drifted = np.zeros(len(rows), bool)
+        if per_row < 1 or per_column < 1:
+            return drifted  # an image smaller than one template: no check
+        capacity = per_row * per_column
+        half = (side - 1) / 2.0
+        for first in range(0, len(rows), capacity):
+            chunk = slice(first, min(first + capacity, len(rows)))
+            count = chunk.stop - chunk.start
+            slots = np.arange(count)
+            canvas = np.zeros((height, width), np.uint8)
+            blocks = canvas[: per_column * side, : per_row * side].reshape(
+                per_column, side, per_row, side
+            )
+            blocks[slots // per_row, :, slots % per_row, :] = self._templates[rows[chunk]]
+            starts = np.column_stack(
+                [(slots % per_row) * side + half, (slots // per_row) * side + half]
+            ).astype(np.float32)
+            end, ok, _ = self._lk_level0(canvas, gray, starts, pixels[chunk])
+            distance = np.linalg.norm(end - pixels[chunk], axis=1)
+            drifted[chunk] = ~(ok & (distance <= self.config.max_drift_px))
+        return drifted
+
+    def _lk_level0(
+        self,
+        before: GrayImage,
+        after: GrayImage,
+        start: NDArray[np.float32],
+        guess: NDArray[np.float32],
+    ) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.float32]]:
+        """LK as ``_lk`` but on the full-resolution level only (templates are small)."""
+        return self._lk(before, after, start, guess, levels=0)
 
     def _crowded(self) -> NDArray[np.bool_]:
         """Return which held tracks lie within half of min_distance_px of an older one
@@ -446,6 +516,11 @@ class FeatureTracker:
         if self.config.subpixel_refinement and len(corners):
             corners = _refined(gray, corners, self.config.border_margin_px)
         count = len(corners)
+        templates = [cv2.getRectSubPix(gray, (self._side, self._side), (float(u), float(v)))
+                     for u, v in corners]  # fmt: skip
+        self._templates = np.concatenate(
+            [self._templates, np.asarray(templates, np.uint8).reshape(-1, self._side, self._side)]
+        )
         self._ids = np.concatenate([self._ids, np.arange(self._next_id, self._next_id + count)])
         self._pixels = np.ascontiguousarray(np.concatenate([self._pixels, corners]), np.float32)
         self._ages = np.concatenate([self._ages, np.ones(count, np.int64)])
@@ -457,6 +532,7 @@ class FeatureTracker:
         self._ids = np.zeros(0, np.int64)
         self._pixels = np.zeros((0, 2), np.float32)
         self._ages = np.zeros(0, np.int64)
+        self._templates = np.zeros((0, self._side, self._side), np.uint8)
 
 
 def _cells(
