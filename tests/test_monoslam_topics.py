@@ -78,21 +78,22 @@ PLAY_TIMEOUT_S = 120.0
 LOG_TIMEOUT_S = 15.0
 LABEL_STATIC, FIRST_OBJECT_LABEL = 1, 2
 START_FRAMES = 30
-# Bounds on the pipeline run, with what three runs measured when they were set. The pose
-# drifts once handed-over features are in the map (its sigma shrinks to ~5 mm while the
-# error grows): the cores do the same without ROS (monoslam_image_evaluate on this bag, no
-# pose gate: variant c ATE 0.39 m RMS, 179 handovers, none moving), so these bounds only
-# catch a pipeline that breaks or diverges; tighten them as the filters improve.
-MIN_POSES = 270  # poses published of 300 images: 287, 291, 300 (best-effort images drop)
+# Bounds on the pipeline run (no pose gate), with what two runs measured when they were set
+# (after the tracker's drift check; before it, handed-over features that slid along
+# occluding edges made the pose drift to 0.40-0.50 m median, 0.65-0.72 m max).
+MIN_POSES = 270  # poses published of 300 images: 297, 298 (best-effort images drop)
 MAX_START_ERROR_M = 0.06  # camera centre error over the first second (the target): 0.032
-MAX_MEDIAN_ERROR_M = 1.0  # median over all poses: 0.40, 0.49, 0.50
-MAX_ERROR_M = 1.5  # and largest: 0.65, 0.72, 0.72
-MIN_HANDOVERS = 100  # features handed over: 175, 176
-MIN_STATIC_SHARE = 0.95  # of them seen on static surfaces when handed over: 1.0, 1.0
-MIN_OBJECT_RECALL = 0.6  # DYNAMIC share of the Shadow filter's sightings on objects: 0.87
-# The object share of DYNAMIC sightings is only 0.33 (many static features are called
-# DYNAMIC under SLAM's pose uncertainty), but 5 times their share among all sightings (0.066):
-MIN_DYNAMIC_ENRICHMENT = 2.0
+MAX_MEDIAN_ERROR_M = 0.1  # median over all poses: 0.032, 0.033
+MAX_ERROR_M = 0.2  # and largest: 0.060, 0.060
+MIN_HANDOVERS = 200  # features handed over: 380, 380
+MIN_STATIC_SHARE = 0.95  # of them seen on static surfaces when handed over: 0.987, 0.987
+# DYNAMIC share of the Shadow filter's sightings on objects: 0.42, 0.42 (0.87 before the drift
+# check: it also ends tracks on the textured spheres as they turn and grow, so more of them
+# end while still PENDING)
+MIN_OBJECT_RECALL = 0.3
+# The object share of DYNAMIC sightings, against their share among all sightings (0.066):
+# 21.8 times, 21.8 (5 before the drift check)
+MIN_DYNAMIC_ENRICHMENT = 10.0
 
 
 @pytest.fixture(scope='module', autouse=True)

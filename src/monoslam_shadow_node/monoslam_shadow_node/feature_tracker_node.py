@@ -60,7 +60,7 @@ the core's, written out in config/feature_tracker.yaml (a test keeps the two equ
   max_lk_error (30.0)             largest mean absolute patch difference, gray levels
                                   (0: no check).
   fb_threshold_px (1.0)           largest forward-backward distance, px (0: no check).
-  max_drift_px (2.0)              largest distance of a track from its template (its look
+  max_drift_px (3.0)              largest distance of a track from its template (its look
                                   when detected, registered by LK), px (0: no check).
   border_margin_px (10.0)         tracks closer to the image edge are dropped, px (LK patches
                                   reaching past the edge are biased: about lk_window_px / 2).

@@ -94,7 +94,7 @@ class TrackerConfig:
     lk_epsilon_px: float = 0.01
     max_lk_error: float = 30.0
     fb_threshold_px: float = 1.0
-    max_drift_px: float = 2.0
+    max_drift_px: float = 3.0
     border_margin_px: float = 10.0
 
     def __post_init__(self) -> None:
