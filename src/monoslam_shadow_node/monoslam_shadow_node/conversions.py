@@ -185,6 +185,44 @@ def describe_camera(camera: CameraModel) -> str:
     )
 
 
+@dataclass(frozen=True, eq=False)
+class CameraUpdate:
+    """What one camera_info brought: a usable camera (``camera``; ``first``: none was
+    accepted before, else it changed) or a rejection (``camera`` None); ``text`` is the
+    line to log."""
+
+    camera: CameraModel | None
+    first: bool
+    text: str
+
+
+class CameraInfoWatch:
+    """Follows a camera_info topic for a node whose filter needs the camera: one place for
+    the change detection, the parsing and the log lines of every such node."""
+
+    def __init__(self, topic: str) -> None:
+        self.topic = topic
+        self._key: tuple[object, ...] | None = None
+
+    def update(self, message: Any) -> CameraUpdate | None:
+        """Return the update a sensor_msgs/CameraInfo brings, or None if nothing the filter
+        uses changed. A rejected one leaves the accepted camera as it was."""
+        key = camera_info_key(message)
+        if key == self._key:
+            return None
+        first = self._key is None
+        try:
+            camera = camera_from_info(message)
+        except ValueError as err:
+            kept = 'still waiting for a usable one' if first else 'camera kept'
+            return CameraUpdate(None, first, f'{self.topic} rejected ({err}); {kept}')
+        self._key = key
+        if first:
+            return CameraUpdate(camera, True, f'camera: {describe_camera(camera)}')
+        text = f'{self.topic} changed: now {describe_camera(camera)} (used from the next frame on)'
+        return CameraUpdate(camera, False, text)
+
+
 def frame_input(features: Features, pose: CameraPose) -> FrameInput:
     """Return the core's input for one image: the features at their own stamp, with the
     pose paired with them."""

@@ -130,10 +130,8 @@ from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
 from tf2_msgs.msg import TFMessage
 
 from monoslam_shadow_node.conversions import (
+    CameraInfoWatch,
     Features,
-    camera_from_info,
-    camera_info_key,
-    describe_camera,
     features_from_message,
 )
 from monoslam_shadow_node.core.monoslam import (
@@ -223,7 +221,7 @@ class MonoSlamNode(Node):
         self.config = monoslam_config(values, self.target)
         self.settings = node_settings(values)
         self.slam: MonoSlam | None = None
-        self._camera_key: tuple[object, ...] | None = None
+        self._camera_watch = CameraInfoWatch(CAMERA_INFO_TOPIC)
         self._camera_frame = DEFAULT_CAMERA_FRAME
         self.sync: StampSync[Features, TargetSighting] = StampSync(
             tolerance_ns=self.settings.stamp_tolerance_ns,
@@ -281,30 +279,20 @@ class MonoSlamNode(Node):
             self._publish_predictions(stamp_to_ns(message.header.stamp), message.header.frame_id)
 
     def _apply_camera(self, message: CameraInfo) -> None:
-        key = camera_info_key(message)
-        if key == self._camera_key:
+        update = self._camera_watch.update(message)
+        if update is None:
             return
-        try:
-            camera = camera_from_info(message)
-        except ValueError as err:
-            self.get_logger().error(
-                f'{CAMERA_INFO_TOPIC} rejected ({err}); '
-                + ('still waiting for a usable one' if self.slam is None else 'camera kept'),
-                throttle_duration_sec=WAITING_LOG_PERIOD_S,
-            )
+        if update.camera is None:
+            self.get_logger().error(update.text, throttle_duration_sec=WAITING_LOG_PERIOD_S)
             return
         if message.header.frame_id:
             self._camera_frame = str(message.header.frame_id)
         if self.slam is None:
-            self.slam = MonoSlam(camera, self.config)
-            self.get_logger().info(f'camera: {describe_camera(camera)}')
+            self.slam = MonoSlam(update.camera, self.config)
+            self.get_logger().info(update.text)
         else:
-            self.slam.set_camera(camera)
-            self.get_logger().warning(
-                f'{CAMERA_INFO_TOPIC} changed: now {describe_camera(camera)} (used from the '
-                'next frame on)'
-            )
-        self._camera_key = key
+            self.slam.set_camera(update.camera)
+            self.get_logger().warning(update.text)
         self._drain()
 
     def _on_features(self, message: FeatureTrackArray) -> None:

@@ -121,14 +121,12 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from monoslam_shadow_node.conversions import (
     STATIC_MARKER_LIMIT,
+    CameraInfoWatch,
     CameraPose,
     Features,
     FloatArray,
     MarkerTypes,
     TrackFields,
-    camera_from_info,
-    camera_info_key,
-    describe_camera,
     features_from_message,
     fill_markers,
     fill_track_array,
@@ -197,7 +195,7 @@ class ShadowFilterNode(Node):
         self.config = shadow_config(values)
         self.settings = node_settings(values)
         self.shadow: ShadowFilter | None = None
-        self._camera_key: tuple[object, ...] | None = None
+        self._camera_watch = CameraInfoWatch(CAMERA_INFO_TOPIC)
         self.sync = FrameSynchronizer(
             tolerance_ns=self.settings.stamp_tolerance_ns,
             horizon_ns=self.settings.sync_horizon_ns,
@@ -243,28 +241,18 @@ class ShadowFilterNode(Node):
     # --- inputs -----------------------------------------------------------------------------
 
     def _on_camera_info(self, message: CameraInfo) -> None:
-        key = camera_info_key(message)
-        if key == self._camera_key:
+        update = self._camera_watch.update(message)
+        if update is None:
             return
-        try:
-            camera = camera_from_info(message)
-        except ValueError as err:
-            self.get_logger().error(
-                f'{CAMERA_INFO_TOPIC} rejected ({err}); '
-                + ('still waiting for a usable one' if self.shadow is None else 'camera kept'),
-                throttle_duration_sec=WAITING_LOG_PERIOD_S,
-            )
+        if update.camera is None:
+            self.get_logger().error(update.text, throttle_duration_sec=WAITING_LOG_PERIOD_S)
             return
         if self.shadow is None:
-            self.shadow = ShadowFilter(camera, self.config)
-            self.get_logger().info(f'camera: {describe_camera(camera)}')
+            self.shadow = ShadowFilter(update.camera, self.config)
+            self.get_logger().info(update.text)
         else:
-            self.shadow.set_camera(camera)
-            self.get_logger().warning(
-                f'{CAMERA_INFO_TOPIC} changed: now {describe_camera(camera)} (used from the '
-                'next frame on)'
-            )
-        self._camera_key = key
+            self.shadow.set_camera(update.camera)
+            self.get_logger().warning(update.text)
         self._drain()
 
     def _on_features(self, message: FeatureTrackArray) -> None:
