@@ -5,11 +5,9 @@ and the launch file."""
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
-import sys
 from pathlib import Path
-from types import ModuleType, SimpleNamespace
+from types import SimpleNamespace
 from typing import Any
 
 import cv2
@@ -29,6 +27,7 @@ from monoslam_shadow_node.feature_tracking import (
     status_line,
 )
 from slam_bringup.errors import ParameterError
+from slam_bringup.testing.launch_files import check_launched_node, launched_node
 from slam_bringup.testing.node_contract import config_mismatches, undocumented_parameters
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
 
@@ -374,51 +373,19 @@ def test_feature_arrays_are_filled_with_stamp_frame_ids_and_pixels() -> None:
 # --- launch file ---------------------------------------------------------------------------
 
 
-class _Recorded:
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        self.args, self.kwargs = args, kwargs
-
-
-def _fake_launch_modules() -> dict[str, ModuleType]:
-    modules = {}
-    for name, classes in {
-        'launch': ['LaunchDescription'],
-        'launch.actions': ['DeclareLaunchArgument'],
-        'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
-        'launch_ros': [],
-        'launch_ros.actions': ['Node'],
-        'launch_ros.parameter_descriptions': ['ParameterValue'],
-        'launch_ros.substitutions': ['FindPackageShare'],
-    }.items():
-        module = ModuleType(name)
-        for class_name in classes:
-            setattr(module, class_name, type(class_name, (_Recorded,), {}))
-        modules[name] = module
-    return modules
-
-
 def test_launch_file_starts_the_installed_executable_with_its_config(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """launch is not installed here: run the launch file against recording stand-ins."""
-    for name, module in _fake_launch_modules().items():
-        monkeypatch.setitem(sys.modules, name, module)
-    spec = importlib.util.spec_from_file_location('feature_tracker_launch', LAUNCH)
-    assert spec is not None and spec.loader is not None
-    launch_file = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(launch_file)
-    (entities,) = launch_file.generate_launch_description().args
-    arguments = {
-        e.args[0]: e.kwargs for e in entities if type(e).__name__ == 'DeclareLaunchArgument'
-    }
-    (node,) = [e for e in entities if type(e).__name__ == 'Node']
-    assert all(kwargs.get('description') for kwargs in arguments.values())
-    setup = (PACKAGE_DIR / 'setup.py').read_text()
-    executable = node.kwargs['executable']
-    assert f"'{executable} = monoslam_shadow_node.feature_tracker_node:main'" in setup
-    assert node.kwargs['package'] == 'monoslam_shadow_node'
-    remapped = {source for source, _ in node.kwargs['remappings']}
-    assert remapped == {
+    launched = launched_node(LAUNCH, monkeypatch)
+    check_launched_node(
+        launched,
+        package_dir=PACKAGE_DIR,
+        entry_point='monoslam_shadow_node.feature_tracker_node:main',
+        config=CONFIG,
+    )
+    node, arguments = launched.node, launched.arguments
+    assert launched.remapped == {
         feature_tracker_node.IMAGE_TOPIC,
         feature_tracker_node.COMPRESSED_TOPIC,
         feature_tracker_node.CAMERA_INFO_TOPIC,
@@ -430,6 +397,3 @@ def test_launch_file_starts_the_installed_executable_with_its_config(
         assert first.args[0] in arguments
     compressed = dict(node.kwargs['remappings'])[feature_tracker_node.COMPRESSED_TOPIC]
     assert compressed[0].args == ('image',) and compressed[1] == '/compressed'
-    share, *parts = arguments['params_file']['default_value'].args[0]
-    assert share.args == ('monoslam_shadow_node',)
-    assert PACKAGE_DIR.joinpath(*parts) == CONFIG

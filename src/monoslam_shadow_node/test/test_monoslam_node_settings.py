@@ -5,11 +5,9 @@ features with fiducials, the launch file; and the shadow_filter's pose gate it r
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
-import sys
 from pathlib import Path
-from types import ModuleType, SimpleNamespace
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -36,6 +34,7 @@ from monoslam_shadow_node.monoslam_conversions import (
 )
 from monoslam_shadow_node.shadow_filter_node import pose_gate_excess
 from slam_bringup.errors import ParameterError
+from slam_bringup.testing.launch_files import check_launched_node, launched_node
 from slam_bringup.testing.node_contract import config_mismatches, undocumented_parameters
 from slam_sim.core.init_target import InitTarget
 
@@ -454,51 +453,19 @@ def test_the_pose_gate_compares_the_largest_standard_deviations() -> None:
 # --- launch file ---------------------------------------------------------------------------
 
 
-class _Recorded:
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        self.args, self.kwargs = args, kwargs
-
-
-def _fake_launch_modules() -> dict[str, ModuleType]:
-    modules = {}
-    for name, classes in {
-        'launch': ['LaunchDescription'],
-        'launch.actions': ['DeclareLaunchArgument'],
-        'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
-        'launch_ros': [],
-        'launch_ros.actions': ['Node'],
-        'launch_ros.parameter_descriptions': ['ParameterValue'],
-        'launch_ros.substitutions': ['FindPackageShare'],
-    }.items():
-        module = ModuleType(name)
-        for class_name in classes:
-            setattr(module, class_name, type(class_name, (_Recorded,), {}))
-        modules[name] = module
-    return modules
-
-
 def test_launch_file_starts_the_installed_executable_with_its_config(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """launch is not installed here: run the launch file against recording stand-ins."""
-    for name, module in _fake_launch_modules().items():
-        monkeypatch.setitem(sys.modules, name, module)
-    spec = importlib.util.spec_from_file_location('monoslam_launch', LAUNCH)
-    assert spec is not None and spec.loader is not None
-    launch_file = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(launch_file)
-    (entities,) = launch_file.generate_launch_description().args
-    arguments = {
-        e.args[0]: e.kwargs for e in entities if type(e).__name__ == 'DeclareLaunchArgument'
-    }
-    (node,) = [e for e in entities if type(e).__name__ == 'Node']
-    assert all(kwargs.get('description') for kwargs in arguments.values())
-    setup = (PACKAGE_DIR / 'setup.py').read_text()
-    executable = node.kwargs['executable']
-    assert f"'{executable} = monoslam_shadow_node.monoslam_node:main'" in setup
-    assert node.kwargs['package'] == 'monoslam_shadow_node'
-    remapped = {source for source, _ in node.kwargs['remappings']}
-    assert remapped == {
+    launched = launched_node(LAUNCH, monkeypatch)
+    check_launched_node(
+        launched,
+        package_dir=PACKAGE_DIR,
+        entry_point='monoslam_shadow_node.monoslam_node:main',
+        config=CONFIG,
+    )
+    node, arguments = launched.node, launched.arguments
+    assert launched.remapped == {
         monoslam_node.FEATURES_TOPIC,
         monoslam_node.FIDUCIALS_TOPIC,
         monoslam_node.CAMERA_INFO_TOPIC,
@@ -507,6 +474,3 @@ def test_launch_file_starts_the_installed_executable_with_its_config(
     }
     used = {target.args[0] for _, target in node.kwargs['remappings']}
     assert used <= set(arguments)
-    share, *parts = arguments['params_file']['default_value'].args[0]
-    assert share.args == ('monoslam_shadow_node',)
-    assert PACKAGE_DIR.joinpath(*parts) == CONFIG
