@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+import subprocess
 from pathlib import Path
 
 from slam_bringup.bag.source import BagSource
@@ -61,6 +62,24 @@ def read_back(path: Path) -> dict[str, list[bytes]]:
 def tool_env() -> dict[str, str]:
     """Environment for tool subprocesses: unbuffered, no colour codes in logs."""
     return {**os.environ, 'PYTHONUNBUFFERED': '1', 'RCUTILS_COLORIZED_OUTPUT': '0'}
+
+
+def invalid_parameter_error(command: list[str], parameter: str, value: str) -> str:
+    """Start a node (``command``) with ``parameter`` set to the bad ``value``; assert that it
+    exits with status 2, without a traceback and with exactly one error line; return it."""
+    result = subprocess.run(
+        [*command, '--ros-args', '-p', f'{parameter}:={value}'],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=tool_env(),
+        check=False,
+    )
+    assert result.returncode == 2, result.stderr
+    assert 'Traceback' not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if ': error: ' in line]
+    assert len(errors) == 1, result.stderr
+    return errors[0]
 
 
 def decoded(topics: tuple[BagTopic, ...], payloads: dict[str, list[bytes]]) -> dict[str, list]:

@@ -6,11 +6,10 @@ The bag (bags/office_moveable.mcap, seed 7) has 29 static wall markers and 10 de
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 
 import pytest
-from bag_fixtures import tool_env
+from bag_fixtures import invalid_parameter_error
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
@@ -131,15 +130,5 @@ def test_find_landmark(mapped: tuple[RosHarness, EmSamMapperNode]) -> None:
     ],
 )
 def test_invalid_parameter_is_named(executable: str, parameter: str, value: str) -> None:
-    result = subprocess.run(
-        [executable, '--ros-args', '-p', f'{parameter}:={value}'],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=tool_env(),
-        check=False,
-    )
-    assert result.returncode == 2, result.stderr
-    assert 'Traceback' not in result.stderr
-    errors = [line for line in result.stderr.splitlines() if ': error: ' in line]
-    assert len(errors) == 1 and parameter in errors[0], result.stderr
+    error = invalid_parameter_error([executable], parameter, value)
+    assert parameter in error

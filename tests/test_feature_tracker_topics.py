@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import math
 import signal
-import subprocess
 import sys
 from typing import Any
 
 import cv2
 import numpy as np
 import pytest
-from bag_fixtures import tool_env
+from bag_fixtures import invalid_parameter_error, tool_env
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
@@ -357,16 +356,6 @@ def test_the_node_process_logs_bad_input_and_stops_cleanly(
     ],
 )
 def test_invalid_parameter_is_named(parameter: str, value: str) -> None:
-    result = subprocess.run(
-        [sys.executable, '-m', MODULE, '--ros-args', '-p', f'{parameter}:={value}'],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=tool_env(),
-        check=False,
-    )
-    assert result.returncode == 2, result.stderr
-    assert 'Traceback' not in result.stderr
-    errors = [line for line in result.stderr.splitlines() if ': error: ' in line]
-    assert len(errors) == 1 and f'parameter {parameter}=' in errors[0], result.stderr
-    assert errors[0].startswith('feature_tracker: error: ')
+    error = invalid_parameter_error([sys.executable, '-m', MODULE], parameter, value)
+    assert f'parameter {parameter}=' in error
+    assert error.startswith('feature_tracker: error: ')

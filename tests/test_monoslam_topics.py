@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import math
 import signal
-import subprocess
 import sys
 from collections import Counter
 from collections.abc import Iterable
@@ -37,7 +36,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from bag_fixtures import tool_env
+from bag_fixtures import invalid_parameter_error, tool_env
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Path as PathMessage
 from rclpy.parameter import Parameter
@@ -521,16 +520,6 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
     ],
 )
 def test_invalid_parameter_is_named(parameter: str, value: str) -> None:
-    result = subprocess.run(
-        [sys.executable, '-m', MODULE, '--ros-args', '-p', f'{parameter}:={value}'],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=tool_env(),
-        check=False,
-    )
-    assert result.returncode == 2, result.stderr
-    assert 'Traceback' not in result.stderr
-    errors = [line for line in result.stderr.splitlines() if ': error: ' in line]
-    assert len(errors) == 1 and f'parameter {parameter}=' in errors[0], result.stderr
-    assert errors[0].startswith('monoslam: error: ')
+    error = invalid_parameter_error([sys.executable, '-m', MODULE], parameter, value)
+    assert f'parameter {parameter}=' in error
+    assert error.startswith('monoslam: error: ')
