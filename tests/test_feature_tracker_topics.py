@@ -291,18 +291,6 @@ def start_node(harness: RosHarness, *arguments: str) -> NodeProcess:
     return harness.start_process('feature_tracker', command, env=tool_env())
 
 
-def wait_for_log(node: NodeProcess, *parts: str) -> str:
-    """Wait for a log line holding every part; return it."""
-
-    def line() -> str | None:
-        return next((x for x in node.log().splitlines() if all(p in x for p in parts)), None)
-
-    wait_until(
-        lambda: line() is not None, timeout_s=LOG_TIMEOUT_S, what=f'a log line with {parts}'
-    )
-    return str(line())
-
-
 def first_contact(images: Any, features: Collector, image: np.ndarray) -> int:
     """Publish ``image`` (stamps stamp(0) + attempt ns) until the node answers; return the
     stamp answered. A best-effort reader drops what comes before it has matched the writer,
@@ -325,23 +313,26 @@ def test_the_node_process_logs_bad_input_and_stops_cleanly(
     images = ros_harness.publisher('camera/image_raw', Image)
     ros_harness.wait_for_subscribers(images)
     first_contact(images, features, frame(source, 0))
-    wait_for_log(node, 'no camera/camera_info received yet', 'tracking without it')
+    node.wait_for_line(LOG_TIMEOUT_S, 'no camera/camera_info received yet', 'tracking without it')
     wrong = raw_image(frame(source, 1), stamp(1))
     wrong.encoding = '16UC3'
     images.publish(wrong)
-    wait_for_log(
-        node, f'image at stamp {stamp(1)} ns dropped', "unsupported image encoding '16UC3'"
+    node.wait_for_line(
+        LOG_TIMEOUT_S,
+        f'image at stamp {stamp(1)} ns dropped',
+        "unsupported image encoding '16UC3'",
     )
     images.publish(raw_image(frame(source, 1), stamp(0) - 1000))
-    wait_for_log(
-        node, f'image at stamp {stamp(0) - 1000} ns dropped: it is older than the image before it'
+    node.wait_for_line(
+        LOG_TIMEOUT_S,
+        f'image at stamp {stamp(0) - 1000} ns dropped: it is older than the image before it',
     )
     images.publish(raw_image(frame(source, 1), stamp(1)))
     assert len(output(features, stamp(1)).tracks) == 80
     node.process.send_signal(signal.SIGINT)
     assert node.process.wait(timeout=LOG_TIMEOUT_S) == 0
     assert 'Traceback' not in node.log()
-    wait_for_log(node, 'done: ', 'images tracked', 'undecodable')
+    node.wait_for_line(LOG_TIMEOUT_S, 'done: ', 'images tracked', 'undecodable')
     assert_finite(features)
 
 

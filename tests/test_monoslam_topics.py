@@ -400,18 +400,6 @@ def start_node(harness: RosHarness, *arguments: str) -> NodeProcess:
     return harness.start_process('monoslam', command, env=tool_env())
 
 
-def wait_for_log(node: NodeProcess, *parts: str) -> str:
-    """Wait for a log line holding every part; return it."""
-
-    def line() -> str | None:
-        return next((x for x in node.log().splitlines() if all(p in x for p in parts)), None)
-
-    wait_until(
-        lambda: line() is not None, timeout_s=LOG_TIMEOUT_S, what=f'a log line with {parts}'
-    )
-    return str(line())
-
-
 def test_bad_inputs_are_logged_and_the_node_keeps_working(
     ros_harness: RosHarness, scene: DynamicSceneRun, tmp_path: Path
 ) -> None:
@@ -430,39 +418,47 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
 
     # features before any camera_info: held until it comes (it is best effort: repeat it)
     inputs.send(0, target=False)
-    wait_for_log(node, 'no camera/camera_info received yet', 'holding 1')
+    node.wait_for_line(LOG_TIMEOUT_S, 'no camera/camera_info received yet', 'holding 1')
     for _ in range(50):
         inputs.info.publish(camera_info(scene))
         if 'camera: 640x480' in node.log():
             break
         wait_until(lambda: 'camera: 640x480' in node.log(), timeout_s=0.2, what='camera')
-    wait_for_log(node, 'camera: 640x480')
+    node.wait_for_line(LOG_TIMEOUT_S, 'camera: 640x480')
 
     # no target in view: waiting, and saying so
     inputs.send(1, target=False)
-    wait_for_log(node, 'no initialization target (id 0 (DICT_APRILTAG_36h11, 0.6 m)', 'waiting')
+    node.wait_for_line(
+        LOG_TIMEOUT_S, 'no initialization target (id 0 (DICT_APRILTAG_36h11, 0.6 m)', 'waiting'
+    )
     assert len(poses) == 0
 
     # the target: started; then NaN pixels, out-of-order stamps, bad handovers
     started_ns = inputs.send(2)
     pose = poses.wait_for(lambda m: stamp_to_ns(m.header.stamp) == started_ns)
     assert np.linalg.norm(centre(pose) - frames[2].camera_position) < 0.1
-    wait_for_log(node, f'started at stamp {started_ns} ns', 'camera at (')
+    node.wait_for_line(LOG_TIMEOUT_S, f'started at stamp {started_ns} ns', 'camera at (')
     nan_id = int(frames[3].track_ids[0])
     inputs.send(3, nan_id=nan_id)
-    wait_for_log(node, 'ignored features with non-finite pixels', f'ids {nan_id}')
+    node.wait_for_line(LOG_TIMEOUT_S, 'ignored features with non-finite pixels', f'ids {nan_id}')
     late_ns = inputs.send(1)
-    wait_for_log(node, f'features frame at stamp {late_ns} ns dropped: not after the frame')
+    node.wait_for_line(
+        LOG_TIMEOUT_S, f'features frame at stamp {late_ns} ns dropped: not after the frame'
+    )
     good_id = next(
         int(i) for i in frames[4].track_ids if not scene.point_moving[scene.track_point[int(i)]]
     )
     inputs.handover(good_id, scene.point_positions[4, scene.track_point[good_id]])
     inputs.handover(77, [math.nan, 0.0, 1.0])
-    wait_for_log(node, 'handover of feature 77: position [nan, 0.0, 1.0] not finite; refused')
+    node.wait_for_line(
+        LOG_TIMEOUT_S, 'handover of feature 77: position [nan, 0.0, 1.0] not finite; refused'
+    )
     inputs.handover(78, [1.0, 2.0, 1.0], status=ShadowTrack.DYNAMIC)
-    wait_for_log(node, 'handover of feature 78: status 2, not STATIC; refused')
+    node.wait_for_line(LOG_TIMEOUT_S, 'handover of feature 78: status 2, not STATIC; refused')
     inputs.handover(79, [1.0, 2.0, 1.0], frame_id='odom')
-    wait_for_log(node, "handover of feature 79: in frame 'odom', not map_frame 'map'")
+    node.wait_for_line(
+        LOG_TIMEOUT_S, "handover of feature 79: in frame 'odom', not map_frame 'map'"
+    )
 
     # predictions for the next image, triggered by its camera_info: the handed-over feature
     for index in range(4, 8):
@@ -476,25 +472,31 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
     broken = camera_info(scene)
     broken.k = [0.0] * 9
     inputs.info.publish(broken)
-    wait_for_log(node, 'camera/camera_info rejected', 'focal lengths', 'camera kept')
+    node.wait_for_line(
+        LOG_TIMEOUT_S, 'camera/camera_info rejected', 'focal lengths', 'camera kept'
+    )
     inputs.info.publish(camera_info(scene, fx_px=301.0))
-    wait_for_log(node, 'camera/camera_info changed', 'fx=301')
+    node.wait_for_line(LOG_TIMEOUT_S, 'camera/camera_info changed', 'fx=301')
     inputs.info.publish(camera_info(scene))
 
     # features whose fiducials do not come: processed alone once the horizon has passed
     alone_ns = inputs.send(8, fiducials=False)
     for index in range(9, 16):
         inputs.send(index)
-    wait_for_log(node, f'features frame at stamp {alone_ns} ns processed without fiducials')
+    node.wait_for_line(
+        LOG_TIMEOUT_S, f'features frame at stamp {alone_ns} ns processed without fiducials'
+    )
     poses.wait_for(lambda m: stamp_to_ns(m.header.stamp) == alone_ns)
 
     # everything lost for lost_after_frames (15): tracking lost; the target: re-initialized
     for index in range(16, 40):
         inputs.send(index, features=False, target=False)
-    wait_for_log(node, 'tracking lost: no feature or known point measured for 15 frames')
-    wait_for_log(node, 're-initializing from the target')
+    node.wait_for_line(
+        LOG_TIMEOUT_S, 'tracking lost: no feature or known point measured for 15 frames'
+    )
+    node.wait_for_line(LOG_TIMEOUT_S, 're-initializing from the target')
     again_ns = inputs.send(40)
-    wait_for_log(node, f're-initialized at stamp {again_ns} ns')
+    node.wait_for_line(LOG_TIMEOUT_S, f're-initialized at stamp {again_ns} ns')
     poses.wait_for(lambda m: stamp_to_ns(m.header.stamp) == again_ns)
     maps.wait_for_count(1)
 

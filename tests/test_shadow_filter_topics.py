@@ -217,18 +217,6 @@ def start_node(harness: RosHarness, **parameters: object) -> NodeProcess:
     return harness.start_process('shadow_filter', command, env=tool_env())
 
 
-def wait_for_log(node: NodeProcess, *parts: str) -> str:
-    """Wait for a log line holding every part; return it."""
-
-    def line() -> str | None:
-        return next((x for x in node.log().splitlines() if all(p in x for p in parts)), None)
-
-    wait_until(
-        lambda: line() is not None, timeout_s=LOG_TIMEOUT_S, what=f'a log line with {parts}'
-    )
-    return str(line())
-
-
 def test_bad_inputs_are_logged_and_the_node_keeps_working(
     ros_harness: RosHarness, run: DynamicSceneRun
 ) -> None:
@@ -257,7 +245,7 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
     # features before any camera_info: held, and processed once it comes
     send(0)
     send(1)
-    wait_for_log(node, 'no camera/camera_info received yet', 'holding')
+    node.wait_for_line(LOG_TIMEOUT_S, 'no camera/camera_info received yet', 'holding')
     assert len(tracks) == 0
     info.publish(camera_info(run))
     output(frames[1].stamp_ns)
@@ -291,7 +279,9 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
     )
     bad_id = int(nan_frame.track_ids[0])
     assert bad_id not in {t.id for t in output(stamp_ns).tracks}
-    wait_for_log(node, f'frame at stamp {stamp_ns} ns', f'non-finite pixels: ids {bad_id}')
+    node.wait_for_line(
+        LOG_TIMEOUT_S, f'frame at stamp {stamp_ns} ns', f'non-finite pixels: ids {bad_id}'
+    )
 
     # a pose without features, and features whose pose never comes: dropped after the horizon
     orphan_ns = frames[40].stamp_ns + 5_000_000
@@ -300,27 +290,33 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
     for index in range(42, 56):
         send(index)
     output(frames[55].stamp_ns)
-    wait_for_log(node, f'camera pose at stamp {orphan_ns} ns on {POSE_TOPIC} matches no features')
-    wait_for_log(node, f'features frame at stamp {lonely_ns} ns dropped: no camera pose')
+    node.wait_for_line(
+        LOG_TIMEOUT_S, f'camera pose at stamp {orphan_ns} ns on {POSE_TOPIC} matches no features'
+    )
+    node.wait_for_line(
+        LOG_TIMEOUT_S, f'features frame at stamp {lonely_ns} ns dropped: no camera pose'
+    )
 
     # an out-of-order frame: skipped
     late_ns = send(30)
-    wait_for_log(node, f'{late_ns} ns', 'not after')
+    node.wait_for_line(LOG_TIMEOUT_S, f'{late_ns} ns', 'not after')
 
     # a pose with NaN: the frame is skipped
     bad_pose = pose_message(frames[56].stamp_ns, still_rotation, still_centre)
     bad_pose.pose.pose.position.y = math.nan
     poses.publish(bad_pose)
     send(56, pose=False)
-    wait_for_log(node, f'frame at stamp {frames[56].stamp_ns} ns skipped', 'camera pose')
+    node.wait_for_line(
+        LOG_TIMEOUT_S, f'frame at stamp {frames[56].stamp_ns} ns skipped', 'camera pose'
+    )
 
     # an unusable camera_info is refused; a changed one is applied
     broken = camera_info(run)
     broken.k = [0.0] * 9
     info.publish(broken)
-    wait_for_log(node, 'camera/camera_info rejected', 'focal lengths')
+    node.wait_for_line(LOG_TIMEOUT_S, 'camera/camera_info rejected', 'focal lengths')
     info.publish(camera_info(run, fx_px=320.0))
-    wait_for_log(node, 'camera/camera_info changed', 'fx=320')
+    node.wait_for_line(LOG_TIMEOUT_S, 'camera/camera_info changed', 'fx=320')
 
     # still working, and still in zero baseline: nothing decided, nothing NaN
     output(send(57))

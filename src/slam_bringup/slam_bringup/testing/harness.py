@@ -114,6 +114,18 @@ class NodeProcess:
         """Return everything the process printed so far."""
         return self.log_path.read_text(encoding='utf-8', errors='replace')
 
+    def wait_for_line(self, timeout_s: float, *parts: str) -> str:
+        """Wait up to ``timeout_s`` for a printed line holding every one of ``parts``; return
+        the first such line."""
+
+        def line() -> str | None:
+            return next((x for x in self.log().splitlines() if all(p in x for p in parts)), None)
+
+        wait_until(
+            lambda: line() is not None, timeout_s=timeout_s, what=f'a log line with {parts}'
+        )
+        return str(line())
+
     def stop(self, *, timeout_s: float = 10.0) -> int:
         """SIGINT, then SIGTERM, then SIGKILL; return the exit code."""
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
