@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import datetime
 import os
+import platform
 import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import cv2
+import numpy as np
 
 T = TypeVar('T')
 
@@ -58,3 +61,18 @@ def pin_to_one_core(cpu: int | None) -> str:
     chosen = sorted(os.sched_getaffinity(0))[-1] if cpu is None else cpu
     os.sched_setaffinity(0, {chosen})
     return f'CPU {chosen}'
+
+
+def run_meta(pinned: str) -> dict[str, Any]:
+    """Return what a report says about the run: date, machine, CPU pinning, Python, numpy,
+    OpenCV and the measured commit."""
+    return {
+        'date': datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%d %H:%M UTC'),
+        'platform': platform.platform(),
+        'cpus': os.cpu_count(),
+        'pinned': pinned,
+        'python': platform.python_version(),
+        'numpy': np.__version__,
+        'opencv': cv2.__version__,
+        'commit': source_revision(),
+    }

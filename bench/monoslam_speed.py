@@ -41,10 +41,8 @@ for _variable in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS'):
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
-import datetime  # noqa: E402
 import gc  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
@@ -52,13 +50,14 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
-from bench_common import BENCH_DIR, pin_to_one_core, source_revision  # noqa: E402
+from bench_common import BENCH_DIR, pin_to_one_core, run_meta  # noqa: E402
 
 from monoslam_shadow_node.core.camera import CameraModel  # noqa: E402
 from monoslam_shadow_node.core.monoslam import (  # noqa: E402
     TRACKING,
     MonoSlam,
     MonoSlamConfig,
+    MonoSlamResult,
 )
 from monoslam_shadow_node.core.monoslam_model import CAMERA_SIZE  # noqa: E402
 from monoslam_shadow_node.core.projective import FloatArray  # noqa: E402
@@ -100,11 +99,11 @@ class FrameTimes:
 
 
 def shadow_input(
-    frame: MeasurementFrame, slam: MonoSlam, count: int, result: Any
+    frame: MeasurementFrame, slam: MonoSlam, count: int, result: MonoSlamResult
 ) -> FrameInput | None:
     """Return the Shadow filter's input for this frame: SLAM's pose and covariance and the
     ``count`` lowest ids SLAM does not own; None without a pose."""
-    if result.status != TRACKING or result.centre is None:
+    if result.status != TRACKING or result.centre is None or result.rotation is None:
         return None
     owned = slam.owned_ids
     ids, pixels = frame.measurements.ids, frame.measurements.pixels
@@ -312,13 +311,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     result: dict[str, Any] = {
         'meta': {
-            'date': datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%d %H:%M UTC'),
-            'platform': platform.platform(),
-            'cpus': os.cpu_count(),
-            'pinned': pinned,
-            'python': platform.python_version(),
-            'numpy': np.__version__,
-            'commit': source_revision(),
+            **run_meta(pinned),
             'seed': args.seed,
             'duration_s': args.duration_s,
             'repeats': args.repeats,

@@ -37,12 +37,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import datetime
 import gc
 import itertools
 import json
-import os
-import platform
 import sys
 import time
 from collections.abc import Callable
@@ -54,7 +51,7 @@ from unittest import mock
 
 import cv2
 import numpy as np
-from bench_common import best_of, pin_to_one_core, source_revision
+from bench_common import best_of, pin_to_one_core, run_meta
 
 from monoslam_shadow_node.core import shadow_filter as shadow_filter_module
 from monoslam_shadow_node.core.camera import CameraModel, pixel_rays
@@ -683,14 +680,7 @@ def main(argv: list[str] | None = None) -> int:
     cases = ray_cases(run, camera, args.ray_tests, args.seed)  # after process: a leaner heap
     result: dict[str, Any] = {
         'meta': {
-            'date': datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%d %H:%M UTC'),
-            'platform': platform.platform(),
-            'cpus': os.cpu_count(),
-            'pinned': pinned,
-            'python': platform.python_version(),
-            'numpy': np.__version__,
-            'opencv': cv2.__version__,
-            'commit': source_revision(),
+            **run_meta(pinned),
             'seed': args.seed,
             'repeats': args.repeats,
             'frames': len(run.frames),
