@@ -340,12 +340,14 @@ def topview_data(
     }
 
 
-def _ratio(numerator: float, denominator: float) -> float:
+def safe_ratio(numerator: float, denominator: float) -> float:
+    """numerator / denominator, NaN unless the denominator is > 0."""
     return numerator / denominator if denominator > 0 else math.nan
 
 
-def _mean(values: Sequence[float]) -> float:
-    finite = [v for v in values if math.isfinite(v)]
+def finite_mean(values: Sequence[float | None]) -> float:
+    """The mean of the finite values (None and NaN left out); NaN if there is none."""
+    finite = [v for v in values if v is not None and math.isfinite(v)]
     return float(np.mean(finite)) if finite else math.nan
 
 
@@ -355,16 +357,16 @@ def variant_totals(
     """Return one variant's aggregates over seeds."""
     totals: dict[str, Any] = {
         'seeds': len(per_seed),
-        'ate_m_mean': _mean([s['ate_m'] for s in per_seed]),
-        'ate_sim3_m_mean': _mean([s['ate_sim3_m'] for s in per_seed]),
-        'sim3_scale_mean': _mean([s['sim3_scale'] for s in per_seed]),
+        'ate_m_mean': finite_mean([s['ate_m'] for s in per_seed]),
+        'ate_sim3_m_mean': finite_mean([s['ate_sim3_m'] for s in per_seed]),
+        'sim3_scale_mean': finite_mean([s['sim3_scale'] for s in per_seed]),
         'diverged': sum(s['diverged'] for s in per_seed),
-        'map_rms_m_mean': _mean([s['map_rms_m'] for s in per_seed]),
-        'map_median_m_mean': _mean([s['map_median_m'] for s in per_seed]),
+        'map_rms_m_mean': finite_mean([s['map_rms_m'] for s in per_seed]),
+        'map_median_m_mean': finite_mean([s['map_median_m'] for s in per_seed]),
         'dynamic_in_map': sum(s['dynamic_in_map'] for s in per_seed),
         'dynamic_entered_map': sum(s['dynamic_entered_map'] for s in per_seed),
         **nees_summary(nees_values),
-        'ms_per_frame_mean': _mean([s['ms_per_frame'] for s in per_seed]),
+        'ms_per_frame_mean': finite_mean([s['ms_per_frame'] for s in per_seed]),
     }
     if per_seed and 'shadow' in per_seed[0]:
         keys = per_seed[0]['shadow']
@@ -373,26 +375,30 @@ def variant_totals(
 
 
 def ratio_summary(
-    per_seed: Mapping[str, Sequence[Mapping[str, Any]]], numerator: str, key: str
+    numerator: Sequence[Mapping[str, Any]] | None,
+    denominator: Sequence[Mapping[str, Any]] | None,
+    key: str,
 ) -> dict[str, Any] | None:
-    """Return mean ATE(numerator) / mean ATE(a) over the seeds both ran, and per seed."""
-    if 'a' not in per_seed or numerator not in per_seed:
+    """Return mean ``key`` of the numerator runs / mean of the denominator runs over the seeds
+    both ran, and per seed (runs: per seed dicts with 'seed', ``key`` and 'diverged'); None
+    if either is missing."""
+    if numerator is None or denominator is None:
         return None
-    base = {s['seed']: s for s in per_seed['a']}
-    pairs = [(s, base[s['seed']]) for s in per_seed[numerator] if s['seed'] in base]
+    base = {s['seed']: s for s in denominator}
+    pairs = [(s, base[s['seed']]) for s in numerator if s['seed'] in base]
     ratios = [
         {
             'seed': s['seed'],
-            'ratio': _ratio(s[key], b[key]),
+            'ratio': safe_ratio(s[key], b[key]),
             'diverged': s['diverged'],
         }
         for s, b in pairs
     ]
     return {
-        'ratio_of_means': _ratio(
-            _mean([s[key] for s, _ in pairs]), _mean([b[key] for _, b in pairs])
+        'ratio_of_means': safe_ratio(
+            finite_mean([s[key] for s, _ in pairs]), finite_mean([b[key] for _, b in pairs])
         ),
-        'mean_of_ratios': _mean([r['ratio'] for r in ratios]),
+        'mean_of_ratios': finite_mean([r['ratio'] for r in ratios]),
         'per_seed': ratios,
     }
 
@@ -443,12 +449,13 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
             'ate_rms_m': np.sqrt(np.nanmean(errors**2, axis=0)),
             **{f'nees_{k}': v for k, v in nees_by_frame(values).items()},
         }
+    per_variant, base = collected.per_seed, collected.per_seed.get('a')
     ratios = {
-        name: ratio_summary(collected.per_seed, numerator, 'ate_m')
+        name: ratio_summary(per_variant.get(numerator), base, 'ate_m')
         for name, numerator in (('c_over_a', 'c'), ('b_over_a', 'b'))
     }
     ratios_sim3 = {
-        name: ratio_summary(collected.per_seed, numerator, 'ate_sim3_m')
+        name: ratio_summary(per_variant.get(numerator), base, 'ate_sim3_m')
         for name, numerator in (('c_over_a', 'c'), ('b_over_a', 'b'))
     }
     target, scene = InitTarget(), settings.scene()
@@ -482,7 +489,9 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
 # --- summary and figures --------------------------------------------------------------------
 
 
-def _number(value: float | None, digits: int = 3) -> str:
+def number_text(value: float | None, digits: int = 3) -> str:
+    """A table cell: the value with ``digits`` decimals (exponent form from 1e5), '--' if
+    it is missing or not finite."""
     if value is None or not math.isfinite(value):
         return '--'
     return f'{value:.{digits}f}' if abs(value) < 1e5 else f'{value:.1e}'
@@ -516,7 +525,7 @@ def summary_text(content: Mapping[str, Any]) -> str:
     for variant, data in content['variants'].items():
         totals = data['totals']
         cells = ''.join(
-            f'{_number(totals[key], digits):>9s}' for _, key, digits in SUMMARY_COLUMNS
+            f'{number_text(totals[key], digits):>9s}' for _, key, digits in SUMMARY_COLUMNS
         )
         lines.append(f'  ({variant}) {data["title"]:32s}{cells}')
         if 'shadow' in totals:
@@ -535,13 +544,14 @@ def summary_text(content: Mapping[str, Any]) -> str:
     aligned = content['ratios_sim3']
     if aligned:
         ratios = ', '.join(
-            f'{name}: {_number(r["ratio_of_means"], 2)}' for name, r in aligned.items()
+            f'{name}: {number_text(r["ratio_of_means"], 2)}' for name, r in aligned.items()
         )
         lines.append(f'  after sim(3) alignment: {ratios}')
     for point in content['acceptance']:
         verdict = 'PASS' if point['passed'] else 'FAIL'
+        value = number_text(point['value'], 2)
         lines.append(
-            f'  {point["name"]:16s} {_number(point["value"], 2):>8s}  target {point["target"]:18s}'
+            f'  {point["name"]:16s} {value:>8s}  target {point["target"]:18s}'
             f' seeds meeting {point["seeds_meeting"]:6s} {verdict}'
         )
     for failure in content['failures']:

@@ -72,8 +72,11 @@ from monoslam_shadow_node.core.monoslam import MonoSlamFrame
 from monoslam_shadow_node.evaluate import parse_seeds
 from monoslam_shadow_node.evaluation_report import render_png
 from monoslam_shadow_node.monoslam_evaluate import (
+    finite_mean,
+    number_text,
     pose_errors,
     ratio_summary,
+    safe_ratio,
     shadow_numbers,
     trajectory_metrics,
 )
@@ -330,18 +333,14 @@ class FrontEndStats:
         counts = {k: v for k, v in asdict(self).items() if k != 'corner_errors_px'}
         return {
             **counts,
-            'features_per_frame': _share(self.features, self.frames),
-            'moving_share': _share(self.moving, self.features),
-            'moving_track_share': _share(self.moving_tracks, self.tracks),
-            'detection_rate': _share(self.detected_and_visible, self.target_visible),
+            'features_per_frame': safe_ratio(self.features, self.frames),
+            'moving_share': safe_ratio(self.moving, self.features),
+            'moving_track_share': safe_ratio(self.moving_tracks, self.tracks),
+            'detection_rate': safe_ratio(self.detected_and_visible, self.target_visible),
             'detected_not_visible': self.target_detected - self.detected_and_visible,
             'corner_rms_px': float(np.sqrt(np.mean(errors**2))) if len(errors) else math.nan,
             'corner_max_px': float(errors.max()) if len(errors) else math.nan,
         }
-
-
-def _share(numerator: float, denominator: float) -> float:
-    return numerator / denominator if denominator > 0 else math.nan
 
 
 class FrontEnd:
@@ -503,7 +502,7 @@ def _level_ratio_of(entry: Mapping[str, Any], key: str) -> float:
     image, measurement = entry.get('image', {}).get('c'), entry.get('measurement', {}).get('c')
     if image is None or measurement is None:
         return math.nan
-    return _share(image[key], measurement[key])
+    return safe_ratio(image[key], measurement[key])
 
 
 def _seed_line(result: SeedResult) -> str:
@@ -525,16 +524,11 @@ def _seed_line(result: SeedResult) -> str:
 # --- report ---------------------------------------------------------------------------------
 
 
-def _finite_mean(values: Sequence[float]) -> float:
-    finite = np.array([v for v in values if v is not None and math.isfinite(v)])
-    return float(finite.mean()) if len(finite) else math.nan
-
-
 def run_totals(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Return one filter run's aggregates over seeds (means over finite values)."""
     totals: dict[str, Any] = {'seeds': len(runs)}
     for key in ('ate_m', 'ate_sim3_m', 'sim3_scale', 'ms_per_frame'):
-        totals[f'{key}_mean'] = _finite_mean([run[key] for run in runs])
+        totals[f'{key}_mean'] = finite_mean([run[key] for run in runs])
     totals['diverged'] = sum(run['diverged'] for run in runs)
     totals['dynamic_entered_map'] = sum(run['dynamic_entered_map'] for run in runs)
     if runs and 'shadow' in runs[0]:
@@ -553,9 +547,8 @@ def _runs(per_seed: Sequence[Mapping[str, Any]], level: str, variant: str) -> li
 
 def level_ratio(per_seed: Sequence[Mapping[str, Any]], key: str) -> dict[str, Any] | None:
     """Return mean ``key`` of image c / mean of measurement c over the seeds both ran, and
-    per seed (monoslam_evaluate.ratio_summary, which divides by the runs filed under 'a')."""
-    runs = {'a': _runs(per_seed, 'measurement', 'c'), 'c': _runs(per_seed, 'image', 'c')}
-    return ratio_summary(runs, 'c', key)
+    per seed."""
+    return ratio_summary(_runs(per_seed, 'image', 'c'), _runs(per_seed, 'measurement', 'c'), key)
 
 
 def acceptance(ratio: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -646,16 +639,10 @@ def report(settings: Settings, results: Sequence[SeedResult], wall_s: float) -> 
 # --- table and figures ----------------------------------------------------------------------
 
 
-def _cell(value: float | None, digits: int = 3, scale: float = 1.0) -> str:
-    if value is None or not math.isfinite(value):
-        return '--'
-    return f'{scale * value:.{digits}f}'
-
-
 def _ate_cell(run: Mapping[str, Any] | None, key: str) -> str:
     if run is None:
         return 'failed'
-    return _cell(run[key]) + ('*' if run['diverged'] else '')
+    return number_text(run[key]) + ('*' if run['diverged'] else '')
 
 
 TABLE_HEADER = (
@@ -668,10 +655,10 @@ the sim(3) alignment (m), and the front end."""
 
 def _front_cells(front: Mapping[str, Any]) -> list[str]:
     return [
-        _cell(front['features_per_frame'], 0),
-        _cell(front['moving_share'], 1, 100.0),
-        _cell(front['detection_rate'], 1, 100.0),
-        _cell(front['corner_rms_px'], 2),
+        number_text(front['features_per_frame'], 0),
+        number_text(100.0 * front['moving_share'], 1),
+        number_text(100.0 * front['detection_rate'], 1),
+        number_text(front['corner_rms_px'], 2),
     ]
 
 
@@ -680,7 +667,7 @@ def _seed_cells(entry: Mapping[str, Any]) -> list[str]:
     return [
         str(entry['seed']),
         *(_ate_cell(run, 'ate_m') for run in runs),
-        _cell(entry['ratio_c']['ate_m'], 2),
+        number_text(entry['ratio_c']['ate_m'], 2),
         *(_ate_cell(run, 'ate_sim3_m') for run in runs),
         *_front_cells(entry['front_end']),
     ]
@@ -692,9 +679,9 @@ def _mean_cells(content: Mapping[str, Any]) -> list[str]:
     ratio = content['ratio_c']
     return [
         'mean',
-        *(_cell(run['ate_m_mean']) for run in runs),
-        _cell(ratio['ratio_of_means'] if ratio else None, 2),
-        *(_cell(run['ate_sim3_m_mean']) for run in runs),
+        *(number_text(run['ate_m_mean']) for run in runs),
+        number_text(ratio['ratio_of_means'] if ratio else None, 2),
+        *(number_text(run['ate_sim3_m_mean']) for run in runs),
         *_front_cells(totals['front_end']),
     ]
 
@@ -712,7 +699,8 @@ def table_text(content: Mapping[str, Any]) -> str:
         'ATE in m (raw: the target fixes the scale; sim3: after the sim(3) alignment); '
         '* diverged (ATE > 1 m, tracking lost or a non-finite estimate). a, b, c: image level; '
         'meas. c: measurement level, same seed and scene.',
-        f'Acceptance {point["name"]} = {_cell(point["value"], 2)} (target {point["target"]}; '
+        f'Acceptance {point["name"]} = {number_text(point["value"], 2)} '
+        f'(target {point["target"]}; '
         f'seeds meeting {point["seeds_meeting"]}): {"PASS" if point["passed"] else "FAIL"}',
     ]
     shadow = content['totals']['image']['c'].get('shadow')
