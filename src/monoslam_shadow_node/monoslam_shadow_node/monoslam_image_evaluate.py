@@ -833,8 +833,6 @@ def _arguments(argv: list[str] | None) -> Settings:
         gate_values = parse_pose_gate(args.shadow_max_pose_sigma)
     except ValueError as error:
         parser.error(str(error).replace('shadow max pose sigma', '--shadow-max-pose-sigma'))
-    if not seeds:
-        parser.error(f'--seeds {args.seeds!r}: no seeds (a range is low-high with low <= high)')
     duration_s = args.duration_s if args.duration_s is not None else 20.0
     evaluation = monoslam_evaluate.Settings(
         seeds, duration_s, VARIANTS, gate_values, args.out, args.unchecked_directions

@@ -193,6 +193,8 @@ def test_parse_seeds() -> None:
     assert parse_seeds('5') == (5,)
     with pytest.raises(ValueError, match='--seeds'):
         parse_seeds('a-b')
+    with pytest.raises(ValueError, match='5-2 is reversed'):
+        parse_seeds('0,5-2')
 
 
 def _record(
