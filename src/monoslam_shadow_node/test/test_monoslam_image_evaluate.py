@@ -66,12 +66,11 @@ def _reprojection_errors(images: list[ImageFrame], frames: list[MeasurementFrame
     for index, (image, frame) in enumerate(zip(images, frames, strict=True)):
         ids, pixels = frame.measurements.ids, frame.measurements.pixels
         new = np.array([int(i) not in first for i in ids], dtype=bool)
-        if new.any():  # (probe fails on no pixels)
-            depth_m, labels = renderer.probe(index, pixels[new])
-            rays, _ = undistort_pixels(camera, pixels[new])
-            points_m = np.c_[rays * depth_m[:, None], depth_m] @ image.rotation.T + image.centre_m
-            for track, point, label in zip(ids[new].tolist(), points_m, labels, strict=True):
-                first[track] = (index, point, bool(label >= 0))
+        depth_m, labels = renderer.probe(index, pixels[new])
+        rays, _ = undistort_pixels(camera, pixels[new])
+        points_m = np.c_[rays * depth_m[:, None], depth_m] @ image.rotation.T + image.centre_m
+        for track, point, label in zip(ids[new].tolist(), points_m, labels, strict=True):
+            first[track] = (index, point, bool(label >= 0))
         for track, pixel, flagged in zip(ids.tolist(), pixels, frame.moving, strict=True):
             start, point, on_object = first[track]
             if index - start < LATER_FRAMES:

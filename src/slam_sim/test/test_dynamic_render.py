@@ -73,6 +73,12 @@ def test_static_points_are_drawn_at_their_depth_on_static_surfaces(frame: FrameS
     assert checked > 300 and hidden < checked
 
 
+def test_probe_of_no_pixels_is_empty() -> None:
+    depth, labels = _renderer().probe(0, np.zeros((0, 2)))
+    assert depth.shape == (0,) and depth.dtype == np.float32
+    assert labels.shape == (0,) and labels.dtype == np.int16
+
+
 def test_objects_are_spheres_that_hide_the_room_behind_them(frame: FrameSource) -> None:
     renderer = _renderer()
     drawn = set()

@@ -632,6 +632,8 @@ class DynamicRenderer:
     ) -> tuple[Float32Array, NDArray[np.int16]]:
         """Return the depth (N,) m along the optical axis and label (N,) of what the rays
         through raw pixels (N, 2) hit at a frame (exact, at sub-pixel positions)."""
+        if np.size(pixels) == 0:
+            return np.zeros(0, np.float32), np.zeros(0, np.int16)
         rotation, position = self.pose(frame_index)
         centres, exists = self.object_centres(frame_index)
         normalized, valid = undistort_pixels(self.camera, np.asarray(pixels).reshape(1, -1, 2))
