@@ -411,20 +411,10 @@ class FeatureTracker:
             starts = np.column_stack(
                 [(slots % per_row) * side + half, (slots // per_row) * side + half]
             ).astype(np.float32)
-            end, ok, _ = self._lk_level0(canvas, gray, starts, pixels[chunk])
+            end, ok, _ = self._lk(canvas, gray, starts, pixels[chunk], levels=0)  # small templates
             distance = np.linalg.norm(end - pixels[chunk], axis=1)
             drifted[chunk] = ~(ok & (distance <= self.config.max_drift_px))
         return drifted
-
-    def _lk_level0(
-        self,
-        before: GrayImage,
-        after: GrayImage,
-        start: NDArray[np.float32],
-        guess: NDArray[np.float32],
-    ) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.float32]]:
-        """LK as ``_lk`` but on the full-resolution level only (templates are small)."""
-        return self._lk(before, after, start, guess, levels=0)
 
     def _crowded(self) -> NDArray[np.bool_]:
         """Return which held tracks lie within half of min_distance_px of an older one
