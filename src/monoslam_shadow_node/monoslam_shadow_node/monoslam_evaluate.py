@@ -3,6 +3,8 @@ the Shadow filter in a scene with moving objects.
 
     monoslam_evaluate --out out/monoslam_eval [--seeds 0-9] [--duration-s 20]
                       [--variants a,b,c] [--shadow-max-pose-sigma 0.03,0.01]
+                      [--unchecked-directions 1] [--known-board 3x3]
+                      [--shadow-poses slam|truth] [--oracle-handovers]
 
 Every seed simulates one run (``slam_sim.core.dynamic_scene``: 200 static points, 8 moving
 objects of 8 points, 1 px pixel noise, the initialization target's corners as known points;
@@ -10,6 +12,14 @@ objects of 8 points, 1 px pixel noise, the initialization target's corners as kn
 feeds the same frames to each variant (``monoslam_pipeline``): (a) static features only,
 (b) all features, (c) MonoSLAM + Shadow filter, with its pose gate
 ``--shadow-max-pose-sigma`` (position m, rotation rad; ``inf`` disables it).
+
+``--known-board RxC`` replaces the single 0.6 m target by a board of R x C markers of
+``BOARD_MARKER_SIDE_M`` with ``BOARD_GAP_M`` gaps around the same centre (the paper starts
+from a checkerboard: more known points, spread wider). ``--shadow-poses truth`` and
+``--oracle-handovers`` are the diagnostic bounds of ``monoslam_pipeline`` (the Shadow filter
+given the true camera poses; handovers of moving features dropped by ground truth); the
+summary names them, and they answer what the Shadow filter's classifier, and its poses,
+cost against (a).
 
 Metrics per variant and seed (frames with a pose estimate; all in ``map``, m):
 
@@ -56,6 +66,7 @@ from monoslam_shadow_node.evaluate import average_nees_band, camera_model, nees,
 from monoslam_shadow_node.evaluation_report import render_png
 from monoslam_shadow_node.monoslam_pipeline import (
     DEFAULT_SHADOW_MAX_POSE_SIGMA,
+    SHADOW_POSES,
     VARIANT_TITLES,
     VARIANTS,
     MeasurementFrame,
@@ -72,12 +83,14 @@ from slam_bringup.cli import console_main
 from slam_bringup.files import write_atomically, write_json
 from slam_bringup.progress import ProgressReporter
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
-from slam_sim.core.init_target import InitTarget
+from slam_sim.core.init_target import InitTarget, marker_board
 
 FloatArray = NDArray[np.float64]
 POSE_DOF = 6
 BAND_PROBABILITY = 0.95
 DIVERGED_ATE_M = 1.0
+BOARD_MARKER_SIDE_M = 0.3
+BOARD_GAP_M = 0.05
 TARGET_NOISE_SEED_OFFSET = 1000
 C_OVER_A_MAX = 1.2
 B_OVER_A_MIN = 3.0
@@ -251,17 +264,35 @@ class Settings:
     shadow_max_pose_sigma: tuple[float, float]
     out: Path
     unchecked_directions: int = 1
+    known_board: tuple[int, int] | None = None
+    shadow_poses: str = 'slam'
+    oracle_handovers: bool = False
 
     def scene(self) -> DynamicSceneConfig:
         """Return the Fig. 5 scene: 200 static points, 8 moving objects x 8 points."""
         return DynamicSceneConfig(duration_s=self.duration_s, objects=8, points_per_object=8)
 
-    def pipeline(self, target: InitTarget) -> PipelineConfig:
-        """Return the filters' settings: defaults, the target's known points, the gate."""
-        slam = MonoSlamConfig(known_points=target_known_points(target))
+    def markers(self) -> tuple[InitTarget, ...]:
+        """Return the known markers: the target, or the board around its centre."""
+        target = InitTarget()
+        if self.known_board is None:
+            return (target,)
+        rows, columns = self.known_board
+        return marker_board(target, rows, columns, BOARD_MARKER_SIDE_M, BOARD_GAP_M)
+
+    def pipeline(self, markers: InitTarget | Sequence[InitTarget]) -> PipelineConfig:
+        """Return the filters' settings: defaults, the markers' known points, the gate and
+        the diagnostic settings."""
+        slam = MonoSlamConfig(known_points=target_known_points(markers))
         classifier = ClassifierConfig(unchecked_directions=self.unchecked_directions)
         shadow = ShadowConfig(classifier=classifier)
-        return PipelineConfig(slam, shadow, self.shadow_max_pose_sigma)
+        return PipelineConfig(
+            slam,
+            shadow,
+            self.shadow_max_pose_sigma,
+            shadow_poses=self.shadow_poses,
+            oracle_handovers=self.oracle_handovers,
+        )
 
 
 @dataclass
@@ -287,10 +318,10 @@ def evaluate_seed(
     """Run every variant on ``seed``'s run and collect its metrics; ``done(frames)`` after
     each variant."""
     run = simulate_dynamic_scene(seed, settings.scene())
-    target = InitTarget()
+    markers = settings.markers()
     rng = np.random.default_rng(TARGET_NOISE_SEED_OFFSET + seed)
-    frames = simulation_frames(run, target, rng=rng)
-    camera, config = camera_model(run), settings.pipeline(target)
+    frames = simulation_frames(run, markers, rng=rng)
+    camera, config = camera_model(run), settings.pipeline(markers)
     for variant in settings.variants:
         try:
             record = run_variant(variant, frames, camera, config)
@@ -314,14 +345,14 @@ def evaluate_seed(
         collected.filter_s[variant] = collected.filter_s.get(variant, 0.0) + record.runtime_s
         collected.frames[variant] = collected.frames.get(variant, 0) + len(frames)
         if not collected.topview.get(variant):
-            collected.topview[variant] = topview_data(run, frames, record, target)
+            collected.topview[variant] = topview_data(run, frames, record, markers)
 
 
 def topview_data(
     run: DynamicSceneRun,
     frames: Sequence[MeasurementFrame],
     record: VariantRecord,
-    target: InitTarget,
+    markers: Sequence[InitTarget],
 ) -> dict[str, Any]:
     """Return what the Fig. 5 top view draws of one run and variant."""
     points = [p for p in record.map_points if p.covariance is not None]
@@ -335,7 +366,7 @@ def topview_data(
         'object_paths': paths,
         'map': np.array([p.position for p in points]).reshape(-1, 3),
         'map_moving': moving,
-        'target': target.corners_m,
+        'target': np.vstack([m.corners_m for m in markers]),
         'room': run.scene.room.size_m,
     }
 
@@ -458,7 +489,7 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
         name: ratio_summary(per_variant.get(numerator), base, 'ate_sim3_m')
         for name, numerator in (('c_over_a', 'c'), ('b_over_a', 'b'))
     }
-    target, scene = InitTarget(), settings.scene()
+    markers, scene = settings.markers(), settings.scene()
     frames = sum(collected.frames.values())
     filter_s = sum(collected.filter_s.values())
     return {
@@ -466,8 +497,11 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
             'seeds': list(settings.seeds),
             'variants': list(settings.variants),
             'scene': dataclasses.asdict(scene),
-            'target': {'side_m': target.side_m, 'centre_m': target.centre_m},
-            'pipeline': dataclasses.asdict(settings.pipeline(target)),
+            'known_markers': [
+                {'id': m.marker_id, 'side_m': m.side_m, 'centre_m': m.centre_m} for m in markers
+            ],
+            'known_board': list(settings.known_board) if settings.known_board else None,
+            'pipeline': dataclasses.asdict(settings.pipeline(markers)),
             'diverged_ate_m': DIVERGED_ATE_M,
             'target_noise_seed': f'{TARGET_NOISE_SEED_OFFSET} + seed',
         },
@@ -516,10 +550,15 @@ def summary_text(content: Mapping[str, Any]) -> str:
     """Return the printed summary of a report: one row per variant, Shadow numbers, ratios
     and PASS/FAIL per acceptance point."""
     config = content['config']
-    gate = config['pipeline']['shadow_max_pose_sigma']
+    pipeline = config['pipeline']
+    gate = pipeline['shadow_max_pose_sigma']
+    rule = pipeline['shadow']['classifier']['unchecked_directions']
+    board = config.get('known_board')
+    known = f'board {board[0]}x{board[1]}' if board else 'one target'
     lines = [
         f'MonoSLAM Fig. 5, seeds {config["seeds"]}, {config["scene"]["duration_s"]:g} s; '
-        f'Shadow pose gate {gate[0]:g} m, {gate[1]:g} rad',
+        f'known points: {known}; Shadow pose gate {gate[0]:g} m, {gate[1]:g} rad; '
+        f'STATIC rule: {rule} unchecked direction(s)',
         f'  {"variant":36s}' + ''.join(f'{header:>9s}' for header, _, _ in SUMMARY_COLUMNS),
     ]
     for variant, data in content['variants'].items():
@@ -537,6 +576,16 @@ def summary_text(content: Mapping[str, Any]) -> str:
                 f'{shadow["frames_skipped_pose_gate"]}, without a pose '
                 f'{shadow["frames_without_pose"]}'
             )
+    diagnostics = [
+        text
+        for text, active in (
+            ('the Shadow filter gets the TRUE camera poses', pipeline['shadow_poses'] == 'truth'),
+            ('handovers of moving features dropped by ground truth', pipeline['oracle_handovers']),
+        )
+        if active
+    ]
+    if diagnostics:
+        lines.append(f'  DIAGNOSTIC BOUND, not the system: {"; ".join(diagnostics)}')
     lines.append(
         '  (means over seeds; div: diverged seeds; map: static map point error; dyn: moving '
         'features that entered the map; band: share of frames in the NEES 95 % band)'
@@ -695,6 +744,16 @@ def parse_variants(text: str) -> tuple[str, ...]:
     return parts
 
 
+def parse_board(text: str) -> tuple[int, int]:
+    """Return (rows, columns) from 'RxC', both >= 1; ValueError naming the text otherwise."""
+    parts = text.lower().split('x')
+    if len(parts) == 2 and all(part.strip().isdigit() for part in parts):
+        rows, columns = (int(part) for part in parts)
+        if rows >= 1 and columns >= 1:
+            return rows, columns
+    raise ValueError(f'--known-board {text!r}: use rows x columns, both >= 1, e.g. 3x3')
+
+
 def _arguments(argv: list[str] | None) -> Settings:
     parser = argparse.ArgumentParser(prog='monoslam_evaluate', description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -728,15 +787,43 @@ def _arguments(argv: list[str] | None) -> Settings:
         help="the Shadow filter's STATIC rule: directions of motion left unchecked "
         '(0: strict, no moving feature handed over in the issue-6 runs; default 1)',
     )
+    parser.add_argument(
+        '--known-board',
+        default=None,
+        metavar='RxC',
+        help=f'known points from a board of R x C markers of {BOARD_MARKER_SIDE_M:g} m, '
+        f'{BOARD_GAP_M:g} m apart, instead of the single target (e.g. 3x3)',
+    )
+    parser.add_argument(
+        '--shadow-poses',
+        choices=SHADOW_POSES,
+        default='slam',
+        help="the Shadow filter's camera poses: SLAM's (default) or the truth (a diagnostic "
+        'bound: known poses, no gate)',
+    )
+    parser.add_argument(
+        '--oracle-handovers',
+        action='store_true',
+        help='drop handovers of truly moving features (a diagnostic bound)',
+    )
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         seeds = parse_seeds(args.seeds)
         variants = parse_variants(args.variants)
         gate_values = parse_pose_gate(args.shadow_max_pose_sigma)
+        board = None if args.known_board is None else parse_board(args.known_board)
     except ValueError as error:
         parser.error(str(error).replace('shadow max pose sigma', '--shadow-max-pose-sigma'))
     settings = Settings(
-        seeds, args.duration_s, variants, gate_values, args.out, args.unchecked_directions
+        seeds,
+        args.duration_s,
+        variants,
+        gate_values,
+        args.out,
+        args.unchecked_directions,
+        board,
+        args.shadow_poses,
+        args.oracle_handovers,
     )
     try:
         settings.scene()

@@ -15,8 +15,15 @@ Three variants run over the same frames (``run_variant``):
   within both; other frames are skipped for it and counted. Frames without a pose (waiting)
   or in which tracking was lost are not given to it either.
 
+Two diagnostic settings of variant ``c`` bound what the Shadow filter costs (they are not
+the system: the filters would need the truth): ``PipelineConfig.shadow_poses = 'truth'``
+gives the Shadow filter the true camera pose as a known pose (no covariance, no gate;
+SLAM's pose still decides whether a frame has one), and ``oracle_handovers`` drops every
+handover of a truly moving feature before SLAM sees it (recorded as refused).
+
 Frames come from the dynamic-scene simulation (``simulation_frames``: its features, and the
-initialization target's 4 corners as the known points 0-3 with N(0, pixel_noise_px) noise),
+corners of the known markers as known points, key 4 j + corner for marker j (a single
+target: 0-3), with N(0, pixel_noise_px) noise),
 or from anything else that can fill ``MeasurementFrame`` (a tracker and a marker detector,
 with truth from an association to the simulation). Truth travels with the frames; the
 filters never see it except through the ``moving`` selection of variant ``a``.
@@ -64,6 +71,8 @@ VARIANT_TITLES = {
 }
 DEFAULT_SHADOW_MAX_POSE_SIGMA = (0.03, 0.01)
 """The pose gate of the Shadow filter: (position m, rotation rad) standard deviations."""
+SHADOW_POSES = ('slam', 'truth')
+ORACLE_REFUSAL = 'oracle: the feature is on a moving object'
 
 
 class PipelineError(RuntimeError):
@@ -85,14 +94,22 @@ class MeasurementFrame:
 @dataclass(frozen=True)
 class PipelineConfig:
     """The filters' settings. ``slam.initialize`` is set by the variant; ``slam.known_points``
-    must hold the known points the frames measure (``target_known_points``)."""
+    must hold the known points the frames measure (``target_known_points``). ``shadow_poses``
+    and ``oracle_handovers`` are the diagnostic settings of the module docstring."""
 
     slam: MonoSlamConfig = field(default_factory=MonoSlamConfig)
     shadow: ShadowConfig = field(default_factory=ShadowConfig)
     shadow_max_pose_sigma: tuple[float, float] = DEFAULT_SHADOW_MAX_POSE_SIGMA
+    shadow_poses: str = 'slam'
+    oracle_handovers: bool = False
 
     def __post_init__(self) -> None:
-        """Reject a pose gate that is not two numbers > 0 (inf disables it)."""
+        """Reject a pose gate that is not two numbers > 0 (inf disables it) and unknown
+        Shadow pose sources."""
+        if self.shadow_poses not in SHADOW_POSES:
+            raise ValueError(
+                f'shadow_poses={self.shadow_poses!r}: must be one of {", ".join(SHADOW_POSES)}'
+            )
         gate = self.shadow_max_pose_sigma
         if len(gate) != 2 or not all(
             isinstance(v, int | float) and not isinstance(v, bool) and v > 0 for v in gate
@@ -147,26 +164,46 @@ class VariantRecord:
         return np.asarray(np.all(np.isfinite(self.centres), axis=1), dtype=bool)
 
 
-def target_known_points(target: InitTarget) -> dict[int, tuple[float, float, float]]:
-    """Return the target's corners as SLAM's known points: key = corner index 0-3, (3,) m."""
-    return {k: (float(x), float(y), float(z)) for k, (x, y, z) in enumerate(target.corners_m)}
+def _markers(targets: InitTarget | Sequence[InitTarget]) -> tuple[InitTarget, ...]:
+    return (targets,) if isinstance(targets, InitTarget) else tuple(targets)
+
+
+def target_known_points(
+    targets: InitTarget | Sequence[InitTarget],
+) -> dict[int, tuple[float, float, float]]:
+    """Return the markers' corners as SLAM's known points: key 4 j + corner index for marker j
+    of ``targets`` (one target: keys 0-3), (3,) m."""
+    return {
+        4 * j + k: (float(x), float(y), float(z))
+        for j, marker in enumerate(_markers(targets))
+        for k, (x, y, z) in enumerate(marker.corners_m)
+    }
 
 
 def simulation_frames(
-    run: DynamicSceneRun, target: InitTarget, *, rng: np.random.Generator
+    run: DynamicSceneRun,
+    targets: InitTarget | Sequence[InitTarget],
+    *,
+    rng: np.random.Generator,
 ) -> list[MeasurementFrame]:
-    """Return the run's frames for SLAM: its tracked features (noisy pixels), the target's 4
-    corners (keys 0-3) where all are in view, with N(0, pixel_noise_px) noise from ``rng``,
-    and the truth (moving flags, true pose)."""
+    """Return the run's frames for SLAM: its tracked features (noisy pixels), the 4 corners
+    of every marker in ``targets`` whose corners are all in view (keys as in
+    ``target_known_points``), with N(0, pixel_noise_px) noise from ``rng``, and the truth
+    (moving flags, true pose). With one target, the noise draws are those of earlier runs."""
     sigma_px = run.config.pixel_noise_px
+    markers = _markers(targets)
     frames = []
     for frame in run.frames:
-        pixels = target_pixels(target, run.camera, frame.camera_rotation, frame.camera_position)
-        keys = np.zeros(0, dtype=np.int64)
-        known = np.zeros((0, 2))
-        if pixels is not None:
-            keys = np.arange(4, dtype=np.int64)
-            known = pixels + sigma_px * rng.standard_normal((4, 2))
+        key_parts, known_parts = [], []
+        for j, marker in enumerate(markers):
+            pixels = target_pixels(
+                marker, run.camera, frame.camera_rotation, frame.camera_position
+            )
+            if pixels is not None:
+                key_parts.append(4 * j + np.arange(4, dtype=np.int64))
+                known_parts.append(pixels + sigma_px * rng.standard_normal((4, 2)))
+        keys = np.concatenate(key_parts) if key_parts else np.zeros(0, dtype=np.int64)
+        known = np.vstack(known_parts) if known_parts else np.zeros((0, 2))
         measurements = MonoSlamFrame(frame.stamp_ns, frame.track_ids, frame.pixels, keys, known)
         frames.append(
             MeasurementFrame(
@@ -293,13 +330,17 @@ def _shadow_step(
     books: _Bookkeeping,
 ) -> None:
     """Give the Shadow filter SLAM's pose and the features SLAM does not own (if the pose
-    passes the gate) and pass its handovers to SLAM."""
+    passes the gate) and pass its handovers to SLAM (the diagnostic settings: the true pose,
+    no handovers of moving features)."""
     pose = _pose(result)
     if result.status != TRACKING or pose is None:
         books.no_pose += 1
         return
-    centre, rotation, covariance = pose
-    if not pose_within(covariance, config.shadow_max_pose_sigma):
+    centre, rotation, slam_covariance = pose
+    covariance: FloatArray | None = slam_covariance
+    if config.shadow_poses == 'truth':
+        centre, rotation, covariance = frame.true_centre, frame.true_rotation, None
+    elif not pose_within(slam_covariance, config.shadow_max_pose_sigma):
         books.gated += 1
         return
     owned = slam.owned_ids
@@ -314,8 +355,11 @@ def _shadow_step(
     books.static_decisions += sum(d.status == STATIC for d in output.decisions)
     books.dynamic_decisions += sum(d.status == DYNAMIC for d in output.decisions)
     for handover in output.handovers:
-        refused = slam.add_handover(handover.id, handover.position, handover.position_covariance)
         moving = books.moving.get(handover.id, False)
+        if config.oracle_handovers and moving:
+            books.handovers.append(HandoverEvent(index, handover.id, moving, ORACLE_REFUSAL))
+            continue
+        refused = slam.add_handover(handover.id, handover.position, handover.position_covariance)
         books.handovers.append(HandoverEvent(index, handover.id, moving, refused))
 
 

@@ -3,6 +3,7 @@ runs, the alignment and NEES statistics on inputs with known answers, and the CL
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -26,6 +27,7 @@ from monoslam_shadow_node.monoslam_evaluate import (
     umeyama_alignment,
 )
 from monoslam_shadow_node.monoslam_pipeline import (
+    ORACLE_REFUSAL,
     MeasurementFrame,
     PipelineConfig,
     PipelineError,
@@ -38,7 +40,7 @@ from monoslam_shadow_node.monoslam_pipeline import (
 )
 from slam_bringup.blas import single_threaded_blas
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
-from slam_sim.core.init_target import InitTarget, target_pixels
+from slam_sim.core.init_target import InitTarget, marker_board, target_pixels
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 TARGET = InitTarget()
@@ -84,6 +86,31 @@ def test_frames_carry_the_target_corners_as_known_points_and_the_truth() -> None
         np.testing.assert_array_equal(frame.moving, run.point_moving[source.point_ids])
         np.testing.assert_array_equal(frame.true_centre, source.camera_position)
     assert seen == len(frames)  # the target stays in view (init_target's promise)
+
+
+def test_board_frames_key_each_markers_corners_as_4j_plus_corner() -> None:
+    run = simulate_dynamic_scene(0, DynamicSceneConfig(duration_s=0.5, static_points=50))
+    board = marker_board(TARGET, 2, 2, 0.3, 0.05)
+    known = target_known_points(board)
+    assert sorted(known) == list(range(16))
+    np.testing.assert_allclose(known[4 * 3 + 2], board[3].corners_m[2])
+    for frame, source in zip(_frames_of(run, board), run.frames, strict=True):
+        keys = frame.measurements.known_keys
+        for j, marker in enumerate(board):
+            truth = target_pixels(
+                marker, run.camera, source.camera_rotation, source.camera_position
+            )
+            rows = np.flatnonzero(keys // 4 == j)
+            if truth is None:
+                assert len(rows) == 0
+                continue
+            np.testing.assert_array_equal(keys[rows], 4 * j + np.arange(4))
+            error = frame.measurements.known_pixels[rows] - truth
+            assert 0.0 < np.abs(error).max() < 5.0 * run.config.pixel_noise_px
+
+
+def _frames_of(run: DynamicSceneRun, markers: tuple[InitTarget, ...]) -> list[MeasurementFrame]:
+    return simulation_frames(run, markers, rng=np.random.default_rng(0))
 
 
 # --- the variants ---------------------------------------------------------------------------
@@ -132,6 +159,25 @@ def test_variant_c_skips_the_shadow_filter_above_the_pose_gate() -> None:
     assert record.shadow_gated_frames + record.shadow_no_pose_frames == len(frames)
     assert record.shadow_gated_frames == int(record.tracked.sum())
     assert not record.map_points  # SLAM adds nothing on its own in handover mode
+
+
+def test_variant_c_diagnostics_truth_poses_skip_the_gate_and_the_oracle_drops_movers() -> None:
+    scene = DynamicSceneConfig(duration_s=3.0, static_points=80, objects=6, points_per_object=6)
+    run = simulate_dynamic_scene(4, scene)
+    frames = _frames(run, 4)
+    gated = dataclasses.replace(_config((1e-4, 1e-4)), shadow_poses='truth')
+    record = run_variant('c', frames, camera_model(run), gated)
+    assert record.shadow_gated_frames == 0 and record.shadow_frames == int(record.tracked.sum())
+    assert record.handovers  # the true poses let the Shadow filter decide despite the gate
+    assert record.dynamic_in_map  # seed 4: a mover is called STATIC (measured 5)
+    oracle = dataclasses.replace(gated, oracle_handovers=True)
+    record = run_variant('c', frames, camera_model(run), oracle)
+    moving = [event for event in record.handovers if event.moving]
+    assert moving and all(event.refused == ORACLE_REFUSAL for event in moving)
+    assert all(event.refused is None for event in record.handovers if not event.moving)
+    assert not record.dynamic_in_map
+    with pytest.raises(ValueError, match='shadow_poses'):
+        PipelineConfig(shadow_poses='odometry')
 
 
 def test_a_frame_a_filter_rejects_names_the_variant_and_frame() -> None:
@@ -248,6 +294,23 @@ def test_cli_writes_a_parsable_report_and_figures(
         assert (out / name).read_bytes().startswith(PNG_MAGIC)
     printed = capsys.readouterr().out
     assert 'ATE(c)/ATE(a)' in printed and ('PASS' in printed or 'FAIL' in printed)
+    assert 'DIAGNOSTIC' not in printed and 'one target' in printed
+
+
+def test_cli_board_and_diagnostics_are_reported_and_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / 'eval'
+    arguments = ['--out', str(out), '--seeds', '0', '--duration-s', '1.0', '--variants', 'a,c']
+    diagnostics = ['--known-board', '2x3', '--shadow-poses', 'truth', '--oracle-handovers']
+    assert main([*arguments, *diagnostics]) == 0
+    config = _strict_json(out / 'monoslam_eval.json')['config']
+    assert config['known_board'] == [2, 3] and len(config['known_markers']) == 6
+    assert len(config['pipeline']['slam']['known_points']) == 24
+    assert config['pipeline']['shadow_poses'] == 'truth' and config['pipeline']['oracle_handovers']
+    printed = capsys.readouterr().out
+    assert 'board 2x3' in printed
+    assert 'DIAGNOSTIC BOUND' in printed and 'TRUE camera poses' in printed
 
 
 @pytest.mark.parametrize(
@@ -259,6 +322,9 @@ def test_cli_writes_a_parsable_report_and_figures(
         (['--seeds', 'x'], '--seeds'),
         (['--duration-s', '0'], '--duration-s'),
         (['--unchecked-directions', '3'], '--unchecked-directions'),
+        (['--known-board', '3x0'], '--known-board'),
+        (['--known-board', 'big'], '--known-board'),
+        (['--shadow-poses', 'odometry'], '--shadow-poses'),
     ],
 )
 def test_cli_rejects_bad_arguments_naming_them(

@@ -93,3 +93,28 @@ def target_pixels(
     if np.any(pixels < margin_px) or np.any(pixels > limits):
         return None
     return pixels
+
+
+def marker_board(
+    target: InitTarget, rows: int, columns: int, side_m: float, gap_m: float
+) -> tuple[InitTarget, ...]:
+    """Return a board of ``rows`` x ``columns`` markers in ``target``'s plane, centred on its
+    centre and facing as it does: each ``side_m`` wide, ``gap_m`` apart, ids ``marker_id``,
+    ``marker_id`` + 1, ... row by row from the top left (as seen facing the board). Paper 001
+    starts from a checkerboard; a board is the known point set with more, spread points than
+    one marker (1 x 1 with side_m = target.side_m is the target itself)."""
+    if isinstance(rows, bool) or isinstance(columns, bool) or rows < 1 or columns < 1:
+        raise ValueError(f'board {rows!r} x {columns!r}: rows and columns must be >= 1')
+    if not gap_m >= 0.0:
+        raise ValueError(f'gap_m = {gap_m!r} must be >= 0 m')
+    rotation = np.asarray(target.rotation, dtype=np.float64)
+    pitch = side_m + gap_m
+    markers = []
+    for row in range(rows):
+        for column in range(columns):
+            right = (column - 0.5 * (columns - 1)) * pitch
+            up = (0.5 * (rows - 1) - row) * pitch
+            centre = target.centre_m + right * rotation[:, 0] + up * rotation[:, 1]
+            marker_id = target.marker_id + row * columns + column
+            markers.append(InitTarget(marker_id, side_m, centre, rotation, target.dictionary))
+    return tuple(markers)
