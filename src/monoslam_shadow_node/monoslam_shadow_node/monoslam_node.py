@@ -83,6 +83,9 @@ keeps the two equal).
   failure_window, min_success_ratio, max_consecutive_failures  deleting failing features.
   lost_after_frames, max_position_sigma_m  tracking is lost after this many frames measuring
                                   nothing, or when the position sigma exceeds this (m).
+  lost_after_known_rejected_frames (3)  ... or after this many frames in a row in which the
+                                  gate rejected more than half of the target's corners in
+                                  view: the estimate has diverged from the known points.
   max_gap_s                       a longer gap between frames is logged, s.
   initialize ('handover')         'handover' (with the Shadow filter) or 'all' (classic
                                   MonoSLAM alone, from every new track).

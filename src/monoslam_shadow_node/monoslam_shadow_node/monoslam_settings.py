@@ -88,6 +88,11 @@ CORE_SETTINGS = (
     _core('min_success_ratio', 'a feature accepted less often over them is deleted, in (0, 1)'),
     _core('max_consecutive_failures', 'a feature rejected this often in a row is deleted'),
     _core('lost_after_frames', 'tracking is lost after this many frames measuring nothing'),
+    _core(
+        'lost_after_known_rejected_frames',
+        'tracking is lost after this many frames in a row in which the gate rejected most '
+        'known points in view',
+    ),
     _core('max_position_sigma_m', 'tracking is lost when the position std. dev. exceeds it, m'),
     _core('max_gap_s', 'a longer gap between frames is logged as a warning, s (> 0)'),
     Setting(

@@ -8,6 +8,7 @@ import pytest
 
 from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam import (
+    LOST,
     TRACKING,
     WAITING,
     MonoSlam,
@@ -253,6 +254,38 @@ def test_losing_every_measurement_reports_lost_and_restarts() -> None:
     assert any(not p.active for p in slam.map_points())  # the map was retired, not dropped
     _, again = frames[lost_at + 1]
     assert slam.process(again).status == TRACKING
+
+
+def test_known_points_the_estimate_disagrees_with_make_it_lost_and_restart() -> None:
+    """A diverged estimate (here: the known corners seen half a turn away from where it
+    expects them, features dropped) is lost once the gate rejected most known points in view
+    for lost_after_known_rejected_frames frames in a row, not after a single such frame."""
+    run = simulate_dynamic_scene(5, DynamicSceneConfig(duration_s=2.0, objects=0))
+    slam = _filter(run)
+    frames = list(_frames(run, InitTarget(), np.random.default_rng(3), static_only=True))
+    for _, measurements in frames[:10]:
+        assert slam.process(measurements).status == TRACKING
+
+    def shifted(index: int) -> MonoSlamFrame:
+        measurements = frames[index][1]
+        known = measurements.known_pixels[[2, 3, 0, 1]]  # the marker turned 180 degrees
+        empty = np.zeros(0, np.int64), np.zeros((0, 2))
+        return MonoSlamFrame(measurements.stamp_ns, *empty, measurements.known_keys, known)
+
+    one = slam.process(shifted(10))
+    assert one.status == TRACKING and one.known_points_used == 0  # rejected, not yet lost
+    assert slam.process(frames[11][1]).status == TRACKING  # agreeing again: the count restarts
+    limit = slam.config.lost_after_known_rejected_frames
+    results = []
+    for index in range(12, 12 + 3 * limit):
+        results.append(slam.process(shifted(index)))
+        if results[-1].status != TRACKING:
+            break
+    # measured: lost in the 5th frame (the gate, grown without updates, let all 4 through once)
+    assert results[-1].status == LOST and limit <= len(results) < slam.config.lost_after_frames
+    assert any('rejected most known points in view' in w for w in results[-1].warnings)
+    restarted = slam.process(frames[12 + len(results)][1])
+    assert restarted.status == TRACKING and restarted.known_points_used == 4
 
 
 def test_config_rejects_bad_values() -> None:

@@ -21,9 +21,13 @@ Per frame (``MonoSlam.process``):
    only from features handed over as STATIC (``add_handover``): the ray of the current
    measurement anchored at the current camera, the inverse depth and its variance from the
    handed-over point and covariance. The map never holds more than ``max_features``;
-6. tracking is lost when no measurement was accepted for ``lost_after_frames`` frames or the
-   camera's position uncertainty exceeds ``max_position_sigma_m``: the filter reports it,
-   retires its map and starts again from the known points.
+6. tracking is lost when no measurement was accepted for ``lost_after_frames`` frames, the
+   camera's position uncertainty exceeds ``max_position_sigma_m``, or the gate rejected more
+   than half of the known points in view (at least ``MIN_KNOWN_POINTS`` of them) in
+   ``lost_after_known_rejected_frames`` frames in a row: known points are certain, so an
+   estimate they disagree with has diverged (e.g. dragged along by moving features), even
+   while its grown covariance lets a few of them through now and then. The filter reports
+   it, retires its map and starts again from the known points.
 """
 
 from __future__ import annotations
@@ -95,6 +99,7 @@ class MonoSlamConfig:
     min_success_ratio: float = 0.5
     max_consecutive_failures: int = 3
     lost_after_frames: int = 15
+    lost_after_known_rejected_frames: int = 3
     max_position_sigma_m: float = 2.0
     max_gap_s: float = 1.0
     initialize: str = 'all'
@@ -118,6 +123,7 @@ class MonoSlamConfig:
         counts = (
             'max_features', 'target_measured', 'max_new_per_frame', 'max_unseen_frames',
             'failure_window', 'max_consecutive_failures', 'lost_after_frames',
+            'lost_after_known_rejected_frames',
         )  # fmt: skip
         for name in counts:
             value = getattr(self, name)
@@ -229,6 +235,8 @@ class MonoSlam:
         self._last_stamp_ns: int | None = None
         self._status = WAITING
         self._idle_frames = 0
+        self._known_rejected_frames = 0
+        self._known_rejected = (0, 0)  # (rejected, in view) in the latest such frame
 
     # --- public state ----------------------------------------------------------------------
 
@@ -336,6 +344,12 @@ class MonoSlam:
             self._idle_frames = 0
         else:
             self._idle_frames += 1
+        in_view = len(known_keys)
+        if in_view >= MIN_KNOWN_POINTS and in_view - known_used > in_view / 2:
+            self._known_rejected_frames += 1
+            self._known_rejected = (in_view - known_used, in_view)
+        else:
+            self._known_rejected_frames = 0
         lost_reason = self._lost_reason()
         if lost_reason is not None:
             warnings.append(f'tracking lost: {lost_reason}; waiting for the known points')
@@ -404,6 +418,7 @@ class MonoSlam:
         self._features = []
         self._status = TRACKING
         self._idle_frames = 0
+        self._known_rejected_frames = 0
         warnings.append(
             f'started from {fix.points} known points (RMS reprojection {fix.rms_error_px:.2f} px)'
         )
@@ -634,6 +649,12 @@ class MonoSlam:
         """Return why tracking is lost, or None."""
         if self._idle_frames >= self.config.lost_after_frames:
             return f'no feature or known point measured for {self._idle_frames} frames'
+        if self._known_rejected_frames >= self.config.lost_after_known_rejected_frames:
+            rejected, in_view = self._known_rejected
+            return (
+                f'the gate rejected most known points in view ({rejected} of {in_view}) for '
+                f'{self._known_rejected_frames} frames: the estimate disagrees with them'
+            )
         sigma = math.sqrt(max(float(np.max(np.linalg.eigvalsh(self._p[R_SLICE, R_SLICE]))), 0.0))
         if not math.isfinite(sigma) or sigma > self.config.max_position_sigma_m:
             return f'camera position sigma {sigma:.2f} m exceeds max_position_sigma_m'
