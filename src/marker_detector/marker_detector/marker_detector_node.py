@@ -5,8 +5,11 @@ corners to subpixel accuracy, solves each marker's pose (IPPE square) with a cov
 the reprojection Jacobian and the pixel noise, applies the quality gates and converts the
 marker centres into range and bearing in the robot base frame. The lens (plumb-bob or
 rational polynomial from camera_info) is undistorted inside the pose solution. Bad inputs
-(an unsupported encoding, an empty or corrupt image, no camera_info yet, no camera mount)
-are logged with the reason, and the node goes on with the next image.
+(an unsupported encoding, an empty or corrupt image, no camera mount) are logged with the
+reason, and the node goes on with the next image. Images that come before the first usable
+camera_info (a bag or driver usually starts both at once) are held, the latest
+HELD_IMAGES of them, and detected in order once it arrives; older ones are dropped and
+counted, with the reason in the log.
 
 Topics:
   subscribes  camera/image_raw (sensor_msgs/Image: mono8, bgr8, rgb8, bgra8, rgba8) when
@@ -50,6 +53,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections import deque
 from typing import Any
 
 import cv2
@@ -154,6 +158,10 @@ def draw_detections(image: np.ndarray, output: FrameOutput) -> np.ndarray:
     return canvas
 
 
+HELD_IMAGES = 10
+"""Images held while no camera_info has come yet (the oldest is dropped first)."""
+
+
 class MarkerDetectorNode(Node):
     """Thin adapter around MarkerProcessor."""
 
@@ -174,6 +182,7 @@ class MarkerDetectorNode(Node):
         self.images = 0
         self.dropped = 0
         self.detections = 0
+        self.held: deque[Image | CompressedImage] = deque()
         self._status_time = time.monotonic()
         self._status_images = 0
         self.fiducials_publisher = self.create_publisher(FiducialArray, 'fiducials', output_qos())
@@ -228,6 +237,13 @@ class MarkerDetectorNode(Node):
             self.processor.set_camera_info(**camera_info_fields(message))
         except InputError as err:
             self._error(str(err))
+            return
+        if self.held:
+            self.get_logger().info(
+                f'camera_info arrived: detecting in the {len(self.held)} images held until now'
+            )
+        while self.held:
+            self._on_image(self.held.popleft())
 
     def _on_tf_static(self, message: TFMessage) -> None:
         for transform in message.transforms:
@@ -241,6 +257,9 @@ class MarkerDetectorNode(Node):
                 self._error(str(err))
 
     def _on_image(self, message: Image | CompressedImage) -> None:
+        if self.processor.camera is None:
+            self._hold(message)
+            return
         self.images += 1
         stamp_ns = stamp_to_ns(message.header.stamp)
         try:
@@ -261,6 +280,26 @@ class MarkerDetectorNode(Node):
         if self.debug_publisher is not None and self.debug_publisher.get_subscription_count():
             self.debug_publisher.publish(self._debug_image(image, output, message))
         self._report_status()
+
+    def _hold(self, message: Image | CompressedImage) -> None:
+        """Keep an image that came before any camera_info (module docstring)."""
+        self.held.append(message)
+        stamp_ns = stamp_to_ns(message.header.stamp)
+        if len(self.held) > HELD_IMAGES:
+            oldest = stamp_to_ns(self.held.popleft().header.stamp)
+            self.images += 1
+            self.dropped += 1
+            self._error(
+                f'image dropped ({self.dropped} so far): no camera_info received yet, and '
+                f'{HELD_IMAGES} newer images are held (the image at {oldest} ns); is '
+                'camera/camera_info published?'
+            )
+            return
+        self.get_logger().warning(
+            f'no camera_info received yet: image at {stamp_ns} ns held ({len(self.held)} '
+            f'held, at most {HELD_IMAGES}) until it arrives; is camera/camera_info published?',
+            throttle_duration_sec=2.0,
+        )
 
     def _debug_image(self, image: np.ndarray, output: FrameOutput, source: Any) -> Image:
         canvas = draw_detections(image, output)
