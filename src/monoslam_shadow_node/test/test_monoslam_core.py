@@ -288,6 +288,22 @@ def test_known_points_the_estimate_disagrees_with_make_it_lost_and_restart() -> 
     assert restarted.status == TRACKING and restarted.known_points_used == 4
 
 
+def test_a_collapsed_pose_covariance_makes_it_lost() -> None:
+    """A pose covariance that is not positive definite (seen in a diverged run, eigenvalues
+    from -3e-21 to 8e-4) must not be published and filtered on: lost, and it restarts."""
+    run = simulate_dynamic_scene(5, DynamicSceneConfig(duration_s=1.0, objects=0))
+    slam = _filter(run)
+    frames = list(_frames(run, InitTarget(), np.random.default_rng(4), static_only=True))
+    for _, measurements in frames[:5]:
+        assert slam.process(measurements).status == TRACKING
+    slam._p[0, 0] = -1.0  # a position variance below zero: no longer a covariance
+    empty = MonoSlamFrame(frames[5][1].stamp_ns, np.zeros(0, np.int64), np.zeros((0, 2)))
+    result = slam.process(empty)
+    assert result.status == LOST
+    assert any('pose covariance collapsed' in w for w in result.warnings)
+    assert slam.process(frames[6][1]).status == TRACKING
+
+
 def test_config_rejects_bad_values() -> None:
     with pytest.raises(ValueError, match='gate_probability'):
         MonoSlamConfig(gate_probability=1.0)

@@ -26,8 +26,9 @@ Per frame (``MonoSlam.process``):
    than half of the known points in view (at least ``MIN_KNOWN_POINTS`` of them) in
    ``lost_after_known_rejected_frames`` frames in a row: known points are certain, so an
    estimate they disagree with has diverged (e.g. dragged along by moving features), even
-   while its grown covariance lets a few of them through now and then. The filter reports
-   it, retires its map and starts again from the known points.
+   while its grown covariance lets a few of them through now and then; or when the pose
+   covariance collapsed (``MIN_POSE_EIGENVALUE_RATIO``). The filter reports it, retires its
+   map and starts again from the known points.
 """
 
 from __future__ import annotations
@@ -66,6 +67,9 @@ INITIALIZE_MODES = ('all', 'handover')
 FAR_M = 1000.0
 """Where along its ray an inverse-depth feature with rho <= 0 is reported (m)."""
 MAX_HANDOVER_AGE_FRAMES = 30
+MIN_POSE_EIGENVALUE_RATIO = 1e-12
+"""Tracking is lost when the pose covariance's smallest eigenvalue is not above this share of
+its largest: numerically singular, or not positive definite (measured in tracking: ~1e-4)."""
 """A handover whose feature is not observed within this many frames is dropped."""
 
 
@@ -660,6 +664,12 @@ class MonoSlam:
             return f'camera position sigma {sigma:.2f} m exceeds max_position_sigma_m'
         if not np.all(np.isfinite(self._x)):
             return 'the state is not finite'
+        values = np.linalg.eigvalsh(self._pose_covariance())
+        if not values[0] > MIN_POSE_EIGENVALUE_RATIO * values[-1]:
+            return (
+                f'the pose covariance collapsed (eigenvalues {values[0]:.1e} to '
+                f'{values[-1]:.1e}): the filter is overconfident'
+            )
         return None
 
     def _reset(self) -> None:
@@ -705,14 +715,17 @@ class MonoSlam:
                 stamp_ns, self._frame, status, None, None, None, None, None, measured,
                 rejected, added, removed, known_used, warnings,
             )  # fmt: skip
-        x, p = self._x, self._p
-        q = x[Q_SLICE]
-        to_pose = np.zeros((6, CAMERA_SIZE))
-        to_pose[:3, R_SLICE] = np.eye(3)
-        to_pose[3:, Q_SLICE] = world_angle_jacobian(q)
-        covariance = to_pose @ p[:CAMERA_SIZE, :CAMERA_SIZE] @ to_pose.T
+        x, q = self._x, self._x[Q_SLICE]
         return MonoSlamResult(
             stamp_ns, self._frame, status, rotation(q), x[R_SLICE].copy(),
-            0.5 * (covariance + covariance.T), x[V_SLICE].copy(), x[W_SLICE].copy(), measured,
+            self._pose_covariance(), x[V_SLICE].copy(), x[W_SLICE].copy(), measured,
             rejected, added, removed, known_used, warnings,
         )  # fmt: skip
+
+    def _pose_covariance(self) -> FloatArray:
+        """The camera pose covariance (6, 6): position, rotation about the world axes."""
+        to_pose = np.zeros((6, CAMERA_SIZE))
+        to_pose[:3, R_SLICE] = np.eye(3)
+        to_pose[3:, Q_SLICE] = world_angle_jacobian(self._x[Q_SLICE])
+        covariance = to_pose @ self._p[:CAMERA_SIZE, :CAMERA_SIZE] @ to_pose.T
+        return np.asarray(0.5 * (covariance + covariance.T), dtype=np.float64)
