@@ -86,6 +86,8 @@ keeps the two equal).
   lost_after_known_rejected_frames (3)  ... or after this many frames in a row in which the
                                   gate rejected more than half of the target's corners in
                                   view: the estimate has diverged from the known points.
+                                  (It is also lost when its pose covariance is no longer
+                                  positive definite: such a covariance is never published.)
   max_gap_s                       a longer gap between frames is logged, s.
   initialize ('handover')         'handover' (with the Shadow filter) or 'all' (classic
                                   MonoSLAM alone, from every new track).
