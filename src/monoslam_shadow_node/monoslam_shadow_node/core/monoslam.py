@@ -67,10 +67,10 @@ INITIALIZE_MODES = ('all', 'handover')
 FAR_M = 1000.0
 """Where along its ray an inverse-depth feature with rho <= 0 is reported (m)."""
 MAX_HANDOVER_AGE_FRAMES = 30
+"""A handover whose feature is not observed within this many frames is dropped."""
 MIN_POSE_EIGENVALUE_RATIO = 1e-12
 """Tracking is lost when the pose covariance's smallest eigenvalue is not above this share of
 its largest: numerically singular, or not positive definite (measured in tracking: ~1e-4)."""
-"""A handover whose feature is not observed within this many frames is dropped."""
 
 
 class MonoSlamInputError(ValueError):
