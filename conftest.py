@@ -1,3 +1,3 @@
 """Workspace-wide pytest configuration: the topic-level test harness."""
 
-pytest_plugins = ['slam_bringup.testing.pytest_plugin']
+pytest_plugins = ['slam_ros.testing.pytest_plugin']

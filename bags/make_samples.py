@@ -16,10 +16,10 @@ from pathlib import Path
 
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from slam_bringup.bag.source import BagSource
-from slam_bringup.datasets import data_root
-from slam_bringup.qos import output_qos, recorded_from_profile
-from slam_bringup.typesys import TypeRegistry
+from slam_core.datasets import data_root
+from slam_ros.bag.source import BagSource
+from slam_ros.qos import output_qos, recorded_from_profile
+from slam_ros.typesys import TypeRegistry
 
 UBIQUITY_RENAMES = {
     '/raspicam_node/image/compressed': '/camera/image_raw/compressed',

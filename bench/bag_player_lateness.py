@@ -56,10 +56,10 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from slam_bringup.bag.playback import LatenessStats
 from slam_bringup.bag_player import BagPlayerNode
-from slam_bringup.qos import output_qos, recorded_from_profile
-from slam_bringup.typesys import message_class
+from slam_ros.bag.playback import LatenessStats
+from slam_ros.qos import output_qos, recorded_from_profile
+from slam_ros.typesys import message_class
 
 BENCH_DIR = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = BENCH_DIR / 'results' / 'bag_player_lateness.md'

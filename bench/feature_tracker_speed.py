@@ -63,10 +63,10 @@ from monoslam_shadow_node.feature_tracking import (
     FeatureTrackingProcessor,
     fill_feature_array,
 )
-from slam_bringup.bag.source import BagSource
-from slam_bringup.errors import BagError, SlamError
-from slam_bringup.files import write_atomically
-from slam_bringup.typesys import TypeRegistry
+from slam_core.errors import BagError, SlamError
+from slam_core.files import write_atomically
+from slam_ros.bag.source import BagSource
+from slam_ros.typesys import TypeRegistry
 
 BENCH_DIR = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = BENCH_DIR / 'results' / 'feature_tracker_speed.md'

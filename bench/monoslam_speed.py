@@ -72,7 +72,7 @@ from monoslam_shadow_node.monoslam_pipeline import (  # noqa: E402
     simulation_frames,
     target_known_points,
 )
-from slam_bringup.files import write_atomically  # noqa: E402
+from slam_core.files import write_atomically  # noqa: E402
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene  # noqa: E402
 from slam_sim.core.init_target import InitTarget  # noqa: E402
 

@@ -66,7 +66,7 @@ from monoslam_shadow_node.core.shadow_filter import (
     ShadowFilter,
 )
 from monoslam_shadow_node.core.static_fit import motion_score_test
-from slam_bringup.files import write_atomically
+from slam_core.files import write_atomically
 from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 
 S = TypeVar('S')

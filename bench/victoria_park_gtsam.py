@@ -43,7 +43,7 @@ from bench_common import best_of, source_revision
 from em_sam_node.core.assembly import initial_landmarks, sqrt_information
 from em_sam_node.core.problem import Estimate, SlamProblem
 from em_sam_node.core.solver import solve
-from slam_bringup.datasets import data_root
+from slam_core.datasets import data_root
 from slam_sim.core.victoria_park import VictoriaPark, chain_poses, parse_victoria_park
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,9 +7,9 @@ import re
 import subprocess
 from pathlib import Path
 
-from slam_bringup.bag.source import BagSource
-from slam_bringup.testing.messages import BagTopic, WrittenMessage, decode_all
-from slam_bringup.typesys import TypeRegistry, find_msg_file
+from slam_ros.bag.source import BagSource
+from slam_ros.testing.messages import BagTopic, WrittenMessage, decode_all
+from slam_ros.typesys import TypeRegistry, find_msg_file
 
 STANDARD_TOPICS = (
     BagTopic('/camera/image_raw', 'sensor_msgs/msg/Image', 10.0),

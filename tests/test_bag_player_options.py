@@ -9,9 +9,9 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from slam_bringup.bag_player import BagPlayerNode
-from slam_bringup.testing.harness import RosHarness
-from slam_bringup.testing.messages import BagTopic, write_bag
-from slam_bringup.typesys import message_class
+from slam_ros.testing.harness import RosHarness
+from slam_ros.testing.messages import BagTopic, write_bag
+from slam_ros.typesys import message_class
 
 pytestmark = pytest.mark.topic
 

@@ -19,9 +19,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosbags.typesys.store import Typestore
 
-from slam_bringup.testing.harness import RosHarness
-from slam_bringup.testing.messages import BagTopic, write_bag
-from slam_bringup.typesys import TypeRegistry, message_class
+from slam_ros.testing.harness import RosHarness
+from slam_ros.testing.messages import BagTopic, write_bag
+from slam_ros.typesys import TypeRegistry, message_class
 
 pytestmark = pytest.mark.topic
 

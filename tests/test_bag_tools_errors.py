@@ -10,8 +10,8 @@ from bag_fixtures import tool_env
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_types_from_msg
 
-from slam_bringup.testing.messages import RELIABLE_QOS, BagTopic, write_bag
-from slam_bringup.typesys import TypeRegistry
+from slam_ros.testing.messages import RELIABLE_QOS, BagTopic, write_bag
+from slam_ros.typesys import TypeRegistry
 
 ODOM = (BagTopic('/odom', 'nav_msgs/msg/Odometry', 50.0),)
 

@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 from bag_fixtures import tool_env
 
-from slam_bringup.qos import sensor_qos
-from slam_bringup.testing.harness import RosHarness
-from slam_bringup.testing.messages import RELIABLE_QOS, BagTopic, write_bag
-from slam_bringup.typesys import TypeRegistry, message_class
+from slam_ros.qos import sensor_qos
+from slam_ros.testing.harness import RosHarness
+from slam_ros.testing.messages import RELIABLE_QOS, BagTopic, write_bag
+from slam_ros.typesys import TypeRegistry, message_class
 
 pytestmark = pytest.mark.topic
 

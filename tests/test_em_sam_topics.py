@@ -16,10 +16,10 @@ from std_srvs.srv import Trigger
 from em_sam_node.em_sam_mapper_node import EmSamMapperNode
 from em_sam_node.odometry_ingest_node import OdometryIngestNode
 from slam_bringup.bag_player import BagPlayerNode
-from slam_bringup.qos import latched_qos
-from slam_bringup.testing.harness import RosHarness, wait_until
 from slam_interfaces.msg import LandmarkMap, MoveableLandmarkArray
 from slam_interfaces.srv import FindLandmark
+from slam_ros.qos import latched_qos
+from slam_ros.testing.harness import RosHarness, wait_until
 
 pytestmark = pytest.mark.topic
 

@@ -28,9 +28,9 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from monoslam_shadow_node.feature_tracker_node import FeatureTrackerNode
-from slam_bringup.stamps import ns_to_stamp, stamp_to_ns
-from slam_bringup.testing.harness import Collector, NodeProcess, RosHarness, wait_until
+from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import FeatureTrackArray
+from slam_ros.testing.harness import Collector, NodeProcess, RosHarness, wait_until
 
 pytestmark = pytest.mark.topic
 

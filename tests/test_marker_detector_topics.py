@@ -22,10 +22,10 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tf2_msgs.msg import TFMessage
 
 from marker_detector.marker_detector_node import HELD_IMAGES, MarkerDetectorNode
-from slam_bringup.qos import latched_qos
-from slam_bringup.stamps import ns_to_stamp
-from slam_bringup.testing.harness import RosHarness, wait_until
+from slam_core.stamps import ns_to_stamp
 from slam_interfaces.msg import FiducialArray, LandmarkObservationArray
+from slam_ros.qos import latched_qos
+from slam_ros.testing.harness import RosHarness, wait_until
 from slam_sim.core.camera import SceneStyle
 from slam_sim.core.office import simulate_office
 from slam_sim.office_camera_bag import (

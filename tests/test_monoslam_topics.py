@@ -49,12 +49,9 @@ from monoslam_shadow_node.monoslam_conversions import POINT_DTYPE
 from monoslam_shadow_node.monoslam_node import MonoSlamNode
 from monoslam_shadow_node.monoslam_settings import parameters_from_yaml
 from monoslam_shadow_node.shadow_filter_node import ShadowFilterNode
-from slam_bringup.bag.source import BagSource
 from slam_bringup.bag_player import BagPlayerNode
-from slam_bringup.blas import single_threaded_blas
-from slam_bringup.qos import latched_qos
-from slam_bringup.stamps import ns_to_stamp, stamp_to_ns
-from slam_bringup.testing.harness import NodeProcess, RosHarness, wait_until
+from slam_core.blas import single_threaded_blas
+from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import (
     FeatureTrack,
     FeatureTrackArray,
@@ -63,6 +60,9 @@ from slam_interfaces.msg import (
     ShadowTrack,
     ShadowTrackArray,
 )
+from slam_ros.bag.source import BagSource
+from slam_ros.qos import latched_qos
+from slam_ros.testing.harness import NodeProcess, RosHarness, wait_until
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, target_pixels
 

@@ -11,7 +11,7 @@ import numpy as np
 from em_sam_node.core.problem import FloatArray
 from em_sam_node.ingest import Increment
 from em_sam_node.mapper import Observation
-from slam_bringup.stamps import ns_to_stamp, stamp_to_ns
+from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
 
 def yaw_from_quaternion(q: Any) -> float:

@@ -78,17 +78,8 @@ from em_sam_node.mapper_outputs import (
     sighting_messages,
 )
 from em_sam_node.report import write_report
-from slam_bringup.cli import console_main
-from slam_bringup.errors import ParameterError
-from slam_bringup.params import (
-    ParamSpec,
-    check,
-    check_finite_non_negative,
-    check_finite_positive,
-    declare_parameters,
-)
-from slam_bringup.qos import latched_qos, output_qos
-from slam_bringup.spin import spin_node
+from slam_core.cli import console_main
+from slam_core.errors import ParameterError
 from slam_interfaces.msg import (
     LandmarkMap,
     LandmarkObservationArray,
@@ -96,6 +87,15 @@ from slam_interfaces.msg import (
     OdometryIncrement,
 )
 from slam_interfaces.srv import FindLandmark
+from slam_ros.params import (
+    ParamSpec,
+    check,
+    check_finite_non_negative,
+    check_finite_positive,
+    declare_parameters,
+)
+from slam_ros.qos import latched_qos, output_qos
+from slam_ros.spin import spin_node
 
 PARAMETERS = (
     ParamSpec('mode', 'robust', "EM-SAM mode: 'paper' (as published) or 'robust'"),

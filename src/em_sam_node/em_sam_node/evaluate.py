@@ -32,9 +32,9 @@ from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
 from em_sam_node.offline import GroundTruth, read_ground_truth, replay_bag, seen_at_both_positions
 from em_sam_node.report import write_figures
-from slam_bringup.cli import console_main
-from slam_bringup.files import write_atomically, write_json
-from slam_bringup.progress import ProgressReporter
+from slam_core.cli import console_main
+from slam_core.files import write_atomically, write_json
+from slam_core.progress import ProgressReporter
 
 METHODS = ('odometry', 'plain_sam', 'em_sam_paper', 'em_sam_robust', 'oracle', 'live_mapper')
 

@@ -20,7 +20,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from em_sam_node.conversions import quaternion_from_yaw
 from em_sam_node.core.em import EmResult, Sightings
 from em_sam_node.core.problem import FloatArray
-from slam_bringup.stamps import ns_to_stamp
+from slam_core.stamps import ns_to_stamp
 from slam_interfaces.msg import (
     LandmarkEstimate,
     LandmarkMap,

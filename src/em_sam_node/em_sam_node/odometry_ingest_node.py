@@ -42,13 +42,13 @@ from rclpy.node import Node
 
 from em_sam_node.conversions import increment_to_message, odometry_pose
 from em_sam_node.ingest import Increment, IngestConfig, OdometryIngest
-from slam_bringup.cli import console_main
-from slam_bringup.errors import ParameterError
-from slam_bringup.params import ParamSpec, check_finite_positive, declare_parameters
-from slam_bringup.qos import output_qos, sensor_qos
-from slam_bringup.spin import spin_node
-from slam_bringup.stamps import stamp_to_ns
+from slam_core.cli import console_main
+from slam_core.errors import ParameterError
+from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import LandmarkObservationArray, OdometryIncrement
+from slam_ros.params import ParamSpec, check_finite_positive, declare_parameters
+from slam_ros.qos import output_qos, sensor_qos
+from slam_ros.spin import spin_node
 
 PARAMETERS = (
     ParamSpec('keyframe_distance_m', 0.5, 'keyframe after this much travel, m'),

@@ -21,10 +21,10 @@ from em_sam_node.core.problem import FloatArray, IntArray
 from em_sam_node.core.se2 import wrap_angle
 from em_sam_node.ingest import IngestConfig, OdometryIngest
 from em_sam_node.mapper import MapperConfig, MapperProcessor
-from slam_bringup.bag.source import BagSource
-from slam_bringup.errors import BagError
-from slam_bringup.stamps import stamp_to_ns
-from slam_bringup.typesys import TypeRegistry
+from slam_core.errors import BagError
+from slam_core.stamps import stamp_to_ns
+from slam_ros.bag.source import BagSource
+from slam_ros.typesys import TypeRegistry
 
 ODOM_TOPIC = '/odom'
 OBSERVATION_TOPIC = '/landmark_observations'

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from em_sam_node.core.em import EmResult, Snapshot
-from slam_bringup.files import write_atomically, write_json
+from slam_core.files import write_atomically, write_json
 
 SNAPSHOT_TITLES = {
     'initial': 'initial (odometry)',

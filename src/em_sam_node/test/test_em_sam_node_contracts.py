@@ -8,7 +8,7 @@ from types import ModuleType
 import pytest
 
 from em_sam_node import em_sam_mapper_node, odometry_ingest_node
-from slam_bringup.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config'
 NODES = [

@@ -25,8 +25,8 @@ from em_sam_node.offline import (
     seen_at_both_positions,
 )
 from em_sam_node.report import write_report
-from slam_bringup.errors import BagError
-from slam_bringup.typesys import TypeRegistry
+from slam_core.errors import BagError
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.office import simulate_office
 from slam_sim.office_bag import write_office_bag
 

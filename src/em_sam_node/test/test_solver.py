@@ -25,7 +25,7 @@ from em_sam_node.core.solver import (
     solve,
     system_layout,
 )
-from slam_bringup.testing.jacobians import assert_jacobian_close
+from slam_core.testing.jacobians import assert_jacobian_close
 
 PI = math.pi
 METHODS = ('gauss_newton', 'levenberg_marquardt')

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from marker_detector.core.images import decode_compressed, decode_raw
 from marker_detector.processor import FrameOutput
-from slam_bringup.stamps import ns_to_stamp
+from slam_core.stamps import ns_to_stamp
 
 
 def image_from_message(message: Any) -> np.ndarray:

@@ -74,18 +74,18 @@ from marker_detector.conversions import (
 from marker_detector.core.images import ImageError
 from marker_detector.processor import FrameOutput, InputError, MarkerProcessor
 from marker_detector.settings import detector_config, extrinsics_config
-from slam_bringup.cli import console_main
-from slam_bringup.errors import ParameterError
-from slam_bringup.params import ParamSpec, declare_parameters
-from slam_bringup.qos import latched_qos, output_qos, sensor_qos
-from slam_bringup.spin import spin_node
-from slam_bringup.stamps import stamp_to_ns
+from slam_core.cli import console_main
+from slam_core.errors import ParameterError
+from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import (
     FiducialArray,
     FiducialDetection,
     LandmarkObservation,
     LandmarkObservationArray,
 )
+from slam_ros.params import ParamSpec, declare_parameters
+from slam_ros.qos import latched_qos, output_qos, sensor_qos
+from slam_ros.spin import spin_node
 
 DETECTOR_PARAMETERS = (
     ParamSpec('dictionary', 'DICT_APRILTAG_36h11', 'cv2.aruco dictionary name', read_only=False),

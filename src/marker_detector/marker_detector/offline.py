@@ -41,20 +41,20 @@ from marker_detector.settings import (
     extrinsics_config,
     parameters_from_yaml,
 )
-from slam_bringup.bag.recording import AtomicBagWriter
-from slam_bringup.bag.source import BagSource
-from slam_bringup.cli import console_main
-from slam_bringup.errors import BagError, ParameterError
-from slam_bringup.progress import ProgressReporter
-from slam_bringup.qos import output_qos, recorded_from_profile
-from slam_bringup.stamps import stamp_to_ns
-from slam_bringup.typesys import TypeRegistry
+from slam_core.cli import console_main
+from slam_core.errors import BagError, ParameterError
+from slam_core.progress import ProgressReporter
+from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import (
     FiducialArray,
     FiducialDetection,
     LandmarkObservation,
     LandmarkObservationArray,
 )
+from slam_ros.bag.recording import AtomicBagWriter
+from slam_ros.bag.source import BagSource
+from slam_ros.qos import output_qos, recorded_from_profile
+from slam_ros.typesys import TypeRegistry
 
 PROG = 'marker_detect_bag'
 IMAGE_TOPICS = ('/camera/image_raw/compressed', '/camera/image_raw')

@@ -10,9 +10,9 @@ from rosbags.typesys import Stores, get_typestore
 from marker_detector.marker_detector_node import PARAMETERS
 from marker_detector.offline import detect_bag, main
 from marker_detector.settings import parameters_from_yaml
-from slam_bringup.bag.source import BagSource
-from slam_bringup.errors import BagError
-from slam_bringup.typesys import TypeRegistry
+from slam_core.errors import BagError
+from slam_ros.bag.source import BagSource
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.office import simulate_office
 from slam_sim.office_camera_bag import IMAGE_TOPIC, TRUE_FIDUCIALS_TOPIC, write_office_camera_bag
 

@@ -36,7 +36,7 @@ from marker_detector.core.pose import (
     solve_marker_poses,
 )
 from marker_detector.core.rendering import MarkerPlacement, render_markers
-from slam_bringup.testing.jacobians import assert_jacobian_close, numerical_jacobian
+from slam_core.testing.jacobians import assert_jacobian_close, numerical_jacobian
 
 K_640 = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
 PLUMB_BOB = np.array([-0.28, 0.09, 0.0008, -0.0006, -0.01])

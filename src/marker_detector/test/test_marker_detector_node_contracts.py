@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from marker_detector import marker_detector_node
-from slam_bringup.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config' / 'marker_detector.yaml'
 

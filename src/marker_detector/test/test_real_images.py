@@ -30,7 +30,7 @@ from marker_detector.core.camera import CameraModel
 from marker_detector.core.candidates import MarkerCorners, locate_markers
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
 from marker_detector.core.pose import rotation_vector
-from slam_bringup.datasets import DATA_ENV, data_root, dataset
+from slam_core.datasets import DATA_ENV, data_root, dataset
 
 APRILTAG_PHOTOS = (
     '33369213973_9d9bb4cc96_c',

@@ -45,7 +45,7 @@ from monoslam_shadow_node.core.shadow_filter import (
     Handover,
     TrackReport,
 )
-from slam_bringup.stamps import ns_to_stamp, stamp_to_ns
+from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from slam_bringup.files import write_atomically
+from slam_core.files import write_atomically
 
 STATUS_COLOURS = {'PENDING': 'tab:red', 'STATIC': 'tab:blue', 'DYNAMIC': 'tab:green'}
 STATUS_CODES = {'PENDING': 0, 'STATIC': 1, 'DYNAMIC': 2}  # the core's PENDING/STATIC/DYNAMIC

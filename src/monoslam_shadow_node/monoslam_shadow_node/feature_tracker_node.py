@@ -103,12 +103,12 @@ from monoslam_shadow_node.feature_tracking import (
     fill_feature_array,
     status_line,
 )
-from slam_bringup.cli import console_main
-from slam_bringup.params import ParamSpec, declare_parameters
-from slam_bringup.qos import output_qos, sensor_qos
-from slam_bringup.spin import spin_node
-from slam_bringup.stamps import stamp_to_ns
+from slam_core.cli import console_main
+from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
+from slam_ros.params import ParamSpec, declare_parameters
+from slam_ros.qos import output_qos, sensor_qos
+from slam_ros.spin import spin_node
 
 PARAMETERS = tuple(ParamSpec(s.name, s.default, s.description) for s in SETTINGS)
 IMAGE_TOPIC = 'camera/image_raw'

@@ -27,7 +27,7 @@ from monoslam_shadow_node.settings import (
     read_parameter_file,
     setting_value,
 )
-from slam_bringup.errors import ParameterError
+from slam_core.errors import ParameterError
 
 NODE_NAME = 'feature_tracker'
 IMAGE_TRANSPORTS = ('raw', 'compressed')

@@ -48,7 +48,7 @@ from monoslam_shadow_node.core.feature_tracker import (
     TrackerConfig,
     as_gray_image,
 )
-from slam_bringup.stamps import ns_to_stamp
+from slam_core.stamps import ns_to_stamp
 
 PREDICTIONS_KEPT = 10
 DROP_KINDS = ('out_of_order', 'repeated_stamp', 'size_mismatch', 'bad_image')

@@ -28,7 +28,7 @@ from scipy.spatial.transform import Rotation
 from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
 from monoslam_shadow_node.core.monoslam import MapPoint, MonoSlamFrame, MonoSlamResult
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
-from slam_bringup.stamps import ns_to_stamp, stamp_to_ns
+from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
 FLOAT32, FLOAT64, UINT8 = 7, 8, 2
 """sensor_msgs/PointField datatype constants."""

@@ -78,10 +78,10 @@ from monoslam_shadow_node.monoslam_pipeline import (
     simulation_frames,
     target_known_points,
 )
-from slam_bringup.blas import single_threaded_blas
-from slam_bringup.cli import console_main
-from slam_bringup.files import write_atomically, write_json
-from slam_bringup.progress import ProgressReporter
+from slam_core.blas import single_threaded_blas
+from slam_core.cli import console_main
+from slam_core.files import write_atomically, write_json
+from slam_core.progress import ProgressReporter
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, marker_board
 

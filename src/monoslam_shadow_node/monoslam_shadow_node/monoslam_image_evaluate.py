@@ -91,13 +91,13 @@ from monoslam_shadow_node.monoslam_pipeline import (
     run_variant,
     simulation_frames,
 )
-from slam_bringup.bag.source import BagSource
-from slam_bringup.blas import single_threaded_blas
-from slam_bringup.cli import console_main
-from slam_bringup.errors import BagError
-from slam_bringup.files import write_atomically, write_json
-from slam_bringup.progress import ProgressReporter
-from slam_bringup.stamps import stamp_to_ns
+from slam_core.blas import single_threaded_blas
+from slam_core.cli import console_main
+from slam_core.errors import BagError
+from slam_core.files import write_atomically, write_json
+from slam_core.progress import ProgressReporter
+from slam_core.stamps import stamp_to_ns
+from slam_ros.bag.source import BagSource
 from slam_sim.core.dynamic_render import LABEL_NOTHING, DynamicRenderer
 from slam_sim.core.dynamic_scene import (
     DEFAULT_START_NS,

@@ -172,12 +172,9 @@ from monoslam_shadow_node.monoslam_settings import (
     node_settings,
     target_settings,
 )
-from slam_bringup.cli import console_main
-from slam_bringup.files import write_atomically
-from slam_bringup.params import ParamSpec, declare_parameters
-from slam_bringup.qos import latched_qos, output_qos, sensor_qos
-from slam_bringup.spin import spin_node
-from slam_bringup.stamps import stamp_to_ns
+from slam_core.cli import console_main
+from slam_core.files import write_atomically
+from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import (
     FeatureTrack,
     FeatureTrackArray,
@@ -185,6 +182,9 @@ from slam_interfaces.msg import (
     ShadowTrack,
     ShadowTrackArray,
 )
+from slam_ros.params import ParamSpec, declare_parameters
+from slam_ros.qos import latched_qos, output_qos, sensor_qos
+from slam_ros.spin import spin_node
 
 PARAMETERS = (
     *(ParamSpec(s.name, s.default, s.description) for s in SCALAR_SETTINGS),

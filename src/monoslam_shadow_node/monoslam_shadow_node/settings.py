@@ -21,7 +21,7 @@ import yaml
 
 from monoslam_shadow_node.core.shadow_ekf import EkfConfig
 from monoslam_shadow_node.core.shadow_filter import ClassifierConfig, ShadowConfig
-from slam_bringup.errors import ParameterError
+from slam_core.errors import ParameterError
 
 NODE_NAME = 'shadow_filter'
 SettingValue = bool | int | float | str

@@ -144,11 +144,11 @@ from monoslam_shadow_node.core.shadow_filter import (
 )
 from monoslam_shadow_node.frame_sync import Drop, FrameSynchronizer
 from monoslam_shadow_node.settings import NODE_NAME, SETTINGS, node_settings, shadow_config
-from slam_bringup.cli import console_main
-from slam_bringup.params import ParamSpec, declare_parameters
-from slam_bringup.qos import output_qos, sensor_qos
-from slam_bringup.spin import spin_node
+from slam_core.cli import console_main
 from slam_interfaces.msg import FeatureTrackArray, ShadowTrack, ShadowTrackArray
+from slam_ros.params import ParamSpec, declare_parameters
+from slam_ros.qos import output_qos, sensor_qos
+from slam_ros.spin import spin_node
 
 PARAMETERS = tuple(ParamSpec(s.name, s.default, s.description) for s in SETTINGS)
 FEATURES_TOPIC = 'features'

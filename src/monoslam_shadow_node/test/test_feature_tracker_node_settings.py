@@ -26,10 +26,10 @@ from monoslam_shadow_node.feature_tracking import (
     fill_feature_array,
     status_line,
 )
-from slam_bringup.errors import ParameterError
-from slam_bringup.testing.launch_files import check_launched_node, launched_node
-from slam_bringup.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
+from slam_ros.testing.launch_files import check_launched_node, launched_node
+from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'feature_tracker.yaml'

@@ -32,7 +32,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     rotation,
     world_angle_jacobian,
 )
-from slam_bringup.testing.jacobians import assert_jacobian_close
+from slam_core.testing.jacobians import assert_jacobian_close
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, target_pixels
 

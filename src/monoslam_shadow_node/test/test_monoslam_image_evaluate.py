@@ -22,7 +22,7 @@ from monoslam_shadow_node.monoslam_image_evaluate import (
     rendered_source,
 )
 from monoslam_shadow_node.monoslam_pipeline import MeasurementFrame
-from slam_bringup.blas import single_threaded_blas
+from slam_core.blas import single_threaded_blas
 from slam_sim.core.dynamic_render import DynamicRenderer, undistort_pixels
 from slam_sim.core.dynamic_scene import DynamicSceneConfig
 from slam_sim.dynamic_camera_bag import write_dynamic_camera_bag

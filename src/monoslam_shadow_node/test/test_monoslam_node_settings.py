@@ -33,9 +33,9 @@ from monoslam_shadow_node.monoslam_conversions import (
     tum_text,
 )
 from monoslam_shadow_node.shadow_filter_node import pose_gate_excess
-from slam_bringup.errors import ParameterError
-from slam_bringup.testing.launch_files import check_launched_node, launched_node
-from slam_bringup.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_core.errors import ParameterError
+from slam_ros.testing.launch_files import check_launched_node, launched_node
+from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
 from slam_sim.core.init_target import InitTarget
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]

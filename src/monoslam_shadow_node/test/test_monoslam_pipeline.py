@@ -38,7 +38,7 @@ from monoslam_shadow_node.monoslam_pipeline import (
     simulation_frames,
     target_known_points,
 )
-from slam_bringup.blas import single_threaded_blas
+from slam_core.blas import single_threaded_blas
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, marker_board, target_pixels
 

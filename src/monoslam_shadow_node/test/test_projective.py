@@ -22,7 +22,7 @@ from monoslam_shadow_node.core.projective import (
     relation_test,
 )
 from monoslam_shadow_node.core.rays import View, pixel_ray_directions, three_ray_test
-from slam_bringup.testing.jacobians import assert_jacobian_close
+from slam_core.testing.jacobians import assert_jacobian_close
 
 CAMERA = CameraModel(
     640, 480, np.array([[300.0, 0, 320], [0, 300, 240], [0, 0, 1]]), np.array([-0.05, 0, 0, 0, 0])

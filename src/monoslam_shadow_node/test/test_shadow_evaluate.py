@@ -40,7 +40,7 @@ from monoslam_shadow_node.evaluate import (
     view_parallax_rad,
     within_sigma,
 )
-from slam_bringup.files import jsonable
+from slam_core.files import jsonable
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'

@@ -6,8 +6,8 @@ import argparse
 import sys
 from datetime import UTC, datetime
 
-from slam_bringup.bag.source import BagSource, TopicSummary
-from slam_bringup.cli import console_main
+from slam_core.cli import console_main
+from slam_ros.bag.source import BagSource, TopicSummary
 
 
 def _qos_text(topic: TopicSummary) -> str:

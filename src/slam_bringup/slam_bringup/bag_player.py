@@ -41,11 +41,12 @@ from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
-from slam_bringup.bag.playback import LatenessStats, PlaybackConfig, Prefetcher, TimeMapping
-from slam_bringup.bag.source import BagSource
-from slam_bringup.cli import console_main
-from slam_bringup.errors import ParameterError, SlamError
-from slam_bringup.params import (
+from slam_core.cli import console_main
+from slam_core.errors import ParameterError, SlamError
+from slam_core.progress import ProgressReporter
+from slam_ros.bag.playback import LatenessStats, PlaybackConfig, Prefetcher, TimeMapping
+from slam_ros.bag.source import BagSource
+from slam_ros.params import (
     ParamSpec,
     check,
     check_finite_non_negative,
@@ -53,9 +54,8 @@ from slam_bringup.params import (
     declare_parameters,
     parse_remaps,
 )
-from slam_bringup.progress import ProgressReporter
-from slam_bringup.qos import profile_from_recorded
-from slam_bringup.typesys import message_class
+from slam_ros.qos import profile_from_recorded
+from slam_ros.typesys import message_class
 
 PARAMETERS = (
     ParamSpec('bag_path', '', 'bag directory, .mcap, .db3 or ROS 1 .bag to play'),

@@ -39,12 +39,12 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from slam_bringup.bag.recording import AtomicBagWriter
-from slam_bringup.cli import console_main
-from slam_bringup.errors import SlamError
-from slam_bringup.params import ParamSpec, check, check_finite_positive, declare_parameters
-from slam_bringup.qos import recorded_from_profile
-from slam_bringup.typesys import TypeRegistry, message_class
+from slam_core.cli import console_main
+from slam_core.errors import SlamError
+from slam_ros.bag.recording import AtomicBagWriter
+from slam_ros.params import ParamSpec, check, check_finite_positive, declare_parameters
+from slam_ros.qos import recorded_from_profile
+from slam_ros.typesys import TypeRegistry, message_class
 
 PARAMETERS = (
     ParamSpec('output', '', 'bag directory to create (default rosbag2_<date>_<time>)'),

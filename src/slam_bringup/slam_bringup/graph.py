@@ -40,7 +40,7 @@ from typing import Any
 import yaml
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
-from slam_bringup.errors import GraphError
+from slam_core.errors import GraphError
 
 PACKAGE_SCHEME = 'package://'
 _NAME = re.compile(r'[A-Za-z_][A-Za-z0-9_]*')

@@ -17,7 +17,6 @@ from typing import Any
 import yaml
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
-from slam_bringup.errors import GraphError
 from slam_bringup.graph import (
     Graph,
     ParameterSource,
@@ -25,6 +24,7 @@ from slam_bringup.graph import (
     RecorderSpec,
     Remapping,
 )
+from slam_core.errors import GraphError
 
 PLAYER_PLUGIN = 'slam_bringup.bag_player:BagPlayerNode'
 RECORDER_PLUGIN = 'slam_bringup.bag_recorder:BagRecorderNode'

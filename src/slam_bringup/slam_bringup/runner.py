@@ -54,9 +54,6 @@ from rclpy.utilities import try_shutdown
 
 from slam_bringup.bag_player import BagPlayerNode
 from slam_bringup.bag_recorder import DRAIN_TIMEOUT_S, BagRecorderNode
-from slam_bringup.blas import single_threaded_blas
-from slam_bringup.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main
-from slam_bringup.errors import SlamError
 from slam_bringup.graph import Graph, load_graph
 from slam_bringup.graph_nodes import (
     NodeDescription,
@@ -65,6 +62,9 @@ from slam_bringup.graph_nodes import (
     ros_arguments,
     with_overrides,
 )
+from slam_core.blas import single_threaded_blas
+from slam_core.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main
+from slam_core.errors import SlamError
 
 EXIT_NODE_FAILED = 1
 POLL_S = 0.05

@@ -10,7 +10,6 @@ import yaml
 
 from slam_bringup import graph as graph_module
 from slam_bringup import graph_nodes
-from slam_bringup.errors import GraphError
 from slam_bringup.graph import load_graph
 from slam_bringup.graph_nodes import (
     PLAYER_PLUGIN,
@@ -19,6 +18,7 @@ from slam_bringup.graph_nodes import (
     ros_arguments,
     with_overrides,
 )
+from slam_core.errors import GraphError
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from slam_bringup import bag_player, bag_recorder
-from slam_bringup.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config'
 NODES = [(bag_player, 'bag_player.yaml'), (bag_recorder, 'bag_recorder.yaml')]

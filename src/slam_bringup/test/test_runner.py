@@ -20,10 +20,10 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from slam_bringup import runner
-from slam_bringup.bag.source import BagSource
-from slam_bringup.errors import GraphError
 from slam_bringup.graph import load_graph
 from slam_bringup.graph_nodes import node_descriptions
+from slam_core.errors import GraphError
+from slam_ros.bag.source import BagSource
 
 # An isolated DDS domain for these tests, unless a harness chose one already.
 os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 100))

@@ -19,9 +19,9 @@ import numpy as np
 from rclpy.qos import QoSProfile
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
 
-from slam_bringup.errors import BagError
-from slam_bringup.qos import recorded_from_profile
-from slam_bringup.typesys import TypeRegistry
+from slam_core.errors import BagError
+from slam_ros.qos import recorded_from_profile
+from slam_ros.typesys import TypeRegistry
 
 ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
 OBSERVATIONS_TYPE = 'slam_interfaces/msg/LandmarkObservationArray'

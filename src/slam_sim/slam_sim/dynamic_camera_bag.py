@@ -51,11 +51,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from slam_bringup.cli import console_main
-from slam_bringup.files import jsonable
-from slam_bringup.progress import ProgressReporter
-from slam_bringup.qos import latched_qos, output_qos
-from slam_bringup.typesys import TypeRegistry
+from slam_core.cli import console_main
+from slam_core.files import jsonable
+from slam_core.progress import ProgressReporter
+from slam_ros.qos import latched_qos, output_qos
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.camera import MarkerTruth, SceneStyle
 from slam_sim.core.dynamic_render import (
     LABEL_NOTHING,

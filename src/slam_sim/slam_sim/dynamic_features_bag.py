@@ -43,11 +43,11 @@ from typing import Any
 
 import numpy as np
 
-from slam_bringup.cli import console_main
-from slam_bringup.errors import BagError
-from slam_bringup.progress import ProgressReporter
-from slam_bringup.qos import output_qos
-from slam_bringup.typesys import TypeRegistry
+from slam_core.cli import console_main
+from slam_core.errors import BagError
+from slam_core.progress import ProgressReporter
+from slam_ros.qos import output_qos
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.dynamic_scene import (
     DEFAULT_START_NS,
     MOTION_KINDS,

@@ -45,12 +45,12 @@ from typing import Any
 
 import numpy as np
 
-from slam_bringup.cli import console_main
-from slam_bringup.datasets import data_root
-from slam_bringup.errors import BagError
-from slam_bringup.progress import ProgressReporter
-from slam_bringup.qos import latched_qos, output_qos
-from slam_bringup.typesys import TypeRegistry
+from slam_core.cli import console_main
+from slam_core.datasets import data_root
+from slam_core.errors import BagError
+from slam_core.progress import ProgressReporter
+from slam_ros.qos import latched_qos, output_qos
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.geometry import FloatArray, IntArray
 from slam_sim.core.mrclam import ROBOT_SUBJECTS, MrclamRun, Sightings, parse_mrclam
 from slam_sim.dataset_bag import (

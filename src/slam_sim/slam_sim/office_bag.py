@@ -30,10 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from slam_bringup.cli import console_main
-from slam_bringup.progress import ProgressReporter
-from slam_bringup.qos import latched_qos, output_qos
-from slam_bringup.typesys import TypeRegistry
+from slam_core.cli import console_main
+from slam_core.progress import ProgressReporter
+from slam_ros.qos import latched_qos, output_qos
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.office import OfficeConfig, OfficeRun, Variant, simulate_office
 from slam_sim.dataset_bag import (
     LANDMARK_MAP_TYPE,

@@ -37,11 +37,11 @@ from typing import Any
 
 import numpy as np
 
-from slam_bringup.cli import console_main
-from slam_bringup.datasets import data_root
-from slam_bringup.progress import ProgressReporter
-from slam_bringup.qos import output_qos
-from slam_bringup.typesys import TypeRegistry
+from slam_core.cli import console_main
+from slam_core.datasets import data_root
+from slam_core.progress import ProgressReporter
+from slam_ros.qos import output_qos
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.victoria_park import (
     VictoriaPark,
     chain_poses,

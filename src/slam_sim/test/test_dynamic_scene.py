@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from slam_bringup.bag.source import BagSource
-from slam_bringup.typesys import TypeRegistry
+from slam_ros.bag.source import BagSource
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.dynamic_scene import (
     DynamicSceneConfig,
     DynamicSceneRun,

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from rosbags.interfaces import QosDurability
 
-from slam_bringup.bag.source import BagSource
-from slam_bringup.typesys import TypeRegistry
+from slam_ros.bag.source import BagSource
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.camera import PinholeCamera
 from slam_sim.core.office import OfficeRun
 from slam_sim.office_bag import (

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from em_sam_node.core.se2 import apply_increment, compose, wrap_angle
-from slam_bringup.bag.source import BagSource
-from slam_bringup.datasets import data_root, dataset
-from slam_bringup.errors import BagError
-from slam_bringup.testing.jacobians import numerical_jacobian
-from slam_bringup.typesys import TypeRegistry
+from slam_core.datasets import data_root, dataset
+from slam_core.errors import BagError
+from slam_core.testing.jacobians import numerical_jacobian
+from slam_ros.bag.source import BagSource
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.victoria_park import (
     VictoriaPark,
     chain_poses,

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slam_bringup.errors import DatasetError
+from slam_core.errors import DatasetError
 from slam_sim.core.geometry import FloatArray, IntArray
 
 

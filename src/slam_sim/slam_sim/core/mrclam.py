@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slam_bringup.errors import DatasetError
+from slam_core.errors import DatasetError
 from slam_sim.core.dataset_text import Kind, Table, read_table
 from slam_sim.core.geometry import BoolArray, FloatArray, IntArray, wrap_angle
 from slam_sim.core.odometry import integrate_increments

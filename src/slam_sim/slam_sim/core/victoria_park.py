@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slam_bringup.errors import DatasetError
+from slam_core.errors import DatasetError
 from slam_sim.core.dataset_text import data_lines, line_error, parse_float, parse_int, read_lines
 from slam_sim.core.geometry import FloatArray, IntArray, wrap_angle
 

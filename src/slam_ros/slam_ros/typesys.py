@@ -16,7 +16,7 @@ from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from slam_bringup.errors import TypeDefinitionError
+from slam_core.errors import TypeDefinitionError
 
 
 def split_type_name(msgtype: str) -> tuple[str, str, str]:

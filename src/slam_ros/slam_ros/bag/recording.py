@@ -15,7 +15,7 @@ from pathlib import Path
 from rosbags.interfaces import Connection, Qos
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from slam_bringup.errors import BagError
+from slam_core.errors import BagError
 
 
 @dataclass(frozen=True)

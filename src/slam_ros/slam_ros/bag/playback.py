@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import cast
 
-from slam_bringup.bag.source import BagMessage, BagSource
+from slam_ros.bag.source import BagMessage, BagSource
 
 
 @dataclass(frozen=True)

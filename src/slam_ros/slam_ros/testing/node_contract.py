@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from slam_bringup.params import ParamSpec
+from slam_ros.params import ParamSpec
 
 
 def declared(module: ModuleType) -> dict[str, ParamSpec]:

@@ -55,7 +55,7 @@ def ros_context() -> Iterator[None]:
 @pytest.fixture
 def ros_harness(ros_context: None, tmp_path: Path) -> Iterator[object]:
     """A fresh RosHarness per test; logs of subprocess nodes go to tmp_path."""
-    from slam_bringup.testing.harness import RosHarness
+    from slam_ros.testing.harness import RosHarness
 
     harness = RosHarness(tmp_path)
     try:

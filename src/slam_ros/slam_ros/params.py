@@ -22,7 +22,7 @@ from rclpy.exceptions import (
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from slam_bringup.errors import ParameterError
+from slam_core.errors import ParameterError
 
 ParamValue = bool | int | float | str | list[str] | list[float] | list[int] | list[bool]
 

@@ -17,8 +17,8 @@ from rosbags.interfaces import (
     Qos,
 )
 
-from slam_bringup.qos import output_qos, recorded_from_profile
-from slam_bringup.typesys import TypeRegistry
+from slam_ros.qos import output_qos, recorded_from_profile
+from slam_ros.typesys import TypeRegistry
 
 _NUMPY_TYPES = {
     'bool': np.bool_,

@@ -6,7 +6,7 @@ import functools
 import sys
 from collections.abc import Callable
 
-from slam_bringup.errors import SlamError
+from slam_core.errors import SlamError
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130

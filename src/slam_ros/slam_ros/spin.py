@@ -9,7 +9,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
-from slam_bringup.blas import single_threaded_blas
+from slam_core.blas import single_threaded_blas
 
 
 def spin_node(prog: str, factory: Callable[[], Node], argv: list[str] | None = None) -> int:

@@ -19,7 +19,7 @@ from rosbags.interfaces import Connection, ConnectionExtRosbag1, ConnectionExtRo
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from slam_bringup.errors import BagError
+from slam_core.errors import BagError
 
 ROS1_TO_ROS2_RENAMES = {'tf/msg/tfMessage': 'tf2_msgs/msg/TFMessage'}
 

@@ -6,11 +6,11 @@ import pytest
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from rosbags.interfaces import QosDurability, QosReliability
 
-from slam_bringup.errors import ParameterError, TypeDefinitionError
-from slam_bringup.params import parse_remaps
-from slam_bringup.qos import latched_qos, output_qos, profile_from_recorded, recorded_from_profile
-from slam_bringup.testing.messages import RELIABLE_QOS
-from slam_bringup.typesys import TypeRegistry, message_class, split_type_name
+from slam_core.errors import ParameterError, TypeDefinitionError
+from slam_ros.params import parse_remaps
+from slam_ros.qos import latched_qos, output_qos, profile_from_recorded, recorded_from_profile
+from slam_ros.testing.messages import RELIABLE_QOS
+from slam_ros.typesys import TypeRegistry, message_class, split_type_name
 
 
 def test_registry_learns_slam_interfaces_from_msg_files() -> None:

@@ -1,4 +1,4 @@
-"""slam_bringup.files: atomic writes leave no temporary file and honour the umask; JSON is
+"""slam_core.files: atomic writes leave no temporary file and honour the umask; JSON is
 strict (NaN becomes null)."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from slam_bringup.files import write_atomically, write_json
+from slam_core.files import write_atomically, write_json
 
 
 def test_atomic_write_replaces_the_file_and_leaves_nothing_else(tmp_path: Path) -> None:

@@ -9,11 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from slam_bringup.bag.playback import LatenessStats, Prefetcher, TimeMapping
-from slam_bringup.bag.source import BagSource
-from slam_bringup.errors import BagError
-from slam_bringup.progress import ProgressReporter, format_seconds
-from slam_bringup.testing.messages import BagTopic, write_bag
+from slam_core.errors import BagError
+from slam_core.progress import ProgressReporter, format_seconds
+from slam_ros.bag.playback import LatenessStats, Prefetcher, TimeMapping
+from slam_ros.bag.source import BagSource
+from slam_ros.testing.messages import BagTopic, write_bag
 
 
 @settings(derandomize=True, max_examples=200)

@@ -1,0 +1,19 @@
+from setuptools import find_packages, setup
+
+package_name = 'slam_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='dynamic-slam maintainers',
+    maintainer_email='dev@example.com',
+    description='ROS plumbing shared by the nodes and offline tools of the dynamic-SLAM suite',
+    license='Apache-2.0',
+)
