@@ -66,13 +66,13 @@ from monoslam_shadow_node.core.shadow_filter import (  # noqa: E402
     ShadowConfig,
     ShadowFilter,
 )
-from monoslam_shadow_node.evaluate import camera_model  # noqa: E402
-from monoslam_shadow_node.monoslam_pipeline import (  # noqa: E402
+from slam_core.files import write_atomically  # noqa: E402
+from slam_evaluation.monoslam_pipeline import (  # noqa: E402
     MeasurementFrame,
     simulation_frames,
     target_known_points,
 )
-from slam_core.files import write_atomically  # noqa: E402
+from slam_evaluation.shadow_evaluate import camera_model  # noqa: E402
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene  # noqa: E402
 from slam_sim.core.init_target import InitTarget  # noqa: E402
 

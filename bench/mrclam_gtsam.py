@@ -46,9 +46,9 @@ from em_sam_node.core.assembly import (
     initial_estimate,
 )
 from em_sam_node.core.em import EmConfig, run_em
-from em_sam_node.core.evaluation import ate_rmse
 from em_sam_node.core.solver import solve
 from em_sam_node.offline import read_ground_truth, replay_bag
+from slam_evaluation.em_sam_metrics import ate_rmse
 from slam_sim import mrclam_bag
 
 ROOT = Path(__file__).resolve().parents[1]

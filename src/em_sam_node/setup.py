@@ -24,7 +24,6 @@ setup(
         'console_scripts': [
             'odometry_ingest = em_sam_node.odometry_ingest_node:main',
             'em_sam_mapper = em_sam_node.em_sam_mapper_node:main',
-            'em_sam_evaluate = em_sam_node.evaluate:main',
         ],
     },
 )

@@ -25,9 +25,6 @@ setup(
             'shadow_filter = monoslam_shadow_node.shadow_filter_node:main',
             'monoslam = monoslam_shadow_node.monoslam_node:main',
             'feature_tracker = monoslam_shadow_node.feature_tracker_node:main',
-            'shadow_evaluate = monoslam_shadow_node.evaluate:main',
-            'monoslam_evaluate = monoslam_shadow_node.monoslam_evaluate:main',
-            'monoslam_image_evaluate = monoslam_shadow_node.monoslam_image_evaluate:main',
         ],
     },
 )

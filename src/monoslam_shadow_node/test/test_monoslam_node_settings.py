@@ -36,11 +36,9 @@ from monoslam_shadow_node.shadow_filter_node import pose_gate_excess
 from slam_core.errors import ParameterError
 from slam_ros.testing.launch_files import check_launched_node, launched_node
 from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
-from slam_sim.core.init_target import InitTarget
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'monoslam.yaml'
-SIMULATION_CONFIG = PACKAGE_DIR / 'config' / 'monoslam_dynamic_camera.yaml'
 LAUNCH = PACKAGE_DIR / 'launch' / 'monoslam.launch.py'
 MS = 1_000_000
 DEFAULTS = monoslam_settings.defaults()
@@ -95,17 +93,6 @@ def test_the_default_target_defines_the_map() -> None:
     expected = [[-half, half, 0.0], [half, half, 0.0], [half, -half, 0.0], [-half, -half, 0.0]]
     np.testing.assert_allclose(target.corners_m, expected, atol=1e-15)
     assert list(target.known_points()) == [0, 1, 2, 3]
-
-
-def test_the_simulation_config_places_the_simulated_target() -> None:
-    """monoslam_dynamic_camera.yaml sets only parameters, and puts the corners where
-    slam_sim draws them."""
-    values = monoslam_settings.parameters_from_yaml(SIMULATION_CONFIG)
-    target = monoslam_settings.target_settings(values)
-    simulated = InitTarget()
-    np.testing.assert_allclose(target.corners_m, simulated.corners_m, atol=1e-12)
-    np.testing.assert_allclose(target.rotation, simulated.rotation, atol=1e-12)
-    assert target.marker_id == simulated.marker_id and target.dictionary == simulated.dictionary
 
 
 @pytest.mark.parametrize(

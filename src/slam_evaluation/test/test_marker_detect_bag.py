@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from ament_index_python.packages import get_package_share_directory
 from rosbags.typesys import Stores, get_typestore
 
 from marker_detector.marker_detector_node import PARAMETERS
@@ -16,7 +17,7 @@ from slam_ros.typesys import TypeRegistry
 from slam_sim.core.office import simulate_office
 from slam_sim.office_camera_bag import IMAGE_TOPIC, TRUE_FIDUCIALS_TOPIC, write_office_camera_bag
 
-CONFIG = Path(__file__).resolve().parents[1] / 'config'
+CONFIG = Path(get_package_share_directory('marker_detector')) / 'config'
 
 
 @pytest.fixture(scope='module')

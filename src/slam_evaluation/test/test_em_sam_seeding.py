@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from em_sam_node.core.em import SEED_KERNELS, EmConfig, _solve
-from em_sam_node.core.evaluation import ate_rmse
 from em_sam_node.core.problem import Estimate, SlamProblem
 from em_sam_node.core.seeding import Correction, incremental_seed, relocalization
 from em_sam_node.offline import read_ground_truth, replay_bag
+from slam_evaluation.em_sam_metrics import ate_rmse
 from slam_sim.core.office import simulate_office
 from slam_sim.office_bag import write_office_bag
 

@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from em_sam_node import evaluate
 from em_sam_node.core.em import EmConfig, run_em
 from em_sam_node.offline import (
     OBSERVATION_TOPIC,
@@ -26,6 +25,7 @@ from em_sam_node.offline import (
 )
 from em_sam_node.report import write_report
 from slam_core.errors import BagError
+from slam_evaluation import em_sam_evaluate as evaluate
 from slam_ros.typesys import TypeRegistry
 from slam_sim.core.office import simulate_office
 from slam_sim.office_bag import write_office_bag

@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.monoslam_image_evaluate import (
+from slam_core.blas import single_threaded_blas
+from slam_evaluation.monoslam_image_evaluate import (
     REPORT_NAME,
     TABLE_NAME,
     FrontEnd,
@@ -21,8 +22,7 @@ from monoslam_shadow_node.monoslam_image_evaluate import (
     moving_near,
     rendered_source,
 )
-from monoslam_shadow_node.monoslam_pipeline import MeasurementFrame
-from slam_core.blas import single_threaded_blas
+from slam_evaluation.monoslam_pipeline import MeasurementFrame
 from slam_sim.core.dynamic_render import DynamicRenderer, undistort_pixels
 from slam_sim.core.dynamic_scene import DynamicSceneConfig
 from slam_sim.dynamic_camera_bag import write_dynamic_camera_bag

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from monoslam_shadow_node import evaluate
 from monoslam_shadow_node.core.shadow_filter import (
     DYNAMIC,
     PENDING,
@@ -21,7 +20,9 @@ from monoslam_shadow_node.core.shadow_filter import (
     FrameResult,
     ShadowFilter,
 )
-from monoslam_shadow_node.evaluate import (
+from slam_core.files import jsonable
+from slam_evaluation import shadow_evaluate as evaluate
+from slam_evaluation.shadow_evaluate import (
     ErrorSamples,
     FilterRecord,
     Outcome,
@@ -40,7 +41,6 @@ from monoslam_shadow_node.evaluate import (
     view_parallax_rad,
     within_sigma,
 )
-from slam_core.files import jsonable
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'

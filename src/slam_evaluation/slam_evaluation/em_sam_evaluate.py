@@ -26,7 +26,6 @@ import numpy as np
 
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
 from em_sam_node.core.em import EmConfig, EmResult, run_em
-from em_sam_node.core.evaluation import align_se2, ate_rmse, classify, landmark_rmse
 from em_sam_node.core.problem import FloatArray
 from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
@@ -35,6 +34,7 @@ from em_sam_node.report import write_figures
 from slam_core.cli import console_main
 from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
+from slam_evaluation.em_sam_metrics import align_se2, ate_rmse, classify, landmark_rmse
 
 METHODS = ('odometry', 'plain_sam', 'em_sam_paper', 'em_sam_robust', 'oracle', 'live_mapper')
 

@@ -14,10 +14,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from monoslam_shadow_node import monoslam_evaluate
 from monoslam_shadow_node.core.monoslam import MonoSlamConfig, MonoSlamFrame
-from monoslam_shadow_node.evaluate import camera_model
-from monoslam_shadow_node.monoslam_evaluate import (
+from slam_core.blas import single_threaded_blas
+from slam_evaluation import monoslam_evaluate
+from slam_evaluation.monoslam_evaluate import (
     main,
     nees_by_frame,
     nees_summary,
@@ -26,7 +26,7 @@ from monoslam_shadow_node.monoslam_evaluate import (
     trajectory_metrics,
     umeyama_alignment,
 )
-from monoslam_shadow_node.monoslam_pipeline import (
+from slam_evaluation.monoslam_pipeline import (
     ORACLE_REFUSAL,
     MeasurementFrame,
     PipelineConfig,
@@ -38,7 +38,7 @@ from monoslam_shadow_node.monoslam_pipeline import (
     simulation_frames,
     target_known_points,
 )
-from slam_core.blas import single_threaded_blas
+from slam_evaluation.shadow_evaluate import camera_model
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, marker_board, target_pixels
 

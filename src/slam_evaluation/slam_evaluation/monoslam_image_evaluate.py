@@ -64,14 +64,19 @@ from numpy.typing import NDArray
 from marker_detector.conversions import camera_info_fields, image_from_message
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
 from marker_detector.core.images import ImageError
-from monoslam_shadow_node import monoslam_evaluate
 from monoslam_shadow_node.conversions import rotation_from_quaternion
 from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
 from monoslam_shadow_node.core.monoslam import MonoSlamFrame
-from monoslam_shadow_node.evaluate import parse_seeds
-from monoslam_shadow_node.evaluation_report import render_png
-from monoslam_shadow_node.monoslam_evaluate import (
+from slam_core.blas import single_threaded_blas
+from slam_core.cli import console_main
+from slam_core.errors import BagError
+from slam_core.files import write_atomically, write_json
+from slam_core.progress import ProgressReporter
+from slam_core.stamps import stamp_to_ns
+from slam_evaluation import monoslam_evaluate
+from slam_evaluation.evaluation_report import render_png
+from slam_evaluation.monoslam_evaluate import (
     finite_mean,
     number_text,
     pose_errors,
@@ -80,7 +85,7 @@ from monoslam_shadow_node.monoslam_evaluate import (
     shadow_numbers,
     trajectory_metrics,
 )
-from monoslam_shadow_node.monoslam_pipeline import (
+from slam_evaluation.monoslam_pipeline import (
     DEFAULT_SHADOW_MAX_POSE_SIGMA,
     VARIANTS,
     MeasurementFrame,
@@ -91,12 +96,7 @@ from monoslam_shadow_node.monoslam_pipeline import (
     run_variant,
     simulation_frames,
 )
-from slam_core.blas import single_threaded_blas
-from slam_core.cli import console_main
-from slam_core.errors import BagError
-from slam_core.files import write_atomically, write_json
-from slam_core.progress import ProgressReporter
-from slam_core.stamps import stamp_to_ns
+from slam_evaluation.shadow_evaluate import parse_seeds
 from slam_ros.bag.source import BagSource
 from slam_sim.core.dynamic_render import LABEL_NOTHING, DynamicRenderer
 from slam_sim.core.dynamic_scene import (

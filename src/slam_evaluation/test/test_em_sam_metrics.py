@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from em_sam_node.core.evaluation import (
+from slam_evaluation.em_sam_metrics import (
     Alignment,
     align_se2,
     ate_rmse,

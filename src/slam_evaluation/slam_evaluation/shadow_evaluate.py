@@ -87,10 +87,10 @@ from monoslam_shadow_node.core.shadow_filter import (
     ShadowConfig,
     ShadowFilter,
 )
-from monoslam_shadow_node.evaluation_report import summary_text, write_figures
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter
+from slam_evaluation.evaluation_report import summary_text, write_figures
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 
 FloatArray = NDArray[np.float64]
