@@ -359,6 +359,7 @@ def run_processes(
     """Run one process per node until the graph ends; return the exit status."""
     children: list[Child] = []
     failed: list[Child] = []
+    failure: Child | None = None
     try:
         start_children(graph, descriptions, scratch, children)
         player_ended, failure = watch_children(graph, children, stop)
@@ -370,12 +371,17 @@ def run_processes(
         print(  # noqa: T201
             f'slam_run: {child.description.name}: exit code {child.process.returncode}'
         )
-    for child in failed:
+    for index, child in enumerate(failed):
         error = graph.error(
             child.description.key,
             f'node {child.description.name!r} exited with code {child.process.returncode}',
         )
-        say(f'error: {error}')
+        if index == 0 or failure is None:
+            say(f'error: {error}')
+        else:
+            # Stopped because of the first failure: a child still starting Python when it
+            # gets SIGINT dies with code 1. Reported, but the error line names the cause.
+            say(f'while stopping after that error: {error}')
     if failed:
         first = failed[0].process.returncode
         return EXIT_USER_ERROR if first == EXIT_USER_ERROR else EXIT_NODE_FAILED
