@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import importlib
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
-from rosbags.interfaces import Nodetype
+from rosbags.interfaces import Connection, Nodetype, Qos
+from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -80,6 +82,16 @@ class TypeRegistry:
         self.ensure(msgtype)
         msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
         return msgdef, self.typestore.hash_rihs01(msgtype)
+
+    def add_connection(
+        self, writer: Writer, topic: str, msgtype: str, qos: Sequence[Qos]
+    ) -> Connection:
+        """Register ``topic`` of ``msgtype`` on a rosbag2 writer, with this registry's message
+        definition and RIHS01 hash and the offered QoS profiles ``qos``; return its connection."""
+        msgdef, rihs01 = self.msgdef_and_hash(msgtype)
+        return writer.add_connection(
+            topic, msgtype, msgdef=msgdef, rihs01=rihs01, offered_qos_profiles=list(qos)
+        )
 
 
 def _referenced_types(fields: object) -> list[str]:

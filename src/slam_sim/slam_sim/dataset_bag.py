@@ -99,16 +99,12 @@ def write_bag(
         writer = Writer(staging, version=9, storage_plugin=StoragePlugin.MCAP)
         writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         with writer:
-            connections = {}
-            for topic in topics:
-                msgdef, rihs01 = registry.msgdef_and_hash(topic.msgtype)
-                connections[topic.name] = writer.add_connection(
-                    topic.name,
-                    topic.msgtype,
-                    msgdef=msgdef,
-                    rihs01=rihs01,
-                    offered_qos_profiles=[recorded_from_profile(topic.qos)],
+            connections = {
+                topic.name: registry.add_connection(
+                    writer, topic.name, topic.msgtype, [recorded_from_profile(topic.qos)]
                 )
+                for topic in topics
+            }
             for name, bag_ns, message in messages:
                 data = registry.typestore.serialize_cdr(message, message.__msgtype__)
                 writer.write(connections[name], bag_ns, bytes(data))

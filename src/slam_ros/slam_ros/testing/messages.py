@@ -142,16 +142,10 @@ def write_bag(
     plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
     written: list[WrittenMessage] = []
     with Writer(path, version=9, storage_plugin=plugin) as writer:
-        connections = {}
-        for topic in topics:
-            msgdef, rihs01 = registry.msgdef_and_hash(topic.msgtype)
-            connections[topic.name] = writer.add_connection(
-                topic.name,
-                topic.msgtype,
-                msgdef=msgdef,
-                rihs01=rihs01,
-                offered_qos_profiles=[qos],
-            )
+        connections = {
+            topic.name: registry.add_connection(writer, topic.name, topic.msgtype, [qos])
+            for topic in topics
+        }
         schedule = sorted(
             (start_ns + round(i * 1e9 / topic.rate_hz), index)
             for index, topic in enumerate(topics)
