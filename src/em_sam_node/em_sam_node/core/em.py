@@ -46,16 +46,12 @@ from em_sam_node.core.assembly import (
     initial_estimate,
 )
 from em_sam_node.core.factors import observation_innovations, observation_mahalanobis
+from em_sam_node.core.marginals import marginal_landmark_covariances, marginal_pose_covariance
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.robust_kernels import cauchy_weights, huber_weights
 from em_sam_node.core.se2 import range_bearing_to_point, wrap_angle
 from em_sam_node.core.seeding import incremental_seed
-from em_sam_node.core.solver import (
-    cauchy_weights,
-    huber_weights,
-    marginal_landmark_covariances,
-    marginal_pose_covariance,
-    solve,
-)
+from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
 
 MODES = ('paper', 'robust')
