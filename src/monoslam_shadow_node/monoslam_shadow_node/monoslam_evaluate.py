@@ -59,8 +59,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.monoslam import MonoSlamConfig
 from monoslam_shadow_node.core.monoslam_model import log_rotation
+from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
 from monoslam_shadow_node.core.shadow_filter import ClassifierConfig, ShadowConfig
 from monoslam_shadow_node.evaluate import average_nees_band, camera_model, nees, parse_seeds
 from monoslam_shadow_node.evaluation_report import render_png

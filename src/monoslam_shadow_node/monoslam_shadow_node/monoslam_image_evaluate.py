@@ -68,7 +68,7 @@ from monoslam_shadow_node import monoslam_evaluate
 from monoslam_shadow_node.conversions import rotation_from_quaternion
 from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
-from monoslam_shadow_node.core.monoslam import MonoSlamFrame
+from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
 from monoslam_shadow_node.evaluate import parse_seeds
 from monoslam_shadow_node.evaluation_report import render_png
 from monoslam_shadow_node.monoslam_evaluate import (

@@ -41,11 +41,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.camera import CameraModel
-from monoslam_shadow_node.core.monoslam import (
+from monoslam_shadow_node.core.monoslam import MonoSlam
+from monoslam_shadow_node.core.monoslam_types import (
     LOST,
     TRACKING,
     MapPoint,
-    MonoSlam,
     MonoSlamConfig,
     MonoSlamFrame,
     MonoSlamResult,

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from monoslam_shadow_node import monoslam_evaluate
-from monoslam_shadow_node.core.monoslam import MonoSlamConfig, MonoSlamFrame
+from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig, MonoSlamFrame
 from monoslam_shadow_node.evaluate import camera_model
 from monoslam_shadow_node.monoslam_evaluate import (
     main,
