@@ -61,7 +61,8 @@ from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.monoslam_model import log_rotation
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
-from monoslam_shadow_node.core.shadow_filter import ClassifierConfig, ShadowConfig
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from monoslam_shadow_node.evaluate import average_nees_band, camera_model, nees, parse_seeds
 from monoslam_shadow_node.evaluation_report import render_png
 from monoslam_shadow_node.monoslam_pipeline import (

@@ -50,13 +50,8 @@ from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamFrame,
     MonoSlamResult,
 )
-from monoslam_shadow_node.core.shadow_filter import (
-    DYNAMIC,
-    STATIC,
-    FrameInput,
-    ShadowConfig,
-    ShadowFilter,
-)
+from monoslam_shadow_node.core.shadow_filter import FrameInput, ShadowConfig, ShadowFilter
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 from slam_sim.core.init_target import InitTarget, target_pixels
 

@@ -13,14 +13,8 @@ import pytest
 from scipy.stats import chi2
 
 from monoslam_shadow_node import evaluate
-from monoslam_shadow_node.core.shadow_filter import (
-    DYNAMIC,
-    PENDING,
-    STATIC,
-    FrameInput,
-    FrameResult,
-    ShadowFilter,
-)
+from monoslam_shadow_node.core.shadow_filter import FrameInput, FrameResult, ShadowFilter
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
 from monoslam_shadow_node.evaluate import (
     ErrorSamples,
     FilterRecord,
