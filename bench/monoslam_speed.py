@@ -53,13 +53,13 @@ import numpy as np  # noqa: E402
 from bench_common import BENCH_DIR, pin_to_one_core, run_meta  # noqa: E402
 
 from monoslam_shadow_node.core.camera import CameraModel  # noqa: E402
-from monoslam_shadow_node.core.monoslam import (  # noqa: E402
+from monoslam_shadow_node.core.monoslam import MonoSlam  # noqa: E402
+from monoslam_shadow_node.core.monoslam_model import CAMERA_SIZE  # noqa: E402
+from monoslam_shadow_node.core.monoslam_types import (  # noqa: E402
     TRACKING,
-    MonoSlam,
     MonoSlamConfig,
     MonoSlamResult,
 )
-from monoslam_shadow_node.core.monoslam_model import CAMERA_SIZE  # noqa: E402
 from monoslam_shadow_node.core.projective import FloatArray  # noqa: E402
 from monoslam_shadow_node.core.shadow_filter import (  # noqa: E402
     FrameInput,

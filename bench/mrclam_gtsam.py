@@ -45,7 +45,8 @@ from em_sam_node.core.assembly import (
     dead_reckoning,
     initial_estimate,
 )
-from em_sam_node.core.em import EmConfig, run_em
+from em_sam_node.core.em import run_em
+from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.solver import solve
 from em_sam_node.offline import read_ground_truth, replay_bag
 from slam_evaluation.em_sam_metrics import ate_rmse

@@ -53,18 +53,14 @@ import cv2
 import numpy as np
 from bench_common import best_of, pin_to_one_core, run_meta
 
-from monoslam_shadow_node.core import shadow_filter as shadow_filter_module
+from monoslam_shadow_node.core import shadow_classifier as shadow_classifier_module
 from monoslam_shadow_node.core.camera import CameraModel, pixel_rays
 from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
 from monoslam_shadow_node.core.rays import View, pixel_ray_directions, ray_angle, three_ray_test
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.core.shadow_ekf import EkfConfig, initial_states, predict, update
-from monoslam_shadow_node.core.shadow_filter import (
-    DYNAMIC,
-    STATIC,
-    ClassifierConfig,
-    FrameInput,
-    ShadowFilter,
-)
+from monoslam_shadow_node.core.shadow_filter import FrameInput, ShadowFilter
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
 from monoslam_shadow_node.core.static_fit import motion_score_test
 from slam_core.files import write_atomically
 from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
@@ -303,8 +299,8 @@ def tests_in_process(
 
     with contextlib.ExitStack() as stack:
         for name in CLASSIFIER_TESTS:
-            wrapper = counting(name, getattr(shadow_filter_module, name))
-            stack.enter_context(mock.patch.object(shadow_filter_module, name, wrapper))
+            wrapper = counting(name, getattr(shadow_classifier_module, name))
+            stack.enter_context(mock.patch.object(shadow_classifier_module, name, wrapper))
         seconds, _ = run_process(ShadowFilter(camera), frames)
     return calls, spent, float(np.sum(seconds))
 
@@ -479,7 +475,7 @@ def time_calls(
 
 RAY_VARIANTS = (
     # label, pose covariance, motion-visibility point, acceptance variant. The acceptance
-    # variants mirror the call in ShadowFilter._classify (no point: the motion visibility
+    # variants mirror the call in shadow_classifier.classify (no point: the motion visibility
     # comes from the score test), with known poses and with a pose covariance; update them
     # when that call changes.
     ('three_ray_test, known poses (as the filter calls it)', False, False, True),

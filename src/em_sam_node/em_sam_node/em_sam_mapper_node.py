@@ -67,7 +67,7 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from em_sam_node.conversions import increment_from_message, observations_from_message
-from em_sam_node.core.em import EmConfig
+from em_sam_node.core.em_types import EmConfig
 from em_sam_node.mapper import MapperConfig, MapperProcessor
 from em_sam_node.mapper_outputs import (
     landmark_map_message,

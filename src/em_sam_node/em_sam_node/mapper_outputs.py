@@ -18,8 +18,9 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
 from em_sam_node.conversions import quaternion_from_yaw
-from em_sam_node.core.em import EmResult, Sightings
+from em_sam_node.core.em_types import EmResult
 from em_sam_node.core.problem import FloatArray
+from em_sam_node.core.sightings import Sightings
 from slam_core.stamps import ns_to_stamp
 from slam_interfaces.msg import (
     LandmarkEstimate,

@@ -16,7 +16,7 @@ import numpy as np
 
 from em_sam_node.conversions import observations_from_message, odometry_pose
 from em_sam_node.core.assembly import MappingData
-from em_sam_node.core.em import EmConfig
+from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.problem import FloatArray, IntArray
 from em_sam_node.core.se2 import wrap_angle
 from em_sam_node.ingest import IngestConfig, OdometryIngest

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from em_sam_node.core.em import EmResult, Snapshot
+from em_sam_node.core.em_types import EmResult, Snapshot
 from slam_core.files import write_atomically, write_json
 
 SNAPSHOT_TITLES = {

@@ -12,7 +12,9 @@ from hypothesis import strategies as st
 from synthetic_room import MOVEABLE_IDS, STATIC_IDS, STATIC_POSITIONS, Room, make_room
 
 from em_sam_node.core.assembly import MappingData, dead_reckoning
-from em_sam_node.core.em import EmConfig, EmResult, gate_outliers, m_step, run_em
+from em_sam_node.core.em import run_em
+from em_sam_node.core.em_types import EmConfig, EmResult
+from em_sam_node.core.em_weights import gate_outliers, m_step
 from em_sam_node.core.se2 import between
 
 SETTINGS = settings(derandomize=True, max_examples=200, deadline=None)
@@ -298,7 +300,7 @@ def test_em_config_rejects_bad_settings_naming_them(setting: str, value: object)
 
 
 def test_noise_scales_are_per_component_medians_over_their_chi_square_expectation() -> None:
-    from em_sam_node.core.em import observation_noise_scales
+    from em_sam_node.core.em_weights import observation_noise_scales
 
     rng = np.random.default_rng(3)
     sigma = np.array([0.1, 0.01])  # modelled range (m) and bearing (rad) sigmas
@@ -312,7 +314,7 @@ def test_noise_scales_are_per_component_medians_over_their_chi_square_expectatio
 
 
 def test_with_noise_scales_scales_variances_and_the_correlation_consistently(room: Room) -> None:
-    from em_sam_node.core.em import with_noise_scales
+    from em_sam_node.core.em_weights import with_noise_scales
 
     data = dataclasses.replace(room.data, obs_cov=room.data.obs_cov.copy())
     data.obs_cov[:, 0, 1] = data.obs_cov[:, 1, 0] = 1e-5
@@ -343,13 +345,13 @@ def test_robust_mode_estimates_a_range_noise_wider_than_modelled(room: Room) -> 
 
 
 def test_model_error_widens_the_test_covariance_by_a_position_error() -> None:
-    from em_sam_node.core.em import _test_covariances
+    from em_sam_node.core.em_weights import covariances_for_test
 
     cov = np.repeat(np.diag([0.01, 0.0001])[None], 2, axis=0)
     z = np.array([[2.0, 0.1], [4.0, -0.3]])
-    widened = _test_covariances(EmConfig(mode='robust', model_error_m=0.2), cov, z)
+    widened = covariances_for_test(EmConfig(mode='robust', model_error_m=0.2), cov, z)
     assert widened is not None
     np.testing.assert_allclose(widened[:, 0, 0], 0.01 + 0.04)
     np.testing.assert_allclose(widened[:, 1, 1], 0.0001 + (0.2 / z[:, 0]) ** 2)
-    assert _test_covariances(EmConfig(mode='paper'), cov, z) is None
-    assert _test_covariances(EmConfig(mode='robust', model_error_m=0.0), cov, z) is None
+    assert covariances_for_test(EmConfig(mode='paper'), cov, z) is None
+    assert covariances_for_test(EmConfig(mode='robust', model_error_m=0.0), cov, z) is None

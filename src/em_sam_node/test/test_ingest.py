@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from em_sam_node.core.em import EmConfig
+from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.se2 import apply_increment, wrap_angle
 from em_sam_node.ingest import (
     Increment,

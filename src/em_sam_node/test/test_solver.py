@@ -10,21 +10,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from em_sam_node.core import solver
+from em_sam_node.core import marginals, solver
+from em_sam_node.core.factorization import SingularSystemError
 from em_sam_node.core.factors import range_bearing_predict
+from em_sam_node.core.linear_system import build_linear_system, system_layout
+from em_sam_node.core.marginals import marginal_landmark_covariances, marginal_pose_covariance
 from em_sam_node.core.problem import Estimate, SlamProblem
-from em_sam_node.core.se2 import apply_increment, between, increment_between, wrap_angle
-from em_sam_node.core.solver import (
-    SingularSystemError,
-    build_linear_system,
+from em_sam_node.core.robust_kernels import (
+    RobustKernel,
     cauchy_weights,
     huber_weights,
     kernel_loss,
-    marginal_landmark_covariances,
-    marginal_pose_covariance,
-    solve,
-    system_layout,
 )
+from em_sam_node.core.se2 import apply_increment, between, increment_between, wrap_angle
+from em_sam_node.core.solver import solve
 from slam_core.testing.jacobians import assert_jacobian_close
 
 PI = math.pi
@@ -452,7 +451,7 @@ def with_outlier(problem: SlamProblem) -> SlamProblem:
 
 
 @pytest.mark.parametrize('kernel', [huber_weights(1.345), cauchy_weights(2.3849)])
-def test_robust_kernel_limits_an_outliers_pull(kernel: solver.RobustKernel) -> None:
+def test_robust_kernel_limits_an_outliers_pull(kernel: RobustKernel) -> None:
     problem = with_outlier(square_problem())
     start = Estimate(SQUARE_POSES, SQUARE_LANDMARKS)
     plain = solve(problem, start, method='levenberg_marquardt')
@@ -490,7 +489,7 @@ def test_marginals_equal_blocks_of_the_dense_inverse(monkeypatch: pytest.MonkeyP
     for row, i in enumerate(indices):
         block = slice(3 * i, 3 * i + 3)
         np.testing.assert_allclose(poses[row], covariance[block, block], rtol=1e-9, atol=1e-15)
-    monkeypatch.setattr(solver, '_MARGINAL_CHUNK_ENTRIES', 1)  # one landmark per solve
+    monkeypatch.setattr(marginals, '_MARGINAL_CHUNK_ENTRIES', 1)  # one landmark per solve
     chunked = marginal_landmark_covariances(problem, estimate, obs_row_scale=scale)
     np.testing.assert_allclose(chunked, landmarks, rtol=1e-12)
 

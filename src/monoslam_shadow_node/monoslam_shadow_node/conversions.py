@@ -37,14 +37,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.camera import CameraModel
-from monoslam_shadow_node.core.shadow_filter import (
-    DYNAMIC,
-    PENDING,
-    STATIC,
-    FrameInput,
-    Handover,
-    TrackReport,
-)
+from monoslam_shadow_node.core.shadow_filter import FrameInput, Handover, TrackReport
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
 FloatArray = NDArray[np.float64]

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
-from monoslam_shadow_node.core.monoslam import MapPoint, MonoSlamFrame, MonoSlamResult
+from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamFrame, MonoSlamResult
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 

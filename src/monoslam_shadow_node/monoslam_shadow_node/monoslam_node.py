@@ -139,11 +139,11 @@ from monoslam_shadow_node.conversions import (
     Features,
     features_from_message,
 )
-from monoslam_shadow_node.core.monoslam import (
+from monoslam_shadow_node.core.monoslam import MonoSlam
+from monoslam_shadow_node.core.monoslam_types import (
     LOST,
     TRACKING,
     WAITING,
-    MonoSlam,
     MonoSlamInputError,
     MonoSlamResult,
 )

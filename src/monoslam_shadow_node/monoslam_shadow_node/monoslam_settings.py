@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
-from monoslam_shadow_node.core.monoslam import MonoSlamConfig
+from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
 from monoslam_shadow_node.core.projective import FloatArray
 
 # The parameter plumbing is shared with shadow_filter and feature_tracker: setting_value

@@ -19,8 +19,9 @@ from typing import Any
 
 import yaml
 
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.core.shadow_ekf import EkfConfig
-from monoslam_shadow_node.core.shadow_filter import ClassifierConfig, ShadowConfig
+from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from slam_core.errors import ParameterError
 
 NODE_NAME = 'shadow_filter'

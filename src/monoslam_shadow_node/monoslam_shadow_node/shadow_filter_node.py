@@ -135,13 +135,8 @@ from monoslam_shadow_node.conversions import (
     pose_from_message,
     track_fields,
 )
-from monoslam_shadow_node.core.shadow_filter import (
-    DYNAMIC,
-    PENDING,
-    FrameResult,
-    InputError,
-    ShadowFilter,
-)
+from monoslam_shadow_node.core.shadow_filter import FrameResult, InputError, ShadowFilter
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING
 from monoslam_shadow_node.frame_sync import Drop, FrameSynchronizer
 from monoslam_shadow_node.settings import NODE_NAME, SETTINGS, node_settings, shadow_config
 from slam_core.cli import console_main

@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
+from monoslam_shadow_node.core.feature_detection import SUBPIXEL_HALF_WINDOW_PX
 from monoslam_shadow_node.core.feature_tracker import (
     DROP_REASONS,
-    SUBPIXEL_HALF_WINDOW_PX,
     FeatureTracker,
     Predictions,
     TrackedFeatures,

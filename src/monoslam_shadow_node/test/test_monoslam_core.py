@@ -8,9 +8,6 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.core.camera import CameraModel
-from monoslam_shadow_node.core.monoslam import (
-    MonoSlamConfig,
-)
 from monoslam_shadow_node.core.monoslam_model import (
     angles_from_ray,
     euclidean_point,
@@ -24,6 +21,9 @@ from monoslam_shadow_node.core.monoslam_model import (
     rotate_transposed_jacobian,
     rotation,
     world_angle_jacobian,
+)
+from monoslam_shadow_node.core.monoslam_types import (
+    MonoSlamConfig,
 )
 from slam_core.testing.jacobians import assert_jacobian_close
 

@@ -17,7 +17,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 
 from monoslam_shadow_node import monoslam_node, monoslam_settings, settings
 from monoslam_shadow_node.conversions import Features
-from monoslam_shadow_node.core.monoslam import MapPoint, MonoSlamConfig, MonoSlamResult
+from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamConfig, MonoSlamResult
 from monoslam_shadow_node.frame_sync import StampSync
 from monoslam_shadow_node.monoslam_conversions import (
     POINT_DTYPE,

@@ -7,6 +7,7 @@ import pytest
 
 from marker_detector.core.camera import CameraModel
 from monoslam_shadow_node.core.rays import View
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
     initial_states,
@@ -17,15 +18,12 @@ from monoslam_shadow_node.core.shadow_ekf import (
     world_estimates,
 )
 from monoslam_shadow_node.core.shadow_filter import (
-    DYNAMIC,
-    PENDING,
-    STATIC,
-    ClassifierConfig,
     FrameInput,
     InputError,
     ShadowConfig,
     ShadowFilter,
 )
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
 from monoslam_shadow_node.core.static_fit import motion_score_test
 from slam_core.testing.jacobians import assert_jacobian_close
 

@@ -34,16 +34,10 @@ from monoslam_shadow_node.conversions import (
     rotation_from_quaternion,
     track_fields,
 )
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.core.shadow_ekf import EkfConfig
-from monoslam_shadow_node.core.shadow_filter import (
-    DYNAMIC,
-    PENDING,
-    STATIC,
-    ClassifierConfig,
-    Handover,
-    ShadowConfig,
-    TrackReport,
-)
+from monoslam_shadow_node.core.shadow_filter import Handover, ShadowConfig, TrackReport
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
 from monoslam_shadow_node.shadow_filter_node import FrameSynchronizer
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import ShadowTrack, ShadowTrackArray

@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
-from em_sam_node.core.em import EmConfig, EmResult, run_em
+from em_sam_node.core.em import run_em
+from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.problem import FloatArray
 from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors

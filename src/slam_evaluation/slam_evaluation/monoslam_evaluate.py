@@ -59,9 +59,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.monoslam import MonoSlamConfig
 from monoslam_shadow_node.core.monoslam_model import log_rotation
-from monoslam_shadow_node.core.shadow_filter import ClassifierConfig, ShadowConfig
+from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.files import write_atomically, write_json

@@ -67,7 +67,7 @@ from marker_detector.core.images import ImageError
 from monoslam_shadow_node.conversions import rotation_from_quaternion
 from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
-from monoslam_shadow_node.core.monoslam import MonoSlamFrame
+from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
 from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.errors import BagError

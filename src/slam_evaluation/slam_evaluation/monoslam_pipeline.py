@@ -41,22 +41,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.camera import CameraModel
-from monoslam_shadow_node.core.monoslam import (
+from monoslam_shadow_node.core.monoslam import MonoSlam
+from monoslam_shadow_node.core.monoslam_types import (
     LOST,
     TRACKING,
     MapPoint,
-    MonoSlam,
     MonoSlamConfig,
     MonoSlamFrame,
     MonoSlamResult,
 )
-from monoslam_shadow_node.core.shadow_filter import (
-    DYNAMIC,
-    STATIC,
-    FrameInput,
-    ShadowConfig,
-    ShadowFilter,
-)
+from monoslam_shadow_node.core.shadow_filter import FrameInput, ShadowConfig, ShadowFilter
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 from slam_sim.core.init_target import InitTarget, target_pixels
 

@@ -75,18 +75,14 @@ from scipy.stats import t as t_dist
 
 from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.rays import ray_angle
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig, Decision
 from monoslam_shadow_node.core.shadow_filter import (
-    DYNAMIC,
-    PENDING,
-    STATIC,
-    STATUS_NAMES,
-    ClassifierConfig,
-    Decision,
     FrameInput,
     Handover,
     ShadowConfig,
     ShadowFilter,
 )
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC, STATUS_NAMES
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter

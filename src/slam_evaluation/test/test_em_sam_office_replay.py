@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from em_sam_node.core.em import EmConfig, run_em
+from em_sam_node.core.em import run_em
+from em_sam_node.core.em_types import EmConfig
 from em_sam_node.offline import (
     OBSERVATION_TOPIC,
     ODOM_TOPIC,

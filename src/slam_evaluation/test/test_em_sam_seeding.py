@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from em_sam_node.core.em import SEED_KERNELS, EmConfig, _solve
+from em_sam_node.core.em import _solve
+from em_sam_node.core.em_types import SEED_KERNELS, EmConfig
 from em_sam_node.core.problem import Estimate, SlamProblem
 from em_sam_node.core.seeding import Correction, incremental_seed, relocalization
 from em_sam_node.offline import read_ground_truth, replay_bag

@@ -7,19 +7,19 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.core.camera import CameraModel
-from monoslam_shadow_node.core.monoslam import (
-    LOST,
-    TRACKING,
-    WAITING,
-    MonoSlam,
-    MonoSlamConfig,
-    MonoSlamFrame,
-    MonoSlamInputError,
-)
+from monoslam_shadow_node.core.monoslam import MonoSlam
 from monoslam_shadow_node.core.monoslam_init import camera_from_known_points
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     log_rotation,
+)
+from monoslam_shadow_node.core.monoslam_types import (
+    LOST,
+    TRACKING,
+    WAITING,
+    MonoSlamConfig,
+    MonoSlamFrame,
+    MonoSlamInputError,
 )
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, target_pixels
@@ -191,7 +191,7 @@ def test_a_collapsed_pose_covariance_makes_it_lost() -> None:
     frames = list(_frames(run, InitTarget(), np.random.default_rng(4), static_only=True))
     for _, measurements in frames[:5]:
         assert slam.process(measurements).status == TRACKING
-    slam._p[0, 0] = -1.0  # a position variance below zero: no longer a covariance
+    slam._state.p[0, 0] = -1.0  # a position variance below zero: no longer a covariance
     empty = MonoSlamFrame(frames[5][1].stamp_ns, np.zeros(0, np.int64), np.zeros((0, 2)))
     result = slam.process(empty)
     assert result.status == LOST

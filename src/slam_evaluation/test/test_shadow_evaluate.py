@@ -12,14 +12,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from monoslam_shadow_node.core.shadow_filter import (
-    DYNAMIC,
-    PENDING,
-    STATIC,
-    FrameInput,
-    FrameResult,
-    ShadowFilter,
-)
+from monoslam_shadow_node.core.shadow_filter import FrameInput, FrameResult, ShadowFilter
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
 from slam_core.files import jsonable
 from slam_evaluation import shadow_evaluate as evaluate
 from slam_evaluation.shadow_evaluate import (

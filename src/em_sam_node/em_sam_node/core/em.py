@@ -26,17 +26,19 @@ Two modes:
 
 Landmarks seen once (no redundancy, nothing to test) keep weight 1. Rows of zero-weight
 landmarks are kept at a tiny scale (ROW_SCALE_FLOOR) so their positions stay defined.
+
+This module is the loop: the first E-step, the EM iterations and the final solve. The
+settings and result types are in ``core.em_types``, the weights and the test in
+``core.em_weights``, the placed sightings in ``core.sightings``.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from em_sam_node.core.assembly import (
     BuiltProblem,
@@ -45,330 +47,24 @@ from em_sam_node.core.assembly import (
     dead_reckoning,
     initial_estimate,
 )
-from em_sam_node.core.factors import observation_innovations, observation_mahalanobis
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
-from em_sam_node.core.se2 import range_bearing_to_point, wrap_angle
-from em_sam_node.core.seeding import incremental_seed
-from em_sam_node.core.solver import (
-    cauchy_weights,
-    huber_weights,
-    marginal_landmark_covariances,
-    marginal_pose_covariance,
-    solve,
+from em_sam_node.core.em_types import SEED_KERNELS, EmConfig, EmResult, Snapshot
+from em_sam_node.core.em_weights import (
+    ROW_SCALE_FLOOR,
+    capped_noise_scales,
+    covariances_for_test,
+    gate_outliers,
+    m_step,
+    row_scales,
+    squared_mahalanobis,
+    with_noise_scales,
 )
+from em_sam_node.core.factors import observation_innovations, observation_mahalanobis
+from em_sam_node.core.marginals import marginal_landmark_covariances
+from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.seeding import incremental_seed
+from em_sam_node.core.sightings import Sightings, sightings_of
+from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
-
-MODES = ('paper', 'robust')
-SEED_KERNELS = {'cauchy': cauchy_weights, 'huber': huber_weights}
-ROW_SCALE_FLOOR = 1e-3
-MARGINAL_SAMPLES = 64
-
-
-@dataclass(frozen=True)
-class EmConfig:
-    """EM-SAM settings. Probabilities are per landmark (test) or per sighting (gate)."""
-
-    mode: str = 'robust'
-    lagrange_lambda: float = 50.0
-    moveable_threshold: float = 0.5
-    max_iterations: int = 20
-    weight_tolerance: float = 1e-3
-    false_alarm_probability: float = 1e-3
-    gate_probability: float = 1e-4
-    max_gated_fraction: float = 0.1
-    seed_kernel: str = 'cauchy'
-    seed_kernel_scale: float = 2.3849
-    seed_chunk_s: float = 20.0
-    seed_split_distance_m: float = 1.0
-    seed_window_s: float = 60.0
-    solver_method: str = 'levenberg_marquardt'
-    max_solver_iterations: int = 50
-    solver_tolerance: float = 1e-6
-    estimate_noise_scale: bool = True
-    max_noise_scale: float = 10.0
-    model_error_m: float = 0.15
-    final_kernel: str = 'cauchy'
-    final_kernel_scale: float = 2.3849
-
-    def __post_init__(self) -> None:
-        checks: list[tuple[bool, str, object, str]] = [
-            (self.mode in MODES, 'mode', self.mode, f'must be one of {MODES}'),
-            (
-                np.isfinite(self.lagrange_lambda) and self.lagrange_lambda > 0,
-                'lagrange_lambda',
-                self.lagrange_lambda,
-                'must be a finite number > 0',
-            ),
-            (
-                0 < self.moveable_threshold < 1,
-                'moveable_threshold',
-                self.moveable_threshold,
-                'must be in (0, 1)',
-            ),
-            (self.max_iterations >= 1, 'max_iterations', self.max_iterations, 'must be >= 1'),
-            (
-                np.isfinite(self.final_kernel_scale) and self.final_kernel_scale > 0,
-                'final_kernel_scale',
-                self.final_kernel_scale,
-                'must be a finite number > 0',
-            ),
-            (
-                self.final_kernel in ('none', *SEED_KERNELS),
-                'final_kernel',
-                self.final_kernel,
-                "must be 'none', 'cauchy' or 'huber'",
-            ),
-            (
-                np.isfinite(self.max_noise_scale) and self.max_noise_scale >= 1,
-                'max_noise_scale',
-                self.max_noise_scale,
-                'must be a finite number >= 1',
-            ),
-            (
-                np.isfinite(self.model_error_m) and self.model_error_m >= 0,
-                'model_error_m',
-                self.model_error_m,
-                'must be a finite number >= 0',
-            ),
-            (self.weight_tolerance > 0, 'weight_tolerance', self.weight_tolerance, 'must be > 0'),
-            (
-                0 < self.false_alarm_probability < 1,
-                'false_alarm_probability',
-                self.false_alarm_probability,
-                'must be in (0, 1)',
-            ),
-            (
-                0 < self.gate_probability < 1,
-                'gate_probability',
-                self.gate_probability,
-                'must be in (0, 1)',
-            ),
-            (
-                0 <= self.max_gated_fraction < 1,
-                'max_gated_fraction',
-                self.max_gated_fraction,
-                'must be in [0, 1)',
-            ),
-            (
-                self.seed_kernel in SEED_KERNELS,
-                'seed_kernel',
-                self.seed_kernel,
-                f'must be one of {tuple(SEED_KERNELS)}',
-            ),
-            (
-                self.seed_kernel_scale > 0,
-                'seed_kernel_scale',
-                self.seed_kernel_scale,
-                'must be > 0',
-            ),
-            (self.seed_chunk_s > 0, 'seed_chunk_s', self.seed_chunk_s, 'must be > 0'),
-            (
-                self.seed_window_s >= self.seed_chunk_s,
-                'seed_window_s',
-                self.seed_window_s,
-                'must be >= seed_chunk_s',
-            ),
-            (
-                self.seed_split_distance_m > 0,
-                'seed_split_distance_m',
-                self.seed_split_distance_m,
-                'must be > 0',
-            ),
-            (
-                self.max_solver_iterations >= 1,
-                'max_solver_iterations',
-                self.max_solver_iterations,
-                'must be >= 1',
-            ),
-        ]
-        for ok, name, value, requirement in checks:
-            if not ok:
-                raise ValueError(f'EM-SAM setting {name}={value!r}: {requirement}')
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    """An estimate at one stage: poses (N,3) and landmark positions (L,2) with their ids."""
-
-    poses: FloatArray
-    landmark_ids: IntArray
-    landmarks: FloatArray
-
-
-@dataclass(frozen=True)
-class Sightings:
-    """Where one landmark was seen: stamps (S,) int ns, map positions (S,2) m, covariances
-    (S,2,2) m^2, most recent first."""
-
-    stamps_ns: IntArray
-    positions: FloatArray
-    covariances: FloatArray
-
-
-@dataclass(frozen=True)
-class EmResult:
-    """Outcome of EM-SAM over one batch of mapping data.
-
-    Per landmark (aligned with ``landmark_ids``, (L,)): final ``weights``, ``moveable``
-    flags, ``positions`` (static: final map; moveable: most recent sighting), their 2x2
-    ``covariances`` and ``num_observations``. ``weight_history`` is (T+1, L): the weights
-    before EM (all 1) and after each M-step. ``gated`` (K,) marks sightings gated as
-    outliers (robust mode). ``poses`` (N,3) is the final trajectory. ``noise_scale`` (2,)
-    holds the variance factors of range and bearing the EM test used, ``final_noise_scale``
-    (2,) those of the final solve (both 1 unless the robust mode estimated them).
-    """
-
-    mode: str
-    poses: FloatArray
-    landmark_ids: IntArray
-    positions: FloatArray
-    covariances: FloatArray
-    weights: FloatArray
-    moveable: np.ndarray
-    num_observations: IntArray
-    weight_history: FloatArray
-    gated: np.ndarray
-    sightings: dict[int, Sightings]
-    snapshots: dict[str, Snapshot]
-    em_iterations: int
-    converged: bool
-    num_pieces: int
-    timings_s: dict[str, float] = field(default_factory=dict)
-    noise_scale: FloatArray = field(default_factory=lambda: np.ones(2))
-    final_noise_scale: FloatArray = field(default_factory=lambda: np.ones(2))
-
-
-def _test_covariances(
-    config: EmConfig, obs_cov: FloatArray, obs_z: FloatArray
-) -> FloatArray | None:
-    """Sighting covariances (K,2,2) for the robust mode's test, or None to use the model's.
-
-    Real sensors have per-landmark biases (MRCLAM: 0.1-0.2 m in range for some barcodes,
-    2 sigma of the noise) that no noise model carries; the test would call such a static
-    landmark moveable. ``model_error_m`` adds an isotropic position error of that size
-    (range variance + m^2, bearing variance + (m / range)^2) to the test only: moves much
-    smaller than it go undetected, moves of metres do not.
-    """
-    if config.mode != 'robust' or config.model_error_m == 0 or len(obs_cov) == 0:
-        return None
-    extra = np.zeros_like(obs_cov)
-    extra[:, 0, 0] = config.model_error_m**2
-    extra[:, 1, 1] = (config.model_error_m / np.maximum(obs_z[:, 0], 1e-3)) ** 2
-    result: FloatArray = obs_cov + extra
-    return result
-
-
-def _mahalanobis(innovations: FloatArray, covariances: FloatArray) -> FloatArray:
-    solved = np.linalg.solve(covariances, innovations[..., None])[..., 0]
-    result: FloatArray = np.einsum('ki,ki->k', innovations, solved)
-    return result
-
-
-def observation_noise_scales(innovations: FloatArray, obs_cov: FloatArray) -> FloatArray:
-    """Return the a-posteriori variance factors (2,) of range and bearing, each at least 1.
-
-    A sensor model tighter than the data (heavy tails, a range bias, a calibration off)
-    raises every landmark's residual sum and, through the per-landmark test, flags static
-    landmarks. Range and bearing are estimated apart (variance components): real range
-    noise often grows with distance while bearing noise does not (MRCLAM: range 2x its
-    nominal sigma, bearing at it), and one shared factor would dilute the bearings. Each
-    factor is the median squared standardized innovation over its expectation for one
-    degree of freedom (chi2 median 0.455): robust to moved landmarks and outliers while
-    they are under half the sightings. Only ever inflates: a model looser than the data
-    only makes the test less sensitive. The caller caps it (``max_noise_scale``): when most
-    sightings are of moved landmarks (the all-moveable case) the median measures the moves,
-    not the noise.
-    """
-    if len(innovations) == 0:
-        return np.ones(2)
-    variances = np.stack([obs_cov[:, 0, 0], obs_cov[:, 1, 1]], axis=1)
-    factors = np.median(innovations**2 / variances, axis=0) / float(chi2.median(1))
-    result: FloatArray = np.maximum(factors, 1.0)
-    return result
-
-
-def with_noise_scales(data: MappingData, factors: FloatArray) -> MappingData:
-    """Return ``data`` with every sighting covariance scaled by D C D, D = diag(sqrt(factors))."""
-    root = np.sqrt(np.asarray(factors, dtype=np.float64))
-    return dataclasses.replace(
-        data, obs_cov=data.obs_cov * root[None, :, None] * root[None, None, :]
-    )
-
-
-def _noise_scales(
-    config: EmConfig,
-    data: MappingData,
-    built: BuiltProblem,
-    problem: SlamProblem,
-    estimate: Estimate,
-) -> FloatArray:
-    """The capped variance factors of ``problem``'s sightings at ``estimate``."""
-    if config.mode != 'robust' or not config.estimate_noise_scale:
-        return np.ones(2)
-    factors = observation_noise_scales(
-        observation_innovations(problem, estimate), data.obs_cov[built.observation_rows]
-    )
-    result: FloatArray = np.minimum(factors, config.max_noise_scale)
-    return result
-
-
-def m_step(
-    config: EmConfig,
-    mahalanobis: FloatArray,
-    obs_landmark: IntArray,
-    num_landmarks: int,
-    included: np.ndarray,
-) -> FloatArray:
-    """Return new landmark weights (L,) in [0, 1] from squared Mahalanobis innovations (K,).
-
-    Only ``included`` sightings count (the robust mode's gate excludes some).
-    """
-    counts = np.bincount(obs_landmark[included], minlength=num_landmarks)
-    sums = np.bincount(
-        obs_landmark[included], weights=mahalanobis[included], minlength=num_landmarks
-    )
-    if config.mode == 'paper':
-        return np.clip(1.0 - sums / (2.0 * config.lagrange_lambda), 0.0, 1.0)
-    dof = np.maximum(2 * counts - 2, 1)
-    quantile = chi2.ppf(1.0 - config.false_alarm_probability, dof)
-    excess = np.maximum(sums - dof, 0.0)
-    weights: FloatArray = np.clip(1.0 - excess / (2.0 * (quantile - dof)), 0.0, 1.0)
-    weights[counts <= 1] = 1.0  # a single sighting carries no evidence of motion
-    return weights
-
-
-def gate_outliers(
-    config: EmConfig, mahalanobis: FloatArray, obs_landmark: IntArray, num_landmarks: int
-) -> np.ndarray:
-    """Return a (K,) mask of isolated gross outlier sightings (robust mode).
-
-    Per landmark, at most floor(max_gated_fraction * n_l) sightings above the gate quantile
-    are gated, the largest first: a landmark that moved has many large innovations, of which
-    only a few are gated, so it still fails its test.
-    """
-    gate = chi2.ppf(1.0 - config.gate_probability, 2)
-    gated = np.zeros(mahalanobis.shape, dtype=bool)
-    counts = np.bincount(obs_landmark, minlength=num_landmarks)
-    allowed = np.floor(config.max_gated_fraction * counts).astype(np.int64)
-    suspects = np.flatnonzero(mahalanobis > gate)
-    if len(suspects) == 0:
-        return gated
-    order = suspects[np.lexsort((-mahalanobis[suspects], obs_landmark[suspects]))]
-    landmark_of = obs_landmark[order]
-    starts = np.r_[0, np.flatnonzero(np.diff(landmark_of)) + 1]
-    rank = np.arange(len(order)) - np.repeat(starts, np.diff(np.r_[starts, len(order)]))
-    gated[order[rank < allowed[landmark_of]]] = True
-    return gated
-
-
-def row_scales(
-    config: EmConfig, weights: FloatArray, obs_landmark: IntArray, gated: np.ndarray
-) -> FloatArray:
-    """Return the E-step row scale of every sighting (K,): w (paper) or sqrt(w) (robust)."""
-    scale = weights if config.mode == 'paper' else np.sqrt(weights)
-    rows = np.maximum(scale[obs_landmark], ROW_SCALE_FLOOR)
-    rows[gated] = ROW_SCALE_FLOOR
-    return rows
 
 
 def _anchored(built: BuiltProblem, poses: FloatArray) -> tuple[SlamProblem, int]:
@@ -427,7 +123,7 @@ def run_em(
     )
     timings['first_e_step'] = time.perf_counter() - started
     sensor_data = data
-    noise_scale = _noise_scales(config, data, built, problem, estimate)
+    noise_scale = capped_noise_scales(config, data, built, problem, estimate)
     if np.any(noise_scale > 1.0):
         data = with_noise_scales(sensor_data, noise_scale)
         built = build_problem(data)
@@ -439,12 +135,12 @@ def run_em(
     gated = np.zeros(problem.num_observations, dtype=bool)
     converged = False
     iterations = 0
-    test_cov = _test_covariances(config, data.obs_cov[built.observation_rows], problem.obs_z)
+    test_cov = covariances_for_test(config, data.obs_cov[built.observation_rows], problem.obs_z)
     for iteration in range(config.max_iterations):
         if test_cov is None:
             mahalanobis = observation_mahalanobis(problem, estimate)
         else:
-            mahalanobis = _mahalanobis(observation_innovations(problem, estimate), test_cov)
+            mahalanobis = squared_mahalanobis(observation_innovations(problem, estimate), test_cov)
         if config.mode == 'robust':
             gated = gate_outliers(config, mahalanobis, problem.obs_landmark, num_landmarks)
         new_weights = m_step(config, mahalanobis, problem.obs_landmark, num_landmarks, ~gated)
@@ -528,7 +224,7 @@ def _final_solve(
     keep = np.isin(built.landmark_ids, static.landmark_ids)
     start = Estimate(estimate.poses.copy(), estimate.landmarks[keep].copy())
     if static.problem.num_landmarks:
-        noise_scale = _noise_scales(config, data, static, static.problem, start)
+        noise_scale = capped_noise_scales(config, data, static, static.problem, start)
         if np.any(noise_scale > 1.0):
             data = with_noise_scales(data, noise_scale)
             static = build_problem(data, exclude_ids=moveable_ids.tolist())
@@ -555,68 +251,6 @@ def _final_solve(
     return _Final(
         poses, built.landmark_ids, positions, covariances, sightings, num_pieces, noise_scale
     )
-
-
-def sightings_of(
-    data: MappingData, problem: SlamProblem, solved: Estimate, ids: list[int]
-) -> dict[int, Sightings]:
-    """Return every sighting of the given landmark ids placed in the map, most recent first.
-
-    ``problem`` and ``solved`` give the trajectory and its marginal covariances (they may
-    leave the landmarks in ``ids`` out); the sightings come from ``data``.
-    """
-    result: dict[int, Sightings] = {}
-    rows = np.flatnonzero(np.isin(data.obs_landmark_id, np.array(ids, dtype=np.int64)))
-    if len(rows) == 0:
-        return result
-    keyframes = data.obs_keyframe[rows]
-    pose_cov = _pose_covariances_near(problem, solved, keyframes)
-    poses = solved.poses[keyframes]
-    z = data.obs_z[rows]
-    points = range_bearing_to_point(poses, z)
-    covariances = _sighting_covariances(poses, z, pose_cov, data.obs_cov[rows])
-    stamps = data.keyframe_stamps_ns[keyframes]
-    for landmark_id in ids:
-        mine = np.flatnonzero(data.obs_landmark_id[rows] == landmark_id)
-        order = mine[np.argsort(-stamps[mine], kind='stable')]
-        result[int(landmark_id)] = Sightings(stamps[order], points[order], covariances[order])
-    return result
-
-
-def _pose_covariances_near(
-    problem: SlamProblem, solved: Estimate, keyframes: IntArray
-) -> FloatArray:
-    """Return pose marginal covariances (n,3,3) for keyframes (n,), from at most
-    MARGINAL_SAMPLES evenly spread keyframes (the nearest one is used): exact marginals of
-    a thousand poses cost seconds, and they vary slowly along a trajectory."""
-    unique = np.unique(keyframes)
-    if len(unique) > MARGINAL_SAMPLES:
-        unique = unique[np.linspace(0, len(unique) - 1, MARGINAL_SAMPLES).round().astype(int)]
-    covariances = marginal_pose_covariance(problem, solved, unique)
-    nearest = np.clip(np.searchsorted(unique, keyframes), 0, len(unique) - 1)
-    previous = np.clip(nearest - 1, 0, len(unique) - 1)
-    closer = np.abs(unique[previous] - keyframes) < np.abs(unique[nearest] - keyframes)
-    result: FloatArray = covariances[np.where(closer, previous, nearest)]
-    return result
-
-
-def _sighting_covariances(
-    poses: FloatArray, z: FloatArray, pose_cov: FloatArray, z_cov: FloatArray
-) -> FloatArray:
-    """Return first-order covariances (S,2,2) of map points from poses (S,3) and z (S,2)."""
-    angle = wrap_angle(poses[:, 2] + z[:, 1])
-    cos, sin = np.cos(angle), np.sin(angle)
-    r = z[:, 0]
-    count = len(r)
-    j_pose = np.zeros((count, 2, 3))
-    j_pose[:, 0, 0] = 1.0
-    j_pose[:, 1, 1] = 1.0
-    j_pose[:, 0, 2] = -r * sin
-    j_pose[:, 1, 2] = r * cos
-    j_z = np.stack([np.stack([cos, -r * sin], -1), np.stack([sin, r * cos], -1)], 1)
-    cov = j_pose @ pose_cov @ np.swapaxes(j_pose, 1, 2) + j_z @ z_cov @ np.swapaxes(j_z, 1, 2)
-    result: FloatArray = 0.5 * (cov + np.swapaxes(cov, 1, 2))
-    return result
 
 
 def _gated_in_data(data: MappingData, built: BuiltProblem, gated: np.ndarray) -> np.ndarray:

@@ -23,14 +23,9 @@ Per image (``FeatureTracker.track``):
    the tracked pixel); a track whose template lands more than ``max_drift_px`` away from
    the tracked pixel, or does not converge, is dropped. A slow scale change moves the
    template's centre little, so tracks survive the camera's approach within limits.
-2. Detection, every ``detect_every_n_frames`` images (and whenever no track is left), only
-   where tracks are missing: Shi-Tomasi corners (cv2.goodFeaturesToTrack) or FAST corners,
-   at least ``min_distance_px`` from every track and from each other, outside the border
-   margin, then refined to subpixel accuracy (cv2.cornerSubPix, which moves a corner by at
-   most ``SUBPIXEL_HALF_WINDOW_PX``). The image is split into
-   ``grid_rows`` x ``grid_cols`` cells that each take up to ceil(max_features / cells)
-   features first, the strongest corners first; what textureless cells leave unused goes to
-   the strongest remaining corners anywhere, up to ``max_features`` in all.
+2. Detection (``feature_detection``), every ``detect_every_n_frames`` images (and whenever
+   no track is left), only where tracks are missing: Shi-Tomasi or FAST corners, spread
+   over a grid and refined to subpixel accuracy, up to ``max_features`` tracks in all.
 
 Ids are int64, start at 1 and are never reused in a tracker's life: a restart (``reset``, or
 an image of another size) drops the tracks but the numbering goes on. Pixels are in the raw
@@ -47,6 +42,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from monoslam_shadow_node.core.feature_detection import CornerDetector
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 GrayImage = NDArray[np.uint8]
@@ -54,12 +51,6 @@ GrayStack = NDArray[np.uint8]
 
 DETECTORS = ('shi_tomasi', 'fast')
 DROP_REASONS = ('lost', 'error', 'border', 'forward_backward', 'drift', 'crowded', 'reset')
-SHI_TOMASI_BLOCK_PX = 3
-"""Neighbourhood of the Shi-Tomasi structure tensor (cv2.goodFeaturesToTrack's blockSize)."""
-SUBPIXEL_HALF_WINDOW_PX = 4
-"""cv2.cornerSubPix looks at (2 * this + 1)^2 pixels; a corner it moves farther than this
-keeps its detected pixel."""
-SUBPIXEL_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 15, 0.01)
 TEMPLATE_MARGIN_PX = 4
 """A template is the LK window plus this much on each side (LK reads a pixel past it)."""
 
@@ -211,11 +202,7 @@ class FeatureTracker:
         self._templates: GrayStack = np.zeros((0, self._side, self._side), np.uint8)
         self._images = 0
         self._pending_reset = 0
-        self._fast = (
-            cv2.FastFeatureDetector.create(self.config.fast_threshold, True)
-            if self.config.detector == 'fast'
-            else None
-        )
+        self._detector = CornerDetector(self.config)
 
     @property
     def next_id(self) -> int:
@@ -439,72 +426,11 @@ class FeatureTracker:
 
     # --- detection --------------------------------------------------------------------------
 
-    def _free_mask(self, shape: tuple[int, ...]) -> GrayImage:
-        """Return 255 where a new feature may go: outside the border margin and at least
-        min_distance_px from every held track; 0 elsewhere."""
-        height, width = shape
-        mask = np.zeros((height, width), np.uint8)
-        margin = math.ceil(self.config.border_margin_px)
-        if height > 2 * margin and width > 2 * margin:
-            mask[margin : height - margin, margin : width - margin] = 255
-        radius = math.ceil(self.config.min_distance_px)
-        for u, v in np.rint(self._pixels).astype(np.int64):
-            cv2.circle(mask, (int(u), int(v)), radius, 0, -1)
-        return mask
-
-    def _candidates(self, gray: GrayImage, mask: GrayImage) -> NDArray[np.float32]:
-        """Return corners (M, 2) where ``mask`` allows, strongest first, at least
-        min_distance_px apart."""
-        config = self.config
-        if self._fast is None:
-            corners = cv2.goodFeaturesToTrack(
-                gray,
-                0,
-                config.quality_level,
-                config.min_distance_px,
-                mask=mask,
-                blockSize=SHI_TOMASI_BLOCK_PX,
-            )
-            if corners is None:
-                return np.zeros((0, 2), np.float32)
-            return np.asarray(corners, np.float32).reshape(-1, 2)
-        keypoints = self._fast.detect(gray, mask)
-        if not keypoints:
-            return np.zeros((0, 2), np.float32)
-        points = np.array([k.pt for k in keypoints], np.float32)
-        order = np.argsort([-k.response for k in keypoints], kind='stable')
-        return _spaced(points[order], config.min_distance_px, gray.shape)
-
-    def _select(self, corners: NDArray[np.float32], shape: tuple[int, ...]) -> NDArray[np.int64]:
-        """Return the rows of ``corners`` (strongest first) that become tracks: per grid cell
-        up to the cell quota minus the tracks there, then the strongest of the rest, up to
-        max_features in all; in strength order."""
-        config = self.config
-        room = config.max_features - len(self._ids)
-        cells = _cells(corners, shape, config.grid_rows, config.grid_cols)
-        held = np.bincount(
-            _cells(self._pixels, shape, config.grid_rows, config.grid_cols),
-            minlength=config.grid_rows * config.grid_cols,
-        )
-        order = np.argsort(cells, kind='stable')  # by cell, strongest first within each
-        sorted_cells = cells[order]
-        rank = np.empty(len(cells), np.int64)
-        rank[order] = np.arange(len(cells)) - np.searchsorted(sorted_cells, sorted_cells)
-        first = held[cells] + rank < config.cell_quota
-        chosen = np.flatnonzero(first)[:room]
-        if len(chosen) < room:
-            rest = np.flatnonzero(~first)[: room - len(chosen)]
-            chosen = np.sort(np.concatenate([chosen, rest]))
-        return chosen
-
     def _detect(self, gray: GrayImage) -> int:
         """Start tracks where features are missing; return how many."""
-        corners = self._candidates(gray, self._free_mask(gray.shape))
+        corners = self._detector.detect(gray, self._pixels)
         if not len(corners):
             return 0
-        corners = corners[self._select(corners, gray.shape)]
-        if self.config.subpixel_refinement and len(corners):
-            corners = _refined(gray, corners, self.config.border_margin_px)
         count = len(corners)
         templates = [cv2.getRectSubPix(gray, (self._side, self._side), (float(u), float(v)))
                      for u, v in corners]  # fmt: skip
@@ -523,49 +449,3 @@ class FeatureTracker:
         self._pixels = np.zeros((0, 2), np.float32)
         self._ages = np.zeros(0, np.int64)
         self._templates = np.zeros((0, self._side, self._side), np.uint8)
-
-
-def _cells(
-    pixels: NDArray[np.float32], shape: tuple[int, ...], rows: int, cols: int
-) -> NDArray[np.int64]:
-    """Return the grid cell index (row-major) of each pixel (M, 2)."""
-    height, width = shape
-    col = np.clip((pixels[:, 0] * (cols / width)).astype(np.int64), 0, cols - 1)
-    row = np.clip((pixels[:, 1] * (rows / height)).astype(np.int64), 0, rows - 1)
-    return row * cols + col
-
-
-def _spaced(
-    points: NDArray[np.float32], distance_px: float, shape: tuple[int, ...]
-) -> NDArray[np.float32]:
-    """Return ``points`` (M, 2, strongest first) greedily thinned to at least ``distance_px``
-    apart (the stronger point stays)."""
-    taken = np.zeros(shape, np.uint8)
-    radius = math.ceil(distance_px)
-    kept = []
-    for index, (u, v) in enumerate(np.rint(points).astype(np.int64)):
-        if taken[v, u] == 0:
-            kept.append(index)
-            cv2.circle(taken, (int(u), int(v)), radius, 1, -1)
-    return points[kept]
-
-
-def _refined(
-    gray: GrayImage, corners: NDArray[np.float32], margin_px: float
-) -> NDArray[np.float32]:
-    """Return ``corners`` (M, 2) refined by cv2.cornerSubPix; a corner that moves more than
-    SUBPIXEL_HALF_WINDOW_PX, or into the border margin, keeps its detected pixel."""
-    window = (SUBPIXEL_HALF_WINDOW_PX, SUBPIXEL_HALF_WINDOW_PX)
-    refined = cv2.cornerSubPix(
-        gray, corners.reshape(-1, 1, 2).copy(), window, (-1, -1), SUBPIXEL_CRITERIA
-    ).reshape(-1, 2)
-    height, width = gray.shape
-    good = (
-        np.all(np.isfinite(refined), axis=1)
-        & np.all(np.abs(refined - corners) <= SUBPIXEL_HALF_WINDOW_PX, axis=1)
-        & (refined[:, 0] >= margin_px)
-        & (refined[:, 0] <= width - 1 - margin_px)
-        & (refined[:, 1] >= margin_px)
-        & (refined[:, 1] <= height - 1 - margin_px)
-    )
-    return np.where(good[:, None], refined, corners).astype(np.float32)

@@ -29,188 +29,51 @@ Per frame (``MonoSlam.process``):
    while its grown covariance lets a few of them through now and then; or when the pose
    covariance collapsed (``MIN_POSE_EIGENVALUE_RATIO``). The filter reports it, retires its
    map and starts again from the known points.
+
+The interface types are in ``monoslam_types``, the state with its feature blocks in
+``monoslam_state``, the EKF steps (prediction, search regions, gated update) in
+``monoslam_ekf``; this module holds the frame loop, map management, start and loss.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.camera import CameraModel
+from monoslam_shadow_node.core.monoslam_ekf import gated_update, predict, predicted_measurements
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
-    EUCLIDEAN_SIZE,
     INVERSE_DEPTH_SIZE,
     Q_SLICE,
     R_SLICE,
     V_SLICE,
     W_SLICE,
     FloatArray,
-    euclidean_point,
     linearity_index,
-    new_inverse_depth_feature,
-    predict_camera,
-    project_feature,
-    ray_from_angles,
     rotation,
-    world_angle_jacobian,
 )
-from monoslam_shadow_node.core.projective import chi2_quantile
+from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
+from monoslam_shadow_node.core.monoslam_types import (
+    LOST,
+    TRACKING,
+    WAITING,
+    IntArray,
+    MapPoint,
+    MonoSlamConfig,
+    MonoSlamFrame,
+    MonoSlamInputError,
+    MonoSlamResult,
+)
 
-IntArray = NDArray[np.int64]
-WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
-INITIALIZE_MODES = ('all', 'handover')
-FAR_M = 1000.0
-"""Where along its ray an inverse-depth feature with rho <= 0 is reported (m)."""
 MAX_HANDOVER_AGE_FRAMES = 30
 """A handover whose feature is not observed within this many frames is dropped."""
 MIN_POSE_EIGENVALUE_RATIO = 1e-12
 """Tracking is lost when the pose covariance's smallest eigenvalue is not above this share of
 its largest: numerically singular, or not positive definite (measured in tracking: ~1e-4)."""
-
-
-class MonoSlamInputError(ValueError):
-    """A frame the filter cannot use (the message names the culprit); the filter is unchanged."""
-
-
-@dataclass(frozen=True)
-class MonoSlamConfig:
-    """Noise, gating, map management and initialization settings (module docstring).
-
-    ``known_points`` maps a key (e.g. 4 marker id + corner index) to a world point (3,) m.
-    """
-
-    known_points: dict[int, tuple[float, float, float]] = field(default_factory=dict)
-    pixel_sigma_px: float = 1.0
-    linear_acceleration_sigma: float = 2.0  # m/s^2/sqrt(Hz)
-    angular_acceleration_sigma: float = 8.0  # rad/s^2/sqrt(Hz): hand tremor at 2-6 Hz
-    initial_velocity_sigma_m_s: float = 0.5
-    initial_angular_velocity_sigma_rad_s: float = 0.5
-    initial_inverse_depth: float = 0.2  # 1/m
-    initial_inverse_depth_sigma: float = 0.3  # 1/m
-    gate_probability: float = 0.999
-    linearity_threshold: float = 0.1
-    max_features: int = 50
-    target_measured: int = 25
-    max_new_per_frame: int = 5
-    min_new_spacing_px: float = 20.0
-    max_unseen_frames: int = 2
-    failure_window: int = 10
-    min_success_ratio: float = 0.5
-    max_consecutive_failures: int = 3
-    lost_after_frames: int = 15
-    lost_after_known_rejected_frames: int = 3
-    max_position_sigma_m: float = 2.0
-    max_gap_s: float = 1.0
-    initialize: str = 'all'
-
-    def __post_init__(self) -> None:
-        """Reject values the filter cannot honour; the message names the field."""
-        positive = (
-            'pixel_sigma_px', 'linear_acceleration_sigma', 'angular_acceleration_sigma',
-            'initial_velocity_sigma_m_s', 'initial_angular_velocity_sigma_rad_s',
-            'initial_inverse_depth', 'initial_inverse_depth_sigma', 'linearity_threshold',
-            'max_position_sigma_m', 'max_gap_s',
-        )  # fmt: skip
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
-                raise ValueError(f'{name}={value!r}: must be a finite number > 0')
-        for name in ('gate_probability', 'min_success_ratio'):
-            value = getattr(self, name)
-            if not 0.0 < value < 1.0:
-                raise ValueError(f'{name}={value!r}: must be in (0, 1)')
-        counts = (
-            'max_features', 'target_measured', 'max_new_per_frame', 'max_unseen_frames',
-            'failure_window', 'max_consecutive_failures', 'lost_after_frames',
-            'lost_after_known_rejected_frames',
-        )  # fmt: skip
-        for name in counts:
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f'{name}={value!r}: must be an integer >= 1')
-        if self.min_new_spacing_px < 0.0:
-            raise ValueError(f'min_new_spacing_px={self.min_new_spacing_px!r}: must be >= 0')
-        if self.initialize not in INITIALIZE_MODES:
-            raise ValueError(
-                f'initialize={self.initialize!r}: must be one of {", ".join(INITIALIZE_MODES)}'
-            )
-        for key, point in self.known_points.items():
-            if len(point) != 3 or not all(math.isfinite(float(c)) for c in point):
-                raise ValueError(f'known point {key}: {point!r} must be 3 finite coordinates (m)')
-
-    @property
-    def gate(self) -> float:
-        """The chi-square gate (2 degrees of freedom) on one feature's innovation."""
-        return chi2_quantile(self.gate_probability, 2)
-
-
-@dataclass(frozen=True, eq=False)
-class MonoSlamFrame:
-    """One image's measurements: track ids (N,) and raw pixels (N, 2) of tracked features, and
-    known-point keys (T,) with their raw pixels (T, 2)."""
-
-    stamp_ns: int
-    ids: IntArray
-    pixels: FloatArray
-    known_keys: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    known_pixels: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
-
-
-@dataclass(frozen=True, eq=False)
-class MapPoint:
-    """A map feature in the world frame: id, position (3,) m and covariance (3, 3) m^2
-    (None while an inverse-depth feature's depth is not known: rho within 3 sigma of 0),
-    its parametrization ('inverse_depth' or 'euclidean'), whether it is in the filter (or
-    retired) and how it entered ('new' or 'handover')."""
-
-    id: int
-    position: FloatArray
-    covariance: FloatArray | None
-    parametrization: str
-    active: bool
-    source: str
-
-
-@dataclass(frozen=True, eq=False)
-class MonoSlamResult:
-    """What one frame produced. ``rotation`` (3, 3) R_world_camera and ``centre`` (3,) m are
-    None while waiting; ``pose_covariance`` (6, 6) is over (position, rotation about the world
-    axes), the convention of geometry_msgs/PoseWithCovariance; velocities in the world
-    (linear, m/s) and camera (angular, rad/s) frames."""
-
-    stamp_ns: int
-    frame: int
-    status: str
-    rotation: FloatArray | None
-    centre: FloatArray | None
-    pose_covariance: FloatArray | None
-    linear_velocity: FloatArray | None
-    angular_velocity: FloatArray | None
-    measured_ids: list[int]
-    rejected_ids: list[int]
-    added_ids: list[int]
-    removed: dict[int, str]
-    known_points_used: int
-    warnings: list[str]
-
-
-@dataclass
-class _Feature:
-    id: int
-    start: int
-    size: int
-    reference: FloatArray | None
-    source: str
-    added_frame: int
-    last_seen_frame: int
-    attempts: int = 0
-    successes: int = 0
-    consecutive_failures: int = 0
 
 
 @dataclass
@@ -229,9 +92,7 @@ class MonoSlam:
         self.config = config or MonoSlamConfig()
         self._known = {int(k): np.asarray(v, dtype=np.float64)
                        for k, v in self.config.known_points.items()}  # fmt: skip
-        self._x = np.zeros(0)
-        self._p = np.zeros((0, 0))
-        self._features: list[_Feature] = []
+        self._state = FilterState()
         self._retired: dict[int, MapPoint] = {}
         self._handovers: dict[int, _Handover] = {}
         self._owned_ids: set[int] = set()
@@ -257,7 +118,7 @@ class MonoSlam:
     @property
     def state_size(self) -> int:
         """Length of the state vector (13 + 6 per inverse-depth + 3 per Euclidean feature)."""
-        return len(self._x)
+        return len(self._state.x)
 
     def set_camera(self, camera: CameraModel) -> None:
         """Use new intrinsics from the next frame on (a camera_info change)."""
@@ -286,12 +147,13 @@ class MonoSlam:
 
     def map_points(self) -> list[MapPoint]:
         """Return the map: features in the filter, then retired ones."""
-        active = [self._map_point(feature, True) for feature in self._features]
+        active = [self._state.map_point(feature, True) for feature in self._state.features]
         return active + list(self._retired.values())
 
     def camera_state(self) -> tuple[FloatArray, FloatArray]:
         """Return the camera state (13,) and its covariance (13, 13) (empty while waiting)."""
-        return self._x[:CAMERA_SIZE].copy(), self._p[:CAMERA_SIZE, :CAMERA_SIZE].copy()
+        x, p = self._state.x, self._state.p
+        return x[:CAMERA_SIZE].copy(), p[:CAMERA_SIZE, :CAMERA_SIZE].copy()
 
     def predictions(
         self, stamp_ns: int, ids: list[int] | None = None
@@ -301,29 +163,7 @@ class MonoSlam:
         if self._status != TRACKING or self._last_stamp_ns is None:
             return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2))
         dt_s = max((stamp_ns - self._last_stamp_ns) * 1e-9, 0.0)
-        camera, f, q = predict_camera(self._x[:CAMERA_SIZE], dt_s, *self._sigmas())
-        p_cc = f @ self._p[:CAMERA_SIZE, :CAMERA_SIZE] @ f.T + q
-        wanted = None if ids is None else set(ids)
-        out_ids, out_pixels, out_s = [], [], []
-        for feature in self._features:
-            if wanted is not None and feature.id not in wanted:
-                continue
-            block = slice(feature.start, feature.start + feature.size)
-            pixel, h_c, h_f, depth = project_feature(
-                self.camera, camera, self._x[block], feature.reference
-            )
-            if depth <= 0.0:
-                continue
-            p_cf = f @ self._p[:CAMERA_SIZE, block]
-            s = h_c @ p_cc @ h_c.T + 2.0 * h_c @ p_cf @ h_f.T + h_f @ self._p[block, block] @ h_f.T
-            out_ids.append(feature.id)
-            out_pixels.append(pixel)
-            out_s.append(s + self.config.pixel_sigma_px**2 * np.eye(2))
-        return (
-            np.array(out_ids, dtype=np.int64),
-            np.array(out_pixels).reshape(-1, 2),
-            np.array(out_s).reshape(-1, 2, 2),
-        )
+        return predicted_measurements(self._state, self.camera, dt_s, self.config, ids)
 
     # --- the frame loop --------------------------------------------------------------------
 
@@ -338,7 +178,7 @@ class MonoSlam:
         dt_s = (frame.stamp_ns - self._last_stamp_ns) * 1e-9
         if dt_s > self.config.max_gap_s:
             warnings.append(f'{dt_s:.2f} s since the last frame (more than max_gap_s)')
-        self._predict(dt_s)
+        predict(self._state, dt_s, self.config)
         self._last_stamp_ns = frame.stamp_ns
         observed = {int(i): pixels[k] for k, i in enumerate(ids)}
         measured, rejected, known_used = self._update(observed, known_keys, known_pixels)
@@ -391,9 +231,6 @@ class MonoSlam:
         finite_known = np.all(np.isfinite(known), axis=1) & np.isin(keys, list(self._known))
         return ids[finite], pixels[finite], keys[finite_known], known[finite_known], warnings
 
-    def _sigmas(self) -> tuple[float, float]:
-        return self.config.linear_acceleration_sigma, self.config.angular_acceleration_sigma
-
     def _try_start(
         self, stamp_ns: int, keys: IntArray, pixels: FloatArray, warnings: list[str]
     ) -> MonoSlamResult:
@@ -413,13 +250,12 @@ class MonoSlam:
             )
             return self._result(stamp_ns, WAITING, [], [], [], {}, 0, warnings)
         config = self.config
-        self._x = np.zeros(CAMERA_SIZE)
-        self._x[:7] = fix.pose_state
-        self._p = np.zeros((CAMERA_SIZE, CAMERA_SIZE))
-        self._p[:7, :7] = fix.pose_covariance
-        self._p[V_SLICE, V_SLICE] = config.initial_velocity_sigma_m_s**2 * np.eye(3)
-        self._p[W_SLICE, W_SLICE] = config.initial_angular_velocity_sigma_rad_s**2 * np.eye(3)
-        self._features = []
+        self._state.start(
+            fix.pose_state,
+            fix.pose_covariance,
+            config.initial_velocity_sigma_m_s,
+            config.initial_angular_velocity_sigma_rad_s,
+        )
         self._status = TRACKING
         self._idle_frames = 0
         self._known_rejected_frames = 0
@@ -428,86 +264,16 @@ class MonoSlam:
         )
         return self._result(stamp_ns, TRACKING, [], [], [], {}, fix.points, warnings)
 
-    def _predict(self, dt_s: float) -> None:
-        """Constant velocity prediction of the camera; features are static."""
-        camera, f, q = predict_camera(self._x[:CAMERA_SIZE], dt_s, *self._sigmas())
-        self._x[:CAMERA_SIZE] = camera
-        c = slice(0, CAMERA_SIZE)
-        self._p[c, c] = f @ self._p[c, c] @ f.T + q
-        self._p[c, CAMERA_SIZE:] = f @ self._p[c, CAMERA_SIZE:]
-        self._p[CAMERA_SIZE:, c] = self._p[c, CAMERA_SIZE:].T
-
     def _update(
         self, observed: dict[int, FloatArray], keys: IntArray, known_pixels: FloatArray
     ) -> tuple[list[int], list[int], int]:
         """Gate and apply all measurements of owned features and known points; return the
         measured and rejected feature ids and the number of known points used."""
-        n = len(self._x)
-        camera = self._x[:CAMERA_SIZE]
-        rows: list[FloatArray] = []
-        residuals: list[FloatArray] = []
-        measured: list[int] = []
-        rejected: list[int] = []
-        sigma2 = self.config.pixel_sigma_px**2
-        gate = self.config.gate
-        c = slice(0, CAMERA_SIZE)
-        # (pixel, known point or None, feature or None): known points first, then features
-        candidates: list[tuple[FloatArray, FloatArray | None, _Feature | None]] = [
-            (pixel, self._known[key], None)
+        known = [
+            (self._known[key], pixel)
             for key, pixel in zip(keys.tolist(), known_pixels, strict=True)
         ]
-        candidates += [(observed[f.id], None, f) for f in self._features if f.id in observed]
-        known_used = 0
-        for pixel, point, feature in candidates:
-            block: slice | None = None
-            if feature is None and point is not None:
-                predicted, h_c, h_f, depth = project_feature(self.camera, camera, point, None)
-            elif feature is not None:
-                block = slice(feature.start, feature.start + feature.size)
-                predicted, h_c, h_f, depth = project_feature(
-                    self.camera, camera, self._x[block], feature.reference
-                )
-            ok = depth > 0.0
-            if ok:
-                s = h_c @ self._p[c, c] @ h_c.T + sigma2 * np.eye(2)
-                if block is not None:
-                    cross = h_c @ self._p[c, block] @ h_f.T
-                    s += cross + cross.T + h_f @ self._p[block, block] @ h_f.T
-                innovation = pixel - predicted
-                ok = float(innovation @ np.linalg.solve(s, innovation)) <= gate
-            if feature is not None:
-                feature.attempts += 1
-                (measured if ok else rejected).append(feature.id)
-                feature.successes += int(ok)
-                feature.consecutive_failures = 0 if ok else feature.consecutive_failures + 1
-            if not ok:
-                continue
-            known_used += int(feature is None)
-            row = np.zeros((2, n))
-            row[:, c] = h_c
-            if block is not None:
-                row[:, block] = h_f
-            rows.append(row)
-            residuals.append(pixel - predicted)
-        if rows:
-            self._joseph_update(np.vstack(rows), np.concatenate(residuals), sigma2)
-        return measured, rejected, known_used
-
-    def _joseph_update(self, h: FloatArray, residual: FloatArray, sigma2: float) -> None:
-        """x += K nu; P = (I - K H) P (I - K H)^T + K R K^T, R = sigma2 I; renormalize q."""
-        ph_t = self._p @ h.T
-        s = h @ ph_t + sigma2 * np.eye(len(h))
-        gain = np.linalg.solve(s, ph_t.T).T
-        self._x = self._x + gain @ residual
-        a = np.eye(len(self._x)) - gain @ h
-        p = a @ self._p @ a.T + sigma2 * (gain @ gain.T)
-        norm = float(np.linalg.norm(self._x[Q_SLICE]))
-        q = self._x[Q_SLICE] / norm
-        jacobian = (np.eye(4) - np.outer(q, q)) / norm
-        self._x[Q_SLICE] = q
-        p[Q_SLICE, :] = jacobian @ p[Q_SLICE, :]
-        p[:, Q_SLICE] = p[:, Q_SLICE] @ jacobian.T
-        self._p = 0.5 * (p + p.T)
+        return gated_update(self._state, self.camera, observed, known, self.config)
 
     def _manage_map(
         self, observed: dict[int, FloatArray], measured: list[int], rejected: list[int]
@@ -516,7 +282,8 @@ class MonoSlam:
         ones; return removed ids with the reason."""
         config = self.config
         removed: dict[int, str] = {}
-        for feature in list(self._features):
+        state = self._state
+        for feature in list(state.features):
             if feature.id in observed:
                 feature.last_seen_frame = self._frame
             failing = feature.consecutive_failures >= config.max_consecutive_failures or (
@@ -529,20 +296,20 @@ class MonoSlam:
             elif self._frame - feature.last_seen_frame > config.max_unseen_frames:
                 removed[feature.id] = 'unseen'
                 self._remove(feature, retire=True)
-        centre = self._x[R_SLICE]
-        for feature in self._features:
+        centre = state.x[R_SLICE]
+        for feature in state.features:
             if feature.size == INVERSE_DEPTH_SIZE and feature.reference is not None:
                 block = slice(feature.start, feature.start + feature.size)
-                rho_variance = float(self._p[feature.start + 5, feature.start + 5])
-                index = linearity_index(self._x[block], feature.reference, rho_variance, centre)
-                if index < config.linearity_threshold and self._x[feature.start + 5] > 0.0:
-                    self._to_euclidean(feature)
+                rho_variance = float(state.p[feature.start + 5, feature.start + 5])
+                index = linearity_index(state.x[block], feature.reference, rho_variance, centre)
+                if index < config.linearity_threshold and state.x[feature.start + 5] > 0.0:
+                    state.to_euclidean(feature)
         return removed
 
     def _add_features(self, observed: dict[int, FloatArray], measured: list[int]) -> list[int]:
         """Add new features (``initialize`` mode); return their ids."""
         config = self.config
-        room = config.max_features - len(self._features)
+        room = config.max_features - len(self._state.features)
         if room <= 0:
             return []
         added: list[int] = []
@@ -578,8 +345,9 @@ class MonoSlam:
         return added
 
     def _insert(self, feature_id: int, pixel: FloatArray, handover: _Handover | None) -> bool:
-        """Append an inverse-depth feature seen at ``pixel``; True if it went in."""
-        camera = self._x[:CAMERA_SIZE]
+        """Append an inverse-depth feature seen at ``pixel`` (its inverse depth from the
+        handover, else the prior); True if it went in."""
+        camera = self._state.x[:CAMERA_SIZE]
         rho = self.config.initial_inverse_depth
         rho_variance = self.config.initial_inverse_depth_sigma**2
         if handover is not None:
@@ -591,63 +359,20 @@ class MonoSlam:
             depth_variance = float(direction @ handover.covariance @ direction)
             rho = 1.0 / depth
             rho_variance = depth_variance * rho**4
-        feature, reference, d_camera, d_pixel = new_inverse_depth_feature(
-            self.camera, camera, pixel, rho
-        )
-        if not np.all(np.isfinite(feature)):
-            return False
-        n = len(self._x)
-        c = slice(0, CAMERA_SIZE)
-        cross = d_camera @ self._p[c, :]  # (6, n)
-        block = d_camera @ self._p[c, c] @ d_camera.T
-        block += self.config.pixel_sigma_px**2 * (d_pixel @ d_pixel.T)
-        block[5, 5] += rho_variance
-        p = np.zeros((n + INVERSE_DEPTH_SIZE, n + INVERSE_DEPTH_SIZE))
-        p[:n, :n] = self._p
-        p[n:, :n] = cross
-        p[:n, n:] = cross.T
-        p[n:, n:] = block
-        self._p = p
-        self._x = np.concatenate([self._x, feature])
         source = 'handover' if handover is not None else 'new'
-        frame = self._frame
-        self._features.append(
-            _Feature(feature_id, n, INVERSE_DEPTH_SIZE, reference, source, frame, frame)
-        )
-        self._owned_ids.add(feature_id)
-        return True
+        inserted = self._state.insert_inverse_depth(
+            self.camera, feature_id, pixel, rho, rho_variance, self.config.pixel_sigma_px,
+            source, self._frame,
+        )  # fmt: skip
+        if inserted:
+            self._owned_ids.add(feature_id)
+        return inserted
 
-    def _to_euclidean(self, feature: _Feature) -> None:
-        """Replace an inverse-depth feature's 6 states by its 3 Euclidean ones."""
-        assert feature.reference is not None
-        start = feature.start
-        block = slice(start, start + INVERSE_DEPTH_SIZE)
-        point, jacobian = euclidean_point(self._x[block], feature.reference)
-        n = len(self._x)
-        transform = np.zeros((n - 3, n))
-        transform[:start, :start] = np.eye(start)
-        transform[start : start + 3, block] = jacobian
-        transform[start + 3 :, start + INVERSE_DEPTH_SIZE :] = np.eye(n - start - 6)
-        self._x = np.concatenate([self._x[:start], point, self._x[start + INVERSE_DEPTH_SIZE :]])
-        p = transform @ self._p @ transform.T
-        self._p = 0.5 * (p + p.T)
-        feature.size, feature.reference = EUCLIDEAN_SIZE, None
-        for other in self._features:
-            if other.start > start:
-                other.start -= 3
-
-    def _remove(self, feature: _Feature, *, retire: bool) -> None:
+    def _remove(self, feature: FeatureBlock, *, retire: bool) -> None:
         """Take a feature out of the state (into the frozen map when ``retire``)."""
         if retire:
-            self._retired[feature.id] = self._map_point(feature, False)
-        keep = np.ones(len(self._x), dtype=bool)
-        keep[feature.start : feature.start + feature.size] = False
-        self._x = self._x[keep]
-        self._p = self._p[np.ix_(keep, keep)]
-        self._features.remove(feature)
-        for other in self._features:
-            if other.start > feature.start:
-                other.start -= feature.size
+            self._retired[feature.id] = self._state.map_point(feature, False)
+        self._state.remove(feature)
 
     def _lost_reason(self) -> str | None:
         """Return why tracking is lost, or None."""
@@ -659,12 +384,13 @@ class MonoSlam:
                 f'the gate rejected most known points in view ({rejected} of {in_view}) for '
                 f'{self._known_rejected_frames} frames: the estimate disagrees with them'
             )
-        sigma = math.sqrt(max(float(np.max(np.linalg.eigvalsh(self._p[R_SLICE, R_SLICE]))), 0.0))
+        state = self._state
+        sigma = math.sqrt(max(float(np.max(np.linalg.eigvalsh(state.p[R_SLICE, R_SLICE]))), 0.0))
         if not math.isfinite(sigma) or sigma > self.config.max_position_sigma_m:
             return f'camera position sigma {sigma:.2f} m exceeds max_position_sigma_m'
-        if not np.all(np.isfinite(self._x)):
+        if not np.all(np.isfinite(state.x)):
             return 'the state is not finite'
-        values = np.linalg.eigvalsh(self._pose_covariance())
+        values = np.linalg.eigvalsh(state.pose_covariance())
         if not values[0] > MIN_POSE_EIGENVALUE_RATIO * values[-1]:
             return (
                 f'the pose covariance collapsed (eigenvalues {values[0]:.1e} to '
@@ -674,30 +400,15 @@ class MonoSlam:
 
     def _reset(self) -> None:
         """Retire the map and wait for the known points again."""
-        for feature in list(self._features):
+        for feature in list(self._state.features):
             self._remove(feature, retire=True)
-        self._x = np.zeros(0)
-        self._p = np.zeros((0, 0))
+        self._state.x = np.zeros(0)
+        self._state.p = np.zeros((0, 0))
         self._handovers.clear()
         self._status = WAITING
         self._idle_frames = 0
 
     # --- outputs ---------------------------------------------------------------------------
-
-    def _map_point(self, feature: _Feature, active: bool) -> MapPoint:
-        block = slice(feature.start, feature.start + feature.size)
-        y, p = self._x[block], self._p[block, block]
-        if feature.size == EUCLIDEAN_SIZE:
-            return MapPoint(feature.id, y.copy(), p.copy(), 'euclidean', active, feature.source)
-        assert feature.reference is not None
-        if y[5] <= 0.0:  # beyond infinity: a point far along the ray, no covariance
-            ray, _ = ray_from_angles(feature.reference, float(y[3]), float(y[4]))
-            return MapPoint(feature.id, y[:3] + FAR_M * ray, None, 'inverse_depth', active,
-                            feature.source)  # fmt: skip
-        point, jacobian = euclidean_point(y, feature.reference)
-        known_depth = y[5] > 3.0 * math.sqrt(max(p[5, 5], 0.0))
-        covariance = jacobian @ p @ jacobian.T if known_depth else None
-        return MapPoint(feature.id, point, covariance, 'inverse_depth', active, feature.source)
 
     def _result(
         self,
@@ -710,22 +421,14 @@ class MonoSlam:
         known_used: int,
         warnings: list[str],
     ) -> MonoSlamResult:
-        if status == WAITING or len(self._x) < CAMERA_SIZE:
+        if status == WAITING or len(self._state.x) < CAMERA_SIZE:
             return MonoSlamResult(
                 stamp_ns, self._frame, status, None, None, None, None, None, measured,
                 rejected, added, removed, known_used, warnings,
             )  # fmt: skip
-        x, q = self._x, self._x[Q_SLICE]
+        x, q = self._state.x, self._state.x[Q_SLICE]
         return MonoSlamResult(
             stamp_ns, self._frame, status, rotation(q), x[R_SLICE].copy(),
-            self._pose_covariance(), x[V_SLICE].copy(), x[W_SLICE].copy(), measured,
+            self._state.pose_covariance(), x[V_SLICE].copy(), x[W_SLICE].copy(), measured,
             rejected, added, removed, known_used, warnings,
         )  # fmt: skip
-
-    def _pose_covariance(self) -> FloatArray:
-        """The camera pose covariance (6, 6): position, rotation about the world axes."""
-        to_pose = np.zeros((6, CAMERA_SIZE))
-        to_pose[:3, R_SLICE] = np.eye(3)
-        to_pose[3:, Q_SLICE] = world_angle_jacobian(self._x[Q_SLICE])
-        covariance = to_pose @ self._p[:CAMERA_SIZE, :CAMERA_SIZE] @ to_pose.T
-        return np.asarray(0.5 * (covariance + covariance.T), dtype=np.float64)

@@ -1,0 +1,182 @@
+"""EM-SAM's settings (EmConfig) and what a run returns (EmResult, Snapshot).
+
+The modes and settings are explained in ``core.em``; ``Sightings`` (where a moveable
+landmark was seen) is in ``core.sightings``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from em_sam_node.core.problem import FloatArray, IntArray
+from em_sam_node.core.robust_kernels import cauchy_weights, huber_weights
+from em_sam_node.core.sightings import Sightings
+
+MODES = ('paper', 'robust')
+SEED_KERNELS = {'cauchy': cauchy_weights, 'huber': huber_weights}
+
+
+@dataclass(frozen=True)
+class EmConfig:
+    """EM-SAM settings. Probabilities are per landmark (test) or per sighting (gate)."""
+
+    mode: str = 'robust'
+    lagrange_lambda: float = 50.0
+    moveable_threshold: float = 0.5
+    max_iterations: int = 20
+    weight_tolerance: float = 1e-3
+    false_alarm_probability: float = 1e-3
+    gate_probability: float = 1e-4
+    max_gated_fraction: float = 0.1
+    seed_kernel: str = 'cauchy'
+    seed_kernel_scale: float = 2.3849
+    seed_chunk_s: float = 20.0
+    seed_split_distance_m: float = 1.0
+    seed_window_s: float = 60.0
+    solver_method: str = 'levenberg_marquardt'
+    max_solver_iterations: int = 50
+    solver_tolerance: float = 1e-6
+    estimate_noise_scale: bool = True
+    max_noise_scale: float = 10.0
+    model_error_m: float = 0.15
+    final_kernel: str = 'cauchy'
+    final_kernel_scale: float = 2.3849
+
+    def __post_init__(self) -> None:
+        checks: list[tuple[bool, str, object, str]] = [
+            (self.mode in MODES, 'mode', self.mode, f'must be one of {MODES}'),
+            (
+                np.isfinite(self.lagrange_lambda) and self.lagrange_lambda > 0,
+                'lagrange_lambda',
+                self.lagrange_lambda,
+                'must be a finite number > 0',
+            ),
+            (
+                0 < self.moveable_threshold < 1,
+                'moveable_threshold',
+                self.moveable_threshold,
+                'must be in (0, 1)',
+            ),
+            (self.max_iterations >= 1, 'max_iterations', self.max_iterations, 'must be >= 1'),
+            (
+                np.isfinite(self.final_kernel_scale) and self.final_kernel_scale > 0,
+                'final_kernel_scale',
+                self.final_kernel_scale,
+                'must be a finite number > 0',
+            ),
+            (
+                self.final_kernel in ('none', *SEED_KERNELS),
+                'final_kernel',
+                self.final_kernel,
+                "must be 'none', 'cauchy' or 'huber'",
+            ),
+            (
+                np.isfinite(self.max_noise_scale) and self.max_noise_scale >= 1,
+                'max_noise_scale',
+                self.max_noise_scale,
+                'must be a finite number >= 1',
+            ),
+            (
+                np.isfinite(self.model_error_m) and self.model_error_m >= 0,
+                'model_error_m',
+                self.model_error_m,
+                'must be a finite number >= 0',
+            ),
+            (self.weight_tolerance > 0, 'weight_tolerance', self.weight_tolerance, 'must be > 0'),
+            (
+                0 < self.false_alarm_probability < 1,
+                'false_alarm_probability',
+                self.false_alarm_probability,
+                'must be in (0, 1)',
+            ),
+            (
+                0 < self.gate_probability < 1,
+                'gate_probability',
+                self.gate_probability,
+                'must be in (0, 1)',
+            ),
+            (
+                0 <= self.max_gated_fraction < 1,
+                'max_gated_fraction',
+                self.max_gated_fraction,
+                'must be in [0, 1)',
+            ),
+            (
+                self.seed_kernel in SEED_KERNELS,
+                'seed_kernel',
+                self.seed_kernel,
+                f'must be one of {tuple(SEED_KERNELS)}',
+            ),
+            (
+                self.seed_kernel_scale > 0,
+                'seed_kernel_scale',
+                self.seed_kernel_scale,
+                'must be > 0',
+            ),
+            (self.seed_chunk_s > 0, 'seed_chunk_s', self.seed_chunk_s, 'must be > 0'),
+            (
+                self.seed_window_s >= self.seed_chunk_s,
+                'seed_window_s',
+                self.seed_window_s,
+                'must be >= seed_chunk_s',
+            ),
+            (
+                self.seed_split_distance_m > 0,
+                'seed_split_distance_m',
+                self.seed_split_distance_m,
+                'must be > 0',
+            ),
+            (
+                self.max_solver_iterations >= 1,
+                'max_solver_iterations',
+                self.max_solver_iterations,
+                'must be >= 1',
+            ),
+        ]
+        for ok, name, value, requirement in checks:
+            if not ok:
+                raise ValueError(f'EM-SAM setting {name}={value!r}: {requirement}')
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """An estimate at one stage: poses (N,3) and landmark positions (L,2) with their ids."""
+
+    poses: FloatArray
+    landmark_ids: IntArray
+    landmarks: FloatArray
+
+
+@dataclass(frozen=True)
+class EmResult:
+    """Outcome of EM-SAM over one batch of mapping data.
+
+    Per landmark (aligned with ``landmark_ids``, (L,)): final ``weights``, ``moveable``
+    flags, ``positions`` (static: final map; moveable: most recent sighting), their 2x2
+    ``covariances`` and ``num_observations``. ``weight_history`` is (T+1, L): the weights
+    before EM (all 1) and after each M-step. ``gated`` (K,) marks sightings gated as
+    outliers (robust mode). ``poses`` (N,3) is the final trajectory. ``noise_scale`` (2,)
+    holds the variance factors of range and bearing the EM test used, ``final_noise_scale``
+    (2,) those of the final solve (both 1 unless the robust mode estimated them).
+    """
+
+    mode: str
+    poses: FloatArray
+    landmark_ids: IntArray
+    positions: FloatArray
+    covariances: FloatArray
+    weights: FloatArray
+    moveable: np.ndarray
+    num_observations: IntArray
+    weight_history: FloatArray
+    gated: np.ndarray
+    sightings: dict[int, Sightings]
+    snapshots: dict[str, Snapshot]
+    em_iterations: int
+    converged: bool
+    num_pieces: int
+    timings_s: dict[str, float] = field(default_factory=dict)
+    noise_scale: FloatArray = field(default_factory=lambda: np.ones(2))
+    final_noise_scale: FloatArray = field(default_factory=lambda: np.ones(2))

@@ -1,0 +1,154 @@
+"""The EM test of each landmark: M-step weights (eq. 14), the per-sighting outlier gate,
+E-step row scales (eq. 16) and the sensor variance factors the robust mode's test uses.
+
+Rows of zero-weight landmarks are kept at a tiny scale (ROW_SCALE_FLOOR) so their positions
+stay defined.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.stats import chi2
+
+from em_sam_node.core.assembly import BuiltProblem, MappingData
+from em_sam_node.core.em_types import EmConfig
+from em_sam_node.core.factors import observation_innovations
+from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+
+ROW_SCALE_FLOOR = 1e-3
+
+
+def covariances_for_test(
+    config: EmConfig, obs_cov: FloatArray, obs_z: FloatArray
+) -> FloatArray | None:
+    """Sighting covariances (K,2,2) for the robust mode's test, or None to use the model's.
+
+    Real sensors have per-landmark biases (MRCLAM: 0.1-0.2 m in range for some barcodes,
+    2 sigma of the noise) that no noise model carries; the test would call such a static
+    landmark moveable. ``model_error_m`` adds an isotropic position error of that size
+    (range variance + m^2, bearing variance + (m / range)^2) to the test only: moves much
+    smaller than it go undetected, moves of metres do not.
+    """
+    if config.mode != 'robust' or config.model_error_m == 0 or len(obs_cov) == 0:
+        return None
+    extra = np.zeros_like(obs_cov)
+    extra[:, 0, 0] = config.model_error_m**2
+    extra[:, 1, 1] = (config.model_error_m / np.maximum(obs_z[:, 0], 1e-3)) ** 2
+    result: FloatArray = obs_cov + extra
+    return result
+
+
+def squared_mahalanobis(innovations: FloatArray, covariances: FloatArray) -> FloatArray:
+    """Return eta_k^T C_k^-1 eta_k (K,) for innovations (K,2) and covariances (K,2,2)."""
+    solved = np.linalg.solve(covariances, innovations[..., None])[..., 0]
+    result: FloatArray = np.einsum('ki,ki->k', innovations, solved)
+    return result
+
+
+def observation_noise_scales(innovations: FloatArray, obs_cov: FloatArray) -> FloatArray:
+    """Return the a-posteriori variance factors (2,) of range and bearing, each at least 1.
+
+    A sensor model tighter than the data (heavy tails, a range bias, a calibration off)
+    raises every landmark's residual sum and, through the per-landmark test, flags static
+    landmarks. Range and bearing are estimated apart (variance components): real range
+    noise often grows with distance while bearing noise does not (MRCLAM: range 2x its
+    nominal sigma, bearing at it), and one shared factor would dilute the bearings. Each
+    factor is the median squared standardized innovation over its expectation for one
+    degree of freedom (chi2 median 0.455): robust to moved landmarks and outliers while
+    they are under half the sightings. Only ever inflates: a model looser than the data
+    only makes the test less sensitive. The caller caps it (``max_noise_scale``): when most
+    sightings are of moved landmarks (the all-moveable case) the median measures the moves,
+    not the noise.
+    """
+    if len(innovations) == 0:
+        return np.ones(2)
+    variances = np.stack([obs_cov[:, 0, 0], obs_cov[:, 1, 1]], axis=1)
+    factors = np.median(innovations**2 / variances, axis=0) / float(chi2.median(1))
+    result: FloatArray = np.maximum(factors, 1.0)
+    return result
+
+
+def with_noise_scales(data: MappingData, factors: FloatArray) -> MappingData:
+    """Return ``data`` with every sighting covariance scaled by D C D, D = diag(sqrt(factors))."""
+    root = np.sqrt(np.asarray(factors, dtype=np.float64))
+    return dataclasses.replace(
+        data, obs_cov=data.obs_cov * root[None, :, None] * root[None, None, :]
+    )
+
+
+def capped_noise_scales(
+    config: EmConfig,
+    data: MappingData,
+    built: BuiltProblem,
+    problem: SlamProblem,
+    estimate: Estimate,
+) -> FloatArray:
+    """The capped variance factors of ``problem``'s sightings at ``estimate``."""
+    if config.mode != 'robust' or not config.estimate_noise_scale:
+        return np.ones(2)
+    factors = observation_noise_scales(
+        observation_innovations(problem, estimate), data.obs_cov[built.observation_rows]
+    )
+    result: FloatArray = np.minimum(factors, config.max_noise_scale)
+    return result
+
+
+def m_step(
+    config: EmConfig,
+    mahalanobis: FloatArray,
+    obs_landmark: IntArray,
+    num_landmarks: int,
+    included: np.ndarray,
+) -> FloatArray:
+    """Return new landmark weights (L,) in [0, 1] from squared Mahalanobis innovations (K,).
+
+    Only ``included`` sightings count (the robust mode's gate excludes some).
+    """
+    counts = np.bincount(obs_landmark[included], minlength=num_landmarks)
+    sums = np.bincount(
+        obs_landmark[included], weights=mahalanobis[included], minlength=num_landmarks
+    )
+    if config.mode == 'paper':
+        return np.clip(1.0 - sums / (2.0 * config.lagrange_lambda), 0.0, 1.0)
+    dof = np.maximum(2 * counts - 2, 1)
+    quantile = chi2.ppf(1.0 - config.false_alarm_probability, dof)
+    excess = np.maximum(sums - dof, 0.0)
+    weights: FloatArray = np.clip(1.0 - excess / (2.0 * (quantile - dof)), 0.0, 1.0)
+    weights[counts <= 1] = 1.0  # a single sighting carries no evidence of motion
+    return weights
+
+
+def gate_outliers(
+    config: EmConfig, mahalanobis: FloatArray, obs_landmark: IntArray, num_landmarks: int
+) -> np.ndarray:
+    """Return a (K,) mask of isolated gross outlier sightings (robust mode).
+
+    Per landmark, at most floor(max_gated_fraction * n_l) sightings above the gate quantile
+    are gated, the largest first: a landmark that moved has many large innovations, of which
+    only a few are gated, so it still fails its test.
+    """
+    gate = chi2.ppf(1.0 - config.gate_probability, 2)
+    gated = np.zeros(mahalanobis.shape, dtype=bool)
+    counts = np.bincount(obs_landmark, minlength=num_landmarks)
+    allowed = np.floor(config.max_gated_fraction * counts).astype(np.int64)
+    suspects = np.flatnonzero(mahalanobis > gate)
+    if len(suspects) == 0:
+        return gated
+    order = suspects[np.lexsort((-mahalanobis[suspects], obs_landmark[suspects]))]
+    landmark_of = obs_landmark[order]
+    starts = np.r_[0, np.flatnonzero(np.diff(landmark_of)) + 1]
+    rank = np.arange(len(order)) - np.repeat(starts, np.diff(np.r_[starts, len(order)]))
+    gated[order[rank < allowed[landmark_of]]] = True
+    return gated
+
+
+def row_scales(
+    config: EmConfig, weights: FloatArray, obs_landmark: IntArray, gated: np.ndarray
+) -> FloatArray:
+    """Return the E-step row scale of every sighting (K,): w (paper) or sqrt(w) (robust)."""
+    scale = weights if config.mode == 'paper' else np.sqrt(weights)
+    rows = np.maximum(scale[obs_landmark], ROW_SCALE_FLOOR)
+    rows[gated] = ROW_SCALE_FLOOR
+    return rows

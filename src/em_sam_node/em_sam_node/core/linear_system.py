@@ -1,0 +1,240 @@
+"""The linear system of one Gauss-Newton step: variable layout, linearization, J^T J and J.
+
+Variables are stacked as 3N pose coordinates (x m, y m, theta rad per pose) then 2L landmark
+coordinates (x m, y m). The whitened residual vector stacks the prior (3 rows), the odometry
+factors (3M rows, factor-major) and the observations (2K rows). Observation k's two rows are
+multiplied by ``obs_row_scale[k]`` (the E-step weight of eq. 16, and a robust kernel's
+sqrt(w_k)).
+
+J^T J is assembled straight from the per-factor blocks, without any dense matrix: the
+batched products J_f^T J_f are summed with ``np.bincount`` into a CSC pattern whose slot
+indices are computed once per problem (``SystemLayout``, cached on the problem object). The
+layout also holds the fill-reducing variable order the factorization chose
+(``core.factorization``), so later factorizations reuse it.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from em_sam_node.core.factors import (
+    linearize_observations,
+    linearize_odometry,
+    linearize_prior,
+    validate_problem,
+)
+from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+
+
+class SystemLayout:
+    """Index arrays of one problem's linear system, built once and reused every iteration.
+
+    Columns: pose i -> 3i..3i+2, landmark j -> 3N+2j, 3N+2j+1. The normal matrix pattern
+    holds every J_f^T J_f block plus the full diagonal; ``*_slots`` say where each block
+    entry lands in its CSC data array.
+    """
+
+    def __init__(self, problem: SlamProblem) -> None:
+        n_pose_vars = 3 * problem.num_poses
+        self.num_variables = n_pose_vars + 2 * problem.num_landmarks
+        self.num_poses = problem.num_poses
+        pose_cols = 3 * np.arange(problem.num_poses)[:, None] + np.arange(3)
+        landmark_cols = n_pose_vars + 2 * np.arange(problem.num_landmarks)[:, None] + np.arange(2)
+        self.prior_cols = pose_cols[problem.prior_pose_index]
+        self.odometry_cols = np.hstack(
+            [pose_cols[problem.odometry_from], pose_cols[problem.odometry_to]]
+        ).reshape(-1, 6)
+        self.obs_cols = np.hstack(
+            [pose_cols[problem.obs_pose], landmark_cols[problem.obs_landmark]]
+        ).reshape(-1, 5)
+        self._build_hessian_pattern()
+        self.factor_order: IntArray | None = None  # variable order of the factorization
+        self._permuted_gather: IntArray | None = None
+        self._permuted_indptr: IntArray | None = None
+        self._permuted_indices: IntArray | None = None
+
+    def _build_hessian_pattern(self) -> None:
+        n = self.num_variables
+        keys = [
+            (cols[:, None, :] * n + cols[:, :, None]).ravel()  # column * n + row: CSC order
+            for cols in (self.prior_cols[None, :], self.odometry_cols, self.obs_cols)
+        ]
+        diagonal = np.arange(n, dtype=np.int64)
+        keys.append(diagonal * n + diagonal)
+        unique_keys, slots = np.unique(np.concatenate(keys), return_inverse=True)
+        ends = np.cumsum([key.size for key in keys])
+        self.contribution_slots = slots[: ends[2]]  # prior 9, odometry 36 M, obs 25 K
+        self.diagonal_slots = slots[ends[2] :]
+        self.nnz = int(unique_keys.size)
+        self.indices = (unique_keys % n).astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(unique_keys // n, minlength=n))])
+        self.gradient_columns = np.concatenate(
+            [self.prior_cols, self.odometry_cols.ravel(), self.obs_cols.ravel()]
+        )
+
+    def matrix(self, data: FloatArray) -> sp.csc_array:
+        """Return the normal matrix (n, n) in variable order from its CSC data (nnz,)."""
+        return sp.csc_array((data, self.indices, self.indptr), shape=(self.num_variables,) * 2)
+
+    def set_factor_order(self, order: IntArray) -> None:
+        """Fix the factorization's variable order (order[k] = variable eliminated k-th)."""
+        n = self.num_variables
+        position = np.empty(n, dtype=np.int64)
+        position[order] = np.arange(n)
+        columns = np.repeat(np.arange(n), np.diff(self.indptr))
+        new_rows, new_cols = position[self.indices], position[columns]
+        gather = np.lexsort((new_rows, new_cols))
+        self._permuted_gather = gather
+        self._permuted_indices = new_rows[gather].astype(np.int32)
+        self._permuted_indptr = np.concatenate(
+            [[0], np.cumsum(np.bincount(new_cols, minlength=n))]
+        )
+        self.factor_order = np.asarray(order, dtype=np.int64)
+
+    def permuted_matrix(self, data: FloatArray) -> sp.csc_array:
+        """Return the normal matrix in factorization order (needs ``set_factor_order``)."""
+        if self._permuted_gather is None:
+            raise RuntimeError('set_factor_order was not called')
+        return sp.csc_array(
+            (data[self._permuted_gather], self._permuted_indices, self._permuted_indptr),
+            shape=(self.num_variables,) * 2,
+        )
+
+
+_LAYOUTS: dict[int, tuple[weakref.ref[SlamProblem], SystemLayout]] = {}
+
+
+def system_layout(problem: SlamProblem) -> SystemLayout:
+    """Return the (cached) SystemLayout of this problem object, validating it on first use.
+
+    The cache is keyed on the problem's identity and dropped with the problem, so treat a
+    SlamProblem's index arrays as immutable once it has been solved.
+    """
+    key = id(problem)
+    cached = _LAYOUTS.get(key)
+    if cached is not None and cached[0]() is problem:
+        return cached[1]
+    validate_problem(problem)
+    layout = SystemLayout(problem)
+
+    def forget(_: weakref.ref[SlamProblem]) -> None:
+        _LAYOUTS.pop(key, None)
+
+    _LAYOUTS[key] = (weakref.ref(problem, forget), layout)
+    return layout
+
+
+# --- linearization and assembly ----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """Whitened residuals and Jacobians of every factor at one estimate, by factor kind."""
+
+    prior_residual: FloatArray  # (3,)
+    prior_jacobian: FloatArray  # (3, 3)
+    odometry_residual: FloatArray  # (M, 3)
+    odometry_jacobian: FloatArray  # (M, 3, 6): [d/d x_from, d/d x_to]
+    obs_residual: FloatArray  # (K, 2), row scale applied
+    obs_jacobian: FloatArray  # (K, 2, 5): [d/d x, d/d l], row scale applied
+
+
+def linearize_factors(
+    problem: SlamProblem, estimate: Estimate, row_scale: FloatArray
+) -> Linearization:
+    """Return every factor's residual and Jacobian at the estimate, observation rows scaled
+    by ``row_scale`` (K,); a fixed landmark's observation Jacobians are zero."""
+    prior = linearize_prior(problem, estimate)
+    odometry = linearize_odometry(problem, estimate)
+    obs = linearize_observations(problem, estimate)
+    if problem.fixed_landmarks is not None:
+        # A fixed landmark gets no information, so the solver holds it at its value.
+        obs.jacobian[problem.fixed_landmarks[problem.obs_landmark], :, 3:] = 0.0
+    return Linearization(
+        prior.residual,
+        prior.jacobian,
+        odometry.residual,
+        odometry.jacobian,
+        obs.residual * row_scale[:, None],
+        obs.jacobian * row_scale[:, None, None],
+    )
+
+
+def normal_equations(layout: SystemLayout, lin: Linearization) -> tuple[FloatArray, FloatArray]:
+    """Return (CSC data of J^T J (nnz,), gradient J^T r (n,)) from the factor blocks."""
+    m, k = lin.odometry_jacobian.shape[0], lin.obs_jacobian.shape[0]
+    odometry_end = 9 + 36 * m
+    contributions = np.empty(odometry_end + 25 * k)
+    contributions[:9] = (lin.prior_jacobian.T @ lin.prior_jacobian).ravel()
+    odometry_jacobian, obs_jacobian = lin.odometry_jacobian, lin.obs_jacobian
+    np.matmul(
+        odometry_jacobian.transpose(0, 2, 1),
+        odometry_jacobian,
+        out=contributions[9:odometry_end].reshape(m, 6, 6),
+    )
+    np.matmul(
+        obs_jacobian.transpose(0, 2, 1),
+        obs_jacobian,
+        out=contributions[odometry_end:].reshape(k, 5, 5),
+    )
+    data = np.bincount(layout.contribution_slots, contributions, minlength=layout.nnz)
+    parts = np.empty(3 + 6 * m + 5 * k)
+    parts[:3] = lin.prior_jacobian.T @ lin.prior_residual
+    parts[3 : 3 + 6 * m] = np.einsum(
+        'mij,mi->mj', odometry_jacobian, lin.odometry_residual
+    ).ravel()
+    parts[3 + 6 * m :] = np.einsum('kij,ki->kj', obs_jacobian, lin.obs_residual).ravel()
+    gradient = np.bincount(layout.gradient_columns, parts, minlength=layout.num_variables)
+    return data.astype(np.float64, copy=False), gradient.astype(np.float64, copy=False)
+
+
+def build_linear_system(
+    problem: SlamProblem, estimate: Estimate, obs_row_scale: FloatArray | None = None
+) -> tuple[FloatArray, sp.csr_array]:
+    """Return the whitened residual r (R,) and sparse Jacobian J (R, 3N + 2L) at the estimate.
+
+    Rows: prior (3), odometry (3M, factor-major), observations (2K, each scaled by
+    ``obs_row_scale[k]``); columns: poses (x, y, theta) then landmarks (x, y). The Gauss-
+    Newton step solves J dx = -r in the least-squares sense.
+    """
+    layout = system_layout(problem)
+    scale = checked_row_scale(problem, obs_row_scale)
+    lin = linearize_factors(problem, estimate, scale)
+    residual = np.concatenate(
+        [lin.prior_residual, lin.odometry_residual.ravel(), lin.obs_residual.ravel()]
+    )
+    m, k = problem.num_odometry, problem.num_observations
+    indices = np.concatenate(
+        [
+            np.tile(layout.prior_cols, 3),
+            np.repeat(layout.odometry_cols[:, None, :], 3, axis=1).ravel(),
+            np.repeat(layout.obs_cols[:, None, :], 2, axis=1).ravel(),
+        ]
+    )
+    data = np.concatenate(
+        [lin.prior_jacobian.ravel(), lin.odometry_jacobian.ravel(), lin.obs_jacobian.ravel()]
+    )
+    row_nnz = np.concatenate([np.full(3, 3), np.full(3 * m, 6), np.full(2 * k, 5)])
+    indptr = np.concatenate([[0], np.cumsum(row_nnz)])
+    jacobian = sp.csr_array((data, indices, indptr), shape=(residual.size, layout.num_variables))
+    return residual, jacobian
+
+
+def checked_row_scale(problem: SlamProblem, obs_row_scale: FloatArray | None) -> FloatArray:
+    """Return the observation row scales (K,) as float64 (ones for None); raise ValueError
+    if the shape is not (K,) or a scale is negative or not finite."""
+    k = problem.num_observations
+    if obs_row_scale is None:
+        return np.ones(k)
+    scale = np.asarray(obs_row_scale, dtype=np.float64)
+    if scale.shape != (k,):
+        raise ValueError(
+            f'obs_row_scale must have shape ({k},) (one per observation), got {scale.shape}'
+        )
+    if not np.all(np.isfinite(scale)) or np.any(scale < 0.0):
+        raise ValueError('obs_row_scale must be finite and >= 0')
+    return scale

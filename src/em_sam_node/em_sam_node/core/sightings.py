@@ -1,0 +1,87 @@
+"""Where moveable landmarks were seen: every sighting placed in the map through the final
+trajectory, with its first-order covariance (paper 000, III.C)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from em_sam_node.core.assembly import MappingData
+from em_sam_node.core.marginals import marginal_pose_covariance
+from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.se2 import range_bearing_to_point, wrap_angle
+
+MARGINAL_SAMPLES = 64
+
+
+@dataclass(frozen=True)
+class Sightings:
+    """Where one landmark was seen: stamps (S,) int ns, map positions (S,2) m, covariances
+    (S,2,2) m^2, most recent first."""
+
+    stamps_ns: IntArray
+    positions: FloatArray
+    covariances: FloatArray
+
+
+def sightings_of(
+    data: MappingData, problem: SlamProblem, solved: Estimate, ids: list[int]
+) -> dict[int, Sightings]:
+    """Return every sighting of the given landmark ids placed in the map, most recent first.
+
+    ``problem`` and ``solved`` give the trajectory and its marginal covariances (they may
+    leave the landmarks in ``ids`` out); the sightings come from ``data``.
+    """
+    result: dict[int, Sightings] = {}
+    rows = np.flatnonzero(np.isin(data.obs_landmark_id, np.array(ids, dtype=np.int64)))
+    if len(rows) == 0:
+        return result
+    keyframes = data.obs_keyframe[rows]
+    pose_cov = _pose_covariances_near(problem, solved, keyframes)
+    poses = solved.poses[keyframes]
+    z = data.obs_z[rows]
+    points = range_bearing_to_point(poses, z)
+    covariances = _sighting_covariances(poses, z, pose_cov, data.obs_cov[rows])
+    stamps = data.keyframe_stamps_ns[keyframes]
+    for landmark_id in ids:
+        mine = np.flatnonzero(data.obs_landmark_id[rows] == landmark_id)
+        order = mine[np.argsort(-stamps[mine], kind='stable')]
+        result[int(landmark_id)] = Sightings(stamps[order], points[order], covariances[order])
+    return result
+
+
+def _pose_covariances_near(
+    problem: SlamProblem, solved: Estimate, keyframes: IntArray
+) -> FloatArray:
+    """Return pose marginal covariances (n,3,3) for keyframes (n,), from at most
+    MARGINAL_SAMPLES evenly spread keyframes (the nearest one is used): exact marginals of
+    a thousand poses cost seconds, and they vary slowly along a trajectory."""
+    unique = np.unique(keyframes)
+    if len(unique) > MARGINAL_SAMPLES:
+        unique = unique[np.linspace(0, len(unique) - 1, MARGINAL_SAMPLES).round().astype(int)]
+    covariances = marginal_pose_covariance(problem, solved, unique)
+    nearest = np.clip(np.searchsorted(unique, keyframes), 0, len(unique) - 1)
+    previous = np.clip(nearest - 1, 0, len(unique) - 1)
+    closer = np.abs(unique[previous] - keyframes) < np.abs(unique[nearest] - keyframes)
+    result: FloatArray = covariances[np.where(closer, previous, nearest)]
+    return result
+
+
+def _sighting_covariances(
+    poses: FloatArray, z: FloatArray, pose_cov: FloatArray, z_cov: FloatArray
+) -> FloatArray:
+    """Return first-order covariances (S,2,2) of map points from poses (S,3) and z (S,2)."""
+    angle = wrap_angle(poses[:, 2] + z[:, 1])
+    cos, sin = np.cos(angle), np.sin(angle)
+    r = z[:, 0]
+    count = len(r)
+    j_pose = np.zeros((count, 2, 3))
+    j_pose[:, 0, 0] = 1.0
+    j_pose[:, 1, 1] = 1.0
+    j_pose[:, 0, 2] = -r * sin
+    j_pose[:, 1, 2] = r * cos
+    j_z = np.stack([np.stack([cos, -r * sin], -1), np.stack([sin, r * cos], -1)], 1)
+    cov = j_pose @ pose_cov @ np.swapaxes(j_pose, 1, 2) + j_z @ z_cov @ np.swapaxes(j_z, 1, 2)
+    result: FloatArray = 0.5 * (cov + np.swapaxes(cov, 1, 2))
+    return result

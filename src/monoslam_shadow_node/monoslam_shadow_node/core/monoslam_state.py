@@ -1,0 +1,170 @@
+"""The MonoSLAM state: the camera then one block per map feature in x and P, and the edits
+that keep them consistent (start, add, convert to Euclidean, remove) and read them out.
+
+x (n,) = [camera (13): r, q, v, w | feature blocks], P (n, n) its covariance. A feature block
+is 6 states (inverse depth: anchor (3), azimuth, elevation, rho) or 3 (Euclidean point), in
+the order of ``FilterState.features``; ``monoslam_model`` has the models and Jacobians.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from monoslam_shadow_node.core.camera import CameraModel
+from monoslam_shadow_node.core.monoslam_model import (
+    CAMERA_SIZE,
+    EUCLIDEAN_SIZE,
+    INVERSE_DEPTH_SIZE,
+    Q_SLICE,
+    R_SLICE,
+    V_SLICE,
+    W_SLICE,
+    FloatArray,
+    euclidean_point,
+    new_inverse_depth_feature,
+    ray_from_angles,
+    world_angle_jacobian,
+)
+from monoslam_shadow_node.core.monoslam_types import MapPoint
+
+FAR_M = 1000.0
+"""Where along its ray an inverse-depth feature with rho <= 0 is reported (m)."""
+
+
+@dataclass
+class FeatureBlock:
+    """A feature in the state: its track id, its block x[start:start + size] (6: inverse
+    depth with its anchor ray ``reference``; 3: Euclidean, no reference), how it entered
+    ('new' or 'handover'), the frames it was added and last seen in, and its measurement
+    record (attempts, successes, consecutive failures)."""
+
+    id: int
+    start: int
+    size: int
+    reference: FloatArray | None
+    source: str
+    added_frame: int
+    last_seen_frame: int
+    attempts: int = 0
+    successes: int = 0
+    consecutive_failures: int = 0
+
+
+class FilterState:
+    """The EKF's state ``x`` (n,) and covariance ``p`` (n, n) with the ``features`` laid out
+    in it (empty while the filter waits for the known points)."""
+
+    def __init__(self) -> None:
+        self.x = np.zeros(0)
+        self.p = np.zeros((0, 0))
+        self.features: list[FeatureBlock] = []
+
+    def start(
+        self,
+        pose_state: FloatArray,
+        pose_covariance: FloatArray,
+        velocity_sigma_m_s: float,
+        angular_velocity_sigma_rad_s: float,
+    ) -> None:
+        """Reset to the camera alone: pose (7,) (r, q) with covariance (7, 7), velocities
+        zero with the given standard deviations; no features."""
+        self.x = np.zeros(CAMERA_SIZE)
+        self.x[:7] = pose_state
+        self.p = np.zeros((CAMERA_SIZE, CAMERA_SIZE))
+        self.p[:7, :7] = pose_covariance
+        self.p[V_SLICE, V_SLICE] = velocity_sigma_m_s**2 * np.eye(3)
+        self.p[W_SLICE, W_SLICE] = angular_velocity_sigma_rad_s**2 * np.eye(3)
+        self.features = []
+
+    def insert_inverse_depth(
+        self,
+        camera_model: CameraModel,
+        feature_id: int,
+        pixel: FloatArray,
+        rho: float,
+        rho_variance: float,
+        pixel_sigma_px: float,
+        source: str,
+        frame: int,
+    ) -> bool:
+        """Append an inverse-depth feature seen at ``pixel`` (raw px) with inverse depth
+        ``rho`` (1/m) and its variance; True if it went in (False: a non-finite feature)."""
+        feature, reference, d_camera, d_pixel = new_inverse_depth_feature(
+            camera_model, self.x[:CAMERA_SIZE], pixel, rho
+        )
+        if not np.all(np.isfinite(feature)):
+            return False
+        n = len(self.x)
+        c = slice(0, CAMERA_SIZE)
+        cross = d_camera @ self.p[c, :]  # (6, n)
+        block = d_camera @ self.p[c, c] @ d_camera.T
+        block += pixel_sigma_px**2 * (d_pixel @ d_pixel.T)
+        block[5, 5] += rho_variance
+        p = np.zeros((n + INVERSE_DEPTH_SIZE, n + INVERSE_DEPTH_SIZE))
+        p[:n, :n] = self.p
+        p[n:, :n] = cross
+        p[:n, n:] = cross.T
+        p[n:, n:] = block
+        self.p = p
+        self.x = np.concatenate([self.x, feature])
+        self.features.append(
+            FeatureBlock(feature_id, n, INVERSE_DEPTH_SIZE, reference, source, frame, frame)
+        )
+        return True
+
+    def to_euclidean(self, feature: FeatureBlock) -> None:
+        """Replace an inverse-depth feature's 6 states by its 3 Euclidean ones."""
+        assert feature.reference is not None
+        start = feature.start
+        block = slice(start, start + INVERSE_DEPTH_SIZE)
+        point, jacobian = euclidean_point(self.x[block], feature.reference)
+        n = len(self.x)
+        transform = np.zeros((n - 3, n))
+        transform[:start, :start] = np.eye(start)
+        transform[start : start + 3, block] = jacobian
+        transform[start + 3 :, start + INVERSE_DEPTH_SIZE :] = np.eye(n - start - 6)
+        self.x = np.concatenate([self.x[:start], point, self.x[start + INVERSE_DEPTH_SIZE :]])
+        p = transform @ self.p @ transform.T
+        self.p = 0.5 * (p + p.T)
+        feature.size, feature.reference = EUCLIDEAN_SIZE, None
+        for other in self.features:
+            if other.start > start:
+                other.start -= 3
+
+    def remove(self, feature: FeatureBlock) -> None:
+        """Take a feature out of the state."""
+        keep = np.ones(len(self.x), dtype=bool)
+        keep[feature.start : feature.start + feature.size] = False
+        self.x = self.x[keep]
+        self.p = self.p[np.ix_(keep, keep)]
+        self.features.remove(feature)
+        for other in self.features:
+            if other.start > feature.start:
+                other.start -= feature.size
+
+    def map_point(self, feature: FeatureBlock, active: bool) -> MapPoint:
+        """Return the feature as a world point (MapPoint; ``active``: still in the filter)."""
+        block = slice(feature.start, feature.start + feature.size)
+        y, p = self.x[block], self.p[block, block]
+        if feature.size == EUCLIDEAN_SIZE:
+            return MapPoint(feature.id, y.copy(), p.copy(), 'euclidean', active, feature.source)
+        assert feature.reference is not None
+        if y[5] <= 0.0:  # beyond infinity: a point far along the ray, no covariance
+            ray, _ = ray_from_angles(feature.reference, float(y[3]), float(y[4]))
+            return MapPoint(feature.id, y[:3] + FAR_M * ray, None, 'inverse_depth', active,
+                            feature.source)  # fmt: skip
+        point, jacobian = euclidean_point(y, feature.reference)
+        known_depth = y[5] > 3.0 * math.sqrt(max(p[5, 5], 0.0))
+        covariance = jacobian @ p @ jacobian.T if known_depth else None
+        return MapPoint(feature.id, point, covariance, 'inverse_depth', active, feature.source)
+
+    def pose_covariance(self) -> FloatArray:
+        """The camera pose covariance (6, 6): position, rotation about the world axes."""
+        to_pose = np.zeros((6, CAMERA_SIZE))
+        to_pose[:3, R_SLICE] = np.eye(3)
+        to_pose[3:, Q_SLICE] = world_angle_jacobian(self.x[Q_SLICE])
+        covariance = to_pose @ self.p[:CAMERA_SIZE, :CAMERA_SIZE] @ to_pose.T
+        return np.asarray(0.5 * (covariance + covariance.T), dtype=np.float64)

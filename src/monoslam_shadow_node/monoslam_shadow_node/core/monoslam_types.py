@@ -1,0 +1,143 @@
+"""The MonoSLAM filter's interface: its settings, a frame's input, a map point, a frame's
+result, the tracking states and the input error (the filter is in ``monoslam``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from monoslam_shadow_node.core.monoslam_model import FloatArray
+from monoslam_shadow_node.core.projective import chi2_quantile
+
+IntArray = NDArray[np.int64]
+WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
+INITIALIZE_MODES = ('all', 'handover')
+
+
+class MonoSlamInputError(ValueError):
+    """A frame the filter cannot use (the message names the culprit); the filter is unchanged."""
+
+
+@dataclass(frozen=True)
+class MonoSlamConfig:
+    """Noise, gating, map management and initialization settings (``monoslam``'s docstring).
+
+    ``known_points`` maps a key (e.g. 4 marker id + corner index) to a world point (3,) m.
+    """
+
+    known_points: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    pixel_sigma_px: float = 1.0
+    linear_acceleration_sigma: float = 2.0  # m/s^2/sqrt(Hz)
+    angular_acceleration_sigma: float = 8.0  # rad/s^2/sqrt(Hz): hand tremor at 2-6 Hz
+    initial_velocity_sigma_m_s: float = 0.5
+    initial_angular_velocity_sigma_rad_s: float = 0.5
+    initial_inverse_depth: float = 0.2  # 1/m
+    initial_inverse_depth_sigma: float = 0.3  # 1/m
+    gate_probability: float = 0.999
+    linearity_threshold: float = 0.1
+    max_features: int = 50
+    target_measured: int = 25
+    max_new_per_frame: int = 5
+    min_new_spacing_px: float = 20.0
+    max_unseen_frames: int = 2
+    failure_window: int = 10
+    min_success_ratio: float = 0.5
+    max_consecutive_failures: int = 3
+    lost_after_frames: int = 15
+    lost_after_known_rejected_frames: int = 3
+    max_position_sigma_m: float = 2.0
+    max_gap_s: float = 1.0
+    initialize: str = 'all'
+
+    def __post_init__(self) -> None:
+        """Reject values the filter cannot honour; the message names the field."""
+        positive = (
+            'pixel_sigma_px', 'linear_acceleration_sigma', 'angular_acceleration_sigma',
+            'initial_velocity_sigma_m_s', 'initial_angular_velocity_sigma_rad_s',
+            'initial_inverse_depth', 'initial_inverse_depth_sigma', 'linearity_threshold',
+            'max_position_sigma_m', 'max_gap_s',
+        )  # fmt: skip
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
+                raise ValueError(f'{name}={value!r}: must be a finite number > 0')
+        for name in ('gate_probability', 'min_success_ratio'):
+            value = getattr(self, name)
+            if not 0.0 < value < 1.0:
+                raise ValueError(f'{name}={value!r}: must be in (0, 1)')
+        counts = (
+            'max_features', 'target_measured', 'max_new_per_frame', 'max_unseen_frames',
+            'failure_window', 'max_consecutive_failures', 'lost_after_frames',
+            'lost_after_known_rejected_frames',
+        )  # fmt: skip
+        for name in counts:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f'{name}={value!r}: must be an integer >= 1')
+        if self.min_new_spacing_px < 0.0:
+            raise ValueError(f'min_new_spacing_px={self.min_new_spacing_px!r}: must be >= 0')
+        if self.initialize not in INITIALIZE_MODES:
+            raise ValueError(
+                f'initialize={self.initialize!r}: must be one of {", ".join(INITIALIZE_MODES)}'
+            )
+        for key, point in self.known_points.items():
+            if len(point) != 3 or not all(math.isfinite(float(c)) for c in point):
+                raise ValueError(f'known point {key}: {point!r} must be 3 finite coordinates (m)')
+
+    @property
+    def gate(self) -> float:
+        """The chi-square gate (2 degrees of freedom) on one feature's innovation."""
+        return chi2_quantile(self.gate_probability, 2)
+
+
+@dataclass(frozen=True, eq=False)
+class MonoSlamFrame:
+    """One image's measurements: track ids (N,) and raw pixels (N, 2) of tracked features, and
+    known-point keys (T,) with their raw pixels (T, 2)."""
+
+    stamp_ns: int
+    ids: IntArray
+    pixels: FloatArray
+    known_keys: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    known_pixels: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+
+
+@dataclass(frozen=True, eq=False)
+class MapPoint:
+    """A map feature in the world frame: id, position (3,) m and covariance (3, 3) m^2
+    (None while an inverse-depth feature's depth is not known: rho within 3 sigma of 0),
+    its parametrization ('inverse_depth' or 'euclidean'), whether it is in the filter (or
+    retired) and how it entered ('new' or 'handover')."""
+
+    id: int
+    position: FloatArray
+    covariance: FloatArray | None
+    parametrization: str
+    active: bool
+    source: str
+
+
+@dataclass(frozen=True, eq=False)
+class MonoSlamResult:
+    """What one frame produced. ``rotation`` (3, 3) R_world_camera and ``centre`` (3,) m are
+    None while waiting; ``pose_covariance`` (6, 6) is over (position, rotation about the world
+    axes), the convention of geometry_msgs/PoseWithCovariance; velocities in the world
+    (linear, m/s) and camera (angular, rad/s) frames."""
+
+    stamp_ns: int
+    frame: int
+    status: str
+    rotation: FloatArray | None
+    centre: FloatArray | None
+    pose_covariance: FloatArray | None
+    linear_velocity: FloatArray | None
+    angular_velocity: FloatArray | None
+    measured_ids: list[int]
+    rejected_ids: list[int]
+    added_ids: list[int]
+    removed: dict[int, str]
+    known_points_used: int
+    warnings: list[str]
