@@ -73,6 +73,7 @@ from numpy.typing import NDArray
 from scipy.stats import chi2
 from scipy.stats import t as t_dist
 
+from monoslam_shadow_node.conversions import CameraPose, Features
 from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.rays import ray_angle
 from monoslam_shadow_node.core.shadow_filter import (
@@ -82,11 +83,11 @@ from monoslam_shadow_node.core.shadow_filter import (
     STATUS_NAMES,
     ClassifierConfig,
     Decision,
-    FrameInput,
     Handover,
+    InputError,
     ShadowConfig,
-    ShadowFilter,
 )
+from monoslam_shadow_node.shadow_processor import ShadowProcessor, ShadowStep
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter
@@ -137,9 +138,11 @@ def camera_model(run: DynamicSceneRun) -> CameraModel:
 
 
 def run_filter(run: DynamicSceneRun, config: ShadowConfig) -> FilterRecord:
-    """Feed every frame (true pose, noisy pixels) to a new ShadowFilter; return its record.
-    Raises FilterRunError if the filter raises."""
-    shadow = ShadowFilter(camera_model(run), config)
+    """Feed every frame (true pose, noisy pixels) to a new ShadowProcessor (the node's, no pose
+    gate: a true pose is a known one); return its record. Raises FilterRunError if the filter
+    raises."""
+    shadow = ShadowProcessor(config)
+    shadow.set_camera(camera_model(run))
     ids: list[int] = []
     frames: list[int] = []
     statuses: list[int] = []
@@ -152,19 +155,17 @@ def run_filter(run: DynamicSceneRun, config: ShadowConfig) -> FilterRecord:
     for index, frame in enumerate(run.frames):
         started = time.perf_counter()
         try:
-            result = shadow.process(
-                FrameInput(
-                    frame.stamp_ns,
-                    frame.camera_rotation,
-                    frame.camera_position,
-                    frame.track_ids,
-                    frame.pixels,
-                )
+            outcome = shadow.process(
+                Features(frame.stamp_ns, '', frame.track_ids, frame.pixels),
+                CameraPose(frame.stamp_ns, '', frame.camera_rotation, frame.camera_position, None),
             )
+            if not isinstance(outcome, ShadowStep):
+                raise InputError(str(outcome))
         except Exception as error:
             raise FilterRunError(
                 f'seed {run.seed}, frame {index}: {type(error).__name__}: {error}'
             ) from error
+        result = outcome.result
         runtime_s += time.perf_counter() - started
         for decision in result.decisions:
             redecided += decision.id in decisions

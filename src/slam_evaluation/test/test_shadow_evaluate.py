@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from monoslam_shadow_node import shadow_processor
 from monoslam_shadow_node.core.shadow_filter import (
     DYNAMIC,
     PENDING,
@@ -21,7 +22,6 @@ from monoslam_shadow_node.core.shadow_filter import (
     ShadowFilter,
 )
 from slam_core.files import jsonable
-from slam_evaluation import shadow_evaluate as evaluate
 from slam_evaluation.shadow_evaluate import (
     ErrorSamples,
     FilterRecord,
@@ -314,7 +314,7 @@ def test_a_run_the_filter_raises_on_is_reported_and_fails_the_exit_status(
                 raise np.linalg.LinAlgError('Singular matrix')
             return super().process(frame)
 
-    monkeypatch.setattr(evaluate, 'ShadowFilter', Failing)
+    monkeypatch.setattr(shadow_processor, 'ShadowFilter', Failing)  # run_filter's processor
     out = tmp_path / 'eval'
     assert main(['--quick', '--duration-s', '1', '--out', str(out)]) == 1
     content = json.loads((out / 'shadow_eval.json').read_text())
