@@ -66,6 +66,7 @@ from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
+from slam_evaluation.evaluation_cli import parse_seeds
 from slam_evaluation.evaluation_report import render_png
 from slam_evaluation.monoslam_pipeline import (
     DEFAULT_SHADOW_MAX_POSE_SIGMA,
@@ -81,7 +82,8 @@ from slam_evaluation.monoslam_pipeline import (
     simulation_frames,
     target_known_points,
 )
-from slam_evaluation.shadow_evaluate import average_nees_band, camera_model, nees, parse_seeds
+from slam_evaluation.shadow_consistency import average_nees_band, nees
+from slam_evaluation.shadow_runs import camera_model
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, marker_board
 

@@ -75,6 +75,7 @@ from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
 from slam_core.stamps import stamp_to_ns
 from slam_evaluation import monoslam_evaluate
+from slam_evaluation.evaluation_cli import parse_seeds
 from slam_evaluation.evaluation_report import render_png
 from slam_evaluation.monoslam_evaluate import (
     finite_mean,
@@ -96,7 +97,6 @@ from slam_evaluation.monoslam_pipeline import (
     run_variant,
     simulation_frames,
 )
-from slam_evaluation.shadow_evaluate import parse_seeds
 from slam_ros.bag.source import BagSource
 from slam_sim.core.dynamic_render import LABEL_NOTHING, DynamicRenderer
 from slam_sim.core.dynamic_scene import (

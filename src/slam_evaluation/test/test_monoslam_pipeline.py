@@ -38,7 +38,7 @@ from slam_evaluation.monoslam_pipeline import (
     simulation_frames,
     target_known_points,
 )
-from slam_evaluation.shadow_evaluate import camera_model
+from slam_evaluation.shadow_runs import camera_model
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, marker_board, target_pixels
 

@@ -22,25 +22,26 @@ from monoslam_shadow_node.core.shadow_filter import (
     ShadowFilter,
 )
 from slam_core.files import jsonable
-from slam_evaluation.shadow_evaluate import (
-    ErrorSamples,
-    FilterRecord,
+from slam_evaluation.evaluation_cli import parse_seeds
+from slam_evaluation.shadow_classification import (
     Outcome,
-    average_nees_band,
     classification_rates,
     confusion_counts,
-    consistency_summary,
-    error_samples,
     latency_summary,
-    main,
-    nees,
-    nees_by_age,
-    parse_seeds,
     status_timeline,
     track_outcomes,
-    view_parallax_rad,
+)
+from slam_evaluation.shadow_consistency import (
+    ErrorSamples,
+    average_nees_band,
+    consistency_summary,
+    error_samples,
+    nees,
+    nees_by_age,
     within_sigma,
 )
+from slam_evaluation.shadow_evaluate import main
+from slam_evaluation.shadow_runs import FilterRecord, view_parallax_rad
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
