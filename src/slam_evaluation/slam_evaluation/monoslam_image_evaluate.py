@@ -74,18 +74,10 @@ from slam_core.errors import BagError
 from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
 from slam_core.stamps import stamp_to_ns
-from slam_evaluation import monoslam_evaluate
+from slam_evaluation import monoslam_runs
 from slam_evaluation.evaluation_cli import parse_seeds
 from slam_evaluation.evaluation_report import render_png
-from slam_evaluation.monoslam_evaluate import (
-    finite_mean,
-    number_text,
-    pose_errors,
-    ratio_summary,
-    safe_ratio,
-    shadow_numbers,
-    trajectory_metrics,
-)
+from slam_evaluation.monoslam_metrics import pose_errors, shadow_numbers, trajectory_metrics
 from slam_evaluation.monoslam_pipeline import (
     DEFAULT_SHADOW_MAX_POSE_SIGMA,
     VARIANTS,
@@ -97,6 +89,7 @@ from slam_evaluation.monoslam_pipeline import (
     run_variant,
     simulation_frames,
 )
+from slam_evaluation.monoslam_report import finite_mean, number_text, ratio_summary, safe_ratio
 from slam_ros.bag.source import BagSource
 from slam_sim.core.dynamic_render import LABEL_NOTHING, DynamicRenderer
 from slam_sim.core.dynamic_scene import (
@@ -422,7 +415,7 @@ class Settings:
     settings ``pipeline``; ``scene`` is the rendered Fig. 5 scene) and the output directory."""
 
     sources: tuple[FrameSource, ...]
-    evaluation: monoslam_evaluate.Settings
+    evaluation: monoslam_runs.Settings
     out: Path
 
     def pipeline(self, target: InitTarget) -> PipelineConfig:
@@ -447,7 +440,7 @@ def measurement_frames(source: FrameSource) -> list[MeasurementFrame]:
     """Return the measurement-level frames of the source's seed, scene config and target
     (target noise from default_rng(1000 + seed), as monoslam_evaluate)."""
     run = simulate_dynamic_scene(source.seed, source.config)
-    rng = np.random.default_rng(monoslam_evaluate.TARGET_NOISE_SEED_OFFSET + source.seed)
+    rng = np.random.default_rng(monoslam_runs.TARGET_NOISE_SEED_OFFSET + source.seed)
     return simulation_frames(run, source.target, rng=rng)
 
 
@@ -623,7 +616,7 @@ def report(settings: Settings, results: Sequence[SeedResult], wall_s: float) -> 
             'pipeline': asdict(settings.pipeline(target)),
             'tracker': asdict(TrackerConfig()),
             'moving_radius_px': MOVING_RADIUS_PX,
-            'target_noise_seed': f'{monoslam_evaluate.TARGET_NOISE_SEED_OFFSET} + seed',
+            'target_noise_seed': f'{monoslam_runs.TARGET_NOISE_SEED_OFFSET} + seed',
         },
         'per_seed': per_seed,
         'totals': totals,
@@ -834,7 +827,7 @@ def _arguments(argv: list[str] | None) -> Settings:
     except ValueError as error:
         parser.error(str(error).replace('shadow max pose sigma', '--shadow-max-pose-sigma'))
     duration_s = args.duration_s if args.duration_s is not None else 20.0
-    evaluation = monoslam_evaluate.Settings(
+    evaluation = monoslam_runs.Settings(
         seeds, duration_s, VARIANTS, gate_values, args.out, args.unchecked_directions
     )
     try:

@@ -17,9 +17,9 @@ from scipy.stats import chi2
 from monoslam_shadow_node.core.monoslam import MonoSlamConfig, MonoSlamFrame
 from monoslam_shadow_node.shadow_processor import pose_gate_refusal
 from slam_core.blas import single_threaded_blas
-from slam_evaluation import monoslam_evaluate
-from slam_evaluation.monoslam_evaluate import (
-    main,
+from slam_evaluation import monoslam_runs
+from slam_evaluation.monoslam_evaluate import main
+from slam_evaluation.monoslam_metrics import (
     nees_by_frame,
     nees_summary,
     pose_errors,
@@ -342,7 +342,7 @@ def test_a_run_a_filter_raises_on_is_reported_and_fails_the_exit_status(
     def failing(variant: str, *args: object, **kwargs: object) -> VariantRecord:
         raise PipelineError(f'variant {variant}, frame 7: singular matrix')
 
-    monkeypatch.setattr(monoslam_evaluate, 'run_variant', failing)
+    monkeypatch.setattr(monoslam_runs, 'run_variant', failing)
     out = tmp_path / 'eval'
     assert main(['--out', str(out), '--seeds', '0', '--duration-s', '0.5', '--variants', 'a']) == 1
     failures = _strict_json(out / 'monoslam_eval.json')['failures']
