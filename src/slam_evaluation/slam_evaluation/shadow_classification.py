@@ -104,7 +104,8 @@ def confusion_counts(
     return table
 
 
-def _ratio(numerator: int, denominator: int) -> float:
+def count_ratio(numerator: int, denominator: int) -> float:
+    """numerator / denominator, NaN when the denominator is 0."""
     return numerator / denominator if denominator else math.nan
 
 
@@ -118,15 +119,15 @@ def classification_rates(table: Mapping[str, Mapping[str, int]]) -> dict[str, fl
     moving_called_static = moving.get(status_name(STATIC), 0)
     return {
         'static_called_dynamic': static_called_dynamic,
-        'static_called_dynamic_of_decided': _ratio(static_called_dynamic, static_decided),
-        'static_called_dynamic_of_all': _ratio(static_called_dynamic, sum(static.values())),
+        'static_called_dynamic_of_decided': count_ratio(static_called_dynamic, static_decided),
+        'static_called_dynamic_of_all': count_ratio(static_called_dynamic, sum(static.values())),
         'moving_called_static': moving_called_static,
-        'moving_called_static_of_decided': _ratio(moving_called_static, moving_decided),
-        'moving_called_dynamic_of_all': _ratio(
+        'moving_called_static_of_decided': count_ratio(moving_called_static, moving_decided),
+        'moving_called_dynamic_of_all': count_ratio(
             moving.get(status_name(DYNAMIC), 0), sum(moving.values())
         ),
-        'static_decided_of_all': _ratio(static_decided, sum(static.values())),
-        'moving_decided_of_all': _ratio(moving_decided, sum(moving.values())),
+        'static_decided_of_all': count_ratio(static_decided, sum(static.values())),
+        'moving_decided_of_all': count_ratio(moving_decided, sum(moving.values())),
     }
 
 
@@ -140,8 +141,8 @@ def latency_summary(outcomes: Sequence[Outcome], *, window_frames: int) -> dict[
         'decided': len(frames),
         'median_frames': float(np.median(frames)) if len(frames) else math.nan,
         'p90_frames': float(np.percentile(frames, 90)) if len(frames) else math.nan,
-        'within_window_of_decided': _ratio(within, len(frames)),
-        'within_window_of_all': _ratio(within, len(outcomes)),
+        'within_window_of_decided': count_ratio(within, len(frames)),
+        'within_window_of_all': count_ratio(within, len(outcomes)),
     }
 
 

@@ -17,7 +17,7 @@ from scipy.stats import t as t_dist
 from monoslam_shadow_node.core.shadow_filter import (
     STATIC,
 )
-from slam_evaluation.shadow_classification import _ratio
+from slam_evaluation.shadow_classification import count_ratio
 from slam_evaluation.shadow_runs import BoolArray, FilterRecord, FloatArray, IntArray, track_truths
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 
@@ -206,7 +206,7 @@ def consistency_summary(
         'nees_median': float(np.median(values[finite])) if finite.any() else math.nan,
         'nees_median_expected': float(chi2.ppf(0.5, NEES_DOF)),
         'nees_p95': float(np.percentile(values[finite], 95)) if finite.any() else math.nan,
-        'fraction_nees_above_chi2_95': _ratio(
+        'fraction_nees_above_chi2_95': count_ratio(
             int(np.sum(values[finite] > threshold)), int(finite.sum())
         ),
         'within_3sigma': {
@@ -220,7 +220,7 @@ def consistency_summary(
         'by_age': {
             'min_samples_per_age': min_samples_per_age,
             'ages_evaluated': int(kept.sum()),
-            'fraction_of_ages_inside_band_95': _ratio(int(in_band.sum()), int(kept.sum())),
+            'fraction_of_ages_inside_band_95': count_ratio(int(in_band.sum()), int(kept.sum())),
         },
     }
     curve = {
