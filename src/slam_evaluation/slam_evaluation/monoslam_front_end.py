@@ -27,7 +27,6 @@ from slam_sim.core.init_target import InitTarget
 
 MOVING_RADIUS_PX = 3
 """A feature with a moving object's label this close (square window, px) is moving."""
-# --- front end: tracker, marker detector, truth ---------------------------------------------
 
 
 def moving_near(labels: NDArray[np.int16], pixels: FloatArray, radius_px: int) -> BoolArray:

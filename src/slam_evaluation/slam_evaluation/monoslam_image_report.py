@@ -20,7 +20,6 @@ from slam_evaluation.monoslam_report import finite_mean, number_text, ratio_summ
 from slam_sim.core.init_target import InitTarget
 
 IMAGE_OVER_MEASUREMENT_MAX = 1.5
-# --- report ---------------------------------------------------------------------------------
 
 
 def run_totals(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -135,7 +134,7 @@ def report(settings: Settings, results: Sequence[SeedResult], wall_s: float) -> 
     }
 
 
-# --- table and figures ----------------------------------------------------------------------
+# --- table -----------------------------------------------------------------------------------
 
 
 def _ate_cell(run: Mapping[str, Any] | None, key: str) -> str:

@@ -36,7 +36,6 @@ from slam_sim.core.init_target import InitTarget
 PROG = 'monoslam_image_evaluate'
 RUNS = (*(('image', v) for v in VARIANTS), ('measurement', 'c'))
 """The filter runs per seed: (level, variant)."""
-# --- running --------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True, eq=False)

@@ -38,7 +38,6 @@ from slam_sim.office_camera_bag import CAMERA_INFO_TOPIC, IMAGE_TOPIC, TRUE_FIDU
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
-# --- sources of images ----------------------------------------------------------------------
 
 
 @dataclass(frozen=True, eq=False)

@@ -27,7 +27,6 @@ FloatArray = NDArray[np.float64]
 POSE_DOF = 6
 BAND_PROBABILITY = 0.95
 DIVERGED_ATE_M = 1.0
-# --- metrics --------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)

@@ -175,7 +175,7 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
     }
 
 
-# --- summary and figures --------------------------------------------------------------------
+# --- summary ---------------------------------------------------------------------------------
 
 
 def number_text(value: float | None, digits: int = 3) -> str:

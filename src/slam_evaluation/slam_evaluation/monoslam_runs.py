@@ -40,7 +40,6 @@ from slam_sim.core.init_target import InitTarget, marker_board
 BOARD_MARKER_SIDE_M = 0.3
 BOARD_GAP_M = 0.05
 TARGET_NOISE_SEED_OFFSET = 1000
-# --- running --------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)

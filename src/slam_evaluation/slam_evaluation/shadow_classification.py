@@ -21,8 +21,6 @@ from monoslam_shadow_node.core.shadow_filter import (
 from slam_evaluation.shadow_runs import FilterRecord, IntArray, track_truths, view_parallax_rad
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 
-# --- classification -------------------------------------------------------------------------
-
 
 @dataclass(frozen=True)
 class Outcome:

@@ -24,7 +24,6 @@ from slam_sim.core.dynamic_scene import DynamicSceneRun
 NEES_DOF = 3
 BAND_PROBABILITY = 0.95
 ONE_AXIS_3SIGMA = 0.9973002039367398  # P(|N(0, 1)| <= 3)
-# --- consistency ----------------------------------------------------------------------------
 
 
 def nees(errors: FloatArray, covariances: FloatArray) -> FloatArray:

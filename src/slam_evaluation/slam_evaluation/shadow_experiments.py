@@ -41,8 +41,6 @@ from slam_evaluation.shadow_consistency import (
 from slam_evaluation.shadow_runs import FilterRecord, FilterRunError, run_filter
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 
-# --- the evaluation -------------------------------------------------------------------------
-
 
 @dataclass(frozen=True)
 class Settings:

@@ -29,7 +29,6 @@ from slam_sim.core.dynamic_scene import DynamicSceneRun
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
-# --- running the filter ---------------------------------------------------------------------
 
 
 class FilterRunError(RuntimeError):
