@@ -165,6 +165,12 @@ class MonoSlamProcessor:
         """Feature frames waiting for their fiducials or for the camera."""
         return self.sync.waiting_primaries
 
+    @property
+    def owned_ids(self) -> frozenset[int]:
+        """Track ids the filter owns (in its map now or before), empty before the camera: the
+        Shadow filter leaves them alone."""
+        return self.slam.owned_ids if self.slam is not None else frozenset()
+
     # --- streaming inputs -------------------------------------------------------------------
 
     def set_camera(self, camera: CameraModel) -> list[Outcome]:

@@ -111,6 +111,7 @@ def _handover(feature_id: int, status: int = STATIC, position_m: float = 2.0) ->
 def test_handovers_are_refused_with_their_reason_and_counted() -> None:
     processor = _processor()
     assert processor.refusal(_handover(1), 'map') == 'handover of feature 1: no camera yet'
+    assert processor.owned_ids == frozenset()
     processor.set_camera(CAMERA)
     assert processor.refusal(_handover(2), 'odom') == (
         "handover of feature 2: in frame 'odom', not map_frame 'map'"

@@ -8,8 +8,8 @@ Three variants run over the same frames (``run_variant``):
 - ``c``: MonoSLAM (``initialize='handover'``) with the Shadow filter: SLAM gets every feature
   but only adds those the Shadow filter hands over as STATIC. Per frame the Shadow filter gets
   SLAM's pose (R_world_camera, centre, 6 x 6 pose covariance) and the features SLAM does not
-  own (``MonoSlam.owned_ids``); its handovers go to SLAM's handover intake and enter the map
-  when next observed. The pose gate ``PipelineConfig.shadow_max_pose_sigma`` = (position m,
+  own (``MonoSlamProcessor.owned_ids``); its handovers go to SLAM's handover intake and enter
+  the map when next observed. The pose gate ``PipelineConfig.shadow_max_pose_sigma`` = (position m,
   rotation rad): the Shadow filter only processes frames whose pose standard deviations (sqrt
   of the covariance diagonal, max over the 3 position and the 3 rotation entries) are within
   both; other frames are skipped for it and counted. Frames without a pose (waiting) or in
@@ -329,14 +329,14 @@ def _shadow_step(
     passes the gate) and pass its handovers to SLAM (the diagnostic settings: the true pose,
     a known pose that the gate passes; no handovers of moving features)."""
     pose = _pose(result)
-    if result.status != TRACKING or pose is None or slam.slam is None:
+    if result.status != TRACKING or pose is None:
         books.no_pose += 1
         return
     centre, rotation, slam_covariance = pose
     covariance: FloatArray | None = slam_covariance
     if config.shadow_poses == 'truth':
         centre, rotation, covariance = frame.true_centre, frame.true_rotation, None
-    owned = slam.slam.owned_ids
+    owned = slam.owned_ids
     measurements = frame.measurements
     stamp_ns, ids, pixels = measurements.stamp_ns, measurements.ids, measurements.pixels
     free = np.array([int(i) not in owned for i in ids], dtype=bool).reshape(-1)
