@@ -72,7 +72,7 @@ from slam_evaluation.monoslam_pipeline import (  # noqa: E402
     simulation_frames,
     target_known_points,
 )
-from slam_evaluation.shadow_evaluate import camera_model  # noqa: E402
+from slam_evaluation.shadow_runs import camera_model  # noqa: E402
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene  # noqa: E402
 from slam_sim.core.init_target import InitTarget  # noqa: E402
 

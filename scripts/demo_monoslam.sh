@@ -31,7 +31,7 @@ python - "$SAMPLE" "$OUT/live/trajectory.tum" <<'PYEOF'
 import sys
 from pathlib import Path
 import numpy as np
-from slam_evaluation.monoslam_image_evaluate import bag_source
+from slam_evaluation.monoslam_image_sources import bag_source
 truth = {frame.stamp_ns: frame.centre_m for frame in bag_source(Path(sys.argv[1])).frames()}
 rows = np.loadtxt(sys.argv[2], ndmin=2)
 errors = [np.linalg.norm(row[1:4] - truth[int(round(row[0] * 1e9))]) for row in rows

@@ -3,8 +3,9 @@ rosbags-deserialized messages both work; output messages are filled from factori
 message classes) passed in, as ``conversions`` does for the Shadow filter.
 
 Inputs: a slam_interfaces/FiducialArray is reduced to the initialization target's corner
-pixels (``TargetSighting``), which become the known points 0-3 of a ``MonoSlamFrame`` beside
-the features of the same image; a ShadowTrackArray of handovers becomes ``HandoverInput``s.
+pixels (``TargetSighting``), which the processor turns into the known points 0-3 of a
+``MonoSlamFrame`` beside the features of the same image (``monoslam_processor``); a
+ShadowTrackArray of handovers becomes ``HandoverInput``s.
 
 Outputs never hold NaN: a pose that is not finite gives no ``PoseFields`` (nothing is
 published), map points without a defined position (inverse depth within 3 sigma of zero) or
@@ -25,8 +26,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
-from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamFrame, MonoSlamResult
+from monoslam_shadow_node.conversions import FloatArray, IntArray
+from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamResult
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
@@ -129,17 +130,6 @@ def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> Targ
         problem = f'target corners {corners.tolist()} are not {TARGET_CORNERS} finite pixels'
         return TargetSighting(stamp_ns, frame_id, None, detected, problem)
     return TargetSighting(stamp_ns, frame_id, corners.reshape(TARGET_CORNERS, 2), detected)
-
-
-def monoslam_frame(features: Features, sighting: TargetSighting | None) -> MonoSlamFrame:
-    """Return the filter's input for one image: its features, and the target's corners as
-    the known points 0-3 when they were seen."""
-    if sighting is None or sighting.corners_px is None:
-        return MonoSlamFrame(features.stamp_ns, features.ids, features.pixels)
-    keys: IntArray = np.arange(TARGET_CORNERS, dtype=np.int64)
-    return MonoSlamFrame(
-        features.stamp_ns, features.ids, features.pixels, keys, sighting.corners_px
-    )
 
 
 def handovers_from_message(message: Any) -> list[HandoverInput]:

@@ -5,8 +5,10 @@ features. It starts from the four corners of a fiducial marker of known size and
 paper's checkerboard: a monocular camera cannot observe scale), and with the Shadow filter
 (``initialize`` 'handover') it adds only the features the Shadow filter hands over as static;
 the Shadow filter in turn takes this node's pose. The algorithm is ``core.monoslam.MonoSlam``;
-this node pairs each FeatureTrackArray with the FiducialArray of the same image, feeds the
-frames in stamp order and publishes the result.
+the pairing of each FeatureTrackArray with the FiducialArray of the same image, the tracking
+state, the handover intake and the counts are ``monoslam_processor.MonoSlamProcessor``'s;
+this node converts the messages, hands them to it, publishes the result and logs what it
+reports.
 
 Topics:
   subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100): track ids and
@@ -126,7 +128,6 @@ import time
 from collections import deque
 from typing import Any
 
-import numpy as np
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TransformStamped
 from nav_msgs.msg import Path
 from rclpy.clock import Clock, ClockType
@@ -134,22 +135,11 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
 from tf2_msgs.msg import TFMessage
 
-from monoslam_shadow_node.conversions import (
-    CameraInfoWatch,
-    Features,
-    features_from_message,
-)
+from monoslam_shadow_node.conversions import CameraInfoWatch, Features, features_from_message
 from monoslam_shadow_node.core.monoslam import MonoSlam
-from monoslam_shadow_node.core.monoslam_types import (
-    LOST,
-    TRACKING,
-    WAITING,
-    MonoSlamInputError,
-    MonoSlamResult,
-)
-from monoslam_shadow_node.frame_sync import Drop, StampSync, SyncNames
+from monoslam_shadow_node.core.monoslam_types import TRACKING
+from monoslam_shadow_node.frame_sync import StampSync
 from monoslam_shadow_node.monoslam_conversions import (
-    HandoverInput,
     PoseFields,
     TargetSighting,
     cloud_points,
@@ -159,11 +149,10 @@ from monoslam_shadow_node.monoslam_conversions import (
     fill_predictions,
     fill_transform,
     handovers_from_message,
-    monoslam_frame,
-    pose_fields,
     target_from_fiducials,
     tum_text,
 )
+from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep, Outcome
 from monoslam_shadow_node.monoslam_settings import (
     NODE_NAME,
     SCALAR_SETTINGS,
@@ -172,16 +161,11 @@ from monoslam_shadow_node.monoslam_settings import (
     node_settings,
     target_settings,
 )
+from monoslam_shadow_node.notices import LogThrottle, Notice, log_notice
 from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_core.stamps import stamp_to_ns
-from slam_interfaces.msg import (
-    FeatureTrack,
-    FeatureTrackArray,
-    FiducialArray,
-    ShadowTrack,
-    ShadowTrackArray,
-)
+from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, FiducialArray, ShadowTrackArray
 from slam_ros.params import ParamSpec, declare_parameters
 from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.spin import spin_node
@@ -202,22 +186,11 @@ INPUT_DEPTH = 100
 STATUS_PERIOD_S = 10.0
 WAITING_LOG_PERIOD_S = 5.0
 DEFAULT_CAMERA_FRAME = 'camera_optical_frame'
-SYNC_NAMES = SyncNames(
-    primary='features frame',
-    primary_plural='frames',
-    primary_short='features',
-    partner='fiducials',
-    partner_plural='fiducial arrays',
-    partner_topic=FIDUCIALS_TOPIC,
-    missing_partner_kind='no_fiducials',
-    missing_primary_kind='no_features',
-)
-# The core's warnings are text; these are reported through the status changes instead.
-STATUS_WARNINGS = ('waiting for the initialization target', 'started from', 'tracking lost')
 
 
 class MonoSlamNode(Node):
-    """Thin adapter around MonoSlam: pairs features with fiducials, publishes pose and map."""
+    """Thin adapter around MonoSlamProcessor: features, fiducials and handovers in, pose and
+    map published."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
@@ -225,22 +198,22 @@ class MonoSlamNode(Node):
         self.target = target_settings(values)
         self.config = monoslam_config(values, self.target)
         self.settings = node_settings(values)
-        self.slam: MonoSlam | None = None
+        self.processor = MonoSlamProcessor(
+            self.config,
+            target_text=self.target.describe(),
+            map_frame=self.settings.map_frame,
+            stamp_tolerance_ns=self.settings.stamp_tolerance_ns,
+            sync_horizon_ns=self.settings.sync_horizon_ns,
+            queue_size=self.settings.queue_size,
+            fiducials_topic=FIDUCIALS_TOPIC,
+            camera_info_topic=CAMERA_INFO_TOPIC,
+        )
         self._camera_watch = CameraInfoWatch(CAMERA_INFO_TOPIC)
         self._camera_frame = DEFAULT_CAMERA_FRAME
-        self.sync: StampSync[Features, TargetSighting] = StampSync(
-            tolerance_ns=self.settings.stamp_tolerance_ns,
-            horizon_ns=self.settings.sync_horizon_ns,
-            max_entries=self.settings.queue_size,
-            names=SYNC_NAMES,
-        )
-        self.frames = self.skipped = self.dropped = self.alone = self.lost = 0
-        self.accepted = self.refused = self.measured = self.fiducials_seen = 0
-        self.status = WAITING
+        self._throttle = LogThrottle(WAITING_LOG_PERIOD_S)
         self.trajectory: list[PoseFields] = []
         self._path: deque[PoseStamped] = deque(maxlen=self.settings.path_length)
         self._map_changed = False
-        self._predicted_ns: int | None = None
         self._last_input = time.monotonic()
         self._status_time, self._status_seen = time.monotonic(), (0, 0, 0)
         self.pose_publisher = self.create_publisher(
@@ -276,6 +249,16 @@ class MonoSlamNode(Node):
             f'{self.target.describe()} in {self.settings.map_frame}'
         )
 
+    @property
+    def slam(self) -> MonoSlam | None:
+        """The filter, None before the first usable camera_info."""
+        return self.processor.slam
+
+    @property
+    def sync(self) -> StampSync[Features, TargetSighting]:
+        """The processor's pairing of features with fiducials."""
+        return self.processor.sync
+
     # --- inputs -----------------------------------------------------------------------------
 
     def _on_camera_info(self, message: CameraInfo) -> None:
@@ -292,160 +275,44 @@ class MonoSlamNode(Node):
             return
         if message.header.frame_id:
             self._camera_frame = str(message.header.frame_id)
-        if self.slam is None:
-            self.slam = MonoSlam(update.camera, self.config)
+        if update.first:
             self.get_logger().info(update.text)
         else:
-            self.slam.set_camera(update.camera)
             self.get_logger().warning(update.text)
-        self._drain()
+        self._handle(self.processor.set_camera(update.camera))
 
     def _on_features(self, message: FeatureTrackArray) -> None:
         self._last_input = time.monotonic()
-        self._report_drops(self.sync.add_primary(features_from_message(message)))
-        if self.slam is None:
-            self.get_logger().warning(
-                f'no {CAMERA_INFO_TOPIC} received yet: holding {self.sync.waiting_primaries} '
-                'feature frame(s) until it comes',
-                throttle_duration_sec=WAITING_LOG_PERIOD_S,
-            )
-        self._drain()
+        self._handle(self.processor.add_features(features_from_message(message)))
 
     def _on_fiducials(self, message: FiducialArray) -> None:
         self._last_input = time.monotonic()
-        self.fiducials_seen += 1
         sighting = target_from_fiducials(message, self.target.marker_id, self.target.dictionary)
-        self._report_drops(self.sync.add_partner(sighting))
-        self._drain()
+        self._handle(self.processor.add_sighting(sighting))
 
     def _on_handovers(self, message: ShadowTrackArray) -> None:
-        frame_id = str(message.header.frame_id)
-        for handover in handovers_from_message(message):
-            reason = self._refusal(handover, frame_id)
-            if reason is None:
-                self.accepted += 1
-                continue
-            self.refused += 1
-            self.get_logger().warning(f'{HANDOVER_TOPIC}: {reason}; refused')
-
-    def _refusal(self, handover: HandoverInput, frame_id: str) -> str | None:
-        """Queue a handover in the filter; return why it was refused, or None."""
-        where = f'handover of feature {handover.id}'
-        if self.slam is None:
-            return f'{where}: no camera yet'
-        if frame_id != self.settings.map_frame:
-            return f'{where}: in frame {frame_id!r}, not map_frame {self.settings.map_frame!r}'
-        if handover.status != ShadowTrack.STATIC:
-            return f'{where}: status {handover.status}, not STATIC'
-        return self.slam.add_handover(handover.id, handover.position, handover.covariance)
+        handovers = handovers_from_message(message)
+        for notice in self.processor.add_handovers(handovers, str(message.header.frame_id)):
+            self.get_logger().warning(f'{HANDOVER_TOPIC}: {notice.text}')
 
     def _flush_when_idle(self) -> None:
         idle_s = time.monotonic() - self._last_input
-        if self.sync.waiting_primaries and idle_s > self.settings.sync_horizon_ns / 1e9:
-            self._drain(flush=True)
-
-    # --- processing -------------------------------------------------------------------------
-
-    def _drain(self, *, flush: bool = False) -> None:
-        started = self.status == TRACKING
-        pairs, drops = self.sync.pop(hold=self.slam is None, flush=flush, alone=started)
-        self._report_drops(drops)
-        for features, sighting in pairs:
-            self._process(features, sighting)
-
-    def _report_drops(self, drops: list[Drop]) -> None:
-        """Log every drop once; frames without fiducials before the start (every frame when
-        no marker_detector runs) are summarized in a throttled line instead."""
-        for drop in drops:
-            self.dropped += 1
-            if drop.kind == SYNC_NAMES.missing_partner_kind:
-                hint = '' if self.fiducials_seen else ' Is marker_detector running, and remapped?'
-                self.get_logger().warning(
-                    f'{drop.text}; the filter needs the target on {FIDUCIALS_TOPIC} to start '
-                    f'({self.dropped} inputs dropped so far).{hint}',
-                    throttle_duration_sec=WAITING_LOG_PERIOD_S,
-                )
-            else:
-                self.get_logger().warning(drop.text)
-
-    def _process(self, features: Features, sighting: TargetSighting | None) -> None:
-        if self.slam is None:  # cannot happen: pop(hold=True) pairs nothing before a camera
-            return
-        if sighting is None:
-            self.alone += 1
-            self.get_logger().warning(
-                f'features frame at stamp {features.stamp_ns} ns processed without fiducials '
-                f'(none came on {FIDUCIALS_TOPIC} within sync_horizon_s); {self.alone} so far',
-                throttle_duration_sec=WAITING_LOG_PERIOD_S,
-            )
-        elif sighting.problem is not None:
-            self.get_logger().warning(
-                f'fiducials at stamp {sighting.stamp_ns} ns: {sighting.problem}; not used'
-            )
-        try:
-            result = self.slam.process(monoslam_frame(features, sighting))
-        except (MonoSlamInputError, np.linalg.LinAlgError) as err:
-            self.skipped += 1
-            self.get_logger().error(
-                f'features frame at stamp {features.stamp_ns} ns skipped: {err}'
-            )
-            return
-        self.frames += 1
-        self.measured = len(result.measured_ids)
-        for warning in result.warnings:
-            if not warning.startswith(STATUS_WARNINGS):
-                self.get_logger().warning(f'frame at stamp {result.stamp_ns} ns: {warning}')
-        fields = pose_fields(result)
-        self._report_state(result, sighting, fields)
-        if result.status == TRACKING:
-            self._publish_pose(result, fields, features.frame_id or self._camera_frame)
-        self._map_changed = True
-
-    def _report_state(
-        self, result: MonoSlamResult, sighting: TargetSighting | None, fields: PoseFields | None
-    ) -> None:
-        """Log the start, the loss of tracking and waiting for the target."""
-        previous, self.status = self.status, result.status
-        stamp = f'at stamp {result.stamp_ns} ns'
-        if result.status == LOST:
-            self.lost += 1
-            self.status = WAITING
-            why = next((w for w in result.warnings if w.startswith('tracking lost')), 'lost')
-            self.get_logger().warning(
-                f'{why.split(";")[0]} {stamp}: re-initializing from the target '
-                f'({self.target.describe()}) when it is seen again'
-            )
-        elif result.status == TRACKING and previous != TRACKING:
-            how = next((w for w in result.warnings if w.startswith('started from')), '')
-            how = how.removeprefix('started ')
-            pose = fields.describe() if fields is not None else 'pose not finite'
-            again = 're-initialized' if self.lost else 'started'
-            self.get_logger().info(f'{again} {stamp} {how}: {pose}')
-        elif result.status != TRACKING:
-            self.get_logger().info(
-                self._waiting_text(result.stamp_ns, sighting),
-                throttle_duration_sec=WAITING_LOG_PERIOD_S,
-            )
-
-    def _waiting_text(self, stamp_ns: int, sighting: TargetSighting | None) -> str:
-        target = f'initialization target ({self.target.describe()})'
-        if sighting is not None and sighting.corners_px is not None:
-            return (
-                f'{target} seen at stamp {stamp_ns} ns, but no camera pose fits its corners '
-                f'{sighting.corners_px.round(1).tolist()} (check target_size_m and the '
-                'camera_info): waiting'
-            )
-        seen = sighting.describe_detected() if sighting is not None else 'no fiducials'
-        return f'no {target} in view yet: waiting ({seen} at stamp {stamp_ns} ns)'
+        if self.processor.waiting_features and idle_s > self.settings.sync_horizon_ns / 1e9:
+            self._handle(self.processor.flush())
 
     # --- outputs ----------------------------------------------------------------------------
 
-    def _publish_pose(self, result: MonoSlamResult, fields: PoseFields | None, child: str) -> None:
-        if fields is None:
-            self.get_logger().error(
-                f'pose at stamp {result.stamp_ns} ns is not finite (a filter fault); not published'
-            )
-            return
+    def _handle(self, outcomes: list[Outcome]) -> None:
+        """Log the notices and publish the processed frames, in order."""
+        for outcome in outcomes:
+            if isinstance(outcome, Notice):
+                log_notice(self.get_logger(), outcome, self._throttle, time.monotonic())
+            elif isinstance(outcome, MonoSlamStep):
+                self._map_changed = True
+                if outcome.result.status == TRACKING and outcome.pose is not None:
+                    self._publish_pose(outcome.pose, outcome.frame_id or self._camera_frame)
+
+    def _publish_pose(self, fields: PoseFields, child: str) -> None:
         frame = self.settings.map_frame
         self.pose_publisher.publish(
             fill_pose_with_covariance(fields, frame, PoseWithCovarianceStamped())
@@ -462,25 +329,21 @@ class MonoSlamNode(Node):
             self.trajectory.append(fields)
 
     def _publish_map(self) -> None:
-        if self.slam is None or not self._map_changed:
+        if self.processor.slam is None or not self._map_changed:
             return
         self._map_changed = False
-        stamp_ns = self.sync.last_ns or 0
-        points = cloud_points(self.slam.map_points())
+        stamp_ns = self.processor.sync.last_ns or 0
+        points = cloud_points(self.processor.map_points())
         self.map_publisher.publish(
             fill_cloud(points, stamp_ns, self.settings.map_frame, PointCloud2(), PointField)
         )
 
     def _publish_predictions(self, stamp_ns: int, frame_id: str) -> None:
-        """Predict the owned features' pixels for the image at ``stamp_ns`` (once per stamp,
-        only for an image after the last processed one)."""
-        last_ns = self.sync.last_ns
-        if self.slam is None or self.predictions_publisher is None:
+        """Publish the owned features' predicted pixels for the image at ``stamp_ns``."""
+        predicted = self.processor.predictions(stamp_ns)
+        if predicted is None or self.predictions_publisher is None:
             return
-        if stamp_ns == self._predicted_ns or (last_ns is not None and stamp_ns <= last_ns):
-            return
-        self._predicted_ns = stamp_ns
-        ids, pixels, _ = self.slam.predictions(stamp_ns)
+        ids, pixels = predicted
         self.predictions_publisher.publish(
             fill_predictions(
                 ids, pixels, stamp_ns, frame_id or self._camera_frame, FeatureTrackArray(),
@@ -489,25 +352,13 @@ class MonoSlamNode(Node):
         )  # fmt: skip
 
     def _report_status(self) -> None:
-        now, seen = time.monotonic(), (self.frames, self.skipped, self.dropped)
+        counts = self.processor.counts
+        now, seen = time.monotonic(), (counts.processed, counts.skipped, counts.dropped_total)
         if seen == self._status_seen:
             return  # nothing came since the last line
-        rate = (self.frames - self._status_seen[0]) / (now - self._status_time)
-        self.get_logger().info(self.status_line(rate))
+        rate = (counts.processed - self._status_seen[0]) / (now - self._status_time)
+        self.get_logger().info(self.processor.status_line(rate))
         self._status_time, self._status_seen = now, seen
-
-    def status_line(self, rate_hz: float | None = None) -> str:
-        """Return the progress summary: frames, state, map, measurements, handovers, problems."""
-        rate = f' ({rate_hz:.1f}/s)' if rate_hz is not None else ''
-        points = self.slam.map_points() if self.slam is not None else []
-        active = sum(p.active for p in points)
-        return (
-            f'{self.frames} frames{rate}, {self.status}: map {active} active and '
-            f'{len(points) - active} retired points, {self.measured} features measured in the '
-            f'latest frame; handovers {self.accepted} accepted, {self.refused} refused; lost '
-            f'{self.lost} times, {self.skipped} frames skipped, {self.alone} without '
-            f'fiducials, {self.dropped} inputs dropped'
-        )
 
     def write_trajectory(self) -> None:
         """Write the trajectory file (TUM text, atomically), if one is configured."""
@@ -524,8 +375,9 @@ class MonoSlamNode(Node):
     def destroy_node(self) -> None:
         """Write the trajectory, log the final summary, then destroy."""
         self.write_trajectory()
-        if self.frames or self.dropped or self.skipped:
-            self.get_logger().info(f'done: {self.status_line()}')
+        counts = self.processor.counts
+        if counts.processed or counts.dropped_total or counts.skipped:
+            self.get_logger().info(f'done: {self.processor.status_line()}')
         super().destroy_node()
 
 

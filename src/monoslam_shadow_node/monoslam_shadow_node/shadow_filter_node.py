@@ -4,8 +4,9 @@ The Shadow filter of paper 001 (sec. II-III): every new feature is held back and
 its own EKF, given the camera pose from outside (MonoSLAM, or ground truth), until a
 chi-square test on its viewing rays calls it STATIC (handed over to SLAM on
 shadow/static_features and forgotten here) or DYNAMIC (kept and tracked as it moves). The
-algorithm is ``core.shadow_filter.ShadowFilter``; this node pairs each FeatureTrackArray with
-the camera pose of the same stamp, feeds the frames in stamp order and publishes the result.
+algorithm is ``core.shadow_filter.ShadowFilter``; the stamp pairing, the pose gate and the
+counts are ``shadow_processor.ShadowProcessor``'s; this node converts the messages, hands them
+to it, publishes the processed frames and logs what it reports.
 
 Topics:
   subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100): track ids
@@ -96,7 +97,9 @@ Parameters (node):
                                   ones. .inf (the default): no gate; the MonoSLAM pipeline
                                   uses 0.03 m and 0.01 rad (monoslam_pipeline's
                                   DEFAULT_SHADOW_MAX_POSE_SIGMA). A known pose (all-zero
-                                  covariance) always passes.
+                                  covariance) always passes; a covariance whose diagonal is
+                                  not finite always fails (shadow_processor's
+                                  pose_gate_refusal).
   publish_markers (true)          publish shadow/markers.
 All are read-only; a bad value stops the node with an error naming the parameter.
 
@@ -111,7 +114,6 @@ import time
 from collections import OrderedDict
 from typing import Any
 
-import numpy as np
 from geometry_msgs.msg import Point, PoseWithCovarianceStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -122,23 +124,21 @@ from visualization_msgs.msg import Marker, MarkerArray
 from monoslam_shadow_node.conversions import (
     STATIC_MARKER_LIMIT,
     CameraInfoWatch,
-    CameraPose,
-    Features,
     FloatArray,
     MarkerTypes,
     TrackFields,
     features_from_message,
     fill_markers,
     fill_track_array,
-    frame_input,
     handover_fields,
     pose_from_message,
     track_fields,
 )
-from monoslam_shadow_node.core.shadow_filter import FrameResult, InputError, ShadowFilter
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING
-from monoslam_shadow_node.frame_sync import Drop, FrameSynchronizer
+from monoslam_shadow_node.core.shadow_filter import FrameResult, ShadowFilter
+from monoslam_shadow_node.frame_sync import FrameSynchronizer
+from monoslam_shadow_node.notices import LogThrottle, Notice, log_notice
 from monoslam_shadow_node.settings import NODE_NAME, SETTINGS, node_settings, shadow_config
+from monoslam_shadow_node.shadow_processor import Outcome, ShadowProcessor, ShadowStep
 from slam_core.cli import console_main
 from slam_interfaces.msg import FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.params import ParamSpec, declare_parameters
@@ -154,53 +154,28 @@ MARKERS_TOPIC = 'shadow/markers'
 INPUT_DEPTH = 100
 STATUS_PERIOD_S = 10.0
 WAITING_LOG_PERIOD_S = 5.0
-# The core's warnings are text: bad input (NaN pixels) is logged as a warning, the rest
-# (gated measurements, filter restarts, tests put off) is filter life, logged at debug level
-# and counted in the status line.
-INPUT_WARNING = 'non-finite'
-GATE_WARNING = 'outside the innovation gate'
-
-
-def pose_gate_excess(covariance: FloatArray | None, max_sigma: tuple[float, float]) -> str | None:
-    """Return why a pose covariance (6, 6) (position m, rotation rad) fails the pose gate
-    (position, rotation) standard deviations, or None when it passes. A known pose (None) and
-    a covariance that is not finite (the core rejects it with its reason) pass."""
-    if covariance is None:
-        return None
-    variances = np.diagonal(covariance)
-    if not np.all(np.isfinite(variances)):
-        return None
-    sigma = np.sqrt(np.maximum(variances, 0.0))
-    position, rotation = float(sigma[:3].max()), float(sigma[3:].max())
-    if position > max_sigma[0]:
-        return f'position sigma {position:.3g} m > max_pose_position_sigma_m ({max_sigma[0]:g})'
-    if rotation > max_sigma[1]:
-        return (
-            f'rotation sigma {rotation:.3g} rad > max_pose_rotation_sigma_rad ({max_sigma[1]:g})'
-        )
-    return None
 
 
 class ShadowFilterNode(Node):
-    """Thin adapter around ShadowFilter: pairs features with poses, publishes the tracks."""
+    """Thin adapter around ShadowProcessor: features and poses in, the tracks published."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         values = declare_parameters(self, PARAMETERS)
         self.config = shadow_config(values)
         self.settings = node_settings(values)
-        self.shadow: ShadowFilter | None = None
-        self._camera_watch = CameraInfoWatch(CAMERA_INFO_TOPIC)
-        self.sync = FrameSynchronizer(
-            tolerance_ns=self.settings.stamp_tolerance_ns,
-            horizon_ns=self.settings.sync_horizon_ns,
-            max_entries=self.settings.queue_size,
+        self.processor = ShadowProcessor(
+            self.config,
+            max_pose_sigma=self.settings.max_pose_sigma,
+            stamp_tolerance_ns=self.settings.stamp_tolerance_ns,
+            sync_horizon_ns=self.settings.sync_horizon_ns,
+            queue_size=self.settings.queue_size,
             pose_topic=self.settings.pose_topic,
+            camera_info_topic=CAMERA_INFO_TOPIC,
         )
-        self.frames = self.skipped = self.dropped = self.gated = self.pose_gated = 0
-        self._poses_seen = self._dropped_waiting = 0
-        self.static_total = self.dynamic_total = self.omitted = 0
-        self._held = {PENDING: 0, DYNAMIC: 0}
+        self.omitted = 0
+        self._camera_watch = CameraInfoWatch(CAMERA_INFO_TOPIC)
+        self._throttle = LogThrottle(WAITING_LOG_PERIOD_S)
         self._static_positions: OrderedDict[int, FloatArray] = OrderedDict()
         self._marker_types = MarkerTypes(Marker, Point, ColorRGBA)
         self._last_input = time.monotonic()
@@ -233,6 +208,16 @@ class ShadowFilterNode(Node):
             f'waiting for {FEATURES_TOPIC}, {self.settings.pose_topic} and {CAMERA_INFO_TOPIC}'
         )
 
+    @property
+    def shadow(self) -> ShadowFilter | None:
+        """The filter, None before the first usable camera_info."""
+        return self.processor.shadow
+
+    @property
+    def sync(self) -> FrameSynchronizer:
+        """The processor's pairing of features with poses."""
+        return self.processor.sync
+
     # --- inputs -----------------------------------------------------------------------------
 
     def _on_camera_info(self, message: CameraInfo) -> None:
@@ -242,95 +227,38 @@ class ShadowFilterNode(Node):
         if update.camera is None:
             self.get_logger().error(update.text, throttle_duration_sec=WAITING_LOG_PERIOD_S)
             return
-        if self.shadow is None:
-            self.shadow = ShadowFilter(update.camera, self.config)
+        if update.first:
             self.get_logger().info(update.text)
         else:
-            self.shadow.set_camera(update.camera)
             self.get_logger().warning(update.text)
-        self._drain()
+        self._handle(self.processor.set_camera(update.camera))
 
     def _on_features(self, message: FeatureTrackArray) -> None:
         self._last_input = time.monotonic()
-        self._report_drops(self.sync.add_features(features_from_message(message)))
-        if self.shadow is None:
-            dropped = f', {self._dropped_waiting} dropped' if self._dropped_waiting else ''
-            self.get_logger().warning(
-                f'no {CAMERA_INFO_TOPIC} received yet: holding {self.sync.waiting_features} '
-                f'feature frame(s) until it comes{dropped}',
-                throttle_duration_sec=WAITING_LOG_PERIOD_S,
-            )
-        self._drain()
+        self._handle(self.processor.add_features(features_from_message(message)))
 
     def _on_pose(self, message: PoseWithCovarianceStamped) -> None:
         self._last_input = time.monotonic()
-        self._poses_seen += 1
-        self._report_drops(self.sync.add_pose(pose_from_message(message)))
-        self._drain()
+        self._handle(self.processor.add_pose(pose_from_message(message)))
 
     def _flush_when_idle(self) -> None:
         idle_s = time.monotonic() - self._last_input
-        if self.sync.waiting_features and idle_s > self.settings.sync_horizon_ns / 1e9:
-            self._drain(flush=True)
+        if self.processor.waiting_features and idle_s > self.settings.sync_horizon_ns / 1e9:
+            self._handle(self.processor.flush())
 
-    # --- processing -------------------------------------------------------------------------
+    # --- outputs ----------------------------------------------------------------------------
 
-    def _drain(self, *, flush: bool = False) -> None:
-        pairs, drops = self.sync.pop(hold=self.shadow is None, flush=flush)
-        self._report_drops(drops)
-        for features, pose in pairs:
-            self._process(features, pose)
+    def _handle(self, outcomes: list[Outcome]) -> None:
+        """Log the notices and publish the processed frames, in order."""
+        for outcome in outcomes:
+            if isinstance(outcome, Notice):
+                self._log(outcome)
+            elif isinstance(outcome, ShadowStep):
+                self._publish(outcome.result, outcome.frame_id)
+                self._report_status()
 
-    def _report_drops(self, drops: list[Drop]) -> None:
-        """Log every drop once; a steady state (no camera_info or no pose at all yet, which
-        drops every frame) is summarized in throttled lines instead."""
-        for drop in drops:
-            self.dropped += 1
-            if self.shadow is None and drop.kind == 'overflow':
-                self._dropped_waiting += 1  # said in the throttled "no camera_info" line
-            elif drop.kind == 'no_pose' and not self._poses_seen:
-                self.get_logger().warning(
-                    f'no camera pose received on {self.settings.pose_topic} at all yet: '
-                    f'dropping feature frames ({self.dropped} dropped so far, the latest at '
-                    f'stamp {drop.stamp_ns} ns); is it published, and remapped?',
-                    throttle_duration_sec=WAITING_LOG_PERIOD_S,
-                )
-            else:
-                self.get_logger().warning(drop.text)
-
-    def _process(self, features: Features, pose: CameraPose) -> None:
-        if self.shadow is None:  # cannot happen: pop(hold=True) pairs nothing before a camera
-            return
-        excess = pose_gate_excess(pose.covariance, self.settings.max_pose_sigma)
-        if excess is not None:
-            self.pose_gated += 1
-            self.get_logger().debug(
-                f'frame at stamp {features.stamp_ns} ns skipped by the pose gate: {excess}'
-            )
-            return
-        try:
-            result = self.shadow.process(frame_input(features, pose))
-        except InputError as err:
-            self.skipped += 1
-            self.get_logger().error(f'frame at stamp {features.stamp_ns} ns skipped: {err}')
-            return
-        self.frames += 1
-        for warning in result.warnings:
-            if INPUT_WARNING in warning:
-                self.get_logger().warning(f'frame at stamp {result.stamp_ns} ns: {warning}')
-                continue
-            self.gated += GATE_WARNING in warning
-            self.get_logger().debug(f'frame at stamp {result.stamp_ns} ns: {warning}')
-        self._count(result)
-        self._publish(result, pose.frame_id)
-        self._report_status()
-
-    def _count(self, result: FrameResult) -> None:
-        self._held = {
-            status: sum(t.status == status for t in result.tracks) for status in (PENDING, DYNAMIC)
-        }
-        self.static_total += len(result.handovers)
-        self.dynamic_total += sum(d.status == DYNAMIC for d in result.decisions)
+    def _log(self, notice: Notice) -> None:
+        log_notice(self.get_logger(), notice, self._throttle, time.monotonic())
 
     def _publish(self, result: FrameResult, frame_id: str) -> None:
         tracks = self._finite([(t.id, track_fields(t)) for t in result.tracks], result)
@@ -380,25 +308,16 @@ class ShadowFilterNode(Node):
         now = time.monotonic()
         if now - self._status_time < STATUS_PERIOD_S:
             return
-        rate = (self.frames - self._status_frames) / (now - self._status_time)
-        self.get_logger().info(self.status_line(rate))
-        self._status_time, self._status_frames = now, self.frames
-
-    def status_line(self, rate_hz: float | None = None) -> str:
-        """Return the progress summary: frames, held features, decisions, problems."""
-        rate = f' ({rate_hz:.1f}/s)' if rate_hz is not None else ''
-        return (
-            f'{self.frames} frames{rate}: holding {self._held[PENDING]} pending and '
-            f'{self._held[DYNAMIC]} dynamic features; {self.static_total} handed over as '
-            f'static, {self.dynamic_total} called dynamic so far; {self.skipped} frames '
-            f'skipped, {self.pose_gated} over the pose gate, {self.dropped} inputs dropped, '
-            f'{self.gated} measurements outside the innovation gate'
-        )
+        frames = self.processor.counts.processed
+        rate = (frames - self._status_frames) / (now - self._status_time)
+        self.get_logger().info(self.processor.status_line(rate))
+        self._status_time, self._status_frames = now, frames
 
     def destroy_node(self) -> None:
         """Log the final summary, then destroy."""
-        if self.frames or self.dropped or self.skipped or self.pose_gated:
-            self.get_logger().info(f'done: {self.status_line()}')
+        counts = self.processor.counts
+        if counts.processed or counts.dropped_total or counts.skipped or counts.pose_gated:
+            self.get_logger().info(f'done: {self.processor.status_line()}')
         super().destroy_node()
 
 

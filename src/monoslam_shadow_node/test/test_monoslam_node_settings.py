@@ -1,6 +1,7 @@
 """The monoslam node without DDS: its parameter contract (docstring, YAML, core config, the
 initialization target), the conversions between messages and the core, the stamp pairing of
-features with fiducials, the launch file; and the shadow_filter's pose gate it relies on."""
+features with fiducials, the launch file; and the shadow_filter's pose gate parameters it
+relies on (the gate itself: test_shadow_processor)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2, PointField
 
-from monoslam_shadow_node import monoslam_node, monoslam_settings, settings
+from monoslam_shadow_node import monoslam_node, monoslam_processor, monoslam_settings, settings
 from monoslam_shadow_node.conversions import Features
 from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamConfig, MonoSlamResult
 from monoslam_shadow_node.frame_sync import StampSync
@@ -27,12 +28,11 @@ from monoslam_shadow_node.monoslam_conversions import (
     fill_cloud,
     fill_predictions,
     handovers_from_message,
-    monoslam_frame,
     pose_fields,
     target_from_fiducials,
     tum_text,
 )
-from monoslam_shadow_node.shadow_filter_node import pose_gate_excess
+from monoslam_shadow_node.monoslam_processor import monoslam_frame
 from slam_core.errors import ParameterError
 from slam_ros.testing.launch_files import check_launched_node, launched_node
 from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
@@ -336,7 +336,7 @@ def test_handovers_are_read_and_the_trajectory_written_as_tum() -> None:
 
 def _sync() -> StampSync[Features, TargetSighting]:
     return StampSync(
-        tolerance_ns=0, horizon_ns=300 * MS, max_entries=5, names=monoslam_node.SYNC_NAMES
+        tolerance_ns=0, horizon_ns=300 * MS, max_entries=5, names=monoslam_processor.SYNC_NAMES
     )
 
 
@@ -415,26 +415,6 @@ def test_pose_gate_parameters_default_to_no_gate() -> None:
 def test_invalid_pose_gates_are_named(name: str, value: float, message: str) -> None:
     with pytest.raises(ParameterError, match=message):
         settings.node_settings({**settings.defaults(), name: value})
-
-
-def test_the_pose_gate_compares_the_largest_standard_deviations() -> None:
-    gate = (0.03, 0.01)
-    covariance = np.diag([0.02, 0.025, 0.01, 0.005, 0.009, 0.001]) ** 2
-    assert pose_gate_excess(covariance, gate) is None
-    assert pose_gate_excess(None, gate) is None  # a known pose
-    assert pose_gate_excess(np.full((6, 6), math.nan), gate) is None  # the core names it
-    wide = covariance.copy()
-    wide[1, 1] = 0.04**2
-    assert pose_gate_excess(wide, gate) == (
-        'position sigma 0.04 m > max_pose_position_sigma_m (0.03)'
-    )
-    turned = covariance.copy()
-    turned[5, 5] = 0.02**2
-    assert (
-        pose_gate_excess(turned, gate)
-        == 'rotation sigma 0.02 rad > max_pose_rotation_sigma_rad (0.01)'
-    )
-    assert pose_gate_excess(wide, (math.inf, math.inf)) is None
 
 
 # --- launch file ---------------------------------------------------------------------------

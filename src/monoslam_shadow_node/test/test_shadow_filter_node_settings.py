@@ -38,7 +38,7 @@ from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.core.shadow_ekf import EkfConfig
 from monoslam_shadow_node.core.shadow_filter import Handover, ShadowConfig, TrackReport
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
-from monoslam_shadow_node.shadow_filter_node import FrameSynchronizer
+from monoslam_shadow_node.frame_sync import FrameSynchronizer
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node

@@ -8,12 +8,17 @@ Three variants run over the same frames (``run_variant``):
 - ``c``: MonoSLAM (``initialize='handover'``) with the Shadow filter: SLAM gets every feature
   but only adds those the Shadow filter hands over as STATIC. Per frame the Shadow filter gets
   SLAM's pose (R_world_camera, centre, 6 x 6 pose covariance) and the features SLAM does not
-  own (``MonoSlam.owned_ids``); its handovers go to ``MonoSlam.add_handover`` and enter the
-  map when next observed. The pose gate ``PipelineConfig.shadow_max_pose_sigma`` = (position
-  m, rotation rad): the Shadow filter only processes frames whose pose standard deviations
-  (sqrt of the covariance diagonal, max over the 3 position and the 3 rotation entries) are
-  within both; other frames are skipped for it and counted. Frames without a pose (waiting)
-  or in which tracking was lost are not given to it either.
+  own (``MonoSlamProcessor.owned_ids``); its handovers go to SLAM's handover intake and enter
+  the map when next observed. The pose gate ``PipelineConfig.shadow_max_pose_sigma`` = (position m,
+  rotation rad): the Shadow filter only processes frames whose pose standard deviations (sqrt
+  of the covariance diagonal, max over the 3 position and the 3 rotation entries) are within
+  both; other frames are skipped for it and counted. Frames without a pose (waiting) or in
+  which tracking was lost are not given to it either.
+
+The filters run inside the nodes' processors (``MonoSlamProcessor``, ``ShadowProcessor``), so
+the pose gate (``shadow_processor.pose_gate_refusal``, which also fails a covariance that is
+not finite) and the handover refusal are the nodes' own. The frames come with their data
+association known, so they are given to the processors one by one, without stamp pairing.
 
 Two diagnostic settings of variant ``c`` bound what the Shadow filter costs (they are not
 the system: the filters would need the truth): ``PipelineConfig.shadow_poses = 'truth'``
@@ -40,8 +45,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from monoslam_shadow_node.conversions import CameraPose, Features
 from monoslam_shadow_node.core.camera import CameraModel
-from monoslam_shadow_node.core.monoslam import MonoSlam
 from monoslam_shadow_node.core.monoslam_types import (
     LOST,
     TRACKING,
@@ -50,8 +55,11 @@ from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamFrame,
     MonoSlamResult,
 )
-from monoslam_shadow_node.core.shadow_filter import FrameInput, ShadowConfig, ShadowFilter
+from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
+from monoslam_shadow_node.monoslam_conversions import HandoverInput
+from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor
+from monoslam_shadow_node.shadow_processor import ShadowProcessor, ShadowStep
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 from slam_sim.core.init_target import InitTarget, target_pixels
 
@@ -211,16 +219,6 @@ def simulation_frames(
     return frames
 
 
-def pose_within(covariance: FloatArray, max_sigma: tuple[float, float]) -> bool:
-    """Return whether a pose covariance (6, 6) (position m, rotation rad) has every position
-    standard deviation <= max_sigma[0] and every rotation one <= max_sigma[1]."""
-    variances = np.diagonal(np.asarray(covariance, dtype=np.float64))
-    if not np.all(np.isfinite(variances)):
-        return False
-    sigma = np.sqrt(np.maximum(variances, 0.0))
-    return bool(sigma[:3].max() <= max_sigma[0] and sigma[3:].max() <= max_sigma[1])
-
-
 @dataclass
 class _Bookkeeping:
     moving: dict[int, bool] = field(default_factory=dict)
@@ -247,8 +245,12 @@ def run_variant(
         raise ValueError(f'variant {variant!r}: must be one of {", ".join(VARIANTS)}')
     config = config or PipelineConfig()
     initialize = 'handover' if variant == 'c' else 'all'
-    slam = MonoSlam(camera, dataclasses.replace(config.slam, initialize=initialize))
-    shadow = ShadowFilter(camera, config.shadow) if variant == 'c' else None
+    slam = MonoSlamProcessor(dataclasses.replace(config.slam, initialize=initialize))
+    slam.set_camera(camera)
+    shadow = None
+    if variant == 'c':
+        shadow = ShadowProcessor(config.shadow, max_pose_sigma=config.shadow_max_pose_sigma)
+        shadow.set_camera(camera)
     count = len(frames)
     centres, rotations = np.full((count, 3), np.nan), np.full((count, 3, 3), np.nan)
     covariances, measured = np.full((count, 6, 6), np.nan), np.zeros(count, dtype=np.int64)
@@ -271,7 +273,7 @@ def run_variant(
                 measurements, ids=ids[static], pixels=measurements.pixels[static]
             )
         try:
-            result = slam.process(measurements)
+            result = slam.process_frame(measurements).result
             if shadow is not None:
                 _shadow_step(slam, shadow, result, frame, index, config, books)
         except (ValueError, ArithmeticError) as error:  # input errors, LinAlgError
@@ -316,8 +318,8 @@ def _pose(result: MonoSlamResult) -> tuple[FloatArray, FloatArray, FloatArray] |
 
 
 def _shadow_step(
-    slam: MonoSlam,
-    shadow: ShadowFilter,
+    slam: MonoSlamProcessor,
+    shadow: ShadowProcessor,
     result: MonoSlamResult,
     frame: MeasurementFrame,
     index: int,
@@ -326,7 +328,7 @@ def _shadow_step(
 ) -> None:
     """Give the Shadow filter SLAM's pose and the features SLAM does not own (if the pose
     passes the gate) and pass its handovers to SLAM (the diagnostic settings: the true pose,
-    no handovers of moving features)."""
+    a known pose that the gate passes; no handovers of moving features)."""
     pose = _pose(result)
     if result.status != TRACKING or pose is None:
         books.no_pose += 1
@@ -335,17 +337,18 @@ def _shadow_step(
     covariance: FloatArray | None = slam_covariance
     if config.shadow_poses == 'truth':
         centre, rotation, covariance = frame.true_centre, frame.true_rotation, None
-    elif not pose_within(slam_covariance, config.shadow_max_pose_sigma):
+    owned = slam.owned_ids
+    measurements = frame.measurements
+    stamp_ns, ids, pixels = measurements.stamp_ns, measurements.ids, measurements.pixels
+    free = np.array([int(i) not in owned for i in ids], dtype=bool).reshape(-1)
+    outcome = shadow.process(
+        Features(stamp_ns, '', ids[free], pixels[free]),
+        CameraPose(stamp_ns, slam.map_frame, rotation, centre, covariance),
+    )
+    if not isinstance(outcome, ShadowStep):  # the pose gate
         books.gated += 1
         return
-    owned = slam.owned_ids
-    ids, pixels = frame.measurements.ids, frame.measurements.pixels
-    free = np.array([int(i) not in owned for i in ids], dtype=bool).reshape(-1)
-    output = shadow.process(
-        FrameInput(
-            frame.measurements.stamp_ns, rotation, centre, ids[free], pixels[free], covariance
-        )
-    )
+    output = outcome.result
     books.shadow_frames += 1
     books.static_decisions += sum(d.status == STATIC for d in output.decisions)
     books.dynamic_decisions += sum(d.status == DYNAMIC for d in output.decisions)
@@ -354,7 +357,8 @@ def _shadow_step(
         if config.oracle_handovers and moving:
             books.handovers.append(HandoverEvent(index, handover.id, moving, ORACLE_REFUSAL))
             continue
-        refused = slam.add_handover(handover.id, handover.position, handover.position_covariance)
+        offer = HandoverInput(handover.id, STATIC, handover.position, handover.position_covariance)
+        refused = slam.refusal(offer, outcome.frame_id)
         books.handovers.append(HandoverEvent(index, handover.id, moving, refused))
 
 

@@ -12,16 +12,9 @@ import numpy as np
 import pytest
 
 from slam_core.blas import single_threaded_blas
-from slam_evaluation.monoslam_image_evaluate import (
-    REPORT_NAME,
-    TABLE_NAME,
-    FrontEnd,
-    ImageFrame,
-    bag_source,
-    main,
-    moving_near,
-    rendered_source,
-)
+from slam_evaluation.monoslam_front_end import FrontEnd, moving_near
+from slam_evaluation.monoslam_image_evaluate import REPORT_NAME, TABLE_NAME, main
+from slam_evaluation.monoslam_image_sources import ImageFrame, bag_source, rendered_source
 from slam_evaluation.monoslam_pipeline import MeasurementFrame
 from slam_sim.core.dynamic_render import DynamicRenderer, undistort_pixels
 from slam_sim.core.dynamic_scene import DynamicSceneConfig

@@ -15,10 +15,11 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig, MonoSlamFrame
+from monoslam_shadow_node.shadow_processor import pose_gate_refusal
 from slam_core.blas import single_threaded_blas
-from slam_evaluation import monoslam_evaluate
-from slam_evaluation.monoslam_evaluate import (
-    main,
+from slam_evaluation import monoslam_runs
+from slam_evaluation.monoslam_evaluate import main
+from slam_evaluation.monoslam_metrics import (
     nees_by_frame,
     nees_summary,
     pose_errors,
@@ -33,12 +34,11 @@ from slam_evaluation.monoslam_pipeline import (
     PipelineError,
     VariantRecord,
     parse_pose_gate,
-    pose_within,
     run_variant,
     simulation_frames,
     target_known_points,
 )
-from slam_evaluation.shadow_evaluate import camera_model
+from slam_evaluation.shadow_runs import camera_model
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, marker_board, target_pixels
 
@@ -195,10 +195,10 @@ def test_a_frame_a_filter_rejects_names_the_variant_and_frame() -> None:
 
 def test_pose_gate_compares_the_largest_position_and_rotation_sigma() -> None:
     covariance = np.diag([0.02, 0.03, 0.01, 0.005, 0.01, 0.002]) ** 2
-    assert pose_within(covariance, (0.03, 0.01))
-    assert not pose_within(covariance, (0.029, 0.01))
-    assert not pose_within(covariance, (0.03, 0.009))
-    assert not pose_within(np.full((6, 6), np.nan), (math.inf, math.inf))
+    assert pose_gate_refusal(covariance, (0.03, 0.01)) is None
+    assert pose_gate_refusal(covariance, (0.029, 0.01)) is not None
+    assert pose_gate_refusal(covariance, (0.03, 0.009)) is not None
+    assert pose_gate_refusal(np.full((6, 6), np.nan), (math.inf, math.inf)) is not None
     assert parse_pose_gate('0.03, 0.01') == (0.03, 0.01)
     assert parse_pose_gate('inf') == (math.inf, math.inf)
     for text in ('0.03', '0,0.01', 'nan,1', 'a,b'):
@@ -342,7 +342,7 @@ def test_a_run_a_filter_raises_on_is_reported_and_fails_the_exit_status(
     def failing(variant: str, *args: object, **kwargs: object) -> VariantRecord:
         raise PipelineError(f'variant {variant}, frame 7: singular matrix')
 
-    monkeypatch.setattr(monoslam_evaluate, 'run_variant', failing)
+    monkeypatch.setattr(monoslam_runs, 'run_variant', failing)
     out = tmp_path / 'eval'
     assert main(['--out', str(out), '--seeds', '0', '--duration-s', '0.5', '--variants', 'a']) == 1
     failures = _strict_json(out / 'monoslam_eval.json')['failures']

@@ -12,29 +12,30 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from monoslam_shadow_node import shadow_processor
 from monoslam_shadow_node.core.shadow_filter import FrameInput, FrameResult, ShadowFilter
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
 from slam_core.files import jsonable
-from slam_evaluation import shadow_evaluate as evaluate
-from slam_evaluation.shadow_evaluate import (
-    ErrorSamples,
-    FilterRecord,
+from slam_evaluation.evaluation_cli import parse_seeds
+from slam_evaluation.shadow_classification import (
     Outcome,
-    average_nees_band,
     classification_rates,
     confusion_counts,
-    consistency_summary,
-    error_samples,
     latency_summary,
-    main,
-    nees,
-    nees_by_age,
-    parse_seeds,
     status_timeline,
     track_outcomes,
-    view_parallax_rad,
+)
+from slam_evaluation.shadow_consistency import (
+    ErrorSamples,
+    average_nees_band,
+    consistency_summary,
+    error_samples,
+    nees,
+    nees_by_age,
     within_sigma,
 )
+from slam_evaluation.shadow_evaluate import main
+from slam_evaluation.shadow_runs import FilterRecord, view_parallax_rad
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
@@ -308,7 +309,7 @@ def test_a_run_the_filter_raises_on_is_reported_and_fails_the_exit_status(
                 raise np.linalg.LinAlgError('Singular matrix')
             return super().process(frame)
 
-    monkeypatch.setattr(evaluate, 'ShadowFilter', Failing)
+    monkeypatch.setattr(shadow_processor, 'ShadowFilter', Failing)  # run_filter's processor
     out = tmp_path / 'eval'
     assert main(['--quick', '--duration-s', '1', '--out', str(out)]) == 1
     content = json.loads((out / 'shadow_eval.json').read_text())

@@ -17,17 +17,20 @@ from slam_sim.core.dynamic_scene import DEFAULT_START_NS, DynamicSceneConfig
 from slam_sim.dynamic_camera_bag import (
     CAMERA_INFO_TOPIC,
     CAMERA_POSE_TOPIC,
-    IMAGE_TOPIC,
     LABELS_FORMAT,
     LABELS_TOPIC,
     RAW_IMAGE_TOPIC,
     SCENE_TOPIC,
-    TRUE_FIDUCIALS_TOPIC,
     main,
     scene_from_json,
     write_dynamic_camera_bag,
 )
-from slam_sim.office_camera_bag import IMAGE_FORMAT, rotation_to_quaternion
+from slam_sim.office_camera_bag import (
+    IMAGE_FORMAT,
+    IMAGE_TOPIC,
+    TRUE_FIDUCIALS_TOPIC,
+    rotation_to_quaternion,
+)
 
 CONFIG = DynamicSceneConfig(duration_s=1.0, rate_hz=10.0)
 Messages = dict[str, list[tuple[int, Any]]]

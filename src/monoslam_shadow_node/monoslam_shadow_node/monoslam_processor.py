@@ -1,0 +1,384 @@
+"""The monoslam node's ROS-free processor: stamp pairing, the tracking state, handover intake
+and bookkeeping around ``core.monoslam.MonoSlam``.
+
+The node hands it the camera (from camera_info), feature frames (``Features``), target
+sightings (``TargetSighting``, from the fiducials of the same image) and handovers
+(``HandoverInput``); offline tools do the same, or call ``MonoSlamProcessor.process_frame``
+with a ``MonoSlamFrame`` whose known points they associated themselves. Every call returns
+outcomes in the order they happened: ``MonoSlamStep`` (a processed frame, to publish) and
+``Notice`` (a line to log).
+
+Rules:
+
+- Pairing (``frame_sync.StampSync``): a features frame pairs with the sighting whose stamp is
+  nearest within ``stamp_tolerance_ns``, in stamp order. A frame whose sighting has not come
+  within ``sync_horizon_ns`` (or when the caller flushes because the inputs stopped) is
+  processed without it once the filter tracks (``alone``), and dropped before: the filter
+  needs the target to start. Frames are held until the camera is set.
+- The target sighting gives the known points: its corners (TL, TR, BR, BL raw pixels) are the
+  known points 0-3 of the frame (``monoslam_frame``); a sighting without usable corners gives
+  none.
+- The state: 'waiting' for the target, 'tracking'; when the core reports 'lost' the map is
+  retired and the state is 'waiting' again until the target re-initializes it. Each step
+  says its ``transition``: 'started', 're-initialized', 'lost' or None.
+- Handovers (``refusal``) are refused, with the reason, when no camera has come yet, when
+  they are in another frame than ``map_frame``, when their status is not STATIC, and when the
+  core refuses them (position or covariance not finite, covariance not positive
+  semi-definite, initialize is not 'handover'). Accepted ones enter the map when next
+  observed.
+- A frame the core refuses (MonoSlamInputError: stamps out of order, malformed arrays) or
+  fails on (LinAlgError) is skipped with the reason; the filter is unchanged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
+from monoslam_shadow_node.core.camera import CameraModel
+from monoslam_shadow_node.core.monoslam import MonoSlam
+from monoslam_shadow_node.core.monoslam_types import (
+    LOST,
+    TRACKING,
+    WAITING,
+    MapPoint,
+    MonoSlamConfig,
+    MonoSlamFrame,
+    MonoSlamInputError,
+    MonoSlamResult,
+)
+from monoslam_shadow_node.core.shadow_track import STATIC
+from monoslam_shadow_node.frame_sync import Drop, StampSync, SyncNames
+from monoslam_shadow_node.monoslam_conversions import (
+    HandoverInput,
+    PoseFields,
+    TargetSighting,
+    pose_fields,
+)
+from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
+from monoslam_shadow_node.notices import Notice
+
+SYNC_NAMES = SyncNames(
+    primary='features frame',
+    primary_plural='frames',
+    primary_short='features',
+    partner='fiducials',
+    partner_plural='fiducial arrays',
+    partner_topic='fiducials',
+    missing_partner_kind='no_fiducials',
+    missing_primary_kind='no_features',
+)
+STATUS_WARNINGS = ('waiting for the initialization target', 'started from', 'tracking lost')
+"""The core's warnings that the state transitions report instead."""
+
+
+def monoslam_frame(features: Features, sighting: TargetSighting | None) -> MonoSlamFrame:
+    """Return the filter's input for one image: its features, and the target's corners as
+    the known points 0-3 when they were seen."""
+    if sighting is None or sighting.corners_px is None:
+        return MonoSlamFrame(features.stamp_ns, features.ids, features.pixels)
+    keys: IntArray = np.arange(TARGET_CORNERS, dtype=np.int64)
+    return MonoSlamFrame(
+        features.stamp_ns, features.ids, features.pixels, keys, sighting.corners_px
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class MonoSlamStep:
+    """One processed frame: the core's result, the camera frame id of its features ('' when
+    unknown), its pose as finite numbers (None while waiting or when not finite) and the
+    state transition it made ('started', 're-initialized', 'lost' or None)."""
+
+    result: MonoSlamResult
+    frame_id: str
+    pose: PoseFields | None
+    transition: str | None
+
+
+Outcome = MonoSlamStep | Notice
+
+
+@dataclass
+class MonoSlamCounts:
+    """Running totals: inputs received (feature frames, fiducial arrays), frames processed,
+    processed without fiducials and skipped (refused by the core), inputs dropped by the
+    pairing (by ``Drop.kind``), handovers accepted and refused, times tracking was lost, and
+    the features measured in the latest frame."""
+
+    features_received: int = 0
+    fiducials_received: int = 0
+    processed: int = 0
+    alone: int = 0
+    skipped: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+    accepted: int = 0
+    refused: int = 0
+    lost: int = 0
+    measured: int = 0
+
+    @property
+    def dropped_total(self) -> int:
+        """Inputs dropped by the pairing, all kinds."""
+        return sum(self.dropped.values())
+
+
+class MonoSlamProcessor:
+    """Feeds paired frames to a MonoSlam filter (see the module docstring). ``target_text``
+    names the initialization target in log lines; ``config.known_points`` must hold its
+    corners (keys 0-3) for the streaming path."""
+
+    def __init__(
+        self,
+        config: MonoSlamConfig,
+        *,
+        target_text: str = 'the known points',
+        map_frame: str = 'map',
+        stamp_tolerance_ns: int = 0,
+        sync_horizon_ns: int = 500_000_000,
+        queue_size: int = 100,
+        fiducials_topic: str = 'fiducials',
+        camera_info_topic: str = 'camera/camera_info',
+    ) -> None:
+        self.config = config
+        self.target_text = target_text
+        self.map_frame = map_frame
+        self.camera_info_topic = camera_info_topic
+        self.slam: MonoSlam | None = None
+        self.status = WAITING
+        self.counts = MonoSlamCounts()
+        names = dataclasses.replace(SYNC_NAMES, partner_topic=fiducials_topic)
+        self.names = names
+        self.sync: StampSync[Features, TargetSighting] = StampSync(
+            tolerance_ns=stamp_tolerance_ns,
+            horizon_ns=sync_horizon_ns,
+            max_entries=queue_size,
+            names=names,
+        )
+        self._predicted_ns: int | None = None
+
+    @property
+    def waiting_features(self) -> int:
+        """Feature frames waiting for their fiducials or for the camera."""
+        return self.sync.waiting_primaries
+
+    @property
+    def owned_ids(self) -> frozenset[int]:
+        """Track ids the filter owns (in its map now or before), empty before the camera: the
+        Shadow filter leaves them alone."""
+        return self.slam.owned_ids if self.slam is not None else frozenset()
+
+    # --- streaming inputs -------------------------------------------------------------------
+
+    def set_camera(self, camera: CameraModel) -> list[Outcome]:
+        """Use ``camera`` from the next frame on (the first one creates the filter); process
+        what was waiting for it."""
+        if self.slam is None:
+            self.slam = MonoSlam(camera, self.config)
+        else:
+            self.slam.set_camera(camera)
+        return self._drain()
+
+    def add_features(self, features: Features) -> list[Outcome]:
+        """Queue a feature frame; process what is ready."""
+        self.counts.features_received += 1
+        outcomes = self._drops(self.sync.add_primary(features))
+        if self.slam is None:
+            text = (
+                f'no {self.camera_info_topic} received yet: holding '
+                f'{self.sync.waiting_primaries} feature frame(s) until it comes'
+            )
+            outcomes.append(Notice('no_camera', 'warning', text, features.stamp_ns, True))
+        return outcomes + self._drain()
+
+    def add_sighting(self, sighting: TargetSighting) -> list[Outcome]:
+        """Queue the target sighting of one image (its fiducials); process what is ready."""
+        self.counts.fiducials_received += 1
+        return self._drops(self.sync.add_partner(sighting)) + self._drain()
+
+    def flush(self) -> list[Outcome]:
+        """The inputs stopped: frames still without fiducials go now (alone or dropped)."""
+        return self._drain(flush=True)
+
+    def add_handovers(self, handovers: Sequence[HandoverInput], frame_id: str) -> list[Notice]:
+        """Take the Shadow filter's handovers (in ``frame_id``); return a notice per refusal."""
+        notices = []
+        for handover in handovers:
+            reason = self.refusal(handover, frame_id)
+            if reason is not None:
+                notices.append(Notice('refused', 'warning', f'{reason}; refused'))
+        return notices
+
+    def refusal(self, handover: HandoverInput, frame_id: str) -> str | None:
+        """Queue a handover in the filter and count it; return why it was refused, or None."""
+        reason = self._refusal(handover, frame_id)
+        if reason is None:
+            self.counts.accepted += 1
+        else:
+            self.counts.refused += 1
+        return reason
+
+    def _refusal(self, handover: HandoverInput, frame_id: str) -> str | None:
+        where = f'handover of feature {handover.id}'
+        if self.slam is None:
+            return f'{where}: no camera yet'
+        if frame_id != self.map_frame:
+            return f'{where}: in frame {frame_id!r}, not map_frame {self.map_frame!r}'
+        if handover.status != STATIC:
+            return f'{where}: status {handover.status}, not STATIC'
+        return self.slam.add_handover(handover.id, handover.position, handover.covariance)
+
+    # --- one frame --------------------------------------------------------------------------
+
+    def process_frame(self, frame: MonoSlamFrame, frame_id: str = '') -> MonoSlamStep:
+        """Run one frame whose known points are associated already; return the step. Raises
+        the core's MonoSlamInputError or LinAlgError (filter unchanged), and ValueError before
+        the camera is set."""
+        if self.slam is None:
+            raise ValueError(f'no camera yet: set it (from {self.camera_info_topic}) first')
+        result = self.slam.process(frame)
+        self.counts.processed += 1
+        self.counts.measured = len(result.measured_ids)
+        previous, self.status = self.status, result.status
+        transition = None
+        if result.status == LOST:
+            self.counts.lost += 1
+            self.status = WAITING
+            transition = 'lost'
+        elif result.status == TRACKING and previous != TRACKING:
+            transition = 're-initialized' if self.counts.lost else 'started'
+        return MonoSlamStep(result, frame_id, pose_fields(result), transition)
+
+    def process(self, features: Features, sighting: TargetSighting | None) -> list[Outcome]:
+        """Run one features frame with its target sighting (None: processed without
+        fiducials); return the step and what to log. A frame the core refuses or fails on is
+        skipped (an error notice)."""
+        stamp_ns = features.stamp_ns
+        notices: list[Outcome] = []
+        if sighting is None:
+            self.counts.alone += 1
+            text = (
+                f'features frame at stamp {stamp_ns} ns processed without fiducials (none '
+                f'came on {self.names.partner_topic} within sync_horizon_s); '
+                f'{self.counts.alone} so far'
+            )
+            notices.append(Notice('alone', 'warning', text, stamp_ns, True))
+        elif sighting.problem is not None:
+            text = f'fiducials at stamp {sighting.stamp_ns} ns: {sighting.problem}; not used'
+            notices.append(Notice('bad_fiducials', 'warning', text, stamp_ns))
+        try:
+            step = self.process_frame(monoslam_frame(features, sighting), features.frame_id)
+        except (MonoSlamInputError, np.linalg.LinAlgError) as err:
+            self.counts.skipped += 1
+            text = f'features frame at stamp {stamp_ns} ns skipped: {err}'
+            return [*notices, Notice('skipped', 'error', text, stamp_ns)]
+        result = step.result
+        for warning in result.warnings:
+            if not warning.startswith(STATUS_WARNINGS):
+                text = f'frame at stamp {result.stamp_ns} ns: {warning}'
+                notices.append(Notice('filter', 'warning', text, stamp_ns))
+        state = self._state_notice(step, sighting)
+        if state is not None:
+            notices.append(state)
+        if result.status == TRACKING and step.pose is None:
+            text = f'pose at stamp {stamp_ns} ns is not finite (a filter fault); not published'
+            notices.append(Notice('pose_not_finite', 'error', text, stamp_ns))
+        return [*notices, step]
+
+    def _state_notice(self, step: MonoSlamStep, sighting: TargetSighting | None) -> Notice | None:
+        """Say the start, the loss of tracking, or (throttled) waiting for the target; None
+        while tracking goes on."""
+        result = step.result
+        stamp = f'at stamp {result.stamp_ns} ns'
+        if step.transition == 'lost':
+            why = next((w for w in result.warnings if w.startswith('tracking lost')), 'lost')
+            text = (
+                f'{why.split(";")[0]} {stamp}: re-initializing from the target '
+                f'({self.target_text}) when it is seen again'
+            )
+            return Notice('lost', 'warning', text, result.stamp_ns)
+        if step.transition is not None:
+            how = next((w for w in result.warnings if w.startswith('started from')), '')
+            pose = step.pose.describe() if step.pose is not None else 'pose not finite'
+            text = f'{step.transition} {stamp} {how.removeprefix("started ")}: {pose}'
+            return Notice(step.transition, 'info', text, result.stamp_ns)
+        if result.status == TRACKING:
+            return None
+        return Notice('waiting', 'info', self._waiting_text(result.stamp_ns, sighting),
+                      result.stamp_ns, throttle=True)  # fmt: skip
+
+    def _waiting_text(self, stamp_ns: int, sighting: TargetSighting | None) -> str:
+        target = f'initialization target ({self.target_text})'
+        if sighting is not None and sighting.corners_px is not None:
+            return (
+                f'{target} seen at stamp {stamp_ns} ns, but no camera pose fits its corners '
+                f'{sighting.corners_px.round(1).tolist()} (check target_size_m and the '
+                'camera_info): waiting'
+            )
+        seen = sighting.describe_detected() if sighting is not None else 'no fiducials'
+        return f'no {target} in view yet: waiting ({seen} at stamp {stamp_ns} ns)'
+
+    def _drain(self, *, flush: bool = False) -> list[Outcome]:
+        started = self.status == TRACKING
+        pairs, drops = self.sync.pop(hold=self.slam is None, flush=flush, alone=started)
+        outcomes = self._drops(drops)
+        for features, sighting in pairs:
+            outcomes += self.process(features, sighting)
+        return outcomes
+
+    def _drops(self, drops: Sequence[Drop]) -> list[Outcome]:
+        """Count every drop and say it once; frames without fiducials before the start (every
+        frame when no marker_detector runs) are said in a throttled line instead."""
+        notices: list[Outcome] = []
+        for drop in drops:
+            self.counts.dropped[drop.kind] = self.counts.dropped.get(drop.kind, 0) + 1
+            if drop.kind != self.names.missing_partner_kind:
+                notices.append(Notice('dropped', 'warning', drop.text, drop.stamp_ns))
+                continue
+            hint = (
+                ''
+                if self.counts.fiducials_received
+                else ' Is marker_detector running, and remapped?'
+            )
+            text = (
+                f'{drop.text}; the filter needs the target on {self.names.partner_topic} to '
+                f'start ({self.counts.dropped_total} inputs dropped so far).{hint}'
+            )
+            notices.append(Notice('no_fiducials', 'warning', text, drop.stamp_ns, True))
+        return notices
+
+    # --- outputs ----------------------------------------------------------------------------
+
+    def map_points(self) -> list[MapPoint]:
+        """Return the map (core ``MapPoint``s, world frame), empty before the camera."""
+        return self.slam.map_points() if self.slam is not None else []
+
+    def predictions(self, stamp_ns: int) -> tuple[IntArray, FloatArray] | None:
+        """Return the owned features' ids (P,) and predicted raw pixels (P, 2) for the image
+        at ``stamp_ns`` (int ns), or None when not due: no camera yet, already predicted for
+        this stamp, or not after the last processed frame."""
+        last_ns = self.sync.last_ns
+        if self.slam is None or stamp_ns == self._predicted_ns:
+            return None
+        if last_ns is not None and stamp_ns <= last_ns:
+            return None
+        self._predicted_ns = stamp_ns
+        ids, pixels, _ = self.slam.predictions(stamp_ns)
+        return ids, pixels
+
+    def status_line(self, rate_hz: float | None = None) -> str:
+        """Return the progress summary: frames, state, map, measurements, handovers, problems."""
+        counts = self.counts
+        rate = f' ({rate_hz:.1f}/s)' if rate_hz is not None else ''
+        points = self.map_points()
+        active = sum(p.active for p in points)
+        return (
+            f'{counts.processed} frames{rate}, {self.status}: map {active} active and '
+            f'{len(points) - active} retired points, {counts.measured} features measured in '
+            f'the latest frame; handovers {counts.accepted} accepted, {counts.refused} '
+            f'refused; lost {counts.lost} times, {counts.skipped} frames skipped, '
+            f'{counts.alone} without fiducials, {counts.dropped_total} inputs dropped'
+        )

@@ -1,0 +1,269 @@
+"""The shadow_filter's ROS-free processor: stamp pairing, the pose gate and bookkeeping around
+``core.shadow_filter.ShadowFilter``.
+
+The node hands it the camera (from camera_info), feature frames and camera poses (the
+conversions' ``Features`` and ``CameraPose``); offline tools do the same, or call
+``ShadowProcessor.process`` with a frame and its pose when they know the pairing. Every call
+returns outcomes in the order they happened: ``ShadowStep`` (a processed frame, to publish),
+and ``Notice`` (a line to log: a dropped input, a frame skipped by the pose gate or refused
+by the core, bad pixels, filter life).
+
+Rules:
+
+- Pairing (``frame_sync.FrameSynchronizer``): a features frame pairs with the pose whose
+  stamp is nearest within ``stamp_tolerance_ns``; pairs are processed in stamp order; a frame
+  whose pose has not come within ``sync_horizon_ns`` (or when the caller flushes because the
+  inputs stopped) is dropped, as is a pose that matched no frame. Until the camera is set,
+  frames are held (the oldest dropped beyond ``queue_size``).
+- The pose gate (``pose_gate_refusal``): a frame whose pose has a position standard
+  deviation above ``max_pose_sigma[0]`` (m) or a rotation one above ``max_pose_sigma[1]``
+  (rad) is not given to the filter. A known pose (no covariance) passes. A covariance with a
+  non-finite diagonal fails, whatever the limits: no standard deviation can be read from it
+  (the core would refuse the frame too; the gate says why first, and the frame is counted as
+  gated, never as an error).
+- A frame the core refuses (``InputError``: NaN pose, not a rotation, repeated ids, stamps out
+  of order) is skipped with the core's reason; the filter is unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from monoslam_shadow_node.conversions import CameraPose, Features, FloatArray, frame_input
+from monoslam_shadow_node.core.camera import CameraModel
+from monoslam_shadow_node.core.shadow_filter import (
+    FrameResult,
+    InputError,
+    ShadowConfig,
+    ShadowFilter,
+)
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING
+from monoslam_shadow_node.frame_sync import Drop, FrameSynchronizer
+from monoslam_shadow_node.notices import Notice
+
+NO_GATE = (math.inf, math.inf)
+INPUT_WARNING = 'non-finite'
+"""A core warning holding this is about bad input (NaN pixels): logged as a warning. The
+rest (gated measurements, filter restarts, tests put off) is filter life, logged at debug
+level."""
+GATE_WARNING = 'outside the innovation gate'
+
+
+def pose_gate_refusal(
+    covariance: FloatArray | None, max_sigma: tuple[float, float] = NO_GATE
+) -> str | None:
+    """Return why a pose covariance (6, 6) (position m, rotation rad about the world axes)
+    fails the pose gate of (position m, rotation rad) standard deviations, or None when it
+    passes. A known pose (None) passes; a covariance whose diagonal is not finite fails, even
+    with no gate (``NO_GATE``)."""
+    if covariance is None:
+        return None
+    variances = np.diagonal(np.asarray(covariance, dtype=np.float64))
+    if not np.all(np.isfinite(variances)):
+        return 'pose covariance not finite'
+    sigma = np.sqrt(np.maximum(variances, 0.0))
+    position, rotation = float(sigma[:3].max()), float(sigma[3:].max())
+    if position > max_sigma[0]:
+        return f'position sigma {position:.3g} m > max_pose_position_sigma_m ({max_sigma[0]:g})'
+    if rotation > max_sigma[1]:
+        return (
+            f'rotation sigma {rotation:.3g} rad > max_pose_rotation_sigma_rad ({max_sigma[1]:g})'
+        )
+    return None
+
+
+@dataclass(frozen=True, eq=False)
+class ShadowStep:
+    """One processed frame: the core's result and the world frame of its pose (the outputs'
+    frame id)."""
+
+    result: FrameResult
+    frame_id: str
+
+
+Outcome = ShadowStep | Notice
+
+
+@dataclass
+class ShadowCounts:
+    """Running totals: inputs received (feature frames, poses), frames processed, frames
+    skipped by the pose gate or refused by the core, inputs dropped by the pairing (by
+    ``Drop.kind``), measurements outside the innovation gate, features handed over as static
+    and called dynamic, and the pending and dynamic features held after the latest frame."""
+
+    features_received: int = 0
+    poses_received: int = 0
+    processed: int = 0
+    pose_gated: int = 0
+    skipped: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+    innovation_gated: int = 0
+    static_total: int = 0
+    dynamic_total: int = 0
+    held_pending: int = 0
+    held_dynamic: int = 0
+
+    @property
+    def dropped_total(self) -> int:
+        """Inputs dropped by the pairing, all kinds."""
+        return sum(self.dropped.values())
+
+    def count_result(self, result: FrameResult) -> None:
+        """Add one processed frame."""
+        self.processed += 1
+        self.held_pending = sum(t.status == PENDING for t in result.tracks)
+        self.held_dynamic = sum(t.status == DYNAMIC for t in result.tracks)
+        self.static_total += len(result.handovers)
+        self.dynamic_total += sum(d.status == DYNAMIC for d in result.decisions)
+
+
+class ShadowProcessor:
+    """Feeds paired frames to a ShadowFilter (see the module docstring)."""
+
+    def __init__(
+        self,
+        config: ShadowConfig,
+        *,
+        max_pose_sigma: tuple[float, float] = NO_GATE,
+        stamp_tolerance_ns: int = 0,
+        sync_horizon_ns: int = 1_000_000_000,
+        queue_size: int = 100,
+        pose_topic: str = 'monoslam/pose',
+        camera_info_topic: str = 'camera/camera_info',
+    ) -> None:
+        if len(max_pose_sigma) != 2 or not all(v > 0 for v in max_pose_sigma):
+            raise ValueError(
+                f'max_pose_sigma={max_pose_sigma!r}: must be (position m, rotation rad), both '
+                '> 0 (inf: no gate)'
+            )
+        self.config = config
+        self.max_pose_sigma = (float(max_pose_sigma[0]), float(max_pose_sigma[1]))
+        self.pose_topic = pose_topic
+        self.camera_info_topic = camera_info_topic
+        self.shadow: ShadowFilter | None = None
+        self.counts = ShadowCounts()
+        self.sync = FrameSynchronizer(
+            tolerance_ns=stamp_tolerance_ns,
+            horizon_ns=sync_horizon_ns,
+            max_entries=queue_size,
+            pose_topic=pose_topic,
+        )
+        self._dropped_waiting = 0
+
+    @property
+    def waiting_features(self) -> int:
+        """Feature frames waiting for their pose or for the camera."""
+        return self.sync.waiting_features
+
+    # --- streaming inputs -------------------------------------------------------------------
+
+    def set_camera(self, camera: CameraModel) -> list[Outcome]:
+        """Use ``camera`` from the next frame on (the first one creates the filter); process
+        what was waiting for it."""
+        if self.shadow is None:
+            self.shadow = ShadowFilter(camera, self.config)
+        else:
+            self.shadow.set_camera(camera)
+        return self._drain()
+
+    def add_features(self, features: Features) -> list[Outcome]:
+        """Queue a feature frame; process what is ready."""
+        self.counts.features_received += 1
+        outcomes = self._drops(self.sync.add_features(features))
+        if self.shadow is None:
+            dropped = f', {self._dropped_waiting} dropped' if self._dropped_waiting else ''
+            text = (
+                f'no {self.camera_info_topic} received yet: holding '
+                f'{self.sync.waiting_features} feature frame(s) until it comes{dropped}'
+            )
+            outcomes.append(Notice('no_camera', 'warning', text, features.stamp_ns, True))
+        return outcomes + self._drain()
+
+    def add_pose(self, pose: CameraPose) -> list[Outcome]:
+        """Queue a camera pose; process what is ready."""
+        self.counts.poses_received += 1
+        return self._drops(self.sync.add_pose(pose)) + self._drain()
+
+    def flush(self) -> list[Outcome]:
+        """The inputs stopped: frames still without a pose are dropped now."""
+        return self._drain(flush=True)
+
+    # --- one frame --------------------------------------------------------------------------
+
+    def process(self, features: Features, pose: CameraPose) -> Outcome:
+        """Gate and process one frame with its pose; return the step, or the pose gate's
+        notice. Raises the core's InputError (filter unchanged) for a frame it refuses, and
+        ValueError before the camera is set."""
+        if self.shadow is None:
+            raise ValueError(f'no camera yet: set it (from {self.camera_info_topic}) first')
+        refusal = pose_gate_refusal(pose.covariance, self.max_pose_sigma)
+        if refusal is not None:
+            self.counts.pose_gated += 1
+            text = f'frame at stamp {features.stamp_ns} ns skipped by the pose gate: {refusal}'
+            return Notice('pose_gate', 'debug', text, features.stamp_ns)
+        result = self.shadow.process(frame_input(features, pose))
+        self.counts.count_result(result)
+        return ShadowStep(result, pose.frame_id)
+
+    def _drain(self, *, flush: bool = False) -> list[Outcome]:
+        pairs, drops = self.sync.pop(hold=self.shadow is None, flush=flush)
+        outcomes = self._drops(drops)
+        for features, pose in pairs:
+            try:
+                outcome = self.process(features, pose)
+            except InputError as err:
+                self.counts.skipped += 1
+                text = f'frame at stamp {features.stamp_ns} ns skipped: {err}'
+                outcomes.append(Notice('skipped', 'error', text, features.stamp_ns))
+                continue
+            outcomes.append(outcome)
+            if isinstance(outcome, ShadowStep):
+                outcomes += self._warnings(outcome.result)
+        return outcomes
+
+    def _warnings(self, result: FrameResult) -> list[Notice]:
+        """The core's warnings: bad input as warnings, filter life at debug level."""
+        notices = []
+        for warning in result.warnings:
+            text = f'frame at stamp {result.stamp_ns} ns: {warning}'
+            if INPUT_WARNING in warning:
+                notices.append(Notice('input', 'warning', text, result.stamp_ns))
+                continue
+            self.counts.innovation_gated += GATE_WARNING in warning
+            notices.append(Notice('filter', 'debug', text, result.stamp_ns))
+        return notices
+
+    def _drops(self, drops: Sequence[Drop]) -> list[Outcome]:
+        """Count every drop and say it once; a steady state (no camera or no pose at all yet,
+        which drops every frame) is said in throttled lines instead."""
+        notices: list[Outcome] = []
+        for drop in drops:
+            self.counts.dropped[drop.kind] = self.counts.dropped.get(drop.kind, 0) + 1
+            if self.shadow is None and drop.kind == 'overflow':
+                self._dropped_waiting += 1  # said in the throttled "no camera_info" line
+            elif drop.kind == 'no_pose' and not self.counts.poses_received:
+                text = (
+                    f'no camera pose received on {self.pose_topic} at all yet: dropping '
+                    f'feature frames ({self.counts.dropped_total} dropped so far, the latest '
+                    f'at stamp {drop.stamp_ns} ns); is it published, and remapped?'
+                )
+                notices.append(Notice('no_pose_yet', 'warning', text, drop.stamp_ns, True))
+            else:
+                notices.append(Notice('dropped', 'warning', drop.text, drop.stamp_ns))
+        return notices
+
+    def status_line(self, rate_hz: float | None = None) -> str:
+        """Return the progress summary: frames, held features, decisions, problems."""
+        counts = self.counts
+        rate = f' ({rate_hz:.1f}/s)' if rate_hz is not None else ''
+        return (
+            f'{counts.processed} frames{rate}: holding {counts.held_pending} pending and '
+            f'{counts.held_dynamic} dynamic features; {counts.static_total} handed over as '
+            f'static, {counts.dynamic_total} called dynamic so far; {counts.skipped} frames '
+            f'skipped, {counts.pose_gated} over the pose gate, {counts.dropped_total} inputs '
+            f'dropped, {counts.innovation_gated} measurements outside the innovation gate'
+        )

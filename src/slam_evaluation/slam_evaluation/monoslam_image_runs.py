@@ -1,0 +1,143 @@
+"""monoslam_image_evaluate's runs: the settings, and per source the image-level variants a, b,
+c and the measurement-level variant c (``monoslam_pipeline.run_variant``) with their metrics.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import traceback
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from slam_evaluation import monoslam_runs
+from slam_evaluation.monoslam_front_end import FrontEnd, FrontEndStats
+from slam_evaluation.monoslam_image_sources import FloatArray, FrameSource
+from slam_evaluation.monoslam_metrics import pose_errors, shadow_numbers, trajectory_metrics
+from slam_evaluation.monoslam_pipeline import (
+    VARIANTS,
+    MeasurementFrame,
+    PipelineConfig,
+    PipelineError,
+    VariantRecord,
+    run_variant,
+    simulation_frames,
+)
+from slam_evaluation.monoslam_report import safe_ratio
+from slam_sim.core.dynamic_scene import (
+    simulate_dynamic_scene,
+)
+from slam_sim.core.init_target import InitTarget
+
+PROG = 'monoslam_image_evaluate'
+RUNS = (*(('image', v) for v in VARIANTS), ('measurement', 'c'))
+"""The filter runs per seed: (level, variant)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Settings:
+    """The command line: the runs (sources), monoslam_evaluate's settings (the filters'
+    settings ``pipeline``; ``scene`` is the rendered Fig. 5 scene) and the output directory."""
+
+    sources: tuple[FrameSource, ...]
+    evaluation: monoslam_runs.Settings
+    out: Path
+
+    def pipeline(self, target: InitTarget) -> PipelineConfig:
+        """Return the filters' settings of both levels for ``target``."""
+        return self.evaluation.pipeline(target)
+
+
+@dataclass(eq=False)
+class SeedResult:
+    """One run's report entry, its front-end counts, and per filter run ('image a', ...,
+    'measurement c') the position error (K,) m and estimated centres (K, 3) m; the true
+    centres (K, 3) m, for the figures."""
+
+    entry: dict[str, Any]
+    front_end: FrontEndStats
+    errors: dict[str, FloatArray] = field(default_factory=dict)
+    centres: dict[str, FloatArray] = field(default_factory=dict)
+    truth: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+def measurement_frames(source: FrameSource) -> list[MeasurementFrame]:
+    """Return the measurement-level frames of the source's seed, scene config and target
+    (target noise from default_rng(1000 + seed), as monoslam_evaluate)."""
+    run = simulate_dynamic_scene(source.seed, source.config)
+    rng = np.random.default_rng(monoslam_runs.TARGET_NOISE_SEED_OFFSET + source.seed)
+    return simulation_frames(run, source.target, rng=rng)
+
+
+def run_metrics(record: VariantRecord, errors: FloatArray) -> dict[str, Any]:
+    """Return a filter run's metrics from its pose errors (K, 6) (``pose_errors``):
+    monoslam_evaluate's trajectory metrics, map size, moving features that entered the map,
+    filter time; the Shadow numbers of variant c."""
+    metrics = {
+        **trajectory_metrics(record, errors),
+        'map_points': len(record.map_points),
+        'dynamic_entered_map': len(record.dynamic_in_map),
+        'ms_per_frame': 1e3 * record.runtime_s / max(len(errors), 1),
+    }
+    if record.variant == 'c':
+        metrics['shadow'] = shadow_numbers(record)
+    return metrics
+
+
+def evaluate_source(
+    source: FrameSource, settings: Settings, advance: Callable[[], None]
+) -> SeedResult:
+    """Build the image-level frames of a source, run every filter (``RUNS``) and return the
+    result; ``advance()`` after each image."""
+    front_end = FrontEnd(source.camera, source.target)
+    frames = []
+    for image_frame in source.frames():
+        frames.append(front_end.frame(image_frame))
+        advance()
+    entry: dict[str, Any] = {'seed': source.seed, 'source': source.name, 'frames': len(frames)}
+    entry['front_end'] = front_end.stats.summary()
+    result = SeedResult(entry, front_end.stats)
+    result.truth = np.array([f.true_centre for f in frames]).reshape(-1, 3)
+    levels = {'image': frames, 'measurement': measurement_frames(source)}
+    pipeline = settings.pipeline(source.target)
+    for level, variant in RUNS:
+        try:
+            record = run_variant(variant, levels[level], source.camera, pipeline)
+        except PipelineError as error:
+            failure = {'seed': source.seed, 'level': level, 'variant': variant}
+            entry.setdefault('failures', []).append({**failure, 'error': str(error)})
+            traceback.print_exception(error, file=sys.stderr)
+            continue
+        errors = pose_errors(record, levels[level])
+        entry.setdefault(level, {})[variant] = run_metrics(record, errors)
+        result.errors[f'{level} {variant}'] = np.linalg.norm(errors[:, :3], axis=1)
+        result.centres[f'{level} {variant}'] = record.centres
+    entry['ratio_c'] = {key: _level_ratio_of(entry, key) for key in ('ate_m', 'ate_sim3_m')}
+    return result
+
+
+def _level_ratio_of(entry: Mapping[str, Any], key: str) -> float:
+    image, measurement = entry.get('image', {}).get('c'), entry.get('measurement', {}).get('c')
+    if image is None or measurement is None:
+        return math.nan
+    return safe_ratio(image[key], measurement[key])
+
+
+def seed_line(result: SeedResult) -> str:
+    """Return one line about a finished seed, for the log."""
+    entry = result.entry
+    ate = {
+        name: entry.get(level, {}).get(variant, {}).get('ate_m', math.nan)
+        for name, (level, variant) in zip(('a', 'b', 'c', 'meas'), RUNS, strict=True)
+    }
+    front = entry['front_end']
+    return (
+        f'{PROG}: seed {entry["seed"]} ({entry["source"]}): ATE image a {ate["a"]:.3f}, '
+        f'b {ate["b"]:.3f}, c {ate["c"]:.3f} m; measurement c {ate["meas"]:.3f} m; ratio '
+        f'{entry["ratio_c"]["ate_m"]:.2f}; {front["features_per_frame"]:.0f} features/frame, '
+        f'target detected in {100 * front["detection_rate"]:.0f} % of its frames'
+    )

@@ -1,0 +1,161 @@
+"""monoslam_evaluate's runs: the settings, one seed's simulation fed to each variant of
+``monoslam_pipeline`` (target noise from ``default_rng(TARGET_NOISE_SEED_OFFSET + seed)``), and
+what the seeds collect for the report and the figures.
+"""
+
+from __future__ import annotations
+
+import sys
+import traceback
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.core.shadow_filter import ShadowConfig
+from slam_evaluation.monoslam_metrics import (
+    FloatArray,
+    map_error,
+    pose_errors,
+    shadow_numbers,
+    trajectory_metrics,
+)
+from slam_evaluation.monoslam_pipeline import (
+    MeasurementFrame,
+    PipelineConfig,
+    PipelineError,
+    VariantRecord,
+    run_variant,
+    simulation_frames,
+    target_known_points,
+)
+from slam_evaluation.shadow_consistency import nees
+from slam_evaluation.shadow_runs import camera_model
+from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
+from slam_sim.core.init_target import InitTarget, marker_board
+
+BOARD_MARKER_SIDE_M = 0.3
+BOARD_GAP_M = 0.05
+TARGET_NOISE_SEED_OFFSET = 1000
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The command line: seeds, run length (s), variants, the Shadow pose gate and the output
+    directory."""
+
+    seeds: tuple[int, ...]
+    duration_s: float
+    variants: tuple[str, ...]
+    shadow_max_pose_sigma: tuple[float, float]
+    out: Path
+    unchecked_directions: int = 1
+    known_board: tuple[int, int] | None = None
+    shadow_poses: str = 'slam'
+    oracle_handovers: bool = False
+
+    def scene(self) -> DynamicSceneConfig:
+        """Return the Fig. 5 scene: 200 static points, 8 moving objects x 8 points."""
+        return DynamicSceneConfig(duration_s=self.duration_s, objects=8, points_per_object=8)
+
+    def markers(self) -> tuple[InitTarget, ...]:
+        """Return the known markers: the target, or the board around its centre."""
+        target = InitTarget()
+        if self.known_board is None:
+            return (target,)
+        rows, columns = self.known_board
+        return marker_board(target, rows, columns, BOARD_MARKER_SIDE_M, BOARD_GAP_M)
+
+    def pipeline(self, markers: InitTarget | Sequence[InitTarget]) -> PipelineConfig:
+        """Return the filters' settings: defaults, the markers' known points, the gate and
+        the diagnostic settings."""
+        slam = MonoSlamConfig(known_points=target_known_points(markers))
+        classifier = ClassifierConfig(unchecked_directions=self.unchecked_directions)
+        shadow = ShadowConfig(classifier=classifier)
+        return PipelineConfig(
+            slam,
+            shadow,
+            self.shadow_max_pose_sigma,
+            shadow_poses=self.shadow_poses,
+            oracle_handovers=self.oracle_handovers,
+        )
+
+
+@dataclass
+class Collected:
+    """Per variant: per-seed metrics, position errors (K,) and NEES (K,) per seed; the top
+    view data of the first seed; failures; filter time and frames."""
+
+    per_seed: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+    position_error: dict[str, list[FloatArray]] = field(default_factory=dict)
+    nees: dict[str, list[FloatArray]] = field(default_factory=dict)
+    topview: dict[str, Any] = field(default_factory=dict)
+    failures: list[dict[str, Any]] = field(default_factory=list)
+    filter_s: dict[str, float] = field(default_factory=dict)
+    frames: dict[str, int] = field(default_factory=dict)
+
+
+def evaluate_seed(
+    settings: Settings,
+    seed: int,
+    collected: Collected,
+    done: Callable[[int], None] | None = None,
+) -> None:
+    """Run every variant on ``seed``'s run and collect its metrics; ``done(frames)`` after
+    each variant."""
+    run = simulate_dynamic_scene(seed, settings.scene())
+    markers = settings.markers()
+    rng = np.random.default_rng(TARGET_NOISE_SEED_OFFSET + seed)
+    frames = simulation_frames(run, markers, rng=rng)
+    camera, config = camera_model(run), settings.pipeline(markers)
+    for variant in settings.variants:
+        try:
+            record = run_variant(variant, frames, camera, config)
+        except PipelineError as error:
+            collected.failures.append({'seed': seed, 'variant': variant, 'error': str(error)})
+            traceback.print_exception(error, file=sys.stderr)
+            continue
+        finally:
+            if done is not None:
+                done(len(frames))
+        errors = pose_errors(record, frames)
+        metrics = {'seed': seed, **trajectory_metrics(record, errors), **map_error(record, run)}
+        if variant == 'c':
+            metrics['shadow'] = shadow_numbers(record)
+        metrics['ms_per_frame'] = 1e3 * record.runtime_s / len(frames)
+        collected.nees.setdefault(variant, []).append(nees(errors, record.pose_covariances))
+        collected.position_error.setdefault(variant, []).append(
+            np.linalg.norm(errors[:, :3], axis=1)
+        )
+        collected.per_seed.setdefault(variant, []).append(metrics)
+        collected.filter_s[variant] = collected.filter_s.get(variant, 0.0) + record.runtime_s
+        collected.frames[variant] = collected.frames.get(variant, 0) + len(frames)
+        if not collected.topview.get(variant):
+            collected.topview[variant] = topview_data(run, frames, record, markers)
+
+
+def topview_data(
+    run: DynamicSceneRun,
+    frames: Sequence[MeasurementFrame],
+    record: VariantRecord,
+    markers: Sequence[InitTarget],
+) -> dict[str, Any]:
+    """Return what the Fig. 5 top view draws of one run and variant."""
+    points = [p for p in record.map_points if p.covariance is not None]
+    moving = np.array([run.point_moving[run.track_point[p.id]] for p in points], dtype=bool)
+    paths = run.point_positions[:, run.point_moving]
+    return {
+        'seed': run.seed,
+        'true_path': np.array([frame.true_centre for frame in frames]),
+        'estimate': record.centres,
+        'static_truth': run.scene.static_points_m,
+        'object_paths': paths,
+        'map': np.array([p.position for p in points]).reshape(-1, 3),
+        'map_moving': moving,
+        'target': np.vstack([m.corners_m for m in markers]),
+        'room': run.scene.room.size_m,
+    }

@@ -1,0 +1,152 @@
+"""shadow_evaluate's runs: the Shadow filter fed a simulated run through the node's processor
+(true, known poses), what it reported per frame (``FilterRecord``), and each track's truth.
+
+Arrays: positions in the simulation's world frame (map), m; covariances m^2; frame indices
+count the run's frames from 0.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from monoslam_shadow_node.conversions import CameraPose, Features
+from monoslam_shadow_node.core.camera import CameraModel
+from monoslam_shadow_node.core.rays import ray_angle
+from monoslam_shadow_node.core.shadow_classifier import Decision
+from monoslam_shadow_node.core.shadow_filter import Handover, InputError, ShadowConfig
+from monoslam_shadow_node.shadow_processor import ShadowProcessor, ShadowStep
+from slam_sim.core.dynamic_scene import DynamicSceneRun
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+
+class FilterRunError(RuntimeError):
+    """The Shadow filter raised on a simulated run (the message names seed and frame)."""
+
+
+@dataclass(frozen=True, eq=False)
+class FilterRecord:
+    """What the filter said on one run. Track reports as flat arrays over samples S: track id,
+    frame, status, defined, position (S, 3) m and covariance (S, 3, 3) m^2 in map; decisions
+    by track id as (frame, Decision) (the last one if a track got several: ``redecided``
+    counts those); handovers as (frame, Handover); filter wall time (s)."""
+
+    track_id: IntArray
+    frame: IntArray
+    status: IntArray
+    defined: BoolArray
+    position: FloatArray
+    covariance: FloatArray
+    decisions: dict[int, tuple[int, Decision]]
+    handovers: list[tuple[int, Handover]]
+    redecided: int
+    runtime_s: float
+
+
+def camera_model(run: DynamicSceneRun) -> CameraModel:
+    """Return the filter's camera model of the run's CameraInfo."""
+    info = run.camera.camera_info()
+    return CameraModel.from_camera_info(
+        info.width, info.height, info.k, info.d, info.distortion_model
+    )
+
+
+def run_filter(run: DynamicSceneRun, config: ShadowConfig) -> FilterRecord:
+    """Feed every frame (true pose, noisy pixels) to a new ShadowProcessor (the node's, no pose
+    gate: a true pose is a known one); return its record. Raises FilterRunError if the filter
+    raises."""
+    shadow = ShadowProcessor(config)
+    shadow.set_camera(camera_model(run))
+    ids: list[int] = []
+    frames: list[int] = []
+    statuses: list[int] = []
+    defined: list[bool] = []
+    positions: list[FloatArray] = []
+    covariances: list[FloatArray] = []
+    decisions: dict[int, tuple[int, Decision]] = {}
+    handovers: list[tuple[int, Handover]] = []
+    redecided, runtime_s = 0, 0.0
+    for index, frame in enumerate(run.frames):
+        started = time.perf_counter()
+        try:
+            outcome = shadow.process(
+                Features(frame.stamp_ns, '', frame.track_ids, frame.pixels),
+                CameraPose(frame.stamp_ns, '', frame.camera_rotation, frame.camera_position, None),
+            )
+            if not isinstance(outcome, ShadowStep):
+                raise InputError(str(outcome))
+        except Exception as error:
+            raise FilterRunError(
+                f'seed {run.seed}, frame {index}: {type(error).__name__}: {error}'
+            ) from error
+        result = outcome.result
+        runtime_s += time.perf_counter() - started
+        for decision in result.decisions:
+            redecided += decision.id in decisions
+            decisions[decision.id] = (index, decision)
+        handovers += [(index, handover) for handover in result.handovers]
+        for track in result.tracks:
+            ids.append(track.id)
+            frames.append(index)
+            statuses.append(track.status)
+            defined.append(bool(track.defined))
+            positions.append(track.position)
+            covariances.append(track.position_covariance)
+    return FilterRecord(
+        np.array(ids, dtype=np.int64),
+        np.array(frames, dtype=np.int64),
+        np.array(statuses, dtype=np.int64),
+        np.array(defined, dtype=bool),
+        np.array(positions, dtype=np.float64).reshape(-1, 3),
+        np.array(covariances, dtype=np.float64).reshape(-1, 3, 3),
+        decisions,
+        handovers,
+        redecided,
+        runtime_s,
+    )
+
+
+# --- truth ----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TrackTruth:
+    """A track's point, whether it moves, its motion kind ('static' for static points) and
+    the frames of its first and last sighting."""
+
+    point: int
+    moving: bool
+    motion: str
+    first_frame: int
+    last_frame: int
+
+
+def track_truths(run: DynamicSceneRun) -> dict[int, TrackTruth]:
+    """Return the truth of every track id in the run."""
+    spans: dict[int, list[int]] = {}
+    for index, frame in enumerate(run.frames):
+        for track_id in frame.track_ids.tolist():
+            spans.setdefault(track_id, [index, index])[1] = index
+    truths = {}
+    for track_id, (first, last) in spans.items():
+        point = run.track_point[track_id]
+        owner = int(run.point_object[point])
+        motion = run.object_motion[owner] if owner >= 0 else 'static'
+        truths[track_id] = TrackTruth(point, bool(run.point_moving[point]), motion, first, last)
+    return truths
+
+
+def view_parallax_rad(point: FloatArray, centre_a: FloatArray, centre_b: FloatArray) -> float:
+    """Return the angle (rad) at ``point`` (3,) between the directions to two centres (3,)."""
+    a, b = centre_a - point, centre_b - point
+    norm_a, norm_b = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if norm_a == 0.0 or norm_b == 0.0:
+        return math.nan
+    return ray_angle(a / norm_a, b / norm_b)
