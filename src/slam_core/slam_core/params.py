@@ -21,6 +21,7 @@ from __future__ import annotations
 import difflib
 import enum
 import math
+import re
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +40,7 @@ ROS_PARAMETERS = ('use_sim_time',)
 ROS_PARAMETER_PREFIXES = ('qos_overrides.',)
 
 ConfigT = TypeVar('ConfigT')
+_FIELD_ERROR = re.compile(r'(?:parameter |[\w -]+ setting )?(\w+)=(.*)', re.DOTALL)
 
 
 class ParamType(enum.Enum):
@@ -328,15 +330,19 @@ class ParamTable:
 
     def build(self, build: Callable[[], ConfigT]) -> ConfigT:
         """Return ``build()``; a ValueError from a core config that names its field
-        (``'<field>=<value>: <rule>'``) becomes a ParameterError naming the parameter."""
+        (``'[parameter ]<field>=<value>: <rule>'``) becomes a ParameterError naming the
+        parameter that sets the field."""
         try:
             return build()
         except ValueError as err:
             text = str(err)
-            field, _, rest = text.partition('=')
-            for param in self:
-                if param.field and param.field.rpartition('.')[2] == field.strip():
-                    raise ParameterError(f'parameter {self.node}.{param.name}={rest}') from None
+            match = _FIELD_ERROR.match(text)
+            if match is not None:
+                field, rest = match.groups()
+                for param in self:
+                    if (param.field or param.name).rpartition('.')[2] == field:
+                        message = f'parameter {self.node}.{param.name}={rest}'
+                        raise ParameterError(message) from None
             raise ParameterError(f'{self.node} parameters rejected: {text}') from None
 
     # -- files ---------------------------------------------------------------------------
