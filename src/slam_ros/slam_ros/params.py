@@ -228,3 +228,12 @@ def parse_remaps(name: str, entries: Sequence[str]) -> dict[str, str]:
         check(source not in remaps, name, entry, f'{source!r} is remapped twice')
         remaps[source] = target
     return remaps
+
+
+def remap_rule(entries: Sequence[str]) -> str | None:
+    """Validator for a remap list: the rule ``parse_remaps`` finds broken, or None."""
+    try:
+        parse_remaps('remap', entries)
+    except ParameterError as err:
+        return str(err).partition(': ')[2]
+    return None
