@@ -29,7 +29,11 @@ from monoslam_shadow_node.feature_tracking import (
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
-from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import (
+    config_mismatches,
+    docstring_mismatches,
+    undocumented_parameters,
+)
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'feature_tracker.yaml'
@@ -43,6 +47,10 @@ S = 1_000_000_000
 
 def test_docstring_lists_every_parameter() -> None:
     assert undocumented_parameters(feature_tracker_node) == []
+
+
+def test_docstring_types_and_defaults_match_the_declaration() -> None:
+    assert docstring_mismatches(feature_tracker_node) == []
 
 
 def test_config_yaml_matches_declared_parameters() -> None:

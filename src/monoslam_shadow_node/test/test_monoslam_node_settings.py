@@ -35,7 +35,11 @@ from monoslam_shadow_node.monoslam_conversions import (
 from monoslam_shadow_node.shadow_filter_node import pose_gate_excess
 from slam_core.errors import ParameterError
 from slam_ros.testing.launch_files import check_launched_node, launched_node
-from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import (
+    config_mismatches,
+    docstring_mismatches,
+    undocumented_parameters,
+)
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'monoslam.yaml'
@@ -49,6 +53,10 @@ DEFAULTS = monoslam_settings.PARAMETERS.defaults()
 
 def test_docstring_lists_every_parameter() -> None:
     assert undocumented_parameters(monoslam_node) == []
+
+
+def test_docstring_types_and_defaults_match_the_declaration() -> None:
+    assert docstring_mismatches(monoslam_node) == []
 
 
 def test_config_yaml_matches_declared_parameters() -> None:

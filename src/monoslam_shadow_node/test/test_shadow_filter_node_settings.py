@@ -48,7 +48,11 @@ from monoslam_shadow_node.shadow_filter_node import FrameSynchronizer
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
-from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import (
+    config_mismatches,
+    docstring_mismatches,
+    undocumented_parameters,
+)
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'shadow_filter.yaml'
@@ -61,6 +65,10 @@ MS = 1_000_000
 
 def test_docstring_lists_every_parameter() -> None:
     assert undocumented_parameters(shadow_filter_node) == []
+
+
+def test_docstring_types_and_defaults_match_the_declaration() -> None:
+    assert docstring_mismatches(shadow_filter_node) == []
 
 
 def test_config_yaml_matches_declared_parameters() -> None:

@@ -1,15 +1,16 @@
-"""Declaring node parameters with descriptors and turning bad values into ParameterError.
+"""Declaring a node's parameter table on an rclpy node, and remap lists.
 
-Nodes list their parameters as ``ParamSpec`` tuples, declare them all with
-``declare_parameters`` and validate the resulting dict into a frozen config dataclass.
-Nothing here falls back to a default when a value is invalid.
+A node module declares its parameters once, as a ``slam_core.params.ParamTable``;
+``declare_parameters`` declares that table on the node with descriptors (description, rules,
+read-only, ranges) and returns the values validated by the table. ``updated_values``
+validates run-time changes of dynamic parameters the same way. Nothing here falls back to a
+default when a value is invalid.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -25,8 +26,6 @@ from rclpy.parameter import Parameter
 from slam_core.errors import ParameterError
 from slam_core.params import Param, ParamTable, ParamType
 
-ParamValue = bool | int | float | str | list[str] | list[float] | list[int] | list[bool]
-
 _ROS_TYPES = {
     ParamType.BOOL: Parameter.Type.BOOL,
     ParamType.INTEGER: Parameter.Type.INTEGER,
@@ -38,75 +37,14 @@ _ROS_TYPES = {
     ParamType.STRING_ARRAY: Parameter.Type.STRING_ARRAY,
 }
 _INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
-_LIST_TYPES = {
-    'string_array': Parameter.Type.STRING_ARRAY,
-    'double_array': Parameter.Type.DOUBLE_ARRAY,
-    'integer_array': Parameter.Type.INTEGER_ARRAY,
-    'bool_array': Parameter.Type.BOOL_ARRAY,
-}
 
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """One node parameter: name (with a unit suffix where it has a unit), default, meaning.
+def declare_parameters(node: Node, table: ParamTable) -> dict[str, Any]:
+    """Declare every parameter of ``table`` on ``node``; return the validated values.
 
-    ``array_type`` is needed only for list parameters whose default is empty
-    (one of ``string_array``, ``double_array``, ``integer_array``, ``bool_array``).
+    Each parameter gets a descriptor (description, rules, read-only, the range where rclpy
+    has one). Raises ParameterError ``parameter <node>.<name>=<value>: <rule>``.
     """
-
-    name: str
-    default: ParamValue
-    description: str
-    array_type: str | None = None
-    read_only: bool = True
-
-    def parameter_type(self) -> Parameter.Type:
-        """Return the ROS parameter type of this spec."""
-        if isinstance(self.default, list):
-            if self.array_type is not None:
-                return _LIST_TYPES[self.array_type]
-            if not self.default:
-                msg = f'ParamSpec {self.name!r}: an empty list default needs array_type'
-                raise ValueError(msg)
-        return Parameter.Type.from_parameter_value(self.default)
-
-
-def declare_parameters(node: Node, specs: ParamTable | Iterable[ParamSpec]) -> dict[str, Any]:
-    """Declare a node's parameters; return ``{name: value}`` with overrides applied.
-
-    Given a ``ParamTable``, every parameter is declared with a descriptor (description, rules,
-    read-only, the range where rclpy has one) and the values come back validated by the
-    table. Raises ParameterError ``parameter <node>.<name>=<value>: <rule>``.
-    """
-    if isinstance(specs, ParamTable):
-        return declare_table(node, specs)
-    return _declare_specs(node, specs)
-
-
-def descriptor(param: Param) -> ParameterDescriptor:
-    """Return the rclpy descriptor of a declared parameter."""
-    ptype = _ROS_TYPES[param.param_type]
-    rules = param.rules()
-    result = ParameterDescriptor(
-        description=param.description,
-        read_only=param.read_only,
-        type=ptype.value,
-        additional_constraints='; '.join(rules),
-    )
-    bounds = param.range
-    if bounds is not None and param.param_type.element is ParamType.DOUBLE:
-        low = -math.inf if bounds.low is None else float(bounds.low)
-        high = math.inf if bounds.high is None else float(bounds.high)
-        result.floating_point_range = [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
-    elif bounds is not None and param.param_type is ParamType.INTEGER:
-        low_int = _INT64_MIN if bounds.low is None else math.ceil(bounds.low)
-        high_int = _INT64_MAX if bounds.high is None else math.floor(bounds.high)
-        result.integer_range = [IntegerRange(from_value=low_int, to_value=high_int, step=1)]
-    return result
-
-
-def declare_table(node: Node, table: ParamTable) -> dict[str, Any]:
-    """Declare every parameter of ``table`` on ``node``; return the validated values."""
     values: dict[str, Any] = {}
     for param in table:
         ptype = _ROS_TYPES[param.param_type]
@@ -131,6 +69,28 @@ def declare_table(node: Node, table: ParamTable) -> dict[str, Any]:
             value = list(value)
         values[param.name] = value
     return table.validate(values)
+
+
+def descriptor(param: Param) -> ParameterDescriptor:
+    """Return the rclpy descriptor of a declared parameter."""
+    ptype = _ROS_TYPES[param.param_type]
+    rules = param.rules()
+    result = ParameterDescriptor(
+        description=param.description,
+        read_only=param.read_only,
+        type=ptype.value,
+        additional_constraints='; '.join(rules),
+    )
+    bounds = param.range
+    if bounds is not None and param.param_type.element is ParamType.DOUBLE:
+        low = -math.inf if bounds.low is None else float(bounds.low)
+        high = math.inf if bounds.high is None else float(bounds.high)
+        result.floating_point_range = [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
+    elif bounds is not None and param.param_type is ParamType.INTEGER:
+        low_int = _INT64_MIN if bounds.low is None else math.ceil(bounds.low)
+        high_int = _INT64_MAX if bounds.high is None else math.floor(bounds.high)
+        result.integer_range = [IntegerRange(from_value=low_int, to_value=high_int, step=1)]
+    return result
 
 
 def _declare_error(node: Node, table: ParamTable, param: Param, err: Exception) -> ParameterError:
@@ -162,70 +122,15 @@ def updated_values(
     return values
 
 
-def _declare_specs(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
-    """Declare every spec on ``node``; return ``{name: value}`` with overrides applied.
-
-    Raises:
-        ParameterError: a value given for a parameter has the wrong type or is rejected.
-
-    """
-    values: dict[str, Any] = {}
-    for spec in specs:
-        ptype = spec.parameter_type()
-        descriptor = ParameterDescriptor(
-            description=spec.description, read_only=spec.read_only, type=ptype.value
-        )
-        try:
-            if isinstance(spec.default, list) and not spec.default:
-                node.declare_parameter(spec.name, ptype, descriptor)
-            else:
-                node.declare_parameter(spec.name, spec.default, descriptor)
-        except (
-            InvalidParameterTypeException,
-            InvalidParameterValueException,
-            ParameterException,
-        ) as err:
-            raise ParameterError(
-                f'parameter {node.get_name()}.{spec.name}: {err} ({spec.description})'
-            ) from err
-        try:
-            value = node.get_parameter(spec.name).value
-        except ParameterUninitializedException:
-            value = None
-        if value is None:
-            value = list(spec.default) if isinstance(spec.default, list) else spec.default
-        elif isinstance(value, (list, tuple)) or hasattr(value, 'tolist'):
-            value = list(value)
-            if ptype == Parameter.Type.STRING_ARRAY:
-                # YAML parameter files cannot hold an empty list; [''] stands for one.
-                value = [item for item in value if item != '']
-        values[spec.name] = value
-    return values
-
-
-def check(condition: bool, name: str, value: object, requirement: str) -> None:
-    """Raise ParameterError ``parameter <name>=<value>: <requirement>`` unless condition."""
-    if not condition:
-        raise ParameterError(f'parameter {name}={value!r}: {requirement}')
-
-
-def check_finite_positive(name: str, value: float) -> None:
-    """Require a finite number > 0."""
-    check(math.isfinite(value) and value > 0.0, name, value, 'must be a finite number > 0')
-
-
-def check_finite_non_negative(name: str, value: float) -> None:
-    """Require a finite number >= 0."""
-    check(math.isfinite(value) and value >= 0.0, name, value, 'must be a finite number >= 0')
-
-
 def parse_remaps(name: str, entries: Sequence[str]) -> dict[str, str]:
     """Parse ``['from:=to', ...]`` into a dict; reject malformed or duplicate entries."""
     remaps: dict[str, str] = {}
     for entry in entries:
         source, sep, target = entry.partition(':=')
-        check(bool(sep and source and target), name, entry, "entries must look like 'from:=to'")
-        check(source not in remaps, name, entry, f'{source!r} is remapped twice')
+        if not (sep and source and target):
+            raise ParameterError(f"parameter {name}={entry!r}: entries must look like 'from:=to'")
+        if source in remaps:
+            raise ParameterError(f'parameter {name}={entry!r}: {source!r} is remapped twice')
         remaps[source] = target
     return remaps
 
