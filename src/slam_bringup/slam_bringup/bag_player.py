@@ -48,7 +48,7 @@ from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamTyp
 from slam_core.progress import ProgressReporter
 from slam_ros.bag.playback import LatenessStats, PlaybackConfig, Prefetcher, TimeMapping
 from slam_ros.bag.source import BagSource
-from slam_ros.params import declare_parameters, parse_remaps, remap_rule
+from slam_ros.params import check_parameter_files, declare_parameters, parse_remaps, remap_rule
 from slam_ros.qos import profile_from_recorded
 from slam_ros.typesys import message_class
 
@@ -332,6 +332,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     ros_args = rclpy.utilities.remove_ros_args(['bag_player', *argv])[1:]
     args = build_arg_parser().parse_args(ros_args)
+    check_parameter_files(argv, PARAMETERS)
     rclpy.init(args=['bag_player', *argv])
     node = None
     try:

@@ -43,7 +43,7 @@ from slam_core.cli import console_main
 from slam_core.errors import SlamError
 from slam_core.params import AT_LEAST_ONE, POSITIVE, Param, ParamTable, ParamType
 from slam_ros.bag.recording import AtomicBagWriter
-from slam_ros.params import declare_parameters
+from slam_ros.params import check_parameter_files, declare_parameters
 from slam_ros.qos import recorded_from_profile
 from slam_ros.typesys import TypeRegistry, message_class
 
@@ -217,6 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     def request_stop(signum: int, frame: FrameType | None) -> None:
         stop.set()
 
+    check_parameter_files(argv, PARAMETERS)
     rclpy.init(args=['bag_recorder', *argv], signal_handler_options=SignalHandlerOptions.NO)
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     executor = SingleThreadedExecutor()

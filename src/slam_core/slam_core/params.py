@@ -35,7 +35,7 @@ ParamValue = bool | int | float | str | list[bool] | list[int] | list[float] | l
 Validator = Callable[[Any], str | None]
 """A validator gets the typed value and returns the rule it breaks, or None when it is valid."""
 
-ROS_PARAMETERS = ('use_sim_time',)
+ROS_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 """Parameters every rclpy node declares itself; accepted in any node's files."""
 ROS_PARAMETER_PREFIXES = ('qos_overrides.',)
 
@@ -373,6 +373,20 @@ class ParamTable:
             self.check_names(parameters, where=f'{where}, section {key!r}')
             values.update({k: v for k, v in parameters.items() if k in self})
         return values
+
+    def check_file(self, path: Path | str, *, node_name: str | None = None) -> None:
+        """Raise ParameterError naming the file, node and key when a section of a parameter
+        file that applies to the node (``/**``, ``<node>`` or ``/<node>``; ``node_name``
+        when the node runs under another name) sets a key that is not a parameter of it.
+        Files without such a section pass: they configure other nodes."""
+        where = f'parameter file {str(path)!r}'
+        try:
+            document: Any = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+            raise ParameterError(f'{where}: {err}') from None
+        for key, parameters in node_sections(document, node_name or self.node):
+            if isinstance(parameters, dict):
+                self.check_names(parameters, where=f'{where}, section {key!r}')
 
     def load(self, paths: Iterable[Path | str]) -> dict[str, Any]:
         """Return the defaults updated with each YAML file in order, validated."""

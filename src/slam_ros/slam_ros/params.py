@@ -45,6 +45,12 @@ def declare_parameters(node: Node, table: ParamTable) -> dict[str, Any]:
     Each parameter gets a descriptor (description, rules, read-only, the range where rclpy
     has one). Raises ParameterError ``parameter <node>.<name>=<value>: <rule>``.
     """
+    overrides = getattr(node, '_parameter_overrides', {})
+    table.check_names(
+        overrides,
+        where=f'node {node.get_fully_qualified_name()}: parameter override (-p, --params-file '
+        'or parameter_overrides)',
+    )
     values: dict[str, Any] = {}
     for param in table:
         ptype = _ROS_TYPES[param.param_type]
@@ -142,3 +148,23 @@ def remap_rule(entries: Sequence[str]) -> str | None:
     except ParameterError as err:
         return str(err).partition(': ')[2]
     return None
+
+
+def check_parameter_files(args: Sequence[str], table: ParamTable) -> None:
+    """Check the ``--params-file`` files among a node's ROS arguments against its table
+    (under the name ``-r __node:=<name>`` gives it); raise ParameterError naming the file,
+    node and an unknown key. rclpy itself ignores keys a node does not declare."""
+    node_name = table.node
+    files: list[str] = []
+    in_ros_args = False
+    for index, arg in enumerate(args):
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg == '--params-file' and index + 1 < len(args):
+            files.append(args[index + 1])
+        elif in_ros_args and arg.startswith(('__node:=', '__name:=')):
+            node_name = arg.partition(':=')[2]
+    for path in files:
+        table.check_file(path, node_name=node_name)

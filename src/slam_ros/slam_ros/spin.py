@@ -12,6 +12,7 @@ from rclpy.node import Node
 from slam_core.blas import single_threaded_blas
 from slam_core.cli import help_requested, node_help
 from slam_core.params import ParamTable
+from slam_ros.params import check_parameter_files
 
 
 def spin_node(
@@ -36,6 +37,8 @@ def spin_node(
         else:
             print(node_help(prog, doc, parameters))  # noqa: T201
         return 0
+    if parameters is not None:
+        check_parameter_files(args, parameters)
     single_threaded_blas()
     rclpy.init(args=[prog, *args])
     node = None

@@ -4,6 +4,7 @@ rules and ranges, and bad overrides are refused in the one error style."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 from rclpy.node import Node
@@ -11,7 +12,7 @@ from rclpy.parameter import Parameter
 
 from slam_core.errors import ParameterError
 from slam_core.params import POSITIVE, PROBABILITY, Param, ParamTable, ParamType, Range
-from slam_ros.params import declare_parameters, updated_values
+from slam_ros.params import check_parameter_files, declare_parameters, updated_values
 
 pytestmark = pytest.mark.topic
 
@@ -67,3 +68,25 @@ def test_bad_overrides_are_refused_naming_node_and_parameter(
             declare_parameters(node, TABLE)
     finally:
         node.destroy_node()
+
+
+def test_unknown_overrides_are_refused_with_the_closest_name(ros_context: None) -> None:
+    node = make_node(Parameter('rate_hx', value=1.0), Parameter('use_sim_time', value=True))
+    try:
+        with pytest.raises(ParameterError, match=r"'rate_hx' is not a parameter of node "):
+            declare_parameters(node, TABLE)
+    finally:
+        node.destroy_node()
+
+
+def test_parameter_files_on_the_command_line_are_checked(tmp_path: Path) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('declare_test:\n  ros__parameters:\n    depht: 3\n', encoding='utf-8')
+    args = ['--ros-args', '--params-file', str(path)]
+    with pytest.raises(ParameterError) as caught:
+        check_parameter_files(args, TABLE)
+    assert str(path) in str(caught.value)
+    assert "'depht' is not a parameter of node declare_test; did you mean 'depth'?" in str(
+        caught.value
+    )
+    check_parameter_files([*args, '-r', '__node:=renamed'], TABLE)  # a section for another node
