@@ -12,7 +12,8 @@ For each checked entry, the keys of its inline mappings and of the sections of i
 files that apply to the node (``/**``, ``<name>``, ``/<name>``, ``/<namespace>/<name>``) must
 be declared parameters (or ``use_sim_time``); an unknown key is a ``GraphError`` naming the
 GRAPH file, the entry, the parameter file, the node and the key, with the closest valid
-name. Values of known keys are validated with the table too.
+name. Values of known keys are validated with the table too, including the ROS type a node
+will see (rclpy refuses an integer for a double).
 """
 
 from __future__ import annotations
@@ -95,6 +96,7 @@ def _check(
         for name, value in values.items():
             if name in table:
                 table.validate_one(name, value)
+                table.check_ros_type(name, value)
     except ParameterError as err:
         text = str(err)
         raise graph.error(where, text.removeprefix(f'{where}: ')) from None

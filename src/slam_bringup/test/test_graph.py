@@ -403,6 +403,9 @@ def test_misspelled_inline_parameter_and_bad_value_are_named(tmp_path: Path) -> 
     )
     with pytest.raises(GraphError, match=r'odometry_ingest\.keyframe_distance_m=-1\.0: must be'):
         load_graph(path)
+    path = write_graph(tmp_path, INGEST_ENTRY.format(plugin='', parameters='{idle_flush_s: 2}'))
+    with pytest.raises(GraphError, match=r'idle_flush_s=2: must be a double for a ROS node'):
+        load_graph(path)
 
 
 def test_sections_for_other_nodes_and_ros_parameters_are_accepted(tmp_path: Path) -> None:

@@ -285,6 +285,16 @@ class ParamTable:
                 raise self.fail(name, value, rule)
         return typed
 
+    def check_ros_type(self, name: str, value: object) -> None:
+        """Raise ParameterError when a file's value would not have the declared ROS type:
+        rclpy does not read an integer as a double (``validate`` accepts it, rclpy not)."""
+        param = self._params[name]
+        if param.param_type.element is not ParamType.DOUBLE:
+            return
+        items = value if isinstance(value, list) else [value]
+        if any(isinstance(item, int) and not isinstance(item, bool) for item in items):
+            raise self.fail(name, value, 'must be a double for a ROS node (write 1.0, not 1)')
+
     def _scalar(self, param: Param, item: object, value: object) -> Any:
         element = param.param_type.element
         of = ' items' if param.param_type.is_array else ''

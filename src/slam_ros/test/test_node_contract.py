@@ -51,7 +51,7 @@ def test_config_keys_types_and_values_are_compared(tmp_path: Path) -> None:
         '/**:\n  ros__parameters:\n    rate: 1\n    mode: paper\n    depth: x\n    speed: 2\n'
     )
     problems = '\n'.join(config_mismatches(module, config))
-    assert 'rate=1 would not be a double' in problems
+    assert 'fake_node.rate=1: must be a double for a ROS node' in problems
     assert "mode='paper' is not the declared default 'robust'" in problems
     assert "parameter fake_node.depth='x': must be an integer" in problems
     assert 'speed is not a parameter' in problems

@@ -111,26 +111,13 @@ def config_mismatches(module: ModuleType, config_path: Path) -> list[str]:
         param = table[name]
         try:
             value = table.validate_one(name, values[name])
+            table.check_ros_type(name, values[name])
         except ParameterError as err:
             problems.append(f'{config_path}: {err}')
             continue
-        if not _ros_type_matches(param, values[name]):
-            problems.append(
-                f'{config_path}: {name}={values[name]!r} would not be a {param.param_type.value} '
-                'for a ROS node (write 1.0, not 1, for a double)'
-            )
-        elif not _same(value, param.default):
+        if not _same(value, param.default):
             problems.append(
                 f'{config_path}: {name}={values[name]!r} is not the declared default '
                 f'{param.default!r}'
             )
     return sorted(problems)
-
-
-def _ros_type_matches(param: Param, value: object) -> bool:
-    """Whether rclpy would read ``value`` as the declared type (it does not turn 1 into 1.0)."""
-    kind = param.param_type
-    items = value if isinstance(value, list) else [value]
-    if kind.element is ParamType.DOUBLE:
-        return all(isinstance(item, float) for item in items) or items == []
-    return True
