@@ -417,3 +417,13 @@ def test_sections_for_other_nodes_and_ros_parameters_are_accepted(tmp_path: Path
     )
     path = write_graph(tmp_path, INGEST_ENTRY.format(plugin=PLUGIN, parameters='all.yaml'))
     assert load_graph(path).nodes[0].name == 'odometry_ingest'
+
+
+def test_player_and_recorder_keys_are_the_bag_tools_parameters() -> None:
+    """graph.player and graph.recorder take exactly the parameters the bag tools declare
+    (the player's bag_path is spelled bag)."""
+    from slam_bringup import bag_player, bag_recorder
+
+    player = {'bag_path' if key == 'bag' else key for key in graph_module._PLAYER_KEYS}
+    assert player == set(bag_player.PARAMETERS.names)
+    assert set(graph_module._RECORDER_KEYS) == set(bag_recorder.PARAMETERS.names)
