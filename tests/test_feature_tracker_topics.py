@@ -348,5 +348,5 @@ def test_the_node_process_logs_bad_input_and_stops_cleanly(
 )
 def test_invalid_parameter_is_named(parameter: str, value: str) -> None:
     error = invalid_parameter_error([sys.executable, '-m', MODULE], parameter, value)
-    assert f'parameter {parameter}=' in error
+    assert f'parameter feature_tracker.{parameter}=' in error
     assert error.startswith('feature_tracker: error: ')

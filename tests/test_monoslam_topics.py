@@ -47,7 +47,7 @@ from marker_detector.marker_detector_node import MarkerDetectorNode
 from monoslam_shadow_node.feature_tracker_node import FeatureTrackerNode
 from monoslam_shadow_node.monoslam_conversions import POINT_DTYPE
 from monoslam_shadow_node.monoslam_node import MonoSlamNode
-from monoslam_shadow_node.monoslam_settings import parameters_from_yaml
+from monoslam_shadow_node.monoslam_settings import PARAMETERS as MONOSLAM_PARAMETERS
 from monoslam_shadow_node.shadow_filter_node import ShadowFilterNode
 from slam_bringup.bag_player import BagPlayerNode
 from slam_core.blas import single_threaded_blas
@@ -190,7 +190,9 @@ def play(harness: RosHarness, truth: Truth) -> PipelineRun:
     harness.add_node(
         FeatureTrackerNode(parameter_overrides=overrides(image_transport='compressed'))
     )
-    target = {k: v for k, v in parameters_from_yaml(TARGET_CONFIG).items() if 'target' in k}
+    target = {
+        k: v for k, v in MONOSLAM_PARAMETERS.read_yaml(TARGET_CONFIG).items() if 'target' in k
+    }
     slam = MonoSlamNode(parameter_overrides=overrides(**target))
     shadow = ShadowFilterNode()
     player = BagPlayerNode(
@@ -523,5 +525,5 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
 )
 def test_invalid_parameter_is_named(parameter: str, value: str) -> None:
     error = invalid_parameter_error([sys.executable, '-m', MODULE], parameter, value)
-    assert f'parameter {parameter}=' in error
+    assert f'parameter monoslam.{parameter}=' in error
     assert error.startswith('monoslam: error: ')

@@ -342,4 +342,4 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
 )
 def test_invalid_parameter_is_named(parameter: str, value: str) -> None:
     error = invalid_parameter_error(['shadow_filter'], parameter, value)
-    assert f'parameter {parameter}={value}' in error
+    assert f'parameter shadow_filter.{parameter}={value}' in error

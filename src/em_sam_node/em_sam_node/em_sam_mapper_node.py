@@ -67,8 +67,7 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from em_sam_node.conversions import increment_from_message, observations_from_message
-from em_sam_node.core.em_types import EmConfig
-from em_sam_node.mapper import MapperConfig, MapperProcessor
+from em_sam_node.mapper import MapperProcessor
 from em_sam_node.mapper_outputs import (
     landmark_map_message,
     map_to_odom_tf,
@@ -77,9 +76,9 @@ from em_sam_node.mapper_outputs import (
     path_message,
     sighting_messages,
 )
+from em_sam_node.mapper_settings import PARAMETERS, config_from_parameters
 from em_sam_node.report import write_report
 from slam_core.cli import console_main
-from slam_core.errors import ParameterError
 from slam_interfaces.msg import (
     LandmarkMap,
     LandmarkObservationArray,
@@ -87,86 +86,9 @@ from slam_interfaces.msg import (
     OdometryIncrement,
 )
 from slam_interfaces.srv import FindLandmark
-from slam_ros.params import (
-    ParamSpec,
-    check,
-    check_finite_non_negative,
-    check_finite_positive,
-    declare_parameters,
-)
+from slam_ros.params import declare_parameters
 from slam_ros.qos import latched_qos, output_qos
 from slam_ros.spin import spin_node
-
-PARAMETERS = (
-    ParamSpec('mode', 'robust', "EM-SAM mode: 'paper' (as published) or 'robust'"),
-    ParamSpec('lagrange_lambda', 50.0, 'lambda of eq. 14 in paper mode (> 0)'),
-    ParamSpec('moveable_threshold', 0.5, 'weights below this are moveable, in (0, 1)'),
-    ParamSpec('max_em_iterations', 20, 'maximum EM iterations (>= 1)'),
-    ParamSpec('weight_tolerance', 0.001, 'EM stops when no weight changes more than this'),
-    ParamSpec('false_alarm_probability', 0.001, 'robust: per-landmark test level'),
-    ParamSpec('gate_probability', 0.0001, 'robust: per-sighting outlier gate level'),
-    ParamSpec('max_gated_fraction', 0.1, "robust: largest share of a landmark's sightings gated"),
-    ParamSpec('seed_kernel', 'cauchy', "robust: first E-step kernel, 'cauchy' or 'huber'"),
-    ParamSpec('seed_kernel_scale', 2.3849, 'robust: first E-step kernel scale, sigmas (> 0)'),
-    ParamSpec('seed_chunk_s', 20.0, 'robust: first E-step time prefix length, s (> 0)'),
-    ParamSpec('seed_split_distance_m', 1.0, 'robust: distance that splits a moved landmark, m'),
-    ParamSpec(
-        'estimate_noise_scale',
-        True,
-        'robust: inflate range/bearing variances by their variance factors',
-    ),
-    ParamSpec('max_noise_scale', 10.0, 'robust: cap of the sighting variance factors (>= 1)'),
-    ParamSpec('model_error_m', 0.15, 'robust: position error the moveable test tolerates, m'),
-    ParamSpec('final_kernel', 'cauchy', "robust: final solve kernel, 'cauchy', 'huber' or 'none'"),
-    ParamSpec('final_kernel_scale', 2.3849, 'robust: final solve kernel scale, sigmas (> 0)'),
-    ParamSpec('solver_method', 'levenberg_marquardt', "'levenberg_marquardt' or 'gauss_newton'"),
-    ParamSpec('optimize_period_s', 2.0, 're-solve period when new data came, s; 0 = on request'),
-    ParamSpec('stamp_tolerance_s', 0.005, 'observation-to-keyframe stamp tolerance, s'),
-    ParamSpec('prior_sigma', [0.001, 0.001, 0.001], 'std. dev. of the first keyframe prior'),
-    ParamSpec('map_frame', 'map', 'map frame id'),
-    ParamSpec('odom_frame', 'odom', 'odometry frame id'),
-    ParamSpec('tf_period_s', 0.1, 'period of the map->odom broadcast, s (> 0)'),
-    ParamSpec('report_dir', '', "directory for the report (JSON + PNG); '' writes none"),
-)
-SOLVER_METHODS = ('levenberg_marquardt', 'gauss_newton')
-
-
-def config_from_parameters(values: dict[str, Any]) -> MapperConfig:
-    """Validate parameter values into a MapperConfig (raises ParameterError)."""
-    check(
-        values['solver_method'] in SOLVER_METHODS,
-        'solver_method',
-        values['solver_method'],
-        f'must be one of {SOLVER_METHODS}',
-    )
-    try:
-        em = EmConfig(
-            mode=str(values['mode']),
-            lagrange_lambda=float(values['lagrange_lambda']),
-            moveable_threshold=float(values['moveable_threshold']),
-            max_iterations=int(values['max_em_iterations']),
-            weight_tolerance=float(values['weight_tolerance']),
-            false_alarm_probability=float(values['false_alarm_probability']),
-            gate_probability=float(values['gate_probability']),
-            max_gated_fraction=float(values['max_gated_fraction']),
-            seed_kernel=str(values['seed_kernel']),
-            seed_kernel_scale=float(values['seed_kernel_scale']),
-            seed_chunk_s=float(values['seed_chunk_s']),
-            seed_split_distance_m=float(values['seed_split_distance_m']),
-            estimate_noise_scale=bool(values['estimate_noise_scale']),
-            max_noise_scale=float(values['max_noise_scale']),
-            model_error_m=float(values['model_error_m']),
-            final_kernel=str(values['final_kernel']),
-            final_kernel_scale=float(values['final_kernel_scale']),
-            solver_method=str(values['solver_method']),
-        )
-        return MapperConfig(
-            em=em,
-            stamp_tolerance_s=float(values['stamp_tolerance_s']),
-            prior_sigma=tuple(float(s) for s in values['prior_sigma']),  # type: ignore[arg-type]
-        )
-    except ValueError as err:
-        raise ParameterError(str(err).replace('EM-SAM setting ', 'parameter ')) from None
 
 
 class EmSamMapperNode(Node):
@@ -177,9 +99,7 @@ class EmSamMapperNode(Node):
         values = declare_parameters(self, PARAMETERS)
         self.mapper = MapperProcessor(config_from_parameters(values), warn=self._warn)
         self.optimize_period_s = float(values['optimize_period_s'])
-        check_finite_non_negative('optimize_period_s', self.optimize_period_s)
         tf_period_s = float(values['tf_period_s'])
-        check_finite_positive('tf_period_s', tf_period_s)
         self.map_frame = str(values['map_frame'])
         self.odom_frame = str(values['odom_frame'])
         self.report_dir = Path(values['report_dir']).expanduser() if values['report_dir'] else None
@@ -327,7 +247,7 @@ class EmSamMapperNode(Node):
 @console_main('em_sam_mapper')
 def main(argv: list[str] | None = None) -> int:
     """Run the node until Ctrl-C; the report is written on the way out."""
-    return spin_node('em_sam_mapper', EmSamMapperNode, argv)
+    return spin_node('em_sam_mapper', EmSamMapperNode, argv, parameters=PARAMETERS, doc=__doc__)
 
 
 if __name__ == '__main__':

@@ -43,51 +43,87 @@ from rclpy.node import Node
 from em_sam_node.conversions import increment_to_message, odometry_pose
 from em_sam_node.ingest import Increment, IngestConfig, OdometryIngest
 from slam_core.cli import console_main
-from slam_core.errors import ParameterError
+from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import LandmarkObservationArray, OdometryIncrement
-from slam_ros.params import ParamSpec, check_finite_positive, declare_parameters
+from slam_ros.params import declare_parameters
 from slam_ros.qos import output_qos, sensor_qos
 from slam_ros.spin import spin_node
 
-PARAMETERS = (
-    ParamSpec('keyframe_distance_m', 0.5, 'keyframe after this much travel, m'),
-    ParamSpec('keyframe_angle_rad', 0.35, 'keyframe after this much turning, rad'),
-    ParamSpec('keyframe_interval_s', 5.0, 'keyframe after this long, s'),
-    ParamSpec('observation_delay_s', 0.5, 'hold keyframes back this long for late observations'),
-    ParamSpec('noise_alphas', [0.05, 0.001, 0.01, 0.001], 'motion noise alphas a1..a4'),
-    ParamSpec('min_sigma_xy_m', 0.002, 'noise floor of an increment in x and y, m'),
-    ParamSpec('min_sigma_theta_rad', 0.002, 'noise floor of an increment in heading, rad'),
-    ParamSpec('reset_jump_m', 1.0, 'a jump larger than this between samples is a reset, m'),
-    ParamSpec('reset_speed_mps', 5.0, 'a jump is a reset only above this speed, m/s'),
-    ParamSpec('reset_backwards_s', 1.0, 'a stamp going back more than this is a reset, s'),
-    ParamSpec('reset_sigma', [1.0, 1.0, 0.5], 'std. dev. of the increment bridging a reset'),
-    ParamSpec('max_buffer_s', 30.0, 'odometry kept for interpolation, s'),
-    ParamSpec('idle_flush_s', 1.0, 'emit held-back keyframes after this long without odometry'),
-    ParamSpec('base_frame', 'base_link', 'robot base frame id'),
-    ParamSpec('odom_frame', 'odom', 'odometry frame id'),
+PARAMETERS = ParamTable(
+    'odometry_ingest',
+    (
+        Param('keyframe_distance_m', 0.5, 'keyframe after this much travel, m', range=POSITIVE),
+        Param('keyframe_angle_rad', 0.35, 'keyframe after this much turning, rad', range=POSITIVE),
+        Param('keyframe_interval_s', 5.0, 'keyframe after this long, s', range=POSITIVE),
+        Param(
+            'observation_delay_s',
+            0.5,
+            'hold keyframes back this long for late observations, s (< max_buffer_s)',
+            range=NON_NEGATIVE,
+        ),
+        Param(
+            'noise_alphas',
+            [0.05, 0.001, 0.01, 0.001],
+            'motion noise alphas a1..a4',
+            length=4,
+            range=NON_NEGATIVE,
+            to_field=tuple,
+        ),
+        Param(
+            'min_sigma_xy_m', 0.002, 'noise floor of an increment in x and y, m', range=POSITIVE
+        ),
+        Param(
+            'min_sigma_theta_rad',
+            0.002,
+            'noise floor of an increment in heading, rad',
+            range=POSITIVE,
+        ),
+        Param(
+            'reset_jump_m',
+            1.0,
+            'a jump larger than this between samples is a reset, m',
+            range=POSITIVE,
+        ),
+        Param(
+            'reset_speed_mps', 5.0, 'a jump is a reset only above this speed, m/s', range=POSITIVE
+        ),
+        Param(
+            'reset_backwards_s',
+            1.0,
+            'a stamp going back more than this is a reset, s',
+            range=POSITIVE,
+        ),
+        Param(
+            'reset_sigma',
+            [1.0, 1.0, 0.5],
+            'std. dev. of the increment bridging a reset (x m, y m, theta rad)',
+            length=3,
+            range=POSITIVE,
+            to_field=tuple,
+        ),
+        Param('max_buffer_s', 30.0, 'odometry kept for interpolation, s', range=POSITIVE),
+        Param(
+            'idle_flush_s',
+            1.0,
+            'emit held-back keyframes after this long without odometry, s',
+            range=POSITIVE,
+        ),
+        Param('base_frame', 'base_link', 'robot base frame id'),
+        Param('odom_frame', 'odom', 'odometry frame id'),
+    ),
 )
+_NODE_ONLY = ('idle_flush_s', 'base_frame', 'odom_frame')
 
 
 def config_from_parameters(values: dict[str, Any]) -> IngestConfig:
     """Validate parameter values into an IngestConfig (raises ParameterError)."""
-    try:
-        return IngestConfig(
-            keyframe_distance_m=float(values['keyframe_distance_m']),
-            keyframe_angle_rad=float(values['keyframe_angle_rad']),
-            keyframe_interval_s=float(values['keyframe_interval_s']),
-            observation_delay_s=float(values['observation_delay_s']),
-            noise_alphas=tuple(float(a) for a in values['noise_alphas']),  # type: ignore[arg-type]
-            min_sigma_xy_m=float(values['min_sigma_xy_m']),
-            min_sigma_theta_rad=float(values['min_sigma_theta_rad']),
-            reset_jump_m=float(values['reset_jump_m']),
-            reset_backwards_s=float(values['reset_backwards_s']),
-            reset_speed_mps=float(values['reset_speed_mps']),
-            reset_sigma=tuple(float(s) for s in values['reset_sigma']),  # type: ignore[arg-type]
-            max_buffer_s=float(values['max_buffer_s']),
-        )
-    except ValueError as err:
-        raise ParameterError(str(err)) from None
+    fields = {
+        param.name: param.to_field(values[param.name]) if param.to_field else values[param.name]
+        for param in PARAMETERS
+        if param.name not in _NODE_ONLY
+    }
+    return PARAMETERS.build(lambda: IngestConfig(**fields))
 
 
 class OdometryIngestNode(Node):
@@ -98,7 +134,6 @@ class OdometryIngestNode(Node):
         values = declare_parameters(self, PARAMETERS)
         self.ingest = OdometryIngest(config_from_parameters(values), warn=self._warn)
         self.idle_flush_s = float(values['idle_flush_s'])
-        check_finite_positive('idle_flush_s', self.idle_flush_s)
         self.base_frame = str(values['base_frame'])
         self.odom_frame = str(values['odom_frame'])
         self.publisher = self.create_publisher(
@@ -153,7 +188,9 @@ class OdometryIngestNode(Node):
 @console_main('odometry_ingest')
 def main(argv: list[str] | None = None) -> int:
     """Run the node until Ctrl-C (the Jazzy shutdown pattern)."""
-    return spin_node('odometry_ingest', OdometryIngestNode, argv)
+    return spin_node(
+        'odometry_ingest', OdometryIngestNode, argv, parameters=PARAMETERS, doc=__doc__
+    )
 
 
 if __name__ == '__main__':

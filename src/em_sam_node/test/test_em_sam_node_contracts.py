@@ -8,7 +8,11 @@ from types import ModuleType
 import pytest
 
 from em_sam_node import em_sam_mapper_node, odometry_ingest_node
-from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import (
+    config_mismatches,
+    docstring_mismatches,
+    undocumented_parameters,
+)
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config'
 NODES = [
@@ -25,3 +29,10 @@ def test_docstring_lists_every_parameter(module: ModuleType, config: str) -> Non
 @pytest.mark.parametrize(('module', 'config'), NODES, ids=[c for _, c in NODES])
 def test_config_yaml_matches_declared_parameters(module: ModuleType, config: str) -> None:
     assert config_mismatches(module, CONFIG / config) == []
+
+
+@pytest.mark.parametrize(('module', 'config'), NODES, ids=[c for _, c in NODES])
+def test_docstring_types_and_defaults_match_the_declaration(
+    module: ModuleType, config: str
+) -> None:
+    assert docstring_mismatches(module) == []

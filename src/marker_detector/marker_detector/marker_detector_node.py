@@ -73,7 +73,11 @@ from marker_detector.conversions import (
 )
 from marker_detector.core.images import ImageError
 from marker_detector.processor import FrameOutput, InputError, MarkerProcessor
-from marker_detector.settings import detector_config, extrinsics_config
+from marker_detector.settings import (
+    PARAMETERS,
+    detector_config,
+    extrinsics_config,
+)
 from slam_core.cli import console_main
 from slam_core.errors import ParameterError
 from slam_core.stamps import stamp_to_ns
@@ -83,58 +87,10 @@ from slam_interfaces.msg import (
     LandmarkObservation,
     LandmarkObservationArray,
 )
-from slam_ros.params import ParamSpec, declare_parameters
+from slam_ros.params import declare_parameters, updated_values
 from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.spin import spin_node
 
-DETECTOR_PARAMETERS = (
-    ParamSpec('dictionary', 'DICT_APRILTAG_36h11', 'cv2.aruco dictionary name', read_only=False),
-    ParamSpec('marker_size_m', 0.16, 'black square side of every marker, m', read_only=False),
-    ParamSpec(
-        'marker_sizes_m',
-        [],
-        "per-id marker sizes, entries 'id:size_m'",
-        array_type='string_array',
-        read_only=False,
-    ),
-    ParamSpec(
-        'corner_refinement', 'subpix', "'subpix', 'contour', 'apriltag' or 'none'", read_only=False
-    ),
-    ParamSpec('min_side_px', 12.0, 'shortest accepted marker side, px', read_only=False),
-    ParamSpec(
-        'max_reprojection_error_px',
-        2.0,
-        'largest accepted RMS reprojection error, px',
-        read_only=False,
-    ),
-    ParamSpec('max_range_m', 8.0, 'farthest accepted marker, m', read_only=False),
-    ParamSpec(
-        'max_viewing_angle_rad',
-        1.22,
-        'most oblique accepted view of a marker, rad',
-        read_only=False,
-    ),
-    ParamSpec(
-        'allowed_ids',
-        [],
-        "accepted marker ids, entries 'id' or 'first-last' (empty: all)",
-        array_type='string_array',
-        read_only=False,
-    ),
-    ParamSpec(
-        'pixel_noise_px', 0.5, 'corner noise sigma for the pose covariance, px', read_only=False
-    ),
-)
-PARAMETERS = (
-    *DETECTOR_PARAMETERS,
-    ParamSpec('image_transport', 'raw', "'raw' (Image) or 'compressed' (CompressedImage)"),
-    ParamSpec('base_frame', 'base_link', 'frame of the range-bearing observations'),
-    ParamSpec('extrinsics_source', 'tf_static', "'tf_static' or 'parameters'"),
-    ParamSpec('camera_xyz_m', [0.0, 0.0, 0.0], 'camera_link position in base_frame, m'),
-    ParamSpec('camera_rpy_rad', [0.0, 0.0, 0.0], 'camera_link roll, pitch, yaw in base_frame'),
-    ParamSpec('publish_debug_image', False, 'publish the image with the detections drawn'),
-)
-IMAGE_TRANSPORTS = ('raw', 'compressed')
 STATUS_PERIOD_S = 10.0
 
 
@@ -169,14 +125,7 @@ class MarkerDetectorNode(Node):
         super().__init__('marker_detector', **kwargs)
         values = declare_parameters(self, PARAMETERS)
         transport = str(values['image_transport'])
-        if transport not in IMAGE_TRANSPORTS:
-            raise ParameterError(
-                f'parameter image_transport={transport!r}: must be one of {IMAGE_TRANSPORTS}'
-            )
-        try:
-            self.processor = MarkerProcessor(detector_config(values), extrinsics_config(values))
-        except ValueError as err:
-            raise ParameterError(str(err)) from None
+        self.processor = MarkerProcessor(detector_config(values), extrinsics_config(values))
         self._values = values
         self.publish_debug = bool(values['publish_debug_image'])
         self.images = 0
@@ -215,14 +164,10 @@ class MarkerDetectorNode(Node):
         self.get_logger().error(message, throttle_duration_sec=2.0)
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        values = dict(self._values)
-        for parameter in parameters:
-            if parameter.name in values:
-                value = parameter.value
-                values[parameter.name] = list(value) if isinstance(value, (list, tuple)) else value
         try:
+            values = updated_values(PARAMETERS, self._values, parameters)
             config = detector_config(values)
-        except (ValueError, TypeError) as err:
+        except ParameterError as err:
             self.get_logger().error(f'parameter change refused, settings kept: {err}')
             return SetParametersResult(successful=False, reason=str(err))
         self.processor.reconfigure(config)
@@ -326,7 +271,9 @@ class MarkerDetectorNode(Node):
 @console_main('marker_detector')
 def main(argv: list[str] | None = None) -> int:
     """Run the node until Ctrl-C (the Jazzy shutdown pattern)."""
-    return spin_node('marker_detector', MarkerDetectorNode, argv)
+    return spin_node(
+        'marker_detector', MarkerDetectorNode, argv, parameters=PARAMETERS, doc=__doc__
+    )
 
 
 if __name__ == '__main__':

@@ -36,10 +36,10 @@ from marker_detector.conversions import (
 from marker_detector.core.images import ImageError
 from marker_detector.processor import InputError, MarkerProcessor
 from marker_detector.settings import (
+    PARAMETERS,
     apply_overrides,
     detector_config,
     extrinsics_config,
-    parameters_from_yaml,
 )
 from slam_core.cli import console_main
 from slam_core.errors import BagError, ParameterError
@@ -229,8 +229,6 @@ def _detect_one(
 @console_main(PROG)
 def main(argv: list[str] | None = None) -> int:
     """Command line: see the module docstring."""
-    from marker_detector.marker_detector_node import PARAMETERS
-
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     parser.add_argument('bag', type=Path, help='input bag (mcap or sqlite3 rosbag2, or ROS 1)')
     parser.add_argument('--output', type=Path, required=True, help='output bag directory (new)')
@@ -253,14 +251,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument('--keep-images', action='store_true', help='copy the images too')
     args = parser.parse_args(argv)
-    defaults = {spec.name: spec.default for spec in PARAMETERS}
-    try:
-        values = defaults
-        for path in args.params:
-            values = parameters_from_yaml(path, values)
-        values = apply_overrides(values, args.set)
-    except ValueError as err:
-        raise ParameterError(str(err)) from None
+    values: dict[str, Any] = PARAMETERS.defaults()
+    for path in args.params:
+        values = PARAMETERS.read_yaml(path, values)
+    values = PARAMETERS.validate(apply_overrides(values, args.set))
     stats = detect_bag(
         args.bag, args.output, values, image_topic=args.image_topic, keep_images=args.keep_images
     )

@@ -1,18 +1,39 @@
-"""Node parameter values -> validated marker_detector configs (ROS-free).
+"""marker_detector's parameters and their validation into configs (ROS-free).
 
-Shared by the node and the offline tool (``marker_detect_bag``), which reads the node's
-YAML file, so both accept exactly the same settings.
+``PARAMETERS`` is the node's one declaration; the node declares it and the offline tool
+(``marker_detect_bag``) reads the node's YAML files with ``PARAMETERS.read_yaml``, so both
+accept exactly the same settings. The detector parameters (dictionary ... pixel_noise_px)
+are dynamic: the node accepts them at run time.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
+import math
 from typing import Any
 
 import yaml
 
-from marker_detector.core.detection import DetectorConfig
-from marker_detector.processor import ExtrinsicsConfig
+from marker_detector.core.detection import CORNER_REFINEMENTS, DetectorConfig
+from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
+from marker_detector.processor import EXTRINSICS_SOURCES, ExtrinsicsConfig
+from slam_core.errors import ParameterError
+from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamType, Range
+
+NODE_NAME = 'marker_detector'
+IMAGE_TRANSPORTS = ('raw', 'compressed')
+
+
+def _rule_of(parse: Any) -> Any:
+    """Turn a parser that raises ValueError into a validator returning the broken rule."""
+
+    def validator(entries: list[str]) -> str | None:
+        try:
+            parse(entries)
+        except ValueError as err:
+            return str(err).partition(': ')[2] or str(err)
+        return None
+
+    return validator
 
 
 def parse_marker_sizes(entries: list[str]) -> dict[int, float]:
@@ -56,68 +77,164 @@ def parse_id_ranges(entries: list[str]) -> tuple[int, ...]:
     return tuple(sorted(ids))
 
 
+DETECTOR_PARAMETERS = (
+    Param(
+        'dictionary',
+        DEFAULT_DICTIONARY,
+        'cv2.aruco dictionary name',
+        choices=tuple(DICTIONARIES),
+        read_only=False,
+    ),
+    Param(
+        'marker_size_m',
+        0.16,
+        'black square side of every marker, m',
+        range=POSITIVE,
+        read_only=False,
+        field='default_marker_size_m',
+    ),
+    Param(
+        'marker_sizes_m',
+        [],
+        "per-id marker sizes, entries 'id:size_m'",
+        type=ParamType.STRING_ARRAY,
+        validator=_rule_of(parse_marker_sizes),
+        read_only=False,
+    ),
+    Param(
+        'corner_refinement',
+        'subpix',
+        'corner refinement',
+        choices=tuple(CORNER_REFINEMENTS),
+        read_only=False,
+    ),
+    Param(
+        'min_side_px',
+        12.0,
+        'shortest accepted marker side, px',
+        range=NON_NEGATIVE,
+        read_only=False,
+    ),
+    Param(
+        'max_reprojection_error_px',
+        2.0,
+        'largest accepted RMS reprojection error, px (.inf: no limit)',
+        range=POSITIVE,
+        allow_inf=True,
+        read_only=False,
+    ),
+    Param(
+        'max_range_m',
+        8.0,
+        'farthest accepted marker, m (.inf: no limit)',
+        range=POSITIVE,
+        allow_inf=True,
+        read_only=False,
+    ),
+    Param(
+        'max_viewing_angle_rad',
+        1.22,
+        'most oblique accepted view of a marker, rad',
+        range=Range(0.0, math.pi / 2, low_open=True),
+        read_only=False,
+    ),
+    Param(
+        'allowed_ids',
+        [],
+        "accepted marker ids, entries 'id' or 'first-last' (empty: all)",
+        type=ParamType.STRING_ARRAY,
+        validator=_rule_of(parse_id_ranges),
+        read_only=False,
+    ),
+    Param(
+        'pixel_noise_px',
+        0.5,
+        'corner noise sigma for the pose covariance, px',
+        range=POSITIVE,
+        read_only=False,
+    ),
+)
+PARAMETERS = ParamTable(
+    NODE_NAME,
+    (
+        *DETECTOR_PARAMETERS,
+        Param(
+            'image_transport',
+            'raw',
+            "'raw' (Image) or 'compressed' (CompressedImage)",
+            choices=IMAGE_TRANSPORTS,
+        ),
+        Param('base_frame', 'base_link', 'frame of the range-bearing observations'),
+        Param(
+            'extrinsics_source',
+            'tf_static',
+            'where the camera mount comes from',
+            choices=EXTRINSICS_SOURCES,
+            field='source',
+        ),
+        Param(
+            'camera_xyz_m',
+            [0.0, 0.0, 0.0],
+            "camera_link position in base_frame, m (extrinsics_source 'parameters')",
+            length=3,
+        ),
+        Param(
+            'camera_rpy_rad',
+            [0.0, 0.0, 0.0],
+            "camera_link roll, pitch, yaw in base_frame, rad (extrinsics_source 'parameters')",
+            length=3,
+        ),
+        Param('publish_debug_image', False, 'publish the image with the detections drawn'),
+    ),
+)
+
+
 def detector_config(values: dict[str, Any]) -> DetectorConfig:
-    """Validate the detector parameters into a DetectorConfig (raises ValueError)."""
-    return DetectorConfig(
-        dictionary=str(values['dictionary']),
-        default_marker_size_m=float(values['marker_size_m']),
-        marker_sizes_m=parse_marker_sizes([str(e) for e in values['marker_sizes_m']]),
-        corner_refinement=str(values['corner_refinement']),
-        min_side_px=float(values['min_side_px']),
-        max_reprojection_error_px=float(values['max_reprojection_error_px']),
-        max_range_m=float(values['max_range_m']),
-        max_viewing_angle_rad=float(values['max_viewing_angle_rad']),
-        allowed_ids=parse_id_ranges([str(e) for e in values['allowed_ids']]),
-        pixel_noise_px=float(values['pixel_noise_px']),
+    """Validate the detector parameters into a DetectorConfig (raises ParameterError)."""
+    checked = {
+        p.name: PARAMETERS.validate_one(p.name, values[p.name]) for p in DETECTOR_PARAMETERS
+    }
+    return PARAMETERS.build(
+        lambda: DetectorConfig(
+            dictionary=checked['dictionary'],
+            default_marker_size_m=checked['marker_size_m'],
+            marker_sizes_m=parse_marker_sizes(checked['marker_sizes_m']),
+            corner_refinement=checked['corner_refinement'],
+            min_side_px=checked['min_side_px'],
+            max_reprojection_error_px=checked['max_reprojection_error_px'],
+            max_range_m=checked['max_range_m'],
+            max_viewing_angle_rad=checked['max_viewing_angle_rad'],
+            allowed_ids=parse_id_ranges(checked['allowed_ids']),
+            pixel_noise_px=checked['pixel_noise_px'],
+        )
     )
 
 
 def extrinsics_config(values: dict[str, Any]) -> ExtrinsicsConfig:
-    """Validate the extrinsics parameters into an ExtrinsicsConfig (raises ValueError)."""
-    return ExtrinsicsConfig(
-        source=str(values['extrinsics_source']),
-        base_frame=str(values['base_frame']),
-        camera_xyz_m=tuple(float(v) for v in values['camera_xyz_m']),
-        camera_rpy_rad=tuple(float(v) for v in values['camera_rpy_rad']),
+    """Validate the extrinsics parameters into an ExtrinsicsConfig (raises ParameterError)."""
+    names = ('extrinsics_source', 'base_frame', 'camera_xyz_m', 'camera_rpy_rad')
+    checked = {name: PARAMETERS.validate_one(name, values[name]) for name in names}
+    return PARAMETERS.build(
+        lambda: ExtrinsicsConfig(
+            source=checked['extrinsics_source'],
+            base_frame=checked['base_frame'],
+            camera_xyz_m=tuple(checked['camera_xyz_m']),
+            camera_rpy_rad=tuple(checked['camera_rpy_rad']),
+        )
     )
 
 
-def parameters_from_yaml(path: Path, defaults: dict[str, Any]) -> dict[str, Any]:
-    """Return ``defaults`` updated with the ``/**: ros__parameters`` (or ``<node>:``) of a
-    node YAML file; raise ValueError naming the file and the unknown key."""
-    try:
-        document: Any = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
-    except (OSError, yaml.YAMLError) as err:
-        raise ValueError(f'parameter file {str(path)!r}: {err}') from None
-    if not isinstance(document, dict) or len(document) != 1:
-        raise ValueError(f'parameter file {str(path)!r}: expected one "<node>: ros__parameters:"')
-    section = next(iter(document.values()))
-    if not isinstance(section, dict) or not isinstance(section.get('ros__parameters'), dict):
-        raise ValueError(f'parameter file {str(path)!r}: no ros__parameters mapping')
-    values = dict(defaults)
-    for name, value in section['ros__parameters'].items():
-        if name not in defaults:
-            raise ValueError(
-                f'parameter file {str(path)!r}: {name} is not a marker_detector parameter'
-            )
-        if isinstance(value, list):
-            value = [item for item in value if item != '']
-        values[name] = value
-    return values
-
-
 def apply_overrides(values: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
-    """Return ``values`` with 'name=value' overrides applied (values parsed as YAML)."""
+    """Return ``values`` with 'name=value' overrides applied (values parsed as YAML);
+    raise ParameterError for an unknown name (with the closest one) or a bad value."""
     result = dict(values)
     for override in overrides:
         name, sep, text = override.partition('=')
-        if not sep or name not in values:
-            raise ValueError(
-                f'override {override!r}: expected NAME=VALUE with NAME one of the '
-                f'parameters ({", ".join(sorted(values))})'
-            )
+        if not sep:
+            raise ParameterError(f'override {override!r}: expected NAME=VALUE')
+        PARAMETERS.check_names([name], where=f'override {override!r}')
         try:
             result[name] = yaml.safe_load(text)
         except yaml.YAMLError as err:
-            raise ValueError(f'override {override!r}: {err}') from None
+            raise ParameterError(f'override {override!r}: {err}') from None
     return result

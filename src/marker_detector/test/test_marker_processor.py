@@ -18,19 +18,18 @@ from marker_detector.processor import (
     StaticTransforms,
 )
 from marker_detector.settings import (
+    PARAMETERS,
     detector_config,
-    parameters_from_yaml,
     parse_id_ranges,
     parse_marker_sizes,
 )
+from slam_core.errors import ParameterError
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config' / 'marker_detector.yaml'
 
 
 def defaults() -> dict[str, object]:
-    from marker_detector.marker_detector_node import PARAMETERS
-
-    return {spec.name: spec.default for spec in PARAMETERS}
+    return dict(PARAMETERS.defaults())
 
 
 # --- images ---------------------------------------------------------------------------------
@@ -97,20 +96,23 @@ def test_marker_sizes_and_id_ranges_parse_and_reject_with_the_entry() -> None:
 )
 def test_a_zero_or_negative_marker_size_is_rejected_naming_it(name: str, value: object) -> None:
     values = defaults() | {name: value}
-    with pytest.raises(ValueError, match='marker'):
+    with pytest.raises(ParameterError, match=rf'^parameter marker_detector\.{name}='):
         detector_config(values)
 
 
 def test_the_shipped_yaml_configures_the_defaults() -> None:
-    values = parameters_from_yaml(CONFIG, defaults())
+    values = PARAMETERS.read_yaml(CONFIG)
     assert detector_config(values) == detector_config(defaults())
 
 
 def test_a_yaml_with_an_unknown_key_is_rejected_naming_it(tmp_path: Path) -> None:
     path = tmp_path / 'bad.yaml'
     path.write_text('/**:\n  ros__parameters:\n    marker_size: 0.2\n', encoding='utf-8')
-    with pytest.raises(ValueError, match='marker_size is not a marker_detector parameter'):
-        parameters_from_yaml(path, defaults())
+    with pytest.raises(ParameterError) as caught:
+        PARAMETERS.read_yaml(path)
+    assert str(path) in str(caught.value)
+    assert "'marker_size' is not a parameter of node marker_detector" in str(caught.value)
+    assert "did you mean 'marker_size_m'?" in str(caught.value)
 
 
 # --- static transforms and the processor -----------------------------------------------------

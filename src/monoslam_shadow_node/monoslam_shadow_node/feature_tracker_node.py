@@ -91,7 +91,7 @@ from marker_detector.core.images import ImageError
 from monoslam_shadow_node.conversions import features_from_message
 from monoslam_shadow_node.feature_tracker_settings import (
     NODE_NAME,
-    SETTINGS,
+    PARAMETERS,
     node_settings,
     tracker_config,
 )
@@ -106,11 +106,10 @@ from monoslam_shadow_node.feature_tracking import (
 from slam_core.cli import console_main
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
-from slam_ros.params import ParamSpec, declare_parameters
+from slam_ros.params import declare_parameters
 from slam_ros.qos import output_qos, sensor_qos
 from slam_ros.spin import spin_node
 
-PARAMETERS = tuple(ParamSpec(s.name, s.default, s.description) for s in SETTINGS)
 IMAGE_TOPIC = 'camera/image_raw'
 COMPRESSED_TOPIC = 'camera/image_raw/compressed'
 CAMERA_INFO_TOPIC = 'camera/camera_info'
@@ -288,7 +287,7 @@ class FeatureTrackerNode(Node):
 @console_main(NODE_NAME)
 def main(argv: list[str] | None = None) -> int:
     """Run the node until Ctrl-C (the Jazzy shutdown pattern)."""
-    return spin_node(NODE_NAME, FeatureTrackerNode, argv)
+    return spin_node(NODE_NAME, FeatureTrackerNode, argv, parameters=PARAMETERS, doc=__doc__)
 
 
 if __name__ == '__main__':

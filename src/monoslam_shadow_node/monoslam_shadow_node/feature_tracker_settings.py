@@ -1,12 +1,13 @@
 """feature_tracker parameter values -> a validated TrackerConfig and node settings (ROS-free).
 
-``SETTINGS`` lists every parameter of the node: its name (with a unit suffix), default and
-meaning. The tracker's parameters map one to one onto the fields of the core's
-``TrackerConfig`` (same names, the core's defaults); the rest configure the node (image
-transport, predictions, restarts). The node declares them
+``PARAMETERS`` declares every parameter of the node: its name (with a unit suffix), default,
+meaning and rule. The tracker's parameters map one to one onto the fields of the core's
+``TrackerConfig`` (same names, ``Param.field``, the core's defaults); the rest configure the
+node (image transport, predictions, restarts). The node declares the table
 (``feature_tracker_node.PARAMETERS``); offline tools read the node's YAML file with
-``parameters_from_yaml`` and validate it the same way, so both accept exactly the same
-settings. Every rejection raises ParameterError naming the parameter and the rule.
+``PARAMETERS.read_yaml`` and validate it the same way, so both accept exactly the same
+settings. Every rejection raises ParameterError
+``parameter feature_tracker.<name>=<value>: <rule>``.
 """
 
 from __future__ import annotations
@@ -14,20 +15,10 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from monoslam_shadow_node.core.feature_tracker import TrackerConfig
-
-# The shadow_filter's parameter plumbing is generic and shared: setting_value checks presence
-# and type, read_parameter_file reads a node YAML.
-from monoslam_shadow_node.settings import (
-    Setting,
-    SettingValue,
-    read_parameter_file,
-    setting_value,
-)
-from slam_core.errors import ParameterError
+from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
 
 NODE_NAME = 'feature_tracker'
 IMAGE_TRANSPORTS = ('raw', 'compressed')
@@ -51,27 +42,32 @@ _CORE_DESCRIPTIONS = {
     'max_drift_px': 'largest distance of a track from its template, px (0: no check)',
     'border_margin_px': 'tracks this close to the image edge are dropped, px (>= 0)',
 }
-CORE_SETTINGS = tuple(
-    Setting(
-        item.name, getattr(_CORE, item.name), _CORE_DESCRIPTIONS[item.name], 'tracker', item.name
-    )
+CORE_PARAMETERS = tuple(
+    Param(item.name, getattr(_CORE, item.name), _CORE_DESCRIPTIONS[item.name], field=item.name)
     for item in dataclasses.fields(TrackerConfig)
 )
-NODE_SETTINGS = (
-    Setting('image_transport', 'raw', "'raw' (camera/image_raw) or 'compressed' (.../compressed)"),
-    Setting('use_predictions', False, 'use predicted pixels from features/predicted'),
-    Setting(
+NODE_PARAMETERS = (
+    Param(
+        'image_transport',
+        'raw',
+        "'raw' (camera/image_raw) or 'compressed' (.../compressed)",
+        choices=IMAGE_TRANSPORTS,
+    ),
+    Param('use_predictions', False, 'use predicted pixels from features/predicted'),
+    Param(
         'prediction_timeout_s',
         0.02,
-        'longest an image waits for its prediction (wall time), s (>= 0; 0: never waits)',
+        'longest an image waits for its prediction (wall time), s (0: never waits)',
+        range=NON_NEGATIVE,
     ),
-    Setting(
+    Param(
         'restart_backstep_s',
         1.0,
-        'a stamp this far back restarts tracking; a smaller step back drops the image, s (> 0)',
+        'a stamp this far back restarts tracking; a smaller step back drops the image, s',
+        range=POSITIVE,
     ),
 )
-SETTINGS = CORE_SETTINGS + NODE_SETTINGS
+PARAMETERS = ParamTable(NODE_NAME, (*CORE_PARAMETERS, *NODE_PARAMETERS))
 
 
 @dataclass(frozen=True)
@@ -85,45 +81,18 @@ class NodeSettings:
     restart_backstep_ns: int
 
 
-def _fail(name: str, value: object, rule: str) -> ParameterError:
-    return ParameterError(f'parameter {name}={value!r}: {rule}')
-
-
 def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
     """Validate the tracker's parameters into a TrackerConfig (raises ParameterError)."""
-    fields: dict[str, Any] = {s.field: setting_value(values, s) for s in CORE_SETTINGS}
-    try:
-        return TrackerConfig(**fields)
-    except ValueError as err:  # the core names the field, which is the parameter's name
-        raise ParameterError(f'parameter {err}') from None
+    checked = PARAMETERS.validate(values)
+    return PARAMETERS.build(lambda: TrackerConfig(**PARAMETERS.fields(checked)))
 
 
 def node_settings(values: Mapping[str, Any]) -> NodeSettings:
     """Validate the node's own parameters (raises ParameterError)."""
-    by_name = {setting.name: setting_value(values, setting) for setting in NODE_SETTINGS}
-    transport = str(by_name['image_transport'])
-    if transport not in IMAGE_TRANSPORTS:
-        raise _fail('image_transport', transport, f'must be one of {IMAGE_TRANSPORTS}')
-    timeout = float(by_name['prediction_timeout_s'])
-    if timeout < 0.0:
-        raise _fail('prediction_timeout_s', timeout, 'must be >= 0 s')
-    backstep = float(by_name['restart_backstep_s'])
-    if backstep <= 0.0:
-        raise _fail('restart_backstep_s', backstep, 'must be > 0 s')
+    checked = PARAMETERS.validate(values)
     return NodeSettings(
-        image_transport=transport,
-        use_predictions=bool(by_name['use_predictions']),
-        prediction_timeout_s=timeout,
-        restart_backstep_ns=round(backstep * 1e9),
+        image_transport=checked['image_transport'],
+        use_predictions=checked['use_predictions'],
+        prediction_timeout_s=checked['prediction_timeout_s'],
+        restart_backstep_ns=round(checked['restart_backstep_s'] * 1e9),
     )
-
-
-def defaults() -> dict[str, SettingValue]:
-    """Return every parameter's default value by name."""
-    return {setting.name: setting.default for setting in SETTINGS}
-
-
-def parameters_from_yaml(path: Path) -> dict[str, Any]:
-    """Return the defaults updated with a node YAML file's ``/**: ros__parameters`` (or
-    ``feature_tracker:``) section; raise ParameterError naming the file and a bad key."""
-    return read_parameter_file(path, NODE_NAME, defaults())

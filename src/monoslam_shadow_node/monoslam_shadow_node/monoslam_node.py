@@ -155,8 +155,7 @@ from monoslam_shadow_node.monoslam_conversions import (
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep, Outcome
 from monoslam_shadow_node.monoslam_settings import (
     NODE_NAME,
-    SCALAR_SETTINGS,
-    TARGET_POSE_SETTINGS,
+    PARAMETERS,
     monoslam_config,
     node_settings,
     target_settings,
@@ -166,14 +165,10 @@ from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, FiducialArray, ShadowTrackArray
-from slam_ros.params import ParamSpec, declare_parameters
+from slam_ros.params import declare_parameters
 from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.spin import spin_node
 
-PARAMETERS = (
-    *(ParamSpec(s.name, s.default, s.description) for s in SCALAR_SETTINGS),
-    *(ParamSpec(s.name, list(s.default), s.description) for s in TARGET_POSE_SETTINGS),
-)
 FEATURES_TOPIC = 'features'
 FIDUCIALS_TOPIC = 'fiducials'
 CAMERA_INFO_TOPIC = 'camera/camera_info'
@@ -384,7 +379,7 @@ class MonoSlamNode(Node):
 @console_main(NODE_NAME)
 def main(argv: list[str] | None = None) -> int:
     """Run the node until Ctrl-C (the Jazzy shutdown pattern)."""
-    return spin_node(NODE_NAME, MonoSlamNode, argv)
+    return spin_node(NODE_NAME, MonoSlamNode, argv, parameters=PARAMETERS, doc=__doc__)
 
 
 if __name__ == '__main__':

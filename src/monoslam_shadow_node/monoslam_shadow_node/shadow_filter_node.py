@@ -137,15 +137,14 @@ from monoslam_shadow_node.conversions import (
 from monoslam_shadow_node.core.shadow_filter import FrameResult, ShadowFilter
 from monoslam_shadow_node.frame_sync import FrameSynchronizer
 from monoslam_shadow_node.notices import LogThrottle, Notice, log_notice
-from monoslam_shadow_node.settings import NODE_NAME, SETTINGS, node_settings, shadow_config
+from monoslam_shadow_node.settings import NODE_NAME, PARAMETERS, node_settings, shadow_config
 from monoslam_shadow_node.shadow_processor import Outcome, ShadowProcessor, ShadowStep
 from slam_core.cli import console_main
 from slam_interfaces.msg import FeatureTrackArray, ShadowTrack, ShadowTrackArray
-from slam_ros.params import ParamSpec, declare_parameters
+from slam_ros.params import declare_parameters
 from slam_ros.qos import output_qos, sensor_qos
 from slam_ros.spin import spin_node
 
-PARAMETERS = tuple(ParamSpec(s.name, s.default, s.description) for s in SETTINGS)
 FEATURES_TOPIC = 'features'
 CAMERA_INFO_TOPIC = 'camera/camera_info'
 TRACKS_TOPIC = 'shadow/tracks'
@@ -324,7 +323,7 @@ class ShadowFilterNode(Node):
 @console_main(NODE_NAME)
 def main(argv: list[str] | None = None) -> int:
     """Run the node until Ctrl-C (the Jazzy shutdown pattern)."""
-    return spin_node(NODE_NAME, ShadowFilterNode, argv)
+    return spin_node(NODE_NAME, ShadowFilterNode, argv, parameters=PARAMETERS, doc=__doc__)
 
 
 if __name__ == '__main__':

@@ -29,7 +29,11 @@ from monoslam_shadow_node.feature_tracking import (
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
-from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import (
+    config_mismatches,
+    docstring_mismatches,
+    undocumented_parameters,
+)
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'feature_tracker.yaml'
@@ -45,13 +49,17 @@ def test_docstring_lists_every_parameter() -> None:
     assert undocumented_parameters(feature_tracker_node) == []
 
 
+def test_docstring_types_and_defaults_match_the_declaration() -> None:
+    assert docstring_mismatches(feature_tracker_node) == []
+
+
 def test_config_yaml_matches_declared_parameters() -> None:
     assert config_mismatches(feature_tracker_node, CONFIG) == []
 
 
 def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None:
-    values = settings.parameters_from_yaml(CONFIG)
-    assert values == settings.defaults()
+    values = settings.PARAMETERS.read_yaml(CONFIG)
+    assert values == settings.PARAMETERS.defaults()
     assert settings.tracker_config(values) == TrackerConfig()
     node = settings.node_settings(values)
     assert node.image_transport == 'raw' and not node.use_predictions
@@ -60,15 +68,15 @@ def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None
 
 def test_every_core_setting_has_a_parameter_with_a_unit_where_it_has_one() -> None:
     fields = {field.name for field in dataclasses.fields(TrackerConfig)}
-    assert {s.field for s in settings.CORE_SETTINGS} == fields
-    for setting in settings.SETTINGS:
+    assert {s.field for s in settings.CORE_PARAMETERS} == fields
+    for setting in settings.PARAMETERS:
         unit = ' px' in setting.description or ', s ' in setting.description
         assert not unit or setting.name.endswith(('_px', '_s')), setting.name
 
 
 def test_parameters_reach_the_core_config() -> None:
     values = {
-        **settings.defaults(),
+        **settings.PARAMETERS.defaults(),
         'max_features': 300,
         'detector': 'fast',
         'fb_threshold_px': 0.5,
@@ -82,55 +90,99 @@ def test_parameters_reach_the_core_config() -> None:
 @pytest.mark.parametrize(
     ('name', 'value', 'message'),
     [
-        ('max_features', 0, r'parameter max_features=0: must be >= 1'),
-        ('max_features', 1.5, r'parameter max_features=1\.5: must be an integer'),
-        ('detector', 'orb', r"parameter detector='orb': must be one of \('shi_tomasi', 'fast'\)"),
-        ('quality_level', 0.0, r'parameter quality_level=0\.0: must be in \(0, 1\)'),
-        ('min_distance_px', 0.5, r'parameter min_distance_px=0\.5: must be >= 1 px'),
-        ('fb_threshold_px', math.nan, r'parameter fb_threshold_px=nan: must be a finite'),
-        ('lk_pyramid_levels', 9, r'parameter lk_pyramid_levels=9: must be in \[0, 8\]'),
-        ('subpixel_refinement', 1, r'parameter subpixel_refinement=1: must be true or false'),
-        ('grid_rows', 'four', r"parameter grid_rows='four': must be an integer"),
+        ('max_features', 0, r'parameter feature_tracker\.max_features=0: must be >= 1'),
+        ('max_features', 1.5, r'parameter feature_tracker\.max_features=1\.5: must be an integer'),
+        (
+            'detector',
+            'orb',
+            r"parameter feature_tracker\.detector='orb': must be one of \('shi_tomasi', 'fast'\)",
+        ),
+        (
+            'quality_level',
+            0.0,
+            r'parameter feature_tracker\.quality_level=0\.0: must be in \(0, 1\)',
+        ),
+        (
+            'min_distance_px',
+            0.5,
+            r'parameter feature_tracker\.min_distance_px=0\.5: must be >= 1 px',
+        ),
+        (
+            'fb_threshold_px',
+            math.nan,
+            r'parameter feature_tracker\.fb_threshold_px=nan: must be a finite',
+        ),
+        (
+            'lk_pyramid_levels',
+            9,
+            r'parameter feature_tracker\.lk_pyramid_levels=9: must be in \[0, 8\]',
+        ),
+        (
+            'subpixel_refinement',
+            1,
+            r'parameter feature_tracker\.subpixel_refinement=1: must be true or false',
+        ),
+        ('grid_rows', 'four', r"parameter feature_tracker\.grid_rows='four': must be an integer"),
     ],
 )
 def test_invalid_tracker_parameters_are_named(name: str, value: object, message: str) -> None:
     with pytest.raises(ParameterError, match=message):
-        settings.tracker_config({**settings.defaults(), name: value})
+        settings.tracker_config({**settings.PARAMETERS.defaults(), name: value})
 
 
 @pytest.mark.parametrize(
     ('name', 'value', 'message'),
     [
-        ('image_transport', 'theora', r"parameter image_transport='theora': must be one of"),
-        ('prediction_timeout_s', -0.1, r'parameter prediction_timeout_s=-0\.1: must be >= 0 s'),
-        ('restart_backstep_s', 0.0, r'parameter restart_backstep_s=0\.0: must be > 0 s'),
-        ('use_predictions', 'yes', r"parameter use_predictions='yes': must be true or false"),
+        (
+            'image_transport',
+            'theora',
+            r"parameter feature_tracker\.image_transport='theora': must be one of",
+        ),
+        (
+            'prediction_timeout_s',
+            -0.1,
+            r'parameter feature_tracker\.prediction_timeout_s=-0\.1: must be >= 0',
+        ),
+        (
+            'restart_backstep_s',
+            0.0,
+            r'parameter feature_tracker\.restart_backstep_s=0\.0: must be > 0',
+        ),
+        (
+            'use_predictions',
+            'yes',
+            r"parameter feature_tracker\.use_predictions='yes': must be true or false",
+        ),
     ],
 )
 def test_invalid_node_parameters_are_named(name: str, value: object, message: str) -> None:
     with pytest.raises(ParameterError, match=message):
-        settings.node_settings({**settings.defaults(), name: value})
+        settings.node_settings({**settings.PARAMETERS.defaults(), name: value})
 
 
 def test_a_missing_parameter_is_named() -> None:
-    values = settings.defaults()
+    values = settings.PARAMETERS.defaults()
     del values['max_features']
-    with pytest.raises(ParameterError, match='parameter max_features is missing'):
+    with pytest.raises(
+        ParameterError, match=r'parameter feature_tracker\.max_features is missing'
+    ):
         settings.tracker_config(values)
 
 
 def test_parameter_file_errors_name_the_file_and_key(tmp_path: Path) -> None:
     stray = tmp_path / 'stray.yaml'
     stray.write_text('/**:\n  ros__parameters:\n    max_features: 90\n    speed: 2.0\n')
-    with pytest.raises(ParameterError, match=r'stray\.yaml.*speed is not a feature_tracker'):
-        settings.parameters_from_yaml(stray)
+    with pytest.raises(
+        ParameterError, match=r"stray\.yaml.*'speed' is not a parameter of node feature_tracker"
+    ):
+        settings.PARAMETERS.read_yaml(stray)
     empty = tmp_path / 'empty.yaml'
     empty.write_text('feature_tracker: {}\n')
     with pytest.raises(ParameterError, match='no "/\\*\\*: ros__parameters:"'):
-        settings.parameters_from_yaml(empty)
+        settings.PARAMETERS.read_yaml(empty)
     named = tmp_path / 'named.yaml'
     named.write_text('feature_tracker:\n  ros__parameters:\n    max_features: 90\n')
-    assert settings.parameters_from_yaml(named)['max_features'] == 90
+    assert settings.PARAMETERS.read_yaml(named)['max_features'] == 90
 
 
 # --- processor -----------------------------------------------------------------------------

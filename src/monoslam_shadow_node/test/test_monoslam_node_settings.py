@@ -35,13 +35,17 @@ from monoslam_shadow_node.monoslam_conversions import (
 from monoslam_shadow_node.monoslam_processor import monoslam_frame
 from slam_core.errors import ParameterError
 from slam_ros.testing.launch_files import check_launched_node, launched_node
-from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import (
+    config_mismatches,
+    docstring_mismatches,
+    undocumented_parameters,
+)
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'monoslam.yaml'
 LAUNCH = PACKAGE_DIR / 'launch' / 'monoslam.launch.py'
 MS = 1_000_000
-DEFAULTS = monoslam_settings.defaults()
+DEFAULTS = monoslam_settings.PARAMETERS.defaults()
 
 
 # --- parameters ----------------------------------------------------------------------------
@@ -51,12 +55,16 @@ def test_docstring_lists_every_parameter() -> None:
     assert undocumented_parameters(monoslam_node) == []
 
 
+def test_docstring_types_and_defaults_match_the_declaration() -> None:
+    assert docstring_mismatches(monoslam_node) == []
+
+
 def test_config_yaml_matches_declared_parameters() -> None:
     assert config_mismatches(monoslam_node, CONFIG) == []
 
 
 def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None:
-    values = monoslam_settings.parameters_from_yaml(CONFIG)
+    values = monoslam_settings.PARAMETERS.read_yaml(CONFIG)
     assert values == DEFAULTS
     target = monoslam_settings.target_settings(values)
     config = monoslam_settings.monoslam_config(values, target)
@@ -68,7 +76,7 @@ def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None
 
 def test_every_core_setting_has_a_parameter() -> None:
     """A field added to MonoSlamConfig needs a parameter (and a YAML entry)."""
-    mapped = {s.field for s in monoslam_settings.CORE_SETTINGS}
+    mapped = {s.field for s in monoslam_settings.CORE_PARAMETERS}
     fields = {f.name for f in dataclasses.fields(MonoSlamConfig)} - {'known_points'}
     assert mapped == fields
 
@@ -98,17 +106,30 @@ def test_the_default_target_defines_the_map() -> None:
 @pytest.mark.parametrize(
     ('name', 'value', 'message'),
     [
-        ('pixel_sigma_px', 0.0, r'parameter pixel_sigma_px=0\.0: must be a finite number > 0'),
+        (
+            'pixel_sigma_px',
+            0.0,
+            r'parameter monoslam\.pixel_sigma_px=0\.0: must be a finite number > 0',
+        ),
         (
             'linear_acceleration_sigma_m_s2',
             -1.0,
-            r'parameter linear_acceleration_sigma_m_s2=-1\.0: must be a finite number > 0',
+            r'parameter monoslam\.linear_acceleration_sigma_m_s2=-1\.0: '
+            'must be a finite number > 0',
         ),
-        ('gate_probability', 1.0, r'parameter gate_probability=1\.0: must be in \(0, 1\)'),
-        ('max_features', 0, r'parameter max_features=0: must be an integer >= 1'),
-        ('max_features', 2.5, r'parameter max_features=2\.5: must be an integer'),
-        ('initialize', 'some', r"parameter initialize='some': must be one of all, handover"),
-        ('max_gap_s', math.nan, r'parameter max_gap_s=nan: must be a finite number'),
+        (
+            'gate_probability',
+            1.0,
+            r'parameter monoslam\.gate_probability=1\.0: must be in \(0, 1\)',
+        ),
+        ('max_features', 0, r'parameter monoslam\.max_features=0: must be an integer >= 1'),
+        ('max_features', 2.5, r'parameter monoslam\.max_features=2\.5: must be an integer'),
+        (
+            'initialize',
+            'some',
+            r"parameter monoslam\.initialize='some': must be one of all, handover",
+        ),
+        ('max_gap_s', math.nan, r'parameter monoslam\.max_gap_s=nan: must be a finite number'),
     ],
 )
 def test_invalid_filter_parameters_are_named(name: str, value: object, message: str) -> None:
@@ -120,12 +141,24 @@ def test_invalid_filter_parameters_are_named(name: str, value: object, message: 
 @pytest.mark.parametrize(
     ('name', 'value', 'message'),
     [
-        ('target_id', -1, r'parameter target_id=-1: must be >= 0'),
-        ('target_dictionary', 'DICT_QR', r"parameter target_dictionary='DICT_QR': must be one"),
-        ('target_size_m', 0.0, r'parameter target_size_m=0\.0: must be > 0 m'),
-        ('target_xyz_m', [1.0, 2.0], r'target_xyz_m=\[1\.0, 2\.0\]: must be a list of 3 finite'),
-        ('target_rpy_rad', [0.0, math.inf, 0.0], r'parameter target_rpy_rad=\[0\.0, inf, 0\.0\]'),
-        ('target_xyz_m', [1.0, True, 2.0], r'parameter target_xyz_m=\[1\.0, True, 2\.0\]'),
+        ('target_id', -1, r'parameter monoslam\.target_id=-1: must be >= 0'),
+        (
+            'target_dictionary',
+            'DICT_QR',
+            r"parameter monoslam\.target_dictionary='DICT_QR': must be one",
+        ),
+        ('target_size_m', 0.0, r'parameter monoslam\.target_size_m=0\.0: must be > 0'),
+        ('target_xyz_m', [1.0, 2.0], r'target_xyz_m=\[1\.0, 2\.0\]: must have 3 items'),
+        (
+            'target_rpy_rad',
+            [0.0, math.inf, 0.0],
+            r'parameter monoslam\.target_rpy_rad=\[0\.0, inf, 0\.0\]: must be a finite number',
+        ),
+        (
+            'target_xyz_m',
+            [1.0, True, 2.0],
+            r'parameter monoslam\.target_xyz_m=\[1\.0, True, 2\.0\]: must be a number',
+        ),
     ],
 )
 def test_invalid_target_parameters_are_named(name: str, value: object, message: str) -> None:
@@ -136,13 +169,17 @@ def test_invalid_target_parameters_are_named(name: str, value: object, message: 
 @pytest.mark.parametrize(
     ('name', 'value', 'message'),
     [
-        ('map_frame', '/map', r"parameter map_frame='/map': must name a frame"),
-        ('path_length', 0, r'parameter path_length=0: must be >= 1'),
-        ('map_period_s', 0.0, r'parameter map_period_s=0\.0: must be > 0 s'),
-        ('stamp_tolerance_s', -0.1, r'parameter stamp_tolerance_s=-0\.1: must be >= 0 s'),
-        ('sync_horizon_s', 0.0, r'parameter sync_horizon_s=0\.0: must exceed stamp_tolerance_s'),
-        ('queue_size', 0, r'parameter queue_size=0: must be >= 1'),
-        ('publish_tf', 'yes', r"parameter publish_tf='yes': must be true or false"),
+        ('map_frame', '/map', r"parameter monoslam\.map_frame='/map': must name a frame"),
+        ('path_length', 0, r'parameter monoslam\.path_length=0: must be >= 1'),
+        ('map_period_s', 0.0, r'parameter monoslam\.map_period_s=0\.0: must be > 0'),
+        ('stamp_tolerance_s', -0.1, r'parameter monoslam\.stamp_tolerance_s=-0\.1: must be >= 0'),
+        (
+            'sync_horizon_s',
+            0.0,
+            r'parameter monoslam\.sync_horizon_s=0\.0: must exceed stamp_tolerance_s',
+        ),
+        ('queue_size', 0, r'parameter monoslam\.queue_size=0: must be >= 1'),
+        ('publish_tf', 'yes', r"parameter monoslam\.publish_tf='yes': must be true or false"),
     ],
 )
 def test_invalid_node_parameters_are_named(name: str, value: object, message: str) -> None:
@@ -160,8 +197,10 @@ def test_trajectory_file_must_not_be_a_directory(tmp_path: Path) -> None:
 def test_parameter_file_errors_name_the_file_and_key(tmp_path: Path) -> None:
     stray = tmp_path / 'stray.yaml'
     stray.write_text('/**:\n  ros__parameters:\n    target_size_m: 0.3\n    speed: 2.0\n')
-    with pytest.raises(ParameterError, match=r'stray\.yaml.*speed is not a monoslam'):
-        monoslam_settings.parameters_from_yaml(stray)
+    with pytest.raises(
+        ParameterError, match=r"stray\.yaml.*'speed' is not a parameter of node monoslam"
+    ):
+        monoslam_settings.PARAMETERS.read_yaml(stray)
 
 
 # --- conversions ---------------------------------------------------------------------------
@@ -392,11 +431,11 @@ def test_fiducials_without_features_are_named() -> None:
 
 
 def test_pose_gate_parameters_default_to_no_gate() -> None:
-    node = settings.node_settings(settings.defaults())
+    node = settings.node_settings(settings.PARAMETERS.defaults())
     assert node.max_pose_sigma == (math.inf, math.inf) and not node.pose_gate
     gated = settings.node_settings(
         {
-            **settings.defaults(),
+            **settings.PARAMETERS.defaults(),
             'max_pose_position_sigma_m': 0.03,
             'max_pose_rotation_sigma_rad': 0.01,
         }
@@ -408,13 +447,13 @@ def test_pose_gate_parameters_default_to_no_gate() -> None:
     ('name', 'value', 'message'),
     [
         ('max_pose_position_sigma_m', 0.0, r'max_pose_position_sigma_m=0\.0: must be > 0'),
-        ('max_pose_rotation_sigma_rad', -math.inf, r'must be a finite number or \.inf'),
+        ('max_pose_rotation_sigma_rad', -math.inf, r'must not be -\.inf'),
         ('max_pose_rotation_sigma_rad', math.nan, r'must be a finite number or \.inf'),
     ],
 )
 def test_invalid_pose_gates_are_named(name: str, value: float, message: str) -> None:
     with pytest.raises(ParameterError, match=message):
-        settings.node_settings({**settings.defaults(), name: value})
+        settings.node_settings({**settings.PARAMETERS.defaults(), name: value})
 
 
 # --- launch file ---------------------------------------------------------------------------

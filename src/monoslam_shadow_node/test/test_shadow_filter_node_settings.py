@@ -42,7 +42,11 @@ from monoslam_shadow_node.frame_sync import FrameSynchronizer
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
-from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import (
+    config_mismatches,
+    docstring_mismatches,
+    undocumented_parameters,
+)
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'shadow_filter.yaml'
@@ -57,13 +61,17 @@ def test_docstring_lists_every_parameter() -> None:
     assert undocumented_parameters(shadow_filter_node) == []
 
 
+def test_docstring_types_and_defaults_match_the_declaration() -> None:
+    assert docstring_mismatches(shadow_filter_node) == []
+
+
 def test_config_yaml_matches_declared_parameters() -> None:
     assert config_mismatches(shadow_filter_node, CONFIG) == []
 
 
 def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None:
-    values = settings.parameters_from_yaml(CONFIG)
-    assert values == settings.defaults()
+    values = settings.PARAMETERS.read_yaml(CONFIG)
+    assert values == settings.PARAMETERS.defaults()
     assert settings.shadow_config(values) == ShadowConfig()
     node = settings.node_settings(values)
     assert node.pose_topic == 'monoslam/pose' and node.stamp_tolerance_ns == 0
@@ -72,7 +80,7 @@ def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None
 
 def test_every_core_setting_has_a_parameter() -> None:
     """A field added to the core's configs needs a parameter (and a YAML entry)."""
-    mapped = {(s.section, s.field) for s in settings.CORE_SETTINGS}
+    mapped = {tuple(s.field.split('.')) for s in settings.CORE_PARAMETERS}
     fields = {('ekf', f.name) for f in dataclasses.fields(EkfConfig)}
     fields |= {('classifier', f.name) for f in dataclasses.fields(ClassifierConfig)}
     fields |= {
@@ -85,7 +93,7 @@ def test_every_core_setting_has_a_parameter() -> None:
 
 def test_parameters_reach_the_core_config() -> None:
     values = {
-        **settings.defaults(),
+        **settings.PARAMETERS.defaults(),
         'alpha': 0.01,
         'min_parallax_deg': 3,
         'max_tests': 4,
@@ -101,41 +109,57 @@ def test_parameters_reach_the_core_config() -> None:
 @pytest.mark.parametrize(
     ('name', 'value', 'message'),
     [
-        ('alpha', 1.5, r'parameter alpha=1\.5: must be in \(0, 1\)'),
-        ('min_parallax_deg', 0.0, r'parameter min_parallax_deg=0\.0: must be in \(0, 180\) deg'),
+        ('alpha', 1.5, r'parameter shadow_filter\.alpha=1\.5: must be in \(0, 1\)'),
+        (
+            'min_parallax_deg',
+            0.0,
+            r'parameter shadow_filter\.min_parallax_deg=0\.0: must be in \(0, 180\)',
+        ),
         ('min_parallax_deg', 180.0, r'min_parallax_deg=180\.0'),
-        ('max_tests', 0, r'parameter max_tests=0: must be an integer >= 1'),
-        ('max_tests', 2.5, r'parameter max_tests=2\.5: must be an integer'),
-        ('max_tests', True, r'parameter max_tests=True: must be an integer'),
-        ('pixel_sigma_px', 0.0, r'parameter pixel_sigma_px=0\.0 is out of range'),
-        ('velocity_sigma_m_s', math.nan, r'parameter velocity_sigma_m_s=nan: must be a finite'),
-        ('unchecked_directions', 3, r'parameter unchecked_directions=3'),
-        ('max_missed_frames', -1, r'parameter max_missed_frames=-1'),
-        ('alpha', 'high', r"parameter alpha='high': must be a number"),
+        ('max_tests', 0, r'parameter shadow_filter\.max_tests=0: must be an integer >= 1'),
+        ('max_tests', 2.5, r'parameter shadow_filter\.max_tests=2\.5: must be an integer'),
+        ('max_tests', True, r'parameter shadow_filter\.max_tests=True: must be an integer'),
+        ('pixel_sigma_px', 0.0, r'parameter shadow_filter\.pixel_sigma_px=0\.0 is out of range'),
+        (
+            'velocity_sigma_m_s',
+            math.nan,
+            r'parameter shadow_filter\.velocity_sigma_m_s=nan: must be a finite',
+        ),
+        ('unchecked_directions', 3, r'parameter shadow_filter\.unchecked_directions=3'),
+        ('max_missed_frames', -1, r'parameter shadow_filter\.max_missed_frames=-1'),
+        ('alpha', 'high', r"parameter shadow_filter\.alpha='high': must be a number"),
     ],
 )
 def test_invalid_core_parameters_are_named(name: str, value: object, message: str) -> None:
     with pytest.raises(ParameterError, match=message):
-        settings.shadow_config({**settings.defaults(), name: value})
+        settings.shadow_config({**settings.PARAMETERS.defaults(), name: value})
 
 
 @pytest.mark.parametrize(
     ('name', 'value', 'message'),
     [
-        ('pose_topic', ' ', r"parameter pose_topic=' ': must name a topic"),
-        ('stamp_tolerance_s', -0.001, r'parameter stamp_tolerance_s=-0\.001: must be >= 0 s'),
-        ('sync_horizon_s', 0.0, r'parameter sync_horizon_s=0\.0: must be > 0 s'),
-        ('queue_size', 0, r'parameter queue_size=0: must be >= 1'),
-        ('publish_markers', 1, r'parameter publish_markers=1: must be true or false'),
+        ('pose_topic', ' ', r"parameter shadow_filter\.pose_topic=' ': must name a topic"),
+        (
+            'stamp_tolerance_s',
+            -0.001,
+            r'parameter shadow_filter\.stamp_tolerance_s=-0\.001: must be >= 0',
+        ),
+        ('sync_horizon_s', 0.0, r'parameter shadow_filter\.sync_horizon_s=0\.0: must be > 0'),
+        ('queue_size', 0, r'parameter shadow_filter\.queue_size=0: must be >= 1'),
+        (
+            'publish_markers',
+            1,
+            r'parameter shadow_filter\.publish_markers=1: must be true or false',
+        ),
     ],
 )
 def test_invalid_node_parameters_are_named(name: str, value: object, message: str) -> None:
     with pytest.raises(ParameterError, match=message):
-        settings.node_settings({**settings.defaults(), name: value})
+        settings.node_settings({**settings.PARAMETERS.defaults(), name: value})
 
 
 def test_horizon_must_exceed_the_tolerance() -> None:
-    values = {**settings.defaults(), 'stamp_tolerance_s': 0.5, 'sync_horizon_s': 0.5}
+    values = {**settings.PARAMETERS.defaults(), 'stamp_tolerance_s': 0.5, 'sync_horizon_s': 0.5}
     with pytest.raises(
         ParameterError, match=r'sync_horizon_s=0\.5: must exceed stamp_tolerance_s'
     ):
@@ -145,15 +169,17 @@ def test_horizon_must_exceed_the_tolerance() -> None:
 def test_parameter_file_errors_name_the_file_and_key(tmp_path: Path) -> None:
     stray = tmp_path / 'stray.yaml'
     stray.write_text('/**:\n  ros__parameters:\n    alpha: 0.01\n    speed: 2.0\n')
-    with pytest.raises(ParameterError, match=r'stray\.yaml.*speed is not a shadow_filter'):
-        settings.parameters_from_yaml(stray)
+    with pytest.raises(
+        ParameterError, match=r"stray\.yaml.*'speed' is not a parameter of node shadow_filter"
+    ):
+        settings.PARAMETERS.read_yaml(stray)
     empty = tmp_path / 'empty.yaml'
     empty.write_text('shadow_filter: {}\n')
     with pytest.raises(ParameterError, match='no "/\\*\\*: ros__parameters:"'):
-        settings.parameters_from_yaml(empty)
+        settings.PARAMETERS.read_yaml(empty)
     named = tmp_path / 'named.yaml'
     named.write_text('shadow_filter:\n  ros__parameters:\n    alpha: 0.01\n')
-    assert settings.parameters_from_yaml(named)['alpha'] == 0.01
+    assert settings.PARAMETERS.read_yaml(named)['alpha'] == 0.01
 
 
 # --- conversions ---------------------------------------------------------------------------
@@ -471,7 +497,7 @@ def test_launch_file_starts_the_installed_executable_with_its_config(
     node, arguments = launched.node, launched.arguments
     assert launched.remapped == {
         shadow_filter_node.FEATURES_TOPIC,
-        settings.defaults()['pose_topic'],
+        settings.PARAMETERS.defaults()['pose_topic'],
         shadow_filter_node.CAMERA_INFO_TOPIC,
     }
     used = {target.args[0] for _, target in node.kwargs['remappings']}

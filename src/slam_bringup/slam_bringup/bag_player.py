@@ -31,6 +31,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import rclpy
 from rclpy.clock import Clock as RosClock
@@ -43,34 +44,59 @@ from rosgraph_msgs.msg import Clock
 
 from slam_core.cli import console_main
 from slam_core.errors import ParameterError, SlamError
+from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamType
 from slam_core.progress import ProgressReporter
 from slam_ros.bag.playback import LatenessStats, PlaybackConfig, Prefetcher, TimeMapping
 from slam_ros.bag.source import BagSource
-from slam_ros.params import (
-    ParamSpec,
-    check,
-    check_finite_non_negative,
-    check_finite_positive,
-    declare_parameters,
-    parse_remaps,
-)
+from slam_ros.params import check_parameter_files, declare_parameters, parse_remaps, remap_rule
 from slam_ros.qos import profile_from_recorded
 from slam_ros.typesys import message_class
 
-PARAMETERS = (
-    ParamSpec('bag_path', '', 'bag directory, .mcap, .db3 or ROS 1 .bag to play'),
-    ParamSpec('rate', 1.0, 'playback speed factor (> 0)'),
-    ParamSpec('start_offset_s', 0.0, 'seconds to skip from the start of the bag (>= 0)'),
-    ParamSpec('topics', [], 'recorded topics to play; empty plays all', 'string_array'),
-    ParamSpec('remap', [], "topic renames 'recorded:=published'", 'string_array'),
-    ParamSpec('loop', False, 'start over when the bag ends'),
-    ParamSpec('clock_hz', 100.0, 'rate of /clock messages in Hz; 0 disables /clock'),
-    ParamSpec(
-        'wait_for_subscribers_s',
-        0.0,
-        'wait up to this long for every played topic to have a subscriber; 0 starts at once',
+PARAMETERS = ParamTable(
+    'bag_player',
+    (
+        Param('bag_path', '', 'bag directory, .mcap, .db3 or ROS 1 .bag to play (required)'),
+        Param('rate', 1.0, 'playback speed factor', range=POSITIVE),
+        Param(
+            'start_offset_s',
+            0.0,
+            'seconds to skip from the start of the bag, s',
+            range=NON_NEGATIVE,
+        ),
+        Param(
+            'topics',
+            [],
+            'recorded topics to play; empty plays all',
+            type=ParamType.STRING_ARRAY,
+        ),
+        Param(
+            'remap',
+            [],
+            "topic renames 'recorded:=published'",
+            type=ParamType.STRING_ARRAY,
+            validator=remap_rule,
+        ),
+        Param('loop', False, 'start over when the bag ends'),
+        Param(
+            'clock_hz',
+            100.0,
+            'rate of /clock messages, Hz; 0 disables /clock',
+            range=NON_NEGATIVE,
+        ),
+        Param(
+            'wait_for_subscribers_s',
+            0.0,
+            'wait up to this long for every played topic to have a subscriber, s; 0 starts '
+            'at once',
+            range=NON_NEGATIVE,
+        ),
+        Param(
+            'progress_period_s',
+            5.0,
+            'period of progress log lines off a terminal, s',
+            range=POSITIVE,
+        ),
     ),
-    ParamSpec('progress_period_s', 5.0, 'period of progress log lines off a terminal (> 0)'),
 )
 
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -79,31 +105,22 @@ PRIME_TIMEOUT_S = 2.0
 PROGRESS_TICK_S = 0.1
 
 
-def config_from_parameters(values: dict[str, object]) -> PlaybackConfig:
+def config_from_parameters(values: dict[str, Any]) -> PlaybackConfig:
     """Validate parameter values into a PlaybackConfig (raises ParameterError)."""
-    bag_path = str(values['bag_path'])
-    check(bool(bag_path), 'bag_path', bag_path, 'is required: the bag to play')
-    rate = float(values['rate'])  # type: ignore[arg-type]
-    check_finite_positive('rate', rate)
-    start_offset_s = float(values['start_offset_s'])  # type: ignore[arg-type]
-    check_finite_non_negative('start_offset_s', start_offset_s)
-    clock_hz = float(values['clock_hz'])  # type: ignore[arg-type]
-    check_finite_non_negative('clock_hz', clock_hz)
-    wait_s = float(values['wait_for_subscribers_s'])  # type: ignore[arg-type]
-    check_finite_non_negative('wait_for_subscribers_s', wait_s)
-    period_s = float(values['progress_period_s'])  # type: ignore[arg-type]
-    check_finite_positive('progress_period_s', period_s)
-    topics = tuple(str(t) for t in values['topics'])  # type: ignore[attr-defined]
+    checked = PARAMETERS.validate(values)
+    bag_path = str(checked['bag_path'])
+    if not bag_path:
+        raise PARAMETERS.fail('bag_path', bag_path, 'is required: the bag to play')
     return PlaybackConfig(
         bag_path=Path(bag_path).expanduser(),
-        rate=rate,
-        start_offset_s=start_offset_s,
-        topics=topics,
-        remaps=parse_remaps('remap', [str(r) for r in values['remap']]),  # type: ignore[attr-defined]
-        loop=bool(values['loop']),
-        clock_hz=clock_hz,
-        wait_for_subscribers_s=wait_s,
-        progress_period_s=period_s,
+        rate=checked['rate'],
+        start_offset_s=checked['start_offset_s'],
+        topics=tuple(checked['topics']),
+        remaps=parse_remaps('remap', checked['remap']),
+        loop=checked['loop'],
+        clock_hz=checked['clock_hz'],
+        wait_for_subscribers_s=checked['wait_for_subscribers_s'],
+        progress_period_s=checked['progress_period_s'],
     )
 
 
@@ -267,7 +284,10 @@ class BagPlayerNode(Node):
 def build_arg_parser() -> argparse.ArgumentParser:
     """Command-line options; each maps onto a node parameter."""
     parser = argparse.ArgumentParser(
-        prog='bag_player', description='Replay a ROS 2 (mcap/sqlite3) or ROS 1 bag.'
+        prog='bag_player',
+        description=__doc__,
+        epilog=PARAMETERS.render() + '\n\nROS arguments (--ros-args ...) are accepted too.',
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument('bag', nargs='?', help='bag directory, .mcap, .db3 or .bag file')
     parser.add_argument('-r', '--rate', type=float, help='speed factor (default 1.0)')
@@ -312,6 +332,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     ros_args = rclpy.utilities.remove_ros_args(['bag_player', *argv])[1:]
     args = build_arg_parser().parse_args(ros_args)
+    check_parameter_files(argv, PARAMETERS)
     rclpy.init(args=['bag_player', *argv])
     node = None
     try:

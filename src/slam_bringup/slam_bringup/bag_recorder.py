@@ -41,19 +41,35 @@ from rclpy.signals import SignalHandlerOptions
 
 from slam_core.cli import console_main
 from slam_core.errors import SlamError
+from slam_core.params import AT_LEAST_ONE, POSITIVE, Param, ParamTable, ParamType
 from slam_ros.bag.recording import AtomicBagWriter
-from slam_ros.params import ParamSpec, check, check_finite_positive, declare_parameters
+from slam_ros.params import check_parameter_files, declare_parameters
 from slam_ros.qos import recorded_from_profile
 from slam_ros.typesys import TypeRegistry, message_class
 
-PARAMETERS = (
-    ParamSpec('output', '', 'bag directory to create (default rosbag2_<date>_<time>)'),
-    ParamSpec('topics', [], 'topics to record; empty records every topic', 'string_array'),
-    ParamSpec(
-        'exclude', ['/rosout', '/parameter_events'], 'topics skipped when recording all topics'
+PARAMETERS = ParamTable(
+    'bag_recorder',
+    (
+        Param('output', '', 'bag directory to create (default rosbag2_<date>_<time>)'),
+        Param(
+            'topics',
+            [],
+            'topics to record; empty records every topic',
+            type=ParamType.STRING_ARRAY,
+        ),
+        Param(
+            'exclude',
+            ['/rosout', '/parameter_events'],
+            'topics skipped when recording all topics',
+        ),
+        Param(
+            'discovery_period_s',
+            0.5,
+            'period of the search for new topics, s',
+            range=POSITIVE,
+        ),
+        Param('queue_depth', 1000, 'subscription history depth', range=AT_LEAST_ONE),
     ),
-    ParamSpec('discovery_period_s', 0.5, 'period of the search for new topics, s (> 0)'),
-    ParamSpec('queue_depth', 1000, 'subscription history depth (>= 1)'),
 )
 DRAIN_TIMEOUT_S = 2.0
 
@@ -70,9 +86,7 @@ class BagRecorderNode(Node):
         super().__init__('bag_recorder', **kwargs)  # type: ignore[arg-type]
         values = declare_parameters(self, PARAMETERS)
         self.discovery_period_s = float(values['discovery_period_s'])
-        check_finite_positive('discovery_period_s', self.discovery_period_s)
         self.queue_depth = int(values['queue_depth'])
-        check(self.queue_depth >= 1, 'queue_depth', self.queue_depth, 'must be >= 1')
         self.selected = tuple(values['topics'])
         self.exclude = frozenset(values['exclude'])
         self.writer = AtomicBagWriter(Path(values['output'] or default_output_name()))
@@ -169,7 +183,12 @@ def drain(executor: SingleThreadedExecutor, node: BagRecorderNode, timeout_s: fl
 
 def build_arg_parser() -> argparse.ArgumentParser:
     """Command-line options; each maps onto a node parameter."""
-    parser = argparse.ArgumentParser(prog='bag_recorder', description='Record topics to mcap.')
+    parser = argparse.ArgumentParser(
+        prog='bag_recorder',
+        description=__doc__,
+        epilog=PARAMETERS.render() + '\n\nROS arguments (--ros-args ...) are accepted too.',
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument('topics', nargs='*', help='topics to record (with -a: all)')
     parser.add_argument('-a', '--all', action='store_true', help='record every topic')
     parser.add_argument('-o', '--output', help='bag directory to create')
@@ -198,6 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     def request_stop(signum: int, frame: FrameType | None) -> None:
         stop.set()
 
+    check_parameter_files(argv, PARAMETERS)
     rclpy.init(args=['bag_recorder', *argv], signal_handler_options=SignalHandlerOptions.NO)
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     executor = SingleThreadedExecutor()

@@ -13,7 +13,7 @@ each node are required)::
           executable: odometry_ingest   # console script in lib/<package>/
           plugin: em_sam_node.odometry_ingest.node:OdometryIngestNode  # in-process class
           namespace: ''
-          parameters: [../config/odometry_ingest.yaml, {max_gap_s: 0.5}]  # later wins
+          parameters: [../config/odometry_ingest.yaml, {keyframe_distance_m: 0.25}]  # later wins
           remappings: {odom: /wheel/odom}   # or ['odom:=/wheel/odom']
       player:                       # a bag_player node named bag_player
         bag: ../../../bags/sample   # or --bag; parameters as bag_player's (rate, topics, ...)
@@ -25,7 +25,11 @@ Parameter files and ``player.bag`` are relative to the GRAPH file's directory, o
 ``recorder.output`` is relative to the current directory, like ``ros2 bag record -o``.
 
 ``load_graph`` validates a file into frozen dataclasses and raises ``GraphError`` naming the
-file and the key path. ``slam_bringup.graph_nodes`` turns a graph into node descriptions.
+file and the key path. It also checks every parameter a node entry sets (inline or in its
+parameter files) against the node's declaration table, found through the entry's ``plugin``
+or its package's console script ``executable`` (``slam_bringup.graph_params``): a misspelled
+name is an error naming the file, node and key, with the closest valid name.
+``slam_bringup.graph_nodes`` turns a graph into node descriptions.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from typing import Any
 import yaml
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
+from slam_bringup.graph_params import check_graph_parameters
 from slam_core.errors import GraphError
 
 PACKAGE_SCHEME = 'package://'
@@ -458,6 +463,7 @@ def load_graph(path: Path | str) -> Graph:
         ),
     )
     _check_unique_names(graph)
+    check_graph_parameters(graph)
     return graph
 
 

@@ -364,3 +364,66 @@ def test_launch_file_uses_only_existing_graph_functions() -> None:
     assert all(hasattr(modules[module], name) for module, name in imported)
     functions = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
     assert 'generate_launch_description' in functions
+
+
+# -- parameters checked against the nodes' declarations -----------------------------------
+INGEST_ENTRY = """graph:
+  nodes:
+    - name: odometry_ingest
+      package: em_sam_node
+      executable: odometry_ingest
+{plugin}      parameters: [{parameters}]
+"""
+PLUGIN = '      plugin: em_sam_node.odometry_ingest_node:OdometryIngestNode\n'
+
+
+@pytest.mark.parametrize('plugin', [PLUGIN, ''], ids=['plugin', 'executable'])
+def test_misspelled_parameter_in_a_parameter_file_is_named(tmp_path: Path, plugin: str) -> None:
+    (tmp_path / 'ingest.yaml').write_text(
+        '/**:\n  ros__parameters:\n    keyframe_distanse_m: 0.3\n', encoding='utf-8'
+    )
+    path = write_graph(tmp_path, INGEST_ENTRY.format(plugin=plugin, parameters='ingest.yaml'))
+    with pytest.raises(GraphError) as caught:
+        load_graph(path)
+    message = str(caught.value)
+    assert message.startswith(f"graph '{path}': graph.nodes[0].parameters[0]: parameter file ")
+    assert str(tmp_path / 'ingest.yaml') in message
+    assert "'keyframe_distanse_m' is not a parameter of node odometry_ingest" in message
+    assert "did you mean 'keyframe_distance_m'?" in message
+
+
+def test_misspelled_inline_parameter_and_bad_value_are_named(tmp_path: Path) -> None:
+    path = write_graph(
+        tmp_path, INGEST_ENTRY.format(plugin='', parameters='{keyframe_distanse_m: 0.3}')
+    )
+    with pytest.raises(GraphError, match=r"parameters\[0\]: 'keyframe_distanse_m' is not a "):
+        load_graph(path)
+    path = write_graph(
+        tmp_path, INGEST_ENTRY.format(plugin='', parameters='{keyframe_distance_m: -1.0}')
+    )
+    with pytest.raises(GraphError, match=r'odometry_ingest\.keyframe_distance_m=-1\.0: must be'):
+        load_graph(path)
+    path = write_graph(tmp_path, INGEST_ENTRY.format(plugin='', parameters='{idle_flush_s: 2}'))
+    with pytest.raises(GraphError, match=r'idle_flush_s=2: must be a double for a ROS node'):
+        load_graph(path)
+
+
+def test_sections_for_other_nodes_and_ros_parameters_are_accepted(tmp_path: Path) -> None:
+    (tmp_path / 'all.yaml').write_text(
+        'em_sam_mapper:\n  ros__parameters:\n    mode: paper\n'
+        'odometry_ingest:\n  ros__parameters:\n    keyframe_distance_m: 0.3\n'
+        '    use_sim_time: true\n',
+        encoding='utf-8',
+    )
+    path = write_graph(tmp_path, INGEST_ENTRY.format(plugin=PLUGIN, parameters='all.yaml'))
+    assert load_graph(path).nodes[0].name == 'odometry_ingest'
+
+
+def test_player_and_recorder_keys_are_the_bag_tools_parameters() -> None:
+    """graph.player and graph.recorder take exactly the parameters the bag tools declare
+    (the player's bag_path is spelled bag)."""
+    from slam_bringup import bag_player, bag_recorder
+
+    player = {'bag_path' if key == 'bag' else key for key in graph_module._PLAYER_KEYS}
+    assert player == set(bag_player.PARAMETERS.names)
+    assert set(graph_module._RECORDER_KEYS) == set(bag_recorder.PARAMETERS.names)

@@ -7,7 +7,11 @@ from pathlib import Path
 import pytest
 
 from slam_bringup import bag_player, bag_recorder
-from slam_ros.testing.node_contract import config_mismatches, undocumented_parameters
+from slam_ros.testing.node_contract import (
+    config_mismatches,
+    docstring_mismatches,
+    undocumented_parameters,
+)
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config'
 NODES = [(bag_player, 'bag_player.yaml'), (bag_recorder, 'bag_recorder.yaml')]
@@ -21,6 +25,11 @@ def test_docstring_lists_every_parameter(module: object, config: str) -> None:
 @pytest.mark.parametrize(('module', 'config'), NODES, ids=[c for _, c in NODES])
 def test_config_yaml_matches_declared_parameters(module: object, config: str) -> None:
     assert config_mismatches(module, CONFIG / config) == []  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(('module', 'config'), NODES, ids=[c for _, c in NODES])
+def test_docstring_types_and_defaults_match_the_declaration(module: object, config: str) -> None:
+    assert docstring_mismatches(module) == []  # type: ignore[arg-type]
 
 
 def test_contract_check_catches_a_stray_key(tmp_path: Path) -> None:

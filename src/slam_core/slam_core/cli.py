@@ -7,6 +7,7 @@ import sys
 from collections.abc import Callable
 
 from slam_core.errors import SlamError
+from slam_core.params import ParamTable
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -34,3 +35,25 @@ def console_main(prog: str) -> Callable[[Callable[[list[str] | None], int]], Cal
 def exit_with(main: Callable[[], int]) -> None:
     """Entry-point helper: ``sys.exit(main())``."""
     sys.exit(main())
+
+
+HELP_FLAGS = ('-h', '--help')
+
+
+def help_requested(argv: list[str]) -> bool:
+    """Whether ``argv`` (without the program name) asks for help before any ``--ros-args``."""
+    for arg in argv:
+        if arg == '--ros-args':
+            return False
+        if arg in HELP_FLAGS:
+            return True
+    return False
+
+
+def node_help(prog: str, doc: str | None, parameters: ParamTable) -> str:
+    """Return a node executable's --help: usage, the module docstring (what the node does,
+    its topics, QoS and frames) and the parameter table from the declaration."""
+    usage = (
+        f'usage: {prog} [-h] [--ros-args [-p NAME:=VALUE] [--params-file FILE] [-r FROM:=TO] ...]'
+    )
+    return '\n\n'.join(part for part in (usage, (doc or '').strip(), parameters.render()) if part)

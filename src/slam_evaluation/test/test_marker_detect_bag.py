@@ -8,9 +8,8 @@ import pytest
 from ament_index_python.packages import get_package_share_directory
 from rosbags.typesys import Stores, get_typestore
 
-from marker_detector.marker_detector_node import PARAMETERS
 from marker_detector.offline import detect_bag, main
-from marker_detector.settings import parameters_from_yaml
+from marker_detector.settings import PARAMETERS
 from slam_core.errors import BagError
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
@@ -28,10 +27,9 @@ def camera_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def office_values() -> dict[str, object]:
-    values: dict[str, object] = {spec.name: spec.default for spec in PARAMETERS}
-    for name in ('marker_detector.yaml', 'office_camera.yaml'):
-        values = parameters_from_yaml(CONFIG / name, values)
-    return values
+    return PARAMETERS.load(
+        CONFIG / name for name in ('marker_detector.yaml', 'office_camera.yaml')
+    )
 
 
 def decoded(path: Path, topic: str) -> list[object]:

@@ -20,7 +20,7 @@ SIMULATION_CONFIG = (
 def test_the_simulation_config_places_the_simulated_target() -> None:
     """monoslam_dynamic_camera.yaml sets only parameters, and puts the corners where
     slam_sim draws them."""
-    values = monoslam_settings.parameters_from_yaml(SIMULATION_CONFIG)
+    values = monoslam_settings.PARAMETERS.read_yaml(SIMULATION_CONFIG)
     target = monoslam_settings.target_settings(values)
     simulated = InitTarget()
     np.testing.assert_allclose(target.corners_m, simulated.corners_m, atol=1e-12)

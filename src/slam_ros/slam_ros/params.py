@@ -1,18 +1,19 @@
-"""Declaring node parameters with descriptors and turning bad values into ParameterError.
+"""Declaring a node's parameter table on an rclpy node, and remap lists.
 
-Nodes list their parameters as ``ParamSpec`` tuples, declare them all with
-``declare_parameters`` and validate the resulting dict into a frozen config dataclass.
-Nothing here falls back to a default when a value is invalid.
+A node module declares its parameters once, as a ``slam_core.params.ParamTable``;
+``declare_parameters`` declares that table on the node with descriptors (description, rules,
+read-only, ranges) and returns the values validated by the table. ``updated_values``
+validates run-time changes of dynamic parameters the same way. Nothing here falls back to a
+default when a value is invalid.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import (
     InvalidParameterTypeException,
     InvalidParameterValueException,
@@ -23,97 +24,108 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from slam_core.errors import ParameterError
+from slam_core.params import Param, ParamTable, ParamType
 
-ParamValue = bool | int | float | str | list[str] | list[float] | list[int] | list[bool]
-
-_LIST_TYPES = {
-    'string_array': Parameter.Type.STRING_ARRAY,
-    'double_array': Parameter.Type.DOUBLE_ARRAY,
-    'integer_array': Parameter.Type.INTEGER_ARRAY,
-    'bool_array': Parameter.Type.BOOL_ARRAY,
+_ROS_TYPES = {
+    ParamType.BOOL: Parameter.Type.BOOL,
+    ParamType.INTEGER: Parameter.Type.INTEGER,
+    ParamType.DOUBLE: Parameter.Type.DOUBLE,
+    ParamType.STRING: Parameter.Type.STRING,
+    ParamType.BOOL_ARRAY: Parameter.Type.BOOL_ARRAY,
+    ParamType.INTEGER_ARRAY: Parameter.Type.INTEGER_ARRAY,
+    ParamType.DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY,
+    ParamType.STRING_ARRAY: Parameter.Type.STRING_ARRAY,
 }
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """One node parameter: name (with a unit suffix where it has a unit), default, meaning.
+def declare_parameters(node: Node, table: ParamTable) -> dict[str, Any]:
+    """Declare every parameter of ``table`` on ``node``; return the validated values.
 
-    ``array_type`` is needed only for list parameters whose default is empty
-    (one of ``string_array``, ``double_array``, ``integer_array``, ``bool_array``).
+    Each parameter gets a descriptor (description, rules, read-only, the range where rclpy
+    has one). Raises ParameterError ``parameter <node>.<name>=<value>: <rule>``.
     """
-
-    name: str
-    default: ParamValue
-    description: str
-    array_type: str | None = None
-    read_only: bool = True
-
-    def parameter_type(self) -> Parameter.Type:
-        """Return the ROS parameter type of this spec."""
-        if isinstance(self.default, list):
-            if self.array_type is not None:
-                return _LIST_TYPES[self.array_type]
-            if not self.default:
-                msg = f'ParamSpec {self.name!r}: an empty list default needs array_type'
-                raise ValueError(msg)
-        return Parameter.Type.from_parameter_value(self.default)
-
-
-def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
-    """Declare every spec on ``node``; return ``{name: value}`` with overrides applied.
-
-    Raises:
-        ParameterError: a value given for a parameter has the wrong type or is rejected.
-
-    """
+    overrides = getattr(node, '_parameter_overrides', {})
+    table.check_names(
+        overrides,
+        where=f'node {node.get_fully_qualified_name()}: parameter override (-p, --params-file '
+        'or parameter_overrides)',
+    )
     values: dict[str, Any] = {}
-    for spec in specs:
-        ptype = spec.parameter_type()
-        descriptor = ParameterDescriptor(
-            description=spec.description, read_only=spec.read_only, type=ptype.value
-        )
+    for param in table:
+        ptype = _ROS_TYPES[param.param_type]
         try:
-            if isinstance(spec.default, list) and not spec.default:
-                node.declare_parameter(spec.name, ptype, descriptor)
+            if isinstance(param.default, list) and not param.default:
+                node.declare_parameter(param.name, ptype, descriptor(param))
             else:
-                node.declare_parameter(spec.name, spec.default, descriptor)
+                node.declare_parameter(param.name, param.default, descriptor(param))
         except (
             InvalidParameterTypeException,
             InvalidParameterValueException,
             ParameterException,
         ) as err:
-            raise ParameterError(
-                f'parameter {node.get_name()}.{spec.name}: {err} ({spec.description})'
-            ) from err
+            raise _declare_error(node, table, param, err) from None
         try:
-            value = node.get_parameter(spec.name).value
+            value = node.get_parameter(param.name).value
         except ParameterUninitializedException:
             value = None
         if value is None:
-            value = list(spec.default) if isinstance(spec.default, list) else spec.default
+            value = param.default_value()
         elif isinstance(value, (list, tuple)) or hasattr(value, 'tolist'):
             value = list(value)
-            if ptype == Parameter.Type.STRING_ARRAY:
-                # YAML parameter files cannot hold an empty list; [''] stands for one.
-                value = [item for item in value if item != '']
-        values[spec.name] = value
+        values[param.name] = value
+    return table.validate(values)
+
+
+def descriptor(param: Param) -> ParameterDescriptor:
+    """Return the rclpy descriptor of a declared parameter."""
+    ptype = _ROS_TYPES[param.param_type]
+    rules = param.rules()
+    result = ParameterDescriptor(
+        description=param.description,
+        read_only=param.read_only,
+        type=ptype.value,
+        additional_constraints='; '.join(rules),
+    )
+    bounds = param.range
+    if bounds is not None and param.param_type.element is ParamType.DOUBLE:
+        low = -math.inf if bounds.low is None else float(bounds.low)
+        high = math.inf if bounds.high is None else float(bounds.high)
+        result.floating_point_range = [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
+    elif bounds is not None and param.param_type is ParamType.INTEGER:
+        low_int = _INT64_MIN if bounds.low is None else math.ceil(bounds.low)
+        high_int = _INT64_MAX if bounds.high is None else math.floor(bounds.high)
+        result.integer_range = [IntegerRange(from_value=low_int, to_value=high_int, step=1)]
+    return result
+
+
+def _declare_error(node: Node, table: ParamTable, param: Param, err: Exception) -> ParameterError:
+    """Word a refused override like every other parameter error."""
+    overrides = getattr(node, '_parameter_overrides', {})
+    override = overrides.get(param.name)
+    if override is None:
+        return ParameterError(f'parameter {table.node}.{param.name}: {err}')
+    value = override.value
+    try:
+        table.validate_one(param.name, value)
+    except ParameterError as rejection:
+        return rejection
+    return table.fail(
+        param.name,
+        value,
+        f'must be a {param.param_type.value} (write 1.0, not 1, for a double)',
+    )
+
+
+def updated_values(
+    table: ParamTable, current: dict[str, Any], parameters: Iterable[Parameter]
+) -> dict[str, Any]:
+    """Return ``current`` with run-time changes validated and applied (ParameterError)."""
+    values = dict(current)
+    for parameter in parameters:
+        if parameter.name in table:
+            values[parameter.name] = table.validate_one(parameter.name, parameter.value)
     return values
-
-
-def check(condition: bool, name: str, value: object, requirement: str) -> None:
-    """Raise ParameterError ``parameter <name>=<value>: <requirement>`` unless condition."""
-    if not condition:
-        raise ParameterError(f'parameter {name}={value!r}: {requirement}')
-
-
-def check_finite_positive(name: str, value: float) -> None:
-    """Require a finite number > 0."""
-    check(math.isfinite(value) and value > 0.0, name, value, 'must be a finite number > 0')
-
-
-def check_finite_non_negative(name: str, value: float) -> None:
-    """Require a finite number >= 0."""
-    check(math.isfinite(value) and value >= 0.0, name, value, 'must be a finite number >= 0')
 
 
 def parse_remaps(name: str, entries: Sequence[str]) -> dict[str, str]:
@@ -121,7 +133,38 @@ def parse_remaps(name: str, entries: Sequence[str]) -> dict[str, str]:
     remaps: dict[str, str] = {}
     for entry in entries:
         source, sep, target = entry.partition(':=')
-        check(bool(sep and source and target), name, entry, "entries must look like 'from:=to'")
-        check(source not in remaps, name, entry, f'{source!r} is remapped twice')
+        if not (sep and source and target):
+            raise ParameterError(f"parameter {name}={entry!r}: entries must look like 'from:=to'")
+        if source in remaps:
+            raise ParameterError(f'parameter {name}={entry!r}: {source!r} is remapped twice')
         remaps[source] = target
     return remaps
+
+
+def remap_rule(entries: Sequence[str]) -> str | None:
+    """Validator for a remap list: the rule ``parse_remaps`` finds broken, or None."""
+    try:
+        parse_remaps('remap', entries)
+    except ParameterError as err:
+        return str(err).partition(': ')[2]
+    return None
+
+
+def check_parameter_files(args: Sequence[str], table: ParamTable) -> None:
+    """Check the ``--params-file`` files among a node's ROS arguments against its table
+    (under the name ``-r __node:=<name>`` gives it); raise ParameterError naming the file,
+    node and an unknown key. rclpy itself ignores keys a node does not declare."""
+    node_name = table.node
+    files: list[str] = []
+    in_ros_args = False
+    for index, arg in enumerate(args):
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg == '--params-file' and index + 1 < len(args):
+            files.append(args[index + 1])
+        elif in_ros_args and arg.startswith(('__node:=', '__name:=')):
+            node_name = arg.partition(':=')[2]
+    for path in files:
+        table.check_file(path, node_name=node_name)

@@ -10,16 +10,37 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from slam_core.blas import single_threaded_blas
+from slam_core.cli import help_requested, node_help
+from slam_core.params import ParamTable
+from slam_ros.params import check_parameter_files
 
 
-def spin_node(prog: str, factory: Callable[[], Node], argv: list[str] | None = None) -> int:
+def spin_node(
+    prog: str,
+    factory: Callable[[], Node],
+    argv: list[str] | None = None,
+    *,
+    parameters: ParamTable | None = None,
+    doc: str | None = None,
+) -> int:
     """Run the node ``factory()`` builds until Ctrl-C or shutdown; return exit code 0.
 
+    ``-h``/``--help`` (before any ``--ros-args``) prints the node's help (``doc``, its module
+    docstring, and the ``parameters`` table) and returns 0 without initializing rclpy.
     ``destroy_node`` always runs, so nodes that finalize (write reports) do it there. Errors
     raised by the constructor propagate (wrap main with cli.console_main to print them).
     """
+    args = sys.argv[1:] if argv is None else argv
+    if help_requested(args):
+        if parameters is None:
+            print(f'usage: {prog} [-h] [--ros-args ...]\n\n{(doc or "").strip()}')  # noqa: T201
+        else:
+            print(node_help(prog, doc, parameters))  # noqa: T201
+        return 0
+    if parameters is not None:
+        check_parameter_files(args, parameters)
     single_threaded_blas()
-    rclpy.init(args=sys.argv if argv is None else [prog, *argv])
+    rclpy.init(args=[prog, *args])
     node = None
     try:
         node = factory()

@@ -1,48 +1,123 @@
-"""Checks that keep a node's documentation and config file honest against its parameters.
+"""Checks that keep a node's documentation and config file honest against its declaration.
 
-A node module lists its parameters as ``PARAMETERS`` (a sequence of ParamSpec); its module
-docstring must mention each one, and its ``config/<node>.yaml`` must set exactly those keys
-under ``/**: ros__parameters:`` with values of the declared types.
+A node module declares its parameters as ``PARAMETERS`` (a ``slam_core.params.ParamTable``).
+Its module docstring must mention each one, and where it writes ``name (type, default)``,
+``name (default)`` or ``name (type)`` the type and default must be the declared ones; its
+``config/<node>.yaml`` must set exactly those keys under ``/**: ros__parameters:`` to values
+of the declared types that equal the declared defaults (an empty list is written ``['']``).
 """
 
 from __future__ import annotations
 
+import math
+import re
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 import yaml
 
-from slam_ros.params import ParamSpec
+from slam_core.errors import ParameterError
+from slam_core.params import Param, ParamTable, ParamType
+
+_TYPE_NAMES = {
+    'bool': ParamType.BOOL,
+    'int': ParamType.INTEGER,
+    'integer': ParamType.INTEGER,
+    'double': ParamType.DOUBLE,
+    'float': ParamType.DOUBLE,
+    'string': ParamType.STRING,
+    'bool[]': ParamType.BOOL_ARRAY,
+    'int[]': ParamType.INTEGER_ARRAY,
+    'double[]': ParamType.DOUBLE_ARRAY,
+    'string[]': ParamType.STRING_ARRAY,
+}
 
 
-def declared(module: ModuleType) -> dict[str, ParamSpec]:
-    """Return the module's ParamSpecs by name."""
-    return {spec.name: spec for spec in module.PARAMETERS}
+def declared(module: ModuleType) -> ParamTable:
+    """Return the module's parameter table (TypeError when it has none)."""
+    table = getattr(module, 'PARAMETERS', None)
+    if not isinstance(table, ParamTable):
+        raise TypeError(f'{module.__name__}.PARAMETERS is not a ParamTable')
+    return table
 
 
 def undocumented_parameters(module: ModuleType) -> list[str]:
     """Return declared parameter names that the module docstring does not mention."""
     text = module.__doc__ or ''
-    return sorted(name for name in declared(module) if name not in text)
+    return sorted(p.name for p in declared(module) if not re.search(rf'\b{p.name}\b', text))
+
+
+def docstring_mismatches(module: ModuleType) -> list[str]:
+    """Return the places where the docstring's ``name (type, default)`` disagrees with the
+    declaration (a default is compared when it is a number, a bool, a list or a quoted
+    string; words like 'all' or 'required' are left alone)."""
+    text = module.__doc__ or ''
+    problems = []
+    for param in declared(module):
+        for match in re.finditer(rf'(?<![\w.]){param.name} \(([^()\n]*)\)', text):
+            problem = _annotation_problem(param, match.group(1).strip())
+            if problem:
+                problems.append(
+                    f'{module.__name__} docstring: {param.name} ({match[1]}): {problem}'
+                )
+    return sorted(problems)
+
+
+def _annotation_problem(param: Param, annotation: str) -> str | None:
+    head, sep, rest = annotation.partition(', ')
+    if head in _TYPE_NAMES:
+        if _TYPE_NAMES[head] is not param.param_type:
+            return f'declared as {param.param_type.value}'
+        annotation = rest if sep else ''
+    if not annotation:
+        return None
+    try:
+        written = yaml.safe_load(annotation)
+    except yaml.YAMLError:
+        return None
+    comparable = isinstance(written, bool | int | float | list) or (
+        isinstance(written, str) and annotation[:1] in ('"', "'")
+    )
+    if comparable and not _same(written, param.default):
+        return f'the declared default is {param.default!r}'
+    return None
+
+
+def _same(written: object, default: object) -> bool:
+    if isinstance(default, bool) or isinstance(written, bool):
+        return written is default
+    if isinstance(default, int | float) and isinstance(written, int | float):
+        return math.isclose(written, default, rel_tol=1e-12) or written == default
+    if isinstance(default, list) and isinstance(written, list):
+        return len(default) == len(written) and all(map(_same, written, default))
+    return written == default
 
 
 def config_mismatches(module: ModuleType, config_path: Path) -> list[str]:
-    """Return the differences between a node's config YAML and its declared parameters."""
+    """Return the differences between a node's config YAML and its declaration: keys, types
+    (as the node would read them) and values (the declared defaults)."""
     document: Any = yaml.safe_load(config_path.read_text(encoding='utf-8'))
     try:
         values: dict[str, Any] = document['/**']['ros__parameters']
     except (KeyError, TypeError):
         return [f'{config_path}: no "/**: ros__parameters:" mapping']
-    specs = declared(module)
-    problems = [f'{config_path}: {name} is not a parameter' for name in set(values) - set(specs)]
-    problems += [f'{config_path}: {name} is missing' for name in set(specs) - set(values)]
-    for name in set(values) & set(specs):
-        expected = type(specs[name].default)
-        value = values[name]
-        compatible = isinstance(value, expected) or (expected is float and isinstance(value, int))
-        if not compatible:
+    table = declared(module)
+    problems = [
+        f'{config_path}: {name} is not a parameter' for name in set(values) - {*table.names}
+    ]
+    problems += [f'{config_path}: {name} is missing' for name in {*table.names} - set(values)]
+    for name in set(values) & {*table.names}:
+        param = table[name]
+        try:
+            value = table.validate_one(name, values[name])
+            table.check_ros_type(name, values[name])
+        except ParameterError as err:
+            problems.append(f'{config_path}: {err}')
+            continue
+        if not _same(value, param.default):
             problems.append(
-                f'{config_path}: {name}={value!r} is not a {expected.__name__} like its default'
+                f'{config_path}: {name}={values[name]!r} is not the declared default '
+                f'{param.default!r}'
             )
     return sorted(problems)

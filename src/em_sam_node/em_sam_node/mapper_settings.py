@@ -1,0 +1,186 @@
+"""em_sam_mapper's parameters and their validation into a MapperConfig (ROS-free).
+
+``PARAMETERS`` is the node's one declaration (``em_sam_mapper_node`` declares it and documents
+it in its docstring); the EM-SAM parameters set the fields of the core's ``EmConfig``
+(``Param.field`` ``em.<field>``; ``max_em_iterations`` is its ``max_iterations``), two set
+``MapperConfig``, the rest configure the node (periods, frames, report directory).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from em_sam_node.core.em_types import MODES, SEED_KERNELS, EmConfig
+from em_sam_node.mapper import MapperConfig
+from slam_core.params import (
+    AT_LEAST_ONE,
+    NON_NEGATIVE,
+    POSITIVE,
+    PROBABILITY,
+    Param,
+    ParamTable,
+    Range,
+)
+
+SOLVER_METHODS = ('levenberg_marquardt', 'gauss_newton')
+PARAMETERS = ParamTable(
+    'em_sam_mapper',
+    (
+        Param(
+            'mode',
+            'robust',
+            "EM-SAM mode: 'paper' (as published) or 'robust'",
+            choices=MODES,
+            field='em.mode',
+        ),
+        Param(
+            'lagrange_lambda',
+            50.0,
+            'lambda of eq. 14 in paper mode',
+            range=POSITIVE,
+            field='em.lagrange_lambda',
+        ),
+        Param(
+            'moveable_threshold',
+            0.5,
+            'weights below this are moveable',
+            range=PROBABILITY,
+            field='em.moveable_threshold',
+        ),
+        Param(
+            'max_em_iterations',
+            20,
+            'maximum EM iterations',
+            range=AT_LEAST_ONE,
+            field='em.max_iterations',
+        ),
+        Param(
+            'weight_tolerance',
+            0.001,
+            'EM stops when no weight changes more than this',
+            field='em.weight_tolerance',
+        ),
+        Param(
+            'false_alarm_probability',
+            0.001,
+            'robust: per-landmark test level',
+            field='em.false_alarm_probability',
+        ),
+        Param(
+            'gate_probability',
+            0.0001,
+            'robust: per-sighting outlier gate level',
+            field='em.gate_probability',
+        ),
+        Param(
+            'max_gated_fraction',
+            0.1,
+            "robust: largest share of a landmark's sightings gated",
+            field='em.max_gated_fraction',
+        ),
+        Param(
+            'seed_kernel',
+            'cauchy',
+            'robust: first E-step kernel',
+            choices=tuple(SEED_KERNELS),
+            field='em.seed_kernel',
+        ),
+        Param(
+            'seed_kernel_scale',
+            2.3849,
+            'robust: first E-step kernel scale, sigmas',
+            range=POSITIVE,
+            field='em.seed_kernel_scale',
+        ),
+        Param(
+            'seed_chunk_s',
+            20.0,
+            'robust: first E-step time prefix length, s',
+            range=POSITIVE,
+            field='em.seed_chunk_s',
+        ),
+        Param(
+            'seed_split_distance_m',
+            1.0,
+            'robust: distance that splits a moved landmark, m',
+            field='em.seed_split_distance_m',
+        ),
+        Param(
+            'estimate_noise_scale',
+            True,
+            'robust: inflate range/bearing variances by their variance factors',
+            field='em.estimate_noise_scale',
+        ),
+        Param(
+            'max_noise_scale',
+            10.0,
+            'robust: cap of the sighting variance factors',
+            range=Range(1.0),
+            field='em.max_noise_scale',
+        ),
+        Param(
+            'model_error_m',
+            0.15,
+            'robust: position error the moveable test tolerates, m',
+            range=NON_NEGATIVE,
+            field='em.model_error_m',
+        ),
+        Param(
+            'final_kernel',
+            'cauchy',
+            "robust: final solve kernel ('none': least squares)",
+            choices=('none', *SEED_KERNELS),
+            field='em.final_kernel',
+        ),
+        Param(
+            'final_kernel_scale',
+            2.3849,
+            'robust: final solve kernel scale, sigmas',
+            range=POSITIVE,
+            field='em.final_kernel_scale',
+        ),
+        Param(
+            'solver_method',
+            'levenberg_marquardt',
+            'least-squares solver',
+            choices=SOLVER_METHODS,
+            field='em.solver_method',
+        ),
+        Param(
+            'optimize_period_s',
+            2.0,
+            're-solve period when new data came, s; 0 = on request',
+            range=NON_NEGATIVE,
+        ),
+        Param(
+            'stamp_tolerance_s',
+            0.005,
+            'observation-to-keyframe stamp tolerance, s',
+            range=NON_NEGATIVE,
+            field='mapper.stamp_tolerance_s',
+        ),
+        Param(
+            'prior_sigma',
+            [0.001, 0.001, 0.001],
+            'std. dev. of the first keyframe prior (x m, y m, theta rad)',
+            length=3,
+            range=POSITIVE,
+            field='mapper.prior_sigma',
+            to_field=tuple,
+        ),
+        Param('map_frame', 'map', 'map frame id'),
+        Param('odom_frame', 'odom', 'odometry frame id'),
+        Param('tf_period_s', 0.1, 'period of the map->odom broadcast, s', range=POSITIVE),
+        Param('report_dir', '', "directory for the report (JSON + PNG); '' writes none"),
+    ),
+)
+
+
+def config_from_parameters(values: dict[str, Any]) -> MapperConfig:
+    """Validate parameter values into a MapperConfig (raises ParameterError)."""
+    checked = PARAMETERS.validate(values)
+    return PARAMETERS.build(
+        lambda: MapperConfig(
+            em=EmConfig(**PARAMETERS.fields(checked, 'em')), **PARAMETERS.fields(checked, 'mapper')
+        )
+    )
