@@ -14,7 +14,7 @@ from synthetic_room import MOVEABLE_IDS, STATIC_IDS, STATIC_POSITIONS, Room, mak
 from em_sam_node.core.assembly import MappingData, dead_reckoning
 from em_sam_node.core.em import EmConfig, EmResult, gate_outliers, m_step, run_em
 from em_sam_node.core.evaluation import ate_rmse
-from em_sam_node.core.se2 import between
+from slam_core.geometry.se2 import between
 
 SETTINGS = settings(derandomize=True, max_examples=200, deadline=None)
 

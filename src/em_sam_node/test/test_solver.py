@@ -13,7 +13,6 @@ from hypothesis import strategies as st
 from em_sam_node.core import solver
 from em_sam_node.core.factors import range_bearing_predict
 from em_sam_node.core.problem import Estimate, SlamProblem
-from em_sam_node.core.se2 import apply_increment, between, increment_between, wrap_angle
 from em_sam_node.core.solver import (
     SingularSystemError,
     build_linear_system,
@@ -25,6 +24,7 @@ from em_sam_node.core.solver import (
     solve,
     system_layout,
 )
+from slam_core.geometry.se2 import apply_increment, between, increment_between, wrap_angle
 from slam_core.testing.jacobians import assert_jacobian_close
 
 PI = math.pi

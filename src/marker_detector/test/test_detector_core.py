@@ -10,11 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from marker_detector.core.base_frame import (
-    optical_from_link,
-    to_range_bearing,
-    transform_from_xyz_rpy,
-)
+from marker_detector.core.base_frame import to_range_bearing
 from marker_detector.core.camera import CameraModel
 from marker_detector.core.candidates import locate_markers
 from marker_detector.core.decoding import decode_quad
@@ -30,12 +26,13 @@ from marker_detector.core.pose import (
     corner_jacobian,
     marker_object_points,
     pose_covariance,
-    rotation_from_vector,
-    rotation_vector,
     solve_marker_pose,
     solve_marker_poses,
 )
 from marker_detector.core.rendering import MarkerPlacement, render_markers
+from slam_core.geometry.quaternion import log_rotation
+from slam_core.geometry.se3 import optical_from_link, transform_from_xyz_rpy
+from slam_core.geometry.so3 import rotation_from_vector
 from slam_core.testing.jacobians import assert_jacobian_close, numerical_jacobian
 
 K_640 = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
@@ -75,7 +72,7 @@ def detect_one(image: np.ndarray, cam: CameraModel, config: DetectorConfig) -> M
 
 
 def angle_between_deg(first: np.ndarray, second: np.ndarray) -> float:
-    return math.degrees(float(np.linalg.norm(rotation_vector(first @ second.T))))
+    return math.degrees(float(np.linalg.norm(log_rotation(first @ second.T))))
 
 
 @pytest.fixture
@@ -438,7 +435,7 @@ def test_both_ippe_solutions_match_opencvs_solvepnp_ippe_square(
     for pose, (rvecs, tvecs, errors) in zip(poses, references, strict=True):
         assert pose is not None
         best, other = np.argsort(errors)[:2]
-        assert rotation_vector(pose.rotation) == pytest.approx(np.ravel(rvecs[best]), abs=1e-4)
+        assert log_rotation(pose.rotation) == pytest.approx(np.ravel(rvecs[best]), abs=1e-4)
         assert pose.translation_m == pytest.approx(np.ravel(tvecs[best]), abs=1e-5)
         per_corner = math.sqrt(2.0) * errors
         assert pose.reprojection_error_px == pytest.approx(per_corner[best], rel=1e-3, abs=1e-4)
@@ -493,7 +490,7 @@ def test_covariance_matches_monte_carlo_of_noisy_corners(rng: np.random.Generato
     for _ in range(400):
         noisy = solve_marker_pose(exact + rng.normal(0.0, sigma, exact.shape), 0.16, cam)
         assert noisy is not None
-        d_theta = rotation_vector(noisy.rotation @ pose.rotation.T)  # left perturbation
+        d_theta = log_rotation(noisy.rotation @ pose.rotation.T)  # left perturbation
         samples.append(np.concatenate([noisy.translation_m - pose.translation_m, d_theta]))
     sampled = np.cov(np.array(samples).T)
     ratio = np.sqrt(np.diag(sampled) / np.diag(predicted))  # sigma sampled / predicted
@@ -503,19 +500,6 @@ def test_covariance_matches_monte_carlo_of_noisy_corners(rng: np.random.Generato
 
 
 # --- base frame ---------------------------------------------------------------------------
-
-
-def test_transform_helpers_follow_rep_103_and_urdf() -> None:
-    optical = optical_from_link()
-    np.testing.assert_allclose(optical[:3, :3] @ [0, 0, 1], [1, 0, 0])  # optical z = link x
-    np.testing.assert_allclose(optical[:3, :3] @ [1, 0, 0], [0, -1, 0])  # optical x = -link y
-    np.testing.assert_allclose(optical[:3, :3] @ [0, 1, 0], [0, 0, -1])  # optical y = -link z
-    yawed = transform_from_xyz_rpy([1.0, 2.0, 3.0], [0.0, 0.0, math.pi / 2])
-    np.testing.assert_allclose(yawed @ [1, 0, 0, 1], [1, 3, 3, 1], atol=1e-12)
-    pitched = transform_from_xyz_rpy([0, 0, 0], [0.0, math.pi / 2, 0.0])
-    np.testing.assert_allclose(pitched[:3, :3] @ [1, 0, 0], [0, 0, -1], atol=1e-12)
-    rolled = transform_from_xyz_rpy([0, 0, 0], [math.pi / 2, 0.0, 0.0])
-    np.testing.assert_allclose(rolled[:3, :3] @ [0, 1, 0], [0, 0, 1], atol=1e-12)
 
 
 def _detection_at(translation: np.ndarray, covariance: np.ndarray) -> MarkerDetection:

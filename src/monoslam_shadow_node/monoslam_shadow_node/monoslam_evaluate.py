@@ -60,7 +60,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.monoslam import MonoSlamConfig
-from monoslam_shadow_node.core.monoslam_model import log_rotation
 from monoslam_shadow_node.core.shadow_filter import ClassifierConfig, ShadowConfig
 from monoslam_shadow_node.evaluate import average_nees_band, camera_model, nees, parse_seeds
 from monoslam_shadow_node.evaluation_report import render_png
@@ -81,6 +80,7 @@ from monoslam_shadow_node.monoslam_pipeline import (
 from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.files import write_atomically, write_json
+from slam_core.geometry.quaternion import log_rotation
 from slam_core.progress import ProgressReporter
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, marker_board

@@ -12,6 +12,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosDurability
 
+from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_sim.core.dynamic_render import DynamicRenderer, RenderOptions
 from slam_sim.core.dynamic_scene import DEFAULT_START_NS, DynamicSceneConfig
 from slam_sim.dynamic_camera_bag import (
@@ -27,7 +28,7 @@ from slam_sim.dynamic_camera_bag import (
     scene_from_json,
     write_dynamic_camera_bag,
 )
-from slam_sim.office_camera_bag import IMAGE_FORMAT, rotation_to_quaternion
+from slam_sim.office_camera_bag import IMAGE_FORMAT
 
 CONFIG = DynamicSceneConfig(duration_s=1.0, rate_hz=10.0)
 Messages = dict[str, list[tuple[int, Any]]]
@@ -119,7 +120,7 @@ def test_ground_truth_is_the_rendered_frames_truth(
         position = pose.pose.position
         np.testing.assert_allclose([position.x, position.y, position.z], frame.position_m)
         q = pose.pose.orientation
-        np.testing.assert_allclose([q.x, q.y, q.z, q.w], rotation_to_quaternion(frame.rotation))
+        np.testing.assert_allclose([q.w, q.x, q.y, q.z], quaternion_from_rotation(frame.rotation))
         fiducials = messages[TRUE_FIDUCIALS_TOPIC][k][1].detections
         if frame.target_corners_px is None:
             assert fiducials == []

@@ -33,7 +33,6 @@ from slam_sim.office_camera_bag import (
     main,
     office_markers,
     render_frames,
-    rotation_to_quaternion,
     write_office_camera_bag,
 )
 
@@ -127,22 +126,6 @@ def test_tf_static_mounts_the_camera_on_the_robot(short_bag: Path) -> None:
     assert (translation.x, translation.y, translation.z) == (0.1, 0.0, 1.0)
     q = optical.transform.rotation
     assert (q.x, q.y, q.z, q.w) == pytest.approx((-0.5, 0.5, -0.5, 0.5))
-
-
-def test_rotation_to_quaternion_round_trips() -> None:
-    rng = np.random.default_rng(4)
-    for _ in range(50):
-        q = rng.standard_normal(4)
-        q /= np.linalg.norm(q)
-        x, y, z, w = q
-        rotation = np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-            ]
-        )
-        np.testing.assert_allclose(rotation_to_quaternion(rotation), q * np.sign(w), atol=1e-12)
 
 
 def test_ground_truth_fiducials_match_what_a_detector_finds(short_bag: Path) -> None:

@@ -47,7 +47,6 @@ from em_sam_node.core.assembly import (
 )
 from em_sam_node.core.factors import observation_innovations, observation_mahalanobis
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
-from em_sam_node.core.se2 import range_bearing_to_point, wrap_angle
 from em_sam_node.core.seeding import incremental_seed
 from em_sam_node.core.solver import (
     cauchy_weights,
@@ -57,6 +56,7 @@ from em_sam_node.core.solver import (
     solve,
 )
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
+from slam_core.geometry.se2 import range_bearing_to_point, wrap_angle
 
 MODES = ('paper', 'robust')
 SEED_KERNELS = {'cauchy': cauchy_weights, 'huber': huber_weights}

@@ -75,7 +75,7 @@ from em_sam_node.core.factors import (
     validate_problem,
 )
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem, SolveResult
-from em_sam_node.core.se2 import wrap_angle
+from slam_core.geometry.se2 import wrap_angle
 
 Method = Literal['gauss_newton', 'levenberg_marquardt']
 

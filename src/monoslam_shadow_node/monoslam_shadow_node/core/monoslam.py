@@ -56,10 +56,10 @@ from monoslam_shadow_node.core.monoslam_model import (
     predict_camera,
     project_feature,
     ray_from_angles,
-    rotation,
-    world_angle_jacobian,
 )
 from monoslam_shadow_node.core.projective import chi2_quantile
+from slam_core.geometry.quaternion import rotation_from_quaternion as rotation
+from slam_core.geometry.quaternion import world_angle_jacobian
 
 IntArray = NDArray[np.int64]
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from slam_sim.core.geometry import BoolArray, FloatArray, IntArray
+from slam_core.arrays import BoolArray, FloatArray, IntArray
 
 Float32Array = NDArray[np.float32]
 DICTIONARY_NAME = 'DICT_APRILTAG_36h11'

@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from slam_core.arrays import FloatArray
 from slam_sim.core.camera import Float32Array, PinholeCamera
-from slam_sim.core.geometry import FloatArray
 
 _PHASE_KEY = 2**32 - 1  # spawn key of the lighting drift phases (frames use their index)
 

@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from slam_core.arrays import BoolArray, FloatArray
 from slam_sim.core.camera import Float32Array, PinholeCamera, SceneStyle, marker_texture
 from slam_sim.core.camera_effects import CameraEffects, ImageEffects
 from slam_sim.core.dynamic_scene import (
@@ -54,7 +55,6 @@ from slam_sim.core.dynamic_scene import (
     SceneCamera,
     build_scene,
 )
-from slam_sim.core.geometry import BoolArray, FloatArray
 from slam_sim.core.init_target import InitTarget, target_pixels
 
 LABEL_NOTHING = -2

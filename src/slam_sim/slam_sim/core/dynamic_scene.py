@@ -50,7 +50,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slam_sim.core.geometry import BoolArray, FloatArray, IntArray
+from slam_core.arrays import BoolArray, FloatArray, IntArray
+from slam_core.geometry.so3 import rotation_from_vector
 
 DEFAULT_START_NS = 1_700_000_000 * 10**9
 MOTION_KINDS = ('constant_velocity', 'turning', 'stop_and_go', 'model')
@@ -226,16 +227,6 @@ class Sinusoids:
         return np.asarray((np.cos(angle) * omega) @ self.amplitudes, dtype=np.float64)
 
 
-def _rodrigues(vectors: FloatArray) -> FloatArray:
-    """Return rotation matrices (K, 3, 3) of rotation vectors (K, 3) rad."""
-    theta = np.linalg.norm(vectors, axis=1)[:, None, None]
-    skew = np.zeros((len(vectors), 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -vectors[:, 2], vectors[:, 1], -vectors[:, 0]
-    skew -= skew.transpose(0, 2, 1)
-    a, b = np.sinc(theta / np.pi), 0.5 * np.sinc(theta / (2.0 * np.pi)) ** 2
-    return np.asarray(np.eye(3) + a * skew + b * (skew @ skew), dtype=np.float64)
-
-
 @dataclass(frozen=True)
 class CameraPath:
     """Hand-held camera: optical centre = center_m + sway, looking at look_m + look_sway,
@@ -264,7 +255,9 @@ class CameraPath:
         right = np.cross(forward, [0.0, 0.0, 1.0])
         right /= np.linalg.norm(right, axis=1, keepdims=True)
         level = np.stack([right, np.cross(forward, right), forward], axis=2)
-        return np.asarray(level @ _rodrigues(self.shake_rad.value_at(times_s)), np.float64)
+        return np.asarray(
+            level @ rotation_from_vector(self.shake_rad.value_at(times_s)), np.float64
+        )
 
 
 def sample_camera_path(rng: np.random.Generator, hand_motion_m: float = 0.0) -> CameraPath:

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from slam_core.arrays import BoolArray, FloatArray
 from slam_sim.core.dynamic_scene import MIN_DEPTH_M, SceneCamera
-from slam_sim.core.geometry import BoolArray, FloatArray
 
 TARGET_DICTIONARY = 'DICT_APRILTAG_36h11'
 _FACING_MINUS_X = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
