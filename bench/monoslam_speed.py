@@ -52,7 +52,6 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 from bench_common import BENCH_DIR, pin_to_one_core, run_meta  # noqa: E402
 
-from monoslam_shadow_node.core.camera import CameraModel  # noqa: E402
 from monoslam_shadow_node.core.monoslam import (  # noqa: E402
     TRACKING,
     MonoSlam,
@@ -72,6 +71,7 @@ from monoslam_shadow_node.monoslam_pipeline import (  # noqa: E402
     simulation_frames,
     target_known_points,
 )
+from slam_core.camera import CameraModel  # noqa: E402
 from slam_core.files import write_atomically  # noqa: E402
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene  # noqa: E402
 from slam_sim.core.init_target import InitTarget  # noqa: E402

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from marker_detector.core.base_frame import to_range_bearing
-from marker_detector.core.camera import CameraModel
 from marker_detector.core.candidates import locate_markers
 from marker_detector.core.decoding import decode_quad
 from marker_detector.core.detection import (
@@ -30,6 +29,7 @@ from marker_detector.core.pose import (
     solve_marker_poses,
 )
 from marker_detector.core.rendering import MarkerPlacement, render_markers
+from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import log_rotation
 from slam_core.geometry.se3 import optical_from_link, transform_from_xyz_rpy
 from slam_core.geometry.so3 import rotation_from_vector
@@ -136,55 +136,6 @@ def test_36h11_code_with_three_bit_errors_is_still_identified() -> None:
     stock = cv2.aruco.getPredefinedDictionary(DICTIONARIES['DICT_APRILTAG_36h11'])
     if stock.maxCorrectionBits == 0:  # OpenCV 4.x: its stock dictionary corrects nothing
         assert not stock.identify(bits, 0.6)[0]
-
-
-# --- camera model -------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize(
-    ('fields', 'message'),
-    [
-        ({'k': [500.0, 0, 320, 0, 500, 240, 0, 0]}, 'k has 8 values'),
-        ({'k': [500.0, 0, 320, 0, np.nan, 240, 0, 0, 1]}, 'finite'),
-        ({'k': [0.0, 0, 320, 0, 500, 240, 0, 0, 1]}, 'fx=0'),
-        ({'k': [500.0, 2, 320, 0, 500, 240, 0, 0, 1]}, 'no skew'),
-        ({'distortion_model': 'equidistant'}, "distortion_model='equidistant'"),
-        ({'d': [0.1, 0.2, 0.0]}, 'needs 5'),
-        ({'d': [0.1, 0.2, 0.0, 0.0, np.inf]}, 'finite'),
-        ({'width': 0}, 'width=0'),
-    ],
-)
-def test_camera_info_errors_name_the_field(fields: dict[str, object], message: str) -> None:
-    values: dict[str, object] = {
-        'width': 640, 'height': 480, 'k': [500.0, 0, 320, 0, 500, 240, 0, 0, 1],
-        'd': [0.0] * 5, 'distortion_model': 'plumb_bob',
-    }  # fmt: skip
-    values.update(fields)
-    with pytest.raises(ValueError, match=message):
-        CameraModel.from_camera_info(**values)  # type: ignore[arg-type]
-
-
-def test_camera_info_without_distortion_coefficients_means_none() -> None:
-    cam = CameraModel.from_camera_info(640, 480, K_640.ravel(), [], 'plumb_bob')
-    assert not cam.has_distortion
-    assert np.array_equal(cam.dist_coeffs, np.zeros(5))
-
-
-@pytest.mark.parametrize(
-    ('d', 'model'), [(PLUMB_BOB, 'plumb_bob'), (RATIONAL, 'rational_polynomial')]
-)
-def test_projection_matches_opencv_and_its_jacobian_finite_differences(
-    d: np.ndarray, model: str, rng: np.random.Generator
-) -> None:
-    cam = camera(d, model)
-    points = np.column_stack([rng.uniform(-1.0, 1.0, (12, 2)), rng.uniform(1.5, 4.0, 12)])
-    pixels, jacobian = cam.project_with_jacobian(points)
-    reference, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), cam.K, cam.dist_coeffs)
-    np.testing.assert_allclose(pixels, reference.reshape(-1, 2), atol=1e-9)
-    for point, block in zip(points, jacobian, strict=True):
-        assert_jacobian_close(block, lambda p: cam.project(p[None])[0], point, atol=1e-5)
-    round_trip = cam.distort_points(cam.undistort_points(pixels))
-    np.testing.assert_allclose(round_trip, pixels, atol=1e-6)
 
 
 # --- configuration and input validation ---------------------------------------------------

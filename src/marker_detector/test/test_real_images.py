@@ -26,9 +26,9 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
-from marker_detector.core.camera import CameraModel
 from marker_detector.core.candidates import MarkerCorners, locate_markers
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
+from slam_core.camera import CameraModel
 from slam_core.datasets import DATA_ENV, data_root, dataset
 from slam_core.geometry.quaternion import log_rotation
 

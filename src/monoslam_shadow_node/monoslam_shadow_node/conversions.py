@@ -36,7 +36,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.shadow_filter import (
     DYNAMIC,
     PENDING,
@@ -45,6 +44,7 @@ from monoslam_shadow_node.core.shadow_filter import (
     Handover,
     TrackReport,
 )
+from slam_core.camera import CameraModel
 from slam_core.geometry import quaternion
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 

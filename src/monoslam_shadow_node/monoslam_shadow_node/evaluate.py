@@ -73,7 +73,6 @@ from numpy.typing import NDArray
 from scipy.stats import chi2
 from scipy.stats import t as t_dist
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.rays import ray_angle
 from monoslam_shadow_node.core.shadow_filter import (
     DYNAMIC,
@@ -88,6 +87,7 @@ from monoslam_shadow_node.core.shadow_filter import (
     ShadowFilter,
 )
 from monoslam_shadow_node.evaluation_report import summary_text, write_figures
+from slam_core.camera import CameraModel
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter

@@ -66,7 +66,6 @@ from marker_detector.core.detection import DetectorConfig, detect_markers, make_
 from marker_detector.core.images import ImageError
 from monoslam_shadow_node import monoslam_evaluate
 from monoslam_shadow_node.conversions import rotation_from_quaternion
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
 from monoslam_shadow_node.core.monoslam import MonoSlamFrame
 from monoslam_shadow_node.evaluate import parse_seeds
@@ -92,6 +91,7 @@ from monoslam_shadow_node.monoslam_pipeline import (
     simulation_frames,
 )
 from slam_core.blas import single_threaded_blas
+from slam_core.camera import CameraModel
 from slam_core.cli import console_main
 from slam_core.errors import BagError
 from slam_core.files import write_atomically, write_json

@@ -40,7 +40,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam import (
     LOST,
     TRACKING,
@@ -57,6 +56,7 @@ from monoslam_shadow_node.core.shadow_filter import (
     ShadowConfig,
     ShadowFilter,
 )
+from slam_core.camera import CameraModel
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 from slam_sim.core.init_target import InitTarget, target_pixels
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam import (
     LOST,
     TRACKING,
@@ -25,6 +24,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     predict_camera,
     project_feature,
 )
+from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import log_rotation, rotation_from_quaternion
 from slam_core.testing.jacobians import assert_jacobian_close
 from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene

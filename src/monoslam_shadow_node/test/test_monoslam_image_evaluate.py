@@ -23,7 +23,7 @@ from monoslam_shadow_node.monoslam_image_evaluate import (
 )
 from monoslam_shadow_node.monoslam_pipeline import MeasurementFrame
 from slam_core.blas import single_threaded_blas
-from slam_sim.core.dynamic_render import DynamicRenderer, undistort_pixels
+from slam_sim.core.dynamic_render import DynamicRenderer
 from slam_sim.core.dynamic_scene import DynamicSceneConfig
 from slam_sim.dynamic_camera_bag import write_dynamic_camera_bag
 
@@ -67,7 +67,7 @@ def _reprojection_errors(images: list[ImageFrame], frames: list[MeasurementFrame
         ids, pixels = frame.measurements.ids, frame.measurements.pixels
         new = np.array([int(i) not in first for i in ids], dtype=bool)
         depth_m, labels = renderer.probe(index, pixels[new])
-        rays, _ = undistort_pixels(camera, pixels[new])
+        rays, _ = camera.unproject(pixels[new])
         points_m = np.c_[rays * depth_m[:, None], depth_m] @ image.rotation.T + image.centre_m
         for track, point, label in zip(ids[new].tolist(), points_m, labels, strict=True):
             first[track] = (index, point, bool(label >= 0))

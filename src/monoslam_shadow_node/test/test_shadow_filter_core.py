@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from marker_detector.core.camera import CameraModel
 from monoslam_shadow_node.core.rays import View
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
@@ -27,6 +26,7 @@ from monoslam_shadow_node.core.shadow_filter import (
     ShadowFilter,
 )
 from monoslam_shadow_node.core.static_fit import motion_score_test
+from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import rotation_from_vector
 from slam_core.testing.jacobians import assert_jacobian_close
 

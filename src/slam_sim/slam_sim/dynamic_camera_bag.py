@@ -62,7 +62,6 @@ from slam_sim.core.dynamic_render import (
     DynamicRenderer,
     RenderedFrame,
     RenderOptions,
-    as_pinhole,
 )
 from slam_sim.core.dynamic_scene import DEFAULT_START_NS, DynamicSceneConfig
 from slam_sim.dataset_bag import TopicSpec, WrittenBag, check_output, write_bag
@@ -152,7 +151,7 @@ class _Messages:
     def __init__(self, registry: TypeRegistry, renderer: DynamicRenderer, quality: int) -> None:
         target = renderer.target
         rig = CameraRig(
-            camera=as_pinhole(renderer.camera),
+            camera=renderer.camera,
             rate_hz=renderer.config.rate_hz,
             jpeg_quality=quality,
             style=SceneStyle(side_m=target.side_m),

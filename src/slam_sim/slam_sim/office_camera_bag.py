@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from slam_core.arrays import FloatArray, IntArray
+from slam_core.camera import CameraModel
 from slam_core.cli import console_main
 from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_core.geometry.se3 import OPTICAL_IN_LINK
@@ -54,9 +55,9 @@ from slam_sim.core.camera import (
     LevelPose,
     Markers,
     MarkerTruth,
-    PinholeCamera,
     Renderer,
     SceneStyle,
+    office_camera,
 )
 from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
 from slam_sim.core.office import OfficeConfig, OfficeRun, Variant, simulate_office
@@ -100,7 +101,7 @@ CAMERA_TOPICS = (
 class CameraRig:
     """The camera, its rate, JPEG quality, rendering style and image effects."""
 
-    camera: PinholeCamera = field(default_factory=PinholeCamera)
+    camera: CameraModel = field(default_factory=office_camera)
     rate_hz: float = DEFAULT_RATE_HZ
     jpeg_quality: int = DEFAULT_QUALITY
     style: SceneStyle = field(default_factory=SceneStyle)
@@ -376,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        camera = PinholeCamera.scaled(args.width, args.height)
+        camera = office_camera(args.width, args.height)
     except ValueError as err:
         parser.error(f'--width/--height: {err}')
     try:

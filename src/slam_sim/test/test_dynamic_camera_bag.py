@@ -94,8 +94,8 @@ def test_camera_info_and_images_describe_the_rendered_camera(
     for _, info in messages[CAMERA_INFO_TOPIC]:
         assert info.header.frame_id == 'camera_optical_frame'
         assert (info.width, info.height, info.distortion_model) == (640, 480, 'plumb_bob')
-        np.testing.assert_array_equal(info.k, camera.matrix.reshape(9))
-        np.testing.assert_array_equal(info.d, [camera.k1, camera.k2, 0.0, 0.0, 0.0])
+        np.testing.assert_array_equal(info.k, camera.K.reshape(9))
+        np.testing.assert_array_equal(info.d, camera.D)
     for k, (_, image) in enumerate(messages[IMAGE_TOPIC][:3]):
         assert image.format == IMAGE_FORMAT
         pixels = cv2.imdecode(np.asarray(image.data, np.uint8), cv2.IMREAD_UNCHANGED)

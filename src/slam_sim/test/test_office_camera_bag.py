@@ -13,7 +13,7 @@ from rosbags.interfaces import QosDurability
 
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
-from slam_sim.core.camera import PinholeCamera
+from slam_sim.core.camera import office_camera
 from slam_sim.core.office import OfficeRun
 from slam_sim.office_bag import (
     DEFAULT_START_NS,
@@ -98,7 +98,7 @@ def test_bag_has_the_camera_and_office_topics_at_their_rates(
 
 def test_images_and_camera_info_describe_the_camera(short_bag: Path) -> None:
     messages = _read(short_bag)
-    info = PinholeCamera().camera_info()
+    info = office_camera().camera_info()
     for _, message in messages[CAMERA_INFO_TOPIC]:
         assert message.header.frame_id == 'camera_optical_frame'
         assert (message.width, message.height) == (640, 480)

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from marker_detector.core.camera import FloatArray
 from marker_detector.core.detection import MarkerDetection
+from slam_core.arrays import FloatArray
 
 
 @dataclass(frozen=True, eq=False)

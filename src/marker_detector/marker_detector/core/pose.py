@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from marker_detector.core.camera import CameraModel, FloatArray
+from slam_core.arrays import FloatArray
+from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import rotation_from_vector, skew
 
 

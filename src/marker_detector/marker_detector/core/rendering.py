@@ -19,9 +19,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from marker_detector.core.camera import CameraModel, FloatArray
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, get_dictionary
 from marker_detector.core.pose import marker_object_points
+from slam_core.arrays import FloatArray
+from slam_core.camera import CameraModel
 
 TEXTURE_PX_PER_CELL = 16
 

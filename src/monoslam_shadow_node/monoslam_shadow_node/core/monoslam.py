@@ -39,7 +39,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
@@ -58,6 +57,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     ray_from_angles,
 )
 from monoslam_shadow_node.core.projective import chi2_quantile
+from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import rotation_from_quaternion as rotation
 from slam_core.geometry.quaternion import world_angle_jacobian
 

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     Q_SLICE,
@@ -23,6 +22,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     FloatArray,
     project_known_point,
 )
+from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import (
     exp_quaternion,
     quaternion_from_rotation,

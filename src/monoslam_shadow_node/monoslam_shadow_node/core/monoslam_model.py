@@ -52,7 +52,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from monoslam_shadow_node.core.camera import CameraModel
+from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import (
     exp_quaternion,
     left_matrix,

@@ -47,8 +47,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.camera import CameraModel, homogeneous_projection
 from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
+from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import skew
 
 BoolArray = NDArray[np.bool_]
@@ -195,7 +195,7 @@ def update(
     if len(index) == 0:
         return UpdateResult(new_states, new_covariances, innovation, nis, used)
     x, p = states[index], covariances[index]
-    predicted, jac = homogeneous_projection(camera, x[:, :4])
+    predicted, jac = camera.homogeneous_projection(x[:, :4])
     h = np.zeros((len(index), 2, STATE_SIZE))
     h[:, :, :4] = jac
     residual = pixels[index] - predicted

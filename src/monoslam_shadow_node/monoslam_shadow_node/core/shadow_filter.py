@@ -40,7 +40,6 @@ from numpy.typing import NDArray
 from scipy.optimize import brentq
 from scipy.stats import ncx2
 
-from monoslam_shadow_node.core.camera import CameraModel, pixel_rays
 from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
 from monoslam_shadow_node.core.rays import (
     THREE_RAY_DOF,
@@ -60,6 +59,7 @@ from monoslam_shadow_node.core.shadow_ekf import (
     world_estimates,
 )
 from monoslam_shadow_node.core.static_fit import MOTION_DOF, motion_score_test
+from slam_core.camera import CameraModel
 
 PENDING, STATIC, DYNAMIC = 0, 1, 2
 TEST_DELAY_FRAMES = 1
@@ -443,7 +443,7 @@ class ShadowFilter:
         of each direction's covariance (rank 2, pixel noise only)."""
         if not len(pixels):
             return [], np.zeros((0, 3, 3))
-        rays, jacobians = pixel_rays(self.camera, pixels)
+        rays, jacobians = self.camera.pixel_rays(pixels)
         directions, covariances = pixel_ray_directions(
             rays, jacobians, frame.rotation, self.config.ekf.pixel_sigma_px
         )

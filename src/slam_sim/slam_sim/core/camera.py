@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slam_core.arrays import BoolArray, FloatArray, IntArray
+from slam_core.camera import CameraModel
 
 Float32Array = NDArray[np.float32]
 DICTIONARY_NAME = 'DICT_APRILTAG_36h11'
@@ -44,108 +45,20 @@ _NO_WALL_M = 1e4  # the depth of a ray that meets no wall
 _UNIT_SQUARE = np.array([[-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0], [-1.0, -1.0, 0.0]])
 
 
-@dataclass(frozen=True)
-class CameraInfoFields:
-    """sensor_msgs/CameraInfo content: K (9,), D (5,), R (9,), P (12,), row-major."""
-
-    width: int
-    height: int
-    distortion_model: str
-    d: FloatArray
-    k: FloatArray
-    r: FloatArray
-    p: FloatArray
+OFFICE_CAMERA = CameraModel.from_intrinsics(
+    640, 480, (457.0, 457.0), (321.3, 238.4), (-0.1, 0.02, 4e-4, -3e-4, 0.0)
+)
+"""The office robot's camera: 640 x 480 px with a 70 deg horizontal field of view
+(fx = 457 px), a principal point slightly off centre and mild barrel distortion (plumb_bob),
+like a calibrated webcam."""
 
 
-@dataclass(frozen=True)
-class PinholeCamera:
-    """A pinhole camera with plumb_bob distortion (k1, k2, p1, p2, k3), pixels and px units.
-
-    The default is a 640 x 480 camera with a 70 deg horizontal field of view (fx = 457 px),
-    a principal point slightly off centre and mild barrel distortion, like a calibrated
-    webcam.
-    """
-
-    width: int = 640
-    height: int = 480
-    fx: float = 457.0
-    fy: float = 457.0
-    cx: float = 321.3
-    cy: float = 238.4
-    distortion: tuple[float, float, float, float, float] = (-0.1, 0.02, 4e-4, -3e-4, 0.0)
-
-    def __post_init__(self) -> None:
-        """Reject sizes, focal lengths and principal points that cannot make an image."""
-        if not (16 <= self.width <= 8192 and 16 <= self.height <= 8192):
-            raise ValueError(f'camera size {self.width}x{self.height} px not in [16, 8192]')
-        if not (self.fx > 0.0 and self.fy > 0.0):
-            raise ValueError(f'camera focal lengths must be > 0, got {self.fx}, {self.fy}')
-        if not (0.0 < self.cx < self.width and 0.0 < self.cy < self.height):
-            raise ValueError(f'principal point ({self.cx}, {self.cy}) is outside the image')
-        if len(self.distortion) != 5:
-            raise ValueError('distortion must be (k1, k2, p1, p2, k3)')
-
-    @classmethod
-    def scaled(cls, width: int, height: int) -> PinholeCamera:
-        """Return the default lens on a ``width`` x ``height`` px sensor (same horizontal FOV).
-
-        Focal lengths and the principal point's offset from the centre scale with width / 640.
-        """
-        default, scale = cls(), width / 640.0
-        return cls(
-            width=width,
-            height=height,
-            fx=default.fx * scale,
-            fy=default.fy * scale,
-            cx=0.5 * (width - 1) + (default.cx - 319.5) * scale,
-            cy=0.5 * (height - 1) + (default.cy - 239.5) * scale,
-        )
-
-    @property
-    def matrix(self) -> FloatArray:
-        """The intrinsic matrix K (3, 3)."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    def camera_info(self) -> CameraInfoFields:
-        """Return the CameraInfo fields; P is K with a zero fourth column (monocular)."""
-        return CameraInfoFields(
-            width=self.width,
-            height=self.height,
-            distortion_model='plumb_bob',
-            d=np.array(self.distortion, dtype=np.float64),
-            k=self.matrix.reshape(9),
-            r=np.eye(3).reshape(9),
-            p=np.hstack([self.matrix, np.zeros((3, 1))]).reshape(12),
-        )
-
-    def distort(self, normalized: FloatArray) -> FloatArray:
-        """Return pixels (N, 2) of undistorted normalized coordinates (N, 2) (x/z, y/z)."""
-        k1, k2, p1, p2, k3 = self.distortion
-        x, y = normalized[:, 0], normalized[:, 1]
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-        return np.stack([self.fx * xd + self.cx, self.fy * yd + self.cy], axis=-1)
-
-    def project(self, points_camera: FloatArray) -> FloatArray:
-        """Return pixels (N, 2) of points (N, 3) in the optical frame (z > 0), as projectPoints."""
-        points = np.asarray(points_camera, dtype=np.float64).reshape(-1, 3)
-        return self.distort(points[:, :2] / points[:, 2:3])
-
-    def undistort(self, pixels: FloatArray, *, iterations: int = 30) -> FloatArray:
-        """Return undistorted normalized coordinates (N, 2) of pixels (N, 2) (fixed point)."""
-        k1, k2, p1, p2, k3 = self.distortion
-        pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-        xd = (pixels[:, 0] - self.cx) / self.fx
-        yd = (pixels[:, 1] - self.cy) / self.fy
-        x, y = xd.copy(), yd.copy()
-        for _ in range(iterations):
-            r2 = x * x + y * y
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            x = (xd - 2.0 * p1 * x * y - p2 * (r2 + 2.0 * x * x)) / radial
-            y = (yd - p1 * (r2 + 2.0 * y * y) - 2.0 * p2 * x * y) / radial
-        return np.stack([x, y], axis=-1)
+def office_camera(width: int = 640, height: int = 480) -> CameraModel:
+    """Return ``OFFICE_CAMERA``'s lens on a ``width`` x ``height`` px sensor (same horizontal
+    field of view, ``CameraModel.scaled``); ValueError unless both are in [16, 8192] px."""
+    if not (16 <= width <= 8192 and 16 <= height <= 8192):
+        raise ValueError(f'camera size {width}x{height} px not in [16, 8192]')
+    return OFFICE_CAMERA.scaled(width, height)
 
 
 @dataclass(frozen=True)
@@ -162,14 +75,14 @@ class PixelRays:
 
 
 @cache
-def pixel_rays(camera: PinholeCamera) -> PixelRays:
+def pixel_rays(camera: CameraModel) -> PixelRays:
     """Return the camera's precomputed pixel rays; ValueError if distortion is not invertible."""
     v, u = np.mgrid[0 : camera.height, 0 : camera.width]
     pixels = np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64)
-    normalized = camera.undistort(pixels)
-    error = np.abs(camera.distort(normalized) - pixels).max()
+    normalized = camera.undistort_points(pixels, normalized=True)
+    error = np.abs(camera.distort_normalized(normalized) - pixels).max()
     if not error < 1e-3:
-        raise ValueError(f'camera distortion {camera.distortion} is not invertible in the image')
+        raise ValueError(f'camera distortion {camera.D.tolist()} is not invertible in the image')
     x_u = normalized[:, 0].reshape(camera.height, camera.width)
     y_u = normalized[:, 1].reshape(camera.height, camera.width)
     table_x = np.linspace(x_u.min(), x_u.max(), _RAY_TABLE_SIZE)
@@ -302,7 +215,7 @@ class _Drawn:
 class Renderer:
     """Renders grey images of a walled world with markers for one camera (see module doc)."""
 
-    def __init__(self, camera: PinholeCamera, walls_m: FloatArray, style: SceneStyle) -> None:
+    def __init__(self, camera: CameraModel, walls_m: FloatArray, style: SceneStyle) -> None:
         self.camera, self.style = camera, style
         self.walls_m = np.asarray(walls_m, dtype=np.float64)
         if (
@@ -449,7 +362,7 @@ class Renderer:
 
 
 def _inside(
-    rays: PixelRays, camera: PinholeCamera, pixels: FloatArray, normalized: FloatArray
+    rays: PixelRays, camera: CameraModel, pixels: FloatArray, normalized: FloatArray
 ) -> BoolArray:
     """(M,) True where all four corners are in the image (and within the undistorted range)."""
     x_low, x_high = rays.column_range[0, 0], rays.column_range[-1, 1]
@@ -479,7 +392,7 @@ def _clip_near(corners: FloatArray) -> FloatArray:
 
 
 def _pixel_box(
-    rays: PixelRays, polygon: FloatArray, camera: PinholeCamera
+    rays: PixelRays, polygon: FloatArray, camera: CameraModel
 ) -> tuple[slice, slice] | None:
     """Return the pixel rows and columns that can see ``polygon`` (P, 3) (z > 0), or None."""
     if len(polygon) < 3:
@@ -520,7 +433,7 @@ def _cast(
 
 @cache
 def _flat_surfaces(
-    camera: PinholeCamera, style: SceneStyle, height_m: float
+    camera: CameraModel, style: SceneStyle, height_m: float
 ) -> tuple[Float32Array, Float32Array]:
     """Return the floor / ceiling optical depth (H, W) m and grey (H, W) of a level camera."""
     y_u = pixel_rays(camera).y_u.astype(np.float64)

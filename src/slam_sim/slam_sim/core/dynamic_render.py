@@ -11,9 +11,9 @@ the target's board also wins over surfaces up to ``TARGET_STANDOFF_M`` in front 
 target hung on a wall is drawn on it (1 mm proud) while its corners stay exactly where
 ``init_target`` puts them.
 
-Camera: ``SceneCamera`` (plumb_bob k1, k2). Each pixel's undistorted ray (x/z, y/z, 1) in the
-optical frame (x right, y down, z forward; pixel centres at integer coordinates) is found
-once by Newton's method on the radial model; a pixel beyond the model's fold sees nothing.
+Camera: ``DynamicSceneConfig.camera()`` (plumb_bob k1). Each pixel's undistorted ray (x/z, y/z,
+1) in the optical frame (x right, y down, z forward; pixel centres at integer coordinates) is
+found once by ``CameraModel.unproject``; a pixel beyond the lens's fold sees nothing.
 Per frame the rays are rotated by R_world_camera (``CameraPath.rotations_at``); the ray
 parameter of a hit is its depth along the optical z axis. Boxes, spheres and the target are
 only tested on the rays inside their projected bounding rectangle.
@@ -47,14 +47,10 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from slam_core.arrays import BoolArray, FloatArray
-from slam_sim.core.camera import Float32Array, PinholeCamera, SceneStyle, marker_texture
+from slam_core.camera import CameraModel
+from slam_sim.core.camera import Float32Array, SceneStyle, marker_texture
 from slam_sim.core.camera_effects import CameraEffects, ImageEffects
-from slam_sim.core.dynamic_scene import (
-    DynamicScene,
-    DynamicSceneConfig,
-    SceneCamera,
-    build_scene,
-)
+from slam_sim.core.dynamic_scene import DynamicScene, DynamicSceneConfig, build_scene
 from slam_sim.core.init_target import InitTarget, target_pixels
 
 LABEL_NOTHING = -2
@@ -67,7 +63,6 @@ _NEAR_M = 0.05
 _GUTTER = 16  # texels of continued texture around every chart
 _ALIGN = 16  # chart sizes and atlas offsets are multiples of this (2 ** (mip levels - 1))
 _ATLAS_WIDTH = 2048
-_NEWTON_STEPS = 25
 _REMAP_WIDTH = 4096  # cv2.remap takes fewer than 2 ** 15 rows and columns: sample in rows of this
 Int32Array = NDArray[np.int32]
 # A set of rays: a row index array or slice, and a column slice.
@@ -143,35 +138,6 @@ class RenderedFrame:
     target_corners_px: FloatArray | None
 
 
-def as_pinhole(camera: SceneCamera) -> PinholeCamera:
-    """Return ``camera`` as the office renderer's camera type (d = (k1, k2, 0, 0, 0))."""
-    return PinholeCamera(
-        camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
-        (camera.k1, camera.k2, 0.0, 0.0, 0.0),
-    )  # fmt: skip
-
-
-def undistort_pixels(camera: SceneCamera, pixels: FloatArray) -> tuple[FloatArray, BoolArray]:
-    """Return the undistorted normalized coordinates (..., 2) (x/z, y/z) of raw pixels
-    (..., 2) and whether each lies inside the radial model's monotonic zone (...,)."""
-    pixels = np.asarray(pixels, dtype=np.float64)
-    distorted = (pixels - [camera.cx, camera.cy]) / [camera.fx, camera.fy]
-    radius_d = np.hypot(distorted[..., 0], distorted[..., 1])
-    fold = camera.fold_radius()
-    radius = radius_d.copy()
-    with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
-        for _ in range(_NEWTON_STEPS):
-            r2 = radius * radius
-            value = radius * (1.0 + r2 * (camera.k1 + r2 * camera.k2)) - radius_d
-            slope = 1.0 + r2 * (3.0 * camera.k1 + 5.0 * r2 * camera.k2)
-            radius = np.clip(radius - value / np.maximum(slope, 1e-6), 0.0, fold)
-        r2 = radius * radius
-        residual = radius * (1.0 + r2 * (camera.k1 + r2 * camera.k2)) - radius_d
-        scale = np.where(radius_d > 0.0, radius / radius_d, 1.0)
-    valid = (np.abs(residual) < 1e-9) & (radius < fold)
-    return distorted * scale[..., None], np.asarray(valid, dtype=bool)
-
-
 @dataclass(frozen=True)
 class _Rays:
     """Rays (A, B) in the optical frame: undistorted x/z and y/z, |(x, y, 1)|^2, the angular
@@ -228,10 +194,10 @@ class _Rays:
         return row_index, slice(int(cols[0]), int(cols[-1]) + 1)
 
 
-def _grid_rays(camera: SceneCamera) -> _Rays:
+def _grid_rays(camera: CameraModel) -> _Rays:
     """Return the rays through every pixel centre (H, W) of ``camera``."""
     v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
-    normalized, valid = undistort_pixels(camera, np.stack([u, v], axis=-1))
+    normalized, valid = camera.unproject(np.stack([u, v], axis=-1))
     ray = np.concatenate([normalized, np.ones_like(u)[..., None]], axis=-1)
     ray /= np.linalg.norm(ray, axis=-1, keepdims=True)
     along_rows, along_cols = np.gradient(ray, axis=(0, 1))
@@ -575,8 +541,7 @@ class DynamicRenderer:
         self._effects = None
         if self.options.effects is not None:
             seed_sequence = np.random.SeedSequence(seed, spawn_key=(EFFECTS_SPAWN_KEY,))
-            lens = as_pinhole(self.camera)
-            self._effects = CameraEffects(self.options.effects, lens, seed_sequence)
+            self._effects = CameraEffects(self.options.effects, self.camera, seed_sequence)
 
     def time_s(self, frame_index: int) -> float:
         """Return the run time s of frame ``frame_index``."""
@@ -636,7 +601,7 @@ class DynamicRenderer:
             return np.zeros(0, np.float32), np.zeros(0, np.int16)
         rotation, position = self.pose(frame_index)
         centres, exists = self.object_centres(frame_index)
-        normalized, valid = undistort_pixels(self.camera, np.asarray(pixels).reshape(1, -1, 2))
+        normalized, valid = self.camera.unproject(np.asarray(pixels).reshape(1, -1, 2))
         rays = _Rays.of(normalized, np.zeros(valid.shape), valid)
         hits, _ = self._cast(rays, rotation, position, centres, exists)
         depth = np.where(hits.chart >= 0, hits.depth, np.float32(np.inf))
@@ -661,7 +626,7 @@ class DynamicRenderer:
         offsets = (np.arange(n) + 0.5) / n - 0.5
         dv, du = (grid.ravel() for grid in np.meshgrid(offsets, offsets, indexing='ij'))
         pixels = np.stack([cols[:, None] + du, rows[:, None] + dv], axis=-1)
-        normalized, valid = undistort_pixels(self.camera, pixels)
+        normalized, valid = self.camera.unproject(pixels)
         angle = np.broadcast_to(self._rays.angle_rad[rows, cols][:, None] / n, valid.shape)
         rays = _Rays.of(normalized, angle, valid)
         hits, _ = self._cast(rays, rotation, position, centres, exists)

@@ -51,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slam_core.arrays import BoolArray, FloatArray, IntArray
+from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import rotation_from_vector
 
 DEFAULT_START_NS = 1_700_000_000 * 10**9
@@ -65,6 +66,8 @@ _LOOK_CENTER_M = (8.0, 4.0, 1.1)
 _SURFACE_FRACTIONS = (0.30, 0.12, 0.12, 0.14, 0.06)
 _CABINETS = 5
 _LENS_MARGIN = 0.95  # observed only inside this fraction of the radial model's fold radius
+_PRINCIPAL_POINT_PX = (320.7, 238.9)
+_DISTORTION = (-0.05, 0.0, 0.0, 0.0, 0.0)  # plumb_bob (k1, k2, p1, p2, k3)
 
 
 def _check(name: str, ok: bool, value: object, allowed: str) -> None:
@@ -72,73 +75,6 @@ def _check(name: str, ok: bool, value: object, allowed: str) -> None:
     if not ok:
         verb = 'must be in' if allowed[:1] in '[(' else 'must be'
         raise ValueError(f'{name} = {value!r} {verb} {allowed}')
-
-
-@dataclass(frozen=True)
-class SceneCameraInfo:
-    """sensor_msgs/CameraInfo content: K (9,), D (5,), R (9,), P (12,), row-major, px."""
-
-    width: int
-    height: int
-    distortion_model: str
-    d: FloatArray
-    k: FloatArray
-    r: FloatArray
-    p: FloatArray
-
-
-@dataclass(frozen=True)
-class SceneCamera:
-    """A pinhole camera (px) with radial distortion k1, k2 (plumb_bob, p1 = p2 = k3 = 0)."""
-
-    width: int = 640
-    height: int = 480
-    fx: float = 300.0
-    fy: float = 300.0
-    cx: float = 320.7
-    cy: float = 238.9
-    k1: float = -0.05
-    k2: float = 0.0
-
-    def __post_init__(self) -> None:
-        """Reject sizes, focal lengths and principal points that cannot make an image."""
-        _check('width', 16 <= self.width <= 8192, self.width, '[16, 8192] px')
-        _check('height', 16 <= self.height <= 8192, self.height, '[16, 8192] px')
-        _check('fx', self.fx > 0.0, self.fx, '> 0 px')
-        _check('fy', self.fy > 0.0, self.fy, '> 0 px')
-        _check('cx', 0.0 < self.cx < self.width - 1, self.cx, f'(0, {self.width - 1}) px')
-        _check('cy', 0.0 < self.cy < self.height - 1, self.cy, f'(0, {self.height - 1}) px')
-
-    @property
-    def matrix(self) -> FloatArray:
-        """The intrinsic matrix K (3, 3), px."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    def fold_radius(self) -> float:
-        """Return the undistorted radius (x/z units) where r (1 + k1 r^2 + k2 r^4) stops rising."""
-        roots = np.roots([5.0 * self.k2, 3.0 * self.k1, 1.0])  # in r^2; empty if k1 = k2 = 0
-        positive = [float(s.real) for s in roots if abs(s.imag) < 1e-12 and s.real > 0.0]
-        return math.sqrt(min(positive)) if positive else math.inf
-
-    def project(self, points_camera: FloatArray) -> FloatArray:
-        """Return raw (distorted) pixels (N, 2) of points (N, 3) in the optical frame, z > 0."""
-        points = np.asarray(points_camera, dtype=np.float64).reshape(-1, 3)
-        normalized = points[:, :2] / points[:, 2:3]
-        r2 = np.sum(normalized**2, axis=1, keepdims=True)
-        distorted = normalized * (1.0 + r2 * (self.k1 + r2 * self.k2))
-        return np.asarray(distorted * [self.fx, self.fy] + [self.cx, self.cy], dtype=np.float64)
-
-    def camera_info(self) -> SceneCameraInfo:
-        """Return the CameraInfo fields; D = (k1, k2, 0, 0, 0), P = [K | 0]."""
-        return SceneCameraInfo(
-            width=self.width,
-            height=self.height,
-            distortion_model='plumb_bob',
-            d=np.array([self.k1, self.k2, 0.0, 0.0, 0.0]),
-            k=self.matrix.reshape(9),
-            r=np.eye(3).reshape(9),
-            p=np.hstack([self.matrix, np.zeros((3, 1))]).reshape(12),
-        )
 
 
 @dataclass(frozen=True)
@@ -202,9 +138,12 @@ class DynamicSceneConfig:
         """Number of frames K, at run times k / rate_hz s, k = 0 .. K-1."""
         return round(self.duration_s * self.rate_hz)
 
-    def camera(self) -> SceneCamera:
-        """Return the 640 x 480 camera with fx = fy = focal_px."""
-        return SceneCamera(fx=self.focal_px, fy=self.focal_px)
+    def camera(self) -> CameraModel:
+        """Return the 640 x 480 camera with fx = fy = focal_px, principal point (320.7, 238.9)
+        px and radial distortion k1 = -0.05 (plumb_bob, the other coefficients 0)."""
+        return CameraModel.from_intrinsics(
+            640, 480, (self.focal_px, self.focal_px), _PRINCIPAL_POINT_PX, _DISTORTION
+        )
 
 
 @dataclass(frozen=True)
@@ -590,7 +529,7 @@ class DynamicSceneRun:
 
     config: DynamicSceneConfig
     seed: int
-    camera: SceneCamera
+    camera: CameraModel
     scene: DynamicScene
     frames: tuple[FeatureFrame, ...]
     point_moving: BoolArray
@@ -610,7 +549,7 @@ class DynamicSceneRun:
 
 
 def observe(
-    camera: SceneCamera, points_camera: FloatArray, config: DynamicSceneConfig
+    camera: CameraModel, points_camera: FloatArray, config: DynamicSceneConfig
 ) -> tuple[BoolArray, FloatArray]:
     """Return which points (P, 3) in the optical frame are observed (P,) and their raw
     pixels (P, 2) (NaN where not observed)."""
