@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from slam_core.camera import CameraModel
+from slam_core.render.rays import ray_grid
 from slam_sim.core.camera import (
     LevelPose,
     Markers,
@@ -17,7 +18,6 @@ from slam_sim.core.camera import (
     SceneStyle,
     marker_texture,
     office_camera,
-    pixel_rays,
 )
 from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
 
@@ -78,7 +78,7 @@ def _truth_of(truth: MarkerTruth, marker_id: int) -> int:
 
 
 def test_undistort_inverts_the_distortion_over_the_image() -> None:
-    rays = pixel_rays(CAMERA)
+    rays = ray_grid(CAMERA)
     v, u = np.mgrid[0 : CAMERA.height : 7, 0 : CAMERA.width : 7]
     normalized = np.column_stack([rays.x_u[v, u].ravel(), rays.y_u[v, u].ravel()])
     pixels = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
@@ -235,7 +235,7 @@ def test_invalid_inputs_are_rejected() -> None:
     with pytest.raises(ValueError, match='not in DICT_APRILTAG_36h11'):
         marker_texture(600, STYLE)
     with pytest.raises(ValueError, match='not invertible'):
-        pixel_rays(CameraModel(640, 480, CAMERA.K, np.array([-1.5, 0.0, 0.0, 0.0, 0.0])))
+        ray_grid(CameraModel(640, 480, CAMERA.K, np.array([-1.5, 0.0, 0.0, 0.0, 0.0])))
     with pytest.raises(ValueError, match='walls'):
         Renderer(CAMERA, np.zeros((0, 2, 2)), STYLE)
     with pytest.raises(ValueError, match='quality'):

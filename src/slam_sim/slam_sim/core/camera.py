@@ -32,17 +32,17 @@ from numpy.typing import NDArray
 
 from slam_core.arrays import BoolArray, FloatArray, IntArray
 from slam_core.camera import CameraModel
+from slam_core.render import texture as render_texture
+from slam_core.render.patch import NEAR_M, UNIT_SQUARE, TexturedPatch, draw_patch
+from slam_core.render.rays import RayGrid, ray_grid
 
 Float32Array = NDArray[np.float32]
 DICTIONARY_NAME = 'DICT_APRILTAG_36h11'
 MARKER_CELLS = 8  # 6 x 6 data bits and a one-cell black border
-_TEXTURE_PX_PER_CELL = 32
-_NEAR_M = 0.05  # nothing nearer than this to the camera is drawn
+TEXELS_PER_CELL = 32  # of the full-resolution marker textures
 _RAY_TABLE_SIZE = 8192  # wall hits are looked up in a table of this many azimuths
 _WALL_TEXTURE_PX_PER_M = 40.0
 _NO_WALL_M = 1e4  # the depth of a ray that meets no wall
-# Corners of a unit-half-side square in OpenCV order (x right, y up): TL, TR, BR, BL.
-_UNIT_SQUARE = np.array([[-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0], [-1.0, -1.0, 0.0]])
 
 
 OFFICE_CAMERA = CameraModel.from_intrinsics(
@@ -62,40 +62,22 @@ def office_camera(width: int = 640, height: int = 480) -> CameraModel:
 
 
 @dataclass(frozen=True)
-class PixelRays:
-    """Per-pixel undistorted rays of a camera: x_u, y_u (H, W), their per-column and per-row
-    ranges (W, 2) and (H, 2), and the ray-table index of each pixel's x_u (H, W)."""
+class _WallRays:
+    """The pixel rays' azimuth table for wall casting: ``table_x`` (T,) x_u values and the
+    table index of each pixel's x_u (H, W)."""
 
-    x_u: Float32Array
-    y_u: Float32Array
-    column_range: FloatArray
-    row_range: FloatArray
     table_x: FloatArray
     table_index: NDArray[np.intp]
 
 
 @cache
-def pixel_rays(camera: CameraModel) -> PixelRays:
-    """Return the camera's precomputed pixel rays; ValueError if distortion is not invertible."""
-    v, u = np.mgrid[0 : camera.height, 0 : camera.width]
-    pixels = np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64)
-    normalized = camera.undistort_points(pixels, normalized=True)
-    error = np.abs(camera.distort_normalized(normalized) - pixels).max()
-    if not error < 1e-3:
-        raise ValueError(f'camera distortion {camera.D.tolist()} is not invertible in the image')
-    x_u = normalized[:, 0].reshape(camera.height, camera.width)
-    y_u = normalized[:, 1].reshape(camera.height, camera.width)
+def _wall_rays(camera: CameraModel) -> _WallRays:
+    """Return the camera's wall-casting table (on ``ray_grid``'s rays)."""
+    x_u = ray_grid(camera).normalized[..., 0]
     table_x = np.linspace(x_u.min(), x_u.max(), _RAY_TABLE_SIZE)
     step = (table_x[-1] - table_x[0]) / (_RAY_TABLE_SIZE - 1)
     index = np.clip(np.rint((x_u - table_x[0]) / step), 0, _RAY_TABLE_SIZE - 1).astype(np.intp)
-    return PixelRays(
-        x_u=x_u.astype(np.float32),
-        y_u=y_u.astype(np.float32),
-        column_range=np.stack([x_u.min(axis=0), x_u.max(axis=0)], axis=-1),
-        row_range=np.stack([y_u.min(axis=1), y_u.max(axis=1)], axis=-1),
-        table_x=table_x,
-        table_index=index,
-    )
+    return _WallRays(table_x, index)
 
 
 @dataclass(frozen=True)
@@ -154,12 +136,12 @@ class SceneStyle:
     @property
     def quiet_zone_texels(self) -> int:
         """Width of the quiet zone in the full-resolution texture, texels."""
-        return round(self.quiet_zone_cells * _TEXTURE_PX_PER_CELL)
+        return round(self.quiet_zone_cells * TEXELS_PER_CELL)
 
     @property
     def paper_m(self) -> float:
         """Side of the paper (black square and quiet zone), m."""
-        tag_texels = MARKER_CELLS * _TEXTURE_PX_PER_CELL
+        tag_texels = MARKER_CELLS * TEXELS_PER_CELL
         return self.side_m * (tag_texels + 2 * self.quiet_zone_texels) / tag_texels
 
 
@@ -184,23 +166,17 @@ class MarkerTruth:
     side_px: FloatArray
 
 
-@cache
-def _dictionary() -> cv2.aruco.Dictionary:
-    return cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
-
-
 def marker_texture(marker_id: int, style: SceneStyle) -> Float32Array:
     """Return the marker's paper texture (N, N, 2) float32: premultiplied grey and alpha 1."""
-    dictionary = _dictionary()
-    if not 0 <= marker_id < dictionary.bytesList.shape[0]:
-        raise ValueError(f'marker id {marker_id} is not in {DICTIONARY_NAME}')
-    tag = cv2.aruco.generateImageMarker(
-        dictionary, int(marker_id), MARKER_CELLS * _TEXTURE_PX_PER_CELL, borderBits=1
+    grey = render_texture.marker_texture(
+        DICTIONARY_NAME,
+        marker_id,
+        texels_per_cell=TEXELS_PER_CELL,
+        quiet_zone_texels=style.quiet_zone_texels,
+        ink=style.ink,
+        paper=style.paper,
     )
-    quiet = style.quiet_zone_texels
-    paper = cv2.copyMakeBorder(tag, quiet, quiet, quiet, quiet, cv2.BORDER_CONSTANT, value=255)
-    grey = style.ink + (style.paper - style.ink) * (paper.astype(np.float32) / 255.0)
-    return np.dstack([grey, np.ones_like(grey)]).astype(np.float32)
+    return render_texture.with_alpha(grey)
 
 
 @dataclass
@@ -224,7 +200,8 @@ class Renderer:
             or self.walls_m.shape[1:] != (2, 2)
         ):
             raise ValueError(f'walls must be (W >= 1, 2, 2) segments, got {self.walls_m.shape}')
-        self.rays = pixel_rays(camera)
+        self.rays = ray_grid(camera)
+        self._wall_rays = _wall_rays(camera)
         lengths = np.linalg.norm(self.walls_m[:, 1] - self.walls_m[:, 0], axis=1)
         self._wall_offset = np.concatenate([[0.0], np.cumsum(lengths)[:-1]]) + 7.3
         self._wall_albedo = np.resize(np.asarray(style.wall, dtype=np.float64), len(lengths))
@@ -251,17 +228,17 @@ class Renderer:
 
     def _background(self, pose: LevelPose) -> tuple[Float32Array, Float32Array]:
         """Return the walls, floor and ceiling: grey (H, W) and optical depth z (H, W), m."""
-        style, rays = self.style, self.rays
+        style, rays, table = self.style, self.rays, self._wall_rays
         flat_depth, flat_shade = _flat_surfaces(self.camera, style, float(pose.position_m[2]))
-        hit_t, hit_s, hit_wall = _cast(pose, rays.table_x, self.walls_m)
-        t_wall = hit_t.astype(np.float32)[rays.table_index]
+        hit_t, hit_s, hit_wall = _cast(pose, table.table_x, self.walls_m)
+        t_wall = hit_t.astype(np.float32)[table.table_index]
         height = np.float32(pose.position_m[2]) - t_wall * rays.y_u
         wall = t_wall < flat_depth
         depth = np.where(wall, t_wall, flat_depth)
         along = (hit_s + self._wall_offset[hit_wall]) * _WALL_TEXTURE_PX_PER_M
-        column = along.astype(np.intp)[rays.table_index] % self._wall_pattern.shape[1]
+        column = along.astype(np.intp)[table.table_index] % self._wall_pattern.shape[1]
         row = np.clip(height * _WALL_TEXTURE_PX_PER_M, 0, self._wall_pattern.shape[0] - 1)
-        albedo = self._wall_albedo.astype(np.float32)[hit_wall][rays.table_index]
+        albedo = self._wall_albedo.astype(np.float32)[hit_wall][table.table_index]
         shade = albedo * (np.float32(0.8) + np.float32(0.2 / style.wall_height_m) * height)
         shade += self._wall_pattern[row.astype(np.intp), column]
         shade = np.where(height < style.skirting_m, np.float32(style.skirting), shade)
@@ -286,45 +263,13 @@ class Renderer:
 
         Back faces are not drawn; neither are markers that lie behind everything drawn.
         """
-        normal = rotation[:, 2]
-        if float(center @ normal) >= 0.0:
+        patch = TexturedPatch(self._texture(marker_id), self.style.paper_m, center, rotation)
+        drawn = draw_patch(image, depth, label, self.rays, self.camera, patch, index)
+        if drawn is None:
             return None
-        half = 0.5 * self.style.paper_m
-        corners = center + half * _UNIT_SQUARE @ rotation.T
-        polygon = _clip_near(corners)
-        box = _pixel_box(self.rays, polygon, self.camera)
-        if box is None or float(polygon[:, 2].min()) >= float(depth[box].max()):
-            return None
-        rows, cols = box
-        x, y = self.rays.x_u[box], self.rays.y_u[box]
-        with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
-            t = float(normal @ center) / (normal[0] * x + normal[1] * y + normal[2])
-        t = np.where(np.isfinite(t), t, np.float32(-1.0))
-        local_x = t * (rotation[0, 0] * x + rotation[1, 0] * y + rotation[2, 0])
-        local_y = t * (rotation[0, 1] * x + rotation[1, 1] * y + rotation[2, 1])
-        local_x -= float(rotation[:, 0] @ center)
-        local_y -= float(rotation[:, 1] @ center)
-        normalized = polygon[:, :2] / polygon[:, 2:]
-        edges = np.linalg.norm(normalized - np.roll(normalized, 1, axis=0), axis=1)
-        full = self._texture(marker_id)
-        texels = int(np.clip(round(float(edges.max()) * self.camera.fx), 4, full.shape[0]))
-        texture = cv2.resize(full, (texels, texels), interpolation=cv2.INTER_AREA)
-        scale = texels / self.style.paper_m
-        map_u = (local_x + half) * scale - 0.5
-        map_v = (half - local_y) * scale - 0.5
-        sampled = cv2.remap(
-            texture, map_u.astype(np.float32), map_v.astype(np.float32), cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT, borderValue=(0.0, 0.0, 0.0, 0.0),
-        )  # fmt: skip
-        in_front = (t > _NEAR_M) & (t < depth[box])
-        alpha = sampled[..., 1] * in_front
-        image[box] = sampled[..., 0] * in_front + image[box] * (1.0 - alpha)
-        covered = alpha > 0.5
-        depth[box] = np.where(covered, t, depth[box])
-        label[box] = np.where(covered, index, label[box])
-        side = 0.5 * self.style.side_m
-        square = (np.abs(local_x) <= side) & (np.abs(local_y) <= side) & (t > _NEAR_M)
-        return _Drawn(rows, cols, square)
+        hits, side = drawn.hits, 0.5 * self.style.side_m
+        square = (np.abs(hits.local_x) <= side) & (np.abs(hits.local_y) <= side)
+        return _Drawn(drawn.rows, drawn.cols, square & (hits.depth > NEAR_M))
 
     def _truth(
         self,
@@ -334,9 +279,9 @@ class Renderer:
         label: NDArray[np.int32],
         drawn: dict[int, _Drawn],
     ) -> MarkerTruth:
-        square = 0.5 * self.style.side_m * _UNIT_SQUARE
+        square = 0.5 * self.style.side_m * UNIT_SQUARE
         corners = centers[:, None, :] + np.einsum('ljk,ck->lcj', rotations, square)
-        keep = np.nonzero(np.all(corners[..., 2] > _NEAR_M, axis=1))[0]
+        keep = np.nonzero(np.all(corners[..., 2] > NEAR_M, axis=1))[0]
         pixels = self.camera.project(corners[keep].reshape(-1, 3)).reshape(-1, 4, 2)
         normalized = corners[keep, :, :2] / corners[keep, :, 2:]
         in_image = _inside(self.rays, self.camera, pixels, normalized)
@@ -362,7 +307,7 @@ class Renderer:
 
 
 def _inside(
-    rays: PixelRays, camera: CameraModel, pixels: FloatArray, normalized: FloatArray
+    rays: RayGrid, camera: CameraModel, pixels: FloatArray, normalized: FloatArray
 ) -> BoolArray:
     """(M,) True where all four corners are in the image (and within the undistorted range)."""
     x_low, x_high = rays.column_range[0, 0], rays.column_range[-1, 1]
@@ -378,35 +323,6 @@ def _inside(
         & (normalized[..., 1] <= y_high)
     )
     return np.asarray(np.all(valid, axis=1), dtype=bool)
-
-
-def _clip_near(corners: FloatArray) -> FloatArray:
-    """Return the polygon (P, 3) of a convex polygon (4, 3) in front of the near plane."""
-    kept = []
-    for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True):
-        if a[2] > _NEAR_M:
-            kept.append(a)
-        if (a[2] > _NEAR_M) != (b[2] > _NEAR_M):
-            kept.append(a + (_NEAR_M - a[2]) / (b[2] - a[2]) * (b - a))
-    return np.array(kept, dtype=np.float64).reshape(-1, 3)
-
-
-def _pixel_box(
-    rays: PixelRays, polygon: FloatArray, camera: CameraModel
-) -> tuple[slice, slice] | None:
-    """Return the pixel rows and columns that can see ``polygon`` (P, 3) (z > 0), or None."""
-    if len(polygon) < 3:
-        return None
-    normalized = polygon[:, :2] / polygon[:, 2:]
-    margin = np.array([2.0 / camera.fx, 2.0 / camera.fy])
-    low, high = normalized.min(axis=0) - margin, normalized.max(axis=0) + margin
-    columns = np.nonzero(
-        (rays.column_range[:, 1] >= low[0]) & (rays.column_range[:, 0] <= high[0])
-    )[0]
-    rows = np.nonzero((rays.row_range[:, 1] >= low[1]) & (rays.row_range[:, 0] <= high[1]))[0]
-    if columns.size == 0 or rows.size == 0:
-        return None
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(columns[0]), int(columns[-1]) + 1)
 
 
 def _cast(
@@ -436,7 +352,7 @@ def _flat_surfaces(
     camera: CameraModel, style: SceneStyle, height_m: float
 ) -> tuple[Float32Array, Float32Array]:
     """Return the floor / ceiling optical depth (H, W) m and grey (H, W) of a level camera."""
-    y_u = pixel_rays(camera).y_u.astype(np.float64)
+    y_u = ray_grid(camera).y_u.astype(np.float64)
     with np.errstate(divide='ignore'):
         floor = np.where(y_u > 0.0, height_m / y_u, np.inf)
         ceiling = np.where(y_u < 0.0, (style.wall_height_m - height_m) / -y_u, np.inf)

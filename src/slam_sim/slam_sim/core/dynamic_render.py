@@ -1,8 +1,8 @@
 """Grey camera images of the dynamic scene, by exact per-pixel ray casting.
 
 The world is ``dynamic_scene``'s, rebuilt from its config and seed: the inner faces of the
-10 x 8 x 3 m room, the cabinets (boxes), the initialization target of ``init_target`` (the
-AprilTag of ``camera.marker_texture`` with a one-cell white quiet zone, on a board of that
+10 x 8 x 3 m room, the cabinets (boxes), the initialization target of ``init_target`` (its
+marker as ``slam_core.render`` prints it, with a one-cell white quiet zone, on a board of that
 size whose back is plain grey) and every moving object as a sphere of radius
 ``object_radius_m`` (``DEFAULT_OBJECT_RADIUS_M`` if that is 0) about its centre, translating
 without rotating, drawn only once ``DynamicScene.points_exist_at`` says it exists and never
@@ -48,7 +48,9 @@ from scipy.spatial import cKDTree
 
 from slam_core.arrays import BoolArray, FloatArray
 from slam_core.camera import CameraModel
-from slam_sim.core.camera import Float32Array, SceneStyle, marker_texture
+from slam_core.render.patch import UNIT_SQUARE, plane_hits
+from slam_core.render.texture import marker_texture, sample_bilinear
+from slam_sim.core.camera import TEXELS_PER_CELL, Float32Array, SceneStyle
 from slam_sim.core.camera_effects import CameraEffects, ImageEffects
 from slam_sim.core.dynamic_scene import DynamicScene, DynamicSceneConfig, build_scene
 from slam_sim.core.init_target import InitTarget, target_pixels
@@ -63,7 +65,6 @@ _NEAR_M = 0.05
 _GUTTER = 16  # texels of continued texture around every chart
 _ALIGN = 16  # chart sizes and atlas offsets are multiples of this (2 ** (mip levels - 1))
 _ATLAS_WIDTH = 2048
-_REMAP_WIDTH = 4096  # cv2.remap takes fewer than 2 ** 15 rows and columns: sample in rows of this
 Int32Array = NDArray[np.int32]
 # A set of rays: a row index array or slice, and a column slice.
 Region = tuple[slice | NDArray[np.intp], slice]
@@ -296,7 +297,14 @@ def _face_chart(
 def _target_chart(target: InitTarget) -> tuple[Float32Array, FloatArray, FloatArray, float]:
     """Return the target paper's texture, coeff (2, 4), normal (3,) and texels per metre."""
     style = SceneStyle(side_m=target.side_m)
-    texels = marker_texture(target.marker_id, style)[..., 0]
+    texels = marker_texture(
+        target.dictionary,
+        target.marker_id,
+        texels_per_cell=TEXELS_PER_CELL,
+        quiet_zone_texels=style.quiet_zone_texels,
+        ink=style.ink,
+        paper=style.paper,
+    )
     padded = cv2.copyMakeBorder(
         texels, _GUTTER, _GUTTER, _GUTTER, _GUTTER, cv2.BORDER_CONSTANT, value=style.paper
     )
@@ -482,16 +490,6 @@ def _sphere_entry(
 def _box_corners(low: FloatArray, high: FloatArray) -> FloatArray:
     """Return the 8 corners (8, 3) of the box [low, high] (3,)."""
     return np.array(list(itertools.product(*zip(low, high, strict=True))), dtype=np.float64)
-
-
-def _bilinear(texels: Float32Array, col: Float32Array, row: Float32Array) -> Float32Array:
-    """Return ``texels`` sampled bilinearly at (col, row) (same shape), OpenCV coordinates."""
-    count = col.size
-    width = _REMAP_WIDTH if count > _REMAP_WIDTH else max(count, 1)
-    rows = -(-count // width)
-    map_col, map_row = (np.resize(m.astype(np.float32).ravel(), (rows, width)) for m in (col, row))
-    sample = cv2.remap(texels, map_col, map_row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return np.asarray(sample, dtype=np.float32).ravel()[:count].reshape(col.shape)
 
 
 def _edges(chart: Int32Array, valid: BoolArray) -> BoolArray:
@@ -683,25 +681,14 @@ class DynamicRenderer:
         target = self.target
         axes = np.asarray(target.rotation, dtype=np.float64)
         paper_half = 0.5 * SceneStyle(side_m=target.side_m).paper_m
-        square = paper_half * np.array([[-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0],
-                                        [-1.0, -1.0, 0.0]])  # fmt: skip
-        region = rays.region((target.centre_m + square @ axes.T - position) @ rotation)
+        paper = paper_half * UNIT_SQUARE
+        region = rays.region((target.centre_m + paper @ axes.T - position) @ rotation)
         if region is None:
             return False
         direction = _part(hits.direction, region)
-        offset = position - target.centre_m
-
-        def along(axis: FloatArray) -> Float32Array:
-            a = axis.astype(np.float32)
-            total = a[0] * direction[0] + a[1] * direction[1] + a[2] * direction[2]
-            return np.asarray(total, dtype=np.float32)
-
-        normal_rate = along(axes[:, 2])
-        with np.errstate(divide='ignore', invalid='ignore'):
-            depth = np.float32(-offset @ axes[:, 2]) / normal_rate
-        local_x = np.float32(offset @ axes[:, 0]) + depth * along(axes[:, 0])
-        local_y = np.float32(offset @ axes[:, 1]) + depth * along(axes[:, 1])
-        extent = np.maximum(np.abs(local_x), np.abs(local_y))
+        plane = plane_hits(direction, position - target.centre_m, axes, dtype=np.float32)
+        depth, normal_rate = plane.depth, plane.normal_rate
+        extent = np.maximum(np.abs(plane.local_x), np.abs(plane.local_y))
         board = (depth > _NEAR_M) & (extent <= paper_half)
         square = board & (normal_rate < 0.0) & (extent <= 0.5 * target.side_m)
         square &= rays.valid[region]
@@ -742,7 +729,7 @@ class DynamicRenderer:
             if not weight.any():
                 continue
             scale = np.float32(0.5**level)
-            grey += weight * _bilinear(texels, col * scale, row * scale)
+            grey += weight * sample_bilinear(texels, col * scale, row * scale)
         return np.where(chart >= 0, grey, np.float32(0.0)).astype(np.float32)
 
     def _sphere_texels(
