@@ -37,9 +37,9 @@ from bench_common import source_revision
 from marker_detector.core.detection import DetectorConfig
 from marker_detector.processor import ExtrinsicsConfig, MarkerProcessor
 from slam_core.geometry.se3 import OPTICAL_IN_LINK
-from slam_sim.core.camera import MarkerTruth, SceneStyle
 from slam_sim.core.camera_effects import encode_jpeg
 from slam_sim.core.office import simulate_office
+from slam_sim.core.office_view import MarkerTruth, SceneStyle
 from slam_sim.office_camera_bag import CAMERA_FORWARD_M, CAMERA_HEIGHT_M, CameraRig, render_frames
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -73,7 +73,8 @@ from monoslam_shadow_node.monoslam_pipeline import (  # noqa: E402
 )
 from slam_core.camera import CameraModel  # noqa: E402
 from slam_core.files import write_atomically  # noqa: E402
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene  # noqa: E402
+from slam_sim.core.dynamic_config import DynamicSceneConfig  # noqa: E402
+from slam_sim.core.dynamic_scene import simulate_dynamic_scene  # noqa: E402
 from slam_sim.core.init_target import InitTarget  # noqa: E402
 
 DEFAULT_OUTPUT = BENCH_DIR / 'results' / 'monoslam_speed.md'

@@ -27,8 +27,8 @@ from slam_core.stamps import ns_to_stamp
 from slam_interfaces.msg import FiducialArray, LandmarkObservationArray
 from slam_ros.qos import latched_qos
 from slam_ros.testing.harness import RosHarness, wait_until
-from slam_sim.core.camera import SceneStyle
 from slam_sim.core.office import simulate_office
+from slam_sim.core.office_view import SceneStyle
 from slam_sim.office_camera_bag import (
     CAMERA_FORWARD_M,
     CAMERA_HEIGHT_M,

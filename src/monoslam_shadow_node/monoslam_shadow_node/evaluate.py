@@ -91,7 +91,8 @@ from slam_core.camera import CameraModel
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -82,7 +82,8 @@ from slam_core.cli import console_main
 from slam_core.files import write_atomically, write_json
 from slam_core.geometry.quaternion import log_rotation
 from slam_core.progress import ProgressReporter
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, marker_board
 
 FloatArray = NDArray[np.float64]

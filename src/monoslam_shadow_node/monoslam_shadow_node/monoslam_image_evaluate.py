@@ -98,12 +98,9 @@ from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
 from slam_core.stamps import stamp_to_ns
 from slam_ros.bag.source import BagSource
+from slam_sim.core.dynamic_config import DynamicSceneConfig
 from slam_sim.core.dynamic_render import LABEL_NOTHING, DynamicRenderer
-from slam_sim.core.dynamic_scene import (
-    DEFAULT_START_NS,
-    DynamicSceneConfig,
-    simulate_dynamic_scene,
-)
+from slam_sim.core.dynamic_scene import DEFAULT_START_NS, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget
 from slam_sim.dynamic_camera_bag import (
     CAMERA_POSE_TOPIC,

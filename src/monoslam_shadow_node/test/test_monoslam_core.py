@@ -27,7 +27,8 @@ from monoslam_shadow_node.core.monoslam_model import (
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import log_rotation, rotation_from_quaternion
 from slam_core.testing.jacobians import assert_jacobian_close
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, target_pixels
 
 CAMERA = CameraModel(

@@ -23,8 +23,8 @@ from monoslam_shadow_node.monoslam_image_evaluate import (
 )
 from monoslam_shadow_node.monoslam_pipeline import MeasurementFrame
 from slam_core.blas import single_threaded_blas
+from slam_sim.core.dynamic_config import DynamicSceneConfig
 from slam_sim.core.dynamic_render import DynamicRenderer
-from slam_sim.core.dynamic_scene import DynamicSceneConfig
 from slam_sim.dynamic_camera_bag import write_dynamic_camera_bag
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'

@@ -41,7 +41,8 @@ from monoslam_shadow_node.evaluate import (
     within_sigma,
 )
 from slam_core.files import jsonable
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import simulate_dynamic_scene
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 

@@ -49,10 +49,9 @@ from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_core.progress import ProgressReporter
 from slam_ros.qos import output_qos
 from slam_ros.typesys import TypeRegistry
+from slam_sim.core.dynamic_config import MOTION_KINDS, DynamicSceneConfig
 from slam_sim.core.dynamic_scene import (
     DEFAULT_START_NS,
-    MOTION_KINDS,
-    DynamicSceneConfig,
     DynamicSceneRun,
     FeatureFrame,
     simulate_dynamic_scene,

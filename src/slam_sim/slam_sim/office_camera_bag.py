@@ -50,17 +50,17 @@ from slam_core.geometry.se3 import OPTICAL_IN_LINK
 from slam_core.progress import ProgressReporter
 from slam_ros.qos import latched_qos, output_qos
 from slam_ros.typesys import TypeRegistry
-from slam_sim.core.camera import (
+from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
+from slam_sim.core.office import OfficeConfig, OfficeRun, Variant, simulate_office
+from slam_sim.core.office_render import Renderer
+from slam_sim.core.office_view import (
     DICTIONARY_NAME,
     LevelPose,
     Markers,
     MarkerTruth,
-    Renderer,
     SceneStyle,
     office_camera,
 )
-from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
-from slam_sim.core.office import OfficeConfig, OfficeRun, Variant, simulate_office
 from slam_sim.dataset_bag import MessageFactory, TopicSpec, WrittenBag, write_bag
 from slam_sim.office_bag import (
     DEFAULT_START_NS,

@@ -13,8 +13,10 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosDurability
 
 from slam_core.geometry.quaternion import quaternion_from_rotation
-from slam_sim.core.dynamic_render import DynamicRenderer, RenderOptions
-from slam_sim.core.dynamic_scene import DEFAULT_START_NS, DynamicSceneConfig
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_options import RenderOptions
+from slam_sim.core.dynamic_render import DynamicRenderer
+from slam_sim.core.dynamic_scene import DEFAULT_START_NS
 from slam_sim.dynamic_camera_bag import (
     CAMERA_INFO_TOPIC,
     CAMERA_POSE_TOPIC,

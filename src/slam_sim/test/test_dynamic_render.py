@@ -10,17 +10,18 @@ import cv2
 import numpy as np
 import pytest
 
-from slam_sim.core.camera import SceneStyle
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_options import RenderOptions
 from slam_sim.core.dynamic_render import (
     DEFAULT_OBJECT_RADIUS_M,
     LABEL_NOTHING,
     LABEL_STATIC,
     DynamicRenderer,
     RenderedFrame,
-    RenderOptions,
 )
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, observe
+from slam_sim.core.dynamic_scene import observe
 from slam_sim.core.init_target import InitTarget, target_pixels
+from slam_sim.core.office_view import SceneStyle
 
 CONFIG = DynamicSceneConfig(duration_s=12.0)
 # Plain, cheap textures for tests that only look at geometry and labels.

@@ -13,12 +13,8 @@ import pytest
 
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
-from slam_sim.core.dynamic_scene import (
-    DynamicSceneConfig,
-    DynamicSceneRun,
-    build_scene,
-    simulate_dynamic_scene,
-)
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import DynamicSceneRun, build_scene, simulate_dynamic_scene
 from slam_sim.dynamic_features_bag import (
     CAMERA_INFO_TOPIC,
     CAMERA_POSE_TOPIC,

@@ -13,8 +13,8 @@ from rosbags.interfaces import QosDurability
 
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
-from slam_sim.core.camera import office_camera
 from slam_sim.core.office import OfficeRun
+from slam_sim.core.office_view import office_camera
 from slam_sim.office_bag import (
     DEFAULT_START_NS,
     ODOM_TOPIC,

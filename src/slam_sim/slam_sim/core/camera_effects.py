@@ -15,9 +15,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from slam_core.arrays import FloatArray
+from slam_core.arrays import Float32Array, FloatArray
 from slam_core.camera import CameraModel
-from slam_sim.core.camera import Float32Array
 
 _PHASE_KEY = 2**32 - 1  # spawn key of the lighting drift phases (frames use their index)
 

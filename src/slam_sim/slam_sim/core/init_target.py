@@ -26,7 +26,7 @@ import numpy as np
 
 from slam_core.arrays import BoolArray, FloatArray
 from slam_core.camera import CameraModel
-from slam_sim.core.dynamic_scene import MIN_DEPTH_M
+from slam_sim.core.dynamic_config import MIN_DEPTH_M
 
 TARGET_DICTIONARY = 'DICT_APRILTAG_36h11'
 _FACING_MINUS_X = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])

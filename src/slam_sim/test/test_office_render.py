@@ -1,4 +1,4 @@
-"""The camera renderer: projection, exact marker corners, occlusion and seeded effects."""
+"""The office camera renderer: exact marker corners, occlusion, the camera and seeded effects."""
 
 from __future__ import annotations
 
@@ -10,16 +10,16 @@ import pytest
 
 from slam_core.camera import CameraModel
 from slam_core.render.rays import ray_grid
-from slam_sim.core.camera import (
+from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
+from slam_sim.core.office_render import Renderer
+from slam_sim.core.office_view import (
     LevelPose,
     Markers,
     MarkerTruth,
-    Renderer,
     SceneStyle,
     marker_texture,
     office_camera,
 )
-from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
 
 CAMERA = office_camera()
 STYLE = SceneStyle()
