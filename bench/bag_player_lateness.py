@@ -57,6 +57,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from slam_bringup.bag_player import BagPlayerNode
+from slam_core.geometry.quaternion import quaternion_from_yaw
 from slam_ros.bag.playback import LatenessStats
 from slam_ros.qos import output_qos, recorded_from_profile
 from slam_ros.typesys import message_class
@@ -126,15 +127,14 @@ def _odometry(store: Typestore, stamp_ns: int) -> object:
     t_s = (stamp_ns - BAG_START_NS) / 1e9
     speed_mps, radius_m = 0.5, 2.0
     yaw_rad = speed_mps / radius_m * t_s
+    qx, qy, qz, qw = quaternion_from_yaw(yaw_rad)
     point = types['geometry_msgs/msg/Point']
     vector = types['geometry_msgs/msg/Vector3']
     pose = types['geometry_msgs/msg/Pose'](
         position=point(
             x=radius_m * math.sin(yaw_rad), y=radius_m * (1 - math.cos(yaw_rad)), z=0.0
         ),
-        orientation=types['geometry_msgs/msg/Quaternion'](
-            x=0.0, y=0.0, z=math.sin(yaw_rad / 2), w=math.cos(yaw_rad / 2)
-        ),
+        orientation=types['geometry_msgs/msg/Quaternion'](x=qx, y=qy, z=qz, w=qw),
     )
     twist = types['geometry_msgs/msg/Twist'](
         linear=vector(x=speed_mps, y=0.0, z=0.0),

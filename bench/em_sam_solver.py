@@ -55,8 +55,8 @@ from scipy.spatial import cKDTree
 from em_sam_node.core.factors import range_bearing_predict
 from em_sam_node.core.linear_system import build_linear_system, system_layout
 from em_sam_node.core.problem import Estimate, SlamProblem, SolveResult
-from em_sam_node.core.se2 import range_bearing_to_point, wrap_angle
 from em_sam_node.core.solver import solve
+from slam_core.geometry.se2 import range_bearing_to_point, wrap_angle
 
 BENCH_DIR = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = BENCH_DIR / 'results' / 'em_sam_solver.md'

@@ -42,10 +42,10 @@ import cv2
 import numpy as np
 from bench_common import best_of, source_revision
 
-from marker_detector.core.camera import CameraModel
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
-from marker_detector.core.pose import rotation_from_vector
 from marker_detector.core.rendering import MarkerPlacement, render_markers
+from slam_core.camera import CameraModel
+from slam_core.geometry.so3 import rotation_from_vector
 
 BENCH_DIR = Path(__file__).resolve().parent
 DEFAULT_OUTPUT = BENCH_DIR / 'results' / 'marker_detector_speed.md'

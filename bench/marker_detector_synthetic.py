@@ -36,19 +36,19 @@ from bench_common import source_revision
 
 from marker_detector.core.detection import DetectorConfig
 from marker_detector.processor import ExtrinsicsConfig, MarkerProcessor
-from slam_sim.core.camera import MarkerTruth, SceneStyle
+from slam_core.geometry.se3 import OPTICAL_IN_LINK
 from slam_sim.core.camera_effects import encode_jpeg
 from slam_sim.core.office import simulate_office
+from slam_sim.core.office_view import MarkerTruth, SceneStyle
 from slam_sim.office_camera_bag import CAMERA_FORWARD_M, CAMERA_HEIGHT_M, CameraRig, render_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 MIN_SIDE_PX = 30.0
-OPTICAL_IN_BASE = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 MOUNT = np.array([CAMERA_FORWARD_M, 0.0, CAMERA_HEIGHT_M])
 
 
 def base_range_bearing(translation_m: np.ndarray) -> tuple[float, float]:
-    centre = OPTICAL_IN_BASE @ translation_m + MOUNT
+    centre = OPTICAL_IN_LINK @ translation_m + MOUNT
     return math.hypot(centre[0], centre[1]), math.atan2(centre[1], centre[0])
 
 

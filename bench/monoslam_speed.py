@@ -52,7 +52,6 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 from bench_common import BENCH_DIR, pin_to_one_core, run_meta  # noqa: E402
 
-from monoslam_shadow_node.core.camera import CameraModel  # noqa: E402
 from monoslam_shadow_node.core.monoslam import MonoSlam  # noqa: E402
 from monoslam_shadow_node.core.monoslam_model import CAMERA_SIZE  # noqa: E402
 from monoslam_shadow_node.core.monoslam_types import (  # noqa: E402
@@ -66,6 +65,7 @@ from monoslam_shadow_node.core.shadow_filter import (  # noqa: E402
     ShadowConfig,
     ShadowFilter,
 )
+from slam_core.camera import CameraModel  # noqa: E402
 from slam_core.files import write_atomically  # noqa: E402
 from slam_evaluation.monoslam_pipeline import (  # noqa: E402
     MeasurementFrame,
@@ -73,7 +73,8 @@ from slam_evaluation.monoslam_pipeline import (  # noqa: E402
     target_known_points,
 )
 from slam_evaluation.shadow_runs import camera_model  # noqa: E402
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene  # noqa: E402
+from slam_sim.core.dynamic_config import DynamicSceneConfig  # noqa: E402
+from slam_sim.core.dynamic_scene import simulate_dynamic_scene  # noqa: E402
 from slam_sim.core.init_target import InitTarget  # noqa: E402
 
 DEFAULT_OUTPUT = BENCH_DIR / 'results' / 'monoslam_speed.md'

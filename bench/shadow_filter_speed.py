@@ -54,7 +54,6 @@ import numpy as np
 from bench_common import best_of, pin_to_one_core, run_meta
 
 from monoslam_shadow_node.core import shadow_classifier as shadow_classifier_module
-from monoslam_shadow_node.core.camera import CameraModel, pixel_rays
 from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
 from monoslam_shadow_node.core.rays import View, pixel_ray_directions, ray_angle, three_ray_test
 from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
@@ -62,6 +61,7 @@ from monoslam_shadow_node.core.shadow_ekf import EkfConfig, initial_states, pred
 from monoslam_shadow_node.core.shadow_filter import FrameInput, ShadowFilter
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
 from monoslam_shadow_node.core.static_fit import motion_score_test
+from slam_core.camera import CameraModel
 from slam_core.files import write_atomically
 from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 
@@ -138,7 +138,7 @@ def ekf_workload(
     """Return the workload of tracks ``ids`` over ``frames`` frames from ``start``."""
     window = run.frames[start : start + frames]
     pixels = np.array([f.pixels[np.searchsorted(f.track_ids, ids)] for f in window])
-    rays, jacobians = pixel_rays(camera, pixels[0])
+    rays, jacobians = camera.pixel_rays(pixels[0])
     directions, covariances = pixel_ray_directions(rays, jacobians, np.eye(3), EKF.pixel_sigma_px)
     states, covariances = initial_states(directions, covariances, EKF)
     rotations, translations = [], []
@@ -365,7 +365,7 @@ def ray_cases(run: DynamicSceneRun, camera: CameraModel, count: int, seed: int) 
     directions, covariances = [], []
     sightings: dict[int, list[tuple[int, int]]] = {}  # track id -> (frame index, row)
     for k, frame in enumerate(run.frames):
-        rays, jacobians = pixel_rays(camera, frame.pixels)
+        rays, jacobians = camera.pixel_rays(frame.pixels)
         direction, covariance = pixel_ray_directions(
             rays, jacobians, frame.camera_rotation, EKF.pixel_sigma_px
         )

@@ -22,12 +22,13 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tf2_msgs.msg import TFMessage
 
 from marker_detector.marker_detector_node import HELD_IMAGES, MarkerDetectorNode
+from slam_core.geometry.se3 import OPTICAL_IN_LINK
 from slam_core.stamps import ns_to_stamp
 from slam_interfaces.msg import FiducialArray, LandmarkObservationArray
 from slam_ros.qos import latched_qos
 from slam_ros.testing.harness import RosHarness, wait_until
-from slam_sim.core.camera import SceneStyle
 from slam_sim.core.office import simulate_office
+from slam_sim.core.office_view import SceneStyle
 from slam_sim.office_camera_bag import (
     CAMERA_FORWARD_M,
     CAMERA_HEIGHT_M,
@@ -91,11 +92,10 @@ def compressed(frame: CameraFrame, stamp_ns: int) -> CompressedImage:
 def truth_in_base(frame: CameraFrame) -> dict[int, tuple[float, float, float]]:
     """id -> (range m, bearing rad, side px; 0 unless fully visible) of the markers in front
     of the camera, in base_link."""
-    optical_in_base = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
     truth = frame.truth
     result = {}
     for k in range(len(truth.ids)):
-        centre = optical_in_base @ truth.translation_m[k] + [
+        centre = OPTICAL_IN_LINK @ truth.translation_m[k] + [
             CAMERA_FORWARD_M,
             0.0,
             CAMERA_HEIGHT_M,

@@ -63,7 +63,8 @@ from slam_interfaces.msg import (
 from slam_ros.bag.source import BagSource
 from slam_ros.qos import latched_qos
 from slam_ros.testing.harness import NodeProcess, RosHarness, wait_until
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, target_pixels
 
 pytestmark = pytest.mark.topic

@@ -31,12 +31,8 @@ from monoslam_shadow_node.shadow_filter_node import ShadowFilterNode
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.testing.harness import Collector, NodeProcess, RosHarness, wait_until
-from slam_sim.core.dynamic_scene import (
-    DynamicSceneConfig,
-    DynamicSceneRun,
-    FeatureFrame,
-    simulate_dynamic_scene,
-)
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import DynamicSceneRun, FeatureFrame, simulate_dynamic_scene
 
 pytestmark = pytest.mark.topic
 

@@ -3,7 +3,6 @@ rosbags-deserialized messages both work."""
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -11,17 +10,18 @@ import numpy as np
 from em_sam_node.core.problem import FloatArray
 from em_sam_node.ingest import Increment
 from em_sam_node.mapper import Observation
+from slam_core.geometry.quaternion import quaternion_from_yaw, yaw_from_quaternion
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
 
-def yaw_from_quaternion(q: Any) -> float:
+def yaw_from_message(q: Any) -> float:
     """Return the heading (rad) of a geometry_msgs/Quaternion (rotation about z)."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
-def quaternion_from_yaw(yaw: float, q: Any) -> Any:
+def fill_yaw_quaternion(yaw: float, q: Any) -> Any:
     """Fill a geometry_msgs/Quaternion with a rotation of ``yaw`` rad about z and return it."""
-    q.x, q.y, q.z, q.w = 0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)
+    q.x, q.y, q.z, q.w = quaternion_from_yaw(yaw)
     return q
 
 
@@ -29,7 +29,7 @@ def odometry_pose(message: Any) -> tuple[int, FloatArray]:
     """Return (stamp ns, pose (x m, y m, theta rad)) of a nav_msgs/Odometry."""
     pose = message.pose.pose
     return stamp_to_ns(message.header.stamp), np.array(
-        [pose.position.x, pose.position.y, yaw_from_quaternion(pose.orientation)]
+        [pose.position.x, pose.position.y, yaw_from_message(pose.orientation)]
     )
 
 

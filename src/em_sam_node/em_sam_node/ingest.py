@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from em_sam_node.core.problem import FloatArray
-from em_sam_node.core.se2 import increment_between, wrap_angle
+from slam_core.geometry.se2 import increment_between, wrap_angle
 
 
 @dataclass(frozen=True)

@@ -21,9 +21,9 @@ from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.problem import Estimate, FloatArray
-from em_sam_node.core.se2 import apply_increment, compose, inverse
 from em_sam_node.core.sightings import Sightings, sightings_of
 from em_sam_node.ingest import Increment
+from slam_core.geometry.se2 import apply_increment, compose, inverse
 
 
 @dataclass(frozen=True)

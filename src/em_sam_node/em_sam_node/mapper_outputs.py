@@ -17,7 +17,7 @@ from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
-from em_sam_node.conversions import quaternion_from_yaw
+from em_sam_node.conversions import fill_yaw_quaternion
 from em_sam_node.core.em_types import EmResult
 from em_sam_node.core.problem import FloatArray
 from em_sam_node.core.sightings import Sightings
@@ -45,7 +45,7 @@ def path_message(result: EmResult, stamps_ns: np.ndarray, frame: str, stamp: Tim
         entry.header.frame_id = frame
         ns_to_stamp(int(stamp_ns), entry.header.stamp)
         entry.pose.position.x, entry.pose.position.y = float(pose[0]), float(pose[1])
-        quaternion_from_yaw(float(pose[2]), entry.pose.orientation)
+        fill_yaw_quaternion(float(pose[2]), entry.pose.orientation)
         message.poses.append(entry)
     return message
 
@@ -189,5 +189,5 @@ def map_to_odom_tf(
     message.child_frame_id = odom_frame
     message.transform.translation.x = float(transform[0])
     message.transform.translation.y = float(transform[1])
-    quaternion_from_yaw(float(transform[2]), message.transform.rotation)
+    fill_yaw_quaternion(float(transform[2]), message.transform.rotation)
     return TFMessage(transforms=[message])

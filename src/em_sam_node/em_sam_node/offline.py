@@ -18,10 +18,10 @@ from em_sam_node.conversions import observations_from_message, odometry_pose
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.problem import FloatArray, IntArray
-from em_sam_node.core.se2 import wrap_angle
 from em_sam_node.ingest import IngestConfig, OdometryIngest
 from em_sam_node.mapper import MapperConfig, MapperProcessor
 from slam_core.errors import BagError
+from slam_core.geometry.se2 import wrap_angle
 from slam_core.stamps import stamp_to_ns
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry

@@ -15,7 +15,7 @@ from em_sam_node.core.assembly import MappingData, dead_reckoning
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.em_weights import gate_outliers, m_step
-from em_sam_node.core.se2 import between
+from slam_core.geometry.se2 import between
 
 SETTINGS = settings(derandomize=True, max_examples=200, deadline=None)
 

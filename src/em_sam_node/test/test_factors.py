@@ -28,7 +28,7 @@ from em_sam_node.core.factors import (
     whiten,
 )
 from em_sam_node.core.problem import Estimate, SlamProblem
-from em_sam_node.core.se2 import apply_increment, between, compose, range_bearing_to_point
+from slam_core.geometry.se2 import apply_increment, between, compose, range_bearing_to_point
 from slam_core.testing.jacobians import assert_jacobian_close
 
 PI = math.pi

@@ -11,7 +11,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.core.se2 import apply_increment, wrap_angle
 from em_sam_node.ingest import (
     Increment,
     IngestConfig,
@@ -20,6 +19,7 @@ from em_sam_node.ingest import (
     motion_covariance,
 )
 from em_sam_node.mapper import MapperConfig, MapperProcessor
+from slam_core.geometry.se2 import apply_increment, wrap_angle
 
 PI = math.pi
 SETTINGS = settings(derandomize=True, max_examples=50, deadline=None)

@@ -22,8 +22,8 @@ from em_sam_node.core.robust_kernels import (
     huber_weights,
     kernel_loss,
 )
-from em_sam_node.core.se2 import apply_increment, between, increment_between, wrap_angle
 from em_sam_node.core.solver import solve
+from slam_core.geometry.se2 import apply_increment, between, increment_between, wrap_angle
 from slam_core.testing.jacobians import assert_jacobian_close
 
 PI = math.pi

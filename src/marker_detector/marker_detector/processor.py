@@ -20,13 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from marker_detector.core.base_frame import (
-    RangeBearing,
-    optical_from_link,
-    to_range_bearing,
-    transform_from_xyz_rpy,
-)
-from marker_detector.core.camera import CameraModel
+from marker_detector.core.base_frame import RangeBearing, to_range_bearing
 from marker_detector.core.detection import (
     DetectionResult,
     DetectorConfig,
@@ -35,6 +29,8 @@ from marker_detector.core.detection import (
     detect_markers,
     make_detector,
 )
+from slam_core.camera import CameraModel
+from slam_core.geometry.se3 import optical_from_link, transform_from_xyz_rpy
 
 EXTRINSICS_SOURCES = ('tf_static', 'parameters')
 

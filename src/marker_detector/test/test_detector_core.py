@@ -10,12 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from marker_detector.core.base_frame import (
-    optical_from_link,
-    to_range_bearing,
-    transform_from_xyz_rpy,
-)
-from marker_detector.core.camera import CameraModel
+from marker_detector.core.base_frame import to_range_bearing
 from marker_detector.core.candidates import locate_markers
 from marker_detector.core.decoding import decode_quad
 from marker_detector.core.detection import (
@@ -30,12 +25,14 @@ from marker_detector.core.pose import (
     corner_jacobian,
     marker_object_points,
     pose_covariance,
-    rotation_from_vector,
-    rotation_vector,
     solve_marker_pose,
     solve_marker_poses,
 )
 from marker_detector.core.rendering import MarkerPlacement, render_markers
+from slam_core.camera import CameraModel
+from slam_core.geometry.quaternion import log_rotation
+from slam_core.geometry.se3 import optical_from_link, transform_from_xyz_rpy
+from slam_core.geometry.so3 import rotation_from_vector
 from slam_core.testing.jacobians import assert_jacobian_close, numerical_jacobian
 
 K_640 = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
@@ -75,7 +72,7 @@ def detect_one(image: np.ndarray, cam: CameraModel, config: DetectorConfig) -> M
 
 
 def angle_between_deg(first: np.ndarray, second: np.ndarray) -> float:
-    return math.degrees(float(np.linalg.norm(rotation_vector(first @ second.T))))
+    return math.degrees(float(np.linalg.norm(log_rotation(first @ second.T))))
 
 
 @pytest.fixture
@@ -139,55 +136,6 @@ def test_36h11_code_with_three_bit_errors_is_still_identified() -> None:
     stock = cv2.aruco.getPredefinedDictionary(DICTIONARIES['DICT_APRILTAG_36h11'])
     if stock.maxCorrectionBits == 0:  # OpenCV 4.x: its stock dictionary corrects nothing
         assert not stock.identify(bits, 0.6)[0]
-
-
-# --- camera model -------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize(
-    ('fields', 'message'),
-    [
-        ({'k': [500.0, 0, 320, 0, 500, 240, 0, 0]}, 'k has 8 values'),
-        ({'k': [500.0, 0, 320, 0, np.nan, 240, 0, 0, 1]}, 'finite'),
-        ({'k': [0.0, 0, 320, 0, 500, 240, 0, 0, 1]}, 'fx=0'),
-        ({'k': [500.0, 2, 320, 0, 500, 240, 0, 0, 1]}, 'no skew'),
-        ({'distortion_model': 'equidistant'}, "distortion_model='equidistant'"),
-        ({'d': [0.1, 0.2, 0.0]}, 'needs 5'),
-        ({'d': [0.1, 0.2, 0.0, 0.0, np.inf]}, 'finite'),
-        ({'width': 0}, 'width=0'),
-    ],
-)
-def test_camera_info_errors_name_the_field(fields: dict[str, object], message: str) -> None:
-    values: dict[str, object] = {
-        'width': 640, 'height': 480, 'k': [500.0, 0, 320, 0, 500, 240, 0, 0, 1],
-        'd': [0.0] * 5, 'distortion_model': 'plumb_bob',
-    }  # fmt: skip
-    values.update(fields)
-    with pytest.raises(ValueError, match=message):
-        CameraModel.from_camera_info(**values)  # type: ignore[arg-type]
-
-
-def test_camera_info_without_distortion_coefficients_means_none() -> None:
-    cam = CameraModel.from_camera_info(640, 480, K_640.ravel(), [], 'plumb_bob')
-    assert not cam.has_distortion
-    assert np.array_equal(cam.dist_coeffs, np.zeros(5))
-
-
-@pytest.mark.parametrize(
-    ('d', 'model'), [(PLUMB_BOB, 'plumb_bob'), (RATIONAL, 'rational_polynomial')]
-)
-def test_projection_matches_opencv_and_its_jacobian_finite_differences(
-    d: np.ndarray, model: str, rng: np.random.Generator
-) -> None:
-    cam = camera(d, model)
-    points = np.column_stack([rng.uniform(-1.0, 1.0, (12, 2)), rng.uniform(1.5, 4.0, 12)])
-    pixels, jacobian = cam.project_with_jacobian(points)
-    reference, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), cam.K, cam.dist_coeffs)
-    np.testing.assert_allclose(pixels, reference.reshape(-1, 2), atol=1e-9)
-    for point, block in zip(points, jacobian, strict=True):
-        assert_jacobian_close(block, lambda p: cam.project(p[None])[0], point, atol=1e-5)
-    round_trip = cam.distort_points(cam.undistort_points(pixels))
-    np.testing.assert_allclose(round_trip, pixels, atol=1e-6)
 
 
 # --- configuration and input validation ---------------------------------------------------
@@ -438,7 +386,7 @@ def test_both_ippe_solutions_match_opencvs_solvepnp_ippe_square(
     for pose, (rvecs, tvecs, errors) in zip(poses, references, strict=True):
         assert pose is not None
         best, other = np.argsort(errors)[:2]
-        assert rotation_vector(pose.rotation) == pytest.approx(np.ravel(rvecs[best]), abs=1e-4)
+        assert log_rotation(pose.rotation) == pytest.approx(np.ravel(rvecs[best]), abs=1e-4)
         assert pose.translation_m == pytest.approx(np.ravel(tvecs[best]), abs=1e-5)
         per_corner = math.sqrt(2.0) * errors
         assert pose.reprojection_error_px == pytest.approx(per_corner[best], rel=1e-3, abs=1e-4)
@@ -493,7 +441,7 @@ def test_covariance_matches_monte_carlo_of_noisy_corners(rng: np.random.Generato
     for _ in range(400):
         noisy = solve_marker_pose(exact + rng.normal(0.0, sigma, exact.shape), 0.16, cam)
         assert noisy is not None
-        d_theta = rotation_vector(noisy.rotation @ pose.rotation.T)  # left perturbation
+        d_theta = log_rotation(noisy.rotation @ pose.rotation.T)  # left perturbation
         samples.append(np.concatenate([noisy.translation_m - pose.translation_m, d_theta]))
     sampled = np.cov(np.array(samples).T)
     ratio = np.sqrt(np.diag(sampled) / np.diag(predicted))  # sigma sampled / predicted
@@ -503,19 +451,6 @@ def test_covariance_matches_monte_carlo_of_noisy_corners(rng: np.random.Generato
 
 
 # --- base frame ---------------------------------------------------------------------------
-
-
-def test_transform_helpers_follow_rep_103_and_urdf() -> None:
-    optical = optical_from_link()
-    np.testing.assert_allclose(optical[:3, :3] @ [0, 0, 1], [1, 0, 0])  # optical z = link x
-    np.testing.assert_allclose(optical[:3, :3] @ [1, 0, 0], [0, -1, 0])  # optical x = -link y
-    np.testing.assert_allclose(optical[:3, :3] @ [0, 1, 0], [0, 0, -1])  # optical y = -link z
-    yawed = transform_from_xyz_rpy([1.0, 2.0, 3.0], [0.0, 0.0, math.pi / 2])
-    np.testing.assert_allclose(yawed @ [1, 0, 0, 1], [1, 3, 3, 1], atol=1e-12)
-    pitched = transform_from_xyz_rpy([0, 0, 0], [0.0, math.pi / 2, 0.0])
-    np.testing.assert_allclose(pitched[:3, :3] @ [1, 0, 0], [0, 0, -1], atol=1e-12)
-    rolled = transform_from_xyz_rpy([0, 0, 0], [math.pi / 2, 0.0, 0.0])
-    np.testing.assert_allclose(rolled[:3, :3] @ [0, 1, 0], [0, 0, 1], atol=1e-12)
 
 
 def _detection_at(translation: np.ndarray, covariance: np.ndarray) -> MarkerDetection:

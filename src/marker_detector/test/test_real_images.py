@@ -26,11 +26,11 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
-from marker_detector.core.camera import CameraModel
 from marker_detector.core.candidates import MarkerCorners, locate_markers
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
-from marker_detector.core.pose import rotation_vector
+from slam_core.camera import CameraModel
 from slam_core.datasets import DATA_ENV, data_root, dataset
+from slam_core.geometry.quaternion import log_rotation
 
 APRILTAG_PHOTOS = (
     '33369213973_9d9bb4cc96_c',
@@ -171,7 +171,7 @@ def pose_differences(
         q = transform.rotation
         translation = np.array([t.x, t.y, t.z])
         rotation = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-        angle = np.degrees(np.linalg.norm(rotation_vector(detection.rotation @ rotation.T)))
+        angle = np.degrees(np.linalg.norm(log_rotation(detection.rotation @ rotation.T)))
         differences[detection.id] = (
             float(np.linalg.norm(detection.translation_m - translation)),
             float(angle),

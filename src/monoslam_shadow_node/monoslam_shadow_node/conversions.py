@@ -36,9 +36,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.shadow_filter import FrameInput, Handover, TrackReport
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
+from slam_core.camera import CameraModel
+from slam_core.geometry import quaternion
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
 FloatArray = NDArray[np.float64]
@@ -126,14 +127,7 @@ def rotation_from_quaternion(x: float, y: float, z: float, w: float) -> FloatArr
     norm = float(np.linalg.norm(q))
     if math.isfinite(norm) and abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
         q /= norm
-    x, y, z, w = q
-    return np.array(
-        [
-            [w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z],
-        ]
-    )
+    return quaternion.rotation_from_quaternion(q[[3, 0, 1, 2]])  # (w, x, y, z)
 
 
 def pose_from_message(message: Any) -> CameraPose:

@@ -39,7 +39,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam import MonoSlam
 from monoslam_shadow_node.core.monoslam_types import (
     LOST,
@@ -61,6 +60,7 @@ from monoslam_shadow_node.monoslam_conversions import (
 )
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
 from monoslam_shadow_node.notices import Notice
+from slam_core.camera import CameraModel
 
 SYNC_NAMES = SyncNames(
     primary='features frame',

@@ -34,7 +34,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from monoslam_shadow_node.conversions import CameraPose, Features, FloatArray, frame_input
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.shadow_filter import (
     FrameResult,
     InputError,
@@ -44,6 +43,7 @@ from monoslam_shadow_node.core.shadow_filter import (
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING
 from monoslam_shadow_node.frame_sync import Drop, FrameSynchronizer
 from monoslam_shadow_node.notices import Notice
+from slam_core.camera import CameraModel
 
 NO_GATE = (math.inf, math.inf)
 INPUT_WARNING = 'non-finite'

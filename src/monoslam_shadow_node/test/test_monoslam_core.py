@@ -7,24 +7,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam_model import (
     angles_from_ray,
     euclidean_point,
-    exp_quaternion,
-    log_rotation,
     new_inverse_depth_feature,
     predict_camera,
     project_feature,
-    quaternion_from_rotation,
-    rotate_jacobian,
-    rotate_transposed_jacobian,
-    rotation,
-    world_angle_jacobian,
 )
 from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamConfig,
 )
+from slam_core.camera import CameraModel
+from slam_core.geometry.quaternion import rotation_from_quaternion
 from slam_core.testing.jacobians import assert_jacobian_close
 
 CAMERA = CameraModel(
@@ -40,37 +34,7 @@ def _camera_state(rng: np.random.Generator) -> np.ndarray:
 
 
 def _point_in_front(state: np.ndarray, offset=(0.3, -0.2, 4.0)) -> np.ndarray:
-    return state[:3] + rotation(state[3:7]) @ np.array(offset)
-
-
-@pytest.mark.parametrize('seed', range(3))
-def test_quaternion_jacobians_match_finite_differences(seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    q, a = rng.normal(size=4), rng.normal(size=3)
-    assert_jacobian_close(rotate_transposed_jacobian(q, a), lambda x: rotation(x).T @ a, q,
-                          atol=1e-7)  # fmt: skip
-    assert_jacobian_close(rotate_jacobian(q, a), lambda x: rotation(x) @ a, q, atol=1e-7)
-    for vector in (0.3 * rng.normal(size=3), 1e-10 * rng.normal(size=3)):
-        assert_jacobian_close(
-            exp_quaternion(vector)[1], lambda x: exp_quaternion(x)[0], vector, atol=1e-7,
-            eps=1e-7,
-        )  # fmt: skip
-
-
-def test_rotation_round_trips_and_world_angles() -> None:
-    rng = np.random.default_rng(4)
-    for _ in range(20):
-        q = rng.normal(size=4)
-        q /= np.linalg.norm(q)
-        q = q if q[0] >= 0 else -q
-        assert np.allclose(quaternion_from_rotation(rotation(q)), q, atol=1e-12)
-    theta = np.array([0.01, -0.02, 0.015])
-    q_hat = np.array([0.9, 0.1, -0.3, 0.2])
-    q_hat /= np.linalg.norm(q_hat)
-    perturbed = quaternion_from_rotation(rotation(exp_quaternion(theta)[0]) @ rotation(q_hat))
-    assert np.allclose(log_rotation(rotation(perturbed) @ rotation(q_hat).T), theta, atol=1e-12)
-    # to first order theta = J (q - q_hat)
-    assert np.allclose(world_angle_jacobian(q_hat) @ (perturbed - q_hat), theta, atol=1e-4)
+    return state[:3] + rotation_from_quaternion(state[3:7]) @ np.array(offset)
 
 
 @pytest.mark.parametrize('seed', range(3))
@@ -114,12 +78,16 @@ def test_new_inverse_depth_feature_lies_on_the_ray_and_its_jacobians() -> None:
 
     def from_camera(x: np.ndarray) -> np.ndarray:  # the reference rotation stays fixed
         normalized = CAMERA.undistort_points(pixel[None], normalized=True)[0]
-        angles, _ = angles_from_ray(reference, rotation(x[3:7]) @ [*normalized, 1.0])
+        angles, _ = angles_from_ray(
+            reference, rotation_from_quaternion(x[3:7]) @ [*normalized, 1.0]
+        )
         return np.concatenate([x[:3], angles, [rho]])
 
     def from_pixel(u: np.ndarray) -> np.ndarray:
         normalized = CAMERA.undistort_points(u[None], normalized=True)[0]
-        angles, _ = angles_from_ray(reference, rotation(state[3:7]) @ [*normalized, 1.0])
+        angles, _ = angles_from_ray(
+            reference, rotation_from_quaternion(state[3:7]) @ [*normalized, 1.0]
+        )
         return np.concatenate([state[:3], angles, [rho]])
 
     assert_jacobian_close(d_camera, from_camera, state, atol=1e-7)

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.conversions import Features
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam_types import (
     TRACKING,
     WAITING,
@@ -21,6 +20,7 @@ from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
 from monoslam_shadow_node.monoslam_conversions import HandoverInput, TargetSighting
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
 from monoslam_shadow_node.notices import Notice
+from slam_core.camera import CameraModel
 
 CAMERA = CameraModel(
     640, 480, np.array([[300.0, 0, 320.0], [0, 300.0, 240.0], [0, 0, 1]]), np.zeros(5)

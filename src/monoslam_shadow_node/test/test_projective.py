@@ -6,8 +6,6 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from marker_detector.core.camera import CameraModel
-from monoslam_shadow_node.core.camera import homogeneous_projection, pixel_rays
 from monoslam_shadow_node.core.projective import (
     gamma_matrix,
     join_point_line,
@@ -22,6 +20,7 @@ from monoslam_shadow_node.core.projective import (
     relation_test,
 )
 from monoslam_shadow_node.core.rays import View, pixel_ray_directions, three_ray_test
+from slam_core.camera import CameraModel
 from slam_core.testing.jacobians import assert_jacobian_close
 
 CAMERA = CameraModel(
@@ -128,7 +127,7 @@ def _views(
         rotation = _look_at(centre, np.array([5.0, 0.0, 1.0]))
         camera_point = rotation.T @ (point + velocity * t - centre)
         pixel = CAMERA.project(camera_point[None])[0] + rng.normal(0.0, sigma_px, 2)
-        rays, jacobians = pixel_rays(CAMERA, pixel[None])
+        rays, jacobians = CAMERA.pixel_rays(pixel[None])
         direction, covariance = pixel_ray_directions(rays, jacobians, rotation, sigma_px)
         views.append(View(k, int(t * 1e9), centre, direction[0], covariance[0]))
     return views
@@ -178,20 +177,3 @@ def test_degenerate_geometry_is_refused_with_a_reason(rng: np.random.Generator) 
     same = View(3, 0, views[0].centre, views[0].direction, views[0].direction_covariance)
     with pytest.raises(ValueError, match='zero baseline'):
         three_ray_test(views[0], views[1], same, 0.05)
-
-
-def test_homogeneous_projection_ignores_w_and_matches_the_camera(rng: np.random.Generator) -> None:
-    points = np.column_stack([rng.normal(0, 0.3, (5, 2)), np.ones(5), rng.uniform(0.1, 1, 5)])
-    pixels, jacobian = homogeneous_projection(CAMERA, points)
-    np.testing.assert_allclose(pixels, CAMERA.project(points[:, :3]))
-    assert np.all(jacobian[:, :, 3] == 0.0)
-    rays, ray_jacobian = pixel_rays(CAMERA, pixels)
-    np.testing.assert_allclose(rays[:, :2], points[:, :2] / points[:, 2:3], atol=1e-9)
-    for k in range(5):  # dr/dpixel is the Jacobian of the back-projection
-        assert_jacobian_close(
-            ray_jacobian[k],
-            lambda p: pixel_rays(CAMERA, p[None])[0][0],
-            pixels[k],
-            atol=1e-6,
-            eps=1e-4,
-        )

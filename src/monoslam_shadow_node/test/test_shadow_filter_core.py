@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from marker_detector.core.camera import CameraModel
 from monoslam_shadow_node.core.rays import View
 from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.core.shadow_ekf import (
@@ -25,17 +24,13 @@ from monoslam_shadow_node.core.shadow_filter import (
 )
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
 from monoslam_shadow_node.core.static_fit import motion_score_test
+from slam_core.camera import CameraModel
+from slam_core.geometry.so3 import rotation_from_vector
 from slam_core.testing.jacobians import assert_jacobian_close
 
 CAMERA = CameraModel(
     640, 480, np.array([[300.0, 0, 320], [0, 300, 240], [0, 0, 1]]), np.array([-0.05, 0, 0, 0, 0])
 )
-
-
-def _rotation(v: np.ndarray) -> np.ndarray:
-    angle = np.linalg.norm(v)
-    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]]) / angle
-    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
 def _states(rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -50,7 +45,10 @@ def _states(rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarra
 
 
 def test_predict_moves_a_point_like_the_camera_motion_says() -> None:
-    rotation, translation = _rotation(np.array([0.01, -0.02, 0.03])), np.array([0.05, 0, -0.1])
+    rotation, translation = (
+        rotation_from_vector(np.array([0.01, -0.02, 0.03])),
+        np.array([0.05, 0, -0.1]),
+    )
     point, velocity, dt = np.array([0.4, -0.2, 4.0]), np.array([0.3, 0.1, -0.2]), 0.1
     w = 1 / np.linalg.norm(point)
     state = np.concatenate([point * w, [w], w * velocity])  # u = w v
@@ -66,7 +64,10 @@ def test_predict_covariance_uses_the_motion_jacobian() -> None:
     checked against finite differences of the whole (motion + renormalization) map."""
     rng = np.random.default_rng(3)
     states, _ = _states(rng, 1)
-    rotation, translation = _rotation(np.array([0.02, 0.01, -0.01])), np.array([0.1, 0.0, 0.05])
+    rotation, translation = (
+        rotation_from_vector(np.array([0.02, 0.01, -0.01])),
+        np.array([0.1, 0.0, 0.05]),
+    )
     config = EkfConfig(acceleration_psd_m2_s3=0.0)
 
     def motion(x: np.ndarray) -> np.ndarray:
@@ -113,7 +114,7 @@ def _renormalize_jacobian(state: np.ndarray) -> np.ndarray:
 def test_world_estimates_propagate_position_and_velocity_by_their_jacobians() -> None:
     rng = np.random.default_rng(8)
     states, _ = _states(rng, 1)
-    rotation, centre = _rotation(np.array([0.1, -0.3, 0.2])), np.array([1.0, 2.0, 0.5])
+    rotation, centre = rotation_from_vector(np.array([0.1, -0.3, 0.2])), np.array([1.0, 2.0, 0.5])
     covariance = np.diag(rng.uniform(1e-6, 1e-4, 7))
 
     def world(x: np.ndarray) -> np.ndarray:

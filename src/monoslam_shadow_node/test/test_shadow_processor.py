@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.conversions import CameraPose, Features
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from monoslam_shadow_node.notices import LogThrottle, Notice, log_notice
 from monoslam_shadow_node.shadow_processor import (
@@ -19,6 +18,7 @@ from monoslam_shadow_node.shadow_processor import (
     ShadowStep,
     pose_gate_refusal,
 )
+from slam_core.camera import CameraModel
 
 CAMERA = CameraModel(
     640, 480, np.array([[300.0, 0, 320.0], [0, 300.0, 240.0], [0, 0, 1]]), np.zeros(5)

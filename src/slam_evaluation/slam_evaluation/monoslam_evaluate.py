@@ -73,7 +73,7 @@ from slam_evaluation.monoslam_runs import (
     Settings,
     evaluate_seed,
 )
-from slam_sim.core.dynamic_scene import DynamicSceneConfig
+from slam_sim.core.dynamic_config import DynamicSceneConfig
 
 REPORT_NAME = 'monoslam_eval.json'
 

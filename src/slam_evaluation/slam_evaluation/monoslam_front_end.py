@@ -14,9 +14,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
 from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
+from slam_core.camera import CameraModel
 from slam_evaluation.monoslam_image_sources import BoolArray, FloatArray, ImageFrame
 from slam_evaluation.monoslam_pipeline import (
     MeasurementFrame,

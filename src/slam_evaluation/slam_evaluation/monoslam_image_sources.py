@@ -17,15 +17,13 @@ from numpy.typing import NDArray
 from marker_detector.conversions import camera_info_fields, image_from_message
 from marker_detector.core.images import ImageError
 from monoslam_shadow_node.conversions import rotation_from_quaternion
-from monoslam_shadow_node.core.camera import CameraModel
+from slam_core.camera import CameraModel
 from slam_core.errors import BagError
 from slam_core.stamps import stamp_to_ns
 from slam_ros.bag.source import BagSource
+from slam_sim.core.dynamic_config import DynamicSceneConfig
 from slam_sim.core.dynamic_render import LABEL_NOTHING, DynamicRenderer
-from slam_sim.core.dynamic_scene import (
-    DEFAULT_START_NS,
-    DynamicSceneConfig,
-)
+from slam_sim.core.dynamic_scene import DEFAULT_START_NS
 from slam_sim.core.init_target import InitTarget
 from slam_sim.dynamic_camera_bag import (
     CAMERA_POSE_TOPIC,

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.monoslam_model import log_rotation
+from slam_core.geometry.quaternion import log_rotation
 from slam_evaluation.monoslam_pipeline import (
     MeasurementFrame,
     VariantRecord,

@@ -46,7 +46,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monoslam_shadow_node.conversions import CameraPose, Features
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam_types import (
     LOST,
     TRACKING,
@@ -60,6 +59,7 @@ from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
 from monoslam_shadow_node.monoslam_conversions import HandoverInput
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor
 from monoslam_shadow_node.shadow_processor import ShadowProcessor, ShadowStep
+from slam_core.camera import CameraModel
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 from slam_sim.core.init_target import InitTarget, target_pixels
 

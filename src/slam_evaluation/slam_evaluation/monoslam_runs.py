@@ -35,7 +35,8 @@ from slam_evaluation.monoslam_pipeline import (
 )
 from slam_evaluation.shadow_consistency import nees
 from slam_evaluation.shadow_runs import camera_model
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, marker_board
 
 BOARD_MARKER_SIDE_M = 0.3

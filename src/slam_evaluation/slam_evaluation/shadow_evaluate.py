@@ -81,7 +81,7 @@ from slam_evaluation.shadow_experiments import (
     figure_inputs,
     report,
 )
-from slam_sim.core.dynamic_scene import DynamicSceneConfig
+from slam_sim.core.dynamic_config import DynamicSceneConfig
 
 QUICK_DURATION_S = 4.0
 

@@ -37,7 +37,8 @@ from slam_evaluation.shadow_consistency import (
     handover_samples,
 )
 from slam_evaluation.shadow_runs import FilterRecord, FilterRunError, run_filter
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 
 
 @dataclass(frozen=True)

@@ -15,11 +15,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monoslam_shadow_node.conversions import CameraPose, Features
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.rays import ray_angle
 from monoslam_shadow_node.core.shadow_classifier import Decision
 from monoslam_shadow_node.core.shadow_filter import Handover, InputError, ShadowConfig
 from monoslam_shadow_node.shadow_processor import ShadowProcessor, ShadowStep
+from slam_core.camera import CameraModel
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 
 FloatArray = NDArray[np.float64]

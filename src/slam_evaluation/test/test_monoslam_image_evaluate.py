@@ -16,8 +16,8 @@ from slam_evaluation.monoslam_front_end import FrontEnd, moving_near
 from slam_evaluation.monoslam_image_evaluate import REPORT_NAME, TABLE_NAME, main
 from slam_evaluation.monoslam_image_sources import ImageFrame, bag_source, rendered_source
 from slam_evaluation.monoslam_pipeline import MeasurementFrame
-from slam_sim.core.dynamic_render import DynamicRenderer, undistort_pixels
-from slam_sim.core.dynamic_scene import DynamicSceneConfig
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_render import DynamicRenderer
 from slam_sim.dynamic_camera_bag import write_dynamic_camera_bag
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
@@ -60,7 +60,7 @@ def _reprojection_errors(images: list[ImageFrame], frames: list[MeasurementFrame
         ids, pixels = frame.measurements.ids, frame.measurements.pixels
         new = np.array([int(i) not in first for i in ids], dtype=bool)
         depth_m, labels = renderer.probe(index, pixels[new])
-        rays, _ = undistort_pixels(camera, pixels[new])
+        rays, _ = camera.unproject(pixels[new])
         points_m = np.c_[rays * depth_m[:, None], depth_m] @ image.rotation.T + image.centre_m
         for track, point, label in zip(ids[new].tolist(), points_m, labels, strict=True):
             first[track] = (index, point, bool(label >= 0))

@@ -6,13 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam import MonoSlam
 from monoslam_shadow_node.core.monoslam_init import camera_from_known_points
-from monoslam_shadow_node.core.monoslam_model import (
-    CAMERA_SIZE,
-    log_rotation,
-)
+from monoslam_shadow_node.core.monoslam_model import CAMERA_SIZE
 from monoslam_shadow_node.core.monoslam_types import (
     LOST,
     TRACKING,
@@ -21,7 +17,10 @@ from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamFrame,
     MonoSlamInputError,
 )
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
+from slam_core.camera import CameraModel
+from slam_core.geometry.quaternion import log_rotation
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, target_pixels
 
 CAMERA = CameraModel(

@@ -39,7 +39,8 @@ from slam_evaluation.monoslam_pipeline import (
     target_known_points,
 )
 from slam_evaluation.shadow_runs import camera_model
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, DynamicSceneRun, simulate_dynamic_scene
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, marker_board, target_pixels
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'

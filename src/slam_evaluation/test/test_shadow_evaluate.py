@@ -36,7 +36,8 @@ from slam_evaluation.shadow_consistency import (
 )
 from slam_evaluation.shadow_evaluate import main
 from slam_evaluation.shadow_runs import FilterRecord, view_parallax_rad
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, simulate_dynamic_scene
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import simulate_dynamic_scene
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 

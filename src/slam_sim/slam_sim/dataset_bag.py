@@ -20,6 +20,7 @@ from rclpy.qos import QoSProfile
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
 
 from slam_core.errors import BagError
+from slam_core.geometry.quaternion import quaternion_from_yaw
 from slam_ros.qos import recorded_from_profile
 from slam_ros.typesys import TypeRegistry
 
@@ -196,10 +197,8 @@ class MessageFactory:
         twist covariances as 36-vectors."""
         geometry = 'geometry_msgs/msg/'
         point = self._type(geometry + 'Point')(x=float(pose[0]), y=float(pose[1]), z=0.0)
-        half = 0.5 * float(pose[2])
-        orientation = self._type(geometry + 'Quaternion')(
-            x=0.0, y=0.0, z=float(np.sin(half)), w=float(np.cos(half))
-        )
+        x, y, z, w = quaternion_from_yaw(float(pose[2]))
+        orientation = self._type(geometry + 'Quaternion')(x=x, y=y, z=z, w=w)
         vector = self._type(geometry + 'Vector3')
         body_twist = self._type(geometry + 'Twist')(
             linear=vector(x=float(twist[0]), y=0.0, z=0.0),

@@ -56,15 +56,11 @@ from slam_core.files import jsonable
 from slam_core.progress import ProgressReporter
 from slam_ros.qos import latched_qos, output_qos
 from slam_ros.typesys import TypeRegistry
-from slam_sim.core.camera import MarkerTruth, SceneStyle
-from slam_sim.core.dynamic_render import (
-    LABEL_NOTHING,
-    DynamicRenderer,
-    RenderedFrame,
-    RenderOptions,
-    as_pinhole,
-)
-from slam_sim.core.dynamic_scene import DEFAULT_START_NS, DynamicSceneConfig
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_options import RenderOptions
+from slam_sim.core.dynamic_render import LABEL_NOTHING, DynamicRenderer, RenderedFrame
+from slam_sim.core.dynamic_scene import DEFAULT_START_NS
+from slam_sim.core.office_view import MarkerTruth, SceneStyle
 from slam_sim.dataset_bag import TopicSpec, WrittenBag, check_output, write_bag
 from slam_sim.office_camera_bag import (
     CAMERA_INFO_TOPIC,
@@ -152,7 +148,7 @@ class _Messages:
     def __init__(self, registry: TypeRegistry, renderer: DynamicRenderer, quality: int) -> None:
         target = renderer.target
         rig = CameraRig(
-            camera=as_pinhole(renderer.camera),
+            camera=renderer.camera,
             rate_hz=renderer.config.rate_hz,
             jpeg_quality=quality,
             style=SceneStyle(side_m=target.side_m),

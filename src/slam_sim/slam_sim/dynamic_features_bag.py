@@ -45,19 +45,18 @@ import numpy as np
 
 from slam_core.cli import console_main
 from slam_core.errors import BagError
+from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_core.progress import ProgressReporter
 from slam_ros.qos import output_qos
 from slam_ros.typesys import TypeRegistry
+from slam_sim.core.dynamic_config import MOTION_KINDS, DynamicSceneConfig
 from slam_sim.core.dynamic_scene import (
     DEFAULT_START_NS,
-    MOTION_KINDS,
-    DynamicSceneConfig,
     DynamicSceneRun,
     FeatureFrame,
     simulate_dynamic_scene,
 )
 from slam_sim.dataset_bag import MessageFactory, TopicSpec, WrittenBag, write_bag
-from slam_sim.office_camera_bag import rotation_to_quaternion
 
 CAMERA_INFO_TOPIC = '/camera/camera_info'
 CAMERA_POSE_TOPIC = '/camera/pose'
@@ -95,7 +94,7 @@ class _Messages:
 
     def pose(self, frame: FeatureFrame) -> Any:
         """Return the true optical-frame pose in map, zero covariance."""
-        x, y, z, w = rotation_to_quaternion(frame.camera_rotation).tolist()
+        w, x, y, z = quaternion_from_rotation(frame.camera_rotation).tolist()
         geometry = 'geometry_msgs/msg/'
         pose = self.types[geometry + 'Pose'](
             position=self._point(frame.camera_position),

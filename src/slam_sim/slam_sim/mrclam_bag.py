@@ -45,13 +45,13 @@ from typing import Any
 
 import numpy as np
 
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.cli import console_main
 from slam_core.datasets import data_root
 from slam_core.errors import BagError
 from slam_core.progress import ProgressReporter
 from slam_ros.qos import latched_qos, output_qos
 from slam_ros.typesys import TypeRegistry
-from slam_sim.core.geometry import FloatArray, IntArray
 from slam_sim.core.mrclam import ROBOT_SUBJECTS, MrclamRun, Sightings, parse_mrclam
 from slam_sim.dataset_bag import (
     LANDMARK_MAP_TYPE,

@@ -42,22 +42,25 @@ from typing import Any
 
 import numpy as np
 
+from slam_core.arrays import FloatArray, IntArray
+from slam_core.camera import CameraModel
 from slam_core.cli import console_main
+from slam_core.geometry.quaternion import quaternion_from_rotation
+from slam_core.geometry.se3 import OPTICAL_IN_LINK
 from slam_core.progress import ProgressReporter
 from slam_ros.qos import latched_qos, output_qos
 from slam_ros.typesys import TypeRegistry
-from slam_sim.core.camera import (
+from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
+from slam_sim.core.office import OfficeConfig, OfficeRun, Variant, simulate_office
+from slam_sim.core.office_render import Renderer
+from slam_sim.core.office_view import (
     DICTIONARY_NAME,
     LevelPose,
     Markers,
     MarkerTruth,
-    PinholeCamera,
-    Renderer,
     SceneStyle,
+    office_camera,
 )
-from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
-from slam_sim.core.geometry import FloatArray, IntArray
-from slam_sim.core.office import OfficeConfig, OfficeRun, Variant, simulate_office
 from slam_sim.dataset_bag import MessageFactory, TopicSpec, WrittenBag, write_bag
 from slam_sim.office_bag import (
     DEFAULT_START_NS,
@@ -84,8 +87,6 @@ DESK_MARKER_HEIGHT_M = 0.95
 WALL_MOUNT_OFFSET_M = 0.01
 DEFAULT_RATE_HZ = 10.0
 DEFAULT_QUALITY = 65
-# camera_link (x forward, y left, z up) -> optical frame (x right, y down, z forward).
-OPTICAL_IN_LINK = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 # The camera topics (topic, type, latched); the bag also holds office_sim's TOPICS except
 # /landmark_observations. At equal stamps camera messages come first, in this order.
 CAMERA_TOPICS = (
@@ -100,7 +101,7 @@ CAMERA_TOPICS = (
 class CameraRig:
     """The camera, its rate, JPEG quality, rendering style and image effects."""
 
-    camera: PinholeCamera = field(default_factory=PinholeCamera)
+    camera: CameraModel = field(default_factory=office_camera)
     rate_hz: float = DEFAULT_RATE_HZ
     jpeg_quality: int = DEFAULT_QUALITY
     style: SceneStyle = field(default_factory=SceneStyle)
@@ -122,28 +123,6 @@ class CameraFrame:
     stamp_ns: int
     image: np.ndarray
     truth: MarkerTruth
-
-
-def rotation_to_quaternion(rotation: FloatArray) -> FloatArray:
-    """Return the unit quaternion (x, y, z, w), w >= 0, of a rotation matrix (3, 3)."""
-    m = np.asarray(rotation, dtype=np.float64)
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    candidates = np.array([trace, m[0, 0], m[1, 1], m[2, 2]])
-    largest = int(np.argmax(candidates))
-    if largest == 0:
-        w = 0.5 * math.sqrt(1.0 + trace)
-        q = [(m[2, 1] - m[1, 2]) / (4 * w), (m[0, 2] - m[2, 0]) / (4 * w),
-             (m[1, 0] - m[0, 1]) / (4 * w), w]  # fmt: skip
-    else:
-        i = largest - 1
-        j, k = (i + 1) % 3, (i + 2) % 3
-        vector = np.zeros(3)
-        vector[i] = 0.5 * math.sqrt(max(1.0 + m[i, i] - m[j, j] - m[k, k], 0.0))
-        vector[j] = (m[j, i] + m[i, j]) / (4 * vector[i])
-        vector[k] = (m[k, i] + m[i, k]) / (4 * vector[i])
-        q = [*vector.tolist(), (m[k, j] - m[j, k]) / (4 * vector[i])]
-    quaternion = np.asarray(q, dtype=np.float64)
-    return quaternion if quaternion[3] >= 0.0 else -quaternion
 
 
 def frame_stamps_ns(run: OfficeRun, rate_hz: float) -> IntArray:
@@ -210,7 +189,7 @@ class _CameraMessages:
         self.info = rig.camera.camera_info()
 
     def _pose(self, rotation: FloatArray, translation: FloatArray) -> Any:
-        x, y, z, w = rotation_to_quaternion(rotation).tolist()
+        w, x, y, z = quaternion_from_rotation(rotation).tolist()
         geometry = 'geometry_msgs/msg/'
         return self.types[geometry + 'Pose'](
             position=self.types[geometry + 'Point'](
@@ -398,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        camera = PinholeCamera.scaled(args.width, args.height)
+        camera = office_camera(args.width, args.height)
     except ValueError as err:
         parser.error(f'--width/--height: {err}')
     try:

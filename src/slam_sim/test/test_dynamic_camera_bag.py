@@ -12,8 +12,11 @@ import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosDurability
 
-from slam_sim.core.dynamic_render import DynamicRenderer, RenderOptions
-from slam_sim.core.dynamic_scene import DEFAULT_START_NS, DynamicSceneConfig
+from slam_core.geometry.quaternion import quaternion_from_rotation
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_options import RenderOptions
+from slam_sim.core.dynamic_render import DynamicRenderer
+from slam_sim.core.dynamic_scene import DEFAULT_START_NS
 from slam_sim.dynamic_camera_bag import (
     CAMERA_INFO_TOPIC,
     CAMERA_POSE_TOPIC,
@@ -25,12 +28,7 @@ from slam_sim.dynamic_camera_bag import (
     scene_from_json,
     write_dynamic_camera_bag,
 )
-from slam_sim.office_camera_bag import (
-    IMAGE_FORMAT,
-    IMAGE_TOPIC,
-    TRUE_FIDUCIALS_TOPIC,
-    rotation_to_quaternion,
-)
+from slam_sim.office_camera_bag import IMAGE_FORMAT, IMAGE_TOPIC, TRUE_FIDUCIALS_TOPIC
 
 CONFIG = DynamicSceneConfig(duration_s=1.0, rate_hz=10.0)
 Messages = dict[str, list[tuple[int, Any]]]
@@ -96,8 +94,8 @@ def test_camera_info_and_images_describe_the_rendered_camera(
     for _, info in messages[CAMERA_INFO_TOPIC]:
         assert info.header.frame_id == 'camera_optical_frame'
         assert (info.width, info.height, info.distortion_model) == (640, 480, 'plumb_bob')
-        np.testing.assert_array_equal(info.k, camera.matrix.reshape(9))
-        np.testing.assert_array_equal(info.d, [camera.k1, camera.k2, 0.0, 0.0, 0.0])
+        np.testing.assert_array_equal(info.k, camera.K.reshape(9))
+        np.testing.assert_array_equal(info.d, camera.D)
     for k, (_, image) in enumerate(messages[IMAGE_TOPIC][:3]):
         assert image.format == IMAGE_FORMAT
         pixels = cv2.imdecode(np.asarray(image.data, np.uint8), cv2.IMREAD_UNCHANGED)
@@ -122,7 +120,7 @@ def test_ground_truth_is_the_rendered_frames_truth(
         position = pose.pose.position
         np.testing.assert_allclose([position.x, position.y, position.z], frame.position_m)
         q = pose.pose.orientation
-        np.testing.assert_allclose([q.x, q.y, q.z, q.w], rotation_to_quaternion(frame.rotation))
+        np.testing.assert_allclose([q.w, q.x, q.y, q.z], quaternion_from_rotation(frame.rotation))
         fiducials = messages[TRUE_FIDUCIALS_TOPIC][k][1].detections
         if frame.target_corners_px is None:
             assert fiducials == []

@@ -10,18 +10,18 @@ import cv2
 import numpy as np
 import pytest
 
-from slam_sim.core.camera import SceneStyle
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_options import RenderOptions
 from slam_sim.core.dynamic_render import (
     DEFAULT_OBJECT_RADIUS_M,
     LABEL_NOTHING,
     LABEL_STATIC,
     DynamicRenderer,
     RenderedFrame,
-    RenderOptions,
-    undistort_pixels,
 )
-from slam_sim.core.dynamic_scene import DynamicSceneConfig, observe
+from slam_sim.core.dynamic_scene import observe
 from slam_sim.core.init_target import InitTarget, target_pixels
+from slam_sim.core.office_view import SceneStyle
 
 CONFIG = DynamicSceneConfig(duration_s=12.0)
 # Plain, cheap textures for tests that only look at geometry and labels.
@@ -256,7 +256,7 @@ def _true_motion(
     next frame."""
     k = image.index
     columns, rows = np.rint(pixels).astype(int).T
-    normalized, valid = undistort_pixels(renderer.camera, pixels)
+    normalized, valid = renderer.camera.unproject(pixels)
     assert np.all(valid)
     depth = image.depth_m[rows, columns].astype(np.float64)[:, None]
     points = image.position_m + (np.column_stack([normalized, np.ones(len(depth))]) * depth) @ (
@@ -304,7 +304,7 @@ def test_pixels_beyond_the_lens_fold_see_nothing() -> None:
     assert np.all(np.isfinite(image.depth_m[~nothing]))
     camera = renderer.camera
     pixels = np.array([[0.0, 0.0], [320.0, 240.0], [500.0, 300.0], [200.0, 400.0]])
-    normalized, valid = undistort_pixels(camera, pixels)
+    normalized, valid = camera.unproject(pixels)
     assert valid.tolist() == [False, True, True, True]
     rays = np.column_stack([normalized, np.ones(len(pixels))])
     np.testing.assert_allclose(camera.project(rays[valid]), pixels[valid], atol=1e-9)

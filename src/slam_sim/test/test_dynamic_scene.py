@@ -13,13 +13,8 @@ import pytest
 
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
-from slam_sim.core.dynamic_scene import (
-    DynamicSceneConfig,
-    DynamicSceneRun,
-    SceneCamera,
-    build_scene,
-    simulate_dynamic_scene,
-)
+from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_scene import DynamicSceneRun, build_scene, simulate_dynamic_scene
 from slam_sim.dynamic_features_bag import (
     CAMERA_INFO_TOPIC,
     CAMERA_POSE_TOPIC,
@@ -70,7 +65,7 @@ def test_noise_free_pixels_are_opencv_projections_inside_the_image() -> None:
         world = run.point_positions[10 * k, frame.point_ids]
         rvec, _ = cv2.Rodrigues(rotation.T)
         expected, _ = cv2.projectPoints(
-            world, rvec, -rotation.T @ position, camera.matrix, camera.camera_info().d
+            world, rvec, -rotation.T @ position, camera.K, camera.camera_info().d
         )
         np.testing.assert_allclose(frame.true_pixels, expected.reshape(-1, 2), atol=1e-6)
         assert np.all(frame.true_pixels >= margin)
@@ -212,12 +207,12 @@ def test_focal_length_outside_150_to_500_px_is_rejected_by_name() -> None:
         DynamicSceneConfig(motions=('teleport',))
 
 
-def test_camera_info_fields_describe_plumb_bob() -> None:
-    info = SceneCamera(fx=310.0, fy=305.0, cx=321.0, cy=239.0, k1=-0.04, k2=0.01).camera_info()
+def test_the_camera_is_plumb_bob_with_the_configured_focal_length() -> None:
+    info = DynamicSceneConfig(focal_px=310.0).camera().camera_info()
     assert (info.width, info.height, info.distortion_model) == (640, 480, 'plumb_bob')
-    np.testing.assert_array_equal(info.k, [310, 0, 321, 0, 305, 239, 0, 0, 1])
-    np.testing.assert_array_equal(info.d, [-0.04, 0.01, 0, 0, 0])
-    np.testing.assert_array_equal(info.p, [310, 0, 321, 0, 0, 305, 239, 0, 0, 0, 1, 0])
+    np.testing.assert_array_equal(info.k, [310, 0, 320.7, 0, 310, 238.9, 0, 0, 1])
+    np.testing.assert_array_equal(info.d, [-0.05, 0, 0, 0, 0])
+    np.testing.assert_array_equal(info.p, [310, 0, 320.7, 0, 0, 310, 238.9, 0, 0, 0, 1, 0])
 
 
 def _read(path: Path) -> dict[str, list[tuple[int, Any]]]:

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from rosbags.interfaces import QosDurability
 
-from em_sam_node.core.se2 import between, wrap_angle
 from em_sam_node.offline import read_ground_truth, replay_bag
 from slam_core.datasets import data_root, dataset
 from slam_core.errors import DatasetError
+from slam_core.geometry.se2 import between, wrap_angle
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
 from slam_sim.core.mrclam import MrclamRun, parse_mrclam, robust_sigma, sighting_residuals

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -12,6 +11,7 @@ import pytest
 from rosbags.interfaces import QosDurability
 
 from slam_core.errors import BagError
+from slam_core.geometry.quaternion import yaw_from_quaternion
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
 from slam_sim.core.office import OfficeRun
@@ -46,7 +46,7 @@ def _stamp_ns(message: Any) -> int:
 
 def _yaw(message: Any) -> float:
     q = message.pose.pose.orientation
-    return 2.0 * math.atan2(q.z, q.w)
+    return yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
 def test_bag_holds_the_run(office_run: RunFactory, tmp_path: Path) -> None:

@@ -8,8 +8,9 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from slam_core.geometry.se2 import wrap_angle
 from slam_sim.core.detector import DetectorConfig, visible
-from slam_sim.core.geometry import crosses_any, distance_to_segments, wrap_angle
+from slam_sim.core.geometry import crosses_any, distance_to_segments
 from slam_sim.core.office import OfficeConfig, OfficeRun, simulate_office
 from slam_sim.core.world import CORRIDOR, OFFICE_1, OFFICE_2
 

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from slam_sim.core.geometry import wrap_angle
+from slam_core.geometry.se2 import wrap_angle
 from slam_sim.core.odometry import OdometryNoise, measured_increments, sample_indices
 from slam_sim.core.office import OfficeConfig, OfficeRun, simulate_office
 

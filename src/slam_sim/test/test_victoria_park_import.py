@@ -10,9 +10,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from em_sam_node.core.se2 import apply_increment, compose, wrap_angle
 from slam_core.datasets import data_root, dataset
 from slam_core.errors import BagError
+from slam_core.geometry.se2 import apply_increment, compose, wrap_angle
 from slam_core.testing.jacobians import numerical_jacobian
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
-from em_sam_node.core.se2 import range_bearing_to_point
+from slam_core.geometry.se2 import range_bearing_to_point
 
 
 @dataclass(frozen=True)

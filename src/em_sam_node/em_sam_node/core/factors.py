@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from em_sam_node.core.problem import Estimate, FloatArray, SlamProblem
-from em_sam_node.core.se2 import wrap_angle
+from slam_core.geometry.se2 import wrap_angle
 
 ODOMETRY_MODELS = ('differential_drive', 'se2_between')
 _SMALL_ANGLE_RAD = 1e-3

@@ -37,8 +37,8 @@ import numpy as np
 
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning
 from em_sam_node.core.problem import Estimate, FloatArray, SlamProblem
-from em_sam_node.core.se2 import apply_increment, range_bearing_to_point
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
+from slam_core.geometry.se2 import apply_increment, range_bearing_to_point
 
 Solver = Callable[[SlamProblem, Estimate], Estimate]
 MAX_MERGE_ROUNDS = 3

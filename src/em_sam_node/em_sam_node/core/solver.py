@@ -63,7 +63,7 @@ from em_sam_node.core.linear_system import (
 )
 from em_sam_node.core.problem import Estimate, FloatArray, SlamProblem, SolveResult
 from em_sam_node.core.robust_kernels import RobustKernel, kernel_loss, robust_row_scale
-from em_sam_node.core.se2 import wrap_angle
+from slam_core.geometry.se2 import wrap_angle
 
 Method = Literal['gauss_newton', 'levenberg_marquardt']
 

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from em_sam_node.core.problem import FloatArray, IntArray, SlamProblem
+from slam_core.geometry.se2 import between, increment_between
 
 # A weak anchor: effectively free in position and heading, but not singular.
 WEAK_PRIOR_SIGMA = np.array([1e3, 1e3, 1e2])
@@ -88,8 +89,6 @@ def with_weak_priors(
     """
     if len(pose_indices) == 0:
         return problem
-    from em_sam_node.core.se2 import between, increment_between
-
     anchor = problem.prior_pose_index
     count = len(pose_indices)
     anchor_means = np.repeat(problem.prior_mean[None, :], count, axis=0)

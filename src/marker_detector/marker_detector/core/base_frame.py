@@ -1,21 +1,20 @@
 """Marker detections as planar range-bearing observations in the robot base frame.
 
 Transforms are 4x4 homogeneous matrices T_a_b: the pose of frame b in frame a, mapping
-b-coordinates to a-coordinates, p_a = T_a_b p_b (the tf transform from parent a to child b).
-Rotations from roll, pitch, yaw follow URDF and tf: R = Rz(yaw) Ry(pitch) Rx(roll).
+b-coordinates to a-coordinates, p_a = T_a_b p_b (the tf transform from parent a to child b);
+``slam_core.geometry.se3`` builds them from xyz and roll, pitch, yaw.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from marker_detector.core.camera import FloatArray
 from marker_detector.core.detection import MarkerDetection
+from slam_core.arrays import FloatArray
 
 
 @dataclass(frozen=True, eq=False)
@@ -27,36 +26,6 @@ class RangeBearing:
     range_m: float
     bearing_rad: float
     covariance: FloatArray
-
-
-def optical_from_link() -> FloatArray:
-    """Return T_link_optical (4, 4): the camera_optical_frame in camera_link (REP 103).
-
-    The tf from parent camera_link to child camera_optical_frame: optical z (forward) =
-    link x, optical x (right) = -link y, optical y (down) = -link z. Chain it as
-    T_base_optical = T_base_link @ optical_from_link().
-    """
-    transform = np.eye(4)
-    transform[:3, :3] = [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]
-    return transform
-
-
-def transform_from_xyz_rpy(
-    xyz_m: Sequence[float] | ArrayLike, rpy_rad: Sequence[float] | ArrayLike
-) -> FloatArray:
-    """Return T_parent_child (4, 4) of a child at xyz (m) with roll, pitch, yaw (rad)."""
-    x, y, z = (float(v) for v in np.asarray(xyz_m, dtype=np.float64).reshape(3))
-    roll, pitch, yaw = (float(v) for v in np.asarray(rpy_rad, dtype=np.float64).reshape(3))
-    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    transform = np.eye(4)
-    transform[:3, :3] = [
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ]
-    transform[:3, 3] = (x, y, z)
-    return transform
 
 
 def to_range_bearing(detection: MarkerDetection, T_base_camera: ArrayLike) -> RangeBearing:  # noqa: N803

@@ -11,9 +11,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from marker_detector.core.camera import CameraModel, FloatArray
 from marker_detector.core.decoding import decode_quad, may_be_marker
 from marker_detector.core.edges import EdgeSettings, refine_corners_batch, side_lengths
+from slam_core.arrays import FloatArray
+from slam_core.camera import CameraModel
 
 if TYPE_CHECKING:
     from marker_detector.core.detection import DetectorConfig

@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from marker_detector.core.camera import FloatArray
 from marker_detector.core.edges import side_lengths
+from slam_core.arrays import FloatArray
 
 
 def read_cells(

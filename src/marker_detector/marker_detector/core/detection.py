@@ -27,7 +27,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from marker_detector.core.camera import CameraModel, FloatArray
 from marker_detector.core.candidates import DETECTOR_PROFILES, MarkerCorners, locate_markers
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES, get_dictionary
 from marker_detector.core.edges import side_lengths
@@ -37,6 +36,8 @@ from marker_detector.core.pose import (
     solve_marker_poses,
     viewing_angle_rad,
 )
+from slam_core.arrays import FloatArray
+from slam_core.camera import CameraModel
 
 CORNER_REFINEMENTS = {
     'subpix': 'CORNER_REFINE_SUBPIX',

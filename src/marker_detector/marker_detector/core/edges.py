@@ -30,7 +30,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from marker_detector.core.camera import CameraModel, FloatArray
+from slam_core.arrays import FloatArray
+from slam_core.camera import CameraModel
 
 BoolArray = NDArray[np.bool_]
 

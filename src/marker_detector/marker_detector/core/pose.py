@@ -17,11 +17,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from marker_detector.core.camera import CameraModel, FloatArray
+from slam_core.arrays import FloatArray
+from slam_core.camera import CameraModel
+from slam_core.geometry.so3 import rotation_from_vector, skew
 
 
 def marker_object_points(size_m: float) -> FloatArray:
@@ -294,32 +295,3 @@ def viewing_angle_rad(rotation: FloatArray, translation: FloatArray) -> float:
     towards_camera = -np.asarray(translation, dtype=np.float64)
     cosine = normal @ towards_camera / np.linalg.norm(towards_camera)
     return float(np.arccos(np.clip(cosine, -1.0, 1.0)))
-
-
-def skew(vectors: FloatArray) -> FloatArray:
-    """Return [v]x (..., 3, 3) of vectors (..., 3): [v]x w = v x w."""
-    v = np.asarray(vectors, dtype=np.float64)
-    out = np.zeros((*v.shape[:-1], 3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
-def rotation_from_vector(vectors: FloatArray) -> FloatArray:
-    """Return exp([v]x) (..., 3, 3): rotations by |v| rad about v (..., 3) (Rodrigues)."""
-    v = np.asarray(vectors, dtype=np.float64)
-    angle = np.linalg.norm(v, axis=-1)[..., None, None]
-    k = skew(v)
-    small = angle < 1e-8
-    safe = np.where(small, 1.0, angle)
-    first = np.where(small, 1.0, np.sin(safe) / safe)
-    second = np.where(small, 0.5, (1.0 - np.cos(safe)) / safe**2)
-    return np.asarray(np.eye(3) + first * k + second * (k @ k))
-
-
-def rotation_vector(rotation: FloatArray) -> FloatArray:
-    """Return the axis-angle vector (3,) rad of a rotation matrix (3, 3)."""
-    return np.asarray(
-        cv2.Rodrigues(np.asarray(rotation, dtype=np.float64))[0].reshape(3), dtype=np.float64
-    )

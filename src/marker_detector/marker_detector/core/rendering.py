@@ -2,9 +2,10 @@
 
 Each output pixel near a marker is supersampled: the ray through every sub-pixel centre
 (lens distortion undone exactly with the camera model) is intersected with the marker's plane
-and the printed marker is looked up there; the sub-pixels are averaged (area sampling). The
-corners of a marker therefore land where ``CameraModel.project`` puts them, to the accuracy
-of the supersampling, lens distortion included.
+and the printed marker is looked up there (``slam_core.render``, the simulators' renderer);
+the sub-pixels are averaged (area sampling). The corners of a marker therefore land where
+``CameraModel.project`` puts them, to the accuracy of the supersampling, lens distortion
+included.
 
 Markers are printed as cv2.aruco draws them (black border) on white paper with a quiet zone
 ``margin_cells`` cells wide. Poses are in the camera optical frame with the marker frame of
@@ -15,13 +16,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from marker_detector.core.camera import CameraModel, FloatArray
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, get_dictionary
 from marker_detector.core.pose import marker_object_points
+from slam_core.arrays import FloatArray
+from slam_core.camera import CameraModel
+from slam_core.render.patch import TexturedPatch, render_patch
+from slam_core.render.texture import marker_texture, with_alpha
 
 TEXTURE_PX_PER_CELL = 16
 
@@ -64,19 +67,22 @@ def render_markers(
 
 
 def _draw(image: FloatArray, camera: CameraModel, placement: MarkerPlacement, step: int) -> None:
-    dictionary = get_dictionary(placement.dictionary)
-    cells = dictionary.markerSize + 2
-    margin_px = round(placement.margin_cells * TEXTURE_PX_PER_CELL)
-    marker = cv2.aruco.generateImageMarker(
-        dictionary, placement.marker_id, cells * TEXTURE_PX_PER_CELL
+    cells = get_dictionary(placement.dictionary).markerSize + 2
+    texture = marker_texture(
+        placement.dictionary,
+        placement.marker_id,
+        texels_per_cell=TEXTURE_PX_PER_CELL,
+        quiet_zone_texels=round(placement.margin_cells * TEXTURE_PX_PER_CELL),
+        paper=placement.paper_gray,
     )
-    texture = cv2.copyMakeBorder(marker, *(margin_px,) * 4, cv2.BORDER_CONSTANT, value=255).astype(
-        np.float32
-    ) * np.float32(placement.paper_gray / 255.0)
-    half_paper_m = 0.5 * placement.size_m * texture.shape[0] / (cells * TEXTURE_PX_PER_CELL)
-    rotation = np.asarray(placement.rotation, dtype=np.float64)
-    translation = np.asarray(placement.translation_m, dtype=np.float64)
-    paper = marker_object_points(2.0 * half_paper_m) @ rotation.T + translation
+    paper_m = placement.size_m * texture.shape[0] / (cells * TEXTURE_PX_PER_CELL)
+    patch = TexturedPatch(
+        with_alpha(texture),
+        paper_m,
+        np.asarray(placement.translation_m, dtype=np.float64),
+        np.asarray(placement.rotation, dtype=np.float64),
+    )
+    paper = patch.corners()
     if np.any(paper[:, 2] <= 0):
         raise ValueError(f'marker {placement.marker_id} is not entirely in front of the camera')
     box = camera.project(paper)
@@ -89,25 +95,12 @@ def _draw(image: FloatArray, camera: CameraModel, placement: MarkerPlacement, st
     rows = y0 + (np.arange((y1 - y0 + 1) * step) + 0.5) / step - 0.5
     u, v = np.meshgrid(columns, rows)
     rays = camera.undistort_points(np.stack([u.ravel(), v.ravel()], axis=1), normalized=True)
-    rays = np.column_stack([rays, np.ones(len(rays))])
-    normal = rotation[:, 2]
-    with np.errstate(divide='ignore', invalid='ignore'):
-        depth = (normal @ translation) / (rays @ normal)
-    on_plane = (rays * depth[:, None] - translation) @ rotation  # marker-frame points
-    scale = texture.shape[0] / (2.0 * half_paper_m)
-    tex_u = ((on_plane[:, 0] + half_paper_m) * scale - 0.5).reshape(u.shape)
-    tex_v = ((half_paper_m - on_plane[:, 1]) * scale - 0.5).reshape(u.shape)
-    on_paper = (depth > 0) & np.all(np.abs(on_plane[:, :2]) <= half_paper_m, axis=1)
-    fine = cv2.remap(
-        texture,
-        tex_u.astype(np.float32),
-        tex_v.astype(np.float32),
-        cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_REPLICATE,
-    )
     crop = image[y0 : y1 + 1, x0 : x1 + 1]
-    behind = np.repeat(np.repeat(crop, step, axis=0), step, axis=1)
-    fine = np.where(on_paper.reshape(u.shape), fine, behind)
+    fine = np.repeat(np.repeat(crop, step, axis=0), step, axis=1)
+    depth = np.full(fine.shape, np.inf)
+    label = np.full(fine.shape, -1, dtype=np.int32)
+    render_patch(fine, depth, label, (rays[:, 0].reshape(u.shape), rays[:, 1].reshape(u.shape)),
+                 patch, 0)  # fmt: skip
     image[y0 : y1 + 1, x0 : x1 + 1] = fine.reshape(y1 - y0 + 1, step, x1 - x0 + 1, step).mean(
         axis=(1, 3)
     )

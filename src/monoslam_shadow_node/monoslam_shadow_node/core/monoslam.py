@@ -42,7 +42,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam_ekf import gated_update, predict, predicted_measurements
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
 from monoslam_shadow_node.core.monoslam_model import (
@@ -54,7 +53,6 @@ from monoslam_shadow_node.core.monoslam_model import (
     W_SLICE,
     FloatArray,
     linearity_index,
-    rotation,
 )
 from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
 from monoslam_shadow_node.core.monoslam_types import (
@@ -68,6 +66,8 @@ from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamInputError,
     MonoSlamResult,
 )
+from slam_core.camera import CameraModel
+from slam_core.geometry.quaternion import rotation_from_quaternion as rotation
 
 MAX_HANDOVER_AGE_FRAMES = 30
 """A handover whose feature is not observed within this many frames is dropped."""

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     Q_SLICE,
@@ -22,6 +21,7 @@ from monoslam_shadow_node.core.monoslam_model import (
 )
 from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
 from monoslam_shadow_node.core.monoslam_types import IntArray, MonoSlamConfig
+from slam_core.camera import CameraModel
 
 
 def predict(state: FilterState, dt_s: float, config: MonoSlamConfig) -> None:

@@ -15,18 +15,20 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     Q_SLICE,
     R_SLICE,
     FloatArray,
-    exp_quaternion,
     project_known_point,
+)
+from slam_core.camera import CameraModel
+from slam_core.geometry.quaternion import (
+    exp_quaternion,
     quaternion_from_rotation,
     quaternion_product,
     right_matrix,
-    rotation,
+    rotation_from_quaternion,
 )
 
 MIN_KNOWN_POINTS = 4
@@ -87,7 +89,7 @@ def camera_from_known_points(
     to_state[3:, 3:] = 0.5 * right_matrix(state[Q_SLICE])[:, 1:]
     covariance = to_state @ covariance_r_theta @ to_state.T
     return PoseFix(
-        rotation(state[Q_SLICE]),
+        rotation_from_quaternion(state[Q_SLICE]),
         state[R_SLICE].copy(),
         state[:7].copy(),
         0.5 * (covariance + covariance.T),

@@ -5,8 +5,9 @@ Camera state x_c (13,) = (r, q, v, w):
 
 - r (3,) m: the optical centre in the world (``map``) frame;
 - q (4,) = (qw, qx, qy, qz): the unit quaternion of R_world_camera (the optical frame: x
-  right, y down, z forward). ``rotation`` is the quadratic form of q, exactly a rotation for
-  |q| = 1; the filter renormalizes after every update;
+  right, y down, z forward). ``slam_core.geometry.quaternion.rotation_from_quaternion`` is
+  the quadratic form of q, exactly a rotation for |q| = 1; the filter renormalizes after
+  every update;
 - v (3,) m/s: linear velocity in the world frame; w (3,) rad/s: angular velocity in the camera
   frame.
 
@@ -51,8 +52,16 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from monoslam_shadow_node.core.camera import CameraModel
-from monoslam_shadow_node.core.projective import skew
+from slam_core.camera import CameraModel
+from slam_core.geometry.quaternion import (
+    exp_quaternion,
+    left_matrix,
+    quaternion_product,
+    right_matrix,
+    rotate_jacobian,
+    rotate_transposed_jacobian,
+    rotation_from_quaternion,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -60,120 +69,6 @@ CAMERA_SIZE = 13
 INVERSE_DEPTH_SIZE = 6
 EUCLIDEAN_SIZE = 3
 R_SLICE, Q_SLICE, V_SLICE, W_SLICE = slice(0, 3), slice(3, 7), slice(7, 10), slice(10, 13)
-
-
-# --- quaternions (w, x, y, z), Hamilton product ----------------------------------------------
-
-
-def quaternion_product(p: ArrayLike, q: ArrayLike) -> FloatArray:
-    """Return the Hamilton product p (x) q (4,) of quaternions (w, x, y, z)."""
-    pw, pv = float(np.asarray(p)[0]), np.asarray(p, dtype=np.float64)[1:]
-    qw, qv = float(np.asarray(q)[0]), np.asarray(q, dtype=np.float64)[1:]
-    return np.concatenate([[pw * qw - pv @ qv], pw * qv + qw * pv + np.cross(pv, qv)])
-
-
-def left_matrix(p: ArrayLike) -> FloatArray:
-    """Return L(p) (4, 4) with p (x) q = L(p) q."""
-    w, x, y, z = np.asarray(p, dtype=np.float64)
-    return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
-
-
-def right_matrix(q: ArrayLike) -> FloatArray:
-    """Return R(q) (4, 4) with p (x) q = R(q) p."""
-    w, x, y, z = np.asarray(q, dtype=np.float64)
-    return np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
-
-
-def conjugate(q: ArrayLike) -> FloatArray:
-    """Return the conjugate (4,) of a quaternion (w, x, y, z)."""
-    out = np.array(q, dtype=np.float64)
-    out[1:] *= -1.0
-    return out
-
-
-def rotation(q: ArrayLike) -> FloatArray:
-    """Return the quadratic-form matrix (3, 3) of q; R_world_camera when |q| = 1."""
-    w, x, y, z = np.asarray(q, dtype=np.float64)
-    return np.array(
-        [
-            [w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z],
-        ]
-    )
-
-
-def quaternion_from_rotation(matrix: ArrayLike) -> FloatArray:
-    """Return the unit quaternion (w, x, y, z) (4,) with qw >= 0 of a rotation matrix."""
-    m = np.asarray(matrix, dtype=np.float64)
-    trace = float(np.trace(m))
-    candidates = np.array([trace, m[0, 0], m[1, 1], m[2, 2]])
-    k = int(np.argmax(candidates))
-    if k == 0:
-        s = 2.0 * np.sqrt(1.0 + trace)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    else:
-        i, j, h = k - 1, k % 3, (k + 1) % 3
-        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[h, h])
-        q = [0.0, 0.0, 0.0, 0.0]
-        q[0] = (m[h, j] - m[j, h]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (m[j, i] + m[i, j]) / s
-        q[1 + h] = (m[h, i] + m[i, h]) / s
-    out = np.array(q, dtype=np.float64)
-    return out if out[0] >= 0.0 else -out
-
-
-def rotate_transposed_jacobian(q: ArrayLike, a: ArrayLike) -> FloatArray:
-    """Return d(rotation(q)^T a)/dq (3, 4) for a vector a (3,)."""
-    w, u = float(np.asarray(q)[0]), np.asarray(q, dtype=np.float64)[1:]
-    a = np.asarray(a, dtype=np.float64)
-    out = np.empty((3, 4))
-    out[:, 0] = 2.0 * w * a - 2.0 * np.cross(u, a)
-    out[:, 1:] = -2.0 * np.outer(a, u) + 2.0 * np.outer(u, a) + 2.0 * (u @ a) * np.eye(3)
-    out[:, 1:] += 2.0 * w * skew(a)
-    return out
-
-
-def rotate_jacobian(q: ArrayLike, a: ArrayLike) -> FloatArray:
-    """Return d(rotation(q) a)/dq (3, 4) for a vector a (3,)."""
-    conj = conjugate(q)
-    return np.asarray(rotate_transposed_jacobian(conj, a) * np.array([1.0, -1.0, -1.0, -1.0]))
-
-
-def exp_quaternion(rotation_vector: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """Return the unit quaternion (4,) of a rotation vector (3,) rad and its Jacobian (4, 3)."""
-    vector = np.asarray(rotation_vector, dtype=np.float64)
-    angle = float(np.linalg.norm(vector))
-    half = 0.5 * angle
-    if angle < 1e-8:  # second-order series: sin(h)/angle ~ 1/2 - angle^2/48
-        quaternion = np.concatenate([[1.0 - angle * angle / 8.0], 0.5 * vector])
-        jacobian = np.vstack([-0.25 * vector, 0.5 * np.eye(3)])
-        return quaternion, jacobian
-    sinc = float(np.sin(half)) / angle  # sin(angle/2) / angle
-    axis = vector / angle
-    quaternion = np.concatenate([[np.cos(half)], sinc * vector])
-    d_sinc = (0.5 * np.cos(half) * angle - np.sin(half)) / (angle * angle)  # d(sinc)/d(angle)
-    jacobian = np.vstack(
-        [-0.5 * np.sin(half) * axis, sinc * np.eye(3) + d_sinc * np.outer(vector, axis)]
-    )
-    return quaternion, jacobian
-
-
-def log_rotation(matrix: ArrayLike) -> FloatArray:
-    """Return the rotation vector (3,) rad of a rotation matrix (angle in [0, pi])."""
-    q = quaternion_from_rotation(matrix)
-    vector_norm = float(np.linalg.norm(q[1:]))
-    if vector_norm < 1e-12:
-        return np.zeros(3)
-    angle = 2.0 * np.arctan2(vector_norm, q[0])
-    return np.asarray(q[1:] / vector_norm * angle, dtype=np.float64)
-
-
-def world_angle_jacobian(q: ArrayLike) -> FloatArray:
-    """Return d(theta)/dq (3, 4) at q: theta the small rotation about the world axes with
-    R = exp([theta]x) R(q_hat), i.e. theta = 2 vec(q (x) conj(q_hat)) to first order."""
-    return 2.0 * right_matrix(conjugate(q))[1:, :]
 
 
 # --- motion model ------------------------------------------------------------------------------
@@ -264,7 +159,7 @@ def project_feature(
     d(pixel)/d(feature) (2, n) and the depth sign check value h_c[2] (> 0: in front)."""
     r, q = camera[R_SLICE], camera[Q_SLICE]
     direction, d_feature, d_centre = feature_direction(len(feature), feature, reference, r)
-    rot_t = rotation(q).T
+    rot_t = rotation_from_quaternion(q).T
     h_c = rot_t @ direction
     if h_c[2] <= 0.0:
         return np.full(2, np.nan), np.zeros((2, CAMERA_SIZE)), np.zeros((2, len(feature))), h_c[2]
@@ -301,15 +196,15 @@ def new_inverse_depth_feature(
     _, d_lens = camera_model.project_with_jacobian(h_c[None])
     d_hc_pixel = np.zeros((3, 2))
     d_hc_pixel[:2, :] = np.linalg.inv(d_lens[0][:, :2])
-    reference = rotation(q / np.linalg.norm(q))
-    world_ray = rotation(q) @ h_c
+    reference = rotation_from_quaternion(q / np.linalg.norm(q))
+    world_ray = rotation_from_quaternion(q) @ h_c
     angles, d_angles = angles_from_ray(reference, world_ray)
     feature = np.concatenate([r, angles, [rho]])
     d_camera = np.zeros((INVERSE_DEPTH_SIZE, CAMERA_SIZE))
     d_camera[:3, R_SLICE] = np.eye(3)
     d_camera[3:5, Q_SLICE] = d_angles @ rotate_jacobian(q, h_c)
     d_pixel = np.zeros((INVERSE_DEPTH_SIZE, 2))
-    d_pixel[3:5] = d_angles @ rotation(q) @ d_hc_pixel
+    d_pixel[3:5] = d_angles @ rotation_from_quaternion(q) @ d_hc_pixel
     return feature, reference, d_camera, d_pixel
 
 

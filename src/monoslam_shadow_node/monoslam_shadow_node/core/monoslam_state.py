@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from monoslam_shadow_node.core.camera import CameraModel
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     EUCLIDEAN_SIZE,
@@ -26,9 +25,10 @@ from monoslam_shadow_node.core.monoslam_model import (
     euclidean_point,
     new_inverse_depth_feature,
     ray_from_angles,
-    world_angle_jacobian,
 )
 from monoslam_shadow_node.core.monoslam_types import MapPoint
+from slam_core.camera import CameraModel
+from slam_core.geometry.quaternion import world_angle_jacobian
 
 FAR_M = 1000.0
 """Where along its ray an inverse-depth feature with rho <= 0 is reported (m)."""

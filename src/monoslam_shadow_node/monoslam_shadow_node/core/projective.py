@@ -35,6 +35,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
 
+from slam_core.geometry.so3 import skew
+
 FloatArray = NDArray[np.float64]
 
 RANK_TOLERANCE = 1e-12
@@ -42,12 +44,6 @@ RANK_TOLERANCE = 1e-12
 
 _DUAL = np.block([[np.zeros((3, 3)), np.eye(3)], [np.eye(3), np.zeros((3, 3))]])
 """Dual(L) = _DUAL @ L swaps direction and moment: L1 . Dual(L2) = Lh1 . L02 + L01 . Lh2."""
-
-
-def skew(v: ArrayLike) -> FloatArray:
-    """Return [v]x (3, 3): [v]x w = v x w."""
-    x, y, z = np.asarray(v, dtype=np.float64)
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def pi_matrix(point: ArrayLike) -> FloatArray:

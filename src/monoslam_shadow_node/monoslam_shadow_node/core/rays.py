@@ -44,8 +44,8 @@ from monoslam_shadow_node.core.projective import (
     o_matrix,
     pseudo_inverse_at_rank,
     relation_test,
-    skew,
 )
+from slam_core.geometry.so3 import skew
 
 THREE_RAY_DOF = 3
 

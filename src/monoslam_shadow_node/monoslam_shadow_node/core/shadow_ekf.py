@@ -47,8 +47,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.camera import CameraModel, homogeneous_projection
 from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
+from slam_core.camera import CameraModel
+from slam_core.geometry.so3 import skew
 
 BoolArray = NDArray[np.bool_]
 STATE_SIZE = 7
@@ -155,20 +156,12 @@ def _camera_motion_noise(states: FloatArray, config: EkfConfig) -> FloatArray:
     jac_t = np.zeros((count, STATE_SIZE, 3))
     jac_t[:, :3, :] = states[:, 3, None, None] * np.eye(3)
     jac_r = np.zeros((count, STATE_SIZE, 3))
-    jac_r[:, :3, :] = -_skew_rows(states[:, :3])
-    jac_r[:, 4:, :] = -_skew_rows(states[:, 4:])
+    jac_r[:, :3, :] = -skew(states[:, :3])
+    jac_r[:, 4:, :] = -skew(states[:, 4:])
     return np.asarray(
         config.camera_translation_sigma_m**2 * jac_t @ np.swapaxes(jac_t, 1, 2)
         + config.camera_rotation_sigma_rad**2 * jac_r @ np.swapaxes(jac_r, 1, 2)
     )
-
-
-def _skew_rows(v: FloatArray) -> FloatArray:
-    out = np.zeros((len(v), 3, 3))
-    out[:, 0, 1], out[:, 0, 2] = -v[:, 2], v[:, 1]
-    out[:, 1, 0], out[:, 1, 2] = v[:, 2], -v[:, 0]
-    out[:, 2, 0], out[:, 2, 1] = -v[:, 1], v[:, 0]
-    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -202,7 +195,7 @@ def update(
     if len(index) == 0:
         return UpdateResult(new_states, new_covariances, innovation, nis, used)
     x, p = states[index], covariances[index]
-    predicted, jac = homogeneous_projection(camera, x[:, :4])
+    predicted, jac = camera.homogeneous_projection(x[:, :4])
     h = np.zeros((len(index), 2, STATE_SIZE))
     h[:, :, :4] = jac
     residual = pixels[index] - predicted

@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.camera import CameraModel, pixel_rays
 from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.core.rays import THREE_RAY_DOF, View, pixel_ray_directions, ray_angle
 from monoslam_shadow_node.core.shadow_classifier import (
@@ -47,6 +46,7 @@ from monoslam_shadow_node.core.shadow_ekf import (
     world_estimates,
 )
 from monoslam_shadow_node.core.shadow_track import PENDING, STATIC, Track
+from slam_core.camera import CameraModel
 
 RESTART_AFTER_GATED = 3
 """A feature whose measurements fall outside the innovation gate this many frames in a row
@@ -299,7 +299,7 @@ class ShadowFilter:
         of each direction's covariance (rank 2, pixel noise only)."""
         if not len(pixels):
             return [], np.zeros((0, 3, 3))
-        rays, jacobians = pixel_rays(self.camera, pixels)
+        rays, jacobians = self.camera.pixel_rays(pixels)
         directions, covariances = pixel_ray_directions(
             rays, jacobians, frame.rotation, self.config.ekf.pixel_sigma_px
         )

@@ -33,6 +33,7 @@ import numpy as np
 
 from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile
 from monoslam_shadow_node.core.rays import View
+from slam_core.geometry.so3 import skew
 
 MOTION_DOF = 3
 _CONDITION_LIMIT = 1e12
@@ -70,15 +71,6 @@ def _bases(directions: FloatArray) -> FloatArray:
     return np.stack([first, np.cross(directions, first)], axis=2)
 
 
-def _skews(vectors: FloatArray) -> FloatArray:
-    """Return [v]x (N, 3, 3) of vectors (N, 3)."""
-    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
-    zero = np.zeros_like(x)
-    return np.stack(
-        [np.stack([zero, -z, y], 1), np.stack([z, zero, -x], 1), np.stack([-y, x, zero], 1)], 1
-    )
-
-
 def _geometry(views: list[View], basis: FloatArray, point: FloatArray) -> _Geometry | None:
     """Residuals and weights of all views at ``point``; None if it is behind a camera."""
     centres = np.array([view.centre for view in views])
@@ -97,7 +89,7 @@ def _geometry(views: list[View], basis: FloatArray, point: FloatArray) -> _Geome
             [v.pose_covariance for v in views if v.pose_covariance is not None]
         )
         pose_jacobian = (
-            np.concatenate([-across[posed], across[posed] @ _skews(offset[posed])], axis=2)
+            np.concatenate([-across[posed], across[posed] @ skew(offset[posed])], axis=2)
             / depth[posed, None, None]
         )
         covariance[posed] += pose_jacobian @ pose_covariances @ np.swapaxes(pose_jacobian, 1, 2)

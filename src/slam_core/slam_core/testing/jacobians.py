@@ -34,9 +34,10 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-FloatArray = NDArray[np.float64]
+from slam_core.arrays import FloatArray
+from slam_core.geometry.se2 import wrap_angle
 
 
 def numerical_jacobian(
@@ -63,7 +64,7 @@ def numerical_jacobian(
         difference = _as_output(f(plus), batched) - _as_output(f(minus), batched)
         if wrap is not None:
             angles = list(wrap)
-            difference[..., angles] = _wrap(difference[..., angles])
+            difference[..., angles] = wrap_angle(difference[..., angles])
         columns.append(difference / (2.0 * eps))
     return np.stack(columns, axis=-1)
 
@@ -107,9 +108,3 @@ def _as_output(value: ArrayLike, batched: bool) -> FloatArray:
     else:
         out = out.reshape(-1)
     return out
-
-
-def _wrap(angle_rad: FloatArray) -> FloatArray:
-    # Local copy of the wrap to (-pi, pi]: slam_bringup sits below the algorithm packages.
-    wrapped = np.pi - np.mod(np.pi - angle_rad, 2.0 * np.pi)
-    return np.where(wrapped <= -np.pi, wrapped + 2.0 * np.pi, wrapped)

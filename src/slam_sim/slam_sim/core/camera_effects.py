@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from slam_sim.core.camera import Float32Array, PinholeCamera
-from slam_sim.core.geometry import FloatArray
+from slam_core.arrays import Float32Array, FloatArray
+from slam_core.camera import CameraModel
 
 _PHASE_KEY = 2**32 - 1  # spawn key of the lighting drift phases (frames use their index)
 
@@ -60,7 +60,7 @@ class CameraEffects:
     """``ImageEffects`` of one run: frame f draws from ``seed`` spawned at key (f,)."""
 
     effects: ImageEffects
-    camera: PinholeCamera
+    camera: CameraModel
     seed: np.random.SeedSequence
     phases_rad: FloatArray = field(init=False)
 
@@ -113,7 +113,7 @@ def _box_kernel(length_px: float) -> Float32Array:
 
 
 @cache
-def _vignette(camera: PinholeCamera, strength: float) -> Float32Array:
+def _vignette(camera: CameraModel, strength: float) -> Float32Array:
     """Relative brightness (H, W): 1 at the principal point, 1 - strength at the far corner."""
     v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
     r2 = ((u - camera.cx) / camera.fx) ** 2 + ((v - camera.cy) / camera.fy) ** 2

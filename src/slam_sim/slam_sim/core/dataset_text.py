@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.errors import DatasetError
-from slam_sim.core.geometry import FloatArray, IntArray
 
 
 def line_error(path: Path, line_no: int, message: str) -> DatasetError:

@@ -21,7 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slam_sim.core.geometry import BoolArray, FloatArray, IntArray, crosses_any, wrap_angle
+from slam_core.arrays import BoolArray, FloatArray, IntArray
+from slam_core.geometry.se2 import wrap_angle
+from slam_sim.core.geometry import crosses_any
 
 # The line of sight ends this far in front of a marker, so its own wall does not block it.
 _SURFACE_OFFSET_M = 0.01

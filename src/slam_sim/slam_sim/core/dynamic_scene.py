@@ -40,468 +40,27 @@ last while a point stays observed in consecutive frames and are never reused.
 
 Randomness: ``SeedSequence(seed).spawn(5)`` gives the streams of the room and static points,
 the camera path, the objects, the pixel noise and the track drops, in that order.
+
+Modules: ``dynamic_config`` (the settings), ``dynamic_room`` (room and static points),
+``camera_path`` (the camera), ``object_motion`` (the objects); this one builds the scene and
+simulates its features.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from slam_sim.core.geometry import BoolArray, FloatArray, IntArray
+from slam_core.arrays import BoolArray, FloatArray, IntArray
+from slam_core.camera import CameraModel
+from slam_sim.core.camera_path import CameraPath, sample_camera_path
+from slam_sim.core.dynamic_config import MIN_DEPTH_M, DynamicSceneConfig
+from slam_sim.core.dynamic_room import RoomLayout, sample_room, sample_static_points
+from slam_sim.core.object_motion import ObjectMotion, sample_motion
 
 DEFAULT_START_NS = 1_700_000_000 * 10**9
-MOTION_KINDS = ('constant_velocity', 'turning', 'stop_and_go', 'model')
-ROOM_SIZE_M = (10.0, 8.0, 3.0)
-OBJECT_SPACE_M = ((4.8, 9.2), (1.2, 6.8), (0.5, 1.9))  # (min, max) per axis, object centres
-MIN_DEPTH_M = 0.2
-FOCAL_RANGE_PX = (150.0, 500.0)
-_CAMERA_CENTER_M = (2.0, 4.0, 1.5)
-_LOOK_CENTER_M = (8.0, 4.0, 1.1)
-# Static point fractions: far wall, two side walls, floor, ceiling; the rest on cabinets.
-_SURFACE_FRACTIONS = (0.30, 0.12, 0.12, 0.14, 0.06)
-_CABINETS = 5
 _LENS_MARGIN = 0.95  # observed only inside this fraction of the radial model's fold radius
-
-
-def _check(name: str, ok: bool, value: object, allowed: str) -> None:
-    """Raise ValueError naming ``name`` unless ``ok``; ``allowed`` is an interval or a rule."""
-    if not ok:
-        verb = 'must be in' if allowed[:1] in '[(' else 'must be'
-        raise ValueError(f'{name} = {value!r} {verb} {allowed}')
-
-
-@dataclass(frozen=True)
-class SceneCameraInfo:
-    """sensor_msgs/CameraInfo content: K (9,), D (5,), R (9,), P (12,), row-major, px."""
-
-    width: int
-    height: int
-    distortion_model: str
-    d: FloatArray
-    k: FloatArray
-    r: FloatArray
-    p: FloatArray
-
-
-@dataclass(frozen=True)
-class SceneCamera:
-    """A pinhole camera (px) with radial distortion k1, k2 (plumb_bob, p1 = p2 = k3 = 0)."""
-
-    width: int = 640
-    height: int = 480
-    fx: float = 300.0
-    fy: float = 300.0
-    cx: float = 320.7
-    cy: float = 238.9
-    k1: float = -0.05
-    k2: float = 0.0
-
-    def __post_init__(self) -> None:
-        """Reject sizes, focal lengths and principal points that cannot make an image."""
-        _check('width', 16 <= self.width <= 8192, self.width, '[16, 8192] px')
-        _check('height', 16 <= self.height <= 8192, self.height, '[16, 8192] px')
-        _check('fx', self.fx > 0.0, self.fx, '> 0 px')
-        _check('fy', self.fy > 0.0, self.fy, '> 0 px')
-        _check('cx', 0.0 < self.cx < self.width - 1, self.cx, f'(0, {self.width - 1}) px')
-        _check('cy', 0.0 < self.cy < self.height - 1, self.cy, f'(0, {self.height - 1}) px')
-
-    @property
-    def matrix(self) -> FloatArray:
-        """The intrinsic matrix K (3, 3), px."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    def fold_radius(self) -> float:
-        """Return the undistorted radius (x/z units) where r (1 + k1 r^2 + k2 r^4) stops rising."""
-        roots = np.roots([5.0 * self.k2, 3.0 * self.k1, 1.0])  # in r^2; empty if k1 = k2 = 0
-        positive = [float(s.real) for s in roots if abs(s.imag) < 1e-12 and s.real > 0.0]
-        return math.sqrt(min(positive)) if positive else math.inf
-
-    def project(self, points_camera: FloatArray) -> FloatArray:
-        """Return raw (distorted) pixels (N, 2) of points (N, 3) in the optical frame, z > 0."""
-        points = np.asarray(points_camera, dtype=np.float64).reshape(-1, 3)
-        normalized = points[:, :2] / points[:, 2:3]
-        r2 = np.sum(normalized**2, axis=1, keepdims=True)
-        distorted = normalized * (1.0 + r2 * (self.k1 + r2 * self.k2))
-        return np.asarray(distorted * [self.fx, self.fy] + [self.cx, self.cy], dtype=np.float64)
-
-    def camera_info(self) -> SceneCameraInfo:
-        """Return the CameraInfo fields; D = (k1, k2, 0, 0, 0), P = [K | 0]."""
-        return SceneCameraInfo(
-            width=self.width,
-            height=self.height,
-            distortion_model='plumb_bob',
-            d=np.array([self.k1, self.k2, 0.0, 0.0, 0.0]),
-            k=self.matrix.reshape(9),
-            r=np.eye(3).reshape(9),
-            p=np.hstack([self.matrix, np.zeros((3, 1))]).reshape(12),
-        )
-
-
-@dataclass(frozen=True)
-class DynamicSceneConfig:
-    """Run length, camera, noise, scene sizes and object motion parameters (module doc)."""
-
-    duration_s: float = 20.0
-    rate_hz: float = 30.0
-    focal_px: float = 300.0
-    pixel_noise_px: float = 1.0
-    static_points: int = 200
-    objects: int = 4
-    points_per_object: int = 6
-    object_radius_m: float = 0.3
-    motions: tuple[str, ...] = ('constant_velocity', 'turning', 'stop_and_go', 'constant_velocity')
-    object_speed_m_s: tuple[float, float] = (0.3, 1.0)
-    turn_rate_radps: tuple[float, float] = (0.3, 1.0)
-    stop_duration_s: tuple[float, float] = (0.3, 0.8)
-    go_duration_s: tuple[float, float] = (1.0, 3.0)
-    hand_motion_m: float = 0.1
-    velocity_prior_sigma_m_s: float = 0.5
-    acceleration_psd: float = 0.05  # q, m^2/s^3
-    max_range_m: float = 15.0
-    image_margin_px: float = 2.0
-    track_drop_probability: float = 0.0
-
-    def __post_init__(self) -> None:
-        """Reject values the simulation cannot honour; the message names the field."""
-        low, high = FOCAL_RANGE_PX
-        _check('focal_px', low <= self.focal_px <= high, self.focal_px, f'[{low:g}, {high:g}] px')
-        _check('duration_s', 0.0 < self.duration_s <= 3600.0, self.duration_s, '(0, 3600] s')
-        _check('rate_hz', 0.0 < self.rate_hz <= 1000.0, self.rate_hz, '(0, 1000] Hz')
-        _check('duration_s', self.frame_count >= 3, self.duration_s, '>= 3 frames long')
-        _check('pixel_noise_px', 0.0 <= self.pixel_noise_px <= 50.0, self.pixel_noise_px,
-               '[0, 50] px')  # fmt: skip
-        for name, least in (('static_points', 0), ('objects', 0), ('points_per_object', 1)):
-            value = getattr(self, name)
-            _check(name, isinstance(value, int) and value >= least, value, f'an int >= {least}')
-        _check('object_radius_m', 0.0 <= self.object_radius_m <= 1.0, self.object_radius_m,
-               '[0, 1] m')  # fmt: skip
-        _check('motions', len(self.motions) > 0, self.motions, 'at least one motion kind')
-        for kind in self.motions:
-            _check('motions', kind in MOTION_KINDS, kind, f'one of {", ".join(MOTION_KINDS)}')
-        for name in ('object_speed_m_s', 'turn_rate_radps', 'stop_duration_s', 'go_duration_s'):
-            pair = getattr(self, name)
-            _check(
-                name, len(pair) == 2 and 0.0 < pair[0] <= pair[1], pair, 'a pair 0 < min <= max'
-            )
-        _check('hand_motion_m', 0.0 <= self.hand_motion_m <= 0.5, self.hand_motion_m,
-               '[0, 0.5] m')  # fmt: skip
-        for name in ('velocity_prior_sigma_m_s', 'acceleration_psd'):
-            _check(name, getattr(self, name) >= 0.0, getattr(self, name), '>= 0')
-        _check('max_range_m', self.max_range_m > MIN_DEPTH_M, self.max_range_m, '> 0.2 m')
-        _check('image_margin_px', 0.0 <= self.image_margin_px <= 100.0, self.image_margin_px,
-               '[0, 100] px')  # fmt: skip
-        drop = self.track_drop_probability
-        _check('track_drop_probability', 0.0 <= drop < 1.0, drop, '[0, 1)')
-
-    @property
-    def frame_count(self) -> int:
-        """Number of frames K, at run times k / rate_hz s, k = 0 .. K-1."""
-        return round(self.duration_s * self.rate_hz)
-
-    def camera(self) -> SceneCamera:
-        """Return the 640 x 480 camera with fx = fy = focal_px."""
-        return SceneCamera(fx=self.focal_px, fy=self.focal_px)
-
-
-@dataclass(frozen=True)
-class Sinusoids:
-    """value(t) = sum_i amplitudes[i] sin(2 pi frequencies_hz[i] t + phases_rad[i]), (K, 3)."""
-
-    amplitudes: FloatArray  # (S, 3)
-    frequencies_hz: FloatArray  # (S,)
-    phases_rad: FloatArray  # (S,)
-
-    def value_at(self, times_s: FloatArray) -> FloatArray:
-        """Return the sum (K, 3) at times (K,) s."""
-        angle = 2.0 * np.pi * np.outer(times_s, self.frequencies_hz) + self.phases_rad
-        return np.asarray(np.sin(angle) @ self.amplitudes, dtype=np.float64)
-
-    def rate_at(self, times_s: FloatArray) -> FloatArray:
-        """Return the time derivative (K, 3) per s at times (K,) s."""
-        omega = 2.0 * np.pi * self.frequencies_hz
-        angle = np.outer(times_s, omega) + self.phases_rad
-        return np.asarray((np.cos(angle) * omega) @ self.amplitudes, dtype=np.float64)
-
-
-def _rodrigues(vectors: FloatArray) -> FloatArray:
-    """Return rotation matrices (K, 3, 3) of rotation vectors (K, 3) rad."""
-    theta = np.linalg.norm(vectors, axis=1)[:, None, None]
-    skew = np.zeros((len(vectors), 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -vectors[:, 2], vectors[:, 1], -vectors[:, 0]
-    skew -= skew.transpose(0, 2, 1)
-    a, b = np.sinc(theta / np.pi), 0.5 * np.sinc(theta / (2.0 * np.pi)) ** 2
-    return np.asarray(np.eye(3) + a * skew + b * (skew @ skew), dtype=np.float64)
-
-
-@dataclass(frozen=True)
-class CameraPath:
-    """Hand-held camera: optical centre = center_m + sway, looking at look_m + look_sway,
-    level (x axis horizontal) up to a small shake rotation (rotation vector in the optical
-    frame, rad); all in ``map``, m."""
-
-    center_m: FloatArray
-    sway_m: Sinusoids
-    look_m: FloatArray
-    look_sway_m: Sinusoids
-    shake_rad: Sinusoids
-
-    def positions_at(self, times_s: FloatArray) -> FloatArray:
-        """Return optical-centre positions (K, 3) m in map at run times (K,) s."""
-        return np.asarray(self.center_m + self.sway_m.value_at(times_s), dtype=np.float64)
-
-    def velocities_at(self, times_s: FloatArray) -> FloatArray:
-        """Return optical-centre velocities (K, 3) m/s in map at run times (K,) s."""
-        return self.sway_m.rate_at(times_s)
-
-    def rotations_at(self, times_s: FloatArray) -> FloatArray:
-        """Return R_world_camera (K, 3, 3): columns are the optical x, y, z axes in map."""
-        target = self.look_m + self.look_sway_m.value_at(times_s)
-        forward = target - self.positions_at(times_s)
-        forward /= np.linalg.norm(forward, axis=1, keepdims=True)
-        right = np.cross(forward, [0.0, 0.0, 1.0])
-        right /= np.linalg.norm(right, axis=1, keepdims=True)
-        level = np.stack([right, np.cross(forward, right), forward], axis=2)
-        return np.asarray(level @ _rodrigues(self.shake_rad.value_at(times_s)), np.float64)
-
-
-def sample_camera_path(rng: np.random.Generator, hand_motion_m: float = 0.0) -> CameraPath:
-    """Return a random hand-held path: an elliptic loop (x 0.7-1 m, y 1.3-1.7 m radii, 12-18 s
-    period) with slow drift and a walking bob, panning over the room, shaking 0.1-0.35 deg,
-    plus the hand's own sweep: ``hand_motion_m`` amplitude along each map axis at 0.4-0.9 Hz
-    (0.1 m gives up to ~1.7 m/s^2, the acceleration a person waving a camera reaches).
-
-    The sweep is drawn last from ``rng``, so the rest of the path does not depend on it.
-    """
-    period_s, phase = rng.uniform(12.0, 18.0), rng.uniform(0.0, 2.0 * np.pi)
-    radius_x, radius_y = rng.uniform(0.7, 1.0), rng.choice([-1.0, 1.0]) * rng.uniform(1.3, 1.7)
-    drift_heading = rng.uniform(0.0, 2.0 * np.pi)
-    drift = 0.15 * np.array([math.cos(drift_heading), math.sin(drift_heading), 0.0])
-    sway = Sinusoids(
-        np.array([[radius_x, 0, 0], [0, radius_y, 0], drift, [0, 0, 0.12], [0, 0, 0.02]]),
-        np.array([1 / period_s, 1 / period_s, *rng.uniform([0.1, 0.08, 1.6], [0.15, 0.12, 2.0])]),
-        np.array([phase + np.pi / 2, phase, *rng.uniform(0.0, 2 * np.pi, 3)]),
-    )
-    look_sway = Sinusoids(
-        np.diag([0.8, 1.6, 0.4]),
-        rng.uniform([0.04, 0.05, 0.06], [0.08, 0.09, 0.11]),
-        rng.uniform(0.0, 2 * np.pi, 3),
-    )
-    shake_axes = np.vstack([np.eye(3), np.eye(3), [[0.0, 0.0, 1.0]]])
-    shake = Sinusoids(
-        shake_axes * np.append(rng.uniform(0.002, 0.006, 6), 0.03)[:, None],  # last: slow roll
-        np.append(rng.uniform(2.0, 6.0, 6), rng.uniform(0.08, 0.12)),
-        rng.uniform(0.0, 2 * np.pi, 7),
-    )
-    hand_hz, hand_phase = rng.uniform(0.4, 0.9, 3), rng.uniform(0.0, 2 * np.pi, 3)
-    if hand_motion_m > 0.0:
-        sway = Sinusoids(
-            np.vstack([sway.amplitudes, hand_motion_m * np.eye(3)]),
-            np.append(sway.frequencies_hz, hand_hz),
-            np.append(sway.phases_rad, hand_phase),
-        )
-    return CameraPath(np.array(_CAMERA_CENTER_M), sway, np.array(_LOOK_CENTER_M), look_sway, shake)
-
-
-@dataclass(frozen=True)
-class RoomLayout:
-    """The room [0, size_m] in map (m), cabinets as boxes (B, 3) min/max corners, and the
-    free space of object centres (min, max corners)."""
-
-    size_m: FloatArray
-    cabinets_min_m: FloatArray
-    cabinets_max_m: FloatArray
-    object_space_min_m: FloatArray
-    object_space_max_m: FloatArray
-
-
-def sample_room(rng: np.random.Generator) -> RoomLayout:
-    """Return the 10 x 8 x 3 m room with cabinets (0.4-0.8 deep) along the side and far walls."""
-    size = np.array(ROOM_SIZE_M)
-    lows, highs = [], []
-    for _ in range(_CABINETS):
-        width, depth, height = rng.uniform([0.6, 0.4, 0.6], [1.4, 0.8, 1.8])
-        wall = int(rng.integers(3))  # 0: y = 0, 1: y = size, 2: far wall x = size
-        along = rng.uniform(3.0, size[0] - width) if wall < 2 else rng.uniform(0.5, 7.5 - width)
-        if wall < 2:
-            y0 = 0.0 if wall == 0 else size[1] - depth
-            low, extent = [along, y0, 0.0], [width, depth, height]
-        else:
-            low, extent = [size[0] - depth, along, 0.0], [depth, width, height]
-        lows.append(low)
-        highs.append(np.add(low, extent))
-    space = np.array(OBJECT_SPACE_M)
-    return RoomLayout(size, np.array(lows), np.array(highs), space[:, 0], space[:, 1])
-
-
-def _points_on_boxes(
-    rng: np.random.Generator, lows: FloatArray, highs: FloatArray, n: int
-) -> FloatArray:
-    """Return n points uniform on the side and top faces of boxes (B, 3), area-weighted."""
-    extent = highs - lows
-    faces = [(b, axis, side) for b in range(len(lows)) for axis in range(3) for side in (0, 1)]
-    faces = [f for f in faces if not (f[1] == 2 and f[2] == 0)]  # no bottom faces
-    areas = np.array([np.prod(np.delete(extent[b], axis)) for b, axis, _ in faces])
-    chosen = rng.choice(len(faces), size=n, p=areas / areas.sum())
-    boxes = [faces[c][0] for c in chosen]
-    points = lows[boxes] + rng.random((n, 3)) * extent[boxes]
-    for row, c in enumerate(chosen):
-        b, axis, side = faces[c]
-        points[row, axis] = highs[b, axis] if side else lows[b, axis]
-    return np.asarray(points, dtype=np.float64)
-
-
-def sample_static_points(rng: np.random.Generator, room: RoomLayout, n: int) -> FloatArray:
-    """Return n static points (n, 3) m in map on the far wall, side walls, floor, ceiling and
-    cabinets (in that order)."""
-    sx, sy, sz = room.size_m
-    counts = [int(f * n) for f in _SURFACE_FRACTIONS]
-    fixed = ((0, sx), (1, 0.0), (1, sy), (2, 0.0), (2, sz))
-    parts = []
-    for count, (axis, value) in zip(counts, fixed, strict=True):
-        points = rng.random((count, 3)) * room.size_m
-        points[:, axis] = value
-        parts.append(points)
-    parts.append(_points_on_boxes(rng, room.cabinets_min_m, room.cabinets_max_m, n - sum(counts)))
-    return np.vstack(parts)
-
-
-@dataclass(frozen=True)
-class ObjectMotion:
-    """An object centre's motion as segments: segment s starts at ``start_s[s]`` (run s) at
-    ``start_m[s]`` (3,) m with velocity ``velocity_m_s[s]`` (3,) m/s whose horizontal part
-    turns at ``turn_rate_radps[s]``. A time on a boundary belongs to the earlier segment, so
-    velocities there are left limits; times before the first start extrapolate it. The
-    object exists (can be observed) from ``appears_s`` on."""
-
-    kind: str
-    start_s: FloatArray
-    start_m: FloatArray
-    velocity_m_s: FloatArray
-    turn_rate_radps: FloatArray
-    appears_s: float = -math.inf  # not observed before this run time (s)
-
-    def states_at(self, times_s: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Return centre positions (K, 3) m and velocities (K, 3) m/s at run times (K,) s."""
-        segment = np.maximum(np.searchsorted(self.start_s, times_s, side='left') - 1, 0)
-        tau = np.asarray(times_s - self.start_s[segment])
-        angle = self.turn_rate_radps[segment] * tau
-        velocity = self.velocity_m_s[segment]
-        cos_a, sin_a = np.cos(angle), np.sin(angle)
-        along = tau * np.sinc(angle / np.pi)  # sin(a) / w
-        across = tau * np.sin(angle / 2.0) * np.sinc(angle / (2.0 * np.pi))  # (1 - cos a) / w
-        vx, vy, vz = velocity.T
-        offset = np.stack([along * vx - across * vy, across * vx + along * vy, tau * vz], axis=1)
-        turned = np.stack([cos_a * vx - sin_a * vy, sin_a * vx + cos_a * vy, vz], axis=1)
-        return self.start_m[segment] + offset, np.asarray(turned, dtype=np.float64)
-
-
-def _motion(
-    kind: str,
-    starts: list[float],
-    points: list[FloatArray],
-    velocities: list[FloatArray],
-    turn_rates: list[float] | None = None,
-) -> ObjectMotion:
-    rates = np.zeros(len(starts)) if turn_rates is None else np.array(turn_rates)
-    return ObjectMotion(kind, np.array(starts), np.array(points), np.array(velocities), rates)
-
-
-def _heading(rng: np.random.Generator, speed_m_s: float) -> FloatArray:
-    angle = rng.uniform(0.0, 2.0 * np.pi)
-    return np.array([speed_m_s * math.cos(angle), speed_m_s * math.sin(angle), 0.0])
-
-
-def _bouncing_line(
-    rng: np.random.Generator, room: RoomLayout, config: DynamicSceneConfig, end_s: float
-) -> ObjectMotion:
-    """constant_velocity: a straight line, reflected at the free space's x and y bounds."""
-    low, high = room.object_space_min_m, room.object_space_max_m
-    position = rng.uniform(low, high)
-    velocity = _heading(rng, rng.uniform(*config.object_speed_m_s))
-    starts, points, velocities = [0.0], [position], [velocity]
-    t = 0.0
-    while True:
-        with np.errstate(divide='ignore', invalid='ignore'):
-            bound = np.where(velocity > 0.0, high, low)
-            hit_s = np.where(velocity[:2] != 0.0, (bound - position)[:2] / velocity[:2], np.inf)
-        step = float(hit_s.min())
-        if t + step >= end_s:
-            return _motion('constant_velocity', starts, points, velocities)
-        t, position = t + step, np.clip(position + velocity * step, low, high)
-        velocity = velocity * np.where(np.append(hit_s <= step + 1e-12, False), -1.0, 1.0)
-        starts.append(t)
-        points.append(position)
-        velocities.append(velocity)
-
-
-def _circle(
-    rng: np.random.Generator, room: RoomLayout, config: DynamicSceneConfig
-) -> ObjectMotion:
-    """turning: constant speed and turn rate on one circle that fits in the free space."""
-    low, high = room.object_space_min_m, room.object_space_max_m
-    max_radius = 0.5 * float(np.min(high[:2] - low[:2]))
-    speed = min(rng.uniform(*config.object_speed_m_s), max_radius * config.turn_rate_radps[1])
-    rate = rng.uniform(
-        max(config.turn_rate_radps[0], speed / max_radius), config.turn_rate_radps[1]
-    )
-    rate *= rng.choice([-1.0, 1.0])
-    radius = speed / abs(rate)
-    inset = np.array([radius, radius, 0.0])
-    center = rng.uniform(low + inset, high - inset)
-    angle = rng.uniform(0.0, 2.0 * np.pi)
-    start = center + radius * np.array([math.cos(angle), math.sin(angle), 0.0])
-    velocity = rate * radius * np.array([-math.sin(angle), math.cos(angle), 0.0])
-    return _motion('turning', [0.0], [start], [velocity], [rate])
-
-
-def _stop_and_go(
-    rng: np.random.Generator, room: RoomLayout, config: DynamicSceneConfig, end_s: float
-) -> ObjectMotion:
-    """stop_and_go: straight stretches that stay in the free space, then full stops."""
-    low, high = room.object_space_min_m, room.object_space_max_m
-    position = rng.uniform(low, high)
-    starts: list[float] = []
-    points: list[FloatArray] = []
-    velocities: list[FloatArray] = []
-    t = 0.0
-    while t < end_s or not starts:
-        go_s, speed = rng.uniform(*config.go_duration_s), rng.uniform(*config.object_speed_m_s)
-        for _ in range(50):
-            velocity = _heading(rng, speed)
-            if np.all((position + velocity * go_s >= low) & (position + velocity * go_s <= high)):
-                break
-        else:  # head for the centre, no further than it
-            to_center = 0.5 * (low + high) - position
-            velocity = to_center / go_s
-        starts += [t, t + go_s]
-        points += [position, position + velocity * go_s]
-        velocities += [velocity, np.zeros(3)]
-        position = points[-1]
-        t += go_s + rng.uniform(*config.stop_duration_s)
-    return _motion('stop_and_go', starts, points, velocities)
-
-
-def _model_walk(
-    rng: np.random.Generator, room: RoomLayout, config: DynamicSceneConfig
-) -> ObjectMotion:
-    """model: the filter's discrete constant-velocity model exactly, on the frame grid."""
-    count, dt_s = config.frame_count, 1.0 / config.rate_hz
-    birth = int(rng.integers(0, max(count // 2, 1)))
-    count -= birth  # frames from the birth on: b .. K-1
-    v0 = rng.normal(0.0, config.velocity_prior_sigma_m_s, 3)
-    accelerations = rng.normal(0.0, math.sqrt(config.acceleration_psd * dt_s), (count - 1, 3))
-    velocities = np.vstack([v0, v0 + np.cumsum(accelerations, axis=0)])  # v_b .. v_{K-1}
-    relative = np.vstack([np.zeros(3), np.cumsum(velocities[1:] * dt_s, axis=0)])
-    start = rng.uniform(room.object_space_min_m, room.object_space_max_m) - relative.mean(axis=0)
-    positions = start + relative
-    # Segment k spans (t_{k-1}, t_k] with velocity v_k; the first starts at -dt before p_b.
-    starts = np.arange(birth - 1, birth + count - 1) / config.rate_hz
-    before = np.vstack([start - v0 * dt_s, positions[:-1]])
-    motion = _motion('model', list(starts), list(before), list(velocities))
-    return dataclasses.replace(motion, appears_s=birth / config.rate_hz if birth else -math.inf)
 
 
 @dataclass(frozen=True)
@@ -556,14 +115,7 @@ def build_scene(config: DynamicSceneConfig, seed: int) -> DynamicScene:
     objects, offsets = [], []
     for index in range(config.objects):
         kind = config.motions[index % len(config.motions)]
-        if kind == 'constant_velocity':
-            objects.append(_bouncing_line(object_rng, room, config, end_s))
-        elif kind == 'turning':
-            objects.append(_circle(object_rng, room, config))
-        elif kind == 'stop_and_go':
-            objects.append(_stop_and_go(object_rng, room, config, end_s))
-        else:
-            objects.append(_model_walk(object_rng, room, config))
+        objects.append(sample_motion(kind, object_rng, room, config, end_s))
         count = 1 if kind == 'model' else config.points_per_object
         direction = object_rng.normal(size=(count, 3))
         direction /= np.linalg.norm(direction, axis=1, keepdims=True)
@@ -597,7 +149,7 @@ class DynamicSceneRun:
 
     config: DynamicSceneConfig
     seed: int
-    camera: SceneCamera
+    camera: CameraModel
     scene: DynamicScene
     frames: tuple[FeatureFrame, ...]
     point_moving: BoolArray
@@ -617,7 +169,7 @@ class DynamicSceneRun:
 
 
 def observe(
-    camera: SceneCamera, points_camera: FloatArray, config: DynamicSceneConfig
+    camera: CameraModel, points_camera: FloatArray, config: DynamicSceneConfig
 ) -> tuple[BoolArray, FloatArray]:
     """Return which points (P, 3) in the optical frame are observed (P,) and their raw
     pixels (P, 2) (NaN where not observed)."""

@@ -1,30 +1,20 @@
-"""Planar geometry of the simulator: angle wrapping, rotations and wall crossings.
+"""Planar geometry of the simulator: unit vectors, rotations and wall crossings.
 
 Points are (x m, y m) in the map frame; arrays of points are (..., 2). A segment array is
-(W, 2, 2): segment w runs from ``segments[w, 0]`` to ``segments[w, 1]``. The simulator keeps
-its own ``wrap_angle`` (same (-pi, pi] convention as ``em_sam_node.core.se2``) so that the
-ground truth never depends on the estimator's code.
+(W, 2, 2): segment w runs from ``segments[w, 0]`` to ``segments[w, 1]``. Angles are wrapped by
+``slam_core.geometry.se2.wrap_angle``, the suite's one wrapping helper.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
+from slam_core.arrays import BoolArray, FloatArray
+from slam_core.geometry.se2 import rotation_matrices
 
-_TWO_PI = 2.0 * np.pi
 # |cross product| below this: the sight line and the wall are parallel (no crossing).
 _PARALLEL_EPS = 1e-12
-
-
-def wrap_angle(angle_rad: ArrayLike) -> FloatArray:
-    """Return ``angle_rad`` wrapped to (-pi, pi] rad, same shape."""
-    angle = np.asarray(angle_rad, dtype=np.float64)
-    wrapped = np.pi - np.mod(np.pi - angle, _TWO_PI)
-    return np.where(wrapped <= -np.pi, wrapped + _TWO_PI, wrapped)
 
 
 def unit_vectors(angle_rad: ArrayLike) -> FloatArray:
@@ -36,8 +26,7 @@ def unit_vectors(angle_rad: ArrayLike) -> FloatArray:
 def rotate(points: FloatArray, angle_rad: float, *, about: ArrayLike = (0.0, 0.0)) -> FloatArray:
     """Return ``points`` (..., 2) rotated counter-clockwise by ``angle_rad`` about ``about``."""
     center = np.asarray(about, dtype=np.float64)
-    cos_a, sin_a = np.cos(angle_rad), np.sin(angle_rad)
-    rotation = np.array([[cos_a, -sin_a], [sin_a, cos_a]])
+    rotation = rotation_matrices(angle_rad)
     return np.asarray((points - center) @ rotation.T + center, dtype=np.float64)
 
 

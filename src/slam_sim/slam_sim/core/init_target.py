@@ -24,8 +24,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from slam_sim.core.dynamic_scene import MIN_DEPTH_M, SceneCamera
-from slam_sim.core.geometry import BoolArray, FloatArray
+from slam_core.arrays import BoolArray, FloatArray
+from slam_core.camera import CameraModel
+from slam_sim.core.dynamic_config import MIN_DEPTH_M
 
 TARGET_DICTIONARY = 'DICT_APRILTAG_36h11'
 _FACING_MINUS_X = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -70,7 +71,7 @@ class InitTarget:
 
 def target_pixels(
     target: InitTarget,
-    camera: SceneCamera,
+    camera: CameraModel,
     rotation: FloatArray,
     centre_m: FloatArray,
     *,

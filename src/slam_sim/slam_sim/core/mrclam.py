@@ -45,9 +45,10 @@ from pathlib import Path
 
 import numpy as np
 
+from slam_core.arrays import BoolArray, FloatArray, IntArray
 from slam_core.errors import DatasetError
+from slam_core.geometry.se2 import wrap_angle
 from slam_sim.core.dataset_text import Kind, Table, read_table
-from slam_sim.core.geometry import BoolArray, FloatArray, IntArray, wrap_angle
 from slam_sim.core.odometry import integrate_increments
 
 ROBOT_SUBJECTS = (1, 2, 3, 4, 5)

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slam_sim.core.geometry import FloatArray, IntArray, wrap_angle
+from slam_core.arrays import FloatArray, IntArray
+from slam_core.geometry.se2 import wrap_angle
 
 
 @dataclass(frozen=True)

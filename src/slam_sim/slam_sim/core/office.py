@@ -30,8 +30,9 @@ from enum import StrEnum
 
 import numpy as np
 
+from slam_core.arrays import BoolArray, FloatArray, IntArray
 from slam_sim.core.detector import DetectorConfig, Observations, detect, visible
-from slam_sim.core.geometry import BoolArray, FloatArray, IntArray, rotate
+from slam_sim.core.geometry import rotate
 from slam_sim.core.odometry import (
     OdometryNoise,
     OdometrySamples,

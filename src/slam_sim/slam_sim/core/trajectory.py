@@ -14,7 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slam_sim.core.geometry import FloatArray, IntArray, unit_vectors, wrap_angle
+from slam_core.arrays import FloatArray, IntArray
+from slam_core.geometry.se2 import wrap_angle
+from slam_sim.core.geometry import unit_vectors
 from slam_sim.core.world import OfficeWorld
 
 # A turn on the spot ends when the heading is this close to the lookahead point.

@@ -26,9 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.errors import DatasetError
+from slam_core.geometry.se2 import wrap_angle
 from slam_sim.core.dataset_text import data_lines, line_error, parse_float, parse_int, read_lines
-from slam_sim.core.geometry import FloatArray, IntArray, wrap_angle
 
 ODOMETRY_TAG = 'ODOMETRY'
 LANDMARK_TAG = 'LANDMARK'

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slam_sim.core.geometry import BoolArray, FloatArray, IntArray, unit_vectors
+from slam_core.arrays import BoolArray, FloatArray, IntArray
+from slam_sim.core.geometry import unit_vectors
 
 OFFICE_1 = 'office_1'
 CORRIDOR = 'corridor'

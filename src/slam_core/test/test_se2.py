@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from em_sam_node.core.se2 import (
+from slam_core.geometry.se2 import (
     apply_increment,
     between,
     compose,

@@ -2,7 +2,7 @@
 
 A pose is (x m, y m, theta rad) of the body in the map frame; arrays of poses are (N, 3)
 (any leading shape ``(..., 3)`` broadcasts). Angles are wrapped to (-pi, pi] by
-``wrap_angle``, the one wrapping helper of the EM-SAM core.
+``wrap_angle``, the one wrapping helper of the suite.
 
 The odometry model is the paper's eq. 2 (a midpoint-heading model, not SE(2) composition):
 x_to = x_from + [u0 cos(t~) - u1 sin(t~), u0 sin(t~) + u1 cos(t~), u2], t~ = theta_from + u2/2,
@@ -16,7 +16,7 @@ from typing import overload
 import numpy as np
 from numpy.typing import ArrayLike
 
-from em_sam_node.core.problem import FloatArray
+from slam_core.arrays import FloatArray
 
 _TWO_PI = 2.0 * np.pi
 

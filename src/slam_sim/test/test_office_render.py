@@ -1,4 +1,4 @@
-"""The camera renderer: projection, exact marker corners, occlusion and seeded effects."""
+"""The office camera renderer: exact marker corners, occlusion, the camera and seeded effects."""
 
 from __future__ import annotations
 
@@ -8,19 +8,20 @@ import cv2
 import numpy as np
 import pytest
 
-from slam_sim.core.camera import (
+from slam_core.camera import CameraModel
+from slam_core.render.rays import ray_grid
+from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
+from slam_sim.core.office_render import Renderer
+from slam_sim.core.office_view import (
     LevelPose,
     Markers,
     MarkerTruth,
-    PinholeCamera,
-    Renderer,
     SceneStyle,
     marker_texture,
-    pixel_rays,
+    office_camera,
 )
-from slam_sim.core.camera_effects import CameraEffects, ImageEffects, encode_jpeg
 
-CAMERA = PinholeCamera()
+CAMERA = office_camera()
 STYLE = SceneStyle()
 # A 10 m x 8 m room; the camera stands in it at 1 m height looking east (+x).
 ROOM = np.array(
@@ -76,34 +77,25 @@ def _truth_of(truth: MarkerTruth, marker_id: int) -> int:
     return int(np.nonzero(truth.ids == marker_id)[0][0])
 
 
-def test_projection_matches_opencv() -> None:
-    rng = np.random.default_rng(1)
-    points = np.column_stack(
-        [rng.uniform(-2.0, 2.0, 200), rng.uniform(-1.5, 1.5, 200), rng.uniform(1.0, 6.0, 200)]
-    )
-    expected, _ = cv2.projectPoints(
-        points, np.zeros(3), np.zeros(3), CAMERA.matrix, np.array(CAMERA.distortion)
-    )
-    np.testing.assert_allclose(CAMERA.project(points), expected.reshape(-1, 2), atol=1e-9)
-
-
 def test_undistort_inverts_the_distortion_over_the_image() -> None:
-    rays = pixel_rays(CAMERA)
+    rays = ray_grid(CAMERA)
     v, u = np.mgrid[0 : CAMERA.height : 7, 0 : CAMERA.width : 7]
     normalized = np.column_stack([rays.x_u[v, u].ravel(), rays.y_u[v, u].ravel()])
     pixels = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
-    np.testing.assert_allclose(CAMERA.distort(normalized.astype(np.float64)), pixels, atol=1e-3)
+    np.testing.assert_allclose(
+        CAMERA.distort_normalized(normalized.astype(np.float64)), pixels, atol=1e-3
+    )
 
 
-def test_camera_info_holds_the_intrinsics() -> None:
+def test_the_office_camera_and_its_scaled_copies() -> None:
     info = CAMERA.camera_info()
     assert (info.width, info.height, info.distortion_model) == (640, 480, 'plumb_bob')
-    np.testing.assert_array_equal(info.k.reshape(3, 3), CAMERA.matrix)
-    np.testing.assert_array_equal(info.p.reshape(3, 4)[:, :3], CAMERA.matrix)
-    np.testing.assert_array_equal(info.r, np.eye(3).ravel())
-    assert info.d.tolist() == list(CAMERA.distortion)
-    assert PinholeCamera.scaled(640, 480) == CAMERA
-    assert PinholeCamera.scaled(320, 240).fx == pytest.approx(CAMERA.fx / 2)
+    np.testing.assert_array_equal(info.k, [457.0, 0, 321.3, 0, 457.0, 238.4, 0, 0, 1])
+    assert info.d.tolist() == [-0.1, 0.02, 4e-4, -3e-4, 0.0]
+    assert office_camera(640, 480) == CAMERA
+    assert office_camera(320, 240).fx == pytest.approx(CAMERA.fx / 2)
+    with pytest.raises(ValueError, match=r'not in \[16, 8192\]'):
+        office_camera(8, 480)
 
 
 def _corner_errors(found: dict[int, np.ndarray], truth: MarkerTruth) -> dict[int, float]:
@@ -242,10 +234,8 @@ def test_turning_blurs_along_the_image_rows() -> None:
 def test_invalid_inputs_are_rejected() -> None:
     with pytest.raises(ValueError, match='not in DICT_APRILTAG_36h11'):
         marker_texture(600, STYLE)
-    with pytest.raises(ValueError, match='principal point'):
-        PinholeCamera(cx=700.0)
     with pytest.raises(ValueError, match='not invertible'):
-        pixel_rays(PinholeCamera(distortion=(-1.5, 0.0, 0.0, 0.0, 0.0)))
+        ray_grid(CameraModel(640, 480, CAMERA.K, np.array([-1.5, 0.0, 0.0, 0.0, 0.0])))
     with pytest.raises(ValueError, match='walls'):
         Renderer(CAMERA, np.zeros((0, 2, 2)), STYLE)
     with pytest.raises(ValueError, match='quality'):

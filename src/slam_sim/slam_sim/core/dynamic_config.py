@@ -1,0 +1,92 @@
+"""Settings of the dynamic scene (``dynamic_scene``): run length and rate, camera, noise,
+scene sizes and object motions, validated on construction."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from slam_core.camera import CameraModel
+
+MOTION_KINDS = ('constant_velocity', 'turning', 'stop_and_go', 'model')
+ROOM_SIZE_M = (10.0, 8.0, 3.0)
+OBJECT_SPACE_M = ((4.8, 9.2), (1.2, 6.8), (0.5, 1.9))  # (min, max) per axis, object centres
+MIN_DEPTH_M = 0.2
+FOCAL_RANGE_PX = (150.0, 500.0)
+_PRINCIPAL_POINT_PX = (320.7, 238.9)
+_DISTORTION = (-0.05, 0.0, 0.0, 0.0, 0.0)  # plumb_bob (k1, k2, p1, p2, k3)
+
+
+def _check(name: str, ok: bool, value: object, allowed: str) -> None:
+    """Raise ValueError naming ``name`` unless ``ok``; ``allowed`` is an interval or a rule."""
+    if not ok:
+        verb = 'must be in' if allowed[:1] in '[(' else 'must be'
+        raise ValueError(f'{name} = {value!r} {verb} {allowed}')
+
+
+@dataclass(frozen=True)
+class DynamicSceneConfig:
+    """Run length, camera, noise, scene sizes and object motion parameters (module doc)."""
+
+    duration_s: float = 20.0
+    rate_hz: float = 30.0
+    focal_px: float = 300.0
+    pixel_noise_px: float = 1.0
+    static_points: int = 200
+    objects: int = 4
+    points_per_object: int = 6
+    object_radius_m: float = 0.3
+    motions: tuple[str, ...] = ('constant_velocity', 'turning', 'stop_and_go', 'constant_velocity')
+    object_speed_m_s: tuple[float, float] = (0.3, 1.0)
+    turn_rate_radps: tuple[float, float] = (0.3, 1.0)
+    stop_duration_s: tuple[float, float] = (0.3, 0.8)
+    go_duration_s: tuple[float, float] = (1.0, 3.0)
+    hand_motion_m: float = 0.1
+    velocity_prior_sigma_m_s: float = 0.5
+    acceleration_psd: float = 0.05  # q, m^2/s^3
+    max_range_m: float = 15.0
+    image_margin_px: float = 2.0
+    track_drop_probability: float = 0.0
+
+    def __post_init__(self) -> None:
+        """Reject values the simulation cannot honour; the message names the field."""
+        low, high = FOCAL_RANGE_PX
+        _check('focal_px', low <= self.focal_px <= high, self.focal_px, f'[{low:g}, {high:g}] px')
+        _check('duration_s', 0.0 < self.duration_s <= 3600.0, self.duration_s, '(0, 3600] s')
+        _check('rate_hz', 0.0 < self.rate_hz <= 1000.0, self.rate_hz, '(0, 1000] Hz')
+        _check('duration_s', self.frame_count >= 3, self.duration_s, '>= 3 frames long')
+        _check('pixel_noise_px', 0.0 <= self.pixel_noise_px <= 50.0, self.pixel_noise_px,
+               '[0, 50] px')  # fmt: skip
+        for name, least in (('static_points', 0), ('objects', 0), ('points_per_object', 1)):
+            value = getattr(self, name)
+            _check(name, isinstance(value, int) and value >= least, value, f'an int >= {least}')
+        _check('object_radius_m', 0.0 <= self.object_radius_m <= 1.0, self.object_radius_m,
+               '[0, 1] m')  # fmt: skip
+        _check('motions', len(self.motions) > 0, self.motions, 'at least one motion kind')
+        for kind in self.motions:
+            _check('motions', kind in MOTION_KINDS, kind, f'one of {", ".join(MOTION_KINDS)}')
+        for name in ('object_speed_m_s', 'turn_rate_radps', 'stop_duration_s', 'go_duration_s'):
+            pair = getattr(self, name)
+            _check(
+                name, len(pair) == 2 and 0.0 < pair[0] <= pair[1], pair, 'a pair 0 < min <= max'
+            )
+        _check('hand_motion_m', 0.0 <= self.hand_motion_m <= 0.5, self.hand_motion_m,
+               '[0, 0.5] m')  # fmt: skip
+        for name in ('velocity_prior_sigma_m_s', 'acceleration_psd'):
+            _check(name, getattr(self, name) >= 0.0, getattr(self, name), '>= 0')
+        _check('max_range_m', self.max_range_m > MIN_DEPTH_M, self.max_range_m, '> 0.2 m')
+        _check('image_margin_px', 0.0 <= self.image_margin_px <= 100.0, self.image_margin_px,
+               '[0, 100] px')  # fmt: skip
+        drop = self.track_drop_probability
+        _check('track_drop_probability', 0.0 <= drop < 1.0, drop, '[0, 1)')
+
+    @property
+    def frame_count(self) -> int:
+        """Number of frames K, at run times k / rate_hz s, k = 0 .. K-1."""
+        return round(self.duration_s * self.rate_hz)
+
+    def camera(self) -> CameraModel:
+        """Return the 640 x 480 camera with fx = fy = focal_px, principal point (320.7, 238.9)
+        px and radial distortion k1 = -0.05 (plumb_bob, the other coefficients 0)."""
+        return CameraModel.from_intrinsics(
+            640, 480, (self.focal_px, self.focal_px), _PRINCIPAL_POINT_PX, _DISTORTION
+        )
