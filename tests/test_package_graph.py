@@ -1,4 +1,5 @@
-"""The packages form a tree, and every package.xml declares what its code imports.
+"""The packages form a tree, every package.xml declares what its code imports, and no file is
+longer than 600 lines.
 
 Every Python file of every package under ``src/`` (its modules, tests and launch files) is
 parsed, and each ``import`` (also inside functions) is checked:
@@ -206,3 +207,18 @@ def test_slam_core_imports_nothing_of_ros() -> None:
         if item.module in ros or item.module.endswith('_msgs')
     ]
     assert not found, '\n'.join(found)
+
+
+MAX_FILE_LINES = 600
+"""No file of a package is longer than this (STYLE.md: look for the second idea past ~400)."""
+
+
+def test_no_package_file_is_longer_than_the_limit() -> None:
+    long_files = []
+    for path in sorted(SRC.rglob('*')):
+        if not path.is_file() or path.suffix not in ('.py', '.yaml', '.xml', '.msg', '.txt'):
+            continue
+        lines = len(path.read_text(encoding='utf-8').splitlines())
+        if lines > MAX_FILE_LINES:
+            long_files.append(f'{path.relative_to(SRC)}: {lines} lines')
+    assert not long_files, '\n'.join(long_files)
