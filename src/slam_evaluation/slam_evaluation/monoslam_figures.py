@@ -11,12 +11,12 @@ from typing import Any
 import numpy as np
 
 from slam_core.files import write_atomically
-from slam_evaluation.evaluation_report import render_png
 from slam_evaluation.monoslam_metrics import POSE_DOF
 from slam_evaluation.monoslam_pipeline import (
     VARIANT_TITLES,
 )
 from slam_evaluation.monoslam_runs import Collected
+from slam_evaluation.plotting import render_png
 
 
 def write_figures(directory: Path, content: Mapping[str, Any], collected: Collected) -> list[Path]:

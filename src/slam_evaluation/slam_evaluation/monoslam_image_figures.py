@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 
 from slam_core.files import write_atomically
-from slam_evaluation.evaluation_report import render_png
 from slam_evaluation.monoslam_image_report import error_curves, rms_over_seeds
 from slam_evaluation.monoslam_image_runs import SeedResult
+from slam_evaluation.plotting import render_png
 
 RUN_STYLES = {
     'image a': {'color': 'tab:green', 'lw': 0.8},

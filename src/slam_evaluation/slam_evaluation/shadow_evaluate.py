@@ -16,7 +16,7 @@ poses, so no pose gate). Two run sets:
   scored in these runs and, separately, in the classification runs at ``--alpha``.
 
 Writes ``shadow_eval.json`` (configuration, totals, per seed, alpha sweep, failures) and the
-PNG figures of ``evaluation_report`` into ``--out``; prints a summary; logs progress with
+PNG figures of ``shadow_report`` into ``--out``; prints a summary; logs progress with
 rate and ETA on stderr.
 
 Parallax allows (window W = ``--window-frames``): the track was observed W frames after its
@@ -72,7 +72,6 @@ from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter
 from slam_evaluation.evaluation_cli import parse_seeds
-from slam_evaluation.evaluation_report import summary_text, write_figures
 from slam_evaluation.shadow_experiments import (
     Collected,
     Settings,
@@ -81,6 +80,7 @@ from slam_evaluation.shadow_experiments import (
     figure_inputs,
     report,
 )
+from slam_evaluation.shadow_report import summary_text, write_figures
 from slam_sim.core.dynamic_config import DynamicSceneConfig
 
 QUICK_DURATION_S = 4.0

@@ -1,6 +1,6 @@
 """shadow_evaluate's experiments: the settings, the classification and consistency runs of one
 seed, what they collect, and the report (the content of ``shadow_eval.json``) with the
-inputs of ``evaluation_report``'s figures.
+inputs of ``shadow_report``'s figures.
 """
 
 from __future__ import annotations
@@ -287,7 +287,7 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
 def figure_inputs(
     settings: Settings, collected: Collected, content: Mapping[str, Any]
 ) -> dict[str, Any]:
-    """Return what ``evaluation_report.write_figures`` draws, as arrays and report parts."""
+    """Return what ``shadow_report.write_figures`` draws, as arrays and report parts."""
     outcomes = collected.outcomes.get(settings.alpha, [])
     classifier = settings.shadow(settings.alpha).classifier
     return {

@@ -16,7 +16,6 @@ Figures (paper 001's Figs. 2-4 and what they claim):
 
 from __future__ import annotations
 
-import io
 import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -25,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from slam_core.files import write_atomically
+from slam_evaluation.plotting import render_png
 
 STATUS_COLOURS = {'PENDING': 'tab:red', 'STATIC': 'tab:blue', 'DYNAMIC': 'tab:green'}
 STATUS_CODES = {'PENDING': 0, 'STATIC': 1, 'DYNAMIC': 2}  # the core's PENDING/STATIC/DYNAMIC
@@ -148,21 +148,6 @@ def write_figures(directory: Path, inputs: Mapping[str, Any]) -> list[Path]:
         write_atomically(directory / name, render_png(draw, data, size))
         for name, draw, data, size in drawings
     ]
-
-
-def render_png(draw: Callable[[Any, Any], None], data: Any, size: tuple[float, float]) -> bytes:
-    """Return the PNG bytes of a new figure of ``size`` (inches) that ``draw(figure, data)``
-    fills."""
-    import matplotlib.pyplot as plt
-
-    figure = plt.figure(figsize=size, layout='constrained')
-    try:
-        draw(figure, data)
-        buffer = io.BytesIO()
-        figure.savefig(buffer, format='png', dpi=110)
-        return buffer.getvalue()
-    finally:
-        plt.close(figure)
 
 
 def _classification(figure: Any, inputs: Mapping[str, Any]) -> None:
