@@ -98,11 +98,11 @@ from monoslam_shadow_node.feature_tracker_settings import (
 from monoslam_shadow_node.feature_tracking import (
     FeatureFrame,
     FeatureTrackingProcessor,
-    Notice,
     Outcome,
     fill_feature_array,
     status_line,
 )
+from monoslam_shadow_node.notices import Notice
 from slam_core.cli import console_main
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray

@@ -48,28 +48,13 @@ from monoslam_shadow_node.core.feature_tracker import (
     TrackerConfig,
     as_gray_image,
 )
+from monoslam_shadow_node.notices import Notice
 from slam_core.stamps import ns_to_stamp
 
 PREDICTIONS_KEPT = 10
 DROP_KINDS = ('out_of_order', 'repeated_stamp', 'size_mismatch', 'bad_image')
 """Why an image was dropped (``Notice.kind``); the node adds 'undecodable' for images it
 could not decode."""
-
-
-@dataclass(frozen=True)
-class Notice:
-    """Something to log: its kind (e.g. one of DROP_KINDS, 'restart', 'camera',
-    'camera_changed', 'camera_rejected', 'no_camera_info', 'image_size_changed'), its level
-    ('info', 'warning' or 'error'), the line to log, and the image stamp it concerns (int ns,
-    None for none)."""
-
-    kind: str
-    level: str
-    text: str
-    stamp_ns: int | None = None
-
-    def __str__(self) -> str:
-        return self.text
 
 
 @dataclass(frozen=True, eq=False)

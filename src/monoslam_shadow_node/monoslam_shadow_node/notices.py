@@ -1,4 +1,5 @@
-"""What the monoslam and shadow_filter processors tell their node to log (ROS-free).
+"""What the processors of monoslam, shadow_filter and feature_tracker tell their node to log
+(ROS-free).
 
 A processor returns ``Notice`` outcomes next to its results; the node logs each at its level
 and does nothing else with it. A notice of a steady state (waiting for the camera, for the

@@ -21,11 +21,11 @@ from monoslam_shadow_node.feature_tracker_node import KindThrottle
 from monoslam_shadow_node.feature_tracking import (
     FeatureFrame,
     FeatureTrackingProcessor,
-    Notice,
     Outcome,
     fill_feature_array,
     status_line,
 )
+from monoslam_shadow_node.notices import Notice
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node

@@ -1,1 +1,2 @@
-"""ROS-free simulation cores: numpy only; randomness comes in as ``np.random.Generator``."""
+"""ROS-free simulation cores (numpy, scipy, OpenCV); randomness comes in as
+``np.random.Generator``."""
