@@ -251,7 +251,8 @@ def summary(run: MrclamRun, written: WrittenBag) -> str:
     return (
         f'{PROG}: wrote {written.path} ({written.size_bytes / 1e6:.2f} MB): robot {run.robot}, '
         f'{(last - first) / 1e9:.1f} s, {written.counts[ODOM_TOPIC]} odometry '
-        f'({run.duplicate_odometry_stamps} repeated stamps dropped), '
+        f'({run.misplaced_odometry_rows} rows out of time order sorted, '
+        f'{run.duplicate_odometry_stamps} repeated stamps dropped), '
         f'{written.counts[OBSERVATIONS_TOPIC]} observation messages with '
         f'{len(run.sightings)} sightings (dropped: {dropped}), sightings of robots {seen}'
     )
@@ -319,6 +320,12 @@ def _validate(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None
 
 def _load(dataset: Path, robot: int, max_duration_s: float | None) -> MrclamRun:
     run = parse_mrclam(dataset, robot)
+    if run.misplaced_odometry_rows:
+        print(  # noqa: T201
+            f'{PROG}: warning: {dataset / f"Robot{robot}_Odometry.dat"}: '
+            f'{run.misplaced_odometry_rows} rows out of time order, sorted by time',
+            file=sys.stderr,
+        )
     if max_duration_s is not None:
         run = run.until(int(run.odometry.stamps_ns[0]) + round(max_duration_s * 1e9))
     return run

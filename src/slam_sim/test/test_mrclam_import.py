@@ -15,7 +15,13 @@ from slam_core.errors import DatasetError
 from slam_core.geometry.se2 import between, wrap_angle
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
-from slam_sim.core.mrclam import MrclamRun, parse_mrclam, robust_sigma, sighting_residuals
+from slam_sim.core.mrclam import (
+    MrclamRun,
+    misplaced_rows,
+    parse_mrclam,
+    robust_sigma,
+    sighting_residuals,
+)
 from slam_sim.mrclam_bag import (
     DEFAULT_BEARING_SIGMA_RAD,
     DEFAULT_RANGE_SIGMA_M,
@@ -260,6 +266,34 @@ def test_synthetic_bags_for_every_robot_are_staged_together(
     assert 'exists already' in capsys.readouterr().err
 
 
+def test_odometry_rows_out_of_time_order_are_sorted_and_counted(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    directory = _synthetic(tmp_path)
+    path = directory / 'Robot1_Odometry.dat'
+    before = parse_mrclam(directory, 1)
+    lines = path.read_text(encoding='utf-8').splitlines()
+    first = next(i for i, line in enumerate(lines) if not line.startswith('#'))
+    lines[first], lines[first + 1] = lines[first + 1], lines[first]  # first row stamped late
+    path.write_text('\n'.join(lines) + '\n', encoding='utf-8')
+    run = parse_mrclam(directory, 1)
+    assert run.misplaced_odometry_rows == 1 and before.misplaced_odometry_rows == 0
+    np.testing.assert_array_equal(run.odometry.stamps_ns, before.odometry.stamps_ns)
+    np.testing.assert_array_equal(run.odometry.poses, before.odometry.poses)
+    target = tmp_path / 'robot1.mcap'
+    argv = ['--robot', '1', '--dataset', str(directory), '--output', str(target)]
+    assert main([*argv, '--single-file']) == 0
+    err = capsys.readouterr().err
+    assert f'warning: {path}: 1 rows out of time order, sorted by time' in err
+
+
+def test_one_late_row_counts_once() -> None:
+    stamps = np.array([5, 1, 2, 3, 4, 6, 7], dtype=np.int64)
+    assert misplaced_rows(stamps) == 1
+    assert misplaced_rows(np.array([1, 2, 2, 3], dtype=np.int64)) == 0
+    assert misplaced_rows(np.array([3, 2, 1], dtype=np.int64)) == 2
+
+
 def _append(path: Path, line: str) -> int:
     text = path.read_text(encoding='utf-8')
     path.write_text(text + line + '\n', encoding='utf-8')
@@ -270,7 +304,6 @@ def _append(path: Path, line: str) -> int:
     ('name', 'line', 'message'),
     [
         ('Robot1_Odometry.dat', '102.100 \t 0.1', 'expected 3 columns (time, v, w), got 2'),
-        ('Robot1_Odometry.dat', '101.000 0.1 0.0', 'is before the previous one'),
         ('Robot1_Odometry.dat', '102.1x 0.1 0.0', "time '102.1x' is not a number"),
         ('Robot1_Odometry.dat', '102.100 0.1 inf', "w 'inf' is not finite"),
         ('Robot1_Measurement.dat', '101.600 63 nan 0.1', "range 'nan' is not finite"),

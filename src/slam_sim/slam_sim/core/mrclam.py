@@ -40,6 +40,7 @@ the others have no ground truth (``true_targets`` marks them).
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -152,6 +153,7 @@ class MrclamRun:
     dropped_unknown: Sightings
     dropped_own: Sightings
     duplicate_odometry_stamps: int
+    misplaced_odometry_rows: int
     truth: Trajectory
     robot_truth: dict[int, Trajectory]
     landmarks: LandmarkTruth
@@ -232,20 +234,41 @@ def _check_time_order(table: Table, stamps_ns: IntArray, *, strict: bool, what: 
         )
 
 
-def _read_odometry(path: Path) -> tuple[Odometry, int]:
+def misplaced_rows(stamps_ns: IntArray) -> int:
+    """Return the fewest rows that must move to put ``stamps_ns`` (N,) in non-decreasing order:
+    N minus the longest non-decreasing subsequence (one row stamped late counts once, not
+    once for every row it is ahead of)."""
+    tails: list[int] = []
+    for stamp in stamps_ns.tolist():
+        index = bisect.bisect_right(tails, stamp)
+        if index == len(tails):
+            tails.append(stamp)
+        else:
+            tails[index] = stamp
+    return len(stamps_ns) - len(tails)
+
+
+def _read_odometry(path: Path) -> tuple[Odometry, int, int]:
+    """Return the odometry of ``path``, the number of rows that were out of time order (put
+    in order by a stable sort: some MRCLAM runs have a first row stamped after the second)
+    and the number of repeated stamps dropped (of equal times the last row is kept)."""
     columns = [('time', Kind.STAMP), ('v', Kind.FLOAT), ('w', Kind.FLOAT)]
     table = read_table(path, columns)
     stamps = table.ints('time')
-    _check_time_order(table, stamps, strict=False, what='odometry')
+    twists = np.column_stack([table.floats('v'), table.floats('w')])
+    misplaced = misplaced_rows(stamps)
+    if misplaced:
+        order = np.argsort(stamps, kind='stable')
+        stamps, twists = stamps[order], twists[order]
     keep = np.ones(len(stamps), dtype=bool)
     keep[:-1] = np.diff(stamps) != 0  # of equal times keep the last
     stamps = stamps[keep]
     if len(stamps) < 2:
         raise DatasetError(f'{path}: fewer than 2 odometry samples')
-    twists = np.column_stack([table.floats('v'), table.floats('w')])[keep]
+    twists = twists[keep]
     dt_s = np.diff(stamps).astype(np.float64) / 1e9
     poses = integrate_increments(twists[:-1, 0] * dt_s, twists[:-1, 1] * dt_s)
-    return Odometry(stamps, twists, poses), int(np.count_nonzero(~keep))
+    return Odometry(stamps, twists, poses), misplaced, int(np.count_nonzero(~keep))
 
 
 def _read_measurements(path: Path, barcode_of: dict[int, int]) -> Sightings:
@@ -297,7 +320,7 @@ def parse_mrclam(dataset_dir: Path | str, robot: int) -> MrclamRun:
         raise DatasetError(f'{directory}: no such data set directory')
     barcode_of = _read_barcodes(directory / 'Barcodes.dat')
     landmarks = _read_landmarks(directory / 'Landmark_Groundtruth.dat', barcode_of)
-    odometry, duplicates = _read_odometry(directory / f'Robot{robot}_Odometry.dat')
+    odometry, misplaced, duplicates = _read_odometry(directory / f'Robot{robot}_Odometry.dat')
     sightings = _read_measurements(directory / f'Robot{robot}_Measurement.dat', barcode_of)
     truth = {k: _read_groundtruth(directory / f'Robot{k}_Groundtruth.dat') for k in ROBOT_SUBJECTS}
     unknown = sightings.subjects == UNKNOWN_SUBJECT
@@ -311,6 +334,7 @@ def parse_mrclam(dataset_dir: Path | str, robot: int) -> MrclamRun:
         dropped_unknown=sightings.select(unknown),
         dropped_own=sightings.select(own),
         duplicate_odometry_stamps=duplicates,
+        misplaced_odometry_rows=misplaced,
         truth=truth[robot],
         robot_truth={k: t for k, t in truth.items() if k != robot},
         landmarks=landmarks,
