@@ -32,11 +32,6 @@ def console_main(prog: str) -> Callable[[Callable[[list[str] | None], int]], Cal
     return decorate
 
 
-def exit_with(main: Callable[[], int]) -> None:
-    """Entry-point helper: ``sys.exit(main())``."""
-    sys.exit(main())
-
-
 HELP_FLAGS = ('-h', '--help')
 
 

@@ -367,11 +367,7 @@ class ParamTable:
         Values are not validated here; pass the result to ``validate``.
         """
         where = f'parameter file {str(path)!r}'
-        try:
-            document: Any = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-            raise ParameterError(f'{where}: {err}') from None
-        sections = node_sections(document, self.node)
+        sections = node_sections(_read_document(path, where), self.node)
         if not sections:
             raise ParameterError(
                 f'{where}: no "/**: ros__parameters:" (or "{self.node}: ros__parameters:") mapping'
@@ -390,10 +386,7 @@ class ParamTable:
         when the node runs under another name) sets a key that is not a parameter of it.
         Files without such a section pass: they configure other nodes."""
         where = f'parameter file {str(path)!r}'
-        try:
-            document: Any = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-            raise ParameterError(f'{where}: {err}') from None
+        document = _read_document(path, where)
         for key, parameters in node_sections(document, node_name or self.node):
             if isinstance(parameters, dict):
                 self.check_names(parameters, where=f'{where}, section {key!r}')
@@ -416,6 +409,15 @@ class ParamTable:
             lines.append(f'  {param.name} ({param.param_type.value}, default {default}){extra}')
             lines.append(f'      {param.description}')
         return '\n'.join(lines)
+
+
+def _read_document(path: Path | str, where: str) -> object:
+    """Return a YAML file's content; ParameterError naming ``where`` when it cannot be read."""
+    try:
+        document: object = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        raise ParameterError(f'{where}: {err}') from None
+    return document
 
 
 def node_sections(document: object, node: str) -> list[tuple[str, object]]:
