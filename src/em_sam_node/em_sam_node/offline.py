@@ -1,9 +1,19 @@
 """Offline replay: a bag through the nodes' processors, and its ground truth.
 
-``replay_bag`` feeds /odom and /landmark_observations through the same conversions and
-processors (OdometryIngest, MapperProcessor) as odometry_ingest and em_sam_mapper, in bag
-order, and returns the collected MappingData. ``read_ground_truth`` reads the simulator's
-/ground_truth topics.
+``replay_bag`` feeds a bag's odometry and /landmark_observations through the same
+conversions and processors as the nodes, in bag order, and returns the collected
+MappingData. The odometry is either wheel odometry on /odom (nav_msgs/msg/Odometry, through
+OdometryIngest as odometry_ingest does, then MapperProcessor as em_sam_mapper does) or
+keyframe increments on /odometry_increments (slam_interfaces/msg/OdometryIncrement, what
+odometry_ingest publishes and victoria_park_import writes, straight to MapperProcessor as
+em_sam_mapper subscribes). A bag with both is replayed from /odom (the increments are
+recomputed as the nodes would).
+
+``read_ground_truth`` reads the /ground_truth topics of a simulated or imported bag:
+/ground_truth/landmarks is required; /ground_truth/pose is optional (MRCLAM data sets 1-3
+have no Vicon track of the robot): without it ``GroundTruth.has_poses`` is False and the
+robot poses are empty, so there is no ATE to compute. A landmark with a NaN position is a
+subject known to be moveable whose position the data do not give (see mrclam_import).
 """
 
 from __future__ import annotations
@@ -14,7 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from em_sam_node.conversions import observations_from_message, odometry_pose
+from em_sam_node.conversions import (
+    increment_from_message,
+    observations_from_message,
+    odometry_pose,
+)
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.problem import FloatArray, IntArray
@@ -27,6 +41,7 @@ from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
 
 ODOM_TOPIC = '/odom'
+INCREMENTS_TOPIC = '/odometry_increments'
 OBSERVATION_TOPIC = '/landmark_observations'
 TRUTH_POSE_TOPIC = '/ground_truth/pose'
 TRUTH_LANDMARKS_TOPIC = '/ground_truth/landmarks'
@@ -38,28 +53,49 @@ class Replay:
 
     data: MappingData
     warnings: tuple[str, ...]
+    odometry_topic: str = ODOM_TOPIC  # where the odometry came from
 
 
 def replay_bag(path: Path, *, ingest: IngestConfig | None = None) -> Replay:
-    """Run a bag's odometry and observations through the ingest and mapper processors."""
+    """Run a bag's odometry (/odom or /odometry_increments) and observations through the
+    processors the nodes use (``ingest`` configures OdometryIngest, used for /odom only).
+
+    Raises:
+        BagError: the bag has no /landmark_observations, or neither odometry topic, or too
+            little odometry for a trajectory; the message names the bag and the topics.
+
+    """
     warnings: list[str] = []
     ingest_processor = OdometryIngest(ingest or IngestConfig(), warn=warnings.append)
     mapper = MapperProcessor(MapperConfig(em=EmConfig()), warn=warnings.append)
     registry = TypeRegistry()
     with BagSource(path) as source:
         topics = source.topics()
-        for needed in (ODOM_TOPIC, OBSERVATION_TOPIC):
-            if needed not in topics:
-                raise BagError(f'bag {str(path)!r} has no {needed} topic')
+        if OBSERVATION_TOPIC not in topics:
+            raise BagError(f'bag {str(path)!r} has no {OBSERVATION_TOPIC} topic')
+        odometry_topic = next((t for t in (ODOM_TOPIC, INCREMENTS_TOPIC) if t in topics), None)
+        if odometry_topic is None:
+            raise BagError(
+                f'bag {str(path)!r} has no odometry: neither {ODOM_TOPIC} '
+                f'(nav_msgs/msg/Odometry) nor {INCREMENTS_TOPIC} '
+                '(slam_interfaces/msg/OdometryIncrement)'
+            )
+        for needed in (odometry_topic, OBSERVATION_TOPIC):
             registry.ensure(topics[needed].msgtype)
         store = registry.typestore
-        for message in source.messages([ODOM_TOPIC, OBSERVATION_TOPIC]):
+        for message in source.messages([odometry_topic, OBSERVATION_TOPIC]):
             decoded = store.deserialize_cdr(message.data, message.msgtype)
-            if message.topic == ODOM_TOPIC:
+            if message.topic == INCREMENTS_TOPIC:
+                increments = [increment_from_message(decoded)]
+            elif message.topic == ODOM_TOPIC:
                 increments = ingest_processor.add_odometry(*odometry_pose(decoded))
-            else:
-                increments = ingest_processor.add_observation_stamp(
-                    stamp_to_ns(decoded.header.stamp)  # type: ignore[attr-defined]
+            else:  # an observation: odometry_ingest keyframes at its stamp (for /odom)
+                increments = (
+                    ingest_processor.add_observation_stamp(
+                        stamp_to_ns(decoded.header.stamp)  # type: ignore[attr-defined]
+                    )
+                    if odometry_topic == ODOM_TOPIC
+                    else []
                 )
                 for observation in observations_from_message(decoded):
                     mapper.add_observation(observation)
@@ -68,14 +104,19 @@ def replay_bag(path: Path, *, ingest: IngestConfig | None = None) -> Replay:
     for increment in ingest_processor.flush():
         mapper.add_increment(increment)
     if mapper.num_keyframes < 2:
-        raise BagError(f'bag {str(path)!r} holds too little odometry to build a trajectory')
-    return Replay(mapper.data(), tuple(warnings))
+        raise BagError(
+            f'bag {str(path)!r} holds too little odometry on {odometry_topic} to build a '
+            'trajectory'
+        )
+    return Replay(mapper.data(), tuple(warnings), odometry_topic)
 
 
 @dataclass(frozen=True)
 class GroundTruth:
-    """Simulated truth: robot poses (T,3) at stamps (T,), landmark positions before and after
-    the move ((L,2) each, aligned with ``landmark_ids``), moveable flags and move stamp."""
+    """Simulated or recorded truth: robot poses (T,3) at stamps (T,) (T = 0 without
+    /ground_truth/pose), landmark positions before and after the move ((L,2) each, aligned
+    with ``landmark_ids``; NaN where a moveable subject's position is not known), moveable
+    flags and move stamp."""
 
     stamps_ns: IntArray
     poses: FloatArray
@@ -85,8 +126,27 @@ class GroundTruth:
     moveable: np.ndarray
     move_stamp_ns: int | None
 
+    @property
+    def has_poses(self) -> bool:
+        """Whether the bag gave the robot's true poses (at least 2: there is an ATE)."""
+        return len(self.stamps_ns) >= 2
+
+    def covers(self, stamps_ns: IntArray) -> np.ndarray:
+        """Return which stamps (n,) lie within the span of the true poses (none without)."""
+        stamps = np.asarray(stamps_ns, dtype=np.int64)
+        if not self.has_poses:
+            return np.zeros(len(stamps), dtype=bool)
+        return (stamps >= self.stamps_ns[0]) & (stamps <= self.stamps_ns[-1])
+
     def poses_at(self, stamps_ns: IntArray) -> FloatArray:
-        """Return true poses (n,3) interpolated at ``stamps_ns``."""
+        """Return true poses (n,3) interpolated at ``stamps_ns``.
+
+        Raises:
+            ValueError: there are no true poses (``has_poses`` is False).
+
+        """
+        if not self.has_poses:
+            raise ValueError('the ground truth has no robot poses (no /ground_truth/pose)')
         x = np.interp(stamps_ns, self.stamps_ns, self.poses[:, 0])
         y = np.interp(stamps_ns, self.stamps_ns, self.poses[:, 1])
         theta = np.interp(stamps_ns, self.stamps_ns, np.unwrap(self.poses[:, 2]))
@@ -94,16 +154,26 @@ class GroundTruth:
 
 
 def read_ground_truth(path: Path) -> GroundTruth:
-    """Read /ground_truth/pose and /ground_truth/landmarks of a simulated bag."""
+    """Read /ground_truth/landmarks and, if the bag has it, /ground_truth/pose.
+
+    Raises:
+        BagError: the bag has no /ground_truth/landmarks topic, or no message on it.
+
+    """
     registry = TypeRegistry()
-    stamps, poses, maps = [], [], []
+    stamps: list[int] = []
+    poses: list[FloatArray] = []
+    maps: list[Any] = []
     with BagSource(path) as source:
         topics = source.topics()
-        for needed in (TRUTH_POSE_TOPIC, TRUTH_LANDMARKS_TOPIC):
-            if needed not in topics:
-                raise BagError(f'bag {str(path)!r} has no {needed} topic (no ground truth)')
-            registry.ensure(topics[needed].msgtype)
-        for message in source.messages([TRUTH_POSE_TOPIC, TRUTH_LANDMARKS_TOPIC]):
+        if TRUTH_LANDMARKS_TOPIC not in topics:
+            raise BagError(
+                f'bag {str(path)!r} has no {TRUTH_LANDMARKS_TOPIC} topic (no ground truth)'
+            )
+        wanted = [t for t in (TRUTH_POSE_TOPIC, TRUTH_LANDMARKS_TOPIC) if t in topics]
+        for topic in wanted:
+            registry.ensure(topics[topic].msgtype)
+        for message in source.messages(wanted):
             decoded = registry.typestore.deserialize_cdr(message.data, message.msgtype)
             if message.topic == TRUTH_POSE_TOPIC:
                 stamp_ns, pose = odometry_pose(decoded)
@@ -111,6 +181,8 @@ def read_ground_truth(path: Path) -> GroundTruth:
                 poses.append(pose)
             else:
                 maps.append(decoded)
+    if not maps:
+        raise BagError(f'bag {str(path)!r} has no message on {TRUTH_LANDMARKS_TOPIC}')
     first: Any = maps[0]
     ids = np.array([lm.landmark_id for lm in first.landmarks], dtype=np.int64)
     before = np.array([[lm.position.x, lm.position.y] for lm in first.landmarks])
@@ -123,7 +195,7 @@ def read_ground_truth(path: Path) -> GroundTruth:
         move_stamp = stamp_to_ns(last.header.stamp)
     return GroundTruth(
         stamps_ns=np.array(stamps, dtype=np.int64),
-        poses=np.array(poses),
+        poses=np.array(poses).reshape(-1, 3),
         landmark_ids=ids,
         positions_before=before,
         positions_after=after,
@@ -133,10 +205,12 @@ def read_ground_truth(path: Path) -> GroundTruth:
 
 
 def seen_at_both_positions(data: MappingData, truth: GroundTruth) -> set[int]:
-    """Return the moved landmarks observed both before and after the move."""
+    """Return the moved landmarks observed both before and after the move (a landmark whose
+    positions are unknown, NaN, does not count as moved)."""
     if truth.move_stamp_ns is None:
         return set()
-    moved = truth.landmark_ids[np.any(truth.positions_before != truth.positions_after, axis=1)]
+    shift = np.abs(truth.positions_before - truth.positions_after)
+    moved = truth.landmark_ids[np.any(shift > 0.0, axis=1)]  # NaN (position unknown): no
     stamps = data.obs_stamp_ns
     result = set()
     for landmark_id in moved.tolist():

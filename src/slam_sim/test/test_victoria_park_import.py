@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from em_sam_node.offline import replay_bag
 from slam_core.datasets import data_root, dataset
 from slam_core.errors import BagError
 from slam_core.geometry.se2 import apply_increment, compose, wrap_angle
@@ -257,3 +258,30 @@ def test_a_failure_while_writing_leaves_nothing(tmp_path: Path) -> None:
     (tmp_path / 'taken').mkdir()
     with pytest.raises(BagError, match='exists already'):
         write_bag(tmp_path / 'taken', TOPICS, [], registry=registry)
+
+
+def test_the_bag_replays_through_the_mapper_from_its_increments(tmp_path: Path) -> None:
+    source = _write(tmp_path / 'small.txt', GOOD_LINES)
+    assert main(['--input', str(source), '--output', str(tmp_path / 'bag')]) == 0
+    replay = replay_bag(tmp_path / 'bag')
+    data = parse_victoria_park(source)
+    assert replay.odometry_topic == INCREMENTS_TOPIC and replay.warnings == ()
+    assert replay.data.num_keyframes == data.num_poses
+    assert replay.data.obs_keyframe.tolist() == [2, 3, 3]
+    assert replay.data.obs_landmark_id.tolist() == [3, 3, 5]
+    u, u_cov = differential_drive_increments(data.odometry_between, data.odometry_cov)
+    np.testing.assert_allclose(replay.data.odometry_u, u, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(replay.data.odometry_cov, u_cov, rtol=0, atol=1e-18)
+
+
+def test_a_bag_without_odometry_is_refused_naming_both_topics(tmp_path: Path) -> None:
+    data = parse_victoria_park(_write(tmp_path / 'small.txt', GOOD_LINES))
+    registry = TypeRegistry()
+    observations_only = [spec for spec in TOPICS if spec.name == OBSERVATIONS_TOPIC]
+    messages = victoria_park_messages(data, registry, start_ns=0, period_ns=10)
+    kept = (item for item in messages if item[0] == OBSERVATIONS_TOPIC)
+    write_bag(tmp_path / 'bag', observations_only, kept, registry=registry)
+    with pytest.raises(BagError) as raised:
+        replay_bag(tmp_path / 'bag')
+    assert '/odom' in str(raised.value) and INCREMENTS_TOPIC in str(raised.value)
+    assert str(tmp_path / 'bag') in str(raised.value)
