@@ -1,9 +1,9 @@
-"""mrclam_import: UTIAS MRCLAM robots as rosbag2 mcap bags with ground truth.
+"""mrclam_import: UTIAS MRCLAM robots as rosbag2 mcap bags, with what ground truth exists.
 
-One bag per robot of a data set (default ``mrclam/MRCLAM_Dataset6`` under the datasets
-directory: ``$SLAM_DATA_DIR``, else ``../shared/data`` next to the repository). Bag stamps
-are the data set's times (int ns since the epoch, July 2009); every header stamp equals its
-bag stamp. Topics (all offered reliable; volatile unless stated):
+One bag per robot of a data set (``--dataset DIR``; default ``mrclam/MRCLAM_Dataset6`` under
+the datasets directory: ``$SLAM_DATA_DIR``, else ``../shared/data`` next to the repository).
+Bag stamps are the data set's times (int ns since the epoch, July 2009); every header stamp
+equals its bag stamp. Topics (all offered reliable; volatile unless stated):
 
 - ``/odom`` (nav_msgs/msg/Odometry, ``odom`` -> ``base_link``, every odometry sample,
   ~67 Hz): the wheel velocities integrated from (0, 0, 0) (midpoint heading) and the twist
@@ -15,21 +15,32 @@ bag stamp. Topics (all offered reliable; volatile unless stated):
   ``--bearing-sigma``^2). Sightings of unknown barcodes and of the robot itself are dropped
   (counted in the summary).
 - ``/ground_truth/pose`` (nav_msgs/msg/Odometry, ``map`` -> ``base_link``): the robot's
-  Vicon poses, zero twist and covariance.
+  Vicon poses, zero twist and covariance. Only when ``RobotN_Groundtruth.dat`` exists (data
+  sets 1-3 have none): without it the bag has no such topic.
 - ``/ground_truth/robots`` (nav_msgs/msg/Odometry, ``map`` -> ``robotK``): the Vicon poses
-  of the other four robots, thinned to at most 10 Hz each.
+  of the other robots that have a track, thinned to at most 10 Hz each; no such topic when
+  none has.
 - ``/ground_truth/landmarks`` (slam_interfaces/msg/LandmarkMap, ``map``, transient-local,
-  once at the bag start): the 15 static landmarks (moveable false, covariance from the Vicon
-  standard deviations) and the other 4 robots at their first Vicon position (moveable true);
-  num_observations is the number of kept sightings of each.
+  once at the bag start), always: the 15 static landmarks (moveable false, covariance from
+  the Vicon standard deviations), then the 4 other robots (moveable true), each at its first
+  Vicon position in the bag with covariance 0, or, **without a Vicon track, at position NaN
+  with covariance NaN**: a subject known to move whose whereabouts the data do not give. So
+  an evaluator knows every other robot as a moveable subject (a positive) in every data
+  set, and must not use a NaN position. num_observations is the number of kept sightings of
+  each.
+
+``--window-s S`` keeps the first S seconds from the robot's first odometry stamp (after
+the rows out of time order are sorted; ``MrclamRun.first_seconds``). ``--all`` writes every
+robot that has an odometry file (data set 3 has no ``Robot4_Odometry.dat``: robot 4 is
+skipped with a note; for ``--robot 4`` it is an error naming the file).
 
 The default observation sigmas are the robust spread (1.4826 x median absolute deviation)
 of robot 1's measured minus Vicon-implied range and bearing to the static landmarks of data
 set 6: 0.079 m and 0.011 rad (the median range residual is +0.038 m: a bias the model
 ignores). Bags are written under a hidden staging name and moved into place when complete;
 on any error (a malformed line included) nothing is left at the output path. ``--all``
-writes ``robot1`` .. ``robot5`` (``.mcap`` with ``--single-file``) into a new directory,
-staged as a whole.
+writes ``robotN`` (``.mcap`` with ``--single-file``) into a new directory, staged as a
+whole.
 """
 
 from __future__ import annotations
@@ -52,7 +63,13 @@ from slam_core.errors import BagError
 from slam_core.progress import ProgressReporter
 from slam_ros.qos import latched_qos, output_qos
 from slam_ros.typesys import TypeRegistry
-from slam_sim.core.mrclam import ROBOT_SUBJECTS, MrclamRun, Sightings, parse_mrclam
+from slam_sim.core.mrclam import (
+    ROBOT_SUBJECTS,
+    MrclamRun,
+    Sightings,
+    parse_mrclam,
+    robots_with_odometry,
+)
 from slam_sim.dataset_bag import (
     LANDMARK_MAP_TYPE,
     OBSERVATIONS_TYPE,
@@ -88,6 +105,16 @@ TOPICS = (
 _RANK = {topic.name: rank for rank, topic in enumerate(TOPICS)}
 
 
+def bag_topics(run: MrclamRun) -> tuple[TopicSpec, ...]:
+    """Return the topics a robot's bag holds: the ground-truth tracks only where they exist."""
+    absent = set()
+    if run.truth is None:
+        absent.add(TRUE_POSE_TOPIC)
+    if not run.robot_truth:
+        absent.add(TRUE_ROBOTS_TOPIC)
+    return tuple(topic for topic in TOPICS if topic.name not in absent)
+
+
 def thin_stamps(stamps_ns: IntArray, min_period_ns: int) -> IntArray:
     """Return indices of increasing ``stamps_ns`` (n,) kept at least ``min_period_ns`` apart
     (greedy from the first)."""
@@ -108,32 +135,41 @@ def observation_frames(sightings: Sightings) -> tuple[IntArray, IntArray]:
 
 
 def robot_truth_rows(run: MrclamRun) -> dict[int, IntArray]:
-    """Return, per other robot subject, the ground-truth rows written to /ground_truth/robots."""
+    """Return, per other robot with a Vicon track, the rows written to /ground_truth/robots."""
     return {
         k: thin_stamps(run.robot_truth[k].stamps_ns, ROBOT_TRUTH_MIN_PERIOD_NS)
         for k in run.other_robots
+        if k in run.robot_truth
     }
 
 
 def landmark_table(run: MrclamRun) -> tuple[IntArray, FloatArray, FloatArray, np.ndarray]:
     """Return the ground-truth map: subjects (L,), positions (L, 2) m, covariances
-    (L, 2, 2) m^2 and moveable flags (L,): static landmarks, then the other robots."""
+    (L, 2, 2) m^2 and moveable flags (L,): static landmarks, then the other robots (their
+    first Vicon position, covariance 0; NaN position and covariance without a track)."""
     others = run.other_robots
     subjects = np.concatenate([run.landmarks.subjects, np.array(others, dtype=np.int64)])
-    first = [run.robot_truth[k].poses[0, :2] for k in others]
+    first = [
+        run.robot_truth[k].poses[0, :2] if k in run.robot_truth else np.full(2, np.nan)
+        for k in others
+    ]
     positions = np.concatenate([run.landmarks.positions, np.array(first).reshape(-1, 2)])
     covariances = np.zeros((len(subjects), 2, 2))
     static = len(run.landmarks.subjects)
     covariances[:static, 0, 0] = run.landmarks.std_m[:, 0] ** 2
     covariances[:static, 1, 1] = run.landmarks.std_m[:, 1] ** 2
+    for row, k in enumerate(others, start=static):
+        if k not in run.robot_truth:
+            covariances[row] = np.nan
     moveable = np.arange(len(subjects)) >= static
     return subjects, positions, covariances, moveable
 
 
 def _schedule(run: MrclamRun, frame_stamps: IntArray) -> np.ndarray:
     """Return (stamp ns, topic rank, item, robot subject) rows (n, 4) in writing order."""
+    own_truth = [] if run.truth is None else [(run.truth.stamps_ns, _RANK[TRUE_POSE_TOPIC], 0)]
     parts = [
-        [(run.truth.stamps_ns, _RANK[TRUE_POSE_TOPIC], 0)],
+        own_truth,
         [(run.odometry.stamps_ns, _RANK[ODOM_TOPIC], 0)],
         [(frame_stamps, _RANK[OBSERVATIONS_TOPIC], 0)],
         [
@@ -162,6 +198,7 @@ def mrclam_messages(
     ``observation_sigmas`` = (range m, bearing rad) standard deviations of the sightings.
     """
     build = MessageFactory(registry, [topic.msgtype for topic in TOPICS])
+    truth = run.truth
     sightings = run.sightings
     frame_stamps, bounds = observation_frames(sightings)
     range_bearing = np.column_stack([sightings.range_m, sightings.bearing_rad])
@@ -181,8 +218,8 @@ def mrclam_messages(
             message = build.landmark_map(
                 stamp, subjects, positions, covariances, moveable, np.array(counts)
             )
-        elif topic == TRUE_POSE_TOPIC:
-            pose = run.truth.poses[item]
+        elif topic == TRUE_POSE_TOPIC and truth is not None:
+            pose = truth.poses[item]
             message = build.odometry(stamp, ('map', 'base_link'), pose, no_twist, (zeros, zeros))
         elif topic == TRUE_ROBOTS_TOPIC:
             pose = run.robot_truth[subject].poses[thinned[subject][item]]
@@ -232,13 +269,19 @@ def write_mrclam_bag(
         run, registry, observation_sigmas=(range_sigma_m, bearing_sigma_rad)
     )
     return write_bag(
-        path, TOPICS, messages, registry=registry, single_file=single_file, progress=progress
+        path,
+        bag_topics(run),
+        messages,
+        registry=registry,
+        single_file=single_file,
+        progress=progress,
     )
 
 
 def run_span_ns(run: MrclamRun) -> tuple[int, int]:
     """Return the first and last stamp (int ns) a robot's bag holds."""
-    stamps = [run.odometry.stamps_ns, run.truth.stamps_ns, run.sightings.stamps_ns]
+    stamps = [run.odometry.stamps_ns, run.sightings.stamps_ns]
+    stamps += [] if run.truth is None else [run.truth.stamps_ns]
     stamps += [t.stamps_ns for t in run.robot_truth.values()]
     return min(int(s[0]) for s in stamps if len(s)), max(int(s[-1]) for s in stamps if len(s))
 
@@ -254,7 +297,9 @@ def summary(run: MrclamRun, written: WrittenBag) -> str:
         f'({run.misplaced_odometry_rows} rows out of time order sorted, '
         f'{run.duplicate_odometry_stamps} repeated stamps dropped), '
         f'{written.counts[OBSERVATIONS_TOPIC]} observation messages with '
-        f'{len(run.sightings)} sightings (dropped: {dropped}), sightings of robots {seen}'
+        f'{len(run.sightings)} sightings (dropped: {dropped}), sightings of robots {seen}; '
+        f'Vicon tracks: {"own" if run.truth is not None else "no own"}, other robots '
+        f'{sorted(run.robot_truth) or "none"}'
     )
 
 
@@ -293,10 +338,13 @@ def _parser() -> argparse.ArgumentParser:
         help='standard deviation of a bearing measurement, rad',
     )
     parser.add_argument(
+        '--window-s',
         '--max-duration-s',
+        dest='window_s',
         type=float,
         default=None,
-        help='keep only the first S seconds after the first odometry sample',
+        metavar='S',
+        help='keep only the first S seconds from the first odometry stamp (default: all)',
     )
     parser.add_argument(
         '--single-file',
@@ -313,12 +361,14 @@ def _validate(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None
     ):
         if not (np.isfinite(value) and value > 0.0):
             parser.error(f'{option} must be a finite number > 0, got {value}')
-    duration = args.max_duration_s
+    duration = args.window_s
     if duration is not None and not (np.isfinite(duration) and duration > 0.0):
-        parser.error(f'--max-duration-s must be a finite number > 0, got {duration}')
+        parser.error(f'--window-s must be a finite number > 0, got {duration}')
 
 
-def _load(dataset: Path, robot: int, max_duration_s: float | None) -> MrclamRun:
+def load_run(dataset: Path, robot: int, window_s: float | None = None) -> MrclamRun:
+    """Return robot ``robot`` of ``dataset``, cropped to its first ``window_s`` seconds
+    (None: the whole run); warn on stderr about odometry rows out of time order."""
     run = parse_mrclam(dataset, robot)
     if run.misplaced_odometry_rows:
         print(  # noqa: T201
@@ -326,9 +376,7 @@ def _load(dataset: Path, robot: int, max_duration_s: float | None) -> MrclamRun:
             f'{run.misplaced_odometry_rows} rows out of time order, sorted by time',
             file=sys.stderr,
         )
-    if max_duration_s is not None:
-        run = run.until(int(run.odometry.stamps_ns[0]) + round(max_duration_s * 1e9))
-    return run
+    return run if window_s is None else run.first_seconds(window_s)
 
 
 def _write(run: MrclamRun, path: Path, args: argparse.Namespace) -> WrittenBag:
@@ -378,11 +426,18 @@ def main(argv: list[str] | None = None) -> int:
             raise BagError(f'output {str(target)!r} exists already; remove it or choose another')
         if not target.parent.is_dir():
             raise BagError(f'output {str(target)!r}: directory {str(target.parent)!r} is missing')
-        runs = [_load(dataset, robot, args.max_duration_s) for robot in ROBOT_SUBJECTS]
+        robots = robots_with_odometry(dataset)
+        skipped = [k for k in ROBOT_SUBJECTS if k not in robots]
+        if skipped:
+            print(  # noqa: T201
+                f'{PROG}: note: {dataset}: no odometry file for robots {skipped}; skipped',
+                file=sys.stderr,
+            )
+        runs = [load_run(dataset, robot, args.window_s) for robot in robots]
         lines = _write_all(runs, target, args)
     else:
         check_output(args.output, single_file=args.single_file)
-        run = _load(dataset, args.robot, args.max_duration_s)
+        run = load_run(dataset, args.robot, args.window_s)
         lines = [summary(run, _write(run, args.output, args))]
     for line in lines:
         print(line)  # noqa: T201

@@ -172,8 +172,7 @@ def test_windowed_bag_replays_through_the_ingest(dataset_dir: Path, tmp_path: Pa
     target = tmp_path / 'robot1'
     argv = ['--robot', '1', '--dataset', str(dataset_dir), '--output', str(target)]
     assert main([*argv, '--max-duration-s', '60', '--range-sigma', '0.1']) == 0
-    run = parse_mrclam(dataset_dir, 1)
-    run = run.until(int(run.odometry.stamps_ns[0]) + 60 * SECOND_NS)
+    run = parse_mrclam(dataset_dir, 1).first_seconds(60.0)
     replay = replay_bag(target)
     assert replay.warnings == ()
     assert len(replay.data.obs_z) == len(run.sightings) == 202
@@ -331,11 +330,84 @@ def test_malformed_line_is_named_and_nothing_is_written(
 
 def test_missing_file_is_named(tmp_path: Path) -> None:
     directory = _synthetic(tmp_path)
-    (directory / 'Robot4_Groundtruth.dat').unlink()
-    with pytest.raises(DatasetError, match=r'Robot4_Groundtruth\.dat: no such file'):
+    (directory / 'Robot1_Odometry.dat').unlink()
+    with pytest.raises(DatasetError, match=r'Robot1_Odometry\.dat: no such file'):
         parse_mrclam(directory, 1)
     with pytest.raises(DatasetError, match='no such data set directory'):
         parse_mrclam(tmp_path / 'nowhere', 1)
+
+
+def test_a_missing_vicon_track_leaves_that_robot_without_truth(tmp_path: Path) -> None:
+    directory = _synthetic(tmp_path)
+    (directory / 'Robot4_Groundtruth.dat').unlink()
+    (directory / 'Robot1_Groundtruth.dat').unlink()
+    run = parse_mrclam(directory, 1)
+    assert run.truth is None
+    assert sorted(run.robot_truth) == [2, 3, 5]
+    assert run.other_robots == (2, 3, 4, 5)
+    with pytest.raises(DatasetError, match=r'Robot1_Groundtruth\.dat: no such file'):
+        sighting_residuals(run)
+
+
+def test_first_seconds_keeps_the_window_from_the_first_odometry_stamp(tmp_path: Path) -> None:
+    run = parse_mrclam(_synthetic(tmp_path), 1)
+    assert run.start_ns == int(T0_S * SECOND_NS)
+    window = run.first_seconds(1.2)
+    end_ns = run.start_ns + 1_200_000_000
+    assert window.odometry.stamps_ns[[0, -1]].tolist() == [run.start_ns, end_ns]
+    assert window.sightings.subjects.tolist() == [6, 2]  # the 101.5 s sighting is out
+    assert window.robot_truth[2].stamps_ns[-1] == end_ns
+    with pytest.raises(DatasetError, match=r'Robot1_Odometry\.dat: fewer than 2 odometry'):
+        run.first_seconds(0.05)
+    with pytest.raises(ValueError, match='finite number of seconds > 0'):
+        run.first_seconds(0.0)
+
+
+def _without_vicon(directory: Path) -> Path:
+    for robot in range(1, 6):
+        (directory / f'Robot{robot}_Groundtruth.dat').unlink()
+    return directory
+
+
+def test_a_bag_without_vicon_lists_the_other_robots_moveable_at_nan(tmp_path: Path) -> None:
+    directory = _without_vicon(_synthetic(tmp_path))
+    target = tmp_path / 'robot1.mcap'
+    argv = ['--robot', '1', '--dataset', str(directory), '--output', str(target)]
+    assert main([*argv, '--single-file', '--window-s', '1.5']) == 0
+    with BagSource(target) as source:
+        assert set(source.topics()) == {ODOM_TOPIC, OBSERVATIONS_TOPIC, TRUE_LANDMARKS_TOPIC}
+    truth = read_ground_truth(target)
+    assert not truth.has_poses and not truth.covers(np.array([int(T0_S * SECOND_NS)])).any()
+    assert truth.landmark_ids.tolist() == [6, 7, 2, 3, 4, 5]
+    assert truth.moveable.tolist() == [False, False, True, True, True, True]
+    assert np.all(np.isnan(truth.positions_before[2:])) and np.all(
+        np.isfinite(truth.positions_before[:2])
+    )
+    (landmark_map,) = _messages(target, [TRUE_LANDMARKS_TOPIC])[TRUE_LANDMARKS_TOPIC]
+    assert np.all(np.isnan(landmark_map.landmarks[2].covariance))
+    assert landmark_map.landmarks[2].num_observations == 1  # robot 2 seen once
+    with pytest.raises(ValueError, match='no robot poses'):
+        truth.poses_at(np.array([0]))
+    replay = replay_bag(target)
+    assert replay.data.obs_landmark_id.tolist() == [6, 2, 7]
+
+
+def test_all_skips_a_robot_without_odometry_and_one_robot_names_the_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    directory = _synthetic(tmp_path)
+    for robot in (2, 3, 5):
+        for kind in ('Odometry', 'Measurement'):
+            source = (directory / f'Robot1_{kind}.dat').read_text(encoding='utf-8')
+            (directory / f'Robot{robot}_{kind}.dat').write_text(source, encoding='utf-8')
+    (directory / 'Robot4_Measurement.dat').write_text(_table([]), encoding='utf-8')
+    target = tmp_path / 'bags'
+    assert main(['--all', '--dataset', str(directory), '--output', str(target)]) == 0
+    assert sorted(p.name for p in target.iterdir()) == ['robot1', 'robot2', 'robot3', 'robot5']
+    assert 'no odometry file for robots [4]; skipped' in capsys.readouterr().err
+    argv = ['--robot', '4', '--dataset', str(directory), '--output', str(tmp_path / 'r4')]
+    assert main(argv) == 2
+    assert f'{directory / "Robot4_Odometry.dat"}: no such file' in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -344,6 +416,7 @@ def test_missing_file_is_named(tmp_path: Path) -> None:
         ['--range-sigma', '0'],
         ['--bearing-sigma', 'nan'],
         ['--max-duration-s', '-1'],
+        ['--window-s', 'inf'],
         ['--robot', '6'],
     ],
 )

@@ -8,7 +8,8 @@ One data set directory holds, for robots N = 1..5 (Leung, Halpern, Barfoot and L
 - ``RobotN_Measurement.dat``: time s, BARCODE (the header says "Subject #", but the numbers
   are barcodes), range m, bearing rad. ``RobotN_Measurement_x.dat`` (a subject-mapped copy
   made by someone else) is not read.
-- ``RobotN_Groundtruth.dat``: time s, x m, y m, theta rad (Vicon, ``map`` frame).
+- ``RobotN_Groundtruth.dat``: time s, x m, y m, theta rad (Vicon, ``map`` frame); optional:
+  data sets 1-3 have none.
 - ``Landmark_Groundtruth.dat``: subject, x m, y m, x std-dev m, y std-dev m.
 
 Lines starting with ``#`` are comments; columns are separated by blanks or tabs. Times are
@@ -19,7 +20,10 @@ What the parser does with the data:
 - Sightings are mapped from barcodes to subjects. Sightings of an unknown barcode and of the
   robot's own subject are dropped (kept in ``dropped_unknown``/``dropped_own`` for the
   counts); sightings of the other robots (subjects 1-5) are kept: they are real moving
-  landmarks, and ``robot_truth`` holds where each robot truly was.
+  landmarks. ``robot_truth`` holds where each other robot truly was, for those whose
+  ``RobotN_Groundtruth.dat`` exists; ``truth`` is the robot's own track, or None without
+  its file. ``other_robots`` are the four other robot subjects, with or without a track.
+  A missing odometry, measurement, barcode or landmark file is a ``DatasetError``.
 - Odometry is integrated into poses in an ``odom`` frame that starts at (0, 0, 0):
   pose k+1 = pose k moved by v_k dt along the midpoint heading theta_k + w_k dt / 2,
   dt = t_{k+1} - t_k. A sample whose time equals the previous sample's is dropped, keeping
@@ -28,6 +32,8 @@ What the parser does with the data:
   count is ``duplicate_odometry_stamps``. A time going backwards is an error.
 - Measurement times must not decrease (several sightings share a time); ground-truth times
   must increase.
+- ``MrclamRun.first_seconds(S)`` keeps the first S seconds from the run's first odometry
+  stamp (after sorting), the window every tool uses; ``until`` crops at any stamp.
 
 Every problem raises ``DatasetError`` naming ``file:line``.
 
@@ -35,12 +41,15 @@ Data set 6 as found: no odometry time goes backwards, but robots 2-5 repeat 1, 8
 odometry times (6 of the 23 repeats with different readings); robots 1, 3 and 4 see unknown
 barcodes 43 (once), 34 (twice) and 50 (3 times); no robot sees its own barcode. Robot 1's
 Vicon track ends about 128 s before its odometry does, so the last sightings of robot 1 by
-the others have no ground truth (``true_targets`` marks them).
+the others have no ground truth (``true_targets`` marks them). Data sets 1-3 have no
+``RobotN_Groundtruth.dat``, and data set 3 has no ``Robot4_Odometry.dat`` (robot 4 of it
+cannot be parsed; the others can, and their sightings of robot 4 are kept).
 """
 
 from __future__ import annotations
 
 import bisect
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -56,6 +65,14 @@ ROBOT_SUBJECTS = (1, 2, 3, 4, 5)
 UNKNOWN_SUBJECT = 0
 # Scale of the median absolute deviation that estimates a Gaussian's standard deviation.
 MAD_TO_SIGMA = 1.4826
+
+
+def _inside(stamps_ns: IntArray, start_ns: int | None, end_ns: int) -> BoolArray:
+    """Return which stamps (n,) lie in [``start_ns``, ``end_ns``] (None: no lower bound)."""
+    keep: BoolArray = stamps_ns <= end_ns
+    if start_ns is not None:
+        keep &= stamps_ns >= start_ns
+    return keep
 
 
 @dataclass(frozen=True)
@@ -81,9 +98,12 @@ class Trajectory:
         theta = np.interp(relative, knots, np.unwrap(self.poses[:, 2]))
         return np.stack([x, y, wrap_angle(theta)], axis=-1)
 
-    def until(self, end_ns: int) -> Trajectory:
-        """Return the samples at or before ``end_ns``."""
-        keep = self.stamps_ns <= end_ns
+    def within(self, start_ns: int | None, end_ns: int) -> Trajectory | None:
+        """Return the samples in [``start_ns``, ``end_ns``] (None: from the first), or None
+        if there are fewer than 2."""
+        keep = _inside(self.stamps_ns, start_ns, end_ns)
+        if np.count_nonzero(keep) < 2:
+            return None
         return Trajectory(self.stamps_ns[keep], self.poses[keep])
 
 
@@ -96,9 +116,10 @@ class Odometry:
     twists: FloatArray
     poses: FloatArray
 
-    def until(self, end_ns: int) -> Odometry:
-        """Return the samples at or before ``end_ns`` (poses unchanged: a prefix)."""
-        keep = self.stamps_ns <= end_ns
+    def within(self, start_ns: int | None, end_ns: int) -> Odometry:
+        """Return the samples in [``start_ns``, ``end_ns``] (None: from the first; poses
+        unchanged)."""
+        keep = _inside(self.stamps_ns, start_ns, end_ns)
         return Odometry(self.stamps_ns[keep], self.twists[keep], self.poses[keep])
 
 
@@ -154,7 +175,7 @@ class MrclamRun:
     dropped_own: Sightings
     duplicate_odometry_stamps: int
     misplaced_odometry_rows: int
-    truth: Trajectory
+    truth: Trajectory | None
     robot_truth: dict[int, Trajectory]
     landmarks: LandmarkTruth
 
@@ -165,24 +186,63 @@ class MrclamRun:
 
     @property
     def other_robots(self) -> tuple[int, ...]:
-        """Return the subjects of the other robots, ascending."""
-        return tuple(sorted(self.robot_truth))
+        """Return the subjects of the other robots, ascending (with or without Vicon track)."""
+        return tuple(k for k in ROBOT_SUBJECTS if k != self.robot)
+
+    @property
+    def start_ns(self) -> int:
+        """Return the run's first odometry stamp, int ns (where a time window starts)."""
+        return int(self.odometry.stamps_ns[0])
 
     def until(self, end_ns: int) -> MrclamRun:
-        """Return the run with every stamped item after ``end_ns`` removed."""
+        """Return the run with every stamped item after ``end_ns`` removed (see ``within``)."""
+        return self.within(None, end_ns)
+
+    def within(self, start_ns: int | None, end_ns: int) -> MrclamRun:
+        """Return the run with every stamped item outside [``start_ns``, ``end_ns``] removed
+        (None: no lower bound); a Vicon track left with fewer than 2 samples is dropped
+        (``truth`` None, or not in ``robot_truth``).
+
+        Raises:
+            DatasetError: fewer than 2 odometry samples are left.
+
+        """
 
         def crop(sightings: Sightings) -> Sightings:
-            return sightings.select(sightings.stamps_ns <= end_ns)
+            return sightings.select(_inside(sightings.stamps_ns, start_ns, end_ns))
 
+        odometry = self.odometry.within(start_ns, end_ns)
+        if len(odometry.stamps_ns) < 2:
+            raise DatasetError(
+                f'{self.dataset_dir / f"Robot{self.robot}_Odometry.dat"}: fewer than 2 odometry '
+                f'samples up to {end_ns / 1e9:.3f} s; choose a longer time window'
+            )
+        cropped = {k: t.within(start_ns, end_ns) for k, t in self.robot_truth.items()}
         return replace(
             self,
-            odometry=self.odometry.until(end_ns),
+            odometry=odometry,
             sightings=crop(self.sightings),
             dropped_unknown=crop(self.dropped_unknown),
             dropped_own=crop(self.dropped_own),
-            truth=self.truth.until(end_ns),
-            robot_truth={k: t.until(end_ns) for k, t in self.robot_truth.items()},
+            truth=None if self.truth is None else self.truth.within(start_ns, end_ns),
+            robot_truth={k: t for k, t in cropped.items() if t is not None},
         )
+
+    def first_seconds(self, duration_s: float) -> MrclamRun:
+        """Return the first ``duration_s`` seconds of the run: the items stamped in
+        [``start_ns``, ``start_ns`` + ``duration_s``] (Vicon samples and sightings before the
+        first odometry stamp are dropped too).
+
+        Raises:
+            ValueError: ``duration_s`` is not a finite number > 0.
+            DatasetError: fewer than 2 odometry samples are left.
+
+        """
+        if not (math.isfinite(duration_s) and duration_s > 0.0):
+            raise ValueError(
+                f'a time window must be a finite number of seconds > 0, got {duration_s}'
+            )
+        return self.within(self.start_ns, self.start_ns + round(duration_s * 1e9))
 
 
 def _read_barcodes(path: Path) -> dict[int, int]:
@@ -293,7 +353,10 @@ def _read_measurements(path: Path, barcode_of: dict[int, int]) -> Sightings:
     )
 
 
-def _read_groundtruth(path: Path) -> Trajectory:
+def _read_groundtruth(path: Path) -> Trajectory | None:
+    """Return the Vicon track in ``path``, or None if the file does not exist."""
+    if not path.exists():
+        return None
     columns = [('time', Kind.STAMP), ('x', Kind.FLOAT), ('y', Kind.FLOAT)]
     table = read_table(path, [*columns, ('theta', Kind.FLOAT)])
     stamps = table.ints('time')
@@ -304,13 +367,35 @@ def _read_groundtruth(path: Path) -> Trajectory:
     return Trajectory(stamps, poses)
 
 
+def robots_with_odometry(dataset_dir: Path | str) -> tuple[int, ...]:
+    """Return the robot subjects (ascending) whose ``RobotN_Odometry.dat`` exists.
+
+    Raises:
+        DatasetError: ``dataset_dir`` is not a directory, or no robot has an odometry file.
+
+    """
+    directory = Path(dataset_dir)
+    if not directory.is_dir():
+        raise DatasetError(f'{directory}: no such data set directory')
+    robots = tuple(k for k in ROBOT_SUBJECTS if (directory / f'Robot{k}_Odometry.dat').is_file())
+    if not robots:
+        raise DatasetError(
+            f'{directory}: no RobotN_Odometry.dat (N = 1-5); not an MRCLAM data set directory'
+        )
+    return robots
+
+
 def parse_mrclam(dataset_dir: Path | str, robot: int) -> MrclamRun:
     """Return robot ``robot`` (1-5) of the MRCLAM data set in ``dataset_dir``.
 
+    The Vicon tracks (``RobotN_Groundtruth.dat``) are optional: ``truth`` is None and
+    ``robot_truth`` lacks a robot whose file is absent.
+
     Raises:
         ValueError: ``robot`` is not 1-5.
-        DatasetError: a file is missing or malformed (wrong column count, a value that is not
-            a finite number, times out of order, ...); the message names file:line.
+        DatasetError: a file other than a Vicon track is missing, or a file is malformed
+            (wrong column count, a value that is not a finite number, times out of order,
+            ...); the message names file:line.
 
     """
     if robot not in ROBOT_SUBJECTS:
@@ -323,6 +408,7 @@ def parse_mrclam(dataset_dir: Path | str, robot: int) -> MrclamRun:
     odometry, misplaced, duplicates = _read_odometry(directory / f'Robot{robot}_Odometry.dat')
     sightings = _read_measurements(directory / f'Robot{robot}_Measurement.dat', barcode_of)
     truth = {k: _read_groundtruth(directory / f'Robot{k}_Groundtruth.dat') for k in ROBOT_SUBJECTS}
+    robot_truth = {k: t for k, t in truth.items() if k != robot and t is not None}
     unknown = sightings.subjects == UNKNOWN_SUBJECT
     own = sightings.subjects == robot
     return MrclamRun(
@@ -336,7 +422,7 @@ def parse_mrclam(dataset_dir: Path | str, robot: int) -> MrclamRun:
         duplicate_odometry_stamps=duplicates,
         misplaced_odometry_rows=misplaced,
         truth=truth[robot],
-        robot_truth={k: t for k, t in truth.items() if k != robot},
+        robot_truth=robot_truth,
         landmarks=landmarks,
     )
 
@@ -362,7 +448,17 @@ def true_targets(run: MrclamRun, sightings: Sightings) -> tuple[FloatArray, Bool
 def sighting_residuals(run: MrclamRun) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Return measured minus true range m (K,) and bearing rad (K,) of the kept sightings,
     from the Vicon poses of the robot and its targets, and a mask (K,) of the sightings that
-    have ground truth (elsewhere the residuals are NaN)."""
+    have ground truth (elsewhere the residuals are NaN).
+
+    Raises:
+        DatasetError: the robot has no Vicon track (no ``RobotN_Groundtruth.dat``).
+
+    """
+    if run.truth is None:
+        raise DatasetError(
+            f'{run.dataset_dir / f"Robot{run.robot}_Groundtruth.dat"}: no such file; the '
+            "sighting residuals need the robot's Vicon track"
+        )
     sightings = run.sightings
     targets, known = true_targets(run, sightings)
     known &= run.truth.covers(sightings.stamps_ns)
