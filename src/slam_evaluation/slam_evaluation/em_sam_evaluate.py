@@ -1,15 +1,24 @@
-"""em_sam_evaluate: score EM-SAM against ground truth on simulated bags.
+"""em_sam_evaluate: score EM-SAM on simulated bags and on the real data sets.
 
     em_sam_evaluate BAG [BAG ...] [--output DIR]
     em_sam_evaluate --simulate 0-9 [--variant standard] [--output DIR]
+    em_sam_evaluate --mrclam DIR [--robots 1 2 ...] [--window-s full 600 300] [--output DIR]
+    em_sam_evaluate --victoria-park FILE_OR_BAG [--output DIR]
 
-For every bag (or simulated seed), the odometry and observations are replayed through the
-nodes' processors and five methods are compared: odometry only, plain SAM (every landmark
+Simulated bags (or seeds): the odometry and observations are replayed through the nodes'
+processors and five methods are compared: odometry only, plain SAM (every landmark
 static), EM-SAM 'paper', EM-SAM 'robust', and an oracle with the truly moveable landmarks
 removed. Columns: ATE RMSE (m, after SE(2) alignment), static landmark map error (m, same
 alignment), moveable precision and recall (positives: moved landmarks seen at both
 positions), runtime. Writes results.md, results.json and figures (the paper's Figs. 2-5 and
 weights per EM iteration) into the output directory.
+
+--mrclam: every robot of an MRCLAM data set (or --robots) in every time window (--window-s:
+seconds from the robot's first odometry stamp; 'full' or 0 is the whole run), imported with
+mrclam_import's writer and replayed the same way; scored on moveable flags, ATE where a
+Vicon track exists and the static map (see em_sam_mrclam). --victoria-park: the trees'
+weights, the flagged trees and why, and the all-static cost (see em_sam_victoria_park).
+Both write results.md, results.json and PNG figures into --output, and log progress.
 """
 
 from __future__ import annotations
@@ -24,18 +33,18 @@ from pathlib import Path
 
 import numpy as np
 
-from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
+from em_sam_node.core.assembly import MappingData, dead_reckoning
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.problem import FloatArray
-from em_sam_node.core.solver import solve
-from em_sam_node.core.structure import anchor_pieces, with_weak_priors
 from em_sam_node.offline import GroundTruth, read_ground_truth, replay_bag, seen_at_both_positions
 from em_sam_node.report import write_figures
 from slam_core.cli import console_main
 from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
+from slam_evaluation.em_sam_datasets import add_dataset_options, run_datasets
 from slam_evaluation.em_sam_metrics import align_se2, ate_rmse, classify, landmark_rmse
+from slam_evaluation.em_sam_runs import solve_all_static
 
 METHODS = ('odometry', 'plain_sam', 'em_sam_paper', 'em_sam_robust', 'oracle', 'live_mapper')
 
@@ -67,19 +76,6 @@ class MethodOutput:
     stamps_ns: np.ndarray | None = None  # keyframe stamps, when not the replayed ones
 
 
-def _solve_all_static(
-    data: MappingData, exclude: list[int]
-) -> tuple[FloatArray, np.ndarray, FloatArray]:
-    built = build_problem(data, exclude_ids=exclude)
-    poses0 = dead_reckoning(data)
-    anchored = anchor_pieces(built.problem, poses0)
-    problem = with_weak_priors(
-        built.problem, anchored.extra_prior_poses, anchored.extra_prior_means
-    )
-    result = solve(problem, initial_estimate(problem, poses0), method='levenberg_marquardt')
-    return result.estimate.poses, built.landmark_ids, result.estimate.landmarks
-
-
 def run_methods(data: MappingData, truth: GroundTruth) -> dict[str, MethodOutput]:
     """Run the five methods on one run's data."""
     outputs: dict[str, MethodOutput] = {}
@@ -92,9 +88,10 @@ def run_methods(data: MappingData, truth: GroundTruth) -> dict[str, MethodOutput
         ('plain_sam', []),
         ('oracle', truth.landmark_ids[truth.moveable].tolist()),
     ):
-        started = time.perf_counter()
-        poses, ids, positions = _solve_all_static(data, exclude)
-        outputs[method] = MethodOutput(poses, ids, positions, set(), time.perf_counter() - started)
+        solved = solve_all_static(data, exclude)
+        outputs[method] = MethodOutput(
+            solved.poses, solved.landmark_ids, solved.positions, set(), solved.runtime_s
+        )
     for mode in ('paper', 'robust'):
         started = time.perf_counter()
         result = run_em(data, EmConfig(mode=mode), record_snapshots=False)
@@ -221,10 +218,12 @@ def _simulated_bags(seeds: list[int], variant: str, directory: Path) -> list[Pat
     return paths
 
 
-@console_main('em_sam_evaluate')
-def main(argv: list[str] | None = None) -> int:
-    """Evaluate bags or simulated seeds; print the table; write results and figures."""
-    parser = argparse.ArgumentParser(prog='em_sam_evaluate', description=__doc__.splitlines()[0])
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='em_sam_evaluate',
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument('bags', nargs='*', type=Path, help='simulated bags with ground truth')
     parser.add_argument('--simulate', metavar='SEEDS', help="simulate seeds, e.g. '0-9' or '1,4'")
     parser.add_argument('--variant', default='standard', help='simulation variant')
@@ -236,9 +235,20 @@ def main(argv: list[str] | None = None) -> int:
         metavar='JSON',
         help="em_sam_mapper's em_sam_report.json for the (first) bag: adds a live_mapper row",
     )
+    add_dataset_options(parser)
+    return parser
+
+
+@console_main('em_sam_evaluate')
+def main(argv: list[str] | None = None) -> int:
+    """Evaluate bags, simulated seeds or a real data set; print the table; write results."""
+    parser = _parser()
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    if not args.bags and not args.simulate:
-        parser.error('give bags, or --simulate SEEDS')
+    datasets = [args.mrclam is not None, args.victoria_park is not None]
+    if sum(datasets) + bool(args.bags or args.simulate) != 1:
+        parser.error('give bags or --simulate SEEDS, or --mrclam DIR, or --victoria-park FILE')
+    if any(datasets):
+        return run_datasets(parser, args)
     with tempfile.TemporaryDirectory(prefix='em_sam_eval_') as scratch:
         bags = list(args.bags)
         if args.simulate:

@@ -82,3 +82,63 @@ def classify(flagged: set[int], positives: set[int], negatives: set[int]) -> Cla
         false_positives=len(flagged & negatives),
         false_negatives=len(positives - flagged),
     )
+
+
+@dataclass(frozen=True)
+class MapError:
+    """A static map against its ground truth after a robust SE(2) alignment: per-landmark
+    errors (L,) m (aligned with ``landmark_ids``), the alignment, and the landmarks that
+    were left out of the final fit (more than ``outlier_m`` off)."""
+
+    landmark_ids: np.ndarray
+    errors_m: FloatArray
+    alignment: Alignment
+    outlier_m: float
+
+    @property
+    def median_m(self) -> float:
+        """Median landmark error, m (NaN without landmarks)."""
+        return float(np.median(self.errors_m)) if len(self.errors_m) else float('nan')
+
+    @property
+    def max_m(self) -> float:
+        """Largest landmark error, m (NaN without landmarks)."""
+        return float(np.max(self.errors_m)) if len(self.errors_m) else float('nan')
+
+    @property
+    def far_ids(self) -> list[int]:
+        """Ids of the landmarks more than ``outlier_m`` off, worst first."""
+        order = np.argsort(-self.errors_m, kind='stable')
+        return [int(self.landmark_ids[i]) for i in order if self.errors_m[i] > self.outlier_m]
+
+
+def robust_map_error(
+    landmark_ids: np.ndarray,
+    estimate_xy: FloatArray,
+    truth_xy: FloatArray,
+    *,
+    outlier_m: float,
+    max_rounds: int = 10,
+) -> MapError:
+    """Return the errors of landmarks (L,2) against the truth (L,2) after an SE(2) alignment
+    fitted on the landmarks within ``outlier_m`` of the truth (refitted until that set stops
+    changing, at most ``max_rounds`` times), so that a few wrong landmarks (a swapped
+    identity) are named instead of skewing every error.
+
+    Raises:
+        ValueError: fewer than 2 landmarks, or shapes that differ.
+
+    """
+    if estimate_xy.shape != truth_xy.shape or len(estimate_xy) < 2:
+        raise ValueError('a map error needs two equally long point sets of at least 2 points')
+    inliers = np.ones(len(estimate_xy), dtype=bool)
+    alignment = align_se2(estimate_xy, truth_xy)
+    for _ in range(max_rounds):
+        errors = np.linalg.norm(alignment.apply(estimate_xy) - truth_xy, axis=1)
+        within = errors <= outlier_m
+        if np.count_nonzero(within) < 2 or np.array_equal(within, inliers):
+            break
+        inliers = within
+        alignment = align_se2(estimate_xy[inliers], truth_xy[inliers])
+    errors = np.linalg.norm(alignment.apply(estimate_xy) - truth_xy, axis=1)
+    return MapError(np.asarray(landmark_ids), errors, alignment, outlier_m)

@@ -1,0 +1,107 @@
+"""What every EM-SAM evaluation runs on replayed data: the all-static solve, EM-SAM in both
+modes, and the window and time helpers the dataset evaluators share."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TypeVar
+
+import numpy as np
+
+from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
+from em_sam_node.core.em import run_em
+from em_sam_node.core.em_types import EmConfig, EmResult
+from em_sam_node.core.problem import FloatArray, IntArray
+from em_sam_node.core.solver import solve
+from em_sam_node.core.structure import anchor_pieces, with_weak_priors
+
+T = TypeVar('T')
+
+EM_MODES = ('paper', 'robust')
+FULL_RUN = 'full'
+
+
+@dataclass(frozen=True)
+class AllStatic:
+    """Plain SAM, every landmark static: poses (N,3), landmark ids (L,) and positions (L,2),
+    the final cost (0.5 x squared whitened residuals, the prior included) and the runtime."""
+
+    poses: FloatArray
+    landmark_ids: IntArray
+    positions: FloatArray
+    cost: float
+    status: str
+    runtime_s: float
+
+
+def solve_all_static(data: MappingData, exclude: list[int] | None = None) -> AllStatic:
+    """Return plain SAM (Levenberg-Marquardt from dead reckoning) without ``exclude``."""
+    started = time.perf_counter()
+    built = build_problem(data, exclude_ids=exclude or [])
+    poses0 = dead_reckoning(data)
+    anchored = anchor_pieces(built.problem, poses0)
+    problem = with_weak_priors(
+        built.problem, anchored.extra_prior_poses, anchored.extra_prior_means
+    )
+    result = solve(problem, initial_estimate(problem, poses0), method='levenberg_marquardt')
+    return AllStatic(
+        result.estimate.poses,
+        built.landmark_ids,
+        result.estimate.landmarks,
+        result.final_cost,
+        result.status,
+        time.perf_counter() - started,
+    )
+
+
+def timed(function: Callable[[], T]) -> tuple[float, T]:
+    """Return the wall time (s) of ``function()`` and its value."""
+    started = time.perf_counter()
+    value = function()
+    return time.perf_counter() - started, value
+
+
+def run_em_modes(data: MappingData) -> dict[str, tuple[float, EmResult]]:
+    """Return (runtime s, result) of EM-SAM in each mode, without snapshots."""
+    results = {}
+    for mode in EM_MODES:
+        config = EmConfig(mode=mode)
+        results[mode] = timed(lambda: run_em(data, config, record_snapshots=False))  # noqa: B023
+    return results
+
+
+def flagged_ids(result: EmResult) -> set[int]:
+    """Return the ids EM-SAM flagged moveable."""
+    return {int(i) for i in result.landmark_ids[result.moveable].tolist()}
+
+
+def parse_window(text: str) -> float | None:
+    """Return a ``--window-s`` value in seconds, None for the whole run ('full' or 0).
+
+    Raises:
+        ValueError: neither 'full' nor a finite number >= 0.
+
+    """
+    if text.strip().lower() == FULL_RUN:
+        return None
+    try:
+        seconds = float(text)
+    except ValueError:
+        raise ValueError(f"time window {text!r}: give seconds (e.g. 300) or 'full'") from None
+    if not math.isfinite(seconds) or seconds < 0.0:
+        raise ValueError(f"time window {text!r}: must be a finite number >= 0 or 'full'")
+    return None if seconds == 0.0 else seconds
+
+
+def window_label(window_s: float | None) -> str:
+    """Return how a time window is named in reports: 'full' or e.g. '300 s'."""
+    return FULL_RUN if window_s is None else f'{window_s:g} s'
+
+
+def sightings_per_id(data: MappingData) -> dict[int, int]:
+    """Return the number of sightings of every landmark id in ``data``."""
+    ids, counts = np.unique(data.obs_landmark_id, return_counts=True)
+    return dict(zip(ids.tolist(), counts.tolist(), strict=True))
