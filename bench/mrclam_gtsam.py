@@ -1,28 +1,46 @@
-"""Benchmark: EM-SAM on UTIAS MRCLAM dataset 6, each robot, against GTSAM GNC-TLS.
+"""Benchmark: EM-SAM on UTIAS MRCLAM data sets, per robot and time window, against GTSAM.
 
     pip install -r requirements/bench.txt      # gtsam, a benchmark-only dependency
-    python bench/mrclam_gtsam.py [--robots 1 2 3 4 5] [--output bench/results]
+    python bench/mrclam_gtsam.py [--dataset DIR [DIR ...]] [--robots 1 2 3 4 5]
+        [--window-s full 600 300] [--gnc-spread N] [--output bench/results]
 
-Each robot's run is imported with ``mrclam_import`` (slam_sim.mrclam_bag; into a
-temporary directory) and replayed through the nodes' processors (``offline.replay_bag``:
-the odometry_ingest keyframing and noise model the node uses). Sightings of the other four
-robots are real moving landmarks (the positives); the 15 static barcodes are the
-negatives. Rows, all from the same keyframed data and the same dead-reckoning start:
+Each robot's run (default data set 6; every robot with an odometry file unless --robots;
+each --window-s: the first S seconds from the robot's first odometry stamp, 'full' or 0 the
+whole run) is imported with ``mrclam_import``'s writer (slam_sim.mrclam_bag) into a
+temporary directory and replayed through the nodes' processors (``offline.replay_bag``: the
+odometry_ingest keyframing and noise model the node uses). Sightings of the other robots
+are real moving landmarks (the positives: those sighted at least 20 times in the window);
+the static barcodes are the negatives. Rows, all from the same keyframed data and the same
+dead-reckoning start (landmarks placed from their first sighting):
 
-- odometry only;
-- plain SAM (every landmark static, Levenberg-Marquardt);
+- odometry only; plain SAM (ours, every landmark static, Levenberg-Marquardt);
 - EM-SAM ``paper`` and ``robust`` (``em_sam_node.core.em.run_em``);
+- GTSAM 4.3 Levenberg-Marquardt, every landmark static, on the same factors: each
+  differential-drive increment as a BetweenFactor<Pose2> (exact mean, first-order
+  covariance), each sighting as a BearingRangeFactor2D with the same noise, the same prior;
 - GTSAM 4.3 GNC with the truncated least squares loss (GncLMOptimizer, odometry and prior
-  known inliers) on the same factors: each differential-drive increment as a
-  BetweenFactor<Pose2> (exact mean, first-order covariance), each sighting as a
-  BearingRangeFactor2D with the same noise; a landmark counts as flagged when most of its
-  sightings end with GNC weight below 0.5;
-- the oracle: plain SAM with the other robots removed (ground truth).
+  known inliers, GTSAM's default inlier threshold: the 0.99 chi-square quantile) on the
+  same factors; a landmark counts as flagged when most of its sightings end with GNC
+  weight below 0.5;
+- the oracle: plain SAM (ours) with the other robots removed.
 
-ATE is the RMSE after an SE(2) alignment, over the keyframes Vicon covers (robot 1's Vicon
-track ends about 128 s before its odometry). Writes mrclam_gtsam.md with a table per robot
-and the acceptance checks (robust mode: no static barcode flagged; every other robot seen
-at least 20 times flagged; ATE no worse than GNC's), and mrclam_gtsam.png (trajectories).
+Both GTSAM rows use Levenberg-Marquardt with Marquardt's diagonal damping
+(``setDiagonalDamping``), GTSAM's defaults otherwise: with the default lambda I damping,
+LM stops on these graphs once lambda passes its 1e5 bound after ~10 iterations, far from
+converged (robot 1, full run: cost 72801 against 69848), and GNC's weights were computed
+from those unconverged solves. Every number handed to GTSAM is rounded to a fixed grid
+(``gtsam_inputs``) so that last-bit differences in our float pipeline cannot change GNC's
+discrete inlier decisions: GNC-TLS is bistable on some runs (bench/README.md).
+``--gnc-spread N`` reruns GNC on N copies of the odometry scaled by 1 + 1e-8 e (e standard
+normal, seeded; a millionth of the data's resolution) and reports the range of its ATE.
+
+ATE is the RMSE after an SE(2) alignment over the keyframes Vicon covers, only where
+``RobotN_Groundtruth.dat`` exists (data set 6); without it the ATE columns say n/a. Writes
+mrclam_gtsam.md (a section per data set, a table per robot and window, the acceptance
+checks of EM-SAM robust: no static barcode flagged, every positive flagged, ATE no worse
+than GNC's where there is truth; and one cross-data-set table to paste into
+bench/README.md), mrclam_gtsam.json and mrclam_gtsam.png (trajectories), atomically.
+Exit status 1 if a check fails.
 """
 
 from __future__ import annotations
@@ -32,123 +50,97 @@ import importlib
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from bench_common import source_revision
+from gtsam_inputs import mrclam_graph, poses_of
 
-from em_sam_node.core.assembly import (
-    MappingData,
-    build_problem,
-    dead_reckoning,
-    initial_estimate,
-)
-from em_sam_node.core.em import run_em
-from em_sam_node.core.em_types import EmConfig
-from em_sam_node.core.solver import solve
-from em_sam_node.offline import read_ground_truth, replay_bag
+from em_sam_node.core.assembly import MappingData, dead_reckoning
+from em_sam_node.offline import GroundTruth, read_ground_truth, replay_bag
+from slam_core.datasets import data_root
+from slam_core.files import write_atomically, write_json
 from slam_evaluation.em_sam_metrics import ate_rmse
-from slam_sim import mrclam_bag
+from slam_evaluation.em_sam_mrclam import MIN_SIGHTINGS
+from slam_evaluation.em_sam_runs import (
+    flagged_ids,
+    parse_window,
+    run_em_modes,
+    sightings_per_id,
+    solve_all_static,
+    window_label,
+)
+from slam_sim.core.mrclam import robots_with_odometry
+from slam_sim.mrclam_bag import load_run, write_mrclam_bag
 
 ROOT = Path(__file__).resolve().parents[1]
-ROBOT_IDS = (1, 2, 3, 4, 5)
-MIN_SIGHTINGS = 20
+DEFAULT_DATASET = 'mrclam/MRCLAM_Dataset6'
+GNC_OUTLIER_WEIGHT = 0.5  # a sighting whose final GNC weight is below this is an outlier
+SPREAD_SCALE = 1e-8  # relative odometry perturbation of --gnc-spread
+FIGURE_COLUMNS = 5
+CROSS_METHODS = ('EM-SAM robust', 'EM-SAM paper', 'GTSAM LM', 'GTSAM GNC-TLS')
 
 
-@dataclass(frozen=True)
+@dataclass
 class Row:
-    """One method on one robot."""
+    """One method on one run: ATE (NaN without truth), flagged ids, wall time, poses."""
 
     method: str
     ate_m: float
-    flagged: set[int]
+    flagged: set[int] | None
     seconds: float
-    poses: np.ndarray
+    poses: np.ndarray = field(repr=False)
+    note: str = ''
 
 
-def between_of_increment(u: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The SE(2) relative pose of a differential-drive increment and its covariance."""
-    half = u[:, 2] / 2.0
-    c, s = np.cos(half), np.sin(half)
-    between = np.column_stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1], u[:, 2]])
-    jacobian = np.zeros((len(u), 3, 3))
-    jacobian[:, 0, 0], jacobian[:, 0, 1] = c, -s
-    jacobian[:, 1, 0], jacobian[:, 1, 1] = s, c
-    jacobian[:, 0, 2] = -0.5 * between[:, 1]
-    jacobian[:, 1, 2] = 0.5 * between[:, 0]
-    jacobian[:, 2, 2] = 1.0
-    return between, jacobian @ cov @ np.swapaxes(jacobian, 1, 2)
+@dataclass
+class RunRows:
+    """The rows of one robot and window, and what the report needs about the run."""
+
+    dataset: str
+    robot: int
+    window: str
+    positives: set[int]
+    negatives: set[int]
+    has_truth: bool
+    rows: list[Row]
+    truth_poses: np.ndarray = field(repr=False)
+
+
+def lm_params(gtsam: Any) -> Any:
+    """GTSAM's LM parameters with Marquardt's diagonal damping (see the module docstring)."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setDiagonalDamping(True)
+    return params
+
+
+def gtsam_lm(gtsam: Any, data: MappingData) -> tuple[np.ndarray, str]:
+    """Plain GTSAM LM, every landmark static; the poses and its cost and iterations."""
+    graph = mrclam_graph(gtsam, data)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph.graph, graph.values, lm_params(gtsam))
+    result = optimizer.optimize()
+    note = f'cost {graph.graph.error(result):.6g}, {optimizer.iterations()} iterations'
+    return poses_of(result, graph.built.problem.num_poses), note
 
 
 def gnc_tls(gtsam: Any, data: MappingData) -> tuple[np.ndarray, set[int]]:
     """GTSAM GNC-TLS on the same factors; returns the poses and the flagged landmark ids."""
-    built = build_problem(data)
-    problem = built.problem
-    start = initial_estimate(problem, dead_reckoning(data))
-    graph = gtsam.NonlinearFactorGraph()
-    graph.add(
-        gtsam.PriorFactorPose2(
-            0, gtsam.Pose2(*data.prior_pose), gtsam.noiseModel.Gaussian.Covariance(data.prior_cov)
-        )
-    )
-    between, cov = between_of_increment(data.odometry_u, data.odometry_cov)
-    for m in range(len(between)):
-        graph.add(
-            gtsam.BetweenFactorPose2(
-                int(data.odometry_from[m]),
-                int(data.odometry_to[m]),
-                gtsam.Pose2(*between[m]),
-                gtsam.noiseModel.Gaussian.Covariance(0.5 * (cov[m] + cov[m].T)),
-            )
-        )
-    known_inliers = list(range(graph.size()))
-    obs_cov = data.obs_cov[built.observation_rows]
-    first_observation = graph.size()
-    for k in range(problem.num_observations):
-        sigma_r, sigma_b = np.sqrt(obs_cov[k, 0, 0]), np.sqrt(obs_cov[k, 1, 1])
-        graph.add(
-            gtsam.BearingRangeFactor2D(
-                int(problem.obs_pose[k]),
-                gtsam.symbol('l', int(problem.obs_landmark[k])),
-                gtsam.Rot2(float(problem.obs_z[k, 1])),
-                float(problem.obs_z[k, 0]),
-                gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma_b, sigma_r])),
-            )
-        )
-    values = gtsam.Values()
-    for i, pose in enumerate(start.poses):
-        values.insert(i, gtsam.Pose2(*pose))
-    for j, point in enumerate(start.landmarks):
-        values.insert(gtsam.symbol('l', j), np.asarray(point, dtype=float))
-    params = gtsam.GncLMParams()
+    graph = mrclam_graph(gtsam, data)
+    params = gtsam.GncLMParams(lm_params(gtsam))
     params.setLossType(gtsam.GncLossType.TLS)
-    params.setKnownInliers(known_inliers)
-    optimizer = gtsam.GncLMOptimizer(graph, values, params)
+    params.setKnownInliers(list(range(graph.first_observation)))
+    optimizer = gtsam.GncLMOptimizer(graph.graph, graph.values, params)
     result = optimizer.optimize()
-    weights = np.asarray(optimizer.getWeights())[first_observation:]
-    poses = np.array(
-        [[(p := result.atPose2(i)).x(), p.y(), p.theta()] for i in range(problem.num_poses)]
-    )
+    weights = np.asarray(optimizer.getWeights())[graph.first_observation :]
+    problem = graph.built.problem
     flagged = set()
-    for j, landmark_id in enumerate(built.landmark_ids.tolist()):
+    for j, landmark_id in enumerate(graph.built.landmark_ids.tolist()):
         mine = weights[problem.obs_landmark == j]
-        if mine.size and np.mean(mine < 0.5) > 0.5:
+        if mine.size and np.mean(mine < GNC_OUTLIER_WEIGHT) > 0.5:
             flagged.add(int(landmark_id))
-    return poses, flagged
-
-
-def plain_sam(data: MappingData, exclude: list[int]) -> np.ndarray:
-    built = build_problem(data, exclude_ids=exclude)
-    result = solve(
-        built.problem,
-        initial_estimate(built.problem, dead_reckoning(data)),
-        method='levenberg_marquardt',
-        max_iterations=200,
-        relative_cost_tolerance=1e-6,
-    )
-    return result.estimate.poses
+    return poses_of(result, problem.num_poses), flagged
 
 
 def timed(function: Any) -> tuple[float, Any]:
@@ -157,116 +149,273 @@ def timed(function: Any) -> tuple[float, Any]:
     return time.perf_counter() - started, value
 
 
-def evaluate_robot(
-    gtsam: Any, bag: Path, robot: int
-) -> tuple[list[Row], dict[int, int], np.ndarray]:
-    """The rows of one robot, its sightings per landmark id, and its Vicon poses."""
-    data = replay_bag(bag).data
-    truth = read_ground_truth(bag)
-    covered = (data.keyframe_stamps_ns >= truth.stamps_ns[0]) & (
-        data.keyframe_stamps_ns <= truth.stamps_ns[-1]
-    )
-    true_xy = truth.poses_at(data.keyframe_stamps_ns)[:, :2]
-    robots = [r for r in ROBOT_IDS if r != robot]
+def gnc_spread(gtsam: Any, data: MappingData, ate: Any, copies: int) -> str:
+    """Return the range of GNC's ATE over ``copies`` perturbed copies of the odometry."""
+    values = []
+    for seed in range(copies):
+        noise = np.random.default_rng(seed).standard_normal(data.odometry_u.shape)
+        perturbed = replace(data, odometry_u=data.odometry_u * (1.0 + SPREAD_SCALE * noise))
+        values.append(ate(gnc_tls(gtsam, perturbed)[0]))
+    return f'ATE over {copies} perturbed copies: {min(values):.4f} to {max(values):.4f} m'
+
+
+def evaluate(
+    gtsam: Any, data: MappingData, truth: GroundTruth, spread: int
+) -> tuple[list[Row], np.ndarray]:
+    """The rows of one replayed run, and the Vicon poses (empty without)."""
+    covered = truth.covers(data.keyframe_stamps_ns)
+    has_truth = np.count_nonzero(covered) >= 2
+    true_xy = truth.poses_at(data.keyframe_stamps_ns[covered])[:, :2] if has_truth else None
 
     def ate(poses: np.ndarray) -> float:
-        return ate_rmse(poses[covered, :2], true_xy[covered])
+        return ate_rmse(poses[covered, :2], true_xy) if true_xy is not None else float('nan')
 
-    rows = [Row('odometry only', ate(dead_reckoning(data)), set(), 0.0, dead_reckoning(data))]
-    seconds, poses = timed(lambda: plain_sam(data, []))
-    rows.append(Row('plain SAM (all static)', ate(poses), set(), seconds, poses))
-    for mode in ('paper', 'robust'):
-        seconds, result = timed(
-            lambda mode=mode: run_em(data, EmConfig(mode=mode), record_snapshots=False)
+    odometry = dead_reckoning(data)
+    rows = [Row('odometry only', ate(odometry), None, 0.0, odometry)]
+    static = solve_all_static(data)
+    rows.append(
+        Row(
+            'plain SAM (ours, all static)', ate(static.poses), None, static.runtime_s, static.poses
         )
-        flagged = {int(i) for i in np.asarray(result.landmark_ids)[result.moveable]}
-        rows.append(Row(f'EM-SAM {mode}', ate(result.poses), flagged, seconds, result.poses))
+    )
+    for mode, (seconds, result) in run_em_modes(data).items():
+        rows.append(
+            Row(f'EM-SAM {mode}', ate(result.poses), flagged_ids(result), seconds, result.poses)
+        )
+    seconds, (poses, note) = timed(lambda: gtsam_lm(gtsam, data))
+    rows.append(Row('GTSAM LM', ate(poses), None, seconds, poses, note))
     seconds, (poses, flagged) = timed(lambda: gnc_tls(gtsam, data))
-    rows.append(Row('GTSAM 4.3 GNC-TLS', ate(poses), flagged, seconds, poses))
-    seconds, poses = timed(lambda: plain_sam(data, robots))
-    rows.append(Row('oracle (other robots removed)', ate(poses), set(), seconds, poses))
-    ids, counts = np.unique(data.obs_landmark_id, return_counts=True)
-    return rows, dict(zip(ids.tolist(), counts.tolist(), strict=True)), truth.poses
+    note = gnc_spread(gtsam, data, ate, spread) if spread and has_truth else ''
+    rows.append(Row('GTSAM GNC-TLS', ate(poses), flagged, seconds, poses, note))
+    robots = truth.landmark_ids[truth.moveable].tolist()
+    oracle = solve_all_static(data, robots)
+    rows.append(
+        Row(
+            'oracle (other robots removed)',
+            ate(oracle.poses),
+            None,
+            oracle.runtime_s,
+            oracle.poses,
+        )
+    )
+    return rows, truth.poses if truth.has_poses else np.zeros((0, 3))
+
+
+def run_rows(
+    gtsam: Any, dataset: Path, robot: int, window_s: float | None, scratch: Path, spread: int
+) -> RunRows:
+    """Import one robot's window, replay it and evaluate every method."""
+    run = load_run(dataset, robot, window_s)
+    bag = scratch / f'robot{robot}_{window_label(window_s).replace(" ", "")}'
+    write_mrclam_bag(run, bag)
+    data = replay_bag(bag).data
+    truth = read_ground_truth(bag)
+    rows, truth_poses = evaluate(gtsam, data, truth, spread)
+    counts = sightings_per_id(data)
+    others = truth.landmark_ids[truth.moveable].tolist()
+    return RunRows(
+        dataset=dataset.name,
+        robot=robot,
+        window=window_label(window_s),
+        positives={k for k in others if counts.get(k, 0) >= MIN_SIGHTINGS},
+        negatives=set(truth.landmark_ids[~truth.moveable].tolist()),
+        has_truth=bool(np.isfinite(rows[0].ate_m)),
+        rows=rows,
+        truth_poses=truth_poses,
+    )
+
+
+def _ids(values: set[int]) -> str:
+    return ', '.join(str(v) for v in sorted(values)) if values else '-'
+
+
+def run_table(run: RunRows) -> list[str]:
+    """Return the Markdown table of one robot and window."""
+    ate_head, ate_rule = (' ATE m |', '---:|') if run.has_truth else ('', '')
+    lines = [
+        f'### {run.dataset} robot {run.robot}, {run.window}',
+        '',
+        f'|method |{ate_head} robots flagged | robots missed | static flagged | time s | note |',
+        f'|---|{ate_rule}---:|---|---|---:|---|',
+    ]
+    for row in run.rows:
+        ate = f' {row.ate_m:.4f} |' if run.has_truth else ''
+        if row.flagged is None:
+            flags = '- | - | -'
+        else:
+            hits = len(row.flagged & run.positives)
+            flags = (
+                f'{hits} / {len(run.positives)} | {_ids(run.positives - row.flagged)} | '
+                f'{_ids(row.flagged & run.negatives)}'
+            )
+        lines.append(f'| {row.method} |{ate} {flags} | {row.seconds:.2f} | {row.note} |')
+    if not run.has_truth:
+        lines += ['', 'No RobotN_Groundtruth.dat for this robot: no ATE.']
+    return [*lines, '']
+
+
+def checks(run: RunRows) -> list[tuple[str, bool]]:
+    """Return the acceptance checks of EM-SAM robust on one run."""
+    robust = next(r for r in run.rows if r.method == 'EM-SAM robust')
+    gnc = next(r for r in run.rows if r.method == 'GTSAM GNC-TLS')
+    flagged = robust.flagged or set()
+    name = f'{run.dataset} robot {run.robot} {run.window}'
+    result = [
+        (f'{name}: no static barcode flagged', not (flagged & run.negatives)),
+        (
+            f'{name}: every other robot seen >= {MIN_SIGHTINGS} times flagged',
+            run.positives <= flagged,
+        ),
+    ]
+    if run.has_truth:
+        result.append(
+            (
+                f'{name}: ATE no worse than GNC ({robust.ate_m:.4f} vs {gnc.ate_m:.4f} m)',
+                robust.ate_m <= gnc.ate_m,
+            )
+        )
+    return result
+
+
+def cross_table(runs: list[RunRows]) -> list[str]:
+    """Return one table over data sets, robots and windows, to paste into bench/README.md:
+    per method, robots flagged / positives, static false positives, robots missed, ATE
+    where there is truth and time."""
+    head = ' | '.join(f'{m}: flags, static FP, missed, ATE m, s' for m in CROSS_METHODS)
+    lines = [f'| data set | robot | window | {head} |', '|---|---:|---|' + '---|' * 4]
+    for run in runs:
+        cells = []
+        for method in CROSS_METHODS:
+            row = next(r for r in run.rows if r.method == method)
+            ate = f'{row.ate_m:.3f}' if run.has_truth else 'n/a'
+            if row.flagged is None:
+                cells.append(f'-, -, -, {ate}, {row.seconds:.1f}')
+                continue
+            hits = len(row.flagged & run.positives)
+            cells.append(
+                f'{hits}/{len(run.positives)}, {len(row.flagged & run.negatives)}, '
+                f'{_ids(run.positives - row.flagged)}, {ate}, {row.seconds:.1f}'
+            )
+        lines.append(f'| {run.dataset} | {run.robot} | {run.window} | {" | ".join(cells)} |')
+    return lines
+
+
+def draw(figure: Any, runs: list[RunRows]) -> None:
+    """One panel per run: EM-SAM robust and GNC-TLS trajectories (unaligned), Vicon."""
+    columns = min(len(runs), FIGURE_COLUMNS)
+    axes = np.atleast_1d(figure.subplots(-(-len(runs) // columns), columns)).ravel()
+    for ax, run in zip(axes, runs, strict=False):
+        if len(run.truth_poses):
+            ax.plot(*run.truth_poses[:, :2].T, color='0.6', lw=0.6, label='Vicon')
+        for row in run.rows:
+            if row.method in ('EM-SAM robust', 'GTSAM GNC-TLS'):
+                ax.plot(*row.poses[:, :2].T, lw=0.7, label=row.method)
+        ax.set_title(f'{run.dataset} robot {run.robot} {run.window}', fontsize=8)
+        ax.set_aspect('equal')
+        ax.legend(fontsize=6)
+    for ax in axes[len(runs) :]:
+        ax.set_axis_off()
+
+
+def run_json(run: RunRows) -> dict[str, Any]:
+    """Return a run's rows as JSON-ready values (ids sorted, no poses)."""
+
+    def ids(values: set[int] | None) -> list[int] | None:
+        return None if values is None else sorted(values)
+
+    return {
+        'dataset': run.dataset,
+        'robot': run.robot,
+        'window': run.window,
+        'positives': ids(run.positives),
+        'negatives': ids(run.negatives),
+        'has_truth': run.has_truth,
+        'rows': [
+            {
+                'method': row.method,
+                'ate_m': row.ate_m,
+                'flagged': ids(row.flagged),
+                'seconds': row.seconds,
+                'note': row.note,
+            }
+            for row in run.rows
+        ],
+    }
+
+
+def _windows(values: list[str]) -> list[float | None]:
+    try:
+        return list(dict.fromkeys(parse_window(v) for v in values))
+    except ValueError as err:
+        raise SystemExit(f'mrclam_gtsam: --window-s: {err}') from None
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--robots', type=int, nargs='+', default=list(ROBOT_IDS))
+    parser.add_argument(
+        '--dataset',
+        type=Path,
+        nargs='+',
+        default=None,
+        help=f'MRCLAM data set directories (default: <datasets>/{DEFAULT_DATASET})',
+    )
+    parser.add_argument('--robots', type=int, nargs='+', choices=(1, 2, 3, 4, 5))
+    parser.add_argument('--window-s', nargs='+', default=['full'], metavar='S')
+    parser.add_argument('--gnc-spread', type=int, default=0, metavar='N')
     parser.add_argument('--output', type=Path, default=ROOT / 'bench' / 'results')
     args = parser.parse_args()
+    windows = _windows(args.window_s)
     try:
         gtsam: Any = importlib.import_module('gtsam')
     except ImportError:
         print('mrclam_gtsam: gtsam is not installed: pip install -r requirements/bench.txt')
         return 2
+    datasets = args.dataset or [data_root() / DEFAULT_DATASET]
+    names = ', '.join(d.name for d in datasets)
     lines = [
-        '# MRCLAM dataset 6: EM-SAM per robot against GTSAM GNC-TLS',
+        f'# MRCLAM ({names}): EM-SAM per robot and window against GTSAM LM and GNC-TLS',
         '',
         f'Revision {source_revision()}. ATE after SE(2) alignment over the Vicon-covered '
-        'keyframes; positives: the other robots (all seen >= 20 times unless noted).',
+        f'keyframes (data sets with RobotN_Groundtruth.dat only); positives: the other robots '
+        f'seen >= {MIN_SIGHTINGS} times in the window; static: the barcodes 6-20.',
         '',
     ]
-    checks: list[tuple[str, bool]] = []
-    figures: list[tuple[int, list[Row], np.ndarray]] = []
+    runs: list[RunRows] = []
+    started = time.perf_counter()
     with tempfile.TemporaryDirectory() as directory:
-        for robot in args.robots:
-            bag = Path(directory) / f'robot{robot}'
-            mrclam_bag.main(['--robot', str(robot), '--output', str(bag)])
-            rows, counts, truth_poses = evaluate_robot(gtsam, bag, robot)
-            positives = {r for r in ROBOT_IDS if r != robot and counts.get(r, 0) >= MIN_SIGHTINGS}
-            negatives = {i for i in counts if i > max(ROBOT_IDS)}
-            lines += [
-                f'## Robot {robot}',
-                '',
-                '| method | ATE m | robots flagged | static flagged | runtime s |',
-                '|---|---:|---:|---:|---:|',
-            ]
-            for row in rows:
-                robots_hit = len(row.flagged & positives)
-                lines.append(
-                    f'| {row.method} | {row.ate_m:.3f} | {robots_hit} / {len(positives)} | '
-                    f'{len(row.flagged & negatives)} | {row.seconds:.2f} |'
-                )
-            robust = next(r for r in rows if r.method == 'EM-SAM robust')
-            gnc = next(r for r in rows if r.method.startswith('GTSAM'))
-            checks += [
-                (f'robot {robot}: no static barcode flagged', not (robust.flagged & negatives)),
-                (
-                    f'robot {robot}: every other robot seen >= 20 times flagged',
-                    positives <= robust.flagged,
-                ),
-                (
-                    f'robot {robot}: ATE no worse than GNC '
-                    f'({robust.ate_m:.4f} vs {gnc.ate_m:.4f} m)',
-                    robust.ate_m <= gnc.ate_m,
-                ),
-            ]
-            lines.append('')
-            figures.append((robot, rows, truth_poses))
-            print(f'robot {robot} done', flush=True)
+        for dataset in datasets:
+            available = robots_with_odometry(dataset)
+            robots = [r for r in (args.robots or available) if r in available]
+            lines += [f'## {dataset.name}', '']
+            for robot in robots:
+                for window_s in windows:
+                    run = run_rows(
+                        gtsam, dataset, robot, window_s, Path(directory), args.gnc_spread
+                    )
+                    runs.append(run)
+                    lines += run_table(run)
+                    print(
+                        f'mrclam_gtsam: {dataset.name} robot {robot} {run.window} done '
+                        f'({len(runs)} runs, {time.perf_counter() - started:.0f} s)',
+                        file=sys.stderr,
+                        flush=True,
+                    )
+    results = [check for run in runs for check in checks(run)]
     lines += ['## Acceptance (EM-SAM robust)', '']
-    lines += [f'- {name}: **{"PASS" if ok else "FAIL"}**' for name, ok in checks]
-    args.output.mkdir(parents=True, exist_ok=True)
-    (args.output / 'mrclam_gtsam.md').write_text('\n'.join(lines) + '\n', encoding='utf-8')
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    figure, axes = plt.subplots(
-        1, len(figures), figsize=(4 * len(figures), 4), layout='constrained'
+    lines += [f'- {name}: **{"PASS" if ok else "FAIL"}**' for name, ok in results]
+    lines += ['', '## All runs (for bench/README.md)', '', *cross_table(runs), '']
+    write_atomically(args.output / 'mrclam_gtsam.md', '\n'.join(lines))
+    write_json(
+        args.output / 'mrclam_gtsam.json',
+        {'revision': source_revision(), 'runs': [run_json(run) for run in runs]},
     )
-    for ax, (robot, rows, truth_poses) in zip(np.atleast_1d(axes), figures, strict=True):
-        ax.plot(truth_poses[:, 0], truth_poses[:, 1], color='0.6', lw=0.6, label='Vicon')
-        for row in rows:
-            if row.method in ('EM-SAM robust', 'GTSAM 4.3 GNC-TLS'):
-                ax.plot(row.poses[:, 0], row.poses[:, 1], lw=0.7, label=row.method)
-        ax.set_title(f'robot {robot} (unaligned)', fontsize=9)
-        ax.set_aspect('equal')
-        ax.legend(fontsize=6)
-    figure.savefig(args.output / 'mrclam_gtsam.png', dpi=110)
+    from slam_evaluation.plotting import render_png
+
+    columns = min(len(runs), FIGURE_COLUMNS)
+    png = render_png(draw, runs, (4.0 * columns, 4.0 * -(-len(runs) // columns)))
+    write_atomically(args.output / 'mrclam_gtsam.png', png)
     print('\n'.join(lines))
-    return 0 if all(ok for _, ok in checks) else 1
+    return 0 if all(ok for _, ok in results) else 1
 
 
 if __name__ == '__main__':
