@@ -67,7 +67,7 @@ def draw_victoria_park(figure: Any, result: VictoriaParkResult) -> None:
             label=None if index else 'sightings of flagged trees',
         )
         overview.plot(*tree.fitted_m, 'kx', ms=5)
-    overview.set_title(f'Victoria Park: {len(result.flagged)} trees flagged (EM-SAM robust)')
+    overview.set_title(f'Victoria Park: trees EM-SAM robust flagged: {len(result.flagged)}')
     overview.set_aspect('equal')
     overview.legend(fontsize=7, loc='best')
     for panel, tree in enumerate(result.flagged[:ZOOM_PANELS]):
