@@ -21,6 +21,7 @@ from slam_core.datasets import data_root, dataset
 from slam_evaluation import em_sam_evaluate as evaluate
 from slam_evaluation.em_sam_metrics import robust_map_error
 from slam_evaluation.em_sam_runs import parse_window, window_label
+from slam_sim.victoria_park_bag import main as victoria_park_import
 
 pytestmark = pytest.mark.replay
 
@@ -71,9 +72,14 @@ def test_mrclam_with_vicon_has_an_ate_and_writes_figures(tmp_path: Path) -> None
     assert 'vicon robot 1 | full | em_sam_robust' in (tmp_path / 'out' / 'results.md').read_text()
 
 
-def test_victoria_park_flags_the_moved_tree_and_explains_it(tmp_path: Path) -> None:
+@pytest.mark.parametrize('as_bag', [False, True], ids=['text file', 'bag'])
+def test_victoria_park_flags_the_moved_tree_and_explains_it(tmp_path: Path, as_bag: bool) -> None:
     source = write_victoria_park(tmp_path / 'park.txt')
+    if as_bag:
+        assert victoria_park_import(['--input', str(source), '--output', str(tmp_path / 'b')]) == 0
+        source = tmp_path / 'b'
     result = _run(['--victoria-park', str(source)], tmp_path / 'out')
+    assert result['source'] == str(source)
     flagged = {t['tree'] for t in result['flagged_robust']}
     assert flagged == {VP_MOVED_TREE}
     (moved,) = result['flagged_robust']
