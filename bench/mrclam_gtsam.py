@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import shutil
 import sys
 import tempfile
 import time
@@ -206,10 +207,11 @@ def run_rows(
 ) -> RunRows:
     """Import one robot's window, replay it and evaluate every method."""
     run = load_run(dataset, robot, window_s)
-    bag = scratch / f'robot{robot}_{window_label(window_s).replace(" ", "")}'
+    bag = scratch / f'{dataset.name}_robot{robot}_{window_label(window_s).replace(" ", "")}'
     write_mrclam_bag(run, bag)
     data = replay_bag(bag).data
     truth = read_ground_truth(bag)
+    shutil.rmtree(bag)  # a full run's bag is ~8 MB; keep one at a time
     rows, truth_poses = evaluate(gtsam, data, truth, spread)
     counts = sightings_per_id(data)
     others = truth.landmark_ids[truth.moveable].tolist()
@@ -381,41 +383,51 @@ def main() -> int:
         '',
     ]
     runs: list[RunRows] = []
+    sections: list[str] = []
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as directory:
         for dataset in datasets:
             available = robots_with_odometry(dataset)
             robots = [r for r in (args.robots or available) if r in available]
-            lines += [f'## {dataset.name}', '']
+            sections += [f'## {dataset.name}', '']
             for robot in robots:
                 for window_s in windows:
                     run = run_rows(
                         gtsam, dataset, robot, window_s, Path(directory), args.gnc_spread
                     )
                     runs.append(run)
-                    lines += run_table(run)
+                    sections += run_table(run)
+                    write_reports(args.output, [*lines, *sections], runs)  # after every run
                     print(
                         f'mrclam_gtsam: {dataset.name} robot {robot} {run.window} done '
                         f'({len(runs)} runs, {time.perf_counter() - started:.0f} s)',
                         file=sys.stderr,
                         flush=True,
                     )
-    results = [check for run in runs for check in checks(run)]
-    lines += ['## Acceptance (EM-SAM robust)', '']
-    lines += [f'- {name}: **{"PASS" if ok else "FAIL"}**' for name, ok in results]
-    lines += ['', '## All runs (for bench/README.md)', '', *cross_table(runs), '']
-    write_atomically(args.output / 'mrclam_gtsam.md', '\n'.join(lines))
-    write_json(
-        args.output / 'mrclam_gtsam.json',
-        {'revision': source_revision(), 'runs': [run_json(run) for run in runs]},
-    )
+    report, passed = write_reports(args.output, [*lines, *sections], runs)
     from slam_evaluation.plotting import render_png
 
     columns = min(len(runs), FIGURE_COLUMNS)
     png = render_png(draw, runs, (4.0 * columns, 4.0 * -(-len(runs) // columns)))
     write_atomically(args.output / 'mrclam_gtsam.png', png)
-    print('\n'.join(lines))
-    return 0 if all(ok for _, ok in results) else 1
+    print(report)
+    return 0 if passed else 1
+
+
+def write_reports(output: Path, lines: list[str], runs: list[RunRows]) -> tuple[str, bool]:
+    """Write mrclam_gtsam.md and .json of the runs so far; return the report and whether
+    every check passed."""
+    results = [check for run in runs for check in checks(run)]
+    lines = [*lines, '## Acceptance (EM-SAM robust)', '']
+    lines += [f'- {name}: **{"PASS" if ok else "FAIL"}**' for name, ok in results]
+    lines += ['', '## All runs (for bench/README.md)', '', *cross_table(runs), '']
+    report = '\n'.join(lines)
+    write_atomically(output / 'mrclam_gtsam.md', report)
+    write_json(
+        output / 'mrclam_gtsam.json',
+        {'revision': source_revision(), 'runs': [run_json(run) for run in runs]},
+    )
+    return report, all(ok for _, ok in results)
 
 
 if __name__ == '__main__':
