@@ -281,9 +281,9 @@ def checks(run: RunRows) -> list[tuple[str, bool]]:
 
 def cross_table(runs: list[RunRows]) -> list[str]:
     """Return one table over data sets, robots and windows, to paste into bench/README.md:
-    per method, robots flagged / positives, static false positives, robots missed, ATE
-    where there is truth and time."""
-    head = ' | '.join(f'{m}: flags, static FP, missed, ATE m, s' for m in CROSS_METHODS)
+    per method, robots flagged / positives; static false positives; robots missed; ATE
+    where there is truth; time."""
+    head = ' | '.join(f'{m}: flags; static FP; missed; ATE m; s' for m in CROSS_METHODS)
     lines = [f'| data set | robot | window | {head} |', '|---|---:|---|' + '---|' * 4]
     for run in runs:
         cells = []
@@ -291,12 +291,13 @@ def cross_table(runs: list[RunRows]) -> list[str]:
             row = next(r for r in run.rows if r.method == method)
             ate = f'{row.ate_m:.3f}' if run.has_truth else 'n/a'
             if row.flagged is None:
-                cells.append(f'-, -, -, {ate}, {row.seconds:.1f}')
+                cells.append(f'-; -; -; {ate}; {row.seconds:.1f}')
                 continue
             hits = len(row.flagged & run.positives)
+            missed = ' '.join(str(k) for k in sorted(run.positives - row.flagged)) or '-'
             cells.append(
-                f'{hits}/{len(run.positives)}, {len(row.flagged & run.negatives)}, '
-                f'{_ids(run.positives - row.flagged)}, {ate}, {row.seconds:.1f}'
+                f'{hits}/{len(run.positives)}; {len(row.flagged & run.negatives)}; {missed}; '
+                f'{ate}; {row.seconds:.1f}'
             )
         lines.append(f'| {run.dataset} | {run.robot} | {run.window} | {" | ".join(cells)} |')
     return lines
