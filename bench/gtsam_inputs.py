@@ -3,7 +3,7 @@ numbers whatever last bits our float pipeline produced.
 
 Why the grids: GNC-TLS decides per sighting, by a threshold, whether it is an inlier, and
 the decisions feed the next solve; on MRCLAM data set 6 robot 1 (full run) a relative change
-of 1e-15 in the odometry increments moved its ATE between 0.11, 0.25 and 0.47 m (measured:
+of 1e-15 in the odometry increments moved its ATE between 0.11 and 0.50 m (measured:
 bench/README.md). Refactors that reorder float operations, and numpy's SIMD paths on other
 CPUs, change last bits; so every number handed to GTSAM is rounded first: positions, angles
 and the odometry's relative poses to an absolute grid of 2^-30 (about 1e-9 m or rad, far

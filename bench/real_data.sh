@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # Issue 4's benchmarks in one command, side by side in the same run:
-#   Victoria Park against GTSAM 4.3 LM, MRCLAM 6 per robot against GTSAM GNC-TLS, and the
+#   Victoria Park against GTSAM 4.3 LM and iSAM2, MRCLAM 6 per robot against GTSAM LM and GNC-TLS, and the
 #   EM-SAM scaling curve (office runs, 1k to 100k poses, time and peak memory per EM round).
 # Installs the benchmark-only dependency (requirements/bench.txt: gtsam) into the project
 # environment, writes every table and figure to bench/results/ and concatenates the tables
 # into bench/results/real_data.md. Exit status 1 if any benchmark misses its target.
-#   bash bench/real_data.sh          # about 10 minutes on 2 cores
+#   bash bench/real_data.sh          # about 15 minutes on 2 cores
 set -uo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh || exit 1
