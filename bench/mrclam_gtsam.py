@@ -62,6 +62,7 @@ from gtsam_inputs import mrclam_graph, poses_of
 from em_sam_node.core.assembly import MappingData, dead_reckoning
 from em_sam_node.offline import GroundTruth, read_ground_truth, replay_bag
 from slam_core.datasets import data_root
+from slam_core.errors import SlamError
 from slam_core.files import write_atomically, write_json
 from slam_evaluation.em_sam_metrics import ate_rmse
 from slam_evaluation.em_sam_mrclam import MIN_SIGHTINGS
@@ -348,11 +349,11 @@ def run_json(run: RunRows) -> dict[str, Any]:
     }
 
 
-def _windows(values: list[str]) -> list[float | None]:
+def _windows(parser: argparse.ArgumentParser, values: list[str]) -> list[float | None]:
     try:
         return list(dict.fromkeys(parse_window(v) for v in values))
     except ValueError as err:
-        raise SystemExit(f'mrclam_gtsam: --window-s: {err}') from None
+        parser.error(f'--window-s: {err}')
 
 
 def main() -> int:
@@ -369,7 +370,7 @@ def main() -> int:
     parser.add_argument('--gnc-spread', type=int, default=0, metavar='N')
     parser.add_argument('--output', type=Path, default=ROOT / 'bench' / 'results')
     args = parser.parse_args()
-    windows = _windows(args.window_s)
+    windows = _windows(parser, args.window_s)
     try:
         gtsam: Any = importlib.import_module('gtsam')
     except ImportError:
@@ -434,4 +435,8 @@ def write_reports(output: Path, lines: list[str], runs: list[RunRows]) -> tuple[
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except SlamError as err:  # a missing data set or file, a malformed line: named, no traceback
+        print(f'mrclam_gtsam: error: {err}', file=sys.stderr)
+        sys.exit(2)
