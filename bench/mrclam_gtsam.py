@@ -72,6 +72,7 @@ from slam_evaluation.em_sam_runs import (
     run_em_modes,
     sightings_per_id,
     solve_all_static,
+    timed,
     window_label,
 )
 from slam_sim.core.mrclam import robots_with_odometry
@@ -145,12 +146,6 @@ def gnc_tls(gtsam: Any, data: MappingData) -> tuple[np.ndarray, set[int]]:
         if mine.size and np.mean(mine < GNC_OUTLIER_WEIGHT) > 0.5:
             flagged.add(int(landmark_id))
     return poses_of(result, problem.num_poses), flagged
-
-
-def timed(function: Any) -> tuple[float, Any]:
-    started = time.perf_counter()
-    value = function()
-    return time.perf_counter() - started, value
 
 
 def gnc_spread(gtsam: Any, data: MappingData, ate: Any, copies: int) -> str:
