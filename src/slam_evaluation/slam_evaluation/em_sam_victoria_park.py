@@ -16,7 +16,10 @@ to score against, so the report says what EM-SAM decided and why:
   flagged trees with their sightings;
 - the all-static (plain SAM) solve's final cost: 0.5 x the squared whitened residuals of
   the prior, the odometry increments and every sighting (the factors of the bag: eq. 2
-  increments, not the SE(2) between factors of bench/victoria_park_gtsam.py).
+  increments, not the SE(2) between factors of bench/victoria_park_gtsam.py). That solve
+  is reached by continuation in time from dead reckoning (``solve_all_static(...,
+  incremental=True)``): one batch solve from dead reckoning stops at about 70 times the
+  cost, where the flagged trees' sightings would be judged against a wrong trajectory.
 """
 
 from __future__ import annotations
@@ -125,7 +128,7 @@ def evaluate_victoria_park(
         timings['replay_s'], replay = timed(lambda: replay_bag(bag))
         progress.update(2)
     data = replay.data
-    static = solve_all_static(data)
+    static = solve_all_static(data, incremental=True)
     progress.update(3)
     em = run_em_modes(data)
     progress.update(4)
@@ -157,7 +160,8 @@ def markdown(result: VictoriaParkResult) -> str:
         '',
         '| method | trees flagged | runtime s | final cost |',
         '|---|---:|---:|---:|',
-        f'| plain SAM (all static) | - | {result.all_static.runtime_s:.2f} | '
+        f'| plain SAM (all static, by continuation in time) | - | '
+        f'{result.all_static.runtime_s:.2f} | '
         f'{result.all_static.cost:.6g} ({result.all_static.status}) |',
     ]
     for mode, (runtime, em) in result.em.items():

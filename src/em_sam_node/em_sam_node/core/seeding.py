@@ -69,7 +69,7 @@ def chunk_ends(stamps_ns: np.ndarray, chunk_s: float) -> list[int]:
     return sorted({int(e) for e in ends if 1 < e < len(stamps_ns)} | {len(stamps_ns)})
 
 
-def _extend_poses(data: MappingData, solved: FloatArray, count: int) -> FloatArray:
+def extend_poses(data: MappingData, solved: FloatArray, count: int) -> FloatArray:
     """Solved poses for the first keyframes, odometry composed on them for the rest."""
     poses = dead_reckoning(prefix(data, count))
     known = len(solved)
@@ -240,7 +240,7 @@ def incremental_seed(
     done = 0
     stamps = data.keyframe_stamps_ns
     for count in chunk_ends(stamps, chunk_s):
-        poses = _extend_poses(data, solved_poses, count)
+        poses = extend_poses(data, solved_poses, count)
         rows = np.flatnonzero((data.obs_keyframe >= done) & (data.obs_keyframe < count))
         correction = relocalization(
             range_bearing_to_point(poses[data.obs_keyframe[rows]], data.obs_z[rows]),

@@ -1,0 +1,88 @@
+"""Least squares by continuation in time: the run solved prefix by prefix.
+
+One Gauss-Newton or Levenberg-Marquardt solve from dead reckoning lands in whatever basin
+the drift put it in: on Victoria Park (7,000 poses, 4 km of driving) it stops at about 70
+times the cost of the optimum that an incremental smoother such as iSAM2 reaches. Solving
+growing prefixes of the run instead, each warm-started from the one before with the new
+keyframes composed from the odometry and each new landmark placed from its first sighting,
+keeps every solve close to its optimum: the start is still dead reckoning, only the order
+in which the problem is presented changes (as in an incremental smoother).
+
+Steps are max(``chunk_s``, ``growth`` x the time solved so far): the prefix grows
+geometrically, so the solved sizes add up to at most (1 + 1 / growth) times the run's and
+the cost stays linear in the run length.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning
+from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.seeding import extend_poses, prefix
+from em_sam_node.core.structure import anchor_pieces, with_weak_priors
+from slam_core.geometry.se2 import range_bearing_to_point
+
+CHUNK_S = 20.0  # the first steps: the robust seed's chunk
+GROWTH = 0.1  # then 10 % of the time solved: at most 11 runs' worth of solving
+
+# solve(problem, start) -> estimate, every landmark static
+LeastSquares = Callable[[SlamProblem, Estimate], Estimate]
+
+
+def step_ends(stamps_ns: IntArray, chunk_s: float, growth: float) -> list[int]:
+    """Return the prefix lengths (keyframe counts) solved in turn, ending at N.
+
+    Each step adds max(``chunk_s``, ``growth`` x the time already solved) of keyframes, and
+    at least one keyframe.
+    """
+    elapsed = (np.asarray(stamps_ns) - stamps_ns[0]) / 1e9
+    ends: list[int] = []
+    count = 1
+    while count < len(elapsed):
+        solved_s = float(elapsed[count - 1])
+        step_s = max(chunk_s, growth * solved_s)
+        following = int(np.searchsorted(elapsed, solved_s + step_s, side='right'))
+        count = min(max(following, count + 1), len(elapsed))
+        ends.append(count)
+    return ends
+
+
+def incremental_least_squares(
+    data: MappingData,
+    solve: LeastSquares,
+    *,
+    chunk_s: float = CHUNK_S,
+    growth: float = GROWTH,
+) -> tuple[FloatArray, dict[int, FloatArray]]:
+    """Every landmark static, the run solved prefix by prefix from dead reckoning; return
+    the poses (N,3) and the landmark positions by id."""
+    poses = dead_reckoning(data)
+    mapped: dict[int, FloatArray] = {}
+    solved = np.zeros((0, 3))
+    for count in step_ends(data.keyframe_stamps_ns, chunk_s, growth):
+        poses = extend_poses(data, solved, count)
+        built = build_problem(prefix(data, count))
+        ids = built.landmark_ids.tolist()
+        if not ids:
+            solved = poses
+            continue
+        anchored = anchor_pieces(built.problem, poses)
+        problem = with_weak_priors(
+            built.problem, anchored.extra_prior_poses, anchored.extra_prior_means
+        )
+        landmarks = np.zeros((len(ids), 2))
+        for index, landmark_id in enumerate(ids):
+            if landmark_id in mapped:
+                landmarks[index] = mapped[landmark_id]
+            else:  # first sighting, through the extended trajectory
+                first = int(np.flatnonzero(problem.obs_landmark == index)[0])
+                landmarks[index] = range_bearing_to_point(
+                    poses[problem.obs_pose[first]][None], problem.obs_z[first][None]
+                )[0]
+        estimate = solve(problem, Estimate(poses, landmarks))
+        solved = estimate.poses
+        mapped = {lid: estimate.landmarks[i] for i, lid in enumerate(ids)}
+    return (solved if len(solved) == len(poses) else poses), mapped
