@@ -11,23 +11,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from synthetic_room import MOVEABLE_IDS, STATIC_IDS, STATIC_POSITIONS, Room, make_room
 
-from em_sam_node.core.assembly import MappingData, dead_reckoning
+from em_sam_node.core.assembly import dead_reckoning, select_observations
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.em_weights import gate_outliers, m_step
 from slam_core.geometry.se2 import between
 
 SETTINGS = settings(derandomize=True, max_examples=200, deadline=None)
-
-
-def select_observations(data: MappingData, keep: np.ndarray) -> MappingData:
-    return dataclasses.replace(
-        data,
-        obs_keyframe=data.obs_keyframe[keep],
-        obs_landmark_id=data.obs_landmark_id[keep],
-        obs_z=data.obs_z[keep],
-        obs_cov=data.obs_cov[keep],
-    )
 
 
 def flagged(result: EmResult) -> list[int]:

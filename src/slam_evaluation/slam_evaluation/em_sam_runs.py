@@ -3,7 +3,6 @@ modes, and the window and time helpers the dataset evaluators share."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -12,7 +11,13 @@ from typing import TypeVar
 
 import numpy as np
 
-from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
+from em_sam_node.core.assembly import (
+    MappingData,
+    build_problem,
+    dead_reckoning,
+    initial_estimate,
+    select_observations,
+)
 from em_sam_node.core.continuation import incremental_least_squares
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
@@ -52,29 +57,23 @@ def solve_all_static(
     started = time.perf_counter()
     built = build_problem(data, exclude_ids=exclude or [])
     poses0 = dead_reckoning(data)
-    landmarks0 = None
+    mapped: dict[int, FloatArray] = {}
     if incremental:
-        kept = ~np.isin(data.obs_landmark_id, exclude or [])
-        part = dataclasses.replace(
-            data,
-            obs_keyframe=data.obs_keyframe[kept],
-            obs_landmark_id=data.obs_landmark_id[kept],
-            obs_z=data.obs_z[kept],
-            obs_cov=data.obs_cov[kept],
-        )
+        kept = select_observations(data, ~np.isin(data.obs_landmark_id, exclude or []))
 
         def least_squares(problem: SlamProblem, start: Estimate) -> Estimate:
             return solve(problem, start, method='levenberg_marquardt').estimate
 
-        poses0, mapped = incremental_least_squares(part, least_squares)
-        landmarks0 = np.array([mapped[int(i)] for i in built.landmark_ids.tolist()])
+        poses0, mapped = incremental_least_squares(kept, least_squares)
     anchored = anchor_pieces(built.problem, poses0)
     problem = with_weak_priors(
         built.problem, anchored.extra_prior_poses, anchored.extra_prior_means
     )
-    initial = initial_estimate(problem, poses0)
-    if landmarks0 is not None:
-        initial = Estimate(poses0, landmarks0)
+    initial = (
+        Estimate(poses0, np.array([mapped[int(i)] for i in built.landmark_ids.tolist()]))
+        if incremental
+        else initial_estimate(problem, poses0)
+    )
     result = solve(problem, initial, method='levenberg_marquardt')
     return AllStatic(
         result.estimate.poses,

@@ -6,6 +6,7 @@ keeps the mapping. Covariances become square-root information matrices here.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Collection
 from dataclasses import dataclass
 
@@ -64,6 +65,18 @@ def sqrt_information(covariance: FloatArray) -> FloatArray:
     identity = np.broadcast_to(np.eye(covariance.shape[-1]), covariance.shape)
     result: FloatArray = np.linalg.solve(lower, identity)
     return result
+
+
+def select_observations(data: MappingData, keep: np.ndarray) -> MappingData:
+    """Return ``data`` with only the observations ``keep`` selects (a (K,) mask or indices);
+    keyframes and odometry unchanged."""
+    return dataclasses.replace(
+        data,
+        obs_keyframe=data.obs_keyframe[keep],
+        obs_landmark_id=data.obs_landmark_id[keep],
+        obs_z=data.obs_z[keep],
+        obs_cov=data.obs_cov[keep],
+    )
 
 
 def landmark_ids(data: MappingData) -> IntArray:

@@ -19,11 +19,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning
+from em_sam_node.core.assembly import (
+    MappingData,
+    build_problem,
+    dead_reckoning,
+    initial_landmarks,
+)
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
 from em_sam_node.core.seeding import extend_poses, prefix
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
-from slam_core.geometry.se2 import range_bearing_to_point
 
 CHUNK_S = 20.0  # the first steps: the robust seed's chunk
 GROWTH = 0.1  # then 10 % of the time solved: at most 11 runs' worth of solving
@@ -73,16 +77,11 @@ def incremental_least_squares(
         problem = with_weak_priors(
             built.problem, anchored.extra_prior_poses, anchored.extra_prior_means
         )
-        landmarks = np.zeros((len(ids), 2))
+        landmarks = initial_landmarks(problem, poses)  # new ones: first sighting
         for index, landmark_id in enumerate(ids):
             if landmark_id in mapped:
                 landmarks[index] = mapped[landmark_id]
-            else:  # first sighting, through the extended trajectory
-                first = int(np.flatnonzero(problem.obs_landmark == index)[0])
-                landmarks[index] = range_bearing_to_point(
-                    poses[problem.obs_pose[first]][None], problem.obs_z[first][None]
-                )[0]
         estimate = solve(problem, Estimate(poses, landmarks))
         solved = estimate.poses
         mapped = {lid: estimate.landmarks[i] for i, lid in enumerate(ids)}
-    return (solved if len(solved) == len(poses) else poses), mapped
+    return (solved if len(solved) else poses), mapped  # the last step is the whole run
