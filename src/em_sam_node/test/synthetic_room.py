@@ -1,4 +1,5 @@
-"""A small synthetic EM-SAM problem shared by the mapper and EM tests (no simulator, no bag).
+"""A small synthetic EM-SAM problem shared by the mapper and EM tests (no simulator, no bag),
+and ``chained_data``, the MappingData of any such synthetic chain of keyframes.
 
 The robot drives ``loops`` circles of radius 2 m (counter-clockwise, a keyframe every 10
 degrees, one second apart) inside a ring of 8 static landmarks at 4 m (ids 0-7). Two
@@ -80,21 +81,37 @@ def make_room(
                 keyframes.append(index)
                 ids.append(landmark_id)
                 measurements.append(z[j] + noise * rng.normal(0.0, 1.0, 2) * OBSERVATION_SIGMA)
-    sightings = len(keyframes)
-    data = MappingData(
+    data = chained_data(
+        poses[0], u, ODOMETRY_SIGMA, (keyframes, ids, measurements), OBSERVATION_SIGMA
+    )
+    return Room(data, poses, move_keyframe)
+
+
+def chained_data(
+    first_pose: np.ndarray,
+    u: np.ndarray,
+    odometry_sigma: np.ndarray,
+    sightings: tuple[list[int], list[int], list[np.ndarray]],
+    observation_sigma: np.ndarray,
+) -> MappingData:
+    """MappingData of a chain of keyframes one second apart: increments ``u`` (N-1,3) with
+    one diagonal covariance, ``sightings`` as (keyframes, landmark ids, (range, bearing))
+    with one diagonal covariance, and a tight prior at ``first_pose``."""
+    keyframes, ids, measurements = sightings
+    count = len(u) + 1
+    return MappingData(
         keyframe_stamps_ns=np.arange(count, dtype=np.int64) * SECOND_NS,
         odometry_from=np.arange(count - 1, dtype=np.int64),
         odometry_to=np.arange(1, count, dtype=np.int64),
         odometry_u=u,
-        odometry_cov=np.repeat(np.diag(ODOMETRY_SIGMA**2)[None], count - 1, axis=0),
+        odometry_cov=np.repeat(np.diag(odometry_sigma**2)[None], count - 1, axis=0),
         obs_keyframe=np.array(keyframes, dtype=np.int64),
         obs_landmark_id=np.array(ids, dtype=np.int64),
         obs_z=np.array(measurements).reshape(-1, 2),
-        obs_cov=np.repeat(np.diag(OBSERVATION_SIGMA**2)[None], sightings, axis=0),
-        prior_pose=poses[0].copy(),
+        obs_cov=np.repeat(np.diag(observation_sigma**2)[None], len(keyframes), axis=0),
+        prior_pose=np.asarray(first_pose, dtype=float).copy(),
         prior_cov=np.diag([1e-6, 1e-6, 1e-6]),
     )
-    return Room(data, poses, move_keyframe)
 
 
 def mapper_inputs(data: MappingData) -> tuple[list[Increment], list[Observation]]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from synthetic_room import SECOND_NS, chained_data
 
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
 from em_sam_node.core.continuation import incremental_least_squares, step_ends
@@ -14,7 +15,6 @@ from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import with_weak_priors
 from slam_core.geometry.se2 import increment_between
 
-SECOND_NS = 1_000_000_000
 OBSERVATION_SIGMA = np.array([0.05, 0.01])  # m, rad
 ODOMETRY_SIGMA = np.array([0.02, 0.02, 0.045])  # per 1 m step: m, m, rad (covers the bias)
 HEADING_BIAS_RAD = 0.04  # per step: an uncalibrated wheel base, 6 rad over the two loops
@@ -55,20 +55,7 @@ def corridor_loop(seed: int = 0) -> tuple[MappingData, FloatArray]:
             keyframes.append(index)
             ids.append(int(j))
             z.append(predicted[j] + rng.normal(0.0, 1.0, 2) * OBSERVATION_SIGMA)
-    count = len(poses)
-    data = MappingData(
-        keyframe_stamps_ns=np.arange(count, dtype=np.int64) * SECOND_NS,
-        odometry_from=np.arange(count - 1, dtype=np.int64),
-        odometry_to=np.arange(1, count, dtype=np.int64),
-        odometry_u=u,
-        odometry_cov=np.repeat(np.diag(ODOMETRY_SIGMA**2)[None], count - 1, axis=0),
-        obs_keyframe=np.array(keyframes, dtype=np.int64),
-        obs_landmark_id=np.array(ids, dtype=np.int64),
-        obs_z=np.array(z),
-        obs_cov=np.repeat(np.diag(OBSERVATION_SIGMA**2)[None], len(z), axis=0),
-        prior_pose=poses[0].copy(),
-        prior_cov=np.diag([1e-6, 1e-6, 1e-6]),
-    )
+    data = chained_data(poses[0], u, ODOMETRY_SIGMA, (keyframes, ids, z), OBSERVATION_SIGMA)
     return data, poses
 
 
