@@ -31,9 +31,9 @@ import numpy as np
 from bench_common import best_of
 
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
+from em_sam_node.core.continuation import prefix
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.core.seeding import prefix
 from em_sam_node.core.solver import solve
 from em_sam_node.offline import replay_bag
 from slam_core.geometry.se2 import increment_between

@@ -28,9 +28,14 @@ Parameters:
   gate_probability (0.0001), max_gated_fraction (0.1)  'robust': outlier gate per sighting.
   seed_kernel ('cauchy'), seed_kernel_scale (2.3849)  'robust': kernel of the first E-step
                                   ('cauchy' or 'huber'), its scale in sigmas.
-  seed_chunk_s (20.0), seed_split_distance_m (1.0)  'robust': time prefixes of the first
-                                  E-step, and how far new sightings may lie from a mapped
-                                  landmark before they count as a new (moved) one.
+  seed_chunk_s (20.0), seed_growth (0.1)  'robust': the first E-step solves growing time
+                                  prefixes of the run; each step adds max(seed_chunk_s,
+                                  seed_growth x the time solved so far); landmarks first
+                                  seen in a long step are tested chunk by chunk.
+  calibrate_odometry (true)       'robust': estimate a translation and a rotation scale of
+                                  the odometry with the trajectory (wheel radius or track
+                                  width a few percent off); reported, and applied to every
+                                  increment of the EM loop and the final solve.
   estimate_noise_scale (true)     'robust': inflate the range and the bearing variances
                                   by their a-posteriori variance factors when the data are
                                   noisier (estimated for the test from the first E-step,
@@ -169,6 +174,11 @@ class EmSamMapperNode(Node):
             f'landmarks, moveable {result.landmark_ids[result.moveable].tolist()}, '
             f'{result.em_iterations} EM iterations in {time.perf_counter() - started:.3f} s'
         )
+        if result.mode == 'robust':
+            translation, rotation = result.odometry_calibration
+            summary += (
+                f', odometry calibration: translation x{translation:.3f}, rotation x{rotation:.3f}'
+            )
         self.get_logger().info(summary)
         return summary
 

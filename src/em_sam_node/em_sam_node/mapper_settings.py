@@ -95,15 +95,22 @@ PARAMETERS = ParamTable(
         Param(
             'seed_chunk_s',
             20.0,
-            'robust: first E-step time prefix length, s',
+            'robust: first E-step shortest prefix step, s',
             range=POSITIVE,
             field='em.seed_chunk_s',
         ),
         Param(
-            'seed_split_distance_m',
-            1.0,
-            'robust: distance that splits a moved landmark, m',
-            field='em.seed_split_distance_m',
+            'seed_growth',
+            0.1,
+            'robust: first E-step prefix growth, fraction of the time solved',
+            range=POSITIVE,
+            field='em.seed_growth',
+        ),
+        Param(
+            'calibrate_odometry',
+            True,
+            'robust: estimate the odometry translation and rotation scales with the trajectory',
+            field='em.calibrate_odometry',
         ),
         Param(
             'estimate_noise_scale',

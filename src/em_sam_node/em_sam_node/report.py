@@ -61,6 +61,10 @@ def result_summary(result: EmResult, stamps_ns: np.ndarray) -> dict[str, Any]:
                 'bearing': float(result.final_noise_scale[1]),
             },
         },
+        'odometry_calibration': {
+            'translation_scale': float(result.odometry_calibration[0]),
+            'rotation_scale': float(result.odometry_calibration[1]),
+        },
         'timings_s': result.timings_s,
         'weight_history': result.weight_history.tolist(),
         'landmarks': landmarks,

@@ -260,5 +260,15 @@ def markdown(results: list[MrclamRunResult]) -> str:
         f'fitted on the landmarks within {MAP_OUTLIER_M} m (those further off are named).',
         '',
         *[f'- {note}' for note in sorted(notes)],
+        '',
+        'Odometry calibration the robust mode estimated (translation scale, rotation scale, '
+        'heading drift rad/m):',
+        '',
+        *[
+            f'- {r.scores[0].dataset} robot {r.scores[0].robot} ({r.scores[0].window}): '
+            + ', '.join(f'{v:.3f}' for v in r.robust.odometry_calibration)
+            for r in results
+            if r.scores
+        ],
     ]
     return '\n'.join(lines)

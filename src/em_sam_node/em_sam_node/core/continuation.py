@@ -15,6 +15,7 @@ the cost stays linear in the run length.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import numpy as np
@@ -26,14 +27,47 @@ from em_sam_node.core.assembly import (
     initial_landmarks,
 )
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
-from em_sam_node.core.seeding import extend_poses, prefix
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
+from slam_core.geometry.se2 import apply_increment
 
 CHUNK_S = 20.0  # the first steps: the robust seed's chunk
 GROWTH = 0.1  # then 10 % of the time solved: at most 11 runs' worth of solving
 
 # solve(problem, start) -> estimate, every landmark static
 LeastSquares = Callable[[SlamProblem, Estimate], Estimate]
+
+
+def prefix(data: MappingData, count: int) -> MappingData:
+    """Return the data of the first ``count`` keyframes."""
+    odometry = data.odometry_to < count
+    observations = data.obs_keyframe < count
+    return dataclasses.replace(
+        data,
+        keyframe_stamps_ns=data.keyframe_stamps_ns[:count],
+        odometry_from=data.odometry_from[odometry],
+        odometry_to=data.odometry_to[odometry],
+        odometry_u=data.odometry_u[odometry],
+        odometry_cov=data.odometry_cov[odometry],
+        obs_keyframe=data.obs_keyframe[observations],
+        obs_landmark_id=data.obs_landmark_id[observations],
+        obs_z=data.obs_z[observations],
+        obs_cov=data.obs_cov[observations],
+    )
+
+
+def extend_poses(data: MappingData, solved: FloatArray, count: int) -> FloatArray:
+    """Solved poses for the first keyframes, odometry composed on them for the rest."""
+    poses = dead_reckoning(prefix(data, count))
+    known = len(solved)
+    poses[:known] = solved
+    incoming = {int(t): m for m, t in enumerate(data.odometry_to.tolist())}
+    for index in range(max(known, 1), count):  # keyframe 0 keeps the prior
+        m = incoming.get(index)
+        if m is not None and data.odometry_from[m] == index - 1:
+            poses[index] = apply_increment(poses[index - 1][None], data.odometry_u[m][None])[0]
+        else:
+            poses[index] = poses[index - 1]
+    return poses
 
 
 def step_ends(stamps_ns: IntArray, chunk_s: float, growth: float) -> list[int]:

@@ -16,10 +16,13 @@ Two modes:
               the excess S_l - nu_l with lambda_l = q_l - nu_l, q_l its (1 -
               false_alarm_probability) quantile. A static landmark gets w ~ 1 however often
               it was seen, and w_l = 0.5 exactly at the quantile (the test's level);
-           2. the first E-step is an incremental robust solve (core.seeding): time
-              prefixes solved in order with a redescending (Cauchy) kernel per sighting, and
-              a landmark whose new sightings disagree with where it was mapped split off,
-              so moved landmarks cannot pull the trajectory before the weights exist;
+           2. the first E-step is EM-SAM continued in time and in robustness
+              (core.seeding): growing time prefixes of the run, each solved warm from the
+              one before with a graduated (GNC) Cauchy kernel and a few EM rounds, so a
+              drifted stretch is pulled onto the map instead of rejected, and moved
+              landmarks stop pulling the trajectory before the main loop starts; it
+              also estimates the odometry's translation and rotation scales
+              (core.odometry_calibration), which the EM loop and the final solve use;
            3. single gross outliers are gated per sighting (at most max_gated_fraction of a
               landmark's sightings, each above the gate quantile) instead of condemning the
               landmark; rows are scaled by sqrt(w_l), consistent with the likelihood (eq. 7).
@@ -60,8 +63,10 @@ from em_sam_node.core.em_weights import (
 )
 from em_sam_node.core.factors import observation_innovations, observation_mahalanobis
 from em_sam_node.core.marginals import marginal_landmark_covariances
+from em_sam_node.core.odometry_calibration import OdometryCalibration, estimate_calibration
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
-from em_sam_node.core.seeding import incremental_seed
+from em_sam_node.core.robust_kernels import RobustKernel
+from em_sam_node.core.seeding import Solver, incremental_seed
 from em_sam_node.core.sightings import Sightings, sightings_of
 from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
@@ -104,6 +109,7 @@ def run_em(
     """
     timings: dict[str, float] = {}
     started = time.perf_counter()
+    raw_data = data
     built = build_problem(data)
     if built.problem.num_landmarks == 0:
         return _odometry_only_result(data, config, initial_poses)
@@ -118,9 +124,15 @@ def run_em(
         all_static = _solve(config, problem, estimate)
         if record_snapshots:
             snapshots['all_static'] = _snapshot(all_static, built.landmark_ids)
-    estimate = (
-        all_static if config.mode == 'paper' else _robust_seed(config, data, built, estimate)
-    )
+    calibration = OdometryCalibration()
+    if config.mode == 'paper':
+        estimate = all_static
+    else:
+        estimate, calibration = _robust_seed(config, data, built, estimate)
+        if not calibration.is_identity:
+            data = calibration.apply(data)
+            built = build_problem(data)
+            problem, num_pieces = _anchored(built, poses0)
     timings['first_e_step'] = time.perf_counter() - started
     sensor_data = data
     noise_scale = capped_noise_scales(config, data, built, problem, estimate)
@@ -164,6 +176,15 @@ def run_em(
     timings['em'] = time.perf_counter() - started - timings['first_e_step']
 
     moveable = weights < config.moveable_threshold
+    if not calibration.is_identity:
+        # The calibration's M-step once more, at the EM solution (landmarks that moved no
+        # longer pull it); when nothing static is left, nothing observed it.
+        calibration = (
+            OdometryCalibration()
+            if moveable.all()
+            else estimate_calibration(raw_data, estimate.poses)
+        )
+        sensor_data = calibration.apply(raw_data)
     final = _final_solve(config, sensor_data, built, estimate, moveable, gated)
     timings['total'] = time.perf_counter() - started
     if record_snapshots:
@@ -187,6 +208,7 @@ def run_em(
         timings_s=timings,
         noise_scale=noise_scale,
         final_noise_scale=final.noise_scale,
+        odometry_calibration=tuple(calibration.parameters.tolist()),
     )
 
 
@@ -259,27 +281,42 @@ def _gated_in_data(data: MappingData, built: BuiltProblem, gated: np.ndarray) ->
     return mask
 
 
+def seed_solver(config: EmConfig) -> Solver:
+    """The solve the robust first E-step uses (core.seeding's Solver) with ``config``'s
+    solver settings."""
+
+    def seed_solve(
+        problem: SlamProblem,
+        start: Estimate,
+        rows: FloatArray,
+        kernel: RobustKernel | None,
+        max_iterations: int | None,
+    ) -> Estimate:
+        result = solve(
+            problem,
+            start,
+            method=config.solver_method,
+            max_iterations=max_iterations or config.max_solver_iterations,
+            relative_cost_tolerance=config.solver_tolerance,
+            obs_row_scale=rows,
+            robust_kernel=kernel,
+        )
+        return result.estimate
+
+    return seed_solve
+
+
 def _robust_seed(
     config: EmConfig, data: MappingData, built: BuiltProblem, fallback: Estimate
-) -> Estimate:
-    """The robust mode's first E-step (see core.seeding)."""
-    kernel = SEED_KERNELS[config.seed_kernel](config.seed_kernel_scale)
-
-    def robust_solve(problem: SlamProblem, start: Estimate) -> Estimate:
-        return _solve(config, problem, start, robust_kernel=kernel)
-
-    poses, by_id = incremental_seed(
-        data,
-        robust_solve,
-        chunk_s=config.seed_chunk_s,
-        split_distance_m=config.seed_split_distance_m,
-        window_s=config.seed_window_s,
-    )
+) -> tuple[Estimate, OdometryCalibration]:
+    """The robust mode's first E-step (see core.seeding) and the odometry calibration it
+    estimated."""
+    seed = incremental_seed(data, config, seed_solver(config))
     landmarks = fallback.landmarks.copy()
     for index, landmark_id in enumerate(built.landmark_ids.tolist()):
-        if landmark_id in by_id:
-            landmarks[index] = by_id[landmark_id]
-    return Estimate(poses, landmarks)
+        if landmark_id in seed.landmarks:
+            landmarks[index] = seed.landmarks[landmark_id]
+    return Estimate(seed.poses, landmarks), seed.calibration
 
 
 def _snapshot(estimate: Estimate, ids: IntArray) -> Snapshot:

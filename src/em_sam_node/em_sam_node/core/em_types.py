@@ -6,16 +6,20 @@ landmark was seen) is in ``core.sightings``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from em_sam_node.core.problem import FloatArray, IntArray
-from em_sam_node.core.robust_kernels import cauchy_weights, huber_weights
+from em_sam_node.core.robust_kernels import RobustKernel, cauchy_weights, huber_weights
 from em_sam_node.core.sightings import Sightings
 
 MODES = ('paper', 'robust')
-SEED_KERNELS = {'cauchy': cauchy_weights, 'huber': huber_weights}
+SEED_KERNELS: dict[str, Callable[[float], RobustKernel]] = {
+    'cauchy': cauchy_weights,
+    'huber': huber_weights,
+}
 
 
 @dataclass(frozen=True)
@@ -33,8 +37,7 @@ class EmConfig:
     seed_kernel: str = 'cauchy'
     seed_kernel_scale: float = 2.3849
     seed_chunk_s: float = 20.0
-    seed_split_distance_m: float = 1.0
-    seed_window_s: float = 60.0
+    seed_growth: float = 0.1
     solver_method: str = 'levenberg_marquardt'
     max_solver_iterations: int = 50
     solver_tolerance: float = 1e-6
@@ -43,6 +46,7 @@ class EmConfig:
     model_error_m: float = 0.15
     final_kernel: str = 'cauchy'
     final_kernel_scale: float = 2.3849
+    calibrate_odometry: bool = True
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str, object, str]] = [
@@ -117,16 +121,10 @@ class EmConfig:
             ),
             (self.seed_chunk_s > 0, 'seed_chunk_s', self.seed_chunk_s, 'must be > 0'),
             (
-                self.seed_window_s >= self.seed_chunk_s,
-                'seed_window_s',
-                self.seed_window_s,
-                'must be >= seed_chunk_s',
-            ),
-            (
-                self.seed_split_distance_m > 0,
-                'seed_split_distance_m',
-                self.seed_split_distance_m,
-                'must be > 0',
+                np.isfinite(self.seed_growth) and self.seed_growth > 0,
+                'seed_growth',
+                self.seed_growth,
+                'must be a finite number > 0',
             ),
             (
                 self.max_solver_iterations >= 1,
@@ -180,3 +178,4 @@ class EmResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     noise_scale: FloatArray = field(default_factory=lambda: np.ones(2))
     final_noise_scale: FloatArray = field(default_factory=lambda: np.ones(2))
+    odometry_calibration: tuple[float, ...] = (1.0, 1.0)

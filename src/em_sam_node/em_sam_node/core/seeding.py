@@ -1,362 +1,277 @@
-"""The robust mode's first E-step: an incremental robust solve over growing time prefixes.
+"""The robust mode's first E-step: EM-SAM continued in time and in robustness.
 
-A robust kernel needs a starting point where the static sightings agree with it. Dead
-reckoning over a whole run is not one: odometry drift makes most late sightings of early
-landmarks look like outliers. Solving prefixes of the run in time order, each warm-started
-from the previous solution and odometry for the new part, keeps the static sightings
-consistent as they come in, while a landmark that moved disagrees with where it was first
-mapped.
+Why not one solve of the whole run: a least-squares solve from dead reckoning lands in
+whatever basin the drift puts it in (Victoria Park: Levenberg-Marquardt stops at a cost
+about 30 times the optimum), and a robust kernel started there is worse still: against a
+drifted trajectory most late sightings of early landmarks look like outliers, so the
+kernel rejects the static world and keeps the drift. When most landmarks look
+inconsistent, the trajectory is wrong, not the world.
 
-Odometry drifts most where few landmarks are seen (a corridor), so the odometry-extended
-poses of a new chunk can come back to a mapped area a metre off. Nothing about that is
-robust: a redescending kernel would reject the loop-closing sightings as outliers, and the
-split test below would take every static landmark for a moved one. So each chunk is first
-relocalized: a rigid SE(2) correction of its new poses, the consensus of its sightings of
-mapped landmarks (two-landmark hypotheses, scored by how many landmarks they bring within
-``relocalize_inlier_m``, the smaller correction winning ties), is applied before the test
-and the solve. Landmarks that moved independently do not agree on one correction; the
-static ones do. Sightings of one landmark form two self-consistent clusters when it moved, which a
-per-sighting kernel cannot reject, so the seed splits them: when a mapped landmark's new
-sightings (placed through the odometry-extended trajectory) lie more than
-``split_distance_m`` from where it was mapped, they start a new, virtual landmark. The
-redescending kernel then only has isolated outliers to deal with.
+So the seed grows the problem in time, as an incremental smoother does, and solves every
+prefix of the run warm-started from the one before:
 
-Each step solves only a window of the recent ``window_s`` of keyframes, anchored at the
-window's first pose as solved before; landmarks mapped before the window are held fixed, a
-known map that the window's poses are localized against (which closes loops). The cost per
-step is bounded by the window, so the seed grows linearly with the run.
+1. **New keyframes** get odometry composed on the last solved pose; a landmark seen for
+   the first time is placed from its first sighting through them.
+2. **Association**: the sightings of a mapped landmark in the new keyframes are tested
+   against where it was mapped, with the predicted innovation covariance: the previous
+   solution's joint marginal of its last pose and the landmark, compounded along the
+   extension with the odometry covariances and with the drift the odometry showed against
+   the solved prefix over stretches of the same length (a wheel-base or steering bias that
+   no per-increment covariance carries). Landmarks in the step's drift consensus
+   (``core.consensus``: most mapped landmarks in view agree on one rigid correction that
+   the predicted uncertainty can explain) pass as they are. A landmark whose sightings fit
+   none of its mapped clusters moved: from this step on its sightings form a new cluster
+   (a virtual landmark), so its two positions never pull the trajectory against each
+   other; sightings that fit an earlier cluster again (a misread barcode, then the right
+   one) rejoin it. The seed reports each landmark's first cluster; the main EM loop tests
+   all of its sightings together.
+3. **Graduated non-convexity** (Yang, Antonante, Tzoumas, Carlone, RA-L 2020) on the
+   prefix: a Cauchy kernel whose scale starts at the largest whitened residual, so that
+   every sighting is in the kernel's near-quadratic zone and the loop-closing sightings of
+   a drifted stretch pull the trajectory into place as least squares would; the scale is
+   halved every solve down to the nominal ``seed_kernel_scale``. Sightings that agree
+   with one correction of the trajectory (a loop closure: many of them) stay inliers as
+   the kernel narrows; one that agrees with nothing (a misread barcode) loses its weight.
+4. **EM rounds** (at most ``SEED_EM_ROUNDS``): the landmark weights of the M-step
+   (``core.em_weights``, the test the main loop uses) scale each landmark's rows in the
+   next solve, so a landmark that moved stops pulling the trajectory as soon as its
+   sightings disagree, while the trajectory is still close to right.
+5. **Odometry calibration** (``core.odometry_calibration``, unless
+   ``calibrate_odometry`` is off): the translation and rotation scales that best explain
+   the solved prefix, applied to every increment of the
+   next step. Odometry that overstates its turns by 10 % drifts in proportion to the
+   angle turned; calibrated, the next stretch is predicted as well as its noise allows and
+   a static landmark re-seen after it is not mistaken for a moved one.
+
+Step lengths are max(``seed_chunk_s``, ``seed_growth`` x the time solved so far): the
+prefix grows geometrically, so the solved sizes sum to at most (1 + 1 / growth) times the
+run's, and the seed's cost stays linear in the run length. Early steps are short, where
+the map is small and the trajectory least constrained. A long step is associated in
+chunks of ``seed_chunk_s``: the clusters a chunk sees first (new landmarks, new clusters
+of moved ones) are placed with their predicted covariance, and the step's later sightings
+are tested against them as against mapped ones, so a landmark that appears and moves
+within one step is split, not fitted at two places; a landmark that moved within the step
+keeps its sightings from before the move.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from itertools import combinations
+from dataclasses import dataclass
 
 import numpy as np
 
-from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning
+from em_sam_node.core.assembly import BuiltProblem, MappingData, build_problem, dead_reckoning
+from em_sam_node.core.continuation import extend_poses, prefix, step_ends
+from em_sam_node.core.em_types import SEED_KERNELS, EmConfig
+from em_sam_node.core.em_weights import (
+    capped_noise_scales,
+    covariances_for_test,
+    gate_outliers,
+    m_step,
+    row_scales,
+    squared_mahalanobis,
+    with_noise_scales,
+)
+from em_sam_node.core.factors import (
+    observation_innovations,
+    observation_mahalanobis,
+)
+from em_sam_node.core.odometry_calibration import OdometryCalibration, estimate_calibration
 from em_sam_node.core.problem import Estimate, FloatArray, SlamProblem
+from em_sam_node.core.robust_kernels import RobustKernel
+from em_sam_node.core.seed_association import (
+    SolvedStep,
+    associate,
+    chunks,
+    map_in_step,
+    predict_step,
+)
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
-from slam_core.geometry.se2 import apply_increment, range_bearing_to_point
+from slam_core.geometry.se2 import range_bearing_to_point
 
-Solver = Callable[[SlamProblem, Estimate], Estimate]
-MAX_MERGE_ROUNDS = 3
-
-
-def prefix(data: MappingData, count: int) -> MappingData:
-    """Return the data of the first ``count`` keyframes."""
-    odometry = data.odometry_to < count
-    observations = data.obs_keyframe < count
-    return dataclasses.replace(
-        data,
-        keyframe_stamps_ns=data.keyframe_stamps_ns[:count],
-        odometry_from=data.odometry_from[odometry],
-        odometry_to=data.odometry_to[odometry],
-        odometry_u=data.odometry_u[odometry],
-        odometry_cov=data.odometry_cov[odometry],
-        obs_keyframe=data.obs_keyframe[observations],
-        obs_landmark_id=data.obs_landmark_id[observations],
-        obs_z=data.obs_z[observations],
-        obs_cov=data.obs_cov[observations],
-    )
+# solve(problem, start, observation row scales (K,), robust kernel or None, at most this many
+# iterations or None for the configured number) -> estimate
+Solver = Callable[[SlamProblem, Estimate, FloatArray, RobustKernel | None, int | None], Estimate]
+GNC_INNER_ITERATIONS = 1  # per kernel scale: follow the basin (the nominal scale converges)
+SEED_EM_ROUNDS = 3  # the main loop refines; the seed only has to keep movers from pulling
+GNC_STEP = 2.0  # the kernel scale is divided by this every graduated solve
+SEED_WEIGHT_TOLERANCE = 0.05  # weights that change less end a step's EM rounds
 
 
-def chunk_ends(stamps_ns: np.ndarray, chunk_s: float) -> list[int]:
-    """Return prefix lengths (keyframe counts) every ``chunk_s`` of keyframe time, ending at N."""
-    elapsed = (stamps_ns - stamps_ns[0]) / 1e9
-    ends = np.searchsorted(elapsed, np.arange(chunk_s, elapsed[-1], chunk_s), side='right')
-    return sorted({int(e) for e in ends if 1 < e < len(stamps_ns)} | {len(stamps_ns)})
+@dataclass(frozen=True)
+class Seed:
+    """The seed's trajectory (N,3), landmark positions and weights by landmark id (a split
+    landmark: its first cluster's), and how many clusters each split landmark was cut
+    into (landmarks not split are absent)."""
+
+    poses: FloatArray
+    landmarks: dict[int, FloatArray]
+    weights: dict[int, float]
+    steps: int
+    clusters: dict[int, int]
+    calibration: OdometryCalibration
 
 
-def extend_poses(data: MappingData, solved: FloatArray, count: int) -> FloatArray:
-    """Solved poses for the first keyframes, odometry composed on them for the rest."""
-    poses = dead_reckoning(prefix(data, count))
-    known = len(solved)
-    poses[:known] = solved
-    incoming = {int(t): m for m, t in enumerate(data.odometry_to.tolist())}
-    for index in range(max(known, 1), count):  # keyframe 0 keeps the prior
-        m = incoming.get(index)
-        if m is not None and data.odometry_from[m] == index - 1:
-            poses[index] = apply_increment(poses[index - 1][None], data.odometry_u[m][None])[0]
+def _initial_landmarks(
+    problem: SlamProblem, ids: list[int], poses: FloatArray, mapped: dict[int, FloatArray]
+) -> FloatArray:
+    """Mapped landmarks where they were solved, new ones from their first sighting."""
+    positions = np.zeros((len(ids), 2))
+    for index, landmark_id in enumerate(ids):
+        if landmark_id in mapped:
+            positions[index] = mapped[landmark_id]
         else:
-            poses[index] = poses[index - 1]
-    return poses
+            first = int(np.flatnonzero(problem.obs_landmark == index)[0])
+            positions[index] = range_bearing_to_point(
+                poses[problem.obs_pose[first]][None], problem.obs_z[first][None]
+            )[0]
+    return positions
 
 
-@dataclasses.dataclass(frozen=True)
-class Correction:
-    """A rigid SE(2) correction p' = R(angle) p + translation of poses and points."""
-
-    angle: float
-    translation: FloatArray  # (2,)
-
-    def apply_points(self, points: FloatArray) -> FloatArray:
-        """Return the corrected points (n,2)."""
-        c, s = np.cos(self.angle), np.sin(self.angle)
-        result: FloatArray = points @ np.array([[c, s], [-s, c]]) + self.translation
-        return result
-
-    def apply_poses(self, poses: FloatArray) -> FloatArray:
-        """Return the corrected poses (n,3), headings wrapped."""
-        heading = poses[:, 2] + self.angle
-        return np.column_stack(
-            [self.apply_points(poses[:, :2]), np.arctan2(np.sin(heading), np.cos(heading))]
-        )
-
-
-def _fit_rigid(source: FloatArray, target: FloatArray) -> Correction:
-    """Least-squares rigid transform taking ``source`` (n,2) onto ``target`` (n,2)."""
-    source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
-    a, b = source - source_mean, target - target_mean
-    angle = float(np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a * b)))
-    rotated = Correction(angle, np.zeros(2)).apply_points(source_mean[None])[0]
-    return Correction(angle, target_mean - rotated)
-
-
-def relocalization(
-    points: FloatArray,
-    ids: np.ndarray,
-    landmarks: dict[int, FloatArray],
-    inlier_m: float,
-    *,
-    poses: FloatArray,
-    max_shift_m: float,
-    max_angle: float,
-) -> Correction | None:
-    """Return the consensus correction that maps sightings onto their mapped landmarks.
-
-    ``points`` (n,2) are sightings placed through the uncorrected poses, ``ids`` (n,) their
-    landmark ids. Each mapped landmark votes once, at the median of its sightings. Returns
-    None when no hypothesis brings more landmarks within ``inlier_m`` than no correction
-    does, or when fewer than two mapped landmarks were seen. A correction is plausible only
-    if it turns by at most ``max_angle`` rad and moves none of ``poses`` (n,3), the poses
-    it would correct, by more than ``max_shift_m``; a hypothesis needs a pair of landmarks
-    at least 4 ``inlier_m`` apart, so its rotation is defined.
-    """
-    known = [i for i in np.unique(ids).tolist() if i in landmarks]
-    if len(known) < 2:
-        return None
-    source = np.array([np.median(points[ids == i], axis=0) for i in known])
-    target = np.array([landmarks[i] for i in known])
-
-    def inliers(correction: Correction) -> np.ndarray:
-        distance = np.linalg.norm(correction.apply_points(source) - target, axis=1)
-        result: np.ndarray = distance < inlier_m
-        return result
-
-    identity = Correction(0.0, np.zeros(2))
-    best, best_key = identity, (int(inliers(identity).sum()), 0.0)
-    for a, b in combinations(range(len(known)), 2):
-        seen, mapped = source[b] - source[a], target[b] - target[a]
-        if np.linalg.norm(mapped) < 4 * inlier_m:
-            continue  # too short a baseline to define a rotation
-        if abs(np.linalg.norm(seen) - np.linalg.norm(mapped)) > inlier_m:
-            continue  # no rigid motion maps this pair
-        hypothesis = _fit_rigid(source[[a, b]], target[[a, b]])
-        mask = inliers(hypothesis)
-        if mask.sum() < 2:
-            continue
-        refined = _fit_rigid(source[mask], target[mask])
-        shift = np.linalg.norm(refined.apply_points(poses[:, :2]) - poses[:, :2], axis=1)
-        if abs(refined.angle) > max_angle or shift.max(initial=0.0) > max_shift_m:
-            continue
-        size = float(np.linalg.norm(refined.translation)) + abs(refined.angle)
-        key = (int(inliers(refined).sum()), -size)
-        if key > best_key:
-            best, best_key = refined, key
-    return None if best is identity else best
-
-
-def _split_moved(
+def _reweight(
+    config: EmConfig,
     data: MappingData,
-    virtual_ids: np.ndarray,
-    rows: np.ndarray,
-    poses: FloatArray,
-    landmarks: dict[int, FloatArray],
-    split_distance_m: float,
-    next_virtual: int,
-) -> int:
-    """Give sightings in ``rows`` that disagree with their landmark's map position a new id.
-
-    Changes ``virtual_ids`` in place for these rows and every later sighting of the same
-    landmark; returns the next free virtual id.
-    """
-    points = range_bearing_to_point(poses[data.obs_keyframe[rows]], data.obs_z[rows])
-    for landmark_id in np.unique(virtual_ids[rows]).tolist():
-        if landmark_id not in landmarks:
-            continue
-        mine = rows[virtual_ids[rows] == landmark_id]
-        offsets = np.linalg.norm(points[np.isin(rows, mine)] - landmarks[landmark_id], axis=1)
-        if np.median(offsets) > split_distance_m:
-            later = (virtual_ids == landmark_id) & (np.arange(len(virtual_ids)) >= mine[0])
-            virtual_ids[later] = next_virtual
-            next_virtual -= 1
-    return next_virtual
+    built: BuiltProblem,
+    problem: SlamProblem,
+    estimate: Estimate,
+) -> tuple[FloatArray, np.ndarray]:
+    """The M-step weights (L,) and gated sightings (K,) of a prefix at ``estimate``."""
+    noise_scale = capped_noise_scales(config, data, built, built.problem, estimate)
+    covariances = with_noise_scales(data, noise_scale).obs_cov[built.observation_rows]
+    test_cov = covariances_for_test(config, covariances, problem.obs_z)
+    mahalanobis = squared_mahalanobis(
+        observation_innovations(problem, estimate),
+        covariances if test_cov is None else test_cov,
+    )
+    num_landmarks = problem.num_landmarks
+    gated = gate_outliers(config, mahalanobis, problem.obs_landmark, num_landmarks)
+    weights = m_step(config, mahalanobis, problem.obs_landmark, num_landmarks, ~gated)
+    return weights, gated
 
 
-def window(data: MappingData, start: int, end: int, anchor: FloatArray) -> MappingData:
-    """Return keyframes [start, end) re-indexed from 0, with the prior at ``anchor`` (3,)."""
-    odometry = (data.odometry_from >= start) & (data.odometry_to < end)
-    observations = (data.obs_keyframe >= start) & (data.obs_keyframe < end)
-    return dataclasses.replace(
-        data,
-        keyframe_stamps_ns=data.keyframe_stamps_ns[start:end],
-        odometry_from=data.odometry_from[odometry] - start,
-        odometry_to=data.odometry_to[odometry] - start,
-        odometry_u=data.odometry_u[odometry],
-        odometry_cov=data.odometry_cov[odometry],
-        obs_keyframe=data.obs_keyframe[observations] - start,
-        obs_landmark_id=data.obs_landmark_id[observations],
-        obs_z=data.obs_z[observations],
-        obs_cov=data.obs_cov[observations],
-        prior_pose=anchor.copy(),
-        prior_cov=np.diag([1e-6, 1e-6, 1e-6]),
+def _graduated_solve(
+    config: EmConfig, problem: SlamProblem, estimate: Estimate, rows: FloatArray, solve: Solver
+) -> Estimate:
+    """Solve with a Cauchy kernel narrowed from the largest residual to the nominal scale."""
+    kernel = SEED_KERNELS[config.seed_kernel]
+    nominal = config.seed_kernel_scale
+    largest = float(np.sqrt(np.max(observation_mahalanobis(problem, estimate) * rows**2)))
+    scale = max(largest, nominal)
+    while scale > nominal:
+        estimate = solve(problem, estimate, rows, kernel(scale), GNC_INNER_ITERATIONS)
+        scale = max(scale / GNC_STEP, nominal)
+    return solve(problem, estimate, rows, kernel(nominal), None)
+
+
+def incremental_seed(raw: MappingData, config: EmConfig, solve: Solver) -> Seed:
+    """Return the seed: the run solved prefix by prefix (see the module docstring)."""
+    calibration = OdometryCalibration()
+    data = raw
+    solved_poses = np.zeros((0, 3))
+    mapped: dict[int, FloatArray] = {}
+    weights_by_id: dict[int, float] = {}
+    virtual_ids = data.obs_landmark_id.copy()
+    origin = {int(i): int(i) for i in np.unique(virtual_ids).tolist()}
+    next_virtual = min(int(virtual_ids.min(initial=0)), 0) - 1
+    ends = step_ends(data.keyframe_stamps_ns, config.seed_chunk_s, config.seed_growth)
+    done = 0
+    solved: SolvedStep | None = None
+    for count in ends:
+        data = calibration.apply(raw)
+        poses = extend_poses(data, solved_poses, count)
+        graduated = True
+        if solved is not None:
+            span = (done, count)
+            prediction = predict_step(data, virtual_ids, origin, poses, span, mapped, solved)
+            # The clusters the prefix mapped, over the whole step (one drift consensus);
+            # then chunk by chunk, the clusters first seen in the step.
+            decisions, graduated = associate(
+                config, data, virtual_ids, origin, poses, span, mapped, prediction, False
+            )
+            for chunk in chunks(data.keyframe_stamps_ns, done, count, config.seed_chunk_s):
+                for current, (target, first_keyframe) in decisions.items():
+                    if target == current:
+                        continue
+                    later = (virtual_ids == current) & (data.obs_keyframe >= first_keyframe)
+                    if target is None:  # seen where none of its clusters is: a new one
+                        target = next_virtual
+                        origin[target] = origin[current]
+                        next_virtual -= 1
+                    virtual_ids[later] = target
+                map_in_step(data, virtual_ids, poses, chunk, mapped, prediction)
+                rest = (chunk[1], count)
+                decisions, _ = associate(
+                    config, data, virtual_ids, origin, poses, rest, mapped, prediction, True
+                )
+        part = prefix(dataclasses.replace(data, obs_landmark_id=virtual_ids), count)
+        built = build_problem(part)
+        ids = built.landmark_ids.tolist()
+        if ids:
+            estimate, weights, problem, rows = _solve_step(
+                config, part, built, poses, mapped, weights_by_id, solve, graduated
+            )
+            solved_poses = estimate.poses
+            mapped = {lid: estimate.landmarks[i] for i, lid in enumerate(ids)}
+            weights_by_id = {lid: float(weights[i]) for i, lid in enumerate(ids)}
+            solved = SolvedStep(problem, estimate, rows, ids)
+            if config.calibrate_odometry:
+                calibration = estimate_calibration(prefix(raw, count), solved_poses)
+        else:
+            solved_poses = poses
+        done = count
+    if not len(solved_poses):
+        solved_poses = dead_reckoning(data)
+    real = {lid: position for lid, position in mapped.items() if origin[lid] == lid}
+    clusters: dict[int, int] = {}
+    for virtual, real_id in origin.items():
+        if virtual != real_id:
+            clusters[real_id] = clusters.get(real_id, 1) + 1
+    return Seed(
+        solved_poses,
+        real,
+        {lid: weights_by_id[lid] for lid in real},
+        len(ends),
+        clusters,
+        calibration,
     )
 
 
-def incremental_seed(
-    data: MappingData,
-    solver: Solver,
-    *,
-    chunk_s: float = 20.0,
-    split_distance_m: float = 0.5,
-    window_s: float = 60.0,
-    relocalize_inlier_m: float = 0.25,
-    relocalize_max_shift_m: float = 2.0,
-    relocalize_max_angle: float = 0.3,
-    refine: bool = True,
-) -> tuple[FloatArray, dict[int, FloatArray]]:
-    """Return poses (N,3) and landmark positions by (real) id from windowed robust solves.
-
-    A landmark split in the seed reports the position of its first mapped cluster.
-    """
-    virtual_ids = data.obs_landmark_id.copy()
-    next_virtual = min(int(virtual_ids.min(initial=0)), 0) - 1
-    origin = {int(i): int(i) for i in np.unique(virtual_ids).tolist()}
-    first_seen: dict[int, int] = {}  # landmark (virtual) id -> keyframe of its first sighting
-    solved_poses = np.zeros((0, 3))
-    landmarks: dict[int, FloatArray] = {}
-    done = 0
-    stamps = data.keyframe_stamps_ns
-    for count in chunk_ends(stamps, chunk_s):
-        poses = extend_poses(data, solved_poses, count)
-        rows = np.flatnonzero((data.obs_keyframe >= done) & (data.obs_keyframe < count))
-        correction = relocalization(
-            range_bearing_to_point(poses[data.obs_keyframe[rows]], data.obs_z[rows]),
-            virtual_ids[rows],
-            landmarks,
-            relocalize_inlier_m,
-            poses=poses[done:],
-            max_shift_m=relocalize_max_shift_m,
-            max_angle=relocalize_max_angle,
-        )
-        if correction is not None and done > 0:
-            poses[done:] = correction.apply_poses(poses[done:])
-        before = next_virtual
-        next_virtual = _split_moved(
-            data, virtual_ids, rows, poses, landmarks, split_distance_m, next_virtual
-        )
-        for new_id in range(before, next_virtual, -1):
-            origin[new_id] = int(data.obs_landmark_id[virtual_ids == new_id][0])
-        for row in rows.tolist():
-            first_seen.setdefault(int(virtual_ids[row]), int(data.obs_keyframe[row]))
-        start = int(np.searchsorted(stamps, stamps[max(done, 1) - 1] - round(window_s * 1e9)))
-        start = min(start, max(done - 1, 0))
-        done = count
-        part = window(
-            dataclasses.replace(data, obs_landmark_id=virtual_ids), start, count, poses[start]
-        )
-        built = build_problem(part)
-        if built.problem.num_landmarks == 0:
-            solved_poses = poses
-            continue
-        ids = built.landmark_ids.tolist()
-        fixed = np.array([lid in landmarks and first_seen[lid] < start for lid in ids])
-        problem = dataclasses.replace(built.problem, fixed_landmarks=fixed)
-        local = poses[start:count]
-        initial = np.zeros((problem.num_landmarks, 2))
-        for index, landmark_id in enumerate(ids):
-            if landmark_id in landmarks:
-                initial[index] = landmarks[landmark_id]
-            else:  # first sighting, through the extended trajectory
-                first = int(np.flatnonzero(problem.obs_landmark == index)[0])
-                initial[index] = range_bearing_to_point(
-                    local[problem.obs_pose[first]][None], problem.obs_z[first][None]
-                )[0]
-        anchored = anchor_pieces(problem, local)
-        problem = with_weak_priors(problem, anchored.extra_prior_poses, anchored.extra_prior_means)
-        estimate = solver(problem, Estimate(local, initial))
-        solved_poses = np.concatenate([poses[:start], estimate.poses])
-        for index, landmark_id in enumerate(ids):
-            if not fixed[index]:
-                landmarks[landmark_id] = estimate.landmarks[index]
-    if refine:
-        for _ in range(MAX_MERGE_ROUNDS):
-            solved_poses, landmarks = _refine(
-                dataclasses.replace(data, obs_landmark_id=virtual_ids),
-                solver,
-                solved_poses,
-                landmarks,
-            )
-            if not _merge_agreeing(virtual_ids, origin, landmarks, split_distance_m):
-                break
-    real = {lid: pos for lid, pos in landmarks.items() if origin[lid] == lid}
-    return solved_poses, real
-
-
-def _merge_agreeing(
-    virtual_ids: np.ndarray,
-    origin: dict[int, int],
-    landmarks: dict[int, FloatArray],
-    split_distance_m: float,
-) -> bool:
-    """Merge split clusters of one landmark that the refined solve put back together.
-
-    Drift can split a static landmark as if it moved; once solved as a whole, its clusters
-    land within ``split_distance_m`` of each other, and merging them restores the loop
-    closure they stand for. Changes ``virtual_ids`` and ``landmarks`` in place; returns
-    whether anything merged.
-    """
-    merged = False
-    clusters: dict[int, list[int]] = {}
-    for lid in sorted(landmarks, key=lambda v: (origin[v] != v, -v)):  # real id first
-        clusters.setdefault(origin[lid], []).append(lid)
-    for members in clusters.values():
-        kept: list[int] = []
-        for lid in members:
-            target = next(
-                (
-                    k
-                    for k in kept
-                    if np.linalg.norm(landmarks[k] - landmarks[lid]) < split_distance_m
-                ),
-                None,
-            )
-            if target is None:
-                kept.append(lid)
-                continue
-            virtual_ids[virtual_ids == lid] = target
-            del landmarks[lid]
-            merged = True
-    return merged
-
-
-def _refine(
-    data: MappingData, solver: Solver, poses: FloatArray, landmarks: dict[int, FloatArray]
-) -> tuple[FloatArray, dict[int, FloatArray]]:
-    """One robust solve of the whole run (split ids) from the windowed solution.
-
-    The windows hold landmarks mapped before them fixed, so a map made from a short early
-    baseline stays as first mapped; solving everything at once lets later sightings improve
-    it (and the poses with it).
-    """
-    built = build_problem(data)
+def _solve_step(
+    config: EmConfig,
+    part: MappingData,
+    built: BuiltProblem,
+    poses: FloatArray,
+    mapped: dict[int, FloatArray],
+    weights_by_id: dict[int, float],
+    solve: Solver,
+    graduated: bool,
+) -> tuple[Estimate, FloatArray, SlamProblem, FloatArray]:
+    """One step: the solve of a prefix (``graduated``: with the kernel narrowed from the
+    largest residual; otherwise at the nominal scale), then EM rounds; the estimate,
+    weights, the anchored problem and its row scales."""
     ids = built.landmark_ids.tolist()
-    initial = np.array([landmarks[lid] for lid in ids]) if ids else np.zeros((0, 2))
     anchored = anchor_pieces(built.problem, poses)
     problem = with_weak_priors(
         built.problem, anchored.extra_prior_poses, anchored.extra_prior_means
     )
-    estimate = solver(problem, Estimate(poses, initial))
-    return estimate.poses, {lid: estimate.landmarks[i] for i, lid in enumerate(ids)}
+    estimate = Estimate(poses, _initial_landmarks(problem, ids, poses, mapped))
+    weights = np.array([weights_by_id.get(i, 1.0) for i in ids])
+    gated = np.zeros(problem.num_observations, dtype=bool)
+    rows = row_scales(config, weights, problem.obs_landmark, gated)
+    if graduated:
+        estimate = _graduated_solve(config, problem, estimate, rows, solve)
+    else:
+        nominal = SEED_KERNELS[config.seed_kernel](config.seed_kernel_scale)
+        estimate = solve(problem, estimate, rows, nominal, None)
+    kernel = SEED_KERNELS[config.seed_kernel](config.seed_kernel_scale)
+    for _ in range(SEED_EM_ROUNDS):
+        new_weights, gated = _reweight(config, part, built, problem, estimate)
+        change = float(np.max(np.abs(new_weights - weights)))
+        weights = new_weights
+        if change < SEED_WEIGHT_TOLERANCE:
+            break
+        rows = row_scales(config, weights, problem.obs_landmark, gated)
+        estimate = solve(problem, estimate, rows, kernel, None)
+    return estimate, weights, problem, rows

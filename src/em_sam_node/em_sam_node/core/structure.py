@@ -11,7 +11,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from em_sam_node.core.problem import FloatArray, IntArray, SlamProblem
 from slam_core.geometry.se2 import between, increment_between
@@ -20,28 +21,19 @@ from slam_core.geometry.se2 import between, increment_between
 WEAK_PRIOR_SIGMA = np.array([1e3, 1e3, 1e2])
 
 
-def _find(parent: NDArray[np.int64], node: int) -> int:
-    root = node
-    while parent[root] != root:
-        root = int(parent[root])
-    while parent[node] != root:
-        parent[node], node = root, int(parent[node])
-    return root
-
-
 def connected_pieces(problem: SlamProblem) -> IntArray:
-    """Return a piece label (N + L,) for every pose then landmark; labels are 0..P-1."""
+    """Return a piece label (N + L,) for every pose then landmark; labels are 0..P-1, in
+    the order of each piece's first variable (the piece holding pose 0 is 0)."""
     count = problem.num_poses + problem.num_landmarks
-    parent = np.arange(count, dtype=np.int64)
     edges_a = np.concatenate([problem.odometry_from, problem.obs_pose])
     edges_b = np.concatenate([problem.odometry_to, problem.num_poses + problem.obs_landmark])
-    for a, b in zip(edges_a.tolist(), edges_b.tolist(), strict=True):
-        root_a, root_b = _find(parent, a), _find(parent, b)
-        if root_a != root_b:
-            parent[max(root_a, root_b)] = min(root_a, root_b)
-    roots = np.array([_find(parent, i) for i in range(count)], dtype=np.int64)
-    _, labels = np.unique(roots, return_inverse=True)
-    return labels.astype(np.int64)
+    graph = coo_matrix((np.ones(len(edges_a)), (edges_a, edges_b)), shape=(count, count))
+    _, labels = connected_components(graph, directed=False)
+    # Relabel by first appearance, so labels do not depend on the graph library's order.
+    _, first = np.unique(labels, return_index=True)
+    order: IntArray = np.argsort(np.argsort(first)).astype(np.int64)
+    relabelled: IntArray = order[labels]
+    return relabelled
 
 
 @dataclasses.dataclass(frozen=True)
