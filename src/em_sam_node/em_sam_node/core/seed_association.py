@@ -31,6 +31,7 @@ from em_sam_node.core.factors import (
 )
 from em_sam_node.core.linear_system import linearize_factors, normal_equations, system_layout
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.sightings import sighting_jacobians
 from slam_core.geometry.se2 import between, range_bearing_to_point
 
 # Stretches of the step's length the solved prefix must hold before the drift it shows can
@@ -196,11 +197,8 @@ def map_in_step(
         first = int(mine[np.argmin(data.obs_keyframe[mine])])
         k = int(data.obs_keyframe[first])
         points = range_bearing_to_point(poses[data.obs_keyframe[mine]], data.obs_z[mine])
-        range_m, bearing = data.obs_z[first]
-        direction = poses[k, 2] + bearing
-        c, s = np.cos(direction), np.sin(direction)
-        j_pose = np.array([[1.0, 0.0, -range_m * s], [0.0, 1.0, range_m * c]])
-        j_z = np.array([[c, -range_m * s], [s, range_m * c]])
+        j_poses, j_zs = sighting_jacobians(poses[k][None], data.obs_z[first][None])
+        j_pose, j_z = j_poses[0], j_zs[0]
         prediction.placed[cluster] = np.median(points, axis=0)
         prediction.marginal[cluster] = (
             j_pose @ prediction.covs[k] @ j_pose.T + j_z @ data.obs_cov[first] @ j_z.T

@@ -68,20 +68,26 @@ def _pose_covariances_near(
     return result
 
 
-def _sighting_covariances(
-    poses: FloatArray, z: FloatArray, pose_cov: FloatArray, z_cov: FloatArray
-) -> FloatArray:
-    """Return first-order covariances (S,2,2) of map points from poses (S,3) and z (S,2)."""
+def sighting_jacobians(poses: FloatArray, z: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Return d point / d pose (S,2,3) and d point / d z (S,2,2) of the map points placed
+    from poses (S,3) at z (S,2) (``range_bearing_to_point``)."""
     angle = wrap_angle(poses[:, 2] + z[:, 1])
     cos, sin = np.cos(angle), np.sin(angle)
     r = z[:, 0]
-    count = len(r)
-    j_pose = np.zeros((count, 2, 3))
+    j_pose = np.zeros((len(r), 2, 3))
     j_pose[:, 0, 0] = 1.0
     j_pose[:, 1, 1] = 1.0
     j_pose[:, 0, 2] = -r * sin
     j_pose[:, 1, 2] = r * cos
     j_z = np.stack([np.stack([cos, -r * sin], -1), np.stack([sin, r * cos], -1)], 1)
+    return j_pose, j_z
+
+
+def _sighting_covariances(
+    poses: FloatArray, z: FloatArray, pose_cov: FloatArray, z_cov: FloatArray
+) -> FloatArray:
+    """Return first-order covariances (S,2,2) of map points from poses (S,3) and z (S,2)."""
+    j_pose, j_z = sighting_jacobians(poses, z)
     cov = j_pose @ pose_cov @ np.swapaxes(j_pose, 1, 2) + j_z @ z_cov @ np.swapaxes(j_z, 1, 2)
     result: FloatArray = 0.5 * (cov + np.swapaxes(cov, 1, 2))
     return result
