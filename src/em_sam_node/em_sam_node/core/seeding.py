@@ -79,7 +79,7 @@ from em_sam_node.core.factors import (
     observation_mahalanobis,
 )
 from em_sam_node.core.odometry_calibration import OdometryCalibration, estimate_calibration
-from em_sam_node.core.problem import Estimate, FloatArray, SlamProblem
+from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
 from em_sam_node.core.robust_kernels import RobustKernel
 from em_sam_node.core.seed_association import (
     SolvedStep,
@@ -191,15 +191,7 @@ def incremental_seed(raw: MappingData, config: EmConfig, solve: Solver) -> Seed:
                 config, data, virtual_ids, origin, poses, span, mapped, prediction, False
             )
             for chunk in chunks(data.keyframe_stamps_ns, done, count, config.seed_chunk_s):
-                for current, (target, first_keyframe) in decisions.items():
-                    if target == current:
-                        continue
-                    later = (virtual_ids == current) & (data.obs_keyframe >= first_keyframe)
-                    if target is None:  # seen where none of its clusters is: a new one
-                        target = next_virtual
-                        origin[target] = origin[current]
-                        next_virtual -= 1
-                    virtual_ids[later] = target
+                next_virtual = _apply(decisions, data, virtual_ids, origin, next_virtual)
                 map_in_step(data, virtual_ids, poses, chunk, mapped, prediction)
                 rest = (chunk[1], count)
                 decisions, _ = associate(
@@ -236,6 +228,28 @@ def incremental_seed(raw: MappingData, config: EmConfig, solve: Solver) -> Seed:
         clusters,
         calibration,
     )
+
+
+def _apply(
+    decisions: dict[int, tuple[int | None, int]],
+    data: MappingData,
+    virtual_ids: IntArray,
+    origin: dict[int, int],
+    next_virtual: int,
+) -> int:
+    """Move each decided cluster's sightings from its first keyframe on to its target (in
+    place in ``virtual_ids``); a target of None is a new cluster of the same landmark.
+    Return the next free virtual id."""
+    for current, (target, first_keyframe) in decisions.items():
+        if target == current:
+            continue
+        later = (virtual_ids == current) & (data.obs_keyframe >= first_keyframe)
+        if target is None:  # seen where none of its clusters is: a new one
+            target = next_virtual
+            origin[target] = origin[current]
+            next_virtual -= 1
+        virtual_ids[later] = target
+    return next_virtual
 
 
 def _solve_step(
