@@ -81,13 +81,17 @@ def _anchored(built: BuiltProblem, poses: FloatArray) -> tuple[SlamProblem, int]
 
 
 def _solve(
-    config: EmConfig, problem: SlamProblem, estimate: Estimate, **kwargs: object
+    config: EmConfig,
+    problem: SlamProblem,
+    estimate: Estimate,
+    max_iterations: int | None = None,
+    **kwargs: object,
 ) -> Estimate:
     result = solve(
         problem,
         estimate,
         method=config.solver_method,
-        max_iterations=config.max_solver_iterations,
+        max_iterations=max_iterations or config.max_solver_iterations,
         relative_cost_tolerance=config.solver_tolerance,
         **kwargs,  # type: ignore[arg-type]
     )
@@ -292,16 +296,9 @@ def seed_solver(config: EmConfig) -> Solver:
         kernel: RobustKernel | None,
         max_iterations: int | None,
     ) -> Estimate:
-        result = solve(
-            problem,
-            start,
-            method=config.solver_method,
-            max_iterations=max_iterations or config.max_solver_iterations,
-            relative_cost_tolerance=config.solver_tolerance,
-            obs_row_scale=rows,
-            robust_kernel=kernel,
+        return _solve(
+            config, problem, start, max_iterations, obs_row_scale=rows, robust_kernel=kernel
         )
-        return result.estimate
 
     return seed_solve
 
