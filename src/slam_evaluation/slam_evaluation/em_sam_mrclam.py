@@ -261,8 +261,7 @@ def markdown(results: list[MrclamRunResult]) -> str:
         '',
         *[f'- {note}' for note in sorted(notes)],
         '',
-        'Odometry calibration the robust mode estimated (translation scale, rotation scale, '
-        'heading drift rad/m):',
+        'Odometry calibration the robust mode estimated (translation scale, rotation scale):',
         '',
         *[
             f'- {r.scores[0].dataset} robot {r.scores[0].robot} ({r.scores[0].window}): '
