@@ -390,3 +390,9 @@ def fill_markers(
         marker.header.frame_id = frame_id
     message.markers = markers
     return message
+
+
+def revoked_from_message(message: Any) -> list[int]:
+    """Return the track ids of a slam_interfaces/ShadowTrackArray of features SLAM revoked
+    (monoslam/revoked)."""
+    return [int(track.id) for track in message.tracks]

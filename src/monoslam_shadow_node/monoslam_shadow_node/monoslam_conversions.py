@@ -256,6 +256,31 @@ def fill_predictions(
     return message
 
 
+DYNAMIC_STATUS = 2
+"""slam_interfaces/ShadowTrack.DYNAMIC."""
+
+
+def revoked_ids(result: MonoSlamResult) -> list[int]:
+    """Return the features the frame revoked (handed over, then found moving)."""
+    return [int(i) for i, why in result.removed.items() if why == 'revoked']
+
+
+def fill_revoked(
+    ids: Sequence[int], stamp_ns: int, frame_id: str, message: Any, make_track: Callable[..., Any]
+) -> Any:
+    """Fill a slam_interfaces/ShadowTrackArray with revoked features and return it: status
+    DYNAMIC, no position (covariance[0] = -1, as the message defines), no test (-1)."""
+    ns_to_stamp(stamp_ns, message.header.stamp)
+    message.header.frame_id = frame_id
+    unknown = [-1.0] + [0.0] * 8
+    fields = {'status': DYNAMIC_STATUS, 'test_statistic': -1.0}
+    message.tracks = [
+        make_track(id=int(i), position_covariance=unknown, velocity_covariance=unknown, **fields)
+        for i in ids
+    ]
+    return message
+
+
 def tum_text(poses: Sequence[PoseFields]) -> str:
     """Return a trajectory in the TUM format: one line 'stamp_s x y z qx qy qz qw' per pose."""
     lines = [

@@ -47,6 +47,11 @@ Topics:
               publish_predictions is true: per camera_info stamp after the last processed
               frame, the predicted raw pixels of the features the filter owns (empty while it
               has none or is not tracking), for feature_tracker's use_predictions.
+              monoslam/revoked (slam_interfaces/ShadowTrackArray, reliable, depth 100), when
+              initialize is 'handover', in frames that revoke: handed-over features that
+              failed the persistent-outlier test (they moved after all), status DYNAMIC, no
+              position (position_covariance[0] = -1), header.stamp = the image stamp; the
+              Shadow filter takes them back as suspects. Each is also logged.
   Nothing published is ever NaN: a pose that is not finite is not published (an error is
   logged), and map points or predictions that are not finite are left out.
 
@@ -62,8 +67,9 @@ start (stamp, initial pose and its sigma); tracking lost (why) and the re-initia
 the target when it is seen again; a camera_info change; and every bad input with its culprit,
 after which the node goes on: an unusable camera_info, a frame out of stamp order, NaN
 pixels (those features are ignored), NaN target corners, a refused handover. Every 10 s a
-status line: frames per second, state, map size, features measured, handovers accepted and
-refused, losses, skips and drops.
+status line: frames per second, state, map size, features measured and the latest update's
+counts (compatible, RANSAC hypotheses, low-innovation inliers, rescued, rejected), handovers
+accepted and refused, losses, skips and drops.
 
 Parameters (filter): the fields of the core's MonoSlamConfig, one to one (four renamed with
 their unit); their defaults are the core's, written out in config/monoslam.yaml (a test
@@ -93,6 +99,9 @@ keeps the two equal).
   max_gap_s                       a longer gap between frames is logged, s.
   initialize ('handover')         'handover' (with the Shadow filter) or 'all' (classic
                                   MonoSLAM alone, from every new track).
+  update ('ransac'), ransac_seed (0)  'ransac': the 1-point RANSAC update (Civera et al.
+                                  2010), its draws seeded for reproducible runs; 'gated':
+                                  every measurement inside the chi-square gate.
 Parameters (initialization target): its four corners are the known points.
   target_id (0), target_dictionary ('DICT_APRILTAG_36h11')  the marker, as marker_detector
                                   reports it.
@@ -137,7 +146,7 @@ from tf2_msgs.msg import TFMessage
 
 from monoslam_shadow_node.conversions import CameraInfoWatch, Features, features_from_message
 from monoslam_shadow_node.core.monoslam import MonoSlam
-from monoslam_shadow_node.core.monoslam_types import TRACKING
+from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamResult
 from monoslam_shadow_node.frame_sync import StampSync
 from monoslam_shadow_node.monoslam_conversions import (
     PoseFields,
@@ -147,8 +156,10 @@ from monoslam_shadow_node.monoslam_conversions import (
     fill_pose_stamped,
     fill_pose_with_covariance,
     fill_predictions,
+    fill_revoked,
     fill_transform,
     handovers_from_message,
+    revoked_ids,
     target_from_fiducials,
     tum_text,
 )
@@ -164,7 +175,13 @@ from monoslam_shadow_node.notices import LogThrottle, Notice, log_notice
 from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_core.stamps import stamp_to_ns
-from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, FiducialArray, ShadowTrackArray
+from slam_interfaces.msg import (
+    FeatureTrack,
+    FeatureTrackArray,
+    FiducialArray,
+    ShadowTrack,
+    ShadowTrackArray,
+)
 from slam_ros.params import declare_parameters
 from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.spin import spin_node
@@ -177,6 +194,7 @@ POSE_TOPIC = 'monoslam/pose'
 PATH_TOPIC = 'monoslam/path'
 MAP_TOPIC = 'monoslam/map'
 PREDICTIONS_TOPIC = 'features/predicted'
+REVOKED_TOPIC = 'monoslam/revoked'
 INPUT_DEPTH = 100
 STATUS_PERIOD_S = 10.0
 WAITING_LOG_PERIOD_S = 5.0
@@ -224,6 +242,11 @@ class MonoSlamNode(Node):
         self.predictions_publisher = (
             self.create_publisher(FeatureTrackArray, PREDICTIONS_TOPIC, output_qos())
             if self.settings.publish_predictions
+            else None
+        )
+        self.revoked_publisher = (
+            self.create_publisher(ShadowTrackArray, REVOKED_TOPIC, output_qos(depth=100))
+            if self.config.initialize == 'handover'
             else None
         )
         inputs = output_qos(depth=INPUT_DEPTH)
@@ -306,6 +329,7 @@ class MonoSlamNode(Node):
                 self._map_changed = True
                 if outcome.result.status == TRACKING and outcome.pose is not None:
                     self._publish_pose(outcome.pose, outcome.frame_id or self._camera_frame)
+                self._publish_revoked(outcome.result)
 
     def _publish_pose(self, fields: PoseFields, child: str) -> None:
         frame = self.settings.map_frame
@@ -322,6 +346,22 @@ class MonoSlamNode(Node):
             self.tf_publisher.publish(TFMessage(transforms=[transform]))
         if self.settings.trajectory_file is not None:
             self.trajectory.append(fields)
+
+    def _publish_revoked(self, result: MonoSlamResult) -> None:
+        """Hand the features revoked in this frame back to the Shadow filter."""
+        revoked = revoked_ids(result)
+        if self.revoked_publisher is None or not revoked:
+            return
+        self.revoked_publisher.publish(
+            fill_revoked(
+                revoked, result.stamp_ns, self.settings.map_frame, ShadowTrackArray(),
+                ShadowTrack,
+            )
+        )  # fmt: skip
+        self.get_logger().info(
+            f'revoked {len(revoked)} handed-over feature(s) that moved: '
+            f'{", ".join(map(str, revoked))} (back to the Shadow filter on {REVOKED_TOPIC})'
+        )
 
     def _publish_map(self) -> None:
         if self.processor.slam is None or not self._map_changed:

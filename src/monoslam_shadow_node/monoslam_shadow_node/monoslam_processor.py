@@ -49,6 +49,7 @@ from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamFrame,
     MonoSlamInputError,
     MonoSlamResult,
+    UpdateCounts,
 )
 from monoslam_shadow_node.core.shadow_track import STATIC
 from monoslam_shadow_node.frame_sync import Drop, StampSync, SyncNames
@@ -87,6 +88,18 @@ def monoslam_frame(features: Features, sighting: TargetSighting | None) -> MonoS
     )
 
 
+def update_text(counts: UpdateCounts) -> str:
+    """Return the update's counts for the log: '12 compatible, 2 hypotheses, 10
+    low-innovation inliers, 1 rescued, 3 rejected' (no RANSAC counts for the gated update)."""
+    text = f'{counts.compatible} compatible'
+    if counts.hypotheses:
+        text += (
+            f', {counts.hypotheses} hypotheses, {counts.low_innovation_inliers} low-innovation '
+            f'inliers, {counts.rescued} rescued'
+        )
+    return f'{text}, {counts.rejected} rejected'
+
+
 @dataclass(frozen=True, eq=False)
 class MonoSlamStep:
     """One processed frame: the core's result, the camera frame id of its features ('' when
@@ -106,8 +119,9 @@ Outcome = MonoSlamStep | Notice
 class MonoSlamCounts:
     """Running totals: inputs received (feature frames, fiducial arrays), frames processed,
     processed without fiducials and skipped (refused by the core), inputs dropped by the
-    pairing (by ``Drop.kind``), handovers accepted and refused, times tracking was lost, and
-    the features measured in the latest frame."""
+    pairing (by ``Drop.kind``), handovers accepted and refused, handed-over features revoked
+    (``MonoSlam``'s persistent-outlier test), times tracking was lost, and
+    the features measured and the update's counts in the latest frame."""
 
     features_received: int = 0
     fiducials_received: int = 0
@@ -117,8 +131,10 @@ class MonoSlamCounts:
     dropped: dict[str, int] = field(default_factory=dict)
     accepted: int = 0
     refused: int = 0
+    revoked: int = 0
     lost: int = 0
     measured: int = 0
+    update: UpdateCounts = field(default_factory=UpdateCounts)
 
     @property
     def dropped_total(self) -> int:
@@ -242,6 +258,8 @@ class MonoSlamProcessor:
         result = self.slam.process(frame)
         self.counts.processed += 1
         self.counts.measured = len(result.measured_ids)
+        self.counts.update = result.update
+        self.counts.revoked += sum(why == 'revoked' for why in result.removed.values())
         previous, self.status = self.status, result.status
         transition = None
         if result.status == LOST:
@@ -378,7 +396,8 @@ class MonoSlamProcessor:
         return (
             f'{counts.processed} frames{rate}, {self.status}: map {active} active and '
             f'{len(points) - active} retired points, {counts.measured} features measured in '
-            f'the latest frame; handovers {counts.accepted} accepted, {counts.refused} '
-            f'refused; lost {counts.lost} times, {counts.skipped} frames skipped, '
+            f'the latest frame (update: {update_text(counts.update)}); handovers '
+            f'{counts.accepted} accepted, {counts.refused} refused, {counts.revoked} revoked; '
+            f'lost {counts.lost} times, {counts.skipped} frames skipped, '
             f'{counts.alone} without fiducials, {counts.dropped_total} inputs dropped'
         )

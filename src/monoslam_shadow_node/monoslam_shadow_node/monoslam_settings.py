@@ -93,6 +93,15 @@ CORE_PARAMETERS = (
         "(shadow/static_features); 'all': classic MonoSLAM, from every new track",
         field='initialize',
     ),
+    Param(
+        'update',
+        _CORE.update,
+        "'ransac': 1-point RANSAC update (Civera et al. 2010: the best one-match hypothesis "
+        "picks the low-innovation inliers, gated high-innovation ones are rescued); 'gated': "
+        'every measurement inside the chi-square gate',
+        field='update',
+    ),
+    _core('ransac_seed', 'seed of the 1-point RANSAC draws: runs are reproducible (>= 0)'),
 )
 
 

@@ -18,7 +18,7 @@ LEVELS = ('debug', 'info', 'warning', 'error')
 
 @dataclass(frozen=True)
 class Notice:
-    """Something to log: its kind (e.g. 'dropped', 'pose_gate', 'skipped', 'started'), its
+    """Something to log: its kind (e.g. 'dropped', 'pose_covariance', 'skipped', 'started'), its
     level (one of LEVELS), the line to log, the image stamp it concerns (int ns, None for
     none) and whether it repeats a steady state (log it throttled, per kind)."""
 

@@ -4,10 +4,10 @@
 meaning and rule. The Shadow filter's parameters map one to one onto the fields of the core's
 ``EkfConfig``, ``ClassifierConfig`` and ``ShadowConfig`` (``Param.field`` names the
 ``section.field``; their defaults are the core's; ``min_parallax_deg`` is converted to the
-core's radians), the rest configure the node (pose topic, stamp synchronization, pose gate,
-markers). The node declares the table (``shadow_filter_node.PARAMETERS``); offline tools read
-the node's YAML file with ``PARAMETERS.read_yaml`` and validate it the same way, so both
-accept exactly the same settings. Every rejection raises ParameterError
+core's radians), the rest configure the node (pose topic, stamp synchronization, markers).
+The node declares the table (``shadow_filter_node.PARAMETERS``); offline tools read the
+node's YAML file with ``PARAMETERS.read_yaml`` and validate it the same way, so both accept
+exactly the same settings. Every rejection raises ParameterError
 ``parameter shadow_filter.<name>=<value>: <rule>``.
 """
 
@@ -123,22 +123,6 @@ NODE_PARAMETERS = (
         'feature frames and poses held while waiting, each',
         range=AT_LEAST_ONE,
     ),
-    Param(
-        'max_pose_position_sigma_m',
-        math.inf,
-        'pose gate: frames whose pose has a position std. dev. above this are skipped, m '
-        '(.inf: no gate)',
-        range=POSITIVE,
-        allow_inf=True,
-    ),
-    Param(
-        'max_pose_rotation_sigma_rad',
-        math.inf,
-        'pose gate: frames whose pose has a rotation std. dev. above this are skipped, rad '
-        '(.inf: no gate)',
-        range=POSITIVE,
-        allow_inf=True,
-    ),
     Param('publish_markers', True, 'publish shadow/markers for RViz'),
 )
 PARAMETERS = ParamTable(NODE_NAME, (*CORE_PARAMETERS, *NODE_PARAMETERS))
@@ -147,21 +131,13 @@ PARAMETERS = ParamTable(NODE_NAME, (*CORE_PARAMETERS, *NODE_PARAMETERS))
 @dataclass(frozen=True)
 class NodeSettings:
     """The node's own settings: pose topic, stamp tolerance and waiting horizon (int ns),
-    queue bound (frames per stream), the pose gate (largest position m and rotation rad
-    standard deviation of a pose whose frame is processed; inf: none) and whether to publish
-    markers."""
+    queue bound (frames per stream) and whether to publish markers."""
 
     pose_topic: str
     stamp_tolerance_ns: int
     sync_horizon_ns: int
     queue_size: int
-    max_pose_sigma: tuple[float, float]
     publish_markers: bool
-
-    @property
-    def pose_gate(self) -> bool:
-        """Whether any pose gate is set."""
-        return any(math.isfinite(limit) for limit in self.max_pose_sigma)
 
 
 def shadow_config(values: Mapping[str, Any]) -> ShadowConfig:
@@ -190,9 +166,5 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
         stamp_tolerance_ns=round(tolerance * 1e9),
         sync_horizon_ns=round(horizon * 1e9),
         queue_size=checked['queue_size'],
-        max_pose_sigma=(
-            checked['max_pose_position_sigma_m'],
-            checked['max_pose_rotation_sigma_rad'],
-        ),
         publish_markers=checked['publish_markers'],
     )

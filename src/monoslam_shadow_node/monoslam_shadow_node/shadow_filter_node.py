@@ -4,9 +4,9 @@ The Shadow filter of paper 001 (sec. II-III): every new feature is held back and
 its own EKF, given the camera pose from outside (MonoSLAM, or ground truth), until a
 chi-square test on its viewing rays calls it STATIC (handed over to SLAM on
 shadow/static_features and forgotten here) or DYNAMIC (kept and tracked as it moves). The
-algorithm is ``core.shadow_filter.ShadowFilter``; the stamp pairing, the pose gate and the
-counts are ``shadow_processor.ShadowProcessor``'s; this node converts the messages, hands them
-to it, publishes the processed frames and logs what it reports.
+algorithm is ``core.shadow_filter.ShadowFilter``; the stamp pairing, the pose covariance
+check and the counts are ``shadow_processor.ShadowProcessor``'s; this node converts the
+messages, hands them to it, publishes the processed frames and logs what it reports.
 
 Topics:
   subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100): track ids
@@ -16,10 +16,16 @@ Topics:
               z forward) in the world frame header.frame_id, i.e. R_world_camera and the
               optical centre, at the image stamp. Covariance in ROS order (x, y, z, rotation
               about the world X, Y, Z axes), passed to the core unchanged (see conversions);
-              all zero = a known pose.
+              all zero = a known pose. Every frame with a pose is processed, however
+              uncertain the pose: its covariance widens the rays, so decisions come later.
+              A frame whose pose covariance is not finite is skipped (a warning, counted).
               camera/camera_info (sensor_msgs/CameraInfo, best effort): intrinsics and
               plumb_bob/rational_polynomial distortion; a change is applied from the next
               frame on and logged.
+              monoslam/revoked (slam_interfaces/ShadowTrackArray, reliable, depth 100):
+              features handed over earlier that SLAM then found moving. Each comes back as a
+              suspect: tracked again from its next sighting, PENDING, with fresh views only,
+              and handed over again only if STATIC with every direction of motion checked.
   publishes   shadow/tracks (slam_interfaces/ShadowTrackArray, reliable, depth 10), every
               processed frame: every feature the filter holds that was seen in it, PENDING
               or DYNAMIC, and STATIC in the frame it is handed over; world position and
@@ -86,20 +92,6 @@ Parameters (node):
   stamp_tolerance_s (0.0)         largest features-to-pose stamp difference, s.
   sync_horizon_s (1.0)            how long a frame waits for its partner, s (stamp time).
   queue_size (100)                waiting feature frames and poses, each.
-  max_pose_position_sigma_m (.inf), max_pose_rotation_sigma_rad (.inf)  the pose gate: a
-                                  frame whose pose has a position standard deviation above
-                                  the first (m) or a rotation one above the second (rad)
-                                  (sqrt of the covariance diagonal, the largest of the three
-                                  each) is skipped, not given to the filter, debug-logged
-                                  and counted in the status line. Paper 001's Shadow filter
-                                  relies on SLAM's pose; a poor one (just after a start or a
-                                  long occlusion) makes static features look like moving
-                                  ones. .inf (the default): no gate; the MonoSLAM pipeline
-                                  uses 0.03 m and 0.01 rad (monoslam_pipeline's
-                                  DEFAULT_SHADOW_MAX_POSE_SIGMA). A known pose (all-zero
-                                  covariance) always passes; a covariance whose diagonal is
-                                  not finite always fails (shadow_processor's
-                                  pose_gate_refusal).
   publish_markers (true)          publish shadow/markers.
 All are read-only; a bad value stops the node with an error naming the parameter.
 
@@ -132,6 +124,7 @@ from monoslam_shadow_node.conversions import (
     fill_track_array,
     handover_fields,
     pose_from_message,
+    revoked_from_message,
     track_fields,
 )
 from monoslam_shadow_node.core.shadow_filter import FrameResult, ShadowFilter
@@ -150,6 +143,7 @@ CAMERA_INFO_TOPIC = 'camera/camera_info'
 TRACKS_TOPIC = 'shadow/tracks'
 STATIC_TOPIC = 'shadow/static_features'
 MARKERS_TOPIC = 'shadow/markers'
+REVOKED_TOPIC = 'monoslam/revoked'
 INPUT_DEPTH = 100
 STATUS_PERIOD_S = 10.0
 WAITING_LOG_PERIOD_S = 5.0
@@ -165,7 +159,6 @@ class ShadowFilterNode(Node):
         self.settings = node_settings(values)
         self.processor = ShadowProcessor(
             self.config,
-            max_pose_sigma=self.settings.max_pose_sigma,
             stamp_tolerance_ns=self.settings.stamp_tolerance_ns,
             sync_horizon_ns=self.settings.sync_horizon_ns,
             queue_size=self.settings.queue_size,
@@ -198,6 +191,9 @@ class ShadowFilterNode(Node):
             output_qos(depth=INPUT_DEPTH),
         )
         self.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self._on_camera_info, sensor_qos())
+        self.create_subscription(
+            ShadowTrackArray, REVOKED_TOPIC, self._on_revoked, output_qos(depth=INPUT_DEPTH)
+        )
         self.create_timer(
             max(self.settings.sync_horizon_ns / 2e9, 0.05),
             self._flush_when_idle,
@@ -239,6 +235,15 @@ class ShadowFilterNode(Node):
     def _on_pose(self, message: PoseWithCovarianceStamped) -> None:
         self._last_input = time.monotonic()
         self._handle(self.processor.add_pose(pose_from_message(message)))
+
+    def _on_revoked(self, message: ShadowTrackArray) -> None:
+        ids = revoked_from_message(message)
+        taken = self.processor.revoke(ids)
+        self.get_logger().info(
+            f'{REVOKED_TOPIC}: SLAM revoked {len(ids)} feature(s); {len(taken)} of them '
+            f'({", ".join(map(str, taken)) or "none"}) are tracked again as suspects '
+            f'(fresh views only, every direction of motion checked)'
+        )
 
     def _flush_when_idle(self) -> None:
         idle_s = time.monotonic() - self._last_input
@@ -315,7 +320,7 @@ class ShadowFilterNode(Node):
     def destroy_node(self) -> None:
         """Log the final summary, then destroy."""
         counts = self.processor.counts
-        if counts.processed or counts.dropped_total or counts.skipped or counts.pose_gated:
+        if counts.processed or counts.dropped_total or counts.skipped or counts.pose_refused:
             self.get_logger().info(f'done: {self.processor.status_line()}')
         super().destroy_node()
 

@@ -1,12 +1,12 @@
-"""The shadow_filter's ROS-free processor: stamp pairing, the pose gate and bookkeeping around
-``core.shadow_filter.ShadowFilter``.
+"""The shadow_filter's ROS-free processor: stamp pairing, the pose covariance check and
+bookkeeping around ``core.shadow_filter.ShadowFilter``.
 
 The node hands it the camera (from camera_info), feature frames and camera poses (the
 conversions' ``Features`` and ``CameraPose``); offline tools do the same, or call
 ``ShadowProcessor.process`` with a frame and its pose when they know the pairing. Every call
 returns outcomes in the order they happened: ``ShadowStep`` (a processed frame, to publish),
-and ``Notice`` (a line to log: a dropped input, a frame skipped by the pose gate or refused
-by the core, bad pixels, filter life).
+and ``Notice`` (a line to log: a dropped input, a frame refused for its pose covariance or by
+the core, bad pixels, filter life).
 
 Rules:
 
@@ -15,19 +15,22 @@ Rules:
   whose pose has not come within ``sync_horizon_ns`` (or when the caller flushes because the
   inputs stopped) is dropped, as is a pose that matched no frame. Until the camera is set,
   frames are held (the oldest dropped beyond ``queue_size``).
-- The pose gate (``pose_gate_refusal``): a frame whose pose has a position standard
-  deviation above ``max_pose_sigma[0]`` (m) or a rotation one above ``max_pose_sigma[1]``
-  (rad) is not given to the filter. A known pose (no covariance) passes. A covariance with a
-  non-finite diagonal fails, whatever the limits: no standard deviation can be read from it
-  (the core would refuse the frame too; the gate says why first, and the frame is counted as
-  gated, never as an error).
+- Every frame with a pose is given to the filter, however uncertain the pose: the core
+  adds the pose covariance to each view's ray, so an uncertain pose weakens the tests and
+  delays the decisions (a feature whose ``max_tests`` tests all come before they could see
+  motion stays PENDING: ``core.shadow_classifier``). There is no gate on the pose's standard
+  deviations (one made SLAM and the filter lock each other out: no handover, an uncertain
+  pose, no frame processed, no handover).
+- The pose covariance check (``pose_covariance_refusal``): a frame whose pose covariance has
+  an entry that is not finite is refused with that reason and counted (``pose_refused``), as
+  a warning; the core would refuse it too, with a less specific reason. A known pose (no
+  covariance) passes.
 - A frame the core refuses (``InputError``: NaN pose, not a rotation, repeated ids, stamps out
   of order) is skipped with the core's reason; the filter is unchanged.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -45,7 +48,6 @@ from monoslam_shadow_node.frame_sync import Drop, FrameSynchronizer
 from monoslam_shadow_node.notices import Notice
 from slam_core.camera import CameraModel
 
-NO_GATE = (math.inf, math.inf)
 INPUT_WARNING = 'non-finite'
 """A core warning holding this is about bad input (NaN pixels): logged as a warning. The
 rest (gated measurements, filter restarts, tests put off) is filter life, logged at debug
@@ -53,26 +55,14 @@ level."""
 GATE_WARNING = 'outside the innovation gate'
 
 
-def pose_gate_refusal(
-    covariance: FloatArray | None, max_sigma: tuple[float, float] = NO_GATE
-) -> str | None:
+def pose_covariance_refusal(covariance: FloatArray | None) -> str | None:
     """Return why a pose covariance (6, 6) (position m, rotation rad about the world axes)
-    fails the pose gate of (position m, rotation rad) standard deviations, or None when it
-    passes. A known pose (None) passes; a covariance whose diagonal is not finite fails, even
-    with no gate (``NO_GATE``)."""
+    cannot be used, or None when it can: a known pose (None) can; a covariance with an entry
+    that is not finite cannot. Its size is not limited."""
     if covariance is None:
         return None
-    variances = np.diagonal(np.asarray(covariance, dtype=np.float64))
-    if not np.all(np.isfinite(variances)):
+    if not np.all(np.isfinite(np.asarray(covariance, dtype=np.float64))):
         return 'pose covariance not finite'
-    sigma = np.sqrt(np.maximum(variances, 0.0))
-    position, rotation = float(sigma[:3].max()), float(sigma[3:].max())
-    if position > max_sigma[0]:
-        return f'position sigma {position:.3g} m > max_pose_position_sigma_m ({max_sigma[0]:g})'
-    if rotation > max_sigma[1]:
-        return (
-            f'rotation sigma {rotation:.3g} rad > max_pose_rotation_sigma_rad ({max_sigma[1]:g})'
-        )
     return None
 
 
@@ -91,14 +81,16 @@ Outcome = ShadowStep | Notice
 @dataclass
 class ShadowCounts:
     """Running totals: inputs received (feature frames, poses), frames processed, frames
-    skipped by the pose gate or refused by the core, inputs dropped by the pairing (by
+    refused for a pose covariance that is not finite or by the core, inputs dropped by the
+    pairing (by
     ``Drop.kind``), measurements outside the innovation gate, features handed over as static
-    and called dynamic, and the pending and dynamic features held after the latest frame."""
+    and called dynamic, the pending and dynamic features held after the latest frame, and the
+    features SLAM revoked that came back here as suspects."""
 
     features_received: int = 0
     poses_received: int = 0
     processed: int = 0
-    pose_gated: int = 0
+    pose_refused: int = 0
     skipped: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
     innovation_gated: int = 0
@@ -106,6 +98,7 @@ class ShadowCounts:
     dynamic_total: int = 0
     held_pending: int = 0
     held_dynamic: int = 0
+    revoked_total: int = 0
 
     @property
     def dropped_total(self) -> int:
@@ -128,20 +121,13 @@ class ShadowProcessor:
         self,
         config: ShadowConfig,
         *,
-        max_pose_sigma: tuple[float, float] = NO_GATE,
         stamp_tolerance_ns: int = 0,
         sync_horizon_ns: int = 1_000_000_000,
         queue_size: int = 100,
         pose_topic: str = 'monoslam/pose',
         camera_info_topic: str = 'camera/camera_info',
     ) -> None:
-        if len(max_pose_sigma) != 2 or not all(v > 0 for v in max_pose_sigma):
-            raise ValueError(
-                f'max_pose_sigma={max_pose_sigma!r}: must be (position m, rotation rad), both '
-                '> 0 (inf: no gate)'
-            )
         self.config = config
-        self.max_pose_sigma = (float(max_pose_sigma[0]), float(max_pose_sigma[1]))
         self.pose_topic = pose_topic
         self.camera_info_topic = camera_info_topic
         self.shadow: ShadowFilter | None = None
@@ -192,19 +178,31 @@ class ShadowProcessor:
         """The inputs stopped: frames still without a pose are dropped now."""
         return self._drain(flush=True)
 
+    def revoke(self, ids: list[int]) -> list[int]:
+        """SLAM revoked these features: take back those this filter handed over (as suspects,
+        ``ShadowFilter.revoke``); return them."""
+        if self.shadow is None:
+            return []
+        taken = self.shadow.revoke(ids)
+        self.counts.revoked_total += len(taken)
+        return taken
+
     # --- one frame --------------------------------------------------------------------------
 
     def process(self, features: Features, pose: CameraPose) -> Outcome:
-        """Gate and process one frame with its pose; return the step, or the pose gate's
-        notice. Raises the core's InputError (filter unchanged) for a frame it refuses, and
-        ValueError before the camera is set."""
+        """Process one frame with its pose; return the step, or the notice of a pose covariance
+        that is not finite (the frame is refused). Raises the core's InputError (filter
+        unchanged) for a frame it refuses, and ValueError before the camera is set."""
         if self.shadow is None:
             raise ValueError(f'no camera yet: set it (from {self.camera_info_topic}) first')
-        refusal = pose_gate_refusal(pose.covariance, self.max_pose_sigma)
+        refusal = pose_covariance_refusal(pose.covariance)
         if refusal is not None:
-            self.counts.pose_gated += 1
-            text = f'frame at stamp {features.stamp_ns} ns skipped by the pose gate: {refusal}'
-            return Notice('pose_gate', 'debug', text, features.stamp_ns)
+            self.counts.pose_refused += 1
+            text = (
+                f'frame at stamp {features.stamp_ns} ns skipped: {refusal} (pose from '
+                f'{self.pose_topic})'
+            )
+            return Notice('pose_covariance', 'warning', text, features.stamp_ns)
         result = self.shadow.process(frame_input(features, pose))
         self.counts.count_result(result)
         return ShadowStep(result, pose.frame_id)
@@ -264,6 +262,7 @@ class ShadowProcessor:
             f'{counts.processed} frames{rate}: holding {counts.held_pending} pending and '
             f'{counts.held_dynamic} dynamic features; {counts.static_total} handed over as '
             f'static, {counts.dynamic_total} called dynamic so far; {counts.skipped} frames '
-            f'skipped, {counts.pose_gated} over the pose gate, {counts.dropped_total} inputs '
-            f'dropped, {counts.innovation_gated} measurements outside the innovation gate'
+            f'skipped, {counts.pose_refused} with a non-finite pose covariance, '
+            f'{counts.dropped_total} inputs dropped, {counts.innovation_gated} measurements '
+            f'outside the innovation gate; {counts.revoked_total} revoked by SLAM and taken back'
         )

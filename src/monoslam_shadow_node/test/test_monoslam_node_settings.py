@@ -1,7 +1,7 @@
 """The monoslam node without DDS: its parameter contract (docstring, YAML, core config, the
 initialization target), the conversions between messages and the core, the stamp pairing of
-features with fiducials, the launch file; and the shadow_filter's pose gate parameters it
-relies on (the gate itself: test_shadow_processor)."""
+features with fiducials, the launch file; and that the shadow_filter it feeds has no pose
+gate parameters (it processes every frame with a pose: test_shadow_processor)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2, PointField
 
 from monoslam_shadow_node import monoslam_node, monoslam_processor, monoslam_settings, settings
-from monoslam_shadow_node.conversions import Features
+from monoslam_shadow_node.conversions import Features, revoked_from_message
 from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamConfig, MonoSlamResult
 from monoslam_shadow_node.frame_sync import StampSync
 from monoslam_shadow_node.monoslam_conversions import (
@@ -27,13 +27,16 @@ from monoslam_shadow_node.monoslam_conversions import (
     cloud_points,
     fill_cloud,
     fill_predictions,
+    fill_revoked,
     handovers_from_message,
     pose_fields,
+    revoked_ids,
     target_from_fiducials,
     tum_text,
 )
 from monoslam_shadow_node.monoslam_processor import monoslam_frame
 from slam_core.errors import ParameterError
+from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
 from slam_ros.testing.node_contract import (
     config_mismatches,
@@ -88,11 +91,14 @@ def test_parameters_reach_the_core_config() -> None:
         'initial_inverse_depth_per_m': 0.5,
         'max_features': 80,
         'initialize': 'all',
+        'update': 'gated',
+        'ransac_seed': 7,
     }
     target = monoslam_settings.target_settings(values)
     config = monoslam_settings.monoslam_config(values, target)
     assert config.linear_acceleration_sigma == 3.0 and config.initial_inverse_depth == 0.5
     assert config.max_features == 80 and config.initialize == 'all'
+    assert config.update == 'gated' and config.ransac_seed == 7
 
 
 def test_the_default_target_defines_the_map() -> None:
@@ -129,6 +135,12 @@ def test_the_default_target_defines_the_map() -> None:
             'some',
             r"parameter monoslam\.initialize='some': must be one of all, handover",
         ),
+        (
+            'update',
+            'jcbb',
+            r"parameter monoslam\.update='jcbb': must be one of ransac, gated",
+        ),
+        ('ransac_seed', -1, r'parameter monoslam\.ransac_seed=-1: must be an integer >= 0'),
         ('max_gap_s', math.nan, r'parameter monoslam\.max_gap_s=nan: must be a finite number'),
     ],
 )
@@ -370,6 +382,21 @@ def test_handovers_are_read_and_the_trajectory_written_as_tum() -> None:
     assert tum_text([]) == ''
 
 
+def test_revoked_features_go_out_as_dynamic_tracks_without_a_position() -> None:
+    result = MonoSlamResult(
+        5_000_000_007, 3, 'tracking', None, None, None, None, None, [], [], [],
+        {4: 'revoked', 8: 'unseen', 9: 'revoked', 11: 'failed'}, 0, [],
+    )  # fmt: skip
+    ids = revoked_ids(result)
+    assert ids == [4, 9]
+    message = fill_revoked(ids, result.stamp_ns, 'map', ShadowTrackArray(), ShadowTrack)
+    assert message.header.frame_id == 'map' and message.header.stamp.sec == 5
+    assert message.header.stamp.nanosec == 7
+    assert [t.status for t in message.tracks] == [ShadowTrack.DYNAMIC] * 2
+    assert all(t.position_covariance[0] == -1.0 for t in message.tracks)
+    assert revoked_from_message(message) == [4, 9]
+
+
 # --- pairing features with fiducials -------------------------------------------------------
 
 
@@ -427,33 +454,17 @@ def test_fiducials_without_features_are_named() -> None:
     )
 
 
-# --- the shadow_filter's pose gate ---------------------------------------------------------
+# --- the shadow_filter processes every frame with a pose --------------------------------------
 
 
-def test_pose_gate_parameters_default_to_no_gate() -> None:
-    node = settings.node_settings(settings.PARAMETERS.defaults())
-    assert node.max_pose_sigma == (math.inf, math.inf) and not node.pose_gate
-    gated = settings.node_settings(
-        {
-            **settings.PARAMETERS.defaults(),
-            'max_pose_position_sigma_m': 0.03,
-            'max_pose_rotation_sigma_rad': 0.01,
-        }
-    )
-    assert gated.max_pose_sigma == (0.03, 0.01) and gated.pose_gate
-
-
-@pytest.mark.parametrize(
-    ('name', 'value', 'message'),
-    [
-        ('max_pose_position_sigma_m', 0.0, r'max_pose_position_sigma_m=0\.0: must be > 0'),
-        ('max_pose_rotation_sigma_rad', -math.inf, r'must not be -\.inf'),
-        ('max_pose_rotation_sigma_rad', math.nan, r'must be a finite number or \.inf'),
-    ],
-)
-def test_invalid_pose_gates_are_named(name: str, value: float, message: str) -> None:
-    with pytest.raises(ParameterError, match=message):
-        settings.node_settings({**settings.PARAMETERS.defaults(), name: value})
+@pytest.mark.parametrize('name', ['max_pose_position_sigma_m', 'max_pose_rotation_sigma_rad'])
+def test_the_shadow_filter_has_no_pose_gate_parameters(name: str) -> None:
+    """A file that still sets the removed pose gate is refused with the key named, rather
+    than silently ignored (the Shadow filter takes every frame with a pose: processor
+    tests)."""
+    assert not settings.PARAMETERS.accepts(name)
+    with pytest.raises(ParameterError, match=f"'{name}' is not a parameter of node shadow_filter"):
+        settings.PARAMETERS.check_names([name], where='shadow_filter.yaml')
 
 
 # --- launch file ---------------------------------------------------------------------------

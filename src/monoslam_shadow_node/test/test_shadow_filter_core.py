@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from monoslam_shadow_node.core import shadow_filter as shadow_filter_module
 from monoslam_shadow_node.core.rays import View
-from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.core.shadow_classifier import UNFIT_TESTS, ClassifierConfig, classify
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
     initial_states,
@@ -22,7 +23,7 @@ from monoslam_shadow_node.core.shadow_filter import (
     ShadowConfig,
     ShadowFilter,
 )
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC, Track
 from monoslam_shadow_node.core.static_fit import motion_score_test
 from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import rotation_from_vector
@@ -253,6 +254,39 @@ def test_default_rule_hands_over_only_where_motion_would_have_been_visible() -> 
     assert 'strict' not in frames or frames['strict'] > frames['default']
 
 
+def test_a_revoked_feature_comes_back_as_a_suspect_with_fresh_views(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    rng = np.random.default_rng(11)
+    count = 40
+    points = np.column_stack(
+        [rng.uniform(3, 7, count), rng.uniform(-1.0, 1.5, count), rng.uniform(0.5, 2.5, count)]
+    )
+    shadow = ShadowFilter(CAMERA, ShadowConfig())
+    frames = _scene_frames(np.zeros((count, 3)), points, rng, frames=150)
+    handed: list[int] = []
+    index = 0
+    while not handed:
+        handed = [h.id for h in shadow.process(frames[index]).handovers]
+        index += 1
+    revoked = handed[0]
+    assert shadow.revoke([revoked, 10_000]) == [revoked]  # 10000 was never handed over
+    assert shadow.suspect_ids == {revoked} and revoked not in shadow.released_ids
+    rules: dict[bool, set[int]] = {True: set(), False: set()}
+
+    def spy(track, position, visibility, frame, settings, warnings):  # type: ignore[no-untyped-def]
+        rules[track.id == revoked].add(settings.unchecked_directions)
+        return classify(track, position, visibility, frame, settings, warnings)
+
+    monkeypatch.setattr(shadow_filter_module, 'classify', spy)
+    result = shadow.process(frames[index])
+    (report,) = [t for t in result.tracks if t.id == revoked]
+    assert report.status == PENDING and report.first_frame == index  # fresh views only
+    for frame in frames[index + 1 :]:
+        shadow.process(frame)
+    assert rules == {True: {0}, False: {1}}  # the suspect is judged by the strict rule
+
+
 def test_bad_input_is_named_and_leaves_the_filter_usable() -> None:
     shadow = ShadowFilter(CAMERA)
     ids, pixels = np.array([1, 2]), np.array([[300.0, 200.0], [np.nan, 100.0]])
@@ -299,6 +333,43 @@ def test_a_feature_that_keeps_missing_the_gate_restarts_its_filter() -> None:
     assert any('restarts from this ray' in w for w in warnings)
     state = shadow._states[0]  # the restarted filter predicts the new pixel again
     assert np.linalg.norm(CAMERA.project(state[None, :3]) - [131.0, 60.0]) < 5.0
+
+
+def _diverging_track(speed_x: float) -> Track:
+    """A track seen from cameras moving along x at 0.3 m/s (30 Hz, 40 views) of a point 5 m
+    ahead moving along x at ``speed_x``: faster than the camera, the rays meet behind it."""
+    track = Track(7, PENDING, 0, 1)
+    for k in range(40):
+        centre = np.array([0.01 * k, 0.0, 0.0])
+        point = np.array([speed_x / 30.0 * k, 0.0, 5.0])
+        direction = (point - centre) / np.linalg.norm(point - centre)
+        covariance = (0.2e-2) ** 2 * (np.eye(3) - np.outer(direction, direction))
+        view = View(k, 1 + k * 33_333_333, centre, direction, covariance)
+        track.add_view(view, np.linalg.pinv(covariance, hermitian=True))
+    return track
+
+
+def test_views_that_keep_refusing_a_static_point_are_evidence_of_motion() -> None:
+    # past the parallax milestone, the all-view fit lands behind the cameras at three tests in
+    # a row (retried every other frame): DYNAMIC, without a test statistic
+    track = _diverging_track(0.6)
+    position = np.array([0.2, 0.0, 5.0])  # where the EKF, conditioned on v = 0, puts it
+    assert motion_score_test(track.views, 0.01, position) is None
+    settings = ClassifierConfig()
+    decisions, warnings = [], []
+    for frame in range(40, 60):
+        decision = classify(track, position, 0.0, frame, settings, warnings)
+        if decision is not None:
+            decisions.append((frame, decision))
+            break  # decided: no longer PENDING, the filter classifies it no more
+    ((frame, decision),) = decisions
+    assert decision.status == DYNAMIC and np.isnan(decision.statistic) and track.unfit == 3
+    assert frame <= 40 + 2 * UNFIT_TESTS and len(warnings) == UNFIT_TESTS - 1
+    # a static point seen the same way is tested as usual (never 'unfit')
+    static = _diverging_track(0.0)
+    for frame in range(40, 60):
+        classify(static, np.array([0.0, 0.0, 5.0]), 0.0, frame, settings, [])
+    assert static.unfit == 0 and static.tests_run >= 1
 
 
 def test_score_test_declines_views_that_do_not_fix_a_point() -> None:

@@ -1,5 +1,11 @@
-"""monoslam_image_evaluate's report: totals, the image / measurement ratio and its acceptance,
-the error curves (the content of ``monoslam_image_eval.json``), and the Markdown table.
+"""monoslam_image_evaluate's report: totals, the image / measurement ratio, the frames image
+(c) tracks against image (a), the acceptance, the error curves (the content of
+``monoslam_image_eval.json``), and the Markdown table.
+
+Acceptance is honest about tracking (as ``monoslam_report``'s): a seed on which image (c) lost
+tracking, tracked fewer than ``TRACKED_SHARE_MIN`` of the frames image (a) tracked, or did not
+run, does not meet the ATE ratio whatever its ATE, and the ratio fails unless every seed kept
+tracking; the tracking rule is also a point of its own.
 """
 
 from __future__ import annotations
@@ -16,7 +22,14 @@ from slam_evaluation import monoslam_runs
 from slam_evaluation.monoslam_front_end import MOVING_RADIUS_PX, FrontEndStats
 from slam_evaluation.monoslam_image_runs import RUNS, SeedResult, Settings
 from slam_evaluation.monoslam_image_sources import FloatArray
-from slam_evaluation.monoslam_report import finite_mean, number_text, ratio_summary
+from slam_evaluation.monoslam_report import (
+    TRACKED_SHARE_MIN,
+    acceptance_point,
+    finite_mean,
+    number_text,
+    ratio_summary,
+    tracking_summary,
+)
 from slam_sim.core.init_target import InitTarget
 
 IMAGE_OVER_MEASUREMENT_MAX = 1.5
@@ -49,18 +62,39 @@ def level_ratio(per_seed: Sequence[Mapping[str, Any]], key: str) -> dict[str, An
     return ratio_summary(_runs(per_seed, 'image', 'c'), _runs(per_seed, 'measurement', 'c'), key)
 
 
-def acceptance(ratio: Mapping[str, Any] | None) -> dict[str, Any]:
-    """Return the acceptance point: mean ATE(c) images / mean ATE(c) measurements."""
+def image_tracking(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Return the frames image c tracked against those image a tracked, per seed
+    (``monoslam_report.tracking_summary``; a seed without image a is left out)."""
+    return tracking_summary(_runs(per_seed, 'image', 'c'), _runs(per_seed, 'image', 'a'))
+
+
+def acceptance(
+    ratio: Mapping[str, Any] | None, tracking: Mapping[str, Any]
+) -> list[dict[str, Any]]:
+    """Return the acceptance points (module docstring): mean ATE(c) images / mean ATE(c)
+    measurements with image c keeping tracking, and the frames image c tracks against image
+    a."""
     seeds = ratio['per_seed'] if ratio is not None else []
     value = ratio['ratio_of_means'] if ratio is not None else math.nan
-    meeting = [r['ratio'] <= IMAGE_OVER_MEASUREMENT_MAX for r in seeds]
-    return {
-        'name': 'ATE(c) images / ATE(c) measurements',
-        'target': f'<= {IMAGE_OVER_MEASUREMENT_MAX:g}',
-        'value': value,
-        'seeds_meeting': f'{sum(meeting)}/{len(meeting)}',
-        'passed': bool(math.isfinite(value) and value <= IMAGE_OVER_MEASUREMENT_MAX),
-    }
+    kept = {r['seed']: r['kept'] for r in tracking['per_seed']}
+    meeting = [
+        r['ratio'] <= IMAGE_OVER_MEASUREMENT_MAX and kept.get(r['seed'], False) for r in seeds
+    ]
+    passed = math.isfinite(value) and value <= IMAGE_OVER_MEASUREMENT_MAX
+    passed = passed and bool(kept) and all(kept.values())
+    target = f'<= {IMAGE_OVER_MEASUREMENT_MAX:g}, tracking kept'
+    name = 'ATE(c) images / ATE(c) measurements'
+    tracked = list(kept.values())
+    return [
+        acceptance_point(name, target, value, meeting, passed),
+        acceptance_point(
+            'tracked image (c)/(a)',
+            f'>= {TRACKED_SHARE_MIN:g}, never lost',
+            tracking['min_share'],
+            tracked,
+            bool(tracked) and all(tracked),
+        ),
+    ]
 
 
 def _pooled(results: Sequence[SeedResult]) -> FrontEndStats:
@@ -105,6 +139,7 @@ def report(settings: Settings, results: Sequence[SeedResult], wall_s: float) -> 
     }
     totals['front_end'] = _pooled(results).summary()
     ratios = {key: level_ratio(per_seed, key) for key in ('ate_m', 'ate_sim3_m')}
+    tracking = image_tracking(per_seed)
     curves = {name: rms_over_seeds(values) for name, values in error_curves(results).items()}
     rate = settings.sources[0].config.rate_hz if settings.sources else math.nan
     return {
@@ -127,7 +162,8 @@ def report(settings: Settings, results: Sequence[SeedResult], wall_s: float) -> 
         'totals': totals,
         'ratio_c': ratios['ate_m'],
         'ratio_c_sim3': ratios['ate_sim3_m'],
-        'acceptance': acceptance(ratios['ate_m']),
+        'tracking_c': tracking,
+        'acceptance': acceptance(ratios['ate_m'], tracking),
         'curves': {'rate_hz': rate, **{f'{name} rms_m': v for name, v in curves.items()}},
         'failures': [f for entry in per_seed for f in entry.get('failures', [])],
         'runtime': {'wall_s': wall_s},
@@ -144,11 +180,13 @@ def _ate_cell(run: Mapping[str, Any] | None, key: str) -> str:
 
 
 TABLE_HEADER = (
-    'seed', 'a ATE', 'b ATE', 'c ATE', 'meas. c ATE', 'c img/meas', 'a sim3', 'b sim3',
-    'c sim3', 'meas. c sim3', 'features/frame', 'moving %', 'target det. %', 'corner rms px',
+    'seed', 'a ATE', 'b ATE', 'c ATE', 'meas. c ATE', 'c img/meas', 'c/a frames', 'a sim3',
+    'b sim3', 'c sim3', 'meas. c sim3', 'features/frame', 'moving %', 'target det. %',
+    'corner rms px',
 )  # fmt: skip
-"""The table's columns: ATE raw (m) of image a, b, c and measurement c, the ratio, ATE after
-the sim(3) alignment (m), and the front end."""
+"""The table's columns: ATE raw (m) of image a, b, c and measurement c, the ratio, the frames
+image c tracked / those image a tracked, ATE after the sim(3) alignment (m), and the front
+end."""
 
 
 def _front_cells(front: Mapping[str, Any]) -> list[str]:
@@ -160,12 +198,21 @@ def _front_cells(front: Mapping[str, Any]) -> list[str]:
     ]
 
 
-def _seed_cells(entry: Mapping[str, Any]) -> list[str]:
+def _tracked_cell(tracking: Mapping[str, Any] | None) -> str:
+    """'c/a' frames tracked at image level, 'lost' when c lost tracking ('--': no image a)."""
+    if tracking is None:
+        return '--'
+    lost = ' lost' if tracking['lost'] else ''
+    return f'{tracking["frames_tracked"]}/{tracking["frames_tracked_a"]}{lost}'
+
+
+def _seed_cells(entry: Mapping[str, Any], tracking: Mapping[str, Any] | None) -> list[str]:
     runs = [entry.get(level, {}).get(variant) for level, variant in RUNS]
     return [
         str(entry['seed']),
         *(_ate_cell(run, 'ate_m') for run in runs),
         number_text(entry['ratio_c']['ate_m'], 2),
+        _tracked_cell(tracking),
         *(_ate_cell(run, 'ate_sim3_m') for run in runs),
         *_front_cells(entry['front_end']),
     ]
@@ -179,6 +226,7 @@ def _mean_cells(content: Mapping[str, Any]) -> list[str]:
         'mean',
         *(number_text(run['ate_m_mean']) for run in runs),
         number_text(ratio['ratio_of_means'] if ratio else None, 2),
+        '',
         *(number_text(run['ate_sim3_m_mean']) for run in runs),
         *_front_cells(totals['front_end']),
     ]
@@ -188,26 +236,30 @@ def table_text(content: Mapping[str, Any]) -> str:
     """Return the markdown table of a report (a row per seed and the means) with the
     acceptance verdict, the Shadow numbers of image c and the failed runs."""
     rows = [list(TABLE_HEADER), ['---'] * len(TABLE_HEADER)]
-    rows += [_seed_cells(entry) for entry in content['per_seed']]
+    tracking = {r['seed']: r for r in content['tracking_c']['per_seed']}
+    rows += [_seed_cells(entry, tracking.get(entry['seed'])) for entry in content['per_seed']]
     rows.append(_mean_cells(content))
     lines = ['| ' + ' | '.join(row) + ' |' for row in rows]
-    point = content['acceptance']
     lines += [
         '',
         'ATE in m (raw: the target fixes the scale; sim3: after the sim(3) alignment); '
         '* diverged (ATE > 1 m, tracking lost or a non-finite estimate). a, b, c: image level; '
-        'meas. c: measurement level, same seed and scene.',
+        'meas. c: measurement level, same seed and scene. c/a frames: frames image c tracked / '
+        'frames image a tracked.',
+    ]
+    lines += [
         f'Acceptance {point["name"]} = {number_text(point["value"], 2)} '
         f'(target {point["target"]}; '
-        f'seeds meeting {point["seeds_meeting"]}): {"PASS" if point["passed"] else "FAIL"}',
+        f'seeds meeting {point["seeds_meeting"]}): {"PASS" if point["passed"] else "FAIL"}'
+        for point in content['acceptance']
     ]
     shadow = content['totals']['image']['c'].get('shadow')
     if shadow:
         lines.append(
             f'Image c Shadow filter: {shadow["handovers"]} handovers ({shadow["handovers_moving"]}'
             f' moving, {shadow["handovers_refused"]} refused); frames processed '
-            f'{shadow["frames_processed"]}, skipped by the pose gate '
-            f'{shadow["frames_skipped_pose_gate"]}, without a pose {shadow["frames_without_pose"]}'
+            f'{shadow["frames_processed"]}, without a pose {shadow["frames_without_pose"]}, '
+            f'pose covariance not finite {shadow["frames_pose_not_finite"]}'
         )
     lines += [
         f'FAILED RUN seed {f["seed"]} ({f["level"]} {f["variant"]}): {f["error"]}'

@@ -1,6 +1,7 @@
 """monoslam_evaluate's metrics of one variant's run: the sim(3) alignment (Umeyama), ATE raw and
 aligned, divergence, the map error against the true static points, the Shadow filter's
-numbers, and the pose NEES (6 dof) with its chi-square band.
+numbers, how fast SLAM revokes the moving features that entered its map, and the pose NEES
+(6 dof) with its chi-square band.
 
 All positions in the simulation's world frame (map), m; rotations as R_world_camera.
 """
@@ -27,6 +28,10 @@ FloatArray = NDArray[np.float64]
 POSE_DOF = 6
 BAND_PROBABILITY = 0.95
 DIVERGED_ATE_M = 1.0
+REVOCATION_SPEED_M_S = 0.3
+"""A mover in SLAM's map must be revoked once it moves across the line of sight this fast."""
+REVOCATION_FRAMES = 15
+"""... within this many frames (issue 20's acceptance)."""
 
 
 @dataclass(frozen=True)
@@ -148,8 +153,92 @@ def shadow_numbers(record: VariantRecord) -> dict[str, int]:
         'static_decisions': record.static_decisions,
         'dynamic_decisions': record.dynamic_decisions,
         'frames_processed': record.shadow_frames,
-        'frames_skipped_pose_gate': record.shadow_gated_frames,
+        'frames_pose_not_finite': record.shadow_refused_frames,
         'frames_without_pose': record.shadow_no_pose_frames,
+    }
+
+
+def mover_revocations(
+    record: VariantRecord, run: DynamicSceneRun, frames: Sequence[MeasurementFrame]
+) -> dict[str, Any]:
+    """Return, for the moving features that entered SLAM's map, how each stay ended, judged
+    by two rules of when a mover must be gone (``'across'`` and ``'observable'``).
+
+    A stay runs from the entry to the feature's removal (or the end). It is judged from the
+    first frame of the stay in which the point moves at ``REVOCATION_SPEED_M_S`` or more:
+
+    - ``'across'`` (issue 20's acceptance): across the camera's line of sight (true velocity
+      minus its component along the ray from the true camera centre);
+    - ``'observable'``: out of the epipolar plane, the plane of the ray and the camera's
+      velocity (the component along their cross product; across the line of sight when the
+      camera does not translate). Motion inside that plane moves the image point along its
+      epipolar line, as a static point at another depth would: to first order one camera
+      cannot tell it from a depth error, so the filter absorbs it into the feature's inverse
+      depth instead of rejecting it.
+
+    Per rule: 'in_time' if revoked or deleted within ``REVOCATION_FRAMES`` frames of it, 'late'
+    if later, 'missed' if still in the map then and never revoked (it stayed to the end, or
+    went out of view later), 'left_view' if it went out of view (removed 'unseen') before the
+    limit, 'lost_with_map' if tracking was lost first (the whole map is retired); a stay
+    without such a frame is 'radial' (it never moved that way while in the map) when it
+    lasted to the end or went out of view, and 'removed_early' when SLAM removed it first;
+    with the latency (frames) of each judged revocation."""
+    removals: dict[int, list[tuple[int, str]]] = {}
+    for frame, feature_id, why in record.removals:
+        removals.setdefault(feature_id, []).append((frame, why))
+    centres = np.array([frame.true_centre for frame in frames])
+    stamps_s = np.array([frame.measurements.stamp_ns for frame in frames]) * 1e-9
+    camera_velocity = np.gradient(centres, stamps_s, axis=0) if len(frames) > 1 else centres * 0
+    rules = ('across', 'observable')
+    keys = ('in_time', 'late', 'missed', 'left_view', 'radial', 'removed_early', 'lost_with_map')
+    outcome = {rule: {key: 0 for key in keys} for rule in rules}
+    latencies: dict[str, list[int]] = {rule: [] for rule in rules}
+    for entry, feature_id in record.mover_entries:
+        ends = [(f, why) for f, why in removals.get(feature_id, []) if f >= entry]
+        end, why = ends[0] if ends else (len(frames) - 1, 'end')
+        point = run.track_point[feature_id]
+        ray = run.point_positions[entry : end + 1, point] - centres[entry : end + 1]
+        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+        velocity = run.point_velocities[entry : end + 1, point]
+        across = velocity - np.einsum('ki,ki->k', velocity, ray)[:, None] * ray
+        normal = np.cross(ray, camera_velocity[entry : end + 1])
+        length = np.linalg.norm(normal, axis=1)
+        moving_camera = length > 1e-6
+        normal[moving_camera] /= length[moving_camera, None]
+        speeds = {
+            'across': np.linalg.norm(across, axis=1),
+            'observable': np.where(
+                moving_camera,
+                np.abs(np.einsum('ki,ki->k', velocity, normal)),
+                np.linalg.norm(across, axis=1),
+            ),
+        }
+        for rule in rules:
+            fast = np.flatnonzero(speeds[rule] >= REVOCATION_SPEED_M_S)
+            judged = outcome[rule]
+            if not len(fast):
+                judged['radial' if why in ('end', 'unseen') else 'removed_early'] += 1
+                continue
+            start = entry + int(fast[0])
+            if why == 'lost':  # the map went with the loss of tracking (a failure of its own)
+                judged['lost_with_map'] += 1
+            elif why in ('revoked', 'failed'):
+                latencies[rule].append(end - start)
+                judged['in_time' if end - start <= REVOCATION_FRAMES else 'late'] += 1
+            elif why == 'unseen' and end - start <= REVOCATION_FRAMES:
+                judged['left_view'] += 1
+            else:  # still in the map REVOCATION_FRAMES after it moved, never revoked
+                judged['missed'] += 1
+    return {
+        **outcome['across'],
+        'latencies': latencies['across'],
+        'observable': {**outcome['observable'], 'latencies': latencies['observable']},
+        'entries': len(record.mover_entries),
+        'revoked': sum(why == 'revoked' for _, _, why in record.removals),
+        'revoked_static': sum(
+            why == 'revoked' and not bool(run.point_moving[run.track_point[feature_id]])
+            for _, feature_id, why in record.removals
+        ),
     }
 
 

@@ -4,27 +4,29 @@ Three variants run over the same frames (``run_variant``):
 
 - ``a``: MonoSLAM (``initialize='all'``) fed only static features: the features on moving
   objects are removed by ground truth (``MeasurementFrame.moving``);
-- ``b``: MonoSLAM (``initialize='all'``) fed every feature, moving ones included;
+- ``b``: MonoSLAM (``initialize='all'``) fed every feature, moving ones included, with the
+  classic per-feature gated update (``update='gated'``): paper 001's baseline, the MonoSLAM
+  its Shadow filter is compared with (the product's default, the 1-point RANSAC update,
+  rejects many movers by itself and would hide what the Shadow filter adds);
 - ``c``: MonoSLAM (``initialize='handover'``) with the Shadow filter: SLAM gets every feature
   but only adds those the Shadow filter hands over as STATIC. Per frame the Shadow filter gets
   SLAM's pose (R_world_camera, centre, 6 x 6 pose covariance) and the features SLAM does not
   own (``MonoSlamProcessor.owned_ids``); its handovers go to SLAM's handover intake and enter
-  the map when next observed. The pose gate ``PipelineConfig.shadow_max_pose_sigma`` = (position m,
-  rotation rad): the Shadow filter only processes frames whose pose standard deviations (sqrt
-  of the covariance diagonal, max over the 3 position and the 3 rotation entries) are within
-  both; other frames are skipped for it and counted. Frames without a pose (waiting) or in
-  which tracking was lost are not given to it either.
+  the map when next observed. The Shadow filter processes every frame in which SLAM tracks,
+  however uncertain its pose (the covariance enters its tests); frames without a pose
+  (waiting) or in which tracking was lost are not given to it, and a frame whose pose
+  covariance is not finite is refused by it (counted).
 
 The filters run inside the nodes' processors (``MonoSlamProcessor``, ``ShadowProcessor``), so
-the pose gate (``shadow_processor.pose_gate_refusal``, which also fails a covariance that is
-not finite) and the handover refusal are the nodes' own. The frames come with their data
+the pose covariance check (``shadow_processor.pose_covariance_refusal``) and the handover
+refusal are the nodes' own. The frames come with their data
 association known, so they are given to the processors one by one, without stamp pairing.
 
 Two diagnostic settings of variant ``c`` bound what the Shadow filter costs (they are not
 the system: the filters would need the truth): ``PipelineConfig.shadow_poses = 'truth'``
-gives the Shadow filter the true camera pose as a known pose (no covariance, no gate;
-SLAM's pose still decides whether a frame has one), and ``oracle_handovers`` drops every
-handover of a truly moving feature before SLAM sees it (recorded as refused).
+gives the Shadow filter the true camera pose as a known pose (no covariance; SLAM's pose
+still decides whether a frame has one), and ``oracle_handovers`` drops every handover of a
+truly moving feature before SLAM sees it (recorded as refused).
 
 Frames come from the dynamic-scene simulation (``simulation_frames``: its features, and the
 corners of the known markers as known points, key 4 j + corner for marker j (a single
@@ -37,7 +39,6 @@ filters never see it except through the ``moving`` selection of variant ``a``.
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -69,11 +70,9 @@ BoolArray = NDArray[np.bool_]
 VARIANTS = ('a', 'b', 'c')
 VARIANT_TITLES = {
     'a': 'MonoSLAM, static features only',
-    'b': 'MonoSLAM, all features',
+    'b': 'MonoSLAM (classic gated update), all features',
     'c': 'MonoSLAM + Shadow filter',
 }
-DEFAULT_SHADOW_MAX_POSE_SIGMA = (0.03, 0.01)
-"""The pose gate of the Shadow filter: (position m, rotation rad) standard deviations."""
 SHADOW_POSES = ('slam', 'truth')
 ORACLE_REFUSAL = 'oracle: the feature is on a moving object'
 
@@ -102,24 +101,14 @@ class PipelineConfig:
 
     slam: MonoSlamConfig = field(default_factory=MonoSlamConfig)
     shadow: ShadowConfig = field(default_factory=ShadowConfig)
-    shadow_max_pose_sigma: tuple[float, float] = DEFAULT_SHADOW_MAX_POSE_SIGMA
     shadow_poses: str = 'slam'
     oracle_handovers: bool = False
 
     def __post_init__(self) -> None:
-        """Reject a pose gate that is not two numbers > 0 (inf disables it) and unknown
-        Shadow pose sources."""
+        """Reject unknown Shadow pose sources."""
         if self.shadow_poses not in SHADOW_POSES:
             raise ValueError(
                 f'shadow_poses={self.shadow_poses!r}: must be one of {", ".join(SHADOW_POSES)}'
-            )
-        gate = self.shadow_max_pose_sigma
-        if len(gate) != 2 or not all(
-            isinstance(v, int | float) and not isinstance(v, bool) and v > 0 for v in gate
-        ):
-            raise ValueError(
-                f'shadow_max_pose_sigma={gate!r}: must be (position m, rotation rad), both > 0 '
-                '(inf disables the gate)'
             )
 
 
@@ -141,7 +130,11 @@ class VariantRecord:
     about the world axes; NaN while waiting), features measured (K,), the final map, the
     moving features that entered the map (ids), frames at which tracking was lost, and for
     variant ``c`` the handovers, the Shadow decisions and how many frames the Shadow filter
-    processed or skipped (by the pose gate; without a usable pose); filter wall time (s)."""
+    processed or skipped (pose covariance not finite; no pose: waiting or lost); filter wall
+    time (s); and the features SLAM removed from its state: (frame, id, reason), reason
+    'revoked' (a handed-over feature failing the persistent-outlier test: the Shadow filter
+    takes it back as a suspect), 'failed' or 'unseen'; the moving features' entries into the map
+    (frame, id)."""
 
     variant: str
     stamps_ns: IntArray
@@ -157,9 +150,11 @@ class VariantRecord:
     static_decisions: int
     dynamic_decisions: int
     shadow_frames: int
-    shadow_gated_frames: int
+    shadow_refused_frames: int
     shadow_no_pose_frames: int
     runtime_s: float
+    removals: list[tuple[int, int, str]] = field(default_factory=list)
+    mover_entries: list[tuple[int, int]] = field(default_factory=list)
 
     @property
     def tracked(self) -> BoolArray:
@@ -227,8 +222,10 @@ class _Bookkeeping:
     static_decisions: int = 0
     dynamic_decisions: int = 0
     shadow_frames: int = 0
-    gated: int = 0
+    refused: int = 0
     no_pose: int = 0
+    removals: list[tuple[int, int, str]] = field(default_factory=list)
+    mover_entries: list[tuple[int, int]] = field(default_factory=list)
 
 
 def run_variant(
@@ -245,11 +242,14 @@ def run_variant(
         raise ValueError(f'variant {variant!r}: must be one of {", ".join(VARIANTS)}')
     config = config or PipelineConfig()
     initialize = 'handover' if variant == 'c' else 'all'
-    slam = MonoSlamProcessor(dataclasses.replace(config.slam, initialize=initialize))
+    slam_config = dataclasses.replace(config.slam, initialize=initialize)
+    if variant == 'b':  # the paper's baseline: classic MonoSLAM (module docstring)
+        slam_config = dataclasses.replace(slam_config, update='gated')
+    slam = MonoSlamProcessor(slam_config)
     slam.set_camera(camera)
     shadow = None
     if variant == 'c':
-        shadow = ShadowProcessor(config.shadow, max_pose_sigma=config.shadow_max_pose_sigma)
+        shadow = ShadowProcessor(config.shadow)
         shadow.set_camera(camera)
     count = len(frames)
     centres, rotations = np.full((count, 3), np.nan), np.full((count, 3, 3), np.nan)
@@ -274,7 +274,9 @@ def run_variant(
             )
         try:
             result = slam.process_frame(measurements).result
+            books.removals += [(index, i, why) for i, why in result.removed.items()]
             if shadow is not None:
+                shadow.revoke([i for i, why in result.removed.items() if why == 'revoked'])
                 _shadow_step(slam, shadow, result, frame, index, config, books)
         except (ValueError, ArithmeticError) as error:  # input errors, LinAlgError
             raise PipelineError(
@@ -282,7 +284,9 @@ def run_variant(
             ) from error
         status.append(result.status)
         measured[index] = len(result.measured_ids)
-        books.dynamic_in_map += [i for i in result.added_ids if books.moving.get(i, False)]
+        entered = [i for i in result.added_ids if books.moving.get(i, False)]
+        books.dynamic_in_map += entered
+        books.mover_entries += [(index, i) for i in entered]
         if result.status == LOST:
             lost.append(index)
         pose = _pose(result)
@@ -303,9 +307,11 @@ def run_variant(
         books.static_decisions,
         books.dynamic_decisions,
         books.shadow_frames,
-        books.gated,
+        books.refused,
         books.no_pose,
         time.perf_counter() - started,
+        books.removals,
+        books.mover_entries,
     )
 
 
@@ -326,9 +332,9 @@ def _shadow_step(
     config: PipelineConfig,
     books: _Bookkeeping,
 ) -> None:
-    """Give the Shadow filter SLAM's pose and the features SLAM does not own (if the pose
-    passes the gate) and pass its handovers to SLAM (the diagnostic settings: the true pose,
-    a known pose that the gate passes; no handovers of moving features)."""
+    """Give the Shadow filter SLAM's pose with its covariance and the features SLAM does not
+    own, and pass its handovers to SLAM (the diagnostic settings: the true pose as a known
+    pose; no handovers of moving features)."""
     pose = _pose(result)
     if result.status != TRACKING or pose is None:
         books.no_pose += 1
@@ -345,8 +351,8 @@ def _shadow_step(
         Features(stamp_ns, '', ids[free], pixels[free]),
         CameraPose(stamp_ns, slam.map_frame, rotation, centre, covariance),
     )
-    if not isinstance(outcome, ShadowStep):  # the pose gate
-        books.gated += 1
+    if not isinstance(outcome, ShadowStep):  # a pose covariance that is not finite
+        books.refused += 1
         return
     output = outcome.result
     books.shadow_frames += 1
@@ -360,21 +366,3 @@ def _shadow_step(
         offer = HandoverInput(handover.id, STATIC, handover.position, handover.position_covariance)
         refused = slam.refusal(offer, outcome.frame_id)
         books.handovers.append(HandoverEvent(index, handover.id, moving, refused))
-
-
-def parse_pose_gate(text: str) -> tuple[float, float]:
-    """Return (position m, rotation rad) from 'p,r' or one 'inf' (no gate); ValueError naming
-    the text if malformed or not > 0."""
-    parts = [part.strip() for part in text.split(',')]
-    if parts == ['inf']:
-        parts = ['inf', 'inf']
-    try:
-        values = [float(part) for part in parts]
-    except ValueError:
-        values = []
-    if len(values) != 2 or not all(v > 0 and not math.isnan(v) for v in values):
-        raise ValueError(
-            f'shadow max pose sigma {text!r}: use position m,rotation rad, both > 0, e.g. '
-            '0.03,0.01 (inf disables the gate)'
-        )
-    return values[0], values[1]

@@ -20,6 +20,7 @@ from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from slam_evaluation.monoslam_metrics import (
     FloatArray,
     map_error,
+    mover_revocations,
     pose_errors,
     shadow_numbers,
     trajectory_metrics,
@@ -46,13 +47,12 @@ TARGET_NOISE_SEED_OFFSET = 1000
 
 @dataclass(frozen=True)
 class Settings:
-    """The command line: seeds, run length (s), variants, the Shadow pose gate and the output
-    directory."""
+    """The command line: seeds, run length (s), variants, the output directory, the Shadow
+    filter's STATIC rule, the known board and the diagnostic settings."""
 
     seeds: tuple[int, ...]
     duration_s: float
     variants: tuple[str, ...]
-    shadow_max_pose_sigma: tuple[float, float]
     out: Path
     unchecked_directions: int = 1
     known_board: tuple[int, int] | None = None
@@ -72,15 +72,14 @@ class Settings:
         return marker_board(target, rows, columns, BOARD_MARKER_SIDE_M, BOARD_GAP_M)
 
     def pipeline(self, markers: InitTarget | Sequence[InitTarget]) -> PipelineConfig:
-        """Return the filters' settings: defaults, the markers' known points, the gate and
-        the diagnostic settings."""
+        """Return the filters' settings: defaults, the markers' known points, the STATIC
+        rule and the diagnostic settings."""
         slam = MonoSlamConfig(known_points=target_known_points(markers))
         classifier = ClassifierConfig(unchecked_directions=self.unchecked_directions)
         shadow = ShadowConfig(classifier=classifier)
         return PipelineConfig(
             slam,
             shadow,
-            self.shadow_max_pose_sigma,
             shadow_poses=self.shadow_poses,
             oracle_handovers=self.oracle_handovers,
         )
@@ -127,6 +126,7 @@ def evaluate_seed(
         metrics = {'seed': seed, **trajectory_metrics(record, errors), **map_error(record, run)}
         if variant == 'c':
             metrics['shadow'] = shadow_numbers(record)
+            metrics['movers'] = mover_revocations(record, run, frames)
         metrics['ms_per_frame'] = 1e3 * record.runtime_s / len(frames)
         collected.nees.setdefault(variant, []).append(nees(errors, record.pose_covariances))
         collected.position_error.setdefault(variant, []).append(

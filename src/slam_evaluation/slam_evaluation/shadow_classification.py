@@ -21,8 +21,9 @@ from slam_sim.core.dynamic_scene import DynamicSceneRun
 class Outcome:
     """One track's classification: truth, final status, frames from first sight to decision
     (-1: undecided), parallax (rad) and baseline (m) of the deciding test (NaN: undecided),
-    the true window parallax (rad, NaN if the track ended earlier), its baseline (m) and
-    whether parallax allows a decision within the window."""
+    the true window parallax (rad, NaN if the track ended earlier), its baseline (m),
+    whether parallax allows a decision within the window, and whether it was called DYNAMIC
+    because its views fix no static point (evidence of motion: no test statistic)."""
 
     track_id: int
     moving: bool
@@ -34,6 +35,7 @@ class Outcome:
     window_parallax_rad: float
     window_baseline_m: float
     parallax_allows: bool
+    without_fit: bool = False
 
 
 def track_outcomes(
@@ -51,10 +53,12 @@ def track_outcomes(
             parallax = view_parallax_rad(point, first_centre, later_centre)
             baseline = float(np.linalg.norm(later_centre - first_centre))
         status, frames, decision_parallax, decision_baseline = PENDING, -1, math.nan, math.nan
+        without_fit = False
         if track_id in record.decisions:
             _, decision = record.decisions[track_id]
             status, frames = decision.status, decision.frames_since_first
             decision_parallax, decision_baseline = decision.parallax_rad, decision.baseline_m
+            without_fit = status == DYNAMIC and math.isnan(decision.statistic)
         allows = bool(parallax >= min_parallax_rad)  # False for NaN
         outcomes.append(
             Outcome(
@@ -68,6 +72,7 @@ def track_outcomes(
                 parallax,
                 baseline,
                 allows,
+                without_fit,
             )
         )
     return outcomes
@@ -169,6 +174,10 @@ def classification_summary(
         'rates': classification_rates(table),
         'latency': latency,
         'parallax_allows_with_baseline_below_min': len(short_baseline),
+        'dynamic_without_fit': {
+            'static': sum(o.without_fit and not o.moving for o in outcomes),
+            'moving': sum(o.without_fit and o.moving for o in outcomes),
+        },
     }
 
 

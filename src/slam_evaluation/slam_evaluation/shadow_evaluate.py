@@ -4,7 +4,7 @@
 
 Every run comes from ``slam_sim.core.dynamic_scene`` (true camera poses, 1 px pixel noise)
 and is fed frame by frame to the shadow_filter node's processor (``ShadowProcessor``, known
-poses, so no pose gate). Two run sets:
+poses: no pose covariance). Two run sets:
 
 - Classification (Fig. 4): the default scene (static points, objects with constant-velocity,
   turning and stop-and-go motion) at ``--alpha`` and at every ``--alphas`` value. A track's

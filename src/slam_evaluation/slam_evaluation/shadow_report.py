@@ -66,6 +66,11 @@ def summary_text(content: Mapping[str, Any]) -> str:
         for entry in classification['alpha_sweep']
     )
     lines.append(f'  alpha sweep, static called DYNAMIC of decided: {sweep}')
+    if (unfit := totals.get('dynamic_without_fit')) is not None:
+        lines.append(
+            f'  called DYNAMIC because their views fix no static point (evidence of motion): '
+            f'static {unfit["static"]}, moving {unfit["moving"]}'
+        )
     for group in ('all_features', 'parallax_allows'):
         latency = totals['latency']['all'][group]
         lines.append(

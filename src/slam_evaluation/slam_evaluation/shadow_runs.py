@@ -59,8 +59,8 @@ def camera_model(run: DynamicSceneRun) -> CameraModel:
 
 
 def run_filter(run: DynamicSceneRun, config: ShadowConfig) -> FilterRecord:
-    """Feed every frame (true pose, noisy pixels) to a new ShadowProcessor (the node's, no pose
-    gate: a true pose is a known one); return its record. Raises FilterRunError if the filter
+    """Feed every frame (true pose, noisy pixels) to a new ShadowProcessor (the node's; a true
+    pose is a known one: no covariance); return its record. Raises FilterRunError if the filter
     raises."""
     shadow = ShadowProcessor(config)
     shadow.set_camera(camera_model(run))

@@ -1,6 +1,7 @@
 """monoslam_image_evaluate: the SLAM frames built from rendered images against the renderer's
 truth (static tracks follow their 3D points, moving ones do not; detected target corners),
-a bag's frames against the rendered ones, a short run's report, and the CLI's errors."""
+a bag's frames against the rendered ones, a short run's report, the acceptance's tracking
+rule, and the CLI's errors."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import pytest
 from slam_core.blas import single_threaded_blas
 from slam_evaluation.monoslam_front_end import FrontEnd, moving_near
 from slam_evaluation.monoslam_image_evaluate import REPORT_NAME, TABLE_NAME, main
+from slam_evaluation.monoslam_image_report import acceptance, image_tracking, level_ratio
 from slam_evaluation.monoslam_image_sources import ImageFrame, bag_source, rendered_source
 from slam_evaluation.monoslam_pipeline import MeasurementFrame
 from slam_sim.core.dynamic_config import DynamicSceneConfig
@@ -153,13 +155,22 @@ def test_short_run_writes_the_report_table_and_figures(short_run: tuple[int, Pat
     image_c, measurement_c = entry['image']['c'], entry['measurement']['c']
     assert entry['ratio_c']['ate_m'] == pytest.approx(image_c['ate_m'] / measurement_c['ate_m'])
     assert content['ratio_c']['ratio_of_means'] == pytest.approx(entry['ratio_c']['ate_m'])
-    assert content['acceptance']['passed'] == (entry['ratio_c']['ate_m'] <= 1.5)
+    ratio_point, tracked_point = content['acceptance']
+    (tracking,) = content['tracking_c']['per_seed']
+    assert (tracking['frames_tracked'], tracking['frames_tracked_a']) == (
+        image_c['frames_tracked'],
+        entry['image']['a']['frames_tracked'],
+    )
+    assert tracked_point['passed'] == tracking['kept']
+    assert ratio_point['passed'] == (entry['ratio_c']['ate_m'] <= 1.5 and tracking['kept'])
     assert content['config']['sources'][0]['scene']['objects'] == 8
     for name in content['figures']:
         assert (out / name).read_bytes().startswith(PNG_MAGIC)
     assert len(content['figures']) == 2 and content['failures'] == []
     table = (out / TABLE_NAME).read_text().splitlines()
     assert table[0].startswith('| seed | a ATE') and table[3].startswith('| mean |')
+    assert 'c/a frames' in table[0]
+    assert any(line.startswith('Acceptance tracked image (c)/(a)') for line in table)
 
 
 def test_variant_a_from_images_tracks_the_camera(short_run: tuple[int, Path]) -> None:
@@ -168,6 +179,39 @@ def test_variant_a_from_images_tracks_the_camera(short_run: tuple[int, Path]) ->
     run = entry['image']['a']
     assert run['frames_tracked'] == 45 and not run['diverged']
     assert 0.0 < run['ate_m'] < 0.05 and 0.0 < run['ate_sim3_m'] <= run['ate_m']
+
+
+def _level_runs(tracked_c: int, lost_c: bool) -> dict[str, Any]:
+    """A seed's report entry: image a tracks 100 frames at 0.02 m, image c ``tracked_c``
+    frames at 0.01 m (lost or not), measurement c 100 frames at 0.01 m."""
+
+    def run(ate_m: float, tracked: int, lost: bool = False) -> dict[str, Any]:
+        lost_frames = [50] if lost else []
+        return {
+            'ate_m': ate_m,
+            'frames_tracked': tracked,
+            'lost_frames': lost_frames,
+            'diverged': lost,
+        }
+
+    return {
+        'seed': 0,
+        'image': {'a': run(0.02, 100), 'c': run(0.01, tracked_c, lost_c)},
+        'measurement': {'c': run(0.01, 100)},
+    }
+
+
+@pytest.mark.parametrize(
+    ('tracked_c', 'lost_c', 'passed'), [(100, False, True), (94, False, False), (100, True, False)]
+)
+def test_image_c_fails_its_acceptance_when_it_does_not_keep_tracking(
+    tracked_c: int, lost_c: bool, passed: bool
+) -> None:
+    per_seed = [_level_runs(tracked_c, lost_c)]
+    ratio = level_ratio(per_seed, 'ate_m')
+    assert ratio is not None and ratio['ratio_of_means'] == pytest.approx(1.0)
+    points = acceptance(ratio, image_tracking(per_seed))
+    assert [point['passed'] for point in points] == [passed, passed]
 
 
 @pytest.fixture(scope='module')
@@ -229,7 +273,7 @@ def _cli_error(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
         (['--seeds', 'one'], "--seeds 'one'"),
         (['--duration-s', '0'], '--duration-s 0'),
         (['--bag', 'some.mcap', '--seeds', '1'], '--bag: a bag brings its own seed'),
-        (['--shadow-max-pose-sigma', '0.1'], '--shadow-max-pose-sigma'),
+        (['--shadow-max-pose-sigma', '0.1,0.1'], '--shadow-max-pose-sigma'),  # removed
     ],
 )
 def test_bad_arguments_are_named(

@@ -1,11 +1,11 @@
 """monoslam_pipeline and monoslam_evaluate: the frames, the three variants on short simulated
-runs, the alignment and NEES statistics on inputs with known answers, and the CLI."""
+runs, the alignment and NEES statistics and the acceptance on inputs with known answers, and
+the CLI."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -15,11 +15,11 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig, MonoSlamFrame
-from monoslam_shadow_node.shadow_processor import pose_gate_refusal
 from slam_core.blas import single_threaded_blas
 from slam_evaluation import monoslam_runs
 from slam_evaluation.monoslam_evaluate import main
 from slam_evaluation.monoslam_metrics import (
+    mover_revocations,
     nees_by_frame,
     nees_summary,
     pose_errors,
@@ -33,10 +33,15 @@ from slam_evaluation.monoslam_pipeline import (
     PipelineConfig,
     PipelineError,
     VariantRecord,
-    parse_pose_gate,
     run_variant,
     simulation_frames,
     target_known_points,
+)
+from slam_evaluation.monoslam_report import (
+    acceptance,
+    mover_summary,
+    ratio_summary,
+    tracking_summary,
 )
 from slam_evaluation.shadow_runs import camera_model
 from slam_sim.core.dynamic_config import DynamicSceneConfig
@@ -57,9 +62,9 @@ def _frames(run: DynamicSceneRun, seed: int = 0) -> list[MeasurementFrame]:
     return simulation_frames(run, TARGET, rng=np.random.default_rng(seed))
 
 
-def _config(gate: tuple[float, float] = (0.03, 0.01)) -> PipelineConfig:
+def _config() -> PipelineConfig:
     slam = MonoSlamConfig(known_points=target_known_points(TARGET))
-    return PipelineConfig(slam=slam, shadow_max_pose_sigma=gate)
+    return PipelineConfig(slam=slam)
 
 
 def _ate(record: VariantRecord, frames: list[MeasurementFrame]) -> float:
@@ -140,38 +145,39 @@ def test_variant_b_lets_moving_features_into_the_map() -> None:
 
 
 def test_variant_c_adds_only_what_the_shadow_filter_hands_over() -> None:
+    """The Shadow filter gets every frame SLAM tracks, with SLAM's pose covariance."""
     run = simulate_dynamic_scene(1, DynamicSceneConfig(**{**vars(FEW_MOVERS), 'duration_s': 4.0}))
     frames = _frames(run, 1)
-    record = run_variant('c', frames, camera_model(run), _config((math.inf, math.inf)))
+    record = run_variant('c', frames, camera_model(run), _config())
     handed = {event.feature_id for event in record.handovers}
     assert len(record.handovers) == record.static_decisions >= 5  # measured 13
     assert all(event.refused is None for event in record.handovers)
     assert record.map_points and {p.source for p in record.map_points} == {'handover'}
     assert {p.id for p in record.map_points} <= handed
-    assert record.shadow_frames == len(frames) and record.shadow_gated_frames == 0
+    assert record.shadow_frames == len(frames) and record.shadow_refused_frames == 0
+    assert record.shadow_no_pose_frames == 0
     assert _ate(record, frames) < 0.15  # measured 0.07 m
 
 
-def test_variant_c_skips_the_shadow_filter_above_the_pose_gate() -> None:
-    run = simulate_dynamic_scene(1, FEW_MOVERS)
-    frames = _frames(run, 1)
-    record = run_variant('c', frames, camera_model(run), _config((1e-4, 1e-4)))
-    assert record.shadow_frames == 0 and not record.handovers
-    assert record.shadow_gated_frames + record.shadow_no_pose_frames == len(frames)
-    assert record.shadow_gated_frames == int(record.tracked.sum())
-    assert not record.map_points  # SLAM adds nothing on its own in handover mode
-
-
-def test_variant_c_diagnostics_truth_poses_skip_the_gate_and_the_oracle_drops_movers() -> None:
+def test_variant_c_diagnostics_truth_poses_and_the_oracle_drops_movers() -> None:
     scene = DynamicSceneConfig(duration_s=3.0, static_points=80, objects=6, points_per_object=6)
     run = simulate_dynamic_scene(4, scene)
     frames = _frames(run, 4)
-    gated = dataclasses.replace(_config((1e-4, 1e-4)), shadow_poses='truth')
-    record = run_variant('c', frames, camera_model(run), gated)
-    assert record.shadow_gated_frames == 0 and record.shadow_frames == int(record.tracked.sum())
-    assert record.handovers  # the true poses let the Shadow filter decide despite the gate
+    truth = dataclasses.replace(_config(), shadow_poses='truth')
+    record = run_variant('c', frames, camera_model(run), truth)
+    assert record.shadow_frames == int(record.tracked.sum())
+    assert record.handovers
     assert record.dynamic_in_map  # seed 4: a mover is called STATIC (measured 5)
-    oracle = dataclasses.replace(gated, oracle_handovers=True)
+    assert [i for _, i in record.mover_entries] == record.dynamic_in_map
+    movers = mover_revocations(record, run, frames)
+    for judged in (movers, movers['observable']):  # every stay is judged once per rule
+        outcomes = ('in_time', 'late', 'missed', 'left_view', 'radial', 'removed_early',
+                    'lost_with_map')  # fmt: skip
+        assert sum(judged[k] for k in outcomes) == movers['entries'] == len(record.mover_entries)
+        assert len(judged['latencies']) == judged['in_time'] + judged['late']
+    revoked = [i for _, i, why in record.removals if why == 'revoked']
+    assert movers['revoked'] == len(revoked)
+    oracle = dataclasses.replace(truth, oracle_handovers=True)
     record = run_variant('c', frames, camera_model(run), oracle)
     moving = [event for event in record.handovers if event.moving]
     assert moving and all(event.refused == ORACLE_REFUSAL for event in moving)
@@ -191,22 +197,7 @@ def test_a_frame_a_filter_rejects_names_the_variant_and_frame() -> None:
         run_variant('d', frames, camera_model(run), _config())
 
 
-# --- pose gate, alignment and statistics ----------------------------------------------------
-
-
-def test_pose_gate_compares_the_largest_position_and_rotation_sigma() -> None:
-    covariance = np.diag([0.02, 0.03, 0.01, 0.005, 0.01, 0.002]) ** 2
-    assert pose_gate_refusal(covariance, (0.03, 0.01)) is None
-    assert pose_gate_refusal(covariance, (0.029, 0.01)) is not None
-    assert pose_gate_refusal(covariance, (0.03, 0.009)) is not None
-    assert pose_gate_refusal(np.full((6, 6), np.nan), (math.inf, math.inf)) is not None
-    assert parse_pose_gate('0.03, 0.01') == (0.03, 0.01)
-    assert parse_pose_gate('inf') == (math.inf, math.inf)
-    for text in ('0.03', '0,0.01', 'nan,1', 'a,b'):
-        with pytest.raises(ValueError, match='shadow max pose sigma'):
-            parse_pose_gate(text)
-    with pytest.raises(ValueError, match='shadow_max_pose_sigma'):
-        PipelineConfig(shadow_max_pose_sigma=(0.0, 0.01))
+# --- alignment and statistics ---------------------------------------------------------------
 
 
 def test_umeyama_recovers_a_known_similarity() -> None:
@@ -254,6 +245,83 @@ def test_pose_errors_and_divergence_of_a_known_trajectory() -> None:
     assert lost['diverged'] and lost['divergence'] == ['tracking lost 1x']
 
 
+def _seed_metrics(seed: int, error_m: float, tracked: int, lost: int | None = None) -> Any:
+    """A seed's metrics of a run over 100 frames that waits for its first 100 - ``tracked``
+    frames, then is ``error_m`` off the truth (and reports tracking lost at frame ``lost``)."""
+    count = 100
+    truth = np.column_stack([np.linspace(0.0, 2.0, count), np.zeros(count), np.zeros(count)])
+    empty = MonoSlamFrame(0, np.zeros(0, np.int64), np.zeros((0, 2)))
+    frames = [MeasurementFrame(empty, np.zeros(0, bool), np.eye(3), c) for c in truth]
+    centres = truth + np.array([error_m, 0.0, 0.0])
+    centres[: count - tracked] = np.nan
+    record = _record(centres, np.tile(np.eye(3), (count, 1, 1)), [] if lost is None else [lost])
+    status = ('waiting',) * (count - tracked) + ('tracking',) * tracked
+    record = dataclasses.replace(record, status=status)
+    return {'seed': seed, **trajectory_metrics(record, pose_errors(record, frames))}
+
+
+def _verdicts(c_runs: list[Any], a_runs: list[Any]) -> dict[str, Any]:
+    ratios = {'c_over_a': ratio_summary(c_runs, a_runs, 'ate_m')}
+    points = acceptance(ratios, tracking_summary(c_runs, a_runs))
+    return {point['name']: point for point in points}
+
+
+def test_ate_ratio_needs_the_mean_within_1_5_and_every_seed_within_2() -> None:
+    a_runs = [_seed_metrics(seed, 0.02, 100) for seed in range(4)]
+    good = [_seed_metrics(seed, 0.028, 100) for seed in range(4)]  # 1.4x on every seed
+    assert _verdicts(good, a_runs)['ATE(c)/ATE(a)']['passed']
+    one_bad = [*good[:3], _seed_metrics(3, 0.05, 100)]  # 2.5x on one seed, mean 1.68x
+    point = _verdicts(one_bad, a_runs)['ATE(c)/ATE(a)']
+    assert not point['passed'] and point['seeds_meeting'] == '3/4'
+    spread = [_seed_metrics(s, e, 100) for s, e in enumerate((0.022, 0.022, 0.039, 0.039))]
+    point = _verdicts(spread, a_runs)['ATE(c)/ATE(a)']  # every seed <= 2x, mean 1.53x
+    assert not point['passed'] and point['seeds_meeting'] == '4/4'
+
+
+def test_every_mover_in_the_map_must_be_revoked_in_time() -> None:
+    def outcomes(in_time: int, late: int, left: int, radial: int, latencies: list[int]) -> Any:
+        return {'in_time': in_time, 'late': late, 'missed': 0, 'left_view': left,
+                'radial': radial, 'removed_early': 0, 'lost_with_map': 0,
+                'latencies': latencies}  # fmt: skip
+
+    per_seed = [
+        {'seed': 0, 'movers': {**outcomes(2, 0, 1, 0, [4, 9]), 'entries': 3, 'revoked': 2,
+                               'observable': outcomes(2, 0, 1, 0, [4, 9])}},
+        {'seed': 1, 'movers': {**outcomes(0, 1, 0, 1, [22]), 'entries': 2, 'revoked': 1,
+                               'observable': outcomes(0, 0, 0, 2, [])}},
+    ]  # fmt: skip
+    movers = mover_summary(per_seed)
+    assert movers is not None
+    assert (movers['entries'], movers['in_time'], movers['late'], movers['radial']) == (5, 2, 1, 1)
+    assert movers['latency_median_frames'] == 9.0 and movers['latency_max_frames'] == 22
+    assert movers['observable']['radial'] == 2 and movers['observable']['late'] == 0
+    (point,) = acceptance({}, None, movers)
+    assert point['name'] == 'movers revoked' and not point['passed']
+    assert point['seeds_meeting'] == '1/2'
+
+
+def test_acceptance_fails_c_tracking_too_few_frames_whatever_its_ate() -> None:
+    a_runs = [_seed_metrics(seed, 0.02, 100) for seed in (0, 1)]
+    short = [_seed_metrics(0, 0.01, 100), _seed_metrics(1, 0.01, 94)]  # seed 1: 94 % of (a)
+    tracking = tracking_summary(short, a_runs)
+    assert [(r['frames_tracked'], r['frames_tracked_a']) for r in tracking['per_seed']] == [
+        (100, 100),
+        (94, 100),
+    ]
+    assert tracking['min_share'] == pytest.approx(0.94)
+    points = _verdicts(short, a_runs)
+    ate = points['ATE(c)/ATE(a)']
+    assert ate['value'] == pytest.approx(0.5)  # half of (a)'s ATE over the frames it kept ...
+    assert not ate['passed'] and ate['seeds_meeting'] == '1/2'  # ... and still a FAIL
+    assert not points['tracked (c)/(a)']['passed']
+    lost = [_seed_metrics(0, 0.01, 100), _seed_metrics(1, 0.01, 100, lost=50)]
+    assert not any(point['passed'] for point in _verdicts(lost, a_runs).values())
+    failed_run = [_seed_metrics(0, 0.01, 100)]  # (c) did not run on seed 1
+    assert not any(point['passed'] for point in _verdicts(failed_run, a_runs).values())
+    kept = [_seed_metrics(0, 0.01, 100), _seed_metrics(1, 0.01, 95)]
+    assert all(point['passed'] for point in _verdicts(kept, a_runs).values())
+
+
 def test_nees_band_is_the_chi2_of_6n_over_n_per_frame() -> None:
     values = np.full((10, 3), 6.0)
     values[:4, 1] = np.nan  # frame 1: 6 seeds
@@ -283,18 +351,26 @@ def test_cli_writes_a_parsable_report_and_figures(
 ) -> None:
     out = tmp_path / 'eval'
     arguments = ['--out', str(out), '--seeds', '0', '--duration-s', '1.5', '--variants', 'a,c']
-    assert main([*arguments, '--shadow-max-pose-sigma', 'inf', '--unchecked-directions', '0']) == 0
+    assert main([*arguments, '--unchecked-directions', '0']) == 0
     content = _strict_json(out / 'monoslam_eval.json')
-    assert content['config']['pipeline']['shadow_max_pose_sigma'] == [None, None]
+    assert 'shadow_max_pose_sigma' not in content['config']['pipeline']
     assert content['config']['pipeline']['shadow']['classifier']['unchecked_directions'] == 0
     variants = content['variants']
     assert set(variants) == {'a', 'c'}
-    assert variants['c']['totals']['shadow']['frames_skipped_pose_gate'] == 0
-    assert [p['name'] for p in content['acceptance']] == ['ATE(c)/ATE(a)']
+    assert variants['c']['totals']['shadow']['frames_pose_not_finite'] == 0
+    assert [p['name'] for p in content['acceptance']] == [
+        'ATE(c)/ATE(a)',
+        'tracked (c)/(a)',
+        'movers revoked',
+    ]
+    (tracking,) = content['tracking_c']['per_seed']
+    assert tracking['frames_tracked'] == variants['c']['per_seed'][0]['frames_tracked']
+    assert tracking['frames_tracked_a'] == variants['a']['per_seed'][0]['frames_tracked']
     for name in content['figures']:
         assert (out / name).read_bytes().startswith(PNG_MAGIC)
     printed = capsys.readouterr().out
     assert 'ATE(c)/ATE(a)' in printed and ('PASS' in printed or 'FAIL' in printed)
+    assert 'tracked (c)/(a)' in printed and 'c/a frames' in printed and 'pose gate' not in printed
     assert 'DIAGNOSTIC' not in printed and 'one target' in printed
 
 
@@ -318,8 +394,7 @@ def test_cli_board_and_diagnostics_are_reported_and_named(
     ('arguments', 'named'),
     [
         (['--variants', 'a,x'], '--variants'),
-        (['--shadow-max-pose-sigma', '0.03'], '--shadow-max-pose-sigma'),
-        (['--shadow-max-pose-sigma', '-1,0.01'], '--shadow-max-pose-sigma'),
+        (['--shadow-max-pose-sigma', '0.03,0.01'], '--shadow-max-pose-sigma'),  # removed
         (['--seeds', 'x'], '--seeds'),
         (['--duration-s', '0'], '--duration-s'),
         (['--unchecked-directions', '3'], '--unchecked-directions'),

@@ -9,40 +9,68 @@ Per frame (``MonoSlam.process``):
 3. predict every owned feature and every known point in view, with its innovation
    covariance S_i = H_i P H_i^T + R (the active search region: the tracker may use the
    predicted pixel, ``MonoSlam.predictions``); a measurement whose Mahalanobis distance
-   exceeds the chi-square gate is rejected (counted against the feature);
-4. update with all accepted measurements at once, Joseph form
-   P = (I - K H) P (I - K H)^T + K R K^T, then renormalize the quaternion (with its Jacobian);
+   exceeds the chi-square gate is not individually compatible;
+4. update (``MonoSlamConfig.update``): 'ransac' (default), the 1-point RANSAC update
+   (``monoslam_ransac``): the most supported one-match hypothesis picks the low-innovation
+   inliers, the state is updated with them, then again with the other compatible matches
+   that pass the gate from the updated state; 'gated': with all compatible measurements at
+   once. Updates are in Joseph form P = (I - K H) P (I - K H)^T + K R K^T, then the
+   quaternion is renormalized (with its Jacobian). Measurements not used are rejected
+   (counted against their feature);
 5. map management: inverse-depth features whose linearity index allows it become Euclidean;
-   features failing too often are deleted; features no longer tracked are retired to the
+   features failing too often are deleted (the persistent-outlier test: rejected in
+   ``max_consecutive_failures`` frames in a row, or in more than half of at least
+   ``failure_window`` attempts; a consistent feature is rejected with the gate's probability,
+   1 - ``gate_probability``, so three in a row happen by chance with probability 1e-9 per
+   feature and frame). A deleted feature that came from a handover is revoked: SLAM no longer
+   owns it, and the result reports it (``removed`` reason 'revoked') so that the Shadow filter
+   takes it back as a suspect; features no longer tracked are retired to the
    frozen map (ids are never reused, so they cannot be measured again); new features are added
    - in ``initialize='all'`` (classic MonoSLAM, the paper's Fig. 5(a), (b)) from every new
    track, undelayed, with the inverse-depth prior, while fewer than ``target_measured``
    features were measured; in ``initialize='handover'`` (with the Shadow filter, Fig. 5(c))
    only from features handed over as STATIC (``add_handover``): the ray of the current
-   measurement anchored at the current camera, the inverse depth and its variance from the
-   handed-over point and covariance. The map never holds more than ``max_features``;
+   measurement anchored at the current camera, the inverse depth from the handed-over point,
+   its variance from the handed-over covariance but never below the prior's
+   (``initial_inverse_depth_sigma``): the Shadow filter triangulated the point from SLAM's
+   own poses, so its depth is not independent of SLAM's state, and taking its variance as is
+   counts SLAM's pose information twice (an overconfident depth then pulls the camera: on
+   ``monoslam_evaluate`` seed 3, whose map had one mover, ATE 0.22 m against 0.04 m with the
+   prior's variance). The map never holds more than ``max_features``;
 6. tracking is lost when no measurement was accepted for ``lost_after_frames`` frames, the
-   camera's position uncertainty exceeds ``max_position_sigma_m``, or the gate rejected more
-   than half of the known points in view (at least ``MIN_KNOWN_POINTS`` of them) in
-   ``lost_after_known_rejected_frames`` frames in a row: known points are certain, so an
+   camera's position uncertainty exceeds ``max_position_sigma_m``, or the known points in
+   view (at least ``MIN_KNOWN_POINTS`` of them) disagree with the estimate in
+   ``lost_after_known_rejected_frames`` frames in a row: the update rejected more than half
+   of them, or the updated state reprojects them farther from their measurements than pixel
+   noise allows (chi-square at ``gate_probability``). Known points are certain, so an
    estimate they disagree with has diverged (e.g. dragged along by moving features), even
    while its grown covariance lets a few of them through now and then; or when the pose
-   covariance collapsed (``MIN_POSE_EIGENVALUE_RATIO``). The filter reports it, retires its
-   map and starts again from the known points.
+   covariance collapsed (``monoslam_checks.MIN_POSE_EIGENVALUE_RATIO``). The filter reports
+   it, retires its map and starts again from the known points.
 
 The interface types are in ``monoslam_types``, the state with its feature blocks in
 ``monoslam_state``, the EKF steps (prediction, search regions, gated update) in
-``monoslam_ekf``; this module holds the frame loop, map management, start and loss.
+``monoslam_ekf``, the 1-point RANSAC update in ``monoslam_ransac``, the input and loss checks
+in ``monoslam_checks``; this module holds the frame loop, map management, start and loss.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from monoslam_shadow_node.core.monoslam_ekf import gated_update, predict, predicted_measurements
+from monoslam_shadow_node.core.monoslam_checks import (
+    known_disagreement,
+    tracking_lost_reason,
+    validated_frame,
+)
+from monoslam_shadow_node.core.monoslam_ekf import (
+    UpdateOutcome,
+    gated_update,
+    predict,
+    predicted_measurements,
+)
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
@@ -54,6 +82,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     FloatArray,
     linearity_index,
 )
+from monoslam_shadow_node.core.monoslam_ransac import ransac_update
 from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
 from monoslam_shadow_node.core.monoslam_types import (
     LOST,
@@ -63,17 +92,14 @@ from monoslam_shadow_node.core.monoslam_types import (
     MapPoint,
     MonoSlamConfig,
     MonoSlamFrame,
-    MonoSlamInputError,
     MonoSlamResult,
+    UpdateCounts,
 )
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import rotation_from_quaternion as rotation
 
 MAX_HANDOVER_AGE_FRAMES = 30
 """A handover whose feature is not observed within this many frames is dropped."""
-MIN_POSE_EIGENVALUE_RATIO = 1e-12
-"""Tracking is lost when the pose covariance's smallest eigenvalue is not above this share of
-its largest: numerically singular, or not positive definite (measured in tracking: ~1e-4)."""
 
 
 @dataclass
@@ -102,6 +128,7 @@ class MonoSlam:
         self._idle_frames = 0
         self._known_rejected_frames = 0
         self._known_rejected = (0, 0)  # (rejected, in view) in the latest such frame
+        self._rng = np.random.default_rng(self.config.ransac_seed)
 
     # --- public state ----------------------------------------------------------------------
 
@@ -170,7 +197,9 @@ class MonoSlam:
     def process(self, frame: MonoSlamFrame) -> MonoSlamResult:
         """Run one frame (module docstring). Raises MonoSlamInputError (filter unchanged) for
         a stamp that does not advance or malformed arrays."""
-        ids, pixels, known_keys, known_pixels, warnings = self._validated(frame)
+        ids, pixels, known_keys, known_pixels, warnings = validated_frame(
+            frame, self._last_stamp_ns, set(self._known)
+        )
         self._frame += 1
         if self._status != TRACKING:
             return self._try_start(frame.stamp_ns, known_keys, known_pixels, warnings)
@@ -181,7 +210,8 @@ class MonoSlam:
         predict(self._state, dt_s, self.config)
         self._last_stamp_ns = frame.stamp_ns
         observed = {int(i): pixels[k] for k, i in enumerate(ids)}
-        measured, rejected, known_used = self._update(observed, known_keys, known_pixels)
+        outcome = self._update(observed, known_keys, known_pixels)
+        measured, rejected, known_used = outcome.measured, outcome.rejected, outcome.known_used
         removed = self._manage_map(observed, measured, rejected)
         added = self._add_features(observed, measured)
         if measured or known_used:
@@ -189,47 +219,28 @@ class MonoSlam:
         else:
             self._idle_frames += 1
         in_view = len(known_keys)
-        if in_view >= MIN_KNOWN_POINTS and in_view - known_used > in_view / 2:
+        points = [self._known[int(key)] for key in known_keys]
+        disagree = known_disagreement(self.camera, self._state, points, known_pixels, self.config)
+        if in_view >= MIN_KNOWN_POINTS and (in_view - known_used > in_view / 2 or disagree):
             self._known_rejected_frames += 1
             self._known_rejected = (in_view - known_used, in_view)
         else:
             self._known_rejected_frames = 0
-        lost_reason = self._lost_reason()
+        lost_reason = tracking_lost_reason(
+            self._state, self.config, self._idle_frames, self._known_rejected_frames,
+            self._known_rejected,
+        )  # fmt: skip
         if lost_reason is not None:
             warnings.append(f'tracking lost: {lost_reason}; waiting for the known points')
+            removed.update({feature.id: 'lost' for feature in self._state.features})
             result = self._result(frame.stamp_ns, LOST, measured, rejected, added, removed,
-                                  known_used, warnings)  # fmt: skip
+                                  known_used, warnings, outcome.counts)  # fmt: skip
             self._reset()
             return result
         return self._result(frame.stamp_ns, TRACKING, measured, rejected, added, removed,
-                            known_used, warnings)  # fmt: skip
+                            known_used, warnings, outcome.counts)  # fmt: skip
 
     # --- steps -----------------------------------------------------------------------------
-
-    def _validated(
-        self, frame: MonoSlamFrame
-    ) -> tuple[IntArray, FloatArray, IntArray, FloatArray, list[str]]:
-        """Check stamps and shapes; drop non-finite pixels with a warning."""
-        if self._last_stamp_ns is not None and frame.stamp_ns <= self._last_stamp_ns:
-            raise MonoSlamInputError(
-                f'frame stamp {frame.stamp_ns} ns does not advance past {self._last_stamp_ns} ns'
-            )
-        ids = np.asarray(frame.ids, dtype=np.int64).reshape(-1)
-        pixels = np.asarray(frame.pixels, dtype=np.float64).reshape(-1, 2)
-        keys = np.asarray(frame.known_keys, dtype=np.int64).reshape(-1)
-        known = np.asarray(frame.known_pixels, dtype=np.float64).reshape(-1, 2)
-        if len(ids) != len(pixels) or len(keys) != len(known):
-            raise MonoSlamInputError(
-                f'{len(ids)} ids for {len(pixels)} pixels, {len(keys)} known-point keys for '
-                f'{len(known)} pixels: counts must match'
-            )
-        warnings = []
-        finite = np.all(np.isfinite(pixels), axis=1)
-        if not np.all(finite):
-            bad = ', '.join(str(int(i)) for i in ids[~finite])
-            warnings.append(f'ignored features with non-finite pixels: ids {bad}')
-        finite_known = np.all(np.isfinite(known), axis=1) & np.isin(keys, list(self._known))
-        return ids[finite], pixels[finite], keys[finite_known], known[finite_known], warnings
 
     def _try_start(
         self, stamp_ns: int, keys: IntArray, pixels: FloatArray, warnings: list[str]
@@ -266,14 +277,17 @@ class MonoSlam:
 
     def _update(
         self, observed: dict[int, FloatArray], keys: IntArray, known_pixels: FloatArray
-    ) -> tuple[list[int], list[int], int]:
-        """Gate and apply all measurements of owned features and known points; return the
-        measured and rejected feature ids and the number of known points used."""
+    ) -> UpdateOutcome:
+        """Update with the measurements of owned features and known points (``update``
+        mode); return the measured and rejected feature ids, the known points used and the
+        counts."""
         known = [
             (self._known[key], pixel)
             for key, pixel in zip(keys.tolist(), known_pixels, strict=True)
         ]
-        return gated_update(self._state, self.camera, observed, known, self.config)
+        if self.config.update == 'gated':
+            return gated_update(self._state, self.camera, observed, known, self.config)
+        return ransac_update(self._state, self.camera, observed, known, self.config, self._rng)
 
     def _manage_map(
         self, observed: dict[int, FloatArray], measured: list[int], rejected: list[int]
@@ -290,7 +304,12 @@ class MonoSlam:
                 feature.attempts >= config.failure_window
                 and feature.successes < config.min_success_ratio * feature.attempts
             )
-            if failing:
+            if failing and feature.source == 'handover':
+                # revoked: it moved after all; the Shadow filter may take it back
+                removed[feature.id] = 'revoked'
+                self._remove(feature, retire=False)
+                self._owned_ids.discard(feature.id)
+            elif failing:
                 removed[feature.id] = 'failed'
                 self._remove(feature, retire=False)
             elif self._frame - feature.last_seen_frame > config.max_unseen_frames:
@@ -358,7 +377,9 @@ class MonoSlam:
             direction = offset / depth
             depth_variance = float(direction @ handover.covariance @ direction)
             rho = 1.0 / depth
-            rho_variance = depth_variance * rho**4
+            # at least the prior's variance: the handover was triangulated from SLAM's own
+            # poses, so its variance is not independent of the state (module docstring)
+            rho_variance = max(depth_variance * rho**4, rho_variance)
         source = 'handover' if handover is not None else 'new'
         inserted = self._state.insert_inverse_depth(
             self.camera, feature_id, pixel, rho, rho_variance, self.config.pixel_sigma_px,
@@ -373,30 +394,6 @@ class MonoSlam:
         if retire:
             self._retired[feature.id] = self._state.map_point(feature, False)
         self._state.remove(feature)
-
-    def _lost_reason(self) -> str | None:
-        """Return why tracking is lost, or None."""
-        if self._idle_frames >= self.config.lost_after_frames:
-            return f'no feature or known point measured for {self._idle_frames} frames'
-        if self._known_rejected_frames >= self.config.lost_after_known_rejected_frames:
-            rejected, in_view = self._known_rejected
-            return (
-                f'the gate rejected most known points in view ({rejected} of {in_view}) for '
-                f'{self._known_rejected_frames} frames: the estimate disagrees with them'
-            )
-        state = self._state
-        sigma = math.sqrt(max(float(np.max(np.linalg.eigvalsh(state.p[R_SLICE, R_SLICE]))), 0.0))
-        if not math.isfinite(sigma) or sigma > self.config.max_position_sigma_m:
-            return f'camera position sigma {sigma:.2f} m exceeds max_position_sigma_m'
-        if not np.all(np.isfinite(state.x)):
-            return 'the state is not finite'
-        values = np.linalg.eigvalsh(state.pose_covariance())
-        if not values[0] > MIN_POSE_EIGENVALUE_RATIO * values[-1]:
-            return (
-                f'the pose covariance collapsed (eigenvalues {values[0]:.1e} to '
-                f'{values[-1]:.1e}): the filter is overconfident'
-            )
-        return None
 
     def _reset(self) -> None:
         """Retire the map and wait for the known points again."""
@@ -420,15 +417,17 @@ class MonoSlam:
         removed: dict[int, str],
         known_used: int,
         warnings: list[str],
+        counts: UpdateCounts | None = None,
     ) -> MonoSlamResult:
+        counts = counts or UpdateCounts()
         if status == WAITING or len(self._state.x) < CAMERA_SIZE:
             return MonoSlamResult(
                 stamp_ns, self._frame, status, None, None, None, None, None, measured,
-                rejected, added, removed, known_used, warnings,
+                rejected, added, removed, known_used, warnings, counts,
             )  # fmt: skip
         x, q = self._state.x, self._state.x[Q_SLICE]
         return MonoSlamResult(
             stamp_ns, self._frame, status, rotation(q), x[R_SLICE].copy(),
             self._state.pose_covariance(), x[V_SLICE].copy(), x[W_SLICE].copy(), measured,
-            rejected, added, removed, known_used, warnings,
+            rejected, added, removed, known_used, warnings, counts,
         )  # fmt: skip

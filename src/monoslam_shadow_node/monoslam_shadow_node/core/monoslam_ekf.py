@@ -10,6 +10,8 @@ its Jacobian).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from monoslam_shadow_node.core.monoslam_model import (
@@ -20,7 +22,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     project_feature,
 )
 from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
-from monoslam_shadow_node.core.monoslam_types import IntArray, MonoSlamConfig
+from monoslam_shadow_node.core.monoslam_types import IntArray, MonoSlamConfig, UpdateCounts
 from slam_core.camera import CameraModel
 
 
@@ -71,66 +73,163 @@ def predicted_measurements(
     )
 
 
+@dataclass(frozen=True, eq=False)
+class Match:
+    """A measurement: its raw pixel (2,) px, of a known world point (3,) m or of a feature of
+    the state."""
+
+    pixel: FloatArray
+    point: FloatArray | None = None
+    feature: FeatureBlock | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Linearized:
+    """A match's prediction at the current state: pixel (2,) px, H_c = d(pixel)/d(camera)
+    (2, 13), H_f = d(pixel)/d(feature) (2, k) and the feature's block in x (None for a known
+    point)."""
+
+    predicted: FloatArray
+    h_c: FloatArray
+    h_f: FloatArray
+    block: slice | None
+
+    def innovation_covariance(self, p: FloatArray, sigma2: float) -> FloatArray:
+        """Return S = H P H^T + sigma2 I (2, 2) px^2 for the state covariance ``p``."""
+        c = slice(0, CAMERA_SIZE)
+        s = self.h_c @ p[c, c] @ self.h_c.T + sigma2 * np.eye(2)
+        if self.block is not None:
+            cross = self.h_c @ p[c, self.block] @ self.h_f.T
+            s += cross + cross.T + self.h_f @ p[self.block, self.block] @ self.h_f.T
+        return s
+
+    def row(self, n: int) -> FloatArray:
+        """Return H (2, n) over the whole state of length ``n``."""
+        h = np.zeros((2, n))
+        h[:, :CAMERA_SIZE] = self.h_c
+        if self.block is not None:
+            h[:, self.block] = self.h_f
+        return h
+
+    def times(self, m: FloatArray) -> FloatArray:
+        """Return H m (2, k) for m (n, k) over the whole state, without forming H."""
+        out = self.h_c @ m[:CAMERA_SIZE]
+        if self.block is not None:
+            out += self.h_f @ m[self.block]
+        return np.asarray(out, dtype=np.float64)
+
+    def p_h_t(self, p: FloatArray) -> FloatArray:
+        """Return P H^T (n, 2) without forming H."""
+        out = p[:, :CAMERA_SIZE] @ self.h_c.T
+        if self.block is not None:
+            out += p[:, self.block] @ self.h_f.T
+        return np.asarray(out, dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class UpdateOutcome:
+    """What an update did: the measured and rejected feature ids (state order), the number of
+    known points used and the counts."""
+
+    measured: list[int]
+    rejected: list[int]
+    known_used: int
+    counts: UpdateCounts
+
+
+def matches(
+    state: FilterState,
+    observed: dict[int, FloatArray],
+    known: list[tuple[FloatArray, FloatArray]],
+) -> list[Match]:
+    """Return the measurements of known points (``known``: world point (3,) m, raw pixel (2,))
+    then of the state's features (``observed``: track id -> raw pixel (2,)), in state order."""
+    out = [Match(pixel, point=point) for point, pixel in known]
+    return out + [Match(observed[f.id], feature=f) for f in state.features if f.id in observed]
+
+
+def linearize(state: FilterState, camera_model: CameraModel, match: Match) -> Linearized | None:
+    """Return the match's prediction at the current state, or None behind the camera."""
+    camera = state.x[:CAMERA_SIZE]
+    block: slice | None = None
+    if match.point is not None:
+        predicted, h_c, h_f, depth = project_feature(camera_model, camera, match.point, None)
+    elif (feature := match.feature) is not None:
+        block = slice(feature.start, feature.start + feature.size)
+        predicted, h_c, h_f, depth = project_feature(
+            camera_model, camera, state.x[block], feature.reference
+        )
+    else:
+        raise ValueError('a match needs a known point or a feature')
+    if depth <= 0.0:
+        return None
+    return Linearized(predicted, h_c, h_f, block)
+
+
+def passes_gate(
+    match: Match, linearized: Linearized | None, p: FloatArray, config: MonoSlamConfig
+) -> bool:
+    """True when the match is in front of the camera and its innovation's Mahalanobis distance
+    (S from the covariance ``p``) is inside the chi-square gate."""
+    if linearized is None:
+        return False
+    s = linearized.innovation_covariance(p, config.pixel_sigma_px**2)
+    innovation = match.pixel - linearized.predicted
+    return float(innovation @ np.linalg.solve(s, innovation)) <= config.gate
+
+
+def apply_update(state: FilterState, used: list[tuple[Match, Linearized]], sigma2: float) -> None:
+    """Update with all ``used`` measurements at once (Joseph form; nothing when empty)."""
+    if not used:
+        return
+    n = len(state.x)
+    h = np.vstack([linearized.row(n) for _, linearized in used])
+    residual = np.concatenate([match.pixel - linearized.predicted for match, linearized in used])
+    joseph_update(state, h, residual, sigma2)
+
+
+def record_attempts(all_matches: list[Match], accepted: set[int]) -> UpdateOutcome:
+    """Count each feature's attempt (accepted: indices into ``all_matches``) and return the
+    measured and rejected feature ids and the known points used (counts: rejected only)."""
+    measured: list[int] = []
+    rejected: list[int] = []
+    known_used = 0
+    for index, match in enumerate(all_matches):
+        ok = index in accepted
+        feature = match.feature
+        if feature is None:
+            known_used += int(ok)
+            continue
+        feature.attempts += 1
+        (measured if ok else rejected).append(feature.id)
+        feature.successes += int(ok)
+        feature.consecutive_failures = 0 if ok else feature.consecutive_failures + 1
+    counts = UpdateCounts(rejected=len(all_matches) - len(accepted))
+    return UpdateOutcome(measured, rejected, known_used, counts)
+
+
 def gated_update(
     state: FilterState,
     camera_model: CameraModel,
     observed: dict[int, FloatArray],
     known: list[tuple[FloatArray, FloatArray]],
     config: MonoSlamConfig,
-) -> tuple[list[int], list[int], int]:
+) -> UpdateOutcome:
     """Gate and apply all measurements of the state's features (``observed``: track id ->
     raw pixel (2,)) and of known points (``known``: world point (3,) m, raw pixel (2,)),
-    counting each feature's attempt; return the measured and rejected feature ids and the
-    number of known points used."""
-    n = len(state.x)
-    camera = state.x[:CAMERA_SIZE]
-    rows: list[FloatArray] = []
-    residuals: list[FloatArray] = []
-    measured: list[int] = []
-    rejected: list[int] = []
-    sigma2 = config.pixel_sigma_px**2
-    gate = config.gate
-    c = slice(0, CAMERA_SIZE)
-    # (pixel, known point or None, feature or None): known points first, then features
-    candidates: list[tuple[FloatArray, FloatArray | None, FeatureBlock | None]] = [
-        (pixel, point, None) for point, pixel in known
-    ]
-    candidates += [(observed[f.id], None, f) for f in state.features if f.id in observed]
-    known_used = 0
-    for pixel, point, feature in candidates:
-        block: slice | None = None
-        if feature is None and point is not None:
-            predicted, h_c, h_f, depth = project_feature(camera_model, camera, point, None)
-        elif feature is not None:
-            block = slice(feature.start, feature.start + feature.size)
-            predicted, h_c, h_f, depth = project_feature(
-                camera_model, camera, state.x[block], feature.reference
-            )
-        ok = depth > 0.0
-        if ok:
-            s = h_c @ state.p[c, c] @ h_c.T + sigma2 * np.eye(2)
-            if block is not None:
-                cross = h_c @ state.p[c, block] @ h_f.T
-                s += cross + cross.T + h_f @ state.p[block, block] @ h_f.T
-            innovation = pixel - predicted
-            ok = float(innovation @ np.linalg.solve(s, innovation)) <= gate
-        if feature is not None:
-            feature.attempts += 1
-            (measured if ok else rejected).append(feature.id)
-            feature.successes += int(ok)
-            feature.consecutive_failures = 0 if ok else feature.consecutive_failures + 1
-        if not ok:
-            continue
-        known_used += int(feature is None)
-        row = np.zeros((2, n))
-        row[:, c] = h_c
-        if block is not None:
-            row[:, block] = h_f
-        rows.append(row)
-        residuals.append(pixel - predicted)
-    if rows:
-        joseph_update(state, np.vstack(rows), np.concatenate(residuals), sigma2)
-    return measured, rejected, known_used
+    counting each feature's attempt; return what was measured and rejected."""
+    all_matches = matches(state, observed, known)
+    used: list[tuple[Match, Linearized]] = []
+    accepted: set[int] = set()
+    for index, match in enumerate(all_matches):
+        linearized = linearize(state, camera_model, match)
+        if linearized is not None and passes_gate(match, linearized, state.p, config):
+            used.append((match, linearized))
+            accepted.add(index)
+    apply_update(state, used, config.pixel_sigma_px**2)
+    outcome = record_attempts(all_matches, accepted)
+    counts = UpdateCounts(compatible=len(used), rejected=outcome.counts.rejected)
+    return UpdateOutcome(outcome.measured, outcome.rejected, outcome.known_used, counts)
 
 
 def joseph_update(state: FilterState, h: FloatArray, residual: FloatArray, sigma2: float) -> None:

@@ -15,6 +15,7 @@ from monoslam_shadow_node.core.projective import chi2_quantile
 IntArray = NDArray[np.int64]
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
 INITIALIZE_MODES = ('all', 'handover')
+UPDATE_MODES = ('ransac', 'gated')
 
 
 class MonoSlamInputError(ValueError):
@@ -51,6 +52,8 @@ class MonoSlamConfig:
     max_position_sigma_m: float = 2.0
     max_gap_s: float = 1.0
     initialize: str = 'all'
+    update: str = 'ransac'
+    ransac_seed: int = 0
 
     def __post_init__(self) -> None:
         """Reject values the filter cannot honour; the message names the field."""
@@ -83,6 +86,11 @@ class MonoSlamConfig:
             raise ValueError(
                 f'initialize={self.initialize!r}: must be one of {", ".join(INITIALIZE_MODES)}'
             )
+        if self.update not in UPDATE_MODES:
+            raise ValueError(f'update={self.update!r}: must be one of {", ".join(UPDATE_MODES)}')
+        seed = self.ransac_seed
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ValueError(f'ransac_seed={seed!r}: must be an integer >= 0')
         for key, point in self.known_points.items():
             if len(point) != 3 or not all(math.isfinite(float(c)) for c in point):
                 raise ValueError(f'known point {key}: {point!r} must be 3 finite coordinates (m)')
@@ -91,6 +99,29 @@ class MonoSlamConfig:
     def gate(self) -> float:
         """The chi-square gate (2 degrees of freedom) on one feature's innovation."""
         return chi2_quantile(self.gate_probability, 2)
+
+    @property
+    def low_innovation_threshold_px(self) -> float:
+        """1-point RANSAC's inlier threshold on a measurement's pixel distance from its
+        prediction by a hypothesis, px: a correct match differs from the true projection by
+        pixel noise alone, |nu|^2 / sigma^2 ~ chi-square (2 dof), so the gate's probability
+        keeps that share of them (sigma sqrt(chi2(gate_probability, 2)), 3.7 px by default)."""
+        return self.pixel_sigma_px * math.sqrt(self.gate)
+
+
+@dataclass(frozen=True)
+class UpdateCounts:
+    """How one frame's update went, over feature and known-point measurements: individually
+    compatible (inside the chi-square gate), 1-point RANSAC hypotheses tried, low-innovation
+    inliers of the best one, high-innovation inliers rescued, and rejected (all measurements
+    not used). With ``update='gated'`` the compatible ones are the update's and the RANSAC
+    counts are 0."""
+
+    compatible: int = 0
+    hypotheses: int = 0
+    low_innovation_inliers: int = 0
+    rescued: int = 0
+    rejected: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,7 +156,10 @@ class MonoSlamResult:
     """What one frame produced. ``rotation`` (3, 3) R_world_camera and ``centre`` (3,) m are
     None while waiting; ``pose_covariance`` (6, 6) is over (position, rotation about the world
     axes), the convention of geometry_msgs/PoseWithCovariance; velocities in the world
-    (linear, m/s) and camera (angular, rad/s) frames."""
+    (linear, m/s) and camera (angular, rad/s) frames. ``removed`` maps each feature taken out
+    of the state in this frame to why: 'failed' (the persistent-outlier test), 'revoked' (the
+    same, for a handed-over feature: back to the Shadow filter), 'unseen' (no longer tracked:
+    retired to the frozen map) or 'lost' (tracking was lost: the map is retired)."""
 
     stamp_ns: int
     frame: int
@@ -141,3 +175,4 @@ class MonoSlamResult:
     removed: dict[int, str]
     known_points_used: int
     warnings: list[str]
+    update: UpdateCounts = field(default_factory=UpdateCounts)

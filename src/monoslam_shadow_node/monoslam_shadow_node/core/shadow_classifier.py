@@ -15,6 +15,18 @@ the simulated room those are common; the all-view test sees it as soon as the ca
 bends or the depth changes. The three-ray test stays as the paper's classifier; the second
 test only adds rejections, and both share alpha.
 
+Evidence of motion: the all-view fit of a static point can fail, its point landing behind
+a camera or its normal matrix singular. Before there is parallax that is only "not yet"; once
+a parallax milestone is due (the first and current rays at least ``min_parallax_rad`` apart,
+the camera moved ``min_baseline_m``, a middle view exists), a static point's rays meet in front
+of every camera: with 1 px noise at 300 px focal (0.2 degrees per ray) and 2 degrees of
+parallax, noise alone puts the fit behind a camera only about 7 standard deviations out, so
+a failure there says the rays do not meet where a static point's would. ``UNFIT_TESTS``
+failures in a row (tests are retried every other frame while the milestone stays due, so
+within about 6 frames, with new views each time) make the feature DYNAMIC, without a test
+statistic. Its false-alarm rate is measured by ``shadow_evaluate`` (static features called
+DYNAMIC, by cause).
+
 Minimum-parallax rule: test j waits until the first and the current ray are at least
 ``min_parallax_rad * parallax_growth**j`` apart as seen from the feature's position
 estimated as if it were static (the EKF conditioned on zero velocity; its depth must be
@@ -39,6 +51,10 @@ from monoslam_shadow_node.core.rays import View, ray_angle, three_ray_test
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC, Track
 from monoslam_shadow_node.core.static_fit import MOTION_DOF, motion_score_test
 
+UNFIT_TESTS = 3
+"""Evidence of motion: a feature whose views, past a parallax milestone, fix no static point
+in front of every camera (the all-view fit lands behind a camera or is singular) at this many
+scheduled tests in a row is DYNAMIC (module docstring)."""
 TEST_DELAY_FRAMES = 1
 """A test triggered in frame k uses the view of frame k + 1 as its last ray, whose noise did
 not take part in the trigger (the EKF estimate just updated with frame k's ray)."""
@@ -229,8 +245,16 @@ def classify(
     level = settings.test_alpha
     motion = motion_score_test(track.views, level, position)
     if motion is None:
+        track.unfit += 1
+        frames = frame - track.first_frame
+        if track.milestone_due and track.unfit >= UNFIT_TESTS:
+            # evidence of motion (module docstring): the views keep refusing a static point
+            track.status, track.decided_frame = DYNAMIC, frame
+            track.views = []
+            return Decision(track.id, DYNAMIC, frames, parallax, baseline, math.nan)
         warnings.append(f'feature {track.id}: its views do not fix a static point yet')
         return None
+    track.unfit = 0
     # Whether a decision is possible is geometry (S), not the test's outcome: when it
     # is not and no parallax milestone is due, nothing is tested and no alpha is spent.
     decisive = speed == 0 or (

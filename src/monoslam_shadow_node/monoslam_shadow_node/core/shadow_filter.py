@@ -12,6 +12,14 @@ hypothesis decide (``ClassifierConfig``): the paper's three-ray test
   static point) and released; the SLAM filter owns it from then on, and its later sightings
   are ignored here.
 
+Revocation (``ShadowFilter.revoke``): a feature handed over whose measurements SLAM then
+found persistently inconsistent (it moved after all: it stood still while tested, or moved
+along the direction the STATIC rule leaves unchecked) comes back as a suspect. It is tracked
+again from its next sighting as a PENDING feature with fresh views only (nothing seen before
+the revocation counts), and decided under the strict rule (``unchecked_directions`` = 0: motion
+in every direction checked), so a revoked mover is not handed over again on the evidence that
+let it through.
+
 The classifier (when to test, the two tests, the decision) is in ``shadow_classifier``; a
 feature's record is a ``shadow_track.Track``.
 
@@ -21,6 +29,7 @@ experiment) with their covariance; the filter assumes them independent between f
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -156,6 +165,8 @@ class ShadowFilter:
         self._states = np.zeros((0, STATE_SIZE))
         self._covariances = np.zeros((0, STATE_SIZE, STATE_SIZE))
         self._released: set[int] = set()
+        self._suspects: set[int] = set()
+        self._strict = dataclasses.replace(self.config.classifier, unchecked_directions=0)
         self._frame = -1
         self._last: FrameInput | None = None
 
@@ -168,6 +179,20 @@ class ShadowFilter:
     def released_ids(self) -> frozenset[int]:
         """Ids handed over as STATIC (ignored from then on)."""
         return frozenset(self._released)
+
+    @property
+    def suspect_ids(self) -> frozenset[int]:
+        """Ids SLAM revoked that have not been handed over again (module docstring)."""
+        return frozenset(self._suspects)
+
+    def revoke(self, ids: list[int]) -> list[int]:
+        """Take back features SLAM revoked (module docstring); return those that were handed
+        over by this filter (others are ignored)."""
+        taken = [int(i) for i in ids if int(i) in self._released]
+        for feature_id in taken:
+            self._released.discard(feature_id)
+            self._suspects.add(feature_id)
+        return taken
 
     def set_camera(self, camera: CameraModel) -> None:
         """Use new intrinsics from the next frame on (a camera_info change)."""
@@ -247,11 +272,17 @@ class ShadowFilter:
         )
         settings = self.config.classifier
         visibility = predicted_visibility(self._tracks, static.position, static.defined, settings)
+        strict = visibility
+        if any(track.suspect for track in self._tracks):
+            strict = predicted_visibility(
+                self._tracks, static.position, static.defined, self._strict
+            )
         decisions = []
         for row, track in enumerate(self._tracks):
             if track.status == PENDING and track.missed == 0 and static.defined[row]:
+                rule, seen = (self._strict, strict) if track.suspect else (settings, visibility)
                 decision = classify(
-                    track, static.position[row], visibility[row], self._frame, settings, warnings
+                    track, static.position[row], seen[row], self._frame, rule, warnings
                 )
                 if decision is not None:
                     decisions.append(decision)
@@ -326,6 +357,7 @@ class ShadowFilter:
         self._covariances = np.concatenate([self._covariances, covariances])
         for track_id, view, precision in zip(ids, views, precisions, strict=True):
             track = Track(int(track_id), PENDING, self._frame, frame.stamp_ns)
+            track.suspect = int(track_id) in self._suspects
             track.add_view(view, precision)
             self._tracks.append(track)
 
@@ -367,6 +399,7 @@ class ShadowFilter:
         for row, track in enumerate(self._tracks):
             if track.status == STATIC:
                 self._released.add(track.id)
+                self._suspects.discard(track.id)
             elif track.missed <= self.config.max_missed_frames:
                 keep.append(row)
         if len(keep) != len(self._tracks):

@@ -19,7 +19,9 @@ STATUS_NAMES = {PENDING: 'PENDING', STATIC: 'STATIC', DYNAMIC: 'DYNAMIC'}
 class Track:
     """A feature's record: id, status, first frame and stamp (int ns), its views (cleared
     once DYNAMIC), the classifier's schedule and latest statistic, missed and gated frame
-    counts, the handover (point (3,) m, covariance (3, 3)) once STATIC, recent positions."""
+    counts, the handover (point (3,) m, covariance (3, 3)) once STATIC, recent positions, and
+    whether it is a suspect (SLAM revoked it after an earlier handover), and how many
+    scheduled tests in a row found no static point to test (``shadow_classifier``)."""
 
     id: int
     status: int
@@ -43,6 +45,8 @@ class Track:
     visibility_wait: float = 0.0
     predicted_visible: float = 0.0
     milestone_due: bool = False
+    suspect: bool = False
+    unfit: int = 0
 
     def add_view(self, view: View, precision: FloatArray) -> None:
         """Keep a view (and its arrays for the visibility prediction)."""

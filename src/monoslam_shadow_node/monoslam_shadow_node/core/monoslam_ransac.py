@@ -1,0 +1,209 @@
+"""The 1-point RANSAC EKF update of the MonoSLAM filter (Civera, Grasa, Davison and Montiel,
+"1-Point RANSAC for EKF Filtering", J. Field Robotics 27(5), 2010, Algorithm 1).
+
+Per frame, after the prediction:
+
+1. individually compatible matches: the measurements inside the chi-square gate of their
+   innovation covariance S_i = H_i P H_i^T + R (``monoslam_ekf.passes_gate``);
+2. hypotheses: the EKF prior fixes all but a few degrees of freedom, so one match is a
+   minimal sample. A hypothesis updates the state mean alone with one compatible match,
+   x_i = x + K_i nu_i, predicts every compatible match from x_i and counts as its support the
+   low-innovation inliers, those within ``MonoSlamConfig.low_innovation_threshold_px`` of
+   their prediction. The most supported hypothesis is kept. Known points are certain (their
+   world positions are the target's geometry), so while at least ``MIN_KNOWN_POINTS`` of them
+   are compatible, a hypothesis that does not keep more than half of them as low-innovation
+   inliers is not admissible, however many features agree with it: a group of features that
+   agree with each other against the known points is a rigid mover (handed over while it
+   stood still, or along the direction the Shadow filter leaves unchecked), not the world.
+   When no one-match hypothesis is admissible, the hypothesis is the camera pose the known
+   points give on their own (``monoslam_init.camera_from_known_points``), the rest of the
+   state unchanged. The number of hypotheses adapts to the best support found so far, the
+   inlier ratio epsilon:
+   n_hyp = log(1 - p) / log(1 - epsilon), p = ``RANSAC_PROBABILITY``. The matches are drawn
+   without replacement (``rng.permutation``), so no more hypotheses are tried than there are
+   compatible matches: beyond that every distinct one has been tried;
+3. low-innovation update: a full EKF update (Joseph form) with the best hypothesis's
+   low-innovation inliers, linearized at the prior;
+4. high-innovation rescue: each remaining compatible match is predicted again from the
+   updated mean, with S from the updated covariance; those inside the chi-square gate now are
+   inliers the low-innovation test was too strict for (e.g. features whose depth is still
+   uncertain) and update the state a second time.
+
+Every other measurement is rejected, and a feature's rejection counts against it as the gate's
+did (map management deletes features that fail too often). The random draws come from the
+caller's ``np.random.Generator`` (seeded from ``MonoSlamConfig.ransac_seed``), so a run is
+reproducible.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from monoslam_shadow_node.core.monoslam_ekf import (
+    Linearized,
+    Match,
+    UpdateOutcome,
+    apply_update,
+    linearize,
+    matches,
+    passes_gate,
+    record_attempts,
+)
+from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
+from monoslam_shadow_node.core.monoslam_model import (
+    Q_SLICE,
+    R_SLICE,
+    FloatArray,
+    feature_direction,
+)
+from monoslam_shadow_node.core.monoslam_state import FilterState
+from monoslam_shadow_node.core.monoslam_types import IntArray, MonoSlamConfig, UpdateCounts
+from slam_core.camera import CameraModel
+from slam_core.geometry.quaternion import rotation_from_quaternion
+
+RANSAC_PROBABILITY = 0.99
+"""p: the probability that at least one hypothesis is drawn from an inlier (the paper's)."""
+
+
+def ransac_update(
+    state: FilterState,
+    camera_model: CameraModel,
+    observed: dict[int, FloatArray],
+    known: list[tuple[FloatArray, FloatArray]],
+    config: MonoSlamConfig,
+    rng: np.random.Generator,
+) -> UpdateOutcome:
+    """Apply the 1-point RANSAC update (module docstring) with the measurements of the state's
+    features (``observed``: track id -> raw pixel (2,)) and of known points (``known``: world
+    point (3,) m, raw pixel (2,)), counting each feature's attempt; return what was measured
+    and rejected, with the counts."""
+    sigma2 = config.pixel_sigma_px**2
+    all_matches = matches(state, observed, known)
+    compatible: list[tuple[int, Linearized]] = []
+    for index, match in enumerate(all_matches):
+        linearized = linearize(state, camera_model, match)
+        if linearized is not None and passes_gate(match, linearized, state.p, config):
+            compatible.append((index, linearized))
+    pairs = [(all_matches[index], linearized) for index, linearized in compatible]
+    inliers, hypotheses = best_hypothesis(state, camera_model, pairs, config, rng)
+    apply_update(state, [pairs[k] for k in inliers], sigma2)
+    low = {compatible[k][0] for k in inliers}
+    rescued: list[tuple[Match, Linearized]] = []
+    rescued_indices: set[int] = set()
+    for index, _ in compatible:
+        if index in low:
+            continue
+        match = all_matches[index]
+        linearized = linearize(state, camera_model, match)
+        if linearized is not None and passes_gate(match, linearized, state.p, config):
+            rescued.append((match, linearized))
+            rescued_indices.add(index)
+    apply_update(state, rescued, sigma2)
+    outcome = record_attempts(all_matches, low | rescued_indices)
+    counts = UpdateCounts(
+        compatible=len(compatible),
+        hypotheses=hypotheses,
+        low_innovation_inliers=len(low),
+        rescued=len(rescued),
+        rejected=outcome.counts.rejected,
+    )
+    return UpdateOutcome(outcome.measured, outcome.rejected, outcome.known_used, counts)
+
+
+def best_hypothesis(
+    state: FilterState,
+    camera_model: CameraModel,
+    compatible: list[tuple[Match, Linearized]],
+    config: MonoSlamConfig,
+    rng: np.random.Generator,
+) -> tuple[IntArray, int]:
+    """Return the low-innovation inliers (indices into ``compatible``, (K,)) of the most
+    supported admissible hypothesis and the number of hypotheses tried; the state is
+    unchanged. While enough known points are compatible, a one-match hypothesis must agree
+    with them, and when none does, the hypothesis is the camera pose the known points give
+    on their own (module docstring)."""
+    best: IntArray = np.zeros(0, dtype=np.int64)
+    count = len(compatible)
+    if count == 0:
+        return best, 0
+    sigma2 = config.pixel_sigma_px**2
+    observed = np.array([match.pixel for match, _ in compatible])
+    wanted = [match for match, _ in compatible]
+    threshold2 = config.low_innovation_threshold_px**2
+    known = np.array([match.point is not None for match, _ in compatible], dtype=bool)
+    anchored = int(np.count_nonzero(known)) >= MIN_KNOWN_POINTS
+
+    def support(x: FloatArray) -> IntArray:
+        predicted = predicted_pixels(camera_model, x, wanted)
+        with np.errstate(invalid='ignore'):  # NaN behind the camera: never an inlier
+            inside = np.sum((observed - predicted) ** 2, axis=1) <= threshold2
+        return np.flatnonzero(inside).astype(np.int64)
+
+    order = rng.permutation(count)
+    needed = count
+    tried = 0
+    while tried < min(needed, count):
+        inliers = support(hypothesis_mean(state, [compatible[int(order[tried])]], sigma2))
+        tried += 1
+        if anchored and 2 * np.count_nonzero(known[inliers]) <= np.count_nonzero(known):
+            continue  # it disagrees with the known points: not admissible (module docstring)
+        if len(inliers) > len(best):
+            best = inliers
+            needed = hypotheses_needed(len(best) / count)
+    if anchored and not len(best):  # none admissible: the pose the known points give
+        points = np.array([match.point for match in wanted if match.point is not None])
+        fix = camera_from_known_points(
+            camera_model, points, observed[known], config.pixel_sigma_px
+        )
+        if fix is not None:
+            x = state.x.copy()
+            x[R_SLICE], x[Q_SLICE] = fix.centre, fix.pose_state[3:7]
+            best = support(x)
+            tried += 1
+    return best, tried
+
+
+def hypotheses_needed(inlier_ratio: float, probability: float = RANSAC_PROBABILITY) -> int:
+    """Return n_hyp = log(1 - p) / log(1 - epsilon), rounded up (at least 1), the hypotheses
+    that draw an inlier with probability ``p`` when the inlier ratio is ``epsilon``."""
+    if inlier_ratio >= 1.0:
+        return 1
+    if inlier_ratio <= 0.0:
+        raise ValueError(f'inlier ratio {inlier_ratio}: must be > 0')
+    return max(1, math.ceil(math.log(1.0 - probability) / math.log(1.0 - inlier_ratio)))
+
+
+def hypothesis_mean(
+    state: FilterState, pairs: list[tuple[Match, Linearized]], sigma2: float
+) -> FloatArray:
+    """Return the state mean (n,) updated with the ``pairs``' measurements alone, x + K nu
+    with K = P H^T S^-1 (its quaternion renormalized); the state is unchanged."""
+    residual = np.concatenate([match.pixel - linearized.predicted for match, linearized in pairs])
+    p_h_t = np.hstack([linearized.p_h_t(state.p) for _, linearized in pairs])  # (n, 2m)
+    h_p_h_t = np.vstack([linearized.times(p_h_t) for _, linearized in pairs])  # H P H^T
+    s = h_p_h_t + sigma2 * np.eye(len(residual))
+    x = state.x + p_h_t @ np.linalg.solve(s, residual)
+    x[Q_SLICE] /= np.linalg.norm(x[Q_SLICE])
+    return np.asarray(x, dtype=np.float64)
+
+
+def predicted_pixels(camera_model: CameraModel, x: FloatArray, wanted: list[Match]) -> FloatArray:
+    """Return the raw pixels (M, 2) of the matches' points seen from the state mean ``x``
+    (NaN for those behind the camera)."""
+    centre = x[R_SLICE]
+    rotation_t = rotation_from_quaternion(x[Q_SLICE]).T
+    directions = np.empty((len(wanted), 3))
+    for k, match in enumerate(wanted):
+        if match.point is not None:
+            directions[k] = match.point - centre
+        elif (feature := match.feature) is not None:
+            block = x[feature.start : feature.start + feature.size]
+            directions[k] = feature_direction(feature.size, block, feature.reference, centre)[0]
+    in_camera = directions @ rotation_t.T
+    pixels = np.full((len(wanted), 2), np.nan)
+    front = in_camera[:, 2] > 0.0
+    if np.any(front):
+        pixels[front] = camera_model.project(in_camera[front])
+    return pixels
