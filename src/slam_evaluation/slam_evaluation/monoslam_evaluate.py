@@ -3,7 +3,12 @@ the Shadow filter in a scene with moving objects.
 
     monoslam_evaluate --out out/monoslam_eval [--seeds 0-9] [--duration-s 20]
                       [--variants a,b,c] [--unchecked-directions 1] [--known-board 3x3]
-                      [--shadow-poses slam|truth] [--oracle-handovers]
+                      [--shadow-poses slam|truth] [--oracle-handovers] [--sequence DIR]
+
+``--sequence DIR`` runs an on-disk sequence (``sequence_files``: intrinsics, camera poses,
+feature tracks, optional labels and known points) instead of simulated seeds: one run, scored
+against the sequence's poses (no map error or mover figures: it has no point truth; variant
+(a) needs its labels).
 
 Every seed simulates one run (``slam_sim.core.dynamic_scene``: 200 static points, 8 moving
 objects of 8 points, 1 px pixel noise, the initialization target's corners as known points;
@@ -34,12 +39,16 @@ Metrics per variant and seed (frames with a pose estimate; all in ``map``, m):
   with the 95 % band chi2(6n) quantiles / n; the share of frames whose average is inside it
   and the mean and median over all samples.
 
-Acceptance (``monoslam_report.acceptance``): mean ATE(c) / mean ATE(a) <= 1.2 (raw ATE,
-means over seeds) with (c) keeping tracking on every seed; (c) keeps tracking on a seed when
+Acceptance (``monoslam_report.acceptance``): mean ATE(c) / mean ATE(a) <= 1.5 (raw ATE,
+means over seeds) and <= 2 on every seed (the goal, 1.2, is printed), with (c) keeping
+tracking on every seed; (c) keeps tracking on a seed when
 it never loses it and tracks at least 95 % of the frames (a) tracks there (``tracked
 (c)/(a)``, a point of its own: (c) fails whatever its ATE over the frames it kept); and mean
-ATE(b) / mean ATE(a) >= 3 or (b) diverges on every seed. Per-seed figures (frames tracked and
-ATE per variant, (c) against (a), the Shadow filter's frames and handovers) are printed.
+ATE(b) / mean ATE(a) >= 3 or (b) diverges on every seed; and every moving feature that
+entered (c)'s map revoked within 15 frames of moving at 0.3 m/s across the line of sight
+(``monoslam_metrics.mover_revocations``, which also judges motion out of the epipolar
+plane). Per-seed figures (frames tracked and ATE per variant, (c) against (a), the Shadow
+filter's frames and handovers) are printed.
 
 Writes ``monoslam_eval.json`` and the PNG figures (Fig. 5-like top views of one seed, ATE and
 NEES over time) into ``--out``, prints a summary with PASS/FAIL per acceptance point, and
@@ -74,7 +83,9 @@ from slam_evaluation.monoslam_runs import (
     Collected,
     Settings,
     evaluate_seed,
+    evaluate_sequence,
 )
+from slam_evaluation.sequence_files import SequenceError, read_sequence
 from slam_sim.core.dynamic_config import DynamicSceneConfig
 
 REPORT_NAME = 'monoslam_eval.json'
@@ -146,6 +157,14 @@ def _arguments(argv: list[str] | None) -> Settings:
         action='store_true',
         help='drop handovers of truly moving features (a diagnostic bound)',
     )
+    parser.add_argument(
+        '--sequence',
+        type=Path,
+        default=None,
+        metavar='DIR',
+        help='run an on-disk sequence (camera.yaml, poses.txt, tracks.csv, optional '
+        'labels.csv and known_points.csv: see the README) instead of simulated seeds',
+    )
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         seeds = parse_seeds(args.seeds)
@@ -153,6 +172,10 @@ def _arguments(argv: list[str] | None) -> Settings:
         board = None if args.known_board is None else parse_board(args.known_board)
     except ValueError as error:
         parser.error(str(error))
+    if args.sequence is not None:
+        seeds = (0,)
+        if board is not None:
+            parser.error('--known-board: a sequence brings its own known points')
     settings = Settings(
         seeds,
         args.duration_s,
@@ -162,6 +185,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         board,
         args.shadow_poses,
         args.oracle_handovers,
+        args.sequence,
     )
     try:
         settings.scene()
@@ -177,7 +201,22 @@ def main(argv: list[str] | None = None) -> int:
     settings = _arguments(argv)
     single_threaded_blas()
     started = time.perf_counter()
+    sequence = None
     frames = settings.scene().frame_count
+    if settings.sequence is not None:
+        try:
+            sequence = read_sequence(settings.sequence)
+        except SequenceError as error:
+            print(f'monoslam_evaluate: error: --sequence: {error}', file=sys.stderr)  # noqa: T201
+            return 2
+        if 'a' in settings.variants and sequence.labels is None:
+            print(  # noqa: T201
+                'monoslam_evaluate: error: --sequence: variant a needs labels.csv (it runs on '
+                'the static features only); use --variants b,c',
+                file=sys.stderr,
+            )
+            return 2
+        frames = len(sequence.stamps_ns)
     total = len(settings.seeds) * len(settings.variants) * frames
     progress = ProgressReporter(total, label='monoslam_evaluate', unit=' frames')
     collected, done = Collected(), 0
@@ -187,7 +226,9 @@ def main(argv: list[str] | None = None) -> int:
         done += count
         progress.update(done)
 
-    for seed in settings.seeds:
+    if sequence is not None:
+        evaluate_sequence(settings, sequence, collected, advance)
+    for seed in settings.seeds if sequence is None else ():
         evaluate_seed(settings, seed, collected, advance)
     progress.finish()
     content = report(settings, collected, time.perf_counter() - started)

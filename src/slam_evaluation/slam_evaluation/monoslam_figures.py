@@ -29,10 +29,12 @@ def write_figures(directory: Path, content: Mapping[str, Any], collected: Collec
         return []
     width = 5.0 * len(variants)
     drawings: list[tuple[str, Callable[[Any, Any], None], Any, tuple[float, float]]] = [
-        ('monoslam_fig5_topview.png', _topviews, collected.topview, (width, 5.0)),
         ('monoslam_ate_time.png', _ate_over_time, (content['curves'], collected), (width, 3.6)),
         ('monoslam_nees.png', _nees_over_time, content['curves'], (width, 3.6)),
     ]
+    if collected.topview:  # the simulator's scene only (a sequence has no point truth)
+        top = ('monoslam_fig5_topview.png', _topviews, collected.topview, (width, 5.0))
+        drawings.insert(0, top)
     return [
         write_atomically(directory / name, render_png(draw, data, size))
         for name, draw, data, size in drawings

@@ -240,6 +240,7 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
     filter_s = sum(collected.filter_s.values())
     return {
         'config': {
+            'sequence': None if settings.sequence is None else str(settings.sequence),
             'seeds': list(settings.seeds),
             'variants': list(settings.variants),
             'scene': dataclasses.asdict(scene),
@@ -302,9 +303,12 @@ def summary_text(content: Mapping[str, Any]) -> str:
     rule = pipeline['shadow']['classifier']['unchecked_directions']
     board = config.get('known_board')
     known = f'board {board[0]}x{board[1]}' if board else 'one target'
+    source = f'seeds {config["seeds"]}, {config["scene"]["duration_s"]:g} s'
+    if config.get('sequence'):
+        source, known = f'sequence {config["sequence"]}', "the sequence's"
     lines = [
-        f'MonoSLAM Fig. 5, seeds {config["seeds"]}, {config["scene"]["duration_s"]:g} s; '
-        f'known points: {known}; STATIC rule: {rule} unchecked direction(s)',
+        f'MonoSLAM Fig. 5, {source}; known points: {known}; STATIC rule: {rule} unchecked '
+        'direction(s)',
         f'  {"variant":36s}' + ''.join(f'{header:>9s}' for header, _, _ in SUMMARY_COLUMNS),
     ]
     for variant, data in content['variants'].items():

@@ -5,6 +5,7 @@ what the seeds collect for the report and the figures.
 
 from __future__ import annotations
 
+import math
 import sys
 import traceback
 from collections.abc import Callable, Sequence
@@ -34,6 +35,8 @@ from slam_evaluation.monoslam_pipeline import (
     simulation_frames,
     target_known_points,
 )
+from slam_evaluation.sequence_files import Sequence as FileSequence
+from slam_evaluation.sequence_files import measurement_frames
 from slam_evaluation.shadow_consistency import nees
 from slam_evaluation.shadow_runs import camera_model
 from slam_sim.core.dynamic_config import DynamicSceneConfig
@@ -43,12 +46,22 @@ from slam_sim.core.init_target import InitTarget, marker_board
 BOARD_MARKER_SIDE_M = 0.3
 BOARD_GAP_M = 0.05
 TARGET_NOISE_SEED_OFFSET = 1000
+NO_MAP_TRUTH: dict[str, Any] = {
+    'map_points': 0,
+    'static_scored': 0,
+    'static_without_covariance': 0,
+    'map_rms_m': math.nan,
+    'map_median_m': math.nan,
+    'dynamic_in_map': 0,
+}
+"""``map_error``'s fields for a sequence, which has no point truth to score the map against."""
 
 
 @dataclass(frozen=True)
 class Settings:
     """The command line: seeds, run length (s), variants, the output directory, the Shadow
-    filter's STATIC rule, the known board and the diagnostic settings."""
+    filter's STATIC rule, the known board, the diagnostic settings, and a sequence directory
+    to run instead of the simulator (``sequence_files``)."""
 
     seeds: tuple[int, ...]
     duration_s: float
@@ -58,6 +71,7 @@ class Settings:
     known_board: tuple[int, int] | None = None
     shadow_poses: str = 'slam'
     oracle_handovers: bool = False
+    sequence: Path | None = None
 
     def scene(self) -> DynamicSceneConfig:
         """Return the Fig. 5 scene: 200 static points, 8 moving objects x 8 points."""
@@ -71,10 +85,15 @@ class Settings:
         rows, columns = self.known_board
         return marker_board(target, rows, columns, BOARD_MARKER_SIDE_M, BOARD_GAP_M)
 
-    def pipeline(self, markers: InitTarget | Sequence[InitTarget]) -> PipelineConfig:
-        """Return the filters' settings: defaults, the markers' known points, the STATIC
-        rule and the diagnostic settings."""
-        slam = MonoSlamConfig(known_points=target_known_points(markers))
+    def pipeline(
+        self,
+        markers: InitTarget | Sequence[InitTarget],
+        known_points: dict[int, tuple[float, float, float]] | None = None,
+    ) -> PipelineConfig:
+        """Return the filters' settings: defaults, the known points (the markers' corners
+        unless given), the STATIC rule and the diagnostic settings."""
+        known = target_known_points(markers) if known_points is None else known_points
+        slam = MonoSlamConfig(known_points=known)
         classifier = ClassifierConfig(unchecked_directions=self.unchecked_directions)
         shadow = ShadowConfig(classifier=classifier)
         return PipelineConfig(
@@ -137,6 +156,47 @@ def evaluate_seed(
         collected.frames[variant] = collected.frames.get(variant, 0) + len(frames)
         if not collected.topview.get(variant):
             collected.topview[variant] = topview_data(run, frames, record, markers)
+
+
+def evaluate_sequence(
+    settings: Settings,
+    sequence: FileSequence,
+    collected: Collected,
+    done: Callable[[int], None] | None = None,
+) -> None:
+    """Run every variant over an on-disk sequence (seed label 0) and collect its metrics:
+    trajectory and NEES against the sequence's poses; no map error, mover revocation or top
+    view (a sequence has no point truth)."""
+    frames = measurement_frames(sequence)
+    known = {k: (float(p[0]), float(p[1]), float(p[2]))
+             for k, p in (sequence.known_points or {}).items()}  # fmt: skip
+    config = settings.pipeline(settings.markers(), known)
+    for variant in settings.variants:
+        try:
+            record = run_variant(variant, frames, sequence.camera, config)
+        except PipelineError as error:
+            collected.failures.append({'seed': 0, 'variant': variant, 'error': str(error)})
+            traceback.print_exception(error, file=sys.stderr)
+            continue
+        finally:
+            if done is not None:
+                done(len(frames))
+        errors = pose_errors(record, frames)
+        metrics = {'seed': 0, **trajectory_metrics(record, errors), **NO_MAP_TRUTH}
+        labels = sequence.labels or {}
+        metrics['map_points'] = len(record.map_points)
+        metrics['dynamic_in_map'] = sum(labels.get(p.id, False) for p in record.map_points)
+        metrics['dynamic_entered_map'] = len(record.dynamic_in_map)
+        if variant == 'c':
+            metrics['shadow'] = shadow_numbers(record)
+        metrics['ms_per_frame'] = 1e3 * record.runtime_s / len(frames)
+        collected.nees.setdefault(variant, []).append(nees(errors, record.pose_covariances))
+        collected.position_error.setdefault(variant, []).append(
+            np.linalg.norm(errors[:, :3], axis=1)
+        )
+        collected.per_seed.setdefault(variant, []).append(metrics)
+        collected.filter_s[variant] = collected.filter_s.get(variant, 0.0) + record.runtime_s
+        collected.frames[variant] = collected.frames.get(variant, 0) + len(frames)
 
 
 def topview_data(

@@ -1,6 +1,11 @@
 """shadow_evaluate: the Shadow filter on simulated runs, scored like paper 001's Figs. 2-4.
 
     shadow_evaluate [--seeds 0-9] [--out out/shadow_eval] [--alpha 0.05] [--quick]
+    shadow_evaluate --sequence DIR [--out out/shadow_eval] [--alpha 0.05]
+
+``--sequence DIR`` runs the filter over an on-disk sequence instead (``sequence_files``; its
+poses as known poses): decisions, handovers and, with labels, the classification against
+them, into ``shadow_eval_sequence.json`` (``shadow_sequence``).
 
 Every run comes from ``slam_sim.core.dynamic_scene`` (true camera poses, 1 px pixel noise)
 and is fed frame by frame to the shadow_filter node's processor (``ShadowProcessor``, known
@@ -72,6 +77,7 @@ from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter
 from slam_evaluation.evaluation_cli import parse_seeds
+from slam_evaluation.sequence_files import SequenceError, read_sequence
 from slam_evaluation.shadow_experiments import (
     Collected,
     Settings,
@@ -81,6 +87,8 @@ from slam_evaluation.shadow_experiments import (
     report,
 )
 from slam_evaluation.shadow_report import summary_text, write_figures
+from slam_evaluation.shadow_runs import FilterRunError
+from slam_evaluation.shadow_sequence import evaluate_sequence, sequence_summary
 from slam_sim.core.dynamic_config import DynamicSceneConfig
 
 QUICK_DURATION_S = 4.0
@@ -147,6 +155,14 @@ def _arguments(argv: list[str] | None) -> Settings:
         'feature handed over, slow), 1 (default) or 2',
     )
     parser.add_argument(
+        '--sequence',
+        type=Path,
+        default=None,
+        metavar='DIR',
+        help='run the filter over an on-disk sequence (known poses; see the README) instead '
+        'of the simulated runs',
+    )
+    parser.add_argument(
         '--quick',
         action='store_true',
         help=f'smoke run: seed 0, {QUICK_DURATION_S:g} s, no alpha sweep',
@@ -172,6 +188,7 @@ def _arguments(argv: list[str] | None) -> Settings:
             args.consistency_objects,
             args.out,
             args.unchecked_directions,
+            args.sequence,
         )
         (
             settings.scene(),
@@ -188,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
     """Run the evaluation; print the summary; write the JSON report and figures to --out.
     Exit status 1 if the filter raised on a run (listed in the report, left out of it)."""
     settings = _arguments(argv)
+    if settings.sequence is not None:
+        return _run_sequence(settings)
     started = time.perf_counter()
     total = len(settings.seeds) * len(settings.alphas) + len(settings.consistency_seeds)
     progress = ProgressReporter(total, label='shadow_evaluate', unit=' runs', period_s=0.0)
@@ -207,6 +226,27 @@ def main(argv: list[str] | None = None) -> int:
     print(summary_text(content))  # noqa: T201
     print(f'wrote {settings.out / "shadow_eval.json"} and {len(figures)} figures')  # noqa: T201
     return 1 if collected.failures else 0
+
+
+def _run_sequence(settings: Settings) -> int:
+    """``--sequence``: the filter over an on-disk sequence (``shadow_sequence``)."""
+    assert settings.sequence is not None
+    try:
+        sequence = read_sequence(settings.sequence)
+    except SequenceError as error:
+        print(f'shadow_evaluate: error: --sequence: {error}', file=sys.stderr)  # noqa: T201
+        return 2
+    try:
+        content = evaluate_sequence(
+            sequence, settings.shadow(settings.alpha), str(settings.sequence)
+        )
+    except FilterRunError as error:
+        print(f'shadow_evaluate: the filter failed: {error}', file=sys.stderr)  # noqa: T201
+        return 1
+    write_json(settings.out / 'shadow_eval_sequence.json', content)
+    print(sequence_summary(content))  # noqa: T201
+    print(f'wrote {settings.out / "shadow_eval_sequence.json"}')  # noqa: T201
+    return 0
 
 
 if __name__ == '__main__':

@@ -45,7 +45,8 @@ from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 class Settings:
     """What to evaluate: seeds, the main alpha and the alpha sweep (it includes the main one),
     run length (s), focal length (px), the decision window (frames), model objects per
-    consistency run, and the output directory."""
+    consistency run, the output directory, and a sequence directory to run instead
+    (``shadow_sequence``)."""
 
     seeds: tuple[int, ...]
     consistency_seeds: tuple[int, ...]
@@ -57,6 +58,7 @@ class Settings:
     consistency_objects: int
     out: Path
     unchecked_directions: int = ClassifierConfig().unchecked_directions
+    sequence: Path | None = None
 
     def scene(self) -> DynamicSceneConfig:
         """Return the classification runs' scene (the default motions, 1 px noise)."""

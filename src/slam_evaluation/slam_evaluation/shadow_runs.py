@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,12 +59,28 @@ def camera_model(run: DynamicSceneRun) -> CameraModel:
     )
 
 
+FilterInput = tuple[int, IntArray, FloatArray, FloatArray, FloatArray]
+"""One frame for ``run_frames``: stamp (int ns), track ids (N,), raw pixels (N, 2),
+R_world_camera (3, 3) and the optical centre (3,) m."""
+
+
 def run_filter(run: DynamicSceneRun, config: ShadowConfig) -> FilterRecord:
     """Feed every frame (true pose, noisy pixels) to a new ShadowProcessor (the node's; a true
     pose is a known one: no covariance); return its record. Raises FilterRunError if the filter
     raises."""
+    inputs = [
+        (f.stamp_ns, f.track_ids, f.pixels, f.camera_rotation, f.camera_position)
+        for f in run.frames
+    ]
+    return run_frames(camera_model(run), inputs, config, f'seed {run.seed}')
+
+
+def run_frames(
+    camera: CameraModel, inputs: Sequence[FilterInput], config: ShadowConfig, name: str
+) -> FilterRecord:
+    """``run_filter`` over any frames (known poses); ``name`` names the run in errors."""
     shadow = ShadowProcessor(config)
-    shadow.set_camera(camera_model(run))
+    shadow.set_camera(camera)
     ids: list[int] = []
     frames: list[int] = []
     statuses: list[int] = []
@@ -73,18 +90,18 @@ def run_filter(run: DynamicSceneRun, config: ShadowConfig) -> FilterRecord:
     decisions: dict[int, tuple[int, Decision]] = {}
     handovers: list[tuple[int, Handover]] = []
     redecided, runtime_s = 0, 0.0
-    for index, frame in enumerate(run.frames):
+    for index, (stamp_ns, track_ids, pixels, rotation, centre) in enumerate(inputs):
         started = time.perf_counter()
         try:
             outcome = shadow.process(
-                Features(frame.stamp_ns, '', frame.track_ids, frame.pixels),
-                CameraPose(frame.stamp_ns, '', frame.camera_rotation, frame.camera_position, None),
+                Features(stamp_ns, '', track_ids, pixels),
+                CameraPose(stamp_ns, '', rotation, centre, None),
             )
             if not isinstance(outcome, ShadowStep):
                 raise InputError(str(outcome))
         except Exception as error:
             raise FilterRunError(
-                f'seed {run.seed}, frame {index}: {type(error).__name__}: {error}'
+                f'{name}, frame {index}: {type(error).__name__}: {error}'
             ) from error
         result = outcome.result
         runtime_s += time.perf_counter() - started

@@ -1,0 +1,312 @@
+"""Monocular sequences on disk, for the evaluators and the ROS-free pipeline: feature tracks
+seen by a camera whose pose is known per frame, from any source (another simulator, a real
+camera with motion capture, a tracker run offline).
+
+A sequence is a directory:
+
+- ``camera.yaml``: the intrinsics, as the fields of a sensor_msgs/CameraInfo: ``width``,
+  ``height`` (px), ``distortion_model`` (plumb_bob, rational_polynomial or equidistant), ``d``
+  (its coefficients) and ``k`` (9 values, row-major, px);
+- ``poses.txt``: one camera pose per frame in the TUM format, ``stamp_s x y z qx qy qz qw``:
+  the optical frame (x right, y down, z forward) in the world, i.e. the optical centre (m) and
+  the unit quaternion of R_world_camera. Frame k is the k-th pose line (lines starting with
+  '#' are comments); stamps increase. It is the truth the evaluators score against, and the
+  known poses of "known pose" runs;
+- ``tracks.csv``: header ``frame,id,u,v``, then one row per sighting: track ``id`` (an integer)
+  seen in ``frame`` (0-based index into poses.txt) at the raw (distorted) pixel ``u, v``. An
+  id is seen at most once per frame; it may disappear and reappear (the filters treat it as
+  the same point);
+- ``labels.csv`` (optional): header ``id,moving``, ``moving`` 1 if the track lies on a moving
+  object, 0 if static (tracks without a row count as static);
+- ``known_points.csv`` (optional): header ``id,x,y,z``, tracks whose world position (m) is
+  known (an initialization target's corners): their sightings in tracks.csv are SLAM's known
+  points, not features.
+
+``read_sequence`` checks every file and names the file and line of a problem;
+``write_sequence`` writes one atomically (file by file); ``simulated_sequence`` turns a run
+of the dynamic-scene simulator and its target into one (the test fixture).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
+from slam_core.camera import CameraModel
+from slam_core.files import write_atomically
+from slam_evaluation.monoslam_pipeline import MeasurementFrame
+from slam_sim.core.dynamic_scene import DynamicSceneRun
+from slam_sim.core.init_target import InitTarget, target_pixels
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+FILES = ('camera.yaml', 'poses.txt', 'tracks.csv', 'labels.csv', 'known_points.csv')
+KNOWN_ID_BASE = 1_000_000
+"""``simulated_sequence`` gives the target's corners the ids KNOWN_ID_BASE + corner."""
+
+
+class SequenceError(ValueError):
+    """A sequence directory that cannot be read (the message names the file and line)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Sequence:
+    """A sequence in memory: the camera, per frame (K) the stamp (int ns), the optical centre
+    (K, 3) m and R_world_camera (K, 3, 3), the sightings (frame (N,), id (N,), pixel (N, 2)),
+    and the optional labels (id -> moving) and known points (id -> world point (3,) m)."""
+
+    camera: CameraModel
+    stamps_ns: IntArray
+    centres: FloatArray
+    rotations: FloatArray
+    frame: IntArray
+    ids: IntArray
+    pixels: FloatArray
+    labels: dict[int, bool] | None = None
+    known_points: dict[int, FloatArray] | None = None
+
+    def sightings(self, index: int) -> tuple[IntArray, FloatArray]:
+        """Return the ids (M,) and raw pixels (M, 2) seen in frame ``index``."""
+        rows = self.frame == index
+        return self.ids[rows], self.pixels[rows]
+
+
+def read_sequence(directory: Path) -> Sequence:
+    """Read a sequence directory (module docstring); SequenceError names what is wrong."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise SequenceError(f'{directory}: not a directory')
+    camera = _read_camera(directory / 'camera.yaml')
+    stamps, centres, rotations = _read_poses(directory / 'poses.txt')
+    rows = _read_csv(
+        directory / 'tracks.csv', ('frame', 'id', 'u', 'v'), integers=2, required=True
+    )
+    frame = np.array([int(r[0]) for _, r in rows], dtype=np.int64)
+    ids = np.array([int(r[1]) for _, r in rows], dtype=np.int64)
+    pixels = np.array([(r[2], r[3]) for _, r in rows], dtype=np.float64).reshape(-1, 2)
+    for (line, _), k in zip(rows, frame, strict=True):
+        if not 0 <= k < len(stamps):
+            raise SequenceError(f'{directory / "tracks.csv"}:{line}: frame {k} is not in '
+                                f'poses.txt (0 to {len(stamps) - 1})')  # fmt: skip
+    pairs = np.column_stack([frame, ids])
+    if len(np.unique(pairs, axis=0)) != len(pairs):
+        raise SequenceError(f'{directory / "tracks.csv"}: an id is seen twice in one frame')
+    labels = None
+    if (directory / 'labels.csv').exists():
+        labels = {
+            int(r[0]): _flag(r[1], directory / 'labels.csv', line)
+            for line, r in _read_csv(directory / 'labels.csv', ('id', 'moving'), integers=2)
+        }
+    known = None
+    if (directory / 'known_points.csv').exists():
+        known = {
+            int(r[0]): np.array([float(v) for v in r[1:]])
+            for _, r in _read_csv(directory / 'known_points.csv', ('id', 'x', 'y', 'z'))
+        }
+    return Sequence(camera, stamps, centres, rotations, frame, ids, pixels, labels, known)
+
+
+def measurement_frames(sequence: Sequence) -> list[MeasurementFrame]:
+    """Return the sequence's frames for ``monoslam_pipeline``: the features (every track
+    that is not a known point), the known points seen (keys: their ids, as in
+    ``known_points``), the moving flags from the labels (unlabelled: static) and the truth."""
+    known = sequence.known_points or {}
+    labels = sequence.labels or {}
+    frames = []
+    for index, stamp_ns in enumerate(sequence.stamps_ns.tolist()):
+        ids, pixels = sequence.sightings(index)
+        is_known = np.isin(ids, list(known))
+        measurements = MonoSlamFrame(
+            int(stamp_ns), ids[~is_known], pixels[~is_known], ids[is_known], pixels[is_known]
+        )
+        moving = np.array([labels.get(int(i), False) for i in ids[~is_known]], dtype=bool)
+        frames.append(
+            MeasurementFrame(
+                measurements, moving, sequence.rotations[index], sequence.centres[index]
+            )
+        )
+    return frames
+
+
+def write_sequence(directory: Path, sequence: Sequence) -> None:
+    """Write ``sequence`` into ``directory`` (created), each file atomically."""
+    directory = Path(directory)
+    info = sequence.camera.camera_info()
+    camera = {
+        'width': int(info.width),
+        'height': int(info.height),
+        'distortion_model': info.distortion_model,
+        'd': [float(v) for v in info.d],
+        'k': [float(v) for v in info.k],
+    }
+    write_atomically(directory / 'camera.yaml', yaml.safe_dump(camera, sort_keys=False))
+    quaternions = Rotation.from_matrix(sequence.rotations).as_quat()  # x, y, z, w
+    lines = ['# stamp_s x y z qx qy qz qw: the optical frame in the world']
+    for stamp, centre, quaternion in zip(
+        sequence.stamps_ns, sequence.centres, quaternions, strict=True
+    ):
+        values = ' '.join(f'{v:.9f}' for v in (*centre, *quaternion))
+        lines.append(f'{stamp // 10**9}.{stamp % 10**9:09d} {values}')
+    write_atomically(directory / 'poses.txt', '\n'.join(lines) + '\n')
+    rows = [
+        (int(k), int(i), f'{u:.4f}', f'{v:.4f}')
+        for k, i, (u, v) in zip(sequence.frame, sequence.ids, sequence.pixels, strict=True)
+    ]
+    write_atomically(directory / 'tracks.csv', _csv(('frame', 'id', 'u', 'v'), rows))
+    if sequence.labels is not None:
+        labels = [(i, int(m)) for i, m in sorted(sequence.labels.items())]
+        write_atomically(directory / 'labels.csv', _csv(('id', 'moving'), labels))
+    if sequence.known_points is not None:
+        known = [(i, *(f'{c:.6f}' for c in p)) for i, p in sorted(sequence.known_points.items())]
+        write_atomically(directory / 'known_points.csv', _csv(('id', 'x', 'y', 'z'), known))
+
+
+def simulated_sequence(
+    run: DynamicSceneRun, target: InitTarget, rng: np.random.Generator
+) -> Sequence:
+    """Return a dynamic-scene run as a sequence: its tracked features (their noisy pixels),
+    the target's corners (ids ``KNOWN_ID_BASE`` + corner, N(0, pixel_noise_px) noise from
+    ``rng``) in the frames that see all four, labels and known points from the truth."""
+    frames, ids, pixels = [], [], []
+    known_ids = KNOWN_ID_BASE + np.arange(4, dtype=np.int64)
+    sigma_px = run.config.pixel_noise_px
+    for index, frame in enumerate(run.frames):
+        frames.append(np.full(len(frame.track_ids), index, dtype=np.int64))
+        ids.append(frame.track_ids.astype(np.int64))
+        pixels.append(frame.pixels)
+        corners = target_pixels(target, run.camera, frame.camera_rotation, frame.camera_position)
+        if corners is not None:
+            frames.append(np.full(4, index, dtype=np.int64))
+            ids.append(known_ids)
+            pixels.append(corners + sigma_px * rng.standard_normal((4, 2)))
+    labels = {
+        int(i): bool(run.point_moving[point]) for i, point in sorted(run.track_point.items())
+    }
+    return Sequence(
+        run.camera,
+        np.array([f.stamp_ns for f in run.frames], dtype=np.int64),
+        np.array([f.camera_position for f in run.frames]),
+        np.array([f.camera_rotation for f in run.frames]),
+        np.concatenate(frames),
+        np.concatenate(ids),
+        np.vstack(pixels),
+        labels,
+        {int(i): np.asarray(c, dtype=np.float64) for i, c in zip(known_ids, target.corners_m,
+                                                                  strict=True)},
+    )  # fmt: skip
+
+
+# --- readers ---------------------------------------------------------------------------------
+
+
+def _read_camera(path: Path) -> CameraModel:
+    try:
+        content = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except FileNotFoundError:
+        raise SequenceError(f'{path}: missing (the intrinsics are required)') from None
+    except yaml.YAMLError as error:
+        raise SequenceError(f'{path}: not YAML ({error})') from None
+    fields = ('width', 'height', 'distortion_model', 'd', 'k')
+    if not isinstance(content, dict) or any(name not in content for name in fields):
+        raise SequenceError(f'{path}: needs the fields {", ".join(fields)}')
+    try:
+        return CameraModel.from_camera_info(
+            int(content['width']), int(content['height']), content['k'], content['d'],
+            str(content['distortion_model']),
+        )  # fmt: skip
+    except (TypeError, ValueError) as error:
+        raise SequenceError(f'{path}: {error}') from None
+
+
+def _read_poses(path: Path) -> tuple[IntArray, FloatArray, FloatArray]:
+    try:
+        text = path.read_text(encoding='utf-8')
+    except FileNotFoundError:
+        raise SequenceError(f'{path}: missing (the camera poses are required)') from None
+    stamps: list[int] = []
+    centres: list[list[float]] = []
+    quaternions: list[list[float]] = []
+    for line_number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith('#'):
+            continue
+        parts = line.split()
+        try:
+            values = [float(v) for v in parts[1:]]
+            seconds, _, fraction = parts[0].partition('.')
+            stamp = int(seconds) * 10**9 + int((fraction + '000000000')[:9])
+        except (ValueError, IndexError):
+            values, stamp = [], 0
+        if len(values) != 7 or not all(math.isfinite(v) for v in values):
+            raise SequenceError(
+                f'{path}:{line_number}: expected "stamp_s x y z qx qy qz qw" (8 numbers)'
+            )
+        norm = math.sqrt(sum(v * v for v in values[3:]))
+        if abs(norm - 1.0) > 1e-3:
+            raise SequenceError(f'{path}:{line_number}: quaternion norm {norm:.6f}, not 1')
+        if stamps and stamp <= stamps[-1]:
+            raise SequenceError(f'{path}:{line_number}: stamp does not increase')
+        stamps.append(stamp)
+        centres.append(values[:3])
+        quaternions.append(values[3:])
+    if not stamps:
+        raise SequenceError(f'{path}: no pose')
+    rotations = Rotation.from_quat(np.array(quaternions)).as_matrix()
+    return np.array(stamps, dtype=np.int64), np.array(centres), rotations
+
+
+def _read_csv(
+    path: Path, header: tuple[str, ...], *, integers: int = 1, required: bool = False
+) -> list[tuple[int, list[float]]]:
+    """Return (line number, numbers) per data row of a CSV with exactly ``header``, whose first
+    ``integers`` columns are integers."""
+    try:
+        text = path.read_text(encoding='utf-8')
+    except FileNotFoundError:
+        if required:
+            raise SequenceError(f'{path}: missing') from None
+        return []
+    reader = csv.reader(io.StringIO(text))
+    first = next(reader, None)
+    if first is None or tuple(cell.strip() for cell in first) != header:
+        raise SequenceError(f'{path}:1: the header must be {",".join(header)}')
+    rows = []
+    for row in reader:
+        line = reader.line_num
+        if not row:
+            continue
+        try:
+            numbers = [float(cell) for cell in row]
+        except ValueError:
+            numbers = []
+        if len(numbers) != len(header) or not all(math.isfinite(v) for v in numbers):
+            expected = ','.join(header)
+            raise SequenceError(f'{path}:{line}: expected {len(header)} numbers ({expected})')
+        if any(v != int(v) for v in numbers[:integers]):
+            names = ', '.join(header[:integers])
+            raise SequenceError(f'{path}:{line}: {names} must be integers')
+        rows.append((line, numbers))
+    return rows
+
+
+def _flag(value: float, path: Path, line: int) -> bool:
+    if value not in (0.0, 1.0):
+        raise SequenceError(f'{path}:{line}: moving must be 0 or 1')
+    return bool(value)
+
+
+def _csv(header: tuple[str, ...], rows: Iterable[Iterable[object]]) -> str:
+    stream = io.StringIO()
+    writer = csv.writer(stream, lineterminator='\n')
+    writer.writerow(header)
+    writer.writerows(rows)
+    return stream.getvalue()
