@@ -18,6 +18,7 @@ import numpy as np
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
 from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.core.shadow_filter import ShadowConfig
+from slam_core.camera import CameraModel
 from slam_evaluation.monoslam_metrics import (
     FloatArray,
     map_error,
@@ -131,31 +132,16 @@ def evaluate_seed(
     rng = np.random.default_rng(TARGET_NOISE_SEED_OFFSET + seed)
     frames = simulation_frames(run, markers, rng=rng)
     camera, config = camera_model(run), settings.pipeline(markers)
-    for variant in settings.variants:
-        try:
-            record = run_variant(variant, frames, camera, config)
-        except PipelineError as error:
-            collected.failures.append({'seed': seed, 'variant': variant, 'error': str(error)})
-            traceback.print_exception(error, file=sys.stderr)
-            continue
-        finally:
-            if done is not None:
-                done(len(frames))
-        errors = pose_errors(record, frames)
-        metrics = {'seed': seed, **trajectory_metrics(record, errors), **map_error(record, run)}
+
+    def truth_metrics(variant: str, record: VariantRecord) -> dict[str, Any]:
+        metrics = map_error(record, run)
         if variant == 'c':
-            metrics['shadow'] = shadow_numbers(record)
             metrics['movers'] = mover_revocations(record, run, frames)
-        metrics['ms_per_frame'] = 1e3 * record.runtime_s / len(frames)
-        collected.nees.setdefault(variant, []).append(nees(errors, record.pose_covariances))
-        collected.position_error.setdefault(variant, []).append(
-            np.linalg.norm(errors[:, :3], axis=1)
-        )
-        collected.per_seed.setdefault(variant, []).append(metrics)
-        collected.filter_s[variant] = collected.filter_s.get(variant, 0.0) + record.runtime_s
-        collected.frames[variant] = collected.frames.get(variant, 0) + len(frames)
         if not collected.topview.get(variant):
             collected.topview[variant] = topview_data(run, frames, record, markers)
+        return metrics
+
+    _evaluate(settings, seed, frames, camera, config, collected, done, truth_metrics)
 
 
 def evaluate_sequence(
@@ -171,22 +157,44 @@ def evaluate_sequence(
     known = {k: (float(p[0]), float(p[1]), float(p[2]))
              for k, p in (sequence.known_points or {}).items()}  # fmt: skip
     config = settings.pipeline(settings.markers(), known)
+    labels = sequence.labels or {}
+
+    def truth_metrics(_: str, record: VariantRecord) -> dict[str, Any]:
+        return {
+            **NO_MAP_TRUTH,
+            'map_points': len(record.map_points),
+            'dynamic_in_map': sum(labels.get(p.id, False) for p in record.map_points),
+            'dynamic_entered_map': len(record.dynamic_in_map),
+        }
+
+    _evaluate(settings, 0, frames, sequence.camera, config, collected, done, truth_metrics)
+
+
+def _evaluate(
+    settings: Settings,
+    seed: int,
+    frames: Sequence[MeasurementFrame],
+    camera: CameraModel,
+    config: PipelineConfig,
+    collected: Collected,
+    done: Callable[[int], None] | None,
+    truth_metrics: Callable[[str, VariantRecord], dict[str, Any]],
+) -> None:
+    """Run every variant over ``frames`` and collect the trajectory, NEES, Shadow and
+    ``truth_metrics`` (variant, record) figures; a run a filter raised on is a failure."""
     for variant in settings.variants:
         try:
-            record = run_variant(variant, frames, sequence.camera, config)
+            record = run_variant(variant, frames, camera, config)
         except PipelineError as error:
-            collected.failures.append({'seed': 0, 'variant': variant, 'error': str(error)})
+            collected.failures.append({'seed': seed, 'variant': variant, 'error': str(error)})
             traceback.print_exception(error, file=sys.stderr)
             continue
         finally:
             if done is not None:
                 done(len(frames))
         errors = pose_errors(record, frames)
-        metrics = {'seed': 0, **trajectory_metrics(record, errors), **NO_MAP_TRUTH}
-        labels = sequence.labels or {}
-        metrics['map_points'] = len(record.map_points)
-        metrics['dynamic_in_map'] = sum(labels.get(p.id, False) for p in record.map_points)
-        metrics['dynamic_entered_map'] = len(record.dynamic_in_map)
+        metrics = {'seed': seed, **trajectory_metrics(record, errors)}
+        metrics.update(truth_metrics(variant, record))
         if variant == 'c':
             metrics['shadow'] = shadow_numbers(record)
         metrics['ms_per_frame'] = 1e3 * record.runtime_s / len(frames)
