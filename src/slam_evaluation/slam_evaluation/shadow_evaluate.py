@@ -155,6 +155,19 @@ def _arguments(argv: list[str] | None) -> Settings:
         'feature handed over, slow), 1 (default) or 2',
     )
     parser.add_argument(
+        '--tracking-offset-px',
+        type=float,
+        default=0.0,
+        help='simulated tracking error that is not white: per-track offsets of this standard '
+        'deviation, correlated over about 1 s, on top of the 1 px white noise (default 0)',
+    )
+    parser.add_argument(
+        '--tracking-jump-probability',
+        type=float,
+        default=0.0,
+        help='per track and frame, the chance that its offset jumps to a new value (default 0)',
+    )
+    parser.add_argument(
         '--sequence',
         type=Path,
         default=None,
@@ -189,6 +202,8 @@ def _arguments(argv: list[str] | None) -> Settings:
             args.out,
             args.unchecked_directions,
             args.sequence,
+            args.tracking_offset_px,
+            args.tracking_jump_probability,
         )
         (
             settings.scene(),

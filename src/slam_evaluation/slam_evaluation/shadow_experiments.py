@@ -45,8 +45,9 @@ from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 class Settings:
     """What to evaluate: seeds, the main alpha and the alpha sweep (it includes the main one),
     run length (s), focal length (px), the decision window (frames), model objects per
-    consistency run, the output directory, and a sequence directory to run instead
-    (``shadow_sequence``)."""
+    consistency run, the output directory, a sequence directory to run instead
+    (``shadow_sequence``), and the simulated tracking noise that is not white (slowly varying
+    offsets with jumps, ``dynamic_scene``)."""
 
     seeds: tuple[int, ...]
     consistency_seeds: tuple[int, ...]
@@ -59,11 +60,17 @@ class Settings:
     out: Path
     unchecked_directions: int = ClassifierConfig().unchecked_directions
     sequence: Path | None = None
+    tracking_offset_px: float = 0.0
+    tracking_jump_probability: float = 0.0
 
     def scene(self) -> DynamicSceneConfig:
         """Return the classification runs' scene (the default motions, 1 px noise)."""
         return DynamicSceneConfig(
-            duration_s=self.duration_s, focal_px=self.focal_px, pixel_noise_px=1.0
+            duration_s=self.duration_s,
+            focal_px=self.focal_px,
+            pixel_noise_px=1.0,
+            tracking_offset_px=self.tracking_offset_px,
+            tracking_jump_probability=self.tracking_jump_probability,
         )
 
     def model_scene(self) -> DynamicSceneConfig:

@@ -47,7 +47,8 @@ def summary_text(content: Mapping[str, Any]) -> str:
     lines = [
         f'Shadow filter on seeds {_seed_text(config["seeds"])}: {scene["duration_s"]:g} s at '
         f'{scene["rate_hz"]:g} Hz, focal {scene["focal_px"]:g} px, '
-        f'{scene["pixel_noise_px"]:g} px noise, true poses, alpha {config["alpha"]:g}, '
+        f'{scene["pixel_noise_px"]:g} px noise{_offsets(scene)}, true poses, alpha '
+        f'{config["alpha"]:g}, '
         f'unchecked directions {config["shadow"]["classifier"]["unchecked_directions"]}',
         f'classification, {totals["tracks"]} tracks (truth x final status):',
         f'  {"":8s}' + ''.join(f'{name:>9s}' for name in STATUS_ORDER),
@@ -409,3 +410,14 @@ def _nees(figure: Any, curves: Mapping[str, Mapping[str, Sequence[float]]]) -> N
         counts.set_ylim(bottom=0)
         axes.set_ylabel('average NEES (3 dof)')
     grid[0].legend(fontsize=7)
+
+
+def _offsets(scene: Mapping[str, Any]) -> str:
+    """' + offsets ...' when the scene's tracking noise is not white, else ''."""
+    if not scene.get('tracking_offset_px'):
+        return ''
+    return (
+        f' + tracking offsets {scene["tracking_offset_px"]:g} px (tau '
+        f'{scene["tracking_offset_time_s"]:g} s, jumps {scene["tracking_jump_probability"]:g}'
+        '/frame)'
+    )

@@ -80,6 +80,35 @@ def test_pixel_noise_has_the_configured_spread() -> None:
     np.testing.assert_allclose(errors.mean(axis=0), 0.0, atol=0.05)
 
 
+def test_tracking_offsets_vary_slowly_jump_and_leave_other_runs_alone() -> None:
+    # 2 px offsets correlated over 1 s (a = exp(-1/30) from frame to frame), jumps 2 %/frame;
+    # white noise 0 to see them alone. The run without offsets is unchanged.
+    config = DynamicSceneConfig(duration_s=4.0, pixel_noise_px=0.0, tracking_offset_px=2.0,
+                                tracking_jump_probability=0.02)  # fmt: skip
+    run = _run(4, config)
+    errors = np.vstack([f.pixels - f.true_pixels for f in run.frames])
+    np.testing.assert_allclose(errors.std(axis=0), 2.0, rtol=0.1)
+    pairs, steps = [], []
+    for previous, frame in zip(run.frames, run.frames[1:], strict=False):
+        _, mine, theirs = np.intersect1d(frame.track_ids, previous.track_ids, return_indices=True)
+        before = previous.pixels[theirs] - previous.true_pixels[theirs]
+        after = frame.pixels[mine] - frame.true_pixels[mine]
+        pairs.append(np.column_stack([before[:, 0], after[:, 0]]))
+        steps.append(np.linalg.norm(after - before, axis=1))
+    lag = np.vstack(pairs)
+    correlation = np.corrcoef(lag[:, 0], lag[:, 1])[0, 1]
+    # a step of the slow process is N(0, 0.51^2) per axis (2 sqrt(1 - a^2)): above 2.5 px with
+    # probability 6e-6; a jump (a fresh N(0, 2^2) draw) is, 68 % of the time: 1.4 % of steps
+    jumps = np.concatenate(steps) > 2.5
+    assert correlation > 0.9  # measured 0.95: a = exp(-1/30), less the jumps
+    assert 0.008 < jumps.mean() < 0.02
+    plain = dataclasses.replace(config, tracking_offset_px=0.0, tracking_jump_probability=0.0)
+    without = _run(4, plain)
+    assert all(np.array_equal(f.pixels, f.true_pixels) for f in without.frames)
+    with pytest.raises(ValueError, match='tracking_offset_px'):
+        DynamicSceneConfig(tracking_offset_px=-1.0)
+
+
 def test_track_ids_are_never_reused_and_name_one_point() -> None:
     run = _run(2, DynamicSceneConfig(duration_s=3.0, track_drop_probability=0.05))
     seen_frames: dict[int, list[int]] = {}

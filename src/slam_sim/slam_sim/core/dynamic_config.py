@@ -46,6 +46,9 @@ class DynamicSceneConfig:
     max_range_m: float = 15.0
     image_margin_px: float = 2.0
     track_drop_probability: float = 0.0
+    tracking_offset_px: float = 0.0
+    tracking_offset_time_s: float = 1.0
+    tracking_jump_probability: float = 0.0
 
     def __post_init__(self) -> None:
         """Reject values the simulation cannot honour; the message names the field."""
@@ -78,6 +81,11 @@ class DynamicSceneConfig:
                '[0, 100] px')  # fmt: skip
         drop = self.track_drop_probability
         _check('track_drop_probability', 0.0 <= drop < 1.0, drop, '[0, 1)')
+        offset, time_s = self.tracking_offset_px, self.tracking_offset_time_s
+        _check('tracking_offset_px', 0.0 <= offset <= 50.0, offset, '[0, 50] px')
+        _check('tracking_offset_time_s', time_s > 0.0, time_s, '> 0 s')
+        jump = self.tracking_jump_probability
+        _check('tracking_jump_probability', 0.0 <= jump < 1.0, jump, '[0, 1)')
 
     @property
     def frame_count(self) -> int:

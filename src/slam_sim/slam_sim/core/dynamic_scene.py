@@ -38,8 +38,17 @@ A point is observed when it is more than 0.2 m in front of the camera, within
 at least ``image_margin_px`` inside the image. There is no occlusion. Track ids start at 1,
 last while a point stays observed in consecutive frames and are never reused.
 
+Tracking noise: every sighting gets white N(0, ``pixel_noise_px``) noise per axis. With
+``tracking_offset_px`` > 0 it also gets its track's offset, the error a real tracker makes
+that does not average out over frames: per track and axis a first-order Gauss-Markov process
+with standard deviation ``tracking_offset_px`` and correlation time ``tracking_offset_time_s``
+(o_k = a o_(k-1) + sqrt(1 - a^2) sigma n_k, a = exp(-dt / tau); a new track starts from the
+stationary distribution), and in each frame, with probability ``tracking_jump_probability``,
+a jump: the offset is drawn anew (as KLT re-anchoring to a slightly different patch does).
+
 Randomness: ``SeedSequence(seed).spawn(5)`` gives the streams of the room and static points,
-the camera path, the objects, the pixel noise and the track drops, in that order.
+the camera path, the objects, the pixel noise and the track drops, in that order; a sixth
+child (``spawn(6)[5]``) gives the tracking offsets, so runs without them are unchanged.
 
 Modules: ``dynamic_config`` (the settings), ``dynamic_room`` (room and static points),
 ``camera_path`` (the camera), ``object_motion`` (the objects); this one builds the scene and
@@ -105,6 +114,33 @@ class DynamicScene:
 def _streams(seed: int) -> list[np.random.Generator]:
     """Return the run's five random streams (see the module docstring)."""
     return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(5)]
+
+
+class TrackingOffsets:
+    """The slowly varying tracking offsets (module docstring) of every point's current track,
+    px; all zero when ``tracking_offset_px`` is 0."""
+
+    def __init__(self, config: DynamicSceneConfig, points: int, seed: int) -> None:
+        self.sigma = config.tracking_offset_px
+        self.keep = float(np.exp(-1.0 / (config.rate_hz * config.tracking_offset_time_s)))
+        self.jump = config.tracking_jump_probability
+        self.rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(6)[5])
+        self.offsets = np.zeros((points, 2))
+
+    def step(self, observed: IntArray, started: IntArray) -> FloatArray:
+        """Advance the offsets of the ``observed`` points by one frame (``started``: points
+        whose track began in this frame draw a fresh offset); return theirs (N, 2) px."""
+        if self.sigma == 0.0:
+            return np.zeros((len(observed), 2))
+        fresh = self.sigma * self.rng.standard_normal((len(observed), 2))
+        innovation = self.sigma * self.rng.standard_normal((len(observed), 2))
+        jumps = self.rng.random(len(observed)) < self.jump
+        current = self.offsets[observed]
+        current = self.keep * current + np.sqrt(1.0 - self.keep**2) * innovation
+        restart = jumps | np.isin(observed, started)
+        current[restart] = fresh[restart]
+        self.offsets[observed] = current
+        return np.asarray(current, dtype=np.float64)
 
 
 def build_scene(config: DynamicSceneConfig, seed: int) -> DynamicScene:
@@ -204,6 +240,7 @@ def simulate_dynamic_scene(
     current = np.zeros(len(point_object), dtype=np.int64)  # track id per point, 0: none
     next_id, frames = 1, []
     track_point: dict[int, int] = {}
+    offsets = TrackingOffsets(config, len(point_object), seed)
     for k in range(config.frame_count):
         observed, true_pixels = observe(camera, (positions[k] - centres[k]) @ rotations[k], config)
         observed &= exists[k]
@@ -217,6 +254,7 @@ def simulate_dynamic_scene(
         points = np.flatnonzero(observed)
         points = points[np.argsort(current[points])]
         noise = noise_rng.standard_normal((len(points), 2)) * config.pixel_noise_px
+        noise += offsets.step(points, new)
         frames.append(
             FeatureFrame(
                 stamp_ns=start_ns + round(k * 1e9 / config.rate_hz),
