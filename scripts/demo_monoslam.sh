@@ -24,8 +24,13 @@ echo "== sample bag"
 bag_info "$SAMPLE"
 echo
 echo "== marker_detector, feature_tracker, monoslam and shadow_filter on the bag (slam_run monoslam_shadow.yaml, 0.25x)"
-slam_run monoslam_shadow.yaml --bag "$SAMPLE" --exit-when-player-done
+slam_run monoslam_shadow.yaml --bag "$SAMPLE" --exit-when-player-done 2>&1 | tee "$OUT/live.log"
 mv "$ROOT/out/monoslam_shadow" "$OUT/live"
+mv "$OUT/live.log" "$OUT/live/run.log"
+echo
+echo "== what the live nodes did (their final counts; full log: $OUT/live/run.log)"
+grep -E '\[(monoslam|shadow_filter)\]: done:' "$OUT/live/run.log" | sed -E 's/^.*\[(monoslam|shadow_filter)\]: done: /\1: /' \
+  || echo "the nodes printed no final counts: see $OUT/live/run.log" >&2
 echo
 python - "$SAMPLE" "$OUT/live/trajectory.tum" <<'PYEOF'
 import sys
