@@ -13,7 +13,12 @@ from hypothesis import strategies as st
 from em_sam_node.core import marginals, solver
 from em_sam_node.core.factorization import SingularSystemError
 from em_sam_node.core.factors import range_bearing_predict
-from em_sam_node.core.linear_system import build_linear_system, system_layout
+from em_sam_node.core.linear_system import (
+    build_linear_system,
+    linearize_factors,
+    normal_equations,
+    system_layout,
+)
 from em_sam_node.core.marginals import marginal_landmark_covariances, marginal_pose_covariance
 from em_sam_node.core.problem import Estimate, SlamProblem
 from em_sam_node.core.robust_kernels import (
@@ -325,6 +330,24 @@ def test_build_linear_system_matches_finite_differences_and_row_scale() -> None:
 
 def cost_of(residual: np.ndarray) -> float:
     return 0.5 * float(residual @ residual)
+
+
+def test_normal_equations_are_j_transpose_j_in_any_factor_order() -> None:
+    rng = np.random.default_rng(12)
+    problem = square_problem(rng=rng)
+    estimate = perturbed(SQUARE_POSES, SQUARE_LANDMARKS, rng)
+    scale = rng.uniform(0.5, 2.0, problem.num_observations)
+    residual, jacobian = build_linear_system(problem, estimate, scale)
+    layout = system_layout(problem)
+    data, gradient = normal_equations(layout, linearize_factors(problem, estimate, scale))
+    dense = (jacobian.T @ jacobian).toarray()
+    np.testing.assert_allclose(layout.matrix(data).toarray(), dense, atol=1e-9)
+    np.testing.assert_allclose(gradient, jacobian.T @ residual, atol=1e-9)
+    order = rng.permutation(layout.num_variables)
+    layout.set_factor_order(order)
+    permuted = layout.permuted_matrix(data)
+    assert permuted.has_sorted_indices
+    np.testing.assert_allclose(permuted.toarray(), dense[np.ix_(order, order)], atol=1e-9)
 
 
 def test_layout_is_computed_once_per_problem() -> None:

@@ -59,19 +59,26 @@ class SystemLayout:
 
     def _build_hessian_pattern(self) -> None:
         n = self.num_variables
-        keys = [
-            (cols[:, None, :] * n + cols[:, :, None]).ravel()  # column * n + row: CSC order
-            for cols in (self.prior_cols[None, :], self.odometry_cols, self.obs_cols)
-        ]
+        blocks = (self.prior_cols[None, :], self.odometry_cols, self.obs_cols)
+        shapes = [(len(cols), cols.shape[1], cols.shape[1]) for cols in blocks]
+        rows = [np.broadcast_to(c[:, :, None], k) for c, k in zip(blocks, shapes, strict=True)]
+        columns = [np.broadcast_to(c[:, None, :], k) for c, k in zip(blocks, shapes, strict=True)]
         diagonal = np.arange(n, dtype=np.int64)
-        keys.append(diagonal * n + diagonal)
-        unique_keys, slots = np.unique(np.concatenate(keys), return_inverse=True)
-        ends = np.cumsum([key.size for key in keys])
+        row = np.concatenate([r.ravel() for r in rows] + [diagonal])
+        column = np.concatenate([c.ravel() for c in columns] + [diagonal])
+        # The pattern (sorted, duplicates merged) by scipy's C++ conversion; then each entry's
+        # slot by a search in the sorted keys (column * n + row: CSC order).
+        pattern = sp.csc_array((np.ones(row.size), (row, column)), shape=(n, n))
+        pattern.sum_duplicates()
+        unique_keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(pattern.indptr)) * n
+        unique_keys += pattern.indices
+        slots = np.searchsorted(unique_keys, column * n + row)
+        ends = np.cumsum([r.size for r in rows])
         self.contribution_slots = slots[: ends[2]]  # prior 9, odometry 36 M, obs 25 K
         self.diagonal_slots = slots[ends[2] :]
         self.nnz = int(unique_keys.size)
-        self.indices = (unique_keys % n).astype(np.int32)
-        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(unique_keys // n, minlength=n))])
+        self.indices = pattern.indices.astype(np.int32)
+        self.indptr = pattern.indptr.astype(np.int64)
         self.gradient_columns = np.concatenate(
             [self.prior_cols, self.odometry_cols.ravel(), self.obs_cols.ravel()]
         )
@@ -82,17 +89,17 @@ class SystemLayout:
 
     def set_factor_order(self, order: IntArray) -> None:
         """Fix the factorization's variable order (order[k] = variable eliminated k-th)."""
-        n = self.num_variables
-        position = np.empty(n, dtype=np.int64)
-        position[order] = np.arange(n)
-        columns = np.repeat(np.arange(n), np.diff(self.indptr))
-        new_rows, new_cols = position[self.indices], position[columns]
-        gather = np.lexsort((new_rows, new_cols))
-        self._permuted_gather = gather
-        self._permuted_indices = new_rows[gather].astype(np.int32)
-        self._permuted_indptr = np.concatenate(
-            [[0], np.cumsum(np.bincount(new_cols, minlength=n))]
+        # Permute a matrix whose values are the slots + 1 (exact in float64): its values in
+        # factorization order are then the gather indices of the permuted CSC data.
+        slots = sp.csc_array(
+            (np.arange(1, self.nnz + 1, dtype=np.float64), self.indices, self.indptr),
+            shape=(self.num_variables,) * 2,
         )
+        permuted = slots[order][:, order]
+        permuted.sort_indices()
+        self._permuted_gather = permuted.data.astype(np.int64) - 1
+        self._permuted_indices = permuted.indices.astype(np.int32)
+        self._permuted_indptr = permuted.indptr.astype(np.int64)
         self.factor_order = np.asarray(order, dtype=np.int64)
 
     def permuted_matrix(self, data: FloatArray) -> sp.csc_array:
