@@ -111,13 +111,6 @@ class Linearized:
             h[:, self.block] = self.h_f
         return h
 
-    def times(self, m: FloatArray) -> FloatArray:
-        """Return H m (2, k) for m (n, k) over the whole state, without forming H."""
-        out = self.h_c @ m[:CAMERA_SIZE]
-        if self.block is not None:
-            out += self.h_f @ m[self.block]
-        return np.asarray(out, dtype=np.float64)
-
     def p_h_t(self, p: FloatArray) -> FloatArray:
         """Return P H^T (n, 2) without forming H."""
         out = p[:, :CAMERA_SIZE] @ self.h_c.T

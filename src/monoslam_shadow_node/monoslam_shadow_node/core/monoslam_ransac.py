@@ -145,7 +145,7 @@ def best_hypothesis(
     needed = count
     tried = 0
     while tried < min(needed, count):
-        inliers = support(hypothesis_mean(state, [compatible[int(order[tried])]], sigma2))
+        inliers = support(hypothesis_mean(state, *compatible[int(order[tried])], sigma2))
         tried += 1
         if anchored and 2 * np.count_nonzero(known[inliers]) <= np.count_nonzero(known):
             continue  # it disagrees with the known points: not admissible (module docstring)
@@ -176,15 +176,13 @@ def hypotheses_needed(inlier_ratio: float, probability: float = RANSAC_PROBABILI
 
 
 def hypothesis_mean(
-    state: FilterState, pairs: list[tuple[Match, Linearized]], sigma2: float
+    state: FilterState, match: Match, linearized: Linearized, sigma2: float
 ) -> FloatArray:
-    """Return the state mean (n,) updated with the ``pairs``' measurements alone, x + K nu
-    with K = P H^T S^-1 (its quaternion renormalized); the state is unchanged."""
-    residual = np.concatenate([match.pixel - linearized.predicted for match, linearized in pairs])
-    p_h_t = np.hstack([linearized.p_h_t(state.p) for _, linearized in pairs])  # (n, 2m)
-    h_p_h_t = np.vstack([linearized.times(p_h_t) for _, linearized in pairs])  # H P H^T
-    s = h_p_h_t + sigma2 * np.eye(len(residual))
-    x = state.x + p_h_t @ np.linalg.solve(s, residual)
+    """Return the state mean (n,) updated with one measurement alone, x + K nu with
+    K = P H^T S^-1 (its quaternion renormalized); the state is unchanged."""
+    p_h_t = linearized.p_h_t(state.p)
+    s = linearized.innovation_covariance(state.p, sigma2)
+    x = state.x + p_h_t @ np.linalg.solve(s, match.pixel - linearized.predicted)
     x[Q_SLICE] /= np.linalg.norm(x[Q_SLICE])
     return np.asarray(x, dtype=np.float64)
 
