@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -75,10 +76,15 @@ class Sequence:
     labels: dict[int, bool] | None = None
     known_points: dict[int, FloatArray] | None = None
 
-    def sightings(self, index: int) -> tuple[IntArray, FloatArray]:
-        """Return the ids (M,) and raw pixels (M, 2) seen in frame ``index``."""
-        rows = self.frame == index
-        return self.ids[rows], self.pixels[rows]
+    def by_frame(self) -> list[tuple[IntArray, FloatArray]]:
+        """Return per frame the ids (M,) and raw pixels (M, 2) seen in it (one stable sort
+        of the sightings, not a scan per frame)."""
+        order = np.argsort(self.frame, kind='stable')
+        bounds = np.searchsorted(self.frame[order], np.arange(len(self.stamps_ns) + 1))
+        return [
+            (self.ids[order[a:b]], self.pixels[order[a:b]])
+            for a, b in itertools.pairwise(bounds.tolist())
+        ]
 
 
 def read_sequence(directory: Path) -> Sequence:
@@ -120,12 +126,12 @@ def measurement_frames(sequence: Sequence) -> list[MeasurementFrame]:
     """Return the sequence's frames for ``monoslam_pipeline``: the features (every track
     that is not a known point), the known points seen (keys: their ids, as in
     ``known_points``), the moving flags from the labels (unlabelled: static) and the truth."""
-    known = sequence.known_points or {}
+    known = np.array(sorted(sequence.known_points or {}), dtype=np.int64)
     labels = sequence.labels or {}
     frames = []
-    for index, stamp_ns in enumerate(sequence.stamps_ns.tolist()):
-        ids, pixels = sequence.sightings(index)
-        is_known = np.isin(ids, list(known))
+    for index, (ids, pixels) in enumerate(sequence.by_frame()):
+        stamp_ns = sequence.stamps_ns[index]
+        is_known = np.isin(ids, known)
         measurements = MonoSlamFrame(
             int(stamp_ns), ids[~is_known], pixels[~is_known], ids[is_known], pixels[is_known]
         )

@@ -25,17 +25,17 @@ from slam_evaluation.shadow_runs import FilterInput, run_frames
 
 def evaluate_sequence(sequence: Sequence, config: ShadowConfig, name: str) -> dict[str, Any]:
     """Run the Shadow filter over the sequence (module docstring); return the report."""
-    known = set(sequence.known_points or {})
+    known = np.array(sorted(sequence.known_points or {}), dtype=np.int64)
     inputs: list[FilterInput] = []
-    for index, stamp_ns in enumerate(sequence.stamps_ns.tolist()):
-        ids, pixels = sequence.sightings(index)
-        feature = ~np.isin(ids, list(known))
+    for index, (ids, pixels) in enumerate(sequence.by_frame()):
+        stamp_ns = sequence.stamps_ns[index]
+        feature = ~np.isin(ids, known)
         inputs.append(
             (int(stamp_ns), ids[feature], pixels[feature], sequence.rotations[index],
              sequence.centres[index])
         )  # fmt: skip
     record = run_frames(sequence.camera, inputs, config, name)
-    tracks = sorted({int(i) for i in sequence.ids.tolist()} - known)
+    tracks = sorted({int(i) for i in sequence.ids.tolist()} - set(known.tolist()))
     final = {
         i: record.decisions[i][1].status if i in record.decisions else PENDING for i in tracks
     }
