@@ -118,6 +118,7 @@ class MonoSlam:
         self.config = config or MonoSlamConfig()
         self._known = {int(k): np.asarray(v, dtype=np.float64)
                        for k, v in self.config.known_points.items()}  # fmt: skip
+        self._known_keys = np.array(sorted(self._known), dtype=np.int64)
         self._state = FilterState()
         self._retired: dict[int, MapPoint] = {}
         self._handovers: dict[int, _Handover] = {}
@@ -198,7 +199,7 @@ class MonoSlam:
         """Run one frame (module docstring). Raises MonoSlamInputError (filter unchanged) for
         a stamp that does not advance or malformed arrays."""
         ids, pixels, known_keys, known_pixels, warnings = validated_frame(
-            frame, self._last_stamp_ns, set(self._known)
+            frame, self._last_stamp_ns, self._known_keys
         )
         self._frame += 1
         if self._status != TRACKING:

@@ -27,7 +27,7 @@ its largest: numerically singular, or not positive definite (measured in trackin
 
 
 def validated_frame(
-    frame: MonoSlamFrame, last_stamp_ns: int | None, known_keys: set[int]
+    frame: MonoSlamFrame, last_stamp_ns: int | None, known_keys: IntArray
 ) -> tuple[IntArray, FloatArray, IntArray, FloatArray, list[str]]:
     """Check the stamp (after ``last_stamp_ns``) and shapes; return the features' ids and
     pixels and the known points' keys and pixels, without non-finite pixels (and without keys
@@ -50,7 +50,7 @@ def validated_frame(
     if not np.all(finite):
         bad = ', '.join(str(int(i)) for i in ids[~finite])
         warnings.append(f'ignored features with non-finite pixels: ids {bad}')
-    finite_known = np.all(np.isfinite(known), axis=1) & np.isin(keys, list(known_keys))
+    finite_known = np.all(np.isfinite(known), axis=1) & np.isin(keys, known_keys)
     return ids[finite], pixels[finite], keys[finite_known], known[finite_known], warnings
 
 
