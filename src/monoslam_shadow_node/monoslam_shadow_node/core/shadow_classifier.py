@@ -157,10 +157,11 @@ def predicted_visibility(
     tracks: list[Track],
     positions: FloatArray,
     defined: NDArray[np.bool_],
-    settings: ClassifierConfig,
 ) -> FloatArray:
-    """Return, per track, the score test's noncentrality per (m/s)^2 along the
-    direction ``unchecked_directions`` from the least visible (0 where not computed).
+    """Return, per track, the score test's noncentrality per (m/s)^2 along each principal
+    direction of motion, ascending (N, 3) (0 where not computed): column
+    ``unchecked_directions`` is the direction a rule with that many unchecked directions
+    needs to see.
 
     This is ``static_fit``'s S evaluated at the feature's static EKF estimate instead of
     the fitted point, without the pose covariance and the small r d' term of the
@@ -169,8 +170,7 @@ def predicted_visibility(
     exact S). Only features past the minimum parallax are evaluated; the per-view
     depths matter (with one depth for all views, motion parallel to the camera path
     would look visible when it is not)."""
-    result = np.zeros(len(tracks))
-    index = settings.unchecked_directions
+    result = np.zeros((len(tracks), 3))
     for row, track in enumerate(tracks):
         if not (track.status == PENDING and track.missed == 0 and defined[row]):
             continue
@@ -190,7 +190,7 @@ def predicted_visibility(
         except np.linalg.LinAlgError:
             continue
         values = np.linalg.eigvalsh(0.5 * (schur + schur.T))
-        result[row] = max(float(values[index]), 0.0)
+        result[row] = np.maximum(values, 0.0)
     return result
 
 

@@ -270,20 +270,13 @@ class ShadowFilter:
         static = world_estimates(
             *static_hypothesis(self._states, self._covariances), frame.rotation, frame.centre
         )
-        settings = self.config.classifier
-        visibility = predicted_visibility(self._tracks, static.position, static.defined, settings)
-        strict = visibility
-        if any(track.suspect for track in self._tracks):
-            strict = predicted_visibility(
-                self._tracks, static.position, static.defined, self._strict
-            )
+        visibility = predicted_visibility(self._tracks, static.position, static.defined)
         decisions = []
         for row, track in enumerate(self._tracks):
             if track.status == PENDING and track.missed == 0 and static.defined[row]:
-                rule, seen = (self._strict, strict) if track.suspect else (settings, visibility)
-                decision = classify(
-                    track, static.position[row], seen[row], self._frame, rule, warnings
-                )
+                rule = self._strict if track.suspect else self.config.classifier
+                seen = float(visibility[row, rule.unchecked_directions])
+                decision = classify(track, static.position[row], seen, self._frame, rule, warnings)
                 if decision is not None:
                     decisions.append(decision)
         return decisions
