@@ -139,7 +139,9 @@ def ekf_workload(
     window = run.frames[start : start + frames]
     pixels = np.array([f.pixels[np.searchsorted(f.track_ids, ids)] for f in window])
     rays, jacobians = camera.pixel_rays(pixels[0])
-    directions, covariances = pixel_ray_directions(rays, jacobians, np.eye(3), EKF.pixel_sigma_px)
+    directions, covariances, _ = pixel_ray_directions(
+        rays, jacobians, np.eye(3), EKF.pixel_sigma_px
+    )
     states, covariances = initial_states(directions, covariances, EKF)
     rotations, translations = [], []
     for before, after in itertools.pairwise(window):
@@ -366,7 +368,7 @@ def ray_cases(run: DynamicSceneRun, camera: CameraModel, count: int, seed: int) 
     sightings: dict[int, list[tuple[int, int]]] = {}  # track id -> (frame index, row)
     for k, frame in enumerate(run.frames):
         rays, jacobians = camera.pixel_rays(frame.pixels)
-        direction, covariance = pixel_ray_directions(
+        direction, covariance, _ = pixel_ray_directions(
             rays, jacobians, frame.camera_rotation, EKF.pixel_sigma_px
         )
         directions.append(direction)

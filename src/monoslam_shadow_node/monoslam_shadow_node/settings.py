@@ -66,6 +66,16 @@ CORE_PARAMETERS = (
     _core('ekf', 'pixel_sigma_px', 'feature pixel noise per coordinate, px (> 0)'),
     _core(
         'ekf',
+        'tracking_offset_px',
+        'tracker offsets that persist between images, px per coordinate (>= 0; 0: white)',
+    ),
+    _core(
+        'ekf',
+        'tracking_offset_time_s',
+        "the offsets' correlation time, re-anchoring included, s (> 0)",
+    ),
+    _core(
+        'ekf',
         'initial_inverse_depth_per_m',
         'inverse depth a new feature starts at, 1/m (>= 0)',
     ),

@@ -128,7 +128,7 @@ def _views(
         camera_point = rotation.T @ (point + velocity * t - centre)
         pixel = CAMERA.project(camera_point[None])[0] + rng.normal(0.0, sigma_px, 2)
         rays, jacobians = CAMERA.pixel_rays(pixel[None])
-        direction, covariance = pixel_ray_directions(rays, jacobians, rotation, sigma_px)
+        direction, covariance, _ = pixel_ray_directions(rays, jacobians, rotation, sigma_px)
         views.append(View(k, int(t * 1e9), centre, direction[0], covariance[0]))
     return views
 

@@ -274,9 +274,9 @@ def test_a_revoked_feature_comes_back_as_a_suspect_with_fresh_views(
     assert shadow.suspect_ids == {revoked} and revoked not in shadow.released_ids
     rules: dict[bool, set[int]] = {True: set(), False: set()}
 
-    def spy(track, position, visibility, frame, settings, warnings):  # type: ignore[no-untyped-def]
+    def spy(track, position, visibility, frame, settings, warnings, noise):  # type: ignore[no-untyped-def]
         rules[track.id == revoked].add(settings.unchecked_directions)
-        return classify(track, position, visibility, frame, settings, warnings)
+        return classify(track, position, visibility, frame, settings, warnings, noise)
 
     monkeypatch.setattr(shadow_filter_module, 'classify', spy)
     result = shadow.process(frames[index])

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.core.shadow_ekf import EkfConfig
 from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from monoslam_shadow_node.core.shadow_track import PENDING
 from slam_evaluation.shadow_classification import (
@@ -85,9 +86,15 @@ class Settings:
 
     def shadow(self, alpha: float) -> ShadowConfig:
         """Return the filter's configuration: the defaults with ``alpha`` and the rule's
-        ``unchecked_directions``."""
+        ``unchecked_directions``, and the tracker's noise as the tracker declares it (its
+        persistent offsets and their correlation time, ``tracking_noise``)."""
         classifier = ClassifierConfig(alpha=alpha, unchecked_directions=self.unchecked_directions)
-        return ShadowConfig(classifier=classifier)
+        scene = self.scene()
+        ekf = EkfConfig(
+            tracking_offset_px=scene.tracking_offset_px,
+            tracking_offset_time_s=scene.tracking_correlation_time_s,
+        )
+        return ShadowConfig(ekf=ekf, classifier=classifier)
 
 
 @dataclass

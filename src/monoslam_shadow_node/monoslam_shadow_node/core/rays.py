@@ -16,8 +16,10 @@ meeting point: 2), with one distance vector d (5,):
 
 Every step is bilinear, so the Jacobians of d with respect to the three lines are products of
 construction matrices; Sigma_dd = sum_i J_i Sigma_Li J_i' (the rays of different images are
-independent given the camera poses) and T = d' Sigma_dd^+ d with the pseudo-inverse at rank
-3 is compared with chi-square(3) (``projective.relation_test``).
+independent given the camera poses, unless the tracker's offsets persist between them:
+``tracking_noise``, whose cross terms J_i Sigma_LiLj J_j' are then added) and
+T = d' Sigma_dd^+ d with the pseudo-inverse at rank 3 is compared with chi-square(3)
+(``projective.relation_test``).
 
 Coordinates are conditioned first (Heuel): centred on the middle camera and scaled by the
 baseline between the first and last camera, so the homogeneous entities are of unit size; the
@@ -45,6 +47,7 @@ from monoslam_shadow_node.core.projective import (
     pseudo_inverse_at_rank,
     relation_test,
 )
+from monoslam_shadow_node.core.tracking_noise import TrackingNoise
 from slam_core.geometry.so3 import skew
 
 THREE_RAY_DOF = 3
@@ -58,7 +61,9 @@ class View:
     ``direction_covariance`` (3, 3) its covariance from the pixel noise alone (rank 2),
     ``pose_covariance`` (6, 6) the camera pose covariance over (position m, rotation rad about
     the world axes) as in geometry_msgs/PoseWithCovariance, or None for a known pose.
-    ``frame`` is the index of the image the feature was seen in.
+    ``frame`` is the index of the image the feature was seen in. ``pixel_jacobian`` (3, 2)
+    is d(direction)/d(pixel), which the correlated tracking offsets need (None: not known,
+    the view's errors are taken as independent of every other view's).
     """
 
     frame: int
@@ -67,6 +72,7 @@ class View:
     direction: FloatArray
     direction_covariance: FloatArray
     pose_covariance: FloatArray | None = None
+    pixel_jacobian: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,7 +148,12 @@ def viewing_line(view: View, origin: FloatArray, scale: float) -> UncertainLine:
 
 
 def three_ray_test(
-    first: View, middle: View, last: View, alpha: float, point: FloatArray | None = None
+    first: View,
+    middle: View,
+    last: View,
+    alpha: float,
+    point: FloatArray | None = None,
+    noise: TrackingNoise | None = None,
 ) -> ThreeRayTest:
     """Test whether the rays of three views meet in one point (H0: the feature is static).
 
@@ -158,6 +169,10 @@ def three_ray_test(
     rays: an object moving parallel to a camera that moves in a straight line looks static at
     another depth, and motion within the plane of the camera path and the ray only shows at
     third order in the time span.
+
+    With ``noise`` (correlated tracking offsets) the covariance between the three rays is
+    added: the views' ``direction_covariance`` must then already hold the offset variance,
+    and their ``pixel_jacobian`` be set.
     """
     baseline = float(np.linalg.norm(last.centre - first.centre))
     parallax = ray_angle(first.direction, last.direction)
@@ -172,6 +187,9 @@ def three_ray_test(
         (j @ line.covariance @ j.T for j, line in zip(jacobians, lines, strict=True)),
         start=np.zeros((5, 5)),
     )
+    views = (first, middle, last)
+    if noise is not None and not noise.white:
+        covariance = covariance + _offset_terms(views, lines, jacobians, noise)
     result = relation_test(distance, covariance, THREE_RAY_DOF, alpha)
     world = meet[:3] / meet[3] / scale + origin if abs(meet[3]) > 1e-12 else np.full(3, np.nan)
     sensitivity = None
@@ -190,6 +208,30 @@ def three_ray_test(
     return ThreeRayTest(
         result, (first.frame, middle.frame, last.frame), parallax, baseline, world, sensitivity
     )
+
+
+def _offset_terms(
+    views: tuple[View, View, View],
+    lines: list[UncertainLine],
+    jacobians: list[FloatArray],
+    noise: TrackingNoise,
+) -> FloatArray:
+    """Return the covariance (5, 5) the tracking offsets shared between the three rays add
+    to Sigma_dd: sum over pairs i != j of J_i (dL_i/dd_i) Sigma_didj (dL_j/dd_j)' J_j'."""
+    missing = [view.frame for view in views if view.pixel_jacobian is None]
+    if missing:
+        raise ValueError(f'views of frames {missing} carry no pixel Jacobian for the offsets')
+    cross = noise.cross_covariances(
+        np.array([view.stamp_ns for view in views]),
+        np.array([view.pixel_jacobian for view in views]),
+    )
+    to_distance = [j @ line.direction_jacobian for j, line in zip(jacobians, lines, strict=True)]
+    total = np.zeros((5, 5))
+    for i in range(3):
+        for j in range(3):
+            if i != j:
+                total += to_distance[i] @ cross[i, j] @ to_distance[j].T
+    return total
 
 
 def _concurrency(
@@ -228,14 +270,15 @@ def _concurrency(
 
 def pixel_ray_directions(
     rays_camera: FloatArray, ray_jacobians: FloatArray, rotation: FloatArray, pixel_sigma: float
-) -> tuple[FloatArray, FloatArray]:
-    """Return world unit directions (N, 3) and their covariances (N, 3, 3) from camera-frame
-    rays r = (x_n, y_n, 1) (N, 3), dr/dpixel (N, 3, 2) and R_world_camera (3, 3), for an
-    isotropic pixel noise of ``pixel_sigma`` px."""
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Return world unit directions (N, 3), their covariances (N, 3, 3) and their Jacobians
+    with respect to the pixel (N, 3, 2) from camera-frame rays r = (x_n, y_n, 1) (N, 3),
+    dr/dpixel (N, 3, 2) and R_world_camera (3, 3), for an isotropic pixel noise of
+    ``pixel_sigma`` px."""
     norms = np.linalg.norm(rays_camera, axis=1)
     units = rays_camera / norms[:, None]
     # d(r / |r|) / dr = (I - u u') / |r|
     d_unit = (np.eye(3)[None] - units[:, :, None] * units[:, None, :]) / norms[:, None, None]
     jacobian = rotation @ d_unit @ ray_jacobians  # (N, 3, 2)
     covariance = pixel_sigma**2 * jacobian @ np.swapaxes(jacobian, 1, 2)
-    return units @ rotation.T, covariance
+    return units @ rotation.T, covariance, jacobian

@@ -50,6 +50,7 @@ from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
 from monoslam_shadow_node.core.rays import View, ray_angle, three_ray_test
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC, Track
 from monoslam_shadow_node.core.static_fit import MOTION_DOF, motion_score_test
+from monoslam_shadow_node.core.tracking_noise import TrackingNoise
 
 UNFIT_TESTS = 3
 """Evidence of motion: a feature whose views, past a parallax milestone, fix no static point
@@ -201,6 +202,7 @@ def classify(
     frame: int,
     settings: ClassifierConfig,
     warnings: list[str],
+    noise: TrackingNoise | None = None,
 ) -> Decision | None:
     """Run the next pair of tests once the geometry allows it: at the next parallax
     milestone, or as soon as the predicted visibility of motion suffices for a decision.
@@ -212,8 +214,9 @@ def classify(
     of static features at a 2.5 % level).
 
     ``frame`` is the current frame index; ``visibility`` the track's
-    ``predicted_visibility``. Updates the track's schedule, status and statistic; returns
-    the decision made in this frame, or None.
+    ``predicted_visibility``; ``noise`` the tracker's persistent offsets, if any (both tests
+    then take the covariance between views into account). Updates the track's schedule,
+    status and statistic; returns the decision made in this frame, or None.
     """
     if track.tests_run >= settings.max_tests:
         return None
@@ -243,7 +246,7 @@ def classify(
     if middle is None:
         return None
     level = settings.test_alpha
-    motion = motion_score_test(track.views, level, position)
+    motion = motion_score_test(track.views, level, position, noise=noise)
     if motion is None:
         track.unfit += 1
         frames = frame - track.first_frame
@@ -267,7 +270,7 @@ def classify(
         if not track.milestone_due:
             return None
     try:
-        test = three_ray_test(first, middle, last, level)
+        test = three_ray_test(first, middle, last, level, noise=noise)
     except ValueError as error:
         warnings.append(f'feature {track.id}: test skipped, degenerate geometry ({error})')
         return None

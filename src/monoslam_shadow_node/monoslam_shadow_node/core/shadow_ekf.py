@@ -48,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
+from monoslam_shadow_node.core.tracking_noise import TrackingNoise
 from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import skew
 
@@ -58,9 +59,14 @@ MIN_FRONT_Z = 1e-3  # a direction with z below this is not in front of the camer
 
 @dataclass(frozen=True)
 class EkfConfig:
-    """Noise model of the Shadow filter's EKF (units in the names)."""
+    """Noise model of the Shadow filter's EKF (units in the names). ``tracking_offset_px``
+    and ``tracking_offset_time_s`` declare the tracker's offsets that persist between images
+    (``tracking_noise``; 0 px: white tracking noise of ``pixel_sigma_px`` alone). The EKF
+    itself uses the whole per-sighting variance (``measurement_sigma_px``)."""
 
     pixel_sigma_px: float = 1.0
+    tracking_offset_px: float = 0.0
+    tracking_offset_time_s: float = 1.0
     initial_inverse_depth_per_m: float = 0.25
     initial_inverse_depth_sigma_per_m: float = 0.25
     velocity_sigma_m_s: float = 0.5
@@ -85,10 +91,23 @@ class EkfConfig:
              self.camera_rotation_sigma_rad >= 0),
             ('innovation_gate_probability', self.innovation_gate_probability,
              0 < self.innovation_gate_probability < 1),
+            ('tracking_offset_px', self.tracking_offset_px, self.tracking_offset_px >= 0),
+            ('tracking_offset_time_s', self.tracking_offset_time_s,
+             self.tracking_offset_time_s > 0),
         )  # fmt: skip
         for name, value, ok in checks:
             if not (isinstance(value, int | float) and np.isfinite(value) and ok):
                 raise ValueError(f'{name}={value!r} is out of range')
+
+    @property
+    def tracking_noise(self) -> TrackingNoise:
+        """The tracker's persistent offsets (``tracking_noise``)."""
+        return TrackingNoise(self.tracking_offset_px, self.tracking_offset_time_s)
+
+    @property
+    def measurement_sigma_px(self) -> float:
+        """One sighting's pixel standard deviation: white noise and offset together."""
+        return self.tracking_noise.marginal_pixel_sigma_px(self.pixel_sigma_px)
 
 
 def initial_states(
@@ -200,7 +219,7 @@ def update(
     h[:, :, :4] = jac
     residual = pixels[index] - predicted
     h_t = np.swapaxes(h, 1, 2)
-    s = h @ p @ h_t + config.pixel_sigma_px**2 * np.eye(2)
+    s = h @ p @ h_t + config.measurement_sigma_px**2 * np.eye(2)
     s_inv = np.linalg.inv(s)
     squared = np.einsum('ni,nij,nj->n', residual, s_inv, residual)
     innovation[index], nis[index] = residual, squared
@@ -212,7 +231,7 @@ def update(
         joseph = np.eye(STATE_SIZE) - gain @ h[accept]
         p_new = joseph @ p[accept] @ np.swapaxes(
             joseph, 1, 2
-        ) + config.pixel_sigma_px**2 * gain @ np.swapaxes(gain, 1, 2)
+        ) + config.measurement_sigma_px**2 * gain @ np.swapaxes(gain, 1, 2)
         x_new, p_new = renormalize(x_new, p_new)
         new_states[rows], new_covariances[rows] = x_new, p_new
         used[rows] = True

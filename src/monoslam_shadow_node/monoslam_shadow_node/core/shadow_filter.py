@@ -271,12 +271,15 @@ class ShadowFilter:
             *static_hypothesis(self._states, self._covariances), frame.rotation, frame.centre
         )
         visibility = predicted_visibility(self._tracks, static.position, static.defined)
+        noise = self.config.ekf.tracking_noise
         decisions = []
         for row, track in enumerate(self._tracks):
             if track.status == PENDING and track.missed == 0 and static.defined[row]:
                 rule = self._strict if track.suspect else self.config.classifier
                 seen = float(visibility[row, rule.unchecked_directions])
-                decision = classify(track, static.position[row], seen, self._frame, rule, warnings)
+                decision = classify(
+                    track, static.position[row], seen, self._frame, rule, warnings, noise
+                )
                 if decision is not None:
                     decisions.append(decision)
         return decisions
@@ -320,16 +323,16 @@ class ShadowFilter:
 
     def _views(self, frame: FrameInput, pixels: FloatArray) -> tuple[list[View], FloatArray]:
         """Return the frame's views and their ray precisions (N, 3, 3): the pseudo-inverse
-        of each direction's covariance (rank 2, pixel noise only)."""
+        of each direction's covariance (rank 2, tracking noise only: white and offset)."""
         if not len(pixels):
             return [], np.zeros((0, 3, 3))
         rays, jacobians = self.camera.pixel_rays(pixels)
-        directions, covariances = pixel_ray_directions(
-            rays, jacobians, frame.rotation, self.config.ekf.pixel_sigma_px
+        directions, covariances, to_pixel = pixel_ray_directions(
+            rays, jacobians, frame.rotation, self.config.ekf.measurement_sigma_px
         )
         views = [
-            View(self._frame, frame.stamp_ns, frame.centre, d, c, frame.pose_covariance)
-            for d, c in zip(directions, covariances, strict=True)
+            View(self._frame, frame.stamp_ns, frame.centre, d, c, frame.pose_covariance, a)
+            for d, c, a in zip(directions, covariances, to_pixel, strict=True)
         ]
         precisions = np.linalg.pinv(covariances, rcond=1e-9, hermitian=True)
         return views, np.asarray(precisions, dtype=np.float64)

@@ -22,7 +22,9 @@ assumes (eq. 2: constant velocity):
   (m/s)^2): the test's power against a given speed, independent of the noise in the rays.
 
 The views' pose errors are taken as independent between images, as everywhere in the Shadow
-filter.
+filter. The tracker's errors are too, unless its offsets persist (``tracking_noise``): then
+r's covariance Sigma holds the offsets' covariance between views, and every sum above is the
+generalized least squares one, with J and r premultiplied by L^-1 (Sigma = L L').
 """
 
 from __future__ import annotations
@@ -30,9 +32,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile
 from monoslam_shadow_node.core.rays import View
+from monoslam_shadow_node.core.tracking_noise import TrackingNoise
 from slam_core.geometry.so3 import skew
 
 MOTION_DOF = 3
@@ -55,12 +59,37 @@ class MotionScoreTest:
 
 @dataclass(frozen=True, eq=False)
 class _Geometry:
-    """Per view at a point: the residual (N, 2), its Jacobian with respect to the point
-    (N, 2, 3) and its weight (N, 2, 2)."""
+    """All views at a point, whitened: the residuals (2N,) and their Jacobian with respect to
+    the point (2N, 3) premultiplied by a root of the residuals' inverse covariance, and that
+    root (``whiten``), so that r' Sigma^-1 r = |whitened residual|^2; ``raw_jacobian``
+    (N, 2, 3) is the Jacobian per view before whitening."""
 
     residual: FloatArray
     jacobian: FloatArray
-    weight: FloatArray
+    raw_jacobian: FloatArray
+    whiten: _Whitening
+
+
+@dataclass(frozen=True, eq=False)
+class _Whitening:
+    """A root of the inverse of the residuals' covariance: per view (N, 2, 2) blocks U_i with
+    U_i' U_i = W_i when the views' errors are independent, else L^-1 (2N, 2N) with L the
+    lower Cholesky factor of the whole covariance Sigma."""
+
+    blocks: FloatArray | None
+    inverse_factor: FloatArray | None
+
+    def apply(self, values: FloatArray) -> FloatArray:
+        """Whiten per-view values (N, 2, k) into (2N, k)."""
+        if self.blocks is not None:
+            return (self.blocks @ values).reshape(-1, values.shape[2])
+        assert self.inverse_factor is not None
+        return self.inverse_factor @ values.reshape(-1, values.shape[2])
+
+    @property
+    def fixed(self) -> bool:
+        """True for the whole covariance's root, which is reused across iterations."""
+        return self.inverse_factor is not None
 
 
 def _bases(directions: FloatArray) -> FloatArray:
@@ -71,8 +100,16 @@ def _bases(directions: FloatArray) -> FloatArray:
     return np.stack([first, np.cross(directions, first)], axis=2)
 
 
-def _geometry(views: list[View], basis: FloatArray, point: FloatArray) -> _Geometry | None:
-    """Residuals and weights of all views at ``point``; None if it is behind a camera."""
+def _geometry(
+    views: list[View],
+    basis: FloatArray,
+    point: FloatArray,
+    noise: TrackingNoise | None,
+    whiten: _Whitening | None = None,
+) -> _Geometry | None:
+    """Whitened residuals of all views at ``point``; None if it is behind a camera or the
+    residuals' covariance is not positive definite. ``whiten``: reuse this root of the
+    inverse covariance instead of computing it at ``point``."""
     centres = np.array([view.centre for view in views])
     directions = np.array([view.direction for view in views])
     offset = point - centres
@@ -98,47 +135,87 @@ def _geometry(views: list[View], basis: FloatArray, point: FloatArray) -> _Geome
     # second term (r is small) looks harmless but biases the fit along the rays by about one
     # standard deviation at 1 px noise: sum_i d_i |r_i|^2 / rho_i does not average out.
     jacobian = (across - residual[:, :, None] * directions[:, None, :]) / depth[:, None, None]
-    weight = np.linalg.inv(covariance + 1e-18 * np.eye(2))
-    return _Geometry(residual, jacobian, weight)
+    if whiten is None:
+        whiten = _whitening(views, across, covariance, noise)
+        if whiten is None:
+            return None
+    values = whiten.apply(np.concatenate([residual[:, :, None], jacobian], axis=2))
+    return _Geometry(values[:, 0], values[:, 1:], jacobian, whiten)
+
+
+def _whitening(
+    views: list[View], across: FloatArray, covariance: FloatArray, noise: TrackingNoise | None
+) -> _Whitening | None:
+    """Return a root of the residuals' inverse covariance: the views' own covariances
+    (N, 2, 2) and, with correlated tracking offsets, the offsets' covariance between views
+    (B_i' Sigma_didj B_j); None if that is not positive definite."""
+    regular = covariance + 1e-18 * np.eye(2)
+    if noise is None or noise.white:
+        weight = np.linalg.inv(regular)
+        return _Whitening(np.swapaxes(np.linalg.cholesky(weight), 1, 2), None)
+    missing = [view.frame for view in views if view.pixel_jacobian is None]
+    if missing:
+        raise ValueError(f'views of frames {missing} carry no pixel Jacobian for the offsets')
+    # r_i = -B_i' e_i for a direction error e_i = A_i o_i: the offset o_i enters r_i
+    # through B_i' A_i (N, 2, 2)
+    to_residual = across @ np.array([view.pixel_jacobian for view in views])
+    blocks = noise.cross_covariances(np.array([view.stamp_ns for view in views]), to_residual)
+    count = len(views)
+    blocks[np.arange(count), np.arange(count)] = regular
+    full = blocks.transpose(0, 2, 1, 3).reshape(2 * count, 2 * count)
+    try:
+        factor = np.linalg.cholesky(0.5 * (full + full.T))
+    except np.linalg.LinAlgError:
+        return None
+    inverse = solve_triangular(factor, np.eye(2 * count), lower=True)
+    return _Whitening(None, np.asarray(inverse, dtype=np.float64))
 
 
 def _fit(
-    views: list[View], start: FloatArray, iterations: int
+    views: list[View], start: FloatArray, iterations: int, noise: TrackingNoise | None
 ) -> tuple[FloatArray, FloatArray, _Geometry] | None:
     """Gauss-Newton for the static point; returns it, its normal matrix and the geometry."""
     basis = _bases(np.array([view.direction for view in views]))
     point = np.asarray(start, dtype=np.float64).copy()
+    # With correlated offsets the whole covariance is factored once at the start and kept
+    # while iterating (its pose part changes only with the depths); it is factored again
+    # at the final point when the poses are uncertain, so the normal matrix and the score
+    # test use the covariance there.
+    kept: _Whitening | None = None
+    posed = any(view.pose_covariance is not None for view in views)
     for _ in range(iterations):
-        geometry = _geometry(views, basis, point)
+        geometry = _geometry(views, basis, point, noise, kept)
         if geometry is None:
             return None
-        jacobian = geometry.jacobian
-        weighted = np.swapaxes(jacobian, 1, 2) @ geometry.weight
-        normal = np.sum(weighted @ jacobian, axis=0)
-        gradient = np.sum((weighted @ geometry.residual[:, :, None])[:, :, 0], axis=0)
+        if geometry.whiten.fixed:
+            kept = geometry.whiten
+        normal = geometry.jacobian.T @ geometry.jacobian
+        gradient = geometry.jacobian.T @ geometry.residual
         if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > _CONDITION_LIMIT:
             return None
         step = np.linalg.solve(normal, gradient)
         point = point - step
         if np.linalg.norm(step) < 1e-9 * (1.0 + np.linalg.norm(point)):
             break
-    final = _geometry(views, basis, point)
+    final = _geometry(views, basis, point, noise, None if posed else kept)
     if final is None:
         return None
-    jacobian = final.jacobian
-    normal = np.sum(np.swapaxes(jacobian, 1, 2) @ final.weight @ jacobian, axis=0)
+    normal = final.jacobian.T @ final.jacobian
     if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > _CONDITION_LIMIT:
         return None
     return point, normal, final
 
 
 def triangulate(
-    views: list[View], start: FloatArray, iterations: int = 6
+    views: list[View],
+    start: FloatArray,
+    iterations: int = 6,
+    noise: TrackingNoise | None = None,
 ) -> tuple[FloatArray, FloatArray] | None:
     """Return the static point (3,) that best explains all views' rays and its covariance
     (3, 3) (the inverse normal matrix), or None if the rays do not fix it (e.g. no
-    baseline)."""
-    fitted = _fit(views, start, iterations)
+    baseline). ``noise``: correlated tracking offsets between the views, if any."""
+    fitted = _fit(views, start, iterations, noise)
     if fitted is None:
         return None
     point, normal, _ = fitted
@@ -147,27 +224,32 @@ def triangulate(
 
 
 def motion_score_test(
-    views: list[View], alpha: float, start: FloatArray, iterations: int = 6
+    views: list[View],
+    alpha: float,
+    start: FloatArray,
+    iterations: int = 6,
+    noise: TrackingNoise | None = None,
 ) -> MotionScoreTest | None:
     """Test the static hypothesis of one feature over all its views (module docstring) at
-    level ``alpha``; None if the views do not fix a static point."""
+    level ``alpha``; None if the views do not fix a static point. ``noise``: correlated
+    tracking offsets between the views, if any (generalized least squares with them)."""
     if not 0.0 < alpha < 1.0:
         raise ValueError(f'alpha={alpha!r}: the significance level must be in (0, 1)')
     if len(views) < 3:
         return None
-    fitted = _fit(views, start, iterations)
+    fitted = _fit(views, start, iterations, noise)
     if fitted is None:
         return None
     point, normal, geometry = fitted
     stamps = np.array([view.stamp_ns for view in views], dtype=np.int64)
     tau = (stamps - stamps[0]) * 1e-9
     tau -= tau.mean()  # any origin gives the same S and g; the mean keeps I well conditioned
-    jacobian = geometry.jacobian  # J_P; J_v = tau J_P
-    weighted = np.swapaxes(jacobian, 1, 2) @ geometry.weight  # (N, 3, 2)
+    # J_v = tau J_P per view, whitened like J_P
+    velocity = geometry.whiten.apply(geometry.raw_jacobian * tau[:, None, None])
     information_pp = normal
-    information_pv = np.sum(weighted @ jacobian * tau[:, None, None], axis=0)
-    information_vv = np.sum(weighted @ jacobian * (tau**2)[:, None, None], axis=0)
-    score = np.sum((weighted @ geometry.residual[:, :, None])[:, :, 0] * tau[:, None], axis=0)
+    information_pv = geometry.jacobian.T @ velocity
+    information_vv = velocity.T @ velocity
+    score = velocity.T @ geometry.residual
     try:
         eliminated = np.linalg.solve(information_pp, information_pv)
     except np.linalg.LinAlgError:

@@ -3,6 +3,7 @@ scene sizes and object motions, validated on construction."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from slam_core.camera import CameraModel
@@ -49,6 +50,15 @@ class DynamicSceneConfig:
     tracking_offset_px: float = 0.0
     tracking_offset_time_s: float = 1.0
     tracking_jump_probability: float = 0.0
+
+    @property
+    def tracking_correlation_time_s(self) -> float:
+        """The offsets' effective correlation time, s: a jump draws a fresh offset, so two
+        sightings k frames apart correlate as exp(-k / (rate tau)) (1 - p)^k =
+        exp(-dt / tau_eff) with 1 / tau_eff = 1 / tau - rate ln(1 - p). This is what a
+        tracker declares to the filters (``tracking_noise``)."""
+        jumps_per_s = -self.rate_hz * math.log1p(-self.tracking_jump_probability)
+        return 1.0 / (1.0 / self.tracking_offset_time_s + jumps_per_s)
 
     def __post_init__(self) -> None:
         """Reject values the simulation cannot honour; the message names the field."""
