@@ -41,6 +41,10 @@ def _core(field: str, description: str, name: str = '') -> Param:
 CORE_PARAMETERS = (
     _core('pixel_sigma_px', 'feature and target corner pixel noise per coordinate, px (> 0)'),
     _core(
+        'tracking_offset_px',
+        "tracked features' persistent offsets per coordinate, px (>= 0; 0: white noise)",
+    ),
+    _core(
         'linear_acceleration_sigma',
         'constant velocity model: linear acceleration noise, m/s^2 per sqrt(Hz) (> 0)',
         'linear_acceleration_sigma_m_s2',

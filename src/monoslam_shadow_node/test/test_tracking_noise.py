@@ -138,6 +138,8 @@ def test_offsets_need_the_views_pixel_jacobians() -> None:
     rng = np.random.default_rng(1)
     point = np.array([0.2, 0.1, 4.0])
     views = _views(rng, point, 0.0, WHITE_PX)
-    bare = [View(v.frame, v.stamp_ns, v.centre, v.direction, v.direction_covariance) for v in views]
+    bare = [
+        View(v.frame, v.stamp_ns, v.centre, v.direction, v.direction_covariance) for v in views
+    ]
     with pytest.raises(ValueError, match='pixel Jacobian'):
         motion_score_test(bare, ALPHA, point, noise=TrackingNoise(2.0, 1.0))

@@ -158,6 +158,20 @@ def _arguments(argv: list[str] | None) -> Settings:
         help='drop handovers of truly moving features (a diagnostic bound)',
     )
     parser.add_argument(
+        '--tracking-offset-px',
+        type=float,
+        default=0.0,
+        help='simulated tracking error that is not white: per-track offsets of this standard '
+        'deviation, correlated over about 1 s, on top of the 1 px white noise; the filters are '
+        'told of it as a tracker declares its noise (default 0)',
+    )
+    parser.add_argument(
+        '--tracking-jump-probability',
+        type=float,
+        default=0.0,
+        help='per track and frame, the chance that its offset jumps to a new value (default 0)',
+    )
+    parser.add_argument(
         '--sequence',
         type=Path,
         default=None,
@@ -186,11 +200,13 @@ def _arguments(argv: list[str] | None) -> Settings:
         args.shadow_poses,
         args.oracle_handovers,
         args.sequence,
+        args.tracking_offset_px,
+        args.tracking_jump_probability,
     )
     try:
         settings.scene()
     except ValueError as error:
-        parser.error(f'--duration-s {args.duration_s:g}: {error}')
+        parser.error(str(error))
     return settings
 
 

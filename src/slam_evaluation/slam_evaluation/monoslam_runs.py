@@ -17,6 +17,7 @@ import numpy as np
 
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
 from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.core.shadow_ekf import EkfConfig
 from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from slam_core.camera import CameraModel
 from slam_evaluation.monoslam_metrics import (
@@ -61,8 +62,10 @@ NO_MAP_TRUTH: dict[str, Any] = {
 @dataclass(frozen=True)
 class Settings:
     """The command line: seeds, run length (s), variants, the output directory, the Shadow
-    filter's STATIC rule, the known board, the diagnostic settings, and a sequence directory
-    to run instead of the simulator (``sequence_files``)."""
+    filter's STATIC rule, the known board, the diagnostic settings, a sequence directory
+    to run instead of the simulator (``sequence_files``), and the simulated tracking noise
+    that is not white (offsets with jumps, ``dynamic_scene``; the filters are told of it as
+    a tracker declares its noise)."""
 
     seeds: tuple[int, ...]
     duration_s: float
@@ -73,10 +76,18 @@ class Settings:
     shadow_poses: str = 'slam'
     oracle_handovers: bool = False
     sequence: Path | None = None
+    tracking_offset_px: float = 0.0
+    tracking_jump_probability: float = 0.0
 
     def scene(self) -> DynamicSceneConfig:
         """Return the Fig. 5 scene: 200 static points, 8 moving objects x 8 points."""
-        return DynamicSceneConfig(duration_s=self.duration_s, objects=8, points_per_object=8)
+        return DynamicSceneConfig(
+            duration_s=self.duration_s,
+            objects=8,
+            points_per_object=8,
+            tracking_offset_px=self.tracking_offset_px,
+            tracking_jump_probability=self.tracking_jump_probability,
+        )
 
     def markers(self) -> tuple[InitTarget, ...]:
         """Return the known markers: the target, or the board around its centre."""
@@ -92,11 +103,17 @@ class Settings:
         known_points: dict[int, tuple[float, float, float]] | None = None,
     ) -> PipelineConfig:
         """Return the filters' settings: defaults, the known points (the markers' corners
-        unless given), the STATIC rule and the diagnostic settings."""
+        unless given), the STATIC rule, the tracker's declared noise and the diagnostic
+        settings."""
         known = target_known_points(markers) if known_points is None else known_points
-        slam = MonoSlamConfig(known_points=known)
+        scene = self.scene()
+        slam = MonoSlamConfig(known_points=known, tracking_offset_px=scene.tracking_offset_px)
         classifier = ClassifierConfig(unchecked_directions=self.unchecked_directions)
-        shadow = ShadowConfig(classifier=classifier)
+        ekf = EkfConfig(
+            tracking_offset_px=scene.tracking_offset_px,
+            tracking_offset_time_s=scene.tracking_correlation_time_s,
+        )
+        shadow = ShadowConfig(ekf=ekf, classifier=classifier)
         return PipelineConfig(
             slam,
             shadow,

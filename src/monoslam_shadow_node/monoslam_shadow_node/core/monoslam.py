@@ -383,7 +383,7 @@ class MonoSlam:
             rho_variance = max(depth_variance * rho**4, rho_variance)
         source = 'handover' if handover is not None else 'new'
         inserted = self._state.insert_inverse_depth(
-            self.camera, feature_id, pixel, rho, rho_variance, self.config.pixel_sigma_px,
+            self.camera, feature_id, pixel, rho, rho_variance, self.config.feature_sigma_px,
             source, self._frame,
         )  # fmt: skip
         if inserted:

@@ -65,7 +65,7 @@ def predicted_measurements(
         s = h_c @ p_cc @ h_c.T + 2.0 * h_c @ p_cf @ h_f.T + h_f @ state.p[block, block] @ h_f.T
         out_ids.append(feature.id)
         out_pixels.append(pixel)
-        out_s.append(s + config.pixel_sigma_px**2 * np.eye(2))
+        out_s.append(s + config.feature_sigma_px**2 * np.eye(2))
     return (
         np.array(out_ids, dtype=np.int64),
         np.array(out_pixels).reshape(-1, 2),
@@ -166,19 +166,29 @@ def passes_gate(
     (S from the covariance ``p``) is inside the chi-square gate."""
     if linearized is None:
         return False
-    s = linearized.innovation_covariance(p, config.pixel_sigma_px**2)
+    s = linearized.innovation_covariance(p, measurement_variance(match, config))
     innovation = match.pixel - linearized.predicted
     return float(innovation @ np.linalg.solve(s, innovation)) <= config.gate
 
 
-def apply_update(state: FilterState, used: list[tuple[Match, Linearized]], sigma2: float) -> None:
+def measurement_variance(match: Match, config: MonoSlamConfig) -> float:
+    """Return a match's pixel variance per coordinate, px^2: a known point's corner
+    ``pixel_sigma_px``, a tracked feature's ``feature_sigma_px``."""
+    sigma = config.pixel_sigma_px if match.feature is None else config.feature_sigma_px
+    return sigma * sigma
+
+
+def apply_update(
+    state: FilterState, used: list[tuple[Match, Linearized]], config: MonoSlamConfig
+) -> None:
     """Update with all ``used`` measurements at once (Joseph form; nothing when empty)."""
     if not used:
         return
     n = len(state.x)
     h = np.vstack([linearized.row(n) for _, linearized in used])
     residual = np.concatenate([match.pixel - linearized.predicted for match, linearized in used])
-    joseph_update(state, h, residual, sigma2)
+    variances = np.repeat([measurement_variance(match, config) for match, _ in used], 2)
+    joseph_update(state, h, residual, variances)
 
 
 def record_attempts(all_matches: list[Match], accepted: set[int]) -> UpdateOutcome:
@@ -219,20 +229,23 @@ def gated_update(
         if linearized is not None and passes_gate(match, linearized, state.p, config):
             used.append((match, linearized))
             accepted.add(index)
-    apply_update(state, used, config.pixel_sigma_px**2)
+    apply_update(state, used, config)
     outcome = record_attempts(all_matches, accepted)
     counts = UpdateCounts(compatible=len(used), rejected=outcome.counts.rejected)
     return UpdateOutcome(outcome.measured, outcome.rejected, outcome.known_used, counts)
 
 
-def joseph_update(state: FilterState, h: FloatArray, residual: FloatArray, sigma2: float) -> None:
-    """x += K nu; P = (I - K H) P (I - K H)^T + K R K^T, R = sigma2 I; renormalize q."""
+def joseph_update(
+    state: FilterState, h: FloatArray, residual: FloatArray, variances: FloatArray
+) -> None:
+    """x += K nu; P = (I - K H) P (I - K H)^T + K R K^T, R = diag(``variances``) (one per
+    row of H); renormalize q."""
     ph_t = state.p @ h.T
-    s = h @ ph_t + sigma2 * np.eye(len(h))
+    s = h @ ph_t + np.diag(variances)
     gain = np.linalg.solve(s, ph_t.T).T
     state.x = state.x + gain @ residual
     a = np.eye(len(state.x)) - gain @ h
-    p = a @ state.p @ a.T + sigma2 * (gain @ gain.T)
+    p = a @ state.p @ a.T + (gain * variances) @ gain.T
     norm = float(np.linalg.norm(state.x[Q_SLICE]))
     q = state.x[Q_SLICE] / norm
     jacobian = (np.eye(4) - np.outer(q, q)) / norm

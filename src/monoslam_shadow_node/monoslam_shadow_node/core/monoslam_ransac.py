@@ -48,6 +48,7 @@ from monoslam_shadow_node.core.monoslam_ekf import (
     apply_update,
     linearize,
     matches,
+    measurement_variance,
     passes_gate,
     record_attempts,
 )
@@ -79,7 +80,6 @@ def ransac_update(
     features (``observed``: track id -> raw pixel (2,)) and of known points (``known``: world
     point (3,) m, raw pixel (2,)), counting each feature's attempt; return what was measured
     and rejected, with the counts."""
-    sigma2 = config.pixel_sigma_px**2
     all_matches = matches(state, observed, known)
     compatible: list[tuple[int, Linearized]] = []
     for index, match in enumerate(all_matches):
@@ -88,7 +88,7 @@ def ransac_update(
             compatible.append((index, linearized))
     pairs = [(all_matches[index], linearized) for index, linearized in compatible]
     inliers, hypotheses = best_hypothesis(state, camera_model, pairs, config, rng)
-    apply_update(state, [pairs[k] for k in inliers], sigma2)
+    apply_update(state, [pairs[k] for k in inliers], config)
     low = {compatible[k][0] for k in inliers}
     rescued: list[tuple[Match, Linearized]] = []
     rescued_indices: set[int] = set()
@@ -100,7 +100,7 @@ def ransac_update(
         if linearized is not None and passes_gate(match, linearized, state.p, config):
             rescued.append((match, linearized))
             rescued_indices.add(index)
-    apply_update(state, rescued, sigma2)
+    apply_update(state, rescued, config)
     outcome = record_attempts(all_matches, low | rescued_indices)
     counts = UpdateCounts(
         compatible=len(compatible),
@@ -128,10 +128,10 @@ def best_hypothesis(
     count = len(compatible)
     if count == 0:
         return best, 0
-    sigma2 = config.pixel_sigma_px**2
     observed = np.array([match.pixel for match, _ in compatible])
     wanted = [match for match, _ in compatible]
-    threshold2 = config.low_innovation_threshold_px**2
+    variances = np.array([measurement_variance(match, config) for match in wanted])
+    threshold2 = config.gate * variances  # low_innovation_threshold_px, per match
     known = np.array([match.point is not None for match, _ in compatible], dtype=bool)
     anchored = int(np.count_nonzero(known)) >= MIN_KNOWN_POINTS
 
@@ -145,7 +145,8 @@ def best_hypothesis(
     needed = count
     tried = 0
     while tried < min(needed, count):
-        inliers = support(hypothesis_mean(state, *compatible[int(order[tried])], sigma2))
+        index = int(order[tried])
+        inliers = support(hypothesis_mean(state, *compatible[index], float(variances[index])))
         tried += 1
         if anchored and 2 * np.count_nonzero(known[inliers]) <= np.count_nonzero(known):
             continue  # it disagrees with the known points: not admissible (module docstring)

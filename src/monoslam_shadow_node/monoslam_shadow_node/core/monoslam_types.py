@@ -31,6 +31,7 @@ class MonoSlamConfig:
 
     known_points: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     pixel_sigma_px: float = 1.0
+    tracking_offset_px: float = 0.0  # tracker offsets that persist (tracking_noise), px
     linear_acceleration_sigma: float = 2.0  # m/s^2/sqrt(Hz)
     angular_acceleration_sigma: float = 8.0  # rad/s^2/sqrt(Hz): hand tremor at 2-6 Hz
     initial_velocity_sigma_m_s: float = 0.5
@@ -80,6 +81,9 @@ class MonoSlamConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f'{name}={value!r}: must be an integer >= 1')
+        offset = self.tracking_offset_px
+        if not (isinstance(offset, int | float) and math.isfinite(offset) and offset >= 0.0):
+            raise ValueError(f'tracking_offset_px={offset!r}: must be a finite number >= 0')
         if self.min_new_spacing_px < 0.0:
             raise ValueError(f'min_new_spacing_px={self.min_new_spacing_px!r}: must be >= 0')
         if self.initialize not in INITIALIZE_MODES:
@@ -101,12 +105,21 @@ class MonoSlamConfig:
         return chi2_quantile(self.gate_probability, 2)
 
     @property
+    def feature_sigma_px(self) -> float:
+        """A tracked feature's pixel standard deviation: the white noise and the tracker's
+        persistent offset together (the EKF keeps no memory of past errors, so it takes the
+        whole variance; the known points' corners are detected afresh in every image and
+        keep ``pixel_sigma_px``)."""
+        return math.sqrt(self.pixel_sigma_px**2 + self.tracking_offset_px**2)
+
+    @property
     def low_innovation_threshold_px(self) -> float:
-        """1-point RANSAC's inlier threshold on a measurement's pixel distance from its
+        """1-point RANSAC's inlier threshold on a feature's pixel distance from its
         prediction by a hypothesis, px: a correct match differs from the true projection by
-        pixel noise alone, |nu|^2 / sigma^2 ~ chi-square (2 dof), so the gate's probability
-        keeps that share of them (sigma sqrt(chi2(gate_probability, 2)), 3.7 px by default)."""
-        return self.pixel_sigma_px * math.sqrt(self.gate)
+        its noise alone, |nu|^2 / sigma^2 ~ chi-square (2 dof), so the gate's probability
+        keeps that share of them (sigma sqrt(chi2(gate_probability, 2)), 3.7 px at 1 px; a
+        known point's threshold is the same with ``pixel_sigma_px``)."""
+        return self.feature_sigma_px * math.sqrt(self.gate)
 
 
 @dataclass(frozen=True)
