@@ -174,6 +174,8 @@ def evaluate_sequence(
     known = {k: (float(p[0]), float(p[1]), float(p[2]))
              for k, p in (sequence.known_points or {}).items()}  # fmt: skip
     config = settings.pipeline(settings.markers(), known)
+    if sequence.tracker is not None:
+        config = sequence.tracker.declared(config)
     labels = sequence.labels or {}
 
     def truth_metrics(_: str, record: VariantRecord) -> dict[str, Any]:

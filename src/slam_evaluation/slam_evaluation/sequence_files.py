@@ -20,7 +20,11 @@ A sequence is a directory:
   object, 0 if static (tracks without a row count as static);
 - ``known_points.csv`` (optional): header ``id,x,y,z``, tracks whose world position (m) is
   known (an initialization target's corners): their sightings in tracks.csv are SLAM's known
-  points, not features.
+  points, not features;
+- ``tracker.yaml`` (optional): the tracker's noise as it declares it, any of
+  ``pixel_sigma_px`` (white noise per axis, default 1), ``tracking_offset_px`` (offsets that
+  persist between images, default 0) and ``tracking_offset_time_s`` (their correlation
+  time, default 1 s); the evaluators configure both filters with it (``declared``).
 
 ``read_sequence`` checks every file and names the file and line of a problem;
 ``write_sequence`` writes one atomically (file by file); ``simulated_sequence`` turns a run
@@ -30,6 +34,7 @@ of the dynamic-scene simulator and its target into one (the test fixture).
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import itertools
 import math
@@ -43,15 +48,18 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
+from monoslam_shadow_node.core.shadow_ekf import EkfConfig
 from slam_core.camera import CameraModel
 from slam_core.files import write_atomically
-from slam_evaluation.monoslam_pipeline import MeasurementFrame
+from slam_evaluation.monoslam_pipeline import MeasurementFrame, PipelineConfig
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 from slam_sim.core.init_target import InitTarget, target_pixels
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-FILES = ('camera.yaml', 'poses.txt', 'tracks.csv', 'labels.csv', 'known_points.csv')
+FILES = (
+    'camera.yaml', 'poses.txt', 'tracks.csv', 'labels.csv', 'known_points.csv', 'tracker.yaml'
+)  # fmt: skip
 KNOWN_ID_BASE = 1_000_000
 """``simulated_sequence`` gives the target's corners the ids KNOWN_ID_BASE + corner."""
 
@@ -60,11 +68,48 @@ class SequenceError(ValueError):
     """A sequence directory that cannot be read (the message names the file and line)."""
 
 
+@dataclass(frozen=True)
+class Tracker:
+    """The tracker's declared noise (``tracker.yaml``): white pixel noise per axis, px, and
+    offsets that persist between images (``tracking_noise``), px and s."""
+
+    pixel_sigma_px: float = 1.0
+    tracking_offset_px: float = 0.0
+    tracking_offset_time_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        EkfConfig(
+            pixel_sigma_px=self.pixel_sigma_px,
+            tracking_offset_px=self.tracking_offset_px,
+            tracking_offset_time_s=self.tracking_offset_time_s,
+        )  # the Shadow filter's checks name a bad value
+
+    def declared(self, config: PipelineConfig) -> PipelineConfig:
+        """Return ``config`` with both filters told of this tracker's noise."""
+        slam = dataclasses.replace(
+            config.slam,
+            pixel_sigma_px=self.pixel_sigma_px,
+            tracking_offset_px=self.tracking_offset_px,
+        )
+        shadow = dataclasses.replace(config.shadow, ekf=self.ekf(config.shadow.ekf))
+        return dataclasses.replace(config, slam=slam, shadow=shadow)
+
+    def ekf(self, config: EkfConfig) -> EkfConfig:
+        """Return the Shadow filter's noise model ``config`` with this tracker's noise."""
+        return dataclasses.replace(
+            config,
+            pixel_sigma_px=self.pixel_sigma_px,
+            tracking_offset_px=self.tracking_offset_px,
+            tracking_offset_time_s=self.tracking_offset_time_s,
+        )
+
+
 @dataclass(frozen=True, eq=False)
 class Sequence:
     """A sequence in memory: the camera, per frame (K) the stamp (int ns), the optical centre
     (K, 3) m and R_world_camera (K, 3, 3), the sightings (frame (N,), id (N,), pixel (N, 2)),
-    and the optional labels (id -> moving) and known points (id -> world point (3,) m)."""
+    and the optional labels (id -> moving), known points (id -> world point (3,) m) and the
+    tracker's declared noise."""
 
     camera: CameraModel
     stamps_ns: IntArray
@@ -75,6 +120,7 @@ class Sequence:
     pixels: FloatArray
     labels: dict[int, bool] | None = None
     known_points: dict[int, FloatArray] | None = None
+    tracker: Tracker | None = None
 
     def by_frame(self) -> list[tuple[IntArray, FloatArray]]:
         """Return per frame the ids (M,) and raw pixels (M, 2) seen in it (one stable sort
@@ -119,7 +165,10 @@ def read_sequence(directory: Path) -> Sequence:
             int(r[0]): np.array([float(v) for v in r[1:]])
             for _, r in _read_csv(directory / 'known_points.csv', ('id', 'x', 'y', 'z'))
         }
-    return Sequence(camera, stamps, centres, rotations, frame, ids, pixels, labels, known)
+    tracker = None
+    if (directory / 'tracker.yaml').exists():
+        tracker = _read_tracker(directory / 'tracker.yaml')
+    return Sequence(camera, stamps, centres, rotations, frame, ids, pixels, labels, known, tracker)
 
 
 def measurement_frames(sequence: Sequence) -> list[MeasurementFrame]:
@@ -175,6 +224,9 @@ def write_sequence(directory: Path, sequence: Sequence) -> None:
     if sequence.known_points is not None:
         known = [(i, *(f'{c:.6f}' for c in p)) for i, p in sorted(sequence.known_points.items())]
         write_atomically(directory / 'known_points.csv', _csv(('id', 'x', 'y', 'z'), known))
+    if sequence.tracker is not None:
+        tracker = {k: float(v) for k, v in dataclasses.asdict(sequence.tracker).items()}
+        write_atomically(directory / 'tracker.yaml', yaml.safe_dump(tracker, sort_keys=False))
 
 
 def simulated_sequence(
@@ -230,6 +282,20 @@ def _read_camera(path: Path) -> CameraModel:
             int(content['width']), int(content['height']), content['k'], content['d'],
             str(content['distortion_model']),
         )  # fmt: skip
+    except (TypeError, ValueError) as error:
+        raise SequenceError(f'{path}: {error}') from None
+
+
+def _read_tracker(path: Path) -> Tracker:
+    try:
+        content = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except yaml.YAMLError as error:
+        raise SequenceError(f'{path}: not YAML ({error})') from None
+    fields = {f.name for f in dataclasses.fields(Tracker)}
+    if not isinstance(content, dict) or not set(content) <= fields:
+        raise SequenceError(f'{path}: fields may be {", ".join(sorted(fields))}')
+    try:
+        return Tracker(**content)
     except (TypeError, ValueError) as error:
         raise SequenceError(f'{path}: {error}') from None
 

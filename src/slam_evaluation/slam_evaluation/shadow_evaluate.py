@@ -68,6 +68,7 @@ command line.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -252,9 +253,10 @@ def _run_sequence(settings: Settings) -> int:
         print(f'shadow_evaluate: error: --sequence: {error}', file=sys.stderr)  # noqa: T201
         return 2
     try:
-        content = evaluate_sequence(
-            sequence, settings.shadow(settings.alpha), str(settings.sequence)
-        )
+        config = settings.shadow(settings.alpha)
+        if sequence.tracker is not None:
+            config = dataclasses.replace(config, ekf=sequence.tracker.ekf(config.ekf))
+        content = evaluate_sequence(sequence, config, str(settings.sequence))
     except FilterRunError as error:
         print(f'shadow_evaluate: the filter failed: {error}', file=sys.stderr)  # noqa: T201
         return 1

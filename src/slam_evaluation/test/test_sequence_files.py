@@ -4,6 +4,7 @@ frames, and bad files are named with their line."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -24,6 +25,7 @@ from slam_evaluation.sequence_files import (
     KNOWN_ID_BASE,
     Sequence,
     SequenceError,
+    Tracker,
     measurement_frames,
     read_sequence,
     simulated_sequence,
@@ -125,6 +127,8 @@ def test_an_id_may_disappear_and_reappear(tmp_path: Path) -> None:
         ('tracks.csv', 'frame,id,u,v\n0,1.5,2.0,3.0\n', 'tracks.csv:2: frame, id must be'),
         ('tracks.csv', 'frame,id,u,v\n0,1,2,3\n0,1,4,5\n', 'an id is seen twice in one frame'),
         ('labels.csv', 'id,moving\n4,2\n', 'labels.csv:2: moving must be 0 or 1'),
+        ('tracker.yaml', 'offset_px: 2\n', 'tracker.yaml: fields may be pixel_sigma_px'),
+        ('tracker.yaml', 'tracking_offset_px: -1\n', 'tracker.yaml: tracking_offset_px=-1'),
     ],
 )
 def test_bad_files_are_named_with_their_line(
@@ -181,3 +185,20 @@ def test_shadow_evaluate_runs_a_sequence_like_the_simulated_run(
     assert 'truth x final status' in capsys.readouterr().out
     assert json.loads((out / 'shadow_eval_sequence.json').read_text())['frames'] == 30
     assert shadow_evaluate.main(['--sequence', str(tmp_path / 'none'), '--out', str(out)]) == 2
+
+
+def test_a_declared_tracker_reads_back_and_reaches_both_filters(tmp_path: Path) -> None:
+    """``tracker.yaml``: the tracker's noise, read back and given to SLAM (the whole
+    per-sighting variance) and to the Shadow filter (the offsets' model)."""
+    sequence = read_sequence(FIXTURE)
+    assert sequence.tracker is None
+    declared = Tracker(pixel_sigma_px=0.8, tracking_offset_px=2.0, tracking_offset_time_s=0.6)
+    directory = tmp_path / 'tracked'
+    write_sequence(directory, dataclasses.replace(sequence, tracker=declared))
+    assert read_sequence(directory).tracker == declared
+    config = declared.declared(PipelineConfig(slam=MonoSlamConfig()))
+    assert config.slam.pixel_sigma_px == 0.8 and config.slam.tracking_offset_px == 2.0
+    assert config.slam.feature_sigma_px == pytest.approx((0.8**2 + 2.0**2) ** 0.5)
+    noise = config.shadow.ekf.tracking_noise
+    assert (noise.offset_px, noise.offset_time_s) == (2.0, 0.6)
+    assert config.shadow.ekf.pixel_sigma_px == 0.8
