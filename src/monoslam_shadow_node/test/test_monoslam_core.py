@@ -13,6 +13,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     new_inverse_depth_feature,
     predict_camera,
     project_feature,
+    project_features,
 )
 from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamConfig,
@@ -66,6 +67,32 @@ def test_measurement_jacobians_euclidean_and_inverse_depth(seed: int) -> None:
     )
     _, d_point = euclidean_point(feature, reference)
     assert_jacobian_close(d_point, lambda y: euclidean_point(y, reference)[0], feature, atol=1e-7)
+
+
+@pytest.mark.parametrize('seed', range(3))
+def test_batched_projection_is_the_per_point_one(seed: int) -> None:
+    """``project_features`` (the update's batched projection) gives, point by point, what
+    ``project_feature`` gives: known points, Euclidean and inverse-depth features, and a
+    point behind the camera (NaN pixel, zero Jacobians)."""
+    rng = np.random.default_rng(seed)
+    state = _camera_state(rng)
+    points: list[tuple[np.ndarray, np.ndarray | None]] = []
+    for _ in range(4):
+        offset = (rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(2, 8))
+        points.append((_point_in_front(state, offset), None))
+        pixel = project_feature(CAMERA, state, points[-1][0], None)[0]
+        feature, reference, _, _ = new_inverse_depth_feature(CAMERA, state, pixel, 0.2)
+        feature[:3] += 0.1 * rng.normal(size=3)  # an anchor away from the current centre
+        points.append((feature, reference))
+    points.append((_point_in_front(state, (0.0, 0.0, -3.0)), None))
+    pixels, d_camera, d_feature, depth = project_features(CAMERA, state, points)
+    for k, (value, reference) in enumerate(points):
+        pixel, h_camera, h_feature, front = project_feature(CAMERA, state, value, reference)
+        np.testing.assert_allclose(pixels[k], pixel, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(d_camera[k], h_camera, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(d_feature[k], h_feature, rtol=1e-10, atol=1e-9)
+        assert depth[k] == pytest.approx(front)
+    assert np.isnan(pixels[-1]).all() and not d_camera[-1].any()
 
 
 def test_new_inverse_depth_feature_lies_on_the_ray_and_its_jacobians() -> None:

@@ -19,7 +19,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     Q_SLICE,
     FloatArray,
     predict_camera,
-    project_feature,
+    project_features,
 )
 from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
 from monoslam_shadow_node.core.monoslam_types import IntArray, MonoSlamConfig, UpdateCounts
@@ -51,20 +51,19 @@ def predicted_measurements(
     camera, f, q = predict_camera(state.x[:CAMERA_SIZE], dt_s, *sigmas)
     p_cc = f @ state.p[:CAMERA_SIZE, :CAMERA_SIZE] @ f.T + q
     wanted = None if ids is None else set(ids)
+    features = [feature for feature in state.features if wanted is None or feature.id in wanted]
+    blocks = [slice(feature.start, feature.start + feature.size) for feature in features]
+    points = [(state.x[b], feature.reference) for feature, b in zip(features, blocks, strict=True)]
+    pixels, d_camera, d_feature, depth = project_features(camera_model, camera, points)
     out_ids, out_pixels, out_s = [], [], []
-    for feature in state.features:
-        if wanted is not None and feature.id not in wanted:
+    for k, (feature, block) in enumerate(zip(features, blocks, strict=True)):
+        if depth[k] <= 0.0:
             continue
-        block = slice(feature.start, feature.start + feature.size)
-        pixel, h_c, h_f, depth = project_feature(
-            camera_model, camera, state.x[block], feature.reference
-        )
-        if depth <= 0.0:
-            continue
-        p_cf = f @ state.p[:CAMERA_SIZE, block]
-        s = h_c @ p_cc @ h_c.T + 2.0 * h_c @ p_cf @ h_f.T + h_f @ state.p[block, block] @ h_f.T
+        h_c, h_f = d_camera[k], d_feature[k]
+        cross = h_c @ (f @ state.p[:CAMERA_SIZE, block]) @ h_f.T
+        s = h_c @ p_cc @ h_c.T + cross + cross.T + h_f @ state.p[block, block] @ h_f.T
         out_ids.append(feature.id)
-        out_pixels.append(pixel)
+        out_pixels.append(pixels[k])
         out_s.append(s + config.feature_sigma_px**2 * np.eye(2))
     return (
         np.array(out_ids, dtype=np.int64),
@@ -141,22 +140,31 @@ def matches(
     return out + [Match(observed[f.id], feature=f) for f in state.features if f.id in observed]
 
 
-def linearize(state: FilterState, camera_model: CameraModel, match: Match) -> Linearized | None:
-    """Return the match's prediction at the current state, or None behind the camera."""
+def linearize_all(
+    state: FilterState, camera_model: CameraModel, all_matches: list[Match]
+) -> list[Linearized | None]:
+    """Return every match's prediction at the current state (one batched projection), None
+    for those behind the camera."""
+    if not all_matches:
+        return []
     camera = state.x[:CAMERA_SIZE]
-    block: slice | None = None
-    if match.point is not None:
-        predicted, h_c, h_f, depth = project_feature(camera_model, camera, match.point, None)
-    elif (feature := match.feature) is not None:
-        block = slice(feature.start, feature.start + feature.size)
-        predicted, h_c, h_f, depth = project_feature(
-            camera_model, camera, state.x[block], feature.reference
-        )
-    else:
-        raise ValueError('a match needs a known point or a feature')
-    if depth <= 0.0:
-        return None
-    return Linearized(predicted, h_c, h_f, block)
+    points: list[tuple[FloatArray, FloatArray | None]] = []
+    blocks: list[slice | None] = []
+    for match in all_matches:
+        if match.point is not None:
+            points.append((match.point, None))
+            blocks.append(None)
+        elif (feature := match.feature) is not None:
+            block = slice(feature.start, feature.start + feature.size)
+            points.append((state.x[block], feature.reference))
+            blocks.append(block)
+        else:
+            raise ValueError('a match needs a known point or a feature')
+    pixels, d_camera, d_feature, depth = project_features(camera_model, camera, points)
+    return [
+        Linearized(pixels[k], d_camera[k], d_feature[k], blocks[k]) if depth[k] > 0.0 else None
+        for k in range(len(all_matches))
+    ]
 
 
 def passes_gate(
@@ -224,8 +232,9 @@ def gated_update(
     all_matches = matches(state, observed, known)
     used: list[tuple[Match, Linearized]] = []
     accepted: set[int] = set()
-    for index, match in enumerate(all_matches):
-        linearized = linearize(state, camera_model, match)
+    for index, (match, linearized) in enumerate(
+        zip(all_matches, linearize_all(state, camera_model, all_matches), strict=True)
+    ):
         if linearized is not None and passes_gate(match, linearized, state.p, config):
             used.append((match, linearized))
             accepted.add(index)

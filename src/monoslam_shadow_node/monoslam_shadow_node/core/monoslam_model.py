@@ -171,6 +171,91 @@ def project_feature(
     return pixel[0], d_camera, d_pixel_hc @ rot_t @ d_feature, float(h_c[2])
 
 
+def project_features(
+    camera_model: CameraModel,
+    camera: FloatArray,
+    features: list[tuple[FloatArray, FloatArray | None]],
+) -> tuple[FloatArray, FloatArray, list[FloatArray], FloatArray]:
+    """``project_feature`` for many points at once: (value (3,) or (6,), reference or None)
+    per point (a known point, a Euclidean or an inverse-depth feature). Returns the pixels
+    (M, 2), d(pixel)/d(camera state) (M, 2, 13), d(pixel)/d(feature) per point (2, n) and the
+    depth check values h_c[2] (M,); points behind the camera get NaN pixels and zero
+    Jacobians, as there."""
+    count = len(features)
+    r, q = camera[R_SLICE], camera[Q_SLICE]
+    rot_t = rotation_from_quaternion(q).T
+    directions = np.empty((count, 3))
+    d_centre = np.empty((count, 3, 3))
+    d_feature: list[FloatArray] = [np.eye(3)] * count
+    inverse = [k for k, (value, _) in enumerate(features) if len(value) == INVERSE_DEPTH_SIZE]
+    euclidean = [k for k, (value, _) in enumerate(features) if len(value) == EUCLIDEAN_SIZE]
+    if len(inverse) + len(euclidean) != count:
+        raise ValueError('a point is 3 (Euclidean) or 6 (inverse depth) values')
+    if euclidean:
+        points = np.array([features[k][0] for k in euclidean])
+        directions[euclidean] = points - r
+        d_centre[euclidean] = -np.eye(3)
+    if inverse:
+        values = np.array([features[k][0] for k in inverse])
+        references = []
+        for k in inverse:
+            reference = features[k][1]
+            if reference is None:
+                raise ValueError('an inverse-depth feature needs its reference rotation')
+            references.append(reference)
+        reference_array = np.array(references)
+        theta, phi, rho = values[:, 3], values[:, 4], values[:, 5]
+        st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)
+        local = np.stack([cp * st, -sp, cp * ct], axis=1)
+        d_local = np.zeros((len(inverse), 3, 2))
+        d_local[:, 0] = np.stack([cp * ct, -sp * st], axis=1)
+        d_local[:, 1, 1] = -cp
+        d_local[:, 2] = np.stack([-cp * st, -sp * ct], axis=1)
+        rays = np.einsum('nij,nj->ni', reference_array, local)
+        offset = values[:, :3] - r
+        directions[inverse] = rho[:, None] * offset + rays
+        jacobians = np.empty((len(inverse), 3, INVERSE_DEPTH_SIZE))
+        jacobians[:, :, :3] = rho[:, None, None] * np.eye(3)
+        jacobians[:, :, 3:5] = reference_array @ d_local
+        jacobians[:, :, 5] = offset
+        d_centre[inverse] = -rho[:, None, None] * np.eye(3)
+        for row, k in enumerate(inverse):
+            d_feature[k] = jacobians[row]
+    h_c = directions @ rot_t.T
+    depth = h_c[:, 2].copy()
+    pixels = np.full((count, 2), np.nan)
+    d_camera = np.zeros((count, 2, CAMERA_SIZE))
+    out_feature = [np.zeros((2, d.shape[1])) for d in d_feature]
+    front = np.flatnonzero(depth > 0.0)
+    if len(front):
+        projected, d_pixel = camera_model.project_with_jacobian(h_c[front])
+        pixels[front] = projected
+        d_hc = d_pixel @ rot_t  # (F, 2, 3): d(pixel)/d(direction)
+        d_camera[front, :, R_SLICE] = d_hc @ d_centre[front]
+        d_camera[front, :, Q_SLICE] = d_pixel @ _rotate_transposed_jacobians(q, directions[front])
+        for row, k in enumerate(front.tolist()):
+            out_feature[k] = d_hc[row] @ d_feature[k]
+    return pixels, d_camera, out_feature, depth
+
+
+def _rotate_transposed_jacobians(q: FloatArray, vectors: FloatArray) -> FloatArray:
+    """``rotate_transposed_jacobian`` for many vectors (N, 3): (N, 3, 4)."""
+    w, u = float(q[0]), np.asarray(q[1:], dtype=np.float64)
+    out = np.empty((len(vectors), 3, 4))
+    out[:, :, 0] = 2.0 * w * vectors - 2.0 * np.cross(u, vectors)
+    block = (
+        -2.0 * vectors[:, :, None] * u[None, None, :]
+        + 2.0 * u[None, :, None] * vectors[:, None, :]
+    )
+    block += 2.0 * (vectors @ u)[:, None, None] * np.eye(3)
+    skews = np.zeros((len(vectors), 3, 3))
+    skews[:, 0, 1], skews[:, 0, 2] = -vectors[:, 2], vectors[:, 1]
+    skews[:, 1, 0], skews[:, 1, 2] = vectors[:, 2], -vectors[:, 0]
+    skews[:, 2, 0], skews[:, 2, 1] = -vectors[:, 1], vectors[:, 0]
+    out[:, :, 1:] = block + 2.0 * w * skews
+    return out
+
+
 def project_known_point(
     camera_model: CameraModel, camera: FloatArray, point: FloatArray
 ) -> tuple[FloatArray, FloatArray, float]:

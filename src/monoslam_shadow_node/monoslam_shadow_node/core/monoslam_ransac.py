@@ -46,7 +46,7 @@ from monoslam_shadow_node.core.monoslam_ekf import (
     Match,
     UpdateOutcome,
     apply_update,
-    linearize,
+    linearize_all,
     matches,
     measurement_variance,
     passes_gate,
@@ -82,8 +82,9 @@ def ransac_update(
     and rejected, with the counts."""
     all_matches = matches(state, observed, known)
     compatible: list[tuple[int, Linearized]] = []
-    for index, match in enumerate(all_matches):
-        linearized = linearize(state, camera_model, match)
+    for index, (match, linearized) in enumerate(
+        zip(all_matches, linearize_all(state, camera_model, all_matches), strict=True)
+    ):
         if linearized is not None and passes_gate(match, linearized, state.p, config):
             compatible.append((index, linearized))
     pairs = [(all_matches[index], linearized) for index, linearized in compatible]
@@ -92,11 +93,10 @@ def ransac_update(
     low = {compatible[k][0] for k in inliers}
     rescued: list[tuple[Match, Linearized]] = []
     rescued_indices: set[int] = set()
-    for index, _ in compatible:
-        if index in low:
-            continue
+    others = [index for index, _ in compatible if index not in low]
+    again = linearize_all(state, camera_model, [all_matches[index] for index in others])
+    for index, linearized in zip(others, again, strict=True):
         match = all_matches[index]
-        linearized = linearize(state, camera_model, match)
         if linearized is not None and passes_gate(match, linearized, state.p, config):
             rescued.append((match, linearized))
             rescued_indices.add(index)
