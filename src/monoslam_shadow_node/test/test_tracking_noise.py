@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.core.rays import View, pixel_ray_directions, three_ray_test
+from monoslam_shadow_node.core.shadow_classifier import trigger_delay_frames
+from monoslam_shadow_node.core.shadow_track import PENDING, Track
 from monoslam_shadow_node.core.static_fit import motion_score_test
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
 from slam_core.camera import CameraModel
@@ -143,3 +145,23 @@ def test_offsets_need_the_views_pixel_jacobians() -> None:
     ]
     with pytest.raises(ValueError, match='pixel Jacobian'):
         motion_score_test(bare, ALPHA, point, noise=TrackingNoise(2.0, 1.0))
+
+
+def test_a_test_waits_until_the_last_rays_offset_is_not_the_triggers() -> None:
+    """White noise: the next frame. Offsets that persist 0.6 s: ln 2 x 0.6 s later (the
+    last ray's offset correlates with the trigger's by one half), at the track's own rate."""
+    rng = np.random.default_rng(2)
+    point = np.array([0.2, 0.1, 4.0])
+    track = Track(id=1, status=PENDING, first_frame=0, first_stamp_ns=1)
+    track.views = _views(rng, point, 0.0, WHITE_PX)
+    assert trigger_delay_frames(track, None) == 1
+    assert trigger_delay_frames(track, TrackingNoise()) == 1
+    persistent = TrackingNoise(OFFSET_PX, OFFSET_TIME_S)
+    assert trigger_delay_frames(track, persistent) == math.ceil(math.log(2) * 0.6 * RATE_HZ)
+    track.views = track.views[::2]  # the same images with every other view missed
+    assert trigger_delay_frames(track, persistent) == math.ceil(math.log(2) * 0.6 * RATE_HZ)
+    track.views = [  # a 15 Hz camera: consecutive frames 1/15 s apart
+        View(k, v.stamp_ns, v.centre, v.direction, v.direction_covariance, None, v.pixel_jacobian)
+        for k, v in enumerate(track.views)
+    ]
+    assert trigger_delay_frames(track, persistent) == math.ceil(math.log(2) * 0.6 * RATE_HZ / 2)
