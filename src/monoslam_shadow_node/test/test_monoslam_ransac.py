@@ -10,7 +10,13 @@ import math
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.monoslam_ekf import gated_update
+from monoslam_shadow_node.core.monoslam_ekf import (
+    gate_all,
+    gated_update,
+    linearize_all,
+    matches,
+    measurement_variance,
+)
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     EUCLIDEAN_SIZE,
@@ -212,3 +218,26 @@ def test_the_update_mode_is_validated() -> None:
         MonoSlamConfig(update='jcbb')
     with pytest.raises(ValueError, match='ransac_seed'):
         MonoSlamConfig(ransac_seed=-1)
+
+
+def test_the_batched_gate_is_the_per_match_one() -> None:
+    """``gate_all`` decides as S = H P H^T + R match by match does, with a dense covariance
+    (camera-feature and feature-feature terms) and known points among the features."""
+    rng = np.random.default_rng(5)
+    state = _state(rng)
+    base = rng.normal(size=(len(state.x), len(state.x)))
+    state.p = state.p + 1e-4 * base @ base.T / len(state.x)
+    offsets = {k: (rng.uniform(-6, 6), rng.uniform(-6, 6)) for k in range(0, FEATURES, 2)}
+    observed = _measurements(state, rng, offsets)
+    known = [(np.array([0.3, -0.2, 4.0]), np.array([390.0, 200.0]))]
+    all_matches = matches(state, observed, known)
+    linearized = linearize_all(state, CAMERA, all_matches)
+    decided = gate_all(all_matches, linearized, state.p, CONFIG)
+    expected = []
+    for match, lin in zip(all_matches, linearized, strict=True):
+        assert lin is not None
+        s = lin.innovation_covariance(state.p, measurement_variance(match, CONFIG))
+        innovation = match.pixel - lin.predicted
+        expected.append(float(innovation @ np.linalg.solve(s, innovation)) <= CONFIG.gate)
+    assert decided == expected
+    assert 0 < sum(decided) < len(decided)  # the offsets put some matches outside

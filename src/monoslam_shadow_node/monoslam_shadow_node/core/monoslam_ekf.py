@@ -167,16 +167,41 @@ def linearize_all(
     ]
 
 
-def passes_gate(
-    match: Match, linearized: Linearized | None, p: FloatArray, config: MonoSlamConfig
-) -> bool:
-    """True when the match is in front of the camera and its innovation's Mahalanobis distance
-    (S from the covariance ``p``) is inside the chi-square gate."""
-    if linearized is None:
-        return False
-    s = linearized.innovation_covariance(p, measurement_variance(match, config))
-    innovation = match.pixel - linearized.predicted
-    return float(innovation @ np.linalg.solve(s, innovation)) <= config.gate
+def gate_all(
+    all_matches: list[Match],
+    linearized: list[Linearized | None],
+    p: FloatArray,
+    config: MonoSlamConfig,
+) -> list[bool]:
+    """Return per match whether it is in front of the camera and its innovation's Mahalanobis
+    distance (S = H P H^T + R from the covariance ``p``) is inside the chi-square gate. The
+    S (2, 2) are built in one batch per feature size."""
+    rows = [k for k, lin in enumerate(linearized) if lin is not None]
+    used = [lin for lin in linearized if lin is not None]
+    passed = [False] * len(all_matches)
+    if not used:
+        return passed
+    c = slice(0, CAMERA_SIZE)
+    h_c = np.array([lin.h_c for lin in used])
+    variances = np.array([measurement_variance(all_matches[k], config) for k in rows])
+    s = h_c @ p[c, c] @ np.swapaxes(h_c, 1, 2) + variances[:, None, None] * np.eye(2)
+    blocks = [(i, lin.block, lin.h_f) for i, lin in enumerate(used) if lin.block is not None]
+    for size in {h_f.shape[1] for _, _, h_f in blocks}:
+        group = [(i, block, h_f) for i, block, h_f in blocks if h_f.shape[1] == size]
+        members = [i for i, _, _ in group]
+        index = np.array([block.start for _, block, _ in group])[:, None] + np.arange(size)
+        h_f = np.array([h_f for _, _, h_f in group])
+        h_f_t = np.swapaxes(h_f, 1, 2)
+        cross = h_c[members] @ np.swapaxes(p[c][:, index], 0, 1) @ h_f_t
+        own = h_f @ p[index[:, :, None], index[:, None, :]] @ h_f_t
+        s[members] += cross + np.swapaxes(cross, 1, 2) + own
+    innovation = np.array(
+        [all_matches[k].pixel - lin.predicted for k, lin in zip(rows, used, strict=True)]
+    )
+    whitened = np.linalg.solve(s, innovation[:, :, None])[:, :, 0]
+    for k, value in zip(rows, np.einsum('ni,ni->n', innovation, whitened), strict=True):
+        passed[k] = bool(value <= config.gate)
+    return passed
 
 
 def measurement_variance(match: Match, config: MonoSlamConfig) -> float:
@@ -232,10 +257,10 @@ def gated_update(
     all_matches = matches(state, observed, known)
     used: list[tuple[Match, Linearized]] = []
     accepted: set[int] = set()
-    for index, (match, linearized) in enumerate(
-        zip(all_matches, linearize_all(state, camera_model, all_matches), strict=True)
-    ):
-        if linearized is not None and passes_gate(match, linearized, state.p, config):
+    linearized_all = linearize_all(state, camera_model, all_matches)
+    gates = gate_all(all_matches, linearized_all, state.p, config)
+    for index, (match, linearized) in enumerate(zip(all_matches, linearized_all, strict=True)):
+        if linearized is not None and gates[index]:
             used.append((match, linearized))
             accepted.add(index)
     apply_update(state, used, config)

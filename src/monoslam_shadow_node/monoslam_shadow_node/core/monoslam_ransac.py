@@ -4,7 +4,7 @@
 Per frame, after the prediction:
 
 1. individually compatible matches: the measurements inside the chi-square gate of their
-   innovation covariance S_i = H_i P H_i^T + R (``monoslam_ekf.passes_gate``);
+   innovation covariance S_i = H_i P H_i^T + R (``monoslam_ekf.gate_all``);
 2. hypotheses: the EKF prior fixes all but a few degrees of freedom, so one match is a
    minimal sample. A hypothesis updates the state mean alone with one compatible match,
    x_i = x + K_i nu_i, predicts every compatible match from x_i and counts as its support the
@@ -46,10 +46,10 @@ from monoslam_shadow_node.core.monoslam_ekf import (
     Match,
     UpdateOutcome,
     apply_update,
+    gate_all,
     linearize_all,
     matches,
     measurement_variance,
-    passes_gate,
     record_attempts,
 )
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
@@ -82,10 +82,10 @@ def ransac_update(
     and rejected, with the counts."""
     all_matches = matches(state, observed, known)
     compatible: list[tuple[int, Linearized]] = []
-    for index, (match, linearized) in enumerate(
-        zip(all_matches, linearize_all(state, camera_model, all_matches), strict=True)
-    ):
-        if linearized is not None and passes_gate(match, linearized, state.p, config):
+    linearized_all = linearize_all(state, camera_model, all_matches)
+    gates = gate_all(all_matches, linearized_all, state.p, config)
+    for index, linearized in enumerate(linearized_all):
+        if linearized is not None and gates[index]:
             compatible.append((index, linearized))
     pairs = [(all_matches[index], linearized) for index, linearized in compatible]
     inliers, hypotheses = best_hypothesis(state, camera_model, pairs, config, rng)
@@ -94,10 +94,11 @@ def ransac_update(
     rescued: list[tuple[Match, Linearized]] = []
     rescued_indices: set[int] = set()
     others = [index for index, _ in compatible if index not in low]
-    again = linearize_all(state, camera_model, [all_matches[index] for index in others])
-    for index, linearized in zip(others, again, strict=True):
-        match = all_matches[index]
-        if linearized is not None and passes_gate(match, linearized, state.p, config):
+    candidates = [all_matches[index] for index in others]
+    again = linearize_all(state, camera_model, candidates)
+    gates = gate_all(candidates, again, state.p, config)
+    for index, match, linearized, passed in zip(others, candidates, again, gates, strict=True):
+        if linearized is not None and passed:
             rescued.append((match, linearized))
             rescued_indices.add(index)
     apply_update(state, rescued, config)
