@@ -273,13 +273,17 @@ def joseph_update(
     state: FilterState, h: FloatArray, residual: FloatArray, variances: FloatArray
 ) -> None:
     """x += K nu; P = (I - K H) P (I - K H)^T + K R K^T, R = diag(``variances``) (one per
-    row of H); renormalize q."""
+    row of H); renormalize q.
+
+    The Joseph form is evaluated expanded, P - K B^T - B K^T + K S K^T with B = P H^T and
+    S = H B + R: the same matrix for any gain K, without the n x n products of I - K H
+    (about 2 n^2 m operations instead of 2 n^3 + 2 n^2 m)."""
     ph_t = state.p @ h.T
     s = h @ ph_t + np.diag(variances)
     gain = np.linalg.solve(s, ph_t.T).T
     state.x = state.x + gain @ residual
-    a = np.eye(len(state.x)) - gain @ h
-    p = a @ state.p @ a.T + (gain * variances) @ gain.T
+    k_b = gain @ ph_t.T
+    p = state.p - k_b - k_b.T + (gain @ s) @ gain.T
     norm = float(np.linalg.norm(state.x[Q_SLICE]))
     q = state.x[Q_SLICE] / norm
     jacobian = (np.eye(4) - np.outer(q, q)) / norm
