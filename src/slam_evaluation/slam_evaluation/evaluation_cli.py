@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 
 def parse_seeds(text: str) -> tuple[int, ...]:
     """Return seeds from '0-9', '1,4' or '0-3,7'; ValueError if malformed or a range is
@@ -15,3 +17,22 @@ def parse_seeds(text: str) -> tuple[int, ...]:
             raise ValueError(f'--seeds {text!r}: the range {part.strip()} is reversed (low-high)')
         seeds += range(int(low), int(high or low) + 1)
     return tuple(dict.fromkeys(seeds))
+
+
+def add_tracking_noise_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add --tracking-offset-px and --tracking-jump-probability: the simulated tracking noise
+    that is not white, which the evaluators also declare to the filters."""
+    parser.add_argument(
+        '--tracking-offset-px',
+        type=float,
+        default=0.0,
+        help='simulated tracking error that is not white: per-track offsets of this standard '
+        'deviation, correlated over about 1 s, on top of the 1 px white noise; the filters are '
+        'told of it as a tracker declares its noise (default 0)',
+    )
+    parser.add_argument(
+        '--tracking-jump-probability',
+        type=float,
+        default=0.0,
+        help='per track and frame, the chance that its offset jumps to a new value (default 0)',
+    )

@@ -70,7 +70,7 @@ from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter
-from slam_evaluation.evaluation_cli import parse_seeds
+from slam_evaluation.evaluation_cli import add_tracking_noise_arguments, parse_seeds
 from slam_evaluation.monoslam_figures import write_figures
 from slam_evaluation.monoslam_pipeline import (
     SHADOW_POSES,
@@ -157,20 +157,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         action='store_true',
         help='drop handovers of truly moving features (a diagnostic bound)',
     )
-    parser.add_argument(
-        '--tracking-offset-px',
-        type=float,
-        default=0.0,
-        help='simulated tracking error that is not white: per-track offsets of this standard '
-        'deviation, correlated over about 1 s, on top of the 1 px white noise; the filters are '
-        'told of it as a tracker declares its noise (default 0)',
-    )
-    parser.add_argument(
-        '--tracking-jump-probability',
-        type=float,
-        default=0.0,
-        help='per track and frame, the chance that its offset jumps to a new value (default 0)',
-    )
+    add_tracking_noise_arguments(parser)
     parser.add_argument(
         '--sequence',
         type=Path,

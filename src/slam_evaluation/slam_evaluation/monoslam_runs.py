@@ -17,7 +17,6 @@ import numpy as np
 
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
 from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
-from monoslam_shadow_node.core.shadow_ekf import EkfConfig
 from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from slam_core.camera import CameraModel
 from slam_evaluation.monoslam_metrics import (
@@ -38,7 +37,7 @@ from slam_evaluation.monoslam_pipeline import (
     target_known_points,
 )
 from slam_evaluation.sequence_files import Sequence as FileSequence
-from slam_evaluation.sequence_files import measurement_frames
+from slam_evaluation.sequence_files import Tracker, measurement_frames
 from slam_evaluation.shadow_consistency import nees
 from slam_evaluation.shadow_runs import camera_model
 from slam_sim.core.dynamic_config import DynamicSceneConfig
@@ -106,20 +105,16 @@ class Settings:
         unless given), the STATIC rule, the tracker's declared noise and the diagnostic
         settings."""
         known = target_known_points(markers) if known_points is None else known_points
-        scene = self.scene()
-        slam = MonoSlamConfig(known_points=known, tracking_offset_px=scene.tracking_offset_px)
+        slam = MonoSlamConfig(known_points=known)
         classifier = ClassifierConfig(unchecked_directions=self.unchecked_directions)
-        ekf = EkfConfig(
-            tracking_offset_px=scene.tracking_offset_px,
-            tracking_offset_time_s=scene.tracking_correlation_time_s,
-        )
-        shadow = ShadowConfig(ekf=ekf, classifier=classifier)
-        return PipelineConfig(
+        shadow = ShadowConfig(classifier=classifier)
+        config = PipelineConfig(
             slam,
             shadow,
             shadow_poses=self.shadow_poses,
             oracle_handovers=self.oracle_handovers,
         )
+        return Tracker.of_scene(self.scene()).declared(config)
 
 
 @dataclass

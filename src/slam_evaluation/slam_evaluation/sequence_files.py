@@ -52,6 +52,7 @@ from monoslam_shadow_node.core.shadow_ekf import EkfConfig
 from slam_core.camera import CameraModel
 from slam_core.files import write_atomically
 from slam_evaluation.monoslam_pipeline import MeasurementFrame, PipelineConfig
+from slam_sim.core.dynamic_config import DynamicSceneConfig
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 from slam_sim.core.init_target import InitTarget, target_pixels
 
@@ -83,6 +84,14 @@ class Tracker:
             tracking_offset_px=self.tracking_offset_px,
             tracking_offset_time_s=self.tracking_offset_time_s,
         )  # the Shadow filter's checks name a bad value
+
+    @classmethod
+    def of_scene(cls, scene: DynamicSceneConfig) -> Tracker:
+        """Return the noise the simulator's tracker declares: its white noise, its offsets
+        and their effective correlation time (jumps included)."""
+        return cls(
+            scene.pixel_noise_px, scene.tracking_offset_px, scene.tracking_correlation_time_s
+        )
 
     def declared(self, config: PipelineConfig) -> PipelineConfig:
         """Return ``config`` with both filters told of this tracker's noise."""

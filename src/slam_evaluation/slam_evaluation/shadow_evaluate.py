@@ -77,7 +77,7 @@ from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter
-from slam_evaluation.evaluation_cli import parse_seeds
+from slam_evaluation.evaluation_cli import add_tracking_noise_arguments, parse_seeds
 from slam_evaluation.sequence_files import SequenceError, read_sequence
 from slam_evaluation.shadow_experiments import (
     Collected,
@@ -155,19 +155,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         help='directions of motion the STATIC rule may leave unchecked: 0 (strict: no moving '
         'feature handed over, slow), 1 (default) or 2',
     )
-    parser.add_argument(
-        '--tracking-offset-px',
-        type=float,
-        default=0.0,
-        help='simulated tracking error that is not white: per-track offsets of this standard '
-        'deviation, correlated over about 1 s, on top of the 1 px white noise (default 0)',
-    )
-    parser.add_argument(
-        '--tracking-jump-probability',
-        type=float,
-        default=0.0,
-        help='per track and frame, the chance that its offset jumps to a new value (default 0)',
-    )
+    add_tracking_noise_arguments(parser)
     parser.add_argument(
         '--sequence',
         type=Path,

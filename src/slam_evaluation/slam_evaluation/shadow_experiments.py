@@ -20,6 +20,7 @@ from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.core.shadow_ekf import EkfConfig
 from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from monoslam_shadow_node.core.shadow_track import PENDING
+from slam_evaluation.sequence_files import Tracker
 from slam_evaluation.shadow_classification import (
     Outcome,
     classification_rates,
@@ -89,11 +90,7 @@ class Settings:
         ``unchecked_directions``, and the tracker's noise as the tracker declares it (its
         persistent offsets and their correlation time, ``tracking_noise``)."""
         classifier = ClassifierConfig(alpha=alpha, unchecked_directions=self.unchecked_directions)
-        scene = self.scene()
-        ekf = EkfConfig(
-            tracking_offset_px=scene.tracking_offset_px,
-            tracking_offset_time_s=scene.tracking_correlation_time_s,
-        )
+        ekf = Tracker.of_scene(self.scene()).ekf(EkfConfig())
         return ShadowConfig(ekf=ekf, classifier=classifier)
 
 
