@@ -101,6 +101,9 @@ keeps the two equal).
   max_gap_s                       a longer gap between frames is logged, s.
   initialize ('handover')         'handover' (with the Shadow filter) or 'all' (classic
                                   MonoSLAM alone, from every new track).
+  handover_probation (true)       a handed-over feature corrects only its own estimate (a
+                                  Schmidt consider update), not the camera, until its
+                                  inverse depth becomes Euclidean (SLAM's own views fix it).
   update ('ransac'), ransac_seed (0)  'ransac': the 1-point RANSAC update (Civera et al.
                                   2010), its draws seeded for reproducible runs; 'gated':
                                   every measurement inside the chi-square gate.

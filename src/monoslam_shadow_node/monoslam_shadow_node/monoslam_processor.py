@@ -90,13 +90,16 @@ def monoslam_frame(features: Features, sighting: TargetSighting | None) -> MonoS
 
 def update_text(counts: UpdateCounts) -> str:
     """Return the update's counts for the log: '12 compatible, 2 hypotheses, 10
-    low-innovation inliers, 1 rescued, 3 rejected' (no RANSAC counts for the gated update)."""
+    low-innovation inliers, 1 rescued, 4 on probation, 3 rejected' (no RANSAC counts for the
+    gated update, no probation count when none was measured)."""
     text = f'{counts.compatible} compatible'
     if counts.hypotheses:
         text += (
             f', {counts.hypotheses} hypotheses, {counts.low_innovation_inliers} low-innovation '
             f'inliers, {counts.rescued} rescued'
         )
+    if counts.probation:
+        text += f', {counts.probation} on probation'
     return f'{text}, {counts.rejected} rejected'
 
 

@@ -97,6 +97,11 @@ CORE_PARAMETERS = (
         "(shadow/static_features); 'all': classic MonoSLAM, from every new track",
         field='initialize',
     ),
+    _core(
+        'handover_probation',
+        'a handed-over feature corrects only itself (a Schmidt consider update), not the '
+        'camera, until its inverse depth becomes Euclidean',
+    ),
     Param(
         'update',
         _CORE.update,

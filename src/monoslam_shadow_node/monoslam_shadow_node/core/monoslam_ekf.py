@@ -6,6 +6,14 @@ A measurement i is predicted with S_i = H_i P H_i^T + R, R = pixel_sigma_px^2 I,
 when its Mahalanobis distance exceeds the chi-square gate (``MonoSlamConfig.gate``). The
 update is P = (I - K H) P (I - K H)^T + K R K^T, then the quaternion is renormalized (with
 its Jacobian).
+
+Features on probation (``FeatureBlock.probation``: handed over by the Shadow filter and not
+yet fixed by SLAM's own views, ``monoslam``'s docstring) take no part in the camera's update.
+After it, each one inside the gate from the updated state is a Schmidt ('consider') update
+(``consider_update``): the gain is zero outside the feature's own block, so the camera and
+the other features are not corrected by it, while their uncertainty is in its S. A moving
+feature on probation therefore cannot drag the camera; its innovations are judged against
+a camera the rest of the map fixed.
 """
 
 from __future__ import annotations
@@ -204,6 +212,57 @@ def gate_all(
     return passed
 
 
+def split_probation(all_matches: list[Match]) -> tuple[list[Match], list[Match]]:
+    """Return the matches that update the camera (known points, features not on probation)
+    and those of features on probation, each in their order."""
+    on_probation = [m for m in all_matches if m.feature is not None and m.feature.probation]
+    rest = [m for m in all_matches if m.feature is None or not m.feature.probation]
+    return rest, on_probation
+
+
+def probation_update(
+    state: FilterState,
+    camera_model: CameraModel,
+    on_probation: list[Match],
+    config: MonoSlamConfig,
+) -> set[int]:
+    """Measure the features on probation from the current (updated) state: each one inside
+    the gate corrects its own block only (``consider_update``); return the indices (into
+    ``on_probation``) used. One feature's consider update changes only its own rows and
+    columns of P, so the others' gates, computed together first, are unchanged by it."""
+    linearized = linearize_all(state, camera_model, on_probation)
+    gates = gate_all(on_probation, linearized, state.p, config)
+    used: set[int] = set()
+    for index, (match, lin) in enumerate(zip(on_probation, linearized, strict=True)):
+        if lin is not None and gates[index]:
+            consider_update(state, match, lin, measurement_variance(match, config))
+            used.add(index)
+    return used
+
+
+def consider_update(
+    state: FilterState, match: Match, linearized: Linearized, sigma2: float
+) -> None:
+    """Schmidt ('consider') update of one feature with its own measurement: the gain is
+    K_f = B_f S^-1 on the feature's block (B = P H^T, S = H B + sigma2 I) and zero elsewhere,
+    so nothing else in the state moves. P - K B^T - B K^T + K S K^T (the Joseph form, right
+    for any gain) then changes only the feature's rows and columns: its block becomes
+    P_ff - B_f S^-1 B_f^T and its cross-covariances P_xf - B_x S^-1 B_f^T."""
+    block = linearized.block
+    if block is None:
+        raise ValueError('a consider update needs a feature of the state')
+    b = linearized.p_h_t(state.p)
+    s = linearized.innovation_covariance(state.p, sigma2)
+    gain = np.linalg.solve(s, b[block].T).T
+    state.x[block] = state.x[block] + gain @ (match.pixel - linearized.predicted)
+    k_b = gain @ b.T
+    rows = state.p[block, :] - k_b
+    own = rows[:, block] - k_b[:, block].T + gain @ s @ gain.T
+    rows[:, block] = 0.5 * (own + own.T)
+    state.p[block, :] = rows
+    state.p[:, block] = rows.T
+
+
 def measurement_variance(match: Match, config: MonoSlamConfig) -> float:
     """Return a match's pixel variance per coordinate, px^2: a known point's corner
     ``pixel_sigma_px``, a tracked feature's ``feature_sigma_px``."""
@@ -253,8 +312,9 @@ def gated_update(
 ) -> UpdateOutcome:
     """Gate and apply all measurements of the state's features (``observed``: track id ->
     raw pixel (2,)) and of known points (``known``: world point (3,) m, raw pixel (2,)),
-    counting each feature's attempt; return what was measured and rejected."""
-    all_matches = matches(state, observed, known)
+    then those of features on probation (module docstring), counting each feature's attempt;
+    return what was measured and rejected."""
+    all_matches, on_probation = split_probation(matches(state, observed, known))
     used: list[tuple[Match, Linearized]] = []
     accepted: set[int] = set()
     linearized_all = linearize_all(state, camera_model, all_matches)
@@ -264,8 +324,12 @@ def gated_update(
             used.append((match, linearized))
             accepted.add(index)
     apply_update(state, used, config)
-    outcome = record_attempts(all_matches, accepted)
-    counts = UpdateCounts(compatible=len(used), rejected=outcome.counts.rejected)
+    considered = probation_update(state, camera_model, on_probation, config)
+    accepted |= {len(all_matches) + index for index in considered}
+    outcome = record_attempts(all_matches + on_probation, accepted)
+    counts = UpdateCounts(
+        compatible=len(used), rejected=outcome.counts.rejected, probation=len(considered)
+    )
     return UpdateOutcome(outcome.measured, outcome.rejected, outcome.known_used, counts)
 
 

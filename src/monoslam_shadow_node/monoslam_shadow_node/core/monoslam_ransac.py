@@ -29,6 +29,10 @@ Per frame, after the prediction:
    inliers the low-innovation test was too strict for (e.g. features whose depth is still
    uncertain) and update the state a second time.
 
+Features on probation (handed over and not yet fixed by SLAM's own views) take no part in
+steps 1-4; after them, each is measured alone from the updated state without correcting the
+camera (``monoslam_ekf.probation_update``).
+
 Every other measurement is rejected, and a feature's rejection counts against it as the gate's
 did (map management deletes features that fail too often). The random draws come from the
 caller's ``np.random.Generator`` (seeded from ``MonoSlamConfig.ransac_seed``), so a run is
@@ -50,7 +54,9 @@ from monoslam_shadow_node.core.monoslam_ekf import (
     linearize_all,
     matches,
     measurement_variance,
+    probation_update,
     record_attempts,
+    split_probation,
 )
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
 from monoslam_shadow_node.core.monoslam_model import (
@@ -80,7 +86,7 @@ def ransac_update(
     features (``observed``: track id -> raw pixel (2,)) and of known points (``known``: world
     point (3,) m, raw pixel (2,)), counting each feature's attempt; return what was measured
     and rejected, with the counts."""
-    all_matches = matches(state, observed, known)
+    all_matches, on_probation = split_probation(matches(state, observed, known))
     compatible: list[tuple[int, Linearized]] = []
     linearized_all = linearize_all(state, camera_model, all_matches)
     gates = gate_all(all_matches, linearized_all, state.p, config)
@@ -102,13 +108,16 @@ def ransac_update(
             rescued.append((match, linearized))
             rescued_indices.add(index)
     apply_update(state, rescued, config)
-    outcome = record_attempts(all_matches, low | rescued_indices)
+    considered = probation_update(state, camera_model, on_probation, config)
+    accepted = low | rescued_indices | {len(all_matches) + index for index in considered}
+    outcome = record_attempts(all_matches + on_probation, accepted)
     counts = UpdateCounts(
         compatible=len(compatible),
         hypotheses=hypotheses,
         low_innovation_inliers=len(low),
         rescued=len(rescued),
         rejected=outcome.counts.rejected,
+        probation=len(considered),
     )
     return UpdateOutcome(outcome.measured, outcome.rejected, outcome.known_used, counts)
 

@@ -38,8 +38,9 @@ FAR_M = 1000.0
 class FeatureBlock:
     """A feature in the state: its track id, its block x[start:start + size] (6: inverse
     depth with its anchor ray ``reference``; 3: Euclidean, no reference), how it entered
-    ('new' or 'handover'), the frames it was added and last seen in, and its measurement
-    record (attempts, successes, consecutive failures)."""
+    ('new' or 'handover'), the frames it was added and last seen in, its measurement record
+    (attempts, successes, consecutive failures), and whether it is on probation (its
+    measurements correct only its own block: ``monoslam_ekf.consider_update``)."""
 
     id: int
     start: int
@@ -51,6 +52,7 @@ class FeatureBlock:
     attempts: int = 0
     successes: int = 0
     consecutive_failures: int = 0
+    probation: bool = False
 
 
 class FilterState:

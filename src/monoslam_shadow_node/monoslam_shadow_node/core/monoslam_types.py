@@ -53,6 +53,7 @@ class MonoSlamConfig:
     max_position_sigma_m: float = 2.0
     max_gap_s: float = 1.0
     initialize: str = 'all'
+    handover_probation: bool = True
     update: str = 'ransac'
     ransac_seed: int = 0
 
@@ -90,6 +91,8 @@ class MonoSlamConfig:
             raise ValueError(
                 f'initialize={self.initialize!r}: must be one of {", ".join(INITIALIZE_MODES)}'
             )
+        if not isinstance(self.handover_probation, bool):
+            raise ValueError(f'handover_probation={self.handover_probation!r}: must be a bool')
         if self.update not in UPDATE_MODES:
             raise ValueError(f'update={self.update!r}: must be one of {", ".join(UPDATE_MODES)}')
         seed = self.ransac_seed
@@ -126,15 +129,17 @@ class MonoSlamConfig:
 class UpdateCounts:
     """How one frame's update went, over feature and known-point measurements: individually
     compatible (inside the chi-square gate), 1-point RANSAC hypotheses tried, low-innovation
-    inliers of the best one, high-innovation inliers rescued, and rejected (all measurements
-    not used). With ``update='gated'`` the compatible ones are the update's and the RANSAC
-    counts are 0."""
+    inliers of the best one, high-innovation inliers rescued, features on probation measured
+    (inside the gate; they corrected only themselves) and rejected (all measurements not
+    used). With ``update='gated'`` the compatible ones are the update's and the RANSAC counts
+    are 0; features on probation are counted in ``probation`` only."""
 
     compatible: int = 0
     hypotheses: int = 0
     low_innovation_inliers: int = 0
     rescued: int = 0
     rejected: int = 0
+    probation: int = 0
 
 
 @dataclass(frozen=True, eq=False)
