@@ -75,8 +75,10 @@ Parameters (filter): the fields of the core's MonoSlamConfig, one to one (four r
 their unit); their defaults are the core's, written out in config/monoslam.yaml (a test
 keeps the two equal).
   pixel_sigma_px                  feature and target corner pixel noise, px.
-  tracking_offset_px              tracked features' offsets that persist between images, px
-                                  (added to their variance; the shadow_filter's parameter).
+  tracking_offset_px, tracking_offset_time_s  tracked features' offsets that persist
+                                  between images, px, and their correlation time, s (the
+                                  shadow_filter's parameters); with offsets, each feature
+                                  keeps its own in the state (2 states, Gauss-Markov).
   linear_acceleration_sigma_m_s2, angular_acceleration_sigma_rad_s2  constant velocity
                                   model noise, m/s^2 and rad/s^2 per sqrt(Hz).
   initial_velocity_sigma_m_s, initial_angular_velocity_sigma_rad_s  camera velocity

@@ -42,8 +42,10 @@ CORE_PARAMETERS = (
     _core('pixel_sigma_px', 'feature and target corner pixel noise per coordinate, px (> 0)'),
     _core(
         'tracking_offset_px',
-        "tracked features' persistent offsets per coordinate, px (>= 0; 0: white noise)",
+        "tracked features' persistent offsets per coordinate, px (>= 0; 0: white noise; "
+        'otherwise each feature keeps its offset in the state)',
     ),
+    _core('tracking_offset_time_s', 'their correlation time, s (> 0)'),
     _core(
         'linear_acceleration_sigma',
         'constant velocity model: linear acceleration noise, m/s^2 per sqrt(Hz) (> 0)',

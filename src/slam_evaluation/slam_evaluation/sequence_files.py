@@ -99,6 +99,7 @@ class Tracker:
             config.slam,
             pixel_sigma_px=self.pixel_sigma_px,
             tracking_offset_px=self.tracking_offset_px,
+            tracking_offset_time_s=self.tracking_offset_time_s,
         )
         shadow = dataclasses.replace(config.shadow, ekf=self.ekf(config.shadow.ekf))
         return dataclasses.replace(config, slam=slam, shadow=shadow)

@@ -3,6 +3,9 @@ loss and restart, predictions and bad frames."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import numpy as np
 import pytest
 
@@ -94,6 +97,43 @@ def test_filter_tracks_static_scene_consistently() -> None:
     assert euclidean, 'no feature converted to Euclidean'
     distances = [np.linalg.norm(p.position - truth[run.track_point[p.id]]) for p in euclidean]
     assert np.median(distances) < 0.15
+
+
+def _pose_nees(slam: MonoSlam, run) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    """Return the mean pose NEES and the RMS position error (m) after the first second."""
+    errors, nees = [], []
+    for frame, measurements in _frames(run, InitTarget(), np.random.default_rng(0),
+                                       static_only=True):  # fmt: skip
+        result = slam.process(measurements)
+        assert result.status == TRACKING
+        assert result.centre is not None and result.rotation is not None
+        assert result.pose_covariance is not None
+        error = np.concatenate([
+            result.centre - frame.camera_position,
+            log_rotation(result.rotation @ frame.camera_rotation.T),
+        ])  # fmt: skip
+        errors.append(np.linalg.norm(error[:3]))
+        nees.append(error @ np.linalg.solve(result.pose_covariance, error))
+    return float(np.mean(nees[30:])), float(np.sqrt(np.mean(np.square(errors[30:]))))
+
+
+def test_filter_with_tracker_offsets_keeps_them_in_the_state_and_stays_consistent() -> None:
+    # 2 px offsets that persist (correlation 1 s): declared, each feature keeps its offset in
+    # the state and the pose NEES stays near 6 (measured 5.1); treating the same noise as
+    # white (its whole variance per sighting) makes the filter overconfident (measured 53)
+    scene = DynamicSceneConfig(duration_s=6.0, objects=0, tracking_offset_px=2.0)
+    run = simulate_dynamic_scene(2, scene)
+    slam = _filter(run)
+    slam.config = dataclasses.replace(
+        slam.config, tracking_offset_px=2.0,
+        tracking_offset_time_s=scene.tracking_correlation_time_s,
+    )  # fmt: skip
+    nees, rms = _pose_nees(slam, run)
+    assert 2.0 < nees < 15.0 and rms < 0.05  # measured 0.028 m
+    assert all(feature.offset_size == 2 for feature in slam._state.features)
+    white = _filter(run)
+    white.config = dataclasses.replace(white.config, pixel_sigma_px=math.sqrt(5.0))
+    assert _pose_nees(white, run)[0] > 15.0
 
 
 def test_filter_waits_without_known_points_and_rejects_bad_frames() -> None:

@@ -5,7 +5,9 @@ Per frame (``MonoSlam.process``):
 
 1. until started: wait for the known points (``MonoSlamConfig.known_points``) to be in view,
    then take the camera pose from them (``monoslam_init``);
-2. predict with the constant velocity model;
+2. predict with the constant velocity model (each feature's tracker offset, a state when the
+   tracker declares offsets that persist, decays: ``MonoSlamConfig.offset_states``; a
+   rejected feature forgets its offset, as after a re-anchoring jump);
 3. predict every owned feature and every known point in view, with its innovation
    covariance S_i = H_i P H_i^T + R (the active search region: the tracker may use the
    predicted pixel, ``MonoSlam.predictions``); a measurement whose Mahalanobis distance
@@ -156,7 +158,8 @@ class MonoSlam:
 
     @property
     def state_size(self) -> int:
-        """Length of the state vector (13 + 6 per inverse-depth + 3 per Euclidean feature)."""
+        """Length of the state vector (13 + 6 per inverse-depth + 3 per Euclidean feature, + 2
+        per feature for its tracker offset when ``MonoSlamConfig.offset_states``)."""
         return len(self._state.x)
 
     def set_camera(self, camera: CameraModel) -> None:
@@ -304,14 +307,18 @@ class MonoSlam:
     def _manage_map(
         self, observed: dict[int, FloatArray], measured: list[int], rejected: list[int]
     ) -> dict[int, str]:
-        """Convert linear-enough features to Euclidean, delete failing ones, retire unseen
-        ones; return removed ids with the reason."""
+        """Forget the tracker offset of each rejected feature (``reset_offset``), convert
+        linear-enough features to Euclidean, delete failing ones, retire unseen ones; return
+        removed ids with the reason."""
         config = self.config
         removed: dict[int, str] = {}
         state = self._state
+        refused = set(rejected)
         for feature in list(state.features):
             if feature.id in observed:
                 feature.last_seen_frame = self._frame
+            if feature.id in refused:  # perhaps the tracker's offset jumped: forget it
+                state.reset_offset(feature, config.tracking_offset_px)
             failing = feature.consecutive_failures >= config.max_consecutive_failures or (
                 feature.attempts >= config.failure_window
                 and feature.successes < config.min_success_ratio * feature.attempts
@@ -395,8 +402,8 @@ class MonoSlam:
             rho_variance = max(depth_variance * rho**4, rho_variance)
         source = 'handover' if handover is not None else 'new'
         inserted = self._state.insert_inverse_depth(
-            self.camera, feature_id, pixel, rho, rho_variance, self.config.feature_sigma_px,
-            source, self._frame,
+            self.camera, feature_id, pixel, rho, rho_variance, self.config.pixel_sigma_px,
+            source, self._frame, self.config.tracking_offset_px,
         )  # fmt: skip
         if inserted:
             self._owned_ids.add(feature_id)

@@ -18,6 +18,7 @@ a camera the rest of the map fixed.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,7 +36,8 @@ from slam_core.camera import CameraModel
 
 
 def predict(state: FilterState, dt_s: float, config: MonoSlamConfig) -> None:
-    """Constant velocity prediction of the camera over ``dt_s`` s; features are static."""
+    """Constant velocity prediction of the camera over ``dt_s`` s; features are static, and
+    their tracker offsets (if states) decay towards 0 (``MonoSlamConfig.offset_states``)."""
     sigmas = config.linear_acceleration_sigma, config.angular_acceleration_sigma
     camera, f, q = predict_camera(state.x[:CAMERA_SIZE], dt_s, *sigmas)
     state.x[:CAMERA_SIZE] = camera
@@ -43,6 +45,29 @@ def predict(state: FilterState, dt_s: float, config: MonoSlamConfig) -> None:
     state.p[c, c] = f @ state.p[c, c] @ f.T + q
     state.p[c, CAMERA_SIZE:] = f @ state.p[c, CAMERA_SIZE:]
     state.p[CAMERA_SIZE:, c] = state.p[c, CAMERA_SIZE:].T
+    offsets = offset_indices(state)
+    if len(offsets):
+        decay = math.exp(-max(dt_s, 0.0) / config.tracking_offset_time_s)
+        state.x[offsets] *= decay
+        state.p[offsets, :] *= decay
+        state.p[:, offsets] *= decay
+        state.p[offsets, offsets] += config.tracking_offset_px**2 * (1.0 - decay**2)
+
+
+def offset_indices(state: FilterState) -> IntArray:
+    """Return the indices in x (K,) of every feature's tracker offset (none without them)."""
+    spans = [feature.offset for feature in state.features if feature.offset is not None]
+    if not spans:
+        return np.zeros(0, dtype=np.int64)
+    return np.concatenate([np.arange(span.start, span.stop) for span in spans])
+
+
+def feature_jacobian(feature: FeatureBlock, d_point: FloatArray) -> FloatArray:
+    """Return d(pixel)/d(feature's states) (2, extent): the point's Jacobian, then the
+    identity for its offset when it has one."""
+    if not feature.offset_size:
+        return d_point
+    return np.hstack([d_point, np.eye(2)])
 
 
 def predicted_measurements(
@@ -60,19 +85,28 @@ def predicted_measurements(
     p_cc = f @ state.p[:CAMERA_SIZE, :CAMERA_SIZE] @ f.T + q
     wanted = None if ids is None else set(ids)
     features = [feature for feature in state.features if wanted is None or feature.id in wanted]
-    blocks = [slice(feature.start, feature.start + feature.size) for feature in features]
-    points = [(state.x[b], feature.reference) for feature, b in zip(features, blocks, strict=True)]
+    points = [(state.x[b.start : b.start + b.size], b.reference) for b in features]
     pixels, d_camera, d_feature, depth = project_features(camera_model, camera, points)
+    decay = math.exp(-max(dt_s, 0.0) / config.tracking_offset_time_s)
     out_ids, out_pixels, out_s = [], [], []
-    for k, (feature, block) in enumerate(zip(features, blocks, strict=True)):
+    for k, feature in enumerate(features):
         if depth[k] <= 0.0:
             continue
-        h_c, h_f = d_camera[k], d_feature[k]
-        cross = h_c @ (f @ state.p[:CAMERA_SIZE, block]) @ h_f.T
+        block = slice(feature.start, feature.start + feature.extent)
+        h_c, h_f = d_camera[k], feature_jacobian(feature, d_feature[k])
+        p_cf = f @ state.p[:CAMERA_SIZE, block]
+        pixel, fresh = pixels[k], 0.0
+        if (offset := feature.offset) is not None:  # the offset decays over dt_s
+            pixel = pixel + decay * state.x[offset]
+            h_f = h_f.copy()
+            h_f[:, -2:] *= decay
+            fresh = config.tracking_offset_px**2 * (1.0 - decay**2)
+        cross = h_c @ p_cf @ h_f.T
         s = h_c @ p_cc @ h_c.T + cross + cross.T + h_f @ state.p[block, block] @ h_f.T
+        s += (fresh + measurement_variance_of(feature, config)) * np.eye(2)
         out_ids.append(feature.id)
-        out_pixels.append(pixels[k])
-        out_s.append(s + config.feature_sigma_px**2 * np.eye(2))
+        out_pixels.append(pixel)
+        out_s.append(s)
     return (
         np.array(out_ids, dtype=np.int64),
         np.array(out_pixels).reshape(-1, 2),
@@ -163,16 +197,25 @@ def linearize_all(
             points.append((match.point, None))
             blocks.append(None)
         elif (feature := match.feature) is not None:
-            block = slice(feature.start, feature.start + feature.size)
-            points.append((state.x[block], feature.reference))
-            blocks.append(block)
+            points.append(
+                (state.x[feature.start : feature.start + feature.size], feature.reference)
+            )
+            blocks.append(slice(feature.start, feature.start + feature.extent))
         else:
             raise ValueError('a match needs a known point or a feature')
     pixels, d_camera, d_feature, depth = project_features(camera_model, camera, points)
-    return [
-        Linearized(pixels[k], d_camera[k], d_feature[k], blocks[k]) if depth[k] > 0.0 else None
-        for k in range(len(all_matches))
-    ]
+    out: list[Linearized | None] = []
+    for k, match in enumerate(all_matches):
+        if not depth[k] > 0.0:
+            out.append(None)
+        elif (feature := match.feature) is None:
+            out.append(Linearized(pixels[k], d_camera[k], d_feature[k], None))
+        else:  # the offset, if a state, adds to the projection
+            offset = feature.offset
+            pixel = pixels[k] if offset is None else pixels[k] + state.x[offset]
+            h_f = feature_jacobian(feature, d_feature[k])
+            out.append(Linearized(pixel, d_camera[k], h_f, blocks[k]))
+    return out
 
 
 def gate_all(
@@ -264,8 +307,26 @@ def consider_update(
 
 
 def measurement_variance(match: Match, config: MonoSlamConfig) -> float:
-    """Return a match's pixel variance per coordinate, px^2: a known point's corner
-    ``pixel_sigma_px``, a tracked feature's ``feature_sigma_px``."""
+    """Return a match's pixel variance per coordinate in the update, px^2 (R): a known
+    point's corner ``pixel_sigma_px``; a tracked feature's ``measurement_variance_of``."""
+    if match.feature is None:
+        return config.pixel_sigma_px**2
+    return measurement_variance_of(match.feature, config)
+
+
+def measurement_variance_of(feature: FeatureBlock, config: MonoSlamConfig) -> float:
+    """Return a tracked feature's R per coordinate, px^2: the white noise alone when its
+    offset is a state (the offset is in H P H^T), else the white noise and the offset's
+    variance together (``feature_sigma_px``)."""
+    if feature.offset_size:
+        return config.pixel_sigma_px**2
+    return config.feature_sigma_px**2
+
+
+def marginal_variance(match: Match, config: MonoSlamConfig) -> float:
+    """Return a match's pixel variance per coordinate about its point's projection, px^2:
+    a corner's ``pixel_sigma_px``, a tracked feature's ``feature_sigma_px`` (offset
+    included, whether or not it is a state)."""
     sigma = config.pixel_sigma_px if match.feature is None else config.feature_sigma_px
     return sigma * sigma
 

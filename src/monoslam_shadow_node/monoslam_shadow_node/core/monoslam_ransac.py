@@ -52,6 +52,7 @@ from monoslam_shadow_node.core.monoslam_ekf import (
     apply_update,
     gate_all,
     linearize_all,
+    marginal_variance,
     matches,
     measurement_variance,
     probation_update,
@@ -141,7 +142,8 @@ def best_hypothesis(
     observed = np.array([match.pixel for match, _ in compatible])
     wanted = [match for match, _ in compatible]
     variances = np.array([measurement_variance(match, config) for match in wanted])
-    threshold2 = config.gate * variances  # low_innovation_threshold_px, per match
+    # low_innovation_threshold_px, per match: about the point's projection, offset included
+    threshold2 = config.gate * np.array([marginal_variance(match, config) for match in wanted])
     known = np.array([match.point is not None for match, _ in compatible], dtype=bool)
     anchored = int(np.count_nonzero(known)) >= MIN_KNOWN_POINTS
 
@@ -199,8 +201,8 @@ def hypothesis_mean(
 
 
 def predicted_pixels(camera_model: CameraModel, x: FloatArray, wanted: list[Match]) -> FloatArray:
-    """Return the raw pixels (M, 2) of the matches' points seen from the state mean ``x``
-    (NaN for those behind the camera)."""
+    """Return the raw pixels (M, 2) of the matches' points seen from the state mean ``x``,
+    plus a feature's tracker offset when it is a state (NaN for those behind the camera)."""
     centre = x[R_SLICE]
     rotation_t = rotation_from_quaternion(x[Q_SLICE]).T
     directions = np.empty((len(wanted), 3))
@@ -215,4 +217,7 @@ def predicted_pixels(camera_model: CameraModel, x: FloatArray, wanted: list[Matc
     front = in_camera[:, 2] > 0.0
     if np.any(front):
         pixels[front] = camera_model.project(in_camera[front])
+    for k, match in enumerate(wanted):  # a feature's tracker offset, if a state
+        if match.feature is not None and (offset := match.feature.offset) is not None:
+            pixels[k] += x[offset]
     return pixels

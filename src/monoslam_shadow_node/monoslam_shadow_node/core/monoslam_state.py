@@ -3,7 +3,9 @@ that keep them consistent (start, add, convert to Euclidean, remove) and read th
 
 x (n,) = [camera (13): r, q, v, w | feature blocks], P (n, n) its covariance. A feature block
 is 6 states (inverse depth: anchor (3), azimuth, elevation, rho) or 3 (Euclidean point), in
-the order of ``FilterState.features``; ``monoslam_model`` has the models and Jacobians.
+the order of ``FilterState.features``, followed by the tracker's offset (2 states, px) when
+the tracker declares offsets that persist (``MonoSlamConfig.offset_states``);
+``monoslam_model`` has the models and Jacobians.
 """
 
 from __future__ import annotations
@@ -39,8 +41,9 @@ class FeatureBlock:
     """A feature in the state: its track id, its block x[start:start + size] (6: inverse
     depth with its anchor ray ``reference``; 3: Euclidean, no reference), how it entered
     ('new' or 'handover'), the frames it was added and last seen in, its measurement record
-    (attempts, successes, consecutive failures), and whether it is on probation (its
-    measurements correct only its own block: ``monoslam_ekf.consider_update``)."""
+    (attempts, successes, consecutive failures), whether it is on probation (its
+    measurements correct only its own block: ``monoslam_ekf.consider_update``), and the size
+    of the tracker's offset right after the point (0, or 2: u, v in px)."""
 
     id: int
     start: int
@@ -53,6 +56,19 @@ class FeatureBlock:
     successes: int = 0
     consecutive_failures: int = 0
     probation: bool = False
+    offset_size: int = 0
+
+    @property
+    def extent(self) -> int:
+        """The states the feature takes: its point and its offset."""
+        return self.size + self.offset_size
+
+    @property
+    def offset(self) -> slice | None:
+        """Its offset's states in x (None without one)."""
+        if not self.offset_size:
+            return None
+        return slice(self.start + self.size, self.start + self.extent)
 
 
 class FilterState:
@@ -91,9 +107,16 @@ class FilterState:
         pixel_sigma_px: float,
         source: str,
         frame: int,
+        offset_sigma_px: float = 0.0,
     ) -> bool:
         """Append an inverse-depth feature seen at ``pixel`` (raw px) with inverse depth
-        ``rho`` (1/m) and its variance; True if it went in (False: a non-finite feature)."""
+        ``rho`` (1/m) and its variance; True if it went in (False: a non-finite feature).
+
+        With ``offset_sigma_px`` > 0 the tracker's offset follows it in the state, estimated
+        0 with that standard deviation. The ray goes through the pixel as measured, offset
+        included, so its error is -(d ray / d pixel)(offset + white noise): the ray takes both
+        variances, and its covariance with the offset is -(d ray / d pixel) sigma_o^2. A later
+        sighting with the same offset then predicts the same pixel, as it should."""
         feature, reference, d_camera, d_pixel = new_inverse_depth_feature(
             camera_model, self.x[:CAMERA_SIZE], pixel, rho
         )
@@ -104,8 +127,18 @@ class FilterState:
         cross = d_camera @ self.p[c, :]  # (6, n)
         block = d_camera @ self.p[c, c] @ d_camera.T
         block += pixel_sigma_px**2 * (d_pixel @ d_pixel.T)
+        block += offset_sigma_px**2 * (d_pixel @ d_pixel.T)
         block[5, 5] += rho_variance
-        p = np.zeros((n + INVERSE_DEPTH_SIZE, n + INVERSE_DEPTH_SIZE))
+        offset_size = 2 if offset_sigma_px > 0.0 else 0
+        if offset_size:
+            offset_cross = -(offset_sigma_px**2) * d_pixel  # (6, 2)
+            cross = np.vstack([cross, np.zeros((2, n))])
+            block = np.block(
+                [[block, offset_cross], [offset_cross.T, offset_sigma_px**2 * np.eye(2)]]
+            )
+            feature = np.concatenate([feature, np.zeros(2)])
+        size = INVERSE_DEPTH_SIZE + offset_size
+        p = np.zeros((n + size, n + size))
         p[:n, :n] = self.p
         p[n:, :n] = cross
         p[:n, n:] = cross.T
@@ -113,12 +146,14 @@ class FilterState:
         self.p = p
         self.x = np.concatenate([self.x, feature])
         self.features.append(
-            FeatureBlock(feature_id, n, INVERSE_DEPTH_SIZE, reference, source, frame, frame)
-        )
+            FeatureBlock(feature_id, n, INVERSE_DEPTH_SIZE, reference, source, frame, frame,
+                         offset_size=offset_size)
+        )  # fmt: skip
         return True
 
     def to_euclidean(self, feature: FeatureBlock) -> None:
-        """Replace an inverse-depth feature's 6 states by its 3 Euclidean ones."""
+        """Replace an inverse-depth feature's 6 states by its 3 Euclidean ones (its offset, if
+        any, stays right after them)."""
         assert feature.reference is not None
         start = feature.start
         block = slice(start, start + INVERSE_DEPTH_SIZE)
@@ -136,16 +171,27 @@ class FilterState:
             if other.start > start:
                 other.start -= 3
 
+    def reset_offset(self, feature: FeatureBlock, sigma_px: float) -> None:
+        """Forget a feature's tracker offset: estimate 0, standard deviation ``sigma_px``,
+        uncorrelated with the rest (a fresh draw, as after a re-anchoring jump)."""
+        offset = feature.offset
+        if offset is None:
+            return
+        self.x[offset] = 0.0
+        self.p[offset, :] = 0.0
+        self.p[:, offset] = 0.0
+        self.p[offset, offset] = sigma_px**2 * np.eye(2)
+
     def remove(self, feature: FeatureBlock) -> None:
         """Take a feature out of the state."""
         keep = np.ones(len(self.x), dtype=bool)
-        keep[feature.start : feature.start + feature.size] = False
+        keep[feature.start : feature.start + feature.extent] = False
         self.x = self.x[keep]
         self.p = self.p[np.ix_(keep, keep)]
         self.features.remove(feature)
         for other in self.features:
             if other.start > feature.start:
-                other.start -= feature.size
+                other.start -= feature.extent
 
     def map_point(self, feature: FeatureBlock, active: bool) -> MapPoint:
         """Return the feature as a world point (MapPoint; ``active``: still in the filter)."""

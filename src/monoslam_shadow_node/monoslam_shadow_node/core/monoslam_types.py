@@ -32,6 +32,7 @@ class MonoSlamConfig:
     known_points: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     pixel_sigma_px: float = 1.0
     tracking_offset_px: float = 0.0  # tracker offsets that persist (tracking_noise), px
+    tracking_offset_time_s: float = 1.0  # their correlation time, s
     linear_acceleration_sigma: float = 2.0  # m/s^2/sqrt(Hz)
     angular_acceleration_sigma: float = 8.0  # rad/s^2/sqrt(Hz): hand tremor at 2-6 Hz
     initial_velocity_sigma_m_s: float = 0.5
@@ -63,7 +64,7 @@ class MonoSlamConfig:
             'pixel_sigma_px', 'linear_acceleration_sigma', 'angular_acceleration_sigma',
             'initial_velocity_sigma_m_s', 'initial_angular_velocity_sigma_rad_s',
             'initial_inverse_depth', 'initial_inverse_depth_sigma', 'linearity_threshold',
-            'max_position_sigma_m', 'max_gap_s',
+            'max_position_sigma_m', 'max_gap_s', 'tracking_offset_time_s',
         )  # fmt: skip
         for name in positive:
             value = getattr(self, name)
@@ -108,11 +109,20 @@ class MonoSlamConfig:
         return chi2_quantile(self.gate_probability, 2)
 
     @property
+    def offset_states(self) -> bool:
+        """Whether each feature's tracker offset is a state of the filter: when the tracker
+        declares offsets that persist (``tracking_offset_px`` > 0). They are Gauss-Markov:
+        o' = a o + w, a = exp(-dt / ``tracking_offset_time_s``), var(w) = sigma_o^2 (1 - a^2),
+        and a sighting is the point's projection plus its offset plus white noise
+        (``pixel_sigma_px``). An EKF that only added the offset's variance to each sighting
+        would treat its errors as independent between frames and grow overconfident."""
+        return self.tracking_offset_px > 0.0
+
+    @property
     def feature_sigma_px(self) -> float:
-        """A tracked feature's pixel standard deviation: the white noise and the tracker's
-        persistent offset together (the EKF keeps no memory of past errors, so it takes the
-        whole variance; the known points' corners are detected afresh in every image and
-        keep ``pixel_sigma_px``)."""
+        """A tracked feature's pixel standard deviation about its point's projection: the
+        white noise and the tracker's persistent offset together (the known points' corners
+        are detected afresh in every image and keep ``pixel_sigma_px``)."""
         return math.sqrt(self.pixel_sigma_px**2 + self.tracking_offset_px**2)
 
     @property
