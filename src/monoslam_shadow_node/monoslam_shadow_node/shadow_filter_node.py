@@ -79,7 +79,8 @@ config/shadow_filter.yaml (a test keeps the two equal).
   pixel_sigma_px                  pixel noise per coordinate, px.
   tracking_offset_px, tracking_offset_time_s  the tracker's offsets that persist between
                                   images (px per coordinate; 0: white noise) and their
-                                  correlation time (s), modelled in the static tests.
+                                  correlation time (s), modelled in the static tests
+                                  and kept per feature in its EKF state.
   initial_inverse_depth_per_m, initial_inverse_depth_sigma_per_m  the inverse depth (1/m) a
                                   new feature starts at, and its standard deviation.
   velocity_sigma_m_s              prior velocity standard deviation of a new feature, m/s.

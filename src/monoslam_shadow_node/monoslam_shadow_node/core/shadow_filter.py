@@ -45,7 +45,6 @@ from monoslam_shadow_node.core.shadow_classifier import (
     predicted_visibility,
 )
 from monoslam_shadow_node.core.shadow_ekf import (
-    STATE_SIZE,
     EkfConfig,
     EuclideanEstimate,
     initial_states,
@@ -162,8 +161,9 @@ class ShadowFilter:
         self.camera = camera
         self.config = config or ShadowConfig()
         self._tracks: list[Track] = []
-        self._states = np.zeros((0, STATE_SIZE))
-        self._covariances = np.zeros((0, STATE_SIZE, STATE_SIZE))
+        size = self.config.ekf.state_size
+        self._states = np.zeros((0, size))
+        self._covariances = np.zeros((0, size, size))
         self._released: set[int] = set()
         self._suspects: set[int] = set()
         self._strict = dataclasses.replace(self.config.classifier, unchecked_directions=0)
@@ -343,7 +343,10 @@ class ShadowFilter:
         camera_covariances = np.array(
             [frame.rotation.T @ v.direction_covariance @ frame.rotation for v in views]
         )
-        return initial_states(camera_directions, camera_covariances, self.config.ekf)
+        jacobians = np.array(
+            [frame.rotation.T @ v.pixel_jacobian for v in views if v.pixel_jacobian is not None]
+        ).reshape(-1, 3, 2)
+        return initial_states(camera_directions, camera_covariances, self.config.ekf, jacobians)
 
     def _start(
         self, frame: FrameInput, ids: IntArray, views: list[View], precisions: FloatArray

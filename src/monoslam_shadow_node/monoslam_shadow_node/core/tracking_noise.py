@@ -14,7 +14,8 @@ What the Shadow filter does with it (the correlation is modelled, not estimated;
 declares its noise as a camera declares its pixel noise):
 
 - each ray's own covariance carries the whole variance, white plus offset
-  (``marginal_pixel_sigma_px``); the EKF uses that (it keeps no memory of past errors);
+  (``marginal_pixel_sigma_px``); the per-feature EKF keeps each feature's offset in its
+  state instead (``shadow_ekf``: Gauss-Markov with ``offset_time_s``);
 - the tests of the static hypothesis, the all-view fit and the three-ray test, add the
   offsets' covariance between sightings (``cross_covariances``): with it an offset that
   persists no longer looks like a point that moves, and a point fitted to correlated rays
