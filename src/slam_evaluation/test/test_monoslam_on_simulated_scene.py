@@ -74,21 +74,9 @@ def _filter(run, initialize: str = 'all', probation: bool = True) -> MonoSlam:  
 def test_filter_tracks_static_scene_consistently() -> None:
     run = simulate_dynamic_scene(2, DynamicSceneConfig(duration_s=4.0, objects=0))
     slam = _filter(run)
-    errors, nees = [], []
-    for frame, measurements in _frames(run, InitTarget(), np.random.default_rng(0),
-                                       static_only=True):  # fmt: skip
-        result = slam.process(measurements)
-        assert result.status == TRACKING
-        assert result.centre is not None and result.rotation is not None
-        assert result.pose_covariance is not None
-        error = np.concatenate([
-            result.centre - frame.camera_position,
-            log_rotation(result.rotation @ frame.camera_rotation.T),
-        ])  # fmt: skip
-        errors.append(np.linalg.norm(error[:3]))
-        nees.append(error @ np.linalg.solve(result.pose_covariance, error))
-    assert np.sqrt(np.mean(np.square(errors[30:]))) < 0.05  # measured ~0.02 m
-    assert 2.0 < np.mean(nees) < 15.0  # 6 DoF: 6 expected
+    nees, rms = _pose_nees(slam, run)
+    assert rms < 0.05  # measured ~0.02 m
+    assert 2.0 < nees < 15.0  # 6 DoF: 6 expected
     points = slam.map_points()
     assert len(points) > 20
     assert slam.state_size <= CAMERA_SIZE + 6 * slam.config.max_features

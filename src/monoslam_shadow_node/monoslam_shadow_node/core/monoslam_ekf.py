@@ -85,7 +85,10 @@ def predicted_measurements(
     p_cc = f @ state.p[:CAMERA_SIZE, :CAMERA_SIZE] @ f.T + q
     wanted = None if ids is None else set(ids)
     features = [feature for feature in state.features if wanted is None or feature.id in wanted]
-    points = [(state.x[b.start : b.start + b.size], b.reference) for b in features]
+    points = [
+        (state.x[feature.start : feature.start + feature.size], feature.reference)
+        for feature in features
+    ]
     pixels, d_camera, d_feature, depth = project_features(camera_model, camera, points)
     decay = math.exp(-max(dt_s, 0.0) / config.tracking_offset_time_s)
     out_ids, out_pixels, out_s = [], [], []
