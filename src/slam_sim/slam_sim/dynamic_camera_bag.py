@@ -362,6 +362,7 @@ _OPTIONS = {
     'focal_px': '--focal-px',
     'objects': '--objects',
     'hand_motion_m': '--hand-motion-m',
+    'loop_away_s': '--loop-away-s',
     'quality': '--quality',
 }
 
@@ -393,6 +394,14 @@ def _parser() -> argparse.ArgumentParser:
         type=float,
         default=defaults.hand_motion_m,
         help="amplitude of the hand's sweep per axis, m (0-0.5)",
+    )
+    parser.add_argument(
+        '--loop-away-s',
+        type=float,
+        default=defaults.loop_away_s,
+        help=f'a loop scene: from {defaults.loop_start_s:g} s the camera turns '
+        f'{defaults.loop_angle_deg:g} deg away from the start area for this long and back '
+        '(0: none)',
     )
     parser.add_argument('--quality', type=int, default=DEFAULT_QUALITY, help='JPEG quality, 1-100')
     parser.add_argument('--raw', action='store_true', help='raw mono8 images instead of JPEG')

@@ -275,6 +275,14 @@ def _parser() -> argparse.ArgumentParser:
         f'{", ".join(MOTION_KINDS)}',
     )
     parser.add_argument(
+        '--loop-away-s',
+        type=float,
+        default=defaults.loop_away_s,
+        help=f'a loop scene: from {defaults.loop_start_s:g} s the camera turns '
+        f'{defaults.loop_angle_deg:g} deg away from the start area for this long and back '
+        '(0: none)',
+    )
+    parser.add_argument(
         '--start-ns',
         type=int,
         default=DEFAULT_START_NS,
@@ -292,6 +300,7 @@ def _config(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Dynami
             focal_px=args.focal_px,
             pixel_noise_px=args.pixel_noise_px,
             motions=tuple(kind.strip() for kind in args.motions.split(',') if kind.strip()),
+            loop_away_s=args.loop_away_s,
         )
     except ValueError as err:
         option = '--' + str(err).split(' ', 1)[0].replace('_', '-')

@@ -36,16 +36,44 @@ class Sinusoids:
 
 
 @dataclass(frozen=True)
+class LoopTurn:
+    """The camera turns away from the room's far wall and back (a loop): its viewing
+    direction yaws about the map's vertical by ``angle_rad`` (positive: towards +y), ramping
+    smoothly (half a cosine) over ``turn_s`` from ``start_s``, stays turned for ``away_s``,
+    and ramps back over ``turn_s``."""
+
+    start_s: float
+    turn_s: float
+    away_s: float
+    angle_rad: float
+
+    @property
+    def back_s(self) -> float:
+        """When the camera faces the start area again (the turn back ends), s."""
+        return self.start_s + 2.0 * self.turn_s + self.away_s
+
+    def yaw_at(self, times_s: FloatArray) -> FloatArray:
+        """Return the yaw (K,) rad at run times (K,) s."""
+        t = np.asarray(times_s, dtype=np.float64)
+        out_ramp = np.clip((t - self.start_s) / self.turn_s, 0.0, 1.0)
+        back_ramp = np.clip((t - self.start_s - self.turn_s - self.away_s) / self.turn_s, 0, 1)
+        fraction = 0.5 - 0.5 * np.cos(np.pi * out_ramp) - (0.5 - 0.5 * np.cos(np.pi * back_ramp))
+        return np.asarray(self.angle_rad * fraction, dtype=np.float64)
+
+
+@dataclass(frozen=True)
 class CameraPath:
     """Hand-held camera: optical centre = center_m + sway, looking at look_m + look_sway,
     level (x axis horizontal) up to a small shake rotation (rotation vector in the optical
-    frame, rad); all in ``map``, m."""
+    frame, rad); all in ``map``, m. With a ``loop``, the viewing direction also yaws away
+    and back (``LoopTurn``)."""
 
     center_m: FloatArray
     sway_m: Sinusoids
     look_m: FloatArray
     look_sway_m: Sinusoids
     shake_rad: Sinusoids
+    loop: LoopTurn | None = None
 
     def positions_at(self, times_s: FloatArray) -> FloatArray:
         """Return optical-centre positions (K, 3) m in map at run times (K,) s."""
@@ -60,6 +88,14 @@ class CameraPath:
         target = self.look_m + self.look_sway_m.value_at(times_s)
         forward = target - self.positions_at(times_s)
         forward /= np.linalg.norm(forward, axis=1, keepdims=True)
+        if self.loop is not None:  # yaw the viewing direction about the vertical
+            yaw = self.loop.yaw_at(times_s)
+            cos, sin = np.cos(yaw), np.sin(yaw)
+            forward = np.column_stack([
+                cos * forward[:, 0] - sin * forward[:, 1],
+                sin * forward[:, 0] + cos * forward[:, 1],
+                forward[:, 2],
+            ])  # fmt: skip
         right = np.cross(forward, [0.0, 0.0, 1.0])
         right /= np.linalg.norm(right, axis=1, keepdims=True)
         level = np.stack([right, np.cross(forward, right), forward], axis=2)
@@ -68,13 +104,16 @@ class CameraPath:
         )
 
 
-def sample_camera_path(rng: np.random.Generator, hand_motion_m: float = 0.0) -> CameraPath:
+def sample_camera_path(
+    rng: np.random.Generator, hand_motion_m: float = 0.0, loop: LoopTurn | None = None
+) -> CameraPath:
     """Return a random hand-held path: an elliptic loop (x 0.7-1 m, y 1.3-1.7 m radii, 12-18 s
     period) with slow drift and a walking bob, panning over the room, shaking 0.1-0.35 deg,
     plus the hand's own sweep: ``hand_motion_m`` amplitude along each map axis at 0.4-0.9 Hz
     (0.1 m gives up to ~1.7 m/s^2, the acceleration a person waving a camera reaches).
 
-    The sweep is drawn last from ``rng``, so the rest of the path does not depend on it.
+    The sweep is drawn last from ``rng``, so the rest of the path does not depend on it; a
+    ``loop`` draws nothing, so a loop scene shares its path with the same seed's plain one.
     """
     period_s, phase = rng.uniform(12.0, 18.0), rng.uniform(0.0, 2.0 * np.pi)
     radius_x, radius_y = rng.uniform(0.7, 1.0), rng.choice([-1.0, 1.0]) * rng.uniform(1.3, 1.7)
@@ -103,4 +142,6 @@ def sample_camera_path(rng: np.random.Generator, hand_motion_m: float = 0.0) -> 
             np.append(sway.frequencies_hz, hand_hz),
             np.append(sway.phases_rad, hand_phase),
         )
-    return CameraPath(np.array(_CAMERA_CENTER_M), sway, np.array(_LOOK_CENTER_M), look_sway, shake)
+    return CameraPath(
+        np.array(_CAMERA_CENTER_M), sway, np.array(_LOOK_CENTER_M), look_sway, shake, loop
+    )

@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass
 
 from slam_core.camera import CameraModel
+from slam_sim.core.camera_path import LoopTurn
 
 MOTION_KINDS = ('constant_velocity', 'turning', 'stop_and_go', 'model')
 ROOM_SIZE_M = (10.0, 8.0, 3.0)
@@ -50,6 +51,10 @@ class DynamicSceneConfig:
     tracking_offset_px: float = 0.0
     tracking_offset_time_s: float = 1.0
     tracking_jump_probability: float = 0.0
+    loop_away_s: float = 0.0  # 0: no loop; else the camera turns away this long and back
+    loop_start_s: float = 4.0
+    loop_turn_s: float = 1.5
+    loop_angle_deg: float = 90.0
 
     @property
     def tracking_correlation_time_s(self) -> float:
@@ -96,6 +101,28 @@ class DynamicSceneConfig:
         _check('tracking_offset_time_s', time_s > 0.0, time_s, '> 0 s')
         jump = self.tracking_jump_probability
         _check('tracking_jump_probability', 0.0 <= jump < 1.0, jump, '[0, 1)')
+        _check('loop_away_s', self.loop_away_s >= 0.0, self.loop_away_s, '>= 0 s')
+        _check('loop_start_s', self.loop_start_s >= 0.0, self.loop_start_s, '>= 0 s')
+        _check('loop_turn_s', self.loop_turn_s > 0.0, self.loop_turn_s, '> 0 s')
+        angle = self.loop_angle_deg
+        _check('loop_angle_deg', -180.0 <= angle <= 180.0, angle, '[-180, 180] deg')
+        if self.loop_away_s > 0.0:
+            back = self.loop_start_s + 2.0 * self.loop_turn_s + self.loop_away_s
+            _check('loop_away_s', back < self.duration_s, self.loop_away_s,
+                   f'short enough to turn back before the run ends ({back:g} s >= '
+                   f'duration_s {self.duration_s:g} s)')  # fmt: skip
+
+    @property
+    def loop(self) -> LoopTurn | None:
+        """The camera's turn away and back (``camera_path.LoopTurn``), None without a loop."""
+        if self.loop_away_s <= 0.0:
+            return None
+        return LoopTurn(
+            self.loop_start_s,
+            self.loop_turn_s,
+            self.loop_away_s,
+            math.radians(self.loop_angle_deg),
+        )
 
     @property
     def frame_count(self) -> int:

@@ -158,7 +158,7 @@ def build_scene(config: DynamicSceneConfig, seed: int) -> DynamicScene:
         radius = config.object_radius_m * object_rng.random((count, 1)) ** (1.0 / 3.0)
         offsets.append(np.zeros((1, 3)) if kind == 'model' else direction * radius)
     static = sample_static_points(room_rng, room, config.static_points)
-    path = sample_camera_path(path_rng, config.hand_motion_m)
+    path = sample_camera_path(path_rng, config.hand_motion_m, config.loop)
     return DynamicScene(room, path, static, tuple(objects), tuple(offsets))
 
 
