@@ -91,7 +91,12 @@ keeps the two equal).
   target_measured, max_new_per_frame, min_new_spacing_px  initialize 'all': add features
                                   while fewer are measured, at most this many per frame,
                                   at least this far apart (px).
-  max_unseen_frames               a feature unseen longer is retired to the map.
+  max_view_angle_deg (45)         map features stay in the state out of view; one predicted
+                                  in view (in the image, within this angle of the ray it was
+                                  first seen along) and not found counts a failed search, and
+                                  one found in fewer than min_success_ratio of at least
+                                  failure_window searches is deleted. When the state is full,
+                                  the feature out of view the longest is retired to the map.
   failure_window, min_success_ratio, max_consecutive_failures  deleting failing features.
   lost_after_frames, max_position_sigma_m  tracking is lost after this many frames measuring
                                   nothing, or when the position sigma exceeds this (m).

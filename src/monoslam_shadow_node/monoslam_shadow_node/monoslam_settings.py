@@ -80,7 +80,10 @@ CORE_PARAMETERS = (
     _core('target_measured', 'initialize=all: add features while fewer are measured (>= 1)'),
     _core('max_new_per_frame', 'initialize=all: most features added per frame (>= 1)'),
     _core('min_new_spacing_px', 'initialize=all: new features at least this far apart, px'),
-    _core('max_unseen_frames', 'a feature unseen for more frames is retired to the map (>= 1)'),
+    _core(
+        'max_view_angle_deg',
+        'a map feature is searched for only within this angle of its first viewing ray, deg',
+    ),
     _core('failure_window', 'measurement attempts a feature is judged over (>= 1)'),
     _core('min_success_ratio', 'a feature accepted less often over them is deleted, in (0, 1)'),
     _core('max_consecutive_failures', 'a feature rejected this often in a row is deleted'),

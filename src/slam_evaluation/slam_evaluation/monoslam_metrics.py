@@ -178,11 +178,12 @@ def mover_revocations(
 
     Per rule: 'in_time' if revoked or deleted within ``REVOCATION_FRAMES`` frames of it, 'late'
     if later, 'missed' if still in the map then and never revoked (it stayed to the end, or
-    went out of view later), 'left_view' if it went out of view (removed 'unseen') before the
-    limit, 'lost_with_map' if tracking was lost first (the whole map is retired); a stay
-    without such a frame is 'radial' (it never moved that way while in the map) when it
-    lasted to the end or went out of view, and 'removed_early' when SLAM removed it first;
-    with the latency (frames) of each judged revocation."""
+    went out of view later), 'left_view' if it was retired out of view ('evicted', or
+    'unseen' before the map kept features out of view) before the limit, 'lost_with_map' if
+    tracking was lost first (the whole map is retired); a stay without such a frame (only
+    frames with the point in view count) is 'radial' (it never moved that way while in the
+    map) when it lasted to the end or was retired out of view, and 'removed_early' when SLAM
+    removed it first; with the latency (frames) of each judged revocation."""
     removals: dict[int, list[tuple[int, str]]] = {}
     for frame, feature_id, why in record.removals:
         removals.setdefault(feature_id, []).append((frame, why))
@@ -213,11 +214,13 @@ def mover_revocations(
                 np.linalg.norm(across, axis=1),
             ),
         }
+        # judged only while in view: a map feature out of view stays in the state unmeasured
+        visible = np.array([point in run.frames[k].point_ids for k in range(entry, end + 1)])
         for rule in rules:
-            fast = np.flatnonzero(speeds[rule] >= REVOCATION_SPEED_M_S)
+            fast = np.flatnonzero((speeds[rule] >= REVOCATION_SPEED_M_S) & visible)
             judged = outcome[rule]
             if not len(fast):
-                judged['radial' if why in ('end', 'unseen') else 'removed_early'] += 1
+                judged['radial' if why in ('end', 'unseen', 'evicted') else 'removed_early'] += 1
                 continue
             start = entry + int(fast[0])
             if why == 'lost':  # the map went with the loss of tracking (a failure of its own)
@@ -225,7 +228,7 @@ def mover_revocations(
             elif why in ('revoked', 'failed'):
                 latencies[rule].append(end - start)
                 judged['in_time' if end - start <= REVOCATION_FRAMES else 'late'] += 1
-            elif why == 'unseen' and end - start <= REVOCATION_FRAMES:
+            elif why in ('unseen', 'evicted') and end - start <= REVOCATION_FRAMES:
                 judged['left_view'] += 1
             else:  # still in the map REVOCATION_FRAMES after it moved, never revoked
                 judged['missed'] += 1

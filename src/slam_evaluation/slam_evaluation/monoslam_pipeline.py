@@ -133,7 +133,7 @@ class VariantRecord:
     processed or skipped (pose covariance not finite; no pose: waiting or lost); filter wall
     time (s); and the features SLAM removed from its state: (frame, id, reason), reason
     'revoked' (a handed-over feature failing the persistent-outlier test: the Shadow filter
-    takes it back as a suspect), 'failed' or 'unseen'; the moving features' entries into the map
+    takes it back as a suspect), 'failed' or 'evicted'; the moving features' entries into the map
     (frame, id)."""
 
     variant: str

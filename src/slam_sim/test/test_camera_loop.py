@@ -71,3 +71,24 @@ def test_both_simulators_take_the_loop_and_name_a_bad_one(
     with pytest.raises(SystemExit):
         cli._config(parser, bad)
     assert '--loop-away-s' in capsys.readouterr().err
+
+
+def test_known_data_association_gives_a_returning_point_its_id_back() -> None:
+    plain = DynamicSceneConfig(
+        duration_s=14.0, objects=0, loop_away_s=6.0, loop_start_s=2.0, loop_turn_s=1.0
+    )
+    for keep in (False, True):
+        run = simulate_dynamic_scene(5, dataclasses.replace(plain, keep_track_ids=keep))
+        ids_of: dict[int, set[int]] = {}
+        for frame in run.frames:
+            for point, track in zip(
+                frame.point_ids.tolist(), frame.track_ids.tolist(), strict=True
+            ):
+                ids_of.setdefault(point, set()).add(track)
+        returned = [point for point in run.frames[0].point_ids.tolist()
+                    if point in run.frames[-1].point_ids.tolist()]  # fmt: skip
+        assert len(returned) > 50
+        if keep:
+            assert all(len(ids_of[point]) == 1 for point in returned)
+        else:
+            assert all(len(ids_of[point]) > 1 for point in returned)

@@ -26,8 +26,14 @@ Per frame (``MonoSlam.process``):
    1 - ``gate_probability``, so three in a row happen by chance with probability 1e-9 per
    feature and frame). A deleted feature that came from a handover is revoked: SLAM no longer
    owns it, and the result reports it (``removed`` reason 'revoked') so that the Shadow filter
-   takes it back as a suspect; features no longer tracked are retired to the
-   frozen map (ids are never reused, so they cannot be measured again); new features are added
+   takes it back as a suspect. The map is persistent (Davison's MonoSLAM): a feature out of
+   view stays in the state, and is measured again when its id comes back (a tracker that
+   re-identifies it, or known data association); a feature predicted in view (in front, in
+   the image, within ``max_view_angle_deg`` of the ray it was first seen along) is searched
+   for, and one found in fewer than ``min_success_ratio`` of at least ``failure_window``
+   searches is deleted (a frame without any feature searches nothing). When the state is
+   full, the features out of view the longest are evicted into the frozen map (reason
+   'evicted') to make room for this frame's new ones; new features are added
    - in ``initialize='all'`` (classic MonoSLAM, the paper's Fig. 5(a), (b)) from every new
    track, undelayed, with the inverse-depth prior, while fewer than ``target_measured``
    features were measured; in ``initialize='handover'`` (with the Shadow filter, Fig. 5(c))
@@ -69,6 +75,7 @@ in ``monoslam_checks``; this module holds the frame loop, map management, start 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,6 +100,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     V_SLICE,
     W_SLICE,
     FloatArray,
+    feature_direction,
     linearity_index,
 )
 from monoslam_shadow_node.core.monoslam_ransac import ransac_update
@@ -228,6 +236,7 @@ class MonoSlam:
         outcome = self._update(observed, known_keys, known_pixels)
         measured, rejected, known_used = outcome.measured, outcome.rejected, outcome.known_used
         removed = self._manage_map(observed, measured, rejected)
+        removed.update(self._make_room(observed, measured))
         added = self._add_features(observed, measured)
         if measured or known_used:
             self._idle_frames = 0
@@ -307,33 +316,41 @@ class MonoSlam:
     def _manage_map(
         self, observed: dict[int, FloatArray], measured: list[int], rejected: list[int]
     ) -> dict[int, str]:
-        """Forget the tracker offset of each rejected feature (``reset_offset``), convert
-        linear-enough features to Euclidean, delete failing ones, retire unseen ones; return
-        removed ids with the reason."""
+        """Count the searches of the features predicted in view and whether each was found;
+        forget the tracker offset of each rejected feature (``reset_offset``); delete the
+        features failing the persistent-outlier test (a handed-over one is revoked) or found
+        in fewer than ``min_success_ratio`` of at least ``failure_window`` searches (Davison's
+        rule); convert linear-enough features to Euclidean; return removed ids with the
+        reason. Features out of view stay in the state."""
         config = self.config
         removed: dict[int, str] = {}
         state = self._state
         refused = set(rejected)
+        unseen = [feature for feature in state.features if feature.id not in observed]
+        # a frame without any feature (a covered lens, a dropped image) searches nothing
+        searched = set(self._in_view(unseen)[0].tolist()) if observed else set()
+        window, ratio = config.failure_window, config.min_success_ratio
         for feature in list(state.features):
             if feature.id in observed:
                 feature.last_seen_frame = self._frame
+                feature.searches += 1
+                feature.found += 1
+            elif feature.id in searched:  # predicted in view, not found
+                feature.searches += 1
             if feature.id in refused:  # perhaps the tracker's offset jumped: forget it
                 state.reset_offset(feature, config.tracking_offset_px)
             failing = feature.consecutive_failures >= config.max_consecutive_failures or (
-                feature.attempts >= config.failure_window
-                and feature.successes < config.min_success_ratio * feature.attempts
+                feature.attempts >= window and feature.successes < ratio * feature.attempts
             )
+            not_found = feature.searches >= window and feature.found < ratio * feature.searches
             if failing and feature.source == 'handover':
                 # revoked: it moved after all; the Shadow filter may take it back
                 removed[feature.id] = 'revoked'
                 self._remove(feature, retire=False)
                 self._owned_ids.discard(feature.id)
-            elif failing:
+            elif failing or not_found:
                 removed[feature.id] = 'failed'
                 self._remove(feature, retire=False)
-            elif self._frame - feature.last_seen_frame > config.max_unseen_frames:
-                removed[feature.id] = 'unseen'
-                self._remove(feature, retire=True)
         centre = state.x[R_SLICE]
         for feature in state.features:
             if feature.size == INVERSE_DEPTH_SIZE and feature.reference is not None:
@@ -344,6 +361,58 @@ class MonoSlam:
                     state.to_euclidean(feature)
                     feature.probation = False  # SLAM's own views fix it now
         return removed
+
+    def _in_view(self, features: list[FeatureBlock]) -> tuple[IntArray, FloatArray, FloatArray]:
+        """Return the ids (M,), predicted raw pixels (M, 2) and innovation covariances
+        (M, 2, 2) of those of ``features`` predicted in view: in front of the camera, inside
+        the image, and seen within ``max_view_angle_deg`` of the ray they were first seen
+        along (a patch looks too different beyond it)."""
+        if not features:
+            return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2))
+        state, camera = self._state, self.camera
+        ids, pixels, covariances = predicted_measurements(
+            state, camera, 0.0, self.config, [feature.id for feature in features]
+        )
+        by_id = {feature.id: feature for feature in features}
+        centre = state.x[R_SLICE]
+        cos_limit = math.cos(math.radians(self.config.max_view_angle_deg))
+        keep = np.zeros(len(ids), dtype=bool)
+        for k, (feature_id, pixel) in enumerate(zip(ids.tolist(), pixels, strict=True)):
+            if not (0.0 <= pixel[0] < camera.width and 0.0 <= pixel[1] < camera.height):
+                continue
+            feature = by_id[feature_id]
+            block = state.x[feature.start : feature.start + feature.size]
+            direction = feature_direction(feature.size, block, feature.reference, centre)[0]
+            first = feature.first_ray
+            norm = float(np.linalg.norm(direction))
+            keep[k] = first is None or (norm > 0.0 and direction @ first >= cos_limit * norm)
+        return ids[keep], pixels[keep], covariances[keep]
+
+    def _make_room(self, observed: dict[int, FloatArray], measured: list[int]) -> dict[int, str]:
+        """Evict features out of view, the longest unseen first, into the frozen map while
+        the state is too full for the features this frame would add; return them
+        ('evicted')."""
+        config = self.config
+        if config.initialize == 'handover':
+            wanted = sum(1 for i in self._handovers if i in observed)
+        elif len(measured) < config.target_measured:
+            wanted = min(config.max_new_per_frame, config.target_measured - len(measured))
+        else:
+            wanted = 0
+        excess = len(self._state.features) + wanted - config.max_features
+        if excess <= 0:
+            return {}
+        unseen = [feature for feature in self._state.features if feature.id not in observed]
+        in_view = set(self._in_view(unseen)[0].tolist())
+        away = sorted(
+            (feature for feature in unseen if feature.id not in in_view),
+            key=lambda feature: feature.last_seen_frame,
+        )
+        evicted: dict[int, str] = {}
+        for feature in away[:excess]:
+            evicted[feature.id] = 'evicted'
+            self._remove(feature, retire=True)
+        return evicted
 
     def _add_features(self, observed: dict[int, FloatArray], measured: list[int]) -> list[int]:
         """Add new features (``initialize`` mode); return their ids."""

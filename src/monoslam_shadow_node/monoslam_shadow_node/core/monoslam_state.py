@@ -57,6 +57,9 @@ class FeatureBlock:
     consecutive_failures: int = 0
     probation: bool = False
     offset_size: int = 0
+    first_ray: FloatArray | None = None  # world unit ray it was first seen along
+    searches: int = 0  # frames it was predicted in view (with features in the frame)
+    found: int = 0  # of those, frames it was observed
 
     @property
     def extent(self) -> int:
@@ -145,9 +148,10 @@ class FilterState:
         p[n:, n:] = block
         self.p = p
         self.x = np.concatenate([self.x, feature])
+        first_ray, _ = ray_from_angles(reference, float(feature[3]), float(feature[4]))
         self.features.append(
             FeatureBlock(feature_id, n, INVERSE_DEPTH_SIZE, reference, source, frame, frame,
-                         offset_size=offset_size)
+                         offset_size=offset_size, first_ray=first_ray)
         )  # fmt: skip
         return True
 

@@ -41,11 +41,11 @@ class MonoSlamConfig:
     initial_inverse_depth_sigma: float = 0.3  # 1/m
     gate_probability: float = 0.999
     linearity_threshold: float = 0.1
-    max_features: int = 50
+    max_features: int = 100
     target_measured: int = 25
     max_new_per_frame: int = 5
     min_new_spacing_px: float = 20.0
-    max_unseen_frames: int = 2
+    max_view_angle_deg: float = 45.0
     failure_window: int = 10
     min_success_ratio: float = 0.5
     max_consecutive_failures: int = 3
@@ -64,7 +64,7 @@ class MonoSlamConfig:
             'pixel_sigma_px', 'linear_acceleration_sigma', 'angular_acceleration_sigma',
             'initial_velocity_sigma_m_s', 'initial_angular_velocity_sigma_rad_s',
             'initial_inverse_depth', 'initial_inverse_depth_sigma', 'linearity_threshold',
-            'max_position_sigma_m', 'max_gap_s', 'tracking_offset_time_s',
+            'max_position_sigma_m', 'max_gap_s', 'tracking_offset_time_s', 'max_view_angle_deg',
         )  # fmt: skip
         for name in positive:
             value = getattr(self, name)
@@ -75,7 +75,7 @@ class MonoSlamConfig:
             if not 0.0 < value < 1.0:
                 raise ValueError(f'{name}={value!r}: must be in (0, 1)')
         counts = (
-            'max_features', 'target_measured', 'max_new_per_frame', 'max_unseen_frames',
+            'max_features', 'target_measured', 'max_new_per_frame',
             'failure_window', 'max_consecutive_failures', 'lost_after_frames',
             'lost_after_known_rejected_frames',
         )  # fmt: skip
@@ -185,8 +185,9 @@ class MonoSlamResult:
     None while waiting; ``pose_covariance`` (6, 6) is over (position, rotation about the world
     axes), the convention of geometry_msgs/PoseWithCovariance; velocities in the world
     (linear, m/s) and camera (angular, rad/s) frames. ``removed`` maps each feature taken out
-    of the state in this frame to why: 'failed' (the persistent-outlier test), 'revoked' (the
-    same, for a handed-over feature: back to the Shadow filter), 'unseen' (no longer tracked:
+    of the state in this frame to why: 'failed' (the persistent-outlier test, or not found
+    where predicted too often), 'revoked' (the persistent-outlier test, for a handed-over
+    feature: back to the Shadow filter), 'evicted' (out of view when the state was full:
     retired to the frozen map) or 'lost' (tracking was lost: the map is retired)."""
 
     stamp_ns: int

@@ -55,6 +55,7 @@ class DynamicSceneConfig:
     loop_start_s: float = 4.0
     loop_turn_s: float = 1.5
     loop_angle_deg: float = 90.0
+    keep_track_ids: bool = False  # a point back in view keeps its track id (known association)
 
     @property
     def tracking_correlation_time_s(self) -> float:
@@ -104,6 +105,8 @@ class DynamicSceneConfig:
         _check('loop_away_s', self.loop_away_s >= 0.0, self.loop_away_s, '>= 0 s')
         _check('loop_start_s', self.loop_start_s >= 0.0, self.loop_start_s, '>= 0 s')
         _check('loop_turn_s', self.loop_turn_s > 0.0, self.loop_turn_s, '> 0 s')
+        _check('keep_track_ids', isinstance(self.keep_track_ids, bool), self.keep_track_ids,
+               'a bool')  # fmt: skip
         angle = self.loop_angle_deg
         _check('loop_angle_deg', -180.0 <= angle <= 180.0, angle, '[-180, 180] deg')
         if self.loop_away_s > 0.0:

@@ -238,6 +238,7 @@ def simulate_dynamic_scene(
     exists = scene.points_exist_at(times_s)
     point_object = scene.point_object
     current = np.zeros(len(point_object), dtype=np.int64)  # track id per point, 0: none
+    last = np.zeros(len(point_object), dtype=np.int64)  # the last track id it had
     next_id, frames = 1, []
     track_point: dict[int, int] = {}
     offsets = TrackingOffsets(config, len(point_object), seed)
@@ -248,9 +249,13 @@ def simulate_dynamic_scene(
             observed &= drop_rng.random(len(observed)) >= config.track_drop_probability
         current[~observed] = 0
         new = np.flatnonzero(observed & (current == 0))
-        current[new] = np.arange(next_id, next_id + len(new))
-        track_point.update(zip(current[new].tolist(), new.tolist(), strict=True))
-        next_id += len(new)
+        back = new[last[new] > 0] if config.keep_track_ids else new[:0]
+        current[back] = last[back]  # known data association: the point's own id again
+        fresh = np.setdiff1d(new, back)
+        current[fresh] = np.arange(next_id, next_id + len(fresh))
+        track_point.update(zip(current[fresh].tolist(), fresh.tolist(), strict=True))
+        next_id += len(fresh)
+        last[observed] = current[observed]
         points = np.flatnonzero(observed)
         points = points[np.argsort(current[points])]
         noise = noise_rng.standard_normal((len(points), 2)) * config.pixel_noise_px
