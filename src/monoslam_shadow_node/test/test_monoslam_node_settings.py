@@ -385,7 +385,7 @@ def test_handovers_are_read_and_the_trajectory_written_as_tum() -> None:
 def test_revoked_features_go_out_as_dynamic_tracks_without_a_position() -> None:
     result = MonoSlamResult(
         5_000_000_007, 3, 'tracking', None, None, None, None, None, [], [], [],
-        {4: 'revoked', 8: 'unseen', 9: 'revoked', 11: 'failed'}, 0, [],
+        {4: 'revoked', 8: 'evicted', 9: 'revoked', 11: 'failed'}, 0, [],
     )  # fmt: skip
     ids = revoked_ids(result)
     assert ids == [4, 9]

@@ -165,3 +165,11 @@ def test_a_test_waits_until_the_last_rays_offset_is_not_the_triggers() -> None:
         for k, v in enumerate(track.views)
     ]
     assert trigger_delay_frames(track, persistent) == math.ceil(math.log(2) * 0.6 * RATE_HZ / 2)
+
+
+def test_the_gauss_markov_step_keeps_the_offset_stationary() -> None:
+    noise = TrackingNoise(2.0, 0.5)
+    assert noise.step(0.0) == (1.0, 0.0)
+    decay, fresh = noise.step(0.5)
+    assert decay == pytest.approx(math.exp(-1.0))
+    assert decay**2 * 4.0 + fresh == pytest.approx(4.0)  # variance sigma^2 is kept

@@ -62,6 +62,7 @@ from slam_sim.core.dynamic_render import LABEL_NOTHING, DynamicRenderer, Rendere
 from slam_sim.core.dynamic_scene import DEFAULT_START_NS
 from slam_sim.core.office_view import MarkerTruth, SceneStyle
 from slam_sim.dataset_bag import TopicSpec, WrittenBag, check_output, write_bag
+from slam_sim.dynamic_features_bag import add_loop_argument
 from slam_sim.office_camera_bag import (
     CAMERA_INFO_TOPIC,
     CAMERA_INFO_TYPE,
@@ -395,14 +396,7 @@ def _parser() -> argparse.ArgumentParser:
         default=defaults.hand_motion_m,
         help="amplitude of the hand's sweep per axis, m (0-0.5)",
     )
-    parser.add_argument(
-        '--loop-away-s',
-        type=float,
-        default=defaults.loop_away_s,
-        help=f'a loop scene: from {defaults.loop_start_s:g} s the camera turns '
-        f'{defaults.loop_angle_deg:g} deg away from the start area for this long and back '
-        '(0: none)',
-    )
+    add_loop_argument(parser)
     parser.add_argument('--quality', type=int, default=DEFAULT_QUALITY, help='JPEG quality, 1-100')
     parser.add_argument('--raw', action='store_true', help='raw mono8 images instead of JPEG')
     parser.add_argument('--no-effects', action='store_true', help='no sensor noise or vignetting')

@@ -243,6 +243,20 @@ def summary(run: DynamicSceneRun, written: WrittenBag, elapsed_s: float) -> str:
     )
 
 
+def add_loop_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--loop-away-s`` (``DynamicSceneConfig.loop_away_s``), which both simulators of
+    the dynamic scene take."""
+    defaults = DynamicSceneConfig()
+    parser.add_argument(
+        '--loop-away-s',
+        type=float,
+        default=defaults.loop_away_s,
+        help=f'a loop scene: from {defaults.loop_start_s:g} s the camera turns '
+        f'{defaults.loop_angle_deg:g} deg away from the start area for this long and back '
+        '(0: none)',
+    )
+
+
 def _parser() -> argparse.ArgumentParser:
     defaults = DynamicSceneConfig()
     parser = argparse.ArgumentParser(
@@ -274,14 +288,7 @@ def _parser() -> argparse.ArgumentParser:
         help=f'object motion kinds, cycled over the {defaults.objects} objects; comma list of '
         f'{", ".join(MOTION_KINDS)}',
     )
-    parser.add_argument(
-        '--loop-away-s',
-        type=float,
-        default=defaults.loop_away_s,
-        help=f'a loop scene: from {defaults.loop_start_s:g} s the camera turns '
-        f'{defaults.loop_angle_deg:g} deg away from the start area for this long and back '
-        '(0: none)',
-    )
+    add_loop_argument(parser)
     parser.add_argument(
         '--start-ns',
         type=int,

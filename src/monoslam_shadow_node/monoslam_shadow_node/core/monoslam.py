@@ -235,8 +235,10 @@ class MonoSlam:
         observed = {int(i): pixels[k] for k, i in enumerate(ids)}
         outcome = self._update(observed, known_keys, known_pixels)
         measured, rejected, known_used = outcome.measured, outcome.rejected, outcome.known_used
-        removed = self._manage_map(observed, measured, rejected)
-        removed.update(self._make_room(observed, measured))
+        unseen = [feature for feature in self._state.features if feature.id not in observed]
+        searchable = set(self._in_view(unseen)[0].tolist())  # predicted in view, not seen
+        removed = self._manage_map(observed, rejected, searchable)
+        removed.update(self._make_room(observed, measured, searchable))
         added = self._add_features(observed, measured)
         if measured or known_used:
             self._idle_frames = 0
@@ -314,9 +316,10 @@ class MonoSlam:
         return ransac_update(self._state, self.camera, observed, known, self.config, self._rng)
 
     def _manage_map(
-        self, observed: dict[int, FloatArray], measured: list[int], rejected: list[int]
+        self, observed: dict[int, FloatArray], rejected: list[int], in_view: set[int]
     ) -> dict[int, str]:
-        """Count the searches of the features predicted in view and whether each was found;
+        """Count the searches of the features predicted in view (``in_view``: those not
+        observed) and whether each was found;
         forget the tracker offset of each rejected feature (``reset_offset``); delete the
         features failing the persistent-outlier test (a handed-over one is revoked) or found
         in fewer than ``min_success_ratio`` of at least ``failure_window`` searches (Davison's
@@ -326,9 +329,8 @@ class MonoSlam:
         removed: dict[int, str] = {}
         state = self._state
         refused = set(rejected)
-        unseen = [feature for feature in state.features if feature.id not in observed]
         # a frame without any feature (a covered lens, a dropped image) searches nothing
-        searched = set(self._in_view(unseen)[0].tolist()) if observed else set()
+        searched = in_view if observed else set()
         window, ratio = config.failure_window, config.min_success_ratio
         for feature in list(state.features):
             if feature.id in observed:
@@ -388,10 +390,12 @@ class MonoSlam:
             keep[k] = first is None or (norm > 0.0 and direction @ first >= cos_limit * norm)
         return ids[keep], pixels[keep], covariances[keep]
 
-    def _make_room(self, observed: dict[int, FloatArray], measured: list[int]) -> dict[int, str]:
-        """Evict features out of view, the longest unseen first, into the frozen map while
-        the state is too full for the features this frame would add; return them
-        ('evicted')."""
+    def _make_room(
+        self, observed: dict[int, FloatArray], measured: list[int], in_view: set[int]
+    ) -> dict[int, str]:
+        """Evict features out of view (neither observed nor in ``in_view``), the longest unseen
+        first, into the frozen map while the state is too full for the features this frame
+        would add; return them ('evicted')."""
         config = self.config
         if config.initialize == 'handover':
             wanted = sum(1 for i in self._handovers if i in observed)
@@ -403,7 +407,6 @@ class MonoSlam:
         if excess <= 0:
             return {}
         unseen = [feature for feature in self._state.features if feature.id not in observed]
-        in_view = set(self._in_view(unseen)[0].tolist())
         away = sorted(
             (feature for feature in unseen if feature.id not in in_view),
             key=lambda feature: feature.last_seen_frame,

@@ -18,7 +18,6 @@ a camera the rest of the map fixed.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,11 +46,11 @@ def predict(state: FilterState, dt_s: float, config: MonoSlamConfig) -> None:
     state.p[CAMERA_SIZE:, c] = state.p[c, CAMERA_SIZE:].T
     offsets = offset_indices(state)
     if len(offsets):
-        decay = math.exp(-max(dt_s, 0.0) / config.tracking_offset_time_s)
+        decay, fresh = config.tracking_noise.step(dt_s)
         state.x[offsets] *= decay
         state.p[offsets, :] *= decay
         state.p[:, offsets] *= decay
-        state.p[offsets, offsets] += config.tracking_offset_px**2 * (1.0 - decay**2)
+        state.p[offsets, offsets] += fresh
 
 
 def offset_indices(state: FilterState) -> IntArray:
@@ -90,7 +89,7 @@ def predicted_measurements(
         for feature in features
     ]
     pixels, d_camera, d_feature, depth = project_features(camera_model, camera, points)
-    decay = math.exp(-max(dt_s, 0.0) / config.tracking_offset_time_s)
+    decay, offset_noise = config.tracking_noise.step(dt_s)
     out_ids, out_pixels, out_s = [], [], []
     for k, feature in enumerate(features):
         if depth[k] <= 0.0:
@@ -103,7 +102,7 @@ def predicted_measurements(
             pixel = pixel + decay * state.x[offset]
             h_f = h_f.copy()
             h_f[:, -2:] *= decay
-            fresh = config.tracking_offset_px**2 * (1.0 - decay**2)
+            fresh = offset_noise
         cross = h_c @ p_cf @ h_f.T
         s = h_c @ p_cc @ h_c.T + cross + cross.T + h_f @ state.p[block, block] @ h_f.T
         s += (fresh + measurement_variance_of(feature, config)) * np.eye(2)

@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.monoslam_model import FloatArray
 from monoslam_shadow_node.core.projective import chi2_quantile
+from monoslam_shadow_node.core.tracking_noise import TrackingNoise
 
 IntArray = NDArray[np.int64]
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
@@ -107,6 +108,11 @@ class MonoSlamConfig:
     def gate(self) -> float:
         """The chi-square gate (2 degrees of freedom) on one feature's innovation."""
         return chi2_quantile(self.gate_probability, 2)
+
+    @property
+    def tracking_noise(self) -> TrackingNoise:
+        """The tracker's persistent offsets (``tracking_noise``)."""
+        return TrackingNoise(self.tracking_offset_px, self.tracking_offset_time_s)
 
     @property
     def offset_states(self) -> bool:

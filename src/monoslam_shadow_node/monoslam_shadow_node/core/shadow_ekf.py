@@ -54,7 +54,6 @@ homogeneous scale from the covariance.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -203,9 +202,8 @@ def predict(
     jacobian[:, :3, 4:7] = dt * rotation
     jacobian[:, 3, 3] = 1.0
     jacobian[:, 4:7, 4:7] = rotation
-    decay = 0.0
+    decay, fresh = config.tracking_noise.step(dt)
     if size > STATE_SIZE:  # the tracker's offset decays (module docstring)
-        decay = math.exp(-max(dt, 0.0) / config.tracking_offset_time_s)
         new[:, OFFSET] = decay * states[:, OFFSET]
         jacobian[:, OFFSET, OFFSET] = decay * np.eye(OFFSET_SIZE)
     covariance = jacobian @ covariances @ np.swapaxes(jacobian, 1, 2)
@@ -216,7 +214,6 @@ def predict(
     noise[4:7, :] = rotation
     covariance += scale[:, None, None] * (noise @ noise.T)[None]
     if size > STATE_SIZE:
-        fresh = config.tracking_offset_px**2 * (1.0 - decay**2)
         covariance[:, OFFSET, OFFSET] += fresh * np.eye(OFFSET_SIZE)
     if config.camera_translation_sigma_m > 0 or config.camera_rotation_sigma_rad > 0:
         covariance += _camera_motion_noise(new, config)

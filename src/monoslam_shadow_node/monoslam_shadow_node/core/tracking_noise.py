@@ -63,6 +63,13 @@ class TrackingNoise:
         """Return one sighting's pixel standard deviation, white noise and offset together."""
         return math.sqrt(pixel_sigma_px**2 + self.offset_px**2)
 
+    def step(self, dt_s: float) -> tuple[float, float]:
+        """Return the offset's Gauss-Markov step over ``dt_s`` s: o' = a o + n with
+        a = exp(-dt / ``offset_time_s``) and var(n) = ``offset_px``^2 (1 - a^2) per axis, as
+        (a, var(n)). Filters that keep the offset in their state predict it with this."""
+        decay = math.exp(-max(dt_s, 0.0) / self.offset_time_s)
+        return decay, self.offset_px**2 * (1.0 - decay**2)
+
     def correlation(self, stamps_ns: FloatArray) -> FloatArray:
         """Return the offsets' correlation (N, N) between sightings at ``stamps_ns`` (N,)."""
         seconds = np.asarray(stamps_ns, dtype=np.float64) * 1e-9
