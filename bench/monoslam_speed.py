@@ -26,6 +26,13 @@ Acceptance (issue 7): SLAM + Shadow at least 30 frames/s (goal 100) with 30 map 
 20 Shadow features per frame. PASS or FAIL is printed; FAIL exits with 1. The report goes to
 ``bench/results/monoslam_speed.md`` and ``.json``.
 
+Map-size sweep (issue 21, ``--map-sweep 25,50,75,100,125,150``): the same measurement with
+every size as ``--map-features`` (every feature in the state measured in every counted frame:
+the worst case for a map of that size, since a persistent map measures only those in view),
+SLAM time per frame against the features in the state, with the reference at each size.
+Acceptance: MonoSlam.process at least 30 frames/s with 100 features in the state. A size the
+scene cannot fill (fewer static points in view at once) is reported as such.
+
 Run (after ``bash scripts/bootstrap.sh``)::
 
     source scripts/env.sh
@@ -43,6 +50,7 @@ import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import gc  # noqa: E402
 import json  # noqa: E402
+import math  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
@@ -276,6 +284,88 @@ def render_report(result: dict[str, Any]) -> str:
     return '\n'.join(lines)
 
 
+SWEEP_ACCEPT_FEATURES = 100
+
+
+def map_sweep(
+    args: argparse.Namespace,
+    sizes: list[int],
+    pinned: str,
+    run: Any,
+    frames: list[MeasurementFrame],
+    target: InitTarget,
+) -> int:
+    """Time SLAM (and the Shadow filter) at each map size; write the sweep report; return 0
+    if SLAM keeps 30 frames/s at SWEEP_ACCEPT_FEATURES features in the state."""
+    rows: list[dict[str, Any]] = []
+    for size in sizes:
+        config = MonoSlamConfig(
+            known_points=target_known_points(target),
+            initialize='all',
+            max_features=size,
+            target_measured=size,
+        )
+        print(f'map {size}: timing {len(frames)} frames x {args.repeats} passes ...', flush=True)
+        try:
+            timing = measure(
+                frames, camera_model(run), config, args.shadow_features, args.repeats, args.seed
+            )
+        except RuntimeError as error:
+            rows.append({'map_features': size, 'error': str(error)})
+            continue
+        rows.append({'map_features': size, **timing})
+    meta = {
+        **run_meta(pinned),
+        'seed': args.seed,
+        'duration_s': args.duration_s,
+        'repeats': args.repeats,
+        'shadow_features': args.shadow_features,
+    }
+    at_accept = [
+        r for r in rows if r['map_features'] == SWEEP_ACCEPT_FEATURES and 'error' not in r
+    ]
+    slam_hz = 1e3 / at_accept[0]['slam_ms_median'] if at_accept else math.nan
+    verdict = 'PASS' if slam_hz >= ACCEPT_HZ else 'FAIL'
+    lines = [
+        '# MonoSLAM: time per frame against the map size (one core)',
+        '',
+        f'{meta["date"]}; {meta["platform"]}, {meta["cpus"]} CPUs, pinned to {meta["pinned"]}, '
+        f'Python {meta["python"]}, numpy {meta["numpy"]}; commit {meta["commit"]}. Fig. 5 '
+        f'scene seed {args.seed}, {args.duration_s:g} s; every feature in the state measured '
+        f'in each counted frame (the worst case); {args.shadow_features} Shadow features; '
+        f'best of {args.repeats} passes.',
+        '',
+        '| features in state | state size | rows | SLAM ms median | p95 | SLAM Hz | '
+        'SLAM + Shadow Hz | reference ms | SLAM / reference |',
+        '|---:|---:|---:|---:|---:|---:|---:|---:|---:|',
+    ]
+    for row in rows:
+        if 'error' in row:
+            lines.append(f'| {row["map_features"]} | not reached: {row["error"]} |||||||| ')
+            continue
+        lines.append(
+            f'| {row["map_features"]} | {row["state_size_median"]:.0f} | '
+            f'{row["measurement_rows_median"]:.0f} | {row["slam_ms_median"]:.2f} | '
+            f'{row["slam_ms_p95"]:.2f} | {1e3 / row["slam_ms_median"]:.0f} | {row["hz"]:.0f} | '
+            f'{row["reference_ms_median"]:.2f} | {row["slam_over_reference"]:.2f} |'
+        )
+    lines += [
+        '',
+        f'Acceptance: MonoSlam.process at least {ACCEPT_HZ:.0f} frames/s with '
+        f'{SWEEP_ACCEPT_FEATURES} features in the state: {slam_hz:.0f} frames/s -> '
+        f'**{verdict}**.',
+        '',
+    ]
+    report = '\n'.join(lines)
+    output = args.output.with_name('monoslam_map_sweep.md')
+    output.parent.mkdir(parents=True, exist_ok=True)
+    content = {'meta': meta, 'sweep': rows}
+    write_atomically(output.with_suffix('.json'), json.dumps(content, indent=2) + '\n')
+    write_atomically(output, report)
+    print(report)
+    return 0 if verdict == 'PASS' else 1
+
+
 def build_arg_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=(__doc__ or '').split('\n\n')[0])
     parser.add_argument('--seed', type=int, default=0, help='seed of the simulated run')
@@ -283,6 +373,11 @@ def build_arg_parser() -> argparse.ArgumentParser:
     parser.add_argument('--repeats', type=int, default=3, help='timed passes')
     parser.add_argument('--map-features', type=int, default=30, help='SLAM map size')
     parser.add_argument('--shadow-features', type=int, default=20, help='Shadow features')
+    parser.add_argument(
+        '--map-sweep',
+        default=None,
+        help='comma list of map sizes to time SLAM at, e.g. 25,50,75,100,125,150',
+    )
     parser.add_argument('--cpu', type=int, default=None, help='CPU to pin to (default: last)')
     parser.add_argument(
         '--output', type=Path, default=DEFAULT_OUTPUT, help='Markdown report (JSON next to it)'
@@ -300,6 +395,15 @@ def main(argv: list[str] | None = None) -> int:
     run = simulate_dynamic_scene(args.seed, scene)
     target = InitTarget()
     frames = simulation_frames(run, target, rng=np.random.default_rng(args.seed))
+    if args.map_sweep is not None:
+        try:
+            sizes = [int(part) for part in args.map_sweep.split(',') if part.strip()]
+        except ValueError:
+            sizes = []
+        if not sizes or min(sizes) < 1:
+            print(f'--map-sweep {args.map_sweep!r}: a comma list of sizes >= 1', file=sys.stderr)
+            return 2
+        return map_sweep(args, sizes, pinned, run, frames, target)
     config = MonoSlamConfig(
         known_points=target_known_points(target),
         initialize='all',

@@ -315,13 +315,19 @@ def test_shadow_statuses_match_the_labels(pipeline: PipelineRun, truth: Truth) -
 def test_the_shadow_filter_engages_and_fills_the_map(pipeline: PipelineRun, truth: Truth) -> None:
     """Issue 20's live figures: the Shadow filter processes at least 95 % of the images
     (shadow/tracks comes once per processed frame), hands over at least 100 features, and
-    SLAM's map holds them (measured: 299 of 300 frames, 387 features, 137 map points)."""
+    SLAM's map holds them, with the undecided features that filled it (fill_undecided) marked
+    as not handed over (measured: 299 of 300 frames, 387 features, 137 map points before
+    filling; 61 points, 5 of them handed over, with it: handovers enter only while fewer
+    than target_measured features are measured)."""
     images = len(truth.centres)
     assert len(pipeline.tracks) >= MIN_SHADOW_SHARE * images
     handed = {track.id for message in pipeline.handovers for track in message.tracks}
     assert len(handed) >= MIN_HANDED_FEATURES
     points = np.frombuffer(bytes(pipeline.maps[-1].data), dtype=POINT_DTYPE)
-    assert len(points) >= MIN_HANDED_FEATURES // 2 and set(points['id'].astype(int)) <= handed
+    from_handover = points['handover'] == 1
+    assert len(points) >= MIN_HANDED_FEATURES // 2
+    assert set(points['id'][from_handover].astype(int)) <= handed
+    assert np.count_nonzero(from_handover) >= 1
 
 
 def test_map_path_and_tf_are_published_without_nan(pipeline: PipelineRun) -> None:
@@ -330,7 +336,7 @@ def test_map_path_and_tf_are_published_without_nan(pipeline: PipelineRun) -> Non
     points = np.frombuffer(bytes(cloud.data), dtype=POINT_DTYPE)
     assert cloud.header.frame_id == 'map' and len(points) == cloud.width > 10
     assert [f.name for f in cloud.fields] == list(POINT_DTYPE.names or ())
-    assert np.all(points['handover'] == 1) and np.any(points['active'] == 1)
+    assert np.any(points['handover'] == 1) and np.any(points['active'] == 1)
     path = pipeline.paths[-1]
     assert path.poses[-1].header.stamp == pipeline.poses[-1].header.stamp
     transform = pipeline.transforms[-1].transforms[0]
@@ -463,6 +469,7 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
         ros_harness,
         'sync_horizon_s:=0.2',
         'publish_predictions:=true',
+        'fill_undecided:=false',  # only the handovers below enter the map
         f'trajectory_file:={trajectory}',
     )
     poses = ros_harness.collect('monoslam/pose', PoseWithCovarianceStamped)

@@ -22,6 +22,7 @@ setup(
             'shadow_evaluate = slam_evaluation.shadow_evaluate:main',
             'monoslam_evaluate = slam_evaluation.monoslam_evaluate:main',
             'monoslam_image_evaluate = slam_evaluation.monoslam_image_evaluate:main',
+            'monoslam_loop_evaluate = slam_evaluation.monoslam_loop_evaluate:main',
         ],
     },
 )

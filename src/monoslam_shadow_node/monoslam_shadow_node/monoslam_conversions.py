@@ -132,6 +132,11 @@ def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> Targ
     return TargetSighting(stamp_ns, frame_id, corners.reshape(TARGET_CORNERS, 2), detected)
 
 
+def dynamic_ids(message: Any) -> list[int]:
+    """Return the ids of the DYNAMIC tracks of a slam_interfaces/ShadowTrackArray."""
+    return [int(track.id) for track in message.tracks if int(track.status) == DYNAMIC_STATUS]
+
+
 def handovers_from_message(message: Any) -> list[HandoverInput]:
     """Return the handovers of a slam_interfaces/ShadowTrackArray (shadow/static_features)."""
     return [

@@ -27,6 +27,9 @@ Topics:
               (world position and covariance in map_frame); each enters the map when next
               observed. A handover that is not STATIC, not finite, not positive
               semi-definite or in another frame is refused and logged with its id.
+              shadow/tracks (slam_interfaces/ShadowTrackArray, reliable, depth 100), when
+              initialize is 'handover' and fill_undecided: the features the Shadow filter
+              found DYNAMIC never fill the map undecided.
   publishes   monoslam/pose (geometry_msgs/PoseWithCovarianceStamped, reliable, depth 10),
               every frame with a pose (tracking): the pose of the camera OPTICAL frame (x right,
               y down, z forward) in map_frame, R_world_camera and the optical centre, covariance
@@ -110,7 +113,13 @@ keeps the two equal).
                                   MonoSLAM alone, from every new track).
   handover_probation (true)       a handed-over feature corrects only its own estimate (a
                                   Schmidt consider update), not the camera, until its
-                                  inverse depth becomes Euclidean (SLAM's own views fix it).
+                                  inverse depth becomes Euclidean (SLAM's own views fix it),
+                                  or until fewer than 3 others are measured in a frame.
+  fill_undecided (true)           with initialize 'handover', when handovers leave fewer
+                                  than target_measured features measured, features the
+                                  Shadow filter has not decided on (and not found DYNAMIC)
+                                  fill the gap, as classic MonoSLAM initializes them; one
+                                  failing the persistent-outlier test is revoked.
   update ('ransac'), ransac_seed (0)  'ransac': the 1-point RANSAC update (Civera et al.
                                   2010), its draws seeded for reproducible runs; 'gated':
                                   every measurement inside the chi-square gate.
@@ -164,6 +173,7 @@ from monoslam_shadow_node.monoslam_conversions import (
     PoseFields,
     TargetSighting,
     cloud_points,
+    dynamic_ids,
     fill_cloud,
     fill_pose_stamped,
     fill_pose_with_covariance,
@@ -202,6 +212,7 @@ FEATURES_TOPIC = 'features'
 FIDUCIALS_TOPIC = 'fiducials'
 CAMERA_INFO_TOPIC = 'camera/camera_info'
 HANDOVER_TOPIC = 'shadow/static_features'
+SHADOW_TRACKS_TOPIC = 'shadow/tracks'
 POSE_TOPIC = 'monoslam/pose'
 PATH_TOPIC = 'monoslam/path'
 MAP_TOPIC = 'monoslam/map'
@@ -267,6 +278,10 @@ class MonoSlamNode(Node):
         self.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self._on_camera_info, sensor_qos())
         if self.config.initialize == 'handover':
             self.create_subscription(ShadowTrackArray, HANDOVER_TOPIC, self._on_handovers, inputs)
+            if self.config.fill_undecided:
+                self.create_subscription(
+                    ShadowTrackArray, SHADOW_TRACKS_TOPIC, self._on_shadow_tracks, inputs
+                )
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         horizon_s = self.settings.sync_horizon_ns / 1e9
         self.create_timer(max(horizon_s / 2, 0.05), self._flush_when_idle, clock=steady)
@@ -324,6 +339,9 @@ class MonoSlamNode(Node):
         handovers = handovers_from_message(message)
         for notice in self.processor.add_handovers(handovers, str(message.header.frame_id)):
             self.get_logger().warning(f'{HANDOVER_TOPIC}: {notice.text}')
+
+    def _on_shadow_tracks(self, message: ShadowTrackArray) -> None:
+        self.processor.mark_moving(dynamic_ids(message))
 
     def _flush_when_idle(self) -> None:
         idle_s = time.monotonic() - self._last_input

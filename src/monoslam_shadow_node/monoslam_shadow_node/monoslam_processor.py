@@ -222,6 +222,12 @@ class MonoSlamProcessor:
         """The inputs stopped: frames still without fiducials go now (alone or dropped)."""
         return self._drain(flush=True)
 
+    def mark_moving(self, ids: Sequence[int]) -> None:
+        """Note features the Shadow filter found DYNAMIC (``MonoSlam.mark_moving``); before
+        the camera there is no filter and nothing to fill."""
+        if self.slam is not None and len(ids):
+            self.slam.mark_moving(ids)
+
     def add_handovers(self, handovers: Sequence[HandoverInput], frame_id: str) -> list[Notice]:
         """Take the Shadow filter's handovers (in ``frame_id``); return a notice per refusal."""
         notices = []

@@ -105,7 +105,13 @@ CORE_PARAMETERS = (
     _core(
         'handover_probation',
         'a handed-over feature corrects only itself (a Schmidt consider update), not the '
-        'camera, until its inverse depth becomes Euclidean',
+        'camera, until its inverse depth becomes Euclidean (or fewer than 3 others are '
+        'measured in a frame)',
+    ),
+    _core(
+        'fill_undecided',
+        "with initialize 'handover': when handovers leave fewer than target_measured "
+        'features measured, undecided features (not DYNAMIC in shadow/tracks) fill the gap',
     ),
     Param(
         'update',

@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from monoslam_shadow_node.core.monoslam_ekf import (
+    MIN_POSE_POINTS,
     consider_update,
     gated_update,
     linearize_all,
@@ -191,3 +192,29 @@ def test_a_handover_enters_on_probation_and_leaves_it_when_euclidean() -> None:
         assert all(states[k] == (EUCLIDEAN_SIZE, False) for k in euclidean)
         assert all(s == (6, probation) for s in states[2 : euclidean[0]])
         assert not math.isnan(float(slam._state.x[R_SLICE][0]))
+
+
+def test_probation_ends_when_fewer_than_three_others_are_measured() -> None:
+    """Turned away from everything trusted, the features on probation are all there is to
+    fix the camera with: they leave probation and update it (monoslam_ekf's docstring)."""
+    rng = np.random.default_rng(3)
+    prior = _state(rng)
+    observed = _observed(prior, rng)
+    trusted_seen = {i: p for i, p in observed.items() if i in GROUP or i < MIN_POSE_POINTS - 1}
+    for update in ('ransac', 'gated'):
+        state = _on_probation(prior)
+        if update == 'ransac':
+            outcome = ransac_update(
+                state, CAMERA, trusted_seen, [], CONFIG, np.random.default_rng(1)
+            )
+        else:
+            outcome = gated_update(state, CAMERA, trusted_seen, [], CONFIG)
+        assert outcome.counts.probation == 0
+        assert not any(feature.probation for feature in state.features if feature.id in GROUP)
+        moved = np.abs(state.x[R_SLICE] - prior.x[R_SLICE]) / np.sqrt(np.diag(prior.p)[R_SLICE])
+        assert np.max(moved) > 0.05  # the shifted group now moves the camera
+        # with three trusted features seen, the group stays on probation
+        state = _on_probation(prior)
+        three = {i: p for i, p in observed.items() if i in GROUP or i < MIN_POSE_POINTS}
+        gated_update(state, CAMERA, three, [], CONFIG)
+        assert all(feature.probation for feature in state.features if feature.id in GROUP)

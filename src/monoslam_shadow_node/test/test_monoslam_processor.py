@@ -162,3 +162,40 @@ def test_predictions_are_due_once_per_later_stamp() -> None:
     ids, pixels = processor.predictions(4 * 33 * MS) or (None, None)
     assert ids is not None and pixels is not None and len(ids) == len(pixels) == 0
     assert processor.predictions(4 * 33 * MS) is None  # once per stamp
+
+
+def _points_features(index: int, ids: list[int]) -> Features:
+    """Features of static points 2-3 m ahead of the camera at CENTRE (ids 1..), raw pixels."""
+    rng = np.random.default_rng(7)
+    points = np.column_stack([rng.uniform(-0.8, 0.8, (40, 2)), rng.uniform(1.0, 2.0, 40)])
+    pixels = CAMERA.project(points[np.array(ids) - 1] - CENTRE)
+    return Features(index * 33 * MS, 'camera', np.array(ids, dtype=np.int64), pixels)
+
+
+def test_undecided_features_fill_the_map_except_those_found_moving() -> None:
+    """fill_undecided: without handovers, tracks fill SLAM's map up to max_new_per_frame per
+    frame, never one the Shadow filter found DYNAMIC nor one handed over and pending (it
+    enters with its handed-over depth)."""
+    processor = _processor(max_new_per_frame=40, target_measured=40, min_new_spacing_px=0.0)
+    processor.set_camera(CAMERA)
+    ids = list(range(1, 41))
+    processor.add_features(_points_features(0, ids))
+    processor.add_sighting(_sighting(0))
+    processor.mark_moving([3, 4])
+    assert processor.refusal(_handover(5), 'map') is None
+    processor.add_features(_points_features(1, ids))
+    steps = _steps(processor.add_sighting(_sighting(1)))
+    added = set(steps[-1].result.added_ids)
+    assert 5 in added  # the handover, with its depth
+    assert not {3, 4} & added
+    assert added == set(ids) - {3, 4}
+    sources = {p.id: p.source for p in processor.map_points()}
+    assert sources[5] == 'handover' and sources[6] == 'new'
+    # without filling, only the handover would have entered
+    quiet = _processor(fill_undecided=False)
+    quiet.set_camera(CAMERA)
+    quiet.add_features(_points_features(0, ids))
+    quiet.add_sighting(_sighting(0))
+    assert quiet.refusal(_handover(5), 'map') is None
+    quiet.add_features(_points_features(1, ids))
+    assert _steps(quiet.add_sighting(_sighting(1)))[-1].result.added_ids == [5]

@@ -26,7 +26,8 @@ Two diagnostic settings of variant ``c`` bound what the Shadow filter costs (the
 the system: the filters would need the truth): ``PipelineConfig.shadow_poses = 'truth'``
 gives the Shadow filter the true camera pose as a known pose (no covariance; SLAM's pose
 still decides whether a frame has one), and ``oracle_handovers`` drops every handover of a
-truly moving feature before SLAM sees it (recorded as refused).
+truly moving feature before SLAM sees it (recorded as refused) and keeps them from filling
+SLAM's map undecided (``MonoSlamConfig.fill_undecided``).
 
 Frames come from the dynamic-scene simulation (``simulation_frames``: its features, and the
 corners of the known markers as known points, key 4 j + corner for marker j (a single
@@ -134,7 +135,8 @@ class VariantRecord:
     time (s); and the features SLAM removed from its state: (frame, id, reason), reason
     'revoked' (a handed-over feature failing the persistent-outlier test: the Shadow filter
     takes it back as a suspect), 'failed' or 'evicted'; the moving features' entries into the map
-    (frame, id)."""
+    (frame, id); per frame the features measured, those searched for in vain (predicted in
+    view, not observed) and the features in the state."""
 
     variant: str
     stamps_ns: IntArray
@@ -155,6 +157,9 @@ class VariantRecord:
     runtime_s: float
     removals: list[tuple[int, int, str]] = field(default_factory=list)
     mover_entries: list[tuple[int, int]] = field(default_factory=list)
+    measured_ids: list[frozenset[int]] = field(default_factory=list)
+    searched_ids: list[frozenset[int]] = field(default_factory=list)
+    state_features: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def tracked(self) -> BoolArray:
@@ -226,6 +231,9 @@ class _Bookkeeping:
     no_pose: int = 0
     removals: list[tuple[int, int, str]] = field(default_factory=list)
     mover_entries: list[tuple[int, int]] = field(default_factory=list)
+    measured_ids: list[frozenset[int]] = field(default_factory=list)
+    searched_ids: list[frozenset[int]] = field(default_factory=list)
+    state_features: list[int] = field(default_factory=list)
 
 
 def run_variant(
@@ -272,6 +280,8 @@ def run_variant(
             measurements = dataclasses.replace(
                 measurements, ids=ids[static], pixels=measurements.pixels[static]
             )
+        if variant == 'c' and config.oracle_handovers:  # nor do they fill the map undecided
+            slam.mark_moving(ids[frame.moving].tolist())
         try:
             result = slam.process_frame(measurements).result
             books.removals += [(index, i, why) for i, why in result.removed.items()]
@@ -284,6 +294,9 @@ def run_variant(
             ) from error
         status.append(result.status)
         measured[index] = len(result.measured_ids)
+        books.measured_ids.append(frozenset(result.measured_ids))
+        books.searched_ids.append(frozenset(result.searched_ids))
+        books.state_features.append(result.state_features)
         entered = [i for i in result.added_ids if books.moving.get(i, False)]
         books.dynamic_in_map += entered
         books.mover_entries += [(index, i) for i in entered]
@@ -312,6 +325,9 @@ def run_variant(
         time.perf_counter() - started,
         books.removals,
         books.mover_entries,
+        books.measured_ids,
+        books.searched_ids,
+        np.array(books.state_features, dtype=np.int64),
     )
 
 
@@ -358,6 +374,7 @@ def _shadow_step(
     books.shadow_frames += 1
     books.static_decisions += sum(d.status == STATIC for d in output.decisions)
     books.dynamic_decisions += sum(d.status == DYNAMIC for d in output.decisions)
+    slam.mark_moving([d.id for d in output.decisions if d.status == DYNAMIC])
     for handover in output.handovers:
         moving = books.moving.get(handover.id, False)
         if config.oracle_handovers and moving:

@@ -62,11 +62,16 @@ def _frames(run, target, rng, *, static_only: bool):  # type: ignore[no-untyped-
 
 
 def _filter(run, initialize: str = 'all', probation: bool = True) -> MonoSlam:  # type: ignore[no-untyped-def]
+    """The filter; with initialize='handover', only handovers enter its map (no filling from
+    undecided features: these tests follow the handovers they make)."""
     info = run.camera.camera_info()
     camera = CameraModel.from_camera_info(info.width, info.height, info.k, info.d, 'plumb_bob')
     known = {k: tuple(p) for k, p in enumerate(InitTarget().corners_m)}
     config = MonoSlamConfig(
-        known_points=known, initialize=initialize, handover_probation=probation
+        known_points=known,
+        initialize=initialize,
+        handover_probation=probation,
+        fill_undecided=False,
     )
     return MonoSlam(camera, config)
 

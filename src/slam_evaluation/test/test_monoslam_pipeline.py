@@ -18,6 +18,7 @@ from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig, MonoSlamFra
 from slam_core.blas import single_threaded_blas
 from slam_evaluation import monoslam_runs
 from slam_evaluation.monoslam_evaluate import main
+from slam_evaluation.monoslam_loop import map_history, run_loop
 from slam_evaluation.monoslam_metrics import (
     mover_revocations,
     nees_by_frame,
@@ -145,10 +146,15 @@ def test_variant_b_lets_moving_features_into_the_map() -> None:
 
 
 def test_variant_c_adds_only_what_the_shadow_filter_hands_over() -> None:
-    """The Shadow filter gets every frame SLAM tracks, with SLAM's pose covariance."""
+    """The Shadow filter gets every frame SLAM tracks, with SLAM's pose covariance; without
+    fill_undecided only its handovers enter the map."""
     run = simulate_dynamic_scene(1, DynamicSceneConfig(**{**vars(FEW_MOVERS), 'duration_s': 4.0}))
     frames = _frames(run, 1)
-    record = run_variant('c', frames, camera_model(run), _config())
+    config = _config()
+    config = dataclasses.replace(
+        config, slam=dataclasses.replace(config.slam, fill_undecided=False)
+    )
+    record = run_variant('c', frames, camera_model(run), config)
     handed = {event.feature_id for event in record.handovers}
     assert len(record.handovers) == record.static_decisions >= 5  # measured 13
     assert all(event.refused is None for event in record.handovers)
@@ -425,3 +431,35 @@ def test_a_run_a_filter_raises_on_is_reported_and_fails_the_exit_status(
     assert failures == [
         {'seed': 0, 'variant': 'a', 'error': 'variant a, frame 7: singular matrix'}
     ]
+
+
+def test_undecided_features_fill_the_map_but_never_those_found_moving() -> None:
+    """fill_undecided (default): while handovers leave fewer than target_measured features
+    measured, undecided ones fill the gap; a feature the Shadow filter found DYNAMIC never
+    does (until handed over as STATIC), nor one SLAM revoked."""
+    scene = DynamicSceneConfig(duration_s=4.0, static_points=120, objects=6, points_per_object=6)
+    run = simulate_dynamic_scene(2, scene)
+    frames = _frames(run, 2)
+    record = run_variant('c', frames, camera_model(run), _config())
+    sources = {p.source for p in record.map_points}
+    assert sources == {'new', 'handover'}
+    assert record.tracked[1:].all() and not record.lost_frames
+    assert record.dynamic_decisions >= 1
+    # the target and the gap-filled features keep about target_measured measured
+    assert np.median(record.measured[30:]) >= 0.8 * MonoSlamConfig().target_measured
+
+
+def test_the_map_survives_a_turn_away_and_is_remeasured_on_return() -> None:
+    """The loop scene (monoslam_loop): a 90 deg turn away for 6 s and back; (c) with the
+    defaults never loses tracking and re-measures most of its map on return."""
+    settings = monoslam_runs.Settings((3,), 20.0, ('c',), Path('unused'))
+    loop = run_loop(settings, 3, True, 'c')
+    metrics = loop.metrics
+    assert not metrics['lost']
+    assert metrics['returned'] >= 10
+    assert metrics['rematched'] >= 0.8 * metrics['returned']
+    assert metrics['duplicates'] == 0
+    assert metrics['closed']
+    history = map_history(loop.record, loop.scene.rate_hz)
+    assert history['rematched'][-1] >= metrics['rematched']
+    assert np.all(history['searched'] <= history['state'])

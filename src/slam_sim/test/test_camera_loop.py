@@ -13,6 +13,7 @@ import pytest
 
 from slam_sim.core.camera_path import LoopTurn
 from slam_sim.core.dynamic_config import DynamicSceneConfig
+from slam_sim.core.dynamic_room import FAR_WALL_FRACTION
 from slam_sim.core.dynamic_scene import simulate_dynamic_scene
 
 
@@ -26,6 +27,9 @@ def test_the_yaw_ramps_out_holds_and_ramps_back() -> None:
     assert turn.back_s == 9.0
 
 
+LOOP_WALL = round(FAR_WALL_FRACTION * DynamicSceneConfig().static_points)
+
+
 def test_a_loop_run_leaves_the_start_view_and_returns_to_it() -> None:
     plain = DynamicSceneConfig(duration_s=14.0, objects=2)
     loop = dataclasses.replace(plain, loop_away_s=6.0, loop_start_s=2.0, loop_turn_s=1.0)
@@ -37,8 +41,13 @@ def test_a_loop_run_leaves_the_start_view_and_returns_to_it() -> None:
         np.testing.assert_allclose(
             run.frames[k].camera_rotation, reference.frames[k].camera_rotation
         )
-        np.testing.assert_array_equal(  # the same points (re-entering ones under new track ids)
-            np.sort(run.frames[k].point_ids), np.sort(reference.frames[k].point_ids)
+        # the same points (re-entering ones under new track ids), and perhaps some of the wall
+        # the loop turns to (its points come after the room's, before the objects')
+        ids = run.frames[k].point_ids
+        wall = (ids >= plain.static_points) & (ids < plain.static_points + LOOP_WALL)
+        shifted = np.where(ids >= plain.static_points + LOOP_WALL, ids - LOOP_WALL, ids)
+        np.testing.assert_array_equal(
+            np.sort(shifted[~wall]), np.sort(reference.frames[k].point_ids)
         )
     forward = run.frames[away].camera_rotation[:, 2]
     start = run.frames[before].camera_rotation[:, 2]
@@ -92,3 +101,16 @@ def test_known_data_association_gives_a_returning_point_its_id_back() -> None:
             assert all(len(ids_of[point]) == 1 for point in returned)
         else:
             assert all(len(ids_of[point]) > 1 for point in returned)
+
+
+def test_the_wall_the_loop_turns_to_has_as_many_points_as_the_far_wall() -> None:
+    plain = DynamicSceneConfig(duration_s=14.0, objects=0)
+    loop = dataclasses.replace(plain, loop_away_s=6.0, loop_start_s=2.0, loop_turn_s=1.0)
+    run = simulate_dynamic_scene(5, loop)
+    static = run.scene.static_points_m
+    assert len(static) == plain.static_points + LOOP_WALL
+    wall = static[plain.static_points :]
+    np.testing.assert_allclose(wall[:, 1], 8.0)  # turned +90 deg from +x: the y = 8 m wall
+    assert np.all((wall[:, 0] >= 0.0) & (wall[:, 0] <= 5.0) & (wall[:, 2] <= 3.0))
+    away = run.frames[int(6.0 * loop.rate_hz)]
+    assert np.count_nonzero(away.point_ids >= plain.static_points) >= 0.5 * LOOP_WALL

@@ -13,7 +13,13 @@ After it, each one inside the gate from the updated state is a Schmidt ('conside
 (``consider_update``): the gain is zero outside the feature's own block, so the camera and
 the other features are not corrected by it, while their uncertainty is in its S. A moving
 feature on probation therefore cannot drag the camera; its innovations are judged against
-a camera the rest of the map fixed.
+a camera the rest of the map fixed. When the rest of the map offers fewer than
+``MIN_POSE_POINTS`` measurements in a frame (the camera turned away from everything SLAM
+trusts), nothing is left to judge them against and nothing else to fix the camera: the
+features on probation measured in that frame leave probation and update the camera as the
+others do (``split_probation``). Without this, a turn away from the trusted map leaves the
+camera to dead reckoning however many features it sees (the loop scene, issue 21: tracking
+lost on the turn, the position sigma growing past a metre with 50 features measured).
 """
 
 from __future__ import annotations
@@ -257,11 +263,23 @@ def gate_all(
     return passed
 
 
+MIN_POSE_POINTS = 3
+"""Points that fix a camera pose (P3P): with fewer trusted measurements in a frame, the
+features on probation are all SLAM has to fix the camera with."""
+
+
 def split_probation(all_matches: list[Match]) -> tuple[list[Match], list[Match]]:
     """Return the matches that update the camera (known points, features not on probation)
-    and those of features on probation, each in their order."""
+    and those of features on probation, each in their order. With fewer than
+    ``MIN_POSE_POINTS`` of the former, the features on probation leave it (module
+    docstring) and all matches update the camera."""
     on_probation = [m for m in all_matches if m.feature is not None and m.feature.probation]
     rest = [m for m in all_matches if m.feature is None or not m.feature.probation]
+    if on_probation and len(rest) < MIN_POSE_POINTS:
+        for match in on_probation:
+            assert match.feature is not None
+            match.feature.probation = False
+        return all_matches, []
     return rest, on_probation
 
 

@@ -56,6 +56,7 @@ class MonoSlamConfig:
     max_gap_s: float = 1.0
     initialize: str = 'all'
     handover_probation: bool = True
+    fill_undecided: bool = True
     update: str = 'ransac'
     ransac_seed: int = 0
 
@@ -93,8 +94,9 @@ class MonoSlamConfig:
             raise ValueError(
                 f'initialize={self.initialize!r}: must be one of {", ".join(INITIALIZE_MODES)}'
             )
-        if not isinstance(self.handover_probation, bool):
-            raise ValueError(f'handover_probation={self.handover_probation!r}: must be a bool')
+        for name in ('handover_probation', 'fill_undecided'):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f'{name}={getattr(self, name)!r}: must be a bool')
         if self.update not in UPDATE_MODES:
             raise ValueError(f'update={self.update!r}: must be one of {", ".join(UPDATE_MODES)}')
         seed = self.ransac_seed
@@ -194,7 +196,9 @@ class MonoSlamResult:
     of the state in this frame to why: 'failed' (the persistent-outlier test, or not found
     where predicted too often), 'revoked' (the persistent-outlier test, for a handed-over
     feature: back to the Shadow filter), 'evicted' (out of view when the state was full:
-    retired to the frozen map) or 'lost' (tracking was lost: the map is retired)."""
+    retired to the frozen map) or 'lost' (tracking was lost: the map is retired).
+    ``searched_ids`` are the features predicted in view but not observed (searched for in
+    vain), ``state_features`` the features in the filter after the frame."""
 
     stamp_ns: int
     frame: int
@@ -211,3 +215,5 @@ class MonoSlamResult:
     known_points_used: int
     warnings: list[str]
     update: UpdateCounts = field(default_factory=UpdateCounts)
+    searched_ids: list[int] = field(default_factory=list)
+    state_features: int = 0

@@ -11,8 +11,8 @@ import numpy as np
 from slam_core.arrays import FloatArray
 from slam_core.geometry.so3 import rotation_from_vector
 
-_CAMERA_CENTER_M = (2.0, 4.0, 1.5)
-_LOOK_CENTER_M = (8.0, 4.0, 1.1)
+CAMERA_CENTER_M = (2.0, 4.0, 1.5)
+LOOK_CENTER_M = (8.0, 4.0, 1.1)
 
 
 @dataclass(frozen=True)
@@ -143,5 +143,5 @@ def sample_camera_path(
             np.append(sway.phases_rad, hand_phase),
         )
     return CameraPath(
-        np.array(_CAMERA_CENTER_M), sway, np.array(_LOOK_CENTER_M), look_sway, shake, loop
+        np.array(CAMERA_CENTER_M), sway, np.array(LOOK_CENTER_M), look_sway, shake, loop
     )

@@ -12,6 +12,8 @@ from slam_sim.core.dynamic_config import OBJECT_SPACE_M, ROOM_SIZE_M
 
 # Static point fractions: far wall, two side walls, floor, ceiling; the rest on cabinets.
 _SURFACE_FRACTIONS = (0.30, 0.12, 0.12, 0.14, 0.06)
+FAR_WALL_FRACTION = _SURFACE_FRACTIONS[0]
+_LOOP_PATCH_HALF_WIDTH_M = 3.0
 _CABINETS = 5
 
 
@@ -76,3 +78,32 @@ def sample_static_points(rng: np.random.Generator, room: RoomLayout, n: int) -> 
         parts.append(points)
     parts.append(_points_on_boxes(rng, room.cabinets_min_m, room.cabinets_max_m, n - sum(counts)))
     return np.vstack(parts)
+
+
+def sample_loop_wall(
+    rng: np.random.Generator, room: RoomLayout, origin_m: FloatArray, yaw_rad: float, n: int
+) -> FloatArray:
+    """Return n points (n, 3) m on the wall a camera at ``origin_m`` faces after turning its
+    horizontal viewing direction to ``yaw_rad`` (about the map's vertical, from +x): uniform
+    over the full height and within ``_LOOP_PATCH_HALF_WIDTH_M`` of where that direction meets
+    the wall, clipped to the room. The loop scene gives the view it turns to as much texture as
+    the far wall, as the rendered room has texture on every face."""
+    size = room.size_m
+    direction = np.array([np.cos(yaw_rad), np.sin(yaw_rad)])
+    best_t, best_axis = np.inf, 0
+    for axis in range(2):
+        if abs(direction[axis]) < 1e-12:
+            continue
+        wall = size[axis] if direction[axis] > 0 else 0.0
+        t = (wall - origin_m[axis]) / direction[axis]
+        if 0.0 < t < best_t:
+            best_t, best_axis = t, axis
+    hit = origin_m[:2] + best_t * direction
+    along = 1 - best_axis  # the wall runs along the other horizontal axis
+    low = max(0.0, hit[along] - _LOOP_PATCH_HALF_WIDTH_M)
+    high = min(size[along], hit[along] + _LOOP_PATCH_HALF_WIDTH_M)
+    points = np.empty((n, 3))
+    points[:, best_axis] = size[best_axis] if direction[best_axis] > 0 else 0.0
+    points[:, along] = rng.uniform(low, high, n)
+    points[:, 2] = rng.uniform(0.0, size[2], n)
+    return points

@@ -57,15 +57,27 @@ simulates its features.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from slam_core.arrays import BoolArray, FloatArray, IntArray
 from slam_core.camera import CameraModel
-from slam_sim.core.camera_path import CameraPath, sample_camera_path
+from slam_sim.core.camera_path import (
+    CAMERA_CENTER_M,
+    LOOK_CENTER_M,
+    CameraPath,
+    sample_camera_path,
+)
 from slam_sim.core.dynamic_config import MIN_DEPTH_M, DynamicSceneConfig
-from slam_sim.core.dynamic_room import RoomLayout, sample_room, sample_static_points
+from slam_sim.core.dynamic_room import (
+    FAR_WALL_FRACTION,
+    RoomLayout,
+    sample_loop_wall,
+    sample_room,
+    sample_static_points,
+)
 from slam_sim.core.object_motion import ObjectMotion, sample_motion
 
 DEFAULT_START_NS = 1_700_000_000 * 10**9
@@ -158,6 +170,13 @@ def build_scene(config: DynamicSceneConfig, seed: int) -> DynamicScene:
         radius = config.object_radius_m * object_rng.random((count, 1)) ** (1.0 / 3.0)
         offsets.append(np.zeros((1, 3)) if kind == 'model' else direction * radius)
     static = sample_static_points(room_rng, room, config.static_points)
+    loop = config.loop
+    if loop is not None:
+        look = np.subtract(LOOK_CENTER_M, CAMERA_CENTER_M)
+        yaw = math.atan2(look[1], look[0]) + loop.angle_rad
+        count = round(FAR_WALL_FRACTION * config.static_points)
+        wall = sample_loop_wall(room_rng, room, np.array(CAMERA_CENTER_M), yaw, count)
+        static = np.vstack([static, wall])
     path = sample_camera_path(path_rng, config.hand_motion_m, config.loop)
     return DynamicScene(room, path, static, tuple(objects), tuple(offsets))
 
