@@ -270,6 +270,49 @@ def test_predictions_carry_tracks_across_a_jump(
     assert_finite(features)
 
 
+def test_a_predicted_search_region_brings_a_dropped_track_back_with_its_id(
+    ros_harness: RosHarness, source: np.ndarray
+) -> None:
+    """View A, an unrelated view (every track dropped), view A again with predictions that
+    carry a covariance (FeatureTrack.covariance, as monoslam publishes them): the tracks
+    come back under their old ids, where they are."""
+    node = ros_harness.add_node(node_with(use_predictions=True, prediction_timeout_s=10.0))
+    features = ros_harness.collect('features', FeatureTrackArray)
+    images = ros_harness.publisher('camera/image_raw', Image)
+    predictions = ros_harness.publisher('features/predicted', FeatureTrackArray)
+    for publisher in (images, predictions):
+        ros_harness.wait_for_subscribers(publisher)
+    view_a = frame(source, 0)
+    elsewhere = np.clip(np.rint(texture(seed=9)), 0, 255).astype(np.uint8)
+    tracked = []
+    for k, image in enumerate((view_a, elsewhere)):
+        empty = FeatureTrackArray()
+        ns_to_stamp(stamp(k), empty.header.stamp)
+        images.publish(raw_image(image, stamp(k)))
+        predictions.publish(empty)
+        tracked.append(output(features, stamp(k)))
+    first, away = tracked
+    survivors = {t.id for t in first.tracks} & {t.id for t in away.tracks}
+    assert len(survivors) <= 3  # LK found a look-alike for these: not dropped
+    images.publish(raw_image(view_a, stamp(2)))
+    wait_until(lambda: node.processor.waiting, what='the image to wait for its prediction')
+    predicted = FeatureTrackArray()
+    ns_to_stamp(stamp(2), predicted.header.stamp)
+    predicted.tracks = first.tracks
+    for track in predicted.tracks:
+        track.u, track.v = track.u + 2.0, track.v - 1.5  # a prediction 2.5 px off
+        track.covariance = [9.0, 0.0, 9.0]  # 3 px sigma
+    truth = {t.id: (t.u - 2.0, t.v + 1.5) for t in predicted.tracks if t.id not in survivors}
+    predictions.publish(predicted)
+    back = output(features, stamp(2))
+    revived = [t for t in back.tracks if t.id in truth]
+    assert len(revived) >= 0.9 * len(truth)
+    assert all(math.dist((t.u, t.v), truth[t.id]) < 0.5 for t in revived)
+    assert node.processor.stats.revived >= len(revived)  # and survivors dropped, then found
+    assert f'{node.processor.stats.revived} dropped tracks re-identified' in node.status_line()
+    assert_finite(features)
+
+
 def test_an_image_whose_prediction_does_not_come_is_tracked_after_the_timeout(
     ros_harness: RosHarness, source: np.ndarray
 ) -> None:

@@ -529,6 +529,8 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
     inputs.info.publish(camera_info(scene, stamp_ns=frames[8].stamp_ns))
     predicted = predictions.wait_for(lambda m: stamp_to_ns(m.header.stamp) == frames[8].stamp_ns)
     assert [t.id for t in predicted.tracks] == [good_id]
+    su, suv, sv = predicted.tracks[0].covariance  # its search region, px^2
+    assert su > 0.0 and sv > 0.0 and su * sv > suv**2 and max(su, sv) < 1e4
 
     # an unusable camera_info is refused; a changed one is applied
     broken = camera_info(scene)

@@ -116,6 +116,17 @@ def features_from_message(message: Any) -> Features:
     )
 
 
+def prediction_covariances(message: Any) -> FloatArray:
+    """Return the covariances (K, 2, 2), px^2, of a slam_interfaces/FeatureTrackArray's
+    predicted pixels (FeatureTrack.covariance [uu, uv, vv]; zeros where not given)."""
+    upper = np.array([list(track.covariance) for track in message.tracks], dtype=np.float64)
+    upper = upper.reshape(-1, 3)
+    covariances = np.empty((len(upper), 2, 2))
+    covariances[:, 0, 0], covariances[:, 1, 1] = upper[:, 0], upper[:, 2]
+    covariances[:, 0, 1] = covariances[:, 1, 0] = upper[:, 1]
+    return covariances
+
+
 def rotation_from_quaternion(x: float, y: float, z: float, w: float) -> FloatArray:
     """Return the rotation matrix (3, 3) of a quaternion (x, y, z, w).
 

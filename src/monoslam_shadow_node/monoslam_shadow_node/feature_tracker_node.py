@@ -18,8 +18,10 @@ Topics:
               filter's projection of its map) for the image whose stamp is header.stamp; LK
               starts from them. Used only for the image with exactly that stamp; an image
               waits up to prediction_timeout_s (wall time) for its prediction, then is tracked
-              without one. Ids not tracked and predictions for images already tracked are
-              ignored.
+              without one. Ids neither tracked nor remembered and predictions for images
+              already tracked are ignored. A prediction with a covariance (FeatureTrack
+              covariance, px^2) for a dropped track is an active search for it
+              (re-identification, core.feature_tracker).
   publishes   features (slam_interfaces/FeatureTrackArray, reliable, depth 10), one per image
               tracked (also when it holds no feature): header.stamp = the image stamp,
               header.frame_id = the image's frame id (the camera optical frame; the
@@ -64,6 +66,12 @@ the core's, written out in config/feature_tracker.yaml (a test keeps the two equ
                                   when detected, registered by LK), px (0: no check).
   border_margin_px (10.0)         tracks closer to the image edge are dropped, px (LK patches
                                   reaching past the edge are biased: about lk_window_px / 2).
+  reid_min_ncc (0.8)              a dropped track predicted back in view (features/predicted
+                                  with a covariance) comes back with its id where its
+                                  template correlates at least this well inside the 3-sigma
+                                  ellipse (0: no re-identification).
+  reid_max_search_px (80.0)       wider ellipses (half-axis, px) are not searched.
+  max_dormant (1000)              dropped tracks remembered for re-identification.
 Parameters (node):
   image_transport ('raw')         'raw' (Image) or 'compressed' (CompressedImage).
   use_predictions (false)         subscribe to features/predicted and use it.
@@ -88,7 +96,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from marker_detector.conversions import camera_info_fields, image_from_message
 from marker_detector.core.images import ImageError
-from monoslam_shadow_node.conversions import features_from_message
+from monoslam_shadow_node.conversions import features_from_message, prediction_covariances
 from monoslam_shadow_node.feature_tracker_settings import (
     NODE_NAME,
     PARAMETERS,
@@ -220,8 +228,11 @@ class FeatureTrackerNode(Node):
 
     def _on_predictions(self, message: FeatureTrackArray) -> None:
         predicted = features_from_message(message)
+        covariances = prediction_covariances(message)
         self._handle(
-            self.processor.add_predictions(predicted.stamp_ns, predicted.ids, predicted.pixels)
+            self.processor.add_predictions(
+                predicted.stamp_ns, predicted.ids, predicted.pixels, covariances
+            )
         )
 
     def _poll(self) -> None:

@@ -41,6 +41,10 @@ _CORE_DESCRIPTIONS = {
     'fb_threshold_px': 'largest forward-backward distance, px (0: no check)',
     'max_drift_px': 'largest distance of a track from its template, px (0: no check)',
     'border_margin_px': 'tracks this close to the image edge are dropped, px (>= 0)',
+    'reid_min_ncc': 'correlation a dropped track must reach to be re-identified where a '
+    'prediction with a covariance expects it, in [0, 1] (0: no re-identification)',
+    'reid_max_search_px': 'largest half-axis of a searched 3-sigma ellipse, px (> 0)',
+    'max_dormant': 'dropped tracks remembered for re-identification (>= 0)',
 }
 CORE_PARAMETERS = tuple(
     Param(item.name, getattr(_CORE, item.name), _CORE_DESCRIPTIONS[item.name], field=item.name)

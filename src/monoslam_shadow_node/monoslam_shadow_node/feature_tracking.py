@@ -108,13 +108,16 @@ class TrackingStats:
     """Running totals: images tracked and dropped (by kind), features published (in all and
     in the latest image), tracks started, started from a prediction and dropped (by reason),
     predictions used, missed (an image tracked without its prediction) and late (a
-    prediction for an image already tracked), and restarts."""
+    prediction for an image already tracked), dropped tracks searched for and re-identified
+    (``revived``), and restarts."""
 
     frames: int = 0
     features: int = 0
     latest_features: int = 0
     started: int = 0
     predicted_tracks: int = 0
+    searched: int = 0
+    revived: int = 0
     images_dropped: dict[str, int] = field(default_factory=dict)
     tracks_dropped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DROP_REASONS, 0))
     predictions_used: int = 0
@@ -130,6 +133,8 @@ class TrackingStats:
         self.latest_features = len(frame.features.ids)
         self.started += counts.new
         self.predicted_tracks += counts.predicted
+        self.searched += counts.searched
+        self.revived += counts.revived
         for reason, count in counts.dropped_by_reason().items():
             self.tracks_dropped[reason] += count
 
@@ -226,8 +231,15 @@ class FeatureTrackingProcessor:
 
     # --- predictions ------------------------------------------------------------------------
 
-    def add_predictions(self, stamp_ns: int, ids: IntArray, pixels: FloatArray) -> list[Outcome]:
-        """Take the predicted pixels of some tracks for the image at ``stamp_ns``; return the
+    def add_predictions(
+        self,
+        stamp_ns: int,
+        ids: IntArray,
+        pixels: FloatArray,
+        covariances: FloatArray | None = None,
+    ) -> list[Outcome]:
+        """Take the predicted pixels (and their covariances (K, 2, 2), px^2, for an active
+        search of dropped tracks) of some tracks for the image at ``stamp_ns``; return the
         outcomes (the waiting image, tracked now, if it was waiting for these)."""
         if not self.use_predictions:
             return []
@@ -235,7 +247,9 @@ class FeatureTrackingProcessor:
             self.stats.predictions_late += 1
             return []
         self._predictions[stamp_ns] = Predictions(
-            np.asarray(ids, np.int64).reshape(-1), np.asarray(pixels, np.float64).reshape(-1, 2)
+            np.asarray(ids, np.int64).reshape(-1),
+            np.asarray(pixels, np.float64).reshape(-1, 2),
+            None if covariances is None else np.asarray(covariances, np.float64).reshape(-1, 2, 2),
         )
         while len(self._predictions) > PREDICTIONS_KEPT:
             del self._predictions[min(self._predictions)]
@@ -388,6 +402,8 @@ def status_line(stats: TrackingStats, rate_hz: float | None = None) -> str:
             f'; predictions used for {stats.predictions_used} images ({stats.predicted_tracks} '
             f'tracks), missing for {stats.predictions_missed}, {stats.predictions_late} late'
         )
+    if stats.searched:
+        text += f'; {stats.revived} dropped tracks re-identified of {stats.searched} searched'
     return text
 
 

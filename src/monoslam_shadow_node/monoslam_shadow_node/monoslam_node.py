@@ -408,11 +408,11 @@ class MonoSlamNode(Node):
         predicted = self.processor.predictions(stamp_ns)
         if predicted is None or self.predictions_publisher is None:
             return
-        ids, pixels = predicted
+        ids, pixels, covariances = predicted
         self.predictions_publisher.publish(
             fill_predictions(
                 ids, pixels, stamp_ns, frame_id or self._camera_frame, FeatureTrackArray(),
-                FeatureTrack,
+                FeatureTrack, covariances,
             )
         )  # fmt: skip
 

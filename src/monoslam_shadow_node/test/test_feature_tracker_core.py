@@ -85,7 +85,7 @@ def check_output(result: TrackedFeatures, config: TrackerConfig) -> None:
     assert np.all(result.pixels >= margin - 1e-3)
     assert np.all(result.pixels[:, 0] <= WIDTH - 1 - margin + 1e-3)
     assert np.all(result.pixels[:, 1] <= HEIGHT - 1 - margin + 1e-3)
-    assert result.counts.tracked + result.counts.new == count
+    assert result.counts.tracked + result.counts.revived + result.counts.new == count
     assert int(np.sum(result.ages == 1)) == result.counts.new
 
 
@@ -436,3 +436,91 @@ def test_counts_name_every_drop_reason() -> None:
 def test_invalid_settings_name_the_field(field: str, value: object, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         TrackerConfig(**{field: value})  # type: ignore[arg-type]
+
+
+def _away_and_back(
+    config: TrackerConfig, back: np.ndarray
+) -> tuple[FeatureTracker, TrackedFeatures, np.ndarray]:
+    """View A, then an unrelated view (every track dropped, new ones started there), then
+    ``back`` (view A moved by a homography). Return the tracker (before tracking ``back``),
+    view A's features and where they are in ``back``."""
+    source = texture(HEIGHT, WIDTH, seed=5)
+    tracker = FeatureTracker(config)
+    first = tracker.track(warped(source, np.eye(3)))
+    away = tracker.track(warped(texture(HEIGHT, WIDTH, seed=6), np.eye(3)))
+    assert away.counts.tracked <= 3 and away.counts.new >= 50  # A's tracks are all but gone
+    return tracker, first, moved(back, first.pixels)
+
+
+def test_a_dropped_track_is_re_identified_where_its_prediction_expects_it() -> None:
+    """The camera turns away and back: predictions with a 4 px sigma (as SLAM's 3-sigma
+    search region) bring view A's tracks back with their own ids, within half a pixel; the
+    tracks started in between are not duplicated on them."""
+    config = TrackerConfig(max_features=120)
+    back = shifted(3.0, -2.0)
+    tracker, first, truth = _away_and_back(config, back)
+    rng = np.random.default_rng(1)
+    covariance = np.broadcast_to(16.0 * np.eye(2), (len(first.ids), 2, 2))
+    guess = truth + rng.normal(0.0, 2.0, truth.shape)
+    source = texture(HEIGHT, WIDTH, seed=5)
+    result = tracker.track(warped(source, back), Predictions(first.ids, guess, covariance))
+    check_output(result, config)
+    found = by_id(result)
+    errors = [np.linalg.norm(found[i] - t) for i, t in zip(first.ids.tolist(), truth, strict=True)
+              if i in found]  # fmt: skip
+    assert result.counts.searched >= 0.9 * len(first.ids)
+    assert result.counts.revived == len(errors) >= 0.9 * len(first.ids)
+    assert max(errors) < 0.5
+    # the next image tracks them on, and nothing sits on a revived track
+    after = tracker.track(warped(source, shifted(1.0, 1.0, back)))
+    check_output(after, config)
+    assert set(first.ids.tolist()) & set(after.ids.tolist()) >= set(found) & set(
+        first.ids.tolist()
+    ) - {i for i in found if i not in after.ids}
+    pixels = after.pixels
+    gaps = np.linalg.norm(pixels[:, None] - pixels[None], axis=2) + 1e9 * np.eye(len(pixels))
+    assert np.min(gaps) >= 0.5 * config.min_distance_px
+
+
+def test_re_identification_needs_a_covariance_and_a_match_inside_the_ellipse() -> None:
+    config = TrackerConfig(max_features=120)
+    back = shifted(3.0, -2.0)
+    source = texture(HEIGHT, WIDTH, seed=5)
+    # no covariance: LK guesses only, and dropped tracks stay dropped
+    tracker, first, truth = _away_and_back(config, back)
+    plain = tracker.track(warped(source, back), Predictions(first.ids, truth))
+    assert plain.counts.revived == 0 and not set(first.ids.tolist()) & set(plain.ids.tolist())
+    # predicted 30 px off with a 3 px sigma: the point is outside the ellipse
+    tracker, first, truth = _away_and_back(config, back)
+    covariance = np.broadcast_to(9.0 * np.eye(2), (len(first.ids), 2, 2))
+    wrong = tracker.track(warped(source, back), Predictions(first.ids, truth + 30.0, covariance))
+    assert wrong.counts.searched >= 0.9 * len(first.ids)
+    assert wrong.counts.revived <= 0.02 * len(first.ids)
+    # too uncertain to search: a 40 px sigma (120 px half-axis, above 80)
+    tracker, first, truth = _away_and_back(config, back)
+    wide = np.broadcast_to(1600.0 * np.eye(2), (len(first.ids), 2, 2))
+    vague = tracker.track(warped(source, back), Predictions(first.ids, truth, wide))
+    assert vague.counts.revived == 0 and vague.counts.unsearched >= 0.9 * len(first.ids)
+
+
+def test_a_revived_track_displaces_a_younger_one_on_the_same_corner() -> None:
+    """Back at view A without predictions, new tracks start on A's corners; when the
+    predictions come a frame later, the old ids return and the younger duplicates go
+    (crowded), so the map point keeps its id."""
+    config = TrackerConfig(max_features=120)
+    back = shifted(3.0, -2.0)
+    source = texture(HEIGHT, WIDTH, seed=5)
+    tracker, first, _ = _away_and_back(config, back)
+    unaided = tracker.track(warped(source, back))
+    assert unaided.counts.new >= 50 and not set(first.ids.tolist()) & set(unaided.ids.tolist())
+    again = shifted(1.0, 0.5, back)
+    covariance = np.broadcast_to(16.0 * np.eye(2), (len(first.ids), 2, 2))
+    result = tracker.track(
+        warped(source, again), Predictions(first.ids, moved(again, first.pixels), covariance)
+    )
+    check_output(result, config)
+    assert result.counts.revived >= 0.5 * len(first.ids)
+    assert result.counts.crowded >= 0.8 * result.counts.revived
+    pixels = result.pixels
+    gaps = np.linalg.norm(pixels[:, None] - pixels[None], axis=2) + 1e9 * np.eye(len(pixels))
+    assert np.min(gaps) >= 0.5 * config.min_distance_px

@@ -23,7 +23,21 @@ Per image (``FeatureTracker.track``):
    the tracked pixel); a track whose template lands more than ``max_drift_px`` away from
    the tracked pixel, or does not converge, is dropped. A slow scale change moves the
    template's centre little, so tracks survive the camera's approach within limits.
-2. Detection (``feature_detection``), every ``detect_every_n_frames`` images (and whenever
+2. Re-identification (active search, Davison's MonoSLAM). A dropped track is remembered
+   (its template and age; the ``max_dormant`` most recently dropped). When a prediction
+   with a covariance comes for a remembered id (e.g. the SLAM filter expects its map point
+   back in view), the track's template is searched for inside the prediction's 3-sigma
+   ellipse ((x - u)^T S^-1 (x - u) <= 9) by normalized cross-correlation
+   (cv2.matchTemplate, TM_CCOEFF_NORMED, on the LK window's core of the template, refined
+   to subpixel by a parabola through the peak), and where it matches with a correlation of
+   at least ``reid_min_ncc`` the track comes back with its id and age (``revived``). The
+   template is the patch at detection, not warped: the filter predicts a feature in view
+   only within ``max_view_angle_deg`` of the ray it was first seen along, and normalized
+   correlation ignores gain and offset. An ellipse wider than ``reid_max_search_px`` on
+   either axis is not searched (the prediction is too uncertain to say where: counted as
+   ``unsearched``). A revived track and a younger one on the same structure meet the
+   ``crowded`` rule: the younger goes, so the map point keeps its id and no duplicate stays.
+3. Detection (``feature_detection``), every ``detect_every_n_frames`` images (and whenever
    no track is left), only where tracks are missing: Shi-Tomasi or FAST corners, spread
    over a grid and refined to subpixel accuracy, up to ``max_features`` tracks in all.
 
@@ -43,6 +57,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.feature_detection import CornerDetector
+from monoslam_shadow_node.core.feature_reid import (
+    TEMPLATE_MARGIN_PX,
+    Search,
+    match_template,
+    search_region,
+)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -51,8 +71,6 @@ GrayStack = NDArray[np.uint8]
 
 DETECTORS = ('shi_tomasi', 'fast')
 DROP_REASONS = ('lost', 'error', 'border', 'forward_backward', 'drift', 'crowded', 'reset')
-TEMPLATE_MARGIN_PX = 4
-"""A template is the LK window plus this much on each side (LK reads a pixel past it)."""
 
 
 @dataclass(frozen=True)
@@ -67,6 +85,9 @@ class TrackerConfig:
     ``max_lk_error`` is the largest mean absolute patch difference (gray levels) and
     ``fb_threshold_px`` the largest forward-backward distance and ``max_drift_px`` the
     largest distance of the template from the tracked pixel; 0 switches each check off.
+    ``reid_min_ncc`` is the correlation a re-identified track's template must reach (0: no
+    re-identification), ``reid_max_search_px`` the largest half-axis of a searched ellipse,
+    ``max_dormant`` how many dropped tracks are remembered for it.
     Invalid values raise ValueError naming the field.
     """
 
@@ -87,6 +108,9 @@ class TrackerConfig:
     fb_threshold_px: float = 1.0
     max_drift_px: float = 3.0
     border_margin_px: float = 10.0
+    reid_min_ncc: float = 0.8
+    reid_max_search_px: float = 80.0
+    max_dormant: int = 1000
 
     def __post_init__(self) -> None:
         for item in fields(self):
@@ -118,6 +142,9 @@ class TrackerConfig:
             ('fb_threshold_px', self.fb_threshold_px >= 0, 'must be >= 0 px (0: no check)'),
             ('max_drift_px', self.max_drift_px >= 0, 'must be >= 0 px (0: no check)'),
             ('border_margin_px', self.border_margin_px >= 0, 'must be >= 0 px'),
+            ('reid_min_ncc', 0 <= self.reid_min_ncc <= 1, 'must be in [0, 1] (0: no search)'),
+            ('reid_max_search_px', self.reid_max_search_px > 0, 'must be > 0 px'),
+            ('max_dormant', self.max_dormant >= 0, 'must be >= 0'),
         )
         for name, ok, rule in checks:
             if not ok:
@@ -132,12 +159,17 @@ class TrackerConfig:
 @dataclass(frozen=True)
 class TrackCounts:
     """What happened in one image: tracks carried over from the previous image
-    (``tracked``, of them ``predicted`` from a predicted pixel), tracks started (``new``) and
-    tracks dropped, by reason (``DROP_REASONS``; ``reset``: by a restart)."""
+    (``tracked``, of them ``predicted`` from a predicted pixel), dropped tracks searched for
+    (``searched``; ``unsearched``: predicted too uncertainly) and found again (``revived``),
+    tracks started (``new``) and tracks dropped, by reason (``DROP_REASONS``; ``reset``: by a
+    restart)."""
 
     tracked: int = 0
     predicted: int = 0
     new: int = 0
+    revived: int = 0
+    searched: int = 0
+    unsearched: int = 0
     lost: int = 0
     error: int = 0
     border: int = 0
@@ -159,11 +191,14 @@ class TrackCounts:
 @dataclass(frozen=True, eq=False)
 class Predictions:
     """Predicted pixels of some tracks in the image about to be tracked: ids (K,) int64 and
-    raw-image pixels (K, 2) float64. Ids not tracked and non-finite pixels are ignored; a
-    track predicted outside the image is dropped (it is expected to have left the view)."""
+    raw-image pixels (K, 2) float64, with their covariances (K, 2, 2) px^2 when known (the
+    search regions of re-identification). Ids neither tracked nor remembered and non-finite
+    pixels are ignored; a track predicted outside the image is dropped (it is expected to
+    have left the view)."""
 
     ids: IntArray
     pixels: FloatArray
+    covariances: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,6 +238,7 @@ class FeatureTracker:
         self._images = 0
         self._pending_reset = 0
         self._detector = CornerDetector(self.config)
+        self._dormant: dict[int, tuple[GrayImage, int]] = {}  # id -> (template, age)
 
     @property
     def next_id(self) -> int:
@@ -220,6 +256,7 @@ class FeatureTracker:
         dropped = len(self._ids)
         self._pending_reset += dropped
         self._clear()
+        self._dormant.clear()  # another camera: the templates no longer apply
         return dropped
 
     def track(self, image: object, predictions: Predictions | None = None) -> TrackedFeatures:
@@ -236,6 +273,24 @@ class FeatureTracker:
         if self._previous is not None and len(self._ids):
             predicted = self._follow(self._previous, gray, predictions, drops)
             tracked = len(self._ids)
+        search = self._revive(gray, predictions)
+        revived = 0
+        if search.revived:
+            is_revived = np.isin(self._ids, search.ids)
+            crowded = self._crowded()
+            drops['crowded'] += int(np.count_nonzero(crowded))
+            self._keep(~crowded)
+            tracked -= int(np.count_nonzero(~is_revived & crowded))
+            is_revived = np.isin(self._ids, search.ids)
+            excess = len(self._ids) - self.config.max_features
+            if excess > 0:  # the weakest revived go back to sleep
+                rows = np.flatnonzero(is_revived)
+                weakest = rows[np.argsort([search.scores[int(i)] for i in self._ids[rows]])]
+                back = np.zeros(len(self._ids), bool)
+                back[weakest[:excess]] = True
+                self._keep(~back)  # remembered again, not counted as dropped
+                is_revived = is_revived[~back]
+            revived = int(np.count_nonzero(is_revived))
         new = 0
         due = self._images % self.config.detect_every_n_frames == 0 or not len(self._ids)
         if due and len(self._ids) < self.config.max_features:
@@ -246,7 +301,15 @@ class FeatureTracker:
             self._ids.copy(),
             self._pixels.astype(np.float64),
             self._ages.copy(),
-            TrackCounts(tracked=tracked, predicted=predicted, new=new, **drops),
+            TrackCounts(
+                tracked=tracked,
+                predicted=predicted,
+                new=new,
+                revived=revived,
+                searched=search.searched,
+                unsearched=search.unsearched,
+                **drops,
+            ),
         )
 
     # --- tracking ---------------------------------------------------------------------------
@@ -359,18 +422,84 @@ class FeatureTracker:
             drifted = self._drifted(gray, rows, end[rows])
             drops['drift'] = int(np.count_nonzero(drifted))
             keep[rows[drifted]] = False
-        self._ids, self._ages = self._ids[keep], self._ages[keep] + 1
-        self._pixels = np.ascontiguousarray(end[keep], np.float32)
-        self._templates = self._templates[keep]
+        self._pixels = np.ascontiguousarray(end, np.float32)
+        self._ages = self._ages + 1
+        self._keep(keep)
         predicted = int(np.count_nonzero(used[keep]))
         crowded = self._crowded()
         if np.any(crowded):
             predicted -= int(np.count_nonzero(used[keep][crowded]))
             drops['crowded'] = int(np.count_nonzero(crowded))
-            self._ids, self._ages = self._ids[~crowded], self._ages[~crowded]
-            self._pixels = self._pixels[~crowded]
-            self._templates = self._templates[~crowded]
+            self._keep(~crowded)
         return predicted
+
+    def _keep(self, keep: NDArray[np.bool_]) -> None:
+        """Keep the held tracks ``keep`` (N,); remember the others' templates and ages for
+        re-identification (the ``max_dormant`` most recently dropped)."""
+        if self.config.reid_min_ncc > 0 and self.config.max_dormant > 0:
+            for row in np.flatnonzero(~keep):
+                track_id = int(self._ids[row])
+                self._dormant.pop(track_id, None)
+                self._dormant[track_id] = (self._templates[row], int(self._ages[row]))
+            while len(self._dormant) > self.config.max_dormant:
+                del self._dormant[next(iter(self._dormant))]
+        self._ids, self._ages = self._ids[keep], self._ages[keep]
+        self._pixels = np.ascontiguousarray(self._pixels[keep], np.float32)
+        self._templates = self._templates[keep]
+
+    # --- re-identification ------------------------------------------------------------------
+
+    def _revive(self, gray: GrayImage, predictions: Predictions | None) -> Search:
+        """Search for remembered tracks predicted (with a covariance) in ``gray`` and bring
+        back those found (module docstring); return the counts."""
+        config = self.config
+        if (
+            predictions is None
+            or predictions.covariances is None
+            or not self._dormant
+            or config.reid_min_ncc <= 0
+        ):
+            return Search()
+        ids = np.asarray(predictions.ids, np.int64).reshape(-1)
+        pixels = np.asarray(predictions.pixels, np.float64).reshape(-1, 2)
+        covariances = np.asarray(predictions.covariances, np.float64).reshape(-1, 2, 2)
+        if not len(ids) == len(pixels) == len(covariances):
+            raise ValueError(
+                f'predictions: {len(ids)} ids, {len(pixels)} pixels, {len(covariances)} '
+                'covariances'
+            )
+        held = set(self._ids.tolist())
+        found: list[tuple[int, float, float, float]] = []
+        searched = unsearched = 0
+        for track_id, pixel, covariance in zip(ids.tolist(), pixels, covariances, strict=True):
+            if track_id in held or track_id not in self._dormant:
+                continue
+            region = search_region(self.config, gray.shape, pixel, covariance)
+            if region is None:
+                continue
+            if isinstance(region, str):  # 'too_wide'
+                unsearched += 1
+                continue
+            searched += 1
+            match = match_template(
+                self.config, gray, self._dormant[track_id][0], pixel, covariance, region
+            )
+            if match is not None:
+                found.append((track_id, *match))
+        # all found come back; the crowded rule and max_features then decide (``track``)
+        for track_id, u, v, _ in found:
+            template, age = self._dormant.pop(track_id)
+            self._ids = np.append(self._ids, track_id)
+            self._ages = np.append(self._ages, age)
+            self._pixels = np.vstack([self._pixels, np.array([[u, v]], np.float32)])
+            self._templates = np.concatenate([self._templates, template[None]])
+        if found:
+            order = np.argsort(self._ids, kind='stable')  # ids stay ascending
+            self._ids, self._ages = self._ids[order], self._ages[order]
+            self._pixels = np.ascontiguousarray(self._pixels[order], np.float32)
+            self._templates = self._templates[order]
+        scores = {item[0]: item[3] for item in found}
+        return Search(tuple(scores), searched, unsearched, scores)
 
     def _drifted(
         self, gray: GrayImage, rows: IntArray, pixels: NDArray[np.float32]

@@ -238,11 +238,17 @@ class MonoSlam:
         self, stamp_ns: int, ids: list[int] | None = None
     ) -> tuple[IntArray, FloatArray, FloatArray]:
         """Return the owned features' predicted raw pixels at ``stamp_ns``: ids (M,), pixels
-        (M, 2) and innovation covariances (M, 2, 2) px^2 (the active search regions)."""
+        (M, 2) and innovation covariances (M, 2, 2) px^2 (the active search regions); the
+        covariance is zero for a feature not predicted in view (``_in_view``: behind, or
+        seen too obliquely from where it was first seen), where no search is due."""
         if self._status != TRACKING or self._last_stamp_ns is None:
             return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2))
         dt_s = max((stamp_ns - self._last_stamp_ns) * 1e-9, 0.0)
-        return predicted_measurements(self._state, self.camera, dt_s, self.config, ids)
+        predicted = predicted_measurements(self._state, self.camera, dt_s, self.config, ids)
+        searchable = set(self._in_view(self._state.features)[0].tolist())
+        outside = ~np.isin(predicted[0], list(searchable))
+        predicted[2][outside] = 0.0
+        return predicted
 
     # --- the frame loop --------------------------------------------------------------------
 
