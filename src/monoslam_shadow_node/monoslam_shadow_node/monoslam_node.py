@@ -389,7 +389,7 @@ class MonoSlamNode(Node):
             )
         )  # fmt: skip
         self.get_logger().info(
-            f'revoked {len(revoked)} handed-over feature(s) that moved: '
+            f'revoked {len(revoked)} feature(s) that moved (handed over or filled undecided): '
             f'{", ".join(map(str, revoked))} (back to the Shadow filter on {REVOKED_TOPIC})'
         )
 

@@ -402,10 +402,12 @@ class MonoSlamProcessor:
         rate = f' ({rate_hz:.1f}/s)' if rate_hz is not None else ''
         points = self.map_points()
         active = sum(p.active for p in points)
+        handed = sum(p.source == 'handover' for p in points)
         return (
             f'{counts.processed} frames{rate}, {self.status}: map {active} active and '
-            f'{len(points) - active} retired points, {counts.measured} features measured in '
-            f'the latest frame (update: {update_text(counts.update)}); handovers '
+            f'{len(points) - active} retired points ({handed} handed over, '
+            f'{len(points) - handed} filled undecided or new), {counts.measured} features '
+            f'measured in the latest frame (update: {update_text(counts.update)}); handovers '
             f'{counts.accepted} accepted, {counts.refused} refused, {counts.revoked} revoked; '
             f'lost {counts.lost} times, {counts.skipped} frames skipped, '
             f'{counts.alone} without fiducials, {counts.dropped_total} inputs dropped'

@@ -199,3 +199,15 @@ def test_undecided_features_fill_the_map_except_those_found_moving() -> None:
     assert quiet.refusal(_handover(5), 'map') is None
     quiet.add_features(_points_features(1, ids))
     assert _steps(quiet.add_sighting(_sighting(1)))[-1].result.added_ids == [5]
+
+
+def test_the_status_line_says_where_the_map_came_from() -> None:
+    processor = _processor(max_new_per_frame=40, target_measured=40, min_new_spacing_px=0.0)
+    processor.set_camera(CAMERA)
+    ids = list(range(1, 41))
+    processor.add_features(_points_features(0, ids))
+    processor.add_sighting(_sighting(0))
+    assert processor.refusal(_handover(5), 'map') is None
+    processor.add_features(_points_features(1, ids))
+    processor.add_sighting(_sighting(1))
+    assert '(1 handed over, 39 filled undecided or new)' in processor.status_line()
