@@ -5,7 +5,7 @@ the 3-sigma ellipse by normalized cross-correlation (``feature_tracker``'s docst
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -23,14 +23,13 @@ TEMPLATE_MARGIN_PX = 4
 
 @dataclass(frozen=True)
 class Search:
-    ids: tuple[int, ...] = ()
+    """One image's re-identification: tracks brought back, searches made, predictions too
+    uncertain to search, and held tracks a revived one displaced (crowded)."""
+
+    revived: int = 0
     searched: int = 0
     unsearched: int = 0
-    scores: dict[int, float] = field(default_factory=dict)
-
-    @property
-    def revived(self) -> int:
-        return len(self.ids)
+    displaced: int = 0
 
 
 def parabola_peak(values: NDArray[Any]) -> float:

@@ -274,23 +274,8 @@ class FeatureTracker:
             predicted = self._follow(self._previous, gray, predictions, drops)
             tracked = len(self._ids)
         search = self._revive(gray, predictions)
-        revived = 0
-        if search.revived:
-            is_revived = np.isin(self._ids, search.ids)
-            crowded = self._crowded()
-            drops['crowded'] += int(np.count_nonzero(crowded))
-            self._keep(~crowded)
-            tracked -= int(np.count_nonzero(~is_revived & crowded))
-            is_revived = np.isin(self._ids, search.ids)
-            excess = len(self._ids) - self.config.max_features
-            if excess > 0:  # the weakest revived go back to sleep
-                rows = np.flatnonzero(is_revived)
-                weakest = rows[np.argsort([search.scores[int(i)] for i in self._ids[rows]])]
-                back = np.zeros(len(self._ids), bool)
-                back[weakest[:excess]] = True
-                self._keep(~back)  # remembered again, not counted as dropped
-                is_revived = is_revived[~back]
-            revived = int(np.count_nonzero(is_revived))
+        tracked -= search.displaced
+        drops['crowded'] += search.displaced
         new = 0
         due = self._images % self.config.detect_every_n_frames == 0 or not len(self._ids)
         if due and len(self._ids) < self.config.max_features:
@@ -305,7 +290,7 @@ class FeatureTracker:
                 tracked=tracked,
                 predicted=predicted,
                 new=new,
-                revived=revived,
+                revived=search.revived,
                 searched=search.searched,
                 unsearched=search.unsearched,
                 **drops,
@@ -440,7 +425,8 @@ class FeatureTracker:
             for row in np.flatnonzero(~keep):
                 track_id = int(self._ids[row])
                 self._dormant.pop(track_id, None)
-                self._dormant[track_id] = (self._templates[row], int(self._ages[row]))
+                # a copy: a view would keep the whole stack of this image alive
+                self._dormant[track_id] = (self._templates[row].copy(), int(self._ages[row]))
             while len(self._dormant) > self.config.max_dormant:
                 del self._dormant[next(iter(self._dormant))]
         self._ids, self._ages = self._ids[keep], self._ages[keep]
@@ -486,20 +472,36 @@ class FeatureTracker:
             )
             if match is not None:
                 found.append((track_id, *match))
-        # all found come back; the crowded rule and max_features then decide (``track``)
-        for track_id, u, v, _ in found:
-            template, age = self._dormant.pop(track_id)
-            self._ids = np.append(self._ids, track_id)
-            self._ages = np.append(self._ages, age)
-            self._pixels = np.vstack([self._pixels, np.array([[u, v]], np.float32)])
-            self._templates = np.concatenate([self._templates, template[None]])
-        if found:
-            order = np.argsort(self._ids, kind='stable')  # ids stay ascending
-            self._ids, self._ages = self._ids[order], self._ages[order]
-            self._pixels = np.ascontiguousarray(self._pixels[order], np.float32)
-            self._templates = self._templates[order]
-        scores = {item[0]: item[3] for item in found}
-        return Search(tuple(scores), searched, unsearched, scores)
+        if not found:
+            return Search(searched=searched, unsearched=unsearched)
+        # all found come back; then the crowded rule, and max_features: a revived track that
+        # loses either goes back to sleep (not a drop); a held one it displaces is 'crowded'
+        back = [self._dormant.pop(track_id) for track_id, *_ in found]
+        revived_ids = np.array([item[0] for item in found], np.int64)
+        self._ids = np.concatenate([self._ids, revived_ids])
+        self._ages = np.concatenate([self._ages, [age for _, age in back]])
+        pixels = np.array([item[1:3] for item in found], np.float32)
+        self._pixels = np.concatenate([self._pixels, pixels])
+        self._templates = np.concatenate([self._templates, [template for template, _ in back]])
+        order = np.argsort(self._ids, kind='stable')  # ids stay ascending
+        self._ids, self._ages = self._ids[order], self._ages[order]
+        self._pixels = np.ascontiguousarray(self._pixels[order], np.float32)
+        self._templates = self._templates[order]
+        is_revived = np.isin(self._ids, revived_ids)
+        crowded = self._crowded()
+        displaced = int(np.count_nonzero(crowded & ~is_revived))
+        self._keep(~crowded)
+        is_revived = is_revived[~crowded]
+        excess = len(self._ids) - config.max_features
+        if excess > 0:  # the weakest revived go back to sleep
+            score = {item[0]: item[3] for item in found}
+            rows = np.flatnonzero(is_revived)
+            weakest = rows[np.argsort([score[int(i)] for i in self._ids[rows]])][:excess]
+            asleep = np.zeros(len(self._ids), bool)
+            asleep[weakest] = True
+            self._keep(~asleep)
+            is_revived = is_revived[~asleep]
+        return Search(int(np.count_nonzero(is_revived)), searched, unsearched, displaced)
 
     def _drifted(
         self, gray: GrayImage, rows: IntArray, pixels: NDArray[np.float32]
