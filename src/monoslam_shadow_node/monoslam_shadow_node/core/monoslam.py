@@ -131,6 +131,7 @@ from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamResult,
     UpdateCounts,
 )
+from slam_core.arrays import BoolArray
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import rotation_from_quaternion as rotation
 
@@ -244,11 +245,11 @@ class MonoSlam:
         if self._status != TRACKING or self._last_stamp_ns is None:
             return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2))
         dt_s = max((stamp_ns - self._last_stamp_ns) * 1e-9, 0.0)
-        predicted = predicted_measurements(self._state, self.camera, dt_s, self.config, ids)
-        searchable = set(self._in_view(self._state.features)[0].tolist())
-        outside = ~np.isin(predicted[0], list(searchable))
-        predicted[2][outside] = 0.0
-        return predicted
+        ids_out, pixels, covariances = predicted_measurements(
+            self._state, self.camera, dt_s, self.config, ids
+        )
+        covariances[~self._view_mask(ids_out, pixels)] = 0.0
+        return ids_out, pixels, covariances
 
     # --- the frame loop --------------------------------------------------------------------
 
@@ -414,11 +415,17 @@ class MonoSlam:
         along (a patch looks too different beyond it)."""
         if not features:
             return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2))
-        state, camera = self._state, self.camera
         ids, pixels, covariances = predicted_measurements(
-            state, camera, 0.0, self.config, [feature.id for feature in features]
+            self._state, self.camera, 0.0, self.config, [feature.id for feature in features]
         )
-        by_id = {feature.id: feature for feature in features}
+        keep = self._view_mask(ids, pixels)
+        return ids[keep], pixels[keep], covariances[keep]
+
+    def _view_mask(self, ids: IntArray, pixels: FloatArray) -> BoolArray:
+        """Return which of the state's features ``ids`` (M,), predicted at raw ``pixels``
+        (M, 2), are in view (``_in_view``)."""
+        state, camera = self._state, self.camera
+        by_id = {feature.id: feature for feature in state.features}
         centre = state.x[R_SLICE]
         cos_limit = math.cos(math.radians(self.config.max_view_angle_deg))
         keep = np.zeros(len(ids), dtype=bool)
@@ -431,7 +438,7 @@ class MonoSlam:
             first = feature.first_ray
             norm = float(np.linalg.norm(direction))
             keep[k] = first is None or (norm > 0.0 and direction @ first >= cos_limit * norm)
-        return ids[keep], pixels[keep], covariances[keep]
+        return keep
 
     def _make_room(
         self,
