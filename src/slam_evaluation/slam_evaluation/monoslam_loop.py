@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from slam_evaluation.monoslam_metrics import pose_errors
 from slam_evaluation.monoslam_pipeline import (
     MeasurementFrame,
     VariantRecord,
@@ -65,9 +66,7 @@ class LoopRun:
 
 def loop_scene(settings: Settings, movers: bool, away_s: float) -> DynamicSceneConfig:
     """Return the Fig. 5 scene of ``settings`` with the loop, with or without movers."""
-    scene = dataclasses.replace(
-        settings.scene(), loop_away_s=away_s, keep_track_ids=True, duration_s=settings.duration_s
-    )
+    scene = dataclasses.replace(settings.scene(), loop_away_s=away_s, keep_track_ids=True)
     return scene if movers else dataclasses.replace(scene, objects=0)
 
 
@@ -80,10 +79,7 @@ def run_loop(
     markers = settings.markers()
     rng = np.random.default_rng(TARGET_NOISE_SEED_OFFSET + seed)
     frames = simulation_frames(run, markers, rng=rng)
-    config = Settings(settings.seeds, settings.duration_s, (variant,), settings.out).pipeline(
-        markers
-    )
-    record = run_variant(variant, frames, camera_model(run), config)
+    record = run_variant(variant, frames, camera_model(run), settings.pipeline(markers))
     return LoopRun(seed, movers, variant, scene, frames, record, loop_metrics(run, frames, record))
 
 
@@ -104,8 +100,7 @@ def loop_frames(scene: DynamicSceneConfig) -> dict[str, int]:
 
 def position_errors(record: VariantRecord, frames: Sequence[MeasurementFrame]) -> np.ndarray:
     """Return the camera centre error (K,) m per frame, NaN without a pose."""
-    truth = np.array([frame.true_centre for frame in frames])
-    return np.asarray(np.linalg.norm(record.centres - truth, axis=1), dtype=np.float64)
+    return np.asarray(np.linalg.norm(pose_errors(record, frames)[:, :3], axis=1))
 
 
 def loop_metrics(

@@ -193,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     settings = Settings(args.seeds, args.duration_s, args.variants, args.out)
     jobs = [(v, m, s) for v in args.variants for m in args.movers for s in args.seeds]
-    frames_per_run = round(args.duration_s * 30.0)
+    frames_per_run = loop_scene(settings, True, args.away_s).frame_count
     progress = ProgressReporter(len(jobs) * frames_per_run, label='monoslam_loop_evaluate',
                                 unit=' frames')  # fmt: skip
     groups: dict[str, dict[str, Any]] = {}

@@ -435,8 +435,9 @@ def test_a_run_a_filter_raises_on_is_reported_and_fails_the_exit_status(
 
 def test_undecided_features_fill_the_map_but_never_those_found_moving() -> None:
     """fill_undecided (default): while handovers leave fewer than target_measured features
-    measured, undecided ones fill the gap; a feature the Shadow filter found DYNAMIC never
-    does (until handed over as STATIC), nor one SLAM revoked."""
+    measured, undecided ones fill the gap, next to the handovers, and the map keeps about
+    target_measured features measured. (That a feature found DYNAMIC never fills the map is
+    the processor's test, test_undecided_features_fill_the_map_except_those_found_moving.)"""
     scene = DynamicSceneConfig(duration_s=4.0, static_points=120, objects=6, points_per_object=6)
     run = simulate_dynamic_scene(2, scene)
     frames = _frames(run, 2)
