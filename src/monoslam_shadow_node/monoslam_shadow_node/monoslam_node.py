@@ -29,7 +29,7 @@ Topics:
               semi-definite or in another frame is refused and logged with its id.
               shadow/tracks (slam_interfaces/ShadowTrackArray, reliable, depth 100), when
               initialize is 'handover' and fill_undecided: the features the Shadow filter
-              found DYNAMIC never fill the map undecided.
+              found DYNAMIC never fill the map undecided, and leave it if they had.
   publishes   monoslam/pose (geometry_msgs/PoseWithCovarianceStamped, reliable, depth 10),
               every frame with a pose (tracking): the pose of the camera OPTICAL frame (x right,
               y down, z forward) in map_frame, R_world_camera and the optical centre, covariance
@@ -119,7 +119,8 @@ keeps the two equal).
                                   than target_measured features measured, features the
                                   Shadow filter has not decided on (and not found DYNAMIC)
                                   fill the gap, as classic MonoSLAM initializes them; one
-                                  failing the persistent-outlier test is revoked.
+                                  failing the persistent-outlier test, or found DYNAMIC by
+                                  the Shadow filter later, is revoked.
   update ('ransac'), ransac_seed (0)  'ransac': the 1-point RANSAC update (Civera et al.
                                   2010), its draws seeded for reproducible runs; 'gated':
                                   every measurement inside the chi-square gate.

@@ -111,7 +111,7 @@ CORE_PARAMETERS = (
     _core(
         'fill_undecided',
         "with initialize 'handover': when handovers leave fewer than target_measured "
-        'features measured, undecided features (not DYNAMIC in shadow/tracks) fill the gap',
+        'features measured, undecided features fill the gap; DYNAMIC in shadow/tracks: out',
     ),
     Param(
         'update',

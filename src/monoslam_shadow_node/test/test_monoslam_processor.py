@@ -201,6 +201,24 @@ def test_undecided_features_fill_the_map_except_those_found_moving() -> None:
     assert _steps(quiet.add_sighting(_sighting(1)))[-1].result.added_ids == [5]
 
 
+def test_a_filled_feature_the_shadow_filter_finds_dynamic_is_revoked() -> None:
+    processor = _processor(max_new_per_frame=40, target_measured=40, min_new_spacing_px=0.0)
+    processor.set_camera(CAMERA)
+    ids = list(range(1, 41))
+    processor.add_features(_points_features(0, ids))
+    processor.add_sighting(_sighting(0))
+    processor.add_features(_points_features(1, ids))
+    processor.add_sighting(_sighting(1))
+    slam = processor.slam
+    assert slam is not None and {7, 8} <= slam.undecided_ids <= slam.owned_ids
+    processor.mark_moving([7, 8])
+    assert not {7, 8} & (slam.undecided_ids | slam.owned_ids)
+    processor.add_features(_points_features(2, ids))
+    step = _steps(processor.add_sighting(_sighting(2)))[-1]
+    assert step.result.removed == {7: 'revoked', 8: 'revoked'}
+    assert not {7, 8} & set(step.result.added_ids)  # nor do they fill it again
+
+
 def test_the_status_line_says_where_the_map_came_from() -> None:
     processor = _processor(max_new_per_frame=40, target_measured=40, min_new_spacing_px=0.0)
     processor.set_camera(CAMERA)

@@ -9,10 +9,12 @@ Three variants run over the same frames (``run_variant``):
   its Shadow filter is compared with (the product's default, the 1-point RANSAC update,
   rejects many movers by itself and would hide what the Shadow filter adds);
 - ``c``: MonoSLAM (``initialize='handover'``) with the Shadow filter: SLAM gets every feature
-  but only adds those the Shadow filter hands over as STATIC. Per frame the Shadow filter gets
-  SLAM's pose (R_world_camera, centre, 6 x 6 pose covariance) and the features SLAM does not
-  own (``MonoSlamProcessor.owned_ids``); its handovers go to SLAM's handover intake and enter
-  the map when next observed. The Shadow filter processes every frame in which SLAM tracks,
+  and adds those the Shadow filter hands over as STATIC, and (``fill_undecided``) undecided
+  ones while its map is short. Per frame the Shadow filter gets SLAM's pose (R_world_camera,
+  centre, 6 x 6 pose covariance) and, as the shadow_filter node, the features SLAM did not
+  take by handover (not in ``owned_ids``, or in ``MonoSlam.undecided_ids``); its handovers
+  go to SLAM's handover intake and enter the map when next observed, and its DYNAMIC
+  decisions to ``mark_moving``. The Shadow filter processes every frame in which SLAM tracks,
   however uncertain its pose (the covariance enters its tests); frames without a pose
   (waiting) or in which tracking was lost are not given to it, and a frame whose pose
   covariance is not finite is refused by it (counted).
@@ -348,9 +350,9 @@ def _shadow_step(
     config: PipelineConfig,
     books: _Bookkeeping,
 ) -> None:
-    """Give the Shadow filter SLAM's pose with its covariance and the features SLAM does not
-    own, and pass its handovers to SLAM (the diagnostic settings: the true pose as a known
-    pose; no handovers of moving features)."""
+    """Give the Shadow filter SLAM's pose with its covariance and the features SLAM did not
+    take by handover, and pass its handovers and DYNAMIC decisions to SLAM (the diagnostic
+    settings: the true pose as a known pose; no handovers of moving features)."""
     pose = _pose(result)
     if result.status != TRACKING or pose is None:
         books.no_pose += 1
@@ -362,7 +364,9 @@ def _shadow_step(
     owned = slam.owned_ids
     measurements = frame.measurements
     stamp_ns, ids, pixels = measurements.stamp_ns, measurements.ids, measurements.pixels
-    free = np.array([int(i) not in owned for i in ids], dtype=bool).reshape(-1)
+    # as the shadow_filter node: every feature but those SLAM took by handover
+    undecided = slam.slam.undecided_ids if slam.slam is not None else frozenset()
+    free = np.array([int(i) not in owned or int(i) in undecided for i in ids], dtype=bool)
     outcome = shadow.process(
         Features(stamp_ns, '', ids[free], pixels[free]),
         CameraPose(stamp_ns, slam.map_frame, rotation, centre, covariance),

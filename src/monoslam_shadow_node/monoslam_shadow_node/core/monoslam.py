@@ -42,17 +42,14 @@ Per frame (``MonoSlam.process``):
    with ``fill_undecided`` (default), while fewer than ``target_measured`` features that
    fix the camera (not on probation) were measured, also from tracks the Shadow filter has
    not decided on, as ``'all'`` does, except those it found DYNAMIC (``mark_moving``) or
-   SLAM revoked. Why: the Shadow filter decides only with parallax, so on a turn (and in
-   the first seconds) the map starves while the camera sees plenty, and features at unknown
-   depth still fix its rotation. Measured with ``monoslam_loop_evaluate`` (seeds 0-9, a
-   90 deg turn away for 6 s): with handovers only, tracking lost on the turn on most seeds;
-   with filling, never lost, 98 % of the returning map re-measured. On Fig. 5
-   (``monoslam_evaluate``) (c)'s ATE went from 0.083 to 0.023 m on seeds 0-9 (seeds lost
-   once: 2 before, 1 after) and from 0.074 to 0.031 m on seeds 10-19 (1 lost before, none
-   after). A filled feature failing the persistent-outlier test is revoked like a
-   handed-over one. A handover enters with the ray of the current
-   measurement anchored at the current camera, the inverse depth from the handed-over point,
-   its variance from the handed-over covariance but never below the prior's
+   SLAM revoked; the Shadow filter goes on judging a filled feature (``undecided_ids``),
+   and its DYNAMIC verdict takes it out of the state (``mark_moving``; reason 'revoked').
+   Why: the Shadow filter decides only with parallax, so on a turn (and in the first
+   seconds) the map starved while the camera saw plenty, and features at unknown depth
+   still fix its rotation (figures: the README, ``monoslam_loop_evaluate``). A handover
+   enters with the ray of the current measurement anchored at the current camera, the
+   inverse depth from the handed-over point, its variance from the handed-over covariance
+   but never below the prior's
    (``initial_inverse_depth_sigma``): the Shadow filter triangulated the point from SLAM's
    own poses, so its depth is not independent of SLAM's state, and taking its variance as is
    counts SLAM's pose information twice (an overconfident depth then pulls the camera: on
@@ -89,13 +86,13 @@ in ``monoslam_checks``; this module holds the frame loop, map management, start 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
 from monoslam_shadow_node.core.monoslam_checks import (
+    in_view_mask,
     known_disagreement,
     tracking_lost_reason,
     validated_frame,
@@ -115,7 +112,6 @@ from monoslam_shadow_node.core.monoslam_model import (
     V_SLICE,
     W_SLICE,
     FloatArray,
-    feature_direction,
     linearity_index,
 )
 from monoslam_shadow_node.core.monoslam_ransac import ransac_update
@@ -131,7 +127,6 @@ from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamResult,
     UpdateCounts,
 )
-from slam_core.arrays import BoolArray
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import rotation_from_quaternion as rotation
 
@@ -163,6 +158,7 @@ class MonoSlam:
         self._handovers: dict[int, _Handover] = {}
         self._owned_ids: set[int] = set()
         self._moving_ids: dict[int, None] = {}  # insertion-ordered set, oldest first
+        self._revoked_by_shadow: list[int] = []
         self._frame = -1
         self._last_stamp_ns: int | None = None
         self._status = WAITING
@@ -180,8 +176,17 @@ class MonoSlam:
 
     @property
     def owned_ids(self) -> frozenset[int]:
-        """Track ids SLAM owns (in its map now or before); the Shadow filter ignores them."""
+        """Track ids SLAM owns (in its map now or before); the Shadow filter ignores them,
+        except the undecided ones (``undecided_ids``)."""
         return frozenset(self._owned_ids)
+
+    @property
+    def undecided_ids(self) -> frozenset[int]:
+        """Features in the state that filled the map undecided (``fill_undecided``): the
+        Shadow filter goes on judging them, and a DYNAMIC verdict revokes them."""
+        if self.config.initialize != 'handover':
+            return frozenset()
+        return frozenset(f.id for f in self._state.features if f.source != 'handover')
 
     @property
     def state_size(self) -> int:
@@ -217,11 +222,17 @@ class MonoSlam:
 
     def mark_moving(self, ids: Iterable[int]) -> None:
         """Note features the Shadow filter found DYNAMIC (or SLAM revoked): they never fill
-        the map undecided (``fill_undecided``) until handed over as STATIC. The newest
-        ``MAX_MOVING_IDS`` are kept."""
+        the map undecided (``fill_undecided``) until handed over as STATIC, and one that
+        filled it already leaves the state (reason 'revoked' in the next frame's result).
+        The newest ``MAX_MOVING_IDS`` are kept."""
         for feature_id in ids:
             self._moving_ids.pop(int(feature_id), None)
             self._moving_ids[int(feature_id)] = None
+        moving = set(self._moving_ids) & self.undecided_ids
+        for feature in [f for f in self._state.features if f.id in moving]:
+            self._revoked_by_shadow.append(feature.id)  # reported with the next frame
+            self._remove(feature, retire=False)
+            self._owned_ids.discard(feature.id)
         while len(self._moving_ids) > MAX_MOVING_IDS:
             del self._moving_ids[next(iter(self._moving_ids))]
 
@@ -248,7 +259,7 @@ class MonoSlam:
         ids_out, pixels, covariances = predicted_measurements(
             self._state, self.camera, dt_s, self.config, ids
         )
-        covariances[~self._view_mask(ids_out, pixels)] = 0.0
+        covariances[~in_view_mask(self._state, self.camera, self.config, ids_out, pixels)] = 0.0
         return ids_out, pixels, covariances
 
     # --- the frame loop --------------------------------------------------------------------
@@ -274,6 +285,8 @@ class MonoSlam:
         unseen = [feature for feature in self._state.features if feature.id not in observed]
         searchable = set(self._in_view(unseen)[0].tolist())  # predicted in view, not seen
         removed = self._manage_map(observed, rejected, searchable)
+        removed.update(dict.fromkeys(self._revoked_by_shadow, 'revoked'))
+        self._revoked_by_shadow.clear()
         seen = set(measured)  # those on probation do not fix the camera
         trusted = [f.id for f in self._state.features if f.id in seen and not f.probation]
         removed.update(self._make_room(observed, measured, trusted, searchable))
@@ -418,27 +431,8 @@ class MonoSlam:
         ids, pixels, covariances = predicted_measurements(
             self._state, self.camera, 0.0, self.config, [feature.id for feature in features]
         )
-        keep = self._view_mask(ids, pixels)
+        keep = in_view_mask(self._state, self.camera, self.config, ids, pixels)
         return ids[keep], pixels[keep], covariances[keep]
-
-    def _view_mask(self, ids: IntArray, pixels: FloatArray) -> BoolArray:
-        """Return which of the state's features ``ids`` (M,), predicted at raw ``pixels``
-        (M, 2), are in view (``_in_view``)."""
-        state, camera = self._state, self.camera
-        by_id = {feature.id: feature for feature in state.features}
-        centre = state.x[R_SLICE]
-        cos_limit = math.cos(math.radians(self.config.max_view_angle_deg))
-        keep = np.zeros(len(ids), dtype=bool)
-        for k, (feature_id, pixel) in enumerate(zip(ids.tolist(), pixels, strict=True)):
-            if not (0.0 <= pixel[0] < camera.width and 0.0 <= pixel[1] < camera.height):
-                continue
-            feature = by_id[feature_id]
-            block = state.x[feature.start : feature.start + feature.size]
-            direction = feature_direction(feature.size, block, feature.reference, centre)[0]
-            first = feature.first_ray
-            norm = float(np.linalg.norm(direction))
-            keep[k] = first is None or (norm > 0.0 and direction @ first >= cos_limit * norm)
-        return keep
 
     def _make_room(
         self,

@@ -6,10 +6,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.monoslam_ekf import Match
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS
-from monoslam_shadow_node.core.monoslam_model import R_SLICE, FloatArray
+from monoslam_shadow_node.core.monoslam_model import R_SLICE, FloatArray, feature_direction
 from monoslam_shadow_node.core.monoslam_ransac import predicted_pixels
 from monoslam_shadow_node.core.monoslam_state import FilterState
 from monoslam_shadow_node.core.monoslam_types import (
@@ -109,3 +110,29 @@ def tracking_lost_reason(
             f'{values[-1]:.1e}): the filter is overconfident'
         )
     return None
+
+
+def in_view_mask(
+    state: FilterState,
+    camera: CameraModel,
+    config: MonoSlamConfig,
+    ids: IntArray,
+    pixels: FloatArray,
+) -> NDArray[np.bool_]:
+    """Return which of the state's features ``ids`` (M,), predicted at raw ``pixels`` (M, 2),
+    are in view: inside the image, and seen within ``max_view_angle_deg`` of the ray they
+    were first seen along (a patch looks too different beyond it)."""
+    by_id = {feature.id: feature for feature in state.features}
+    centre = state.x[R_SLICE]
+    cos_limit = math.cos(math.radians(config.max_view_angle_deg))
+    keep = np.zeros(len(ids), dtype=bool)
+    for k, (feature_id, pixel) in enumerate(zip(ids.tolist(), pixels, strict=True)):
+        if not (0.0 <= pixel[0] < camera.width and 0.0 <= pixel[1] < camera.height):
+            continue
+        feature = by_id[feature_id]
+        block = state.x[feature.start : feature.start + feature.size]
+        direction = feature_direction(feature.size, block, feature.reference, centre)[0]
+        first = feature.first_ray
+        norm = float(np.linalg.norm(direction))
+        keep[k] = first is None or (norm > 0.0 and direction @ first >= cos_limit * norm)
+    return keep
