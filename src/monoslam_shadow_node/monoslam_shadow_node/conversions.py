@@ -127,6 +127,13 @@ def prediction_covariances(message: Any) -> FloatArray:
     return covariances
 
 
+def prediction_warps(message: Any) -> FloatArray:
+    """Return the template warps (K, 2, 2) of a slam_interfaces/FeatureTrackArray's predicted
+    pixels (FeatureTrack.warp, row-major; zeros where not given)."""
+    warps = np.array([list(track.warp) for track in message.tracks], dtype=np.float64)
+    return warps.reshape(-1, 2, 2)
+
+
 def rotation_from_quaternion(x: float, y: float, z: float, w: float) -> FloatArray:
     """Return the rotation matrix (3, 3) of a quaternion (x, y, z, w).
 

@@ -96,7 +96,11 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from marker_detector.conversions import camera_info_fields, image_from_message
 from marker_detector.core.images import ImageError
-from monoslam_shadow_node.conversions import features_from_message, prediction_covariances
+from monoslam_shadow_node.conversions import (
+    features_from_message,
+    prediction_covariances,
+    prediction_warps,
+)
 from monoslam_shadow_node.feature_tracker_settings import (
     NODE_NAME,
     PARAMETERS,
@@ -228,10 +232,10 @@ class FeatureTrackerNode(Node):
 
     def _on_predictions(self, message: FeatureTrackArray) -> None:
         predicted = features_from_message(message)
-        covariances = prediction_covariances(message)
+        covariances, warps = prediction_covariances(message), prediction_warps(message)
         self._handle(
             self.processor.add_predictions(
-                predicted.stamp_ns, predicted.ids, predicted.pixels, covariances
+                predicted.stamp_ns, predicted.ids, predicted.pixels, covariances, warps
             )
         )
 

@@ -237,10 +237,12 @@ class FeatureTrackingProcessor:
         ids: IntArray,
         pixels: FloatArray,
         covariances: FloatArray | None = None,
+        warps: FloatArray | None = None,
     ) -> list[Outcome]:
         """Take the predicted pixels (and their covariances (K, 2, 2), px^2, for an active
-        search of dropped tracks) of some tracks for the image at ``stamp_ns``; return the
-        outcomes (the waiting image, tracked now, if it was waiting for these)."""
+        search of dropped tracks, and the warps (K, 2, 2) of their templates to the predicted
+        view) of some tracks for the image at ``stamp_ns``; return the outcomes (the waiting
+        image, tracked now, if it was waiting for these)."""
         if not self.use_predictions:
             return []
         if self._tracked_ns is not None and stamp_ns <= self._tracked_ns:
@@ -250,6 +252,7 @@ class FeatureTrackingProcessor:
             np.asarray(ids, np.int64).reshape(-1),
             np.asarray(pixels, np.float64).reshape(-1, 2),
             None if covariances is None else np.asarray(covariances, np.float64).reshape(-1, 2, 2),
+            None if warps is None else np.asarray(warps, np.float64).reshape(-1, 2, 2),
         )
         while len(self._predictions) > PREDICTIONS_KEPT:
             del self._predictions[min(self._predictions)]

@@ -249,11 +249,13 @@ def fill_predictions(
     message: Any,
     make_track: Callable[..., Any],
     covariances: FloatArray | None = None,
+    warps: FloatArray | None = None,
 ) -> Any:
     """Fill a slam_interfaces/FeatureTrackArray with predicted raw pixels (M, 2) of track ids
     (M,), with their covariances (M, 2, 2) px^2 when given (FeatureTrack.covariance
-    [uu, uv, vv]; zeros for one that is not finite), and return it; non-finite predictions
-    are left out."""
+    [uu, uv, vv]; zeros for one that is not finite) and their template warps (M, 2, 2) when
+    given (FeatureTrack.warp, row-major; zeros for one that is not finite), and return it;
+    non-finite predictions are left out."""
     ns_to_stamp(stamp_ns, message.header.stamp)
     message.header.frame_id = frame_id
     pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
@@ -263,11 +265,18 @@ def fill_predictions(
         full = np.asarray(covariances, dtype=np.float64).reshape(-1, 2, 2)
         upper = np.column_stack([full[:, 0, 0], full[:, 0, 1], full[:, 1, 1]])
         upper[~np.all(np.isfinite(upper), axis=1)] = 0.0
+    flat = np.zeros((len(pixels), 4))
+    if warps is not None:
+        flat = np.asarray(warps, dtype=np.float64).reshape(-1, 4).copy()
+        flat[~np.all(np.isfinite(flat), axis=1)] = 0.0
     message.tracks = [
-        make_track(id=int(i), u=float(u), v=float(v), covariance=[float(c) for c in cov])
-        for i, (u, v), cov in zip(ids.tolist(), pixels, upper, strict=True)
+        make_track(
+            id=int(i), u=float(u), v=float(v), covariance=[float(c) for c in cov],
+            warp=[float(w) for w in warp],
+        )
+        for i, (u, v), cov, warp in zip(ids.tolist(), pixels, upper, flat, strict=True)
         if math.isfinite(u) and math.isfinite(v)
-    ]
+    ]  # fmt: skip
     return message
 
 

@@ -100,6 +100,9 @@ keeps the two equal).
                                   one found in fewer than min_success_ratio of at least
                                   failure_window searches is deleted. When the state is full,
                                   the feature out of view the longest is retired to the map.
+  view_margin_px (11)             in the image means this far inside its border: the feature
+                                  tracker follows nothing nearer (its border_margin_px, 10 px,
+                                  and half its 21 px window), so a search there would fail.
   failure_window, min_success_ratio, max_consecutive_failures  deleting failing features.
   lost_after_frames, max_position_sigma_m  tracking is lost after this many frames measuring
                                   nothing, or when the position sigma exceeds this (m).
@@ -409,11 +412,11 @@ class MonoSlamNode(Node):
         predicted = self.processor.predictions(stamp_ns)
         if predicted is None or self.predictions_publisher is None:
             return
-        ids, pixels, covariances = predicted
+        ids, pixels, covariances, warps = predicted
         self.predictions_publisher.publish(
             fill_predictions(
                 ids, pixels, stamp_ns, frame_id or self._camera_frame, FeatureTrackArray(),
-                FeatureTrack, covariances,
+                FeatureTrack, covariances, warps,
             )
         )  # fmt: skip
 

@@ -383,11 +383,14 @@ class MonoSlamProcessor:
         """Return the map (core ``MapPoint``s, world frame), empty before the camera."""
         return self.slam.map_points() if self.slam is not None else []
 
-    def predictions(self, stamp_ns: int) -> tuple[IntArray, FloatArray, FloatArray] | None:
-        """Return the owned features' ids (P,), predicted raw pixels (P, 2) and their
-        covariances (P, 2, 2) px^2 (zero where no search is due, ``MonoSlam.predictions``)
-        for the image at ``stamp_ns`` (int ns), or None when not due: no camera yet, already
-        predicted for this stamp, or not after the last processed frame."""
+    def predictions(
+        self, stamp_ns: int
+    ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray] | None:
+        """Return the owned features' ids (P,), predicted raw pixels (P, 2), their
+        covariances (P, 2, 2) px^2 (zero where no search is due) and template warps (P, 2, 2)
+        (``MonoSlam.predictions``) for the image at ``stamp_ns`` (int ns), or None when not
+        due: no camera yet, already predicted for this stamp, or not after the last processed
+        frame."""
         last_ns = self.sync.last_ns
         if self.slam is None or stamp_ns == self._predicted_ns:
             return None

@@ -84,6 +84,7 @@ CORE_PARAMETERS = (
         'max_view_angle_deg',
         'a map feature is searched for only within this angle of its first viewing ray, deg',
     ),
+    _core('view_margin_px', 'a map feature is searched for only this far inside the image, px'),
     _core('failure_window', 'measurement attempts a feature is judged over (>= 1)'),
     _core('min_success_ratio', 'a feature accepted less often over them is deleted, in (0, 1)'),
     _core('max_consecutive_failures', 'a feature rejected this often in a row is deleted'),

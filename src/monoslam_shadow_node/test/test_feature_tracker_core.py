@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.core.feature_detection import SUBPIXEL_HALF_WINDOW_PX
+from monoslam_shadow_node.core.feature_reid import make_room
 from monoslam_shadow_node.core.feature_tracker import (
     DROP_REASONS,
     FeatureTracker,
@@ -524,3 +525,75 @@ def test_a_revived_track_displaces_a_younger_one_on_the_same_corner() -> None:
     pixels = result.pixels
     gaps = np.linalg.norm(pixels[:, None] - pixels[None], axis=2) + 1e9 * np.eye(len(pixels))
     assert np.min(gaps) >= 0.5 * config.min_distance_px
+
+
+def _similarity(scale: float, degrees: float) -> np.ndarray:
+    """A zoom by ``scale`` and a roll by ``degrees`` about the image centre."""
+    angle = np.radians(degrees)
+    linear = scale * np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    centre = np.array([(WIDTH - 1) / 2.0, (HEIGHT - 1) / 2.0])
+    out = np.eye(3)
+    out[:2, :2], out[:2, 2] = linear, centre - linear @ centre
+    return out
+
+
+def test_a_warped_template_finds_a_track_seen_larger_and_rolled() -> None:
+    """Back at view A closer and rolled (x1.4, 25 deg): the template as captured no longer
+    correlates, so without a warp few tracks return; with the prediction's warp (the view
+    change's linear part, as SLAM sends it) most return, within a pixel, and each revived
+    template is captured anew (the next image tracks them on)."""
+    config = TrackerConfig(max_features=120)
+    back = _similarity(1.4, 25.0)
+    source = texture(HEIGHT, WIDTH, seed=5)
+    results = {}
+    for label, warp in (('plain', None), ('warped', back[:2, :2])):
+        tracker, first, truth = _away_and_back(config, back)
+        inside = np.all((truth > 15.0) & (truth < [WIDTH - 15.0, HEIGHT - 15.0]), axis=1)
+        ids, truth = first.ids[inside], truth[inside]
+        covariance = np.broadcast_to(16.0 * np.eye(2), (len(ids), 2, 2))
+        warps = None if warp is None else np.broadcast_to(warp, (len(ids), 2, 2))
+        result = tracker.track(warped(source, back), Predictions(ids, truth, covariance, warps))
+        check_output(result, config)
+        found = by_id(result)
+        errors = [np.linalg.norm(found[i] - t) for i, t in zip(ids.tolist(), truth, strict=True)
+                  if i in found]  # fmt: skip
+        results[label] = (len(errors), len(ids), errors)
+        if warp is not None:
+            after = tracker.track(warped(source, shifted(1.0, 1.0, back)))
+            assert len(set(found) & set(after.ids.tolist())) >= 0.9 * len(found)
+    plain, total, _ = results['plain']
+    revived, total, errors = results['warped']
+    assert plain <= 0.2 * total
+    assert revived >= 0.8 * total and max(errors) < 1.0
+
+
+def test_a_template_warped_past_recognition_is_not_searched() -> None:
+    """A warp that shrinks the template below MIN_CORE_PX (seen from four times farther)
+    or mirrors it: not searched, counted as unsearched, nothing revived."""
+    config = TrackerConfig(max_features=120)
+    back = shifted(3.0, -2.0)
+    source = texture(HEIGHT, WIDTH, seed=5)
+    for warp in (0.25 * np.eye(2), np.diag([1.0, -1.0])):
+        tracker, first, truth = _away_and_back(config, back)
+        covariance = np.broadcast_to(16.0 * np.eye(2), (len(first.ids), 2, 2))
+        warps = np.broadcast_to(warp, (len(first.ids), 2, 2))
+        result = tracker.track(
+            warped(source, back), Predictions(first.ids, truth, covariance, warps)
+        )
+        assert result.counts.revived == 0
+        assert result.counts.unsearched >= 0.9 * len(first.ids)
+
+
+def test_at_max_features_revived_map_features_displace_young_unmapped_tracks() -> None:
+    """``make_room``: the youngest held tracks that no filter mapped leave first (a mapped
+    one, even young, stays); only when they do not suffice do the revived with the lowest
+    correlation go back to sleep."""
+    ids = np.array([1, 2, 3, 4, 5, 6], np.int64)
+    ages = np.array([50, 3, 1, 2, 40, 60], np.int64)
+    revived = np.array([False, False, False, False, True, True])
+    mapped = np.array([3, 5, 6], np.int64)  # 3 is young but a map feature
+    scores = np.array([0.0, 0.0, 0.0, 0.0, 0.95, 0.85])
+    out, pushed = make_room(ids, ages, revived, mapped, scores, 2)
+    assert out.tolist() == [False, True, False, True, False, False] and pushed == 2
+    out, pushed = make_room(ids, ages, revived, mapped, scores, 4)
+    assert out.tolist() == [True, True, False, True, False, True] and pushed == 3

@@ -55,7 +55,7 @@ def test_the_next_sighting_with_the_same_offset_is_predicted_to_the_white_noise(
     # the offset, S would also hold 2 sigma_o^2
     config = MonoSlamConfig(pixel_sigma_px=WHITE_PX, tracking_offset_px=OFFSET_PX)
     state = _state_with_feature(OFFSET_PX)
-    ids, pixels, s = predicted_measurements(state, CAMERA, 1e-9, config)
+    ids, pixels, s, _ = predicted_measurements(state, CAMERA, 1e-9, config)
     assert ids.tolist() == [5]
     np.testing.assert_allclose(pixels[0], [400.0, 200.0], atol=1e-6)
     np.testing.assert_allclose(s[0], 2 * WHITE_PX**2 * np.eye(2), atol=1e-3)

@@ -159,7 +159,7 @@ def test_predictions_are_due_once_per_later_stamp() -> None:
     processor.add_features(_features(3))
     processor.add_sighting(_sighting(3))
     assert processor.predictions(3 * 33 * MS) is None  # processed already
-    ids, pixels, _ = processor.predictions(4 * 33 * MS) or (None, None, None)
+    ids, pixels, _, _ = processor.predictions(4 * 33 * MS) or (None, None, None, None)
     assert ids is not None and pixels is not None and len(ids) == len(pixels) == 0
     assert processor.predictions(4 * 33 * MS) is None  # once per stamp
 

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
+from monoslam_shadow_node.core.feature_tracker import FeatureTracker, Predictions, TrackerConfig
 from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
 from slam_core.camera import CameraModel
 from slam_evaluation.monoslam_image_sources import BoolArray, FloatArray, ImageFrame
@@ -91,10 +91,13 @@ class FrontEnd:
         self._moving_ids: set[int] = set()
         self.stats = FrontEndStats()
 
-    def frame(self, image_frame: ImageFrame) -> MeasurementFrame:
-        """Return the measurements of one image (tracks; the target's corners as known points
-        0-3 if detected) and its truth (moving flags, camera pose)."""
-        features = self.tracker.track(image_frame.image)
+    def frame(
+        self, image_frame: ImageFrame, predictions: Predictions | None = None
+    ) -> MeasurementFrame:
+        """Return the measurements of one image (tracks, with SLAM's ``predictions`` for it
+        if given; the target's corners as known points 0-3 if detected) and its truth
+        (moving flags, camera pose)."""
+        features = self.tracker.track(image_frame.image, predictions)
         ids, pixels = features.ids, features.pixels
         moving = self._moving(image_frame.labels, ids, pixels)
         corners = self._detect(image_frame)

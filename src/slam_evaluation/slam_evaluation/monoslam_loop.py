@@ -112,7 +112,7 @@ def loop_metrics(
     visible = [set(frame.point_ids.tolist()) for frame in run.frames]
     before = range(max(0, marks['start'] - rate), marks['start'] + 1)
     mapped = set().union(*(record.measured_ids[k] for k in before))
-    returned, rematched, entries = 0, 0, []
+    returned, entries = 0, []
     for feature_id in sorted(mapped):
         track_point = run.track_point.get(feature_id)
         if track_point is None:
@@ -130,13 +130,39 @@ def loop_metrics(
         window = range(entry, min(entry + REMATCH_FRAMES + 1, len(frames)))
         found = next((k for k in window if feature_id in record.measured_ids[k]), None)
         if found is not None:
-            rematched += 1
             entries.append(found)
     by_point: dict[int, int] = {}
     for map_point in record.map_points:
         world = int(run.track_point.get(map_point.id, -1 - map_point.id))
         by_point[world] = by_point.get(world, 0) + 1
     duplicates = sum(count - 1 for count in by_point.values())
+    counts = rematch_metrics(len(mapped), returned, entries, len(record.map_points), duplicates)
+    return {**counts, **trajectory_metrics(record, frames, marks, rate)}
+
+
+def rematch_metrics(
+    mapped: int, returned: int, entries: list[int], map_points: int, duplicates: int
+) -> dict[str, Any]:
+    """Return the map's loop metrics (module docstring) from the counts: the features mapped
+    before the turn, those that came back into view, the frames each re-matched one was
+    measured in, the map's points and its duplicates."""
+    return {
+        'mapped_before_turn': mapped,
+        'returned': returned,
+        'rematched': len(entries),
+        'rematched_share': len(entries) / returned if returned else math.nan,
+        'first_rematch_frame': min(entries) if entries else None,
+        'map_points': map_points,
+        'duplicates': duplicates,
+        'duplicate_share': duplicates / map_points if map_points else 0.0,
+    }
+
+
+def trajectory_metrics(
+    record: VariantRecord, frames: Sequence[MeasurementFrame], marks: dict[str, int], rate: int
+) -> dict[str, Any]:
+    """Return the loop's trajectory metrics (module docstring): the far side's largest
+    position error, the last second's RMS, closed, lost (with the frames), ATE, the marks."""
     errors = position_errors(record, frames)
     far = errors[marks['away'] : marks['return']]
     far_max = float(np.nanmax(far)) if np.any(np.isfinite(far)) else math.nan
@@ -147,14 +173,6 @@ def loop_metrics(
     untracked_after_start = int(np.count_nonzero(~tracked[first:]))
     lost = bool(record.lost_frames) or untracked_after_start > 0 or not np.any(tracked)
     return {
-        'mapped_before_turn': len(mapped),
-        'returned': returned,
-        'rematched': rematched,
-        'rematched_share': rematched / returned if returned else math.nan,
-        'first_rematch_frame': min(entries) if entries else None,
-        'map_points': len(record.map_points),
-        'duplicates': duplicates,
-        'duplicate_share': duplicates / len(record.map_points) if record.map_points else 0.0,
         'far_side_max_m': far_max,
         'last_second_rms_m': last_rms,
         'closed': bool(last_rms <= CLOSED_FRACTION * far_max),

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -243,8 +243,11 @@ def run_variant(
     frames: Sequence[MeasurementFrame],
     camera: CameraModel,
     config: PipelineConfig | None = None,
+    attach: Callable[[MonoSlamProcessor], None] | None = None,
 ) -> VariantRecord:
     """Run ``variant`` ('a', 'b' or 'c', module docstring) over ``frames``; return its record.
+    ``attach`` gets the SLAM processor before the first frame is drawn (frames that track
+    with SLAM's predictions, ``monoslam_loop_images``).
     Raises PipelineError (naming the variant and frame) if a filter rejects a frame
     (MonoSlamInputError, InputError) or fails on it (e.g. LinAlgError), or a frame's moving
     flags do not match its features."""
@@ -257,6 +260,8 @@ def run_variant(
         slam_config = dataclasses.replace(slam_config, update='gated')
     slam = MonoSlamProcessor(slam_config)
     slam.set_camera(camera)
+    if attach is not None:
+        attach(slam)
     shadow = None
     if variant == 'c':
         shadow = ShadowProcessor(config.shadow)

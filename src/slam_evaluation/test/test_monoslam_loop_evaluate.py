@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from slam_evaluation.monoslam_loop_evaluate import acceptance, main
+from slam_evaluation.monoslam_loop_evaluate import MIN_REMATCHED_IMAGES, acceptance, main
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 
@@ -41,6 +41,11 @@ def test_the_acceptance_fails_a_lost_run_and_a_duplicate_map() -> None:
     assert not acceptance([duplicated])['points']['duplicates']['pass']
     few = {**good, 'rematched': 7}
     assert not acceptance([few])['points']['rematched']['pass']
+    # from images the target is 60 %: 7 of 10 pass it
+    assert acceptance([few], MIN_REMATCHED_IMAGES)['points']['rematched']['pass']
+    assert not acceptance([{**good, 'rematched': 5}], MIN_REMATCHED_IMAGES)['points']['rematched'][
+        'pass'
+    ]
 
 
 @pytest.mark.parametrize(

@@ -298,13 +298,27 @@ def test_predictions_are_where_the_next_frame_sees_the_features() -> None:
     for _, measurements in frames[:40]:
         slam.process(measurements)
     following, _ = frames[40]
-    ids, pixels, regions = slam.predictions(following.stamp_ns)
+    ids, pixels, regions, warps = slam.predictions(following.stamp_ns)
     assert len(ids) >= 10
+    # each in-view feature's template warp to the next view: over the 1.3 s since the
+    # templates were captured the camera moves little, so no feature looks much larger,
+    # smaller or mirrored
+    latest = set(frames[39][1].ids.tolist())
+    near = [w for i, w, r in zip(ids, warps, regions, strict=True) if np.any(r) and i in latest]
+    assert len(near) >= 10
+    for warp in near:
+        assert np.linalg.det(warp) > 0.0
+        singular = np.linalg.svd(warp, compute_uv=False)
+        assert np.all((singular > 0.7) & (singular < 1.4))
     seen = {int(i): p for i, p in zip(following.track_ids, following.true_pixels, strict=True)}
     distances = []
+    margin = slam.config.view_margin_px
     for track_id, pixel, region in zip(ids, pixels, regions, strict=True):
         if not np.any(region):  # predicted out of view (MonoSlam._in_view): no search is due
             continue
+        # a search only where the tracker can follow a feature: past the view margin
+        assert margin <= pixel[0] <= slam.camera.width - 1 - margin
+        assert margin <= pixel[1] <= slam.camera.height - 1 - margin
         assert np.all(np.linalg.eigvalsh(region) > 0.0)
         if int(track_id) in seen:
             error = seen[int(track_id)] - pixel
@@ -312,7 +326,7 @@ def test_predictions_are_where_the_next_frame_sees_the_features() -> None:
     assert len(distances) >= 10
     # true pixels fall inside the active search regions (chi-square 2 dof, 99.9 %: 13.8)
     assert np.median(distances) < 2.0 and max(distances) < 13.8
-    _, _, only = slam.predictions(following.stamp_ns, [int(ids[0])])
+    _, _, only, _ = slam.predictions(following.stamp_ns, [int(ids[0])])
     assert len(only) == 1
 
 

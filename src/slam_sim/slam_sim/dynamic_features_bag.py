@@ -111,7 +111,7 @@ class _Messages:
         return self.types[FEATURES_TYPE](
             header=self.build.header(frame.stamp_ns, OPTICAL_FRAME),
             tracks=[
-                track(id=track_id, u=u, v=v, covariance=np.zeros(3))
+                track(id=track_id, u=u, v=v, covariance=np.zeros(3), warp=np.zeros(4))
                 for track_id, (u, v) in zip(
                     frame.track_ids.tolist(), frame.pixels.tolist(), strict=True
                 )

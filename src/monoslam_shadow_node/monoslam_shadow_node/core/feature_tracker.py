@@ -30,13 +30,18 @@ Per image (``FeatureTracker.track``):
    ellipse ((x - u)^T S^-1 (x - u) <= 9) by normalized cross-correlation
    (cv2.matchTemplate, TM_CCOEFF_NORMED, on the LK window's core of the template, refined
    to subpixel by a parabola through the peak), and where it matches with a correlation of
-   at least ``reid_min_ncc`` the track comes back with its id and age (``revived``). The
-   template is the patch at detection, not warped: the filter predicts a feature in view
-   only within ``max_view_angle_deg`` of the ray it was first seen along, and normalized
-   correlation ignores gain and offset. An ellipse wider than ``reid_max_search_px`` on
-   either axis is not searched (the prediction is too uncertain to say where: counted as
-   ``unsearched``). A revived track and a younger one on the same structure meet the
-   ``crowded`` rule: the younger goes, so the map point keeps its id and no duplicate stays.
+   at least ``reid_min_ncc`` the track comes back with its id and age (``revived``), and
+   its template is captured anew there. A prediction may bring a warp, the 2x2 affine map
+   of the template to the predicted view (SLAM's, ``monoslam_views``: a returning feature is
+   seen from elsewhere, larger or smaller, rolled); the template is resampled through it
+   before the search (``feature_reid.search_core``), as MonoSLAM warps its patches.
+   Normalized correlation ignores gain and offset. An ellipse wider than
+   ``reid_max_search_px`` on either axis is not searched (the prediction is too uncertain to
+   say where: counted as ``unsearched``, like a warp past recognition). A revived track and
+   a younger one on the same structure meet the ``crowded`` rule: the younger goes, so the
+   map point keeps its id and no duplicate stays. At ``max_features``, a revived track
+   takes the place of the youngest track no filter has mapped (not among the predicted
+   ids), also counted ``crowded``.
 3. Detection (``feature_detection``), every ``detect_every_n_frames`` images (and whenever
    no track is left), only where tracks are missing: Shi-Tomasi or FAST corners, spread
    over a grid and refined to subpixel accuracy, up to ``max_features`` tracks in all.
@@ -60,7 +65,9 @@ from monoslam_shadow_node.core.feature_detection import CornerDetector
 from monoslam_shadow_node.core.feature_reid import (
     TEMPLATE_MARGIN_PX,
     Search,
+    make_room,
     match_template,
+    search_core,
     search_region,
 )
 
@@ -194,11 +201,13 @@ class Predictions:
     raw-image pixels (K, 2) float64, with their covariances (K, 2, 2) px^2 when known (the
     search regions of re-identification). Ids neither tracked nor remembered and non-finite
     pixels are ignored; a track predicted outside the image is dropped (it is expected to
-    have left the view)."""
+    have left the view). ``warps`` (K, 2, 2), when known, map each template to the predicted
+    view (zero: no warp known)."""
 
     ids: IntArray
     pixels: FloatArray
     covariances: FloatArray | None = None
+    warps: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -454,28 +463,33 @@ class FeatureTracker:
                 f'predictions: {len(ids)} ids, {len(pixels)} pixels, {len(covariances)} '
                 'covariances'
             )
+        warps = np.zeros((len(ids), 2, 2)) if predictions.warps is None else predictions.warps
+        if len(warps) != len(ids):
+            raise ValueError(f'predictions: {len(ids)} ids, {len(warps)} warps')
         held = set(self._ids.tolist())
         found: list[tuple[int, float, float, float]] = []
         searched = unsearched = 0
-        for track_id, pixel, covariance in zip(ids.tolist(), pixels, covariances, strict=True):
+        for track_id, pixel, covariance, warp in zip(
+            ids.tolist(), pixels, covariances, warps, strict=True
+        ):
             if track_id in held or track_id not in self._dormant:
                 continue
             region = search_region(self.config, gray.shape, pixel, covariance)
             if region is None:
                 continue
-            if isinstance(region, str):  # 'too_wide'
+            core = search_core(self._dormant[track_id][0], config.lk_window_px, warp)
+            if isinstance(region, str) or core is None:  # 'too_wide', or too far from it
                 unsearched += 1
                 continue
             searched += 1
-            match = match_template(
-                self.config, gray, self._dormant[track_id][0], pixel, covariance, region
-            )
+            match = match_template(self.config, gray, core, pixel, covariance, region)
             if match is not None:
                 found.append((track_id, *match))
         if not found:
             return Search(searched=searched, unsearched=unsearched)
-        # all found come back; then the crowded rule, and max_features: a revived track that
-        # loses either goes back to sleep (not a drop); a held one it displaces is 'crowded'
+        # all found come back; then the crowded rule, and max_features (``make_room``): a
+        # revived track that loses goes back to sleep (not a drop); a held one it displaces
+        # is 'crowded'
         back = [self._dormant.pop(track_id) for track_id, *_ in found]
         revived_ids = np.array([item[0] for item in found], np.int64)
         self._ids = np.concatenate([self._ids, revived_ids])
@@ -493,14 +507,15 @@ class FeatureTracker:
         self._keep(~crowded)
         is_revived = is_revived[~crowded]
         excess = len(self._ids) - config.max_features
-        if excess > 0:  # the weakest revived go back to sleep
-            score = {item[0]: item[3] for item in found}
-            rows = np.flatnonzero(is_revived)
-            weakest = rows[np.argsort([score[int(i)] for i in self._ids[rows]])][:excess]
-            asleep = np.zeros(len(self._ids), bool)
-            asleep[weakest] = True
-            self._keep(~asleep)
-            is_revived = is_revived[~asleep]
+        if excess > 0:  # young unmapped tracks make room, else the weakest revived sleep
+            scores = np.array([{i: s for i, *_, s in found}.get(i, 0.0) for i in self._ids])
+            out, pushed = make_room(self._ids, self._ages, is_revived, ids, scores, excess)
+            displaced += pushed
+            self._keep(~out)
+            is_revived = is_revived[~out]
+        for row in np.flatnonzero(is_revived):  # the template as seen now
+            u, v = (float(c) for c in self._pixels[row])
+            self._templates[row] = cv2.getRectSubPix(gray, (self._side, self._side), (u, v))
         return Search(int(np.count_nonzero(is_revived)), searched, unsearched, displaced)
 
     def _drifted(

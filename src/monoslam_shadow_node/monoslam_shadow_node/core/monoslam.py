@@ -29,7 +29,7 @@ Per frame (``MonoSlam.process``):
    takes it back as a suspect. The map is persistent (Davison's MonoSLAM): a feature out of
    view stays in the state, and is measured again when its id comes back (a tracker that
    re-identifies it, or known data association); a feature predicted in view (in front, in
-   the image, within ``max_view_angle_deg`` of the ray it was first seen along) is searched
+   the image by ``view_margin_px``, within ``max_view_angle_deg`` of its first ray) is searched
    for, and one found in fewer than ``min_success_ratio`` of at least ``failure_window``
    searches is deleted (a frame without any feature searches nothing). When the state is
    full, the features out of view the longest are evicted into the frozen map (reason
@@ -127,6 +127,7 @@ from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamResult,
     UpdateCounts,
 )
+from monoslam_shadow_node.core.monoslam_views import TemplateViews, prediction_warps
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import rotation_from_quaternion as rotation
 
@@ -154,6 +155,7 @@ class MonoSlam:
                        for k, v in self.config.known_points.items()}  # fmt: skip
         self._known_keys = np.array(sorted(self._known), dtype=np.int64)
         self._state = FilterState()
+        self._views = TemplateViews()  # where each track's template was captured
         self._retired: dict[int, MapPoint] = {}
         self._handovers: dict[int, _Handover] = {}
         self._owned_ids: set[int] = set()
@@ -248,19 +250,21 @@ class MonoSlam:
 
     def predictions(
         self, stamp_ns: int, ids: list[int] | None = None
-    ) -> tuple[IntArray, FloatArray, FloatArray]:
+    ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray]:
         """Return the owned features' predicted raw pixels at ``stamp_ns``: ids (M,), pixels
-        (M, 2) and innovation covariances (M, 2, 2) px^2 (the active search regions); the
-        covariance is zero for a feature not predicted in view (``_in_view``: behind, or
-        seen too obliquely from where it was first seen), where no search is due."""
+        (M, 2), innovation covariances (M, 2, 2) px^2 (the active search regions; zero for a
+        feature not predicted in view, ``_in_view``, where no search is due) and the warps
+        (M, 2, 2) of their templates to the predicted view (``monoslam_views``; zero: none)."""
         if self._status != TRACKING or self._last_stamp_ns is None:
-            return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2))
+            nothing = np.zeros((0, 2, 2))
+            return np.zeros(0, np.int64), np.zeros((0, 2)), nothing, nothing.copy()
         dt_s = max((stamp_ns - self._last_stamp_ns) * 1e-9, 0.0)
-        ids_out, pixels, covariances = predicted_measurements(
+        ids_out, pixels, covariances, camera = predicted_measurements(
             self._state, self.camera, dt_s, self.config, ids
         )
         covariances[~in_view_mask(self._state, self.camera, self.config, ids_out, pixels)] = 0.0
-        return ids_out, pixels, covariances
+        warps = prediction_warps(self._views, self._state, self.camera, camera, ids_out)
+        return ids_out, pixels, covariances, warps
 
     # --- the frame loop --------------------------------------------------------------------
 
@@ -291,6 +295,8 @@ class MonoSlam:
         trusted = [f.id for f in self._state.features if f.id in seen and not f.probation]
         removed.update(self._make_room(observed, measured, trusted, searchable))
         added = self._add_features(observed, measured, trusted)
+        in_state = {feature.id for feature in self._state.features}
+        self._views.observe(observed, self._state.x[:CAMERA_SIZE], in_state)
         if measured or known_used:
             self._idle_frames = 0
         else:
@@ -428,7 +434,7 @@ class MonoSlam:
         along (a patch looks too different beyond it)."""
         if not features:
             return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2))
-        ids, pixels, covariances = predicted_measurements(
+        ids, pixels, covariances, _ = predicted_measurements(
             self._state, self.camera, 0.0, self.config, [feature.id for feature in features]
         )
         keep = in_view_mask(self._state, self.camera, self.config, ids, pixels)
@@ -562,6 +568,7 @@ class MonoSlam:
         self._state.x = np.zeros(0)
         self._state.p = np.zeros((0, 0))
         self._handovers.clear()
+        self._views.clear()
         self._status = WAITING
         self._idle_frames = 0
 

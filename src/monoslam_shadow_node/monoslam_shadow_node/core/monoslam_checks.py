@@ -120,14 +120,17 @@ def in_view_mask(
     pixels: FloatArray,
 ) -> NDArray[np.bool_]:
     """Return which of the state's features ``ids`` (M,), predicted at raw ``pixels`` (M, 2),
-    are in view: inside the image, and seen within ``max_view_angle_deg`` of the ray they
-    were first seen along (a patch looks too different beyond it)."""
+    are in view: inside the image by ``view_margin_px``, and seen within
+    ``max_view_angle_deg`` of the ray they were first seen along (a patch looks too
+    different beyond it)."""
     by_id = {feature.id: feature for feature in state.features}
     centre = state.x[R_SLICE]
     cos_limit = math.cos(math.radians(config.max_view_angle_deg))
     keep = np.zeros(len(ids), dtype=bool)
     for k, (feature_id, pixel) in enumerate(zip(ids.tolist(), pixels, strict=True)):
-        if not (0.0 <= pixel[0] < camera.width and 0.0 <= pixel[1] < camera.height):
+        margin = config.view_margin_px
+        inside_u = margin <= pixel[0] <= camera.width - 1 - margin
+        if not (inside_u and margin <= pixel[1] <= camera.height - 1 - margin):
             continue
         feature = by_id[feature_id]
         block = state.x[feature.start : feature.start + feature.size]

@@ -81,10 +81,11 @@ def predicted_measurements(
     dt_s: float,
     config: MonoSlamConfig,
     ids: list[int] | None = None,
-) -> tuple[IntArray, FloatArray, FloatArray]:
+) -> tuple[IntArray, FloatArray, FloatArray, FloatArray]:
     """Return the features' (those in ``ids``, or all) predicted raw pixels ``dt_s`` s ahead:
-    ids (M,), pixels (M, 2) and innovation covariances (M, 2, 2) px^2; the state is unchanged.
-    Features behind the camera are left out."""
+    ids (M,), pixels (M, 2) and innovation covariances (M, 2, 2) px^2, and the predicted
+    camera state (13,); the state is unchanged. Features behind the camera (or beyond the
+    lens's fold) are left out."""
     sigmas = config.linear_acceleration_sigma, config.angular_acceleration_sigma
     camera, f, q = predict_camera(state.x[:CAMERA_SIZE], dt_s, *sigmas)
     p_cc = f @ state.p[:CAMERA_SIZE, :CAMERA_SIZE] @ f.T + q
@@ -119,6 +120,7 @@ def predicted_measurements(
         np.array(out_ids, dtype=np.int64),
         np.array(out_pixels).reshape(-1, 2),
         np.array(out_s).reshape(-1, 2, 2),
+        camera,
     )
 
 

@@ -44,7 +44,10 @@ points at infinity); the two meet only in the handover, a Euclidean point with c
 
 Measurement (``project_feature``): h_c = R^T (rho (p0 - r) + m) for inverse depth, R^T (p - r)
 for Euclidean (a direction in the camera frame; scaling by rho > 0 does not change the pixel),
-then the lens model of ``CameraModel`` (pinhole + plumb_bob / rational distortion).
+then the lens model of ``CameraModel`` (pinhole + plumb_bob / rational distortion). A
+direction beyond the lens's fold radius (``CameraModel.fold_radius``: far off the axis, where
+the distortion polynomial bends back and would map it into the image, for example a point
+beside the camera) is not visible, like one behind it.
 """
 
 from __future__ import annotations
@@ -156,11 +159,14 @@ def project_feature(
     reference: FloatArray | None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
     """Return the predicted raw pixel (2,) of a feature, d(pixel)/d(camera state) (2, 13),
-    d(pixel)/d(feature) (2, n) and the depth sign check value h_c[2] (> 0: in front)."""
+    d(pixel)/d(feature) (2, n) and the visibility check value: h_c[2] (> 0: in front), 0 for a
+    direction beyond the lens's fold (module docstring; NaN pixel and zero Jacobians then)."""
     r, q = camera[R_SLICE], camera[Q_SLICE]
     direction, d_feature, d_centre = feature_direction(len(feature), feature, reference, r)
     rot_t = rotation_from_quaternion(q).T
     h_c = rot_t @ direction
+    if h_c[2] > 0.0 and beyond_fold(camera_model, h_c[None])[0]:
+        h_c[2] = 0.0
     if h_c[2] <= 0.0:
         return np.full(2, np.nan), np.zeros((2, CAMERA_SIZE)), np.zeros((2, len(feature))), h_c[2]
     pixel, d_pixel = camera_model.project_with_jacobian(h_c[None])
@@ -169,6 +175,14 @@ def project_feature(
     d_camera[:, R_SLICE] = d_pixel_hc @ rot_t @ d_centre
     d_camera[:, Q_SLICE] = d_pixel_hc @ rotate_transposed_jacobian(q, direction)
     return pixel[0], d_camera, d_pixel_hc @ rot_t @ d_feature, float(h_c[2])
+
+
+def beyond_fold(camera_model: CameraModel, h_c: FloatArray) -> NDArray[np.bool_]:
+    """Return which camera-frame directions (N, 3) in front of the camera lie beyond the lens's
+    fold radius (module docstring); False for the others."""
+    with np.errstate(divide='ignore', invalid='ignore'):
+        radius = np.hypot(h_c[:, 0], h_c[:, 1]) / h_c[:, 2]
+    return np.asarray((h_c[:, 2] > 0.0) & (radius >= camera_model.fold_radius()))
 
 
 def project_features(
@@ -180,7 +194,7 @@ def project_features(
     per point (a known point, a Euclidean or an inverse-depth feature). Returns the pixels
     (M, 2), d(pixel)/d(camera state) (M, 2, 13), d(pixel)/d(feature) per point (2, n) and the
     depth check values h_c[2] (M,); points behind the camera get NaN pixels and zero
-    Jacobians, as there."""
+    Jacobians, as there; so do points beyond the lens's fold, with check value 0."""
     count = len(features)
     r, q = camera[R_SLICE], camera[Q_SLICE]
     rot_t = rotation_from_quaternion(q).T
@@ -223,6 +237,7 @@ def project_features(
             d_feature[k] = jacobians[row]
     h_c = directions @ rot_t.T
     depth = h_c[:, 2].copy()
+    depth[(depth > 0.0) & beyond_fold(camera_model, h_c)] = 0.0
     pixels = np.full((count, 2), np.nan)
     d_camera = np.zeros((count, 2, CAMERA_SIZE))
     out_feature = [np.zeros((2, d.shape[1])) for d in d_feature]

@@ -64,6 +64,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     Q_SLICE,
     R_SLICE,
     FloatArray,
+    beyond_fold,
     feature_direction,
 )
 from monoslam_shadow_node.core.monoslam_state import FilterState
@@ -202,7 +203,8 @@ def hypothesis_mean(
 
 def predicted_pixels(camera_model: CameraModel, x: FloatArray, wanted: list[Match]) -> FloatArray:
     """Return the raw pixels (M, 2) of the matches' points seen from the state mean ``x``,
-    plus a feature's tracker offset when it is a state (NaN for those behind the camera)."""
+    plus a feature's tracker offset when it is a state (NaN for those behind the camera or
+    beyond the lens's fold)."""
     centre = x[R_SLICE]
     rotation_t = rotation_from_quaternion(x[Q_SLICE]).T
     directions = np.empty((len(wanted), 3))
@@ -214,7 +216,7 @@ def predicted_pixels(camera_model: CameraModel, x: FloatArray, wanted: list[Matc
             directions[k] = feature_direction(feature.size, block, feature.reference, centre)[0]
     in_camera = directions @ rotation_t.T
     pixels = np.full((len(wanted), 2), np.nan)
-    front = in_camera[:, 2] > 0.0
+    front = (in_camera[:, 2] > 0.0) & ~beyond_fold(camera_model, in_camera)
     if np.any(front):
         pixels[front] = camera_model.project(in_camera[front])
     for k, match in enumerate(wanted):  # a feature's tracker offset, if a state

@@ -47,6 +47,7 @@ class MonoSlamConfig:
     max_new_per_frame: int = 5
     min_new_spacing_px: float = 20.0
     max_view_angle_deg: float = 45.0
+    view_margin_px: float = 11.0  # the tracker's reach: border_margin_px, half its LK window
     failure_window: int = 10
     min_success_ratio: float = 0.5
     max_consecutive_failures: int = 3
@@ -72,6 +73,9 @@ class MonoSlamConfig:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name}={value!r}: must be a finite number > 0')
+        margin = self.view_margin_px
+        if not (isinstance(margin, int | float) and math.isfinite(margin) and margin >= 0.0):
+            raise ValueError(f'view_margin_px={margin!r}: must be a finite number >= 0')
         for name in ('gate_probability', 'min_success_ratio'):
             value = getattr(self, name)
             if not 0.0 < value < 1.0:

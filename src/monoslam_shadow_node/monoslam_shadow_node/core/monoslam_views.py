@@ -1,0 +1,142 @@
+"""Where each track's appearance template was captured, and how it looks from the camera now.
+
+The feature tracker keeps, per track, the patch around the pixel where the track (re)appeared:
+its detection, or its re-identification (``feature_tracker``). A map feature that comes back
+into view after a turn or a loop is seen from elsewhere: closer or farther (scale), rolled
+(rotation), obliquely (shear). MonoSLAM (Davison et al. 2007, sec. 3.5) warps the feature's
+initial patch to the predicted view before searching for it, assuming the patch is a small
+plane facing the camera that first saw it. Here SLAM, which knows the geometry, computes that
+warp as a 2x2 affine map A = d(pixel now) / d(pixel in the template's view) at the feature,
+and publishes it with the prediction; the tracker, which has the images, applies it to the
+template before its search.
+
+``TemplateViews`` records for each track the camera pose (SLAM's estimate) and the pixel of
+the frame in which the track appeared: the first frame it is in after a frame without it,
+which is the frame the tracker captured its template in (detection or re-identification);
+tracks already in view when SLAM starts get the starting pose. Records of tracks neither in
+the latest frame nor in the state are forgotten (a dropped track that is not a map feature is
+never searched for, so its template view is not needed): the records stay bounded by the
+state and one image's tracks.
+
+The warp (``affine_warp``): the plane through the feature's estimated world point X with
+normal n towards the first camera centre c0; the template pixel p0's ray m = R0 r(p0) meets it
+at Y = c0 + s m, s = n.(X - c0) / n.m; then p = project(R^T (Y - c)). A = dp/dY dY/dm dm/dp0
+with dY/dm = s (I - m n^T / n.m). For a feature at infinity (no depth yet), the plane is at
+infinity and A is the rotation's homography, J R^T R0 dr/dp0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from monoslam_shadow_node.core.monoslam_model import (
+    INVERSE_DEPTH_SIZE,
+    Q_SLICE,
+    R_SLICE,
+    FloatArray,
+    beyond_fold,
+)
+from monoslam_shadow_node.core.monoslam_state import FilterState
+from monoslam_shadow_node.core.monoslam_types import IntArray
+from slam_core.camera import CameraModel
+from slam_core.geometry.quaternion import rotation_from_quaternion
+
+
+class TemplateViews:
+    """Per track, the camera centre (3,), rotation R_world_camera (3, 3) and raw pixel (2,)
+    of the frame its template was captured in (module docstring)."""
+
+    def __init__(self) -> None:
+        self._views: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = {}
+        self._previous: frozenset[int] = frozenset()
+
+    def __len__(self) -> int:
+        return len(self._views)
+
+    def view(self, track_id: int) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+        """Return the (centre, rotation, pixel) the track's template was captured from."""
+        return self._views.get(track_id)
+
+    def observe(self, observed: dict[int, FloatArray], camera: FloatArray, keep: set[int]) -> None:
+        """Record the frame's tracks that (re)appeared in it (or have no record yet) with the
+        camera state ``camera`` (13,) (its mean after the update); forget the records of
+        tracks neither observed nor in ``keep`` (the state's features)."""
+        centre = camera[R_SLICE].copy()
+        rotation = rotation_from_quaternion(camera[Q_SLICE])
+        for track_id, pixel in observed.items():
+            if track_id not in self._previous or track_id not in self._views:
+                self._views[track_id] = (centre, rotation, np.array(pixel, dtype=np.float64))
+        for track_id in [i for i in self._views if i not in observed and i not in keep]:
+            del self._views[track_id]
+        self._previous = frozenset(observed)
+
+    def clear(self) -> None:
+        """Forget everything (tracking lost: the poses no longer share a frame)."""
+        self._views.clear()
+        self._previous = frozenset()
+
+
+def affine_warp(
+    camera_model: CameraModel,
+    view: tuple[FloatArray, FloatArray, FloatArray],
+    point: FloatArray | None,
+    centre: FloatArray,
+    rotation: FloatArray,
+) -> FloatArray | None:
+    """Return A (2, 2) = d(pixel from the camera at ``centre``, ``rotation``)/d(pixel in the
+    template's ``view``) at the feature (module docstring), for its world ``point`` (3,) m
+    (None: a point at infinity, the rotation alone); None where the template's ray misses
+    the plane or lands behind the camera or beyond the lens's fold."""
+    c0, r0, p0 = view
+    rays, d_ray = camera_model.pixel_rays(p0[None])
+    m = r0 @ rays[0]
+    d_m = r0 @ d_ray[0]  # (3, 2)
+    if point is None:
+        d_world = d_m  # directions: the plane at infinity
+        direction = m
+    else:
+        normal = c0 - point
+        length = float(np.linalg.norm(normal))
+        facing = float(normal @ m)
+        if length <= 0.0 or facing >= 0.0:  # the ray must run towards the plane's front
+            return None
+        normal /= length
+        facing /= length
+        s = float(normal @ (point - c0)) / facing
+        if not s > 0.0:
+            return None
+        direction = c0 + s * m - centre
+        d_world = s * (np.eye(3) - np.outer(m, normal) / facing) @ d_m
+    h_c = rotation.T @ direction
+    if not h_c[2] > 0.0 or beyond_fold(camera_model, h_c[None])[0]:
+        return None
+    _, d_pixel = camera_model.project_with_jacobian(h_c[None])
+    warp = d_pixel[0] @ rotation.T @ d_world
+    return warp if np.all(np.isfinite(warp)) else None
+
+
+def prediction_warps(
+    views: TemplateViews,
+    state: FilterState,
+    camera_model: CameraModel,
+    camera: FloatArray,
+    ids: IntArray,
+) -> FloatArray:
+    """Return the template warps (M, 2, 2) of the state's features ``ids`` (M,) seen from the
+    (predicted) camera state ``camera`` (13,): ``affine_warp`` from each track's recorded view;
+    zeros where there is no record or no warp (the tracker then searches with the template as
+    it is)."""
+    out = np.zeros((len(ids), 2, 2))
+    by_id = {feature.id: feature for feature in state.features}
+    centre, rotation = camera[R_SLICE], rotation_from_quaternion(camera[Q_SLICE])
+    for k, track_id in enumerate(ids.tolist()):
+        view, feature = views.view(track_id), by_id.get(track_id)
+        if view is None or feature is None:
+            continue
+        block = state.x[feature.start : feature.start + feature.size]
+        at_infinity = feature.size == INVERSE_DEPTH_SIZE and not block[5] > 0.0
+        point = None if at_infinity else state.map_point(feature, True).position
+        warp = affine_warp(camera_model, view, point, centre, rotation)
+        if warp is not None:
+            out[k] = warp
+    return out
