@@ -99,7 +99,7 @@ keeps the two equal).
                                   first seen along) and not found counts a failed search, and
                                   one found in fewer than min_success_ratio of at least
                                   failure_window searches is deleted. When the state is full,
-                                  the feature out of view the longest is retired to the map.
+                                  the least measured feature out of view is retired to the map.
   view_margin_px (11)             in the image means this far inside its border: the feature
                                   tracker follows nothing nearer (its border_margin_px, 10 px,
                                   and half its 21 px window), so a search there would fail.

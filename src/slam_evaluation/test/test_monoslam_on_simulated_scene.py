@@ -372,14 +372,27 @@ def test_the_map_keeps_features_out_of_view_and_measures_them_when_they_return()
     assert np.sqrt(np.mean(errors[-30:] ** 2)) <= 0.5 * far_side
 
 
-def test_a_full_state_evicts_the_feature_out_of_view_longest() -> None:
+def test_a_full_state_evicts_the_least_measured_feature_out_of_view() -> None:
+    """Each evicted feature was out of view, and measured in no more frames than any
+    feature out of view that stayed (the landmarks a loop closes on stay)."""
     _, _, steps = _loop_run(max_features=30)
     evicted = [(k, i) for k, (result, _, _) in enumerate(steps)
                for i, why in result.removed.items() if why == 'evicted']  # fmt: skip
     assert evicted, 'nothing was evicted from a full state'
+    measured_in: dict[int, int] = {}
+    counts = []  # per frame: frames each feature was measured in, before it
+    for result, _, _ in steps:
+        counts.append(dict(measured_in))
+        for i in result.measured_ids:
+            measured_in[i] = measured_in.get(i, 0) + 1
     for k, feature_id in evicted:
-        assert feature_id not in steps[k][0].measured_ids
-        assert len(steps[k][1]) <= 30
+        result, in_state, _ = steps[k]
+        assert feature_id not in result.measured_ids
+        assert len(in_state) <= 30
+        busy = set(result.measured_ids) | set(result.rejected_ids) | set(result.searched_ids)
+        busy |= set(result.added_ids)  # added after the eviction
+        stayed = [counts[k].get(i, 0) for i in in_state - busy]
+        assert not stayed or counts[k].get(feature_id, 0) <= min(stayed)
 
 
 def test_a_feature_not_found_where_predicted_is_deleted() -> None:

@@ -32,8 +32,8 @@ Per frame (``MonoSlam.process``):
    the image by ``view_margin_px``, within ``max_view_angle_deg`` of its first ray) is searched
    for, and one found in fewer than ``min_success_ratio`` of at least ``failure_window``
    searches is deleted (a frame without any feature searches nothing). When the state is
-   full, the features out of view the longest are evicted into the frozen map (reason
-   'evicted') to make room for this frame's new ones; new features are added
+   full, features out of view are evicted into the frozen map ('evicted'), the least measured
+   first (then the longest unseen): the landmarks a loop closes on stay; new features are added
    - in ``initialize='all'`` (classic MonoSLAM, the paper's Fig. 5(a), (b)) from every new
    track, undelayed, with the inverse-depth prior, while fewer than ``target_measured``
    features were measured; in ``initialize='handover'`` (with the Shadow filter, Fig. 5(c))
@@ -447,9 +447,9 @@ class MonoSlam:
         trusted: list[int],
         in_view: set[int],
     ) -> dict[int, str]:
-        """Evict features out of view (neither observed nor in ``in_view``), the longest unseen
-        first, into the frozen map while the state is too full for the features this frame
-        would add; return them ('evicted')."""
+        """Evict features out of view (neither observed nor in ``in_view``), the fewest
+        successful measurements first (then the longest unseen), into the frozen map while the
+        state is too full for the features this frame would add; return them ('evicted')."""
         config = self.config
         excess = len(self._state.features) + sum(self._wanted(observed, measured, trusted))
         excess -= config.max_features
@@ -458,7 +458,7 @@ class MonoSlam:
         unseen = [feature for feature in self._state.features if feature.id not in observed]
         away = sorted(
             (feature for feature in unseen if feature.id not in in_view),
-            key=lambda feature: feature.last_seen_frame,
+            key=lambda feature: (feature.successes, feature.last_seen_frame),
         )
         evicted: dict[int, str] = {}
         for feature in away[:excess]:
