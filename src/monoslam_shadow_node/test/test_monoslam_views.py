@@ -10,7 +10,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     project_feature,
     project_features,
 )
-from monoslam_shadow_node.core.monoslam_views import TemplateViews, affine_warp
+from monoslam_shadow_node.core.monoslam_views import TemplateViews, affine_warp, affine_warps
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_core.testing.jacobians import assert_jacobian_close
@@ -117,3 +117,29 @@ def test_a_point_beside_the_camera_is_not_projected_through_the_lens_fold() -> N
     pixels, _, _, depth = project_features(CAMERA, camera, [(beside, None), (ahead, None)])
     assert depth[0] == 0.0 and np.all(np.isnan(pixels[0]))
     assert depth[1] == 1.0 and np.all(np.isfinite(pixels[1]))
+
+
+def test_many_warps_at_once_are_the_warps_one_by_one() -> None:
+    """``affine_warps`` over features with a point, at infinity and behind the camera gives
+    what ``affine_warp`` gives for each (NaN where it gives None)."""
+    rng = np.random.default_rng(3)
+    c1, r1 = np.array([0.3, -0.1, 0.8]), _rotation([0.1, 1.0, 0.2], 15.0)
+    views, points = [], []
+    for k in range(8):
+        c0, r0 = rng.normal(0.0, 0.2, 3), _rotation(rng.normal(size=3).tolist(), 10.0)
+        point = c0 + r0 @ np.array([rng.uniform(-1, 1), rng.uniform(-0.5, 0.5), rng.uniform(2, 6)])
+        if k == 6:
+            point = c1 - 2.0 * (r1 @ np.array([0.0, 0.0, 1.0]))  # behind the current camera
+        views.append((c0, r0, _pixel(c0, r0, point)))
+        points.append(np.full(3, np.nan) if k == 3 else point)
+    many = affine_warps(
+        CAMERA, np.array([v[0] for v in views]), np.array([v[1] for v in views]),
+        np.array([v[2] for v in views]), np.array(points), c1, r1,
+    )  # fmt: skip
+    for k, view in enumerate(views):
+        one = affine_warp(CAMERA, view, None if k == 3 else points[k], c1, r1)
+        if one is None:
+            assert np.all(np.isnan(many[k]))
+        else:
+            np.testing.assert_allclose(many[k], one, atol=1e-12)
+    assert np.all(np.isnan(many[6])) and not np.any(np.isnan(many[3]))

@@ -35,6 +35,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     R_SLICE,
     FloatArray,
     beyond_fold,
+    ray_from_angles,
 )
 from monoslam_shadow_node.core.monoslam_state import FilterState
 from monoslam_shadow_node.core.monoslam_types import IntArray
@@ -88,31 +89,59 @@ def affine_warp(
     (None: a point at infinity, the rotation alone); None where the template's ray misses
     the plane or lands behind the camera or beyond the lens's fold."""
     c0, r0, p0 = view
-    rays, d_ray = camera_model.pixel_rays(p0[None])
-    m = r0 @ rays[0]
-    d_m = r0 @ d_ray[0]  # (3, 2)
-    if point is None:
-        d_world = d_m  # directions: the plane at infinity
-        direction = m
-    else:
-        normal = c0 - point
-        length = float(np.linalg.norm(normal))
-        facing = float(normal @ m)
-        if length <= 0.0 or facing >= 0.0:  # the ray must run towards the plane's front
-            return None
-        normal /= length
-        facing /= length
-        s = float(normal @ (point - c0)) / facing
-        if not s > 0.0:
-            return None
-        direction = c0 + s * m - centre
-        d_world = s * (np.eye(3) - np.outer(m, normal) / facing) @ d_m
-    h_c = rotation.T @ direction
-    if not h_c[2] > 0.0 or beyond_fold(camera_model, h_c[None])[0]:
-        return None
-    _, d_pixel = camera_model.project_with_jacobian(h_c[None])
-    warp = d_pixel[0] @ rotation.T @ d_world
-    return warp if np.all(np.isfinite(warp)) else None
+    target = np.full(3, np.nan) if point is None else np.asarray(point, dtype=np.float64)
+    warps = affine_warps(
+        camera_model, c0[None], r0[None], p0[None], target[None], centre, rotation
+    )
+    return None if np.isnan(warps[0, 0, 0]) else warps[0]
+
+
+def affine_warps(
+    camera_model: CameraModel,
+    centres: FloatArray,
+    rotations: FloatArray,
+    pixels: FloatArray,
+    points: FloatArray,
+    centre: FloatArray,
+    rotation: FloatArray,
+) -> FloatArray:
+    """``affine_warp`` for N features at once: their template views' centres (N, 3),
+    rotations (N, 3, 3) and pixels (N, 2), their world points (N, 3) (NaN rows: at
+    infinity), seen from ``centre`` (3,), ``rotation`` (3, 3). Returns (N, 2, 2), NaN where
+    there is no warp."""
+    count = len(pixels)
+    out = np.full((count, 2, 2), np.nan)
+    if count == 0:
+        return out
+    rays, d_ray = camera_model.pixel_rays(pixels)
+    m = np.einsum('nij,nj->ni', rotations, rays)
+    d_m = rotations @ d_ray  # (N, 3, 2)
+    direction = m.copy()
+    d_world = d_m.copy()
+    finite = np.all(np.isfinite(points), axis=1)
+    valid = np.ones(count, dtype=bool)
+    rows = np.flatnonzero(finite)
+    if len(rows):
+        normal = centres[rows] - points[rows]
+        length = np.linalg.norm(normal, axis=1)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            normal = normal / length[:, None]
+            facing = np.einsum('ni,ni->n', normal, m[rows])
+            s = np.einsum('ni,ni->n', normal, points[rows] - centres[rows]) / facing
+        ok = (length > 0.0) & (facing < 0.0) & (s > 0.0)  # the ray runs to the plane's front
+        valid[rows[~ok]] = False
+        rows, normal, facing, s = rows[ok], normal[ok], facing[ok], s[ok]
+        direction[rows] = centres[rows] + s[:, None] * m[rows] - centre
+        across = np.eye(3) - np.einsum('ni,nj->nij', m[rows], normal) / facing[:, None, None]
+        d_world[rows] = s[:, None, None] * across @ d_m[rows]
+    h_c = direction @ rotation
+    valid &= (h_c[:, 2] > 0.0) & ~beyond_fold(camera_model, h_c)
+    rows = np.flatnonzero(valid)
+    if len(rows):
+        _, d_pixel = camera_model.project_with_jacobian(h_c[rows])
+        out[rows] = d_pixel @ rotation.T @ d_world[rows]
+    out[~np.all(np.isfinite(out.reshape(count, 4)), axis=1)] = np.nan
+    return out
 
 
 def prediction_warps(
@@ -123,20 +152,34 @@ def prediction_warps(
     ids: IntArray,
 ) -> FloatArray:
     """Return the template warps (M, 2, 2) of the state's features ``ids`` (M,) seen from the
-    (predicted) camera state ``camera`` (13,): ``affine_warp`` from each track's recorded view;
-    zeros where there is no record or no warp (the tracker then searches with the template as
-    it is)."""
+    (predicted) camera state ``camera`` (13,): ``affine_warps`` from each track's recorded
+    view; zeros where there is no record or no warp (the tracker then searches with the
+    template as it is)."""
     out = np.zeros((len(ids), 2, 2))
     by_id = {feature.id: feature for feature in state.features}
-    centre, rotation = camera[R_SLICE], rotation_from_quaternion(camera[Q_SLICE])
+    rows, centres, rotations, pixels, points = [], [], [], [], []
     for k, track_id in enumerate(ids.tolist()):
         view, feature = views.view(track_id), by_id.get(track_id)
         if view is None or feature is None:
             continue
         block = state.x[feature.start : feature.start + feature.size]
-        at_infinity = feature.size == INVERSE_DEPTH_SIZE and not block[5] > 0.0
-        point = None if at_infinity else state.map_point(feature, True).position
-        warp = affine_warp(camera_model, view, point, centre, rotation)
-        if warp is not None:
-            out[k] = warp
+        if feature.size != INVERSE_DEPTH_SIZE:
+            point = block
+        elif block[5] > 0.0 and feature.reference is not None:
+            ray, _ = ray_from_angles(feature.reference, float(block[3]), float(block[4]))
+            point = block[:3] + ray / block[5]
+        else:  # no depth yet: at infinity
+            point = np.full(3, np.nan)
+        rows.append(k)
+        centres.append(view[0])
+        rotations.append(view[1])
+        pixels.append(view[2])
+        points.append(point)
+    if rows:
+        warps = affine_warps(
+            camera_model, np.array(centres), np.array(rotations), np.array(pixels),
+            np.array(points), camera[R_SLICE], rotation_from_quaternion(camera[Q_SLICE]),
+        )  # fmt: skip
+        found = ~np.isnan(warps[:, 0, 0])
+        out[np.array(rows)[found]] = warps[found]
     return out
