@@ -201,12 +201,19 @@ def test_undecided_features_fill_the_map_except_those_found_moving() -> None:
     assert _steps(quiet.add_sighting(_sighting(1)))[-1].result.added_ids == [5]
 
 
-def test_a_filled_feature_the_shadow_filter_finds_dynamic_is_revoked() -> None:
+def _filling() -> tuple[MonoSlamProcessor, list[int]]:
+    """A processor that fills its map with every one of 40 features, after their first
+    frame (the target's, where SLAM starts), and the features' ids."""
     processor = _processor(max_new_per_frame=40, target_measured=40, min_new_spacing_px=0.0)
     processor.set_camera(CAMERA)
     ids = list(range(1, 41))
     processor.add_features(_points_features(0, ids))
     processor.add_sighting(_sighting(0))
+    return processor, ids
+
+
+def test_a_filled_feature_the_shadow_filter_finds_dynamic_is_revoked() -> None:
+    processor, ids = _filling()
     processor.add_features(_points_features(1, ids))
     processor.add_sighting(_sighting(1))
     slam = processor.slam
@@ -220,11 +227,7 @@ def test_a_filled_feature_the_shadow_filter_finds_dynamic_is_revoked() -> None:
 
 
 def test_the_status_line_says_where_the_map_came_from() -> None:
-    processor = _processor(max_new_per_frame=40, target_measured=40, min_new_spacing_px=0.0)
-    processor.set_camera(CAMERA)
-    ids = list(range(1, 41))
-    processor.add_features(_points_features(0, ids))
-    processor.add_sighting(_sighting(0))
+    processor, ids = _filling()
     assert processor.refusal(_handover(5), 'map') is None
     processor.add_features(_points_features(1, ids))
     processor.add_sighting(_sighting(1))

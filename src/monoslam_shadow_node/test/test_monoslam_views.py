@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from monoslam_shadow_node.core.monoslam_model import (
@@ -10,7 +12,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     project_feature,
     project_features,
 )
-from monoslam_shadow_node.core.monoslam_views import TemplateViews, affine_warp, affine_warps
+from monoslam_shadow_node.core.monoslam_views import TemplateViews, affine_warps
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_core.testing.jacobians import assert_jacobian_close
@@ -29,8 +31,43 @@ def _rotation(axis: list[float], degrees: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
+def affine_warp(
+    camera: CameraModel,
+    view: tuple[np.ndarray, np.ndarray, np.ndarray],
+    point: np.ndarray | None,
+    centre: np.ndarray,
+    rotation: np.ndarray,
+) -> np.ndarray | None:
+    """One feature's warp through ``affine_warps`` (None where it gives NaN)."""
+    c0, r0, p0 = view
+    target = np.full(3, np.nan) if point is None else point
+    warp = affine_warps(camera, c0[None], r0[None], p0[None], target[None], centre, rotation)[0]
+    return None if np.isnan(warp[0, 0]) else warp
+
+
 def _pixel(centre: np.ndarray, rotation: np.ndarray, point: np.ndarray) -> np.ndarray:
     return CAMERA.project((rotation.T @ (point - centre))[None])[0]
+
+
+def _exact_map(
+    view: tuple[np.ndarray, np.ndarray, np.ndarray],
+    point: np.ndarray | None,
+    c1: np.ndarray,
+    r1: np.ndarray,
+) -> Callable[[np.ndarray], np.ndarray]:
+    """The exact map template pixel -> current pixel (through the plane facing the first
+    camera, or the plane at infinity) whose Jacobian the warp is."""
+    c0, r0, _ = view
+
+    def exact(pixel: np.ndarray) -> np.ndarray:
+        rays, _ = CAMERA.pixel_rays(np.asarray(pixel)[None])
+        m = r0 @ rays[0]
+        if point is None:
+            return CAMERA.project((r1.T @ m)[None])[0]
+        normal = (c0 - point) / np.linalg.norm(c0 - point)
+        return _pixel(c1, r1, c0 + (normal @ (point - c0)) / (normal @ m) * m)
+
+    return exact
 
 
 def test_the_warp_is_the_plane_homographys_jacobian() -> None:
@@ -42,26 +79,14 @@ def test_the_warp_is_the_plane_homographys_jacobian() -> None:
     point = c0 + r0 @ np.array([0.4, -0.2, 3.0])
     p0 = _pixel(c0, r0, point)
     c1, r1 = np.array([0.5, 0.1, 1.2]), _rotation([0.2, 1.0, 0.5], 25.0)
-    normal = (c0 - point) / np.linalg.norm(c0 - point)
-
-    def exact(pixel: np.ndarray) -> np.ndarray:
-        rays, _ = CAMERA.pixel_rays(np.asarray(pixel)[None])
-        m = r0 @ rays[0]
-        y = c0 + (normal @ (point - c0)) / (normal @ m) * m
-        return _pixel(c1, r1, y)
-
-    warp = affine_warp(CAMERA, (c0, r0, p0), point, c1, r1)
+    view = (c0, r0, p0)
+    warp = affine_warp(CAMERA, view, point, c1, r1)
     assert warp is not None
-    assert_jacobian_close(warp, exact, p0, atol=1e-4, eps=1e-3)
+    assert_jacobian_close(warp, _exact_map(view, point, c1, r1), p0, atol=1e-4, eps=1e-3)
     assert np.linalg.det(warp) > 1.1  # closer: larger
-
-    def far(pixel: np.ndarray) -> np.ndarray:
-        rays, _ = CAMERA.pixel_rays(np.asarray(pixel)[None])
-        return CAMERA.project((r1.T @ r0 @ rays[0])[None])[0]
-
-    rotation_only = affine_warp(CAMERA, (c0, r0, p0), None, c1, r1)
+    rotation_only = affine_warp(CAMERA, view, None, c1, r1)
     assert rotation_only is not None
-    assert_jacobian_close(rotation_only, far, p0, atol=1e-4, eps=1e-3)
+    assert_jacobian_close(rotation_only, _exact_map(view, None, c1, r1), p0, atol=1e-4, eps=1e-3)
     # the same view: the identity
     same = affine_warp(CAMERA, (c0, r0, p0), point, c0, r0)
     assert same is not None
@@ -119,9 +144,9 @@ def test_a_point_beside_the_camera_is_not_projected_through_the_lens_fold() -> N
     assert depth[1] == 1.0 and np.all(np.isfinite(pixels[1]))
 
 
-def test_many_warps_at_once_are_the_warps_one_by_one() -> None:
-    """``affine_warps`` over features with a point, at infinity and behind the camera gives
-    what ``affine_warp`` gives for each (NaN where it gives None)."""
+def test_many_warps_at_once_are_each_the_plane_homographys_jacobian() -> None:
+    """``affine_warps`` over features with a point, at infinity and behind the camera: each
+    row is the numerical Jacobian of that feature's exact map; NaN behind the camera."""
     rng = np.random.default_rng(3)
     c1, r1 = np.array([0.3, -0.1, 0.8]), _rotation([0.1, 1.0, 0.2], 15.0)
     views, points = [], []
@@ -131,15 +156,15 @@ def test_many_warps_at_once_are_the_warps_one_by_one() -> None:
         if k == 6:
             point = c1 - 2.0 * (r1 @ np.array([0.0, 0.0, 1.0]))  # behind the current camera
         views.append((c0, r0, _pixel(c0, r0, point)))
-        points.append(np.full(3, np.nan) if k == 3 else point)
+        points.append(None if k == 3 else point)
     many = affine_warps(
         CAMERA, np.array([v[0] for v in views]), np.array([v[1] for v in views]),
-        np.array([v[2] for v in views]), np.array(points), c1, r1,
+        np.array([v[2] for v in views]),
+        np.array([np.full(3, np.nan) if p is None else p for p in points]), c1, r1,
     )  # fmt: skip
     for k, view in enumerate(views):
-        one = affine_warp(CAMERA, view, None if k == 3 else points[k], c1, r1)
-        if one is None:
+        if k == 6:
             assert np.all(np.isnan(many[k]))
-        else:
-            np.testing.assert_allclose(many[k], one, atol=1e-12)
-    assert np.all(np.isnan(many[6])) and not np.any(np.isnan(many[3]))
+            continue
+        exact = _exact_map(view, points[k], c1, r1)
+        assert_jacobian_close(many[k], exact, view[2], atol=1e-4, eps=1e-3)

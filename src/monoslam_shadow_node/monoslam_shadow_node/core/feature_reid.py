@@ -115,11 +115,10 @@ def match_template(
     patch, ``search_core``) with ``gray`` over the centres of ``region`` inside the 3-sigma
     ellipse, and the correlation, if it reaches reid_min_ncc at a peak inside the ellipse (not
     on the search's border or rim, where the true peak may lie beyond) and is unique; else
-    None. Unique:
-    the centres reaching reid_min_ncc form one connected peak. A second one is another place
-    that looks the same (the corner of another rectangle of the same grey, a repeated
-    pattern): which one is the feature the image cannot say, and a wrong choice would feed
-    SLAM a false loop closure; a later image, with a smaller ellipse, may decide."""
+    None. Unique: the centres reaching reid_min_ncc form one connected peak. A second one is
+    another place that looks the same (the corner of another rectangle of the same grey, a
+    repeated pattern): which one is the feature the image cannot say, and a wrong choice
+    would feed SLAM a false loop closure; a later image, with a smaller ellipse, may decide."""
     x0, y0, x1, y1 = region
     window = core.shape[0]
     before = (window - 1) // 2  # the core's pixels left of (above) its centre

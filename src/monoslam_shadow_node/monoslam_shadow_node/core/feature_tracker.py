@@ -508,7 +508,8 @@ class FeatureTracker:
         is_revived = is_revived[~crowded]
         excess = len(self._ids) - config.max_features
         if excess > 0:  # young unmapped tracks make room, else the weakest revived sleep
-            scores = np.array([{i: s for i, *_, s in found}.get(i, 0.0) for i in self._ids])
+            score = {track_id: ncc for track_id, *_, ncc in found}
+            scores = np.array([score.get(int(i), 0.0) for i in self._ids])
             out, pushed = make_room(self._ids, self._ages, is_revived, ids, scores, excess)
             displaced += pushed
             self._keep(~out)

@@ -18,7 +18,7 @@ the latest frame nor in the state are forgotten (a dropped track that is not a m
 never searched for, so its template view is not needed): the records stay bounded by the
 state and one image's tracks.
 
-The warp (``affine_warp``): the plane through the feature's estimated world point X with
+The warp (``affine_warps``): the plane through the feature's estimated world point X with
 normal n towards the first camera centre c0; the template pixel p0's ray m = R0 r(p0) meets it
 at Y = c0 + s m, s = n.(X - c0) / n.m; then p = project(R^T (Y - c)). A = dp/dY dY/dm dm/dp0
 with dY/dm = s (I - m n^T / n.m). For a feature at infinity (no depth yet), the plane is at
@@ -77,25 +77,6 @@ class TemplateViews:
         self._previous = frozenset()
 
 
-def affine_warp(
-    camera_model: CameraModel,
-    view: tuple[FloatArray, FloatArray, FloatArray],
-    point: FloatArray | None,
-    centre: FloatArray,
-    rotation: FloatArray,
-) -> FloatArray | None:
-    """Return A (2, 2) = d(pixel from the camera at ``centre``, ``rotation``)/d(pixel in the
-    template's ``view``) at the feature (module docstring), for its world ``point`` (3,) m
-    (None: a point at infinity, the rotation alone); None where the template's ray misses
-    the plane or lands behind the camera or beyond the lens's fold."""
-    c0, r0, p0 = view
-    target = np.full(3, np.nan) if point is None else np.asarray(point, dtype=np.float64)
-    warps = affine_warps(
-        camera_model, c0[None], r0[None], p0[None], target[None], centre, rotation
-    )
-    return None if np.isnan(warps[0, 0, 0]) else warps[0]
-
-
 def affine_warps(
     camera_model: CameraModel,
     centres: FloatArray,
@@ -105,10 +86,12 @@ def affine_warps(
     centre: FloatArray,
     rotation: FloatArray,
 ) -> FloatArray:
-    """``affine_warp`` for N features at once: their template views' centres (N, 3),
-    rotations (N, 3, 3) and pixels (N, 2), their world points (N, 3) (NaN rows: at
-    infinity), seen from ``centre`` (3,), ``rotation`` (3, 3). Returns (N, 2, 2), NaN where
-    there is no warp."""
+    """Return per feature A (2, 2) = d(pixel from the camera at ``centre``, ``rotation``)/
+    d(pixel in its template's view) (module docstring), for N features: their template
+    views' centres (N, 3), rotations R_world_camera (N, 3, 3) and pixels (N, 2), and their
+    world points (N, 3) m (a NaN row: at infinity, the rotation alone). Returns (N, 2, 2),
+    NaN where there is no warp: the template's ray misses the plane, or lands behind the
+    camera or beyond the lens's fold."""
     count = len(pixels)
     out = np.full((count, 2, 2), np.nan)
     if count == 0:
