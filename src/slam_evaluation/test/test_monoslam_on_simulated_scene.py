@@ -414,3 +414,32 @@ def test_a_feature_not_found_where_predicted_is_deleted() -> None:
     # Davison's rule: deleted once found in fewer than half of its searches (it was found in
     # every one of its first ``found``), and not before
     assert found - 1 <= removed[hidden][0] - 30 <= found + 1
+
+
+def test_failures_in_a_row_are_of_consecutive_frames() -> None:
+    """The persistent-outlier test deletes a feature rejected in max_consecutive_failures (3)
+    frames in a row: a feature reported 40 px off in three frames in a row is deleted; one
+    reported off in two frames, then not reported for a frame (out of view, dropped by the
+    tracker), then off once more is not (its run ended with the frame it was not measured
+    in; it was a loop's returning feature that carried two failures from before it left)."""
+    run = simulate_dynamic_scene(2, DynamicSceneConfig(duration_s=2.0, objects=0))
+    frames = list(_frames(run, InitTarget(), np.random.default_rng(0), static_only=True))
+    for pattern, deleted in (('xxx', True), ('xx-x', False)):
+        slam = _filter(run)
+        target, removed = None, {}
+        for index, (_, measurements) in enumerate(frames):
+            ids, pixels = measurements.ids, measurements.pixels.copy()
+            if index == 30:
+                target = slam._state.features[0].id
+            step = index - 30
+            if target is not None and 0 <= step < len(pattern):
+                if pattern[step] == '-':
+                    keep = ids != target
+                    ids, pixels = ids[keep], pixels[keep]
+                else:
+                    pixels[ids == target] += 40.0
+            result = slam.process(dataclasses.replace(measurements, ids=ids, pixels=pixels))
+            removed.update(result.removed)
+            if step == len(pattern):
+                break
+        assert (target in removed) == deleted, (pattern, removed)

@@ -380,10 +380,10 @@ class MonoSlam:
         self, observed: dict[int, FloatArray], rejected: list[int], in_view: set[int]
     ) -> dict[int, str]:
         """Count the searches of the features predicted in view (``in_view``: those not
-        observed) and whether each was found;
-        forget the tracker offset of each rejected feature (``reset_offset``); delete the
-        features failing the persistent-outlier test (a handed-over one is revoked) or found
-        in fewer than ``min_success_ratio`` of at least ``failure_window`` searches (Davison's
+        observed) and whether each was found; forget the tracker offset of each rejected
+        feature (``reset_offset``); delete the features failing the persistent-outlier test
+        (a handed-over one is revoked; failures in a row: in consecutive frames) or found in
+        fewer than ``min_success_ratio`` of at least ``failure_window`` searches (Davison's
         rule); convert linear-enough features to Euclidean; return removed ids with the
         reason. Features out of view stay in the state."""
         config = self.config
@@ -396,10 +396,10 @@ class MonoSlam:
         for feature in list(state.features):
             if feature.id in observed:
                 feature.last_seen_frame = self._frame
-                feature.searches += 1
-                feature.found += 1
-            elif feature.id in searched:  # predicted in view, not found
-                feature.searches += 1
+                feature.searches, feature.found = feature.searches + 1, feature.found + 1
+            else:  # not measured in this frame: the run of failures ends
+                feature.consecutive_failures = 0
+                feature.searches += int(feature.id in searched)  # predicted in view, not found
             if feature.id in refused:  # perhaps the tracker's offset jumped: forget it
                 state.reset_offset(feature, config.tracking_offset_px)
             failing = feature.consecutive_failures >= config.max_consecutive_failures or (
