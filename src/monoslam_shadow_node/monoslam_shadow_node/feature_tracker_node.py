@@ -66,17 +66,25 @@ the core's, written out in config/feature_tracker.yaml (a test keeps the two equ
                                   when detected, registered by LK), px (0: no check).
   border_margin_px (10.0)         tracks closer to the image edge are dropped, px (LK patches
                                   reaching past the edge are biased: about lk_window_px / 2).
-  reid_min_ncc (0.8)              a dropped track predicted back in view (features/predicted
+  reid_min_ncc (0.9)              a dropped track predicted back in view (features/predicted
                                   with a covariance) comes back with its id where its
-                                  template correlates at least this well inside the 3-sigma
-                                  ellipse (0: no re-identification).
+                                  template, aligned by an affine map, correlates at least
+                                  this well inside the 3-sigma ellipse (0: no
+                                  re-identification). Aligned, a true match reaches
+                                  0.95-1.0; at 0.8 the alignment fits other places of a
+                                  smooth texture.
   reid_max_search_px (80.0)       wider ellipses (half-axis, px) are not searched.
   max_dormant (1000)              dropped tracks remembered for re-identification.
 Parameters (node):
   image_transport ('raw')         'raw' (Image) or 'compressed' (CompressedImage).
   use_predictions (false)         subscribe to features/predicted and use it.
-  prediction_timeout_s (0.02)     longest an image waits for its prediction, s (0: never
-                                  waits; predictions that came first are still used).
+  prediction_timeout_s (0.1)      longest an image waits for its prediction, s (0: never
+                                  waits; predictions that came first are still used). The
+                                  next image ends the wait anyway, so a frame period of a
+                                  10 Hz camera bounds it; SLAM's prediction for an image
+                                  comes when it has processed the one before, which on a
+                                  shared thread (the graph's one process) takes longer
+                                  than 20 ms.
   restart_backstep_s (1.0)        a stamp at least this far before the previous one restarts
                                   tracking; a smaller step back drops the image, s.
 All are read-only; a bad value stops the node with an error naming the parameter.

@@ -41,8 +41,8 @@ _CORE_DESCRIPTIONS = {
     'fb_threshold_px': 'largest forward-backward distance, px (0: no check)',
     'max_drift_px': 'largest distance of a track from its template, px (0: no check)',
     'border_margin_px': 'tracks this close to the image edge are dropped, px (>= 0)',
-    'reid_min_ncc': 'correlation a dropped track must reach to be re-identified where a '
-    'prediction with a covariance expects it, in [0, 1] (0: no re-identification)',
+    'reid_min_ncc': 'correlation a dropped track must reach, aligned (affine), to be '
+    're-identified where a prediction with a covariance expects it, in [0, 1] (0: none)',
     'reid_max_search_px': 'largest half-axis of a searched 3-sigma ellipse, px (> 0)',
     'max_dormant': 'dropped tracks remembered for re-identification (>= 0)',
 }
@@ -60,7 +60,7 @@ NODE_PARAMETERS = (
     Param('use_predictions', False, 'use predicted pixels from features/predicted'),
     Param(
         'prediction_timeout_s',
-        0.02,
+        0.1,
         'longest an image waits for its prediction (wall time), s (0: never waits)',
         range=NON_NEGATIVE,
     ),

@@ -63,7 +63,7 @@ def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None
     assert settings.tracker_config(values) == TrackerConfig()
     node = settings.node_settings(values)
     assert node.image_transport == 'raw' and not node.use_predictions
-    assert node.prediction_timeout_s == 0.02 and node.restart_backstep_ns == S
+    assert node.prediction_timeout_s == 0.1 and node.restart_backstep_ns == S
 
 
 def test_every_core_setting_has_a_parameter_with_a_unit_where_it_has_one() -> None:

@@ -1,7 +1,21 @@
 """Re-identification of dropped tracks (``feature_tracker``'s active search): where a
 prediction with a covariance expects a remembered track, its template, warped to the
 predicted view when the prediction brings a warp, is searched for inside the 3-sigma ellipse
-by normalized cross-correlation (``feature_tracker``'s docstring)."""
+by normalized cross-correlation, and its best places are aligned by an affine map and
+checked (``feature_tracker``'s docstring).
+
+Look-alikes. A 3-sigma ellipse after the camera was away is wide (20-30 px sigma), and
+several places in it may look like the template (corners of rectangles of one grey). Much of
+a returning feature's prediction error is the drift the camera gathered while away (the old
+map seen from a pose that drifted), which the old map's features share: the tracks that came
+back earlier (held now, with their predictions) and this image's unique matches show it as a
+common shift of found against predicted pixels. (The far side's features, from which the
+camera's pose was estimated, do not show it: they drifted with the camera.) Where at least
+``SHIFT_MIN_MATCHES`` agree, a search with several places takes the one place within 3 sigma
+of its prediction moved by their median shift, sigma being their spread about it (at least a
+match's own ``TRACKING_SIGMA_PX``), if only one lies there. Each map point has its own error
+too (its depth), so the shift only decides between look-alikes and never narrows a search:
+a few matches' spread says little of another point's."""
 
 from __future__ import annotations
 
@@ -12,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 if TYPE_CHECKING:
     from monoslam_shadow_node.core.feature_tracker import FloatArray, GrayImage, TrackerConfig
@@ -26,18 +41,42 @@ feature is seen from much farther than where its template was captured) is not s
 MAX_WARP_STRETCH = 4.0
 """A warp stretching one direction more than this relative to the other (a patch seen nearly
 edge-on) is not searched."""
+CANDIDATES = 5
+"""The highest local maxima of a search's correlation that are aligned and checked
+(``find_peaks``); more look-alikes than this in one ellipse leave it undecided anyway."""
+SAME_PLACE_PX = 2.0
+"""Candidates aligned to within this of each other are one place (two maxima of one blob)."""
+REFINE_MARGIN_PX = 3
+"""How far the affine alignment may move a candidate's centre (its local maximum lies
+within a pixel of the true centre; the rest is the foreshortening's shift of the peak)."""
+MAX_REFINE_SCALE = 2.0
+"""The most the alignment may scale the warped template along any direction (beyond,
+it is no longer the same view of the patch)."""
+REFINE_ITERATIONS = 50
+"""Iterations of the affine alignment (it converges in a few from a pixel off)."""
+SHIFT_MIN_MATCHES = 3
+"""Unique matches in an image needed to decide look-alikes by their shared shift
+(``resolve_by_shift``): their median tolerates one wrong match."""
+TRACKING_SIGMA_PX = 1.0
+"""The smallest spread assumed about the shared shift: a match's own error (subpixel
+correlation peak, the tracker's 1 px)."""
+RAYLEIGH_MEDIAN = math.sqrt(2.0 * math.log(2.0))
+"""The median of the length of a 2-D offset with independent unit-sigma axes: divides the
+median residual into a per-axis sigma."""
 
 
 @dataclass(frozen=True)
 class Search:
-    """One image's re-identification: tracks brought back, searches made, predictions not
-    searched (too uncertain, or a template warped past recognition: ``search_core``), and
-    held tracks a revived one displaced (crowded)."""
+    """One image's re-identification: tracks brought back (of them ``resolved``: among
+    look-alikes, decided by the image's shared shift),
+    searches made, predictions not searched (too uncertain, or a template warped past
+    recognition: ``search_core``), and held tracks a revived one displaced (crowded)."""
 
     revived: int = 0
     searched: int = 0
     unsearched: int = 0
     displaced: int = 0
+    resolved: int = 0
 
 
 def parabola_peak(values: NDArray[Any]) -> float:
@@ -103,22 +142,32 @@ def search_core(template: GrayImage, window: int, warp: FloatArray | None) -> Gr
     return np.asarray(warped, dtype=np.uint8)
 
 
-def match_template(
+@dataclass(frozen=True)
+class Peak:
+    """A place where the template matches: its centre (u, v) px, subpixel, and the
+    correlation of the template aligned there (``refine_match``)."""
+
+    u: float
+    v: float
+    ncc: float
+
+
+def find_peaks(
     config: TrackerConfig,
     gray: GrayImage,
     core: GrayImage,
     pixel: FloatArray,
     covariance: FloatArray,
     region: tuple[int, int, int, int],
-) -> tuple[float, float, float] | None:
-    """Return the subpixel centre of the best normalized correlation of ``core`` (a square
-    patch, ``search_core``) with ``gray`` over the centres of ``region`` inside the 3-sigma
-    ellipse, and the correlation, if it reaches reid_min_ncc at a peak inside the ellipse (not
-    on the search's border or rim, where the true peak may lie beyond) and is unique; else
-    None. Unique: the centres reaching reid_min_ncc form one connected peak. A second one is
-    another place that looks the same (the corner of another rectangle of the same grey, a
-    repeated pattern): which one is the feature the image cannot say, and a wrong choice
-    would feed SLAM a false loop closure; a later image, with a smaller ellipse, may decide."""
+) -> list[Peak]:
+    """Return the places inside the 3-sigma ellipse where ``core`` (a square patch,
+    ``search_core``) matches ``gray``, best first: the ``CANDIDATES`` highest local maxima of
+    the normalized correlation over the centres of ``region`` inside the ellipse (not on the
+    search's border or the ellipse's rim, where the true peak may lie beyond) that reach
+    reid_min_ncc as they are (refined to subpixel by a parabola through the peak) or aligned
+    by ``refine_match``; candidates within ``SAME_PLACE_PX`` of a better one are the same
+    place. (The alignment is only for those below: on a patch with little texture it may
+    slide to a shrunken fit elsewhere, which it refuses, losing a match that was there.)"""
     x0, y0, x1, y1 = region
     window = core.shape[0]
     before = (window - 1) // 2  # the core's pixels left of (above) its centre
@@ -135,21 +184,162 @@ def match_template(
         + information[1, 1] * ys[:, None] ** 2
     )
     scores[distance > SEARCH_SIGMAS**2] = -np.inf
-    row, column = np.unravel_index(int(np.argmax(scores)), scores.shape)
-    if not scores[row, column] >= config.reid_min_ncc:
+    inside = np.isfinite(scores)
+    local = scores == ndimage.maximum_filter(scores, size=3, mode='constant', cval=-np.inf)
+    local &= ndimage.minimum_filter(inside, size=3, mode='constant', cval=False)
+    rows, columns = np.nonzero(local)
+    order = np.argsort(-scores[rows, columns], kind='stable')[:CANDIDATES]
+    peaks: list[Peak] = []
+    for row, column in zip(rows[order].tolist(), columns[order].tolist(), strict=True):
+        score = float(scores[row, column])
+        if score >= config.reid_min_ncc:  # matches as it is: the subpixel peak of the shift
+            du = parabola_peak(scores[row, column - 1 : column + 2])
+            dv = parabola_peak(scores[row - 1 : row + 2, column])
+            peak: Peak | None = Peak(x0 + column + du, y0 + row + dv, score)
+        else:
+            peak = refine_match(gray, core, x0 + column, y0 + row)
+        if peak is None or peak.ncc < config.reid_min_ncc:
+            continue
+        if all(math.hypot(peak.u - p.u, peak.v - p.v) > SAME_PLACE_PX for p in peaks):
+            peaks.append(peak)
+    return sorted(peaks, key=lambda peak: -peak.ncc)
+
+
+def refine_match(gray: GrayImage, core: GrayImage, x: int, y: int) -> Peak | None:
+    """Return the match of ``core`` centred near pixel (x, y) of ``gray`` after aligning it
+    by an affine map (enhanced correlation, cv2.findTransformECC, starting from a pure shift):
+    its subpixel centre and the correlation it reaches. The template's warp is SLAM's
+    first-order guess for a plane facing the camera that first saw the point; the surface's
+    true slant foreshortens it further, which the affine alignment takes up, as Shi and
+    Tomasi monitor features under an affine model. None where the alignment does not
+    converge, moves the centre more than ``REFINE_MARGIN_PX`` or scales the core by more than
+    ``MAX_REFINE_SCALE`` either way."""
+    window = core.shape[0]
+    half = (window - 1) / 2.0
+    side = window + 2 * REFINE_MARGIN_PX
+    source = cv2.getRectSubPix(gray, (side, side), (float(x), float(y)))
+    start = np.array([[1.0, 0.0, REFINE_MARGIN_PX], [0.0, 1.0, REFINE_MARGIN_PX]], np.float32)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, REFINE_ITERATIONS, 1e-4)
+    try:
+        everywhere = np.ones(source.shape, np.uint8)  # every pixel of the source is valid
+        correlation, warp = cv2.findTransformECC(
+            core.astype(np.float32), source.astype(np.float32), start, cv2.MOTION_AFFINE,
+            criteria, everywhere, 1,
+        )  # fmt: skip
+    except cv2.error:  # did not converge, or a flat patch
         return None
-    rows, columns = scores.shape
-    if not (0 < row < rows - 1 and 0 < column < columns - 1):
-        return None  # on the border of the search: the peak may lie beyond it
-    neighbours = scores[row - 1 : row + 2, column - 1 : column + 2]
-    if not np.all(np.isfinite(neighbours)):
-        return None  # on the ellipse's rim: likewise
-    passing = np.ascontiguousarray(scores >= config.reid_min_ncc, dtype=np.uint8)
-    if cv2.connectedComponents(passing, connectivity=8)[0] > 2:  # the background and one peak
-        return None  # ambiguous: another place matches as well
-    du = parabola_peak(scores[row, column - 1 : column + 2])
-    dv = parabola_peak(scores[row - 1 : row + 2, column])
-    return x0 + column + du, y0 + row + dv, float(scores[row, column])
+    linear = warp[:, :2].astype(np.float64)
+    smallest, largest = np.linalg.svd(linear, compute_uv=False)[::-1]
+    if not (smallest >= 1.0 / MAX_REFINE_SCALE and largest <= MAX_REFINE_SCALE):
+        return None
+    centre = linear @ [half, half] + warp[:, 2] - (side - 1) / 2.0  # offset from (x, y)
+    if not (np.all(np.isfinite(centre)) and float(np.hypot(*centre)) <= REFINE_MARGIN_PX):
+        return None
+    return Peak(x + float(centre[0]), y + float(centre[1]), float(correlation))
+
+
+def match_template(
+    config: TrackerConfig,
+    gray: GrayImage,
+    core: GrayImage,
+    pixel: FloatArray,
+    covariance: FloatArray,
+    region: tuple[int, int, int, int],
+) -> tuple[float, float, float] | None:
+    """Return the subpixel centre of the best normalized correlation of ``core`` with
+    ``gray`` inside the 3-sigma ellipse, and the correlation, if it reaches reid_min_ncc at
+    an interior peak (``find_peaks``) and is unique; else None. Unique: the centres reaching
+    reid_min_ncc form one connected peak. A second one is another place that looks the same
+    (the corner of another rectangle of the same grey, a repeated pattern): which one is the
+    feature the image alone cannot say, and a wrong choice would feed SLAM a false loop
+    closure (``resolve_by_shift`` may decide with the other tracks found in the image; a
+    later image, with a smaller ellipse, may too)."""
+    peaks = find_peaks(config, gray, core, pixel, covariance, region)
+    if len(peaks) != 1:
+        return None
+    return peaks[0].u, peaks[0].v, peaks[0].ncc
+
+
+def shared_shift(predicted: FloatArray, matched: FloatArray) -> tuple[FloatArray, float] | None:
+    """Return the shift (2,) px that found pixels (N, 2) share against their predictions
+    (N, 2), their median, and the radius that holds a match about it: ``SEARCH_SIGMAS``
+    sigma of their spread (at least ``TRACKING_SIGMA_PX``); None with fewer than
+    ``SHIFT_MIN_MATCHES`` (module docstring)."""
+    if len(matched) < SHIFT_MIN_MATCHES:
+        return None
+    offsets = np.asarray(matched, np.float64) - np.asarray(predicted, np.float64)
+    shift = np.median(offsets, axis=0)
+    spread = float(np.median(np.linalg.norm(offsets - shift, axis=1))) / RAYLEIGH_MEDIAN
+    return shift, SEARCH_SIGMAS * max(TRACKING_SIGMA_PX, spread)
+
+
+def resolve_by_shift(
+    predicted: FloatArray, matched: FloatArray, pending: list[tuple[FloatArray, list[Peak]]]
+) -> list[Peak | None]:
+    """Decide look-alikes by the shift the image's matches share (their predicted (N, 2) and
+    found (N, 2) pixels, ``shared_shift``): each ``pending`` search (its predicted pixel and
+    peaks) takes the one peak within the radius of its prediction moved by the shift, if
+    exactly one lies there; else None (as for all without a shift)."""
+    shared = shared_shift(predicted, matched)
+    if shared is None:
+        return [None] * len(pending)
+    shift, radius = shared
+    out: list[Peak | None] = []
+    for pixel, peaks in pending:
+        expected = np.asarray(pixel, np.float64) + shift
+        near = [p for p in peaks if math.hypot(p.u - expected[0], p.v - expected[1]) <= radius]
+        out.append(near[0] if len(near) == 1 else None)
+    return out
+
+
+def search_predicted(
+    config: TrackerConfig,
+    gray: GrayImage,
+    templates: dict[int, GrayImage],
+    predictions: tuple[NDArray[np.int64], FloatArray, FloatArray, FloatArray],
+    held: tuple[FloatArray, FloatArray],
+) -> tuple[list[tuple[int, float, float, float]], Search]:
+    """Search ``gray`` for the remembered ``templates`` (id -> template) that the
+    ``predictions`` (ids (K,), pixels (K, 2), covariances (K, 2, 2), warps (K, 2, 2)) expect
+    in view; return what was found, (id, u, v, correlation) each, and the counts (revived:
+    all found): the unique matches (``match_template``), then the look-alikes decided by the
+    shift that they and the ``held`` tracks that came back earlier (their predicted and
+    tracked pixels, (H, 2) each) share (``resolve_by_shift``)."""
+    found: list[tuple[int, float, float, float]] = []
+    expected: list[FloatArray] = []
+    pending: list[tuple[int, FloatArray, list[Peak]]] = []
+    searched = unsearched = 0
+    ids, pixels, covariances, warps = predictions
+    for track_id, pixel, covariance, warp in zip(
+        ids.tolist(), pixels, covariances, warps, strict=True
+    ):
+        if track_id not in templates:
+            continue
+        region = search_region(config, gray.shape, pixel, covariance)
+        if region is None:
+            continue
+        core = search_core(templates[track_id], config.lk_window_px, warp)
+        if isinstance(region, str) or core is None:  # 'too_wide', or too far from it
+            unsearched += 1
+            continue
+        searched += 1
+        peaks = find_peaks(config, gray, core, pixel, covariance, region)
+        if len(peaks) == 1:
+            found.append((track_id, peaks[0].u, peaks[0].v, peaks[0].ncc))
+            expected.append(pixel)
+        elif len(peaks) > 1:
+            pending.append((track_id, pixel, peaks))
+    unique = np.array([item[1:3] for item in found]).reshape(-1, 2)
+    decided = resolve_by_shift(
+        np.concatenate([held[0], np.array(expected).reshape(-1, 2)]),
+        np.concatenate([held[1], unique]),
+        [(pixel, peaks) for _, pixel, peaks in pending],
+    )
+    for (track_id, _, _), peak in zip(pending, decided, strict=True):
+        if peak is not None:
+            found.append((track_id, peak.u, peak.v, peak.ncc))
+    resolved = len(found) - len(unique)
+    return found, Search(len(found), searched, unsearched, 0, resolved)
 
 
 def make_room(

@@ -23,25 +23,28 @@ Per image (``FeatureTracker.track``):
    the tracked pixel); a track whose template lands more than ``max_drift_px`` away from
    the tracked pixel, or does not converge, is dropped. A slow scale change moves the
    template's centre little, so tracks survive the camera's approach within limits.
-2. Re-identification (active search, Davison's MonoSLAM). A dropped track is remembered
-   (its template and age; the ``max_dormant`` most recently dropped). When a prediction
-   with a covariance comes for a remembered id (e.g. the SLAM filter expects its map point
-   back in view), the track's template is searched for inside the prediction's 3-sigma
-   ellipse ((x - u)^T S^-1 (x - u) <= 9) by normalized cross-correlation
-   (cv2.matchTemplate, TM_CCOEFF_NORMED, on the LK window's core of the template, refined
-   to subpixel by a parabola through the peak), and where it matches with a correlation of
-   at least ``reid_min_ncc`` the track comes back with its id and age (``revived``), and
-   its template is captured anew there. A prediction may bring a warp, the 2x2 affine map
-   of the template to the predicted view (SLAM's, ``monoslam_views``: a returning feature is
-   seen from elsewhere, larger or smaller, rolled); the template is resampled through it
-   before the search (``feature_reid.search_core``), as MonoSLAM warps its patches.
-   Normalized correlation ignores gain and offset. An ellipse wider than
-   ``reid_max_search_px`` on either axis is not searched (the prediction is too uncertain to
-   say where: counted as ``unsearched``, like a warp past recognition). A revived track and
-   a younger one on the same structure meet the ``crowded`` rule: the younger goes, so the
-   map point keeps its id and no duplicate stays. At ``max_features``, a revived track
-   takes the place of the youngest track no filter has mapped (not among the predicted
-   ids), also counted ``crowded``.
+2. Re-identification (active search, Davison's MonoSLAM). A dropped track is remembered (its
+   template and age; the ``max_dormant`` most recently dropped). When a prediction with a
+   covariance comes for a remembered id (e.g. the SLAM filter expects its map point back in
+   view), the track's template is searched for inside the prediction's 3-sigma ellipse ((x -
+   u)^T S^-1 (x - u) <= 9) by normalized cross-correlation (cv2.matchTemplate,
+   TM_CCOEFF_NORMED, on the LK window's core of the template); its highest local maxima are
+   aligned by an affine map (``feature_reid.refine_match``), and where exactly one place
+   correlates, aligned, at least ``reid_min_ncc``, the track comes back there with its id
+   and age (``revived``) and its template is captured anew. Several such places
+   (look-alikes) are decided by the shift that the image's other matches and the tracks that
+   came back earlier share against their predictions (where the old map lies now;
+   ``feature_reid.resolve_by_shift``, counted ``resolved``), or not at all. A prediction may
+   bring a warp, the 2x2 affine map of the template to the predicted view (SLAM's,
+   ``monoslam_views``: a returning feature is seen from elsewhere, larger or smaller,
+   rolled); the template is resampled through it before the search
+   (``feature_reid.search_core``), as MonoSLAM warps its patches. Normalized correlation
+   ignores gain and offset. An ellipse wider than ``reid_max_search_px`` on either axis is
+   not searched (the prediction is too uncertain to say where: counted as ``unsearched``,
+   like a warp past recognition). A revived track and a younger one on the same structure
+   meet the ``crowded`` rule: the younger goes, so the map point keeps its id and no
+   duplicate stays. At ``max_features``, a revived track takes the place of the youngest
+   track no filter has mapped (not among the predicted ids), also counted ``crowded``.
 3. Detection (``feature_detection``), every ``detect_every_n_frames`` images (and whenever
    no track is left), only where tracks are missing: Shi-Tomasi or FAST corners, spread
    over a grid and refined to subpixel accuracy, up to ``max_features`` tracks in all.
@@ -66,9 +69,7 @@ from monoslam_shadow_node.core.feature_reid import (
     TEMPLATE_MARGIN_PX,
     Search,
     make_room,
-    match_template,
-    search_core,
-    search_region,
+    search_predicted,
 )
 
 FloatArray = NDArray[np.float64]
@@ -92,9 +93,9 @@ class TrackerConfig:
     ``max_lk_error`` is the largest mean absolute patch difference (gray levels) and
     ``fb_threshold_px`` the largest forward-backward distance and ``max_drift_px`` the
     largest distance of the template from the tracked pixel; 0 switches each check off.
-    ``reid_min_ncc`` is the correlation a re-identified track's template must reach (0: no
-    re-identification), ``reid_max_search_px`` the largest half-axis of a searched ellipse,
-    ``max_dormant`` how many dropped tracks are remembered for it.
+    ``reid_min_ncc`` is the correlation a re-identified track's template must reach once
+    aligned (affine; 0: no re-identification), ``reid_max_search_px`` the largest half-axis
+    of a searched ellipse, ``max_dormant`` how many dropped tracks are remembered for it.
     Invalid values raise ValueError naming the field.
     """
 
@@ -115,7 +116,7 @@ class TrackerConfig:
     fb_threshold_px: float = 1.0
     max_drift_px: float = 3.0
     border_margin_px: float = 10.0
-    reid_min_ncc: float = 0.8
+    reid_min_ncc: float = 0.9
     reid_max_search_px: float = 80.0
     max_dormant: int = 1000
 
@@ -167,7 +168,8 @@ class TrackerConfig:
 class TrackCounts:
     """What happened in one image: tracks carried over from the previous image
     (``tracked``, of them ``predicted`` from a predicted pixel), dropped tracks searched for
-    (``searched``; ``unsearched``: predicted too uncertainly) and found again (``revived``),
+    (``searched``; ``unsearched``: predicted too uncertainly) and found again (``revived``;
+    ``resolved``: look-alikes decided by the image's shared shift, ``feature_reid``),
     tracks started (``new``) and tracks dropped, by reason (``DROP_REASONS``; ``reset``: by a
     restart)."""
 
@@ -177,6 +179,7 @@ class TrackCounts:
     revived: int = 0
     searched: int = 0
     unsearched: int = 0
+    resolved: int = 0
     lost: int = 0
     error: int = 0
     border: int = 0
@@ -248,6 +251,7 @@ class FeatureTracker:
         self._pending_reset = 0
         self._detector = CornerDetector(self.config)
         self._dormant: dict[int, tuple[GrayImage, int]] = {}  # id -> (template, age)
+        self._returned: set[int] = set()  # held tracks that came back by re-identification
 
     @property
     def next_id(self) -> int:
@@ -302,6 +306,7 @@ class FeatureTracker:
                 revived=search.revived,
                 searched=search.searched,
                 unsearched=search.unsearched,
+                resolved=search.resolved,
                 **drops,
             ),
         )
@@ -441,6 +446,7 @@ class FeatureTracker:
         self._ids, self._ages = self._ids[keep], self._ages[keep]
         self._pixels = np.ascontiguousarray(self._pixels[keep], np.float32)
         self._templates = self._templates[keep]
+        self._returned.intersection_update(self._ids.tolist())
 
     # --- re-identification ------------------------------------------------------------------
 
@@ -466,27 +472,17 @@ class FeatureTracker:
         warps = np.zeros((len(ids), 2, 2)) if predictions.warps is None else predictions.warps
         if len(warps) != len(ids):
             raise ValueError(f'predictions: {len(ids)} ids, {len(warps)} warps')
-        held = set(self._ids.tolist())
-        found: list[tuple[int, float, float, float]] = []
-        searched = unsearched = 0
-        for track_id, pixel, covariance, warp in zip(
-            ids.tolist(), pixels, covariances, warps, strict=True
-        ):
-            if track_id in held or track_id not in self._dormant:
-                continue
-            region = search_region(self.config, gray.shape, pixel, covariance)
-            if region is None:
-                continue
-            core = search_core(self._dormant[track_id][0], config.lk_window_px, warp)
-            if isinstance(region, str) or core is None:  # 'too_wide', or too far from it
-                unsearched += 1
-                continue
-            searched += 1
-            match = match_template(self.config, gray, core, pixel, covariance, region)
-            if match is not None:
-                found.append((track_id, *match))
+        rows = {track_id: row for row, track_id in enumerate(self._ids.tolist())}
+        templates = {i: t for i, (t, _) in self._dormant.items() if i not in rows}
+        # the returned tracks show where the old map lies now (feature_reid's docstring)
+        anchors = [k for k, i in enumerate(ids.tolist()) if i in self._returned]
+        anchors = [k for k in anchors if np.all(np.isfinite(pixels[k]))]
+        held = pixels[anchors], self._pixels[[rows[int(ids[k])] for k in anchors]].astype(float)
+        found, search = search_predicted(
+            config, gray, templates, (ids, pixels, covariances, np.asarray(warps, float)), held
+        )
         if not found:
-            return Search(searched=searched, unsearched=unsearched)
+            return search
         # all found come back; then the crowded rule, and max_features (``make_room``): a
         # revived track that loses goes back to sleep (not a drop); a held one it displaces
         # is 'crowded'
@@ -514,10 +510,12 @@ class FeatureTracker:
             displaced += pushed
             self._keep(~out)
             is_revived = is_revived[~out]
+        self._returned.update(self._ids[is_revived].tolist())
         for row in np.flatnonzero(is_revived):  # the template as seen now
             u, v = (float(c) for c in self._pixels[row])
             self._templates[row] = cv2.getRectSubPix(gray, (self._side, self._side), (u, v))
-        return Search(int(np.count_nonzero(is_revived)), searched, unsearched, displaced)
+        revived = int(np.count_nonzero(is_revived))
+        return Search(revived, search.searched, search.unsearched, displaced, search.resolved)
 
     def _drifted(
         self, gray: GrayImage, rows: IntArray, pixels: NDArray[np.float32]
@@ -592,6 +590,7 @@ class FeatureTracker:
 
     def _clear(self) -> None:
         self._previous = None
+        self._returned.clear()
         self._ids = np.zeros(0, np.int64)
         self._pixels = np.zeros((0, 2), np.float32)
         self._ages = np.zeros(0, np.int64)
