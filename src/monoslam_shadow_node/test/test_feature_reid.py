@@ -13,7 +13,6 @@ from monoslam_shadow_node.core.feature_reid import (
     Peak,
     find_peaks,
     make_room,
-    match_template,
     refine_match,
     resolve_by_shift,
     search_core,
@@ -48,10 +47,10 @@ def test_at_max_features_revived_map_features_displace_young_unmapped_tracks() -
 
 
 def test_a_look_alike_in_the_ellipse_or_a_peak_on_its_rim_is_not_a_match() -> None:
-    """``match_template``: the template's patch alone in the ellipse is found where it is;
-    copied a second time inside the ellipse, the match is ambiguous (None); and a patch whose
-    best place is on the border of the search or the rim of the ellipse is refused (the true
-    peak may lie beyond)."""
+    """``find_peaks``: the template's patch alone in the ellipse is found where it is, once;
+    copied a second time inside the ellipse, it is found at two places (ambiguous: no match
+    unless the shared shift decides); and a patch whose best place is on the border of the
+    search or the rim of the ellipse is not found there (the true peak may lie beyond)."""
     config = TrackerConfig()
     source = texture(HEIGHT, WIDTH, seed=7)
     side = config.lk_window_px + 2 * TEMPLATE_MARGIN_PX
@@ -61,20 +60,21 @@ def test_a_look_alike_in_the_ellipse_or_a_peak_on_its_rim_is_not_a_match() -> No
     covariance = 100.0 * np.eye(2)  # a 10 px sigma: the ellipse reaches 30 px
     region = search_region(config, source.shape, centre, covariance)
     assert isinstance(region, tuple)
-    found = match_template(config, source, core, centre, covariance, region)
-    assert found is not None and np.hypot(found[0] - 320.0, found[1] - 240.0) < 0.1
+    found = find_peaks(config, source, core, centre, covariance, region)
+    assert len(found) == 1 and np.hypot(found[0].u - 320.0, found[0].v - 240.0) < 0.1
     twice = source.copy()
     half = side // 2
     patch = source[240 - half : 240 + half + 1, 320 - half : 320 + half + 1]
     twice[240 - half : 240 + half + 1, 345 - half : 345 + half + 1] = patch  # 25 px away
-    assert match_template(config, twice, core, centre, covariance, region) is None
+    assert len(find_peaks(config, twice, core, centre, covariance, region)) == 2
     # predicted 29.5 px to the side: the point is on the border of the searched box; 21 px
     # diagonally (2.97 sigma): inside the box, on the ellipse's rim (its neighbour is out)
     for offset in ([29.5, 0.0], [21.0, 21.0]):
         off = centre + offset
         rim = search_region(config, source.shape, off, covariance)
         assert isinstance(rim, tuple)
-        assert match_template(config, source, core, off, covariance, rim) is None
+        peaks = find_peaks(config, source, core, off, covariance, rim)
+        assert not any(np.hypot(p.u - 320.0, p.v - 240.0) < 1.0 for p in peaks)
 
 
 def _template_at(source: np.ndarray, u: float, v: float) -> np.ndarray:

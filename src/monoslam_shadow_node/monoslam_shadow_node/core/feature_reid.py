@@ -238,28 +238,6 @@ def refine_match(gray: GrayImage, core: GrayImage, x: int, y: int) -> Peak | Non
     return Peak(x + float(centre[0]), y + float(centre[1]), float(correlation))
 
 
-def match_template(
-    config: TrackerConfig,
-    gray: GrayImage,
-    core: GrayImage,
-    pixel: FloatArray,
-    covariance: FloatArray,
-    region: tuple[int, int, int, int],
-) -> tuple[float, float, float] | None:
-    """Return the subpixel centre of the best normalized correlation of ``core`` with
-    ``gray`` inside the 3-sigma ellipse, and the correlation, if it reaches reid_min_ncc at
-    an interior peak (``find_peaks``) and is unique; else None. Unique: the centres reaching
-    reid_min_ncc form one connected peak. A second one is another place that looks the same
-    (the corner of another rectangle of the same grey, a repeated pattern): which one is the
-    feature the image alone cannot say, and a wrong choice would feed SLAM a false loop
-    closure (``resolve_by_shift`` may decide with the other tracks found in the image; a
-    later image, with a smaller ellipse, may too)."""
-    peaks = find_peaks(config, gray, core, pixel, covariance, region)
-    if len(peaks) != 1:
-        return None
-    return peaks[0].u, peaks[0].v, peaks[0].ncc
-
-
 def shared_shift(predicted: FloatArray, matched: FloatArray) -> tuple[FloatArray, float] | None:
     """Return the shift (2,) px that found pixels (N, 2) share against their predictions
     (N, 2), their median, and the radius that holds a match about it: ``SEARCH_SIGMAS``
@@ -302,7 +280,7 @@ def search_predicted(
     """Search ``gray`` for the remembered ``templates`` (id -> template) that the
     ``predictions`` (ids (K,), pixels (K, 2), covariances (K, 2, 2), warps (K, 2, 2)) expect
     in view; return what was found, (id, u, v, correlation) each, and the counts (revived:
-    all found): the unique matches (``match_template``), then the look-alikes decided by the
+    all found): the unique matches (one place: ``find_peaks``), then the look-alikes decided by the
     shift that they and the ``held`` tracks that came back earlier (their predicted and
     tracked pixels, (H, 2) each) share (``resolve_by_shift``)."""
     found: list[tuple[int, float, float, float]] = []
