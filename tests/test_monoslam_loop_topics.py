@@ -10,10 +10,13 @@ paced, into marker_detector, feature_tracker, monoslam and shadow_filter in this
 wired as the monoslam_shadow graph wires them: monoslam publishes its predictions
 (``features/predicted``: pixel, search ellipse and template warp of each map feature) and
 the tracker uses them to follow its tracks and to search for the dropped ones (active
-search). Paced: each image goes out once monoslam has processed the one before, so the
+search). Paced: each image goes out once monoslam and shadow_filter have processed the one
+before, and the tracker waits for each image's prediction (which then always comes), so the
 result does not depend on spare CPU.
 
-The truth comes from the bag's scene, re-rendered (``DynamicRenderer``): a track's world point
+The truth comes from the bag's scene, re-rendered (``DynamicRenderer``), as the offline
+evaluation takes it (``monoslam_loop_images``: world_points, projections, comebacks): a track's
+world point
 is where the ray through its first published pixel hits the scene; it is in view in an image
 when it projects inside the image (past the tracker's border reach), in front of the camera
 and short of the lens's fold, and nothing nearer lies along that pixel. A map feature of the
@@ -42,7 +45,6 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
 
 from marker_detector.marker_detector_node import MarkerDetectorNode
-from monoslam_shadow_node.core.monoslam_model import beyond_fold
 from monoslam_shadow_node.feature_tracker_node import FeatureTrackerNode
 from monoslam_shadow_node.monoslam_conversions import POINT_DTYPE
 from monoslam_shadow_node.monoslam_node import MonoSlamNode
@@ -50,13 +52,19 @@ from monoslam_shadow_node.monoslam_settings import PARAMETERS as MONOSLAM_PARAME
 from monoslam_shadow_node.shadow_filter_node import ShadowFilterNode
 from slam_core.blas import single_threaded_blas
 from slam_core.stamps import stamp_to_ns
-from slam_evaluation.monoslam_loop import loop_scene, run_loop
+from slam_evaluation.monoslam_loop import REMATCH_FRAMES, loop_frames, loop_scene, run_loop
+from slam_evaluation.monoslam_loop_images import (
+    REID_TOLERANCE_PX,
+    comebacks,
+    projections,
+    world_points,
+)
 from slam_evaluation.monoslam_runs import Settings
 from slam_interfaces.msg import FeatureTrackArray
 from slam_ros.bag.source import BagSource
 from slam_ros.qos import latched_qos, sensor_qos
 from slam_ros.testing.harness import RosHarness, wait_until
-from slam_sim.core.dynamic_render import LABEL_STATIC, DynamicRenderer
+from slam_sim.core.dynamic_render import DynamicRenderer
 from slam_sim.dynamic_camera_bag import write_dynamic_camera_bag
 
 pytestmark = pytest.mark.topic
@@ -70,9 +78,6 @@ AWAY_S = 6.0
 SETTINGS = Settings((SEED,), 20.0, ('c',), ROOT / 'out' / 'unused')
 SCENE = loop_scene(SETTINGS, True, AWAY_S)
 PACE_TIMEOUT_S = 10.0  # per image; the four nodes share one executor thread
-REMATCH_FRAMES = 5
-REID_TOLERANCE_PX = 3.0
-OCCLUSION_TOLERANCE = 0.02
 BORDER_REACH_PX = 10.5  # the tracker's: max(border_margin_px, lk_window_px / 2)
 # Bounds, with what runs measured when they were set
 MIN_PREDICTED_SHARE = 0.9  # images tracked with SLAM's prediction: 0.96 (none before SLAM starts)
@@ -131,7 +136,12 @@ def play(harness: RosHarness, bag: Path) -> LoopRun:
         )
     )
     tracker = FeatureTrackerNode(
-        parameter_overrides=overrides(image_transport='compressed', use_predictions=True)
+        parameter_overrides=overrides(
+            image_transport='compressed',
+            use_predictions=True,
+            # paced, each image's prediction comes: wait for it however busy the machine
+            prediction_timeout_s=PACE_TIMEOUT_S,
+        )
     )
     harness.add_node(tracker)
     target = {
@@ -141,7 +151,8 @@ def play(harness: RosHarness, bag: Path) -> LoopRun:
         parameter_overrides=overrides(**target, publish_predictions=True, map_period_s=0.1)
     )
     harness.add_node(slam)
-    harness.add_node(ShadowFilterNode())
+    shadow = ShadowFilterNode()
+    harness.add_node(shadow)
     publishers = {
         IMAGE_TOPIC: harness.publisher(IMAGE_TOPIC, CompressedImage, sensor_qos()),
         INFO_TOPIC: harness.publisher(INFO_TOPIC, CameraInfo, sensor_qos()),
@@ -157,9 +168,11 @@ def play(harness: RosHarness, bag: Path) -> LoopRun:
             stamps.append(message.timestamp_ns)
             with contextlib.suppress(TimeoutError):  # a lost image shows in the counts
                 wait_until(
-                    lambda s=message.timestamp_ns: (slam.sync.last_ns or 0) >= s,
+                    lambda s=message.timestamp_ns: (
+                        min(slam.sync.last_ns or 0, shadow.sync.last_ns or 0) >= s
+                    ),
                     timeout_s=PACE_TIMEOUT_S,
-                    what=f'monoslam to process the image stamped {message.timestamp_ns} ns',
+                    what=f'monoslam and shadow_filter to process image {message.timestamp_ns} ns',
                 )
     with contextlib.suppress(TimeoutError):
         wait_until(lambda: bool(poses.messages) and stamp_to_ns(
@@ -185,53 +198,6 @@ def play(harness: RosHarness, bag: Path) -> LoopRun:
     return LoopRun(stamps, published, centres, clouds, stats.predictions_used, stats.revived)
 
 
-def loop_marks() -> dict[str, int]:
-    loop = SCENE.loop
-    assert loop is not None
-    rate = SCENE.rate_hz
-    return {
-        'start': round(loop.start_s * rate),
-        'away': round((loop.start_s + loop.turn_s) * rate),
-        'return': round((loop.start_s + loop.turn_s + loop.away_s) * rate),
-    }
-
-
-def world_points(renderer: DynamicRenderer, run: LoopRun, ids: set[int]) -> dict[int, np.ndarray]:
-    """The world points of the tracks ``ids`` that began on the static scene."""
-    out: dict[int, np.ndarray] = {}
-    for index, stamp in enumerate(run.stamps):
-        ids_k, pixels_k = run.features.get(stamp, (np.zeros(0, np.int64), np.zeros((0, 2))))
-        rows = [r for r, i in enumerate(ids_k.tolist()) if i in ids and i not in out]
-        if not rows:
-            continue
-        depths, labels = renderer.probe(index, pixels_k[rows])
-        rays, _ = renderer.camera.pixel_rays(pixels_k[rows])
-        rotation, position = renderer.pose(index)
-        for k, row in enumerate(rows):
-            if labels[k] == LABEL_STATIC and math.isfinite(float(depths[k])):
-                out[int(ids_k[row])] = position + rotation @ (rays[k] * depths[k])
-    return out
-
-
-def in_view(
-    renderer: DynamicRenderer, index: int, point: np.ndarray
-) -> tuple[bool, np.ndarray | None]:
-    """Whether ``point`` is in view in image ``index`` (module docstring), and its pixel."""
-    camera = renderer.camera
-    rotation, position = renderer.pose(index)
-    local = (point - position) @ rotation
-    if local[2] <= 0.0 or bool(beyond_fold(camera, local[None])[0]):
-        return False, None
-    pixel = camera.project(local[None])[0]
-    reach = BORDER_REACH_PX
-    if not (reach <= pixel[0] <= camera.width - 1 - reach):
-        return False, pixel
-    if not (reach <= pixel[1] <= camera.height - 1 - reach):
-        return False, pixel
-    depth, _ = renderer.probe(index, pixel[None])
-    return bool(depth[0] >= local[2] * (1.0 - OCCLUSION_TOLERANCE)), pixel
-
-
 def active_ids(rows: np.ndarray) -> set[int]:
     """The ids of a monoslam/map cloud's points in the filter's state."""
     return {int(i) for i in rows['id'][rows['active'] != 0]}
@@ -241,35 +207,42 @@ def test_the_tracker_follows_slams_predictions(loop_run: LoopRun) -> None:
     assert loop_run.predictions_used >= MIN_PREDICTED_SHARE * len(loop_run.stamps)
 
 
+def first_sightings(run: LoopRun) -> dict[int, tuple[int, np.ndarray]]:
+    """Each published track's first image index and pixel."""
+    first: dict[int, tuple[int, np.ndarray]] = {}
+    for index, stamp in enumerate(run.stamps):
+        ids, pixels = run.features.get(stamp, (np.zeros(0, np.int64), np.zeros((0, 2))))
+        for track_id, pixel in zip(ids.tolist(), pixels, strict=True):
+            first.setdefault(track_id, (index, pixel))
+    return first
+
+
 def test_returning_map_features_are_re_matched_at_their_points(
     loop_run: LoopRun, renderer: DynamicRenderer
 ) -> None:
-    marks, rate, stamps = loop_marks(), round(SCENE.rate_hz), loop_run.stamps
+    marks, rate, stamps = loop_frames(SCENE), round(SCENE.rate_hz), loop_run.stamps
     before = stamps[marks['start'] - rate : marks['start'] + 1]
     published = set().union(*(set(loop_run.features[s][0].tolist()) for s in before))
     in_map_then = [rows for stamp, rows in loop_run.maps if stamp <= stamps[marks['start']]]
     assert in_map_then, 'no map before the turn'
     mapped = published & active_ids(in_map_then[-1])
     final = active_ids(loop_run.maps[-1][1])
-    points = world_points(renderer, loop_run, mapped)
+    points = world_points(renderer, first_sightings(loop_run), mapped)
+    ids = sorted(points)
+    visible, truth = projections(
+        renderer, len(stamps), np.array([points[i] for i in ids]).reshape(-1, 3), BORDER_REACH_PX
+    )
     returned = rematched = wrong = 0
-    for track_id, point in points.items():
-        seen = [in_view(renderer, k, point)[0] for k in range(len(stamps))]
-        if all(seen[marks['away'] : marks['return']]):
-            continue  # never left the view
-        entry = next(
-            (k for k in range(marks['return'], len(seen)) if seen[k] and not seen[k - 1]), None
-        )
-        if entry is None:
-            continue
+    for column, entry in comebacks(visible, marks):
+        track_id = ids[column]
         returned += 1
         for k in range(entry, min(entry + REMATCH_FRAMES + 1, len(stamps))):
-            ids, pixels = loop_run.features.get(stamps[k], (np.zeros(0, np.int64), None))
-            if track_id not in ids.tolist():
+            found, pixels = loop_run.features.get(stamps[k], (np.zeros(0, np.int64), None))
+            if track_id not in found.tolist():
                 continue
             assert pixels is not None
-            truth = in_view(renderer, k, point)[1]
-            offset = float(np.linalg.norm(pixels[ids.tolist().index(track_id)] - truth))
+            pixel = pixels[found.tolist().index(track_id)]
+            offset = float(np.linalg.norm(pixel - truth[k, column]))
             if offset > REID_TOLERANCE_PX:
                 wrong += 1
                 print(f'track {track_id} re-identified {offset:.1f} px from its point')  # noqa: T201
@@ -286,7 +259,7 @@ def test_returning_map_features_are_re_matched_at_their_points(
 
 
 def test_the_loop_closes(loop_run: LoopRun, renderer: DynamicRenderer) -> None:
-    marks, rate, stamps = loop_marks(), round(SCENE.rate_hz), loop_run.stamps
+    marks, rate, stamps = loop_frames(SCENE), round(SCENE.rate_hz), loop_run.stamps
     errors = {}
     for index, stamp in enumerate(stamps):
         if stamp in loop_run.poses:

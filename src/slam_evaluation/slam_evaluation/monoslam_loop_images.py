@@ -27,7 +27,7 @@ Metrics of one run (``image_loop_metrics``; the measurement level's, ``monoslam_
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, overload
 
 import numpy as np
@@ -127,40 +127,44 @@ def run_image_loop(
 
 
 def world_points(
-    renderer: DynamicRenderer, frames: ClosedLoopFrames, ids: Sequence[int]
+    renderer: DynamicRenderer,
+    first_seen: Mapping[int, tuple[int, FloatArray]],
+    ids: Iterable[int],
 ) -> dict[int, FloatArray]:
-    """Return the world points (3,) m of the tracks ``ids`` that began on the static scene
-    (module docstring)."""
+    """Return the world points (3,) m of the tracks ``ids`` that began on the static scene,
+    from where each was first seen (``first_seen``: id -> (image index, raw pixel); module
+    docstring)."""
     camera = renderer.camera
     by_image: dict[int, list[int]] = {}
     for track_id in ids:
-        if track_id in frames.first_seen:
-            by_image.setdefault(frames.first_seen[track_id][0], []).append(track_id)
+        if track_id in first_seen:
+            by_image.setdefault(first_seen[track_id][0], []).append(track_id)
     out: dict[int, FloatArray] = {}
     for index, group in by_image.items():
-        pixels = np.array([frames.first_seen[i][1] for i in group])
+        pixels = np.array([first_seen[i][1] for i in group])
         depths, labels = renderer.probe(index, pixels)
         rays, _ = camera.pixel_rays(pixels)
-        frame = frames.frames[index]
+        rotation, centre = renderer.pose(index)
         for k, track_id in enumerate(group):
             if labels[k] == LABEL_STATIC and math.isfinite(float(depths[k])):
-                out[track_id] = frame.true_centre + frame.true_rotation @ (rays[k] * depths[k])
+                out[track_id] = centre + rotation @ (rays[k] * depths[k])
     return out
 
 
 def projections(
-    renderer: DynamicRenderer, frames: ClosedLoopFrames, points: FloatArray, reach_px: float
+    renderer: DynamicRenderer, count: int, points: FloatArray, reach_px: float
 ) -> tuple[np.ndarray, FloatArray]:
-    """Return per image and point whether it is in view (K, N) and its true raw pixel
-    (K, N, 2) (NaN behind the camera or beyond the lens's fold) (module docstring)."""
+    """Return per image (the first ``count``) and point whether it is in view (K, N) and its
+    true raw pixel (K, N, 2) (NaN behind the camera or beyond the lens's fold) (module
+    docstring)."""
     camera = renderer.camera
-    count = len(frames.frames)
     visible = np.zeros((count, len(points)), dtype=bool)
     pixels = np.full((count, len(points), 2), np.nan)
     if not len(points):
         return visible, pixels
-    for index, frame in enumerate(frames.frames):
-        local = (points - frame.true_centre) @ frame.true_rotation
+    for index in range(count):
+        rotation, centre = renderer.pose(index)
+        local = (points - centre) @ rotation
         front = (local[:, 2] > 0.0) & ~beyond_fold(camera, local)
         if not np.any(front):
             continue
@@ -176,6 +180,22 @@ def projections(
     return visible, pixels
 
 
+def comebacks(visible: np.ndarray, marks: dict[str, int]) -> Iterator[tuple[int, int]]:
+    """Yield (column, entry image) of the points (columns of ``visible``, (K, N)) that left
+    the view while the camera was away (``loop_frames`` marks) and came back into it after
+    the turn back: the first image from 'return' on in which it is in view and was not in
+    the one before."""
+    for column in range(visible.shape[1]):
+        seen = visible[:, column]
+        if seen[marks['away'] : marks['return']].all():
+            continue  # never left the view
+        entry = next(
+            (k for k in range(marks['return'], len(seen)) if seen[k] and not seen[k - 1]), None
+        )
+        if entry is not None:
+            yield column, entry
+
+
 def image_loop_metrics(
     source: FrameSource, frames: ClosedLoopFrames, record: VariantRecord
 ) -> dict[str, Any]:
@@ -185,26 +205,20 @@ def image_loop_metrics(
     renderer = DynamicRenderer(scene, source.seed, target=source.target)
     before = range(max(0, marks['start'] - rate), marks['start'] + 1)
     mapped = sorted(set().union(*(record.measured_ids[k] for k in before)))
-    points = world_points(renderer, frames, mapped)
+    points = world_points(renderer, frames.first_seen, mapped)
     ids = sorted(points)
     config = frames.front_end.tracker.config
     reach = max(config.border_margin_px, config.lk_window_px / 2.0)
+    count = len(frames.frames)
     visible, true_pixels = projections(
-        renderer, frames, np.array([points[i] for i in ids]).reshape(-1, 3), reach
+        renderer, count, np.array([points[i] for i in ids]).reshape(-1, 3), reach
     )
     returned = wrong = 0
     entries: list[int] = []
-    for column, track_id in enumerate(ids):
-        seen = visible[:, column]
-        if seen[marks['away'] : marks['return']].all():
-            continue  # never left the view
-        entry = next(
-            (k for k in range(marks['return'], len(seen)) if seen[k] and not seen[k - 1]), None
-        )
-        if entry is None:
-            continue
+    for column, entry in comebacks(visible, marks):
+        track_id = ids[column]
         returned += 1
-        for k in range(entry, min(entry + REMATCH_FRAMES + 1, len(seen))):
+        for k in range(entry, min(entry + REMATCH_FRAMES + 1, count)):
             if track_id not in record.measured_ids[k]:
                 continue
             measured = frames.frames[k].measurements
@@ -214,7 +228,8 @@ def image_loop_metrics(
             else:
                 wrong += 1
             break
-    duplicates = _duplicates(world_points(renderer, frames, [p.id for p in record.map_points]))
+    map_ids = [p.id for p in record.map_points]
+    duplicates = _duplicates(world_points(renderer, frames.first_seen, map_ids))
     return {
         **rematch_metrics(len(mapped), returned, entries, len(record.map_points), duplicates),
         'with_truth': len(ids),

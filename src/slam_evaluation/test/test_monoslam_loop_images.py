@@ -48,10 +48,10 @@ def test_slam_predicts_each_image_and_the_truth_finds_the_tracks_points(tmp_path
     assert frames.predicted >= FRAMES - 3
     renderer = DynamicRenderer(source.config, source.seed, target=source.target)
     first = frames.frames[0].measurements
-    points = world_points(renderer, frames, first.ids.tolist())
+    points = world_points(renderer, frames.first_seen, first.ids.tolist())
     assert len(points) >= 0.9 * len(first.ids)  # no movers: all on the static scene
     ids = sorted(points)
-    visible, pixels = projections(renderer, frames, np.array([points[i] for i in ids]), 11.0)
+    visible, pixels = projections(renderer, FRAMES, np.array([points[i] for i in ids]), 11.0)
     for column, track_id in enumerate(ids):
         pixel = first.pixels[first.ids.tolist().index(track_id)]
         assert np.linalg.norm(pixels[0, column] - pixel) < 0.01
