@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
@@ -71,6 +72,17 @@ pytestmark = pytest.mark.topic
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_CONFIG = ROOT / 'src' / 'monoslam_shadow_node' / 'config' / 'monoslam_dynamic_camera.yaml'
+GRAPH = ROOT / 'src' / 'slam_bringup' / 'graphs' / 'monoslam_shadow.yaml'
+
+
+def tracker_noise(node: str) -> dict[str, Any]:
+    """Return the feature tracker's noise as the graph declares it to ``node``."""
+    entries = yaml.safe_load(GRAPH.read_text())['graph']['nodes']
+    parameters = next(entry['parameters'] for entry in entries if entry['name'] == node)
+    declared = [item for item in parameters if isinstance(item, dict)]
+    return {k: v for item in declared for k, v in item.items() if k == 'tracking_offset_px'}
+
+
 IMAGE_TOPIC = '/camera/image_raw/compressed'
 INFO_TOPIC = '/camera/camera_info'
 SEED = 7
@@ -148,10 +160,12 @@ def play(harness: RosHarness, bag: Path) -> LoopRun:
         k: v for k, v in MONOSLAM_PARAMETERS.read_yaml(TARGET_CONFIG).items() if 'target' in k
     }
     slam = MonoSlamNode(
-        parameter_overrides=overrides(**target, publish_predictions=True, map_period_s=0.1)
+        parameter_overrides=overrides(
+            **target, **tracker_noise('monoslam'), publish_predictions=True, map_period_s=0.1
+        )
     )
     harness.add_node(slam)
-    shadow = ShadowFilterNode()
+    shadow = ShadowFilterNode(parameter_overrides=overrides(**tracker_noise('shadow_filter')))
     harness.add_node(shadow)
     publishers = {
         IMAGE_TOPIC: harness.publisher(IMAGE_TOPIC, CompressedImage, sensor_qos()),

@@ -17,7 +17,7 @@ from monoslam_shadow_node.core.rays import View, pixel_ray_directions, three_ray
 from monoslam_shadow_node.core.shadow_classifier import trigger_delay_frames
 from monoslam_shadow_node.core.shadow_track import PENDING, Track
 from monoslam_shadow_node.core.static_fit import motion_score_test
-from monoslam_shadow_node.core.tracking_noise import TrackingNoise
+from monoslam_shadow_node.core.tracking_noise import TrackingNoise, drift_bounded_offset_px
 from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import rotation_from_vector
 
@@ -173,3 +173,15 @@ def test_the_gauss_markov_step_keeps_the_offset_stationary() -> None:
     decay, fresh = noise.step(0.5)
     assert decay == pytest.approx(math.exp(-1.0))
     assert decay**2 * 4.0 + fresh == pytest.approx(4.0)  # variance sigma^2 is kept
+
+
+def test_a_drift_bound_declares_the_spread_of_offsets_over_its_disk() -> None:
+    """Offsets spread evenly over the disk of the drift bound have R / 2 per axis."""
+    rng = np.random.default_rng(3)
+    radius = 3.0
+    points = rng.uniform(-radius, radius, (400_000, 2))
+    inside = points[np.hypot(points[:, 0], points[:, 1]) <= radius]
+    assert drift_bounded_offset_px(radius) == pytest.approx(np.std(inside[:, 0]), rel=0.01)
+    assert drift_bounded_offset_px(0.0) == 0.0
+    with pytest.raises(ValueError, match='max_drift_px'):
+        drift_bounded_offset_px(math.nan)

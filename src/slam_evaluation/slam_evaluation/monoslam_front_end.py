@@ -16,12 +16,12 @@ from numpy.typing import NDArray
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
 from monoslam_shadow_node.core.feature_tracker import FeatureTracker, Predictions, TrackerConfig
 from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
+from monoslam_shadow_node.core.tracking_noise import drift_bounded_offset_px
 from slam_core.camera import CameraModel
 from slam_evaluation.monoslam_image_sources import BoolArray, FloatArray, ImageFrame
-from slam_evaluation.monoslam_pipeline import (
-    MeasurementFrame,
-)
+from slam_evaluation.monoslam_pipeline import MeasurementFrame, PipelineConfig
 from slam_evaluation.monoslam_report import safe_ratio
+from slam_evaluation.sequence_files import Tracker
 from slam_sim.core.dynamic_render import LABEL_NOTHING
 from slam_sim.core.init_target import InitTarget
 
@@ -90,6 +90,17 @@ class FrontEnd:
         self._detector = make_detector(self.detector_config)
         self._moving_ids: set[int] = set()
         self.stats = FrontEndStats()
+
+    def declared(self, pipeline: PipelineConfig) -> PipelineConfig:
+        """Return ``pipeline`` with both filters told of the feature tracker's noise: the
+        white noise as configured, and offsets that persist (a track slides by LK until its
+        drift check drops it; ``drift_bounded_offset_px`` of ``max_drift_px``, with SLAM's
+        correlation time)."""
+        offset_px = drift_bounded_offset_px(self.tracker.config.max_drift_px)
+        slam = pipeline.slam
+        return Tracker(slam.pixel_sigma_px, offset_px, slam.tracking_offset_time_s).declared(
+            pipeline
+        )
 
     def frame(
         self, image_frame: ImageFrame, predictions: Predictions | None = None

@@ -84,3 +84,13 @@ class TrackingNoise:
         np.fill_diagonal(rho, 0.0)
         jacobians = np.asarray(pixel_jacobians, dtype=np.float64)
         return np.asarray(np.einsum('ij,iab,jcb->ijac', rho, jacobians, jacobians))
+
+
+def drift_bounded_offset_px(max_drift_px: float) -> float:
+    """Return the offset standard deviation per image axis, px, that a tracker declares when
+    it drops every track drifting more than ``max_drift_px`` from its template (the feature
+    tracker's drift check): its offsets lie in the disk of that radius, and spread evenly
+    over it, each axis has standard deviation radius / 2. No check (0): white noise, 0."""
+    if not (math.isfinite(max_drift_px) and max_drift_px >= 0.0):
+        raise ValueError(f'max_drift_px={max_drift_px!r}: must be a finite number >= 0')
+    return max_drift_px / 2.0
