@@ -68,9 +68,9 @@ median residual into a per-axis sigma."""
 @dataclass(frozen=True)
 class Search:
     """One image's re-identification: tracks brought back (of them ``resolved``: among
-    look-alikes, decided by the image's shared shift),
-    searches made, predictions not searched (too uncertain, or a template warped past
-    recognition: ``search_core``), and held tracks a revived one displaced (crowded)."""
+    look-alikes, decided by the image's shared shift), searches made, predictions not
+    searched (too uncertain, or a template warped past recognition: ``search_core``), and
+    held tracks a revived one displaced (crowded)."""
 
     revived: int = 0
     searched: int = 0
