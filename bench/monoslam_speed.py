@@ -11,6 +11,10 @@ them, pinned to one CPU (``sched_setaffinity``, BLAS and OpenCV on one thread):
 * ``ShadowFilter.process`` given SLAM's pose and covariance and ``--shadow-features`` (20)
   features SLAM does not own (the lowest ids, so that the same tracks persist).
 
+SLAM is told the tracker's offsets that persist (``--tracking-offset-px``; default: the
+feature tracker's, 1.5 px, as the node graph ``monoslam_shadow.yaml`` declares them to
+monoslam), so each feature carries 2 offset states as in the graph; 0 times white noise.
+
 Only frames with the full workload are counted (the map holds ``--map-features`` features
 and the Shadow filter got ``--shadow-features``); per pass the median time per frame of
 each part, best of ``--repeats`` passes over the whole run.
@@ -60,6 +64,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 from bench_common import BENCH_DIR, pin_to_one_core, run_meta  # noqa: E402
 
+from monoslam_shadow_node.core.feature_tracker import TrackerConfig  # noqa: E402
 from monoslam_shadow_node.core.monoslam import MonoSlam  # noqa: E402
 from monoslam_shadow_node.core.monoslam_model import CAMERA_SIZE  # noqa: E402
 from monoslam_shadow_node.core.monoslam_types import (  # noqa: E402
@@ -73,10 +78,12 @@ from monoslam_shadow_node.core.shadow_filter import (  # noqa: E402
     ShadowConfig,
     ShadowFilter,
 )
+from monoslam_shadow_node.core.tracking_noise import drift_bounded_offset_px  # noqa: E402
 from slam_core.camera import CameraModel  # noqa: E402
 from slam_core.files import write_atomically  # noqa: E402
 from slam_evaluation.monoslam_pipeline import (  # noqa: E402
     MeasurementFrame,
+    PipelineConfig,
     simulation_frames,
     target_known_points,
 )
@@ -128,15 +135,30 @@ def shadow_input(
     )
 
 
+def filters_of(args: argparse.Namespace, target: InitTarget, map_features: int) -> PipelineConfig:
+    """Return both filters' settings for a map of ``map_features``: SLAM fed the static
+    features (``initialize='all'``) and told the tracker's offsets (``--tracking-offset-px``),
+    the Shadow filter with its defaults (white noise, as in the node graph)."""
+    slam = MonoSlamConfig(
+        known_points=target_known_points(target),
+        initialize='all',
+        max_features=map_features,
+        target_measured=map_features,
+        tracking_offset_px=args.tracking_offset_px,
+    )
+    return PipelineConfig(slam, ShadowConfig())
+
+
 def run_pass(
     frames: list[MeasurementFrame],
     camera: CameraModel,
-    config: MonoSlamConfig,
+    filters: PipelineConfig,
     shadow_features: int,
 ) -> FrameTimes:
     """Run SLAM and the Shadow filter over the frames; time the frames with the full load."""
+    config = filters.slam
     slam = MonoSlam(camera, config)
-    shadow = ShadowFilter(camera, ShadowConfig())
+    shadow = ShadowFilter(camera, filters.shadow)
     times = FrameTimes(frames=len(frames))
     gc.collect()
     for frame in frames:
@@ -201,7 +223,7 @@ def reference_times(times: FrameTimes, seed: int) -> list[float]:
 def measure(
     frames: list[MeasurementFrame],
     camera: CameraModel,
-    config: MonoSlamConfig,
+    filters: PipelineConfig,
     shadow_features: int,
     repeats: int,
     seed: int,
@@ -210,10 +232,10 @@ def measure(
     the reference once, so that load from elsewhere falls on both alike."""
     best: dict[str, Any] | None = None
     for index in range(max(repeats, 1)):
-        times = run_pass(frames, camera, config, shadow_features)
+        times = run_pass(frames, camera, filters, shadow_features)
         if not times.slam_s:
             raise RuntimeError(
-                f'no frame had the full load ({config.max_features} map features and '
+                f'no frame had the full load ({filters.slam.max_features} map features and '
                 f'{shadow_features} Shadow features); try a longer --duration-s'
             )
         reference = np.asarray(reference_times(times, seed + index))
@@ -251,7 +273,8 @@ def render_report(result: dict[str, Any]) -> str:
         f'{meta["commit"]}. Fig. 5 scene seed {meta["seed"]}, {meta["duration_s"]:g} s '
         f'({row["frames"]} frames at 30 Hz); {row["counted_frames"]} frames with the full '
         f'load ({meta["map_features"]} map features, {meta["shadow_features"]} Shadow '
-        f'features) counted; best of {meta["repeats"]} passes.'
+        f'features) counted; tracker offsets {meta["tracking_offset_px"]:g} px; best of '
+        f'{meta["repeats"]} passes.'
     )
     slam = (
         f'MonoSlam.process (state {row["state_size_median"]:.0f}, '
@@ -299,16 +322,11 @@ def map_sweep(
     if SLAM keeps 30 frames/s at SWEEP_ACCEPT_FEATURES features in the state."""
     rows: list[dict[str, Any]] = []
     for size in sizes:
-        config = MonoSlamConfig(
-            known_points=target_known_points(target),
-            initialize='all',
-            max_features=size,
-            target_measured=size,
-        )
+        filters = filters_of(args, target, size)
         print(f'map {size}: timing {len(frames)} frames x {args.repeats} passes ...', flush=True)
         try:
             timing = measure(
-                frames, camera_model(run), config, args.shadow_features, args.repeats, args.seed
+                frames, camera_model(run), filters, args.shadow_features, args.repeats, args.seed
             )
         except RuntimeError as error:
             rows.append({'map_features': size, 'error': str(error)})
@@ -320,6 +338,7 @@ def map_sweep(
         'duration_s': args.duration_s,
         'repeats': args.repeats,
         'shadow_features': args.shadow_features,
+        'tracking_offset_px': args.tracking_offset_px,
     }
     at_accept = [
         r for r in rows if r['map_features'] == SWEEP_ACCEPT_FEATURES and 'error' not in r
@@ -333,7 +352,7 @@ def map_sweep(
         f'Python {meta["python"]}, numpy {meta["numpy"]}; commit {meta["commit"]}. Fig. 5 '
         f'scene seed {args.seed}, {args.duration_s:g} s; every feature in the state measured '
         f'in each counted frame (the worst case); {args.shadow_features} Shadow features; '
-        f'best of {args.repeats} passes.',
+        f'tracker offsets {args.tracking_offset_px:g} px; best of {args.repeats} passes.',
         '',
         '| features in state | state size | rows | SLAM ms median | p95 | SLAM Hz | '
         'SLAM + Shadow Hz | reference ms | SLAM / reference |',
@@ -378,6 +397,14 @@ def build_arg_parser() -> argparse.ArgumentParser:
         default=None,
         help='comma list of map sizes to time SLAM at, e.g. 25,50,75,100,125,150',
     )
+    parser.add_argument(
+        '--tracking-offset-px',
+        type=float,
+        default=drift_bounded_offset_px(TrackerConfig().max_drift_px),
+        help="the tracker's offsets that persist, declared to SLAM (each feature takes 2 "
+        "more states); default: the feature tracker's, as the node graph declares them; "
+        '0: white noise',
+    )
     parser.add_argument('--cpu', type=int, default=None, help='CPU to pin to (default: last)')
     parser.add_argument(
         '--output', type=Path, default=DEFAULT_OUTPUT, help='Markdown report (JSON next to it)'
@@ -404,15 +431,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f'--map-sweep {args.map_sweep!r}: a comma list of sizes >= 1', file=sys.stderr)
             return 2
         return map_sweep(args, sizes, pinned, run, frames, target)
-    config = MonoSlamConfig(
-        known_points=target_known_points(target),
-        initialize='all',
-        max_features=args.map_features,
-        target_measured=args.map_features,
-    )
+    filters = filters_of(args, target, args.map_features)
     print(f'timing {len(frames)} frames x {args.repeats} passes ...', flush=True)
     timing = measure(
-        frames, camera_model(run), config, args.shadow_features, args.repeats, args.seed
+        frames, camera_model(run), filters, args.shadow_features, args.repeats, args.seed
     )
     result: dict[str, Any] = {
         'meta': {
@@ -422,6 +444,7 @@ def main(argv: list[str] | None = None) -> int:
             'repeats': args.repeats,
             'map_features': args.map_features,
             'shadow_features': args.shadow_features,
+            'tracking_offset_px': args.tracking_offset_px,
         },
         'timing': timing,
     }

@@ -5,8 +5,9 @@ camera in a room with four moving textured spheres and the initialization target
 36h11 id 0 with a 0.6 m square) is replayed, each image once monoslam has processed the one
 before (paced, so the result does not depend on spare CPU), into marker_detector,
 feature_tracker, monoslam (initialize=handover, the target's pose from
-config/monoslam_dynamic_camera.yaml) and shadow_filter (its defaults, as the graph), all in
-this process. monoslam/pose is compared with
+config/monoslam_dynamic_camera.yaml) and shadow_filter (its defaults), both told the feature
+tracker's noise as the monoslam_shadow graph declares it (``monoslam_graph``), all in this
+process. monoslam/pose is compared with
 /ground_truth/camera_pose, and the statuses on shadow/tracks and shadow/static_features with
 /ground_truth/labels sampled at each track's pixel in the same image.
 
@@ -39,6 +40,7 @@ import numpy as np
 import pytest
 from bag_fixtures import invalid_parameter_error, tool_env
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from monoslam_graph import tracker_noise
 from nav_msgs.msg import Path as PathMessage
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
@@ -200,8 +202,8 @@ def play(harness: RosHarness, truth: Truth) -> PipelineRun:
     target = {
         k: v for k, v in MONOSLAM_PARAMETERS.read_yaml(TARGET_CONFIG).items() if 'target' in k
     }
-    slam = MonoSlamNode(parameter_overrides=overrides(**target))
-    shadow = ShadowFilterNode()
+    slam = MonoSlamNode(parameter_overrides=overrides(**target, **tracker_noise('monoslam')))
+    shadow = ShadowFilterNode(parameter_overrides=overrides(**tracker_noise('shadow_filter')))
     for node in (slam, shadow):
         harness.add_node(node)
     unpaced = pace(harness, slam)

@@ -103,10 +103,13 @@ def evaluate_source(
     result = SeedResult(entry, front_end.stats)
     result.truth = np.array([f.true_centre for f in frames]).reshape(-1, 3)
     levels = {'image': frames, 'measurement': measurement_frames(source)}
-    pipeline = settings.pipeline(source.target)
+    # SLAM is told each level's tracker noise: the feature tracker's on images (as the node
+    # graph declares it, ``FrontEnd.declared``), the simulator's on measurements
+    simulated = settings.pipeline(source.target)
+    pipelines = {'image': front_end.declared(simulated), 'measurement': simulated}
     for level, variant in RUNS:
         try:
-            record = run_variant(variant, levels[level], source.camera, pipeline)
+            record = run_variant(variant, levels[level], source.camera, pipelines[level])
         except PipelineError as error:
             failure = {'seed': source.seed, 'level': level, 'variant': variant}
             entry.setdefault('failures', []).append({**failure, 'error': str(error)})

@@ -2,9 +2,9 @@
 image with SLAM's predictions for it, as the node graph wires ``features/predicted``, so a
 map feature that comes back into view is searched for with its predicted pixel, search
 region and template warp (``feature_tracker``'s re-identification), and SLAM measures it
-again only if the tracker finds it under its old id. Both filters are told the feature
-tracker's noise (``FrontEnd.declared``: its tracks' offsets persist up to its drift bound),
-as the node graph's parameters tell them, not the measurement simulator's white noise.
+again only if the tracker finds it under its old id. SLAM is told the feature tracker's
+noise (``FrontEnd.declared``: its tracks' offsets persist up to its drift bound), as the
+node graph tells monoslam, not the measurement simulator's white noise.
 
 Data association is not known here; the truth comes from the renderer. A track's world point
 is where the ray through its first pixel hits the scene in its first image

@@ -1,0 +1,39 @@
+"""The monoslam_shadow graph's parameters, for the topic tests that run its nodes as it does."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from monoslam_shadow_node.feature_tracker_settings import PARAMETERS as TRACKER_PARAMETERS
+from monoslam_shadow_node.monoslam_settings import PARAMETERS as MONOSLAM_PARAMETERS
+from monoslam_shadow_node.settings import PARAMETERS as SHADOW_PARAMETERS
+from slam_bringup.graph import load_graph
+
+ROOT = Path(__file__).resolve().parents[1]
+GRAPH = ROOT / 'src' / 'slam_bringup' / 'graphs' / 'monoslam_shadow.yaml'
+
+NODE_PARAMETERS = {
+    'feature_tracker': TRACKER_PARAMETERS,
+    'monoslam': MONOSLAM_PARAMETERS,
+    'shadow_filter': SHADOW_PARAMETERS,
+}
+
+
+def graph_parameters(node: str) -> dict[str, Any]:
+    """Return ``node``'s parameters as the graph sets them: the defaults, then its parameter
+    files and inline values in order."""
+    spec = next(spec for spec in load_graph(GRAPH).nodes if spec.name == node)
+    table = NODE_PARAMETERS[node]
+    values = table.defaults()
+    for source in spec.parameters:
+        if isinstance(source, Path):
+            values = table.read_yaml(source, values)
+        else:
+            values.update(source)
+    return values
+
+
+def tracker_noise(node: str) -> dict[str, Any]:
+    """Return the feature tracker's noise as the graph declares it to ``node``."""
+    return {'tracking_offset_px': graph_parameters(node)['tracking_offset_px']}
