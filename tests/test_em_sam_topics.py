@@ -6,19 +6,24 @@ The bag (bags/office_moveable.mcap, seed 7) has 29 static wall markers and 10 de
 
 from __future__ import annotations
 
+import math
+import time
 from pathlib import Path
 
 import pytest
 from bag_fixtures import invalid_parameter_error
+from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 
 from em_sam_node.em_sam_mapper_node import EmSamMapperNode
 from em_sam_node.odometry_ingest_node import OdometryIngestNode
 from slam_bringup.bag_player import BagPlayerNode
+from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import LandmarkMap, MoveableLandmarkArray
 from slam_interfaces.srv import FindLandmark
-from slam_ros.qos import latched_qos
+from slam_ros.qos import latched_qos, sensor_qos
 from slam_ros.testing.harness import RosHarness, wait_until
 
 pytestmark = pytest.mark.topic
@@ -132,3 +137,36 @@ def test_find_landmark(mapped: tuple[RosHarness, EmSamMapperNode]) -> None:
 def test_invalid_parameter_is_named(executable: str, parameter: str, value: str) -> None:
     error = invalid_parameter_error([executable], parameter, value)
     assert parameter in error
+
+
+def test_odometry_ingest_publishes_odom_to_base_link_when_asked(ros_harness: RosHarness) -> None:
+    """publish_tf: each odometry sample's pose on /tf as odom -> base_link at its stamp (what
+    a base driver publishes); a NaN pose or a stamp not after the last one is not published,
+    and is counted and logged."""
+    tf = ros_harness.collect('/tf', TFMessage)
+    ingest = ros_harness.add_node(
+        OdometryIngestNode(parameter_overrides=[Parameter('publish_tf', value=True)])
+    )
+    odom = ros_harness.publisher('odom', Odometry, sensor_qos())
+    ros_harness.wait_for_subscribers(odom)
+
+    def sample(stamp_ns: int, x: float) -> Odometry:
+        message = Odometry()
+        ns_to_stamp(stamp_ns, message.header.stamp)
+        message.header.frame_id, message.child_frame_id = 'odom', 'base_link'
+        message.pose.pose.position.x = x
+        message.pose.pose.orientation.w = 1.0
+        return message
+
+    for stamp_ns, x in ((1_000, 0.1), (2_000, math.nan), (2_000, 0.2), (1_500, 0.3), (3_000, 0.4)):
+        odom.publish(sample(stamp_ns, x))
+        time.sleep(0.05)  # best effort, one at a time
+    wait_until(lambda: ingest.tf_published + ingest.tf_skipped == 5, what='5 samples taken')
+    wait_until(lambda: sum(len(m.transforms) for m in tf.messages) == 3, what='3 transforms')
+    transforms = [t for m in tf.messages for t in m.transforms]
+    assert [(t.header.frame_id, t.child_frame_id) for t in transforms] == [
+        ('odom', 'base_link')
+    ] * 3
+    assert [stamp_to_ns(t.header.stamp) for t in transforms] == [1_000, 2_000, 3_000]
+    assert [t.transform.translation.x for t in transforms] == [0.1, 0.2, 0.4]
+    assert ingest.tf_skipped == 2

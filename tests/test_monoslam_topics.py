@@ -202,7 +202,9 @@ def play(harness: RosHarness, truth: Truth) -> PipelineRun:
     target = {
         k: v for k, v in MONOSLAM_PARAMETERS.read_yaml(TARGET_CONFIG).items() if 'target' in k
     }
-    slam = MonoSlamNode(parameter_overrides=overrides(**target, **tracker_noise('monoslam')))
+    slam = MonoSlamNode(
+        parameter_overrides=overrides(**target, **tracker_noise('monoslam'), publish_tf=True)
+    )
     shadow = ShadowFilterNode(parameter_overrides=overrides(**tracker_noise('shadow_filter')))
     for node in (slam, shadow):
         harness.add_node(node)
@@ -268,7 +270,7 @@ def test_the_pose_follows_the_ground_truth(pipeline: PipelineRun, truth: Truth) 
     assert len(errors) >= MIN_POSES, f'images monoslam never processed: {pipeline.unpaced}'
     assert max(errors[:START_FRAMES]) < MAX_START_ERROR_M
     assert np.median(errors) < MAX_MEDIAN_ERROR_M and max(errors) < MAX_ERROR_M
-    assert all(m.header.frame_id == 'map' for m in pipeline.poses)
+    assert all(m.header.frame_id == 'monoslam_map' for m in pipeline.poses)
     for message in pipeline.poses:
         covariance = np.reshape(message.pose.covariance, (6, 6))
         assert np.allclose(covariance, covariance.T) and np.all(np.diag(covariance) > 0)
@@ -336,13 +338,15 @@ def test_map_path_and_tf_are_published_without_nan(pipeline: PipelineRun) -> Non
     assert pipeline.maps and pipeline.paths and pipeline.transforms
     cloud = pipeline.maps[-1]
     points = np.frombuffer(bytes(cloud.data), dtype=POINT_DTYPE)
-    assert cloud.header.frame_id == 'map' and len(points) == cloud.width > 10
+    assert cloud.header.frame_id == 'monoslam_map' and len(points) == cloud.width > 10
     assert [f.name for f in cloud.fields] == list(POINT_DTYPE.names or ())
     assert np.any(points['handover'] == 1) and np.any(points['active'] == 1)
     path = pipeline.paths[-1]
     assert path.poses[-1].header.stamp == pipeline.poses[-1].header.stamp
     transform = pipeline.transforms[-1].transforms[0]
-    assert (transform.header.frame_id, transform.child_frame_id) == ('map', 'camera_optical_frame')
+    # under MonoSLAM's own names: the camera's optical frame keeps its parent (REP 105)
+    frames = (transform.header.frame_id, transform.child_frame_id)
+    assert frames == ('monoslam_map', 'monoslam_camera')
     assert_finite(numbers(pipeline.poses) + numbers(pipeline.transforms) + numbers(pipeline.paths))
     for cloud in pipeline.maps:
         points = np.frombuffer(bytes(cloud.data), dtype=POINT_DTYPE)
@@ -448,7 +452,7 @@ class Inputs:
 
     def handover(self, track_id: int, position: Iterable[float], **changes: Any) -> None:
         message = ShadowTrackArray()
-        message.header.frame_id = changes.pop('frame_id', 'map')
+        message.header.frame_id = changes.pop('frame_id', 'monoslam_map')
         track = ShadowTrack(id=track_id, status=changes.pop('status', ShadowTrack.STATIC))
         track.position.x, track.position.y, track.position.z = (float(v) for v in position)
         track.position_covariance = (1e-4 * np.eye(3)).ravel().tolist()
@@ -521,7 +525,7 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
     node.wait_for_line(LOG_TIMEOUT_S, 'handover of feature 78: status 2, not STATIC; refused')
     inputs.handover(79, [1.0, 2.0, 1.0], frame_id='odom')
     node.wait_for_line(
-        LOG_TIMEOUT_S, "handover of feature 79: in frame 'odom', not map_frame 'map'"
+        LOG_TIMEOUT_S, "handover of feature 79: in frame 'odom', not map_frame 'monoslam_map'"
     )
 
     # predictions for the next image, triggered by its camera_info: the handed-over feature

@@ -12,6 +12,10 @@ Topics:
               landmark_observations (slam_interfaces/LandmarkObservationArray, reliable,
               depth 100; only the stamps are used)
   publishes   odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000)
+              /tf (tf2_msgs/TFMessage, reliable, depth 100), when publish_tf is true:
+              odom_frame -> base_frame, the odometry's pose at its stamp (what the base
+              driver publishes on a robot; for replaying a bag that has no /tf). Samples with
+              a pose that is not finite or a stamp not after the last one are not published.
 
 Parameters:
   keyframe_distance_m (0.5), keyframe_angle_rad (0.35), keyframe_interval_s (5.0)
@@ -26,19 +30,24 @@ Parameters:
   max_buffer_s (30.0)         odometry kept for interpolation.
   idle_flush_s (1.0)          emit held-back keyframes after this long without odometry.
   base_frame ('base_link'), odom_frame ('odom')  frame ids written into the increments.
+  publish_tf (false)          publish odom_frame -> base_frame (above). Off on a robot: its
+                              base driver owns that transform (REP 105: one parent a frame).
 
 Frames: increments are motion of base_frame, expressed in odom_frame poses.
 """
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from typing import Any
 
+from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from tf2_msgs.msg import TFMessage
 
 from em_sam_node.conversions import increment_to_message, odometry_pose
 from em_sam_node.ingest import Increment, IngestConfig, OdometryIngest
@@ -111,9 +120,34 @@ PARAMETERS = ParamTable(
         ),
         Param('base_frame', 'base_link', 'robot base frame id'),
         Param('odom_frame', 'odom', 'odometry frame id'),
+        Param(
+            'publish_tf',
+            False,
+            'publish odom_frame -> base_frame on /tf from the odometry (replay without the '
+            "driver's TF)",
+        ),
     ),
 )
-_NODE_ONLY = ('idle_flush_s', 'base_frame', 'odom_frame')
+_NODE_ONLY = ('idle_flush_s', 'base_frame', 'odom_frame', 'publish_tf')
+
+
+def odometry_transform(message: Any, odom_frame: str, base_frame: str) -> Any:
+    """Return the geometry_msgs/TransformStamped odom_frame -> base_frame of a
+    nav_msgs/Odometry (its pose, at its stamp), or None when the pose is not finite."""
+    pose = message.pose.pose
+    p, q = pose.position, pose.orientation
+    values = [p.x, p.y, p.z, q.x, q.y, q.z, q.w]
+    if not all(math.isfinite(v) for v in values) or not any(values[3:]):
+        return None
+    transform = TransformStamped()
+    transform.header.stamp = message.header.stamp
+    transform.header.frame_id = odom_frame
+    transform.child_frame_id = base_frame
+    transform.transform.translation.x = p.x
+    transform.transform.translation.y = p.y
+    transform.transform.translation.z = p.z
+    transform.transform.rotation = q
+    return transform
 
 
 def config_from_parameters(values: dict[str, Any]) -> IngestConfig:
@@ -139,6 +173,14 @@ class OdometryIngestNode(Node):
         self.publisher = self.create_publisher(
             OdometryIncrement, 'odometry_increments', output_qos(depth=1000)
         )
+        self.tf_publisher = (
+            self.create_publisher(TFMessage, '/tf', output_qos(depth=100))
+            if values['publish_tf']
+            else None
+        )
+        self.tf_published = 0
+        self.tf_skipped = 0
+        self._last_tf_ns: int | None = None
         self.create_subscription(Odometry, 'odom', self._on_odometry, sensor_qos(depth=1000))
         self.create_subscription(
             LandmarkObservationArray,
@@ -163,6 +205,21 @@ class OdometryIngestNode(Node):
         self._last_odometry_wall = time.monotonic()
         self.flushed = False
         self._publish(self.ingest.add_odometry(stamp_ns, pose))
+        if self.tf_publisher is not None:
+            self._publish_tf(self.tf_publisher, message, stamp_ns)
+
+    def _publish_tf(self, publisher: Any, message: Odometry, stamp_ns: int) -> None:
+        transform = odometry_transform(message, self.odom_frame, self.base_frame)
+        if transform is None or (self._last_tf_ns is not None and stamp_ns <= self._last_tf_ns):
+            self.tf_skipped += 1
+            self._warn(
+                f'odometry at {stamp_ns} ns: not on /tf (pose not finite, or stamp not after '
+                f'the last one); {self.tf_skipped} skipped so far'
+            )
+            return
+        publisher.publish(TFMessage(transforms=[transform]))
+        self._last_tf_ns = stamp_ns
+        self.tf_published += 1
 
     def _on_observations(self, message: LandmarkObservationArray) -> None:
         self._publish(self.ingest.add_observation_stamp(stamp_to_ns(message.header.stamp)))

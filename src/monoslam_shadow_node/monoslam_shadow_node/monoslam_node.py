@@ -43,9 +43,10 @@ Topics:
               standard deviation, m), id (float64, the track id), active (uint8: 1 in the
               filter, 0 retired), handover (uint8: 1 handed over by the Shadow filter).
               /tf (tf2_msgs/TFMessage, reliable, depth 100), when publish_tf is true: map_frame
-              -> the features' header.frame_id (the camera optical frame) at the image stamp.
-              The optical frame then has map_frame as its TF parent; in a robot's TF tree
-              (camera_link -> camera_optical_frame) turn it off and use monoslam/pose.
+              -> tf_camera_frame (the optical frame as MonoSLAM places it) at the image
+              stamp, under MonoSLAM's own frame names: the camera's real optical frame keeps
+              its one parent in the robot's tree (REP 105), and the robot's map belongs to
+              the SLAM that publishes map -> odom. Off by default: use monoslam/pose.
               features/predicted (slam_interfaces/FeatureTrackArray, reliable, depth 10), when
               publish_predictions is true: per camera_info stamp after the last processed
               frame, the predicted raw pixels of the features the filter owns (empty while it
@@ -138,8 +139,10 @@ Parameters (initialization target): its four corners are the known points.
                                   default puts the marker at the map origin: it defines the
                                   map.
 Parameters (node):
-  map_frame ('map')               frame of the pose, path, map and TF.
-  publish_tf (true)               publish the TF above.
+  map_frame ('monoslam_map')      frame of the pose, path, map and TF (the target's world,
+                                  not the robot's map).
+  publish_tf (false)              publish the TF above.
+  tf_camera_frame ('monoslam_camera')  its child frame; must differ from map_frame.
   publish_predictions (false)     publish features/predicted.
   path_length (3000)              poses kept in monoslam/path.
   map_period_s (1.0)              shortest period of monoslam/map, s.
@@ -362,10 +365,10 @@ class MonoSlamNode(Node):
             elif isinstance(outcome, MonoSlamStep):
                 self._map_changed = True
                 if outcome.result.status == TRACKING and outcome.pose is not None:
-                    self._publish_pose(outcome.pose, outcome.frame_id or self._camera_frame)
+                    self._publish_pose(outcome.pose)
                 self._publish_revoked(outcome.result)
 
-    def _publish_pose(self, fields: PoseFields, child: str) -> None:
+    def _publish_pose(self, fields: PoseFields) -> None:
         frame = self.settings.map_frame
         self.pose_publisher.publish(
             fill_pose_with_covariance(fields, frame, PoseWithCovarianceStamped())
@@ -376,6 +379,7 @@ class MonoSlamNode(Node):
             path.header = self._path[-1].header
             self.path_publisher.publish(path)
         if self.tf_publisher is not None:
+            child = self.settings.tf_camera_frame
             transform = fill_transform(fields, frame, child, TransformStamped())
             self.tf_publisher.publish(TFMessage(transforms=[transform]))
         if self.settings.trajectory_file is not None:

@@ -168,11 +168,18 @@ TARGET_PARAMETERS = (
 NODE_PARAMETERS = (
     Param(
         'map_frame',
-        'map',
-        'frame of the pose, path, map and TF (the target defines it)',
+        'monoslam_map',
+        "frame of the pose, path, map and TF (the target defines it; not the robot's map)",
         validator=_frame_rule,
     ),
-    Param('publish_tf', True, 'publish map_frame -> camera optical frame on /tf'),
+    Param('publish_tf', False, 'publish map_frame -> tf_camera_frame on /tf'),
+    Param(
+        'tf_camera_frame',
+        'monoslam_camera',
+        'child frame of that TF: the camera as MonoSLAM places it, under its own name (the '
+        "camera's optical frame has its parent in the robot's tree)",
+        validator=_frame_rule,
+    ),
     Param(
         'publish_predictions',
         False,
@@ -248,12 +255,14 @@ class TargetSettings:
 
 @dataclass(frozen=True)
 class NodeSettings:
-    """The node's own settings: map frame, which outputs (TF, predictions), path length
+    """The node's own settings: map frame, which outputs (TF and its camera frame,
+    predictions), path length
     (poses), map period (s), stamp tolerance and waiting horizon (int ns), queue bound and the
     trajectory file (None: none)."""
 
     map_frame: str
     publish_tf: bool
+    tf_camera_frame: str
     publish_predictions: bool
     path_length: int
     map_period_s: float
@@ -293,10 +302,15 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
         raise PARAMETERS.fail(
             'sync_horizon_s', horizon, f'must exceed stamp_tolerance_s ({tolerance} s)'
         )
+    if checked['tf_camera_frame'] == checked['map_frame']:
+        raise PARAMETERS.fail(
+            'tf_camera_frame', checked['tf_camera_frame'], 'must differ from map_frame'
+        )
     trajectory = checked['trajectory_file']
     return NodeSettings(
         map_frame=checked['map_frame'],
         publish_tf=checked['publish_tf'],
+        tf_camera_frame=checked['tf_camera_frame'],
         publish_predictions=checked['publish_predictions'],
         path_length=checked['path_length'],
         map_period_s=checked['map_period_s'],

@@ -73,7 +73,8 @@ def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None
     config = monoslam_settings.monoslam_config(values, target)
     assert config == MonoSlamConfig(known_points=target.known_points(), initialize='handover')
     node = monoslam_settings.node_settings(values)
-    assert node.map_frame == 'map' and node.publish_tf and not node.publish_predictions
+    assert node.map_frame == 'monoslam_map' and node.tf_camera_frame == 'monoslam_camera'
+    assert not node.publish_tf and not node.publish_predictions
     assert node.sync_horizon_ns == 500 * MS and node.trajectory_file is None
 
 
@@ -192,6 +193,11 @@ def test_invalid_target_parameters_are_named(name: str, value: object, message: 
         ),
         ('queue_size', 0, r'parameter monoslam\.queue_size=0: must be >= 1'),
         ('publish_tf', 'yes', r"parameter monoslam\.publish_tf='yes': must be true or false"),
+        (
+            'tf_camera_frame',
+            'monoslam_map',
+            r"parameter monoslam\.tf_camera_frame='monoslam_map': must differ from map_frame",
+        ),
     ],
 )
 def test_invalid_node_parameters_are_named(name: str, value: object, message: str) -> None:

@@ -1,0 +1,88 @@
+"""Topic-level: the TF tree of the EM-SAM camera graph as a robot user's TF listener sees it
+(REP 105), with the graph run as users run it (``slam_run``, a separate process).
+
+The bag (bags/office_camera.mcap) holds the base's odometry, the camera images and the
+camera mount on /tf_static (base_link -> camera_link -> camera_optical_frame), and no /tf:
+in the graph, odometry_ingest publishes odom -> base_link from the odometry (as a base
+driver would), em_sam_mapper map -> odom, and every node runs on the player's /clock.
+Checked on what arrives on /tf and /tf_static (``slam_ros.tf_tree``): no frame ever has two
+parents; map -> odom is stamped in the bag's time, not the wall clock's; and from the first
+map -> odom on, map -> camera_optical_frame resolves at the stamp of every camera image.
+The player runs at 8x: the tree does not depend on how many images the detector keeps up
+with.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+from rosbags.highlevel import AnyReader
+from sensor_msgs.msg import CameraInfo
+from tf2_msgs.msg import TFMessage
+
+from slam_core.stamps import stamp_to_ns
+from slam_ros.qos import latched_qos, sensor_qos
+from slam_ros.testing.harness import RosHarness, wait_until
+from slam_ros.tf_tree import TfTree
+
+pytestmark = pytest.mark.topic
+
+ROOT = Path(__file__).resolve().parents[1]
+BAG = ROOT / 'bags' / 'office_camera.mcap'
+RATE = 8.0
+RUN_TIMEOUT_S = 240.0
+
+
+def bag_span_ns(bag: Path) -> tuple[int, int]:
+    with AnyReader([bag]) as reader:
+        return int(reader.start_time), int(reader.end_time)
+
+
+def test_the_camera_graph_publishes_one_tree_in_bag_time(
+    ros_harness: RosHarness, tmp_path: Path
+) -> None:
+    harness = ros_harness
+    tf = harness.collect('/tf', TFMessage)
+    tf_static = harness.collect('/tf_static', TFMessage, latched_qos(depth=100))
+    infos = harness.collect('/camera/camera_info', CameraInfo, sensor_qos(depth=100))
+    run = harness.start_process(
+        'slam_run',
+        [
+            sys.executable, '-m', 'slam_bringup.runner', 'em_sam_office_camera.yaml',
+            '--bag', str(BAG), '--rate', str(RATE), '--exit-when-player-done',
+        ],
+    )  # fmt: skip
+    wait_until(
+        lambda: run.process.poll() is not None,
+        timeout_s=RUN_TIMEOUT_S,
+        what='slam_run to play the bag and exit',
+    )
+    assert run.process.returncode == 0, run.log()
+
+    tree = TfTree()
+    for message in list(tf_static.messages):
+        tree.add(message, static=True)
+    for message in list(tf.messages):
+        tree.add(message, static=False)
+    assert not tree.conflicts, tree.conflicts
+    assert {child: edge.parent for child, edge in tree.edges.items()} == {
+        'odom': 'map',
+        'base_link': 'odom',
+        'camera_link': 'base_link',
+        'camera_optical_frame': 'camera_link',
+    }
+    start_ns, end_ns = bag_span_ns(BAG)
+    map_odom = tree.edges['odom'].stamps
+    assert len(map_odom) >= 10, f'only {len(map_odom)} map -> odom transforms'
+    assert start_ns <= map_odom[0] and map_odom[-1] <= end_ns, 'map -> odom not in bag time'
+    assert len(tree.edges['base_link'].stamps) >= 1000  # one per odometry sample (20 Hz)
+
+    frames = {message.header.frame_id for message in infos.messages}
+    assert frames == {'camera_optical_frame'}
+    stamps = sorted(stamp_to_ns(message.header.stamp) for message in infos.messages)
+    covered = [s for s in stamps if map_odom[0] <= s <= map_odom[-1]]
+    assert len(covered) >= 0.5 * len(stamps), f'{len(covered)} of {len(stamps)} images'
+    unresolved = [s for s in covered if not tree.resolves('map', 'camera_optical_frame', s)]
+    assert not unresolved, f'{len(unresolved)} of {len(covered)} images, first at {unresolved[0]}'
