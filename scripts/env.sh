@@ -1,6 +1,7 @@
 # Source this file to get the suite's environment in a shell:  source scripts/env.sh
 # It activates .venv, puts the ROS 2 Jazzy wheels (or a sourced /opt/ros/jazzy) on the
-# library and ament paths, sources the colcon workspace, and keeps DDS on loopback.
+# library and ament paths, sources the colcon workspace, and sets the DDS profile
+# (SLAM_DDS_PROFILE: loopback by default, or lan; see below).
 # Option --no-workspace skips ros2_ws/install (used by the bootstrap before the first build).
 
 _slam_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -42,10 +43,23 @@ else
     fi
   fi
   export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
-  # DDS stays on this machine: localhost discovery and a UDPv4 transport on 127.0.0.1 only.
-  export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
-  export FASTRTPS_DEFAULT_PROFILES_FILE="$_slam_root/src/slam_bringup/config/fastdds_loopback.xml"
-  export FASTDDS_DEFAULT_PROFILES_FILE="$FASTRTPS_DEFAULT_PROFILES_FILE"
+  # DDS profile, one setting: SLAM_DDS_PROFILE=loopback (the default: tests and demos stay on
+  # this machine, localhost discovery, UDPv4 on 127.0.0.1 only) or lan (a robot and a laptop:
+  # discovery over the subnet, UDPv4 on every interface). Both add shared memory.
+  case "${SLAM_DDS_PROFILE:-loopback}" in
+    loopback) _slam_range=LOCALHOST ;;
+    lan) _slam_range=SUBNET ;;
+    *) _slam_range=""
+       echo "scripts/env.sh: SLAM_DDS_PROFILE='${SLAM_DDS_PROFILE}' is not loopback or lan;" \
+            "no DDS profile set" >&2 ;;
+  esac
+  if [[ -n "$_slam_range" ]]; then
+    export SLAM_DDS_PROFILE="${SLAM_DDS_PROFILE:-loopback}"
+    export ROS_AUTOMATIC_DISCOVERY_RANGE="$_slam_range"
+    export FASTRTPS_DEFAULT_PROFILES_FILE="$_slam_root/src/slam_bringup/config/fastdds_$SLAM_DDS_PROFILE.xml"
+    export FASTDDS_DEFAULT_PROFILES_FILE="$FASTRTPS_DEFAULT_PROFILES_FILE"
+  fi
+  unset _slam_range
   export SLAM_REPO_ROOT="$_slam_root"
 fi
 [[ $_slam_nounset == 1 ]] && set -u
