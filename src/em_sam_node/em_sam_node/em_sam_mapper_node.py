@@ -14,6 +14,9 @@ Topics:
               em_sam/moveable (slam_interfaces/MoveableLandmarkArray),
               em_sam/markers (visualization_msgs/MarkerArray): reliable, transient-local, 1
               /tf (tf2_msgs/TFMessage): map->odom, every tf_period_s
+              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
+              and dropped, keyframes, observations, solves, processing time (the solves'
+              too), lag (slam_ros.diagnostics)
 Services:
   ~/optimize (std_srvs/Trigger)          solve now and publish.
   ~/find_landmark (slam_interfaces/FindLandmark)  sightings of a landmark, most recent first.
@@ -91,6 +94,7 @@ from slam_interfaces.msg import (
     OdometryIncrement,
 )
 from slam_interfaces.srv import FindLandmark
+from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.qos import latched_qos, output_qos
 from slam_ros.spin import spin_node
@@ -117,13 +121,19 @@ class EmSamMapperNode(Node):
         )
         self.marker_publisher = self.create_publisher(MarkerArray, 'em_sam/markers', latched)
         self.tf_publisher = self.create_publisher(TFMessage, '/tf', output_qos(depth=100))
+        self.solves = 0
+        self.diagnostics = Diagnostics(self, self._counts)
+        timed = self.diagnostics.timed
         self.create_subscription(
-            OdometryIncrement, 'odometry_increments', self._on_increment, output_qos(depth=1000)
+            OdometryIncrement,
+            'odometry_increments',
+            timed(self._on_increment, 'odometry_increments'),
+            output_qos(depth=1000),
         )
         self.create_subscription(
             LandmarkObservationArray,
             'landmark_observations',
-            self._on_observations,
+            timed(self._on_observations, 'landmark_observations'),
             output_qos(depth=100),
         )
         self.create_service(Trigger, '~/optimize', self._on_optimize)
@@ -131,10 +141,21 @@ class EmSamMapperNode(Node):
         self.create_service(FindLandmark, '~/find_landmark', self._on_find_landmark)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.optimize_period_s > 0:
-            self.create_timer(self.optimize_period_s, self._on_timer, clock=steady)
-        self.create_timer(tf_period_s, self._publish_tf, clock=steady)
+            self.create_timer(self.optimize_period_s, timed(self._on_timer), clock=steady)
+        self.create_timer(tf_period_s, timed(self._publish_tf), clock=steady)
         self._dirty = False
-        self.solves = 0
+
+    def _counts(self) -> dict[str, int]:
+        """The counts on /diagnostics: keyframes, observations on them and waiting for one,
+        increments and observations dropped (bad or out of order), solves."""
+        mapper = self.mapper
+        return {
+            'keyframes': len(mapper.stamps_ns),
+            'observations': len(mapper.observations),
+            'pending observations': len(mapper.pending),
+            'dropped': mapper.dropped_increments + mapper.dropped_observations,
+            'solves': self.solves,
+        }
 
     def _warn(self, message: str) -> None:
         self.get_logger().warning(message, throttle_duration_sec=2.0)

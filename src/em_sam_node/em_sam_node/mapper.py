@@ -75,6 +75,7 @@ class MapperProcessor:
         self.result_data: MappingData | None = None  # what self.result was solved from
         self.result_keyframes = 0
         self.dropped_observations = 0
+        self.dropped_increments = 0
 
     # -- input ----------------------------------------------------------------------------
     def add_increment(self, increment: Increment) -> None:
@@ -84,6 +85,7 @@ class MapperProcessor:
                 f'increment {increment.stamp_from_ns}->{increment.stamp_to_ns} ns has '
                 'non-finite values; dropped'
             )
+            self.dropped_increments += 1
             return
         if not self.stamps_ns:
             self.stamps_ns.append(increment.stamp_from_ns)
@@ -93,12 +95,14 @@ class MapperProcessor:
                 f'increment starts at {increment.stamp_from_ns} ns but the last keyframe '
                 f'is {self.stamps_ns[-1]} ns; dropped (out of order or missing increments)'
             )
+            self.dropped_increments += 1
             return
         if increment.stamp_to_ns <= increment.stamp_from_ns:
             self.warn(
                 f'increment {increment.stamp_from_ns}->{increment.stamp_to_ns} ns does not '
                 'go forward in time; dropped'
             )
+            self.dropped_increments += 1
             return
         self.stamps_ns.append(increment.stamp_to_ns)
         self.odom_poses.append(increment.odom_pose_to.copy())

@@ -16,6 +16,8 @@ Topics:
               odom_frame -> base_frame, the odometry's pose at its stamp (what the base
               driver publishes on a robot; for replaying a bag that has no /tf). Samples with
               a pose that is not finite or a stamp not after the last one are not published.
+              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): samples received
+              and dropped, increments, resets, TF, processing time, lag (slam_ros.diagnostics)
 
 Parameters:
   keyframe_distance_m (0.5), keyframe_angle_rad (0.35), keyframe_interval_s (5.0)
@@ -55,6 +57,7 @@ from slam_core.cli import console_main
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import LandmarkObservationArray, OdometryIncrement
+from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.qos import output_qos, sensor_qos
 from slam_ros.spin import spin_node
@@ -181,21 +184,36 @@ class OdometryIngestNode(Node):
         self.tf_published = 0
         self.tf_skipped = 0
         self._last_tf_ns: int | None = None
-        self.create_subscription(Odometry, 'odom', self._on_odometry, sensor_qos(depth=1000))
+        self.published = 0
+        self.diagnostics = Diagnostics(self, self._counts)
+        timed = self.diagnostics.timed
+        self.create_subscription(
+            Odometry, 'odom', timed(self._on_odometry, 'odom'), sensor_qos(depth=1000)
+        )
         self.create_subscription(
             LandmarkObservationArray,
             'landmark_observations',
-            self._on_observations,
+            timed(self._on_observations, 'landmark_observations'),
             output_qos(depth=100),
         )
         self._last_odometry_wall = time.monotonic()
         self.flushed = True
-        self.published = 0
         self.create_timer(
             self.idle_flush_s / 2.0,
-            self._flush_when_idle,
+            timed(self._flush_when_idle),
             clock=Clock(clock_type=ClockType.STEADY_TIME),
         )
+
+    def _counts(self) -> dict[str, int]:
+        """The counts on /diagnostics: increments published, odometry samples dropped (not
+        finite, out of order, behind a rewound clock), resets, TF published and skipped."""
+        return {
+            'increments': self.published,
+            'dropped': self.ingest.dropped_samples,
+            'resets': self.ingest.resets,
+            'tf published': self.tf_published,
+            'tf skipped': self.tf_skipped,
+        }
 
     def _warn(self, message: str) -> None:
         self.get_logger().warning(message, throttle_duration_sec=2.0)

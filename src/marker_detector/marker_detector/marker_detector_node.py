@@ -22,6 +22,9 @@ Topics:
               landmark_observations (slam_interfaces/LandmarkObservationArray, base frame,
               only for images with at least one accepted marker)
               ~/debug_image (sensor_msgs/Image bgr8, when publish_debug_image is true)
+              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): images
+              received, processed, dropped and held, markers, processing time, lag
+              (slam_ros.diagnostics)
 
 Parameters:
   dictionary ('DICT_APRILTAG_36h11')  cv2.aruco dictionary: AprilTag 16h5/25h9/36h10/36h11,
@@ -87,6 +90,7 @@ from slam_interfaces.msg import (
     LandmarkObservation,
     LandmarkObservationArray,
 )
+from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters, updated_values
 from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.spin import spin_node
@@ -134,6 +138,8 @@ class MarkerDetectorNode(Node):
         self.held: deque[Image | CompressedImage] = deque()
         self._status_time = time.monotonic()
         self._status_images = 0
+        self.diagnostics = Diagnostics(self, self._counts)
+        timed = self.diagnostics.timed
         self.fiducials_publisher = self.create_publisher(FiducialArray, 'fiducials', output_qos())
         self.observations_publisher = self.create_publisher(
             LandmarkObservationArray, 'landmark_observations', output_qos(depth=100)
@@ -145,18 +151,27 @@ class MarkerDetectorNode(Node):
         )
         if transport == 'raw':
             self.create_subscription(
-                Image, 'camera/image_raw', self._on_image, sensor_qos(depth=5)
+                Image, 'camera/image_raw', timed(self._on_image, 'image'), sensor_qos(depth=5)
             )
         else:
             self.create_subscription(
-                CompressedImage, 'camera/image_raw/compressed', self._on_image, sensor_qos(depth=5)
+                CompressedImage,
+                'camera/image_raw/compressed',
+                timed(self._on_image, 'image'),
+                sensor_qos(depth=5),
             )
         self.create_subscription(
-            CameraInfo, 'camera/camera_info', self._on_camera_info, sensor_qos()
+            CameraInfo,
+            'camera/camera_info',
+            timed(self._on_camera_info, 'camera_info'),
+            sensor_qos(),
         )
         if self.processor.extrinsics.source == 'tf_static':
             self.create_subscription(
-                TFMessage, '/tf_static', self._on_tf_static, latched_qos(depth=100)
+                TFMessage,
+                '/tf_static',
+                timed(self._on_tf_static, 'tf_static'),
+                latched_qos(depth=100),
             )
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -255,6 +270,16 @@ class MarkerDetectorNode(Node):
         debug.step = canvas.shape[1] * 3
         debug.data = canvas.tobytes()
         return debug
+
+    def _counts(self) -> dict[str, int]:
+        """The counts on /diagnostics: images processed, dropped (bad, or no camera_info in
+        time) and held for a camera_info, markers accepted."""
+        return {
+            'processed': self.images - self.dropped,
+            'dropped': self.dropped,
+            'held': len(self.held),
+            'markers': self.detections,
+        }
 
     def _report_status(self) -> None:
         now = time.monotonic()

@@ -28,6 +28,9 @@ Topics:
               camera_info's when the image has none); per feature its int64 id (from 1, never
               reused, also not after a restart) and raw (distorted) pixel u right, v down,
               pixel centres at integer coordinates (OpenCV). Never NaN.
+              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): images
+              received, tracked and dropped, features, tracks, processing time, lag
+              (slam_ros.diagnostics)
 
 camera_info is not needed for tracking, so the node tracks without it (and says so once).
 Once one has come it is used to check the image size (an image of another size is dropped
@@ -126,6 +129,7 @@ from monoslam_shadow_node.notices import Notice
 from slam_core.cli import console_main
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
+from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.qos import output_qos, sensor_qos
 from slam_ros.spin import spin_node
@@ -183,24 +187,32 @@ class FeatureTrackerNode(Node):
             FeatureTrackArray, FEATURES_TOPIC, output_qos()
         )
         steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.diagnostics = Diagnostics(self, self._counts)
+        timed = self.diagnostics.timed
+        on_image = timed(self._on_image, 'image')
         if self.settings.image_transport == 'raw':
             image_topic = IMAGE_TOPIC
-            self.create_subscription(Image, IMAGE_TOPIC, self._on_image, sensor_qos(IMAGE_DEPTH))
+            self.create_subscription(Image, IMAGE_TOPIC, on_image, sensor_qos(IMAGE_DEPTH))
         else:
             image_topic = COMPRESSED_TOPIC
             self.create_subscription(
-                CompressedImage, COMPRESSED_TOPIC, self._on_image, sensor_qos(IMAGE_DEPTH)
+                CompressedImage, COMPRESSED_TOPIC, on_image, sensor_qos(IMAGE_DEPTH)
             )
-        self.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self._on_camera_info, sensor_qos())
+        self.create_subscription(
+            CameraInfo, CAMERA_INFO_TOPIC, timed(self._on_camera_info, 'camera_info'), sensor_qos()
+        )
         self._poll_timer = None
         if self.settings.use_predictions:
             self.create_subscription(
-                FeatureTrackArray, PREDICTIONS_TOPIC, self._on_predictions, output_qos()
+                FeatureTrackArray,
+                PREDICTIONS_TOPIC,
+                timed(self._on_predictions, 'predictions'),
+                output_qos(),
             )
             # Runs only while an image waits for its prediction (see _arm_poll).
             self._poll_timer = self.create_timer(
                 max(self.settings.prediction_timeout_s / 4, MIN_POLL_PERIOD_S),
-                self._poll,
+                timed(self._poll),
                 clock=steady,
             )
             self._poll_timer.cancel()
@@ -283,6 +295,18 @@ class FeatureTrackerNode(Node):
             self.get_logger().warning(text)
         else:
             self.get_logger().error(text)
+
+    def _counts(self) -> dict[str, int]:
+        """The counts on /diagnostics: images tracked, dropped (by the processor, and
+        undecodable), features in the latest, tracks started and re-identified."""
+        stats = self.processor.stats
+        return {
+            'processed': stats.frames,
+            'dropped': sum(stats.images_dropped.values()) + self.undecodable,
+            'features': stats.latest_features,
+            'tracks started': stats.started,
+            're-identified': stats.revived,
+        }
 
     def _report_status(self) -> None:
         now, frames = time.monotonic(), self.processor.stats.frames

@@ -56,6 +56,9 @@ Topics:
               failed the persistent-outlier test (they moved after all), status DYNAMIC, no
               position (position_covariance[0] = -1), header.stamp = the image stamp; the
               Shadow filter takes them back as suspects. Each is also logged.
+              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
+              and dropped, frames processed and skipped, handovers, losses, processing
+              time, lag (slam_ros.diagnostics)
   Nothing published is ever NaN: a pose that is not finite is not published (an error is
   logged), and map points or predictions that are not finite are left out.
 
@@ -211,6 +214,7 @@ from slam_interfaces.msg import (
     ShadowTrack,
     ShadowTrackArray,
 )
+from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.spin import spin_node
@@ -280,19 +284,32 @@ class MonoSlamNode(Node):
             else None
         )
         inputs = output_qos(depth=INPUT_DEPTH)
-        self.create_subscription(FeatureTrackArray, FEATURES_TOPIC, self._on_features, inputs)
-        self.create_subscription(FiducialArray, FIDUCIALS_TOPIC, self._on_fiducials, inputs)
-        self.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self._on_camera_info, sensor_qos())
+        self.diagnostics = Diagnostics(self, self._counts)
+        timed = self.diagnostics.timed
+        self.create_subscription(
+            FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs
+        )
+        self.create_subscription(
+            FiducialArray, FIDUCIALS_TOPIC, timed(self._on_fiducials, 'fiducials'), inputs
+        )
+        self.create_subscription(
+            CameraInfo, CAMERA_INFO_TOPIC, timed(self._on_camera_info, 'camera_info'), sensor_qos()
+        )
         if self.config.initialize == 'handover':
-            self.create_subscription(ShadowTrackArray, HANDOVER_TOPIC, self._on_handovers, inputs)
+            self.create_subscription(
+                ShadowTrackArray, HANDOVER_TOPIC, timed(self._on_handovers, 'handovers'), inputs
+            )
             if self.config.fill_undecided:
                 self.create_subscription(
-                    ShadowTrackArray, SHADOW_TRACKS_TOPIC, self._on_shadow_tracks, inputs
+                    ShadowTrackArray,
+                    SHADOW_TRACKS_TOPIC,
+                    timed(self._on_shadow_tracks, 'shadow_tracks'),
+                    inputs,
                 )
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         horizon_s = self.settings.sync_horizon_ns / 1e9
-        self.create_timer(max(horizon_s / 2, 0.05), self._flush_when_idle, clock=steady)
-        self.create_timer(self.settings.map_period_s, self._publish_map, clock=steady)
+        self.create_timer(max(horizon_s / 2, 0.05), timed(self._flush_when_idle), clock=steady)
+        self.create_timer(self.settings.map_period_s, timed(self._publish_map), clock=steady)
         self.create_timer(STATUS_PERIOD_S, self._report_status, clock=steady)
         handovers = f' and {HANDOVER_TOPIC}' if self.config.initialize == 'handover' else ''
         self.get_logger().info(
@@ -423,6 +440,21 @@ class MonoSlamNode(Node):
                 FeatureTrack, covariances, warps,
             )
         )  # fmt: skip
+
+    def _counts(self) -> dict[str, int]:
+        """The counts on /diagnostics: frames processed, without fiducials and skipped,
+        inputs dropped by the pairing, handovers, times lost, map size."""
+        counts = self.processor.counts
+        return {
+            'processed': counts.processed,
+            'without fiducials': counts.alone,
+            'skipped': counts.skipped,
+            'dropped': counts.dropped_total,
+            'handovers accepted': counts.accepted,
+            'handovers refused': counts.refused,
+            'lost': counts.lost,
+            'measured': counts.measured,
+        }
 
     def _report_status(self) -> None:
         counts = self.processor.counts

@@ -38,7 +38,11 @@ Topics:
               publish_markers is true and someone subscribes: pending features red, dynamic
               green, handed-over static features blue (the latest 5000), trajectories of
               dynamic features as green line strips (as the paper's Fig. 4).
-  Every output has header.stamp = the image stamp and header.frame_id = the pose's frame.
+              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
+              and dropped, frames processed, refused and skipped, classifications,
+              processing time, lag (slam_ros.diagnostics)
+  Every other output has header.stamp = the image stamp and header.frame_id = the pose's
+  frame.
 
 No NaN is ever published (details in conversions):
   - position not yet defined (depth unknown: inverse depth not 3 sigma above zero): position
@@ -138,6 +142,7 @@ from monoslam_shadow_node.settings import NODE_NAME, PARAMETERS, node_settings, 
 from monoslam_shadow_node.shadow_processor import Outcome, ShadowProcessor, ShadowStep
 from slam_core.cli import console_main
 from slam_interfaces.msg import FeatureTrackArray, ShadowTrack, ShadowTrackArray
+from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.qos import output_qos, sensor_qos
 from slam_ros.spin import spin_node
@@ -185,27 +190,47 @@ class ShadowFilterNode(Node):
             if self.settings.publish_markers
             else None
         )
+        self.diagnostics = Diagnostics(self, self._counts)
+        timed = self.diagnostics.timed
+        inputs = output_qos(depth=INPUT_DEPTH)
         self.create_subscription(
-            FeatureTrackArray, FEATURES_TOPIC, self._on_features, output_qos(depth=INPUT_DEPTH)
+            FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs
         )
         self.create_subscription(
             PoseWithCovarianceStamped,
             self.settings.pose_topic,
-            self._on_pose,
-            output_qos(depth=INPUT_DEPTH),
+            timed(self._on_pose, 'pose'),
+            inputs,
         )
-        self.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self._on_camera_info, sensor_qos())
         self.create_subscription(
-            ShadowTrackArray, REVOKED_TOPIC, self._on_revoked, output_qos(depth=INPUT_DEPTH)
+            CameraInfo, CAMERA_INFO_TOPIC, timed(self._on_camera_info, 'camera_info'), sensor_qos()
+        )
+        self.create_subscription(
+            ShadowTrackArray, REVOKED_TOPIC, timed(self._on_revoked, 'revoked'), inputs
         )
         self.create_timer(
             max(self.settings.sync_horizon_ns / 2e9, 0.05),
-            self._flush_when_idle,
+            timed(self._flush_when_idle),
             clock=Clock(clock_type=ClockType.STEADY_TIME),
         )
         self.get_logger().info(
             f'waiting for {FEATURES_TOPIC}, {self.settings.pose_topic} and {CAMERA_INFO_TOPIC}'
         )
+
+    def _counts(self) -> dict[str, int]:
+        """The counts on /diagnostics: frames processed, refused (pose covariance not
+        finite) and skipped, inputs dropped by the pairing, features handed over as static
+        and called dynamic, held pending."""
+        counts = self.processor.counts
+        return {
+            'processed': counts.processed,
+            'pose refused': counts.pose_refused,
+            'skipped': counts.skipped,
+            'dropped': counts.dropped_total,
+            'static': counts.static_total,
+            'dynamic': counts.dynamic_total,
+            'pending': counts.held_pending,
+        }
 
     @property
     def shadow(self) -> ShadowFilter | None:

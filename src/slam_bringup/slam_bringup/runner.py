@@ -15,9 +15,13 @@ order.
 
 The graph stops on Ctrl-C or SIGTERM, or when the player has played the bag if
 ``exit_when_player_done``. The player stops first and the recorder finalizes its bag last.
-In one process, the recorder drains what is in flight while the other nodes still run, then
-finalizes, and the nodes are destroyed. With processes, the player, then the nodes, then the
-recorder (which drains and finalizes on SIGINT) get SIGINT, then SIGTERM, then SIGKILL.
+In one process, when the player has played the bag, the nodes first work off the inputs
+queued for them (until none of them has taken one for QUIET_S, by its
+``slam_ros.diagnostics``; at most NODES_DRAIN_TIMEOUT_S), so that a graph that lags behind
+the player still processes the whole bag; then the recorder drains what is in flight while
+the other nodes still run, finalizes, and the nodes are destroyed. With processes, the
+player, then the nodes, then the recorder (which drains and finalizes on SIGINT) get SIGINT,
+then SIGTERM, then SIGKILL.
 
 Exit status: 0 done; 1 a node failed (an exception in a callback, a process that exited
 with an error); 2 a user error (an invalid GRAPH, a node that rejects its parameters, a bad
@@ -65,10 +69,12 @@ from slam_bringup.graph_nodes import (
 from slam_core.blas import single_threaded_blas
 from slam_core.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main
 from slam_core.errors import SlamError
+from slam_ros.diagnostics import Diagnostics
 
 EXIT_NODE_FAILED = 1
 POLL_S = 0.05
 QUIET_S = 0.25  # the recorder has drained when nothing new arrived for this long
+NODES_DRAIN_TIMEOUT_S = 60.0  # the longest the nodes may take to work off their queued inputs
 INTERRUPT_TIMEOUT_S = 10.0  # then SIGTERM
 TERMINATE_TIMEOUT_S = 5.0  # then SIGKILL
 CLEAN_STOP_CODES = frozenset({0, 130, 143, -signal.SIGINT, -signal.SIGTERM})
@@ -187,6 +193,28 @@ def wait_until_drained(recorder: BagRecorderNode) -> None:
             quiet_since = time.monotonic()
 
 
+def wait_until_inputs_drained(nodes: Sequence[Node]) -> None:
+    """Wait until the nodes with ``slam_ros.diagnostics`` run no callback and none took an
+    input for QUIET_S (at most NODES_DRAIN_TIMEOUT_S): the messages queued for them when the
+    player stopped are processed, not cut off by the graph's end. Then each publishes its
+    final /diagnostics report (the counts of the whole run)."""
+    found = [getattr(node, 'diagnostics', None) for node in nodes]
+    watched = [d for d in found if isinstance(d, Diagnostics)]
+    deadline = time.monotonic() + NODES_DRAIN_TIMEOUT_S
+    while watched and time.monotonic() < deadline:
+        idle = not any(d.active for d in watched)
+        if idle and time.monotonic() - max(d.last_input_s for d in watched) >= QUIET_S:
+            break
+        time.sleep(POLL_S)
+    else:
+        if watched:
+            say(f'the nodes still took inputs after {NODES_DRAIN_TIMEOUT_S:g} s; stopping them')
+    for diagnostics in watched:
+        diagnostics.publish()
+    if watched:
+        time.sleep(QUIET_S)  # the final reports are on their way (reliable) before the end
+
+
 def run_in_process(
     graph: Graph, descriptions: Sequence[NodeDescription], scratch: Path, stop: threading.Event
 ) -> int:
@@ -206,6 +234,10 @@ def run_in_process(
         recorder = next((n for _, n in nodes if isinstance(n, BagRecorderNode)), None)
         spinner = Spinner(executor)
         player_ended = wait_for_end(graph, player, spinner, stop)
+        if player is not None:
+            player.stop()
+            if player_ended and player.error is None:
+                wait_until_inputs_drained([node for _, node in nodes])
         summary = finish_playback_and_recording(player, recorder)
     finally:
         if spinner is not None:

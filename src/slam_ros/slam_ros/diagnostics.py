@@ -1,0 +1,184 @@
+"""What a node received, processed and dropped, how long it took and how far behind it is,
+on ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, reliable, depth 10) every
+``period_s`` (steady clock), as robot stacks expect (rqt_robot_monitor, aggregators).
+
+A node wraps each input callback with ``Diagnostics.timed(callback, input)``: every call
+counts as received on that input and adds its duration to the node's processing time, and
+the stamp of a message with a header is the latest input stamp once the callback returns;
+timer callbacks that process queued inputs are wrapped without an input (timed only).
+Messages *lost* on an input never reached the callback: DDS dropped them from the
+subscription's queue (KEEP_LAST depth) while the node was busy, or never delivered them
+(best effort). rmw reports neither (its message-lost event stays 0 for both), so they are
+counted from the gaps in the publisher's sequence numbers (rmw's message info); with
+several publishers on the input the numbers interleave, and its losses are 'unknown'.
+The node's own counters (what it processed, what it dropped and why) come from the
+``counts`` callable it passes. One DiagnosticStatus per publish, named after the node:
+
+- values: ``received <input>`` and ``lost <input>`` per input, then the node's counts,
+  then ``processing ms mean`` (per received message), ``processing ms max`` (since the last
+  publish), ``busy %`` (processing time over wall time since the last publish) and ``lag s``
+  (the node clock's now minus the latest input stamp: bag time on /clock in replay, wall
+  time live);
+- level: WARN while the count named ``dropped`` or the messages lost grew since the last
+  publish (lost ones are also logged as a warning) or the node was busy more than
+  ``BUSY_WARN`` of the time ("falling behind"), else OK.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+
+from slam_core.stamps import stamp_to_ns
+from slam_ros.qos import output_qos
+
+BUSY_WARN = 0.9
+"""Busy above this share of the wall time, a node cannot keep up with a higher input rate."""
+
+
+class Diagnostics:
+    """A node's /diagnostics publisher (module docstring)."""
+
+    def __init__(
+        self, node: Node, counts: Callable[[], Mapping[str, int]], period_s: float = 1.0
+    ) -> None:
+        self.node, self.counts = node, counts
+        self.received: dict[str, int] = {}
+        self.lost: dict[str, int] = {}
+        self.unknown_lost: set[str] = set()
+        self._sequence: dict[str, int] = {}
+        self._last_lost = 0
+        self.processing_s = 0.0
+        self.latest_stamp_ns: int | None = None
+        self.last_input_s = time.monotonic()  # when an input callback last ended
+        self.active = 0  # callbacks running now
+        self.published = 0
+        self._window_s = self._window_max_s = 0.0
+        self._window_start = time.perf_counter()
+        self._last_dropped = 0
+        self.publisher = node.create_publisher(DiagnosticArray, '/diagnostics', output_qos())
+        node.create_timer(period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def timed(
+        self, callback: Callable[..., None], input: str | None = None
+    ) -> Callable[..., None]:
+        """Return ``callback`` timed; with ``input``, a subscription callback that also counts
+        each message as received on that input, its header stamp (if any) as the latest
+        input stamp once it returns, and the messages lost before it (module docstring).
+        Timer callbacks that do the processing are timed without an input."""
+        if input is None:
+
+            def timer_wrapper() -> None:
+                start = time.perf_counter()
+                self.active += 1
+                try:
+                    callback()
+                finally:
+                    self.active -= 1
+                    self._add_time(time.perf_counter() - start)
+
+            return timer_wrapper
+        self.received.setdefault(input, 0)
+        self.lost.setdefault(input, 0)
+
+        def wrapper(message: Any, info: Mapping[str, Any]) -> None:
+            self.received[input] += 1
+            self._count_lost(input, info.get('publication_sequence_number'))
+            start = time.perf_counter()
+            self.active += 1
+            try:
+                callback(message)
+            finally:
+                self.active -= 1
+                self.last_input_s = time.monotonic()
+                self._add_time(time.perf_counter() - start)
+                header = getattr(message, 'header', None)
+                if header is not None:
+                    stamp_ns = stamp_to_ns(header.stamp)
+                    if self.latest_stamp_ns is None or stamp_ns > self.latest_stamp_ns:
+                        self.latest_stamp_ns = stamp_ns
+
+        return wrapper
+
+    def _add_time(self, spent: float) -> None:
+        self.processing_s += spent
+        self._window_s += spent
+        self._window_max_s = max(self._window_max_s, spent)
+
+    def _count_lost(self, input: str, sequence: int | None) -> None:
+        """Count the gap in the publisher's sequence numbers before ``sequence`` as lost;
+        a number that does not increase (several publishers, or one restarted) makes the
+        input's losses unknown from then on."""
+        if sequence is None or input in self.unknown_lost:
+            return
+        last = self._sequence.get(input, 0)
+        if sequence <= last:
+            self.unknown_lost.add(input)
+            return
+        self.lost[input] += sequence - last - 1
+        self._sequence[input] = sequence
+
+    def status(self) -> DiagnosticStatus:
+        """Return the node's status now and start a new window (module docstring)."""
+        counts = dict(self.counts())
+        now = time.perf_counter()
+        busy = self._window_s / max(now - self._window_start, 1e-9)
+        received = sum(self.received.values())
+        lag_s = math.nan
+        if self.latest_stamp_ns is not None:
+            lag_s = (self.node.get_clock().now().nanoseconds - self.latest_stamp_ns) / 1e9
+        dropped = int(counts.get('dropped', 0))
+        values = {f'received {name}': str(count) for name, count in self.received.items()}
+        for name, count in self.lost.items():
+            values[f'lost {name}'] = 'unknown' if name in self.unknown_lost else str(count)
+        lost = sum(self.lost.values())
+        values.update({name: str(int(value)) for name, value in counts.items()})
+        mean_ms = 1e3 * self.processing_s / received if received else 0.0  # per input
+        values.update({
+            'processing ms mean': f'{mean_ms:.2f}',
+            'processing ms max': f'{1e3 * self._window_max_s:.2f}',
+            'busy %': f'{100.0 * busy:.1f}',
+            'lag s': f'{lag_s:.3f}',
+        })  # fmt: skip
+        problems = []
+        if dropped > self._last_dropped:
+            problems.append(f'dropping inputs ({dropped - self._last_dropped} since the last)')
+        if lost > self._last_lost:
+            problems.append(
+                f'lost {lost - self._last_lost} messages before taking them (falling behind '
+                'its input queue)'
+            )
+            self.node.get_logger().warning(
+                f'{lost - self._last_lost} input messages lost before they were taken '
+                f'(their queue overflowed: the node falls behind); {lost} so far, by input: '
+                + ', '.join(f'{name} {count}' for name, count in self.lost.items() if count)
+            )
+        self._last_lost = lost
+        if busy > BUSY_WARN:
+            problems.append(f'falling behind (busy {100.0 * busy:.0f} %)')
+        self._last_dropped = dropped
+        self._window_s = self._window_max_s = 0.0
+        self._window_start = now
+        status = DiagnosticStatus()
+        status.name = self.node.get_fully_qualified_name()
+        status.hardware_id = self.node.get_name()
+        status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
+        status.message = (
+            '; '.join(problems) or f'{received} received, {lost} lost, {dropped} dropped'
+        )
+        status.values = [KeyValue(key=key, value=value) for key, value in values.items()]
+        return status
+
+    def publish(self) -> None:
+        """Publish the status (the timer's callback)."""
+        array = DiagnosticArray()
+        array.header.stamp = self.node.get_clock().now().to_msg()
+        array.status = [self.status()]
+        self.publisher.publish(array)
+        self.published += 1

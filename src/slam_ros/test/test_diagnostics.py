@@ -1,0 +1,94 @@
+"""``diagnostics``: a node's counts, processing time and lag on /diagnostics, and WARN while
+it drops inputs (a real rclpy node; its status is read, the timer is not waited for)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo
+
+from slam_core.stamps import ns_to_stamp
+from slam_ros.diagnostics import Diagnostics
+
+
+@pytest.fixture
+def node(ros_context: None) -> Iterator[Node]:
+    node = Node('diagnosed')
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+
+
+def values(status: DiagnosticStatus) -> dict[str, str]:
+    return {value.key: value.value for value in status.values}
+
+
+def test_inputs_counts_time_and_lag(node: Node) -> None:
+    counts = {'processed': 0, 'dropped': 0}
+    diagnostics = Diagnostics(node, lambda: counts, period_s=3600.0)
+    seen: list[int] = []
+
+    def on_info(message: CameraInfo) -> None:
+        seen.append(message.width)
+        counts['processed'] += 1
+
+    on_info_timed = diagnostics.timed(on_info, 'camera_info')
+    now_ns = node.get_clock().now().nanoseconds
+    for k, age_s in enumerate((3.0, 2.0)):
+        message = CameraInfo(width=640 + k)
+        ns_to_stamp(now_ns - int(age_s * 1e9), message.header.stamp)
+        on_info_timed(message, {'publication_sequence_number': k + 1})
+    assert seen == [640, 641]
+    status = diagnostics.status()
+    assert status.name == '/diagnosed' and status.level == DiagnosticStatus.OK
+    shown = values(status)
+    assert shown['received camera_info'] == '2' and shown['processed'] == '2'
+    assert shown['lost camera_info'] == '0'
+    assert shown['dropped'] == '0'
+    assert 2.0 <= float(shown['lag s']) < 3.0  # the latest stamp's age
+    assert float(shown['processing ms mean']) >= 0.0 and 'busy %' in shown
+    assert status.message == '2 received, 0 lost, 0 dropped'
+
+
+def test_a_node_that_drops_inputs_warns_until_it_stops(node: Node) -> None:
+    counts = {'dropped': 0}
+    diagnostics = Diagnostics(node, lambda: counts, period_s=3600.0)
+    assert diagnostics.status().level == DiagnosticStatus.OK
+    assert values(diagnostics.status())['lag s'] == 'nan'  # no stamped input yet
+    counts['dropped'] = 3
+    status = diagnostics.status()
+    assert status.level == DiagnosticStatus.WARN
+    assert status.message == 'dropping inputs (3 since the last)'
+    assert diagnostics.status().level == DiagnosticStatus.OK  # none dropped since
+
+
+def test_a_callback_that_raises_is_still_counted_and_timed(node: Node) -> None:
+    diagnostics = Diagnostics(node, dict, period_s=3600.0)
+
+    def broken(message: CameraInfo) -> None:
+        raise ValueError('bad input')
+
+    with pytest.raises(ValueError, match='bad input'):
+        diagnostics.timed(broken, 'camera_info')(CameraInfo(), {})
+    assert diagnostics.received == {'camera_info': 1} and diagnostics.processing_s > 0.0
+
+
+def test_gaps_in_the_publishers_sequence_numbers_are_lost_messages(node: Node) -> None:
+    """Numbers 1, 2, 5, 6, 10 arrive: 2 + 3 were lost (DDS dropped them from the queue), the
+    status warns once; then a number that goes back (a second publisher) makes the losses
+    unknown from then on."""
+    diagnostics = Diagnostics(node, dict, period_s=3600.0)
+    on_info = diagnostics.timed(lambda message: None, 'camera_info')
+    for sequence in (1, 2, 5, 6, 10):
+        on_info(CameraInfo(), {'publication_sequence_number': sequence})
+    status = diagnostics.status()
+    assert values(status)['lost camera_info'] == '5' and status.level == DiagnosticStatus.WARN
+    assert status.message.startswith('lost 5 messages before taking them')
+    assert diagnostics.status().level == DiagnosticStatus.OK
+    on_info(CameraInfo(), {'publication_sequence_number': 3})
+    on_info(CameraInfo(), {'publication_sequence_number': 11})
+    assert values(diagnostics.status())['lost camera_info'] == 'unknown'
