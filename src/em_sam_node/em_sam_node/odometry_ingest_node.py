@@ -10,7 +10,7 @@ Topics:
   subscribes  odom (nav_msgs/Odometry, best effort, depth 1000: deep, so a long callback of
               another node in the same executor loses no samples)
               landmark_observations (slam_interfaces/LandmarkObservationArray, reliable,
-              depth 100; only the stamps are used)
+              depth 1000, as deep for the same reason; only the stamps are used)
   publishes   odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000)
               /tf (tf2_msgs/TFMessage, reliable, depth 100), when publish_tf is true:
               odom_frame -> base_frame, the odometry's pose at its stamp (what the base
@@ -194,7 +194,7 @@ class OdometryIngestNode(Node):
             LandmarkObservationArray,
             'landmark_observations',
             timed(self._on_observations, 'landmark_observations'),
-            output_qos(depth=100),
+            output_qos(depth=1000),
         )
         self._last_odometry_wall = time.monotonic()
         self.flushed = True

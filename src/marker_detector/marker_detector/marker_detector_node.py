@@ -20,7 +20,8 @@ Topics:
               'tf_static'
   publishes   fiducials (slam_interfaces/FiducialArray, camera optical frame, every image)
               landmark_observations (slam_interfaces/LandmarkObservationArray, base frame,
-              only for images with at least one accepted marker)
+              only for images with at least one accepted marker; reliable, depth 1000, so
+              that a mapper busy solving does not lose them from this side)
               ~/debug_image (sensor_msgs/Image bgr8, when publish_debug_image is true)
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): images
               received, processed, dropped and held, markers, processing time, lag
@@ -142,7 +143,7 @@ class MarkerDetectorNode(Node):
         timed = self.diagnostics.timed
         self.fiducials_publisher = self.create_publisher(FiducialArray, 'fiducials', output_qos())
         self.observations_publisher = self.create_publisher(
-            LandmarkObservationArray, 'landmark_observations', output_qos(depth=100)
+            LandmarkObservationArray, 'landmark_observations', output_qos(depth=1000)
         )
         self.debug_publisher = (
             self.create_publisher(Image, '~/debug_image', output_qos(depth=2))
