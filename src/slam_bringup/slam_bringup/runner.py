@@ -16,7 +16,7 @@ order.
 The graph stops on Ctrl-C or SIGTERM, or when the player has played the bag if
 ``exit_when_player_done``. The player stops first and the recorder finalizes its bag last.
 In one process, when the player has played the bag, the nodes first work off the inputs
-queued for them (until none of them has taken one for QUIET_S, by its
+queued for them (until none of them has taken one for NODES_QUIET_S, by its
 ``slam_ros.diagnostics``; at most NODES_DRAIN_TIMEOUT_S), so that a graph that lags behind
 the player still processes the whole bag; then the recorder drains what is in flight while
 the other nodes still run, finalizes, and the nodes are destroyed. With processes, the
@@ -75,6 +75,7 @@ EXIT_NODE_FAILED = 1
 POLL_S = 0.05
 QUIET_S = 0.25  # the recorder has drained when nothing new arrived for this long
 NODES_DRAIN_TIMEOUT_S = 60.0  # the longest the nodes may take to work off their queued inputs
+NODES_QUIET_S = 2.0  # drained: no input for this long, twice odometry_ingest's idle flush (1 s)
 INTERRUPT_TIMEOUT_S = 10.0  # then SIGTERM
 TERMINATE_TIMEOUT_S = 5.0  # then SIGKILL
 CLEAN_STOP_CODES = frozenset({0, 130, 143, -signal.SIGINT, -signal.SIGTERM})
@@ -195,15 +196,17 @@ def wait_until_drained(recorder: BagRecorderNode) -> None:
 
 def wait_until_inputs_drained(nodes: Sequence[Node]) -> None:
     """Wait until the nodes with ``slam_ros.diagnostics`` run no callback and none took an
-    input for QUIET_S (at most NODES_DRAIN_TIMEOUT_S): the messages queued for them when the
-    player stopped are processed, not cut off by the graph's end. Then each publishes its
-    final /diagnostics report (the counts of the whole run)."""
+    input for NODES_QUIET_S (at most NODES_DRAIN_TIMEOUT_S): the messages queued for them
+    when the player stopped are processed, not cut off by the graph's end, and so is what
+    nodes emit once their inputs stop (odometry_ingest's held-back keyframes, after its
+    idle_flush_s). Then each publishes its final /diagnostics report (the whole run's
+    counts)."""
     found = [getattr(node, 'diagnostics', None) for node in nodes]
     watched = [d for d in found if isinstance(d, Diagnostics)]
     deadline = time.monotonic() + NODES_DRAIN_TIMEOUT_S
     while watched and time.monotonic() < deadline:
         idle = not any(d.active for d in watched)
-        if idle and time.monotonic() - max(d.last_input_s for d in watched) >= QUIET_S:
+        if idle and time.monotonic() - max(d.last_input_s for d in watched) >= NODES_QUIET_S:
             break
         time.sleep(POLL_S)
     else:
