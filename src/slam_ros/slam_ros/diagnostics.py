@@ -9,16 +9,17 @@ timer callbacks that process queued inputs are wrapped without an input (timed o
 Messages *lost* on an input never reached the callback: DDS dropped them from the
 subscription's queue (KEEP_LAST depth) while the node was busy, or never delivered them
 (best effort). rmw reports neither (its message-lost event stays 0 for both), so they are
-counted from the gaps in the publisher's sequence numbers (rmw's message info); with
-several publishers on the input the numbers interleave, and its losses are 'unknown'.
+counted from the gaps in the publisher's sequence numbers (rmw's message info) after the
+first one the node took (reported: a node that joins late did not lose what came before);
+with several publishers on the input the numbers interleave, and its losses are 'unknown'.
 The node's own counters (what it processed, what it dropped and why) come from the
 ``counts`` callable it passes. One DiagnosticStatus per publish, named after the node:
 
-- values: ``received <input>`` and ``lost <input>`` per input, then the node's counts,
-  then ``processing ms mean`` (per received message), ``processing ms max`` (since the last
-  publish), ``busy %`` (processing time over wall time since the last publish) and ``lag s``
-  (the node clock's now minus the latest input stamp: bag time on /clock in replay, wall
-  time live);
+- values: ``received <input>``, ``lost <input>`` and ``first sequence <input>`` per
+  input, then the node's counts, then ``processing ms mean`` (per received message),
+  ``processing ms max`` (since the last publish), ``busy %`` (processing time over wall time
+  since the last publish) and ``lag s`` (the node clock's now minus the latest input stamp:
+  bag time on /clock in replay, wall time live);
 - level: WARN while the count named ``dropped`` or the messages lost grew since the last
   publish (lost ones are also logged as a warning) or the node was busy more than
   ``BUSY_WARN`` of the time ("falling behind"), else OK.
@@ -52,13 +53,13 @@ class Diagnostics:
         self.received: dict[str, int] = {}
         self.lost: dict[str, int] = {}
         self.unknown_lost: set[str] = set()
-        self._sequence: dict[str, int] = {}
+        self._sequence: dict[str, int] = {}  # per input, the last sequence number taken
+        self.first_sequence: dict[str, int] = {}  # per input, the first one taken
         self._last_lost = 0
         self.processing_s = 0.0
         self.latest_stamp_ns: int | None = None
         self.last_input_s = time.monotonic()  # when an input callback last ended
         self.active = 0  # callbacks running now
-        self.published = 0
         self._window_s = self._window_max_s = 0.0
         self._window_start = time.perf_counter()
         self._last_dropped = 0
@@ -112,16 +113,20 @@ class Diagnostics:
         self._window_max_s = max(self._window_max_s, spent)
 
     def _count_lost(self, input: str, sequence: int | None) -> None:
-        """Count the gap in the publisher's sequence numbers before ``sequence`` as lost;
-        a number that does not increase (several publishers, or one restarted) makes the
-        input's losses unknown from then on."""
+        """Count the gap in the publisher's sequence numbers before ``sequence`` as lost,
+        from the first number taken on (what the publisher sent before is not lost: the
+        node may have joined later); a number that does not increase (several publishers,
+        or one restarted) makes the input's losses unknown from then on."""
         if sequence is None or input in self.unknown_lost:
             return
-        last = self._sequence.get(input, 0)
-        if sequence <= last:
+        last = self._sequence.get(input)
+        if last is None:
+            self.first_sequence[input] = sequence
+        elif sequence <= last:
             self.unknown_lost.add(input)
             return
-        self.lost[input] += sequence - last - 1
+        else:
+            self.lost[input] += sequence - last - 1
         self._sequence[input] = sequence
 
     def status(self) -> DiagnosticStatus:
@@ -137,6 +142,8 @@ class Diagnostics:
         values = {f'received {name}': str(count) for name, count in self.received.items()}
         for name, count in self.lost.items():
             values[f'lost {name}'] = 'unknown' if name in self.unknown_lost else str(count)
+        for name, sequence in self.first_sequence.items():
+            values[f'first sequence {name}'] = str(sequence)
         lost = sum(self.lost.values())
         values.update({name: str(int(value)) for name, value in counts.items()})
         mean_ms = 1e3 * self.processing_s / received if received else 0.0  # per input
@@ -181,4 +188,3 @@ class Diagnostics:
         array.header.stamp = self.node.get_clock().now().to_msg()
         array.status = [self.status()]
         self.publisher.publish(array)
-        self.published += 1

@@ -78,17 +78,18 @@ def test_a_callback_that_raises_is_still_counted_and_timed(node: Node) -> None:
 
 
 def test_gaps_in_the_publishers_sequence_numbers_are_lost_messages(node: Node) -> None:
-    """Numbers 1, 2, 5, 6, 10 arrive: 2 + 3 were lost (DDS dropped them from the queue), the
-    status warns once; then a number that goes back (a second publisher) makes the losses
-    unknown from then on."""
+    """The node joins at number 40 (the 39 before are not its losses); 41, 44, 45, 49 arrive:
+    2 + 3 were lost (DDS dropped them from the queue), the status warns once; then a number
+    that goes back (a second publisher) makes the losses unknown from then on."""
     diagnostics = Diagnostics(node, dict, period_s=3600.0)
     on_info = diagnostics.timed(lambda message: None, 'camera_info')
-    for sequence in (1, 2, 5, 6, 10):
+    for sequence in (40, 41, 44, 45, 49):
         on_info(CameraInfo(), {'publication_sequence_number': sequence})
     status = diagnostics.status()
     assert values(status)['lost camera_info'] == '5' and status.level == DiagnosticStatus.WARN
+    assert values(status)['first sequence camera_info'] == '40'
     assert status.message.startswith('lost 5 messages before taking them')
     assert diagnostics.status().level == DiagnosticStatus.OK
     on_info(CameraInfo(), {'publication_sequence_number': 3})
-    on_info(CameraInfo(), {'publication_sequence_number': 11})
+    on_info(CameraInfo(), {'publication_sequence_number': 50})
     assert values(diagnostics.status())['lost camera_info'] == 'unknown'
