@@ -27,6 +27,7 @@ setup(
             'bag_recorder = slam_bringup.bag_recorder:main',
             'bag_info = slam_bringup.bag_info:main',
             'slam_run = slam_bringup.runner:main',
+            'camera_mount = slam_bringup.camera_mount:main',
         ],
     },
 )

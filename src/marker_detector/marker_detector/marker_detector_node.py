@@ -7,9 +7,10 @@ marker centres into range and bearing in the robot base frame. The lens (plumb-b
 rational polynomial from camera_info) is undistorted inside the pose solution. Bad inputs
 (an unsupported encoding, an empty or corrupt image, no camera mount) are logged with the
 reason, and the node goes on with the next image. Images that come before the first usable
-camera_info (a bag or driver usually starts both at once) are held, the latest
-HELD_IMAGES of them, and detected in order once it arrives; older ones are dropped and
-counted, with the reason in the log.
+camera_info, or (extrinsics_source 'tf_static') before the camera mount of their frame on
+/tf_static (drivers and the mount's publisher start together, and discovery between
+processes takes a second or two), are held, the latest HELD_IMAGES of them, and detected in
+order once both are there; older ones are dropped and counted, with the reason in the log.
 
 Topics:
   subscribes  camera/image_raw (sensor_msgs/Image: mono8, bgr8, rgb8, bgra8, rgba8) when
@@ -120,7 +121,8 @@ def draw_detections(image: np.ndarray, output: FrameOutput) -> np.ndarray:
 
 
 HELD_IMAGES = 10
-"""Images held while no camera_info has come yet (the oldest is dropped first)."""
+"""Images held while no camera_info or camera mount has come yet (the oldest is dropped
+first)."""
 
 
 class MarkerDetectorNode(Node):
@@ -199,12 +201,7 @@ class MarkerDetectorNode(Node):
         except InputError as err:
             self._error(str(err))
             return
-        if self.held:
-            self.get_logger().info(
-                f'camera_info arrived: detecting in the {len(self.held)} images held until now'
-            )
-        while self.held:
-            self._on_image(self.held.popleft())
+        self._release_held('camera_info')
 
     def _on_tf_static(self, message: TFMessage) -> None:
         for transform in message.transforms:
@@ -216,11 +213,37 @@ class MarkerDetectorNode(Node):
                 )
             except InputError as err:
                 self._error(str(err))
+        self._release_held('the camera mount')
+
+    def _release_held(self, what: str) -> None:
+        """Detect the held images that can now be (in order), after ``what`` arrived."""
+        if not self.held or self._missing(self.held[0].header.frame_id) is not None:
+            return
+        self.get_logger().info(
+            f'{what} arrived: detecting in the {len(self.held)} images held until now'
+        )
+        while self.held and self._missing(self.held[0].header.frame_id) is None:
+            self._detect(self.held.popleft())
+
+    def _missing(self, frame_id: str) -> str | None:
+        """What an image in ``frame_id`` waits for (None: nothing)."""
+        processor = self.processor
+        if processor.camera is None:
+            return 'no camera_info received yet'
+        source = processor.extrinsics.source
+        base = processor.extrinsics.base_frame
+        if source == 'tf_static' and processor.transforms.lookup(base, frame_id) is None:
+            return f'no camera mount {base!r} -> {frame_id!r} on /tf_static yet'
+        return None
 
     def _on_image(self, message: Image | CompressedImage) -> None:
-        if self.processor.camera is None:
-            self._hold(message)
+        missing = self._missing(message.header.frame_id)
+        if missing is not None or self.held:
+            self._hold(message, missing or 'older images are held')
             return
+        self._detect(message)
+
+    def _detect(self, message: Image | CompressedImage) -> None:
         self.images += 1
         stamp_ns = stamp_to_ns(message.header.stamp)
         try:
@@ -242,23 +265,27 @@ class MarkerDetectorNode(Node):
             self.debug_publisher.publish(self._debug_image(image, output, message))
         self._report_status()
 
-    def _hold(self, message: Image | CompressedImage) -> None:
-        """Keep an image that came before any camera_info (module docstring)."""
+    def _hold(self, message: Image | CompressedImage, missing: str) -> None:
+        """Keep an image that cannot be detected yet (module docstring)."""
         self.held.append(message)
         stamp_ns = stamp_to_ns(message.header.stamp)
+        hint = (
+            'is camera/camera_info published?'
+            if 'camera_info' in missing
+            else ('is the camera mount published on /tf_static?')
+        )
         if len(self.held) > HELD_IMAGES:
             oldest = stamp_to_ns(self.held.popleft().header.stamp)
             self.images += 1
             self.dropped += 1
             self._error(
-                f'image dropped ({self.dropped} so far): no camera_info received yet, and '
-                f'{HELD_IMAGES} newer images are held (the image at {oldest} ns); is '
-                'camera/camera_info published?'
+                f'image dropped ({self.dropped} so far): {missing}, and {HELD_IMAGES} newer '
+                f'images are held (the image at {oldest} ns); {hint}'
             )
             return
         self.get_logger().warning(
-            f'no camera_info received yet: image at {stamp_ns} ns held ({len(self.held)} '
-            f'held, at most {HELD_IMAGES}) until it arrives; is camera/camera_info published?',
+            f'{missing}: image at {stamp_ns} ns held ({len(self.held)} held, at most '
+            f'{HELD_IMAGES}) until it arrives; {hint}',
             throttle_duration_sec=2.0,
         )
 

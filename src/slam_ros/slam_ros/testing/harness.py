@@ -167,9 +167,15 @@ class RosHarness:
         return node
 
     def start_process(
-        self, name: str, command: Sequence[str], *, env: dict[str, str] | None = None
+        self,
+        name: str,
+        command: Sequence[str],
+        *,
+        env: dict[str, str] | None = None,
+        cwd: Path | None = None,
     ) -> NodeProcess:
-        """Start ``command`` (e.g. ``['bag_player', bag]``) as a subprocess with this domain."""
+        """Start ``command`` (e.g. ``['bag_player', bag]``) as a subprocess with this domain,
+        in ``cwd`` (None: this process's directory)."""
         log_path = self.log_dir / f'{name}.log'
         log_file = log_path.open('wb')
         process = subprocess.Popen(
@@ -178,6 +184,7 @@ class RosHarness:
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
             env={**os.environ, **(env or {})},
+            cwd=cwd,
         )
         log_file.close()
         handle = NodeProcess(name, process, log_path)

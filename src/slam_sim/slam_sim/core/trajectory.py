@@ -291,3 +291,50 @@ def follow_path(
         poses=np.array(poses, dtype=np.float64),
         twists=np.array(twists, dtype=np.float64),
     )
+
+
+class RouteFollower:
+    """Drive a whole path live: pure pursuit piece by piece (``split_at_cusps``), as
+    ``follow_path`` does offline, from poses that arrive whenever the caller has them.
+
+    ``command(pose, at_rest)`` returns the (v m/s, w rad/s) to command; a piece is done when
+    its end is reached and the robot is at rest (``at_rest``: its measured speeds are ~0),
+    and the next one starts. ``done`` once the last piece is done; ``progress`` is the share
+    of the path length behind the robot.
+    """
+
+    def __init__(self, path_m: FloatArray, config: MotionConfig) -> None:
+        path = np.asarray(path_m, dtype=np.float64)
+        if path.ndim != 2 or path.shape[0] < 2 or path.shape[1] != 2:
+            raise ValueError(f'path must be (P >= 2, 2), got {path.shape}')
+        self.pieces = split_at_cusps(path)
+        self.config = config
+        self.piece = 0
+        self.pursuit = _Pursuit(self.pieces[0], config)
+        lengths = [float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1))) for p in self.pieces]
+        self.length_m = float(sum(lengths))
+        self._before_m = np.concatenate([[0.0], np.cumsum(lengths)])
+
+    @property
+    def done(self) -> bool:
+        """True once the robot has reached the end of the last piece and stopped."""
+        return self.piece >= len(self.pieces)
+
+    @property
+    def progress(self) -> float:
+        """Share of the path length driven, in [0, 1]."""
+        if self.done:
+            return 1.0
+        driven = self._before_m[self.piece] + float(self.pursuit.arc_m[self.pursuit.near])
+        return float(min(1.0, driven / max(self.length_m, 1e-9)))
+
+    def command(self, pose: FloatArray, *, at_rest: bool) -> tuple[float, float]:
+        """Return the command from ``pose`` (3,): (0, 0) once ``done``."""
+        while not self.done:
+            speed, turn = self.pursuit.command(np.asarray(pose, dtype=np.float64))
+            if not (self.pursuit.at_goal and at_rest):
+                return speed, turn
+            self.piece += 1
+            if not self.done:
+                self.pursuit = _Pursuit(self.pieces[self.piece], self.config)
+        return 0.0, 0.0

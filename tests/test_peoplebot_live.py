@@ -1,0 +1,142 @@
+"""Topic-level, live and in real time: EM-SAM on the simulated Peoplebot.
+
+``slam_run peoplebot_sim_em_sam.yaml --processes`` runs as users run it: ``peoplebot_sim``
+(base and camera drivers in the office world, wall clock), ``route_driver`` on the paper's
+office route, ``camera_mount`` on /tf_static, ``marker_detector``, ``odometry_ingest`` and
+``em_sam_mapper``, one process each. After LIVE_S seconds of the route (office 1, the
+corridor where the desk markers are moved, office 2) the graph is stopped with Ctrl-C and
+the mapper writes its report (a final solve over everything it took). Checked:
+
+- every moved marker that the detector saw at both positions (from what it published on
+  /landmark_observations, split at the move on /ground_truth/landmarks) is flagged moveable,
+  and no marker that stayed where it was;
+- on /tf and /tf_static no frame ever has two parents, and from the first map -> odom on,
+  map -> camera_optical_frame resolves at the stamp of every camera image;
+- /diagnostics adds up: every image the simulator published from the first the detector
+  took was taken or counted lost, every increment the ingest published reached the mapper.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import CameraInfo
+from tf2_msgs.msg import TFMessage
+
+from slam_core.stamps import stamp_to_ns
+from slam_interfaces.msg import LandmarkMap, LandmarkObservationArray
+from slam_ros.qos import latched_qos, output_qos, sensor_qos
+from slam_ros.testing.harness import RosHarness, wait_until
+from slam_ros.tf_tree import TfTree
+
+pytestmark = pytest.mark.topic
+
+LIVE_S = 140.0  # the robot is in office 2 from about 90 s: most moved markers seen again
+START_TIMEOUT_S = 60.0
+STOP_TIMEOUT_S = 120.0  # the mapper's final solve over ~1300 keyframes, on a busy machine
+
+
+def last_reports(messages: list[DiagnosticArray]) -> dict[str, dict[str, str]]:
+    last: dict[str, dict[str, str]] = {}
+    for array in messages:
+        for status in array.status:
+            last[status.name] = {value.key: value.value for value in status.values}
+    return last
+
+
+def seen_at_both_positions(
+    observations: list[LandmarkObservationArray], truth: list[LandmarkMap]
+) -> tuple[set[int], set[int], set[int]]:
+    """Return (moved ids, moved ids observed before and after the move, ids never moved)."""
+    assert len(truth) == 2, f'{len(truth)} ground-truth landmark maps (the start and the move)'
+    before, after = (
+        {m.landmark_id: (m.position.x, m.position.y) for m in t.landmarks} for t in truth
+    )
+    moved = {i for i in before if not np.allclose(before[i], after[i])}
+    move_ns = stamp_to_ns(truth[1].header.stamp)
+    seen: dict[bool, set[int]] = {False: set(), True: set()}
+    for message in observations:
+        is_after = stamp_to_ns(message.header.stamp) >= move_ns
+        seen[is_after].update(o.landmark_id for o in message.observations)
+    return moved, moved & seen[False] & seen[True], set(before) - moved
+
+
+def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_path: Path) -> None:
+    harness = ros_harness
+    diagnostics = harness.collect('/diagnostics', DiagnosticArray, output_qos(depth=100))
+    tf = harness.collect('/tf', TFMessage, output_qos(depth=1000))
+    tf_static = harness.collect('/tf_static', TFMessage, latched_qos(depth=100))
+    infos = harness.collect('/camera/camera_info', CameraInfo, sensor_qos(depth=100))
+    observations = harness.collect(
+        '/landmark_observations', LandmarkObservationArray, output_qos(depth=1000)
+    )
+    truth = harness.collect('/ground_truth/landmarks', LandmarkMap, latched_qos(depth=10))
+    run = harness.start_process(
+        'slam_run',
+        [sys.executable, '-m', 'slam_bringup.runner', 'peoplebot_sim_em_sam.yaml', '--processes'],
+        cwd=tmp_path,
+    )
+    wait_until(lambda: len(infos) > 0, timeout_s=START_TIMEOUT_S, what='the first camera image')
+    started = time.monotonic()
+    wait_until(
+        lambda: run.process.poll() is not None or time.monotonic() - started > LIVE_S,
+        timeout_s=LIVE_S + 10.0,
+        what=f'{LIVE_S:g} s of the route',
+    )
+    assert run.process.poll() is None, run.log()
+    run.stop(timeout_s=STOP_TIMEOUT_S)
+    assert run.process.returncode == 0, run.log()
+
+    moved, seen_both, unmoved = seen_at_both_positions(
+        list(observations.messages), list(truth.messages)
+    )
+    report = json.loads((tmp_path / 'out' / 'em_sam_live' / 'em_sam_report.json').read_text())
+    flagged = set(report['moveable_ids'])
+    assert len(moved) == 10 and len(seen_both) >= 5, (moved, seen_both)
+    assert seen_both <= flagged, (
+        f'seen at both positions {sorted(seen_both)}, flagged {sorted(flagged)}'
+    )
+    assert not flagged & unmoved, f'static markers flagged: {sorted(flagged & unmoved)}'
+
+    tree = TfTree()
+    for message in list(tf_static.messages):
+        tree.add(message, static=True)
+    for message in list(tf.messages):
+        tree.add(message, static=False)
+    assert not tree.conflicts, tree.conflicts
+    assert {child: edge.parent for child, edge in tree.edges.items()} == {
+        'odom': 'map',
+        'base_link': 'odom',
+        'camera_link': 'base_link',
+        'camera_optical_frame': 'camera_link',
+    }
+    map_odom = tree.edges['odom'].stamps
+    stamps = sorted(stamp_to_ns(message.header.stamp) for message in infos.messages)
+    covered = [s for s in stamps if map_odom[0] <= s <= map_odom[-1]]
+    assert len(covered) >= 0.8 * len(stamps), f'{len(covered)} of {len(stamps)} images'
+    unresolved = [s for s in covered if not tree.resolves('map', 'camera_optical_frame', s)]
+    assert not unresolved, f'{len(unresolved)} of {len(covered)} images, first at {unresolved[0]}'
+
+    last = last_reports(list(diagnostics.messages))
+    sim, detector = last['/peoplebot_sim'], last['/marker_detector']
+    ingest, mapper = last['/odometry_ingest'], last['/em_sam_mapper']
+    received = int(detector['received image'])
+    assert received == int(detector['processed']) + int(detector['dropped']) + int(
+        detector['held']
+    )
+    sent = int(sim['frames published']) - int(detector['first sequence image']) + 1
+    # the simulator's last report may come before its last frames: at most a second's worth
+    assert 0 <= sent - received - int(detector['lost image']) <= 10, (sim, detector)
+    assert int(detector['dropped']) == 0, detector
+    # nothing lost between the ingest and the mapper; their last reports are up to a second
+    # apart, in which the ingest emits at most a few keyframes (0.5 m / 0.35 rad at 0.4 m/s
+    # and 0.5 rad/s)
+    assert int(mapper['lost odometry_increments']) == 0, mapper
+    assert abs(int(mapper['received odometry_increments']) - int(ingest['increments'])) <= 3
+    assert int(sim['commands rejected']) == 0 and int(mapper['dropped']) == 0
