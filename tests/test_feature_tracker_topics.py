@@ -27,9 +27,10 @@ from bag_fixtures import invalid_parameter_error, tool_env
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
+from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
 from monoslam_shadow_node.feature_tracker_node import FeatureTrackerNode
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
-from slam_interfaces.msg import FeatureTrackArray
+from slam_interfaces.msg import FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.testing.harness import Collector, NodeProcess, RosHarness, wait_until
 
 pytestmark = pytest.mark.topic
@@ -170,6 +171,38 @@ def test_compressed_images_are_tracked_too(ros_harness: RosHarness, source: np.n
     first, *_, last = features.messages
     assert len(first.tracks) == 60
     assert len({t.id for t in first.tracks} & {t.id for t in last.tracks}) >= 50
+
+
+def test_the_debug_image_draws_each_feature_in_its_shadow_filter_status(
+    ros_harness: RosHarness, source: np.ndarray
+) -> None:
+    node = ros_harness.add_node(node_with(publish_debug_image=True, max_features=20))
+    features = ros_harness.collect('features', FeatureTrackArray)
+    debug = ros_harness.collect('/feature_tracker/debug_image', Image)
+    images = ros_harness.publisher('camera/image_raw', Image)
+    handed = ros_harness.publisher('shadow/static_features', ShadowTrackArray)
+    revoked = ros_harness.publisher('monoslam/revoked', ShadowTrackArray)
+    for publisher in (images, handed, revoked):
+        ros_harness.wait_for_subscribers(publisher)
+    ros_harness.wait_for_publishers('/feature_tracker/debug_image')
+    wait_until(lambda: node.debug_publisher.get_subscription_count() > 0, what='a watcher')
+    images.publish(raw_image(frame(source, 0), stamp(0)))
+    first = [t.id for t in output(features, stamp(0)).tracks]
+    static, moving = first[:5], first[5:8]
+    handed.publish(ShadowTrackArray(tracks=[ShadowTrack(id=i, status=STATIC) for i in static]))
+    revoked.publish(ShadowTrackArray(tracks=[ShadowTrack(id=i, status=DYNAMIC) for i in moving]))
+    wait_until(lambda: len(node.book) == 8, what='the statuses to arrive')
+    images.publish(raw_image(frame(source, 1), stamp(1)))
+    tracks = {t.id: (t.u, t.v) for t in output(features, stamp(1)).tracks}
+    drawn = debug.wait_for(lambda m: stamp_to_ns(m.header.stamp) == stamp(1))
+    assert drawn.header.frame_id == OPTICAL and drawn.encoding == 'bgr8'
+    canvas = np.frombuffer(bytes(drawn.data), np.uint8).reshape(HEIGHT, WIDTH, 3)
+    colours = {i: canvas[round(v), round(u)] for i, (u, v) in tracks.items()}
+    static, moving = [i for i in static if i in tracks], [i for i in moving if i in tracks]
+    assert len(static) >= 3 and moving  # still tracked in the second image
+    assert all(colours[i][0] > 200 and colours[i][2] < 60 for i in static)  # blue
+    assert all(colours[i][1] > 150 and colours[i][2] < 60 for i in moving)  # green: dynamic
+    assert len(debug.messages) == 2 and node._counts()['debug images'] == 2
 
 
 def test_bad_inputs_drop_images_and_the_node_keeps_tracking(

@@ -28,9 +28,17 @@ Topics:
               camera_info's when the image has none); per feature its int64 id (from 1, never
               reused, also not after a restart) and raw (distorted) pixel u right, v down,
               pixel centres at integer coordinates (OpenCV). Never NaN.
+              ~/debug_image (sensor_msgs/Image bgr8, reliable, depth 2), when
+              publish_debug_image is true and someone subscribes: each tracked image with
+              its features drawn in the colour of their latest Shadow filter status
+              (feature_overlay: pending and unknown red, static blue, dynamic green), same
+              header as the image.
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): images
-              received, tracked and dropped, features, tracks, processing time, lag
-              (slam_ros.diagnostics)
+              received, tracked and dropped, features, tracks, debug images, processing
+              time, lag (slam_ros.diagnostics)
+  subscribes, when publish_debug_image is true, the statuses it draws:
+              shadow/tracks, shadow/static_features, monoslam/revoked
+              (slam_interfaces/ShadowTrackArray, reliable, depth 100).
 
 camera_info is not needed for tracking, so the node tracks without it (and says so once).
 Once one has come it is used to check the image size (an image of another size is dropped
@@ -88,6 +96,7 @@ Parameters (node):
                                   comes when it has processed the one before, which on a
                                   shared thread (the graph's one process) takes longer
                                   than 20 ms.
+  publish_debug_image (false)     publish ~/debug_image (above).
   restart_backstep_s (1.0)        a stamp at least this far before the previous one restarts
                                   tracking; a smaller step back drops the image, s.
 All are read-only; a bad value stops the node with an error naming the parameter.
@@ -112,6 +121,7 @@ from monoslam_shadow_node.conversions import (
     prediction_covariances,
     prediction_warps,
 )
+from monoslam_shadow_node.feature_overlay import StatusBook, draw_features
 from monoslam_shadow_node.feature_tracker_settings import (
     NODE_NAME,
     PARAMETERS,
@@ -127,8 +137,8 @@ from monoslam_shadow_node.feature_tracking import (
 )
 from monoslam_shadow_node.notices import Notice
 from slam_core.cli import console_main
-from slam_core.stamps import stamp_to_ns
-from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
+from slam_core.stamps import ns_to_stamp, stamp_to_ns
+from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrackArray
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.qos import output_qos, sensor_qos
@@ -139,6 +149,9 @@ COMPRESSED_TOPIC = 'camera/image_raw/compressed'
 CAMERA_INFO_TOPIC = 'camera/camera_info'
 FEATURES_TOPIC = 'features'
 PREDICTIONS_TOPIC = 'features/predicted'
+DEBUG_IMAGE_TOPIC = '~/debug_image'
+STATUS_TOPICS = ('shadow/tracks', 'shadow/static_features', 'monoslam/revoked')
+DEBUG_IMAGES_HELD = 3  # decoded images kept until tracked (one may wait for its prediction)
 IMAGE_DEPTH = 5
 STATUS_PERIOD_S = 10.0
 REPEAT_PERIOD_S = 2.0
@@ -216,6 +229,21 @@ class FeatureTrackerNode(Node):
                 clock=steady,
             )
             self._poll_timer.cancel()
+        self.book = StatusBook()
+        self.debug_images = 0
+        self._debug_held: dict[int, Any] = {}
+        self.debug_publisher = None
+        if self.settings.publish_debug_image:
+            self.debug_publisher = self.create_publisher(
+                Image, DEBUG_IMAGE_TOPIC, output_qos(depth=2)
+            )
+            for topic in STATUS_TOPICS:
+                self.create_subscription(
+                    ShadowTrackArray,
+                    topic,
+                    timed(self._on_statuses, topic.replace('/', '_')),
+                    output_qos(depth=100),
+                )
         self.create_timer(STATUS_PERIOD_S, self._report_status, clock=steady)
         predictions = (
             f' and predictions on {PREDICTIONS_TOPIC}' if self.settings.use_predictions else ''
@@ -238,6 +266,10 @@ class FeatureTrackerNode(Node):
                 Notice('undecodable', 'error', f'image at stamp {stamp_ns} ns dropped: {err}')
             )
             return
+        if self.debug_publisher is not None and self.debug_publisher.get_subscription_count():
+            self._debug_held[stamp_ns] = image
+            while len(self._debug_held) > DEBUG_IMAGES_HELD:
+                del self._debug_held[min(self._debug_held)]
         self._handle(
             self.processor.add_image(
                 stamp_ns, str(message.header.frame_id), image, now_s=time.monotonic()
@@ -259,6 +291,9 @@ class FeatureTrackerNode(Node):
             )
         )
 
+    def _on_statuses(self, message: ShadowTrackArray) -> None:
+        self.book.update((int(track.id), int(track.status)) for track in message.tracks)
+
     def _poll(self) -> None:
         self._handle(self.processor.poll(now_s=time.monotonic()))
 
@@ -279,9 +314,25 @@ class FeatureTrackerNode(Node):
                 self.features_publisher.publish(
                     fill_feature_array(outcome, FeatureTrackArray(), FeatureTrack)
                 )
+                self._publish_debug_image(outcome)
             else:
                 self._log(outcome)
         self._arm_poll()
+
+    def _publish_debug_image(self, frame: FeatureFrame) -> None:
+        image = self._debug_held.pop(frame.stamp_ns, None)
+        if image is None or self.debug_publisher is None:
+            return
+        canvas, _ = draw_features(image, frame.features.ids, frame.features.pixels, self.book)
+        message = Image()
+        ns_to_stamp(frame.stamp_ns, message.header.stamp)
+        message.header.frame_id = frame.frame_id
+        message.height, message.width = canvas.shape[:2]
+        message.encoding = 'bgr8'
+        message.step = canvas.shape[1] * 3
+        message.data = canvas.tobytes()
+        self.debug_publisher.publish(message)
+        self.debug_images += 1
 
     def _log(self, notice: Notice) -> None:
         held = self._throttle.admit(notice.kind, time.monotonic())
@@ -298,7 +349,8 @@ class FeatureTrackerNode(Node):
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: images tracked, dropped (by the processor, and
-        undecodable), features in the latest, tracks started and re-identified."""
+        undecodable), features in the latest, tracks started and re-identified, debug images
+        published."""
         stats = self.processor.stats
         return {
             'processed': stats.frames,
@@ -306,6 +358,7 @@ class FeatureTrackerNode(Node):
             'features': stats.latest_features,
             'tracks started': stats.started,
             're-identified': stats.revived,
+            'debug images': self.debug_images,
         }
 
     def _report_status(self) -> None:

@@ -65,6 +65,11 @@ NODE_PARAMETERS = (
         range=NON_NEGATIVE,
     ),
     Param(
+        'publish_debug_image',
+        False,
+        'publish ~/debug_image: the features drawn in their Shadow filter status colours',
+    ),
+    Param(
         'restart_backstep_s',
         1.0,
         'a stamp this far back restarts tracking; a smaller step back drops the image, s',
@@ -77,12 +82,14 @@ PARAMETERS = ParamTable(NODE_NAME, (*CORE_PARAMETERS, *NODE_PARAMETERS))
 @dataclass(frozen=True)
 class NodeSettings:
     """The node's own settings: image transport, whether predictions are used and how long
-    (s) an image waits for one, and the backward stamp step (int ns) that restarts tracking."""
+    (s) an image waits for one, the backward stamp step (int ns) that restarts tracking, and
+    whether the debug image is published."""
 
     image_transport: str
     use_predictions: bool
     prediction_timeout_s: float
     restart_backstep_ns: int
+    publish_debug_image: bool = False
 
 
 def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
@@ -99,4 +106,5 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
         use_predictions=checked['use_predictions'],
         prediction_timeout_s=checked['prediction_timeout_s'],
         restart_backstep_ns=round(checked['restart_backstep_s'] * 1e9),
+        publish_debug_image=checked['publish_debug_image'],
     )
