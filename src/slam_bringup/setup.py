@@ -29,6 +29,7 @@ setup(
             'bag_info = slam_bringup.bag_info:main',
             'slam_run = slam_bringup.runner:main',
             'camera_mount = slam_bringup.camera_mount:main',
+            'peoplebot_graph = slam_bringup.peoplebot:main',
         ],
     },
 )

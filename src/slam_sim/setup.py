@@ -29,6 +29,7 @@ setup(
             'mrclam_import = slam_sim.mrclam_bag:main',
             'peoplebot_sim = slam_sim.peoplebot_sim_node:main',
             'route_driver = slam_sim.route_driver_node:main',
+            'dynamic_scene_sim = slam_sim.dynamic_scene_sim_node:main',
         ],
     },
 )

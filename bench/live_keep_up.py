@@ -1,0 +1,185 @@
+"""Does a live pipeline keep up? A live GRAPH run for a while, one process per node and in one
+process, with every node's /diagnostics read back.
+
+    python bench/live_keep_up.py [--graph peoplebot_sim_em_sam.yaml] [--duration-s 120]
+                                 [--modes processes,one] [--output bench/results]
+
+For each mode, ``slam_run GRAPH`` (``--processes`` or not) runs as a separate process in a
+temporary directory; a probe node in this process subscribes to /diagnostics. From the first
+camera frame on it waits WARM_UP_S (discovery, the robot starting), then counts over
+``--duration-s`` seconds of wall time, then stops the graph with Ctrl-C. The reference, in
+the same run, is what the source offered: the frames the simulated camera published
+(``peoplebot_sim`` or ``dynamic_scene_sim``). Reported per node, over the window (its last
+report minus the one at the start): inputs received and lost (DDS dropped them from a full
+queue, or a best-effort sample never came), the node's own drops, its busy share of one core
+and its mean and maximum processing time; and the ratio of frames the first image node took
+to the frames offered. PASS when no node lost or dropped an input in the window with one
+process per node.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / 'bench'))
+
+from bench_common import run_meta  # noqa: E402
+
+START_TIMEOUT_S = 90.0
+WARM_UP_S = 10.0  # after the first frame: discovery done, the robot under way
+STOP_TIMEOUT_S = 120.0
+
+
+Snapshot = dict[str, dict[str, str]]
+
+
+def measure(graph: str, processes: bool, duration_s: float) -> tuple[Snapshot, Snapshot]:
+    """Run ``graph`` live for ``duration_s`` s; return each node's /diagnostics values at
+    the start and at the end of the window."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+
+    from slam_ros.qos import output_qos
+
+    rclpy.init()
+    node = rclpy.create_node('live_keep_up_probe')
+    last: dict[str, dict[str, str]] = {}
+
+    def on_diagnostics(array: DiagnosticArray) -> None:
+        for status in array.status:
+            last[status.name] = {value.key: value.value for value in status.values}
+
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, output_qos(100))
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    command = [sys.executable, '-m', 'slam_bringup.runner', graph]
+    command += ['--processes'] if processes else []
+    with tempfile.TemporaryDirectory(prefix='live_keep_up-') as scratch:
+        log = Path(scratch) / 'slam_run.log'
+        with log.open('wb') as out:
+            run = subprocess.Popen(command, cwd=scratch, stdout=out, stderr=subprocess.STDOUT)
+        try:
+            deadline = time.monotonic() + START_TIMEOUT_S
+            while (
+                '/peoplebot_sim' not in last or last['/peoplebot_sim']['frames published'] == '0'
+            ):
+                executor.spin_once(timeout_sec=0.1)
+                if time.monotonic() > deadline or run.poll() is not None:
+                    raise RuntimeError(f'the graph did not start:\n{log.read_text()[-3000:]}')
+            warm = time.monotonic() + WARM_UP_S
+            while time.monotonic() < warm:
+                executor.spin_once(timeout_sec=0.1)
+            first = {name: dict(values) for name, values in last.items()}
+            started = time.monotonic()
+            next_line = started
+            while time.monotonic() - started < duration_s:
+                executor.spin_once(timeout_sec=0.1)
+                if time.monotonic() >= next_line:
+                    done = time.monotonic() - started
+                    print(
+                        f'live_keep_up: {"processes" if processes else "one process"} '
+                        f'{done:.0f}/{duration_s:g} s, ETA {duration_s - done:.0f} s',
+                        flush=True,
+                    )
+                    next_line += 30.0
+            snapshot = {name: dict(values) for name, values in last.items()}
+        finally:
+            run.send_signal(signal.SIGINT)
+            try:
+                run.wait(timeout=STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                run.kill()
+            executor.shutdown()
+            node.destroy_node()
+            rclpy.shutdown()
+    return first, snapshot
+
+
+def _count(values: dict[str, str], prefix: str) -> int:
+    return sum(int(v) for k, v in values.items() if k.startswith(prefix) and v.isdigit())
+
+
+def rows(mode: str, first: Snapshot, last: Snapshot) -> tuple[list[str], bool]:
+    """Return the table rows of one mode (counts over the window: last minus first) and
+    whether nothing was lost or dropped in the window."""
+    lines, clean = [], True
+    for name in sorted(last):
+        values, before = last[name], first.get(name, {})
+        received = _count(values, 'received ') - _count(before, 'received ')
+        lost = _count(values, 'lost ') - _count(before, 'lost ')
+        dropped = int(values.get('dropped', '0')) - int(before.get('dropped', '0'))
+        clean &= lost == 0 and dropped == 0
+        lines.append(
+            f'| {mode} | {name} | {received} | {lost} | {dropped} | {values.get("busy %", "")} '
+            f'| {values.get("processing ms mean", "")} | {values.get("processing ms max", "")} |'
+        )
+    for source, sink, taken_key in (
+        ('/peoplebot_sim', '/marker_detector', 'processed'),
+        ('/dynamic_scene_sim', '/feature_tracker', 'received image'),
+        ('/dynamic_scene_sim', '/monoslam', 'received features'),
+    ):
+        if source in last and sink in last:
+            offered = int(last[source]['frames published']) - int(
+                first.get(source, {}).get('frames published', '0')
+            )
+            taken = int(last[sink].get(taken_key, '0')) - int(
+                first.get(sink, {}).get(taken_key, '0')
+            )
+            lines.append(
+                f'| {mode} | {sink} {taken_key} / {source} frames | {taken} / {offered} = '
+                f'{taken / max(offered, 1):.3f} | | | frames late or skipped '
+                f'{last[source].get("frames late", last[source].get("frames skipped"))} | | |'
+            )
+    return lines, clean
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--graph', default='peoplebot_sim_em_sam.yaml')
+    parser.add_argument('--duration-s', type=float, default=120.0)
+    parser.add_argument('--modes', default='processes,one', help='processes, one, or both')
+    parser.add_argument('--output', type=Path, default=ROOT / 'bench' / 'results')
+    args = parser.parse_args()
+    os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 100))
+    meta = run_meta('not pinned (the graph uses both cores)')
+    table = [
+        '| mode | node | received | lost | dropped | busy % | ms mean | ms max |',
+        '|---|---|---|---|---|---|---|---|',
+    ]
+    verdicts = []
+    for mode in args.modes.split(','):
+        processes = mode.strip() == 'processes'
+        lines, clean = rows(
+            'processes' if processes else 'one process',
+            *measure(args.graph, processes, args.duration_s),
+        )
+        table += lines
+        verdicts.append((processes, clean))
+    passed = all(clean for processes, clean in verdicts if processes)
+    report = [
+        f'# live_keep_up: {args.graph}, {args.duration_s:g} s live',
+        '',
+        ', '.join(f'{k} {v}' for k, v in meta.items()),
+        '',
+        *table,
+        '',
+        f'**{"PASS" if passed else "FAIL"}**: nothing lost or dropped with one process per node',
+    ]
+    text = '\n'.join(report) + '\n'
+    print(text)
+    args.output.mkdir(parents=True, exist_ok=True)
+    (args.output / f'live_keep_up_{Path(args.graph).stem}.md').write_text(text, encoding='utf-8')
+    return 0 if passed else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
