@@ -2,6 +2,7 @@
 
     peoplebot_graph --robot rosaria --camera usb_cam --pipeline em_sam -o robot.yaml
     slam_run robot.yaml --processes
+    peoplebot_graph --robot rosaria --camera usb_cam --part drivers -o robot_side.yaml
     ros2 launch slam_bringup peoplebot.launch.py robot:=rosaria camera:=usb_cam   # the same
 
 The parts are the entries of ``config/peoplebot.yaml`` (GRAPH node entries): a base driver
@@ -32,6 +33,7 @@ from slam_core.files import write_atomically
 ROBOTS = ('sim', 'p2os', 'rosaria')
 CAMERAS = ('sim', 'usb_cam', 'v4l2_camera')
 PIPELINES = ('em_sam', 'monoslam', 'both')
+PARTS = ('all', 'drivers', 'pipeline')  # drivers: base, camera and mount (the robot's side)
 PRESETS_NAME = 'peoplebot.yaml'
 
 
@@ -45,9 +47,16 @@ def presets_path() -> Path:
 
 
 def compose(
-    robot: str, camera: str, pipeline: str, presets: dict[str, Any] | None = None
+    robot: str,
+    camera: str,
+    pipeline: str,
+    presets: dict[str, Any] | None = None,
+    *,
+    part: str = 'all',
 ) -> dict[str, Any]:
-    """Return the GRAPH mapping of ``robot``, ``camera`` and ``pipeline``.
+    """Return the GRAPH mapping of ``robot``, ``camera`` and ``pipeline``: all of it, or
+    one ``part`` (``drivers``: base, camera and mount, the robot's side of a robot + laptop
+    setup; ``pipeline``: the laptop's).
 
     ValueError names a wrong choice, or the simulated camera without the simulated robot.
     """
@@ -55,6 +64,7 @@ def compose(
         ('robot', robot, ROBOTS),
         ('camera', camera, CAMERAS),
         ('pipeline', pipeline, PIPELINES),
+        ('part', part, PARTS),
     ):
         if value not in choices:
             raise ValueError(f'{label} {value!r}: choose one of {", ".join(choices)}')
@@ -65,25 +75,26 @@ def compose(
         )
     parts = presets if presets is not None else read_yaml(presets_path(), str(presets_path()))
     pipelines = ('em_sam', 'monoslam') if pipeline == 'both' else (pipeline,)
-    nodes = [
-        *parts['robot'][robot],
-        *parts['camera'][camera],
-        *parts['mount'],
-        *(entry for name in pipelines for entry in parts['pipeline'][name]),
-    ]
+    drivers = [*parts['robot'][robot], *parts['camera'][camera], *parts['mount']]
+    mapping = [entry for name in pipelines for entry in parts['pipeline'][name]]
+    nodes = {'all': drivers + mapping, 'drivers': drivers, 'pipeline': mapping}[part]
+    what = '' if part == 'all' else f', {part} only'
     return {
         'graph': {
-            'description': f'{pipeline} live on a Peoplebot (robot {robot}, camera {camera})',
+            'description': (
+                f'{pipeline} live on a Peoplebot (robot {robot}, camera {camera}{what})'
+            ),
             'nodes': nodes,
         }
     }
 
 
-def write_graph(path: Path, robot: str, camera: str, pipeline: str) -> Graph:
+def write_graph(path: Path, robot: str, camera: str, pipeline: str, *, part: str = 'all') -> Graph:
     """Write the composed GRAPH to ``path`` (atomically) and return it validated."""
     text = (
-        f'# peoplebot_graph --robot {robot} --camera {camera} --pipeline {pipeline}\n'
-        + yaml.safe_dump(compose(robot, camera, pipeline), sort_keys=False)
+        f'# peoplebot_graph --robot {robot} --camera {camera} --pipeline {pipeline} '
+        f'--part {part}\n'
+        + yaml.safe_dump(compose(robot, camera, pipeline, part=part), sort_keys=False)
     )
     write_atomically(path, text)
     return load_graph(path)
@@ -99,6 +110,12 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument('--camera', choices=CAMERAS, default='sim', help='camera driver')
     parser.add_argument('--pipeline', choices=PIPELINES, default='em_sam', help='SLAM pipeline')
     parser.add_argument(
+        '--part',
+        choices=PARTS,
+        default='all',
+        help='all nodes, or the drivers (the robot) or the pipeline (a laptop) only',
+    )
+    parser.add_argument(
         '-o', '--output', type=Path, required=True, help='GRAPH file to write (for slam_run)'
     )
     return parser
@@ -110,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        graph = write_graph(args.output, args.robot, args.camera, args.pipeline)
+        graph = write_graph(args.output, args.robot, args.camera, args.pipeline, part=args.part)
     except ValueError as err:
         parser.error(str(err))
     except GraphError as err:

@@ -68,6 +68,14 @@ def test_every_choice_gives_a_valid_graph_wired_to_our_topics(
         assert resolved(target, 'landmark_observations') != '/landmark_observations'
 
 
+def test_the_parts_split_the_graph_between_robot_and_laptop(tmp_path: Path) -> None:
+    whole = write_graph(tmp_path / 'all.yaml', 'p2os', 'usb_cam', 'both')
+    robot = write_graph(tmp_path / 'r.yaml', 'p2os', 'usb_cam', 'both', part='drivers')
+    laptop = write_graph(tmp_path / 'l.yaml', 'p2os', 'usb_cam', 'both', part='pipeline')
+    assert [n.name for n in robot.nodes] == ['p2os_driver', 'usb_cam', 'camera_mount']
+    assert [n.name for n in robot.nodes + laptop.nodes] == [n.name for n in whole.nodes]
+
+
 def test_wrong_choices_are_named() -> None:
     with pytest.raises(ValueError, match="robot 'turtlebot': choose one of sim, p2os, rosaria"):
         compose('turtlebot', 'sim', 'em_sam')
@@ -75,6 +83,8 @@ def test_wrong_choices_are_named() -> None:
         compose('p2os', 'sim', 'em_sam')
     with pytest.raises(ValueError, match='pipeline'):
         compose('sim', 'sim', 'orb_slam')
+    with pytest.raises(ValueError, match="part 'half'"):
+        compose('sim', 'sim', 'em_sam', part='half')
 
 
 def test_the_simulated_graph_is_the_tested_one(tmp_path: Path) -> None:
