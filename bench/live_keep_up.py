@@ -41,6 +41,30 @@ STOP_TIMEOUT_S = 120.0
 Snapshot = dict[str, dict[str, str]]
 
 
+def with_settings(graph: str, settings: list[str], directory: Path) -> str:
+    """Return ``graph``, or a copy in ``directory`` with ``node.parameter=value`` settings
+    (YAML values) added to the nodes' inline parameters."""
+    if not settings:
+        return graph
+    import yaml
+
+    from slam_bringup.graph_nodes import find_graph
+
+    content = yaml.safe_load(find_graph(graph).read_text(encoding='utf-8'))
+    nodes = {node['name']: node for node in content['graph']['nodes']}
+    for setting in settings:
+        key, _, value = setting.partition('=')
+        name, _, parameter = key.partition('.')
+        if name not in nodes or not parameter or not value:
+            raise SystemExit(
+                f'--set {setting!r}: expected node.parameter=value, node in {sorted(nodes)}'
+            )
+        nodes[name].setdefault('parameters', []).append({parameter: yaml.safe_load(value)})
+    path = directory / Path(graph).name
+    path.write_text(yaml.safe_dump(content, sort_keys=False), encoding='utf-8')
+    return str(path)
+
+
 def measure(graph: str, processes: bool, duration_s: float) -> tuple[Snapshot, Snapshot]:
     """Run ``graph`` live for ``duration_s`` s; return each node's /diagnostics values at
     the start and at the end of the window."""
@@ -61,7 +85,7 @@ def measure(graph: str, processes: bool, duration_s: float) -> tuple[Snapshot, S
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, output_qos(100))
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    command = [sys.executable, '-m', 'slam_bringup.runner', graph]
+    command = [sys.executable, '-m', 'slam_bringup.runner', str(graph)]
     command += ['--processes'] if processes else []
     with tempfile.TemporaryDirectory(prefix='live_keep_up-') as scratch:
         log = Path(scratch) / 'slam_run.log'
@@ -146,6 +170,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--graph', default='peoplebot_sim_em_sam.yaml')
     parser.add_argument('--duration-s', type=float, default=120.0)
+    parser.add_argument(
+        '--set',
+        action='append',
+        default=[],
+        metavar='NODE.PARAM=VALUE',
+        help='a parameter of a node (repeatable), e.g. dynamic_scene_sim.duration_s=40',
+    )
     parser.add_argument('--modes', default='processes,one', help='processes, one, or both')
     parser.add_argument('--output', type=Path, default=ROOT / 'bench' / 'results')
     args = parser.parse_args()
@@ -156,17 +187,20 @@ def main() -> int:
         '|---|---|---|---|---|---|---|---|',
     ]
     verdicts = []
-    for mode in args.modes.split(','):
-        processes = mode.strip() == 'processes'
-        lines, clean = rows(
-            'processes' if processes else 'one process',
-            *measure(args.graph, processes, args.duration_s),
-        )
-        table += lines
-        verdicts.append((processes, clean))
+    with tempfile.TemporaryDirectory(prefix='live_keep_up-graph-') as directory:
+        graph = with_settings(args.graph, args.set, Path(directory))
+        for mode in args.modes.split(','):
+            processes = mode.strip() == 'processes'
+            lines, clean = rows(
+                'processes' if processes else 'one process',
+                *measure(graph, processes, args.duration_s),
+            )
+            table += lines
+            verdicts.append((processes, clean))
     passed = all(clean for processes, clean in verdicts if processes)
     report = [
-        f'# live_keep_up: {args.graph}, {args.duration_s:g} s live',
+        f'# live_keep_up: {args.graph}, {args.duration_s:g} s live'
+        + (f' ({", ".join(args.set)})' if args.set else ''),
         '',
         ', '.join(f'{k} {v}' for k, v in meta.items()),
         '',
