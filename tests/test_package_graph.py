@@ -66,6 +66,7 @@ ROS_PACKAGES = {
     'nav_msgs',
     'visualization_msgs',
     'tf2_msgs',
+    'apriltag_msgs',
     'rosgraph_msgs',
     'diagnostic_msgs',
     'ament_index_python',

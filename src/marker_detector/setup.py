@@ -18,12 +18,16 @@ setup(
     zip_safe=True,
     maintainer='dynamic-slam maintainers',
     maintainer_email='dev@example.com',
-    description='Fiducial detection (cv2.aruco) to range-bearing landmark observations',
+    description=(
+        'Fiducial detection (cv2.aruco), and apriltag_ros detections, to range-bearing '
+        'landmark observations'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'marker_detector = marker_detector.marker_detector_node:main',
             'marker_detect_bag = marker_detector.offline:main',
+            'apriltag_bridge = marker_detector.apriltag_bridge_node:main',
         ],
     },
 )
