@@ -143,6 +143,18 @@ def tool_env() -> dict[str, str]:
     return {**os.environ, 'PYTHONUNBUFFERED': '1', 'RCUTILS_COLORIZED_OUTPUT': '0'}
 
 
+def run_graph(*arguments: str) -> subprocess.CompletedProcess[str]:
+    """Run slam_run to its end; its output is captured."""
+    return subprocess.run(
+        slam_run(*arguments),
+        capture_output=True,
+        text=True,
+        timeout=RUN_TIMEOUT_S,
+        env=tool_env(),
+        check=False,
+    )
+
+
 class LineWatcher:
     """Collects a process's stderr lines in a thread; waits for a line with a deadline."""
 
@@ -202,14 +214,7 @@ def test_processes_run_records_every_message(tmp_path: Path) -> None:
     # still until the player's first /clock, and the player waits for the recorder.
     sent = write_bag(tmp_path / 'input')
     graph = write_graph(tmp_path)
-    result = subprocess.run(
-        slam_run(str(graph), '--processes', '--record', str(tmp_path / 'output')),
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-        env=tool_env(),
-        check=False,
-    )
+    result = run_graph(str(graph), '--processes', '--record', str(tmp_path / 'output'))
     assert result.returncode == 0, result.stderr
     assert read_back(tmp_path / 'output') == sent
     assert 'bag_player: exit code 0' in result.stdout
@@ -233,14 +238,7 @@ def test_processes_run_drains_while_recording_every_topic_and_reports(
         'parameters': ['package://em_sam_node/config/odometry_ingest.yaml'],
     }
     graph = write_graph(tmp_path, nodes=[ingest], topics=())
-    result = subprocess.run(
-        slam_run(str(graph), '--processes', '--record', str(tmp_path / 'output')),
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-        env=tool_env(),
-        check=False,
-    )
+    result = run_graph(str(graph), '--processes', '--record', str(tmp_path / 'output'))
     assert result.returncode == 0, result.stderr
     assert 'still busy' not in result.stderr, result.stderr
     last: dict[str, dict[str, str]] = {}
@@ -316,14 +314,7 @@ def test_invalid_graph_gives_one_line_and_exit_2(tmp_path: Path) -> None:
 def test_node_rejecting_parameters_names_node_and_exits_2(tmp_path: Path) -> None:
     write_bag(tmp_path / 'input')
     graph = write_graph(tmp_path, player={'topics': ['/no_such_topic']})
-    result = subprocess.run(
-        slam_run(str(graph), '--record', str(tmp_path / 'output')),
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-        env=tool_env(),
-        check=False,
-    )
+    result = run_graph(str(graph), '--record', str(tmp_path / 'output'))
     assert result.returncode == 2
     line = one_error_line(result.stderr)
     assert "graph.player: node 'bag_player'" in line
@@ -339,14 +330,7 @@ def test_player_error_during_playback_exits_nonzero(tmp_path: Path) -> None:
     data[middle : middle + 4096] = b'\xff' * 4096  # lengths of strings and records blow up
     mcap.write_bytes(bytes(data))
     graph = write_graph(tmp_path, player={'rate': 50.0})
-    result = subprocess.run(
-        slam_run(str(graph), '--record', str(tmp_path / 'output')),
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-        env=tool_env(),
-        check=False,
-    )
+    result = run_graph(str(graph), '--record', str(tmp_path / 'output'))
     assert result.returncode == 2
     assert 'corrupt' in one_error_line(result.stderr)
     assert (tmp_path / 'output').is_dir()  # what was received is still finalized
@@ -356,14 +340,7 @@ def test_failing_node_process_stops_graph(tmp_path: Path) -> None:
     write_bag(tmp_path / 'input')
     broken: dict[str, object] = {'name': 'broken', 'package': 'coreutils', 'executable': 'false'}
     graph = write_graph(tmp_path, player={'loop': True}, nodes=[broken])
-    result = subprocess.run(
-        slam_run(str(graph), '--processes', '--record', str(tmp_path / 'output')),
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-        env=tool_env(),
-        check=False,
-    )
+    result = run_graph(str(graph), '--processes', '--record', str(tmp_path / 'output'))
     assert result.returncode == 1
     # Not one_error_line: the other children may still be importing Python when they get
     # SIGINT, and then print a KeyboardInterrupt traceback of their own.
