@@ -10,9 +10,9 @@ reports then add up: every message the player published was taken or counted los
 load, from a full queue) by odometry_ingest, and every increment odometry_ingest published
 was taken or counted lost by em_sam_mapper, from the first each took: nothing was left in a
 queue at SIGINT. The player's own /diagnostics count what it published per topic. And the
-mapper's report, written when it gets SIGINT, has the keyframes of its last /diagnostics
-report: that report was the final one. (Stopped as soon as the player had finished, the
-graph ended with about 350 of 1800 keyframes not mapped.)
+mapper's report, written when it gets SIGINT, has no keyframe that its last /diagnostics
+report did not count: that report was the final one. (Stopped as soon as the player had
+finished, the graph ended with about 350 of 1800 keyframes not mapped.)
 """
 
 from __future__ import annotations
@@ -104,6 +104,8 @@ def test_processes_mode_drains_the_queues_before_stopping_the_nodes(
         mapper['lost landmark_observations']
     )
     assert taken == sent_from_first(observations_total, mapper, 'landmark_observations'), mapper
-    # the mapper's state when it got SIGINT is that of its last report: nothing came after
+    # the report the mapper wrote on SIGINT (solved again if it had taken inputs since its
+    # last solve) has no keyframe its last /diagnostics report did not count: that report
+    # was its final one. Fewer when SIGINT cut its last periodic solve short.
     report = json.loads((tmp_path / 'out' / 'em_sam' / 'em_sam_report.json').read_text())
-    assert report['num_keyframes'] == int(mapper['keyframes']), mapper
+    assert 0 < report['num_keyframes'] <= int(mapper['keyframes']), mapper
