@@ -99,8 +99,9 @@ def test_recorder_killed_mid_run_keeps_everything_received(
         [
             'bag_recorder',
             '-a',
-            '--exclude',
+            '--exclude',  # the bag's topics only: not the player's and its own /diagnostics
             '/clock',
+            '/diagnostics',
             '/rosout',
             '/parameter_events',
             '-o',

@@ -7,7 +7,13 @@ terminal, periodic log lines otherwise.
 
 Topics:
   publishes  every recorded topic (or those in ``topics``), renamed by ``remap``;
-             ``/clock`` (rosgraph_msgs/Clock, best effort, depth 1) when clock_hz > 0.
+             ``/clock`` (rosgraph_msgs/Clock, best effort, depth 1) when clock_hz > 0;
+             /diagnostics (diagnostic_msgs/DiagnosticArray, every second, and once more
+             when the bag has played): ``published <topic>`` per played topic (its
+             published name), ``skipped`` (messages of the played topics that a finished
+             pass did not publish: before ``start_offset_s``), and the lateness of the
+             messages published since the last report (``lateness ms median``, ``lateness
+             ms max``: publish time minus scheduled time; slam_ros.diagnostics).
 
 Parameters:
   bag_path (string)                 bag directory, .mcap, .db3 or ROS 1 .bag. Required.
@@ -48,6 +54,7 @@ from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamTyp
 from slam_core.progress import ProgressReporter
 from slam_ros.bag.playback import LatenessStats, PlaybackConfig, Prefetcher, TimeMapping
 from slam_ros.bag.source import BagSource
+from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import check_parameter_files, declare_parameters, parse_remaps, remap_rule
 from slam_ros.qos import profile_from_recorded
 from slam_ros.typesys import message_class
@@ -103,6 +110,7 @@ CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 WAIT_POLL_S = 0.01
 PRIME_TIMEOUT_S = 2.0
 PROGRESS_TICK_S = 0.1
+FINAL_REPORT_S = 0.25
 
 
 def config_from_parameters(values: dict[str, Any]) -> PlaybackConfig:
@@ -144,6 +152,11 @@ class BagPlayerNode(Node):
         )
         self.lateness = LatenessStats()
         self.published = 0
+        # keys made here: the playback thread only increments them while reports read them
+        self.published_by_topic = dict.fromkeys(self.topics, 0)
+        self.skipped = 0
+        self._lateness_reported = 0
+        self.diagnostics = Diagnostics(self, self._counts, values=self._lateness_values)
         self._position_ns = self._pass_start_ns = self.source.start_ns
         on_terminal = sys.stderr.isatty()
         self.progress = ProgressReporter(
@@ -191,6 +204,24 @@ class BagPlayerNode(Node):
         finally:
             self.finished.set()
 
+    def _counts(self) -> dict[str, int]:
+        """The counts on /diagnostics: messages published per topic, skipped."""
+        counts = {
+            f'published {self.config.remaps.get(name, name)}': count
+            for name, count in self.published_by_topic.items()
+        }
+        counts['skipped'] = self.skipped
+        return counts
+
+    def _lateness_values(self) -> dict[str, str]:
+        """The lateness on /diagnostics, of the messages published since the last report."""
+        window = self.lateness.samples_ns[self._lateness_reported :]
+        self._lateness_reported += len(window)
+        window.sort()
+        median = f'{window[len(window) // 2] / 1e6:.2f}' if window else 'nan'
+        maximum = f'{window[-1] / 1e6:.2f}' if window else 'nan'
+        return {'lateness ms median': median, 'lateness ms max': maximum}
+
     def _wait_for_subscribers(self) -> None:
         deadline = time.monotonic() + self.config.wait_for_subscribers_s
         waiting = list(self.publishers_by_topic.values())
@@ -213,6 +244,7 @@ class BagPlayerNode(Node):
         prefetch.wait_primed(PRIME_TIMEOUT_S)
         mapping = TimeMapping(bag_start, time.monotonic_ns(), config.rate)
         next_clock_ns = mapping.wall_start_ns
+        published_before = self.published
         try:
             for message in prefetch:
                 deadline = mapping.wall_deadline_ns(message.timestamp_ns)
@@ -224,9 +256,12 @@ class BagPlayerNode(Node):
                 self.publishers_by_topic[message.topic].publish(message.data)
                 self.lateness.add(time.monotonic_ns() - deadline)
                 self.published += 1
+                self.published_by_topic[message.topic] += 1
                 self._position_ns = message.timestamp_ns
         finally:
             prefetch.close()
+        in_bag = sum(self.source.topics()[name].count for name in self.topics)
+        self.skipped += max(in_bag - (self.published - published_before), 0)
 
     def _sleep_until(
         self, deadline_ns: int, mapping: TimeMapping, next_clock_ns: int, clock_period_ns: int
@@ -343,6 +378,8 @@ def main(argv: list[str] | None = None) -> int:
             raise node.error
         node.report_progress()
         node.get_logger().info(node.summary())
+        node.diagnostics.publish()  # the final counts
+        time.sleep(FINAL_REPORT_S)  # on their way (reliable) before the process ends
         return 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 130

@@ -9,6 +9,13 @@ On Ctrl-C (SIGINT) or SIGTERM, messages already received are drained and the bag
 
 Topics:
   subscribes  ``topics`` (or all discovered topics except ``exclude``), raw CDR.
+  publishes   /diagnostics (diagnostic_msgs/DiagnosticArray, every second, and once more
+              when the bag is finalized): per recorded topic ``received <topic>``, ``lost
+              <topic>`` (gaps in the publisher's sequence numbers: messages that never
+              reached the recorder; 'unknown' with several publishers) and ``written
+              <topic>``; ``dropped``: received after the bag was closed (slam_ros.diagnostics).
+              With every topic recorded, /diagnostics is recorded too, the recorder's own
+              reports included (slam_run's drain ignores the recorder's reports).
 
 Parameters:
   output (string, rosbag2_<date>_<time>)  bag directory to create; must not exist.
@@ -43,6 +50,7 @@ from slam_core.cli import console_main
 from slam_core.errors import SlamError
 from slam_core.params import AT_LEAST_ONE, POSITIVE, Param, ParamTable, ParamType
 from slam_ros.bag.recording import AtomicBagWriter
+from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import check_parameter_files, declare_parameters
 from slam_ros.qos import recorded_from_profile
 from slam_ros.typesys import TypeRegistry, message_class
@@ -72,6 +80,7 @@ PARAMETERS = ParamTable(
     ),
 )
 DRAIN_TIMEOUT_S = 2.0
+FINAL_REPORT_S = 0.25
 
 
 def default_output_name() -> str:
@@ -93,6 +102,8 @@ class BagRecorderNode(Node):
         self.types = TypeRegistry()
         self._unavailable: dict[str, str] = {}
         self._lock = threading.Lock()
+        self.dropped = 0
+        self.diagnostics = Diagnostics(self, self._counts)
         self.get_logger().info(
             f'recording {", ".join(self.selected) or "all topics"} to '
             f'{str(self.writer.target)!r} (staged in {str(self.writer.staging)!r})'
@@ -102,6 +113,12 @@ class BagRecorderNode(Node):
         self.create_timer(
             self.discovery_period_s, self._discover, clock=Clock(clock_type=ClockType.STEADY_TIME)
         )
+
+    def _counts(self) -> dict[str, int]:
+        """The counts on /diagnostics: messages written per topic; dropped after closing."""
+        counts = {f'written {topic}': n for topic, n in sorted(self.writer.counts.items())}
+        counts['dropped'] = self.dropped
+        return counts
 
     def _wanted(self, topic: str) -> bool:
         if self.selected:
@@ -145,14 +162,15 @@ class BagRecorderNode(Node):
             if offered and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
             else DurabilityPolicy.VOLATILE,
         )
-        self.create_subscription(
-            cls, topic, functools.partial(self._on_message, topic), qos, raw=True
-        )
+        on_message = self.diagnostics.timed(functools.partial(self._on_message, topic), topic)
+        self.create_subscription(cls, topic, on_message, qos, raw=True)
         self.get_logger().info(f'recording {topic!r} ({msgtype})')
 
     def _on_message(self, topic: str, data: bytes) -> None:
         with self._lock:
-            if not self.writer.closed:
+            if self.writer.closed:
+                self.dropped += 1
+            else:
                 self.writer.write(topic, self.get_clock().now().nanoseconds, data)
 
     def finalize(self) -> Path:
@@ -229,6 +247,8 @@ def main(argv: list[str] | None = None) -> int:
             executor.spin_once(timeout_sec=0.1)
         drain(executor, node, DRAIN_TIMEOUT_S)
         node.finalize()
+        node.diagnostics.publish()  # the final counts
+        time.sleep(FINAL_REPORT_S)  # on their way (reliable) before the process ends
         return 0
     except ExternalShutdownException:
         return 130

@@ -15,13 +15,24 @@ order.
 
 The graph stops on Ctrl-C or SIGTERM, or when the player has played the bag if
 ``exit_when_player_done``. The player stops first and the recorder finalizes its bag last.
-In one process, when the player has played the bag, the nodes first work off the inputs
-queued for them (until none of them has taken one for NODES_QUIET_S, by its
-``slam_ros.diagnostics``; at most NODES_DRAIN_TIMEOUT_S), so that a graph that lags behind
-the player still processes the whole bag; then the recorder drains what is in flight while
-the other nodes still run, finalizes, and the nodes are destroyed. With processes, the
-player, then the nodes, then the recorder (which drains and finalizes on SIGINT) get SIGINT,
-then SIGTERM, then SIGKILL.
+When the player has played the bag, the nodes first work off the inputs queued for them, in
+both modes by one rule (``slam_bringup.drain``): slam_run listens to /diagnostics, where
+every node with ``slam_ros.diagnostics`` reports once a second how long ago it last took an
+input (``idle s``), and waits until each node of the graph has reported twice in a row, a
+period apart, that it took none for NODES_QUIET_S (twice odometry_ingest's idle flush, so
+that the keyframes it holds back reach em_sam_mapper). A node in a long callback (a solve)
+does not report meanwhile and counts as busy. The player's and the recorder's own reports do
+not count (a recorder of every topic takes /diagnostics every second), nor do nodes that
+never report (after ``drain.SILENT_S``). After NODES_DRAIN_TIMEOUT_S a warning names the
+nodes still busy and the graph stops with their queues as they are; Ctrl-C stops it at once.
+So a graph that lags behind the player still processes the whole bag.
+
+Then, in one process, each node publishes a final /diagnostics report (the whole run's
+counts), the recorder drains what is in flight while the other nodes still run, finalizes
+and reports, and the nodes are destroyed. With processes, the player has exited (after its
+final report); the nodes, then the recorder (which drains, finalizes and reports on SIGINT)
+get SIGINT, then SIGTERM, then SIGKILL. A node's last report before SIGINT is its final one
+(rclpy shuts its context down on SIGINT): by the rule above it came after its last input.
 
 Exit status: 0 done; 1 a node failed (an exception in a callback, a process that exited
 with an error); 2 a user error (an invalid GRAPH, a node that rejects its parameters, a bad
@@ -58,6 +69,7 @@ from rclpy.utilities import try_shutdown
 
 from slam_bringup.bag_player import BagPlayerNode
 from slam_bringup.bag_recorder import DRAIN_TIMEOUT_S, BagRecorderNode
+from slam_bringup.drain import DrainWatch, listen
 from slam_bringup.graph import Graph, load_graph
 from slam_bringup.graph_nodes import (
     NodeDescription,
@@ -194,28 +206,49 @@ def wait_until_drained(recorder: BagRecorderNode) -> None:
             quiet_since = time.monotonic()
 
 
-def wait_until_inputs_drained(nodes: Sequence[Node]) -> None:
-    """Wait until the nodes with ``slam_ros.diagnostics`` run no callback and none took an
-    input for NODES_QUIET_S (at most NODES_DRAIN_TIMEOUT_S): the messages queued for them
-    when the player stopped are processed, not cut off by the graph's end, and so is what
-    nodes emit once their inputs stop (odometry_ingest's held-back keyframes, after its
-    idle_flush_s). Then each publishes its final /diagnostics report (the whole run's
-    counts)."""
-    found = [getattr(node, 'diagnostics', None) for node in nodes]
-    watched = [d for d in found if isinstance(d, Diagnostics)]
-    deadline = time.monotonic() + NODES_DRAIN_TIMEOUT_S
-    while watched and time.monotonic() < deadline:
-        idle = not any(d.active for d in watched)
-        if idle and time.monotonic() - max(d.last_input_s for d in watched) >= NODES_QUIET_S:
-            break
-        time.sleep(POLL_S)
-    else:
-        if watched:
-            say(f'the nodes still took inputs after {NODES_DRAIN_TIMEOUT_S:g} s; stopping them')
-    for diagnostics in watched:
+def processing_nodes(descriptions: Sequence[NodeDescription]) -> list[str]:
+    """The fully qualified names of the graph's nodes (not its player and recorder)."""
+    return [d.fully_qualified_name for d in descriptions if d.role == 'node']
+
+
+def wait_until_quiet(
+    watch: DrainWatch, stop: threading.Event, failed: Callable[[], bool] = lambda: False
+) -> None:
+    """Wait until every node of the graph that reports on /diagnostics is quiet (by the rule
+    of ``slam_bringup.drain``; at most NODES_DRAIN_TIMEOUT_S, then a warning names the nodes
+    still busy), a stop request, or ``failed()``: the messages queued for the nodes when the
+    player finished are processed, not cut off by the graph's end, and so is what nodes
+    emit once their inputs stop (odometry_ingest's held-back keyframes)."""
+    since = time.monotonic()
+    while not stop.wait(POLL_S):
+        now = time.monotonic()
+        busy = watch.busy(since, now)
+        if failed():
+            return
+        if not busy:
+            silent = watch.silent()
+            if silent:
+                say(f'not waited for (no report on /diagnostics): {", ".join(silent)}')
+            return
+        if now - since >= NODES_DRAIN_TIMEOUT_S:
+            say(
+                f'warning: still busy after {NODES_DRAIN_TIMEOUT_S:g} s (an input taken in '
+                f'the last {NODES_QUIET_S:g} s, or no recent report on /diagnostics): '
+                f'{", ".join(busy)}; stopping the graph with their queued inputs unprocessed'
+            )
+            return
+    say('interrupted: stopping the nodes without waiting for their queued inputs')
+
+
+def publish_final_reports(nodes: Sequence[Node]) -> None:
+    """Have each node with ``slam_ros.diagnostics`` publish its report now (the whole run's
+    counts) and give the reports time to go out (reliable) before the graph ends."""
+    reports = [getattr(node, 'diagnostics', None) for node in nodes]
+    published = [report for report in reports if isinstance(report, Diagnostics)]
+    for diagnostics in published:
         diagnostics.publish()
-    if watched:
-        time.sleep(QUIET_S)  # the final reports are on their way (reliable) before the end
+    if published:
+        time.sleep(QUIET_S)
 
 
 def run_in_process(
@@ -226,6 +259,9 @@ def run_in_process(
     single_threaded_blas()
     rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor(context=context)
+    watch = DrainWatch(processing_nodes(descriptions), NODES_QUIET_S)
+    listener = listen(context, watch)
+    executor.add_node(listener)
     nodes: list[tuple[NodeDescription, Node]] = []
     spinner: Spinner | None = None
     try:
@@ -235,12 +271,13 @@ def run_in_process(
             executor.add_node(node)
         player = next((n for _, n in nodes if isinstance(n, BagPlayerNode)), None)
         recorder = next((n for _, n in nodes if isinstance(n, BagRecorderNode)), None)
-        spinner = Spinner(executor)
+        spinner = running = Spinner(executor)
         player_ended = wait_for_end(graph, player, spinner, stop)
         if player is not None:
             player.stop()
             if player_ended and player.error is None:
-                wait_until_inputs_drained([node for _, node in nodes])
+                wait_until_quiet(watch, stop, lambda: running.error is not None)
+        publish_final_reports([node for _, node in nodes if node is not recorder])
         summary = finish_playback_and_recording(player, recorder)
     finally:
         if spinner is not None:
@@ -249,6 +286,7 @@ def run_in_process(
             executor.shutdown(timeout_sec=TERMINATE_TIMEOUT_S)
         for _, node in sorted(nodes, key=lambda item: STOP_ORDER[item[0].role]):
             node.destroy_node()  # a recorder finalizes its bag here if still open
+        listener.destroy_node()
         try_shutdown(context=context)
     for line in summary:
         print(f'slam_run: {line}')  # noqa: T201
@@ -275,6 +313,7 @@ def finish_playback_and_recording(
     if recorder is not None:
         wait_until_drained(recorder)
         path = recorder.finalize()
+        publish_final_reports([recorder])
         counts = ', '.join(f'{t}: {n}' for t, n in sorted(recorder.writer.counts.items()))
         summary.append(
             f'bag_recorder: wrote {recorder.writer.message_count} messages to '
@@ -336,6 +375,15 @@ def start_children(
         children.append(Child(description, process))
 
 
+def exited(children: Sequence[Child]) -> Iterator[tuple[Child, int]]:
+    """Yield the children that have exited since the last call, with their exit code."""
+    for child in children:
+        code = child.process.poll()
+        if code is not None and not child.reported:
+            child.reported = True
+            yield child, code
+
+
 def watch_children(
     graph: Graph, children: Sequence[Child], stop: threading.Event
 ) -> tuple[bool, Child | None]:
@@ -344,11 +392,7 @@ def watch_children(
     Returns (the player ended the graph, the child that failed if any).
     """
     while not stop.wait(POLL_S):
-        for child in children:
-            code = child.process.poll()
-            if code is None or child.reported:
-                continue
-            child.reported = True
+        for child, code in exited(children):
             if code != 0:
                 return False, child
             if child.description.role == 'player' and graph.exit_when_player_done:
@@ -357,6 +401,26 @@ def watch_children(
         if all(child.reported for child in children):
             return False, None
     return False, None
+
+
+def drain_children(
+    children: Sequence[Child], watch: DrainWatch, stop: threading.Event
+) -> Child | None:
+    """Wait until the nodes are quiet (``wait_until_quiet``); return a child that failed
+    meanwhile, if any. A node that exits cleanly is no longer waited for."""
+    failure: list[Child] = []
+
+    def failed() -> bool:
+        for child, code in exited(children):
+            if code != 0:
+                failure.append(child)
+                return True
+            say(f'node {child.description.name!r} exited')
+            watch.forget(child.description.fully_qualified_name)
+        return False
+
+    wait_until_quiet(watch, stop, failed)
+    return failure[0] if failure else None
 
 
 def stop_children(children: Sequence[Child]) -> list[Child]:
@@ -395,13 +459,25 @@ def run_processes(
     children: list[Child] = []
     failed: list[Child] = []
     failure: Child | None = None
+    context = Context()
+    rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
+    watch = DrainWatch(processing_nodes(descriptions), NODES_QUIET_S)
+    listener = listen(context, watch)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(listener)
+    spinner = Spinner(executor)
     try:
         start_children(graph, descriptions, scratch, children)
         player_ended, failure = watch_children(graph, children, stop)
+        if player_ended and failure is None:
+            failure = drain_children(children, watch, stop)
         if failure is not None:
             failed.append(failure)
     finally:
         failed += stop_children(children)
+        spinner.stop()
+        listener.destroy_node()
+        try_shutdown(context=context)
     for child in children:
         print(  # noqa: T201
             f'slam_run: {child.description.name}: exit code {child.process.returncode}'

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
@@ -24,6 +25,8 @@ from slam_bringup.graph import load_graph
 from slam_bringup.graph_nodes import node_descriptions
 from slam_core.errors import GraphError
 from slam_ros.bag.source import BagSource
+from slam_ros.qos import output_qos
+from slam_ros.testing.harness import RosHarness
 
 # An isolated DDS domain for these tests, unless a harness chose one already.
 os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 100))
@@ -116,15 +119,16 @@ def write_graph(
     use_sim_time: bool = False,
     player: dict[str, object] | None = None,
     nodes: list[dict[str, object]] | None = None,
+    topics: tuple[str, ...] = ('/odom', '/chatter'),
 ) -> Path:
-    """A GRAPH that plays ``directory/input`` and records /odom and /chatter."""
+    """A GRAPH that plays ``directory/input`` and records ``topics`` (empty: all)."""
     graph = {
         'description': 'test replay',
         'use_sim_time': use_sim_time,
         'exit_when_player_done': exit_when_player_done,
         'nodes': nodes or [],
         'player': {'bag': 'input', 'wait_for_subscribers_s': 20.0, **(player or {})},
-        'recorder': {'topics': ['/odom', '/chatter'], 'discovery_period_s': 0.1},
+        'recorder': {'topics': list(topics), 'discovery_period_s': 0.1},
     }
     path = directory / 'graph.yaml'
     path.write_text(yaml.safe_dump({'graph': graph}))
@@ -137,6 +141,18 @@ def slam_run(*arguments: str) -> list[str]:
 
 def tool_env() -> dict[str, str]:
     return {**os.environ, 'PYTHONUNBUFFERED': '1', 'RCUTILS_COLORIZED_OUTPUT': '0'}
+
+
+def run_graph(*arguments: str) -> subprocess.CompletedProcess[str]:
+    """Run slam_run to its end; its output is captured."""
+    return subprocess.run(
+        slam_run(*arguments),
+        capture_output=True,
+        text=True,
+        timeout=RUN_TIMEOUT_S,
+        env=tool_env(),
+        check=False,
+    )
 
 
 class LineWatcher:
@@ -198,18 +214,56 @@ def test_processes_run_records_every_message(tmp_path: Path) -> None:
     # still until the player's first /clock, and the player waits for the recorder.
     sent = write_bag(tmp_path / 'input')
     graph = write_graph(tmp_path)
-    result = subprocess.run(
-        slam_run(str(graph), '--processes', '--record', str(tmp_path / 'output')),
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-        env=tool_env(),
-        check=False,
-    )
+    result = run_graph(str(graph), '--processes', '--record', str(tmp_path / 'output'))
     assert result.returncode == 0, result.stderr
     assert read_back(tmp_path / 'output') == sent
     assert 'bag_player: exit code 0' in result.stdout
     assert 'bag_recorder: exit code 0' in result.stdout
+
+
+def test_processes_run_drains_while_recording_every_topic_and_reports(
+    ros_harness: RosHarness, tmp_path: Path
+) -> None:
+    """With every topic recorded, the recorder takes /diagnostics every second, its own
+    reports included: the drain does not wait for it. The reports of the player and the
+    recorder count what they published, received and wrote; the player starts when /odom has
+    a subscriber, which may be the recorder before odometry_ingest: the ingest's count is
+    from the first message it took."""
+    diagnostics = ros_harness.collect('/diagnostics', DiagnosticArray, output_qos(depth=1000))
+    write_bag(tmp_path / 'input', odometry_count=300)
+    ingest = {
+        'name': 'odometry_ingest',
+        'package': 'em_sam_node',
+        'executable': 'odometry_ingest',
+        'parameters': ['package://em_sam_node/config/odometry_ingest.yaml'],
+    }
+    graph = write_graph(tmp_path, nodes=[ingest], topics=())
+    result = run_graph(str(graph), '--processes', '--record', str(tmp_path / 'output'))
+    assert result.returncode == 0, result.stderr
+    assert 'still busy' not in result.stderr, result.stderr
+    last: dict[str, dict[str, str]] = {}
+    for array in list(diagnostics.messages):
+        for status in array.status:
+            last[status.name] = {value.key: value.value for value in status.values}
+    assert {'/odometry_ingest', '/bag_player', '/bag_recorder'} <= set(last), result.stderr
+    player = last['/bag_player']
+    published = (player['published /odom'], player['published /chatter'], player['skipped'])
+    assert published == ('300', '60', '0'), player
+    for name, input in (('/odometry_ingest', 'odom'), ('/bag_recorder', '/odom')):
+        report = last[name]
+        taken = int(report[f'received {input}']) + int(report[f'lost {input}'])
+        assert taken == 300 - int(report[f'first sequence {input}']) + 1, report
+    recorder = last['/bag_recorder']  # its report once the bag was finalized
+    for topic in ('/odom', '/chatter'):
+        assert recorder[f'written {topic}'] == recorder[f'received {topic}'], recorder
+    names = set()
+    with BagSource(tmp_path / 'output') as source:
+        assert {'/odom', '/chatter', '/odometry_increments'} <= set(source.topics())
+        for message in source.messages():
+            if message.topic == '/diagnostics':
+                array = TYPESTORE.deserialize_cdr(message.data, message.msgtype)
+                names |= {status.name for status in array.status}
+    assert {'/bag_recorder', '/odometry_ingest'} <= names  # it recorded its own reports
 
 
 @pytest.mark.parametrize(
@@ -260,14 +314,7 @@ def test_invalid_graph_gives_one_line_and_exit_2(tmp_path: Path) -> None:
 def test_node_rejecting_parameters_names_node_and_exits_2(tmp_path: Path) -> None:
     write_bag(tmp_path / 'input')
     graph = write_graph(tmp_path, player={'topics': ['/no_such_topic']})
-    result = subprocess.run(
-        slam_run(str(graph), '--record', str(tmp_path / 'output')),
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-        env=tool_env(),
-        check=False,
-    )
+    result = run_graph(str(graph), '--record', str(tmp_path / 'output'))
     assert result.returncode == 2
     line = one_error_line(result.stderr)
     assert "graph.player: node 'bag_player'" in line
@@ -283,14 +330,7 @@ def test_player_error_during_playback_exits_nonzero(tmp_path: Path) -> None:
     data[middle : middle + 4096] = b'\xff' * 4096  # lengths of strings and records blow up
     mcap.write_bytes(bytes(data))
     graph = write_graph(tmp_path, player={'rate': 50.0})
-    result = subprocess.run(
-        slam_run(str(graph), '--record', str(tmp_path / 'output')),
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-        env=tool_env(),
-        check=False,
-    )
+    result = run_graph(str(graph), '--record', str(tmp_path / 'output'))
     assert result.returncode == 2
     assert 'corrupt' in one_error_line(result.stderr)
     assert (tmp_path / 'output').is_dir()  # what was received is still finalized
@@ -300,14 +340,7 @@ def test_failing_node_process_stops_graph(tmp_path: Path) -> None:
     write_bag(tmp_path / 'input')
     broken: dict[str, object] = {'name': 'broken', 'package': 'coreutils', 'executable': 'false'}
     graph = write_graph(tmp_path, player={'loop': True}, nodes=[broken])
-    result = subprocess.run(
-        slam_run(str(graph), '--processes', '--record', str(tmp_path / 'output')),
-        capture_output=True,
-        text=True,
-        timeout=RUN_TIMEOUT_S,
-        env=tool_env(),
-        check=False,
-    )
+    result = run_graph(str(graph), '--processes', '--record', str(tmp_path / 'output'))
     assert result.returncode == 1
     # Not one_error_line: the other children may still be importing Python when they get
     # SIGINT, and then print a KeyboardInterrupt traceback of their own.

@@ -13,13 +13,16 @@ counted from the gaps in the publisher's sequence numbers (rmw's message info) a
 first one the node took (reported: a node that joins late did not lose what came before);
 with several publishers on the input the numbers interleave, and its losses are 'unknown'.
 The node's own counters (what it processed, what it dropped and why) come from the
-``counts`` callable it passes. One DiagnosticStatus per publish, named after the node:
+``counts`` callable it passes, other figures (text) from the optional ``values`` callable.
+One DiagnosticStatus per publish, named after the node (its fully qualified name):
 
 - values: ``received <input>``, ``lost <input>`` and ``first sequence <input>`` per
-  input, then the node's counts, then ``processing ms mean`` (per received message),
-  ``processing ms max`` (since the last publish), ``busy %`` (processing time over wall time
-  since the last publish) and ``lag s`` (the node clock's now minus the latest input stamp:
-  bag time on /clock in replay, wall time live);
+  input, then the node's counts and values, then ``processing ms mean`` (per received
+  message), ``processing ms max`` (since the last publish), ``busy %`` (processing time over
+  wall time since the last publish), ``lag s`` (the node clock's now minus the latest input
+  stamp: bag time on /clock in replay, wall time live) and ``idle s`` (IDLE_KEY: steady
+  seconds since an input callback last ended, or since the node started; ``slam_run`` stops
+  a graph when its nodes have been idle for a while, ``slam_bringup.drain``);
 - level: WARN while the count named ``dropped`` or the messages lost grew since the last
   publish (lost ones are also logged as a warning) or the node was busy more than
   ``BUSY_WARN`` of the time ("falling behind"), else OK.
@@ -41,15 +44,22 @@ from slam_ros.qos import output_qos
 
 BUSY_WARN = 0.9
 """Busy above this share of the wall time, a node cannot keep up with a higher input rate."""
+IDLE_KEY = 'idle s'
+"""The value with the seconds since the node last took an input (module docstring)."""
 
 
 class Diagnostics:
     """A node's /diagnostics publisher (module docstring)."""
 
     def __init__(
-        self, node: Node, counts: Callable[[], Mapping[str, int]], period_s: float = 1.0
+        self,
+        node: Node,
+        counts: Callable[[], Mapping[str, int]],
+        period_s: float = 1.0,
+        *,
+        values: Callable[[], Mapping[str, str]] | None = None,
     ) -> None:
-        self.node, self.counts = node, counts
+        self.node, self.counts, self.values = node, counts, values
         self.received: dict[str, int] = {}
         self.lost: dict[str, int] = {}
         self.unknown_lost: set[str] = set()
@@ -146,12 +156,15 @@ class Diagnostics:
             values[f'first sequence {name}'] = str(sequence)
         lost = sum(self.lost.values())
         values.update({name: str(int(value)) for name, value in counts.items()})
+        if self.values is not None:
+            values.update(self.values())
         mean_ms = 1e3 * self.processing_s / received if received else 0.0  # per input
         values.update({
             'processing ms mean': f'{mean_ms:.2f}',
             'processing ms max': f'{1e3 * self._window_max_s:.2f}',
             'busy %': f'{100.0 * busy:.1f}',
             'lag s': f'{lag_s:.3f}',
+            IDLE_KEY: f'{time.monotonic() - self.last_input_s:.3f}',
         })  # fmt: skip
         problems = []
         if dropped > self._last_dropped:
@@ -176,9 +189,10 @@ class Diagnostics:
         status.name = self.node.get_fully_qualified_name()
         status.hardware_id = self.node.get_name()
         status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
-        status.message = (
-            '; '.join(problems) or f'{received} received, {lost} lost, {dropped} dropped'
-        )
+        summary = f'{received} received, {lost} lost, {dropped} dropped'
+        if not self.received:  # no inputs (a bag player): its counts
+            summary = ', '.join(f'{name} {value}' for name, value in counts.items()) or 'OK'
+        status.message = '; '.join(problems) or summary
         status.values = [KeyValue(key=key, value=value) for key, value in values.items()]
         return status
 

@@ -11,7 +11,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo
 
 from slam_core.stamps import ns_to_stamp
-from slam_ros.diagnostics import Diagnostics
+from slam_ros.diagnostics import IDLE_KEY, Diagnostics
 
 
 @pytest.fixture
@@ -93,3 +93,24 @@ def test_gaps_in_the_publishers_sequence_numbers_are_lost_messages(node: Node) -
     on_info(CameraInfo(), {'publication_sequence_number': 3})
     on_info(CameraInfo(), {'publication_sequence_number': 50})
     assert values(diagnostics.status())['lost camera_info'] == 'unknown'
+
+
+def test_idle_counts_from_the_last_input_taken(node: Node) -> None:
+    """``idle s`` (what slam_run's drain reads) grows while no input is taken, from the
+    node's start, and starts over with each input; timer callbacks do not reset it."""
+    diagnostics = Diagnostics(node, dict, period_s=3600.0)
+    diagnostics.last_input_s -= 5.0  # as if started 5 s ago
+    assert float(values(diagnostics.status())[IDLE_KEY]) >= 5.0
+    diagnostics.timed(lambda: None)()
+    assert float(values(diagnostics.status())[IDLE_KEY]) >= 5.0
+    diagnostics.timed(lambda message: None, 'camera_info')(CameraInfo(), {})
+    assert float(values(diagnostics.status())[IDLE_KEY]) < 5.0
+
+
+def test_a_node_without_inputs_reports_its_counts_and_values(node: Node) -> None:
+    diagnostics = Diagnostics(
+        node, lambda: {'published /odom': 3}, period_s=3600.0, values=lambda: {'late ms': '1.5'}
+    )
+    status = diagnostics.status()
+    assert values(status)['published /odom'] == '3' and values(status)['late ms'] == '1.5'
+    assert status.message == 'published /odom 3' and status.level == DiagnosticStatus.OK
