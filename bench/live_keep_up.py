@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT / 'bench'))
 
 from bench_common import run_meta  # noqa: E402
 
-START_TIMEOUT_S = 90.0
+START_TIMEOUT_S = 600.0  # a simulated camera may render its frames first (dynamic_scene_sim)
 WARM_UP_S = 10.0  # after the first frame: discovery done, the robot under way
 STOP_TIMEOUT_S = 120.0
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
+from graph_checks import EM_SAM_CAMERA_TREE, last_reports, parents, tf_tree
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import CameraInfo
 from tf2_msgs.msg import TFMessage
@@ -29,7 +30,6 @@ from tf2_msgs.msg import TFMessage
 from slam_core.stamps import stamp_to_ns
 from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.testing.harness import RosHarness, wait_until
-from slam_ros.tf_tree import TfTree
 
 pytestmark = pytest.mark.topic
 
@@ -71,18 +71,8 @@ def test_the_camera_graph_publishes_one_tree_in_bag_time_and_its_diagnostics(
     )
     assert run.process.returncode == 0, run.log()
 
-    tree = TfTree()
-    for message in list(tf_static.messages):
-        tree.add(message, static=True)
-    for message in list(tf.messages):
-        tree.add(message, static=False)
-    assert not tree.conflicts, tree.conflicts
-    assert {child: edge.parent for child, edge in tree.edges.items()} == {
-        'odom': 'map',
-        'base_link': 'odom',
-        'camera_link': 'base_link',
-        'camera_optical_frame': 'camera_link',
-    }
+    tree = tf_tree(tf_static.messages, tf.messages)
+    assert parents(tree) == EM_SAM_CAMERA_TREE
     start_ns, end_ns = bag_span_ns(BAG)
     map_odom = tree.edges['odom'].stamps
     assert len(map_odom) >= 10, f'only {len(map_odom)} map -> odom transforms'
@@ -97,10 +87,7 @@ def test_the_camera_graph_publishes_one_tree_in_bag_time_and_its_diagnostics(
     unresolved = [s for s in covered if not tree.resolves('map', 'camera_optical_frame', s)]
     assert not unresolved, f'{len(unresolved)} of {len(covered)} images, first at {unresolved[0]}'
 
-    last: dict[str, dict[str, str]] = {}
-    for array in diagnostics.messages:
-        for status in array.status:
-            last[status.name] = {value.key: value.value for value in status.values}
+    last = last_reports(diagnostics.messages)
     assert set(last) >= {'/marker_detector', '/odometry_ingest', '/em_sam_mapper'}, set(last)
     detector = last['/marker_detector']
     received = int(detector['received image'])

@@ -23,13 +23,13 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from graph_checks import last_reports
 from test_monoslam_topics import (
     MAX_ERROR_M,
     MAX_MEDIAN_ERROR_M,
     MAX_START_ERROR_M,
     START_FRAMES,
 )
-from test_peoplebot_live import last_reports
 
 from slam_core.stamps import stamp_to_ns
 from slam_ros.qos import output_qos
@@ -75,7 +75,7 @@ def test_monoslam_live_on_the_dynamic_scene(ros_harness: RosHarness, tmp_path: P
     assert np.median(errors) < MAX_MEDIAN_ERROR_M and errors.max() < MAX_ERROR_M, errors
     assert frames[0] < START_FRAMES and frames[-1] >= FRAMES - START_FRAMES, frames
 
-    last = last_reports(list(diagnostics.messages))
+    last = last_reports(diagnostics.messages)
     camera, tracker, slam = last['/dynamic_scene_sim'], last['/feature_tracker'], last['/monoslam']
     published = int(camera['frames published'])
     assert published + int(camera['frames skipped']) == FRAMES, camera

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
+from graph_checks import EM_SAM_CAMERA_TREE, last_reports, parents, tf_tree
 from sensor_msgs.msg import CameraInfo
 from tf2_msgs.msg import TFMessage
 
@@ -33,21 +34,12 @@ from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import LandmarkMap, LandmarkObservationArray
 from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.testing.harness import RosHarness, wait_until
-from slam_ros.tf_tree import TfTree
 
 pytestmark = pytest.mark.topic
 
 LIVE_S = 140.0  # the robot is in office 2 from about 90 s: most moved markers seen again
 START_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 120.0  # the mapper's final solve over ~1300 keyframes, on a busy machine
-
-
-def last_reports(messages: list[DiagnosticArray]) -> dict[str, dict[str, str]]:
-    last: dict[str, dict[str, str]] = {}
-    for array in messages:
-        for status in array.status:
-            last[status.name] = {value.key: value.value for value in status.values}
-    return last
 
 
 def seen_at_both_positions(
@@ -104,18 +96,8 @@ def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_pat
     )
     assert not flagged & unmoved, f'static markers flagged: {sorted(flagged & unmoved)}'
 
-    tree = TfTree()
-    for message in list(tf_static.messages):
-        tree.add(message, static=True)
-    for message in list(tf.messages):
-        tree.add(message, static=False)
-    assert not tree.conflicts, tree.conflicts
-    assert {child: edge.parent for child, edge in tree.edges.items()} == {
-        'odom': 'map',
-        'base_link': 'odom',
-        'camera_link': 'base_link',
-        'camera_optical_frame': 'camera_link',
-    }
+    tree = tf_tree(tf_static.messages, tf.messages)
+    assert parents(tree) == EM_SAM_CAMERA_TREE
     map_odom = tree.edges['odom'].stamps
     stamps = sorted(stamp_to_ns(message.header.stamp) for message in infos.messages)
     covered = [s for s in stamps if map_odom[0] <= s <= map_odom[-1]]
@@ -123,7 +105,7 @@ def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_pat
     unresolved = [s for s in covered if not tree.resolves('map', 'camera_optical_frame', s)]
     assert not unresolved, f'{len(unresolved)} of {len(covered)} images, first at {unresolved[0]}'
 
-    last = last_reports(list(diagnostics.messages))
+    last = last_reports(diagnostics.messages)
     sim, detector = last['/peoplebot_sim'], last['/marker_detector']
     ingest, mapper = last['/odometry_ingest'], last['/em_sam_mapper']
     received = int(detector['received image'])

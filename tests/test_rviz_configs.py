@@ -59,6 +59,8 @@ class Pair:
 PAIRS = (
     Pair('em_sam.rviz', 'em_sam_office_camera.yaml', 'map', BAGS / 'office_camera.mcap', 80, 4),
     Pair('monoslam.rviz', 'monoslam_shadow.yaml', 'monoslam_map', BAGS / 'dynamic_camera.mcap'),
+    # live: the simulated Peoplebot (its camera, odometry and TF on the wall clock)
+    Pair('em_sam.rviz', 'peoplebot_sim_em_sam.yaml', 'map', run_s=30.0),
 )
 
 
@@ -286,7 +288,7 @@ def note_publishers(harness: Any, topics: list[str], seen: GraphObservation) -> 
 
 
 @pytest.mark.topic
-@pytest.mark.parametrize('pair', PAIRS, ids=[p.rviz for p in PAIRS])
+@pytest.mark.parametrize('pair', PAIRS, ids=[f'{p.rviz}-{p.graph}' for p in PAIRS])
 def test_every_display_topic_and_frame_exists_in_its_graph(
     pair: Pair, ros_harness: Any, tmp_path: Path
 ) -> None:

@@ -179,9 +179,10 @@ class EmSamMapperNode(Node):
 
     def optimize(self) -> str:
         """Solve EM-SAM now and publish the results; return a one-line summary."""
-        self._dirty = False
         started = time.perf_counter()
         result = self.mapper.optimize()
+        # only once solved: a solve cut short (Ctrl-C) leaves the report to solve again
+        self._dirty = False
         if result is None:
             return 'not enough data to optimize'
         self.solves += 1

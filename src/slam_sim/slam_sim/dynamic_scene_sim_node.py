@@ -41,7 +41,7 @@ from slam_ros.qos import output_qos, sensor_qos
 from slam_ros.spin import spin_node
 from slam_sim.core.dynamic_config import DynamicSceneConfig
 from slam_sim.core.dynamic_render import DynamicRenderer
-from slam_sim.live_messages import set_stamp
+from slam_sim.live_messages import camera_info_message, set_stamp
 
 OPTICAL_FRAME, MAP_FRAME = 'camera_optical_frame', 'map'
 
@@ -88,16 +88,7 @@ class DynamicSceneSimNode(Node):
             progress.update(index + 1)
         progress.finish()
         self.height, self.width = renderer.camera.height, renderer.camera.width
-        fields = renderer.camera.camera_info()
-        self.camera_info = CameraInfo(
-            width=int(fields.width),
-            height=int(fields.height),
-            distortion_model=str(fields.distortion_model),
-            d=[float(v) for v in fields.d],
-            k=[float(v) for v in fields.k],
-            r=[float(v) for v in fields.r],
-            p=[float(v) for v in fields.p],
-        )
+        self.camera_info = camera_info_message(renderer.camera)
         sensor = sensor_qos()
         self.image_publisher = self.create_publisher(Image, 'camera/image_raw', sensor)
         self.info_publisher = self.create_publisher(CameraInfo, 'camera/camera_info', sensor)

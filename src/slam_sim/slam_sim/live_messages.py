@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 from nav_msgs.msg import Odometry
+from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from slam_core.arrays import FloatArray
+from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import quaternion_from_yaw
 
 
@@ -37,3 +39,17 @@ def odometry_message(
     message.twist.twist.linear.x, message.twist.twist.angular.z = float(twist[0]), float(twist[1])
     message.twist.covariance = np.asarray(covariances[1], dtype=np.float64)
     return message
+
+
+def camera_info_message(camera: CameraModel) -> CameraInfo:
+    """Return the CameraInfo of ``camera`` (no header: set it per image)."""
+    fields = camera.camera_info()
+    return CameraInfo(
+        width=int(fields.width),
+        height=int(fields.height),
+        distortion_model=str(fields.distortion_model),
+        d=[float(v) for v in fields.d],
+        k=[float(v) for v in fields.k],
+        r=[float(v) for v in fields.r],
+        p=[float(v) for v in fields.p],
+    )

@@ -58,11 +58,10 @@ from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.spin import spin_node
 from slam_sim.core.camera_effects import CameraEffects, encode_jpeg
 from slam_sim.core.live_base import LiveBase
-from slam_sim.core.office import OfficeConfig, Variant, simulate_office
+from slam_sim.core.office import OfficeConfig, Variant, office_route, simulate_office
 from slam_sim.core.office_render import Renderer
 from slam_sim.core.office_view import office_camera
-from slam_sim.core.trajectory import office_path
-from slam_sim.live_messages import odometry_message, set_stamp
+from slam_sim.live_messages import camera_info_message, odometry_message, set_stamp
 from slam_sim.office_bag import ODOM_POSE_COVARIANCE_DIAGONAL, odom_twist_covariance_diagonal
 from slam_sim.office_camera_bag import (
     IMAGE_FORMAT,
@@ -129,12 +128,7 @@ class PeoplebotSimNode(Node):
         self.camera_frame = str(values['camera_frame'])
         config = OfficeConfig(odom_rate_hz=float(values['odom_rate_hz']))
         self.run = simulate_office(int(values['seed']), str(values['variant']), config=config)
-        _, start = office_path(
-            self.run.world,
-            loop_radius_m=config.loop_radius_m,
-            loops=config.loops,
-            spacing_m=config.motion.path_spacing_m,
-        )
+        _, _, start = office_route(config)
         seeds = np.random.SeedSequence(int(values['seed'])).spawn(6)
         self.base = LiveBase(
             start,
@@ -151,7 +145,7 @@ class PeoplebotSimNode(Node):
         )
         self.renderer = Renderer(self.rig.camera, self.run.world.walls_m, self.rig.style)
         self.effects = CameraEffects(self.rig.effects, self.rig.camera, seeds[4])
-        self.camera_info = self._camera_info_message()
+        self.camera_info = camera_info_message(self.rig.camera)
         self.covariances = (
             np.diag(ODOM_POSE_COVARIANCE_DIAGONAL).reshape(36),
             np.diag(odom_twist_covariance_diagonal(config)).reshape(36),
@@ -318,18 +312,6 @@ class PeoplebotSimNode(Node):
         """A run time at which ``office_markers`` draws the markers where they are now."""
         move_ns = self.run.landmarks.move_time_ns
         return 0 if self.moved_at_ns is None or move_ns is None else move_ns
-
-    def _camera_info_message(self) -> CameraInfo:
-        fields = self.rig.camera.camera_info()
-        return CameraInfo(
-            width=int(fields.width),
-            height=int(fields.height),
-            distortion_model=str(fields.distortion_model),
-            d=[float(v) for v in fields.d],
-            k=[float(v) for v in fields.k],
-            r=[float(v) for v in fields.r],
-            p=[float(v) for v in fields.p],
-        )
 
     def _publish_landmarks(self) -> None:
         truth = self.run.landmarks

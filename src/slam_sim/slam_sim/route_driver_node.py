@@ -37,9 +37,8 @@ from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.qos import output_qos
 from slam_ros.spin import spin_node
-from slam_sim.core.office import OfficeConfig
-from slam_sim.core.trajectory import RouteFollower, office_path
-from slam_sim.core.world import build_world
+from slam_sim.core.office import OfficeConfig, office_route
+from slam_sim.core.trajectory import RouteFollower
 
 AT_REST_MPS = 1e-3  # a piece is done when the robot is slower than this (and the turn rate)
 AT_REST_RADPS = 1e-3
@@ -58,24 +57,6 @@ PARAMETERS = ParamTable(
 )
 
 
-def office_route() -> tuple[np.ndarray, np.ndarray, OfficeConfig]:
-    """Return the office route (P, 2) m, its start pose (3,) and the office configuration."""
-    config = OfficeConfig()
-    world = build_world(
-        office_size_m=config.office_size_m,
-        corridor_length_m=config.corridor_length_m,
-        corridor_width_m=config.corridor_width_m,
-        door_width_m=config.door_width_m,
-    )
-    path, start = office_path(
-        world,
-        loop_radius_m=config.loop_radius_m,
-        loops=config.loops,
-        spacing_m=config.motion.path_spacing_m,
-    )
-    return path, start, config
-
-
 class RouteDriverNode(Node):
     """Publishes cmd_vel along the office route (module docstring)."""
 
@@ -83,7 +64,8 @@ class RouteDriverNode(Node):
         super().__init__('route_driver', **kwargs)
         values = declare_parameters(self, PARAMETERS)
         self.pose_timeout_s = float(values['pose_timeout_s'])
-        path, _, config = office_route()
+        config = OfficeConfig()
+        _, path, _ = office_route(config)
         self.follower = RouteFollower(path, config.motion)
         self.commands = self.timeouts = self.rejected = 0
         self.started_s: float | None = None

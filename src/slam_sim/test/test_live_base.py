@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from slam_sim.core.live_base import MAX_CATCH_UP_S, LiveBase
+from slam_sim.core.office import OfficeConfig, office_route
 from slam_sim.core.trajectory import MotionConfig, RouteFollower
-from slam_sim.route_driver_node import office_route
 
 S = 1_000_000_000
 
@@ -82,7 +82,8 @@ def test_a_stalled_process_is_skipped_and_reported() -> None:
 
 
 def test_the_route_follower_drives_the_office_route_live() -> None:
-    path, start, config = office_route()
+    config = OfficeConfig()
+    _, path, start = office_route(config)
     follower, base = RouteFollower(path, config.motion), LiveBase(start, 0)
     now, step = 0, S // 20
     while not follower.done and now < 400 * S:

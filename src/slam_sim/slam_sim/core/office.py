@@ -310,15 +310,8 @@ def _seen_at_both(landmarks: LandmarkTruth, observations: Observations) -> IntAr
     )
 
 
-def simulate_office(
-    seed: int, variant: str = 'standard', *, config: OfficeConfig | None = None
-) -> OfficeRun:
-    """Return the office run of ``seed`` and ``variant``; the same inputs give the same run."""
-    chosen = parse_variant(variant)
-    config = config if config is not None else OfficeConfig()
-    layout_rng, move_rng, odometry_rng, detector_rng = (
-        np.random.default_rng(stream) for stream in np.random.SeedSequence(seed).spawn(4)
-    )
+def office_route(config: OfficeConfig) -> tuple[OfficeWorld, FloatArray, FloatArray]:
+    """Return the world, the route (P, 2) m and its start pose (3,) of ``config``."""
     world = build_world(
         office_size_m=config.office_size_m,
         corridor_length_m=config.corridor_length_m,
@@ -331,6 +324,19 @@ def simulate_office(
         loops=config.loops,
         spacing_m=config.motion.path_spacing_m,
     )
+    return world, path, start
+
+
+def simulate_office(
+    seed: int, variant: str = 'standard', *, config: OfficeConfig | None = None
+) -> OfficeRun:
+    """Return the office run of ``seed`` and ``variant``; the same inputs give the same run."""
+    chosen = parse_variant(variant)
+    config = config if config is not None else OfficeConfig()
+    layout_rng, move_rng, odometry_rng, detector_rng = (
+        np.random.default_rng(stream) for stream in np.random.SeedSequence(seed).spawn(4)
+    )
+    world, path, start = office_route(config)
     truth = follow_path(path, start, config.motion)
     step_ns = config.motion.step_ns
     frame_ns = np.arange(

@@ -1,0 +1,42 @@
+"""What the topic tests of whole graphs check alike: the TF tree a listener saw, and each
+node's last /diagnostics report."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+from slam_ros.tf_tree import TfTree
+
+# REP 105 with the office robot's camera: the one tree of the EM-SAM camera graphs
+EM_SAM_CAMERA_TREE = {
+    'odom': 'map',
+    'base_link': 'odom',
+    'camera_link': 'base_link',
+    'camera_optical_frame': 'camera_link',
+}
+
+
+def tf_tree(tf_static: Iterable[Any], tf: Iterable[Any]) -> TfTree:
+    """Return the tree of the /tf_static and /tf messages; assert no frame had two parents."""
+    tree = TfTree()
+    for message in list(tf_static):
+        tree.add(message, static=True)
+    for message in list(tf):
+        tree.add(message, static=False)
+    assert not tree.conflicts, tree.conflicts
+    return tree
+
+
+def parents(tree: TfTree) -> dict[str, str]:
+    """Return each child frame's parent."""
+    return {child: edge.parent for child, edge in tree.edges.items()}
+
+
+def last_reports(arrays: Iterable[Any]) -> dict[str, dict[str, str]]:
+    """Return each node's last /diagnostics values (DiagnosticArray messages, in order)."""
+    last: dict[str, dict[str, str]] = {}
+    for array in list(arrays):
+        for status in array.status:
+            last[status.name] = {value.key: value.value for value in status.values}
+    return last
