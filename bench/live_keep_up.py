@@ -93,9 +93,7 @@ def measure(graph: str, processes: bool, duration_s: float) -> tuple[Snapshot, S
             run = subprocess.Popen(command, cwd=scratch, stdout=out, stderr=subprocess.STDOUT)
         try:
             deadline = time.monotonic() + START_TIMEOUT_S
-            while (
-                '/peoplebot_sim' not in last or last['/peoplebot_sim']['frames published'] == '0'
-            ):
+            while not any(v.get('frames published', '0') != '0' for v in last.values()):
                 executor.spin_once(timeout_sec=0.1)
                 if time.monotonic() > deadline or run.poll() is not None:
                     raise RuntimeError(f'the graph did not start:\n{log.read_text()[-3000:]}')

@@ -31,6 +31,11 @@ NODE_EXECUTABLES = {
     'shadow_filter',
     'bag_player',
     'bag_recorder',
+    'apriltag_bridge',
+    'peoplebot_sim',
+    'route_driver',
+    'dynamic_scene_sim',
+    'camera_mount',
 }
 
 
