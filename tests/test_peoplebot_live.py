@@ -13,7 +13,7 @@ the mapper writes its report (a final solve over everything it took). Checked:
 - on /tf and /tf_static no frame ever has two parents, and from the first map -> odom on,
   map -> camera_optical_frame resolves at the stamp of every camera image;
 - /diagnostics adds up: every image the simulator published from the first the detector
-  took was taken or counted lost, every increment the ingest published reached the mapper.
+  took was taken or counted lost, and the mapper lost no increment of the ingest's.
 """
 
 from __future__ import annotations
@@ -116,9 +116,11 @@ def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_pat
     # the simulator's last report may come before its last frames: at most a second's worth
     assert 0 <= sent - received - int(detector['lost image']) <= 10, (sim, detector)
     assert int(detector['dropped']) == 0, detector
-    # nothing lost between the ingest and the mapper; their last reports are up to a second
-    # apart, in which the ingest emits at most a few keyframes (0.5 m / 0.35 rad at 0.4 m/s
-    # and 0.5 rad/s)
+    # nothing lost between the ingest and the mapper (gaps in the ingest's sequence numbers
+    # up to the last increment the mapper took). Their counts are not compared: live, each
+    # node's last report is from its last second before Ctrl-C, the mapper's from before its
+    # last solve (seconds, during which the ingest emits a keyframe per camera frame)
     assert int(mapper['lost odometry_increments']) == 0, mapper
-    assert abs(int(mapper['received odometry_increments']) - int(ingest['increments'])) <= 3
+    assert int(mapper['received odometry_increments']) > 1000, mapper
+    assert int(ingest['lost odom']) == 0 and int(ingest['dropped']) == 0, ingest
     assert int(sim['commands rejected']) == 0 and int(mapper['dropped']) == 0

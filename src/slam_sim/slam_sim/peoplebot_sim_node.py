@@ -235,6 +235,8 @@ class PeoplebotSimNode(Node):
         self._advance()
         base, stamp_ns = self.base, self.base.time_ns
         last_ns, last_pose = self._last_odom
+        if stamp_ns <= last_ns and self.odometry:
+            return  # the timer fired again within one 5 ms step (catching up): no new sample
         period_s = max((stamp_ns - last_ns) / 1e9, 1e-9)
         delta = base.odom_pose - last_pose
         heading = last_pose[2]
