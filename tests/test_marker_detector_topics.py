@@ -5,8 +5,9 @@ desks, lens distortion, lighting, blur, noise, JPEG) are published as Compressed
 their camera_info and the camera mount on /tf_static; the node's landmark_observations are
 compared with the ground truth (marker ids, range and bearing in base_link). Then bad inputs:
 images before any camera_info of a fresh node (held, the oldest dropped past HELD_IMAGES,
-detected once it comes), an unsupported encoding, an empty and a corrupt image, and a
-refused marker size; the node logs each and keeps working.
+detected once it comes) and before the camera mount (held until it comes), an unsupported
+encoding, an empty and a corrupt image, and a refused marker size; the node logs each and
+keeps working.
 """
 
 from __future__ import annotations
@@ -172,6 +173,34 @@ def test_observations_match_the_rendered_ground_truth(
     assert all(d.dictionary == 'DICT_APRILTAG_36h11' for d in detections)
     assert all(d.marker_size_m == pytest.approx(SceneStyle().side_m) for d in detections)
     assert node.dropped == 0
+
+
+def test_images_before_the_camera_mount_are_held_until_it_comes(
+    ros_harness: RosHarness, frames: list[CameraFrame]
+) -> None:
+    """Live, the mount's publisher and the camera start together and discovery takes a
+    second or two: images that come before the mount are held, not dropped."""
+    node = ros_harness.add_node(make_node())
+    fiducials = ros_harness.collect('fiducials', FiducialArray)
+    observations = ros_harness.collect('landmark_observations', LandmarkObservationArray)
+    info = ros_harness.publisher('camera/camera_info', CameraInfo)
+    images = ros_harness.publisher('camera/image_raw/compressed', CompressedImage)
+    ros_harness.wait_for_subscribers(images)
+    ros_harness.wait_for_subscribers(info)
+    info.publish(camera_info(CameraRig()))
+    wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
+    shown = [f for f in frames if np.sum(f.truth.visible & (f.truth.side_px > 40)) >= 1][:3]
+    for index, frame in enumerate(shown):
+        images.publish(compressed(frame, 1_000_000_000 + index * 100_000_000))
+        wait_until(lambda n=index + 1: len(node.held) == n, what=f'image {index} to be held')
+    assert not fiducials.messages and node.dropped == 0
+    tf = ros_harness.publisher('/tf_static', TFMessage, latched_qos(depth=10))
+    tf.publish(tf_static())
+    wait_until(lambda: len(fiducials) == len(shown), what='the held images to be detected')
+    assert not node.held and node.dropped == 0 and node.images == len(shown)
+    stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in fiducials.messages]
+    assert stamps == sorted(stamps)  # in order
+    wait_until(lambda: len(observations) == len(shown), what='their observations')
 
 
 def test_bad_inputs_are_logged_and_the_node_keeps_working(
