@@ -4,7 +4,7 @@ Frames of the simulated office run (slam_sim's renderer: AprilTag 36h11 markers 
 desks, lens distortion, lighting, blur, noise, JPEG) are published as CompressedImage with
 their camera_info and the camera mount on /tf_static; the node's landmark_observations are
 compared with the ground truth (marker ids, range and bearing in base_link). Then bad inputs:
-images before any camera_info of a fresh node (held, the oldest dropped past HELD_IMAGES,
+images before any camera_info of a fresh node (held, the oldest dropped past HOLD_S,
 detected once it comes) and before the camera mount (held until it comes), an unsupported
 encoding, an empty and a corrupt image, and a refused marker size; the node logs each and
 keeps working.
@@ -22,7 +22,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tf2_msgs.msg import TFMessage
 
-from marker_detector.marker_detector_node import HELD_IMAGES, MarkerDetectorNode
+from marker_detector.marker_detector_node import HOLD_S, MarkerDetectorNode
 from slam_core.geometry.se3 import OPTICAL_IN_LINK
 from slam_core.stamps import ns_to_stamp
 from slam_interfaces.msg import FiducialArray, LandmarkObservationArray
@@ -227,20 +227,22 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
 
     height, width = frame.image.shape
     good = raw('mono8', frame.image.tobytes(), width, height, width)
-    # before any camera_info: held (the latest HELD_IMAGES), then detected once it comes
-    for number in range(1, HELD_IMAGES + 3):
-        good.header.stamp.nanosec = number
+    # before any camera_info: held (those of the last HOLD_S seconds), then detected once it
+    # comes; one image a second, so the first two are dropped
+    kept = int(HOLD_S) + 1
+    for number in range(1, kept + 3):
+        good.header.stamp.sec = number
         images.publish(good)
-        held, dropped = min(number, HELD_IMAGES), max(number - HELD_IMAGES, 0)
+        held, dropped = min(number, kept), max(number - kept, 0)
         wait_until(
             lambda h=held, d=dropped: len(node.held) == h and node.dropped == d,
             what=f'image {number} to be held',
         )
     assert node.dropped == 2 and not fiducials.messages
     info.publish(camera_info(CameraRig()))
-    wait_until(lambda: len(fiducials) == HELD_IMAGES, what='fiducials of the held images')
+    wait_until(lambda: len(fiducials) == kept, what='fiducials of the held images')
     assert not node.held and node.dropped == 2
-    assert [m.header.stamp.nanosec for m in fiducials.messages] == list(range(3, HELD_IMAGES + 3))
+    assert [m.header.stamp.sec for m in fiducials.messages] == list(range(3, kept + 3))
     assert all(len(m.detections) >= 2 for m in fiducials.messages)
     bad = [
         raw('yuv422', bytes(width * height * 2), width, height, width * 2),
@@ -251,7 +253,7 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
         images.publish(message)
         wait_until(lambda n=number: node.dropped == n, what=f'bad image {number} to be dropped')
     images.publish(good)
-    wait_until(lambda: len(fiducials) > HELD_IMAGES, what='fiducials after the bad images')
+    wait_until(lambda: len(fiducials) > kept, what='fiducials after the bad images')
     assert len(fiducials.messages[-1].detections) >= 2
 
     refused = node.set_parameters([Parameter('marker_size_m', value=-0.3)])
@@ -261,7 +263,7 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
     accepted = node.set_parameters([Parameter('marker_size_m', value=0.6)])
     assert accepted[0].successful
     images.publish(good)
-    wait_until(lambda: len(fiducials) > HELD_IMAGES + 1, what='fiducials after the size change')
+    wait_until(lambda: len(fiducials) > kept + 1, what='fiducials after the size change')
     before = {d.id: d.pose.position.z for d in fiducials.messages[-2].detections}
     after = {d.id: d.pose.position.z for d in fiducials.messages[-1].detections}
     assert before.keys() & after.keys(), 'the same markers should be detected again'

@@ -17,8 +17,9 @@ Topics:
               em_sam/markers (visualization_msgs/MarkerArray): reliable, transient-local, 1
               /tf (tf2_msgs/TFMessage): map->odom, every tf_period_s
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
-              and dropped, keyframes, observations, solves, processing time (the solves'
-              too), lag (slam_ros.diagnostics)
+              and dropped, keyframes, observations (and those from before the first
+              keyframe, apart), solves, processing time (the solves' too), lag
+              (slam_ros.diagnostics)
 Services:
   ~/optimize (std_srvs/Trigger)          solve now and publish.
   ~/find_landmark (slam_interfaces/FindLandmark)  sightings of a landmark, most recent first.
@@ -149,13 +150,15 @@ class EmSamMapperNode(Node):
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: keyframes, observations on them and waiting for one,
-        increments and observations dropped (bad or out of order), solves."""
+        increments and observations dropped (bad or out of order), observations from before
+        the first keyframe, solves."""
         mapper = self.mapper
         return {
             'keyframes': len(mapper.stamps_ns),
             'observations': len(mapper.observations),
             'pending observations': len(mapper.pending),
             'dropped': mapper.dropped_increments + mapper.dropped_observations,
+            'before first keyframe': mapper.before_start_observations,
             'solves': self.solves,
         }
 
@@ -229,6 +232,7 @@ class EmSamMapperNode(Node):
         stamps = np.array(self.mapper.stamps_ns[: self.mapper.result_keyframes])
         extra = {
             'dropped_observations': self.mapper.dropped_observations,
+            'observations_before_first_keyframe': self.mapper.before_start_observations,
             'parameters': {s.name: self.get_parameter(s.name).value for s in PARAMETERS},
         }
         paths = write_report(result, stamps, self.report_dir, extra)

@@ -190,6 +190,7 @@ class OdometryIngest:
         state.samples.append((stamp_ns, pose))
         if state.keyframe is None:
             state.keyframe = (stamp_ns, pose.copy())  # the first keyframe: the first sample
+            self._release_before_odometry(stamp_ns)
         return self._emit(horizon_ns=stamp_ns - round(self.config.observation_delay_s * 1e9))
 
     def add_observation_stamp(self, stamp_ns: int) -> list[Increment]:
@@ -209,9 +210,7 @@ class OdometryIngest:
             )
             return []
         if not state.samples:
-            self.warn(
-                f'observation at stamp {stamp_ns} ns came before any odometry; it gets no keyframe'
-            )
+            self._hold_before_odometry(stamp_ns)
             return []
         if stamp_ns < state.samples[0][0]:
             self.warn(
@@ -224,6 +223,34 @@ class OdometryIngest:
             state.pending_stamps.insert(index, stamp_ns)
         latest = state.samples[-1][0]
         return self._emit(horizon_ns=latest - round(self.config.observation_delay_s * 1e9))
+
+    def _hold_before_odometry(self, stamp_ns: int) -> None:
+        """Keep an observation stamp that came before any odometry (live, the two streams
+        are discovered separately, and a detector may deliver first): it gets its keyframe if
+        the odometry, when it comes, covers it. Held for at most max_buffer_s of stamps."""
+        pending = self._state.pending_stamps
+        if stamp_ns not in pending:
+            bisect.insort(pending, stamp_ns)
+        horizon = pending[-1] - round(self.config.max_buffer_s * 1e9)
+        old = [s for s in pending if s < horizon]
+        if old:
+            del pending[: len(old)]
+            self.warn(
+                f'{len(old)} observation(s) held for odometry longer than max_buffer_s '
+                f'(from {old[0]} ns): no odometry came; they get no keyframe'
+            )
+
+    def _release_before_odometry(self, first_ns: int) -> None:
+        """The first odometry came: held stamps before it get no keyframe; one at it gets the
+        first keyframe."""
+        pending = self._state.pending_stamps
+        early = [s for s in pending if s < first_ns]
+        pending[:] = [s for s in pending if s > first_ns]
+        if early:
+            self.warn(
+                f'{len(early)} observation(s) from {early[0]} ns came before the first odometry '
+                f'(at {first_ns} ns); they get no keyframe'
+            )
 
     def flush(self) -> list[Increment]:
         """Emit every keyframe the odometry covers (at shutdown or at the end of a bag)."""

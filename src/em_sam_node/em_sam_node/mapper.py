@@ -3,9 +3,10 @@
 Keyframes come from the increments (each increment's stamp_to is a keyframe; the first
 increment's stamp_from is keyframe 0, anchored at its odometry pose: the map frame is the
 odometry frame at the start). An observation attaches to the keyframe with its stamp (within
-``stamp_tolerance_s``); one whose keyframe has not arrived yet waits for it, and one that can
-never get a keyframe (older than the chain, or seen before any odometry) is dropped with a
-warning that names it.
+``stamp_tolerance_s``); one whose keyframe has not arrived yet waits for it. One seen before
+the first keyframe (before the odometry started, or live before it was connected) is counted
+as such (``before_start_observations``) with a warning: the map never had a pose for it. One
+whose keyframe never came is dropped with a warning that names it.
 """
 
 from __future__ import annotations
@@ -75,6 +76,7 @@ class MapperProcessor:
         self.result_data: MappingData | None = None  # what self.result was solved from
         self.result_keyframes = 0
         self.dropped_observations = 0
+        self.before_start_observations = 0
         self.dropped_increments = 0
 
     # -- input ----------------------------------------------------------------------------
@@ -142,12 +144,20 @@ class MapperProcessor:
         for observation in self.pending:
             if self._attach(observation):
                 continue
-            if observation.stamp_ns < self.stamps_ns[0] or latest - observation.stamp_ns > timeout:
+            if observation.stamp_ns < self.stamps_ns[0]:
+                self.before_start_observations += 1
+                self.warn(
+                    f'observation of landmark {observation.landmark_id} at '
+                    f'{observation.stamp_ns} ns is older than the first keyframe '
+                    f'({self.stamps_ns[0]} ns): seen before the odometry started; not used'
+                )
+                continue
+            if latest - observation.stamp_ns > timeout:
                 self.dropped_observations += 1
                 self.warn(
                     f'observation of landmark {observation.landmark_id} at '
-                    f'{observation.stamp_ns} ns matches no keyframe (seen before any '
-                    'odometry, or its keyframe never came); dropped'
+                    f'{observation.stamp_ns} ns matches no keyframe (its keyframe never '
+                    'came); dropped'
                 )
                 continue
             still.append(observation)

@@ -126,16 +126,39 @@ def test_observation_later_than_all_odometry_waits_for_the_delay() -> None:
     assert warnings.messages == []
 
 
-def test_an_observation_before_any_odometry_warns_and_gets_no_keyframe() -> None:
+def test_an_observation_before_any_odometry_waits_for_it_and_gets_its_keyframe() -> None:
+    """Live, the detector's first observation may beat the first odometry message to the
+    ingest: held, it gets its keyframe once the odometry covers its stamp."""
     ingest, warnings = make_ingest(observation_delay_s=0.0, **ONLY_OBSERVATIONS)
     assert ingest.add_observation_stamp(250_000_000) == []
-    assert len(warnings.messages) == 1
-    assert '250000000' in warnings.messages[0]
-    assert 'before any odometry' in warnings.messages[0]
+    assert ingest.add_observation_stamp(0) == []  # at the first odometry: its keyframe
     stamps, poses = straight_line(11, 0.1)
     increments = feed(ingest, stamps, poses) + ingest.flush()
-    assert 250_000_000 not in stamps_to(increments)
-    assert stamps_to(increments) == [int(stamps[-1])]
+    assert stamps_to(increments) == [250_000_000, int(stamps[-1])]
+    np.testing.assert_allclose(increments[0].odom_pose_to, [0.25, 0.0, 0.0], atol=1e-12)
+    assert increments[0].stamp_from_ns == 0
+    assert warnings.messages == []
+
+
+def test_an_observation_before_the_first_odometry_warns_and_gets_no_keyframe() -> None:
+    ingest, warnings = make_ingest(observation_delay_s=0.0, **ONLY_OBSERVATIONS)
+    stamps, poses = straight_line(11, 0.1)
+    stamps = stamps + 500_000_000  # the odometry starts at 0.5 s
+    assert ingest.add_observation_stamp(250_000_000) == []
+    assert ingest.add_observation_stamp(700_000_000) == []
+    increments = feed(ingest, stamps, poses) + ingest.flush()
+    assert stamps_to(increments) == [700_000_000, int(stamps[-1])]
+    assert len(warnings.messages) == 1
+    assert '250000000' in warnings.messages[0]
+    assert 'before the first odometry' in warnings.messages[0]
+
+
+def test_observations_held_for_odometry_are_bounded_by_max_buffer_s() -> None:
+    ingest, warnings = make_ingest(observation_delay_s=0.0, max_buffer_s=1.0, **ONLY_OBSERVATIONS)
+    for stamp in range(0, 3_000_000_000, 100_000_000):  # 3 s of observations, no odometry
+        assert ingest.add_observation_stamp(stamp) == []
+    assert len(ingest._state.pending_stamps) == 11  # the last 1 s
+    assert warnings.messages and all('no odometry came' in m for m in warnings.messages)
 
 
 def test_an_observation_older_than_the_last_keyframe_warns() -> None:

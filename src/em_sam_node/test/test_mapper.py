@@ -117,14 +117,16 @@ def test_an_observation_before_any_increment_attaches_to_the_first_keyframe() ->
     assert mapper.data().obs_keyframe.tolist() == [0]
 
 
-def test_an_observation_older_than_the_chain_is_dropped_naming_the_landmark() -> None:
+def test_an_observation_older_than_the_chain_is_counted_before_the_start_naming_it() -> None:
     mapper, warnings = make_mapper()
     mapper.add_observation(observation(5 * SECOND_NS, landmark_id=42))
     for item in line_chain(2, start_s=10.0):
         mapper.add_increment(item)
-    assert mapper.pending == [] and mapper.dropped_observations == 1
+    assert mapper.pending == [] and mapper.before_start_observations == 1
+    assert mapper.dropped_observations == 0  # not lost by the pipeline: the map had no pose
     assert len(warnings.messages) == 1
     assert 'landmark 42' in warnings.messages[0] and str(5 * SECOND_NS) in warnings.messages[0]
+    assert 'older than the first keyframe' in warnings.messages[0]
     assert len(mapper.data().obs_keyframe) == 0
 
 

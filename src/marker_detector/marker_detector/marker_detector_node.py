@@ -9,8 +9,9 @@ rational polynomial from camera_info) is undistorted inside the pose solution. B
 reason, and the node goes on with the next image. Images that come before the first usable
 camera_info, or (extrinsics_source 'tf_static') before the camera mount of their frame on
 /tf_static (drivers and the mount's publisher start together, and discovery between
-processes takes a second or two), are held, the latest HELD_IMAGES of them, and detected in
-order once both are there; older ones are dropped and counted, with the reason in the log.
+processes takes a second or two, longer on a loaded machine), are held, those of the last
+HOLD_S seconds (at most HOLD_MAX_BYTES), and detected in order once both are there; older ones
+are dropped and counted, with the reason in the log.
 
 Topics:
   subscribes  camera/image_raw (sensor_msgs/Image: mono8, bgr8, rgb8, bgra8, rgba8) when
@@ -120,9 +121,14 @@ def draw_detections(image: np.ndarray, output: FrameOutput) -> np.ndarray:
     return canvas
 
 
-HELD_IMAGES = 10
-"""Images held while no camera_info or camera mount has come yet (the oldest is dropped
-first)."""
+HOLD_S = 5.0
+"""Images held while no camera_info or camera mount has come yet span at most this much stamp
+time (the oldest is dropped first). DDS discovery sends its first announcements within a
+fraction of a second and then one every 3 s (Fast DDS's default period): 5 s covers a missed
+first burst and the next periodic announcement, on a loaded machine too."""
+
+HOLD_MAX_BYTES = 64 * 2**20
+"""And at most this many image bytes (5 s of 640x480 mono8 at 30 Hz is 46 MB)."""
 
 
 class MarkerDetectorNode(Node):
@@ -139,6 +145,7 @@ class MarkerDetectorNode(Node):
         self.dropped = 0
         self.detections = 0
         self.held: deque[Image | CompressedImage] = deque()
+        self._held_bytes = 0
         self._status_time = time.monotonic()
         self._status_images = 0
         self.diagnostics = Diagnostics(self, self._counts)
@@ -223,7 +230,9 @@ class MarkerDetectorNode(Node):
             f'{what} arrived: detecting in the {len(self.held)} images held until now'
         )
         while self.held and self._missing(self.held[0].header.frame_id) is None:
-            self._detect(self.held.popleft())
+            image = self.held.popleft()
+            self._held_bytes -= len(image.data)
+            self._detect(image)
 
     def _missing(self, frame_id: str) -> str | None:
         """What an image in ``frame_id`` waits for (None: nothing)."""
@@ -274,18 +283,23 @@ class MarkerDetectorNode(Node):
             if 'camera_info' in missing
             else ('is the camera mount published on /tf_static?')
         )
-        if len(self.held) > HELD_IMAGES:
-            oldest = stamp_to_ns(self.held.popleft().header.stamp)
+        self._held_bytes += len(message.data)
+        while len(self.held) > 1 and (
+            stamp_ns - stamp_to_ns(self.held[0].header.stamp) > HOLD_S * 1e9
+            or self._held_bytes > HOLD_MAX_BYTES
+        ):
+            oldest = self.held.popleft()
+            self._held_bytes -= len(oldest.data)
             self.images += 1
             self.dropped += 1
             self._error(
-                f'image dropped ({self.dropped} so far): {missing}, and {HELD_IMAGES} newer '
-                f'images are held (the image at {oldest} ns); {hint}'
+                f'image dropped ({self.dropped} so far): {missing}, and images are held for '
+                f'at most {HOLD_S:g} s (the image at {stamp_to_ns(oldest.header.stamp)} ns); '
+                f'{hint}'
             )
-            return
         self.get_logger().warning(
-            f'{missing}: image at {stamp_ns} ns held ({len(self.held)} held, at most '
-            f'{HELD_IMAGES}) until it arrives; {hint}',
+            f'{missing}: image at {stamp_ns} ns held ({len(self.held)} held, for at most '
+            f'{HOLD_S:g} s) until it arrives; {hint}',
             throttle_duration_sec=2.0,
         )
 

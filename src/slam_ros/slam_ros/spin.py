@@ -28,7 +28,8 @@ def spin_node(
     ``-h``/``--help`` (before any ``--ros-args``) prints the node's help (``doc``, its module
     docstring, and the ``parameters`` table) and returns 0 without initializing rclpy.
     ``destroy_node`` always runs, so nodes that finalize (write reports) do it there. Errors
-    raised by the constructor propagate (wrap main with cli.console_main to print them).
+    raised by the constructor or a callback propagate (wrap main with cli.console_main to
+    print them), except those raised once the context has been shut down (Ctrl-C).
     """
     args = sys.argv[1:] if argv is None else argv
     if help_requested(args):
@@ -47,6 +48,12 @@ def spin_node(
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception as err:
+        if rclpy.ok():
+            raise
+        # Ctrl-C shut the context down while the executor was taking a message (rclpy then
+        # raises from inside take_message): a race of the shutdown, not a failure of the node.
+        print(f'{prog}: shutting down: ignored {type(err).__name__}: {err}', file=sys.stderr)  # noqa: T201
     finally:
         if node is not None:
             node.destroy_node()
