@@ -251,6 +251,20 @@ def publish_final_reports(nodes: Sequence[Node]) -> None:
         time.sleep(QUIET_S)
 
 
+def failing_node(
+    error: BaseException, nodes: Sequence[tuple[NodeDescription, Node]]
+) -> str | None:
+    """The graph's name of the node whose method raised ``error`` (the innermost on its
+    traceback), or None when no node's code is on it."""
+    found = None
+    for frame, _ in traceback.walk_tb(error.__traceback__):
+        owner = frame.f_locals.get('self')
+        for description, node in nodes:
+            if owner is node:
+                found = description.fully_qualified_name
+    return found
+
+
 def run_in_process(
     graph: Graph, descriptions: Sequence[NodeDescription], scratch: Path, stop: threading.Event
 ) -> int:
@@ -292,7 +306,11 @@ def run_in_process(
         print(f'slam_run: {line}')  # noqa: T201
     if spinner.error is not None:
         traceback.print_exception(spinner.error)
-        say(f'error: a node callback raised {type(spinner.error).__name__}: {spinner.error}')
+        culprit = failing_node(spinner.error, nodes)
+        say(
+            f'error: {culprit or "a node"}: a callback raised '
+            f'{type(spinner.error).__name__}: {spinner.error}'
+        )
         return EXIT_NODE_FAILED
     if player is not None and player.error is not None:
         raise player.error

@@ -359,14 +359,27 @@ class FailingNode(Node):
         raise RuntimeError('bug in a callback')
 
 
-def test_exception_in_callback_stops_graph_with_exit_1(
+class QuietNode(Node):
+    """A node with a timer that works."""
+
+    def __init__(self, **kwargs: object) -> None:
+        super().__init__('quiet', **kwargs)  # type: ignore[arg-type]
+        self.create_timer(0.01, lambda: None)
+
+
+def test_exception_in_callback_stops_graph_with_exit_1_naming_the_node(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    node = {'name': 'f', 'package': 'p', 'executable': 'e', 'plugin': f'{__name__}:FailingNode'}
+    nodes = [
+        {'name': 'q', 'package': 'p', 'executable': 'e', 'plugin': f'{__name__}:QuietNode'},
+        {'name': 'f', 'package': 'p', 'executable': 'e', 'plugin': f'{__name__}:FailingNode'},
+    ]
     path = tmp_path / 'graph.yaml'
-    path.write_text(yaml.safe_dump({'graph': {'nodes': [node]}}))
+    path.write_text(yaml.safe_dump({'graph': {'nodes': nodes}}))
     assert runner.main([str(path)]) == 1
-    assert 'RuntimeError: bug in a callback' in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert 'RuntimeError: bug in a callback' in err
+    assert 'slam_run: error: /f: a callback raised RuntimeError: bug in a callback' in err
 
 
 @pytest.mark.parametrize(
