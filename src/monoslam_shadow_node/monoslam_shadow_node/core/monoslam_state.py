@@ -162,13 +162,19 @@ class FilterState:
         start = feature.start
         block = slice(start, start + INVERSE_DEPTH_SIZE)
         point, jacobian = euclidean_point(self.x[block], feature.reference)
+        # P' = T P T^T with T the identity but for the feature's rows (J over its 6 columns),
+        # by blocks: O(n^2), not the O(n^3) of the dense product
         n = len(self.x)
-        transform = np.zeros((n - 3, n))
-        transform[:start, :start] = np.eye(start)
-        transform[start : start + 3, block] = jacobian
-        transform[start + 3 :, start + INVERSE_DEPTH_SIZE :] = np.eye(n - start - 6)
-        self.x = np.concatenate([self.x[:start], point, self.x[start + INVERSE_DEPTH_SIZE :]])
-        p = transform @ self.p @ transform.T
+        end = start + INVERSE_DEPTH_SIZE
+        rest = np.r_[0:start, end:n]
+        crossed = jacobian @ self.p[block, rest]  # (3, n - 6)
+        p = np.empty((n - 3, n - 3))
+        others = np.r_[0:start, start + 3 : n - 3]
+        p[np.ix_(others, others)] = self.p[np.ix_(rest, rest)]
+        p[start : start + 3, others] = crossed
+        p[others, start : start + 3] = crossed.T
+        p[start : start + 3, start : start + 3] = jacobian @ self.p[block, block] @ jacobian.T
+        self.x = np.concatenate([self.x[:start], point, self.x[end:]])
         self.p = 0.5 * (p + p.T)
         feature.size, feature.reference = EUCLIDEAN_SIZE, None
         for other in self.features:
