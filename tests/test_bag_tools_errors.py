@@ -150,6 +150,13 @@ def test_invalid_player_option_names_parameter(
     assert_one_line_error(run_tool('bag_player', str(odom_bag), option, value), parameter)
 
 
+def test_a_start_offset_beyond_the_bag_is_refused(odom_bag: Path) -> None:
+    line = assert_one_line_error(
+        run_tool('bag_player', str(odom_bag), '--start-offset', '9999'), 'start_offset_s=9999'
+    )
+    assert 'beyond the end' in line and str(odom_bag) in line
+
+
 def test_invalid_parameter_file_value_names_parameter(odom_bag: Path, tmp_path: Path) -> None:
     params = tmp_path / 'player.yaml'
     params.write_text(f'/**:\n  ros__parameters:\n    bag_path: {odom_bag}\n    rate: fast\n')

@@ -139,6 +139,13 @@ class BagPlayerNode(Node):
         super().__init__('bag_player', **kwargs)  # type: ignore[arg-type]
         self.config = config_from_parameters(declare_parameters(self, PARAMETERS))
         self.source = BagSource(self.config.bag_path).__enter__()
+        span_s = max(self.source.end_ns - self.source.start_ns, 0) / 1e9
+        if self.config.start_offset_s > span_s:
+            self.source.__exit__(None, None, None)
+            raise ParameterError(
+                f'parameter start_offset_s={self.config.start_offset_s:g}: beyond the end of '
+                f'bag {str(self.config.bag_path)!r}, which spans {span_s:.3f} s'
+            )
         self.topics = self._select_topics()
         self.publishers_by_topic: dict[str, Publisher] = {}
         for name in self.topics:
@@ -309,11 +316,11 @@ class BagPlayerNode(Node):
 
     def summary(self) -> str:
         """Return a one-line summary of the playback so far."""
+        played = f'published {self.published} messages from {str(self.config.bag_path)!r}'
+        if not self.published:
+            return f'{played} (nothing to publish: check topics and start_offset_s)'
         late = self.lateness.summary_ms()
-        return (
-            f'published {self.published} messages from {str(self.config.bag_path)!r}; '
-            f'lateness median {late["median_ms"]:.2f} ms, p95 {late["p95_ms"]:.2f} ms'
-        )
+        return f'{played}; lateness median {late["median_ms"]:.2f} ms, p95 {late["p95_ms"]:.2f} ms'
 
 
 def build_arg_parser() -> argparse.ArgumentParser:
