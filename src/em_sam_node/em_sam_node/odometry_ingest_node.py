@@ -4,7 +4,9 @@ Makes a keyframe at every observation stamp (odometry interpolated there) and at
 thresholds; each increment carries the paper's eq. 2 motion (forward, side, angular) and a
 covariance that grows with the motion (see em_sam_node.ingest). Copes with odometry resets,
 out-of-order stamps and NaN poses (dropped with a throttled warning). When odometry stops
-(end of a bag) for ``idle_flush_s``, the keyframes still held back are emitted.
+(end of a bag) for ``idle_flush_s``, the keyframes still held back are emitted; in paced
+replay (slam_ros.progress), when the player says on /slam/end_of_input that the bag has
+ended.
 
 Topics:
   subscribes  odom (nav_msgs/Odometry, best effort, depth 1000: deep, so a long callback of
@@ -49,6 +51,7 @@ from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from std_msgs.msg import Empty
 from tf2_msgs.msg import TFMessage
 
 from em_sam_node.conversions import increment_to_message, odometry_pose
@@ -59,6 +62,7 @@ from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import LandmarkObservationArray, OdometryIncrement
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
+from slam_ros.progress import END_QOS, END_TOPIC, paced
 from slam_ros.qos import output_qos, sensor_qos
 from slam_ros.spin import spin_node
 
@@ -198,11 +202,14 @@ class OdometryIngestNode(Node):
         )
         self._last_odometry_wall = time.monotonic()
         self.flushed = True
-        self.create_timer(
-            self.idle_flush_s / 2.0,
-            timed(self._flush_when_idle),
-            clock=Clock(clock_type=ClockType.STEADY_TIME),
-        )
+        if paced():  # the end of the inputs is said by the player (slam_ros.progress)
+            self.create_subscription(Empty, END_TOPIC, timed(self._on_end, 'end'), END_QOS)
+        else:
+            self.create_timer(
+                self.idle_flush_s / 2.0,
+                timed(self._flush_when_idle),
+                clock=Clock(clock_type=ClockType.STEADY_TIME),
+            )
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: increments published, odometry samples dropped (not
@@ -246,6 +253,10 @@ class OdometryIngestNode(Node):
         if not self.flushed and time.monotonic() - self._last_odometry_wall > self.idle_flush_s:
             self.flushed = True
             self._publish(self.ingest.flush())
+
+    def _on_end(self, message: Empty) -> None:
+        self.flushed = True
+        self._publish(self.ingest.flush())
 
     def _publish(self, increments: list[Increment]) -> None:
         for increment in increments:

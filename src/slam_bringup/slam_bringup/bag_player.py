@@ -26,6 +26,16 @@ Parameters:
   wait_for_subscribers_s (double, 0) wait up to this long for every topic to have a
                                     subscriber before starting (0: start at once).
   progress_period_s (double, 5.0)   period of progress log lines when not on a terminal.
+  paced (bool, false)               paced replay (``slam_bringup.pacing``): no timing; each
+                                    message is published once every node reporting its
+                                    progress on /slam/progress has finished with what came
+                                    before, so the result does not depend on the machine's
+                                    load. /clock follows the messages' stamps.
+  paced_nodes (string[], none)      paced: wait for these nodes' first report before playing.
+  paced_timeout_s (double, 60.0)    paced: play on after waiting this long for the graph,
+                                    with a warning naming what it waited for, counted as
+                                    ``paced timeouts`` (longer than any one callback: the
+                                    mapper's solves take seconds).
 
 Frames: none (messages keep their recorded frame ids).
 """
@@ -40,6 +50,7 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
 from rclpy.executors import ExternalShutdownException
@@ -47,7 +58,9 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Empty
 
+from slam_bringup.pacing import PacedGate
 from slam_core.cli import console_main
 from slam_core.errors import ParameterError, SlamError
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamType
@@ -56,6 +69,7 @@ from slam_ros.bag.playback import LatenessStats, PlaybackConfig, Prefetcher, Tim
 from slam_ros.bag.source import BagSource
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import check_parameter_files, declare_parameters, parse_remaps, remap_rule
+from slam_ros.progress import END_QOS, END_TOPIC, PROGRESS_QOS, PROGRESS_TOPIC
 from slam_ros.qos import profile_from_recorded
 from slam_ros.typesys import message_class
 
@@ -103,11 +117,25 @@ PARAMETERS = ParamTable(
             'period of progress log lines off a terminal, s',
             range=POSITIVE,
         ),
+        Param('paced', False, 'paced replay: each message once the graph is done with the last'),
+        Param(
+            'paced_nodes',
+            [],
+            'paced: the nodes whose first progress report playback waits for',
+            type=ParamType.STRING_ARRAY,
+        ),
+        Param(
+            'paced_timeout_s',
+            60.0,
+            'paced: longest wait for the graph before playing on (with a warning), s',
+            range=POSITIVE,
+        ),
     ),
 )
 
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 WAIT_POLL_S = 0.01
+PACED_POLL_S = 0.001
 PRIME_TIMEOUT_S = 2.0
 PROGRESS_TICK_S = 0.1
 FINAL_REPORT_S = 0.25
@@ -137,7 +165,17 @@ class BagPlayerNode(Node):
 
     def __init__(self, **kwargs: object) -> None:
         super().__init__('bag_player', **kwargs)  # type: ignore[arg-type]
-        self.config = config_from_parameters(declare_parameters(self, PARAMETERS))
+        values = declare_parameters(self, PARAMETERS)
+        self.config = config_from_parameters(values)
+        self.paced = bool(values['paced'])
+        self.paced_timeout_s = float(values['paced_timeout_s'])
+        self.paced_timeouts = 0
+        self.gate = PacedGate(values['paced_nodes'])
+        self.end_publisher = self.create_publisher(Empty, END_TOPIC, END_QOS)
+        if self.paced:
+            self.create_subscription(
+                DiagnosticStatus, PROGRESS_TOPIC, self._on_progress, PROGRESS_QOS
+            )
         self.source = BagSource(self.config.bag_path).__enter__()
         span_s = max(self.source.end_ns - self.source.start_ns, 0) / 1e9
         if self.config.start_offset_s > span_s:
@@ -186,6 +224,10 @@ class BagPlayerNode(Node):
         self._thread = threading.Thread(target=self._play_safely, name='bag-player', daemon=True)
         self._thread.start()
 
+    def _on_progress(self, status: DiagnosticStatus) -> None:
+        if status.name != self.get_fully_qualified_name():  # its own publishes are counted
+            self.gate.update(status.name, [(value.key, value.value) for value in status.values])
+
     def _select_topics(self) -> tuple[str, ...]:
         recorded = self.source.topics()
         if not self.config.topics:
@@ -203,7 +245,10 @@ class BagPlayerNode(Node):
         try:
             self._wait_for_subscribers()
             while not self._stop.is_set():
-                self._play_once()
+                if self.paced:
+                    self._play_paced()
+                else:
+                    self._play_once()
                 if not self.config.loop:
                     break
         except SlamError as err:
@@ -218,6 +263,8 @@ class BagPlayerNode(Node):
             for name, count in self.published_by_topic.items()
         }
         counts['skipped'] = self.skipped
+        if self.paced:
+            counts['paced timeouts'] = self.paced_timeouts
         return counts
 
     def _lateness_values(self) -> dict[str, str]:
@@ -270,6 +317,62 @@ class BagPlayerNode(Node):
         in_bag = sum(self.source.topics()[name].count for name in self.topics)
         self.skipped += max(in_bag - (self.published - published_before), 0)
 
+    def _play_paced(self) -> None:
+        """One pass without timing: each message once the graph is done (``pacing``)."""
+        bag_start = self.source.start_ns + round(self.config.start_offset_s * 1e9)
+        self._pass_start_ns = bag_start
+        published_before = self.published
+        by_topic = {name: p.topic_name for name, p in self.publishers_by_topic.items()}
+        played: dict[str, int] = dict.fromkeys(by_topic.values(), 0)
+        self._wait_for_graph(played, first=True)
+        prefetch = Prefetcher(self.source, self.topics, bag_start)
+        try:
+            for message in prefetch:
+                self._wait_for_graph(played)
+                if self._stop.is_set():
+                    return
+                if self.clock_publisher is not None:
+                    self._publish_clock(message.timestamp_ns)
+                self.publishers_by_topic[message.topic].publish(message.data)
+                played[by_topic[message.topic]] += 1
+                self.published += 1
+                self.published_by_topic[message.topic] += 1
+                self._position_ns = message.timestamp_ns
+            self._wait_for_graph(played)
+            # what the nodes hold back until their inputs end comes out now (progress.py)
+            self.end_publisher.publish(Empty())
+            end = self.end_publisher.topic_name
+            played[end] = played.get(end, 0) + 1
+            self._wait_for_graph(played)
+        finally:
+            prefetch.close()
+        in_bag = sum(self.source.topics()[name].count for name in self.topics)
+        self.skipped += max(in_bag - (self.published - published_before), 0)
+
+    def _wait_for_graph(self, played: dict[str, int], *, first: bool = False) -> None:
+        """Wait until the graph is done with ``played`` (and, ``first``, every expected node
+        has reported), at most paced_timeout_s; then warn and play on."""
+        deadline = time.monotonic() + self.paced_timeout_s
+        while not self._stop.is_set():
+            waiting: list[object] = []
+            if first:
+                matched = {p.topic_name: p.get_subscription_count() for p in self.publishers}
+                waiting = [*self.gate.missing(), *self.gate.unmatched(matched)]
+            if not waiting:
+                waiting = list(self.gate.shortfalls(played))
+            if not waiting:
+                return
+            if time.monotonic() >= deadline:
+                self.paced_timeouts += 1
+                what = 'before the first message, ' if first else ''
+                listed = '; '.join(map(str, waiting[:3]))
+                self.get_logger().warning(
+                    f'paced replay: {what}still waiting for {listed} after '
+                    f'{self.paced_timeout_s:g} s; playing on ({self.paced_timeouts} so far)'
+                )
+                return
+            self._stop.wait(PACED_POLL_S)
+
     def _sleep_until(
         self, deadline_ns: int, mapping: TimeMapping, next_clock_ns: int, clock_period_ns: int
     ) -> int:
@@ -319,6 +422,8 @@ class BagPlayerNode(Node):
         played = f'published {self.published} messages from {str(self.config.bag_path)!r}'
         if not self.published:
             return f'{played} (nothing to publish: check topics and start_offset_s)'
+        if self.paced:
+            return f'{played}, paced ({self.paced_timeouts} waits for the graph timed out)'
         late = self.lateness.summary_ms()
         return f'{played}; lateness median {late["median_ms"]:.2f} ms, p95 {late["p95_ms"]:.2f} ms'
 
@@ -346,6 +451,12 @@ def build_arg_parser() -> argparse.ArgumentParser:
         metavar='S',
         help='wait up to S seconds for subscribers on every topic before starting',
     )
+    parser.add_argument(
+        '--paced',
+        action='store_true',
+        default=None,
+        help='paced replay: each message once the nodes reporting progress are done',
+    )
     return parser
 
 
@@ -360,6 +471,7 @@ def overrides_from_args(args: argparse.Namespace) -> list[rclpy.parameter.Parame
         'loop': args.loop,
         'clock_hz': args.clock_hz,
         'wait_for_subscribers_s': args.wait_for_subscribers,
+        'paced': args.paced,
     }
     return [
         rclpy.parameter.Parameter(name, value=value)

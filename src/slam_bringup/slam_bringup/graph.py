@@ -86,6 +86,7 @@ class PlayerSpec:
     clock_hz: float | None = None
     wait_for_subscribers_s: float | None = None
     progress_period_s: float | None = None
+    paced: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -300,6 +301,7 @@ _PLAYER_KEYS = (
     'clock_hz',
     'wait_for_subscribers_s',
     'progress_period_s',
+    'paced',
 )
 _RECORDER_KEYS = ('output', 'topics', 'exclude', 'discovery_period_s', 'queue_depth')
 _GRAPH_KEYS = (
@@ -415,6 +417,7 @@ def _player(check: _Checker, value: object, key: str) -> PlayerSpec:
         clock_hz=_optional(entry, 'clock_hz', check.number, key),
         wait_for_subscribers_s=_optional(entry, 'wait_for_subscribers_s', check.number, key),
         progress_period_s=_optional(entry, 'progress_period_s', positive, key),
+        paced=_optional(entry, 'paced', check.boolean, key),
     )
 
 

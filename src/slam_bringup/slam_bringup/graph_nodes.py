@@ -64,11 +64,13 @@ def with_overrides(
     rate: float | None = None,
     record: Path | None = None,
     exit_when_player_done: bool = False,
+    paced: bool = False,
 ) -> Graph:
     """Return ``graph`` with command-line overrides applied.
 
     ``bag`` replaces ``player.bag`` (and adds a player if there is none); ``record`` replaces
-    ``recorder.output`` (and adds a recorder of every topic if there is none).
+    ``recorder.output`` (and adds a recorder of every topic if there is none); ``paced``
+    makes the player's replay paced (``slam_bringup.pacing``).
     """
     player = graph.player
     if bag is not None:
@@ -77,6 +79,10 @@ def with_overrides(
         if player is None:
             raise GraphError(f'graph {str(graph.path)!r} has no player, so a rate cannot be set')
         player = dataclasses.replace(player, rate=rate)
+    if paced:
+        if player is None:
+            raise GraphError(f'graph {str(graph.path)!r} has no player, so it cannot be paced')
+        player = dataclasses.replace(player, paced=True)
     recorder = graph.recorder
     if record is not None:
         recorder = dataclasses.replace(recorder or RecorderSpec(), output=record)
@@ -172,7 +178,13 @@ def node_descriptions(graph: Graph) -> tuple[NodeDescription, ...]:
         for node in graph.nodes
     ]
     if graph.player is not None:
-        descriptions.append(_player_description(graph, graph.player))
+        player = _player_description(graph, graph.player)
+        if graph.player.paced:  # the player waits for the graph's nodes to report
+            names = [d.fully_qualified_name for d in descriptions]
+            player = dataclasses.replace(
+                player, parameters=(*player.parameters, {'paced_nodes': names})
+            )
+        descriptions.append(player)
     if graph.recorder is not None:
         descriptions.append(_recorder_description(graph, graph.recorder))
     return tuple(descriptions)

@@ -82,6 +82,7 @@ from slam_core.blas import single_threaded_blas
 from slam_core.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main
 from slam_core.errors import SlamError
 from slam_ros.diagnostics import Diagnostics
+from slam_ros.progress import PACED_ENV
 
 EXIT_NODE_FAILED = 1
 POLL_S = 0.05
@@ -544,6 +545,12 @@ def build_arg_parser() -> argparse.ArgumentParser:
     parser.add_argument('--bag', type=Path, help="bag to play (replaces the GRAPH's player.bag)")
     parser.add_argument('--rate', type=_positive_float, help='playback speed factor')
     parser.add_argument(
+        '--paced',
+        action='store_true',
+        help='paced replay: the player publishes each message once the nodes are done with '
+        'the last (the same result on an idle and on a loaded machine)',
+    )
+    parser.add_argument(
         '--record', type=Path, metavar='PATH', help='bag to record to (replaces recorder.output)'
     )
     return parser
@@ -559,8 +566,11 @@ def main(argv: list[str] | None = None) -> int:
         rate=args.rate,
         record=args.record,
         exit_when_player_done=args.exit_when_player_done,
+        paced=args.paced,
     )
     descriptions = node_descriptions(graph)
+    if graph.player is not None and graph.player.paced:
+        os.environ[PACED_ENV] = '1'  # the nodes report their progress (slam_ros.progress)
     if not descriptions:
         raise graph.error('graph', 'has no nodes, player or recorder to run')
     mode = 'one process per node' if args.processes else 'one process'

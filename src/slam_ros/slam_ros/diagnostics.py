@@ -40,6 +40,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
 from slam_core.stamps import stamp_to_ns
+from slam_ros.progress import Progress, paced
 from slam_ros.qos import output_qos
 
 BUSY_WARN = 0.9
@@ -75,6 +76,8 @@ class Diagnostics:
         self._last_dropped = 0
         self.publisher = node.create_publisher(DiagnosticArray, '/diagnostics', output_qos())
         node.create_timer(period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        # paced replay: a progress report after every callback (slam_ros.progress)
+        self.progress = Progress(node, self.taken_by_topic) if paced() else None
 
     def timed(
         self, callback: Callable[..., None], input: str | None = None
@@ -93,6 +96,8 @@ class Diagnostics:
                 finally:
                     self.active -= 1
                     self._add_time(time.perf_counter() - start)
+                    if self.progress is not None:
+                        self.progress.report()
 
             return timer_wrapper
         self.received.setdefault(input, 0)
@@ -114,8 +119,21 @@ class Diagnostics:
                     stamp_ns = stamp_to_ns(header.stamp)
                     if self.latest_stamp_ns is None or stamp_ns > self.latest_stamp_ns:
                         self.latest_stamp_ns = stamp_ns
+                if self.progress is not None:
+                    self.progress.report()
 
+        wrapper.slam_input = input  # type: ignore[attr-defined]
         return wrapper
+
+    def taken_by_topic(self) -> dict[str, int]:
+        """Messages taken per subscribed topic (resolved name), over the inputs on it."""
+        taken: dict[str, int] = {}
+        for subscription in self.node.subscriptions:
+            input = getattr(subscription.callback, 'slam_input', None)
+            if input is not None:
+                topic = subscription.topic_name
+                taken[topic] = taken.get(topic, 0) + self.received[input]
+        return taken
 
     def _add_time(self, spent: float) -> None:
         self.processing_s += spent
@@ -202,3 +220,5 @@ class Diagnostics:
         array.header.stamp = self.node.get_clock().now().to_msg()
         array.status = [self.status()]
         self.publisher.publish(array)
+        if self.progress is not None:
+            self.progress.report()

@@ -1,0 +1,99 @@
+"""Topic-level: paced replay (``slam_run --paced``) gives the result of the offline computation,
+exactly, whatever the machine's load: the player publishes each message only once every node
+has finished with what came before (slam_bringup.pacing), so no queue overflows and no
+wall-clock timeout fires.
+
+The EM-SAM graph (em_sam_office.yaml: odometry_ingest and em_sam_mapper, one process each)
+plays bags/office_moveable.mcap paced. The keyframes the mapper ends with must be those of
+OdometryIngest fed the same bag in the same order with the node's settings, every one (the
+held-back last keyframes come out on the player's end-of-input, not on an idle timer); every
+message the player published was taken, nothing was lost or dropped, and no wait for the
+graph timed out.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from graph_checks import last_reports
+from nav_msgs.msg import Odometry
+from rclpy.serialization import deserialize_message
+
+from em_sam_node.conversions import odometry_pose
+from em_sam_node.ingest import IngestConfig, OdometryIngest
+from slam_core.stamps import stamp_to_ns
+from slam_interfaces.msg import LandmarkObservationArray
+from slam_ros.bag.source import BagSource
+from slam_ros.qos import output_qos
+from slam_ros.testing.harness import RosHarness
+
+pytestmark = pytest.mark.topic
+
+ROOT = Path(__file__).resolve().parents[1]
+BAG = ROOT / 'bags' / 'office_moveable.mcap'
+RUN_TIMEOUT_S = 400.0
+
+
+def offline_keyframes(bag: Path) -> list[int]:
+    """The keyframe stamps of OdometryIngest (the node's defaults) over the bag, in order."""
+    ingest = OdometryIngest(IngestConfig())
+    increments = []
+    with BagSource(bag) as source:
+        for message in source.messages(['/odom', '/landmark_observations']):
+            if message.topic == '/odom':
+                stamp_ns, pose = odometry_pose(deserialize_message(message.data, Odometry))
+                increments += ingest.add_odometry(stamp_ns, pose)
+            else:
+                array = deserialize_message(message.data, LandmarkObservationArray)
+                increments += ingest.add_observation_stamp(stamp_to_ns(array.header.stamp))
+    increments += ingest.flush()
+    return [increments[0].stamp_from_ns, *(i.stamp_to_ns for i in increments)]
+
+
+def test_paced_replay_maps_every_keyframe_of_the_offline_computation(
+    ros_harness: RosHarness, tmp_path: Path
+) -> None:
+    assert BAG.is_file(), f'{BAG} is missing; restore it from git or see bags/README.md'
+    diagnostics = ros_harness.collect('/diagnostics', DiagnosticArray, output_qos(depth=1000))
+    log = tmp_path / 'slam_run.log'
+    with log.open('wb') as output:
+        process = subprocess.Popen(
+            [
+                sys.executable, '-m', 'slam_bringup.runner', 'em_sam_office.yaml', '--processes',
+                '--bag', str(BAG), '--paced', '--exit-when-player-done',
+            ],
+            cwd=tmp_path, stdout=output, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            env={**os.environ, 'PYTHONUNBUFFERED': '1'},
+        )  # fmt: skip
+        try:
+            status = process.wait(timeout=RUN_TIMEOUT_S)
+        finally:
+            if process.poll() is None:
+                process.kill()
+    text = log.read_text(errors='replace')
+    assert status == 0, text
+    assert 'paced (0 waits for the graph timed out)' in text, text
+
+    expected = offline_keyframes(BAG)
+    report = json.loads((tmp_path / 'out' / 'em_sam' / 'em_sam_report.json').read_text())
+    assert report['trajectory']['stamps_ns'] == expected
+    assert report['dropped_observations'] == 0
+    assert report['observations_before_first_keyframe'] == 0
+
+    last = last_reports(list(diagnostics.messages))
+    player, ingest = last['/bag_player'], last['/odometry_ingest']
+    mapper = last['/em_sam_mapper']
+    assert int(player['paced timeouts']) == 0, player
+    assert int(ingest['received odom']) == int(player['published /odom']), (ingest, player)
+    assert int(ingest['lost odom']) == 0 and int(ingest['dropped']) == 0, ingest
+    assert int(mapper['received odometry_increments']) == len(expected) - 1, mapper
+    assert int(mapper['lost odometry_increments']) == 0 and int(mapper['dropped']) == 0
+    assert int(mapper['received landmark_observations']) == int(
+        player['published /landmark_observations']
+    ), (mapper, player)
