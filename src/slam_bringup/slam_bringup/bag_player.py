@@ -170,7 +170,7 @@ class BagPlayerNode(Node):
         self.paced = bool(values['paced'])
         self.paced_timeout_s = float(values['paced_timeout_s'])
         self.paced_timeouts = 0
-        self.gate = PacedGate(values['paced_nodes'])
+        self.gate = PacedGate(name for name in values['paced_nodes'] if name)  # [''] = none
         self.end_publisher = self.create_publisher(Empty, END_TOPIC, END_QOS)
         if self.paced:
             self.create_subscription(

@@ -17,6 +17,7 @@ each node are required)::
           remappings: {odom: /wheel/odom}   # or ['odom:=/wheel/odom']
       player:                       # a bag_player node named bag_player
         bag: ../../../bags/sample   # or --bag; parameters as bag_player's (rate, topics, ...)
+        paced: true                 # or --paced: paced replay (slam_bringup.pacing)
       recorder:                     # a bag_recorder node named bag_recorder
         output: out/run             # or --record; topics: [...] (empty: all topics)
 
@@ -87,6 +88,8 @@ class PlayerSpec:
     wait_for_subscribers_s: float | None = None
     progress_period_s: float | None = None
     paced: bool | None = None
+    paced_nodes: tuple[str, ...] = ()  # slam_run sets the graph's nodes when paced
+    paced_timeout_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -302,6 +305,8 @@ _PLAYER_KEYS = (
     'wait_for_subscribers_s',
     'progress_period_s',
     'paced',
+    'paced_nodes',
+    'paced_timeout_s',
 )
 _RECORDER_KEYS = ('output', 'topics', 'exclude', 'discovery_period_s', 'queue_depth')
 _GRAPH_KEYS = (
@@ -418,6 +423,8 @@ def _player(check: _Checker, value: object, key: str) -> PlayerSpec:
         wait_for_subscribers_s=_optional(entry, 'wait_for_subscribers_s', check.number, key),
         progress_period_s=_optional(entry, 'progress_period_s', positive, key),
         paced=_optional(entry, 'paced', check.boolean, key),
+        paced_nodes=_optional(entry, 'paced_nodes', check.strings, key) or (),
+        paced_timeout_s=_optional(entry, 'paced_timeout_s', positive, key),
     )
 
 

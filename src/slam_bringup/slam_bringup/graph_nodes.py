@@ -106,13 +106,15 @@ def _player_description(graph: Graph, player: PlayerSpec) -> NodeDescription:
     values: dict[str, Any] = {'bag_path': str(player.bag)}
     for field in dataclasses.fields(PlayerSpec):
         value = getattr(player, field.name)
-        if field.name in ('bag', 'topics', 'remap') or value is None:
+        if field.name in ('bag', 'topics', 'remap', 'paced_nodes') or value is None:
             continue
         values[field.name] = value
     if player.topics:
         values['topics'] = list(player.topics)
     if player.remap:
         values['remap'] = [f'{source}:={target}' for source, target in player.remap]
+    if player.paced_nodes:
+        values['paced_nodes'] = list(player.paced_nodes)
     return NodeDescription(
         key='graph.player',
         role='player',
