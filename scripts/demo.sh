@@ -40,8 +40,8 @@ export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$((100 + $$ % 100))}"
 echo "== sample bag"
 bag_info "$SAMPLE"
 echo
-echo "== EM-SAM nodes on the bag (slam_run em_sam_office.yaml, 20x)"
-slam_run em_sam_office.yaml --bag "$SAMPLE" --rate 20 --exit-when-player-done
+echo "== EM-SAM nodes on the bag (slam_run em_sam_office.yaml, paced replay: the same result on any load)"
+slam_run em_sam_office.yaml --bag "$SAMPLE" --paced --exit-when-player-done
 mv "$ROOT/out/em_sam" "$OUT/live_mapper"
 echo
 echo "== evaluation against ground truth (em_sam_evaluate)"

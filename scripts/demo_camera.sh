@@ -20,8 +20,8 @@ export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$((100 + $$ % 100))}"
 echo "== sample bag"
 bag_info "$SAMPLE"
 echo
-echo "== marker_detector + EM-SAM nodes on the bag (slam_run em_sam_office_camera.yaml)"
-slam_run em_sam_office_camera.yaml --bag "$SAMPLE" --exit-when-player-done
+echo "== marker_detector + EM-SAM nodes on the bag (slam_run em_sam_office_camera.yaml, paced replay)"
+slam_run em_sam_office_camera.yaml --bag "$SAMPLE" --paced --exit-when-player-done
 mv "$ROOT/out/em_sam_camera" "$OUT/live_mapper"
 echo
 echo "== the same detector offline (marker_detect_bag)"

@@ -23,8 +23,8 @@ export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$((100 + $$ % 100))}"
 echo "== sample bag"
 bag_info "$SAMPLE"
 echo
-echo "== marker_detector, feature_tracker, monoslam and shadow_filter on the bag (slam_run monoslam_shadow.yaml, 0.25x)"
-slam_run monoslam_shadow.yaml --bag "$SAMPLE" --exit-when-player-done 2>&1 | tee "$OUT/live.log"
+echo "== marker_detector, feature_tracker, monoslam and shadow_filter on the bag (slam_run monoslam_shadow.yaml, paced replay)"
+slam_run monoslam_shadow.yaml --bag "$SAMPLE" --paced --exit-when-player-done 2>&1 | tee "$OUT/live.log"
 mv "$ROOT/out/monoslam_shadow" "$OUT/live"
 mv "$OUT/live.log" "$OUT/live/run.log"
 echo
