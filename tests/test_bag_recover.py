@@ -60,6 +60,10 @@ def test_recorder_killed_with_sigkill_is_recovered(
     assert not (tmp_path / 'run').exists()
     (staging,) = tmp_path.glob('.run.recording-*')
 
+    refused = subprocess.run(
+        ['bag_info', str(staging)], capture_output=True, text=True, timeout=60, env=tool_env()
+    )
+    assert refused.returncode == 2 and f'bag_recover {staging}' in refused.stderr
     before = sorted(p.stat().st_mtime_ns for p in staging.rglob('*'))
     result = run_recover(str(staging))
     assert result.returncode == 0, result.stderr
