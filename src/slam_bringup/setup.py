@@ -27,6 +27,7 @@ setup(
             'bag_player = slam_bringup.bag_player:main',
             'bag_recorder = slam_bringup.bag_recorder:main',
             'bag_info = slam_bringup.bag_info:main',
+            'bag_recover = slam_bringup.bag_recover:main',
             'slam_run = slam_bringup.runner:main',
             'camera_mount = slam_bringup.camera_mount:main',
             'peoplebot_graph = slam_bringup.peoplebot:main',

@@ -6,6 +6,9 @@ QoS of each subscription adapts to the publishers (reliable only if all publishe
 transient-local only if all are), and their offered profiles go into the bag's metadata.
 The bag is written in a hidden staging directory and moved to ``output`` when finalized.
 On Ctrl-C (SIGINT) or SIGTERM, messages already received are drained and the bag finalized.
+Every ``flush_period_s`` the messages received so far go to disk as a complete mcap chunk,
+so a recorder killed with SIGKILL loses at most that last period: ``bag_recover`` rebuilds
+the bag from the staging directory it leaves (``.NAME.recording-PID``).
 
 Topics:
   subscribes  ``topics`` (or all discovered topics except ``exclude``), raw CDR.
@@ -23,6 +26,8 @@ Parameters:
   exclude (string[], [/rosout, /parameter_events])  topics skipped when recording all.
   discovery_period_s (double, 0.5)        how often to look for new topics, > 0.
   queue_depth (int, 1000)                 subscription history depth, >= 1.
+  flush_period_s (double, 1.0)            longest time a received message waits in memory
+                                          before it is on disk, s, > 0.
 
 Frames: none (messages are stored as received).
 """
@@ -77,6 +82,12 @@ PARAMETERS = ParamTable(
             range=POSITIVE,
         ),
         Param('queue_depth', 1000, 'subscription history depth', range=AT_LEAST_ONE),
+        Param(
+            'flush_period_s',
+            1.0,
+            'longest time a received message waits in memory before it is on disk, s',
+            range=POSITIVE,
+        ),
     ),
 )
 DRAIN_TIMEOUT_S = 2.0
@@ -98,7 +109,10 @@ class BagRecorderNode(Node):
         self.queue_depth = int(values['queue_depth'])
         self.selected = tuple(values['topics'])
         self.exclude = frozenset(values['exclude'])
-        self.writer = AtomicBagWriter(Path(values['output'] or default_output_name()))
+        self.writer = AtomicBagWriter(
+            Path(values['output'] or default_output_name()),
+            flush_period_s=float(values['flush_period_s']),
+        )
         self.types = TypeRegistry()
         self._unavailable: dict[str, str] = {}
         self._lock = threading.Lock()
@@ -110,9 +124,10 @@ class BagRecorderNode(Node):
         )
         self._discover()
         # Steady clock: with use_sim_time a ROS-time timer would wait for /clock to move.
-        self.create_timer(
-            self.discovery_period_s, self._discover, clock=Clock(clock_type=ClockType.STEADY_TIME)
-        )
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(self.discovery_period_s, self._discover, clock=steady)
+        # Half the period: a chunk is written at most flush_period_s after its first message.
+        self.create_timer(self.writer.flush_period_s / 2, self._flush, clock=steady)
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: messages written per topic; dropped after closing."""
@@ -172,6 +187,10 @@ class BagRecorderNode(Node):
                 self.dropped += 1
             else:
                 self.writer.write(topic, self.get_clock().now().nanoseconds, data)
+
+    def _flush(self) -> None:
+        with self._lock:
+            self.writer.flush()
 
     def finalize(self) -> Path:
         """Close the bag and move it to its output path; return that path."""

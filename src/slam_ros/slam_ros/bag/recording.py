@@ -2,18 +2,28 @@
 
 The bag is written inside a hidden staging directory next to the target and renamed into
 place by ``close()``, so a reader never sees a half-written bag under the target name.
+
+So that a writer killed without ``close()`` (SIGKILL, power to the process cut) loses at most
+the last ``flush_period_s`` of messages, the pending mcap chunk is closed and the file flushed
+at least that often: every chunk on disk is a complete record (its schema and channel records
+inside the first chunk that follows their registration), followed by its message indexes.
+``bag_recover`` rebuilds a readable bag from such a file; only the summary, written by
+``close()``, is missing. (A process kill leaves the page cache to the kernel, so a flush is
+enough; no fsync.)
 """
 
 from __future__ import annotations
 
 import os
 import shutil
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from rosbags.interfaces import Connection, Qos
 from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.storage_mcap import McapWriter
 
 from slam_core.errors import BagError
 
@@ -29,7 +39,10 @@ class TopicRecord:
 class AtomicBagWriter:
     """Writes one mcap bag; ``close()`` finalizes it and moves it to ``target``."""
 
-    def __init__(self, target: Path) -> None:
+    def __init__(self, target: Path, *, flush_period_s: float = 1.0) -> None:
+        if not flush_period_s > 0:
+            raise BagError(f'flush_period_s must be > 0, got {flush_period_s}')
+        self.flush_period_s = flush_period_s
         self.target = Path(target).expanduser().absolute()
         if self.target.exists():
             raise BagError(f'output {str(self.target)!r} exists already; choose another name')
@@ -46,6 +59,12 @@ class AtomicBagWriter:
             self._writer.open()
         except OSError as err:
             raise BagError(f'output {str(self.target)!r} cannot be written: {err}') from None
+        # rosbags' mcap storage keeps the open chunk in memory; close_chunk() writes it out.
+        storage = self._writer.storage
+        if not isinstance(storage, McapWriter):
+            raise BagError(f'rosbags gave a {type(storage).__name__}, not its mcap writer')
+        self._storage = storage
+        self._last_flush = time.monotonic()
         self.counts: dict[str, int] = {}
         self._topics: dict[str, TopicRecord] = {}
         self.closed = False
@@ -68,6 +87,17 @@ class AtomicBagWriter:
         """Append one CDR message received at ``timestamp_ns``."""
         self._writer.write(self._topics[topic].connection, timestamp_ns, data)
         self.counts[topic] += 1
+        if time.monotonic() - self._last_flush >= self.flush_period_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the open chunk (if it holds messages) and flush the file to the OS."""
+        self._last_flush = time.monotonic()
+        if self.closed:
+            return
+        if self._storage.chunk.msgs:
+            self._storage.close_chunk()
+        self._storage.bio.flush()
 
     @property
     def message_count(self) -> int:

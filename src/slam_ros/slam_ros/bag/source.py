@@ -58,6 +58,11 @@ def storage_kind(path: Path) -> str:
             return 'mcap'
         if any(path.glob('*.db3')):
             return 'sqlite3'
+        if any(path.glob('*/*.mcap')):  # a killed recorder's staging dir .NAME.recording-PID
+            raise BagError(
+                f'bag {str(path)!r} is an unfinished recording (its recorder was killed)'
+                f'{recover_hint(path)}'
+            )
         raise BagError(f'bag {str(path)!r}: directory holds no .mcap or .db3 file')
     raise BagError(
         f'bag {str(path)!r}: unrecognized format {path.suffix!r}; expected a rosbag2 '
@@ -78,7 +83,10 @@ class BagSource:
                 [self.path], default_typestore=get_typestore(Stores.ROS2_JAZZY)
             )
         except Exception as err:
-            raise BagError(f'bag {str(self.path)!r} cannot be read: {err}') from None
+            hint = recover_hint(self.path) if self.storage == 'mcap' else ''
+            raise BagError(
+                f'bag {str(self.path)!r} cannot be read: {_describe(err)}{hint}'
+            ) from None
         self._converters: dict[str, Callable[[bytes], bytes]] = {}
         self._ros2_store: Typestore | None = None
 
@@ -88,7 +96,7 @@ class BagSource:
         except Exception as err:
             raise BagError(
                 f'bag {str(self.path)!r} is corrupt or truncated and cannot be opened: '
-                f'{_describe(err)}'
+                f'{_describe(err)}{self._hint()}'
             ) from None
         return self
 
@@ -193,7 +201,11 @@ class BagSource:
             at = '' if stamp is None else f' after stamp {stamp} ns'
             raise BagError(
                 f'bag {str(self.path)!r} is corrupt or truncated{at}: {_describe(err)}'
+                f'{self._hint()}'
             ) from None
+
+    def _hint(self) -> str:
+        return recover_hint(self.path) if self.storage == 'mcap' else ''
 
     def _check_payload(self, connection: Connection, timestamp: int, data: bytes) -> None:
         try:
@@ -240,6 +252,11 @@ class BagSource:
                 dst_is2=True,
             )
         )
+
+
+def recover_hint(path: Path) -> str:
+    """The advice appended to an unreadable mcap bag's error."""
+    return f'; run `bag_recover {path}` to rebuild a readable bag from it'
 
 
 def _describe(err: BaseException) -> str:
