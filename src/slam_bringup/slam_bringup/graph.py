@@ -101,6 +101,7 @@ class RecorderSpec:
     exclude: tuple[str, ...] | None = None
     discovery_period_s: float | None = None
     queue_depth: int | None = None
+    flush_period_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -308,7 +309,14 @@ _PLAYER_KEYS = (
     'paced_nodes',
     'paced_timeout_s',
 )
-_RECORDER_KEYS = ('output', 'topics', 'exclude', 'discovery_period_s', 'queue_depth')
+_RECORDER_KEYS = (
+    'output',
+    'topics',
+    'exclude',
+    'discovery_period_s',
+    'queue_depth',
+    'flush_period_s',
+)
 _GRAPH_KEYS = (
     'description',
     'nodes',
@@ -439,6 +447,7 @@ def _recorder(check: _Checker, value: object, key: str) -> RecorderSpec:
         exclude=_optional(entry, 'exclude', check.strings, key),
         discovery_period_s=_optional(entry, 'discovery_period_s', check.positive, key),
         queue_depth=_optional(entry, 'queue_depth', check.integer, key),
+        flush_period_s=_optional(entry, 'flush_period_s', check.positive, key),
     )
 
 

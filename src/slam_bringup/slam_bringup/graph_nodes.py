@@ -136,7 +136,7 @@ def _recorder_description(graph: Graph, recorder: RecorderSpec) -> NodeDescripti
         values['topics'] = list(recorder.topics)
     if recorder.exclude:
         values['exclude'] = list(recorder.exclude)
-    for name in ('discovery_period_s', 'queue_depth'):
+    for name in ('discovery_period_s', 'queue_depth', 'flush_period_s'):
         if getattr(recorder, name) is not None:
             values[name] = getattr(recorder, name)
     # bag_recorder's command line wants the topics, or --all.
