@@ -49,6 +49,9 @@ class NodeDescription:
     parameters: tuple[ParameterSource, ...]
     remappings: tuple[Remapping, ...]
     arguments: tuple[str, ...] = ()
+    respawn: bool = False
+    respawn_delay_s: float = 1.0
+    respawn_parameters: dict[str, Any] | None = None
 
     @property
     def fully_qualified_name(self) -> str:
@@ -168,6 +171,9 @@ def node_descriptions(graph: Graph) -> tuple[NodeDescription, ...]:
             namespace=node.namespace,
             parameters=(*node.parameters, *_sim_time(graph)),
             remappings=node.remappings,
+            respawn=node.respawn,
+            respawn_delay_s=node.respawn_delay_s,
+            respawn_parameters=node.respawn_parameters,
         )
         for node in graph.nodes
     ]
