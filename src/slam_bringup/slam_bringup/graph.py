@@ -88,6 +88,7 @@ class PlayerSpec:
     start_offset_s: float | None = None
     topics: tuple[str, ...] = ()
     remap: tuple[Remapping, ...] = ()
+    replayable_topics: tuple[str, ...] = ()
     loop: bool | None = None
     clock_hz: float | None = None
     wait_for_subscribers_s: float | None = None
@@ -310,6 +311,7 @@ _PLAYER_KEYS = (
     'start_offset_s',
     'topics',
     'remap',
+    'replayable_topics',
     'loop',
     'clock_hz',
     'wait_for_subscribers_s',
@@ -445,6 +447,7 @@ def _player(check: _Checker, value: object, key: str) -> PlayerSpec:
         start_offset_s=_optional(entry, 'start_offset_s', check.number, key),
         topics=_optional(entry, 'topics', check.strings, key) or (),
         remap=_optional(entry, 'remap', check.remappings, key) or (),
+        replayable_topics=_optional(entry, 'replayable_topics', check.strings, key) or (),
         loop=_optional(entry, 'loop', check.boolean, key),
         clock_hz=_optional(entry, 'clock_hz', check.number, key),
         wait_for_subscribers_s=_optional(entry, 'wait_for_subscribers_s', check.number, key),

@@ -103,9 +103,9 @@ def _player_description(graph: Graph, player: PlayerSpec) -> NodeDescription:
     values: dict[str, Any] = {'bag_path': str(player.bag)}
     for field in dataclasses.fields(PlayerSpec):
         value = getattr(player, field.name)
-        if field.name in ('bag', 'topics', 'remap') or value is None:
+        if field.name in ('bag', 'topics', 'remap') or value is None or value == ():
             continue
-        values[field.name] = value
+        values[field.name] = list(value) if isinstance(value, tuple) else value
     if player.topics:
         values['topics'] = list(player.topics)
     if player.remap:
