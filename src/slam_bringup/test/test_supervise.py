@@ -14,7 +14,12 @@ import yaml
 from slam_bringup import runner
 from slam_bringup.graph import load_graph
 from slam_bringup.graph_nodes import node_descriptions
-from slam_bringup.supervise import MAX_DELAY_S, respawn_delay_s, restart_description
+from slam_bringup.supervise import (
+    MAX_DELAY_S,
+    respawn_delay_s,
+    restart_description,
+    warn_if_respawn_ignored,
+)
 from slam_core.errors import GraphError
 
 
@@ -128,3 +133,16 @@ def test_a_node_without_respawn_that_dies_still_fails_the_graph(
     code = runner.run_processes(graph, node_descriptions(graph), scratch, threading.Event())
     assert code == runner.EXIT_NODE_FAILED
     assert len(log.read_text(encoding='utf-8').splitlines()) == 1
+
+
+def test_one_process_says_that_respawn_is_ignored(tmp_path: Path) -> None:
+    said: list[str] = []
+    descriptions = node_descriptions(load_graph(write(tmp_path, {'respawn': True})))
+    warn_if_respawn_ignored(descriptions, said.append)
+    assert said == [
+        'warning: respawn is ignored in one process (graph.nodes[0]): a node cannot be '
+        'restarted alone; run with --processes'
+    ]
+    said.clear()
+    warn_if_respawn_ignored(node_descriptions(load_graph(write(tmp_path, {}))), said.append)
+    assert said == []
