@@ -21,7 +21,8 @@ Topics:
               /tf (tf2_msgs/TFMessage): map->odom, every tf_period_s
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
               and dropped, keyframes, observations (and those from before the first
-              keyframe, apart), solves, processing time (the solves' too), lag
+              keyframe, apart), inputs already held (a restart's replayed history),
+              solves, processing time (the solves' too), lag
               (slam_ros.diagnostics)
 Services:
   ~/optimize (std_srvs/Trigger)          solve now and publish.
