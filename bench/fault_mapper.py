@@ -81,6 +81,13 @@ def main() -> int:
                 domain_id=domain,
             )
             rows.append((kill_after_s, killed, *verdict(killed, reference)))
+            if not rows[-1][2]:  # what the mapper and slam_run said, for the failure
+                lines = [
+                    line
+                    for line in killed.log.splitlines()
+                    if ('em_sam_mapper' in line or 'slam_run' in line) and 'EM-SAM (' not in line
+                ]
+                print(f'run {index + 1}:', *lines[-40:], sep='\n', file=sys.stderr)
     print(
         f'revision {source_revision()}, {BAG.name} at rate {args.rate:g}, checkpoint '
         f'period {CHECKPOINT_PERIOD_S:g} s; uninterrupted: {reference.num_keyframes} '
