@@ -38,6 +38,7 @@ def start_load() -> list[multiprocessing.Process]:
     for core in range(os.cpu_count() or 1):
         process = multiprocessing.Process(target=busy_loop, daemon=True)
         process.start()
+        assert process.pid is not None
         os.sched_setaffinity(process.pid, {core})
         loads.append(process)
     return loads

@@ -7,23 +7,28 @@ first), a MarkerArray like the paper's Fig. 5, and TF map->odom. Writes a report
 PNG figures, atomically) on request and on shutdown.
 
 Topics:
-  subscribes  odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000)
+  subscribes  odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000,
+              transient-local unless increments_transient_local is false: a restarted mapper
+              gets what odometry_ingest published while it was down, and skips what it holds)
               landmark_observations (slam_interfaces/LandmarkObservationArray, reliable,
               depth 1000: deep, so that inputs queued during a solve (or another node's
               long callback in the same executor) are not overwritten: 1.2 s of solving at
-              20x replay is 180 of them)
+              20x replay is 180 of them; transient-local when observations_transient_local
+              is true, for graphs whose detectors publish them so; bags replay them volatile)
   publishes   em_sam/path (nav_msgs/Path), em_sam/landmarks (slam_interfaces/LandmarkMap),
               em_sam/moveable (slam_interfaces/MoveableLandmarkArray),
               em_sam/markers (visualization_msgs/MarkerArray): reliable, transient-local, 1
               /tf (tf2_msgs/TFMessage): map->odom, every tf_period_s
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
               and dropped, keyframes, observations (and those from before the first
-              keyframe, apart), solves, processing time (the solves' too), lag
+              keyframe, apart), inputs already held (a restart's replayed history),
+              solves, processing time (the solves' too), lag
               (slam_ros.diagnostics)
 Services:
   ~/optimize (std_srvs/Trigger)          solve now and publish.
   ~/find_landmark (slam_interfaces/FindLandmark)  sightings of a landmark, most recent first.
   ~/write_report (std_srvs/Trigger)      write the report now.
+  ~/save_map (std_srvs/Trigger)          write a checkpoint to checkpoint_file now.
 
 Parameters:
   mode ('robust')                 'paper' (as published) or 'robust'.
@@ -58,6 +63,20 @@ Parameters:
   map_frame ('map'), odom_frame ('odom')  frame ids.
   tf_period_s (0.1)               period of the map->odom broadcast, > 0.
   report_dir ('')                 where to write em_sam_report.json and figures; '' = none.
+  checkpoint_period_s (10.0)      save a checkpoint this often when the state changed (and on
+                                  shutdown); 0 = only on ~/save_map. 10 s bounds the work a
+                                  crash loses to one period; a save of the office run (1800
+                                  keyframes) takes a few ms.
+  checkpoint_file ('')            the checkpoint (em_sam_node.checkpoint, .npz, written
+                                  atomically); '' = report_dir/em_sam_checkpoint.npz, and
+                                  no checkpoints when report_dir is '' too.
+  resume_from ('')                start from this checkpoint instead of empty; 'auto' = from
+                                  checkpoint_file when it exists (what a GRAPH entry with
+                                  respawn: true gives a restart in respawn_parameters). A
+                                  bad checkpoint stops the node with an error naming it.
+  increments_transient_local (true), observations_transient_local (false)  durability of
+                                  the two subscriptions (a transient-local one only hears
+                                  transient-local publishers).
 
 Frames: the map frame is the odometry frame at the first keyframe.
 """
@@ -77,6 +96,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
+from em_sam_node.checkpoint import load_checkpoint, save_checkpoint
 from em_sam_node.conversions import increment_from_message, observations_from_message
 from em_sam_node.mapper import MapperProcessor
 from em_sam_node.mapper_outputs import (
@@ -99,7 +119,7 @@ from slam_interfaces.msg import (
 from slam_interfaces.srv import FindLandmark
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
-from slam_ros.qos import latched_qos, output_qos
+from slam_ros.qos import latched_qos, output_qos, replayed_qos
 from slam_ros.spin import spin_node
 
 
@@ -115,6 +135,11 @@ class EmSamMapperNode(Node):
         self.map_frame = str(values['map_frame'])
         self.odom_frame = str(values['odom_frame'])
         self.report_dir = Path(values['report_dir']).expanduser() if values['report_dir'] else None
+        self.checkpoint_file = self._checkpoint_path(str(values['checkpoint_file']))
+        self.checkpoint_period_s = float(values['checkpoint_period_s'])
+        self._saved_state: tuple[int, ...] | None = None
+        self.solves = 0
+        self._resume(str(values['resume_from']))
 
         latched = latched_qos()
         self.path_publisher = self.create_publisher(PathMessage, 'em_sam/path', latched)
@@ -124,29 +149,32 @@ class EmSamMapperNode(Node):
         )
         self.marker_publisher = self.create_publisher(MarkerArray, 'em_sam/markers', latched)
         self.tf_publisher = self.create_publisher(TFMessage, '/tf', output_qos(depth=100))
-        self.solves = 0
         self.diagnostics = Diagnostics(self, self._counts)
         timed = self.diagnostics.timed
         self.create_subscription(
             OdometryIncrement,
             'odometry_increments',
             timed(self._on_increment, 'odometry_increments'),
-            output_qos(depth=1000),
+            replayed_qos(1000) if values['increments_transient_local'] else output_qos(1000),
         )
         self.create_subscription(
             LandmarkObservationArray,
             'landmark_observations',
             timed(self._on_observations, 'landmark_observations'),
-            output_qos(depth=1000),
+            replayed_qos(1000) if values['observations_transient_local'] else output_qos(1000),
         )
         self.create_service(Trigger, '~/optimize', self._on_optimize)
         self.create_service(Trigger, '~/write_report', self._on_write_report)
         self.create_service(FindLandmark, '~/find_landmark', self._on_find_landmark)
+        self.create_service(Trigger, '~/save_map', self._on_save_map)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if self.checkpoint_period_s > 0 and self.checkpoint_file is not None:
+            self.create_timer(self.checkpoint_period_s, timed(self._on_checkpoint), clock=steady)
         if self.optimize_period_s > 0:
             self.create_timer(self.optimize_period_s, timed(self._on_timer), clock=steady)
         self.create_timer(tf_period_s, timed(self._publish_tf), clock=steady)
-        self._dirty = False
+        # a resumed solution has no sightings: the next solve (warm-started from it) makes them
+        self._dirty = self.mapper.result is not None
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: keyframes, observations on them and waiting for one,
@@ -159,11 +187,70 @@ class EmSamMapperNode(Node):
             'pending observations': len(mapper.pending),
             'dropped': mapper.dropped_increments + mapper.dropped_observations,
             'before first keyframe': mapper.before_start_observations,
+            'already held': mapper.duplicate_increments + mapper.duplicate_observations,
             'solves': self.solves,
         }
 
     def _warn(self, message: str) -> None:
         self.get_logger().warning(message, throttle_duration_sec=2.0)
+
+    # -- checkpoints ----------------------------------------------------------------------
+    def _checkpoint_path(self, text: str) -> Path | None:
+        if text:
+            return Path(text).expanduser()
+        return None if self.report_dir is None else self.report_dir / 'em_sam_checkpoint.npz'
+
+    def _resume(self, resume_from: str) -> None:
+        if not resume_from:
+            return
+        path = Path(resume_from).expanduser() if resume_from != 'auto' else self.checkpoint_file
+        if path is None or (resume_from == 'auto' and not path.exists()):
+            self.get_logger().info(
+                f'resume_from auto: no checkpoint at {str(path)!r}; fresh start'
+            )
+            return
+        load_checkpoint(self.mapper, path)
+        self._saved_state = self._state_key()
+        mapper = self.mapper
+        self.get_logger().info(
+            f'resumed from {str(path)!r}: {mapper.num_keyframes} keyframes, '
+            f'{len(mapper.observations)} observations, {len(mapper.pending)} pending, '
+            f'solution of {mapper.result_keyframes} keyframes'
+        )
+
+    def _state_key(self) -> tuple[int, ...]:
+        mapper = self.mapper
+        return (
+            mapper.num_keyframes,
+            len(mapper.seen_observations),
+            mapper.result_keyframes,
+            self.solves,
+            mapper.dropped_increments,
+        )
+
+    def save_checkpoint(self) -> str:
+        """Write the state to checkpoint_file; return a one-line summary."""
+        if self.checkpoint_file is None:
+            return 'no checkpoint_file (and no report_dir) is set'
+        save_checkpoint(self.mapper, self.checkpoint_file)
+        self._saved_state = self._state_key()
+        return (
+            f'checkpoint of {self.mapper.num_keyframes} keyframes, '
+            f'{len(self.mapper.observations)} observations written to '
+            f'{str(self.checkpoint_file)!r}'
+        )
+
+    def _on_checkpoint(self) -> None:
+        if self._state_key() != self._saved_state:
+            self.get_logger().debug(self.save_checkpoint())
+
+    def _on_save_map(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        try:
+            response.message = self.save_checkpoint()
+            response.success = self.checkpoint_file is not None
+        except OSError as err:
+            response.success, response.message = False, f'could not write the checkpoint: {err}'
+        return response
 
     # -- inputs ---------------------------------------------------------------------------
     def _on_increment(self, message: OdometryIncrement) -> None:
@@ -274,11 +361,16 @@ class EmSamMapperNode(Node):
         return response
 
     def destroy_node(self) -> None:
-        """Write the final report before going away."""
+        """Write the final report (and checkpoint) before going away."""
         try:
             self.write_report()
         except Exception as err:  # a report must never prevent the node from shutting down
             self.get_logger().error(f'could not write the report: {err}')
+        if self.checkpoint_period_s > 0 and self.checkpoint_file is not None:
+            try:
+                self.save_checkpoint()
+            except Exception as err:
+                self.get_logger().error(f'could not write the checkpoint: {err}')
         super().destroy_node()
 
 

@@ -7,6 +7,11 @@ odometry frame at the start). An observation attaches to the keyframe with its s
 the first keyframe (before the odometry started, or live before it was connected) is counted
 as such (``before_start_observations``) with a warning: the map never had a pose for it. One
 whose keyframe never came is dropped with a warning that names it.
+
+Inputs already held are skipped and counted apart, not as dropped: an increment between two
+keyframes the chain has, an observation whose (stamp, landmark) was taken before. A mapper
+resumed from a checkpoint (em_sam_node.checkpoint) gets its inputs' history again from the
+transient-local publishers and continues at its last keyframe.
 """
 
 from __future__ import annotations
@@ -78,6 +83,9 @@ class MapperProcessor:
         self.dropped_observations = 0
         self.before_start_observations = 0
         self.dropped_increments = 0
+        self.duplicate_increments = 0
+        self.duplicate_observations = 0
+        self.seen_observations: set[tuple[int, int]] = set()  # (stamp ns, landmark id)
 
     # -- input ----------------------------------------------------------------------------
     def add_increment(self, increment: Increment) -> None:
@@ -89,6 +97,15 @@ class MapperProcessor:
             )
             self.dropped_increments += 1
             return
+        if self.stamps_ns and increment.stamp_to_ns <= self.stamps_ns[-1]:
+            index = bisect.bisect_left(self.stamps_ns, increment.stamp_to_ns)
+            if (
+                index > 0
+                and self.stamps_ns[index] == increment.stamp_to_ns
+                and self.stamps_ns[index - 1] == increment.stamp_from_ns
+            ):
+                self.duplicate_increments += 1  # held already (a replayed history)
+                return
         if not self.stamps_ns:
             self.stamps_ns.append(increment.stamp_from_ns)
             self.odom_poses.append(increment.odom_pose_from.copy())
@@ -113,6 +130,11 @@ class MapperProcessor:
 
     def add_observation(self, observation: Observation) -> None:
         """Attach an observation to its keyframe, or keep it until the keyframe arrives."""
+        key = (observation.stamp_ns, observation.landmark_id)
+        if key in self.seen_observations:
+            self.duplicate_observations += 1  # taken already (a replayed history)
+            return
+        self.seen_observations.add(key)
         z, cov = observation.z, observation.covariance
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(cov)) and z[0] > 0):
             self.dropped_observations += 1

@@ -179,6 +179,32 @@ PARAMETERS = ParamTable(
         Param('odom_frame', 'odom', 'odometry frame id'),
         Param('tf_period_s', 0.1, 'period of the map->odom broadcast, s', range=POSITIVE),
         Param('report_dir', '', "directory for the report (JSON + PNG); '' writes none"),
+        Param(
+            'checkpoint_period_s',
+            10.0,
+            'save the state to checkpoint_file this often when it changed, s; 0 = never',
+            range=NON_NEGATIVE,
+        ),
+        Param(
+            'checkpoint_file',
+            '',
+            "where checkpoints go; '' = em_sam_checkpoint.npz in report_dir (none without it)",
+        ),
+        Param(
+            'resume_from',
+            '',
+            "checkpoint to start from; '' = a fresh start, 'auto' = checkpoint_file if it exists",
+        ),
+        Param(
+            'increments_transient_local',
+            True,
+            'subscribe to odometry_increments transient-local (replayed history after a restart)',
+        ),
+        Param(
+            'observations_transient_local',
+            False,
+            'subscribe to landmark_observations transient-local (their publishers must be too)',
+        ),
     ),
 )
 

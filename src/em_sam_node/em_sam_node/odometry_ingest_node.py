@@ -13,7 +13,10 @@ Topics:
               another node in the same executor loses no samples)
               landmark_observations (slam_interfaces/LandmarkObservationArray, reliable,
               depth 1000, as deep for the same reason; only the stamps are used)
-  publishes   odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000)
+  publishes   odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000,
+              transient-local: a restarted em_sam_mapper gets the last 1000 again and skips
+              those it holds. 1000 is 100 s of keyframes at 10 Hz observations live, 10 s
+              at 10x replay, a few hundred KB)
               /tf (tf2_msgs/TFMessage, reliable, depth 100), when publish_tf is true:
               odom_frame -> base_frame, the odometry's pose at its stamp (what the base
               driver publishes on a robot; for replaying a bag that has no /tf). Samples with
@@ -63,7 +66,7 @@ from slam_interfaces.msg import LandmarkObservationArray, OdometryIncrement
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.progress import END_QOS, END_TOPIC, paced
-from slam_ros.qos import output_qos, sensor_qos
+from slam_ros.qos import output_qos, replayed_qos, sensor_qos
 from slam_ros.spin import spin_node
 
 PARAMETERS = ParamTable(
@@ -178,7 +181,7 @@ class OdometryIngestNode(Node):
         self.base_frame = str(values['base_frame'])
         self.odom_frame = str(values['odom_frame'])
         self.publisher = self.create_publisher(
-            OdometryIncrement, 'odometry_increments', output_qos(depth=1000)
+            OdometryIncrement, 'odometry_increments', replayed_qos(depth=1000)
         )
         self.tf_publisher = (
             self.create_publisher(TFMessage, '/tf', output_qos(depth=100))

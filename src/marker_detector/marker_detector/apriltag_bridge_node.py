@@ -26,7 +26,8 @@ Topics:
               /tf_static (tf2_msgs/TFMessage, transient local): the camera mount
               camera/camera_info (sensor_msgs/CameraInfo, best effort): the camera model
   publishes   landmark_observations (slam_interfaces/LandmarkObservationArray, base frame,
-              only for detections with at least one accepted tag; reliable, depth 1000)
+              only for detections with at least one accepted tag; reliable, transient-local
+              (a restarted mapper gets them again), depth 1000)
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): detections
               received and lost, processed, tags dropped by reason, other family, id not
               allowed, rejected by the gates, observations, pending (slam_ros.diagnostics)
@@ -80,7 +81,7 @@ from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import LandmarkObservation, LandmarkObservationArray
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
-from slam_ros.qos import latched_qos, output_qos, sensor_qos
+from slam_ros.qos import latched_qos, output_qos, replayed_qos, sensor_qos
 from slam_ros.spin import spin_node
 
 CHECK_PERIOD_S = 0.1
@@ -108,7 +109,7 @@ class AprilTagBridgeNode(Node):
         self.diagnostics = Diagnostics(self, self._counts)
         timed = self.diagnostics.timed
         self.observations_publisher = self.create_publisher(
-            LandmarkObservationArray, 'landmark_observations', output_qos(depth=1000)
+            LandmarkObservationArray, 'landmark_observations', replayed_qos(depth=1000)
         )
         self.create_subscription(
             AprilTagDetectionArray,

@@ -23,7 +23,8 @@ Topics:
   publishes   fiducials (slam_interfaces/FiducialArray, camera optical frame, every image)
               landmark_observations (slam_interfaces/LandmarkObservationArray, base frame,
               only for images with at least one accepted marker; reliable, depth 1000, so
-              that a mapper busy solving does not lose them from this side)
+              that a mapper busy solving does not lose them from this side; transient-local,
+              so a restarted mapper gets the last 1000 again: 100 s of 10 Hz images)
               ~/debug_image (sensor_msgs/Image bgr8, when publish_debug_image is true)
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): images
               received, processed, dropped and held, markers, processing time, lag
@@ -95,7 +96,7 @@ from slam_interfaces.msg import (
 )
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters, updated_values
-from slam_ros.qos import latched_qos, output_qos, sensor_qos
+from slam_ros.qos import latched_qos, output_qos, replayed_qos, sensor_qos
 from slam_ros.spin import spin_node
 
 STATUS_PERIOD_S = 10.0
@@ -152,7 +153,7 @@ class MarkerDetectorNode(Node):
         timed = self.diagnostics.timed
         self.fiducials_publisher = self.create_publisher(FiducialArray, 'fiducials', output_qos())
         self.observations_publisher = self.create_publisher(
-            LandmarkObservationArray, 'landmark_observations', output_qos(depth=1000)
+            LandmarkObservationArray, 'landmark_observations', replayed_qos(depth=1000)
         )
         self.debug_publisher = (
             self.create_publisher(Image, '~/debug_image', output_qos(depth=2))

@@ -21,6 +21,9 @@ Parameters:
   start_offset_s (double, 0.0)      skip this many seconds from the bag start, >= 0.
   topics (string[], all)            play only these recorded topic names.
   remap (string[], none)            'recorded:=published' topic renames.
+  replayable_topics (string[], none) played topics published reliable and transient-local,
+                                    keeping their last REPLAYABLE_DEPTH messages: a node
+                                    restarted mid-run (respawn: true) gets what it missed.
   loop (bool, false)                start over at the end.
   clock_hz (double, 100.0)          /clock publish rate; 0 disables /clock.
   wait_for_subscribers_s (double, 0) wait up to this long for every topic to have a
@@ -70,7 +73,7 @@ from slam_ros.bag.source import BagSource
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import check_parameter_files, declare_parameters, parse_remaps, remap_rule
 from slam_ros.progress import END_QOS, END_TOPIC, PROGRESS_QOS, PROGRESS_TOPIC
-from slam_ros.qos import profile_from_recorded
+from slam_ros.qos import profile_from_recorded, replayed_qos
 from slam_ros.typesys import message_class
 
 PARAMETERS = ParamTable(
@@ -96,6 +99,12 @@ PARAMETERS = ParamTable(
             "topic renames 'recorded:=published'",
             type=ParamType.STRING_ARRAY,
             validator=remap_rule,
+        ),
+        Param(
+            'replayable_topics',
+            [],
+            'played topics published transient-local (late joiners get the last 1000)',
+            type=ParamType.STRING_ARRAY,
         ),
         Param('loop', False, 'start over when the bag ends'),
         Param(
@@ -133,6 +142,7 @@ PARAMETERS = ParamTable(
     ),
 )
 
+REPLAYABLE_DEPTH = 1000  # as odometry_increments: 1764 observations of 233 s is 7.6 Hz
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 WAIT_POLL_S = 0.01
 PACED_POLL_S = 0.001
@@ -185,11 +195,19 @@ class BagPlayerNode(Node):
                 f'bag {str(self.config.bag_path)!r}, which spans {span_s:.3f} s'
             )
         self.topics = self._select_topics()
+        replayable = {topic for topic in values['replayable_topics'] if topic}
+        if replayable - set(self.topics):
+            raise ParameterError(
+                f'parameter replayable_topics: {sorted(replayable - set(self.topics))} '
+                f'are not played (played: {", ".join(self.topics)})'
+            )
         self.publishers_by_topic: dict[str, Publisher] = {}
         for name in self.topics:
             summary = self.source.topics()[name]
             cls = message_class(summary.msgtype, topic=name)
             qos = profile_from_recorded(summary.offered_qos, latched=summary.latched)
+            if name in replayable:
+                qos = replayed_qos(REPLAYABLE_DEPTH)
             published = self.config.remaps.get(name, name)
             self.publishers_by_topic[name] = self.create_publisher(cls, published, qos)
         self.clock_publisher = (

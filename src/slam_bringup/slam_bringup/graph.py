@@ -15,6 +15,9 @@ each node are required)::
           namespace: ''
           parameters: [../config/odometry_ingest.yaml, {keyframe_distance_m: 0.25}]  # later wins
           remappings: {odom: /wheel/odom}   # or ['odom:=/wheel/odom']
+          respawn: true             # slam_run --processes restarts it when it dies
+          respawn_delay_s: 1.0      # first restart's delay, doubled each time up to 30 s
+          respawn_parameters: {resume_from: auto}   # given to restarts only, after the rest
       player:                       # a bag_player node named bag_player
         bag: ../../../bags/sample   # or --bag; parameters as bag_player's (rate, topics, ...)
         paced: true                 # or --paced: paced replay (slam_bringup.pacing)
@@ -72,6 +75,9 @@ class NodeSpec:
     namespace: str
     parameters: tuple[ParameterSource, ...]
     remappings: tuple[Remapping, ...]
+    respawn: bool = False
+    respawn_delay_s: float = 1.0
+    respawn_parameters: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -83,6 +89,7 @@ class PlayerSpec:
     start_offset_s: float | None = None
     topics: tuple[str, ...] = ()
     remap: tuple[Remapping, ...] = ()
+    replayable_topics: tuple[str, ...] = ()
     loop: bool | None = None
     clock_hz: float | None = None
     wait_for_subscribers_s: float | None = None
@@ -294,13 +301,22 @@ def _describe(value: object) -> str:
 
 # -- sections -----------------------------------------------------------------------------
 _NODE_REQUIRED = ('name', 'package', 'executable')
-_NODE_OPTIONAL = ('plugin', 'namespace', 'parameters', 'remappings')
+_NODE_OPTIONAL = (
+    'plugin',
+    'namespace',
+    'parameters',
+    'remappings',
+    'respawn',
+    'respawn_delay_s',
+    'respawn_parameters',
+)
 _PLAYER_KEYS = (
     'bag',
     'rate',
     'start_offset_s',
     'topics',
     'remap',
+    'replayable_topics',
     'loop',
     'clock_hz',
     'wait_for_subscribers_s',
@@ -408,7 +424,27 @@ def _node(check: _Checker, value: object, key: str) -> NodeSpec:
         namespace=_namespace(check, entry.get('namespace', ''), f'{key}.namespace'),
         parameters=tuple(parameters),
         remappings=check.remappings(entry.get('remappings', {}), f'{key}.remappings'),
+        **_respawn(check, entry, key),
     )
+
+
+def _respawn(check: _Checker, entry: dict[str, Any], key: str) -> dict[str, Any]:
+    respawn = bool(_optional(entry, 'respawn', check.boolean, key))
+    for name in ('respawn_delay_s', 'respawn_parameters'):
+        if name in entry and not respawn:
+            raise check.error(f'{key}.{name}', 'is set but respawn is not true')
+    extra = entry.get('respawn_parameters')
+    if extra is not None and not isinstance(extra, dict):
+        raise check.error(
+            f'{key}.respawn_parameters', f'must be a mapping, got {_describe(extra)}'
+        )
+    return {
+        'respawn': respawn,
+        'respawn_delay_s': _optional(entry, 'respawn_delay_s', check.positive, key) or 1.0,
+        'respawn_parameters': None
+        if extra is None
+        else _inline_parameters(check, extra, f'{key}.respawn_parameters'),
+    }
 
 
 def _optional(
@@ -426,6 +462,7 @@ def _player(check: _Checker, value: object, key: str) -> PlayerSpec:
         start_offset_s=_optional(entry, 'start_offset_s', check.number, key),
         topics=_optional(entry, 'topics', check.strings, key) or (),
         remap=_optional(entry, 'remap', check.remappings, key) or (),
+        replayable_topics=_optional(entry, 'replayable_topics', check.strings, key) or (),
         loop=_optional(entry, 'loop', check.boolean, key),
         clock_hz=_optional(entry, 'clock_hz', check.number, key),
         wait_for_subscribers_s=_optional(entry, 'wait_for_subscribers_s', check.number, key),

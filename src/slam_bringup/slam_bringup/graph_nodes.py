@@ -49,6 +49,9 @@ class NodeDescription:
     parameters: tuple[ParameterSource, ...]
     remappings: tuple[Remapping, ...]
     arguments: tuple[str, ...] = ()
+    respawn: bool = False
+    respawn_delay_s: float = 1.0
+    respawn_parameters: dict[str, Any] | None = None
 
     @property
     def fully_qualified_name(self) -> str:
@@ -106,9 +109,9 @@ def _player_description(graph: Graph, player: PlayerSpec) -> NodeDescription:
     values: dict[str, Any] = {'bag_path': str(player.bag)}
     for field in dataclasses.fields(PlayerSpec):
         value = getattr(player, field.name)
-        if field.name in ('bag', 'topics', 'remap', 'paced_nodes') or value is None:
+        if field.name in ('bag', 'topics', 'remap', 'paced_nodes') or value is None or value == ():
             continue
-        values[field.name] = value
+        values[field.name] = list(value) if isinstance(value, tuple) else value
     if player.topics:
         values['topics'] = list(player.topics)
     if player.remap:
@@ -176,6 +179,9 @@ def node_descriptions(graph: Graph) -> tuple[NodeDescription, ...]:
             namespace=node.namespace,
             parameters=(*node.parameters, *_sim_time(graph)),
             remappings=node.remappings,
+            respawn=node.respawn,
+            respawn_delay_s=node.respawn_delay_s,
+            respawn_parameters=node.respawn_parameters,
         )
         for node in graph.nodes
     ]

@@ -72,6 +72,9 @@ def check_graph_parameters(graph: Graph) -> None:
                 _check(graph, table, source, where, where)
             else:
                 _check_file(graph, node, table, source, where)
+        if node.respawn_parameters:
+            where = f'{node.key}.respawn_parameters'
+            _check(graph, table, node.respawn_parameters, where, where)
 
 
 def _check_file(graph: Graph, node: NodeSpec, table: ParamTable, path: Path, where: str) -> None:

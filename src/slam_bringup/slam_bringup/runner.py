@@ -78,6 +78,7 @@ from slam_bringup.graph_nodes import (
     ros_arguments,
     with_overrides,
 )
+from slam_bringup.supervise import Respawner, failing_node, warn_if_respawn_ignored
 from slam_core.blas import single_threaded_blas
 from slam_core.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main
 from slam_core.errors import SlamError
@@ -252,24 +253,11 @@ def publish_final_reports(nodes: Sequence[Node]) -> None:
         time.sleep(QUIET_S)
 
 
-def failing_node(
-    error: BaseException, nodes: Sequence[tuple[NodeDescription, Node]]
-) -> str | None:
-    """The graph's name of the node whose method raised ``error`` (the innermost on its
-    traceback), or None when no node's code is on it."""
-    found = None
-    for frame, _ in traceback.walk_tb(error.__traceback__):
-        owner = frame.f_locals.get('self')
-        for description, node in nodes:
-            if owner is node:
-                found = description.fully_qualified_name
-    return found
-
-
 def run_in_process(
     graph: Graph, descriptions: Sequence[NodeDescription], scratch: Path, stop: threading.Event
 ) -> int:
     """Run every node in this process until the graph ends; return the exit status."""
+    warn_if_respawn_ignored(descriptions, say)
     context = Context()
     single_threaded_blas()
     rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
@@ -383,15 +371,23 @@ def start_children(
     graph: Graph, descriptions: Sequence[NodeDescription], scratch: Path, children: list[Child]
 ) -> None:
     """Start one process per node, appending each to ``children`` as it starts."""
-    commands = [
-        [executable(graph, d), *d.arguments, *ros_arguments(d, scratch)] for d in descriptions
+    for description in descriptions:
+        executable(graph, description)  # every executable found before any starts
+    for description in descriptions:
+        children.append(start_child(graph, description, scratch))
+
+
+def start_child(graph: Graph, description: NodeDescription, scratch: Path) -> Child:
+    """Start one node's process."""
+    command = [
+        executable(graph, description),
+        *description.arguments,
+        *ros_arguments(description, scratch),
     ]
-    pre_exec = _die_with_parent()
-    for description, command in zip(descriptions, commands, strict=True):
-        process = subprocess.Popen(
-            command, stdin=subprocess.DEVNULL, process_group=0, preexec_fn=pre_exec
-        )
-        children.append(Child(description, process))
+    process = subprocess.Popen(
+        command, stdin=subprocess.DEVNULL, process_group=0, preexec_fn=_die_with_parent()
+    )
+    return Child(description, process)
 
 
 def exited(children: Sequence[Child]) -> Iterator[tuple[Child, int]]:
@@ -404,33 +400,39 @@ def exited(children: Sequence[Child]) -> Iterator[tuple[Child, int]]:
 
 
 def watch_children(
-    graph: Graph, children: Sequence[Child], stop: threading.Event
+    graph: Graph, children: list[Child], stop: threading.Event, respawner: Respawner
 ) -> tuple[bool, Child | None]:
     """Wait for a stop request, the player's end or a failed child.
 
     Returns (the player ended the graph, the child that failed if any).
     """
     while not stop.wait(POLL_S):
+        respawner.poll(children)  # type: ignore[arg-type]
         for child, code in exited(children):
+            if respawner.exited(children, children.index(child), code):
+                continue
             if code != 0:
                 return False, child
             if child.description.role == 'player' and graph.exit_when_player_done:
                 return True, None
             say(f'node {child.description.name!r} exited')
-        if all(child.reported for child in children):
+        if all(child.reported for child in children) and not respawner.waiting:
             return False, None
     return False, None
 
 
 def drain_children(
-    children: Sequence[Child], watch: DrainWatch, stop: threading.Event
+    children: list[Child], watch: DrainWatch, stop: threading.Event, respawner: Respawner
 ) -> Child | None:
     """Wait until the nodes are quiet (``wait_until_quiet``); return a child that failed
     meanwhile, if any. A node that exits cleanly is no longer waited for."""
     failure: list[Child] = []
 
     def failed() -> bool:
+        respawner.poll(children)  # type: ignore[arg-type]
         for child, code in exited(children):
+            if respawner.exited(children, children.index(child), code):
+                continue
             if code != 0:
                 failure.append(child)
                 return True
@@ -486,10 +488,11 @@ def run_processes(
     executor.add_node(listener)
     spinner = Spinner(executor)
     try:
+        respawner = Respawner(lambda d: start_child(graph, d, scratch), say)
         start_children(graph, descriptions, scratch, children)
-        player_ended, failure = watch_children(graph, children, stop)
+        player_ended, failure = watch_children(graph, children, stop, respawner)
         if player_ended and failure is None:
-            failure = drain_children(children, watch, stop)
+            failure = drain_children(children, watch, stop, respawner)
         if failure is not None:
             failed.append(failure)
     finally:

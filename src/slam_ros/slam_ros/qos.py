@@ -65,6 +65,20 @@ def latched_qos(depth: int = 1) -> QoSProfile:
     )
 
 
+def replayed_qos(depth: int) -> QoSProfile:
+    """Inputs a restarted node must not miss: reliable, transient-local, keep last ``depth``.
+
+    The publisher keeps its last ``depth`` messages for late joiners (a node respawned after
+    a crash gets what it missed); a transient-local subscription only matches transient-local
+    publishers, a volatile one matches both.
+    """
+    return QoSProfile(
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+
+
 def _duration(value: QosTime) -> Duration | None:
     if value.sec >= _INFINITE_SEC or (value.sec == 0 and value.nsec == 0):
         return None
