@@ -188,13 +188,13 @@ class AprilTagBridgeNode(Node):
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: detection arrays processed, tags dropped (and why),
         of another family, with an id not allowed, rejected by the gates; observations
-        published; detection arrays waiting."""
+        published; camera_info messages rejected; detection arrays waiting."""
         counts = {
             key: 0
             for key in (
                 'processed', 'dropped', 'dropped no tag tf', 'dropped no camera_info',
                 'dropped no camera mount', 'dropped queue full', 'other family',
-                'id not allowed', 'rejected', 'observations',
+                'id not allowed', 'rejected', 'observations', 'camera_info rejected',
             )
         }  # fmt: skip
         counts.update(self.bridge.counts)

@@ -8,22 +8,48 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from marker_detector.core.images import decode_compressed, decode_raw
+from marker_detector.core.images import (
+    DEFAULT_MAX_IMAGE_PIXELS,
+    check_image_size,
+    compressed_size,
+    decode_compressed,
+    decode_raw,
+)
 from marker_detector.processor import FrameOutput
 from slam_core.stamps import ns_to_stamp
 
 
-def image_from_message(message: Any) -> np.ndarray:
-    """Return the gray image of a sensor_msgs/Image or CompressedImage (raises ImageError)."""
+def image_from_message(message: Any, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> np.ndarray:
+    """Return the gray image of a sensor_msgs/Image or CompressedImage.
+
+    Raises ImageError; ImageTooLargeError, before the payload is copied, for an image of more than
+    ``max_pixels`` pixels (0: no limit).
+    """
     if hasattr(message, 'encoding'):
+        width, height = int(message.width), int(message.height)
+        encoding = str(message.encoding)
+        if width > 0 and height > 0:
+            check_image_size(width, height, max_pixels, f'image {encoding}')
         return decode_raw(
-            str(message.encoding),
-            int(message.width),
-            int(message.height),
-            int(message.step),
-            bytes(message.data),
+            encoding, width, height, int(message.step), bytes(message.data), max_pixels
         )
-    return decode_compressed(str(message.format), bytes(message.data))
+    return decode_compressed(str(message.format), bytes(message.data), max_pixels)
+
+
+def check_message_size(message: Any, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> None:
+    """Raise ImageTooLargeError when a sensor_msgs/Image's width x height, or a PNG/JPEG
+    CompressedImage's header, has more than ``max_pixels`` pixels (0: no limit); reads no
+    pixel and copies nothing."""
+    if hasattr(message, 'encoding'):
+        width, height = int(message.width), int(message.height)
+        what = f'image {message.encoding}'
+    else:
+        size = compressed_size(bytes(message.data[:65536]))
+        if size is None:
+            return
+        (width, height), what = size, f'compressed image (format {message.format!r})'
+    if width > 0 and height > 0:
+        check_image_size(width, height, max_pixels, what)
 
 
 def camera_info_fields(message: Any) -> dict[str, Any]:
