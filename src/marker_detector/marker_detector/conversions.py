@@ -3,6 +3,7 @@ rosbags-deserialized messages both work."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,7 @@ from marker_detector.core.images import (
     decode_compressed,
     decode_raw,
 )
-from marker_detector.processor import FrameOutput
+from marker_detector.processor import FrameOutput, InputError
 from slam_core.stamps import ns_to_stamp
 
 
@@ -65,12 +66,23 @@ def camera_info_fields(message: Any) -> dict[str, Any]:
 
 
 def transform_matrix(transform: Any) -> np.ndarray:
-    """Return the 4x4 matrix of a geometry_msgs/Transform."""
-    q = transform.rotation
+    """Return the 4x4 matrix of a geometry_msgs/Transform; InputError for a translation that
+    is not finite or a rotation that is no quaternion (not finite, or of length 0)."""
+    q, t = transform.rotation, transform.translation
+    quaternion = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+    translation = np.array([t.x, t.y, t.z], dtype=np.float64)
+    if not np.all(np.isfinite(translation)):
+        raise InputError(f'transform translation {translation.tolist()}: must be finite')
+    with np.errstate(over='ignore'):
+        scale = np.max(np.abs(quaternion)) if np.all(np.isfinite(quaternion)) else math.nan
+    if not (math.isfinite(scale) and scale > 0.0):
+        raise InputError(
+            f'transform rotation (x, y, z, w) = {quaternion.tolist()}: not a rotation '
+            '(must be finite and not all 0)'
+        )
     matrix = np.eye(4)
-    matrix[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    t = transform.translation
-    matrix[:3, 3] = [t.x, t.y, t.z]
+    matrix[:3, :3] = Rotation.from_quat(quaternion / scale).as_matrix()
+    matrix[:3, 3] = translation
     return matrix
 
 

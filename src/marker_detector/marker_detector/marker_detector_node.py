@@ -150,6 +150,7 @@ class MarkerDetectorNode(Node):
         self.detections = 0
         self.too_large = 0
         self.camera_info_rejected = 0
+        self.tf_rejected = 0
         self.max_image_pixels = int(values['max_image_pixels'])
         self.held: deque[Image | CompressedImage] = deque()
         self._held_bytes = 0
@@ -227,7 +228,8 @@ class MarkerDetectorNode(Node):
                     transform_matrix(transform.transform),
                 )
             except InputError as err:
-                self._error(str(err))
+                self.tf_rejected += 1
+                self._error(f'/tf_static: {err} ({self.tf_rejected} rejected so far)')
         self._release_held('the camera mount')
 
     def _release_held(self, what: str) -> None:
@@ -335,12 +337,13 @@ class MarkerDetectorNode(Node):
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: images processed, dropped (bad, or no camera_info in
         time; of them refused too large) and held for a camera_info, markers accepted,
-        camera_info messages rejected."""
+        camera_info messages and /tf_static transforms rejected."""
         return {
             'processed': self.images - self.dropped,
             'dropped': self.dropped,
             'refused too large': self.too_large,
             'camera_info rejected': self.camera_info_rejected,
+            'tf_static rejected': self.tf_rejected,
             'held': len(self.held),
             'markers': self.detections,
         }

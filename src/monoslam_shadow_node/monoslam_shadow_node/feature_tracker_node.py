@@ -368,13 +368,15 @@ class FeatureTrackerNode(Node):
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: images tracked, dropped (by the processor, undecodable
         and refused too large), features in the latest, tracks started and re-identified,
-        camera_info messages rejected, debug images published."""
+        camera_info messages rejected, restarts (tracks dropped for a stamp jump back or
+        a camera change), debug images published."""
         stats = self.processor.stats
         return {
             'processed': stats.frames,
             'dropped': sum(stats.images_dropped.values()) + self.undecodable + self.too_large,
             'refused too large': self.too_large,
             'camera_info rejected': stats.camera_rejected,
+            'restarts': stats.restarts,
             'features': stats.latest_features,
             'tracks started': stats.started,
             're-identified': stats.revived,
