@@ -11,6 +11,7 @@ Run (after ``bash scripts/bootstrap.sh``)::
 
     source scripts/env.sh
     python bench/fuzz_inputs.py [--examples 10000] [--only marker_detector,monoslam]
+        [--topics camera_info,tf]
 """
 
 from __future__ import annotations
@@ -64,6 +65,9 @@ def main() -> int:
     parser.add_argument(
         '--only', default='', help='only the nodes whose name contains one of these (a,b)'
     )
+    parser.add_argument(
+        '--topics', default='', help='only the inputs whose topic contains one of these (a,b)'
+    )
     args = parser.parse_args()
     rclpy.init()
     rows, details, failed = [], [], False
@@ -71,6 +75,8 @@ def main() -> int:
         made: dict[str, NodeUnderFuzz] = {}
         for key, topic in TARGETS:
             if not any(part in key for part in args.only.split(',')):
+                continue
+            if not any(part in topic for part in args.topics.split(',')):
                 continue
             if key not in made:
                 made[key] = NodeUnderFuzz(NODES[key]())
