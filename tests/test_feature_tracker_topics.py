@@ -263,6 +263,38 @@ def test_bad_inputs_drop_images_and_the_node_keeps_tracking(
     assert_finite(features)
 
 
+def test_an_oversized_image_and_a_camera_info_with_fx_0_are_refused_and_counted(
+    ros_harness: RosHarness, source: np.ndarray
+) -> None:
+    """The issue's fault table: camera_info with fx = 0 was taken and every track dropped;
+    an 8000x8000 mono8 image (64 MB) is refused before it is copied or decoded."""
+    node = ros_harness.add_node(node_with())
+    stats = node.processor.stats
+    features = ros_harness.collect('features', FeatureTrackArray)
+    info = ros_harness.publisher('camera/camera_info', CameraInfo)
+    images = ros_harness.publisher('camera/image_raw', Image)
+    for publisher in (info, images):
+        ros_harness.wait_for_subscribers(publisher)
+    info.publish(camera_info())
+    wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
+    images.publish(raw_image(frame(source, 0), stamp(0)))
+    first = output(features, stamp(0))
+    info.publish(camera_info(fx_px=0.0))
+    wait_until(lambda: stats.camera_rejected == 1, what='the camera_info with fx = 0 refused')
+    assert node.processor.camera is not None and node.processor.camera.k[0] == 500.0
+    huge = raw_image(np.zeros((8000, 8000), np.uint8), stamp(1))
+    images.publish(huge)
+    wait_until(lambda: node.too_large == 1, what='the 8000x8000 image refused', timeout_s=30.0)
+    images.publish(raw_image(frame(source, 1), stamp(2)))
+    second = output(features, stamp(2))
+    kept = {t.id for t in first.tracks} & {t.id for t in second.tracks}
+    assert len(kept) >= 140  # neither the camera_info nor the image disturbed the tracks
+    counts = node._counts()
+    assert counts['refused too large'] == 1 and counts['camera_info rejected'] == 1
+    assert counts['dropped'] == 1 and stats.restarts == 0
+    assert_finite(features)
+
+
 def test_predictions_carry_tracks_across_a_jump(
     ros_harness: RosHarness, source: np.ndarray
 ) -> None:

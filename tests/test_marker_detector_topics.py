@@ -269,3 +269,48 @@ def test_bad_inputs_are_logged_and_the_node_keeps_working(
     assert before.keys() & after.keys(), 'the same markers should be detected again'
     for marker_id in before.keys() & after.keys():
         assert after[marker_id] == pytest.approx(2.0 * before[marker_id], rel=1e-6)
+
+
+def test_an_oversized_image_and_a_bad_camera_info_are_refused_and_counted(
+    ros_harness: RosHarness, frames: list[CameraFrame]
+) -> None:
+    """An 8000x8000 mono8 image (64 MB) is refused before it is copied or decoded, a
+    camera_info with fx = 0 is refused and the camera kept; both are counted and the next
+    good image is detected."""
+    node = ros_harness.add_node(
+        make_node(
+            image_transport='raw',
+            extrinsics_source='parameters',
+            camera_xyz_m=[CAMERA_FORWARD_M, 0.0, CAMERA_HEIGHT_M],
+        )
+    )
+    fiducials = ros_harness.collect('fiducials', FiducialArray)
+    images = ros_harness.publisher('camera/image_raw', Image)
+    info = ros_harness.publisher('camera/camera_info', CameraInfo)
+    ros_harness.wait_for_subscribers(images)
+    ros_harness.wait_for_subscribers(info)
+    good_info = camera_info(CameraRig())
+    info.publish(good_info)
+    wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
+    bad_info = camera_info(CameraRig())
+    bad_info.k = [0.0, *good_info.k[1:]]
+    info.publish(bad_info)
+    wait_until(lambda: node.camera_info_rejected == 1, what='the camera_info with fx = 0')
+    assert node.processor.camera is not None and node.processor.camera.K[0, 0] > 0
+    huge = Image(encoding='mono8', width=8000, height=8000, step=8000, data=bytes(8000 * 8000))
+    huge.header.frame_id = OPTICAL
+    images.publish(huge)
+    wait_until(lambda: node.too_large == 1, what='the 8000x8000 image refused', timeout_s=30.0)
+    frame = next(f for f in frames if np.sum(f.truth.visible & (f.truth.side_px > 40)) >= 2)
+    height, width = frame.image.shape
+    good = Image(
+        encoding='mono8', width=width, height=height, step=width, data=frame.image.tobytes()
+    )
+    good.header.frame_id = OPTICAL
+    good.header.stamp.sec = 2
+    images.publish(good)
+    wait_until(lambda: len(fiducials) == 1, what='the fiducials of the next good image')
+    assert len(fiducials.messages[0].detections) >= 2
+    counts = node._counts()
+    assert counts['refused too large'] == 1 and counts['camera_info rejected'] == 1
+    assert counts['dropped'] == 1 and counts['processed'] == 1

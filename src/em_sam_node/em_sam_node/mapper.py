@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning
+from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, is_covariance
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.problem import Estimate, FloatArray
@@ -90,10 +90,10 @@ class MapperProcessor:
     # -- input ----------------------------------------------------------------------------
     def add_increment(self, increment: Increment) -> None:
         """Append an increment; it must start at the latest keyframe."""
-        if not (np.all(np.isfinite(increment.u)) and np.all(np.isfinite(increment.covariance))):
+        if not (np.all(np.isfinite(increment.u)) and is_covariance(increment.covariance)):
             self.warn(
                 f'increment {increment.stamp_from_ns}->{increment.stamp_to_ns} ns has '
-                'non-finite values; dropped'
+                'non-finite values or a covariance that is not positive definite; dropped'
             )
             self.dropped_increments += 1
             return
@@ -136,7 +136,7 @@ class MapperProcessor:
             return
         self.seen_observations.add(key)
         z, cov = observation.z, observation.covariance
-        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(cov)) and z[0] > 0):
+        if not (np.all(np.isfinite(z)) and is_covariance(cov) and z[0] > 0):
             self.dropped_observations += 1
             self.warn(
                 f'observation of landmark {observation.landmark_id} at '

@@ -206,6 +206,7 @@ class AprilTagBridge:
             else:
                 camera = CameraModel.from_camera_info(width, height, k, d, distortion_model)
         except ValueError as err:
+            self.counts['camera_info rejected'] += 1
             raise InputError(f'camera_info (frame {frame_id!r}) rejected: {err}') from None
         self.camera = camera
 

@@ -149,18 +149,25 @@ class AprilTagBridgeNode(Node):
                     transform_matrix(transform.transform),
                 )
             except InputError as err:
-                self._error(str(err))
+                self.bridge.counts['tf_static rejected'] += 1
+                self._error(f'/tf_static: {err}')
         self._publish(self.bridge.poll(time.monotonic()))
 
     def _on_tf(self, message: TFMessage) -> None:
         for transform in message.transforms:
             if not self.bridge.config.is_tag_frame(transform.child_frame_id.lstrip('/')):
                 continue
+            try:
+                matrix = transform_matrix(transform.transform)
+            except InputError as err:
+                self.bridge.counts['tf rejected'] += 1
+                self._error(f'/tf {transform.child_frame_id!r}: {err}')
+                continue
             self.bridge.add_transform(
                 transform.header.frame_id,
                 transform.child_frame_id,
                 stamp_to_ns(transform.header.stamp),
-                transform_matrix(transform.transform),
+                matrix,
             )
         self._publish(self.bridge.poll(time.monotonic()))
 
@@ -189,13 +196,14 @@ class AprilTagBridgeNode(Node):
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: detection arrays processed, tags dropped (and why),
         of another family, with an id not allowed, rejected by the gates; observations
-        published; detection arrays waiting."""
+        published; camera_info messages and transforms rejected; detection arrays waiting."""
         counts = {
             key: 0
             for key in (
                 'processed', 'dropped', 'dropped no tag tf', 'dropped no camera_info',
                 'dropped no camera mount', 'dropped queue full', 'other family',
-                'id not allowed', 'rejected', 'observations',
+                'id not allowed', 'rejected', 'observations', 'camera_info rejected',
+                'tf rejected', 'tf_static rejected',
             )
         }  # fmt: skip
         counts.update(self.bridge.counts)

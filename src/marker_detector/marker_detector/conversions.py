@@ -3,27 +3,54 @@ rosbags-deserialized messages both work."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from marker_detector.core.images import decode_compressed, decode_raw
-from marker_detector.processor import FrameOutput
+from marker_detector.core.images import (
+    DEFAULT_MAX_IMAGE_PIXELS,
+    check_image_size,
+    compressed_size,
+    decode_compressed,
+    decode_raw,
+)
+from marker_detector.processor import FrameOutput, InputError
 from slam_core.stamps import ns_to_stamp
 
 
-def image_from_message(message: Any) -> np.ndarray:
-    """Return the gray image of a sensor_msgs/Image or CompressedImage (raises ImageError)."""
+def image_from_message(message: Any, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> np.ndarray:
+    """Return the gray image of a sensor_msgs/Image or CompressedImage.
+
+    Raises ImageError; ImageTooLargeError, before the payload is copied, for an image of more than
+    ``max_pixels`` pixels (0: no limit).
+    """
     if hasattr(message, 'encoding'):
+        width, height = int(message.width), int(message.height)
+        encoding = str(message.encoding)
+        if width > 0 and height > 0:
+            check_image_size(width, height, max_pixels, f'image {encoding}')
         return decode_raw(
-            str(message.encoding),
-            int(message.width),
-            int(message.height),
-            int(message.step),
-            bytes(message.data),
+            encoding, width, height, int(message.step), bytes(message.data), max_pixels
         )
-    return decode_compressed(str(message.format), bytes(message.data))
+    return decode_compressed(str(message.format), bytes(message.data), max_pixels)
+
+
+def check_message_size(message: Any, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> None:
+    """Raise ImageTooLargeError when a sensor_msgs/Image's width x height, or a PNG/JPEG
+    CompressedImage's header, has more than ``max_pixels`` pixels (0: no limit); reads no
+    pixel and copies nothing."""
+    if hasattr(message, 'encoding'):
+        width, height = int(message.width), int(message.height)
+        what = f'image {message.encoding}'
+    else:
+        size = compressed_size(bytes(message.data[:65536]))
+        if size is None:
+            return
+        (width, height), what = size, f'compressed image (format {message.format!r})'
+    if width > 0 and height > 0:
+        check_image_size(width, height, max_pixels, what)
 
 
 def camera_info_fields(message: Any) -> dict[str, Any]:
@@ -39,12 +66,23 @@ def camera_info_fields(message: Any) -> dict[str, Any]:
 
 
 def transform_matrix(transform: Any) -> np.ndarray:
-    """Return the 4x4 matrix of a geometry_msgs/Transform."""
-    q = transform.rotation
+    """Return the 4x4 matrix of a geometry_msgs/Transform; InputError for a translation that
+    is not finite or a rotation that is no quaternion (not finite, or of length 0)."""
+    q, t = transform.rotation, transform.translation
+    quaternion = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+    translation = np.array([t.x, t.y, t.z], dtype=np.float64)
+    if not np.all(np.isfinite(translation)):
+        raise InputError(f'transform translation {translation.tolist()}: must be finite')
+    with np.errstate(over='ignore'):
+        scale = np.max(np.abs(quaternion)) if np.all(np.isfinite(quaternion)) else math.nan
+    if not (math.isfinite(scale) and scale > 0.0):
+        raise InputError(
+            f'transform rotation (x, y, z, w) = {quaternion.tolist()}: not a rotation '
+            '(must be finite and not all 0)'
+        )
     matrix = np.eye(4)
-    matrix[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    t = transform.translation
-    matrix[:3, 3] = [t.x, t.y, t.z]
+    matrix[:3, :3] = Rotation.from_quat(quaternion / scale).as_matrix()
+    matrix[:3, 3] = translation
     return matrix
 
 

@@ -44,6 +44,9 @@ Parameters:
                               empty: all.
   pixel_noise_px (0.5)        corner noise sigma behind the pose covariance, px.
   image_transport ('raw')     'raw' (Image) or 'compressed' (CompressedImage).
+  max_image_pixels (16777216)  larger images (4096 x 4096) are refused before they are
+                              decoded or copied (a PNG's or JPEG's size from its header);
+                              counted as 'refused too large'. 0: no limit.
   base_frame ('base_link')    frame of the range-bearing observations.
   extrinsics_source ('tf_static')  'tf_static' (chain base_frame -> image frame on
                               /tf_static) or 'parameters' (camera_xyz_m, camera_rpy_rad).
@@ -73,12 +76,13 @@ from tf2_msgs.msg import TFMessage
 
 from marker_detector.conversions import (
     camera_info_fields,
+    check_message_size,
     fill_fiducials,
     fill_observations,
     image_from_message,
     transform_matrix,
 )
-from marker_detector.core.images import ImageError
+from marker_detector.core.images import ImageError, ImageTooLargeError
 from marker_detector.processor import FrameOutput, InputError, MarkerProcessor
 from marker_detector.settings import (
     PARAMETERS,
@@ -145,6 +149,10 @@ class MarkerDetectorNode(Node):
         self.images = 0
         self.dropped = 0
         self.detections = 0
+        self.too_large = 0
+        self.camera_info_rejected = 0
+        self.tf_rejected = 0
+        self.max_image_pixels = int(values['max_image_pixels'])
         self.held: deque[Image | CompressedImage] = deque()
         self._held_bytes = 0
         self._status_time = time.monotonic()
@@ -207,7 +215,8 @@ class MarkerDetectorNode(Node):
         try:
             self.processor.set_camera_info(**camera_info_fields(message))
         except InputError as err:
-            self._error(str(err))
+            self.camera_info_rejected += 1
+            self._error(f'{err} ({self.camera_info_rejected} rejected so far)')
             return
         self._release_held('camera_info')
 
@@ -220,7 +229,8 @@ class MarkerDetectorNode(Node):
                     transform_matrix(transform.transform),
                 )
             except InputError as err:
-                self._error(str(err))
+                self.tf_rejected += 1
+                self._error(f'/tf_static: {err} ({self.tf_rejected} rejected so far)')
         self._release_held('the camera mount')
 
     def _release_held(self, what: str) -> None:
@@ -247,6 +257,17 @@ class MarkerDetectorNode(Node):
         return None
 
     def _on_image(self, message: Image | CompressedImage) -> None:
+        try:
+            check_message_size(message, self.max_image_pixels)
+        except ImageTooLargeError as err:
+            self.images += 1
+            self.dropped += 1
+            self.too_large += 1
+            if self.too_large == 1:
+                self.get_logger().warning(
+                    f'{err}; the next ones are only counted (refused too large)'
+                )
+            return
         missing = self._missing(message.header.frame_id)
         if missing is not None or self.held:
             self._hold(message, missing or 'older images are held')
@@ -257,7 +278,7 @@ class MarkerDetectorNode(Node):
         self.images += 1
         stamp_ns = stamp_to_ns(message.header.stamp)
         try:
-            image = image_from_message(message)
+            image = image_from_message(message, self.max_image_pixels)
             output = self.processor.process(stamp_ns, message.header.frame_id, image)
         except (ImageError, InputError) as err:
             self.dropped += 1
@@ -316,10 +337,14 @@ class MarkerDetectorNode(Node):
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: images processed, dropped (bad, or no camera_info in
-        time) and held for a camera_info, markers accepted."""
+        time; of them refused too large) and held for a camera_info, markers accepted,
+        camera_info messages and /tf_static transforms rejected."""
         return {
             'processed': self.images - self.dropped,
             'dropped': self.dropped,
+            'refused too large': self.too_large,
+            'camera_info rejected': self.camera_info_rejected,
+            'tf_static rejected': self.tf_rejected,
             'held': len(self.held),
             'markers': self.detections,
         }

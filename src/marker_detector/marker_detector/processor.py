@@ -73,10 +73,23 @@ class StaticTransforms:
     parents: dict[str, tuple[str, np.ndarray]] = field(default_factory=dict)
 
     def add(self, parent: str, child: str, transform: np.ndarray) -> None:
-        """Add or replace the transform of ``child`` in ``parent``."""
+        """Add or replace the transform of ``child`` in ``parent``; InputError for one from a
+        frame to itself, one that would close a loop, or numbers that are not finite."""
+        parent, child = parent.lstrip('/'), child.lstrip('/')
         if parent == child:
             raise InputError(f'static transform from {parent!r} to itself')
-        self.parents[child.lstrip('/')] = (parent.lstrip('/'), np.asarray(transform, float))
+        matrix = np.asarray(transform, float)
+        if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
+            raise InputError(f'static transform {parent!r} -> {child!r}: not 4x4 finite numbers')
+        ancestor = parent
+        while ancestor in self.parents:
+            ancestor = self.parents[ancestor][0]
+            if ancestor == child:
+                raise InputError(
+                    f'static transform {parent!r} -> {child!r} refused: {child!r} is already '
+                    f'above {parent!r}, the transforms would form a loop'
+                )
+        self.parents[child] = (parent, matrix)
 
     def _in_root(self, frame: str) -> tuple[str, np.ndarray]:
         """Return the root of ``frame``'s tree and T_root_frame (4x4)."""

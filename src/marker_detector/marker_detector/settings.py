@@ -15,6 +15,7 @@ import yaml
 
 from marker_detector.core.detection import CORNER_REFINEMENTS, DetectorConfig
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
+from marker_detector.core.images import DEFAULT_MAX_IMAGE_PIXELS
 from marker_detector.processor import EXTRINSICS_SOURCES, ExtrinsicsConfig
 from slam_core.errors import ParameterError
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamType, Range
@@ -163,6 +164,12 @@ PARAMETERS = ParamTable(
             'raw',
             "'raw' (Image) or 'compressed' (CompressedImage)",
             choices=IMAGE_TRANSPORTS,
+        ),
+        Param(
+            'max_image_pixels',
+            DEFAULT_MAX_IMAGE_PIXELS,
+            'larger images are refused before decoding, pixels (0: no limit)',
+            range=NON_NEGATIVE,
         ),
         Param('base_frame', 'base_link', 'frame of the range-bearing observations'),
         Param(

@@ -208,11 +208,13 @@ class CameraInfoWatch:
 
     def __init__(self, topic: str) -> None:
         self.topic = topic
+        self.rejected = 0
         self._key: tuple[object, ...] | None = None
 
     def update(self, message: Any) -> CameraUpdate | None:
         """Return the update a sensor_msgs/CameraInfo brings, or None if nothing the filter
-        uses changed. A rejected one leaves the accepted camera as it was."""
+        uses changed. A rejected one leaves the accepted camera as it was (and is counted in
+        ``rejected``)."""
         key = camera_info_key(message)
         if key == self._key:
             return None
@@ -220,6 +222,7 @@ class CameraInfoWatch:
         try:
             camera = camera_from_info(message)
         except ValueError as err:
+            self.rejected += 1
             kept = 'still waiting for a usable one' if first else 'camera kept'
             return CameraUpdate(None, first, f'{self.topic} rejected ({err}); {kept}')
         self._key = key

@@ -88,6 +88,9 @@ the core's, written out in config/feature_tracker.yaml (a test keeps the two equ
   max_dormant (1000)              dropped tracks remembered for re-identification.
 Parameters (node):
   image_transport ('raw')         'raw' (Image) or 'compressed' (CompressedImage).
+  max_image_pixels (16777216)     larger images (4096 x 4096) are refused before they are
+                                  decoded or copied (a PNG's or JPEG's size from its
+                                  header); counted as 'refused too large'. 0: no limit.
   use_predictions (false)         subscribe to features/predicted and use it.
   prediction_timeout_s (0.1)      longest an image waits for its prediction, s (0: never
                                   waits; predictions that came first are still used). The
@@ -114,8 +117,12 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-from marker_detector.conversions import camera_info_fields, image_from_message
-from marker_detector.core.images import ImageError
+from marker_detector.conversions import (
+    camera_info_fields,
+    check_message_size,
+    image_from_message,
+)
+from marker_detector.core.images import ImageError, ImageTooLargeError
 from monoslam_shadow_node.conversions import (
     features_from_message,
     prediction_covariances,
@@ -193,6 +200,7 @@ class FeatureTrackerNode(Node):
             camera_info_topic=CAMERA_INFO_TOPIC,
         )
         self.undecodable = 0
+        self.too_large = 0
         self.busy_s = 0.0
         self._throttle = KindThrottle(REPEAT_PERIOD_S)
         self._status_time, self._status_seen = time.monotonic(), (0, 0, 0)
@@ -258,8 +266,18 @@ class FeatureTrackerNode(Node):
     def _on_image(self, message: Image | CompressedImage) -> None:
         started = time.perf_counter()
         stamp_ns = stamp_to_ns(message.header.stamp)
+        limit = self.settings.max_image_pixels
         try:
-            image = image_from_message(message)
+            check_message_size(message, limit)
+            image = image_from_message(message, limit)
+        except ImageTooLargeError as err:
+            self.too_large += 1
+            if self.too_large == 1:
+                self.get_logger().warning(
+                    f'image at stamp {stamp_ns} ns refused: {err}; the next ones are only '
+                    'counted (refused too large)'
+                )
+            return
         except ImageError as err:
             self.undecodable += 1
             self._log(
@@ -348,13 +366,17 @@ class FeatureTrackerNode(Node):
             self.get_logger().error(text)
 
     def _counts(self) -> dict[str, int]:
-        """The counts on /diagnostics: images tracked, dropped (by the processor, and
-        undecodable), features in the latest, tracks started and re-identified, debug images
-        published."""
+        """The counts on /diagnostics: images tracked, dropped (by the processor, undecodable
+        and refused too large), features in the latest, tracks started and re-identified,
+        camera_info messages rejected, restarts (tracks dropped for a stamp jump back or
+        a camera change), debug images published."""
         stats = self.processor.stats
         return {
             'processed': stats.frames,
-            'dropped': sum(stats.images_dropped.values()) + self.undecodable,
+            'dropped': sum(stats.images_dropped.values()) + self.undecodable + self.too_large,
+            'refused too large': self.too_large,
+            'camera_info rejected': stats.camera_rejected,
+            'restarts': stats.restarts,
             'features': stats.latest_features,
             'tracks started': stats.started,
             're-identified': stats.revived,

@@ -17,6 +17,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from marker_detector.core.images import DEFAULT_MAX_IMAGE_PIXELS
 from monoslam_shadow_node.core.feature_tracker import TrackerConfig
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
 
@@ -57,6 +58,12 @@ NODE_PARAMETERS = (
         "'raw' (camera/image_raw) or 'compressed' (.../compressed)",
         choices=IMAGE_TRANSPORTS,
     ),
+    Param(
+        'max_image_pixels',
+        DEFAULT_MAX_IMAGE_PIXELS,
+        'larger images are refused before decoding, pixels (0: no limit)',
+        range=NON_NEGATIVE,
+    ),
     Param('use_predictions', False, 'use predicted pixels from features/predicted'),
     Param(
         'prediction_timeout_s',
@@ -90,6 +97,7 @@ class NodeSettings:
     prediction_timeout_s: float
     restart_backstep_ns: int
     publish_debug_image: bool = False
+    max_image_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
 
 
 def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
@@ -107,4 +115,5 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
         prediction_timeout_s=checked['prediction_timeout_s'],
         restart_backstep_ns=round(checked['restart_backstep_s'] * 1e9),
         publish_debug_image=checked['publish_debug_image'],
+        max_image_pixels=checked['max_image_pixels'],
     )

@@ -17,7 +17,8 @@ Rules:
   Once one has come, an image of another size than it says is dropped (an error naming both
   sizes), an image without frame id gets the camera_info's, and a camera_info that differs in
   size, intrinsics or distortion restarts the tracks (ids go on; said once per change). A
-  camera_info with a size of 0 or non-finite numbers is refused and the previous one kept.
+  camera_info that CameraModel refuses (a size of 0, fx or fy <= 0, non-finite numbers, an
+  unsupported distortion model) is refused, counted, and the previous one kept.
   Without camera_info an image size change restarts the tracks too (the core does it).
 - Predictions (``use_predictions``): predicted pixels of some track ids for the image with
   the same stamp; ids not tracked are ignored, as are predictions for images already
@@ -49,6 +50,7 @@ from monoslam_shadow_node.core.feature_tracker import (
     as_gray_image,
 )
 from monoslam_shadow_node.notices import Notice
+from slam_core.camera import CameraModel
 from slam_core.stamps import ns_to_stamp
 
 PREDICTIONS_KEPT = 10
@@ -124,6 +126,7 @@ class TrackingStats:
     predictions_missed: int = 0
     predictions_late: int = 0
     restarts: int = 0
+    camera_rejected: int = 0
 
     def count_frame(self, frame: FeatureFrame) -> None:
         """Add one tracked image."""
@@ -200,19 +203,15 @@ class FeatureTrackingProcessor:
     ) -> Notice | None:
         """Take a camera_info; return what to log (None: nothing changed)."""
         key = CameraInfoKey(frame_id, width, height, tuple(k), tuple(d), distortion_model)
-        problem = ''
-        if len(key.k) != 9:
-            problem = f'k has {len(key.k)} numbers, not 9'
-        elif width <= 0 or height <= 0:
-            problem = f'image size {width}x{height} px'
-        elif not all(math.isfinite(v) for v in (*key.k, *key.d)):
-            problem = 'non-finite numbers in k or d'
-        if problem:
+        try:  # the one camera_info check of the suite, though tracking uses only the size
+            CameraModel.from_camera_info(width, height, k, d, distortion_model)
+        except ValueError as err:
+            self.stats.camera_rejected += 1
             kept = 'previous camera kept' if self.camera else 'tracking goes on without one'
             return Notice(
                 'camera_rejected',
                 'error',
-                f'{self.camera_info_topic} rejected ({problem}); {kept}',
+                f'{self.camera_info_topic} rejected ({err}); {kept}',
             )
         previous, self.camera = self.camera, key
         if previous is None:

@@ -443,7 +443,8 @@ class MonoSlamNode(Node):
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: frames processed, without fiducials and skipped,
-        inputs dropped by the pairing, handovers, times lost, map size."""
+        inputs dropped by the pairing, handovers, times lost, map size, camera_info messages
+        rejected."""
         counts = self.processor.counts
         return {
             'processed': counts.processed,
@@ -454,6 +455,7 @@ class MonoSlamNode(Node):
             'handovers refused': counts.refused,
             'lost': counts.lost,
             'measured': counts.measured,
+            'camera_info rejected': self._camera_watch.rejected,
         }
 
     def _report_status(self) -> None:

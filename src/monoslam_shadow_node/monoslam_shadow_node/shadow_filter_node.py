@@ -220,7 +220,7 @@ class ShadowFilterNode(Node):
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: frames processed, refused (pose covariance not
         finite) and skipped, inputs dropped by the pairing, features handed over as static
-        and called dynamic, held pending."""
+        and called dynamic, held pending, camera_info messages rejected."""
         counts = self.processor.counts
         return {
             'processed': counts.processed,
@@ -230,6 +230,7 @@ class ShadowFilterNode(Node):
             'static': counts.static_total,
             'dynamic': counts.dynamic_total,
             'pending': counts.held_pending,
+            'camera_info rejected': self._camera_watch.rejected,
         }
 
     @property

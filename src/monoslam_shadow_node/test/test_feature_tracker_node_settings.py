@@ -267,9 +267,13 @@ def test_camera_info_checks_the_size_names_the_frame_and_restarts_on_change() ->
 @pytest.mark.parametrize(
     ('changes', 'problem'),
     [
-        ({'width': 0}, 'image size 0x240 px'),
-        ({'k': [math.nan] * 9}, 'non-finite numbers'),
-        ({'k': [1.0] * 4}, 'k has 4 numbers, not 9'),
+        ({'width': 0}, 'camera_info width=0: must be an integer > 0'),
+        ({'k': [math.nan] * 9}, 'must be 9 finite numbers'),
+        ({'k': [1.0] * 4}, 'camera_info k has 4 values; expected 9'),
+        # The fault table: fx = 0 was taken and every track dropped.
+        ({'k': [0.0, 0.0, 160.0, 0.0, 300.0, 120.0, 0.0, 0.0, 1.0]}, 'fx=0, fy=300'),
+        ({'d': [0.0, math.inf, 0.0, 0.0, 0.0]}, 'plumb_bob needs 5 finite coefficients'),
+        ({'distortion_model': 'fisheye'}, "distortion_model='fisheye': not supported"),
     ],
 )
 def test_an_unusable_camera_info_is_refused(changes: dict[str, Any], problem: str) -> None:
@@ -281,6 +285,7 @@ def test_an_unusable_camera_info_is_refused(changes: dict[str, Any], problem: st
     again = camera(tracker, **changes)
     assert again is not None and 'previous camera kept' in again.text
     assert tracker.camera is not None and tracker.camera.width == 320
+    assert tracker.stats.camera_rejected == 2
 
 
 def test_out_of_order_and_repeated_stamps_drop_the_image_naming_both() -> None:

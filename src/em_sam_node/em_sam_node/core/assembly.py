@@ -50,6 +50,24 @@ class MappingData:
         return self.keyframe_stamps_ns[self.obs_keyframe]
 
 
+def is_covariance(covariance: FloatArray) -> bool:
+    """True for a square matrix of finite numbers that sqrt_information takes: symmetric
+    (to 1e-9 of its largest entry) and positive definite, with a finite information."""
+    matrix = np.asarray(covariance, dtype=np.float64)
+    if matrix.ndim != 2 or matrix.shape[0] != matrix.shape[1] or not np.all(np.isfinite(matrix)):
+        return False
+    scale = float(np.max(np.abs(matrix), initial=0.0))
+    if scale == 0.0 or np.max(np.abs(matrix - matrix.T)) > 1e-9 * scale:
+        return False
+    with np.errstate(all='ignore'):
+        try:
+            lower = np.linalg.cholesky(0.5 * (matrix + matrix.T))
+            root = np.linalg.solve(lower, np.eye(matrix.shape[0]))
+        except np.linalg.LinAlgError:
+            return False
+        return bool(np.all(np.isfinite(root)) and np.all(np.isfinite(root.T @ root)))
+
+
 def sqrt_information(covariance: FloatArray) -> FloatArray:
     """Return W (n,d,d) with W^T W = covariance^-1 for a batch of SPD covariances (n,d,d).
 
