@@ -27,7 +27,9 @@ Parameters:
   loop (bool, false)                start over at the end.
   clock_hz (double, 100.0)          /clock publish rate; 0 disables /clock.
   wait_for_subscribers_s (double, 0) wait up to this long for every topic to have a
-                                    subscriber before starting (0: start at once).
+                                    subscriber before starting (0: start at once), then 1 s
+                                    more: the subscriber's side of DDS discovery comes up to
+                                    an exchange later, and drops or delays what comes before.
   progress_period_s (double, 5.0)   period of progress log lines when not on a terminal.
   paced (bool, false)               paced replay (``slam_bringup.pacing``): no timing; each
                                     message is published once every node reporting its
@@ -145,6 +147,7 @@ PARAMETERS = ParamTable(
 REPLAYABLE_DEPTH = 1000  # as odometry_increments: 1764 observations of 233 s is 7.6 Hz
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 WAIT_POLL_S = 0.01
+SUBSCRIBER_SETTLE_S = 1.0  # after wait_for_subscribers_s: the readers' side of discovery
 PACED_POLL_S = 0.001
 PRIME_TIMEOUT_S = 2.0
 PROGRESS_TICK_S = 0.1
@@ -304,6 +307,11 @@ class BagPlayerNode(Node):
         if waiting and self.config.wait_for_subscribers_s > 0:
             names = ', '.join(p.topic_name for p in waiting)
             self.get_logger().warning(f'starting without subscribers on: {names}')
+        elif self.config.wait_for_subscribers_s > 0:
+            # The player's writers have matched their readers; the readers match the writers
+            # on their side up to a discovery exchange later, and until then a best-effort
+            # reader drops what it gets and a transient-local one gets the history late.
+            self._stop.wait(SUBSCRIBER_SETTLE_S)
 
     def _play_once(self) -> None:
         config = self.config
