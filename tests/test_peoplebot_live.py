@@ -15,8 +15,8 @@ the mapper writes its report (a final solve over everything it took). Checked:
 - /diagnostics adds up: every image the simulator published from the first the detector
   took was taken or counted lost, the mapper lost no increment of the ingest's and dropped
   no sighting; the sightings from before its first keyframe (the odometry connected later
-  than the images) are counted apart, exactly, and that wait stays within the discovery
-  bound.
+  than the images) are counted apart, all that this test saw, and that wait stays within
+  the discovery bound.
 """
 
 from __future__ import annotations
@@ -130,8 +130,9 @@ def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_pat
     assert int(ingest['lost odom']) == 0 and int(ingest['dropped']) == 0, ingest
     assert int(sim['commands rejected']) == 0 and int(mapper['dropped']) == 0, mapper
     # Live, the odometry may connect (DDS discovery) after the first images were detected:
-    # the sightings before the map's first keyframe are counted apart, all of them, and the
-    # odometry connected within the detector's hold time (the discovery bound)
+    # the sightings before the map's first keyframe are counted apart, every one this test
+    # saw (its own subscription may connect later than the mapper's, so it may see fewer),
+    # and the odometry connected within the detector's hold time (the discovery bound)
     first_keyframe = report['trajectory']['stamps_ns'][0]
     early = [
         stamp_to_ns(m.header.stamp)
@@ -139,6 +140,6 @@ def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_pat
         for _ in m.observations
         if stamp_to_ns(m.header.stamp) < first_keyframe
     ]
-    assert report['observations_before_first_keyframe'] == len(early), report
+    assert report['observations_before_first_keyframe'] >= len(early), report
     first_seen = min(stamp_to_ns(m.header.stamp) for m in observations.messages)
     assert first_keyframe - first_seen <= HOLD_S * 1e9, (first_seen, first_keyframe)
