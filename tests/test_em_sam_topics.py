@@ -170,3 +170,36 @@ def test_odometry_ingest_publishes_odom_to_base_link_when_asked(ros_harness: Ros
     assert [stamp_to_ns(t.header.stamp) for t in transforms] == [1_000, 2_000, 3_000]
     assert [t.transform.translation.x for t in transforms] == [0.1, 0.2, 0.4]
     assert ingest.tf_skipped == 2
+
+
+def test_odometry_ingest_does_not_flush_when_its_process_only_stalled(ros_context: None) -> None:
+    """After a stall of its process, the idle timer runs before the odometry that queued
+    meanwhile: one idle tick arms the flush, the queued sample disarms it, and only idle
+    seen on two ticks in a row flushes (a mid-run flush adds a keyframe at the last sample;
+    CI, test_mapper_respawn_topics: 1803 keyframes against 1802). The node is not spun: the
+    test calls its timer callback as the executor would."""
+    ingest = OdometryIngestNode()
+    flushes: list[int] = []
+    ingest.ingest.flush = lambda: flushes.append(1) or []  # type: ignore[method-assign]
+    try:
+        sample = Odometry()
+        sample.pose.pose.orientation.w = 1.0
+        for stamp_ns in (1_000_000, 2_000_000):
+            ns_to_stamp(stamp_ns, sample.header.stamp)
+            ingest._on_odometry(sample)
+        stalled = time.monotonic() - 2 * ingest.idle_flush_s
+        ingest._last_odometry_wall = stalled
+        ingest._flush_when_idle()  # the timer first, after the stall
+        ns_to_stamp(3_000_000, sample.header.stamp)
+        ingest._on_odometry(sample)  # then the sample that queued meanwhile
+        ingest._flush_when_idle()
+        assert flushes == []
+        ingest._last_odometry_wall = stalled  # really idle: two ticks in a row
+        ingest._flush_when_idle()
+        assert flushes == []
+        ingest._flush_when_idle()
+        assert flushes == [1]
+        ingest._flush_when_idle()  # once
+        assert flushes == [1]
+    finally:
+        ingest.destroy_node()

@@ -35,7 +35,8 @@ Parameters:
                               odometry reset: a jump this large at this speed, or time going back.
   reset_sigma ([1.0, 1.0, 0.5])  std. dev. of the zero-motion increment bridging a reset.
   max_buffer_s (30.0)         odometry kept for interpolation.
-  idle_flush_s (1.0)          emit held-back keyframes after this long without odometry.
+  idle_flush_s (1.0)          emit held-back keyframes after this long without odometry
+                              (seen on two timer ticks in a row, half this apart).
   base_frame ('base_link'), odom_frame ('odom')  frame ids written into the increments.
   publish_tf (false)          publish odom_frame -> base_frame (above). Off on a robot: its
                               base driver owns that transform (REP 105: one parent a frame).
@@ -205,6 +206,7 @@ class OdometryIngestNode(Node):
         )
         self._last_odometry_wall = time.monotonic()
         self.flushed = True
+        self._idle_armed = False
         if paced():  # the end of the inputs is said by the player (slam_ros.progress)
             self.create_subscription(Empty, END_TOPIC, timed(self._on_end, 'end'), END_QOS)
         else:
@@ -253,9 +255,19 @@ class OdometryIngestNode(Node):
         self._publish(self.ingest.add_observation_stamp(stamp_to_ns(message.header.stamp)))
 
     def _flush_when_idle(self) -> None:
-        if not self.flushed and time.monotonic() - self._last_odometry_wall > self.idle_flush_s:
-            self.flushed = True
-            self._publish(self.ingest.flush())
+        """Flush once the odometry has been idle on two ticks in a row. After a stall of the
+        process (a busy machine) the executor runs this timer before the odometry that queued
+        meanwhile: one idle tick only arms the flush, and the queued samples, taken before the
+        next tick, disarm it (else the flush would add a keyframe mid-run)."""
+        idle = time.monotonic() - self._last_odometry_wall > self.idle_flush_s
+        if self.flushed or not idle:
+            self._idle_armed = False
+            return
+        if not self._idle_armed:
+            self._idle_armed = True
+            return
+        self.flushed = True
+        self._publish(self.ingest.flush())
 
     def _on_end(self, message: Empty) -> None:
         self.flushed = True
