@@ -3,7 +3,11 @@ node's last /diagnostics report."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 from slam_ros.tf_tree import TfTree
@@ -40,3 +44,21 @@ def last_reports(arrays: Iterable[Any]) -> dict[str, dict[str, str]]:
         for status in array.status:
             last[status.name] = {value.key: value.value for value in status.values}
     return last
+
+
+def run_graph(workdir: Path, arguments: list[str], timeout_s: float) -> tuple[int, str]:
+    """Run ``slam_run ARGUMENTS`` in ``workdir`` (nodes write their reports relative to it)
+    until it exits (killed after ``timeout_s``); return its exit status and its output."""
+    log = workdir / 'slam_run.log'
+    with log.open('wb') as output:
+        process = subprocess.Popen(
+            [sys.executable, '-m', 'slam_bringup.runner', *arguments],
+            cwd=workdir, stdout=output, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            env={**os.environ, 'PYTHONUNBUFFERED': '1'},
+        )  # fmt: skip
+        try:
+            status = process.wait(timeout=timeout_s)
+        finally:
+            if process.poll() is None:
+                process.kill()
+    return status, log.read_text(errors='replace')

@@ -18,14 +18,11 @@ finished, the graph ended with about 350 of 1800 keyframes not mapped.)
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from graph_checks import last_reports
+from graph_checks import last_reports, run_graph
 from rosbags.highlevel import AnyReader
 
 from slam_ros.qos import output_qos
@@ -54,23 +51,19 @@ def test_processes_mode_drains_the_queues_before_stopping_the_nodes(
 ) -> None:
     assert BAG.is_file(), f'{BAG} is missing; restore it from git or see bags/README.md'
     diagnostics = ros_harness.collect('/diagnostics', DiagnosticArray, output_qos(depth=1000))
-    log = tmp_path / 'slam_run.log'
-    with log.open('wb') as output:
-        # in tmp_path: the mapper writes its report to out/em_sam, relative to the directory
-        process = subprocess.Popen(
-            [
-                sys.executable, '-m', 'slam_bringup.runner', 'em_sam_office.yaml', '--processes',
-                '--bag', str(BAG), '--rate', str(RATE), '--exit-when-player-done',
-            ],
-            cwd=tmp_path, stdout=output, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-            env={**os.environ, 'PYTHONUNBUFFERED': '1'},
-        )  # fmt: skip
-        try:
-            status = process.wait(timeout=RUN_TIMEOUT_S)
-        finally:
-            if process.poll() is None:
-                process.kill()
-    text = log.read_text(errors='replace')
+    status, text = run_graph(
+        tmp_path,
+        [
+            'em_sam_office.yaml',
+            '--processes',
+            '--bag',
+            str(BAG),
+            '--rate',
+            str(RATE),
+            '--exit-when-player-done',
+        ],
+        RUN_TIMEOUT_S,
+    )
     assert status == 0, text
     assert 'still busy' not in text, text
 

@@ -14,14 +14,11 @@ graph timed out.
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from graph_checks import last_reports
+from graph_checks import last_reports, run_graph
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message
 
@@ -61,22 +58,18 @@ def test_paced_replay_maps_every_keyframe_of_the_offline_computation(
 ) -> None:
     assert BAG.is_file(), f'{BAG} is missing; restore it from git or see bags/README.md'
     diagnostics = ros_harness.collect('/diagnostics', DiagnosticArray, output_qos(depth=1000))
-    log = tmp_path / 'slam_run.log'
-    with log.open('wb') as output:
-        process = subprocess.Popen(
-            [
-                sys.executable, '-m', 'slam_bringup.runner', 'em_sam_office.yaml', '--processes',
-                '--bag', str(BAG), '--paced', '--exit-when-player-done',
-            ],
-            cwd=tmp_path, stdout=output, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-            env={**os.environ, 'PYTHONUNBUFFERED': '1'},
-        )  # fmt: skip
-        try:
-            status = process.wait(timeout=RUN_TIMEOUT_S)
-        finally:
-            if process.poll() is None:
-                process.kill()
-    text = log.read_text(errors='replace')
+    status, text = run_graph(
+        tmp_path,
+        [
+            'em_sam_office.yaml',
+            '--processes',
+            '--bag',
+            str(BAG),
+            '--paced',
+            '--exit-when-player-done',
+        ],
+        RUN_TIMEOUT_S,
+    )
     assert status == 0, text
     assert 'paced (0 waits for the graph timed out)' in text, text
 
