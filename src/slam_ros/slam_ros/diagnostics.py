@@ -76,6 +76,8 @@ class Diagnostics:
         self._last_dropped = 0
         self.publisher = node.create_publisher(DiagnosticArray, '/diagnostics', output_qos())
         node.create_timer(period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._subscriptions_seen = -1
+        self._inputs_by_topic: dict[str, list[str]] = {}
         # paced replay: a progress report after every callback (slam_ros.progress)
         self.progress = Progress(node, self.taken_by_topic) if paced() else None
 
@@ -127,13 +129,19 @@ class Diagnostics:
 
     def taken_by_topic(self) -> dict[str, int]:
         """Messages taken per subscribed topic (resolved name), over the inputs on it."""
-        taken: dict[str, int] = {}
-        for subscription in self.node.subscriptions:
-            input = getattr(subscription.callback, 'slam_input', None)
-            if input is not None:
-                topic = subscription.topic_name
-                taken[topic] = taken.get(topic, 0) + self.received[input]
-        return taken
+        subscriptions = list(self.node.subscriptions)
+        if len(subscriptions) != self._subscriptions_seen:  # the inputs on each topic, once
+            self._subscriptions_seen = len(subscriptions)
+            self._inputs_by_topic = {}
+            for subscription in subscriptions:
+                input = getattr(subscription.callback, 'slam_input', None)
+                if input is not None:
+                    inputs = self._inputs_by_topic.setdefault(subscription.topic_name, [])
+                    inputs.append(input)
+        return {
+            topic: sum(self.received[input] for input in inputs)
+            for topic, inputs in self._inputs_by_topic.items()
+        }
 
     def _add_time(self, spent: float) -> None:
         self.processing_s += spent
