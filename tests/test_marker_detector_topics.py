@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from typing import Any
 
 import cv2
 import numpy as np
@@ -203,21 +204,28 @@ def test_images_before_the_camera_mount_are_held_until_it_comes(
     wait_until(lambda: len(observations) == len(shown), what='their observations')
 
 
-def test_bad_inputs_are_logged_and_the_node_keeps_working(
-    ros_harness: RosHarness, frames: list[CameraFrame]
-) -> None:
-    node = ros_harness.add_node(
+def raw_image_node(harness: RosHarness) -> tuple[MarkerDetectorNode, Any, Any, Any]:
+    """A detector on raw images with the mount as parameters; its fiducials collected, and
+    image and camera_info publishers it has matched."""
+    node = harness.add_node(
         make_node(
             image_transport='raw',
             extrinsics_source='parameters',
             camera_xyz_m=[CAMERA_FORWARD_M, 0.0, CAMERA_HEIGHT_M],
         )
     )
-    fiducials = ros_harness.collect('fiducials', FiducialArray)
-    images = ros_harness.publisher('camera/image_raw', Image)
-    info = ros_harness.publisher('camera/camera_info', CameraInfo)
-    ros_harness.wait_for_subscribers(images)
-    ros_harness.wait_for_subscribers(info)
+    fiducials = harness.collect('fiducials', FiducialArray)
+    images = harness.publisher('camera/image_raw', Image)
+    info = harness.publisher('camera/camera_info', CameraInfo)
+    harness.wait_for_subscribers(images)
+    harness.wait_for_subscribers(info)
+    return node, fiducials, images, info
+
+
+def test_bad_inputs_are_logged_and_the_node_keeps_working(
+    ros_harness: RosHarness, frames: list[CameraFrame]
+) -> None:
+    node, fiducials, images, info = raw_image_node(ros_harness)
     frame = next(f for f in frames if np.sum(f.truth.visible & (f.truth.side_px > 40)) >= 2)
 
     def raw(encoding: str, data: bytes, width: int, height: int, step: int) -> Image:
@@ -277,18 +285,7 @@ def test_an_oversized_image_and_a_bad_camera_info_are_refused_and_counted(
     """An 8000x8000 mono8 image (64 MB) is refused before it is copied or decoded, a
     camera_info with fx = 0 is refused and the camera kept; both are counted and the next
     good image is detected."""
-    node = ros_harness.add_node(
-        make_node(
-            image_transport='raw',
-            extrinsics_source='parameters',
-            camera_xyz_m=[CAMERA_FORWARD_M, 0.0, CAMERA_HEIGHT_M],
-        )
-    )
-    fiducials = ros_harness.collect('fiducials', FiducialArray)
-    images = ros_harness.publisher('camera/image_raw', Image)
-    info = ros_harness.publisher('camera/camera_info', CameraInfo)
-    ros_harness.wait_for_subscribers(images)
-    ros_harness.wait_for_subscribers(info)
+    node, fiducials, images, info = raw_image_node(ros_harness)
     good_info = camera_info(CameraRig())
     info.publish(good_info)
     wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
