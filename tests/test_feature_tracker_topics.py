@@ -116,15 +116,22 @@ def source() -> np.ndarray:
     return texture(seed=0)
 
 
-def test_features_follow_the_true_motion(ros_harness: RosHarness, source: np.ndarray) -> None:
-    node = ros_harness.add_node(node_with())
-    features = ros_harness.collect('features', FeatureTrackArray)
-    info = ros_harness.publisher('camera/camera_info', CameraInfo)
-    images = ros_harness.publisher('camera/image_raw', Image)
+def connected(harness: RosHarness, node: FeatureTrackerNode) -> tuple[Any, Any, Any]:
+    """The node's features collected, camera_info and image publishers it has matched, and
+    its camera set from a first camera_info."""
+    features = harness.collect('features', FeatureTrackArray)
+    info = harness.publisher('camera/camera_info', CameraInfo)
+    images = harness.publisher('camera/image_raw', Image)
     for publisher in (info, images):
-        ros_harness.wait_for_subscribers(publisher)
+        harness.wait_for_subscribers(publisher)
     info.publish(camera_info())
     wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
+    return features, info, images
+
+
+def test_features_follow_the_true_motion(ros_harness: RosHarness, source: np.ndarray) -> None:
+    node = ros_harness.add_node(node_with())
+    features, _, images = connected(ros_harness, node)
     encodings = ('mono8', 'bgr8', 'rgba8')
     for k in range(FRAMES):
         images.publish(raw_image(frame(source, k), stamp(k), encodings[k % 3]))
@@ -270,13 +277,7 @@ def test_an_oversized_image_and_a_camera_info_with_fx_0_are_refused_and_counted(
     an 8000x8000 mono8 image (64 MB) is refused before it is copied or decoded."""
     node = ros_harness.add_node(node_with())
     stats = node.processor.stats
-    features = ros_harness.collect('features', FeatureTrackArray)
-    info = ros_harness.publisher('camera/camera_info', CameraInfo)
-    images = ros_harness.publisher('camera/image_raw', Image)
-    for publisher in (info, images):
-        ros_harness.wait_for_subscribers(publisher)
-    info.publish(camera_info())
-    wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
+    features, info, images = connected(ros_harness, node)
     images.publish(raw_image(frame(source, 0), stamp(0)))
     first = output(features, stamp(0))
     info.publish(camera_info(fx_px=0.0))
