@@ -148,7 +148,7 @@ REPLAYABLE_DEPTH = 1000  # as odometry_increments: 1764 observations of 233 s is
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 WAIT_POLL_S = 0.01
 SUBSCRIBER_SETTLE_S = 1.0  # after wait_for_subscribers_s: the readers' side of discovery
-PACED_POLL_S = 0.001
+PACED_POLL_S = 0.05  # paced: the wait wakes on each progress report, at the latest this often
 PRIME_TIMEOUT_S = 2.0
 PROGRESS_TICK_S = 0.1
 FINAL_REPORT_S = 0.25
@@ -184,6 +184,7 @@ class BagPlayerNode(Node):
         self.paced_timeout_s = float(values['paced_timeout_s'])
         self.paced_timeouts = 0
         self.gate = PacedGate(name for name in values['paced_nodes'] if name)  # [''] = none
+        self._progress = threading.Event()  # set by each progress report (paced)
         self.end_publisher = self.create_publisher(Empty, END_TOPIC, END_QOS)
         if self.paced:
             self.create_subscription(
@@ -248,6 +249,7 @@ class BagPlayerNode(Node):
     def _on_progress(self, status: DiagnosticStatus) -> None:
         if status.name != self.get_fully_qualified_name():  # its own publishes are counted
             self.gate.update(status.name, [(value.key, value.value) for value in status.values])
+            self._progress.set()
 
     def _select_topics(self) -> tuple[str, ...]:
         recorded = self.source.topics()
@@ -397,7 +399,8 @@ class BagPlayerNode(Node):
                     f'{self.paced_timeout_s:g} s; playing on ({self.paced_timeouts} so far)'
                 )
                 return
-            self._stop.wait(PACED_POLL_S)
+            self._progress.wait(PACED_POLL_S)
+            self._progress.clear()
 
     def _sleep_until(
         self, deadline_ns: int, mapping: TimeMapping, next_clock_ns: int, clock_period_ns: int
