@@ -14,9 +14,8 @@ the mapper writes its report (a final solve over everything it took). Checked:
   map -> camera_optical_frame resolves at the stamp of every camera image;
 - /diagnostics adds up: every image the simulator published from the first the detector
   took was taken or counted lost, the mapper lost no increment of the ingest's and dropped
-  no sighting; the sightings from before its first keyframe (the odometry connected later
-  than the images) are counted apart, all that this test saw, and that wait stays within
-  the discovery bound.
+  no sighting, and its first keyframe (the odometry connected) came within the discovery
+  bound of the first sighting.
 """
 
 from __future__ import annotations
@@ -129,17 +128,12 @@ def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_pat
     assert int(mapper['received odometry_increments']) > 1000, mapper
     assert int(ingest['lost odom']) == 0 and int(ingest['dropped']) == 0, ingest
     assert int(sim['commands rejected']) == 0 and int(mapper['dropped']) == 0, mapper
-    # Live, the odometry may connect (DDS discovery) after the first images were detected:
-    # the sightings before the map's first keyframe are counted apart, every one this test
-    # saw (its own subscription may connect later than the mapper's, so it may see fewer),
-    # and the odometry connected within the detector's hold time (the discovery bound)
+    # Live, the odometry may connect (DDS discovery) after the first images were detected,
+    # and each subscriber connects to the detector at its own time: what was published before
+    # a subscriber connected never reached it (the 'lost' counts start at the first message
+    # taken), so the sightings of the start cannot be accounted for from this test's side
+    # (in CI it saw 59 before the first keyframe, the mapper 2; another run 20 and 48). What
+    # holds: the map started, from the first odometry, within the discovery bound.
     first_keyframe = report['trajectory']['stamps_ns'][0]
-    early = [
-        stamp_to_ns(m.header.stamp)
-        for m in observations.messages
-        for _ in m.observations
-        if stamp_to_ns(m.header.stamp) < first_keyframe
-    ]
-    assert report['observations_before_first_keyframe'] >= len(early), report
     first_seen = min(stamp_to_ns(m.header.stamp) for m in observations.messages)
     assert first_keyframe - first_seen <= HOLD_S * 1e9, (first_seen, first_keyframe)
