@@ -10,6 +10,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from slam_bringup.graph import load_graph
 from slam_ros.tf_tree import TfTree
 
 # REP 105 with the office robot's camera: the one tree of the EM-SAM camera graphs
@@ -62,3 +63,16 @@ def run_graph(workdir: Path, arguments: list[str], timeout_s: float) -> tuple[in
             if process.poll() is None:
                 process.kill()
     return status, log.read_text(errors='replace')
+
+
+def graph_node_parameters(graph: Path, node: str, table: Any) -> dict[str, Any]:
+    """Return ``node``'s parameters as ``graph`` sets them: ``table``'s (a ParamTable)
+    defaults, then the entry's parameter files and inline values in order."""
+    spec = next(spec for spec in load_graph(graph).nodes if spec.name == node)
+    values = table.defaults()
+    for source in spec.parameters:
+        if isinstance(source, Path):
+            values = table.read_yaml(source, values)
+        else:
+            values.update(source)
+    return dict(values)

@@ -1,6 +1,6 @@
 """Run em_sam_office_respawn.yaml with ``slam_run --processes``, optionally SIGKILL its
 em_sam_mapper mid-run, and read the final map (shared by the topic test and
-bench/fault_mapper.py).
+bench/fault_mapper.py); or compute offline the map an uninterrupted run ends with.
 
 The mapper is found among slam_run's own children (its command line names the node), so
 only the process this run started is killed.
@@ -18,10 +18,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from graph_checks import graph_node_parameters
+
+from em_sam_node import mapper_settings, odometry_ingest_node
+from em_sam_node.core.em import run_em
+from em_sam_node.offline import replay_bag
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'office_moveable.mcap'
 GRAPH = 'em_sam_office_respawn.yaml'
+GRAPH_FILE = ROOT / 'src' / 'slam_bringup' / 'graphs' / GRAPH
 REPORT = Path('out') / 'em_sam_respawn' / 'em_sam_report.json'
 CHECKPOINT = Path('out') / 'em_sam_respawn' / 'em_sam_checkpoint.npz'
 CHECKPOINT_PERIOD_S = 2.0  # as the GRAPH sets it
@@ -123,3 +129,29 @@ def landmark_difference_m(a: MapperRun, b: MapperRun) -> float:
     if set(a.positions) != set(b.positions) or not a.positions:
         return float('inf')
     return max(float(np.linalg.norm(a.positions[i] - b.positions[i])) for i in a.positions)
+
+
+def offline_reference() -> MapperRun:
+    """The map an uninterrupted run of the graph ends with, computed offline: the bag through
+    OdometryIngest and MapperProcessor in bag order with the graph's settings for the two
+    nodes (``offline.replay_bag``), then EM-SAM on all of it, as the mapper's last solve.
+
+    An uninterrupted run's report equals it exactly: the same 1802 keyframes and moveable
+    set, every landmark 0.0 m apart (measured on the runs the topic test made before it
+    used this)."""
+    ingest = odometry_ingest_node.config_from_parameters(
+        graph_node_parameters(GRAPH_FILE, 'odometry_ingest', odometry_ingest_node.PARAMETERS)
+    )
+    mapper = mapper_settings.config_from_parameters(
+        graph_node_parameters(GRAPH_FILE, 'em_sam_mapper', mapper_settings.PARAMETERS)
+    )
+    replay = replay_bag(BAG, ingest=ingest, mapper=mapper)
+    result = run_em(replay.data, mapper.em)
+    ids = result.landmark_ids.tolist()
+    return MapperRun(
+        status=0,
+        log='\n'.join(replay.warnings),
+        num_keyframes=replay.data.num_keyframes,
+        moveable_ids=sorted(int(i) for i in result.landmark_ids[result.moveable]),
+        positions={int(i): np.array(result.positions[k]) for k, i in enumerate(ids)},
+    )

@@ -5,10 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from graph_checks import graph_node_parameters
+
 from monoslam_shadow_node.feature_tracker_settings import PARAMETERS as TRACKER_PARAMETERS
 from monoslam_shadow_node.monoslam_settings import PARAMETERS as MONOSLAM_PARAMETERS
 from monoslam_shadow_node.settings import PARAMETERS as SHADOW_PARAMETERS
-from slam_bringup.graph import load_graph
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / 'src' / 'slam_bringup' / 'graphs' / 'monoslam_shadow.yaml'
@@ -23,15 +24,7 @@ NODE_PARAMETERS = {
 def graph_parameters(node: str) -> dict[str, Any]:
     """Return ``node``'s parameters as the graph sets them: the defaults, then its parameter
     files and inline values in order."""
-    spec = next(spec for spec in load_graph(GRAPH).nodes if spec.name == node)
-    table = NODE_PARAMETERS[node]
-    values = table.defaults()
-    for source in spec.parameters:
-        if isinstance(source, Path):
-            values = table.read_yaml(source, values)
-        else:
-            values.update(source)
-    return values
+    return graph_node_parameters(GRAPH, node, NODE_PARAMETERS[node])
 
 
 def tracker_noise(node: str) -> dict[str, Any]:

@@ -56,9 +56,12 @@ class Replay:
     odometry_topic: str = ODOM_TOPIC  # where the odometry came from
 
 
-def replay_bag(path: Path, *, ingest: IngestConfig | None = None) -> Replay:
+def replay_bag(
+    path: Path, *, ingest: IngestConfig | None = None, mapper: MapperConfig | None = None
+) -> Replay:
     """Run a bag's odometry (/odom or /odometry_increments) and observations through the
-    processors the nodes use (``ingest`` configures OdometryIngest, used for /odom only).
+    processors the nodes use (``ingest`` configures OdometryIngest, used for /odom only;
+    ``mapper`` MapperProcessor; the defaults are the nodes').
 
     Raises:
         BagError: the bag has no /landmark_observations, or neither odometry topic, or too
@@ -67,7 +70,8 @@ def replay_bag(path: Path, *, ingest: IngestConfig | None = None) -> Replay:
     """
     warnings: list[str] = []
     ingest_processor = OdometryIngest(ingest or IngestConfig(), warn=warnings.append)
-    mapper = MapperProcessor(MapperConfig(em=EmConfig()), warn=warnings.append)
+    config = mapper if mapper is not None else MapperConfig(em=EmConfig())
+    processor = MapperProcessor(config, warn=warnings.append)
     registry = TypeRegistry()
     with BagSource(path) as source:
         topics = source.topics()
@@ -98,17 +102,17 @@ def replay_bag(path: Path, *, ingest: IngestConfig | None = None) -> Replay:
                     else []
                 )
                 for observation in observations_from_message(decoded):
-                    mapper.add_observation(observation)
+                    processor.add_observation(observation)
             for increment in increments:
-                mapper.add_increment(increment)
+                processor.add_increment(increment)
     for increment in ingest_processor.flush():
-        mapper.add_increment(increment)
-    if mapper.num_keyframes < 2:
+        processor.add_increment(increment)
+    if processor.num_keyframes < 2:
         raise BagError(
             f'bag {str(path)!r} holds too little odometry on {odometry_topic} to build a '
             'trajectory'
         )
-    return Replay(mapper.data(), tuple(warnings), odometry_topic)
+    return Replay(processor.data(), tuple(warnings), odometry_topic)
 
 
 @dataclass(frozen=True)

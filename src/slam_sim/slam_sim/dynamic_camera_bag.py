@@ -245,8 +245,7 @@ def dynamic_camera_messages(
     tally = tally if tally is not None else _Tally()
     tally.object_frames = np.zeros(config.objects, dtype=int)
     yield SCENE_TOPIC, start_ns, build.scene(scene_json(renderer, start_ns))
-    for index in range(config.frame_count):
-        frame = renderer.render(index)
+    for index, frame in enumerate(renderer.render_all(range(config.frame_count))):
         stamp_ns = start_ns + round(index * 1e9 / config.rate_hz)
         yield CAMERA_INFO_TOPIC, stamp_ns, build.camera.camera_info(stamp_ns)
         if raw:

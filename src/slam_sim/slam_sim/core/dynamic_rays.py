@@ -40,7 +40,9 @@ class RayBundle:
     col_bounds: FloatArray
 
     @classmethod
-    def of(cls, normalized: FloatArray, angle_rad: FloatArray, valid: BoolArray) -> RayBundle:
+    def of(
+        cls, normalized: FloatArray | Float32Array, angle_rad: FloatArray, valid: BoolArray
+    ) -> RayBundle:
         """Return the rays of normalized coordinates (A, B, 2); invalid ones look ahead."""
         x = np.where(valid, normalized[..., 0], 0.0).astype(np.float32)
         y = np.where(valid, normalized[..., 1], 0.0).astype(np.float32)
@@ -90,6 +92,23 @@ def grid_rays(camera: CameraModel) -> RayBundle:
     along_rows, along_cols = np.gradient(ray, axis=(0, 1))
     angle = np.maximum(np.linalg.norm(along_rows, axis=-1), np.linalg.norm(along_cols, axis=-1))
     return RayBundle.of(normalized, angle, valid)
+
+
+def subpixel_rays(camera: CameraModel, n: int) -> tuple[Float32Array, BoolArray]:
+    """Return the undistorted x/z, y/z (H, W, n * n, 2) of the n x n sub-pixel grid of every
+    pixel (row-major offsets (i + 0.5) / n - 0.5; 0 where invalid, float32 as ``RayBundle``
+    keeps them) and their validity (H, W, n * n): what supersampling needs, found once."""
+    offsets = (np.arange(n) + 0.5) / n - 0.5
+    dv, du = (grid.ravel() for grid in np.meshgrid(offsets, offsets, indexing='ij'))
+    normalized = np.zeros((camera.height, camera.width, n * n, 2), np.float32)
+    valid = np.zeros((camera.height, camera.width, n * n), bool)
+    cols = np.arange(camera.width, dtype=np.float64)[:, None]
+    for row in range(camera.height):  # a row at a time: float64 only for one row
+        pixels = np.stack([cols + du, np.broadcast_to(row + dv, (camera.width, n * n))], -1)
+        rays, ok = camera.unproject(pixels)
+        normalized[row] = np.where(ok[..., None], rays, 0.0)
+        valid[row] = ok
+    return normalized, valid
 
 
 @dataclass

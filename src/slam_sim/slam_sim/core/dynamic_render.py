@@ -41,6 +41,9 @@ its board's intersection and the texture sampler); this one casts, shades and su
 
 from __future__ import annotations
 
+from collections import deque
+from collections.abc import Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,6 +67,7 @@ from slam_sim.core.dynamic_rays import (
     part,
     room_exit,
     sphere_entry,
+    subpixel_rays,
     surface_edges,
 )
 from slam_sim.core.dynamic_scene import build_scene
@@ -117,6 +121,7 @@ class DynamicRenderer:
         self.scene = build_scene(config, seed)
         self.object_radius_m = config.object_radius_m or DEFAULT_OBJECT_RADIUS_M
         self._rays = grid_rays(self.camera)
+        self._subpixels: tuple[Float32Array, BoolArray] | None = None  # on first use
         self._charts = build_charts(
             self.scene, self.target, self.object_radius_m, self.options, seed
         )
@@ -178,6 +183,23 @@ class DynamicRenderer:
             target_corners_px=corners if target_seen else None,
         )
 
+    def render_all(self, indices: Iterable[int], *, threads: int = 2) -> Iterator[RenderedFrame]:
+        """Yield ``render(k)`` for each k of ``indices``, in order, ``threads`` frames at a
+        time (numpy and OpenCV release the GIL for most of a frame's work; a frame depends
+        on nothing but its index, so the frames are those rendered one by one)."""
+        if threads < 1:
+            raise ValueError(f'threads = {threads} must be >= 1')
+        if self.options.supersample > 1 and self._subpixels is None:  # once, not per thread
+            self._subpixels = subpixel_rays(self.camera, self.options.supersample)
+        with ThreadPoolExecutor(threads, thread_name_prefix='render') as pool:
+            pending: deque[Future[RenderedFrame]] = deque()
+            for index in indices:
+                pending.append(pool.submit(self.render, index))
+                if len(pending) > 2 * threads:  # bounded look-ahead: memory stays flat
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+
     def probe(
         self, frame_index: int, pixels: FloatArray
     ) -> tuple[Float32Array, NDArray[np.int16]]:
@@ -209,10 +231,10 @@ class DynamicRenderer:
         """Return the grey (M,) of the edge pixels, averaged over n x n rays per pixel."""
         n = self.options.supersample
         rows, cols = np.nonzero(edge)
-        offsets = (np.arange(n) + 0.5) / n - 0.5
-        dv, du = (grid.ravel() for grid in np.meshgrid(offsets, offsets, indexing='ij'))
-        pixels = np.stack([cols[:, None] + du, rows[:, None] + dv], axis=-1)
-        normalized, valid = self.camera.unproject(pixels)
+        if self._subpixels is None:
+            self._subpixels = subpixel_rays(self.camera, n)
+        grid, valid_grid = self._subpixels
+        normalized, valid = grid[rows, cols], valid_grid[rows, cols]
         angle = np.broadcast_to(self._rays.angle_rad[rows, cols][:, None] / n, valid.shape)
         rays = RayBundle.of(normalized, angle, valid)
         hits, _ = self._cast(rays, rotation, position, centres, exists)
