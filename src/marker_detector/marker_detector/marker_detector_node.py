@@ -27,8 +27,8 @@ Topics:
               so a restarted mapper gets the last 1000 again: 100 s of 10 Hz images)
               ~/debug_image (sensor_msgs/Image bgr8, when publish_debug_image is true)
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): images
-              received, processed, dropped and held, markers, processing time, lag
-              (slam_ros.diagnostics)
+              received, processed, dropped and held, markers, whole-image and box
+              searches, processing time, lag (slam_ros.diagnostics)
 
 Parameters:
   dictionary ('DICT_APRILTAG_36h11')  cv2.aruco dictionary: AprilTag 16h5/25h9/36h10/36h11,
@@ -52,6 +52,17 @@ Parameters:
                               /tf_static) or 'parameters' (camera_xyz_m, camera_rpy_rad).
   camera_xyz_m ([0, 0, 0]), camera_rpy_rad ([0, 0, 0])  camera_link in base_frame; the
                               optical frame follows REP 103 (z forward, x right, y down).
+  search_period_frames (1)    search the whole image every this many frames; in the frames
+                              between, only a box about each marker of the frame before
+                              (its corners grown by search_margin_px plus half its side),
+                              and the whole image again when a box misses it. A few markers
+                              followed at a camera's rate then cost a fraction of a frame's
+                              time; a marker newly in view is found at most
+                              search_period_frames - 1 frames late. 1: every frame.
+  search_margin_px (32.0)     how far a followed marker may move between frames and still be
+                              found in its box, px (32: a turn of 1.8 rad/s at fx 525 px and
+                              30 Hz); a marker that moves farther is found by the whole-image
+                              search that follows in the same frame (time, not detections).
   publish_debug_image (false)  publish the image with the detections drawn.
 
 The detector settings (dictionary to pixel_noise_px) can be changed at run time with
@@ -88,6 +99,7 @@ from marker_detector.settings import (
     PARAMETERS,
     detector_config,
     extrinsics_config,
+    search_plan,
 )
 from slam_core.cli import console_main
 from slam_core.errors import ParameterError
@@ -143,7 +155,9 @@ class MarkerDetectorNode(Node):
         super().__init__('marker_detector', **kwargs)
         values = declare_parameters(self, PARAMETERS)
         transport = str(values['image_transport'])
-        self.processor = MarkerProcessor(detector_config(values), extrinsics_config(values))
+        self.processor = MarkerProcessor(
+            detector_config(values), extrinsics_config(values), search_plan(values)
+        )
         self._values = values
         self.publish_debug = bool(values['publish_debug_image'])
         self.images = 0
@@ -347,6 +361,8 @@ class MarkerDetectorNode(Node):
             'tf_static rejected': self.tf_rejected,
             'held': len(self.held),
             'markers': self.detections,
+            'whole-image searches': self.processor.search.full_searches,
+            'box searches': self.processor.search.box_searches,
         }
 
     def _report_status(self) -> None:

@@ -40,6 +40,7 @@ from marker_detector.settings import (
     apply_overrides,
     detector_config,
     extrinsics_config,
+    search_plan,
 )
 from slam_core.cli import console_main
 from slam_core.errors import BagError, ParameterError
@@ -109,7 +110,9 @@ def detect_bag(
         ParameterError: ``values`` hold an invalid setting.
     """
     try:
-        processor = MarkerProcessor(detector_config(values), extrinsics_config(values))
+        processor = MarkerProcessor(
+            detector_config(values), extrinsics_config(values), search_plan(values)
+        )
     except ValueError as err:
         raise ParameterError(str(err)) from None
     registry = TypeRegistry()

@@ -29,6 +29,7 @@ from marker_detector.core.detection import (
     detect_markers,
     make_detector,
 )
+from marker_detector.core.roi import SearchPlan
 from slam_core.camera import CameraModel
 from slam_core.geometry.se3 import optical_from_link, transform_from_xyz_rpy
 
@@ -133,9 +134,11 @@ class MarkerProcessor:
         self,
         config: DetectorConfig,
         extrinsics: ExtrinsicsConfig,
+        search: SearchPlan | None = None,
     ) -> None:
         self.config = config
         self.extrinsics = extrinsics
+        self.search = search if search is not None else SearchPlan()
         self.detector = make_detector(config)
         self.camera: CameraModel | None = None
         self.camera_frame = ''
@@ -166,6 +169,8 @@ class MarkerProcessor:
             camera = CameraModel.from_camera_info(width, height, k, d, distortion_model)
         except ValueError as err:
             raise InputError(f'camera_info (frame {frame_id!r}) rejected: {err}') from None
+        if self.camera is not None and camera != self.camera:
+            self.search.reset()
         self.camera = camera
         self.camera_frame = frame_id
 
@@ -193,9 +198,7 @@ class MarkerProcessor:
         camera_frame = frame_id or self.camera_frame
         base_from_camera = self.base_from_camera(camera_frame)
         try:
-            result: DetectionResult = detect_markers(
-                image, self.camera, self.config, self.detector
-            )
+            result = self._detect(stamp_ns, image, self.camera)
         except ValueError as err:
             raise InputError(f'image at {stamp_ns} ns: {err}') from None
         observations = [to_range_bearing(d, base_from_camera) for d in result.detections]
@@ -207,3 +210,15 @@ class MarkerProcessor:
             rejections=list(result.rejections),
             observations=observations,
         )
+
+    def _detect(self, stamp_ns: int, image: np.ndarray, camera: CameraModel) -> DetectionResult:
+        """Detect in the search plan's boxes, or the whole image when it says so or a box
+        search missed a followed marker (``core.roi``)."""
+        boxes = self.search.boxes(stamp_ns, image.shape)
+        result = detect_markers(image, camera, self.config, self.detector, boxes)
+        full = boxes is None
+        if not full and self.search.needs_full_search({d.id for d in result.detections}):
+            result = detect_markers(image, camera, self.config, self.detector)
+            full = True
+        self.search.searched(full, {d.id: d.corners_px for d in result.detections})
+        return result

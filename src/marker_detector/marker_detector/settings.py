@@ -16,6 +16,7 @@ import yaml
 from marker_detector.core.detection import CORNER_REFINEMENTS, DetectorConfig
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
 from marker_detector.core.images import DEFAULT_MAX_IMAGE_PIXELS
+from marker_detector.core.roi import SearchPlan
 from marker_detector.processor import EXTRINSICS_SOURCES, ExtrinsicsConfig
 from slam_core.errors import ParameterError
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamType, Range
@@ -191,9 +192,29 @@ PARAMETERS = ParamTable(
             "camera_link roll, pitch, yaw in base_frame, rad (extrinsics_source 'parameters')",
             length=3,
         ),
+        Param(
+            'search_period_frames',
+            1,
+            'search the whole image every this many frames, between them only about the '
+            'markers of the frame before (1: every frame)',
+            range=Range(1.0, None),
+        ),
+        Param(
+            'search_margin_px',
+            32.0,
+            'a box search looks this far (plus half the marker) round a followed marker, px',
+            range=NON_NEGATIVE,
+        ),
         Param('publish_debug_image', False, 'publish the image with the detections drawn'),
     ),
 )
+
+
+def search_plan(values: dict[str, Any]) -> SearchPlan:
+    """Validate the search parameters into a SearchPlan (raises ParameterError)."""
+    period = PARAMETERS.validate_one('search_period_frames', values['search_period_frames'])
+    margin = PARAMETERS.validate_one('search_margin_px', values['search_margin_px'])
+    return PARAMETERS.build(lambda: SearchPlan(period=int(period), margin_px=float(margin)))
 
 
 def detector_config(values: dict[str, Any]) -> DetectorConfig:

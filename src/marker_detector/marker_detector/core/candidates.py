@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from marker_detector.core.decoding import decode_quad, may_be_marker
 from marker_detector.core.edges import EdgeSettings, refine_corners_batch, side_lengths
+from marker_detector.core.roi import Box
 from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 
@@ -62,22 +63,30 @@ def locate_markers(
     config: DetectorConfig,
     detector: cv2.aruco.ArucoDetector,
     camera: CameraModel | None = None,
+    box: Box | None = None,
 ) -> list[MarkerCorners]:
     """Return the decoded markers of a gray image with their (edge-refined) corners.
 
     No quality gate is applied; rejected candidates are only decoded again when their rough
     sides (up to ~1 px short at each end) may reach ``min_side_px``. ``camera`` (optional)
-    lets the edge fit undistort; without it edges are fitted as straight lines.
+    lets the edge fit undistort; without it edges are fitted as straight lines. ``box``
+    (x0, y0, x1, y1 px): cv2.aruco looks only there (``core.roi``); the corners are image
+    pixels and are refined, and rejects decoded again, on the whole image as without it.
     """
+    region = gray if box is None else np.ascontiguousarray(gray[box[1] : box[3], box[0] : box[2]])
     params = detector.getDetectorParameters()
-    floor = candidate_perimeter_rate(config.min_side_px, gray.shape)
+    floor = candidate_perimeter_rate(config.min_side_px, region.shape)
     if params.minMarkerPerimeterRate != floor:
         params.minMarkerPerimeterRate = floor
         detector.setDetectorParameters(params)
-    corners, ids, rejected = detector.detectMarkers(gray)
+    corners, ids, rejected = detector.detectMarkers(region)
     dictionary = detector.getDictionary()
     cells = int(dictionary.markerSize) + 2 * int(params.markerBorderBits)
     found = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
+    if box is not None:
+        offset = np.array([box[0], box[1]], dtype=np.float32)
+        found = found + offset.astype(np.float64)
+        rejected = [np.asarray(quad, dtype=np.float32) + offset for quad in rejected]
     marker_ids = [] if ids is None else [int(i) for i in ids.ravel()]
     if not (config.edge_refinement or config.redecode_rejected):
         return [

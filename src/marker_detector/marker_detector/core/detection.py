@@ -36,6 +36,7 @@ from marker_detector.core.pose import (
     solve_marker_poses,
     viewing_angle_rad,
 )
+from marker_detector.core.roi import Box
 from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 
@@ -277,19 +278,26 @@ def detect_markers(
     camera: CameraModel,
     config: DetectorConfig,
     detector: cv2.aruco.ArucoDetector | None = None,
+    boxes: list[Box] | None = None,
 ) -> DetectionResult:
     """Return the markers in a raw camera image (H, W) gray or (H, W, 3) BGR uint8.
 
     ``detector`` from ``make_detector(config)``; pass it when calling per frame (built here
-    if None). Raises ValueError for an empty image, a wrong dtype or shape, or a size that
-    differs from the camera's.
+    if None). ``boxes``: look only in these regions (``core.roi``); None: the whole image.
+    Raises ValueError for an empty image, a wrong dtype or shape, or a size that differs
+    from the camera's.
     """
     gray = as_gray(image, camera)
     detector = detector if detector is not None else make_detector(config)
     detections: list[MarkerDetection] = []
     rejections: list[Rejection] = []
     candidates: list[MarkerCorners] = []
-    for marker in locate_markers(gray, config, detector, camera):
+    located = (
+        locate_markers(gray, config, detector, camera)
+        if boxes is None
+        else [m for box in boxes for m in locate_markers(gray, config, detector, camera, box)]
+    )
+    for marker in located:
         rejection = _image_gate(marker, config)
         if rejection is not None:
             rejections.append(rejection)
