@@ -1,16 +1,29 @@
-"""One BLAS thread per process.
+"""One BLAS thread and one OpenCV thread per process.
 
 The suite's filters multiply small matrices (a few hundred rows at most). OpenBLAS starts a
 thread per core for them; on a shared 2-core machine those threads spin against each other
 and the nodes' own threads, and MonoSLAM ran about 20 times slower (215 ms instead of 9 ms
-per frame). Every node (``spin.spin_node``), the in-process graph runner and the evaluation
-tools limit OpenBLAS to one thread at start-up.
+per frame). OpenCV likewise splits an optical-flow pass or a corner search of one 640x480
+image over a thread per core: the feature tracker took 80 % of a core at 30 Hz with its
+default threads and 66 % with one (the live dynamic scene, the tracker alone with the
+camera). A graph runs a process per node, which is where the parallelism is. Every node
+(``spin.spin_node``), the in-process graph runner and the evaluation tools call
+``single_threaded_libraries`` at start-up.
 """
 
 from __future__ import annotations
 
 import ctypes
 from pathlib import Path
+
+import cv2
+
+
+def single_threaded_libraries() -> int:
+    """Run OpenCV on the calling thread only and limit OpenBLAS to one thread; return how
+    many OpenBLAS libraries were limited (module doc)."""
+    cv2.setNumThreads(1)
+    return single_threaded_blas()
 
 
 def single_threaded_blas() -> int:

@@ -9,7 +9,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
-from slam_core.blas import single_threaded_blas
+from slam_core.blas import single_threaded_libraries
 from slam_core.cli import help_requested, node_help
 from slam_core.params import ParamTable
 from slam_ros.params import check_parameter_files
@@ -40,7 +40,7 @@ def spin_node(
         return 0
     if parameters is not None:
         check_parameter_files(args, parameters)
-    single_threaded_blas()
+    single_threaded_libraries()
     rclpy.init(args=[prog, *args])
     node = None
     try:

@@ -81,8 +81,7 @@ class DynamicSceneSimNode(Node):
             unit='frames',
             log=self.get_logger().info,
         )
-        for index in range(config.frame_count):
-            frame = renderer.render(index)
+        for index, frame in enumerate(renderer.render_all(range(config.frame_count))):
             pixels = np.ascontiguousarray(frame.image, dtype=np.uint8)
             self.frames.append((pixels.tobytes(), frame.rotation.copy(), frame.position_m.copy()))
             progress.update(index + 1)
