@@ -60,10 +60,10 @@ Topics:
               and dropped, frames processed and skipped, handovers, losses, resumes that
               predicted over the gap and that re-localised, 'resumed' (what the last resume
               did, 'no' for a fresh start), processing time, lag (slam_ros.diagnostics)
-Services:
-  ~/save_map (std_srvs/Trigger)   write the map's checkpoint to checkpoint_file now.
   Nothing published is ever NaN: a pose that is not finite is not published (an error is
   logged), and map points or predictions that are not finite are left out.
+Services:
+  ~/save_map (std_srvs/Trigger)   write the map's checkpoint to checkpoint_file now.
 
 Synchronization (frame_sync): features and fiducials pair when their stamps differ by at most
 stamp_tolerance_s, and are processed in stamp order. A features frame whose fiducials have
@@ -74,7 +74,8 @@ before any camera_info are held until it comes.
 
 Logs: the camera; waiting for the target (throttled, with what was detected instead); the
 start (stamp, initial pose and its sigma); tracking lost (why) and the re-initialization from
-the target when it is seen again; a camera_info change; and every bad input with its culprit,
+the target when it is seen again; a resume (from where, and on its first frame whether it
+predicted over the gap or re-localises); a camera_info change; every bad input with its culprit,
 after which the node goes on: an unusable camera_info, a frame out of stamp order, NaN
 pixels (those features are ignored), NaN target corners, a refused handover. Every 10 s a
 status line: frames per second, state, map size, features measured and the latest update's

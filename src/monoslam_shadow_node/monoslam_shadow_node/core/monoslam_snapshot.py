@@ -1,5 +1,7 @@
 """A MonoSlam filter's whole state as named arrays and JSON values (what a checkpoint holds),
-its restoration, and what a restored filter does over the gap to its next frame.
+its restoration, and what a restored filter does over the gap to its next frame. These read
+and set the filter's private state, as its own save and load would (``monoslam`` holds the
+frame loop).
 
 The state: the camera (size, K, D), the EKF's x and P with each feature's block (track id,
 parametrization and anchor rotation, first ray, how it entered, its measurement record,
