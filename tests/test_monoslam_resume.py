@@ -6,16 +6,19 @@
   over a long one it re-localises from the target and measures its map again; the poses stay
   within the bound of the core's static-scene test (RMS 0.05 m).
 - ~/save_map on a MonoSlamNode (real rclpy) writes a checkpoint that loads, and a node
-  started with resume_from says on /diagnostics what it did over the gap.
+  started with resume_from says on /diagnostics what it did over the gap; a bad checkpoint
+  stops the node with one line naming it.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from bag_fixtures import invalid_parameter_error
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo
@@ -230,3 +233,12 @@ def test_save_map_writes_a_checkpoint_that_a_new_node_resumes_from(
     wait_until(lambda: said() is not None, timeout_s=10.0, what="'resumed' on /diagnostics")
     assert said().startswith('re-localised from the target after the 1.033 s gap')  # type: ignore[union-attr]
     assert resumed.processor.counts.resumes_relocalised == 1
+
+
+def test_a_bad_checkpoint_stops_the_node_with_one_line_naming_it(tmp_path: Path) -> None:
+    garbage = tmp_path / 'garbage.npz'
+    garbage.write_bytes(b'not a checkpoint')
+    command = [sys.executable, '-m', 'monoslam_shadow_node.monoslam_node']
+    error = invalid_parameter_error(command, 'resume_from', str(garbage))
+    assert error.startswith('monoslam: error: ')
+    assert f"checkpoint '{garbage}': not a readable .npz file" in error
