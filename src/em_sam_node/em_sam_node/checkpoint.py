@@ -1,7 +1,8 @@
 """em_sam_mapper's checkpoint: the processor's whole state in one versioned .npz file.
 
-Saved atomically (a temporary file in the same directory, fsync, rename, fsync of the
-directory), so a reader finds the previous checkpoint or the new one, never half of one.
+Saved atomically (``slam_core.checkpoint``: a temporary file in the same directory, fsync,
+rename, fsync of the directory), so a reader finds the previous checkpoint or the new one,
+never half of one.
 Holds the keyframes (stamps and odometry poses), the increments, the observations (attached
 and pending), the keys of every observation already taken, the current solution with its
 weights, and the counts. Loading checks the format, the version, every array's shape and the
@@ -11,8 +12,6 @@ consistency between them, and raises CheckpointError naming the file and what is
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,8 @@ import numpy as np
 from em_sam_node.core.em_types import EmResult
 from em_sam_node.ingest import Increment
 from em_sam_node.mapper import MapperProcessor, Observation
-from slam_core.errors import SlamError
+from slam_core.checkpoint import CheckpointError, load_checkpoint_arrays, save_arrays
+from slam_core.checkpoint import shaped as _shape
 
 FORMAT = 'em_sam_mapper checkpoint'
 VERSION = 1
@@ -45,10 +45,7 @@ _RESULT_ARRAYS = (
     'noise_scale',
     'final_noise_scale',
 )
-
-
-class CheckpointError(SlamError):
-    """A checkpoint file that cannot be used; the message names the file and the problem."""
+__all__ = ['CheckpointError', 'load_checkpoint', 'save_checkpoint', 'state_arrays']
 
 
 def _observation_arrays(items: list[Observation], prefix: str) -> dict[str, np.ndarray]:
@@ -101,36 +98,9 @@ def state_arrays(mapper: MapperProcessor) -> dict[str, np.ndarray]:
 
 def save_checkpoint(mapper: MapperProcessor, path: Path) -> None:
     """Write the processor's state to ``path`` atomically (temp file, fsync, rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
-    try:
-        with os.fdopen(handle, 'wb') as stream:
-            np.savez(stream, **state_arrays(mapper))  # type: ignore[arg-type]
-            stream.flush()
-            os.fsync(stream.fileno())
-        Path(temporary).replace(path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-    directory = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(directory)
-    finally:
-        os.close(directory)
-
-
-def _shape(arrays: dict[str, np.ndarray], name: str, shape: tuple[int | None, ...]) -> np.ndarray:
-    if name not in arrays:
-        raise ValueError(f'array {name!r} is missing')
-    array = arrays[name]
-    if array.ndim != len(shape) or any(
-        want is not None and have != want for have, want in zip(array.shape, shape, strict=True)
-    ):
-        wanted = tuple('N' if s is None else s for s in shape)
-        raise ValueError(f'array {name!r} has shape {array.shape}, expected {wanted}')
-    if array.dtype.kind == 'f' and not np.all(np.isfinite(array)):
-        raise ValueError(f'array {name!r} has non-finite values')
-    return array
+    arrays = state_arrays(mapper)
+    meta = json.loads(str(arrays.pop('meta')))
+    save_arrays(path, arrays, meta)
 
 
 def _observations(arrays: dict[str, np.ndarray], prefix: str) -> list[Observation]:
@@ -172,12 +142,7 @@ def _result(arrays: dict[str, np.ndarray], meta: dict[str, Any], keyframes: int)
     )
 
 
-def _restore(mapper: MapperProcessor, arrays: dict[str, np.ndarray]) -> None:
-    meta = json.loads(str(_shape(arrays, 'meta', ())))
-    if meta.get('format') != FORMAT:
-        raise ValueError(f'not an em_sam_mapper checkpoint (format {meta.get("format")!r})')
-    if meta.get('version') != VERSION:
-        raise ValueError(f'version {meta.get("version")!r}; this mapper reads version {VERSION}')
+def _restore(mapper: MapperProcessor, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
     stamps = _shape(arrays, 'stamps_ns', (None,))
     keyframes = len(stamps)
     if keyframes and np.any(np.diff(stamps) <= 0):
@@ -223,16 +188,6 @@ def _restore(mapper: MapperProcessor, arrays: dict[str, np.ndarray]) -> None:
 
 def load_checkpoint(mapper: MapperProcessor, path: Path) -> None:
     """Restore the processor's state from ``path``; CheckpointError names what is wrong."""
-    try:
-        with np.load(path, allow_pickle=False) as loaded:
-            arrays = {name: loaded[name] for name in loaded.files}
-    except FileNotFoundError:
-        raise CheckpointError(f'checkpoint {str(path)!r}: no such file') from None
-    except Exception as err:
-        raise CheckpointError(
-            f'checkpoint {str(path)!r}: not a readable .npz file ({err})'
-        ) from err
-    try:
-        _restore(mapper, arrays)
-    except (ValueError, KeyError, TypeError) as err:
-        raise CheckpointError(f'checkpoint {str(path)!r}: {err}') from err
+    load_checkpoint_arrays(
+        path, FORMAT, VERSION, 'mapper', lambda arrays, meta: _restore(mapper, arrays, meta)
+    )

@@ -162,7 +162,7 @@ def with_meta(arrays: dict[str, np.ndarray], **changes: object) -> dict[str, np.
     ('change', 'message'),
     [
         (lambda a: with_meta(a, version=99), 'version 99; this mapper reads version 1'),
-        (lambda a: with_meta(a, format='other'), 'not an em_sam_mapper checkpoint'),
+        (lambda a: with_meta(a, format='other'), "format 'other', not 'em_sam_mapper checkpoint'"),
         (lambda a: {k: v for k, v in a.items() if k != 'odom_poses'}, "'odom_poses' is missing"),
         (lambda a: {**a, 'increment_u': a['increment_u'][:-1]}, "'increment_u' has shape"),
         (lambda a: {**a, 'stamps_ns': a['stamps_ns'][::-1].copy()}, 'do not increase'),

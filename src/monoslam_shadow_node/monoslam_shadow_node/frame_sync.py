@@ -100,6 +100,10 @@ class StampSync(Generic[P, Q]):
         """Stamp (int ns) of the primary handed out last, None before the first."""
         return self._last_ns
 
+    def start_after(self, stamp_ns: int) -> None:
+        """Take ``stamp_ns`` as processed last (a resume): earlier primaries are refused."""
+        self._last_ns = stamp_ns
+
     def add_primary(self, item: P) -> list[Drop]:
         """Queue a primary item; return drops (a repeated stamp, a full queue)."""
         names = self.names

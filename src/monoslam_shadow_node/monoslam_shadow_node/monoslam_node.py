@@ -57,10 +57,13 @@ Topics:
               position (position_covariance[0] = -1), header.stamp = the image stamp; the
               Shadow filter takes them back as suspects. Each is also logged.
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
-              and dropped, frames processed and skipped, handovers, losses, processing
-              time, lag (slam_ros.diagnostics)
+              and dropped, frames processed and skipped, handovers, losses, resumes that
+              predicted over the gap and that re-localised, 'resumed' (what the last resume
+              did, 'no' for a fresh start), processing time, lag (slam_ros.diagnostics)
   Nothing published is ever NaN: a pose that is not finite is not published (an error is
   logged), and map points or predictions that are not finite are left out.
+Services:
+  ~/save_map (std_srvs/Trigger)   write the map's checkpoint to checkpoint_file now.
 
 Synchronization (frame_sync): features and fiducials pair when their stamps differ by at most
 stamp_tolerance_s, and are processed in stamp order. A features frame whose fiducials have
@@ -71,7 +74,8 @@ before any camera_info are held until it comes.
 
 Logs: the camera; waiting for the target (throttled, with what was detected instead); the
 start (stamp, initial pose and its sigma); tracking lost (why) and the re-initialization from
-the target when it is seen again; a camera_info change; and every bad input with its culprit,
+the target when it is seen again; a resume (from where, and on its first frame whether it
+predicted over the gap or re-localises); a camera_info change; every bad input with its culprit,
 after which the node goes on: an unusable camera_info, a frame out of stamp order, NaN
 pixels (those features are ignored), NaN target corners, a refused handover. Every 10 s a
 status line: frames per second, state, map size, features measured and the latest update's
@@ -155,6 +159,21 @@ Parameters (node):
   trajectory_file ('')            on shutdown (Ctrl-C too) write the trajectory there as
                                   TUM text ('stamp_s x y z qx qy qz qw' per pose, the
                                   optical frame in map_frame), atomically; '' for none.
+  checkpoint_period_s (10.0)      save the checkpoint this often when the map changed (and on
+                                  shutdown); 0 = only on ~/save_map.
+  checkpoint_file ('')            the checkpoint (monoslam_checkpoint: .npz, atomic): camera
+                                  state, every feature's parameters and track id, the full
+                                  covariance, template views and counters, the target
+                                  initialization state, the last stamp; '' = none.
+  resume_from ('')                start from this checkpoint; 'auto' = checkpoint_file when it
+                                  exists (a GRAPH's respawn_parameters). A bad checkpoint, or
+                                  one of another target, stops the node naming it. The first
+                                  frame after it predicts over the gap with the motion model
+                                  and measures the tracker's features by their ids, or, when
+                                  the gap is too long for the motion model (about 0.1 s at
+                                  the defaults; why: core.monoslam_snapshot), keeps the map
+                                  and re-localises from the target as at the start; the log
+                                  and /diagnostics say which.
 All are read-only; a bad value stops the node with an error naming the parameter.
 
 Frames: map_frame is defined by the target's pose; features and fiducials are in the camera
@@ -166,6 +185,7 @@ from __future__ import annotations
 import sys
 import time
 from collections import deque
+from pathlib import Path as FilePath
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TransformStamped
@@ -173,12 +193,14 @@ from nav_msgs.msg import Path
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
+from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from monoslam_shadow_node.conversions import CameraInfoWatch, Features, features_from_message
 from monoslam_shadow_node.core.monoslam import MonoSlam
 from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamResult
 from monoslam_shadow_node.frame_sync import StampSync
+from monoslam_shadow_node.monoslam_checkpoint import load_checkpoint, save_checkpoint
 from monoslam_shadow_node.monoslam_conversions import (
     PoseFields,
     TargetSighting,
@@ -260,7 +282,9 @@ class MonoSlamNode(Node):
         self._throttle = LogThrottle(WAITING_LOG_PERIOD_S)
         self.trajectory: list[PoseFields] = []
         self._path: deque[PoseStamped] = deque(maxlen=self.settings.path_length)
-        self._map_changed = False
+        self._saved_state: tuple[int, ...] | None = None
+        self._resume(self.settings.resume_from)
+        self._map_changed = self.processor.slam is not None
         self._last_input = time.monotonic()
         self._status_time, self._status_seen = time.monotonic(), (0, 0, 0)
         self.pose_publisher = self.create_publisher(
@@ -284,7 +308,9 @@ class MonoSlamNode(Node):
             else None
         )
         inputs = output_qos(depth=INPUT_DEPTH)
-        self.diagnostics = Diagnostics(self, self._counts)
+        self.diagnostics = Diagnostics(
+            self, self._counts, values=lambda: {'resumed': self.processor.resume_text}
+        )
         timed = self.diagnostics.timed
         self.create_subscription(
             FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs
@@ -306,7 +332,11 @@ class MonoSlamNode(Node):
                     timed(self._on_shadow_tracks, 'shadow_tracks'),
                     inputs,
                 )
+        self.create_service(Trigger, '~/save_map', self._on_save_map)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
+        period_s = self.settings.checkpoint_period_s
+        if period_s > 0 and self.settings.checkpoint_file is not None:
+            self.create_timer(period_s, timed(self._on_checkpoint), clock=steady)
         horizon_s = self.settings.sync_horizon_ns / 1e9
         self.create_timer(max(horizon_s / 2, 0.05), timed(self._flush_when_idle), clock=steady)
         self.create_timer(self.settings.map_period_s, timed(self._publish_map), clock=steady)
@@ -327,6 +357,62 @@ class MonoSlamNode(Node):
     def sync(self) -> StampSync[Features, TargetSighting]:
         """The processor's pairing of features with fiducials."""
         return self.processor.sync
+
+    # --- checkpoints ------------------------------------------------------------------------
+
+    def _resume(self, resume_from: str) -> None:
+        if not resume_from:
+            return
+        file = self.settings.checkpoint_file
+        path = file if resume_from == 'auto' else FilePath(resume_from).expanduser()
+        if path is None or (resume_from == 'auto' and not path.exists()):
+            self.get_logger().info(
+                f'resume_from auto: no checkpoint at {str(path)!r}; fresh start'
+            )
+            return
+        self.trajectory = load_checkpoint(self.processor, path)
+        self._saved_state = self._state_key()
+        slam, last_ns = self.processor.slam, self.processor.sync.last_ns
+        points = len(slam.map_points()) if slam is not None else 0
+        self.get_logger().info(
+            f'resumed from {str(path)!r}: {self.processor.status}, {points} map points, '
+            f'last frame at stamp {last_ns} ns; the first frame after it decides whether to '
+            'predict over the gap or re-localise from the target'
+        )
+
+    def _state_key(self) -> tuple[int, ...]:
+        counts = self.processor.counts
+        return (counts.features_received, counts.fiducials_received, counts.processed,
+                counts.accepted, counts.refused, counts.dropped_total)  # fmt: skip
+
+    def save_checkpoint(self) -> str:
+        """Write the map's checkpoint to checkpoint_file; return a one-line summary. Raises
+        ValueError before the camera (no map yet) and OSError when it cannot be written."""
+        path = self.settings.checkpoint_file
+        if path is None:
+            return 'no checkpoint_file is set'
+        save_checkpoint(self.processor, path, self.trajectory)
+        self._saved_state = self._state_key()
+        points = len(self.processor.map_points())
+        return (
+            f'checkpoint of {self.processor.counts.processed} frames, {points} map points '
+            f'({self.processor.status}) written to {str(path)!r}'
+        )
+
+    def _on_checkpoint(self) -> None:
+        if self.processor.slam is not None and self._state_key() != self._saved_state:
+            try:
+                self.get_logger().debug(self.save_checkpoint())
+            except OSError as err:
+                self.get_logger().error(f'could not write the checkpoint: {err}')
+
+    def _on_save_map(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        try:
+            response.message = self.save_checkpoint()
+            response.success = self.settings.checkpoint_file is not None
+        except (OSError, ValueError) as err:
+            response.success, response.message = False, f'could not write the checkpoint: {err}'
+        return response
 
     # --- inputs -----------------------------------------------------------------------------
 
@@ -454,6 +540,8 @@ class MonoSlamNode(Node):
             'handovers accepted': counts.accepted,
             'handovers refused': counts.refused,
             'lost': counts.lost,
+            'resumes predicted': counts.resumes_predicted,
+            'resumes re-localised': counts.resumes_relocalised,
             'measured': counts.measured,
             'camera_info rejected': self._camera_watch.rejected,
         }
@@ -480,8 +568,13 @@ class MonoSlamNode(Node):
         self.get_logger().info(f'trajectory ({len(self.trajectory)} poses) written to {path}')
 
     def destroy_node(self) -> None:
-        """Write the trajectory, log the final summary, then destroy."""
+        """Write the trajectory and the checkpoint, log the final summary, then destroy."""
         self.write_trajectory()
+        if self.settings.checkpoint_period_s > 0 and self.processor.slam is not None:
+            try:
+                self.save_checkpoint()
+            except OSError as err:
+                self.get_logger().error(f'could not write the checkpoint: {err}')
         counts = self.processor.counts
         if counts.processed or counts.dropped_total or counts.skipped:
             self.get_logger().info(f'done: {self.processor.status_line()}')

@@ -28,6 +28,12 @@ Rules:
   observed.
 - A frame the core refuses (MonoSlamInputError: stamps out of order, malformed arrays) or
   fails on (LinAlgError) is skipped with the reason; the filter is unchanged.
+- Resumed from a checkpoint (``resume``, ``monoslam_checkpoint``), the first frame after the
+  last saved one decides (``core.monoslam_snapshot.gap_verdict``): the filter predicts over
+  the gap and measures the tracker's features by their ids, or, when the gap is too long for
+  the motion model, keeps its map and re-localises from the target (the state is 'waiting'
+  until then, and the transition is 're-localised'). The step carries the verdict, and a
+  notice says which it did.
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ import numpy as np
 
 from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
 from monoslam_shadow_node.core.monoslam import MonoSlam
+from monoslam_shadow_node.core.monoslam_snapshot import GapVerdict, gap_verdict, relocalise
 from monoslam_shadow_node.core.monoslam_types import (
     LOST,
     TRACKING,
@@ -106,13 +113,15 @@ def update_text(counts: UpdateCounts) -> str:
 @dataclass(frozen=True, eq=False)
 class MonoSlamStep:
     """One processed frame: the core's result, the camera frame id of its features ('' when
-    unknown), its pose as finite numbers (None while waiting or when not finite) and the
-    state transition it made ('started', 're-initialized', 'lost' or None)."""
+    unknown), its pose as finite numbers (None while waiting or when not finite), the state
+    transition it made ('started', 're-initialized', 're-localised', 'lost' or None) and, in
+    the first frame after a resume, what the filter did over the gap."""
 
     result: MonoSlamResult
     frame_id: str
     pose: PoseFields | None
     transition: str | None
+    resumed: GapVerdict | None = None
 
 
 Outcome = MonoSlamStep | Notice
@@ -123,8 +132,9 @@ class MonoSlamCounts:
     """Running totals: inputs received (feature frames, fiducial arrays), frames processed,
     processed without fiducials and skipped (refused by the core), inputs dropped by the
     pairing (by ``Drop.kind``), handovers accepted and refused, handed-over features revoked
-    (``MonoSlam``'s persistent-outlier test), times tracking was lost, and
-    the features measured and the update's counts in the latest frame."""
+    (``MonoSlam``'s persistent-outlier test), times tracking was lost, resumes from a
+    checkpoint that predicted over the gap and that re-localised, and the features measured
+    and the update's counts in the latest frame."""
 
     features_received: int = 0
     fiducials_received: int = 0
@@ -136,6 +146,8 @@ class MonoSlamCounts:
     refused: int = 0
     revoked: int = 0
     lost: int = 0
+    resumes_predicted: int = 0
+    resumes_relocalised: int = 0
     measured: int = 0
     update: UpdateCounts = field(default_factory=UpdateCounts)
 
@@ -178,6 +190,9 @@ class MonoSlamProcessor:
             names=names,
         )
         self._predicted_ns: int | None = None
+        self._resumed = False  # the gap to the next frame is still to be judged
+        self._relocalising = False
+        self.resume_text = 'no'
 
     @property
     def waiting_features(self) -> int:
@@ -256,6 +271,34 @@ class MonoSlamProcessor:
             return f'{where}: status {handover.status}, not STATIC'
         return self.slam.add_handover(handover.id, handover.position, handover.covariance)
 
+    def resume(self, slam: MonoSlam, counts: MonoSlamCounts, last_ns: int | None) -> None:
+        """Continue from a checkpoint's filter, counts and last processed stamp (frames up to
+        it are refused as out of order); the next frame judges the gap."""
+        self.slam, self.counts, self.status = slam, counts, slam.status
+        if last_ns is not None:
+            self.sync.start_after(last_ns)
+        self._resumed = slam.status == TRACKING
+        self.resume_text = (
+            'resumed, waiting for the target' if not self._resumed else 'resumed, next frame'
+        )
+
+    def _judge_gap(self, stamp_ns: int) -> GapVerdict | None:
+        """On the first frame after a resume: predict over the gap, or re-localise."""
+        slam = self.slam
+        verdict = gap_verdict(slam, stamp_ns) if self._resumed and slam is not None else None
+        if slam is None or verdict is None:
+            return None
+        self._resumed = False
+        if verdict.predict:
+            self.counts.resumes_predicted += 1
+            self.resume_text = f'predicted over {verdict.describe()}'
+        else:
+            self.counts.resumes_relocalised += 1
+            self.resume_text = f're-localised from the target after {verdict.describe()}'
+            relocalise(slam)
+            self.status, self._relocalising = WAITING, True
+        return verdict
+
     # --- one frame --------------------------------------------------------------------------
 
     def process_frame(self, frame: MonoSlamFrame, frame_id: str = '') -> MonoSlamStep:
@@ -264,6 +307,7 @@ class MonoSlamProcessor:
         the camera is set."""
         if self.slam is None:
             raise ValueError(f'no camera yet: set it (from {self.camera_info_topic}) first')
+        resumed = self._judge_gap(frame.stamp_ns)
         result = self.slam.process(frame)
         self.counts.processed += 1
         self.counts.measured = len(result.measured_ids)
@@ -277,7 +321,9 @@ class MonoSlamProcessor:
             transition = 'lost'
         elif result.status == TRACKING and previous != TRACKING:
             transition = 're-initialized' if self.counts.lost else 'started'
-        return MonoSlamStep(result, frame_id, pose_fields(result), transition)
+            if self._relocalising:
+                transition, self._relocalising = 're-localised', False
+        return MonoSlamStep(result, frame_id, pose_fields(result), transition, resumed)
 
     def process(self, features: Features, sighting: TargetSighting | None) -> list[Outcome]:
         """Run one features frame with its target sighting (None: processed without
@@ -303,6 +349,8 @@ class MonoSlamProcessor:
             text = f'features frame at stamp {stamp_ns} ns skipped: {err}'
             return [*notices, Notice('skipped', 'error', text, stamp_ns)]
         result = step.result
+        if step.resumed is not None:
+            notices.append(self._resume_notice(step.resumed, stamp_ns))
         for warning in result.warnings:
             if not warning.startswith(STATUS_WARNINGS):
                 text = f'frame at stamp {result.stamp_ns} ns: {warning}'
@@ -314,6 +362,21 @@ class MonoSlamProcessor:
             text = f'pose at stamp {stamp_ns} ns is not finite (a filter fault); not published'
             notices.append(Notice('pose_not_finite', 'error', text, stamp_ns))
         return [*notices, step]
+
+    def _resume_notice(self, verdict: GapVerdict, stamp_ns: int) -> Notice:
+        if verdict.predict:
+            text = (
+                f'resumed from the checkpoint: predicted over {verdict.describe()}, and '
+                f'measured the tracked features by their ids'
+            )
+            return Notice('resumed', 'info', text, stamp_ns)
+        kept = len(self.slam.map_points()) if self.slam is not None else 0
+        text = (
+            f'resumed from the checkpoint: {verdict.describe()} is too long for the motion '
+            f'model: keeping the map ({kept} points), re-localising from the target '
+            f'({self.target_text}) when it is seen'
+        )
+        return Notice('resumed', 'warning', text, stamp_ns)
 
     def _state_notice(self, step: MonoSlamStep, sighting: TargetSighting | None) -> Notice | None:
         """Say the start, the loss of tracking, or (throttled) waiting for the target; None

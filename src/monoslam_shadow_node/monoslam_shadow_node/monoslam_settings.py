@@ -215,6 +215,25 @@ NODE_PARAMETERS = (
         'write the trajectory (TUM text) here on shutdown; empty: none',
         validator=_file_rule,
     ),
+    Param(
+        'checkpoint_period_s',
+        10.0,
+        'save the map to checkpoint_file this often when it changed (and on shutdown), s; '
+        '0 = only on ~/save_map',
+        range=NON_NEGATIVE,
+    ),
+    Param(
+        'checkpoint_file',
+        '',
+        "where the map's checkpoint goes (.npz, written atomically); '' = no checkpoints",
+        validator=_file_rule,
+    ),
+    Param(
+        'resume_from',
+        '',
+        "checkpoint to start from; '' = a fresh start, 'auto' = checkpoint_file if it exists",
+        validator=_file_rule,
+    ),
 )
 PARAMETERS = ParamTable(NODE_NAME, (*CORE_PARAMETERS, *TARGET_PARAMETERS, *NODE_PARAMETERS))
 
@@ -257,8 +276,9 @@ class TargetSettings:
 class NodeSettings:
     """The node's own settings: map frame, which outputs (TF and its camera frame,
     predictions), path length
-    (poses), map period (s), stamp tolerance and waiting horizon (int ns), queue bound and the
-    trajectory file (None: none)."""
+    (poses), map period (s), stamp tolerance and waiting horizon (int ns), queue bound, the
+    trajectory file (None: none), the checkpoint period (s), file (None: none) and where to
+    resume from ('', 'auto' or a path)."""
 
     map_frame: str
     publish_tf: bool
@@ -270,6 +290,9 @@ class NodeSettings:
     sync_horizon_ns: int
     queue_size: int
     trajectory_file: Path | None
+    checkpoint_period_s: float = 10.0
+    checkpoint_file: Path | None = None
+    resume_from: str = ''
 
 
 def target_settings(values: Mapping[str, Any]) -> TargetSettings:
@@ -306,7 +329,7 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
         raise PARAMETERS.fail(
             'tf_camera_frame', checked['tf_camera_frame'], 'must differ from map_frame'
         )
-    trajectory = checked['trajectory_file']
+    trajectory, checkpoint = checked['trajectory_file'], checked['checkpoint_file']
     return NodeSettings(
         map_frame=checked['map_frame'],
         publish_tf=checked['publish_tf'],
@@ -318,4 +341,7 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
         sync_horizon_ns=round(horizon * 1e9),
         queue_size=checked['queue_size'],
         trajectory_file=Path(trajectory).expanduser() if trajectory.strip() else None,
+        checkpoint_period_s=checked['checkpoint_period_s'],
+        checkpoint_file=Path(checkpoint).expanduser() if checkpoint.strip() else None,
+        resume_from=checked['resume_from'].strip(),
     )

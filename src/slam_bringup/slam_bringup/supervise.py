@@ -5,10 +5,10 @@ When such a node's process dies (any exit code but 0, which only a requested sto
 the runner starts it again after a back-off: ``respawn_delay_s`` (default 1 s) for the
 first restart, doubled for each further one up to MAX_DELAY_S; a process that ran for
 RESET_AFTER_S or longer before it died starts the count again. The restart gets the entry's
-``respawn_parameters`` after its other parameters: ``{resume_from: auto}`` makes
-em_sam_mapper load its checkpoint (``checkpoint_file``) when there is one, so the restarted
-mapper continues where its last checkpoint left off. Each restart is logged as
-``slam_run: NODE exited with code X; respawning in Y s (attempt N)``.
+``respawn_parameters`` after its other parameters: ``{resume_from: auto}`` makes a node
+with checkpoints (em_sam_mapper, monoslam) load its checkpoint (``checkpoint_file``) when
+there is one, so the restarted node continues where its last checkpoint left off. Each
+restart is logged as ``slam_run: NODE exited with code X; respawning in Y s (attempt N)``.
 
 In one process a single node cannot be restarted (a crash takes the whole process):
 ``respawn`` is ignored there, with a warning naming the entries.

@@ -7,16 +7,21 @@ import json
 import math
 import os
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
 
-def write_atomically(path: Path, data: bytes | str) -> Path:
-    """Write ``data`` (text as UTF-8) to ``path`` through a temporary file in the same
-    directory, with the permissions a new file gets under the umask (mkstemp's are 0600)."""
+def write_atomically(
+    path: Path, data: bytes | str | Callable[[BinaryIO], None], *, durable: bool = False
+) -> Path:
+    """Write ``data`` (text as UTF-8; a callable writes to the stream it is given) to
+    ``path`` through a temporary file in the same directory, with the permissions a new file
+    gets under the umask (mkstemp's are 0600). ``durable``: the file is fsynced before the
+    rename and the directory after it, so that a crash of the machine leaves the old file or
+    the new one (checkpoints)."""
     if isinstance(data, str):
         data = data.encode('utf-8')
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -24,11 +29,23 @@ def write_atomically(path: Path, data: bytes | str) -> Path:
     try:
         os.fchmod(handle, 0o666 & ~_umask())
         with os.fdopen(handle, 'wb') as stream:
-            stream.write(data)
+            if callable(data):
+                data(stream)
+            else:
+                stream.write(data)
+            if durable:
+                stream.flush()
+                os.fsync(stream.fileno())
         Path(temporary).replace(path)
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
+    if durable:
+        directory = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(directory)
+        finally:
+            os.close(directory)
     return path
 
 

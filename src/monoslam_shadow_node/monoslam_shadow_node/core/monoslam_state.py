@@ -90,15 +90,19 @@ class FilterState:
         velocity_sigma_m_s: float,
         angular_velocity_sigma_rad_s: float,
     ) -> None:
-        """Reset to the camera alone: pose (7,) (r, q) with covariance (7, 7), velocities
-        zero with the given standard deviations; no features."""
-        self.x = np.zeros(CAMERA_SIZE)
-        self.x[:7] = pose_state
-        self.p = np.zeros((CAMERA_SIZE, CAMERA_SIZE))
-        self.p[:7, :7] = pose_covariance
-        self.p[V_SLICE, V_SLICE] = velocity_sigma_m_s**2 * np.eye(3)
-        self.p[W_SLICE, W_SLICE] = angular_velocity_sigma_rad_s**2 * np.eye(3)
-        self.features = []
+        """Set the camera: pose (7,) (r, q) with covariance (7, 7), velocities zero with the
+        given standard deviations. The features kept in the state (a filter re-localised
+        after a resume, ``monoslam_snapshot``) keep their estimates and covariances, now
+        uncorrelated with the camera: its new pose comes from the known points alone."""
+        n = len(self.x) if self.features else CAMERA_SIZE
+        x, p = np.zeros(n), np.zeros((n, n))
+        x[CAMERA_SIZE:] = self.x[CAMERA_SIZE:n]
+        p[CAMERA_SIZE:, CAMERA_SIZE:] = self.p[CAMERA_SIZE:n, CAMERA_SIZE:n]
+        x[:7] = pose_state
+        p[:7, :7] = pose_covariance
+        p[V_SLICE, V_SLICE] = velocity_sigma_m_s**2 * np.eye(3)
+        p[W_SLICE, W_SLICE] = angular_velocity_sigma_rad_s**2 * np.eye(3)
+        self.x, self.p = x, p
 
     def insert_inverse_depth(
         self,

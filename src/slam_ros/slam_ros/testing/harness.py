@@ -166,6 +166,12 @@ class RosHarness:
         self.executor.add_node(node)
         return node
 
+    def remove_node(self, node: Node) -> None:
+        """Stop spinning an in-process node and destroy it (a node that stops mid-test)."""
+        self._nodes.remove(node)
+        self.executor.remove_node(node)
+        node.destroy_node()
+
     def start_process(
         self,
         name: str,
