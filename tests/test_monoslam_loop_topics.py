@@ -52,7 +52,7 @@ from monoslam_shadow_node.monoslam_conversions import POINT_DTYPE
 from monoslam_shadow_node.monoslam_node import MonoSlamNode
 from monoslam_shadow_node.monoslam_settings import PARAMETERS as MONOSLAM_PARAMETERS
 from monoslam_shadow_node.shadow_filter_node import ShadowFilterNode
-from slam_core.blas import single_threaded_libraries
+from slam_core.blas import single_threaded_blas
 from slam_core.stamps import stamp_to_ns
 from slam_evaluation.monoslam_loop import REMATCH_FRAMES, loop_frames, loop_scene, run_loop
 from slam_evaluation.monoslam_loop_images import (
@@ -96,7 +96,7 @@ MAX_FINAL_RATIO = 1.5
 
 @pytest.fixture(scope='module', autouse=True)
 def one_blas_thread() -> None:
-    single_threaded_libraries()
+    single_threaded_blas()
 
 
 @dataclass

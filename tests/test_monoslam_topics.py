@@ -52,7 +52,7 @@ from monoslam_shadow_node.monoslam_conversions import POINT_DTYPE
 from monoslam_shadow_node.monoslam_node import MonoSlamNode
 from monoslam_shadow_node.monoslam_settings import PARAMETERS as MONOSLAM_PARAMETERS
 from monoslam_shadow_node.shadow_filter_node import ShadowFilterNode
-from slam_core.blas import single_threaded_libraries
+from slam_core.blas import single_threaded_blas
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import (
     FeatureTrack,
@@ -104,7 +104,7 @@ MIN_DYNAMIC_ENRICHMENT = 10.0
 
 @pytest.fixture(scope='module', autouse=True)
 def one_blas_thread() -> None:
-    single_threaded_libraries()
+    single_threaded_blas()
 
 
 # --- the pipeline on the simulated bag -----------------------------------------------------

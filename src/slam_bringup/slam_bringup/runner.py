@@ -79,7 +79,7 @@ from slam_bringup.graph_nodes import (
     with_overrides,
 )
 from slam_bringup.supervise import Respawner, failing_node, warn_if_respawn_ignored
-from slam_core.blas import single_threaded_libraries
+from slam_core.blas import single_threaded_blas
 from slam_core.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main
 from slam_core.errors import SlamError
 from slam_ros.diagnostics import Diagnostics
@@ -259,7 +259,7 @@ def run_in_process(
     """Run every node in this process until the graph ends; return the exit status."""
     warn_if_respawn_ignored(descriptions, say)
     context = Context()
-    single_threaded_libraries()
+    single_threaded_blas()
     rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor(context=context)
     watch = DrainWatch(processing_nodes(descriptions), NODES_QUIET_S)

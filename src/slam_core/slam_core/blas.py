@@ -6,9 +6,10 @@ and the nodes' own threads, and MonoSLAM ran about 20 times slower (215 ms inste
 per frame). OpenCV likewise splits an optical-flow pass or a corner search of one 640x480
 image over a thread per core: the feature tracker took 80 % of a core at 30 Hz with its
 default threads and 66 % with one (the live dynamic scene, the tracker alone with the
-camera). A graph runs a process per node, which is where the parallelism is. Every node
-(``spin.spin_node``), the in-process graph runner and the evaluation tools call
-``single_threaded_libraries`` at start-up.
+camera). With a process per node, the processes are the parallelism: every node process
+(``spin.spin_node``) calls ``single_threaded_libraries`` at start-up. A graph in one process
+(the runner's default) and the evaluation tools keep OpenCV's threads, the one way their
+work reaches the second core, and call ``single_threaded_blas``.
 """
 
 from __future__ import annotations

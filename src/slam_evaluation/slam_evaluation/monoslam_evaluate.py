@@ -66,7 +66,7 @@ import sys
 import time
 from pathlib import Path
 
-from slam_core.blas import single_threaded_libraries
+from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter
@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the evaluation; print the summary; write the JSON report and figures to --out.
     Exit status 1 if a filter raised on a run (listed in the report, left out of it)."""
     settings = _arguments(argv)
-    single_threaded_libraries()
+    single_threaded_blas()
     started = time.perf_counter()
     sequence = None
     frames = settings.scene().frame_count

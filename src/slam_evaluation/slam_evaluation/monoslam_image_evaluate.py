@@ -58,7 +58,7 @@ import sys
 import time
 from pathlib import Path
 
-from slam_core.blas import single_threaded_libraries
+from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.errors import BagError
 from slam_core.files import write_atomically, write_json
@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the evaluation; print the table; write the JSON report, the table and the figures
     to --out. Exit status 1 if a filter raised on a run (listed in the report)."""
     settings = _arguments(argv)
-    single_threaded_libraries()
+    single_threaded_blas()
     started = time.perf_counter()
     total = sum(source.frame_count for source in settings.sources)
     progress = ProgressReporter(total, label=PROG, unit=' images')

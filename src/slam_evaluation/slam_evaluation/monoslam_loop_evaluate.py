@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from slam_core.blas import single_threaded_libraries
+from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
@@ -208,7 +208,7 @@ def _mark_loop(axes: Any, run: LoopRun) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run the loop evaluation; print the summary; write the report and figures."""
     args = _arguments(argv)
-    single_threaded_libraries()
+    single_threaded_blas()
     started = time.perf_counter()
     settings = Settings(args.seeds, args.duration_s, args.variants, args.out)
     jobs = [(v, m, s) for m in args.movers for s in args.seeds for v in args.variants]

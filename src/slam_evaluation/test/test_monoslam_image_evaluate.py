@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from slam_core.blas import single_threaded_libraries
+from slam_core.blas import single_threaded_blas
 from slam_evaluation.monoslam_front_end import FrontEnd, moving_near
 from slam_evaluation.monoslam_image_evaluate import REPORT_NAME, TABLE_NAME, main
 from slam_evaluation.monoslam_image_report import acceptance, image_tracking, level_ratio
@@ -31,7 +31,7 @@ LATER_FRAMES = 10
 
 @pytest.fixture(scope='module', autouse=True)
 def _one_blas_thread() -> None:
-    single_threaded_libraries()
+    single_threaded_blas()
 
 
 def _finite(value: Any) -> bool:

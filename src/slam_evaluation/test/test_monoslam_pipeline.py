@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig, MonoSlamFrame
-from slam_core.blas import single_threaded_libraries
+from slam_core.blas import single_threaded_blas
 from slam_evaluation import monoslam_runs
 from slam_evaluation.monoslam_evaluate import main
 from slam_evaluation.monoslam_loop import map_history, run_loop
@@ -56,7 +56,7 @@ FEW_MOVERS = DynamicSceneConfig(duration_s=3.0, static_points=120, objects=2, po
 
 @pytest.fixture(scope='module', autouse=True)
 def _one_blas_thread() -> None:
-    single_threaded_libraries()  # the small EKF matrices run ~10x slower on contended threads
+    single_threaded_blas()  # the small EKF matrices run ~10x slower on contended threads
 
 
 def _frames(run: DynamicSceneRun, seed: int = 0) -> list[MeasurementFrame]:
