@@ -1,12 +1,12 @@
 """Fault table (issue 23), mapper row: SIGKILL of em_sam_mapper mid-run with respawn: true.
 
-Runs em_sam_office_respawn.yaml (``slam_run --processes``, bags/office_moveable.mcap)
-once uninterrupted and ``--runs`` times with the mapper killed at a different moment after
-its first checkpoint, each in its own ROS domain, one after the other. A killed run PASSes
-when slam_run restarted the mapper, the mapper resumed from its checkpoint, its final
-moveable set and landmark map equal the uninterrupted run's (positions within 1 mm), and
-the work lost with the process, what came after the last checkpoint, was at most one
-checkpoint period old. Prints a markdown table.
+Runs em_sam_office_respawn.yaml (``slam_run --processes``, bags/office_moveable.mcap) once
+uninterrupted and ``--runs`` times with the mapper killed at a different moment after its
+first checkpoint that holds keyframes, each in its own ROS domain, one after the other. A
+killed run PASSes when slam_run restarted the mapper, the mapper resumed from its
+checkpoint, its final moveable set and landmark map equal the uninterrupted run's (positions
+within 1 mm), and the work lost with the process, what came after the last checkpoint, was
+at most one checkpoint period old. Prints a markdown table.
 
     python bench/fault_mapper.py [--runs 3] [--rate 5]
 """

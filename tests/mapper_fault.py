@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -66,7 +67,7 @@ def _mapper_pid(parent: int) -> int | None:
 
 def run(workdir: Path, *, rate: float, kill_after_s: float | None, domain_id: int) -> MapperRun:
     """Run the graph in ``workdir``; SIGKILL the mapper ``kill_after_s`` after its first
-    checkpoint (None: never)."""
+    checkpoint that holds keyframes (None: never)."""
     workdir.mkdir(parents=True, exist_ok=True)
     log_path = workdir / 'slam_run.log'
     env = {**os.environ, 'PYTHONUNBUFFERED': '1', 'ROS_DOMAIN_ID': str(domain_id)}
@@ -109,7 +110,7 @@ def _kill_mapper(
     result: MapperRun,
 ) -> None:
     deadline = time.monotonic() + RUN_TIMEOUT_S
-    while not checkpoint.exists():
+    while not _holds_keyframes(checkpoint):
         if process.poll() is not None or time.monotonic() > deadline:
             return
         time.sleep(0.05)
@@ -121,6 +122,18 @@ def _kill_mapper(
     os.kill(pid, signal.SIGKILL)
     result.killed_at_s = time.monotonic() - started
     result.checkpoint_age_s = age
+
+
+def _holds_keyframes(checkpoint: Path) -> bool:
+    """Whether the checkpoint exists and holds keyframes: from then on the bag's inputs
+    change the mapper's state in every checkpoint period, so the checkpoint's age at the kill
+    is the work lost (the mapper writes one only when its state changed: before its inputs
+    flow, an old checkpoint loses nothing)."""
+    try:
+        with np.load(checkpoint) as arrays:
+            return len(arrays['stamps_ns']) > 0
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+        return False  # not there yet
 
 
 def landmark_difference_m(a: MapperRun, b: MapperRun) -> float:

@@ -28,7 +28,7 @@ pytestmark = pytest.mark.topic
 # queue in one run and not the other (1792 against 1802 keyframes): the run must get every
 # input for its map to be comparable with the offline one
 RATE = 5.0
-KILL_AFTER_S = 3.0  # after the first checkpoint: some work is not in it yet
+KILL_AFTER_S = 3.0  # after the first checkpoint with keyframes: some work is not in it yet
 
 
 def test_a_killed_mapper_is_respawned_and_ends_with_the_uninterrupted_map(
