@@ -77,6 +77,7 @@ class DetectStats:
     dropped: Counter[str] = field(default_factory=Counter)
     rejections: Counter[str] = field(default_factory=Counter)
     camera_info_errors: Counter[str] = field(default_factory=Counter)
+    tf_static_errors: Counter[str] = field(default_factory=Counter)
     output: Path | None = None
 
     def summary(self) -> str:
@@ -89,6 +90,8 @@ class DetectStats:
             lines.append(f'  dropped {count} images: {reason}')
         for reason, count in self.camera_info_errors.most_common():
             lines.append(f'  {count} camera_info messages unusable: {reason}')
+        for reason, count in self.tf_static_errors.most_common():
+            lines.append(f'  {count} /tf_static transforms unusable: {reason}')
         for gate, count in self.rejections.most_common():
             lines.append(f'  rejected {count} markers: {gate}')
         return '\n'.join(lines)
@@ -180,11 +183,14 @@ def detect_bag(
                 elif message.topic == TF_STATIC_TOPIC:
                     tf_message: Any = store.deserialize_cdr(message.data, message.msgtype)
                     for transform in tf_message.transforms:
-                        processor.transforms.add(
-                            transform.header.frame_id,
-                            transform.child_frame_id,
-                            transform_matrix(transform.transform),
-                        )
+                        try:
+                            processor.transforms.add(
+                                transform.header.frame_id,
+                                transform.child_frame_id,
+                                transform_matrix(transform.transform),
+                            )
+                        except InputError as err:  # as the node: counted, the run goes on
+                            stats.tf_static_errors[str(err)] += 1
                 elif message.topic == image_topic:
                     _detect_one(processor, store, message, writer, stats)
                     if reporter is not None:

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pytest
 from ament_index_python.packages import get_package_share_directory
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from marker_detector.offline import detect_bag, main
@@ -89,3 +92,56 @@ def test_the_command_line_names_a_bad_parameter(camera_bag: Path, tmp_path: Path
     code = main([str(camera_bag), '--output', str(tmp_path / 'x'), '--set', 'marker_size_m=-1'])
     assert code == 2
     assert list(tmp_path.iterdir()) == []
+
+
+def with_bad_mount(source: Path, target: Path) -> Path:
+    """Copy the bag ``source`` to ``target`` with one more /tf_static message whose
+    translation is NaN (base_link -> broken_link)."""
+    with AnyReader([source]) as reader:
+        store = reader.typestore
+        tf_type = 'tf2_msgs/msg/TFMessage'
+        Transform = store.types['geometry_msgs/msg/TransformStamped']  # noqa: N806
+        message = store.types[tf_type](
+            transforms=[
+                Transform(
+                    header=store.types['std_msgs/msg/Header'](
+                        stamp=store.types['builtin_interfaces/msg/Time'](sec=0, nanosec=0),
+                        frame_id='base_link',
+                    ),
+                    child_frame_id='broken_link',
+                    transform=store.types['geometry_msgs/msg/Transform'](
+                        translation=store.types['geometry_msgs/msg/Vector3'](
+                            x=math.nan, y=0.0, z=0.0
+                        ),
+                        rotation=store.types['geometry_msgs/msg/Quaternion'](
+                            x=0.0, y=0.0, z=0.0, w=1.0
+                        ),
+                    ),
+                )
+            ]
+        )
+        writer = Writer(target, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer.open()
+        try:
+            out = {
+                c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
+                for c in reader.connections
+            }
+            bad = next(c.id for c in reader.connections if c.topic == '/tf_static')
+            writer.write(out[bad], reader.start_time, store.serialize_cdr(message, tf_type))
+            for connection, timestamp, raw in reader.messages():
+                writer.write(out[connection.id], timestamp, raw)
+        finally:
+            writer.close()
+    return target
+
+
+def test_an_unusable_tf_static_transform_is_counted_and_the_run_goes_on(
+    camera_bag: Path, tmp_path: Path
+) -> None:
+    bag = with_bad_mount(camera_bag, tmp_path / 'bad_mount')
+    stats = detect_bag(bag, tmp_path / 'detected', office_values(), progress=False)
+    assert sum(stats.tf_static_errors.values()) == 1, stats.tf_static_errors
+    assert 'must be finite' in next(iter(stats.tf_static_errors))
+    assert stats.images_with_markers > 0  # the camera's own mount came too
+    assert '1 /tf_static transforms unusable' in stats.summary()
