@@ -19,6 +19,7 @@ world axes), which is geometry_msgs/PoseWithCovariance's order and convention (s
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -26,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from monoslam_shadow_node.conversions import FloatArray, IntArray
+from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
 from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamResult
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
@@ -113,6 +114,39 @@ class PoseFields:
             f'camera at ({x:.3f}, {y:.3f}, {z:.3f}) m, sigma {position_sigma:.3f} m / '
             f'{rotation_sigma:.4f} rad'
         )
+
+
+FEATURE_TRACK_DTYPE = np.dtype(
+    [('id', '<i8'), ('u', '<f8'), ('v', '<f8'), ('covariance', '<f8', (3,)), ('warp', '<f8', (4,))]
+)
+"""One slam_interfaces/FeatureTrack in little-endian CDR: 80 bytes, 8-aligned."""
+CDR_LITTLE_ENDIAN = b'\x00\x01'
+"""The encapsulation header's first two bytes for plain little-endian CDR (what the rmw
+layers send for ROS 2 messages)."""
+
+
+def features_from_cdr(data: bytes) -> Features | None:
+    """Return the Features of a serialized slam_interfaces/FeatureTrackArray, its tracks read
+    in one numpy view instead of a Python object per track; None when the data is not plain
+    little-endian CDR or does not parse (deserialize it as a message then). CDR: after the
+    4-byte encapsulation header, header.stamp (int32 sec, uint32 nanosec), header.frame_id
+    (uint32 length with the NUL, the bytes), the track count (uint32, 4-aligned), then the
+    tracks (8-aligned; alignment counts from the end of the encapsulation header)."""
+    try:
+        if data[:2] != CDR_LITTLE_ENDIAN:
+            return None
+        sec, nanosec, length = struct.unpack_from('<iII', data, 4)
+        end = 16 + length
+        frame_id = bytes(data[16 : end - 1]).decode('utf-8') if length else ''
+        offset = end + (-(end - 4) % 4)
+        (count,) = struct.unpack_from('<I', data, offset)
+        offset += 4 + (-offset % 8)  # to 8-aligned from the body (byte 4) on
+        tracks = np.frombuffer(data, FEATURE_TRACK_DTYPE, count, offset if count else 0)
+    except (ValueError, struct.error, UnicodeDecodeError):
+        return None
+    pixels = np.column_stack([tracks['u'], tracks['v']]).astype(np.float64)
+    stamp_ns = int(sec) * 1_000_000_000 + int(nanosec)
+    return Features(stamp_ns, frame_id, tracks['id'].astype(np.int64), pixels.reshape(-1, 2))
 
 
 def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> TargetSighting:
@@ -269,14 +303,16 @@ def fill_predictions(
     if warps is not None:
         flat = np.asarray(warps, dtype=np.float64).reshape(-1, 4).copy()
         flat[~np.all(np.isfinite(flat), axis=1)] = 0.0
+    # the rows go in as float64 arrays made for this message: a message takes an array as it
+    # is, where a list is checked and converted number by number
+    finite = np.all(np.isfinite(pixels), axis=1)
+    upper, flat = np.array(upper[finite], dtype=np.float64), np.array(flat[finite])
     message.tracks = [
-        make_track(
-            id=int(i), u=float(u), v=float(v), covariance=[float(c) for c in cov],
-            warp=[float(w) for w in warp],
+        make_track(id=i, u=u, v=v, covariance=cov, warp=warp)
+        for i, (u, v), cov, warp in zip(
+            np.asarray(ids)[finite].tolist(), pixels[finite].tolist(), upper, flat, strict=True
         )
-        for i, (u, v), cov, warp in zip(ids.tolist(), pixels, upper, flat, strict=True)
-        if math.isfinite(u) and math.isfinite(v)
-    ]  # fmt: skip
+    ]
     return message
 
 

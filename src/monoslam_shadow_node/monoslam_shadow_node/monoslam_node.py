@@ -192,6 +192,7 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TransformS
 from nav_msgs.msg import Path
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -206,6 +207,7 @@ from monoslam_shadow_node.monoslam_conversions import (
     TargetSighting,
     cloud_points,
     dynamic_ids,
+    features_from_cdr,
     fill_cloud,
     fill_pose_stamped,
     fill_pose_with_covariance,
@@ -313,8 +315,9 @@ class MonoSlamNode(Node):
         )
         timed = self.diagnostics.timed
         self.create_subscription(
-            FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs
-        )
+            FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs,
+            raw=True,
+        )  # fmt: skip
         self.create_subscription(
             FiducialArray, FIDUCIALS_TOPIC, timed(self._on_fiducials, 'fiducials'), inputs
         )
@@ -436,9 +439,15 @@ class MonoSlamNode(Node):
             self.get_logger().warning(update.text)
         self._handle(self.processor.set_camera(update.camera))
 
-    def _on_features(self, message: FeatureTrackArray) -> None:
+    def _on_features(self, data: bytes) -> None:  # taken serialized: ``features_from_cdr``
         self._last_input = time.monotonic()
-        self._handle(self.processor.add_features(features_from_message(message)))
+        features = features_from_cdr(data) or features_from_message(
+            deserialize_message(data, FeatureTrackArray)
+        )
+        self._handle(self.processor.add_features(features))
+        stamp = self.diagnostics.latest_stamp_ns  # what Diagnostics reads off a message
+        if stamp is None or features.stamp_ns > stamp:
+            self.diagnostics.latest_stamp_ns = features.stamp_ns
 
     def _on_fiducials(self, message: FiducialArray) -> None:
         self._last_input = time.monotonic()
