@@ -275,6 +275,26 @@ def fill_cloud(
     return message
 
 
+def prediction_rows(
+    pixels: FloatArray, covariances: FloatArray | None, warps: FloatArray | None
+) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
+    """Return the predictions' pixels (M, 2), FeatureTrack.covariance rows (M, 3) [uu, uv,
+    vv] and FeatureTrack.warp rows (M, 4) (zeros where not given or not finite) and which
+    predictions are finite (M,) (``fill_predictions``)."""
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    if covariances is None:
+        upper = np.zeros((len(pixels), 3))
+    else:
+        full = np.asarray(covariances, dtype=np.float64).reshape(-1, 2, 2)
+        upper = np.column_stack([full[:, 0, 0], full[:, 0, 1], full[:, 1, 1]])
+        upper[~np.all(np.isfinite(upper), axis=1)] = 0.0
+    flat = np.zeros((len(pixels), 4))
+    if warps is not None:
+        flat = np.asarray(warps, dtype=np.float64).reshape(-1, 4).copy()
+        flat[~np.all(np.isfinite(flat), axis=1)] = 0.0
+    return pixels, upper, flat, np.all(np.isfinite(pixels), axis=1)
+
+
 def fill_predictions(
     ids: IntArray,
     pixels: FloatArray,
@@ -292,28 +312,42 @@ def fill_predictions(
     non-finite predictions are left out."""
     ns_to_stamp(stamp_ns, message.header.stamp)
     message.header.frame_id = frame_id
-    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-    if covariances is None:
-        upper = np.zeros((len(pixels), 3))
-    else:
-        full = np.asarray(covariances, dtype=np.float64).reshape(-1, 2, 2)
-        upper = np.column_stack([full[:, 0, 0], full[:, 0, 1], full[:, 1, 1]])
-        upper[~np.all(np.isfinite(upper), axis=1)] = 0.0
-    flat = np.zeros((len(pixels), 4))
-    if warps is not None:
-        flat = np.asarray(warps, dtype=np.float64).reshape(-1, 4).copy()
-        flat[~np.all(np.isfinite(flat), axis=1)] = 0.0
+    pixels, upper, flat, finite = prediction_rows(pixels, covariances, warps)
     # the rows go in as float64 arrays made for this message: a message takes an array as it
     # is, where a list is checked and converted number by number
-    finite = np.all(np.isfinite(pixels), axis=1)
-    upper, flat = np.array(upper[finite], dtype=np.float64), np.array(flat[finite])
     message.tracks = [
         make_track(id=i, u=u, v=v, covariance=cov, warp=warp)
         for i, (u, v), cov, warp in zip(
-            np.asarray(ids)[finite].tolist(), pixels[finite].tolist(), upper, flat, strict=True
+            np.asarray(ids)[finite].tolist(), pixels[finite].tolist(),
+            np.array(upper[finite]), np.array(flat[finite]), strict=True,
         )
-    ]
+    ]  # fmt: skip
     return message
+
+
+def predictions_cdr(
+    ids: IntArray,
+    pixels: FloatArray,
+    stamp_ns: int,
+    frame_id: str,
+    covariances: FloatArray | None = None,
+    warps: FloatArray | None = None,
+) -> bytes:
+    """Return the slam_interfaces/FeatureTrackArray of ``fill_predictions`` serialized
+    (little-endian CDR, ``features_from_cdr``'s layout), built in one numpy array instead of
+    a Python object per track: the bytes rclpy makes of that message."""
+    pixels, upper, flat, finite = prediction_rows(pixels, covariances, warps)
+    tracks = np.zeros(int(np.count_nonzero(finite)), FEATURE_TRACK_DTYPE)
+    tracks['id'] = np.asarray(ids, dtype=np.int64)[finite]
+    tracks['u'], tracks['v'] = pixels[finite, 0], pixels[finite, 1]
+    tracks['covariance'], tracks['warp'] = upper[finite], flat[finite]
+    name = frame_id.encode('utf-8') + b'\x00'
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    head = CDR_LITTLE_ENDIAN + bytes(2) + struct.pack('<iII', sec, nanosec, len(name)) + name
+    head += bytes(-(len(head) - 4) % 4) + struct.pack('<I', len(tracks))
+    if len(tracks):
+        head += bytes(-(len(head) - 4) % 8)
+    return head + tracks.tobytes()
 
 
 DYNAMIC_STATUS = 2

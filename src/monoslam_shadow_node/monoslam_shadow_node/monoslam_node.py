@@ -211,10 +211,10 @@ from monoslam_shadow_node.monoslam_conversions import (
     fill_cloud,
     fill_pose_stamped,
     fill_pose_with_covariance,
-    fill_predictions,
     fill_revoked,
     fill_transform,
     handovers_from_message,
+    predictions_cdr,
     revoked_ids,
     target_from_fiducials,
     tum_text,
@@ -232,7 +232,6 @@ from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import (
-    FeatureTrack,
     FeatureTrackArray,
     FiducialArray,
     ShadowTrack,
@@ -529,12 +528,10 @@ class MonoSlamNode(Node):
         if predicted is None or self.predictions_publisher is None:
             return
         ids, pixels, covariances, warps = predicted
-        self.predictions_publisher.publish(
-            fill_predictions(
-                ids, pixels, stamp_ns, frame_id or self._camera_frame, FeatureTrackArray(),
-                FeatureTrack, covariances, warps,
-            )
-        )  # fmt: skip
+        frame_id = frame_id or self._camera_frame
+        self.predictions_publisher.publish(  # serialized from one numpy array
+            predictions_cdr(ids, pixels, stamp_ns, frame_id, covariances, warps)
+        )
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: frames processed, without fiducials and skipped,
