@@ -19,6 +19,7 @@ world axes), which is geometry_msgs/PoseWithCovariance's order and convention (s
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -26,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from monoslam_shadow_node.conversions import FloatArray, IntArray
+from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
 from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamResult
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
@@ -113,6 +114,39 @@ class PoseFields:
             f'camera at ({x:.3f}, {y:.3f}, {z:.3f}) m, sigma {position_sigma:.3f} m / '
             f'{rotation_sigma:.4f} rad'
         )
+
+
+FEATURE_TRACK_DTYPE = np.dtype(
+    [('id', '<i8'), ('u', '<f8'), ('v', '<f8'), ('covariance', '<f8', (3,)), ('warp', '<f8', (4,))]
+)
+"""One slam_interfaces/FeatureTrack in little-endian CDR: 80 bytes, 8-aligned."""
+CDR_LITTLE_ENDIAN = b'\x00\x01'
+"""The encapsulation header's first two bytes for plain little-endian CDR (what the rmw
+layers send for ROS 2 messages)."""
+
+
+def features_from_cdr(data: bytes) -> Features | None:
+    """Return the Features of a serialized slam_interfaces/FeatureTrackArray, its tracks read
+    in one numpy view instead of a Python object per track; None when the data is not plain
+    little-endian CDR or does not parse (deserialize it as a message then). CDR: after the
+    4-byte encapsulation header, header.stamp (int32 sec, uint32 nanosec), header.frame_id
+    (uint32 length with the NUL, the bytes), the track count (uint32, 4-aligned), then the
+    tracks (8-aligned; alignment counts from the end of the encapsulation header)."""
+    try:
+        if data[:2] != CDR_LITTLE_ENDIAN:
+            return None
+        sec, nanosec, length = struct.unpack_from('<iII', data, 4)
+        end = 16 + length
+        frame_id = bytes(data[16 : end - 1]).decode('utf-8') if length else ''
+        offset = end + (-(end - 4) % 4)
+        (count,) = struct.unpack_from('<I', data, offset)
+        offset += 4 + (-offset % 8)  # to 8-aligned from the body (byte 4) on
+        tracks = np.frombuffer(data, FEATURE_TRACK_DTYPE, count, offset if count else 0)
+    except (ValueError, struct.error, UnicodeDecodeError):
+        return None
+    pixels = np.column_stack([tracks['u'], tracks['v']]).astype(np.float64)
+    stamp_ns = int(sec) * 1_000_000_000 + int(nanosec)
+    return Features(stamp_ns, frame_id, tracks['id'].astype(np.int64), pixels.reshape(-1, 2))
 
 
 def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> TargetSighting:
@@ -241,6 +275,26 @@ def fill_cloud(
     return message
 
 
+def prediction_rows(
+    pixels: FloatArray, covariances: FloatArray | None, warps: FloatArray | None
+) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
+    """Return the predictions' pixels (M, 2), FeatureTrack.covariance rows (M, 3) [uu, uv,
+    vv] and FeatureTrack.warp rows (M, 4) (zeros where not given or not finite) and which
+    predictions are finite (M,) (``fill_predictions``)."""
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    if covariances is None:
+        upper = np.zeros((len(pixels), 3))
+    else:
+        full = np.asarray(covariances, dtype=np.float64).reshape(-1, 2, 2)
+        upper = np.column_stack([full[:, 0, 0], full[:, 0, 1], full[:, 1, 1]])
+        upper[~np.all(np.isfinite(upper), axis=1)] = 0.0
+    flat = np.zeros((len(pixels), 4))
+    if warps is not None:
+        flat = np.asarray(warps, dtype=np.float64).reshape(-1, 4).copy()
+        flat[~np.all(np.isfinite(flat), axis=1)] = 0.0
+    return pixels, upper, flat, np.all(np.isfinite(pixels), axis=1)
+
+
 def fill_predictions(
     ids: IntArray,
     pixels: FloatArray,
@@ -258,26 +312,42 @@ def fill_predictions(
     non-finite predictions are left out."""
     ns_to_stamp(stamp_ns, message.header.stamp)
     message.header.frame_id = frame_id
-    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-    if covariances is None:
-        upper = np.zeros((len(pixels), 3))
-    else:
-        full = np.asarray(covariances, dtype=np.float64).reshape(-1, 2, 2)
-        upper = np.column_stack([full[:, 0, 0], full[:, 0, 1], full[:, 1, 1]])
-        upper[~np.all(np.isfinite(upper), axis=1)] = 0.0
-    flat = np.zeros((len(pixels), 4))
-    if warps is not None:
-        flat = np.asarray(warps, dtype=np.float64).reshape(-1, 4).copy()
-        flat[~np.all(np.isfinite(flat), axis=1)] = 0.0
+    pixels, upper, flat, finite = prediction_rows(pixels, covariances, warps)
+    # the rows go in as float64 arrays made for this message: a message takes an array as it
+    # is, where a list is checked and converted number by number
     message.tracks = [
-        make_track(
-            id=int(i), u=float(u), v=float(v), covariance=[float(c) for c in cov],
-            warp=[float(w) for w in warp],
+        make_track(id=i, u=u, v=v, covariance=cov, warp=warp)
+        for i, (u, v), cov, warp in zip(
+            np.asarray(ids)[finite].tolist(), pixels[finite].tolist(),
+            np.array(upper[finite]), np.array(flat[finite]), strict=True,
         )
-        for i, (u, v), cov, warp in zip(ids.tolist(), pixels, upper, flat, strict=True)
-        if math.isfinite(u) and math.isfinite(v)
     ]  # fmt: skip
     return message
+
+
+def predictions_cdr(
+    ids: IntArray,
+    pixels: FloatArray,
+    stamp_ns: int,
+    frame_id: str,
+    covariances: FloatArray | None = None,
+    warps: FloatArray | None = None,
+) -> bytes:
+    """Return the slam_interfaces/FeatureTrackArray of ``fill_predictions`` serialized
+    (little-endian CDR, ``features_from_cdr``'s layout), built in one numpy array instead of
+    a Python object per track: the bytes rclpy makes of that message."""
+    pixels, upper, flat, finite = prediction_rows(pixels, covariances, warps)
+    tracks = np.zeros(int(np.count_nonzero(finite)), FEATURE_TRACK_DTYPE)
+    tracks['id'] = np.asarray(ids, dtype=np.int64)[finite]
+    tracks['u'], tracks['v'] = pixels[finite, 0], pixels[finite, 1]
+    tracks['covariance'], tracks['warp'] = upper[finite], flat[finite]
+    name = frame_id.encode('utf-8') + b'\x00'
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    head = CDR_LITTLE_ENDIAN + bytes(2) + struct.pack('<iII', sec, nanosec, len(name)) + name
+    head += bytes(-(len(head) - 4) % 4) + struct.pack('<I', len(tracks))
+    if len(tracks):
+        head += bytes(-(len(head) - 4) % 8)
+    return head + tracks.tobytes()
 
 
 DYNAMIC_STATUS = 2

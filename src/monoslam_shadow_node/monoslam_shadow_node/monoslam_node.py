@@ -192,6 +192,7 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TransformS
 from nav_msgs.msg import Path
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -206,13 +207,14 @@ from monoslam_shadow_node.monoslam_conversions import (
     TargetSighting,
     cloud_points,
     dynamic_ids,
+    features_from_cdr,
     fill_cloud,
     fill_pose_stamped,
     fill_pose_with_covariance,
-    fill_predictions,
     fill_revoked,
     fill_transform,
     handovers_from_message,
+    predictions_cdr,
     revoked_ids,
     target_from_fiducials,
     tum_text,
@@ -230,7 +232,6 @@ from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import (
-    FeatureTrack,
     FeatureTrackArray,
     FiducialArray,
     ShadowTrack,
@@ -313,8 +314,9 @@ class MonoSlamNode(Node):
         )
         timed = self.diagnostics.timed
         self.create_subscription(
-            FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs
-        )
+            FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs,
+            raw=True,
+        )  # fmt: skip
         self.create_subscription(
             FiducialArray, FIDUCIALS_TOPIC, timed(self._on_fiducials, 'fiducials'), inputs
         )
@@ -436,9 +438,15 @@ class MonoSlamNode(Node):
             self.get_logger().warning(update.text)
         self._handle(self.processor.set_camera(update.camera))
 
-    def _on_features(self, message: FeatureTrackArray) -> None:
+    def _on_features(self, data: bytes) -> None:  # taken serialized: ``features_from_cdr``
         self._last_input = time.monotonic()
-        self._handle(self.processor.add_features(features_from_message(message)))
+        features = features_from_cdr(data) or features_from_message(
+            deserialize_message(data, FeatureTrackArray)
+        )
+        self._handle(self.processor.add_features(features))
+        stamp = self.diagnostics.latest_stamp_ns  # what Diagnostics reads off a message
+        if stamp is None or features.stamp_ns > stamp:
+            self.diagnostics.latest_stamp_ns = features.stamp_ns
 
     def _on_fiducials(self, message: FiducialArray) -> None:
         self._last_input = time.monotonic()
@@ -520,12 +528,10 @@ class MonoSlamNode(Node):
         if predicted is None or self.predictions_publisher is None:
             return
         ids, pixels, covariances, warps = predicted
-        self.predictions_publisher.publish(
-            fill_predictions(
-                ids, pixels, stamp_ns, frame_id or self._camera_frame, FeatureTrackArray(),
-                FeatureTrack, covariances, warps,
-            )
-        )  # fmt: skip
+        frame_id = frame_id or self._camera_frame
+        self.predictions_publisher.publish(  # serialized from one numpy array
+            predictions_cdr(ids, pixels, stamp_ns, frame_id, covariances, warps)
+        )
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: frames processed, without fiducials and skipped,

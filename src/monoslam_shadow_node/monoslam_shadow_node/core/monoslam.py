@@ -106,13 +106,11 @@ from monoslam_shadow_node.core.monoslam_ekf import (
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
-    INVERSE_DEPTH_SIZE,
     Q_SLICE,
     R_SLICE,
     V_SLICE,
     W_SLICE,
     FloatArray,
-    linearity_index,
 )
 from monoslam_shadow_node.core.monoslam_ransac import ransac_update
 from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
@@ -254,7 +252,9 @@ class MonoSlam:
         """Return the owned features' predicted raw pixels at ``stamp_ns``: ids (M,), pixels
         (M, 2), innovation covariances (M, 2, 2) px^2 (the active search regions; zero for a
         feature not predicted in view, ``_in_view``, where no search is due) and the warps
-        (M, 2, 2) of their templates to the predicted view (``monoslam_views``; zero: none)."""
+        (M, 2, 2) of their templates to the predicted view (``monoslam_views``; zero: none,
+        and for a feature not predicted in view: a tracker searches with a warp only where a
+        search is due)."""
         if self._status != TRACKING or self._last_stamp_ns is None:
             nothing = np.zeros((0, 2, 2))
             return np.zeros(0, np.int64), np.zeros((0, 2)), nothing, nothing.copy()
@@ -262,8 +262,12 @@ class MonoSlam:
         ids_out, pixels, covariances, camera = predicted_measurements(
             self._state, self.camera, dt_s, self.config, ids
         )
-        covariances[~in_view_mask(self._state, self.camera, self.config, ids_out, pixels)] = 0.0
-        warps = prediction_warps(self._views, self._state, self.camera, camera, ids_out)
+        in_view = in_view_mask(self._state, self.camera, self.config, ids_out, pixels)
+        covariances[~in_view] = 0.0
+        warps = np.zeros((len(ids_out), 2, 2))
+        warps[in_view] = prediction_warps(
+            self._views, self._state, self.camera, camera, ids_out[in_view]
+        )
         return ids_out, pixels, covariances, warps
 
     # --- the frame loop --------------------------------------------------------------------
@@ -287,7 +291,7 @@ class MonoSlam:
         outcome = self._update(observed, known_keys, known_pixels)
         measured, rejected, known_used = outcome.measured, outcome.rejected, outcome.known_used
         unseen = [feature for feature in self._state.features if feature.id not in observed]
-        searchable = set(self._in_view(unseen)[0].tolist())  # predicted in view, not seen
+        searchable = set(self._in_view(unseen).tolist())  # predicted in view, not seen
         removed = self._manage_map(observed, rejected, searchable)
         removed.update(dict.fromkeys(self._revoked_by_shadow, 'revoked'))
         self._revoked_by_shadow.clear()
@@ -416,29 +420,21 @@ class MonoSlam:
             elif failing or not_found:
                 removed[feature.id] = 'failed'
                 self._remove(feature, retire=False)
-        centre = state.x[R_SLICE]
-        for feature in state.features:
-            if feature.size == INVERSE_DEPTH_SIZE and feature.reference is not None:
-                block = slice(feature.start, feature.start + feature.size)
-                rho_variance = float(state.p[feature.start + 5, feature.start + 5])
-                index = linearity_index(state.x[block], feature.reference, rho_variance, centre)
-                if index < config.linearity_threshold and state.x[feature.start + 5] > 0.0:
-                    state.to_euclidean(feature)
-                    feature.probation = False  # SLAM's own views fix it now
+        for feature in state.convert_linear(config.linearity_threshold):
+            feature.probation = False  # SLAM's own views fix it now
         return removed
 
-    def _in_view(self, features: list[FeatureBlock]) -> tuple[IntArray, FloatArray, FloatArray]:
-        """Return the ids (M,), predicted raw pixels (M, 2) and innovation covariances
-        (M, 2, 2) of those of ``features`` predicted in view: in front of the camera, inside
-        the image, and seen within ``max_view_angle_deg`` of the ray they were first seen
-        along (a patch looks too different beyond it)."""
+    def _in_view(self, features: list[FeatureBlock]) -> IntArray:
+        """Return the ids (M,) of those of ``features`` predicted in view: in front of the
+        camera, inside the image, and seen within ``max_view_angle_deg`` of the ray they were
+        first seen along (a patch looks too different beyond it)."""
         if not features:
-            return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2))
-        ids, pixels, covariances, _ = predicted_measurements(
-            self._state, self.camera, 0.0, self.config, [feature.id for feature in features]
-        )
-        keep = in_view_mask(self._state, self.camera, self.config, ids, pixels)
-        return ids[keep], pixels[keep], covariances[keep]
+            return np.zeros(0, np.int64)
+        ids, pixels, _, _ = predicted_measurements(
+            self._state, self.camera, 0.0, self.config, [feature.id for feature in features],
+            covariances=False,
+        )  # fmt: skip
+        return ids[in_view_mask(self._state, self.camera, self.config, ids, pixels)]
 
     def _make_room(
         self,

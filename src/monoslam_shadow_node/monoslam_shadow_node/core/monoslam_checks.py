@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.monoslam_ekf import Match
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS
-from monoslam_shadow_node.core.monoslam_model import R_SLICE, FloatArray, feature_direction
+from monoslam_shadow_node.core.monoslam_model import R_SLICE, FloatArray, feature_directions
 from monoslam_shadow_node.core.monoslam_ransac import predicted_pixels
 from monoslam_shadow_node.core.monoslam_state import FilterState
 from monoslam_shadow_node.core.monoslam_types import (
@@ -124,18 +124,25 @@ def in_view_mask(
     ``max_view_angle_deg`` of the ray they were first seen along (a patch looks too
     different beyond it)."""
     by_id = {feature.id: feature for feature in state.features}
-    centre = state.x[R_SLICE]
-    cos_limit = math.cos(math.radians(config.max_view_angle_deg))
+    margin = config.view_margin_px
+    u, v = pixels[:, 0], pixels[:, 1]
+    with np.errstate(invalid='ignore'):  # NaN: not in view
+        inside = (margin <= u) & (u <= camera.width - 1 - margin)
+        inside &= (margin <= v) & (v <= camera.height - 1 - margin)
+    rows = np.flatnonzero(inside)
     keep = np.zeros(len(ids), dtype=bool)
-    for k, (feature_id, pixel) in enumerate(zip(ids.tolist(), pixels, strict=True)):
-        margin = config.view_margin_px
-        inside_u = margin <= pixel[0] <= camera.width - 1 - margin
-        if not (inside_u and margin <= pixel[1] <= camera.height - 1 - margin):
-            continue
-        feature = by_id[feature_id]
-        block = state.x[feature.start : feature.start + feature.size]
-        direction = feature_direction(feature.size, block, feature.reference, centre)[0]
-        first = feature.first_ray
-        norm = float(np.linalg.norm(direction))
-        keep[k] = first is None or (norm > 0.0 and direction @ first >= cos_limit * norm)
+    if not len(rows):
+        return keep
+    features = [by_id[feature_id] for feature_id in ids[rows].tolist()]
+    blocks = [
+        (state.x[feature.start : feature.start + feature.size], feature.reference)
+        for feature in features
+    ]
+    directions = feature_directions(blocks, state.x[R_SLICE])
+    unknown = np.array([feature.first_ray is None for feature in features])
+    first = np.array([np.zeros(3) if f.first_ray is None else f.first_ray for f in features])
+    norm = np.sqrt((directions[:, None, :] @ directions[:, :, None])[:, 0, 0])
+    along = (directions[:, None, :] @ first[:, :, None])[:, 0, 0]
+    cos_limit = math.cos(math.radians(config.max_view_angle_deg))
+    keep[rows] = unknown | ((norm > 0.0) & (along >= cos_limit * norm))
     return keep

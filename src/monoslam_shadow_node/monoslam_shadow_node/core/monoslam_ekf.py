@@ -81,47 +81,61 @@ def predicted_measurements(
     dt_s: float,
     config: MonoSlamConfig,
     ids: list[int] | None = None,
+    *,
+    covariances: bool = True,
 ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray]:
     """Return the features' (those in ``ids``, or all) predicted raw pixels ``dt_s`` s ahead:
-    ids (M,), pixels (M, 2) and innovation covariances (M, 2, 2) px^2, and the predicted
-    camera state (13,); the state is unchanged. Features behind the camera (or beyond the
-    lens's fold) are left out."""
+    ids (M,), pixels (M, 2) and innovation covariances (M, 2, 2) px^2 (zeros when
+    ``covariances`` is False: only the pixels are wanted), and the predicted camera state
+    (13,); the state is unchanged. Features behind the camera (or beyond the lens's fold) are
+    left out. The covariances are built in one batch per kind of feature block."""
     sigmas = config.linear_acceleration_sigma, config.angular_acceleration_sigma
     camera, f, q = predict_camera(state.x[:CAMERA_SIZE], dt_s, *sigmas)
-    p_cc = f @ state.p[:CAMERA_SIZE, :CAMERA_SIZE] @ f.T + q
     wanted = None if ids is None else set(ids)
     features = [feature for feature in state.features if wanted is None or feature.id in wanted]
     points = [
         (state.x[feature.start : feature.start + feature.size], feature.reference)
         for feature in features
     ]
-    pixels, d_camera, d_feature, depth = project_features(camera_model, camera, points)
-    decay, offset_noise = config.tracking_noise.step(dt_s)
-    out_ids, out_pixels, out_s = [], [], []
-    for k, feature in enumerate(features):
-        if depth[k] <= 0.0:
-            continue
-        block = slice(feature.start, feature.start + feature.extent)
-        h_c, h_f = d_camera[k], feature_jacobian(feature, d_feature[k])
-        p_cf = f @ state.p[:CAMERA_SIZE, block]
-        pixel, fresh = pixels[k], 0.0
-        if (offset := feature.offset) is not None:  # the offset decays over dt_s
-            pixel = pixel + decay * state.x[offset]
-            h_f = h_f.copy()
-            h_f[:, -2:] *= decay
-            fresh = offset_noise
-        cross = h_c @ p_cf @ h_f.T
-        s = h_c @ p_cc @ h_c.T + cross + cross.T + h_f @ state.p[block, block] @ h_f.T
-        s += (fresh + measurement_variance_of(feature, config)) * np.eye(2)
-        out_ids.append(feature.id)
-        out_pixels.append(pixel)
-        out_s.append(s)
-    return (
-        np.array(out_ids, dtype=np.int64),
-        np.array(out_pixels).reshape(-1, 2),
-        np.array(out_s).reshape(-1, 2, 2),
-        camera,
+    pixels, d_camera, d_feature, depth = project_features(
+        camera_model, camera, points, jacobians=covariances
     )
+    front = np.flatnonzero(depth > 0.0)
+    decay, offset_noise = config.tracking_noise.step(dt_s)
+    out_ids = np.array([features[k].id for k in front.tolist()], dtype=np.int64)
+    out_pixels = pixels[front].reshape(-1, 2)
+    offsets = [k for k, row in enumerate(front.tolist()) if features[row].offset is not None]
+    if offsets:  # the offset decays over dt_s
+        index = np.array([features[front[k]].start + features[front[k]].size for k in offsets])
+        out_pixels[offsets] = out_pixels[offsets] + decay * state.x[index[:, None] + [0, 1]]
+    out_s = np.zeros((len(front), 2, 2))
+    if not covariances or not len(front):
+        return out_ids, out_pixels, out_s, camera
+    p_cc = f @ state.p[:CAMERA_SIZE, :CAMERA_SIZE] @ f.T + q
+    h_c_all = d_camera[front]
+    groups: dict[tuple[int, int], list[int]] = {}
+    for k, row in enumerate(front.tolist()):
+        groups.setdefault((features[row].size, features[row].offset_size), []).append(k)
+    for (size, offset_size), members in groups.items():
+        rows = front[members]
+        group = [features[row] for row in rows.tolist()]
+        extent = size + offset_size
+        h_f = np.zeros((len(members), 2, extent))
+        h_f[:, :, :size] = np.array([d_feature[row] for row in rows.tolist()])
+        fresh = 0.0
+        if offset_size:
+            h_f[:, :, size:] = decay * np.eye(2)
+            fresh = offset_noise
+        index = np.array([feature.start for feature in group])[:, None] + np.arange(extent)
+        p_cf = f @ np.swapaxes(state.p[:CAMERA_SIZE][:, index], 0, 1)
+        h_c = h_c_all[members]
+        h_f_t = np.swapaxes(h_f, 1, 2)
+        cross = h_c @ p_cf @ h_f_t
+        own = h_f @ state.p[index[:, :, None], index[:, None, :]] @ h_f_t
+        s = h_c @ p_cc @ np.swapaxes(h_c, 1, 2) + cross + np.swapaxes(cross, 1, 2) + own
+        s += (fresh + measurement_variance_of(group[0], config)) * np.eye(2)
+        out_s[members] = s
+    return out_ids, out_pixels, out_s, camera
 
 
 @dataclass(frozen=True, eq=False)
@@ -356,14 +370,28 @@ def marginal_variance(match: Match, config: MonoSlamConfig) -> float:
 def apply_update(
     state: FilterState, used: list[tuple[Match, Linearized]], config: MonoSlamConfig
 ) -> None:
-    """Update with all ``used`` measurements at once (Joseph form; nothing when empty)."""
+    """Update with all ``used`` measurements at once (Joseph form; nothing when empty). H is
+    built over the states the measurements touch only: the camera and the measured
+    features' blocks."""
     if not used:
         return
-    n = len(state.x)
-    h = np.vstack([linearized.row(n) for _, linearized in used])
+    blocks = sorted(
+        {(lin.block.start, lin.block.stop) for _, lin in used if lin.block is not None}
+    )
+    columns = np.concatenate(
+        [np.arange(CAMERA_SIZE)] + [np.arange(start, stop) for start, stop in blocks]
+    )
+    where = {start: CAMERA_SIZE + sum(b - a for a, b in blocks[:k])
+             for k, (start, _) in enumerate(blocks)}  # fmt: skip
+    h = np.zeros((2 * len(used), len(columns)))
+    for k, (_, linearized) in enumerate(used):
+        h[2 * k : 2 * k + 2, :CAMERA_SIZE] = linearized.h_c
+        if (block := linearized.block) is not None:
+            first = where[block.start]
+            h[2 * k : 2 * k + 2, first : first + block.stop - block.start] = linearized.h_f
     residual = np.concatenate([match.pixel - linearized.predicted for match, linearized in used])
     variances = np.repeat([measurement_variance(match, config) for match, _ in used], 2)
-    joseph_update(state, h, residual, variances)
+    joseph_update(state, h, residual, variances, columns)
 
 
 def record_attempts(all_matches: list[Match], accepted: set[int]) -> UpdateOutcome:
@@ -417,24 +445,36 @@ def gated_update(
 
 
 def joseph_update(
-    state: FilterState, h: FloatArray, residual: FloatArray, variances: FloatArray
+    state: FilterState,
+    h: FloatArray,
+    residual: FloatArray,
+    variances: FloatArray,
+    columns: IntArray | None = None,
 ) -> None:
     """x += K nu; P = (I - K H) P (I - K H)^T + K R K^T, R = diag(``variances``) (one per
-    row of H); renormalize q.
+    row of H); renormalize q. ``h`` (m, k) holds H's ``columns`` (k,) of the state (None:
+    all of them); H is zero elsewhere.
 
-    The Joseph form is evaluated expanded, P - K B^T - B K^T + K S K^T with B = P H^T and
-    S = H B + R: the same matrix for any gain K, without the n x n products of I - K H
-    (about 2 n^2 m operations instead of 2 n^3 + 2 n^2 m)."""
-    ph_t = state.p @ h.T
-    s = h @ ph_t + np.diag(variances)
-    gain = np.linalg.solve(s, ph_t.T).T
+    The Joseph form is evaluated expanded and symmetric, P + M + M^T with M = K (S K^T / 2
+    - B^T), B = P H^T and S = H B + R: that is P - K B^T - B K^T + K S K^T, the same matrix
+    for any gain K, in one n x n product (about 2 n^2 m operations instead of the 2 n^3 +
+    2 n^2 m of the n x n products of I - K H), exactly symmetric."""
+    if columns is None:
+        columns = np.arange(len(state.x))
+    ph_t = state.p[:, columns] @ h.T
+    s = h @ ph_t[columns] + np.diag(variances)
+    gain = ph_t @ np.linalg.inv(s)  # S is m x m, well conditioned (R >= pixel noise)
     state.x = state.x + gain @ residual
-    k_b = gain @ ph_t.T
-    p = state.p - k_b - k_b.T + (gain @ s) @ gain.T
+    half = gain @ (0.5 * (s @ gain.T) - ph_t.T)
+    p = half + half.T  # (not in place: numpy would copy the transposed operand first)
+    p += state.p
     norm = float(np.linalg.norm(state.x[Q_SLICE]))
     q = state.x[Q_SLICE] / norm
     jacobian = (np.eye(4) - np.outer(q, q)) / norm
     state.x[Q_SLICE] = q
-    p[Q_SLICE, :] = jacobian @ p[Q_SLICE, :]
-    p[:, Q_SLICE] = p[:, Q_SLICE] @ jacobian.T
-    state.p = 0.5 * (p + p.T)
+    rows = jacobian @ p[Q_SLICE, :]
+    corner = rows[:, Q_SLICE] @ jacobian.T
+    p[Q_SLICE, :] = rows
+    p[:, Q_SLICE] = rows.T
+    p[Q_SLICE, Q_SLICE] = 0.5 * (corner + corner.T)
+    state.p = p

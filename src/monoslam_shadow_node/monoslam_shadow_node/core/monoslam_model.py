@@ -29,7 +29,7 @@ Point features, two parametrizations:
   when the feature was added, so the angles are small and far from the parametrization's
   singularity (phi = +-90 deg) for any ray the camera could see. The measurement is linear in
   y near infinite depth (rho -> 0), which makes undelayed initialization possible;
-- Euclidean, y (3,) = p. A feature moves to it once its linearity index (``linearity_index``,
+- Euclidean, y (3,) = p. A feature moves to it once its linearity index (``linearity_indices``,
   Civera et al. eq. 16) says the Euclidean measurement model is close to linear over its depth
   uncertainty: 3 states instead of 6.
 
@@ -152,6 +152,32 @@ def feature_direction(
     return direction, jacobian, -rho * np.eye(3)
 
 
+def feature_directions(
+    features: list[tuple[FloatArray, FloatArray | None]], centre: FloatArray
+) -> FloatArray:
+    """``feature_direction`` (the direction alone) for many points at once: (value (3,) or
+    (6,), reference or None) per point, a Euclidean (or known) point or an inverse-depth
+    feature; returns (M, 3), the same numbers as one by one."""
+    directions = np.empty((len(features), 3))
+    inverse = [k for k, (value, _) in enumerate(features) if len(value) == INVERSE_DEPTH_SIZE]
+    euclidean = [k for k, (value, _) in enumerate(features) if len(value) == EUCLIDEAN_SIZE]
+    if len(inverse) + len(euclidean) != len(features):
+        raise ValueError('a point is 3 (Euclidean) or 6 (inverse depth) values')
+    if euclidean:
+        directions[euclidean] = np.array([features[k][0] for k in euclidean]) - centre
+    if inverse:
+        values = np.array([features[k][0] for k in inverse])
+        references = [features[k][1] for k in inverse]
+        if any(reference is None for reference in references):
+            raise ValueError('an inverse-depth feature needs its reference rotation')
+        theta, phi = values[:, 3], values[:, 4]
+        st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)
+        local = np.stack([cp * st, -sp, cp * ct], axis=1)
+        rays = (np.array(references) @ local[:, :, None])[:, :, 0]
+        directions[inverse] = values[:, 5, None] * (values[:, :3] - centre) + rays
+    return directions
+
+
 def project_feature(
     camera_model: CameraModel,
     camera: FloatArray,
@@ -189,18 +215,20 @@ def project_features(
     camera_model: CameraModel,
     camera: FloatArray,
     features: list[tuple[FloatArray, FloatArray | None]],
+    *,
+    jacobians: bool = True,
 ) -> tuple[FloatArray, FloatArray, list[FloatArray], FloatArray]:
     """``project_feature`` for many points at once: (value (3,) or (6,), reference or None)
     per point (a known point, a Euclidean or an inverse-depth feature). Returns the pixels
     (M, 2), d(pixel)/d(camera state) (M, 2, 13), d(pixel)/d(feature) per point (2, n) and the
     depth check values h_c[2] (M,); points behind the camera get NaN pixels and zero
-    Jacobians, as there; so do points beyond the lens's fold, with check value 0."""
+    Jacobians, as there; so do points beyond the lens's fold, with check value 0. Without
+    ``jacobians`` the Jacobians are all zero (only the pixels are wanted)."""
     count = len(features)
     r, q = camera[R_SLICE], camera[Q_SLICE]
     rot_t = rotation_from_quaternion(q).T
     directions = np.empty((count, 3))
     d_centre = np.empty((count, 3, 3))
-    d_feature: list[FloatArray] = [np.eye(3)] * count
     inverse = [k for k, (value, _) in enumerate(features) if len(value) == INVERSE_DEPTH_SIZE]
     euclidean = [k for k, (value, _) in enumerate(features) if len(value) == EUCLIDEAN_SIZE]
     if len(inverse) + len(euclidean) != count:
@@ -209,6 +237,7 @@ def project_features(
         points = np.array([features[k][0] for k in euclidean])
         directions[euclidean] = points - r
         d_centre[euclidean] = -np.eye(3)
+    inverse_jacobians = np.empty((len(inverse), 3, INVERSE_DEPTH_SIZE))
     if inverse:
         values = np.array([features[k][0] for k in inverse])
         references = []
@@ -221,35 +250,44 @@ def project_features(
         theta, phi, rho = values[:, 3], values[:, 4], values[:, 5]
         st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)
         local = np.stack([cp * st, -sp, cp * ct], axis=1)
-        d_local = np.zeros((len(inverse), 3, 2))
-        d_local[:, 0] = np.stack([cp * ct, -sp * st], axis=1)
-        d_local[:, 1, 1] = -cp
-        d_local[:, 2] = np.stack([-cp * st, -sp * ct], axis=1)
         rays = np.einsum('nij,nj->ni', reference_array, local)
         offset = values[:, :3] - r
         directions[inverse] = rho[:, None] * offset + rays
-        jacobians = np.empty((len(inverse), 3, INVERSE_DEPTH_SIZE))
-        jacobians[:, :, :3] = rho[:, None, None] * np.eye(3)
-        jacobians[:, :, 3:5] = reference_array @ d_local
-        jacobians[:, :, 5] = offset
-        d_centre[inverse] = -rho[:, None, None] * np.eye(3)
-        for row, k in enumerate(inverse):
-            d_feature[k] = jacobians[row]
+        if jacobians:
+            d_local = np.zeros((len(inverse), 3, 2))
+            d_local[:, 0] = np.stack([cp * ct, -sp * st], axis=1)
+            d_local[:, 1, 1] = -cp
+            d_local[:, 2] = np.stack([-cp * st, -sp * ct], axis=1)
+            inverse_jacobians[:, :, :3] = rho[:, None, None] * np.eye(3)
+            inverse_jacobians[:, :, 3:5] = reference_array @ d_local
+            inverse_jacobians[:, :, 5] = offset
+            d_centre[inverse] = -rho[:, None, None] * np.eye(3)
     h_c = directions @ rot_t.T
     depth = h_c[:, 2].copy()
     depth[(depth > 0.0) & beyond_fold(camera_model, h_c)] = 0.0
     pixels = np.full((count, 2), np.nan)
     d_camera = np.zeros((count, 2, CAMERA_SIZE))
-    out_feature = [np.zeros((2, d.shape[1])) for d in d_feature]
+    out_feature = [np.zeros((2, len(value))) for value, _ in features]
     front = np.flatnonzero(depth > 0.0)
-    if len(front):
-        projected, d_pixel = camera_model.project_with_jacobian(h_c[front])
-        pixels[front] = projected
-        d_hc = d_pixel @ rot_t  # (F, 2, 3): d(pixel)/d(direction)
-        d_camera[front, :, R_SLICE] = d_hc @ d_centre[front]
-        d_camera[front, :, Q_SLICE] = d_pixel @ _rotate_transposed_jacobians(q, directions[front])
-        for row, k in enumerate(front.tolist()):
-            out_feature[k] = d_hc[row] @ d_feature[k]
+    if not len(front):
+        return pixels, d_camera, out_feature, depth
+    if not jacobians:
+        pixels[front] = camera_model.project(h_c[front])
+        return pixels, d_camera, out_feature, depth
+    projected, d_pixel = camera_model.project_with_jacobian(h_c[front])
+    pixels[front] = projected
+    d_hc = d_pixel @ rot_t  # (F, 2, 3): d(pixel)/d(direction)
+    d_camera[front, :, R_SLICE] = d_hc @ d_centre[front]
+    d_camera[front, :, Q_SLICE] = d_pixel @ _rotate_transposed_jacobians(q, directions[front])
+    row_of = np.full(count, -1)
+    row_of[inverse] = np.arange(len(inverse))
+    in_front = row_of[front] >= 0
+    products = d_hc[in_front] @ inverse_jacobians[row_of[front[in_front]]]
+    for k, product in zip(front[in_front].tolist(), products, strict=True):
+        out_feature[k] = product
+    products = d_hc[~in_front] @ np.eye(3)
+    for k, product in zip(front[~in_front].tolist(), products, strict=True):
+        out_feature[k] = product
     return pixels, d_camera, out_feature, depth
 
 
@@ -319,20 +357,30 @@ def euclidean_point(feature: FloatArray, reference: FloatArray) -> tuple[FloatAr
     return feature[:3] + ray / rho, jacobian
 
 
-def linearity_index(
-    feature: FloatArray, reference: FloatArray, rho_variance: float, centre: FloatArray
-) -> float:
-    """Return Civera et al.'s linearity index L_d of an inverse-depth feature seen from the
-    optical centre (3,): 4 sigma_d / d_1 |cos alpha|, sigma_d = sigma_rho / rho^2 the depth
-    uncertainty, d_1 the distance from the centre, alpha the angle between the feature's ray
-    and the current one. Below ~0.1 the Euclidean model is linear enough to switch."""
-    point, _ = euclidean_point(feature, reference)
-    ray, _ = ray_from_angles(reference, float(feature[3]), float(feature[4]))
-    sight = point - centre
-    distance = float(np.linalg.norm(sight))
-    rho = float(feature[5])
-    if distance <= 0.0 or rho <= 0.0:
-        return float('inf')
-    sigma_depth = np.sqrt(max(rho_variance, 0.0)) / rho**2
-    cos_alpha = float(ray @ sight) / distance
-    return float(4.0 * sigma_depth / distance * abs(cos_alpha))
+def linearity_indices(
+    features: FloatArray, references: FloatArray, rho_variances: FloatArray, centre: FloatArray
+) -> FloatArray:
+    """Return Civera et al.'s linearity index L_d (N,) of inverse-depth features (N, 6) with
+    their reference rotations (N, 3, 3) and rho variances (N,), seen from the optical centre
+    (3,): 4 sigma_d / d_1 |cos alpha|, sigma_d = sigma_rho / rho^2 the depth uncertainty, d_1
+    the distance from the centre, alpha the angle between the feature's ray and the current
+    one (inf for rho <= 0 or a zero distance). Below ~0.1 the Euclidean model is linear
+    enough to switch."""
+    features = np.asarray(features, dtype=np.float64).reshape(-1, INVERSE_DEPTH_SIZE)
+    theta, phi, rho = features[:, 3], features[:, 4], features[:, 5]
+    st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)
+    local = np.stack([cp * st, -sp, cp * ct], axis=1)
+    rays = (np.asarray(references) @ local[:, :, None])[:, :, 0]
+    out = np.full(len(features), np.inf)
+    usable = rho > 0.0
+    if not np.any(usable):
+        return out
+    rays, rho, features = rays[usable], rho[usable], features[usable]
+    sight = features[:, :3] + rays / rho[:, None] - centre
+    distance = np.sqrt((sight[:, None, :] @ sight[:, :, None])[:, 0, 0])
+    sigma_depth = np.sqrt(np.maximum(np.asarray(rho_variances)[usable], 0.0)) / rho**2
+    with np.errstate(divide='ignore', invalid='ignore'):
+        cos_alpha = (rays[:, None, :] @ sight[:, :, None])[:, 0, 0] / distance
+        index = 4.0 * sigma_depth / distance * np.abs(cos_alpha)
+    out[usable] = np.where(distance > 0.0, index, np.inf)
+    return out

@@ -65,7 +65,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     R_SLICE,
     FloatArray,
     beyond_fold,
-    feature_direction,
+    feature_directions,
 )
 from monoslam_shadow_node.core.monoslam_state import FilterState
 from monoslam_shadow_node.core.monoslam_types import IntArray, MonoSlamConfig, UpdateCounts
@@ -207,13 +207,15 @@ def predicted_pixels(camera_model: CameraModel, x: FloatArray, wanted: list[Matc
     beyond the lens's fold)."""
     centre = x[R_SLICE]
     rotation_t = rotation_from_quaternion(x[Q_SLICE]).T
-    directions = np.empty((len(wanted), 3))
-    for k, match in enumerate(wanted):
+    points: list[tuple[FloatArray, FloatArray | None]] = []
+    for match in wanted:
         if match.point is not None:
-            directions[k] = match.point - centre
+            points.append((match.point, None))
         elif (feature := match.feature) is not None:
-            block = x[feature.start : feature.start + feature.size]
-            directions[k] = feature_direction(feature.size, block, feature.reference, centre)[0]
+            points.append((x[feature.start : feature.start + feature.size], feature.reference))
+        else:
+            raise ValueError('a match needs a known point or a feature')
+    directions = feature_directions(points, centre)
     in_camera = directions @ rotation_t.T
     pixels = np.full((len(wanted), 2), np.nan)
     front = (in_camera[:, 2] > 0.0) & ~beyond_fold(camera_model, in_camera)

@@ -25,6 +25,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     W_SLICE,
     FloatArray,
     euclidean_point,
+    linearity_indices,
     new_inverse_depth_feature,
     ray_from_angles,
 )
@@ -184,6 +185,31 @@ class FilterState:
         for other in self.features:
             if other.start > start:
                 other.start -= 3
+
+    def convert_linear(self, threshold: float) -> list[FeatureBlock]:
+        """Convert to Euclidean every inverse-depth feature whose linearity index
+        (``linearity_indices``, from the current optical centre) is below ``threshold`` and
+        whose inverse depth is positive; return them. Converting one leaves the others'
+        numbers as they are (only its own rows and columns change), so the indices are
+        computed once for the pass."""
+        inverse = [
+            f for f in self.features if f.size == INVERSE_DEPTH_SIZE and f.reference is not None
+        ]
+        if not inverse:
+            return []
+        starts = np.array([feature.start for feature in inverse])
+        indices = linearity_indices(
+            self.x[starts[:, None] + np.arange(INVERSE_DEPTH_SIZE)],
+            np.array([feature.reference for feature in inverse]),
+            self.p[starts + 5, starts + 5],
+            self.x[R_SLICE],
+        )
+        converted = []
+        for feature, index in zip(inverse, indices.tolist(), strict=True):
+            if index < threshold and self.x[feature.start + 5] > 0.0:
+                self.to_euclidean(feature)
+                converted.append(feature)
+        return converted
 
     def reset_offset(self, feature: FeatureBlock, sigma_px: float) -> None:
         """Forget a feature's tracker offset: estimate 0, standard deviation ``sigma_px``,

@@ -9,6 +9,7 @@ tangential terms p1, p2 (r^2 = x^2 + y^2). ``coefficients`` are always the eight
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -46,10 +47,12 @@ def distort(
     return distorted_x, distorted_y, jacobian
 
 
+@functools.lru_cache(maxsize=64)
 def fold_radius(coefficients: tuple[float, ...]) -> float:
     """Return the undistorted radius (x/z units) where the radial part r * factor(r^2) stops
     rising, inf if it never does; beyond it a distorted image point has two or no preimages.
-    The tangential terms are ignored."""
+    The tangential terms are ignored. Cached per coefficients: the filters check every
+    projection against it, and a polynomial's roots cost more than the projection."""
     k1, k2, _, _, k3, k4, k5, k6 = coefficients
     if k4 == 0.0 and k5 == 0.0 and k6 == 0.0:
         # d/dr [r (1 + k1 s + k2 s^2 + k3 s^3)] = 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3, s = r^2

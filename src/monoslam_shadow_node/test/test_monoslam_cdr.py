@@ -1,0 +1,87 @@
+"""monoslam reads its features serialized (``features_from_cdr``): the same ids, pixels, stamp
+and frame as the message rclpy deserializes, for every alignment of the frame id; and it
+publishes its predictions serialized (``predictions_cdr``): the message ``fill_predictions``
+fills, as rclpy deserializes the bytes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rclpy.serialization import deserialize_message, serialize_message
+
+from monoslam_shadow_node.conversions import features_from_message
+from monoslam_shadow_node.monoslam_conversions import (
+    features_from_cdr,
+    fill_predictions,
+    predictions_cdr,
+)
+from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
+
+
+def message(frame_id: str, count: int, seed: int) -> FeatureTrackArray:
+    rng = np.random.default_rng(seed)
+    tracks = [
+        FeatureTrack(
+            id=int(rng.integers(-5, 1 << 40)), u=float(rng.normal(300.0, 200.0)),
+            v=float(rng.normal(240.0, 200.0)), covariance=rng.normal(size=3),
+            warp=rng.normal(size=4),
+        )
+        for _ in range(count)
+    ]  # fmt: skip
+    out = FeatureTrackArray(tracks=tracks)
+    out.header.frame_id = frame_id
+    out.header.stamp.sec = int(rng.integers(0, 2**31 - 1))
+    out.header.stamp.nanosec = int(rng.integers(0, 10**9))
+    return out
+
+
+@pytest.mark.parametrize('frame_id', ['', 'c', 'cam', 'came', 'camera_optical', 'kamera_é'])
+@pytest.mark.parametrize('count', [0, 1, 3, 150])
+def test_serialized_features_read_as_the_message(frame_id: str, count: int) -> None:
+    sent = message(frame_id, count, seed=count)
+    features = features_from_cdr(serialize_message(sent))
+    expected = features_from_message(sent)
+    assert features is not None
+    assert (features.stamp_ns, features.frame_id) == (expected.stamp_ns, expected.frame_id)
+    assert features.ids.dtype == np.int64 and np.array_equal(features.ids, expected.ids)
+    assert features.pixels.shape == (count, 2)
+    assert np.array_equal(features.pixels, expected.pixels)
+
+
+def test_other_encodings_and_truncated_data_are_left_to_the_deserializer() -> None:
+    data = serialize_message(message('camera', 5, seed=1))
+    assert features_from_cdr(b'\x00\x00' + data[2:]) is None  # big-endian CDR
+    assert features_from_cdr(data[:-8]) is None
+    assert features_from_cdr(b'') is None
+
+
+def fields(array: FeatureTrackArray) -> tuple[object, ...]:
+    tracks = [(t.id, t.u, t.v, list(t.covariance), list(t.warp)) for t in array.tracks]
+    stamp = array.header.stamp
+    return stamp.sec, stamp.nanosec, array.header.frame_id, tracks
+
+
+@pytest.mark.parametrize('frame_id', ['', 'c', 'cam', 'came', 'camera_optical'])
+@pytest.mark.parametrize('count', [0, 1, 5, 100])
+@pytest.mark.parametrize('given', ['both', 'none', 'covariances'])
+def test_serialized_predictions_are_the_filled_message(
+    frame_id: str, count: int, given: str
+) -> None:
+    rng = np.random.default_rng(count)
+    ids = rng.integers(0, 1 << 40, count)
+    pixels = rng.normal(300.0, 200.0, size=(count, 2))
+    covariances = rng.normal(size=(count, 2, 2)) if given != 'none' else None
+    warps = rng.normal(size=(count, 2, 2)) if given == 'both' else None
+    if count >= 5:  # left out, and zeros for what is not finite
+        pixels[1, 0] = np.nan
+        if covariances is not None:
+            covariances[2, 0, 1] = np.inf
+        if warps is not None:
+            warps[3, 1, 1] = np.nan
+    stamp_ns = 1_795_778_104_048_559_873
+    data = predictions_cdr(ids, pixels, stamp_ns, frame_id, covariances, warps)
+    filled = fill_predictions(
+        ids, pixels, stamp_ns, frame_id, FeatureTrackArray(), FeatureTrack, covariances, warps
+    )
+    assert len(data) == len(serialize_message(filled))
+    assert fields(deserialize_message(data, FeatureTrackArray)) == fields(filled)
