@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
+from monoslam_shadow_node.conversions import Features, FloatArray, IntArray, features_from_message
 from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamResult
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
@@ -147,6 +147,23 @@ def features_from_cdr(data: bytes) -> Features | None:
     pixels = np.column_stack([tracks['u'], tracks['v']]).astype(np.float64)
     stamp_ns = int(sec) * 1_000_000_000 + int(nanosec)
     return Features(stamp_ns, frame_id, tracks['id'].astype(np.int64), pixels.reshape(-1, 2))
+
+
+def read_features(data: bytes, deserialize: Callable[[bytes], Any]) -> Features:
+    """Return the Features of serialized FeatureTrackArray bytes: ``features_from_cdr``, else
+    ``deserialize`` (rclpy's, for the message) and ``features_from_message``; ValueError
+    naming the size and the reason when the bytes are no such message."""
+    features = features_from_cdr(data)
+    if features is not None:
+        return features
+    try:
+        message = deserialize(data)
+    except Exception as err:  # rclpy raises its RMWError (not exported) for bad bytes
+        raise ValueError(
+            f'a features message of {len(data)} bytes is not a slam_interfaces/'
+            f'FeatureTrackArray ({str(err).splitlines()[0] if str(err) else type(err).__name__})'
+        ) from None
+    return features_from_message(message)
 
 
 def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> TargetSighting:

@@ -185,6 +185,7 @@ from __future__ import annotations
 import sys
 import time
 from collections import deque
+from functools import partial
 from pathlib import Path as FilePath
 from typing import Any
 
@@ -197,7 +198,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from monoslam_shadow_node.conversions import CameraInfoWatch, Features, features_from_message
+from monoslam_shadow_node.conversions import CameraInfoWatch, Features
 from monoslam_shadow_node.core.monoslam import MonoSlam
 from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamResult
 from monoslam_shadow_node.frame_sync import StampSync
@@ -207,7 +208,6 @@ from monoslam_shadow_node.monoslam_conversions import (
     TargetSighting,
     cloud_points,
     dynamic_ids,
-    features_from_cdr,
     fill_cloud,
     fill_pose_stamped,
     fill_pose_with_covariance,
@@ -215,6 +215,7 @@ from monoslam_shadow_node.monoslam_conversions import (
     fill_transform,
     handovers_from_message,
     predictions_cdr,
+    read_features,
     revoked_ids,
     target_from_fiducials,
     tum_text,
@@ -279,6 +280,7 @@ class MonoSlamNode(Node):
             camera_info_topic=CAMERA_INFO_TOPIC,
         )
         self._camera_watch = CameraInfoWatch(CAMERA_INFO_TOPIC)
+        self._deserialize_features = partial(deserialize_message, message_type=FeatureTrackArray)
         self._camera_frame = DEFAULT_CAMERA_FRAME
         self._throttle = LogThrottle(WAITING_LOG_PERIOD_S)
         self.trajectory: list[PoseFields] = []
@@ -438,15 +440,16 @@ class MonoSlamNode(Node):
             self.get_logger().warning(update.text)
         self._handle(self.processor.set_camera(update.camera))
 
-    def _on_features(self, data: bytes) -> None:  # taken serialized: ``features_from_cdr``
+    def _on_features(self, data: bytes) -> None:  # taken serialized: ``read_features``
         self._last_input = time.monotonic()
-        features = features_from_cdr(data) or features_from_message(
-            deserialize_message(data, FeatureTrackArray)
-        )
+        try:
+            features = read_features(data, self._deserialize_features)
+        except ValueError as err:  # not what a publisher of the type sends: counted, dropped
+            self._handle(self.processor.reject('undecodable', str(err)))
+            return
         self._handle(self.processor.add_features(features))
-        stamp = self.diagnostics.latest_stamp_ns  # what Diagnostics reads off a message
-        if stamp is None or features.stamp_ns > stamp:
-            self.diagnostics.latest_stamp_ns = features.stamp_ns
+        latest = self.diagnostics.latest_stamp_ns  # what Diagnostics reads off a message
+        self.diagnostics.latest_stamp_ns = max(latest or features.stamp_ns, features.stamp_ns)
 
     def _on_fiducials(self, message: FiducialArray) -> None:
         self._last_input = time.monotonic()

@@ -419,6 +419,10 @@ class MonoSlamProcessor:
             outcomes += self.process(features, sighting)
         return outcomes
 
+    def reject(self, kind: str, text: str) -> list[Outcome]:
+        """Count an input the node could not read as dropped (``kind``) and say why."""
+        return self._drops([Drop(kind, 0, text)])
+
     def _drops(self, drops: Sequence[Drop]) -> list[Outcome]:
         """Count every drop and say it once; frames without fiducials before the start (every
         frame when no marker_detector runs) are said in a throttled line instead."""

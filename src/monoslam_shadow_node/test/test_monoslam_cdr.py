@@ -14,6 +14,7 @@ from monoslam_shadow_node.monoslam_conversions import (
     features_from_cdr,
     fill_predictions,
     predictions_cdr,
+    read_features,
 )
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
 
@@ -85,3 +86,16 @@ def test_serialized_predictions_are_the_filled_message(
     )
     assert len(data) == len(serialize_message(filled))
     assert fields(deserialize_message(data, FeatureTrackArray)) == fields(filled)
+
+
+def test_bytes_that_are_no_features_message_are_refused_by_name() -> None:
+    data = serialize_message(message('camera', 3, 7))
+
+    def deserialize(raw: bytes) -> object:
+        return deserialize_message(raw, FeatureTrackArray)
+
+    whole = read_features(data, deserialize)
+    np.testing.assert_array_equal(whole.ids, [t.id for t in message('camera', 3, 7).tracks])
+    for cut in (0, 3, 17, len(data) - 5):
+        with pytest.raises(ValueError, match=rf'features message of {cut} bytes is not a '):
+            read_features(data[:cut], deserialize)

@@ -232,3 +232,14 @@ def test_the_status_line_says_where_the_map_came_from() -> None:
     processor.add_features(_points_features(1, ids))
     processor.add_sighting(_sighting(1))
     assert '(1 handed over, 39 filled undecided or new)' in processor.status_line()
+
+
+def test_an_unreadable_input_is_counted_as_dropped_and_said() -> None:
+    processor = _processor()
+    before = processor.counts.dropped_total
+    outcomes = processor.reject('undecodable', 'a features message of 3 bytes is not one')
+    assert processor.counts.dropped_total == before + 1
+    assert processor.counts.dropped['undecodable'] == 1
+    assert [o.text for o in outcomes if isinstance(o, Notice)] == [
+        'a features message of 3 bytes is not one'
+    ]
