@@ -332,6 +332,71 @@ def fill_track_array(
     return message
 
 
+class TrackArrayFiller:
+    """Fills slam_interfaces/ShadowTrackArray messages with a frame's tracks, as
+    ``track_fields`` and ``fill_track_array`` do, with the rules evaluated for all tracks at
+    once and the ShadowTrack objects of the message before refilled: a message is serialized
+    when it is published, so its tracks are free again for the next one (``make_track``
+    constructs a new one, the message class)."""
+
+    def __init__(self, make_track: Callable[[], Any]) -> None:
+        self._make_track = make_track
+        self._pool: list[Any] = []
+
+    def fill(
+        self, reports: Sequence[TrackReport], stamp_ns: int, frame_id: str, message: Any
+    ) -> tuple[Any, list[int]]:
+        """Fill ``message`` and return it with the ids of the tracks left out (their position
+        is not finite: ``track_fields`` returns None for them)."""
+        ns_to_stamp(stamp_ns, message.header.stamp)
+        message.header.frame_id = frame_id
+        count = len(reports)
+        if not count:
+            message.tracks = []
+            return message, []
+        ids = [int(r.id) for r in reports]
+        status = [int(r.status) for r in reports]
+        position = np.array([r.position for r in reports], dtype=np.float64).reshape(count, 3)
+        covariance = np.array([r.position_covariance for r in reports], dtype=np.float64).reshape(
+            count, 9
+        )
+        velocity = np.array([r.velocity for r in reports], dtype=np.float64).reshape(count, 3)
+        velocity_covariance = np.array(
+            [r.velocity_covariance for r in reports], dtype=np.float64
+        ).reshape(count, 9)
+        statistic = np.array([r.test_statistic for r in reports], dtype=np.float64)
+        known = np.array([r.defined for r in reports], dtype=bool) | (np.array(status) == STATIC)
+        # the rules of track_fields (module docstring)
+        covariance[~(known & np.all(np.isfinite(covariance), axis=1))] = UNKNOWN_COVARIANCE
+        moving = np.all(np.isfinite(velocity), axis=1) & np.all(
+            np.isfinite(velocity_covariance), axis=1
+        )
+        velocity[~moving] = 0.0
+        velocity_covariance[~moving] = UNKNOWN_COVARIANCE
+        tested = np.isfinite(statistic)
+        statistic[~tested] = NO_TEST_STATISTIC
+        finite = np.all(np.isfinite(position), axis=1)
+        while len(self._pool) < count:
+            self._pool.append(self._make_track())
+        tracks: list[Any] = []
+        points, speeds = position.tolist(), velocity.tolist()
+        for k in np.flatnonzero(finite).tolist():
+            track = self._pool[len(tracks)]
+            track.id = ids[k]
+            track.status = status[k]
+            point = track.position
+            point.x, point.y, point.z = points[k]
+            track.position_covariance = covariance[k]
+            vector = track.velocity
+            vector.x, vector.y, vector.z = speeds[k]
+            track.velocity_covariance = velocity_covariance[k]
+            track.test_statistic = float(statistic[k])
+            track.test_dof = int(reports[k].test_dof) if tested[k] else 0
+            tracks.append(track)
+        message.tracks = tracks
+        return message, [ids[k] for k in np.flatnonzero(~finite).tolist()]
+
+
 @dataclass(frozen=True)
 class MarkerTypes:
     """The message classes the markers are built from (visualization_msgs/Marker,

@@ -126,6 +126,7 @@ from monoslam_shadow_node.conversions import (
     CameraInfoWatch,
     FloatArray,
     MarkerTypes,
+    TrackArrayFiller,
     TrackFields,
     features_from_message,
     fill_markers,
@@ -133,7 +134,6 @@ from monoslam_shadow_node.conversions import (
     handover_fields,
     pose_from_message,
     revoked_from_message,
-    track_fields,
 )
 from monoslam_shadow_node.core.shadow_filter import FrameResult, ShadowFilter
 from monoslam_shadow_node.frame_sync import FrameSynchronizer
@@ -179,6 +179,7 @@ class ShadowFilterNode(Node):
         self._throttle = LogThrottle(WAITING_LOG_PERIOD_S)
         self._static_positions: OrderedDict[int, FloatArray] = OrderedDict()
         self._marker_types = MarkerTypes(Marker, Point, ColorRGBA)
+        self._tracks_filler = TrackArrayFiller(ShadowTrack)
         self._last_input = time.monotonic()
         self._status_time, self._status_frames = time.monotonic(), 0
         self.tracks_publisher = self.create_publisher(ShadowTrackArray, TRACKS_TOPIC, output_qos())
@@ -295,10 +296,11 @@ class ShadowFilterNode(Node):
         log_notice(self.get_logger(), notice, self._throttle, time.monotonic())
 
     def _publish(self, result: FrameResult, frame_id: str) -> None:
-        tracks = self._finite([(t.id, track_fields(t)) for t in result.tracks], result)
-        self.tracks_publisher.publish(
-            fill_track_array(tracks, result.stamp_ns, frame_id, ShadowTrackArray(), ShadowTrack)
+        message, left_out = self._tracks_filler.fill(
+            result.tracks, result.stamp_ns, frame_id, ShadowTrackArray()
         )
+        self._left_out(left_out, result)
+        self.tracks_publisher.publish(message)
         if result.handovers:
             tests = {t.id: (t.test_statistic, t.test_dof) for t in result.tracks}
             handed = self._finite(
@@ -329,14 +331,16 @@ class ShadowFilterNode(Node):
     def _finite(
         self, items: list[tuple[int, TrackFields | None]], result: FrameResult
     ) -> list[TrackFields]:
-        left_out = [track_id for track_id, fields in items if fields is None]
+        self._left_out([track_id for track_id, fields in items if fields is None], result)
+        return [fields for _, fields in items if fields is not None]
+
+    def _left_out(self, left_out: list[int], result: FrameResult) -> None:
         if left_out:
             self.omitted += len(left_out)
             self.get_logger().error(
                 f'frame at stamp {result.stamp_ns} ns: features {left_out} left out of the '
                 'output, their estimate is not finite (a Shadow filter fault)'
             )
-        return [fields for _, fields in items if fields is not None]
 
     def _report_status(self) -> None:
         now = time.monotonic()

@@ -41,8 +41,11 @@ from monoslam_shadow_node.core.rays import THREE_RAY_DOF, View, pixel_ray_direct
 from monoslam_shadow_node.core.shadow_classifier import (
     ClassifierConfig,
     Decision,
-    classify,
+    decide,
+    due_test,
     predicted_visibility,
+    score_tests,
+    three_ray_tests,
 )
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
@@ -54,6 +57,7 @@ from monoslam_shadow_node.core.shadow_ekf import (
     world_estimates,
 )
 from monoslam_shadow_node.core.shadow_track import PENDING, STATIC, Track
+from monoslam_shadow_node.core.static_fit import ROW_PRECISION, ROW_SIZE, view_rows
 from slam_core.camera import CameraModel
 
 RESTART_AFTER_GATED = 3
@@ -61,6 +65,48 @@ RESTART_AFTER_GATED = 3
 has lost its track (it moved faster or turned harder than the process noise allows): its EKF
 restarts from the latest ray, keeping its id, status and views."""
 IntArray = NDArray[np.int64]
+
+
+def _ray_precisions(to_pixel: FloatArray, pixel_sigma: float) -> FloatArray:
+    """Return the pseudo-inverses (N, 3, 3) of the ray direction covariances
+    sigma^2 A A' (rank 2) with A = d(direction)/d(pixel) (N, 3, 2) of full column rank:
+    A (A'A)^-2 A' / sigma^2 (what np.linalg.pinv gives, in closed form)."""
+    gram = np.swapaxes(to_pixel, 1, 2) @ to_pixel  # (N, 2, 2)
+    g00, g01, g11 = gram[:, 0, 0], gram[:, 0, 1], gram[:, 1, 1]
+    determinant = g00 * g11 - g01 * g01
+    inverse = np.empty_like(gram)
+    inverse[:, 0, 0], inverse[:, 1, 1] = g11 / determinant, g00 / determinant
+    inverse[:, 0, 1] = inverse[:, 1, 0] = -g01 / determinant
+    root = to_pixel @ inverse  # A (A'A)^-1
+    return np.asarray(root @ np.swapaxes(root, 1, 2) / pixel_sigma**2, dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class _FrameViews:
+    """One frame's rays: world directions (N, 3), their covariances (N, 3, 3) and Jacobians
+    with respect to the pixel (N, 3, 2), and their ``static_fit.view_rows`` (N, ROW_SIZE),
+    whose precision is the pseudo-inverse of each direction's covariance (rank 2, tracking
+    noise only: white and offset). ``view`` makes a ray's ``View`` (only the rays a track
+    keeps need one)."""
+
+    index: int
+    frame: FrameInput
+    directions: FloatArray
+    covariances: FloatArray
+    to_pixel: FloatArray
+    constants: FloatArray
+
+    def view(self, k: int) -> View:
+        """The ``View`` of ray k."""
+        frame = self.frame
+        return View(
+            self.index, frame.stamp_ns, frame.centre, self.directions[k], self.covariances[k],
+            frame.pose_covariance, self.to_pixel[k],
+        )  # fmt: skip
+
+    def precision(self, k: int) -> FloatArray:
+        """The precision (3, 3) of ray k's direction."""
+        return self.constants[k, ROW_PRECISION].reshape(3, 3)
 
 
 class InputError(ValueError):
@@ -216,7 +262,7 @@ class ShadowFilter:
         new = [
             k for k, i in enumerate(ids) if int(i) not in row_of and int(i) not in self._released
         ]
-        views, precisions = self._views(frame, pixels)
+        views = self._views(frame, pixels)
         seen_rows = set()
         if observed:
             columns = np.array([k for k, _ in observed])
@@ -242,17 +288,17 @@ class ShadowFilter:
                 elif not used:
                     warnings.append(f'feature {track.id}: measurement outside the innovation gate')
                 if track.status == PENDING and self.config.classify:
-                    track.add_view(views[k], precisions[k])
+                    track.add_view(views.view(k), views.precision(k), views.constants[k])
             if restart:
                 again = [row for _, row in restart]
                 self._states[again], self._covariances[again] = self._initial(
-                    frame, [views[k] for k, _ in restart]
+                    frame, [views.view(k) for k, _ in restart]
                 )
         for row, track in enumerate(self._tracks):
             if row not in seen_rows:
                 track.missed += 1
         if new:
-            self._start(frame, ids[new], [views[k] for k in new], precisions[new])
+            self._start(frame, ids[new], [views.view(k) for k in new], views.constants[new])
         decisions: list[Decision] = []
         estimate = world_estimates(self._states, self._covariances, frame.rotation, frame.centre)
         if self.config.classify:
@@ -272,16 +318,21 @@ class ShadowFilter:
         )
         visibility = predicted_visibility(self._tracks, static.position, static.defined)
         noise = self.config.ekf.tracking_noise
-        decisions = []
+        dues = []
         for row, track in enumerate(self._tracks):
             if track.status == PENDING and track.missed == 0 and static.defined[row]:
                 rule = self._strict if track.suspect else self.config.classifier
                 seen = float(visibility[row, rule.unchecked_directions])
-                decision = classify(
-                    track, static.position[row], seen, self._frame, rule, warnings, noise
-                )
-                if decision is not None:
-                    decisions.append(decision)
+                due = due_test(track, static.position[row], seen, self._frame, rule, noise)
+                if due is not None:
+                    dues.append(due)
+        # the frame's score tests together (shadow_classifier.classify, one track at a time)
+        decisions = []
+        motions, relations = score_tests(dues, noise), three_ray_tests(dues, noise)
+        for due, motion, relation in zip(dues, motions, relations, strict=True):
+            decision = decide(due, motion, self._frame, warnings, noise, relation)
+            if decision is not None:
+                decisions.append(decision)
         return decisions
 
     def _validated(self, frame: FrameInput) -> FrameInput:
@@ -321,21 +372,22 @@ class ShadowFilter:
             self._states, self._covariances, rotation, translation, dt, self.config.ekf
         )
 
-    def _views(self, frame: FrameInput, pixels: FloatArray) -> tuple[list[View], FloatArray]:
-        """Return the frame's views and their ray precisions (N, 3, 3): the pseudo-inverse
-        of each direction's covariance (rank 2, tracking noise only: white and offset)."""
+    def _views(self, frame: FrameInput, pixels: FloatArray) -> _FrameViews:
+        """Return the frame's views (``_FrameViews``)."""
         if not len(pixels):
-            return [], np.zeros((0, 3, 3))
+            empty = np.zeros((0, 3))
+            return _FrameViews(
+                self._frame, frame, empty, np.zeros((0, 3, 3)), np.zeros((0, 3, 2)),
+                np.zeros((0, ROW_SIZE)),
+            )  # fmt: skip
         rays, jacobians = self.camera.pixel_rays(pixels)
         directions, covariances, to_pixel = pixel_ray_directions(
             rays, jacobians, frame.rotation, self.config.ekf.measurement_sigma_px
         )
-        views = [
-            View(self._frame, frame.stamp_ns, frame.centre, d, c, frame.pose_covariance, a)
-            for d, c, a in zip(directions, covariances, to_pixel, strict=True)
-        ]
-        precisions = np.linalg.pinv(covariances, rcond=1e-9, hermitian=True)
-        return views, np.asarray(precisions, dtype=np.float64)
+        precisions = _ray_precisions(to_pixel, self.config.ekf.measurement_sigma_px)
+        centres = np.broadcast_to(frame.centre, (len(directions), 3))
+        constants = view_rows(centres, directions, covariances, precisions, frame.pose_covariance)
+        return _FrameViews(self._frame, frame, directions, covariances, to_pixel, constants)
 
     def _initial(self, frame: FrameInput, views: list[View]) -> tuple[FloatArray, FloatArray]:
         """EKF states and covariances of features first seen (or restarted) along views."""
@@ -349,15 +401,15 @@ class ShadowFilter:
         return initial_states(camera_directions, camera_covariances, self.config.ekf, jacobians)
 
     def _start(
-        self, frame: FrameInput, ids: IntArray, views: list[View], precisions: FloatArray
+        self, frame: FrameInput, ids: IntArray, views: list[View], rows: FloatArray
     ) -> None:
         states, covariances = self._initial(frame, views)
         self._states = np.concatenate([self._states, states])
         self._covariances = np.concatenate([self._covariances, covariances])
-        for track_id, view, precision in zip(ids, views, precisions, strict=True):
+        for track_id, view, row in zip(ids, views, rows, strict=True):
             track = Track(int(track_id), PENDING, self._frame, frame.stamp_ns)
             track.suspect = int(track_id) in self._suspects
-            track.add_view(view, precision)
+            track.add_view(view, row[ROW_PRECISION].reshape(3, 3), row)
             self._tracks.append(track)
 
     def _reports(
@@ -379,15 +431,14 @@ class ShadowFilter:
                     )
                 )  # fmt: skip
             if limit and bool(estimate.defined[row]):
-                track.trajectory.append(position)
-                del track.trajectory[:-limit]
+                track.trajectory.append(position, limit)
             reports.append(
                 TrackReport(
                     track.id, track.status, position, covariance, estimate.velocity[row],
                     estimate.velocity_covariance[row], track.statistic,
                     THREE_RAY_DOF if math.isfinite(track.statistic) else 0,
                     bool(estimate.defined[row]), track.first_frame, track.decided_frame,
-                    np.array(track.trajectory).reshape(-1, 3),
+                    track.trajectory.array(limit),
                 )
             )  # fmt: skip
         return reports, handovers
