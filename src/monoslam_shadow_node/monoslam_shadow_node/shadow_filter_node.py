@@ -117,6 +117,7 @@ from typing import Any
 from geometry_msgs.msg import Point, PoseWithCovarianceStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
@@ -126,14 +127,15 @@ from monoslam_shadow_node.conversions import (
     CameraInfoWatch,
     FloatArray,
     MarkerTypes,
-    TrackArrayFiller,
     TrackFields,
+    features_from_cdr,
     features_from_message,
     fill_markers,
     fill_track_array,
     handover_fields,
     pose_from_message,
     revoked_from_message,
+    track_array_cdr,
 )
 from monoslam_shadow_node.core.shadow_filter import FrameResult, ShadowFilter
 from monoslam_shadow_node.frame_sync import FrameSynchronizer
@@ -158,6 +160,10 @@ STATUS_PERIOD_S = 10.0
 WAITING_LOG_PERIOD_S = 5.0
 
 
+def _deserialize_features(data: bytes) -> FeatureTrackArray:
+    return deserialize_message(data, FeatureTrackArray)
+
+
 class ShadowFilterNode(Node):
     """Thin adapter around ShadowProcessor: features and poses in, the tracks published."""
 
@@ -179,7 +185,6 @@ class ShadowFilterNode(Node):
         self._throttle = LogThrottle(WAITING_LOG_PERIOD_S)
         self._static_positions: OrderedDict[int, FloatArray] = OrderedDict()
         self._marker_types = MarkerTypes(Marker, Point, ColorRGBA)
-        self._tracks_filler = TrackArrayFiller(ShadowTrack)
         self._last_input = time.monotonic()
         self._status_time, self._status_frames = time.monotonic(), 0
         self.tracks_publisher = self.create_publisher(ShadowTrackArray, TRACKS_TOPIC, output_qos())
@@ -194,9 +199,11 @@ class ShadowFilterNode(Node):
         self.diagnostics = Diagnostics(self, self._counts)
         timed = self.diagnostics.timed
         inputs = output_qos(depth=INPUT_DEPTH)
+        # taken serialized: features_from_cdr reads the ids and pixels from the bytes
         self.create_subscription(
-            FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs
-        )
+            FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs,
+            raw=True,
+        )  # fmt: skip
         self.create_subscription(
             PoseWithCovarianceStamped,
             self.settings.pose_topic,
@@ -259,9 +266,14 @@ class ShadowFilterNode(Node):
             self.get_logger().warning(update.text)
         self._handle(self.processor.set_camera(update.camera))
 
-    def _on_features(self, message: FeatureTrackArray) -> None:
+    def _on_features(self, message: bytes | FeatureTrackArray) -> None:
         self._last_input = time.monotonic()
-        self._handle(self.processor.add_features(features_from_message(message)))
+        features = (
+            features_from_message(message)
+            if isinstance(message, FeatureTrackArray)
+            else features_from_cdr(message, _deserialize_features)
+        )
+        self._handle(self.processor.add_features(features))
 
     def _on_pose(self, message: PoseWithCovarianceStamped) -> None:
         self._last_input = time.monotonic()
@@ -296,11 +308,9 @@ class ShadowFilterNode(Node):
         log_notice(self.get_logger(), notice, self._throttle, time.monotonic())
 
     def _publish(self, result: FrameResult, frame_id: str) -> None:
-        message, left_out = self._tracks_filler.fill(
-            result.tracks, result.stamp_ns, frame_id, ShadowTrackArray()
-        )
+        serialized, left_out = track_array_cdr(result.tracks, result.stamp_ns, frame_id)
         self._left_out(left_out, result)
-        self.tracks_publisher.publish(message)
+        self.tracks_publisher.publish(serialized)
         if result.handovers:
             tests = {t.id: (t.test_statistic, t.test_dof) for t in result.tracks}
             handed = self._finite(

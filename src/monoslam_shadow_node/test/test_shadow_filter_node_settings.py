@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 from geometry_msgs.msg import Point
+from rclpy.serialization import deserialize_message, serialize_message
 from scipy.spatial.transform import Rotation
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
@@ -25,6 +26,7 @@ from monoslam_shadow_node.conversions import (
     MarkerTypes,
     camera_from_info,
     camera_info_key,
+    features_from_cdr,
     features_from_message,
     fill_markers,
     fill_track_array,
@@ -32,6 +34,7 @@ from monoslam_shadow_node.conversions import (
     handover_fields,
     pose_from_message,
     rotation_from_quaternion,
+    track_array_cdr,
     track_fields,
 )
 from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
@@ -40,7 +43,7 @@ from monoslam_shadow_node.core.shadow_filter import Handover, ShadowConfig, Trac
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
 from monoslam_shadow_node.frame_sync import FrameSynchronizer
 from slam_core.errors import ParameterError
-from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
+from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
 from slam_ros.testing.node_contract import (
     config_mismatches,
@@ -337,6 +340,85 @@ def test_track_arrays_are_filled() -> None:
     assert [t.id for t in message.tracks] == [1, 2]
     assert message.tracks[0].position.z == 3.0 and message.tracks[0].test_dof == 3
     assert list(message.tracks[0].velocity_covariance) == [0.25, 0, 0, 0, 0.25, 0, 0, 0, 0.25]
+
+
+def _plain_tracks(message: Any) -> tuple[object, ...]:
+    return (
+        message.header.stamp.sec,
+        message.header.stamp.nanosec,
+        message.header.frame_id,
+        [
+            (t.id, t.status, t.position.x, t.position.y, t.position.z,
+             list(t.position_covariance), t.velocity.x, t.velocity.y, t.velocity.z,
+             list(t.velocity_covariance), t.test_statistic, t.test_dof)
+            for t in message.tracks
+        ],
+    )  # fmt: skip
+
+
+def test_serialized_track_arrays_are_the_filled_messages() -> None:
+    """track_array_cdr writes the bytes of the message track_fields and fill_track_array
+    make (the same fields under every rule), for any frame id and number of tracks."""
+    rng = np.random.default_rng(4)
+    reports = [
+        _report(
+            id=int(rng.integers(-(2**62), 2**62)), status=k % 3, position=rng.normal(size=3),
+            position_covariance=rng.normal(size=(3, 3)), velocity=rng.normal(size=3),
+            velocity_covariance=rng.normal(size=(3, 3)), test_statistic=float(rng.normal()),
+            defined=bool(k % 2),
+        )
+        for k in range(9)
+    ] + [
+        _report(id=50, position=np.array([math.nan, 0.0, 0.0])),  # left out
+        _report(id=51, velocity=np.array([math.inf, 0.0, 0.0])),
+        _report(id=52, test_statistic=math.nan, test_dof=0, defined=False),
+        _report(id=53, position_covariance=np.full((3, 3), math.nan)),
+        _report(id=54, status=STATIC, defined=False),
+    ]  # fmt: skip
+    stamp_ns = 1_795_776_332_163_581_199
+    for frame_id in ('', 'm', 'map', 'monoslam_map', 'abcdefg'):
+        for count in (0, 1, 2, len(reports)):
+            fields = [track_fields(report) for report in reports[:count]]
+            message = fill_track_array(
+                [f for f in fields if f is not None], stamp_ns, frame_id, ShadowTrackArray(),
+                ShadowTrack,
+            )  # fmt: skip
+            data, left_out = track_array_cdr(reports[:count], stamp_ns, frame_id)
+            assert len(data) == len(serialize_message(message))  # padding bytes may differ
+            assert _plain_tracks(deserialize_message(data, ShadowTrackArray)) == _plain_tracks(
+                message
+            )
+            held = zip(reports[:count], fields, strict=True)
+            assert left_out == [r.id for r, f in held if f is None]
+
+
+def test_feature_frames_are_read_from_their_bytes() -> None:
+    rng = np.random.default_rng(5)
+    for frame_id in ('', 'c', 'cam', 'camera_optical_frame', 'caméra'):
+        for count in (0, 1, 2, 150):
+            message = FeatureTrackArray()
+            message.header.frame_id = frame_id
+            message.header.stamp.sec, message.header.stamp.nanosec = 1_795_776_332, 163_581_199
+            message.tracks = [
+                FeatureTrack(
+                    id=int(rng.integers(-(2**62), 2**62)), u=float(rng.normal()),
+                    v=float(rng.normal()), covariance=rng.normal(size=3), warp=rng.normal(size=4),
+                )
+                for _ in range(count)
+            ]  # fmt: skip
+            read = features_from_cdr(serialize_message(message), _unexpected)
+            expected = features_from_message(message)
+            assert (read.stamp_ns, read.frame_id) == (expected.stamp_ns, expected.frame_id)
+            np.testing.assert_array_equal(read.ids, expected.ids)
+            np.testing.assert_array_equal(read.pixels, expected.pixels)
+            assert read.ids.dtype == np.int64 and read.pixels.shape == (count, 2)
+    # bytes that are not plain little-endian CDR go through the deserializer
+    other = features_from_cdr(b'\x00\x00' + serialize_message(message)[2:], lambda _: message)
+    assert len(other.ids) == 150
+
+
+def _unexpected(data: bytes) -> Any:
+    raise AssertionError('the bytes were read directly')
 
 
 def test_markers_colour_the_statuses_and_draw_dynamic_trajectories() -> None:

@@ -55,9 +55,10 @@ from slam_core.geometry.so3 import skew
 THREE_RAY_DOF = 3
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False)
 class View:
-    """One sighting of a feature, everything in the world frame.
+    """One sighting of a feature, everything in the world frame (a record the Shadow filter
+    makes for every feature in every frame: not frozen, which costs a fifth to build).
 
     ``centre`` (3,) m is the camera centre, ``direction`` (3,) the unit viewing ray,
     ``direction_covariance`` (3, 3) its covariance from the pixel noise alone (rank 2),

@@ -152,9 +152,10 @@ class FrameInput:
     pose_covariance: FloatArray | None = None
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False)
 class TrackReport:
-    """One feature after a frame, world frame: status, position (3,) m and covariance (3, 3),
+    """One feature after a frame (made for every feature in every frame: not frozen, which
+    costs a fifth to build), world frame: status, position (3,) m and covariance (3, 3),
     velocity (3,) m/s and covariance (3, 3), the latest test statistic (NaN before any test)
     with its degrees of freedom, whether the position is defined (depth known), the frame of
     first sight and of the decision (-1: undecided), and recent positions (K, 3)."""
@@ -313,17 +314,29 @@ class ShadowFilter:
     def _classify_pending(self, frame: FrameInput, warnings: list[str]) -> list[Decision]:
         """Classify every PENDING feature observed in this frame whose static estimate is
         defined (``shadow_classifier.classify``); return the decisions."""
-        static = world_estimates(
-            *static_hypothesis(self._states, self._covariances), frame.rotation, frame.centre
-        )
-        visibility = predicted_visibility(self._tracks, static.position, static.defined)
+        # the static estimate of the features that can be classified in this frame
+        candidates = [
+            row
+            for row, track in enumerate(self._tracks)
+            if track.status == PENDING and track.missed == 0
+        ]
+        count = len(self._tracks)
+        position, defined = np.zeros((count, 3)), np.zeros(count, dtype=bool)
+        if candidates:
+            static = world_estimates(
+                *static_hypothesis(self._states[candidates], self._covariances[candidates]),
+                frame.rotation,
+                frame.centre,
+            )
+            position[candidates], defined[candidates] = static.position, static.defined
+        visibility = predicted_visibility(self._tracks, position, defined)
         noise = self.config.ekf.tracking_noise
         dues = []
         for row, track in enumerate(self._tracks):
-            if track.status == PENDING and track.missed == 0 and static.defined[row]:
+            if track.status == PENDING and track.missed == 0 and defined[row]:
                 rule = self._strict if track.suspect else self.config.classifier
                 seen = float(visibility[row, rule.unchecked_directions])
-                due = due_test(track, static.position[row], seen, self._frame, rule, noise)
+                due = due_test(track, position[row], seen, self._frame, rule, noise)
                 if due is not None:
                     dues.append(due)
         # the frame's score tests together (shadow_classifier.classify, one track at a time)
