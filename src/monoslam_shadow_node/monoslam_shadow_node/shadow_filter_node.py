@@ -10,7 +10,8 @@ messages, hands them to it, publishes the processed frames and logs what it repo
 
 Topics:
   subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100): track ids
-              and raw (distorted) pixels of one image, header.stamp = the image stamp.
+              and raw (distorted) pixels of one image, header.stamp = the image stamp
+              (taken serialized and read from the CDR bytes: conversions.features_from_cdr).
               <pose_topic> (default monoslam/pose; geometry_msgs/PoseWithCovarianceStamped,
               reliable, depth 100): the pose of the camera OPTICAL frame (x right, y down,
               z forward) in the world frame header.frame_id, i.e. R_world_camera and the
@@ -55,11 +56,18 @@ No NaN is ever published (details in conversions):
 Synchronization: features and poses pair when their stamps differ by at most
 stamp_tolerance_s (default 0: equal stamps), nearest first. Frames are processed in stamp
 order as soon as paired; a frame that still waits for its pose holds back the later ones.
-A features frame whose pose has not come once the newest stamp seen is sync_horizon_s past
-it (or no input came for sync_horizon_s of wall time) is dropped, as is a pose no features
-frame paired with within the horizon; each drop is logged once with its stamp. Each queue
-holds at most queue_size entries (the oldest goes first). While no camera_info or no pose at
-all has come yet, the drops are summarized in a line every few seconds instead.
+The poses come in stamp order, after the features by SLAM's processing time, which can be
+longer than the horizon while SLAM lags: a features frame waits for its pose until a pose
+with a later stamp has come (SLAM skipped the frame: it is dropped then), however late, up
+to queue_size frames. Before the first pose, and for a frame that came after a later pose,
+a frame whose pose has not come once the newest stamp seen is sync_horizon_s past it is
+dropped. A frame still waiting when no input came for sync_horizon_s of wall time is
+dropped, as is a pose no features frame paired with within the horizon; each drop is logged
+once with its stamp. Each queue holds at most queue_size entries (the oldest goes first).
+While no camera_info or no pose at all has come yet, the drops are summarized in a line
+every few seconds instead. (Until issue 22 a frame also went once the newest features stamp
+was sync_horizon_s past it: when SLAM lagged by more than that, every frame was dropped and
+then its late pose too.)
 
 Bad input is logged with its culprit and the node goes on: features before any camera_info
 (held and processed once it arrives), a pose or features frame without partner (dropped as
@@ -98,7 +106,8 @@ config/shadow_filter.yaml (a test keeps the two equal).
 Parameters (node):
   pose_topic ('monoslam/pose')    camera pose topic.
   stamp_tolerance_s (0.0)         largest features-to-pose stamp difference, s.
-  sync_horizon_s (1.0)            how long a frame waits for its partner, s (stamp time).
+  sync_horizon_s (1.0)            how long a frame waits for its partner, s (stamp time),
+                                  before the first pose and for a pose (see above).
   queue_size (100)                waiting feature frames and poses, each.
   publish_markers (true)          publish shadow/markers.
 All are read-only; a bad value stops the node with an error naming the parameter.

@@ -12,9 +12,10 @@ Rules:
 
 - Pairing (``frame_sync.FrameSynchronizer``): a features frame pairs with the pose whose
   stamp is nearest within ``stamp_tolerance_ns``; pairs are processed in stamp order; a frame
-  whose pose has not come within ``sync_horizon_ns`` (or when the caller flushes because the
-  inputs stopped) is dropped, as is a pose that matched no frame. Until the camera is set,
-  frames are held (the oldest dropped beyond ``queue_size``).
+  whose pose will not come (a later pose came after it; before the first pose: not within
+  ``sync_horizon_ns``), or is still missing when the caller flushes because the inputs
+  stopped, is dropped, as is a pose that matched no frame within ``sync_horizon_ns``. Until
+  the camera is set, frames are held (the oldest dropped beyond ``queue_size``).
 - Every frame with a pose is given to the filter, however uncertain the pose: the core
   adds the pose covariance to each view's ray, so an uncertain pose weakens the tests and
   delays the decisions (a feature whose ``max_tests`` tests all come before they could see

@@ -505,27 +505,54 @@ def test_hold_waits_for_the_camera_then_releases_in_stamp_order() -> None:
     assert _stamps(sync.pop()[0]) == [(100 * MS, 100 * MS), (200 * MS, 200 * MS)]
 
 
-def test_unpaired_frames_and_poses_are_dropped_after_the_horizon() -> None:
+def test_unpaired_frames_and_poses_are_dropped() -> None:
     sync = _sync()
-    sync.add_features(_features(100 * MS))  # its pose never comes
+    sync.add_features(_features(100 * MS))  # its pose never comes: a later one comes first
     sync.add_pose(_pose(105 * MS))  # no features with this stamp
     sync.add_features(_features(133 * MS))
     sync.add_pose(_pose(133 * MS))
-    assert sync.pop() == ([], [])  # frame 133 waits behind frame 100
-    sync.add_features(_features(450 * MS))
     pairs, drops = sync.pop()
     assert _stamps(pairs) == [(133 * MS, 133 * MS)]
-    assert [(d.kind, d.stamp_ns) for d in drops] == [
-        ('no_pose', 100 * MS),
-        ('no_features', 105 * MS),
-    ]
-    assert drops[0].text.startswith(
-        f'features frame at stamp {100 * MS} ns dropped: no camera pose'
+    assert [(d.kind, d.stamp_ns) for d in drops] == [('no_pose', 100 * MS)]
+    assert drops[0].text == (
+        f'features frame at stamp {100 * MS} ns dropped: no camera pose with its stamp came '
+        f'on pose before a later one (stamp {133 * MS} ns)'
     )
-    assert drops[1].text.startswith(
+    sync.add_features(_features(450 * MS))  # the pose without features, after the horizon
+    pairs, drops = sync.pop()
+    assert pairs == [] and [(d.kind, d.stamp_ns) for d in drops] == [('no_features', 105 * MS)]
+    assert drops[0].text.startswith(
         f'camera pose at stamp {105 * MS} ns on pose matches no features'
     )
-    assert f'nearest features stamp {100 * MS} ns, -5.000 ms away' in drops[1].text
+    assert f'nearest features stamp {100 * MS} ns, -5.000 ms away' in drops[0].text
+
+
+def test_frames_wait_for_poses_later_than_the_horizon() -> None:
+    """The poses come from the SLAM filter in stamp order, behind the features by its
+    processing time: however far behind, each frame waits for its pose (within queue_size),
+    and a frame whose pose did not come goes once a later one has."""
+    sync = _sync(size=100)
+    sync.add_features(_features(67 * MS))
+    sync.add_pose(_pose(67 * MS))
+    assert len(sync.pop()[0]) == 1
+    for k in range(40):  # 1.3 s of frames at 30 Hz before the next pose (horizon 0.3 s)
+        sync.add_features(_features((100 + 33 * k) * MS))
+    assert sync.pop() == ([], [])
+    for k in range(40):
+        if k != 7:  # the SLAM filter skipped frame 7
+            sync.add_pose(_pose((100 + 33 * k) * MS))
+    pairs, drops = sync.pop()
+    assert len(pairs) == 39 and [(d.kind, d.stamp_ns) for d in drops] == [('no_pose', 331 * MS)]
+    # before the first pose, and for a frame that came after a later pose (the two topics'
+    # arrival order is not guaranteed), the horizon holds
+    late = _sync()
+    late.add_features(_features(100 * MS))
+    late.add_features(_features(500 * MS))
+    assert [(d.kind, d.stamp_ns) for d in late.pop()[1]] == [('no_pose', 100 * MS)]
+    late.add_pose(_pose(600 * MS))
+    late.add_features(_features(550 * MS))
+    late.add_pose(_pose(550 * MS))
+    assert _stamps(late.pop()[0]) == [(550 * MS, 550 * MS)]
 
 
 def test_flush_drops_frames_without_pose_when_the_inputs_stop() -> None:
