@@ -106,9 +106,10 @@ config/shadow_filter.yaml (a test keeps the two equal).
 Parameters (node):
   pose_topic ('monoslam/pose')    camera pose topic.
   stamp_tolerance_s (0.0)         largest features-to-pose stamp difference, s.
-  sync_horizon_s (1.0)            how long a frame waits for its partner, s (stamp time),
-                                  before the first pose and for a pose (see above).
-  queue_size (100)                waiting feature frames and poses, each.
+  sync_horizon_s (1.0)            how long a pose waits for its frame, and a frame for its
+                                  pose before the first pose, s (stamp time; see above).
+  queue_size (300)                waiting feature frames and poses, each (10 s at 30 Hz:
+                                  how far SLAM's poses may lag before frames are dropped).
   publish_markers (true)          publish shadow/markers.
 All are read-only; a bad value stops the node with an error naming the parameter.
 

@@ -124,7 +124,7 @@ class ShadowProcessor:
         *,
         stamp_tolerance_ns: int = 0,
         sync_horizon_ns: int = 1_000_000_000,
-        queue_size: int = 100,
+        queue_size: int = 300,
         pose_topic: str = 'monoslam/pose',
         camera_info_topic: str = 'camera/camera_info',
     ) -> None:

@@ -78,7 +78,7 @@ def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None
     assert settings.shadow_config(values) == ShadowConfig()
     node = settings.node_settings(values)
     assert node.pose_topic == 'monoslam/pose' and node.stamp_tolerance_ns == 0
-    assert node.sync_horizon_ns == 10**9 and node.queue_size == 100 and node.publish_markers
+    assert node.sync_horizon_ns == 10**9 and node.queue_size == 300 and node.publish_markers
 
 
 def test_every_core_setting_has_a_parameter() -> None:
