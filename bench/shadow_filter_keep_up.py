@@ -29,6 +29,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 CPU_LIMIT = 0.25
@@ -65,7 +66,8 @@ def record_inputs(bag: Path, directory: Path) -> Path:
     recorded = directory / 'recorded'
     command = [sys.executable, '-m', 'slam_bringup.runner', str(graph), '--paced']
     command += ['--bag', str(bag.resolve()), '--record', str(recorded)]
-    subprocess.run(command, cwd=directory, check=True, stdout=subprocess.DEVNULL)
+    with (directory / 'record.log').open('w', encoding='utf-8') as log:
+        subprocess.run(command, cwd=directory, check=True, stdout=log, stderr=subprocess.STDOUT)
     return recorded
 
 
@@ -82,14 +84,17 @@ def at_image_stamps(recorded: Path, out: Path) -> int:
         connections = {c.topic: c for c in reader.connections}
         for connection, _, data in reader.messages():
             registry.ensure(connection.msgtype)
-            message = registry.typestore.deserialize_cdr(data, connection.msgtype)
+            message: Any = registry.typestore.deserialize_cdr(data, connection.msgtype)
             stamp = message.header.stamp.sec * 10**9 + message.header.stamp.nanosec
             messages.append((connection.topic, stamp, data))
     frames = sorted(stamp for topic, stamp, _ in messages if topic == '/features')
     with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         added = {
             topic: registry.add_connection(
-                writer, topic, connection.msgtype, connection.ext.offered_qos_profiles
+                writer,
+                topic,
+                connection.msgtype,
+                getattr(connection.ext, 'offered_qos_profiles', []),
             )
             for topic, connection in connections.items()
         }

@@ -348,6 +348,24 @@ def score_tests(
     ]
 
 
+def needs_three_ray(due: DueTest, motion: MotionScoreTest | None) -> bool:
+    """Whether ``decide`` runs the three-ray test of ``due`` given its score test: when the
+    views fixed a static point and either motion would have been visible or a parallax
+    milestone is due."""
+    if motion is None:
+        return False
+    return due.track.milestone_due or _decisive(due.settings, motion)
+
+
+def _decisive(settings: ClassifierConfig, motion: MotionScoreTest) -> bool:
+    """Whether the score test's geometry could have seen motion (``decide``)."""
+    speed = settings.min_detectable_speed_m_s
+    return speed == 0 or (
+        motion.visibility[settings.unchecked_directions] * speed**2
+        >= settings.required_noncentrality
+    )
+
+
 def three_ray_tests(
     dues: list[DueTest], noise: TrackingNoise | None = None
 ) -> list[RelationTest | ValueError]:
@@ -384,7 +402,6 @@ def decide(
     track, settings = due.track, due.settings
     parallax, baseline = due.parallax, due.baseline
     first, last = track.views[0], track.views[-1]
-    speed = settings.min_detectable_speed_m_s
     level = settings.test_alpha
     if motion is None:
         track.unfit += 1
@@ -399,10 +416,7 @@ def decide(
     track.unfit = 0
     # Whether a decision is possible is geometry (S), not the test's outcome: when it
     # is not and no parallax milestone is due, nothing is tested and no alpha is spent.
-    decisive = speed == 0 or (
-        motion.visibility[settings.unchecked_directions] * speed**2
-        >= settings.required_noncentrality
-    )
+    decisive = _decisive(settings, motion)
     if not decisive:
         # the prediction was optimistic: ask it for half as much again before retrying
         track.visibility_wait = 1.5 * track.predicted_visible

@@ -36,13 +36,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.projective import FloatArray
+from monoslam_shadow_node.core.projective import FloatArray, RelationTest
 from monoslam_shadow_node.core.rays import THREE_RAY_DOF, View, pixel_ray_directions, ray_angle
 from monoslam_shadow_node.core.shadow_classifier import (
     ClassifierConfig,
     Decision,
     decide,
     due_test,
+    needs_three_ray,
     predicted_visibility,
     score_tests,
     three_ray_tests,
@@ -65,6 +66,7 @@ RESTART_AFTER_GATED = 3
 has lost its track (it moved faster or turned harder than the process noise allows): its EKF
 restarts from the latest ray, keeping its id, status and views."""
 IntArray = NDArray[np.int64]
+_EYE = np.eye(3)
 
 
 def _ray_precisions(to_pixel: FloatArray, pixel_sigma: float) -> FloatArray:
@@ -263,6 +265,13 @@ class ShadowFilter:
         new = [
             k for k, i in enumerate(ids) if int(i) not in row_of and int(i) not in self._released
         ]
+        # rays only for the features held or new (not for those handed over: SLAM's)
+        kept = sorted([k for k, _ in observed] + new)
+        if len(kept) < len(ids):
+            position = {k: index for index, k in enumerate(kept)}
+            observed = [(position[k], row) for k, row in observed]
+            new = [position[k] for k in new]
+            ids, pixels = ids[kept], pixels[kept]
         views = self._views(frame, pixels)
         seen_rows = set()
         if observed:
@@ -341,7 +350,12 @@ class ShadowFilter:
                     dues.append(due)
         # the frame's score tests together (shadow_classifier.classify, one track at a time)
         decisions = []
-        motions, relations = score_tests(dues, noise), three_ray_tests(dues, noise)
+        motions = score_tests(dues, noise)
+        tested = [k for k, due in enumerate(dues) if needs_three_ray(due, motions[k])]
+        relations: list[RelationTest | ValueError | None] = [None] * len(dues)
+        outcomes = three_ray_tests([dues[k] for k in tested], noise)
+        for k, outcome in zip(tested, outcomes, strict=True):
+            relations[k] = outcome
         for due, motion, relation in zip(dues, motions, relations, strict=True):
             decision = decide(due, motion, self._frame, warnings, noise, relation)
             if decision is not None:
@@ -353,7 +367,8 @@ class ShadowFilter:
         centre = np.asarray(frame.centre, dtype=np.float64)
         if rotation.shape != (3, 3) or not np.all(np.isfinite(rotation)):
             raise InputError('camera pose: the rotation is not a finite 3x3 matrix')
-        if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-6):
+        # np.allclose(R'R, I, atol=1e-6) written out (it costs more than the rest of the checks)
+        if not np.all(np.abs(rotation.T @ rotation - _EYE) <= 1e-6 + 1e-5 * _EYE):
             raise InputError('camera pose: the orientation is not a rotation (unnormalized?)')
         if centre.shape != (3,) or not np.all(np.isfinite(centre)):
             raise InputError('camera pose: the position is not 3 finite numbers')
@@ -373,7 +388,7 @@ class ShadowFilter:
         pixels = np.asarray(frame.pixels, dtype=np.float64).reshape(-1, 2)
         if len(ids) != len(pixels):
             raise InputError(f'{len(ids)} feature ids but {len(pixels)} pixel pairs')
-        if len(np.unique(ids)) != len(ids):
+        if len(set(ids.tolist())) != len(ids):
             raise InputError('feature ids repeat within one frame')
         return FrameInput(frame.stamp_ns, rotation, centre, ids, pixels, covariance)
 
