@@ -29,6 +29,7 @@ No NaN leaves this module (``track_fields``):
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -113,6 +114,54 @@ def features_from_message(message: Any) -> Features:
         str(message.header.frame_id),
         ids,
         pixels.reshape(-1, 2),
+    )
+
+
+_FEATURE_TRACK_CDR = np.dtype(
+    {'names': ['id', 'u', 'v'], 'formats': ['<i8', '<f8', '<f8'], 'offsets': [0, 8, 16],
+     'itemsize': 80}
+)  # fmt: skip
+"""One slam_interfaces/FeatureTrack in CDR (id, u, v, covariance[3], warp[4]: 80 bytes)."""
+
+
+def features_from_cdr(data: bytes, deserialize: Callable[[bytes], Any]) -> Features:
+    """Return ``features_from_message`` of a serialized slam_interfaces/FeatureTrackArray,
+    read straight from its CDR bytes (plain CDR, little endian, as every ROS 2 middleware
+    on this machine sends it): deserializing 150 tracks into message objects takes longer
+    than reading them. Anything else (another encapsulation, bytes that do not fit) goes
+    through ``deserialize`` (bytes -> message) and ``features_from_message``; ValueError
+    naming their size and the reason when the bytes are no such message at all."""
+    try:
+        if data[:4] != _CDR_LITTLE_ENDIAN:
+            raise ValueError('not plain little-endian CDR')
+        sec, nanosec, length = struct.unpack_from('<iII', data, 4)
+        if length < 1 or data[15 + length] != 0:
+            raise ValueError('frame_id is not a NUL-terminated string')
+        frame_id = data[16 : 15 + length].decode()
+        offset = 16 + length
+        offset += -(offset - 4) % 4  # CDR alignment counts from after the encapsulation
+        (count,) = struct.unpack_from('<I', data, offset)
+        offset += 4
+        if count:
+            offset += -(offset - 4) % 8
+        if len(data) < offset + 80 * count:
+            raise ValueError('shorter than its tracks')
+        tracks = np.frombuffer(data, dtype=_FEATURE_TRACK_CDR, count=count, offset=offset)
+    except (ValueError, IndexError, struct.error, UnicodeDecodeError):
+        try:
+            message = deserialize(data)
+        except Exception as err:  # rclpy raises its RMWError (not exported) for bad bytes
+            reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+            raise ValueError(
+                f'a features message of {len(data)} bytes is not a '
+                f'slam_interfaces/FeatureTrackArray ({reason})'
+            ) from None
+        return features_from_message(message)
+    return Features(
+        sec * 1_000_000_000 + nanosec,
+        frame_id,
+        tracks['id'].astype(np.int64),
+        np.column_stack([tracks['u'], tracks['v']]).astype(np.float64),
     )
 
 
@@ -330,6 +379,74 @@ def fill_track_array(
     message.header.frame_id = frame_id
     message.tracks = [fill_track(item, make_track()) for item in fields]
     return message
+
+
+_CDR_LITTLE_ENDIAN = b'\x00\x01\x00\x00'
+"""The encapsulation header of a serialized ROS 2 message: plain CDR, little endian."""
+_SHADOW_TRACK_CDR = np.dtype(
+    {
+        'names': [
+            'id', 'status', 'position', 'position_covariance', 'velocity',
+            'velocity_covariance', 'test_statistic', 'test_dof',
+        ],
+        'formats': ['<i8', 'u1', ('<f8', 3), ('<f8', 9), ('<f8', 3), ('<f8', 9), '<f8', '<u4'],
+        'offsets': [0, 8, 16, 40, 112, 136, 208, 216],
+        'itemsize': 224,
+    }
+)  # fmt: skip
+"""One slam_interfaces/ShadowTrack in CDR, 8-byte aligned as in a sequence: 220 bytes of
+fields and 4 of padding before the next one (none after the last)."""
+
+
+def track_array_cdr(
+    reports: Sequence[TrackReport], stamp_ns: int, frame_id: str
+) -> tuple[bytes, list[int]]:
+    """Return a slam_interfaces/ShadowTrackArray of a frame's tracks, serialized (CDR, what
+    rclpy's publish of the message filled by ``track_fields`` and ``fill_track_array``
+    sends), and the ids of the tracks left out (their position is not finite:
+    ``track_fields`` returns None for them). The rules of ``track_fields`` are evaluated for
+    all tracks at once and the bytes written from one structured array: a Python message
+    object per track cost more than the Shadow filter's own work per frame."""
+    count = len(reports)
+    status = np.array([r.status for r in reports], dtype=np.int64).reshape(count)
+    position = np.array([r.position for r in reports], dtype=np.float64).reshape(count, 3)
+    covariance = np.array([r.position_covariance for r in reports], dtype=np.float64)
+    covariance = covariance.reshape(count, 9)
+    velocity = np.array([r.velocity for r in reports], dtype=np.float64).reshape(count, 3)
+    velocity_covariance = np.array([r.velocity_covariance for r in reports], dtype=np.float64)
+    velocity_covariance = velocity_covariance.reshape(count, 9)
+    statistic = np.array([r.test_statistic for r in reports], dtype=np.float64).reshape(count)
+    defined = np.array([r.defined for r in reports], dtype=bool).reshape(count)
+    # the rules of track_fields (module docstring)
+    known = defined | (status == STATIC)
+    covariance[~(known & np.all(np.isfinite(covariance), axis=1))] = UNKNOWN_COVARIANCE
+    moving = np.all(np.isfinite(velocity), axis=1) & np.all(
+        np.isfinite(velocity_covariance), axis=1
+    )
+    velocity[~moving] = 0.0
+    velocity_covariance[~moving] = UNKNOWN_COVARIANCE
+    tested = np.isfinite(statistic)
+    statistic[~tested] = NO_TEST_STATISTIC
+    finite = np.all(np.isfinite(position), axis=1)
+    kept = np.flatnonzero(finite)
+    tracks = np.zeros(len(kept), dtype=_SHADOW_TRACK_CDR)
+    tracks['id'] = [int(reports[k].id) for k in kept.tolist()]
+    tracks['status'] = status[kept]
+    tracks['position'] = position[kept]
+    tracks['position_covariance'] = covariance[kept]
+    tracks['velocity'] = velocity[kept]
+    tracks['velocity_covariance'] = velocity_covariance[kept]
+    tracks['test_statistic'] = statistic[kept]
+    tracks['test_dof'] = [int(reports[k].test_dof) if tested[k] else 0 for k in kept.tolist()]
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    name = frame_id.encode() + b'\0'
+    head = struct.pack('<iII', sec, nanosec, len(name)) + name
+    head += bytes(-len(head) % 4) + struct.pack('<I', len(kept))
+    if len(kept):
+        head += bytes(-len(head) % 8)
+    body = tracks.tobytes()[:-4] if len(kept) else b''
+    left_out = [int(reports[k].id) for k in np.flatnonzero(~finite).tolist()]
+    return _CDR_LITTLE_ENDIAN + head + body, left_out
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,13 @@ they are complete; a primary still waiting for its partner holds back the later 
 
 A primary whose partner has not come once the newest stamp seen is ``horizon_ns`` past it (or
 when the caller flushes because the inputs stopped) is dropped, or released alone (partner
-None) when the caller asks for that (``pop(alone=True)``). A partner no primary paired with
+None) when the caller asks for that (``pop(alone=True)``). With ``in_order_partners`` (the
+partners come in stamp order from one publisher, which may lag behind the primaries by more
+than the horizon) a primary waits for its partner until the partners have passed it instead:
+it is dropped once a partner with a later stamp (beyond the tolerance) has come after it,
+since its own will not come any more. A primary that came after such a partner (the two
+streams' arrival order is not guaranteed), and every primary before the first partner,
+waits by the horizon rule. A partner no primary paired with
 within the horizon is dropped. A primary that is not after the last one handed out, a
 repeated stamp and an overflowing queue (``max_entries`` per stream, the oldest goes first)
 are dropped too. Every input let go comes back once as a ``Drop`` whose text names it.
@@ -72,8 +78,18 @@ class StampSync(Generic[P, Q]):
     """Pairs primary items with partner items by stamp (module docstring)."""
 
     def __init__(
-        self, *, tolerance_ns: int, horizon_ns: int, max_entries: int, names: SyncNames
+        self,
+        *,
+        tolerance_ns: int,
+        horizon_ns: int,
+        max_entries: int,
+        names: SyncNames,
+        in_order_partners: bool = False,
     ) -> None:
+        self.in_order_partners = in_order_partners
+        self._newest_partner_ns: int | None = None
+        # in_order_partners: the newest partner stamp when each waiting primary came
+        self._partner_at_arrival: dict[int, int | None] = {}
         self.tolerance_ns = tolerance_ns
         self.horizon_ns = horizon_ns
         self.max_entries = max_entries
@@ -113,6 +129,12 @@ class StampSync(Generic[P, Q]):
             where = f'{names.primary} at stamp {stamp_ns} ns'
             return [Drop('repeated', stamp_ns, f'{where} dropped: one with this stamp is waiting')]
         self._primaries.insert(bisect.bisect(stamps, stamp_ns), item)
+        self._partner_at_arrival[stamp_ns] = self._newest_partner_ns
+        if len(self._partner_at_arrival) > 2 * self.max_entries + 2:  # forget those handed out
+            waiting = {p.stamp_ns for p in self._primaries}
+            self._partner_at_arrival = {
+                k: v for k, v in self._partner_at_arrival.items() if k in waiting
+            }
         self._seen_ns.append(stamp_ns)
         self._see(stamp_ns)
         drops = []
@@ -135,6 +157,8 @@ class StampSync(Generic[P, Q]):
             return [Drop('repeated', stamp_ns, f'{where} dropped: one with this stamp is waiting')]
         self._partners.insert(bisect.bisect(stamps, stamp_ns), item)
         self._see(stamp_ns)
+        if self._newest_partner_ns is None or stamp_ns > self._newest_partner_ns:
+            self._newest_partner_ns = stamp_ns
         drops = []
         while len(self._partners) > self.max_entries:
             oldest = self._partners.pop(0).stamp_ns
@@ -170,7 +194,7 @@ class StampSync(Generic[P, Q]):
                     f'processed last ({self._last_ns} ns); frames must come in stamp order'
                 )
                 drops.append(Drop('out_of_order', stamp_ns, text))
-            elif flush or self._expired(stamp_ns):
+            elif flush or self._primary_expired(stamp_ns):
                 if alone and not hold:
                     pairs.append((self._primaries.pop(0), None))
                     self._handed_out(stamp_ns)
@@ -183,10 +207,13 @@ class StampSync(Generic[P, Q]):
 
     def _missing_partner(self, stamp_ns: int) -> Drop:
         names = self.names
+        if self._passed(stamp_ns):
+            why = f'before a later one (stamp {self._newest_partner_ns} ns)'
+        else:
+            why = f'within sync_horizon_s ({self.horizon_ns / 1e9:g} s)'
         text = (
             f'{names.primary} at stamp {stamp_ns} ns dropped: no {names.partner} with its '
-            f'stamp came on {names.partner_topic} within sync_horizon_s '
-            f'({self.horizon_ns / 1e9:g} s)'
+            f'stamp came on {names.partner_topic} {why}'
         )
         return Drop(names.missing_partner_kind, stamp_ns, text)
 
@@ -197,6 +224,25 @@ class StampSync(Generic[P, Q]):
     def _see(self, stamp_ns: int) -> None:
         if self._newest_ns is None or stamp_ns > self._newest_ns:
             self._newest_ns = stamp_ns
+
+    def _ahead(self, partner_ns: int | None, stamp_ns: int) -> bool:
+        return partner_ns is not None and partner_ns > stamp_ns + self.tolerance_ns
+
+    def _passed(self, stamp_ns: int) -> bool:
+        """in_order_partners: a partner later than this waiting primary came after it."""
+        return (
+            self.in_order_partners
+            and self._ahead(self._newest_partner_ns, stamp_ns)
+            and not self._ahead(self._partner_at_arrival.get(stamp_ns), stamp_ns)
+        )
+
+    def _primary_expired(self, stamp_ns: int) -> bool:
+        """Whether a primary still without its partner will not get one (module docstring)."""
+        if not self.in_order_partners or self._newest_partner_ns is None:
+            return self._expired(stamp_ns)
+        if self._ahead(self._partner_at_arrival.get(stamp_ns), stamp_ns):
+            return self._expired(stamp_ns)  # it came after a later partner
+        return self._passed(stamp_ns)
 
     def _expired(self, stamp_ns: int) -> bool:
         return self._newest_ns is not None and stamp_ns < self._newest_ns - self.horizon_ns
@@ -256,8 +302,11 @@ def features_and_poses(pose_topic: str) -> SyncNames:
 
 class FrameSynchronizer:
     """Pairs feature frames with camera poses by stamp, and hands pairs out in stamp order
-    (module docstring; a frame whose pose never comes is dropped). Every input that is let
-    go comes back once as a ``Drop``."""
+    (module docstring; a frame whose pose never comes is dropped). The poses come in stamp
+    order from the SLAM filter, later than the frames by its processing time (which can
+    exceed the horizon when it lags): a frame waits for its pose until a later pose has come
+    (``in_order_partners``), not for a fixed time. Every input that is let go comes back once
+    as a ``Drop``."""
 
     def __init__(
         self, *, tolerance_ns: int, horizon_ns: int, max_entries: int, pose_topic: str
@@ -267,6 +316,7 @@ class FrameSynchronizer:
             horizon_ns=horizon_ns,
             max_entries=max_entries,
             names=features_and_poses(pose_topic),
+            in_order_partners=True,
         )
 
     @property

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from monoslam_shadow_node.conversions import Features, FloatArray, IntArray, features_from_message
+from monoslam_shadow_node.conversions import FloatArray, IntArray
 from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamResult
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
@@ -123,47 +123,6 @@ FEATURE_TRACK_DTYPE = np.dtype(
 CDR_LITTLE_ENDIAN = b'\x00\x01'
 """The encapsulation header's first two bytes for plain little-endian CDR (what the rmw
 layers send for ROS 2 messages)."""
-
-
-def features_from_cdr(data: bytes) -> Features | None:
-    """Return the Features of a serialized slam_interfaces/FeatureTrackArray, its tracks read
-    in one numpy view instead of a Python object per track; None when the data is not plain
-    little-endian CDR or does not parse (deserialize it as a message then). CDR: after the
-    4-byte encapsulation header, header.stamp (int32 sec, uint32 nanosec), header.frame_id
-    (uint32 length with the NUL, the bytes), the track count (uint32, 4-aligned), then the
-    tracks (8-aligned; alignment counts from the end of the encapsulation header)."""
-    try:
-        if data[:2] != CDR_LITTLE_ENDIAN:
-            return None
-        sec, nanosec, length = struct.unpack_from('<iII', data, 4)
-        end = 16 + length
-        frame_id = bytes(data[16 : end - 1]).decode('utf-8') if length else ''
-        offset = end + (-(end - 4) % 4)
-        (count,) = struct.unpack_from('<I', data, offset)
-        offset += 4 + (-offset % 8)  # to 8-aligned from the body (byte 4) on
-        tracks = np.frombuffer(data, FEATURE_TRACK_DTYPE, count, offset if count else 0)
-    except (ValueError, struct.error, UnicodeDecodeError):
-        return None
-    pixels = np.column_stack([tracks['u'], tracks['v']]).astype(np.float64)
-    stamp_ns = int(sec) * 1_000_000_000 + int(nanosec)
-    return Features(stamp_ns, frame_id, tracks['id'].astype(np.int64), pixels.reshape(-1, 2))
-
-
-def read_features(data: bytes, deserialize: Callable[[bytes], Any]) -> Features:
-    """Return the Features of serialized FeatureTrackArray bytes: ``features_from_cdr``, else
-    ``deserialize`` (rclpy's, for the message) and ``features_from_message``; ValueError
-    naming the size and the reason when the bytes are no such message."""
-    features = features_from_cdr(data)
-    if features is not None:
-        return features
-    try:
-        message = deserialize(data)
-    except Exception as err:  # rclpy raises its RMWError (not exported) for bad bytes
-        raise ValueError(
-            f'a features message of {len(data)} bytes is not a slam_interfaces/'
-            f'FeatureTrackArray ({str(err).splitlines()[0] if str(err) else type(err).__name__})'
-        ) from None
-    return features_from_message(message)
 
 
 def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> TargetSighting:
@@ -351,8 +310,8 @@ def predictions_cdr(
     warps: FloatArray | None = None,
 ) -> bytes:
     """Return the slam_interfaces/FeatureTrackArray of ``fill_predictions`` serialized
-    (little-endian CDR, ``features_from_cdr``'s layout), built in one numpy array instead of
-    a Python object per track: the bytes rclpy makes of that message."""
+    (little-endian CDR, the layout ``conversions.features_from_cdr`` reads), built in one
+    numpy array instead of a Python object per track: the bytes rclpy makes of that message."""
     pixels, upper, flat, finite = prediction_rows(pixels, covariances, warps)
     tracks = np.zeros(int(np.count_nonzero(finite)), FEATURE_TRACK_DTYPE)
     tracks['id'] = np.asarray(ids, dtype=np.int64)[finite]

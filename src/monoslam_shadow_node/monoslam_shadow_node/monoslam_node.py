@@ -198,7 +198,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from monoslam_shadow_node.conversions import CameraInfoWatch, Features
+from monoslam_shadow_node.conversions import CameraInfoWatch, Features, features_from_cdr
 from monoslam_shadow_node.core.monoslam import MonoSlam
 from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamResult
 from monoslam_shadow_node.frame_sync import StampSync
@@ -215,7 +215,6 @@ from monoslam_shadow_node.monoslam_conversions import (
     fill_transform,
     handovers_from_message,
     predictions_cdr,
-    read_features,
     revoked_ids,
     target_from_fiducials,
     tum_text,
@@ -440,10 +439,10 @@ class MonoSlamNode(Node):
             self.get_logger().warning(update.text)
         self._handle(self.processor.set_camera(update.camera))
 
-    def _on_features(self, data: bytes) -> None:  # taken serialized: ``read_features``
+    def _on_features(self, data: bytes) -> None:  # taken serialized: ``features_from_cdr``
         self._last_input = time.monotonic()
         try:
-            features = read_features(data, self._deserialize_features)
+            features = features_from_cdr(data, self._deserialize_features)
         except ValueError as err:  # not what a publisher of the type sends: counted, dropped
             self._handle(self.processor.reject('undecodable', str(err)))
             return

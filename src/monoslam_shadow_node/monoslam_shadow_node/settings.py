@@ -123,14 +123,14 @@ NODE_PARAMETERS = (
     Param(
         'sync_horizon_s',
         1.0,
-        'how long (stamp time) a frame waits for its partner before it is dropped, s '
-        '(> stamp_tolerance_s)',
+        'how long (stamp time) a pose waits for its frame, and a frame for its pose before '
+        'the first pose, before it is dropped, s (> stamp_tolerance_s)',
         range=POSITIVE,
     ),
     Param(
         'queue_size',
-        100,
-        'feature frames and poses held while waiting, each',
+        300,
+        'feature frames and poses held while waiting, each (300: 10 s of a 30 Hz camera)',
         range=AT_LEAST_ONE,
     ),
     Param('publish_markers', True, 'publish shadow/markers for RViz'),

@@ -10,7 +10,8 @@ messages, hands them to it, publishes the processed frames and logs what it repo
 
 Topics:
   subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100): track ids
-              and raw (distorted) pixels of one image, header.stamp = the image stamp.
+              and raw (distorted) pixels of one image, header.stamp = the image stamp
+              (taken serialized and read from the CDR bytes: conversions.features_from_cdr).
               <pose_topic> (default monoslam/pose; geometry_msgs/PoseWithCovarianceStamped,
               reliable, depth 100): the pose of the camera OPTICAL frame (x right, y down,
               z forward) in the world frame header.frame_id, i.e. R_world_camera and the
@@ -55,11 +56,18 @@ No NaN is ever published (details in conversions):
 Synchronization: features and poses pair when their stamps differ by at most
 stamp_tolerance_s (default 0: equal stamps), nearest first. Frames are processed in stamp
 order as soon as paired; a frame that still waits for its pose holds back the later ones.
-A features frame whose pose has not come once the newest stamp seen is sync_horizon_s past
-it (or no input came for sync_horizon_s of wall time) is dropped, as is a pose no features
-frame paired with within the horizon; each drop is logged once with its stamp. Each queue
-holds at most queue_size entries (the oldest goes first). While no camera_info or no pose at
-all has come yet, the drops are summarized in a line every few seconds instead.
+The poses come in stamp order, after the features by SLAM's processing time, which can be
+longer than the horizon while SLAM lags: a features frame waits for its pose until a pose
+with a later stamp has come (SLAM skipped the frame: it is dropped then), however late, up
+to queue_size frames. Before the first pose, and for a frame that came after a later pose,
+a frame whose pose has not come once the newest stamp seen is sync_horizon_s past it is
+dropped. A frame still waiting when no input came for sync_horizon_s of wall time is
+dropped, as is a pose no features frame paired with within the horizon; each drop is logged
+once with its stamp. Each queue holds at most queue_size entries (the oldest goes first).
+While no camera_info or no pose at all has come yet, the drops are summarized in a line
+every few seconds instead. (Until issue 22 a frame also went once the newest features stamp
+was sync_horizon_s past it: when SLAM lagged by more than that, every frame was dropped and
+then its late pose too.)
 
 Bad input is logged with its culprit and the node goes on: features before any camera_info
 (held and processed once it arrives), a pose or features frame without partner (dropped as
@@ -98,8 +106,10 @@ config/shadow_filter.yaml (a test keeps the two equal).
 Parameters (node):
   pose_topic ('monoslam/pose')    camera pose topic.
   stamp_tolerance_s (0.0)         largest features-to-pose stamp difference, s.
-  sync_horizon_s (1.0)            how long a frame waits for its partner, s (stamp time).
-  queue_size (100)                waiting feature frames and poses, each.
+  sync_horizon_s (1.0)            how long a pose waits for its frame, and a frame for its
+                                  pose before the first pose, s (stamp time; see above).
+  queue_size (300)                waiting feature frames and poses, each (10 s at 30 Hz:
+                                  how far SLAM's poses may lag before frames are dropped).
   publish_markers (true)          publish shadow/markers.
 All are read-only; a bad value stops the node with an error naming the parameter.
 
@@ -117,6 +127,7 @@ from typing import Any
 from geometry_msgs.msg import Point, PoseWithCovarianceStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
@@ -127,13 +138,14 @@ from monoslam_shadow_node.conversions import (
     FloatArray,
     MarkerTypes,
     TrackFields,
+    features_from_cdr,
     features_from_message,
     fill_markers,
     fill_track_array,
     handover_fields,
     pose_from_message,
     revoked_from_message,
-    track_fields,
+    track_array_cdr,
 )
 from monoslam_shadow_node.core.shadow_filter import FrameResult, ShadowFilter
 from monoslam_shadow_node.frame_sync import FrameSynchronizer
@@ -156,6 +168,10 @@ REVOKED_TOPIC = 'monoslam/revoked'
 INPUT_DEPTH = 100
 STATUS_PERIOD_S = 10.0
 WAITING_LOG_PERIOD_S = 5.0
+
+
+def _deserialize_features(data: bytes) -> FeatureTrackArray:
+    return deserialize_message(data, FeatureTrackArray)
 
 
 class ShadowFilterNode(Node):
@@ -193,9 +209,11 @@ class ShadowFilterNode(Node):
         self.diagnostics = Diagnostics(self, self._counts)
         timed = self.diagnostics.timed
         inputs = output_qos(depth=INPUT_DEPTH)
+        # taken serialized: features_from_cdr reads the ids and pixels from the bytes
         self.create_subscription(
-            FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs
-        )
+            FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs,
+            raw=True,
+        )  # fmt: skip
         self.create_subscription(
             PoseWithCovarianceStamped,
             self.settings.pose_topic,
@@ -258,9 +276,18 @@ class ShadowFilterNode(Node):
             self.get_logger().warning(update.text)
         self._handle(self.processor.set_camera(update.camera))
 
-    def _on_features(self, message: FeatureTrackArray) -> None:
+    def _on_features(self, message: bytes | FeatureTrackArray) -> None:
         self._last_input = time.monotonic()
-        self._handle(self.processor.add_features(features_from_message(message)))
+        try:
+            features = (
+                features_from_message(message)
+                if isinstance(message, FeatureTrackArray)
+                else features_from_cdr(message, _deserialize_features)
+            )
+        except ValueError as err:  # not what a publisher of the type sends: counted, dropped
+            self._handle(self.processor.reject('undecodable', str(err)))
+            return
+        self._handle(self.processor.add_features(features))
 
     def _on_pose(self, message: PoseWithCovarianceStamped) -> None:
         self._last_input = time.monotonic()
@@ -295,10 +322,9 @@ class ShadowFilterNode(Node):
         log_notice(self.get_logger(), notice, self._throttle, time.monotonic())
 
     def _publish(self, result: FrameResult, frame_id: str) -> None:
-        tracks = self._finite([(t.id, track_fields(t)) for t in result.tracks], result)
-        self.tracks_publisher.publish(
-            fill_track_array(tracks, result.stamp_ns, frame_id, ShadowTrackArray(), ShadowTrack)
-        )
+        serialized, left_out = track_array_cdr(result.tracks, result.stamp_ns, frame_id)
+        self._left_out(left_out, result)
+        self.tracks_publisher.publish(serialized)
         if result.handovers:
             tests = {t.id: (t.test_statistic, t.test_dof) for t in result.tracks}
             handed = self._finite(
@@ -329,14 +355,16 @@ class ShadowFilterNode(Node):
     def _finite(
         self, items: list[tuple[int, TrackFields | None]], result: FrameResult
     ) -> list[TrackFields]:
-        left_out = [track_id for track_id, fields in items if fields is None]
+        self._left_out([track_id for track_id, fields in items if fields is None], result)
+        return [fields for _, fields in items if fields is not None]
+
+    def _left_out(self, left_out: list[int], result: FrameResult) -> None:
         if left_out:
             self.omitted += len(left_out)
             self.get_logger().error(
                 f'frame at stamp {result.stamp_ns} ns: features {left_out} left out of the '
                 'output, their estimate is not finite (a Shadow filter fault)'
             )
-        return [fields for _, fields in items if fields is not None]
 
     def _report_status(self) -> None:
         now = time.monotonic()

@@ -12,9 +12,10 @@ Rules:
 
 - Pairing (``frame_sync.FrameSynchronizer``): a features frame pairs with the pose whose
   stamp is nearest within ``stamp_tolerance_ns``; pairs are processed in stamp order; a frame
-  whose pose has not come within ``sync_horizon_ns`` (or when the caller flushes because the
-  inputs stopped) is dropped, as is a pose that matched no frame. Until the camera is set,
-  frames are held (the oldest dropped beyond ``queue_size``).
+  whose pose will not come (a later pose came after it; before the first pose: not within
+  ``sync_horizon_ns``), or is still missing when the caller flushes because the inputs
+  stopped, is dropped, as is a pose that matched no frame within ``sync_horizon_ns``. Until
+  the camera is set, frames are held (the oldest dropped beyond ``queue_size``).
 - Every frame with a pose is given to the filter, however uncertain the pose: the core
   adds the pose covariance to each view's ray, so an uncertain pose weakens the tests and
   delays the decisions (a feature whose ``max_tests`` tests all come before they could see
@@ -123,7 +124,7 @@ class ShadowProcessor:
         *,
         stamp_tolerance_ns: int = 0,
         sync_horizon_ns: int = 1_000_000_000,
-        queue_size: int = 100,
+        queue_size: int = 300,
         pose_topic: str = 'monoslam/pose',
         camera_info_topic: str = 'camera/camera_info',
     ) -> None:
@@ -234,6 +235,10 @@ class ShadowProcessor:
             self.counts.innovation_gated += GATE_WARNING in warning
             notices.append(Notice('filter', 'debug', text, result.stamp_ns))
         return notices
+
+    def reject(self, kind: str, text: str) -> list[Outcome]:
+        """Count an input the node could not read as dropped (``kind``) and say why."""
+        return self._drops([Drop(kind, 0, text)])
 
     def _drops(self, drops: Sequence[Drop]) -> list[Outcome]:
         """Count every drop and say it once; a steady state (no camera or no pose at all yet,

@@ -1,7 +1,7 @@
-"""monoslam reads its features serialized (``features_from_cdr``): the same ids, pixels, stamp
-and frame as the message rclpy deserializes, for every alignment of the frame id; and it
-publishes its predictions serialized (``predictions_cdr``): the message ``fill_predictions``
-fills, as rclpy deserializes the bytes."""
+"""monoslam reads its features serialized (``conversions.features_from_cdr``): the same ids,
+pixels, stamp and frame as the message rclpy deserializes, for every alignment of the frame
+id; and it publishes its predictions serialized (``predictions_cdr``): the message
+``fill_predictions`` fills, as rclpy deserializes the bytes."""
 
 from __future__ import annotations
 
@@ -9,12 +9,10 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 
-from monoslam_shadow_node.conversions import features_from_message
+from monoslam_shadow_node.conversions import features_from_cdr, features_from_message
 from monoslam_shadow_node.monoslam_conversions import (
-    features_from_cdr,
     fill_predictions,
     predictions_cdr,
-    read_features,
 )
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
 
@@ -40,7 +38,7 @@ def message(frame_id: str, count: int, seed: int) -> FeatureTrackArray:
 @pytest.mark.parametrize('count', [0, 1, 3, 150])
 def test_serialized_features_read_as_the_message(frame_id: str, count: int) -> None:
     sent = message(frame_id, count, seed=count)
-    features = features_from_cdr(serialize_message(sent))
+    features = features_from_cdr(serialize_message(sent), deserialize)
     expected = features_from_message(sent)
     assert features is not None
     assert (features.stamp_ns, features.frame_id) == (expected.stamp_ns, expected.frame_id)
@@ -49,11 +47,24 @@ def test_serialized_features_read_as_the_message(frame_id: str, count: int) -> N
     assert np.array_equal(features.pixels, expected.pixels)
 
 
-def test_other_encodings_and_truncated_data_are_left_to_the_deserializer() -> None:
-    data = serialize_message(message('camera', 5, seed=1))
-    assert features_from_cdr(b'\x00\x00' + data[2:]) is None  # big-endian CDR
-    assert features_from_cdr(data[:-8]) is None
-    assert features_from_cdr(b'') is None
+def deserialize(raw: bytes) -> FeatureTrackArray:
+    return deserialize_message(raw, FeatureTrackArray)
+
+
+def test_other_encodings_go_to_the_deserializer_and_bytes_of_no_message_are_refused() -> None:
+    sent = message('camera', 5, seed=1)
+    data = serialize_message(sent)
+    calls: list[int] = []
+
+    def counted(raw: bytes) -> FeatureTrackArray:
+        calls.append(len(raw))
+        return sent
+
+    big_endian = features_from_cdr(b'\x00\x00' + data[2:], counted)  # left to the deserializer
+    assert calls == [len(data)] and np.array_equal(big_endian.ids, [t.id for t in sent.tracks])
+    for cut in (0, 3, 17, len(data) - 8):
+        with pytest.raises(ValueError, match=rf'features message of {cut} bytes is not a '):
+            features_from_cdr(data[:cut], deserialize)
 
 
 def fields(array: FeatureTrackArray) -> tuple[object, ...]:
@@ -86,16 +97,3 @@ def test_serialized_predictions_are_the_filled_message(
     )
     assert len(data) == len(serialize_message(filled))
     assert fields(deserialize_message(data, FeatureTrackArray)) == fields(filled)
-
-
-def test_bytes_that_are_no_features_message_are_refused_by_name() -> None:
-    data = serialize_message(message('camera', 3, 7))
-
-    def deserialize(raw: bytes) -> object:
-        return deserialize_message(raw, FeatureTrackArray)
-
-    whole = read_features(data, deserialize)
-    np.testing.assert_array_equal(whole.ids, [t.id for t in message('camera', 3, 7).tracks])
-    for cut in (0, 3, 17, len(data) - 5):
-        with pytest.raises(ValueError, match=rf'features message of {cut} bytes is not a '):
-            read_features(data[:cut], deserialize)

@@ -7,7 +7,12 @@ import pytest
 
 from monoslam_shadow_node.core import shadow_filter as shadow_filter_module
 from monoslam_shadow_node.core.rays import View
-from monoslam_shadow_node.core.shadow_classifier import UNFIT_TESTS, ClassifierConfig, classify
+from monoslam_shadow_node.core.shadow_classifier import (
+    UNFIT_TESTS,
+    ClassifierConfig,
+    classify,
+    due_test,
+)
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
     initial_states,
@@ -274,11 +279,11 @@ def test_a_revoked_feature_comes_back_as_a_suspect_with_fresh_views(
     assert shadow.suspect_ids == {revoked} and revoked not in shadow.released_ids
     rules: dict[bool, set[int]] = {True: set(), False: set()}
 
-    def spy(track, position, visibility, frame, settings, warnings, noise):  # type: ignore[no-untyped-def]
+    def spy(track, position, visibility, frame, settings, noise):  # type: ignore[no-untyped-def]
         rules[track.id == revoked].add(settings.unchecked_directions)
-        return classify(track, position, visibility, frame, settings, warnings, noise)
+        return due_test(track, position, visibility, frame, settings, noise)
 
-    monkeypatch.setattr(shadow_filter_module, 'classify', spy)
+    monkeypatch.setattr(shadow_filter_module, 'due_test', spy)
     result = shadow.process(frames[index])
     (report,) = [t for t in result.tracks if t.id == revoked]
     assert report.status == PENDING and report.first_frame == index  # fresh views only

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 from geometry_msgs.msg import Point
+from rclpy.serialization import deserialize_message, serialize_message
 from scipy.spatial.transform import Rotation
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
@@ -21,10 +22,10 @@ from monoslam_shadow_node.conversions import (
     NO_TEST_STATISTIC,
     UNKNOWN_COVARIANCE,
     CameraPose,
-    Features,
     MarkerTypes,
     camera_from_info,
     camera_info_key,
+    features_from_cdr,
     features_from_message,
     fill_markers,
     fill_track_array,
@@ -32,15 +33,15 @@ from monoslam_shadow_node.conversions import (
     handover_fields,
     pose_from_message,
     rotation_from_quaternion,
+    track_array_cdr,
     track_fields,
 )
 from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.core.shadow_ekf import EkfConfig
 from monoslam_shadow_node.core.shadow_filter import Handover, ShadowConfig, TrackReport
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
-from monoslam_shadow_node.frame_sync import FrameSynchronizer
 from slam_core.errors import ParameterError
-from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
+from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
 from slam_ros.testing.node_contract import (
     config_mismatches,
@@ -75,7 +76,7 @@ def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None
     assert settings.shadow_config(values) == ShadowConfig()
     node = settings.node_settings(values)
     assert node.pose_topic == 'monoslam/pose' and node.stamp_tolerance_ns == 0
-    assert node.sync_horizon_ns == 10**9 and node.queue_size == 100 and node.publish_markers
+    assert node.sync_horizon_ns == 10**9 and node.queue_size == 300 and node.publish_markers
 
 
 def test_every_core_setting_has_a_parameter() -> None:
@@ -339,6 +340,85 @@ def test_track_arrays_are_filled() -> None:
     assert list(message.tracks[0].velocity_covariance) == [0.25, 0, 0, 0, 0.25, 0, 0, 0, 0.25]
 
 
+def _plain_tracks(message: Any) -> tuple[object, ...]:
+    return (
+        message.header.stamp.sec,
+        message.header.stamp.nanosec,
+        message.header.frame_id,
+        [
+            (t.id, t.status, t.position.x, t.position.y, t.position.z,
+             list(t.position_covariance), t.velocity.x, t.velocity.y, t.velocity.z,
+             list(t.velocity_covariance), t.test_statistic, t.test_dof)
+            for t in message.tracks
+        ],
+    )  # fmt: skip
+
+
+def test_serialized_track_arrays_are_the_filled_messages() -> None:
+    """track_array_cdr writes the bytes of the message track_fields and fill_track_array
+    make (the same fields under every rule), for any frame id and number of tracks."""
+    rng = np.random.default_rng(4)
+    reports = [
+        _report(
+            id=int(rng.integers(-(2**62), 2**62)), status=k % 3, position=rng.normal(size=3),
+            position_covariance=rng.normal(size=(3, 3)), velocity=rng.normal(size=3),
+            velocity_covariance=rng.normal(size=(3, 3)), test_statistic=float(rng.normal()),
+            defined=bool(k % 2),
+        )
+        for k in range(9)
+    ] + [
+        _report(id=50, position=np.array([math.nan, 0.0, 0.0])),  # left out
+        _report(id=51, velocity=np.array([math.inf, 0.0, 0.0])),
+        _report(id=52, test_statistic=math.nan, test_dof=0, defined=False),
+        _report(id=53, position_covariance=np.full((3, 3), math.nan)),
+        _report(id=54, status=STATIC, defined=False),
+    ]  # fmt: skip
+    stamp_ns = 1_795_776_332_163_581_199
+    for frame_id in ('', 'm', 'map', 'monoslam_map', 'abcdefg'):
+        for count in (0, 1, 2, len(reports)):
+            fields = [track_fields(report) for report in reports[:count]]
+            message = fill_track_array(
+                [f for f in fields if f is not None], stamp_ns, frame_id, ShadowTrackArray(),
+                ShadowTrack,
+            )  # fmt: skip
+            data, left_out = track_array_cdr(reports[:count], stamp_ns, frame_id)
+            assert len(data) == len(serialize_message(message))  # padding bytes may differ
+            assert _plain_tracks(deserialize_message(data, ShadowTrackArray)) == _plain_tracks(
+                message
+            )
+            held = zip(reports[:count], fields, strict=True)
+            assert left_out == [r.id for r, f in held if f is None]
+
+
+def test_feature_frames_are_read_from_their_bytes() -> None:
+    rng = np.random.default_rng(5)
+    for frame_id in ('', 'c', 'cam', 'camera_optical_frame', 'caméra'):
+        for count in (0, 1, 2, 150):
+            message = FeatureTrackArray()
+            message.header.frame_id = frame_id
+            message.header.stamp.sec, message.header.stamp.nanosec = 1_795_776_332, 163_581_199
+            message.tracks = [
+                FeatureTrack(
+                    id=int(rng.integers(-(2**62), 2**62)), u=float(rng.normal()),
+                    v=float(rng.normal()), covariance=rng.normal(size=3), warp=rng.normal(size=4),
+                )
+                for _ in range(count)
+            ]  # fmt: skip
+            read = features_from_cdr(serialize_message(message), _unexpected)
+            expected = features_from_message(message)
+            assert (read.stamp_ns, read.frame_id) == (expected.stamp_ns, expected.frame_id)
+            np.testing.assert_array_equal(read.ids, expected.ids)
+            np.testing.assert_array_equal(read.pixels, expected.pixels)
+            assert read.ids.dtype == np.int64 and read.pixels.shape == (count, 2)
+    # bytes that are not plain little-endian CDR go through the deserializer
+    other = features_from_cdr(b'\x00\x00' + serialize_message(message)[2:], lambda _: message)
+    assert len(other.ids) == 150
+
+
+def _unexpected(data: bytes) -> Any:
+    raise AssertionError('the bytes were read directly')
+
+
 def test_markers_colour_the_statuses_and_draw_dynamic_trajectories() -> None:
     trajectory = np.array([[1.0, 0.0, 1.0], [1.1, 0.0, 1.0], [math.nan, 0.0, 0.0]])
     reports = [
@@ -373,114 +453,6 @@ def test_markers_colour_the_statuses_and_draw_dynamic_trajectories() -> None:
 
 
 # --- synchronizer --------------------------------------------------------------------------
-
-
-def _sync(tolerance_ns: int = 0, horizon_ns: int = 300 * MS, size: int = 5) -> FrameSynchronizer:
-    return FrameSynchronizer(
-        tolerance_ns=tolerance_ns, horizon_ns=horizon_ns, max_entries=size, pose_topic='pose'
-    )
-
-
-def _features(stamp_ns: int) -> Features:
-    return Features(stamp_ns, 'camera', np.array([1]), np.array([[1.0, 2.0]]))
-
-
-def _pose(stamp_ns: int) -> CameraPose:
-    return CameraPose(stamp_ns, 'map', np.eye(3), np.zeros(3), None)
-
-
-def _stamps(pairs: list[tuple[Features, CameraPose]]) -> list[tuple[int, int]]:
-    return [(f.stamp_ns, p.stamp_ns) for f, p in pairs]
-
-
-def test_frames_pair_by_stamp_in_either_arrival_order() -> None:
-    sync = _sync()
-    assert sync.add_pose(_pose(100 * MS)) == []
-    assert sync.pop() == ([], [])
-    sync.add_features(_features(100 * MS))
-    sync.add_features(_features(133 * MS))
-    pairs, drops = sync.pop()
-    assert _stamps(pairs) == [(100 * MS, 100 * MS)] and drops == []
-    sync.add_pose(_pose(133 * MS))
-    assert _stamps(sync.pop()[0]) == [(133 * MS, 133 * MS)]
-    assert sync.waiting_features == sync.waiting_poses == 0
-
-
-def test_tolerance_pairs_the_nearest_pose() -> None:
-    sync = _sync(tolerance_ns=2 * MS)
-    sync.add_pose(_pose(99 * MS))
-    sync.add_pose(_pose(101 * MS + 500_000))
-    sync.add_features(_features(100 * MS + 900_000))
-    assert _stamps(sync.pop()[0]) == [(100 * MS + 900_000, 101 * MS + 500_000)]
-
-
-def test_hold_waits_for_the_camera_then_releases_in_stamp_order() -> None:
-    sync = _sync()
-    for stamp in (200, 100):
-        sync.add_features(_features(stamp * MS))
-        sync.add_pose(_pose(stamp * MS))
-    assert sync.pop(hold=True) == ([], [])
-    assert _stamps(sync.pop()[0]) == [(100 * MS, 100 * MS), (200 * MS, 200 * MS)]
-
-
-def test_unpaired_frames_and_poses_are_dropped_after_the_horizon() -> None:
-    sync = _sync()
-    sync.add_features(_features(100 * MS))  # its pose never comes
-    sync.add_pose(_pose(105 * MS))  # no features with this stamp
-    sync.add_features(_features(133 * MS))
-    sync.add_pose(_pose(133 * MS))
-    assert sync.pop() == ([], [])  # frame 133 waits behind frame 100
-    sync.add_features(_features(450 * MS))
-    pairs, drops = sync.pop()
-    assert _stamps(pairs) == [(133 * MS, 133 * MS)]
-    assert [(d.kind, d.stamp_ns) for d in drops] == [
-        ('no_pose', 100 * MS),
-        ('no_features', 105 * MS),
-    ]
-    assert drops[0].text.startswith(
-        f'features frame at stamp {100 * MS} ns dropped: no camera pose'
-    )
-    assert drops[1].text.startswith(
-        f'camera pose at stamp {105 * MS} ns on pose matches no features'
-    )
-    assert f'nearest features stamp {100 * MS} ns, -5.000 ms away' in drops[1].text
-
-
-def test_flush_drops_frames_without_pose_when_the_inputs_stop() -> None:
-    sync = _sync()
-    sync.add_features(_features(100 * MS))
-    sync.add_features(_features(133 * MS))
-    sync.add_pose(_pose(133 * MS))
-    pairs, drops = sync.pop(flush=True)
-    assert _stamps(pairs) == [(133 * MS, 133 * MS)]
-    assert [(d.kind, d.stamp_ns) for d in drops] == [('no_pose', 100 * MS)]
-
-
-def test_out_of_order_repeated_and_overflowing_inputs_are_named() -> None:
-    sync = _sync(size=2)
-    sync.add_features(_features(200 * MS))
-    sync.add_pose(_pose(200 * MS))
-    sync.pop()
-    sync.add_features(_features(100 * MS))
-    _, drops = sync.pop()
-    assert [str(d) for d in drops] == [
-        f'features frame at stamp {100 * MS} ns dropped: not after the frame processed last '
-        f'({200 * MS} ns); frames must come in stamp order'
-    ]
-    sync.add_pose(_pose(100 * MS))
-    sync.add_features(_features(900 * MS))
-    assert sync.pop()[1] == []  # the late frame's pose goes quietly: it was reported already
-    assert sync.add_features(_features(900 * MS))[0].kind == 'repeated'
-    assert sync.add_pose(_pose(950 * MS)) == []
-    assert 'one with this stamp is waiting' in sync.add_pose(_pose(950 * MS))[0].text
-    sync.add_features(_features(1000 * MS))
-    overflow = sync.add_features(_features(1100 * MS))
-    assert [str(d) for d in overflow] == [
-        f'features frame at stamp {900 * MS} ns dropped: queue_size=2 frames are waiting already'
-    ]
-
-
-# --- launch file ---------------------------------------------------------------------------
 
 
 def test_launch_file_starts_the_installed_executable_with_its_config(

@@ -35,8 +35,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from monoslam_shadow_node.core.projective import (
+    RANK_TOLERANCE,
     FloatArray,
     RelationTest,
+    chi2_quantile,
     join_point_line,
     join_points,
     line_coplanarity,
@@ -53,9 +55,10 @@ from slam_core.geometry.so3 import skew
 THREE_RAY_DOF = 3
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False)
 class View:
-    """One sighting of a feature, everything in the world frame.
+    """One sighting of a feature, everything in the world frame (a record the Shadow filter
+    makes for every feature in every frame: not frozen, which costs a fifth to build).
 
     ``centre`` (3,) m is the camera centre, ``direction`` (3,) the unit viewing ray,
     ``direction_covariance`` (3, 3) its covariance from the pixel noise alone (rank 2),
@@ -147,6 +150,57 @@ def viewing_line(view: View, origin: FloatArray, scale: float) -> UncertainLine:
     return UncertainLine(unit, jac_unit @ covariance @ jac_unit.T, jac_unit @ jac_infinity[:, :3])
 
 
+def viewing_lines(
+    views: list[View], origins: FloatArray, scales: FloatArray
+) -> list[UncertainLine]:
+    """Return ``viewing_line`` of every view (N) at once, view i conditioned with
+    ``origins[i]`` (3,) and ``scales[i]``: the same algebra on stacked arrays."""
+    count = len(views)
+    directions = np.array([view.direction for view in views])
+    centres = (np.array([view.centre for view in views]) - origins) * scales[:, None]
+    d0, d1, d2 = directions[:, 0], directions[:, 1], directions[:, 2]
+    c0, c1, c2 = centres[:, 0], centres[:, 1], centres[:, 2]
+    # L = Pi(X) D = (d, C' x d); dL/dX = -Pi(D), dL/dD = Pi(X) (projective.pi_matrix)
+    jacobian = np.zeros((count, 6, 8))
+    jacobian[:, 0, 3], jacobian[:, 1, 3], jacobian[:, 2, 3] = d0, d1, d2
+    jacobian[:, 3, 1], jacobian[:, 3, 2] = d2, -d1
+    jacobian[:, 4, 0], jacobian[:, 4, 2] = -d2, d0
+    jacobian[:, 5, 0], jacobian[:, 5, 1] = d1, -d0
+    jacobian[:, 0, 4] = jacobian[:, 1, 5] = jacobian[:, 2, 6] = 1.0
+    jacobian[:, 0, 7], jacobian[:, 1, 7], jacobian[:, 2, 7] = -c0, -c1, -c2
+    jacobian[:, 3, 5], jacobian[:, 3, 6] = -c2, c1
+    jacobian[:, 4, 4], jacobian[:, 4, 6] = c2, -c0
+    jacobian[:, 5, 4], jacobian[:, 5, 5] = -c1, c0
+    line = np.concatenate([directions, np.cross(centres, directions)], axis=1)
+    joint = np.zeros((count, 8, 8))
+    joint[:, 4:7, 4:7] = np.array([view.direction_covariance for view in views])
+    posed = [k for k, view in enumerate(views) if view.pose_covariance is not None]
+    if posed:
+        pose = np.array([views[k].pose_covariance for k in posed], dtype=np.float64)
+        d_direction = -skew(directions[posed])  # d(direction) / d(rotation)
+        scale = scales[posed][:, None, None]
+        joint[posed, :3, :3] = scale * scale * pose[:, :3, :3]
+        cross = scale * pose[:, :3, 3:] @ np.swapaxes(d_direction, 1, 2)
+        joint[posed, :3, 4:7] = cross
+        joint[posed, 4:7, :3] = np.swapaxes(cross, 1, 2)
+        joint[posed, 4:7, 4:7] += d_direction @ pose[:, 3:, 3:] @ np.swapaxes(d_direction, 1, 2)
+    covariance = jacobian @ joint @ np.swapaxes(jacobian, 1, 2)
+    # spherical normalization (projective.normalized): |L| >= |d| = 1, never zero
+    norm = np.linalg.norm(line, axis=1)
+    unit = line / norm[:, None]
+    jac_unit = (np.eye(6) - unit[:, :, None] * unit[:, None, :]) / norm[:, None, None]
+    covariance = jac_unit @ covariance @ np.swapaxes(jac_unit, 1, 2)
+    to_direction = jac_unit @ jacobian[:, :, 4:7]
+    return [UncertainLine(unit[k], covariance[k], to_direction[k]) for k in range(count)]
+
+
+def conditioning(first: View, middle: View, last: View) -> tuple[FloatArray, float]:
+    """Return the three-ray test's conditioning (module docstring): the origin (the middle
+    camera centre) and the scale (1 / the outer baseline; inf for a zero baseline)."""
+    baseline = float(np.linalg.norm(last.centre - first.centre))
+    return middle.centre, 1.0 / baseline if baseline > 0.0 else math.inf
+
+
 def three_ray_test(
     first: View,
     middle: View,
@@ -154,6 +208,7 @@ def three_ray_test(
     alpha: float,
     point: FloatArray | None = None,
     noise: TrackingNoise | None = None,
+    lines: list[UncertainLine] | None = None,
 ) -> ThreeRayTest:
     """Test whether the rays of three views meet in one point (H0: the feature is static).
 
@@ -173,6 +228,9 @@ def three_ray_test(
     With ``noise`` (correlated tracking offsets) the covariance between the three rays is
     added: the views' ``direction_covariance`` must then already hold the offset variance,
     and their ``pixel_jacobian`` be set.
+
+    ``lines``: the three views' ``viewing_line`` at this test's ``conditioning``, if
+    computed already (``viewing_lines`` of many tests at once).
     """
     baseline = float(np.linalg.norm(last.centre - first.centre))
     parallax = ray_angle(first.direction, last.direction)
@@ -181,7 +239,10 @@ def three_ray_test(
     if not parallax > 1e-9:
         raise ValueError('the first and last rays are parallel (zero parallax)')
     origin, scale = middle.centre, 1.0 / baseline
-    lines = [viewing_line(view, origin, scale) for view in (first, middle, last)]
+    if lines is None:
+        lines = viewing_lines(
+            [first, middle, last], np.broadcast_to(origin, (3, 3)), np.full(3, scale)
+        )
     distance, jacobians, meet = _concurrency(lines[0].line, lines[1].line, lines[2].line)
     covariance = sum(
         (j @ line.covariance @ j.T for j, line in zip(jacobians, lines, strict=True)),
@@ -208,6 +269,138 @@ def three_ray_test(
     return ThreeRayTest(
         result, (first.frame, middle.frame, last.frame), parallax, baseline, world, sensitivity
     )
+
+
+def three_ray_relations(
+    triples: list[tuple[View, View, View]],
+    lines: list[list[UncertainLine] | None],
+    alphas: list[float],
+    noise: TrackingNoise | None = None,
+) -> list[RelationTest | ValueError]:
+    """Return ``three_ray_test(first, middle, last, alpha, noise=noise).result`` of many
+    triples at once, or the ValueError it raises: the same relation and test on stacked
+    arrays (``lines``: each triple's ``viewing_lines`` at its ``conditioning``, None where
+    its baseline is zero). Triples the stacked path cannot take (persistent tracker offsets,
+    zero baseline or parallax, a degenerate Sigma_dd) go through ``three_ray_test`` itself,
+    which gives the result or the error."""
+    out: list[RelationTest | ValueError | None] = [None] * len(triples)
+    white = noise is None or noise.white
+    stacked: list[list[UncertainLine]] = []
+    batch: list[int] = []
+    for k, (first, _, last) in enumerate(triples):
+        triple = lines[k]
+        if white and triple is not None and ray_angle(first.direction, last.direction) > 1e-9:
+            stacked.append(triple)
+            batch.append(k)
+    if batch:
+        for k, statistic in zip(batch, _stacked_relations(stacked), strict=True):
+            if statistic is not None:
+                threshold = chi2_quantile(1.0 - alphas[k], THREE_RAY_DOF)
+                out[k] = RelationTest(statistic, THREE_RAY_DOF, threshold, statistic > threshold)
+    results: list[RelationTest | ValueError] = []
+    for k, outcome in enumerate(out):
+        if outcome is None:
+            try:
+                outcome = three_ray_test(*triples[k], alphas[k], noise=noise).result
+            except ValueError as error:
+                outcome = error
+        results.append(outcome)
+    return results
+
+
+def _stacked_relations(lines: list[list[UncertainLine]]) -> list[float | None]:
+    """T of ``three_ray_test`` (known lines, independent rays) for K triples of lines at
+    once (``_concurrency``, ``relation_test`` stacked); None where the meeting point or
+    Sigma_dd is degenerate."""
+    count = len(lines)
+    l1, l2, l3 = (np.array([triple[k].line for triple in lines]) for k in range(3))
+    c1, c2, c3 = (np.array([triple[k].covariance for triple in lines]) for k in range(3))
+    d1, d3 = l1[:, :3], l3[:, :3]
+    # d_a = L1 . Dual(L3)
+    dual1 = np.concatenate([l1[:, 3:], l1[:, :3]], axis=1)
+    dual3 = np.concatenate([l3[:, 3:], l3[:, :3]], axis=1)
+    coplanar = np.einsum('ki,ki->k', l1, dual3)
+    # N = (d1 x d3, 0) and A = N ^ L3
+    normal = np.zeros((count, 4))
+    normal[:, :3] = np.cross(d1, d3)
+    dn_l1 = np.zeros((count, 4, 6))
+    dn_l1[:, :3, :3] = -skew(d3)
+    dn_l3 = np.zeros((count, 4, 6))
+    dn_l3[:, :3, :3] = skew(d1)
+    o_l3 = _o_matrices(l3)
+    plane = (o_l3 @ normal[:, :, None])[:, :, 0]
+    dplane_l1 = o_l3 @ dn_l1
+    dplane_l3 = o_l3 @ dn_l3 + _o_bar_matrices(normal)
+    # X13 = L1 n A
+    gamma = _gamma_matrices(l1)
+    meet = (gamma @ plane[:, :, None])[:, :, 0]
+    dx_l1 = _gamma_bar_matrices(plane) + gamma @ dplane_l1
+    dx_l3 = gamma @ dplane_l3
+    norm = np.linalg.norm(meet, axis=1)
+    usable = norm > 0.0
+    norm = np.where(usable, norm, 1.0)
+    unit = meet / norm[:, None]
+    dunit = (np.eye(4) - unit[:, :, None] * unit[:, None, :]) / norm[:, None, None]
+    dx_l1, dx_l3 = dunit @ dx_l1, dunit @ dx_l3
+    # d_b = O(L2) X13
+    o_l2 = _o_matrices(l2)
+    distance = np.concatenate([coplanar[:, None], (o_l2 @ unit[:, :, None])[:, :, 0]], axis=1)
+    jac_l1 = np.concatenate([dual3[:, None, :], o_l2 @ dx_l1], axis=1)
+    jac_l2 = np.concatenate([np.zeros((count, 1, 6)), _o_bar_matrices(unit)], axis=1)
+    jac_l3 = np.concatenate([dual1[:, None, :], o_l2 @ dx_l3], axis=1)
+    covariance = np.zeros((count, 5, 5))
+    for jacobian, line_covariance in ((jac_l1, c1), (jac_l2, c2), (jac_l3, c3)):
+        covariance += jacobian @ line_covariance @ np.swapaxes(jacobian, 1, 2)
+    # T = d' Sigma_dd^+ d at rank 3 (projective.pseudo_inverse_at_rank)
+    values, vectors = np.linalg.eigh(0.5 * (covariance + np.swapaxes(covariance, 1, 2)))
+    kept = values[:, ::-1][:, :THREE_RAY_DOF]
+    basis = vectors[:, :, ::-1][:, :, :THREE_RAY_DOF]
+    floor = RANK_TOLERANCE * np.maximum(values.max(axis=1), 0.0)
+    usable &= np.all(kept > floor[:, None], axis=1) & (kept[:, 0] > 0)
+    projected = np.einsum('kij,ki->kj', basis, distance)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        statistic = np.sum(projected**2 / kept, axis=1)
+    return [float(t) if ok else None for t, ok in zip(statistic, usable, strict=True)]
+
+
+def _o_matrices(lines: FloatArray) -> FloatArray:
+    """``projective.o_matrix`` of lines (K, 6): (K, 4, 4)."""
+    out = np.zeros((len(lines), 4, 4))
+    l1, l2, l3, l4, l5, l6 = lines.T
+    out[:, 0, 1], out[:, 0, 2], out[:, 0, 3] = l3, -l2, -l4
+    out[:, 1, 0], out[:, 1, 2], out[:, 1, 3] = -l3, l1, -l5
+    out[:, 2, 0], out[:, 2, 1], out[:, 2, 3] = l2, -l1, -l6
+    out[:, 3, 0], out[:, 3, 1], out[:, 3, 2] = l4, l5, l6
+    return out
+
+
+def _o_bar_matrices(points: FloatArray) -> FloatArray:
+    """``projective.o_bar_matrix`` of points (K, 4): (K, 4, 6)."""
+    out = np.zeros((len(points), 4, 6))
+    x, y, z, w = points.T
+    out[:, 0, 1], out[:, 0, 2], out[:, 0, 3] = -z, y, -w
+    out[:, 1, 0], out[:, 1, 2], out[:, 1, 4] = z, -x, -w
+    out[:, 2, 0], out[:, 2, 1], out[:, 2, 5] = -y, x, -w
+    out[:, 3, 3], out[:, 3, 4], out[:, 3, 5] = x, y, z
+    return out
+
+
+def _gamma_matrices(lines: FloatArray) -> FloatArray:
+    """``projective.gamma_matrix`` of lines (K, 6): (K, 4, 4)."""
+    out = np.zeros((len(lines), 4, 4))
+    out[:, :3, :3] = -skew(lines[:, 3:])
+    out[:, :3, 3] = -lines[:, :3]
+    out[:, 3, :3] = lines[:, :3]
+    return out
+
+
+def _gamma_bar_matrices(planes: FloatArray) -> FloatArray:
+    """``projective.gamma_bar_matrix`` of planes (K, 4): (K, 4, 6)."""
+    out = np.zeros((len(planes), 4, 6))
+    out[:, 0, 0] = out[:, 1, 1] = out[:, 2, 2] = -planes[:, 3]
+    out[:, :3, 3:] = skew(planes[:, :3])
+    out[:, 3, :3] = planes[:, :3]
+    return out
 
 
 def _offset_terms(

@@ -46,10 +46,27 @@ from numpy.typing import NDArray
 from scipy.optimize import brentq
 from scipy.stats import ncx2
 
-from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
-from monoslam_shadow_node.core.rays import View, ray_angle, three_ray_test
+from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile
+from monoslam_shadow_node.core.rays import (
+    UncertainLine,
+    View,
+    conditioning,
+    three_ray_relations,
+    three_ray_test,
+    viewing_lines,
+)
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC, Track
-from monoslam_shadow_node.core.static_fit import MOTION_DOF, motion_score_test
+from monoslam_shadow_node.core.static_fit import (
+    MOTION_DOF,
+    ROW_CENTRE,
+    ROW_DIRECTION,
+    ROW_PRECISION,
+    ROW_TAU,
+    ROW_VISIBILITY,
+    MotionScoreTest,
+    motion_score_test,
+    motion_score_tests,
+)
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
 
 UNFIT_TESTS = 3
@@ -180,27 +197,63 @@ def predicted_visibility(
     depths matter (with one depth for all views, motion parallel to the camera path
     would look visible when it is not)."""
     result = np.zeros((len(tracks), 3))
-    for row, track in enumerate(tracks):
-        if not (track.status == PENDING and track.missed == 0 and defined[row]):
-            continue
-        if track.scheduled_frame >= 0 or len(track.taus) < 3:
-            continue
-        offset = positions[row] - track.centres
-        depth = np.einsum('ni,ni->n', track.directions, offset)
-        if np.any(depth <= 0.0):
-            continue
-        weighted = track.precisions / (depth**2)[:, None, None]
-        tau = track.taus - track.taus.mean()
-        a0 = weighted.sum(axis=0)
-        a1 = np.einsum('n,nij->ij', tau, weighted)
-        a2 = np.einsum('n,nij->ij', tau * tau, weighted)
-        try:
-            schur = a2 - a1 @ np.linalg.solve(a0, a1)
-        except np.linalg.LinAlgError:
-            continue
-        values = np.linalg.eigvalsh(0.5 * (schur + schur.T))
-        result[row] = np.maximum(values, 0.0)
+    rows = [
+        row
+        for row, track in enumerate(tracks)
+        if track.status == PENDING
+        and track.missed == 0
+        and defined[row]
+        and track.scheduled_frame < 0
+        and len(track.views) >= 3
+    ]
+    if not rows:
+        return result
+    # all views of those tracks in one array, summed per track
+    counts = np.array([len(tracks[row].views) for row in rows], dtype=np.intp)
+    first = np.zeros(len(rows), dtype=np.intp)
+    first[1:] = np.cumsum(counts)[:-1]
+    segment = np.repeat(np.arange(len(rows)), counts)
+    views = np.concatenate([tracks[row].rows[:, ROW_VISIBILITY] for row in rows])
+    offset = positions[rows][segment] - views[:, ROW_CENTRE]
+    depth = np.einsum('ni,ni->n', views[:, ROW_DIRECTION], offset)
+    ahead = ~np.logical_or.reduceat(depth <= 0.0, first)
+    weighted = views[:, ROW_PRECISION].reshape(-1, 3, 3) / (depth**2)[:, None, None]
+    taus = views[:, ROW_TAU]
+    tau = taus - (np.add.reduceat(taus, first) / counts)[segment]
+    a0 = np.add.reduceat(weighted, first)
+    a1 = np.add.reduceat(tau[:, None, None] * weighted, first)
+    a2 = np.add.reduceat((tau * tau)[:, None, None] * weighted, first)
+    usable = np.flatnonzero(ahead)
+    try:
+        eliminated = np.linalg.solve(a0[usable], a1[usable])
+    except np.linalg.LinAlgError:  # one is singular: leave it out (0), solve the others alone
+        solvable = []
+        for index in usable:
+            try:
+                np.linalg.solve(a0[index], a1[index])
+            except np.linalg.LinAlgError:
+                continue
+            solvable.append(index)
+        usable = np.array(solvable, dtype=np.intp)
+        eliminated = np.linalg.solve(a0[usable], a1[usable])
+    schur = a2[usable] - a1[usable] @ eliminated
+    values = np.linalg.eigvalsh(0.5 * (schur + np.swapaxes(schur, 1, 2)))
+    result[np.array(rows, dtype=np.intp)[usable]] = np.maximum(values, 0.0)
     return result
+
+
+@dataclass(frozen=True, eq=False)
+class DueTest:
+    """A track whose pair of tests runs in this frame (``due_test``): its static position
+    estimate, the rule, the parallax (rad) and baseline (m) of its first and last views and
+    the middle view of the three-ray test."""
+
+    track: Track
+    position: FloatArray
+    settings: ClassifierConfig
+    parallax: float
+    baseline: float
+    middle: View
 
 
 def classify(
@@ -225,16 +278,37 @@ def classify(
     ``predicted_visibility``; ``noise`` the tracker's persistent offsets, if any (both tests
     then take the covariance between views into account). Updates the track's schedule,
     status and statistic; returns the decision made in this frame, or None.
+
+    This is ``due_test``, ``score_tests`` and ``decide`` for one track; the Shadow filter
+    calls them for all its tracks at once, so that the score tests of a frame run together.
     """
+    due = due_test(track, position, visibility, frame, settings, noise)
+    if due is None:
+        return None
+    (motion,) = score_tests([due], noise)
+    return decide(due, motion, frame, warnings, noise)
+
+
+def due_test(
+    track: Track,
+    position: FloatArray,
+    visibility: float,
+    frame: int,
+    settings: ClassifierConfig,
+    noise: TrackingNoise | None = None,
+) -> DueTest | None:
+    """The scheduling half of ``classify``: schedule the track's next test when the
+    geometry allows it, and return the test when it is due in this frame (None otherwise)."""
     if track.tests_run >= settings.max_tests:
         return None
-    first, last = track.views[0], track.views[-1]
-    baseline = float(np.linalg.norm(last.centre - first.centre))
+    first_centre, last_centre = track.first_centre, track.last_centre
+    baseline = math.dist(last_centre, first_centre)
     speed = settings.min_detectable_speed_m_s
+    point = position.tolist()
     if track.scheduled_frame < 0:
         if baseline < settings.min_baseline_m:
             return None
-        parallax = ray_angle(_unit(position - first.centre), _unit(position - last.centre))
+        parallax = _parallax(point, first_centre, last_centre)
         visible = visibility * speed**2
         track.milestone_due = parallax >= settings.parallax_for_test(track.tests_run)
         if track.milestone_due or (
@@ -249,45 +323,119 @@ def classify(
     if frame < track.scheduled_frame:
         return None
     track.scheduled_frame = -1
-    parallax = ray_angle(_unit(position - first.centre), _unit(position - last.centre))
-    middle = _middle_view(track.views, settings.middle_min_fraction * baseline)
+    parallax = _parallax(point, first_centre, last_centre)
+    middle = _middle_view(track.views, track.centres, settings.middle_min_fraction * baseline)
     if middle is None:
         return None
+    return DueTest(track, position, settings, parallax, baseline, middle)
+
+
+def score_tests(
+    dues: list[DueTest], noise: TrackingNoise | None = None
+) -> list[MotionScoreTest | None]:
+    """The score tests (``static_fit``) of due tests over all their views, each at its
+    rule's level and from its static position estimate: all at once with white tracking
+    noise, one by one with persistent offsets."""
+    if noise is None or noise.white:
+        return motion_score_tests(
+            [due.track.rows for due in dues],
+            [due.settings.test_alpha for due in dues],
+            [due.position for due in dues],
+        )
+    return [
+        motion_score_test(due.track.views, due.settings.test_alpha, due.position, noise=noise)
+        for due in dues
+    ]
+
+
+def needs_three_ray(due: DueTest, motion: MotionScoreTest | None) -> bool:
+    """Whether ``decide`` runs the three-ray test of ``due`` given its score test: when the
+    views fixed a static point and either motion would have been visible or a parallax
+    milestone is due."""
+    if motion is None:
+        return False
+    return due.track.milestone_due or _decisive(due.settings, motion)
+
+
+def _decisive(settings: ClassifierConfig, motion: MotionScoreTest) -> bool:
+    """Whether the score test's geometry could have seen motion (``decide``)."""
+    speed = settings.min_detectable_speed_m_s
+    return speed == 0 or (
+        motion.visibility[settings.unchecked_directions] * speed**2
+        >= settings.required_noncentrality
+    )
+
+
+def three_ray_tests(
+    dues: list[DueTest], noise: TrackingNoise | None = None
+) -> list[RelationTest | ValueError]:
+    """The three-ray tests (``rays.three_ray_test``'s result, or the ValueError it raises for
+    a degenerate geometry) of due tests, each at its rule's level, all at once
+    (``rays.viewing_lines``, ``rays.three_ray_relations``)."""
+    triples = [(due.track.views[0], due.middle, due.track.views[-1]) for due in dues]
+    conditions = [conditioning(*triple) for triple in triples]
+    kept = [k for k, (_, scale) in enumerate(conditions) if math.isfinite(scale)]
+    lines: list[list[UncertainLine] | None] = [None] * len(dues)
+    if kept:
+        stacked = viewing_lines(
+            [view for k in kept for view in triples[k]],
+            np.repeat(np.array([conditions[k][0] for k in kept]), 3, axis=0),
+            np.repeat(np.array([conditions[k][1] for k in kept]), 3),
+        )
+        for index, k in enumerate(kept):
+            lines[k] = stacked[3 * index : 3 * index + 3]
+    alphas = [due.settings.test_alpha for due in dues]
+    return three_ray_relations(triples, lines, alphas, noise)
+
+
+def decide(
+    due: DueTest,
+    motion: MotionScoreTest | None,
+    frame: int,
+    warnings: list[str],
+    noise: TrackingNoise | None = None,
+    three_ray: RelationTest | ValueError | None = None,
+) -> Decision | None:
+    """The deciding half of ``classify``: given the score test of a due test, run the
+    three-ray test and decide (module docstring). ``three_ray``: its ``three_ray_tests``
+    outcome, if computed already."""
+    track, settings = due.track, due.settings
+    parallax, baseline = due.parallax, due.baseline
+    first, last = track.views[0], track.views[-1]
     level = settings.test_alpha
-    motion = motion_score_test(track.views, level, position, noise=noise)
     if motion is None:
         track.unfit += 1
         frames = frame - track.first_frame
         if track.milestone_due and track.unfit >= UNFIT_TESTS:
             # evidence of motion (module docstring): the views keep refusing a static point
             track.status, track.decided_frame = DYNAMIC, frame
-            track.views = []
+            track.clear_views()
             return Decision(track.id, DYNAMIC, frames, parallax, baseline, math.nan)
         warnings.append(f'feature {track.id}: its views do not fix a static point yet')
         return None
     track.unfit = 0
     # Whether a decision is possible is geometry (S), not the test's outcome: when it
     # is not and no parallax milestone is due, nothing is tested and no alpha is spent.
-    decisive = speed == 0 or (
-        motion.visibility[settings.unchecked_directions] * speed**2
-        >= settings.required_noncentrality
-    )
+    decisive = _decisive(settings, motion)
     if not decisive:
         # the prediction was optimistic: ask it for half as much again before retrying
         track.visibility_wait = 1.5 * track.predicted_visible
         if not track.milestone_due:
             return None
-    try:
-        test = three_ray_test(first, middle, last, level, noise=noise)
-    except ValueError as error:
-        warnings.append(f'feature {track.id}: test skipped, degenerate geometry ({error})')
+    if three_ray is None:
+        try:
+            three_ray = three_ray_test(first, due.middle, last, level, noise=noise).result
+        except ValueError as error:
+            three_ray = error
+    if isinstance(three_ray, ValueError):
+        warnings.append(f'feature {track.id}: test skipped, degenerate geometry ({three_ray})')
         return None
-    track.statistic = test.result.statistic
+    track.statistic = three_ray.statistic
     track.tests_run += 1
     frames = frame - track.first_frame
-    if test.result.rejected or motion.result.rejected:
+    if three_ray.rejected or motion.result.rejected:
         track.status, track.decided_frame = DYNAMIC, frame
-        track.views = []
+        track.clear_views()
         return Decision(track.id, DYNAMIC, frames, parallax, baseline, track.statistic)
     if not decisive:
         return None  # accepted, but motion could have gone unseen: wait for more views
@@ -310,18 +458,36 @@ def trigger_delay_frames(track: Track, noise: TrackingNoise | None) -> int:
     return max(TEST_DELAY_FRAMES, math.ceil(DECORRELATED * noise.offset_time_s / frame_s))
 
 
-def _middle_view(views: list[View], min_distance_m: float) -> View | None:
-    """Return the view between the first and the last whose camera centre is farthest from
-    both ends' centres, if at least ``min_distance_m`` from each; else None."""
+def _middle_view(views: list[View], centres: FloatArray, min_distance_m: float) -> View | None:
+    """Return the view between the first and the last whose camera centre (``centres``
+    (N, 3), those of ``views``) is farthest from both ends' centres, if at least
+    ``min_distance_m`` from each; else None."""
     if len(views) < 3:
         return None
-    centres = np.array([view.centre for view in views[1:-1]])
+    inner = centres[1:-1]
     distance = np.minimum(
-        np.linalg.norm(centres - views[0].centre, axis=1),
-        np.linalg.norm(centres - views[-1].centre, axis=1),
+        np.linalg.norm(inner - centres[0], axis=1),
+        np.linalg.norm(inner - centres[-1], axis=1),
     )
     best = int(np.argmax(distance))
     return views[1 + best] if distance[best] >= min_distance_m else None
+
+
+def _parallax(point: list[float], first: list[float], last: list[float]) -> float:
+    """Return the angle (rad) at ``point`` between the directions to the camera centres
+    ``first`` and ``last`` (3 floats each; ``rays.ray_angle`` of the unit vectors, in
+    scalar arithmetic: this runs for every pending feature in every frame)."""
+    a = [point[0] - first[0], point[1] - first[1], point[2] - first[2]]
+    b = [point[0] - last[0], point[1] - last[1], point[2] - last[2]]
+    norm_a, norm_b = math.hypot(*a), math.hypot(*b)
+    if norm_a > 0:
+        a = [a[0] / norm_a, a[1] / norm_a, a[2] / norm_a]
+    if norm_b > 0:
+        b = [b[0] / norm_b, b[1] / norm_b, b[2] / norm_b]
+    cross = math.hypot(
+        a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+    )
+    return math.atan2(cross, a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
 
 
 def _unit(vector: FloatArray) -> FloatArray:

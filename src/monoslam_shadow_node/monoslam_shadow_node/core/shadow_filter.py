@@ -36,13 +36,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.projective import FloatArray
+from monoslam_shadow_node.core.projective import FloatArray, RelationTest
 from monoslam_shadow_node.core.rays import THREE_RAY_DOF, View, pixel_ray_directions, ray_angle
 from monoslam_shadow_node.core.shadow_classifier import (
     ClassifierConfig,
     Decision,
-    classify,
+    decide,
+    due_test,
+    needs_three_ray,
     predicted_visibility,
+    score_tests,
+    three_ray_tests,
 )
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
@@ -54,6 +58,7 @@ from monoslam_shadow_node.core.shadow_ekf import (
     world_estimates,
 )
 from monoslam_shadow_node.core.shadow_track import PENDING, STATIC, Track
+from monoslam_shadow_node.core.static_fit import ROW_PRECISION, ROW_SIZE, view_rows
 from slam_core.camera import CameraModel
 
 RESTART_AFTER_GATED = 3
@@ -61,6 +66,49 @@ RESTART_AFTER_GATED = 3
 has lost its track (it moved faster or turned harder than the process noise allows): its EKF
 restarts from the latest ray, keeping its id, status and views."""
 IntArray = NDArray[np.int64]
+_EYE = np.eye(3)
+
+
+def _ray_precisions(to_pixel: FloatArray, pixel_sigma: float) -> FloatArray:
+    """Return the pseudo-inverses (N, 3, 3) of the ray direction covariances
+    sigma^2 A A' (rank 2) with A = d(direction)/d(pixel) (N, 3, 2) of full column rank:
+    A (A'A)^-2 A' / sigma^2 (what np.linalg.pinv gives, in closed form)."""
+    gram = np.swapaxes(to_pixel, 1, 2) @ to_pixel  # (N, 2, 2)
+    g00, g01, g11 = gram[:, 0, 0], gram[:, 0, 1], gram[:, 1, 1]
+    determinant = g00 * g11 - g01 * g01
+    inverse = np.empty_like(gram)
+    inverse[:, 0, 0], inverse[:, 1, 1] = g11 / determinant, g00 / determinant
+    inverse[:, 0, 1] = inverse[:, 1, 0] = -g01 / determinant
+    root = to_pixel @ inverse  # A (A'A)^-1
+    return np.asarray(root @ np.swapaxes(root, 1, 2) / pixel_sigma**2, dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class _FrameViews:
+    """One frame's rays: world directions (N, 3), their covariances (N, 3, 3) and Jacobians
+    with respect to the pixel (N, 3, 2), and their ``static_fit.view_rows`` (N, ROW_SIZE),
+    whose precision is the pseudo-inverse of each direction's covariance (rank 2, tracking
+    noise only: white and offset). ``view`` makes a ray's ``View`` (only the rays a track
+    keeps need one)."""
+
+    index: int
+    frame: FrameInput
+    directions: FloatArray
+    covariances: FloatArray
+    to_pixel: FloatArray
+    constants: FloatArray
+
+    def view(self, k: int) -> View:
+        """The ``View`` of ray k."""
+        frame = self.frame
+        return View(
+            self.index, frame.stamp_ns, frame.centre, self.directions[k], self.covariances[k],
+            frame.pose_covariance, self.to_pixel[k],
+        )  # fmt: skip
+
+    def precision(self, k: int) -> FloatArray:
+        """The precision (3, 3) of ray k's direction."""
+        return self.constants[k, ROW_PRECISION].reshape(3, 3)
 
 
 class InputError(ValueError):
@@ -106,9 +154,10 @@ class FrameInput:
     pose_covariance: FloatArray | None = None
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False)
 class TrackReport:
-    """One feature after a frame, world frame: status, position (3,) m and covariance (3, 3),
+    """One feature after a frame (made for every feature in every frame: not frozen, which
+    costs a fifth to build), world frame: status, position (3,) m and covariance (3, 3),
     velocity (3,) m/s and covariance (3, 3), the latest test statistic (NaN before any test)
     with its degrees of freedom, whether the position is defined (depth known), the frame of
     first sight and of the decision (-1: undecided), and recent positions (K, 3)."""
@@ -216,7 +265,14 @@ class ShadowFilter:
         new = [
             k for k, i in enumerate(ids) if int(i) not in row_of and int(i) not in self._released
         ]
-        views, precisions = self._views(frame, pixels)
+        # rays only for the features held or new (not for those handed over: SLAM's)
+        kept = sorted([k for k, _ in observed] + new)
+        if len(kept) < len(ids):
+            position = {k: index for index, k in enumerate(kept)}
+            observed = [(position[k], row) for k, row in observed]
+            new = [position[k] for k in new]
+            ids, pixels = ids[kept], pixels[kept]
+        views = self._views(frame, pixels)
         seen_rows = set()
         if observed:
             columns = np.array([k for k, _ in observed])
@@ -242,17 +298,17 @@ class ShadowFilter:
                 elif not used:
                     warnings.append(f'feature {track.id}: measurement outside the innovation gate')
                 if track.status == PENDING and self.config.classify:
-                    track.add_view(views[k], precisions[k])
+                    track.add_view(views.view(k), views.precision(k), views.constants[k])
             if restart:
                 again = [row for _, row in restart]
                 self._states[again], self._covariances[again] = self._initial(
-                    frame, [views[k] for k, _ in restart]
+                    frame, [views.view(k) for k, _ in restart]
                 )
         for row, track in enumerate(self._tracks):
             if row not in seen_rows:
                 track.missed += 1
         if new:
-            self._start(frame, ids[new], [views[k] for k in new], precisions[new])
+            self._start(frame, ids[new], [views.view(k) for k in new], views.constants[new])
         decisions: list[Decision] = []
         estimate = world_estimates(self._states, self._covariances, frame.rotation, frame.centre)
         if self.config.classify:
@@ -267,21 +323,43 @@ class ShadowFilter:
     def _classify_pending(self, frame: FrameInput, warnings: list[str]) -> list[Decision]:
         """Classify every PENDING feature observed in this frame whose static estimate is
         defined (``shadow_classifier.classify``); return the decisions."""
-        static = world_estimates(
-            *static_hypothesis(self._states, self._covariances), frame.rotation, frame.centre
-        )
-        visibility = predicted_visibility(self._tracks, static.position, static.defined)
+        # the static estimate of the features that can be classified in this frame
+        candidates = [
+            row
+            for row, track in enumerate(self._tracks)
+            if track.status == PENDING and track.missed == 0
+        ]
+        count = len(self._tracks)
+        position, defined = np.zeros((count, 3)), np.zeros(count, dtype=bool)
+        if candidates:
+            static = world_estimates(
+                *static_hypothesis(self._states[candidates], self._covariances[candidates]),
+                frame.rotation,
+                frame.centre,
+            )
+            position[candidates], defined[candidates] = static.position, static.defined
+        visibility = predicted_visibility(self._tracks, position, defined)
         noise = self.config.ekf.tracking_noise
-        decisions = []
+        dues = []
         for row, track in enumerate(self._tracks):
-            if track.status == PENDING and track.missed == 0 and static.defined[row]:
+            if track.status == PENDING and track.missed == 0 and defined[row]:
                 rule = self._strict if track.suspect else self.config.classifier
                 seen = float(visibility[row, rule.unchecked_directions])
-                decision = classify(
-                    track, static.position[row], seen, self._frame, rule, warnings, noise
-                )
-                if decision is not None:
-                    decisions.append(decision)
+                due = due_test(track, position[row], seen, self._frame, rule, noise)
+                if due is not None:
+                    dues.append(due)
+        # the frame's score tests together (shadow_classifier.classify, one track at a time)
+        decisions = []
+        motions = score_tests(dues, noise)
+        tested = [k for k, due in enumerate(dues) if needs_three_ray(due, motions[k])]
+        relations: list[RelationTest | ValueError | None] = [None] * len(dues)
+        outcomes = three_ray_tests([dues[k] for k in tested], noise)
+        for k, outcome in zip(tested, outcomes, strict=True):
+            relations[k] = outcome
+        for due, motion, relation in zip(dues, motions, relations, strict=True):
+            decision = decide(due, motion, self._frame, warnings, noise, relation)
+            if decision is not None:
+                decisions.append(decision)
         return decisions
 
     def _validated(self, frame: FrameInput) -> FrameInput:
@@ -289,7 +367,8 @@ class ShadowFilter:
         centre = np.asarray(frame.centre, dtype=np.float64)
         if rotation.shape != (3, 3) or not np.all(np.isfinite(rotation)):
             raise InputError('camera pose: the rotation is not a finite 3x3 matrix')
-        if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-6):
+        # np.allclose(R'R, I, atol=1e-6) written out (it costs more than the rest of the checks)
+        if not np.all(np.abs(rotation.T @ rotation - _EYE) <= 1e-6 + 1e-5 * _EYE):
             raise InputError('camera pose: the orientation is not a rotation (unnormalized?)')
         if centre.shape != (3,) or not np.all(np.isfinite(centre)):
             raise InputError('camera pose: the position is not 3 finite numbers')
@@ -309,7 +388,7 @@ class ShadowFilter:
         pixels = np.asarray(frame.pixels, dtype=np.float64).reshape(-1, 2)
         if len(ids) != len(pixels):
             raise InputError(f'{len(ids)} feature ids but {len(pixels)} pixel pairs')
-        if len(np.unique(ids)) != len(ids):
+        if len(set(ids.tolist())) != len(ids):
             raise InputError('feature ids repeat within one frame')
         return FrameInput(frame.stamp_ns, rotation, centre, ids, pixels, covariance)
 
@@ -321,21 +400,22 @@ class ShadowFilter:
             self._states, self._covariances, rotation, translation, dt, self.config.ekf
         )
 
-    def _views(self, frame: FrameInput, pixels: FloatArray) -> tuple[list[View], FloatArray]:
-        """Return the frame's views and their ray precisions (N, 3, 3): the pseudo-inverse
-        of each direction's covariance (rank 2, tracking noise only: white and offset)."""
+    def _views(self, frame: FrameInput, pixels: FloatArray) -> _FrameViews:
+        """Return the frame's views (``_FrameViews``)."""
         if not len(pixels):
-            return [], np.zeros((0, 3, 3))
+            empty = np.zeros((0, 3))
+            return _FrameViews(
+                self._frame, frame, empty, np.zeros((0, 3, 3)), np.zeros((0, 3, 2)),
+                np.zeros((0, ROW_SIZE)),
+            )  # fmt: skip
         rays, jacobians = self.camera.pixel_rays(pixels)
         directions, covariances, to_pixel = pixel_ray_directions(
             rays, jacobians, frame.rotation, self.config.ekf.measurement_sigma_px
         )
-        views = [
-            View(self._frame, frame.stamp_ns, frame.centre, d, c, frame.pose_covariance, a)
-            for d, c, a in zip(directions, covariances, to_pixel, strict=True)
-        ]
-        precisions = np.linalg.pinv(covariances, rcond=1e-9, hermitian=True)
-        return views, np.asarray(precisions, dtype=np.float64)
+        precisions = _ray_precisions(to_pixel, self.config.ekf.measurement_sigma_px)
+        centres = np.broadcast_to(frame.centre, (len(directions), 3))
+        constants = view_rows(centres, directions, covariances, precisions, frame.pose_covariance)
+        return _FrameViews(self._frame, frame, directions, covariances, to_pixel, constants)
 
     def _initial(self, frame: FrameInput, views: list[View]) -> tuple[FloatArray, FloatArray]:
         """EKF states and covariances of features first seen (or restarted) along views."""
@@ -349,15 +429,15 @@ class ShadowFilter:
         return initial_states(camera_directions, camera_covariances, self.config.ekf, jacobians)
 
     def _start(
-        self, frame: FrameInput, ids: IntArray, views: list[View], precisions: FloatArray
+        self, frame: FrameInput, ids: IntArray, views: list[View], rows: FloatArray
     ) -> None:
         states, covariances = self._initial(frame, views)
         self._states = np.concatenate([self._states, states])
         self._covariances = np.concatenate([self._covariances, covariances])
-        for track_id, view, precision in zip(ids, views, precisions, strict=True):
+        for track_id, view, row in zip(ids, views, rows, strict=True):
             track = Track(int(track_id), PENDING, self._frame, frame.stamp_ns)
             track.suspect = int(track_id) in self._suspects
-            track.add_view(view, precision)
+            track.add_view(view, row[ROW_PRECISION].reshape(3, 3), row)
             self._tracks.append(track)
 
     def _reports(
@@ -379,15 +459,14 @@ class ShadowFilter:
                     )
                 )  # fmt: skip
             if limit and bool(estimate.defined[row]):
-                track.trajectory.append(position)
-                del track.trajectory[:-limit]
+                track.trajectory.append(position, limit)
             reports.append(
                 TrackReport(
                     track.id, track.status, position, covariance, estimate.velocity[row],
                     estimate.velocity_covariance[row], track.statistic,
                     THREE_RAY_DOF if math.isfinite(track.statistic) else 0,
                     bool(estimate.defined[row]), track.first_frame, track.decided_frame,
-                    np.array(track.trajectory).reshape(-1, 3),
+                    track.trajectory.array(limit),
                 )
             )  # fmt: skip
         return reports, handovers

@@ -25,6 +25,16 @@ The views' pose errors are taken as independent between images, as everywhere in
 filter. The tracker's errors are too, unless its offsets persist (``tracking_noise``): then
 r's covariance Sigma holds the offsets' covariance between views, and every sum above is the
 generalized least squares one, with J and r premultiplied by L^-1 (Sigma = L L').
+
+With independent errors (white tracking noise, the Shadow filter's default) each view's
+residual has its own 2 x 2 covariance Sigma_i, so every sum above is a sum over views of
+J_i' W_i J_i and J_i' W_i r_i with W_i = Sigma_i^-1: ``motion_score_tests`` evaluates them
+so, for the views of many features at once (one flat array of views, summed per feature),
+from per-view constants kept as the views come (``view_rows``: the basis across the ray,
+B_i' Sigma_d,i B_i and the pose covariance's blocks seen through B_i). It is the same fit
+and the same test as the generalized least squares path (the same start, iterations and
+stopping rule; the numbers agree to rounding). The pose part of Sigma_i depends on the point
+(through P - C_i and rho_i), so the weights are evaluated anew at every iterate, as before.
 """
 
 from __future__ import annotations
@@ -32,6 +42,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
 
 from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile
@@ -206,6 +217,319 @@ def _fit(
     return point, normal, final
 
 
+# Per-view constants of the white-noise path, packed in one row per view (``view_rows``):
+# centre, the direction's precision (used by the classifier's visibility prediction), tau
+# (s since the feature's first view; filled by the caller), the direction, B' (2, 3),
+# B' Sigma_d B + 1e-18 I (its entries 00, 01, 11), and the pose covariance's part of the
+# residual covariance: rho^2 times it is, entry by entry (00, 01, 11), a quadratic form in
+# o = P - C, written o~' H o~ with o~ = (o, 1) and H (4, 4) (zero for a known pose).
+ROW_CENTRE = slice(0, 3)
+ROW_PRECISION = slice(3, 12)
+ROW_TAU = 12
+ROW_FRAME = slice(13, 22)  # d, b_1, b_2: the direction and B'
+ROW_DIRECTION = slice(13, 16)
+ROW_ACROSS = slice(16, 22)
+ROW_VISIBILITY = slice(0, 16)  # what the classifier's visibility prediction reads
+ROW_NOISE = slice(22, 25)
+ROW_POSE = slice(25, 73)
+ROW_SIZE = 73
+_ENTRIES = ((0, 0), (0, 1), (1, 1))
+
+
+def view_rows(
+    centres: FloatArray,
+    directions: FloatArray,
+    direction_covariances: FloatArray,
+    precisions: FloatArray,
+    pose_covariances: FloatArray | None,
+) -> FloatArray:
+    """Return the packed per-view constants (M, ``ROW_SIZE``) of M views: centres (M, 3),
+    unit directions (M, 3), their covariances (M, 3, 3) and precisions (M, 3, 3), and the
+    pose covariances (M, 6, 6), or one (6, 6) for all (None, or all zero: known poses). The
+    tau column is 0.
+
+    The pose part of view i's residual covariance is G P G' with G = B'[-I, [o]x] / rho
+    (``_geometry``), so rho^2 G P G' = B'P_pp B - U Q' - Q U' + Q P_rr Q' with U = B'P_pr
+    and Q = B'[o]x, whose row k is (b_k x o)' = ([b_k]x o)': entry (k, l) is
+    A_kl - c_kl . o + o' R_kl o with A = B'P_pp B, c_kl = u_k x b_l + u_l x b_k and
+    R_kl = [b_k]x' P_rr [b_l]x (symmetrized)."""
+    count = len(directions)
+    rows = np.zeros((count, ROW_SIZE))
+    if not count:
+        return rows
+    across = np.swapaxes(_bases(directions), 1, 2)  # (M, 2, 3)
+    basis = np.swapaxes(across, 1, 2)
+    rows[:, ROW_CENTRE] = centres
+    rows[:, ROW_DIRECTION] = directions
+    rows[:, ROW_PRECISION] = precisions.reshape(count, 9)
+    rows[:, ROW_ACROSS] = across.reshape(count, 6)
+    noise = across @ direction_covariances @ basis + 1e-18 * np.eye(2)  # (as _whitening)
+    rows[:, ROW_NOISE] = np.stack([noise[:, k, m] for k, m in _ENTRIES], axis=1)
+    if pose_covariances is not None and np.any(pose_covariances):
+        # one (6, 6) for all views (one image's), or one per view (M, 6, 6)
+        pose = np.asarray(pose_covariances, dtype=np.float64)
+        shared = pose.ndim == 2
+        p_pp = pose[..., :3, :3]
+        p_pr = pose[..., :3, 3:]
+        p_rr = pose[..., 3:, 3:] if shared else pose[:, None, 3:, 3:]
+        position = across @ p_pp @ basis  # A (M, 2, 2)
+        mixed = across @ p_pr  # U (M, 2, 3)
+        turns = skew(across)  # [b_k]x (M, 2, 3, 3)
+        quadratic = (np.swapaxes(turns, 2, 3) @ p_rr)[:, :, None] @ turns[:, None]  # (M,2,2,3,3)
+        quadratic = 0.5 * (quadratic + np.swapaxes(quadratic, 3, 4))
+        crossed = np.cross(mixed[:, :, None, :], across[:, None, :, :])  # u_k x b_l (M,2,2,3)
+        linear = crossed + np.swapaxes(crossed, 1, 2)
+        forms = np.zeros((count, 3, 4, 4))
+        for entry, (k, m) in enumerate(_ENTRIES):
+            forms[:, entry, :3, :3] = quadratic[:, k, m]
+            forms[:, entry, :3, 3] = forms[:, entry, 3, :3] = -0.5 * linear[:, k, m]
+            forms[:, entry, 3, 3] = position[:, k, m]
+        rows[:, ROW_POSE] = forms.reshape(count, 48)
+    return rows
+
+
+def _views_as_rows(views: list[View]) -> FloatArray:
+    """``view_rows`` of views, with tau from the first view's stamp."""
+    covariances = np.array([view.direction_covariance for view in views])
+    pose = None
+    if any(view.pose_covariance is not None for view in views):
+        pose = np.array(
+            [np.zeros((6, 6)) if v.pose_covariance is None else v.pose_covariance for v in views]
+        )
+    rows = view_rows(
+        np.array([view.centre for view in views]),
+        np.array([view.direction for view in views]),
+        covariances,
+        np.zeros((len(views), 3, 3)),
+        pose,
+    )
+    stamps = np.array([view.stamp_ns for view in views], dtype=np.int64)
+    rows[:, ROW_TAU] = (stamps - stamps[0]) * 1e-9
+    return rows
+
+
+@dataclass(frozen=True, eq=False)
+class _Normal:
+    """The sums of one evaluation of all features' views at their points: per feature
+    (K) the normal matrix J' W J (3, 3), the gradient J' W r (3,) and whether a view has the
+    point behind its camera; per whitened residual row (2M) the products (x, y)(x, y)'
+    (4, 4) of the whitened Jacobian row x and residual y, whose sums those are."""
+
+    normal: FloatArray
+    gradient: FloatArray
+    behind: NDArray[np.bool_]
+    row_products: FloatArray
+
+
+def _normal_equations(
+    points: FloatArray, segment: NDArray[np.intp], starts: NDArray[np.intp], rows: FloatArray,
+    posed: bool,
+) -> _Normal:  # fmt: skip
+    """Evaluate r_i, J_i and Sigma_i of every view (rows) at its feature's point (points
+    (K, 3), ``segment`` (M,) the feature of each view, ``starts`` (K,) each feature's first
+    row) and sum J' W J and J' W r per feature, W = Sigma^-1 (the white-noise path of
+    ``_geometry``): [J_i | r_i] (2, 4) is whitened by Sigma_i = L_i L_i' (Cholesky, written
+    out for 2 x 2), so that J' W J and J' W r are blocks of the sum of the whitened rows'
+    outer products."""
+    count = len(rows)
+    frame = rows[:, ROW_FRAME].reshape(count, 3, 3)
+    offset = points[segment] - rows[:, ROW_CENTRE]
+    along = np.einsum('mji,mi->mj', frame, offset)  # rho = d' o, then B' o
+    inverse = 1.0 / along[:, 0]
+    behind = np.logical_or.reduceat(along[:, 0] <= 0, starts)
+    augmented = np.empty((count, 2, 4))  # [J | r], dr/dP = (B' - r d') / rho (see _geometry)
+    residual = augmented[:, :, 3]
+    np.multiply(along[:, 1:], inverse[:, None], out=residual)
+    jacobian = augmented[:, :, :3]
+    np.multiply(residual[:, :, None], frame[:, None, 0], out=jacobian)
+    np.subtract(frame[:, 1:], jacobian, out=jacobian)
+    jacobian *= inverse[:, None, None]
+    covariance = rows[:, ROW_NOISE]  # entries 00, 01, 11 of Sigma + 1e-18 I
+    if posed:
+        homogeneous = np.empty((count, 4))
+        homogeneous[:, :3], homogeneous[:, 3] = offset, 1.0
+        products = (homogeneous[:, :, None] * homogeneous[:, None, :]).reshape(count, 16)
+        pose = np.einsum('mek,mk->me', rows[:, ROW_POSE].reshape(count, 3, 16), products)
+        covariance = covariance + pose * (inverse * inverse)[:, None]
+    l00 = np.sqrt(covariance[:, 0])
+    l10 = covariance[:, 1] / l00
+    l11 = np.sqrt(covariance[:, 2] - l10 * l10)
+    augmented[:, 0] /= l00[:, None]
+    augmented[:, 1] -= l10[:, None] * augmented[:, 0]
+    augmented[:, 1] /= l11[:, None]
+    white = augmented.reshape(2 * count, 4)
+    row_products = white[:, :, None] * white[:, None, :]
+    sums = np.add.reduceat(row_products, 2 * starts)
+    return _Normal(sums[:, :3, :3], sums[:, :3, 3], behind, row_products)
+
+
+def _unusable(normal: FloatArray) -> NDArray[np.bool_]:
+    """Normal matrices (K, 3, 3) that are not finite or worse conditioned than
+    ``_CONDITION_LIMIT`` (np.linalg.cond's 2-norm condition number: for these symmetric
+    matrices the ratio of the largest to the smallest eigenvalue magnitude)."""
+    finite = np.all(np.isfinite(normal), axis=(1, 2))
+    values = np.abs(np.linalg.eigvalsh(np.where(finite[:, None, None], normal, np.eye(3))))
+    with np.errstate(divide='ignore', invalid='ignore'):
+        condition = values.max(axis=1) / values.min(axis=1)
+    return np.asarray(~finite | ~(condition <= _CONDITION_LIMIT), dtype=bool)
+
+
+def motion_score_tests(
+    groups: list[FloatArray],
+    alphas: list[float],
+    starts: list[FloatArray],
+    iterations: int = 6,
+) -> list[MotionScoreTest | None]:
+    """``motion_score_test`` of many features at once, white tracking noise: ``groups`` are
+    each feature's ``view_rows`` (tau filled, from its first view), ``alphas`` the levels and
+    ``starts`` the points (3,) the fits start from. Each feature is fitted and tested as
+    ``motion_score_test`` does it alone (its own iterations and stopping rule); the result
+    is None where its views do not fix a static point."""
+    results: list[MotionScoreTest | None] = [None] * len(groups)
+    for alpha in alphas:
+        if not 0.0 < alpha < 1.0:
+            raise ValueError(f'alpha={alpha!r}: the significance level must be in (0, 1)')
+    used = [k for k, rows in enumerate(groups) if len(rows) >= 3]
+    if not used:
+        return results
+    rows = np.concatenate([groups[k] for k in used])
+    counts = np.array([len(groups[k]) for k in used], dtype=np.intp)
+    first = np.zeros(len(used), dtype=np.intp)
+    first[1:] = np.cumsum(counts)[:-1]
+    segment = np.repeat(np.arange(len(used)), counts)
+    posed = bool(np.any(rows[:, ROW_POSE]))
+    points = np.array([np.asarray(starts[k], dtype=np.float64) for k in used])
+    active = np.ones(len(used), dtype=bool)
+    failed = np.zeros(len(used), dtype=bool)
+    for _ in range(iterations):
+        if not np.any(active):
+            break
+        sums = _normal_equations(points, segment, first, rows, posed)
+        bad = active & (sums.behind | _unusable(sums.normal))
+        failed |= bad
+        active &= ~bad
+        moving = np.flatnonzero(active)
+        if not len(moving):
+            break
+        step = np.linalg.solve(sums.normal[moving], sums.gradient[moving][:, :, None])[:, :, 0]
+        points[moving] -= step
+        done = np.linalg.norm(step, axis=1) < 1e-9 * (1.0 + np.linalg.norm(points[moving], axis=1))
+        active[moving[done]] = False
+    final = _normal_equations(points, segment, first, rows, posed)
+    failed |= final.behind | _unusable(final.normal)
+    # the score test (motion_score_test) at the fitted points: I_pv, I_vv and g are the sums
+    # of J_i' W_i J_i and J_i' W_i r_i weighted by tau_i and tau_i^2, tau about its mean
+    tau = rows[:, ROW_TAU]
+    tau = np.repeat(tau - (np.add.reduceat(tau, first) / counts)[segment], 2)  # per row
+    weighted = np.add.reduceat(tau[:, None, None] * final.row_products, 2 * first)
+    information_pv, score = weighted[:, :3, :3], weighted[:, :3, 3]
+    information_vv = np.add.reduceat(
+        (tau * tau)[:, None, None] * final.row_products[:, :3, :3], 2 * first
+    )
+    fitted = np.flatnonzero(~failed)
+    if not len(fitted):
+        return results
+    tests = _score_tests(
+        final.normal[fitted], information_pv[fitted], information_vv[fitted], score[fitted],
+        points[fitted], [alphas[used[index]] for index in fitted], counts[fitted].tolist(),
+    )  # fmt: skip
+    for index, test in zip(fitted, tests, strict=True):
+        results[used[index]] = test
+    return results
+
+
+def _score_tests(
+    information_pp: FloatArray,
+    information_pv: FloatArray,
+    information_vv: FloatArray,
+    score: FloatArray,
+    points: FloatArray,
+    alphas: list[float],
+    views: list[int],
+) -> list[MotionScoreTest | None]:
+    """``_score_test`` of K features at once (stacked (K, ...) arguments)."""
+    try:
+        eliminated = np.linalg.solve(information_pp, information_pv)
+    except np.linalg.LinAlgError:  # one is singular: each alone
+        return [
+            _score_test(pp, pv, vv, g, point, alpha, n)
+            for pp, pv, vv, g, point, alpha, n in zip(
+                information_pp,
+                information_pv,
+                information_vv,
+                score,
+                points,
+                alphas,
+                views,
+                strict=True,
+            )
+        ]
+    schur = information_vv - np.swapaxes(information_pv, 1, 2) @ eliminated
+    schur = 0.5 * (schur + np.swapaxes(schur, 1, 2))
+    values, vectors = np.linalg.eigh(schur)
+    values = np.maximum(values, 0.0)
+    kept = values > 1e-12 * values[:, -1:]
+    projected = np.einsum('kij,ki->kj', vectors, score)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        terms = np.where(kept, projected**2 / np.where(kept, values, 1.0), 0.0)
+    statistics = terms.sum(axis=1).tolist()
+    dofs = np.count_nonzero(kept, axis=1).tolist()
+    covariances = np.linalg.inv(information_pp)
+    covariances = 0.5 * (covariances + np.swapaxes(covariances, 1, 2))
+    out: list[MotionScoreTest | None] = []
+    for k, (statistic, dof) in enumerate(zip(statistics, dofs, strict=True)):
+        if not values[k, -1] > 0.0:
+            out.append(None)
+            continue
+        threshold = chi2_quantile(1.0 - alphas[k], dof)
+        out.append(
+            MotionScoreTest(
+                RelationTest(statistic, dof, threshold, statistic > threshold),
+                points[k].copy(),
+                covariances[k],
+                values[k],
+                views[k],
+            )
+        )
+    return out
+
+
+def _score_test(
+    information_pp: FloatArray,
+    information_pv: FloatArray,
+    information_vv: FloatArray,
+    score: FloatArray,
+    point: FloatArray,
+    alpha: float,
+    views: int,
+) -> MotionScoreTest | None:
+    """T = g' S^-1 g with S = I_vv - I_vP I_PP^-1 I_Pv, at S's numerical rank (module
+    docstring); None if S vanishes or I_PP is singular."""
+    try:
+        eliminated = np.linalg.solve(information_pp, information_pv)
+    except np.linalg.LinAlgError:
+        return None  # the views do not fix the point (no parallax left after the fit)
+    schur = information_vv - information_pv.T @ eliminated
+    schur = 0.5 * (schur + schur.T)
+    values, vectors = np.linalg.eigh(schur)
+    values = np.maximum(values, 0.0)
+    if not values[-1] > 0.0:
+        return None
+    kept = values > 1e-12 * values[-1]
+    projected = vectors[:, kept].T @ score
+    statistic = float(np.sum(projected**2 / values[kept]))
+    dof = int(np.count_nonzero(kept))
+    threshold = chi2_quantile(1.0 - alpha, dof)
+    covariance = np.linalg.inv(information_pp)
+    return MotionScoreTest(
+        RelationTest(statistic, dof, threshold, statistic > threshold),
+        point.copy(),
+        0.5 * (covariance + covariance.T),
+        values,
+        views,
+    )
+
+
 def triangulate(
     views: list[View],
     start: FloatArray,
@@ -237,6 +561,8 @@ def motion_score_test(
         raise ValueError(f'alpha={alpha!r}: the significance level must be in (0, 1)')
     if len(views) < 3:
         return None
+    if noise is None or noise.white:
+        return motion_score_tests([_views_as_rows(views)], [alpha], [start], iterations)[0]
     fitted = _fit(views, start, iterations, noise)
     if fitted is None:
         return None
@@ -250,26 +576,6 @@ def motion_score_test(
     information_pv = geometry.jacobian.T @ velocity
     information_vv = velocity.T @ velocity
     score = velocity.T @ geometry.residual
-    try:
-        eliminated = np.linalg.solve(information_pp, information_pv)
-    except np.linalg.LinAlgError:
-        return None  # the views do not fix the point (no parallax left after the fit)
-    schur = information_vv - information_pv.T @ eliminated
-    schur = 0.5 * (schur + schur.T)
-    values, vectors = np.linalg.eigh(schur)
-    values = np.maximum(values, 0.0)
-    if not values[-1] > 0.0:
-        return None
-    kept = values > 1e-12 * values[-1]
-    projected = vectors[:, kept].T @ score
-    statistic = float(np.sum(projected**2 / values[kept]))
-    dof = int(np.count_nonzero(kept))
-    threshold = chi2_quantile(1.0 - alpha, dof)
-    covariance = np.linalg.inv(normal)
-    return MotionScoreTest(
-        RelationTest(statistic, dof, threshold, statistic > threshold),
-        point,
-        0.5 * (covariance + covariance.T),
-        values,
-        len(views),
+    return _score_test(
+        information_pp, information_pv, information_vv, score, point, alpha, len(views)
     )
