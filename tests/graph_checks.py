@@ -10,7 +10,15 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from nav_msgs.msg import Odometry
+from rclpy.serialization import deserialize_message
+
+from em_sam_node.conversions import odometry_pose
+from em_sam_node.ingest import IngestConfig, OdometryIngest
 from slam_bringup.graph import load_graph
+from slam_core.stamps import stamp_to_ns
+from slam_interfaces.msg import LandmarkObservationArray
+from slam_ros.bag.source import BagSource
 from slam_ros.tf_tree import TfTree
 
 # REP 105 with the office robot's camera: the one tree of the EM-SAM camera graphs
@@ -76,3 +84,21 @@ def graph_node_parameters(graph: Path, node: str, table: Any) -> dict[str, Any]:
         else:
             values.update(source)
     return dict(values)
+
+
+def offline_keyframes(bag: Path, *, observations: bool = True) -> list[int]:
+    """The keyframe stamps of OdometryIngest (the node's defaults) over the bag's /odom and,
+    with ``observations``, its /landmark_observations' stamps, in bag order."""
+    ingest = OdometryIngest(IngestConfig())
+    topics = ['/odom', '/landmark_observations'] if observations else ['/odom']
+    increments = []
+    with BagSource(bag) as source:
+        for message in source.messages(topics):
+            if message.topic == '/odom':
+                stamp_ns, pose = odometry_pose(deserialize_message(message.data, Odometry))
+                increments += ingest.add_odometry(stamp_ns, pose)
+            else:
+                array = deserialize_message(message.data, LandmarkObservationArray)
+                increments += ingest.add_observation_stamp(stamp_to_ns(array.header.stamp))
+    increments += ingest.flush()
+    return [increments[0].stamp_from_ns, *(i.stamp_to_ns for i in increments)]

@@ -18,15 +18,8 @@ from pathlib import Path
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from graph_checks import last_reports, run_graph
-from nav_msgs.msg import Odometry
-from rclpy.serialization import deserialize_message
+from graph_checks import last_reports, offline_keyframes, run_graph
 
-from em_sam_node.conversions import odometry_pose
-from em_sam_node.ingest import IngestConfig, OdometryIngest
-from slam_core.stamps import stamp_to_ns
-from slam_interfaces.msg import LandmarkObservationArray
-from slam_ros.bag.source import BagSource
 from slam_ros.qos import output_qos
 from slam_ros.testing.harness import RosHarness
 
@@ -35,22 +28,6 @@ pytestmark = pytest.mark.topic
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'office_moveable.mcap'
 RUN_TIMEOUT_S = 400.0
-
-
-def offline_keyframes(bag: Path) -> list[int]:
-    """The keyframe stamps of OdometryIngest (the node's defaults) over the bag, in order."""
-    ingest = OdometryIngest(IngestConfig())
-    increments = []
-    with BagSource(bag) as source:
-        for message in source.messages(['/odom', '/landmark_observations']):
-            if message.topic == '/odom':
-                stamp_ns, pose = odometry_pose(deserialize_message(message.data, Odometry))
-                increments += ingest.add_odometry(stamp_ns, pose)
-            else:
-                array = deserialize_message(message.data, LandmarkObservationArray)
-                increments += ingest.add_observation_stamp(stamp_to_ns(array.header.stamp))
-    increments += ingest.flush()
-    return [increments[0].stamp_from_ns, *(i.stamp_to_ns for i in increments)]
 
 
 def test_paced_replay_maps_every_keyframe_of_the_offline_computation(
