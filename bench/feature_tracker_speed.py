@@ -17,7 +17,7 @@ cv2.setNumThreads(1):
   detection every image where features are missing, grid, subpixel refinement,
   forward-backward check), and variants: FAST corners, detection every 5th image, no
   forward-backward check; and the defaults through ``FeatureTrackingProcessor`` with what
-  the node does around it (decoding a mono8 sensor_msgs/Image payload and filling the
+  the node does around it (decoding a mono8 sensor_msgs/Image payload and serializing the
   FeatureTrackArray; no DDS).
 
 Per variant: frames/s, its ratio to the reference, features per frame, the frame-to-frame
@@ -61,7 +61,7 @@ from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerCon
 from monoslam_shadow_node.feature_tracking import (
     FeatureFrame,
     FeatureTrackingProcessor,
-    fill_feature_array,
+    feature_frame_cdr,
 )
 from slam_core.errors import BagError, SlamError
 from slam_core.files import write_atomically
@@ -253,12 +253,8 @@ def image_message(image: np.ndarray, stamp_ns: int) -> Any:
     )  # fmt: skip
 
 
-def empty_array() -> Any:
-    return SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(), frame_id=''))
-
-
 def run_node_path(messages: list[Any]) -> Tracks:
-    """Decode, process and fill the output message, as the node's image callback does."""
+    """Decode, process and serialize the output message, as the node's image callback does."""
     processor = FeatureTrackingProcessor(TrackerConfig())
     tracks: Tracks = []
     for message in messages:
@@ -266,7 +262,7 @@ def run_node_path(messages: list[Any]) -> Tracks:
         image = image_from_message(message)
         for outcome in processor.add_image(stamp_ns, message.header.frame_id, image, now_s=0.0):
             if isinstance(outcome, FeatureFrame):
-                fill_feature_array(outcome, empty_array(), SimpleNamespace)
+                feature_frame_cdr(outcome)
                 tracks.append((outcome.features.ids, outcome.features.pixels))
     return tracks
 

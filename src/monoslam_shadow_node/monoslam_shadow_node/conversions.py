@@ -63,6 +63,8 @@ MARKER_COLOURS = {
 }
 MARKER_NAMESPACES = {PENDING: 'pending', STATIC: 'static', DYNAMIC: 'dynamic'}
 TRAJECTORY_NAMESPACE = 'dynamic_trajectories'
+_CDR_LITTLE_ENDIAN = b'\x00\x01\x00\x00'
+"""The encapsulation header of a serialized ROS 2 message: plain CDR, little endian."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,11 +119,49 @@ def features_from_message(message: Any) -> Features:
     )
 
 
-_FEATURE_TRACK_CDR = np.dtype(
-    {'names': ['id', 'u', 'v'], 'formats': ['<i8', '<f8', '<f8'], 'offsets': [0, 8, 16],
-     'itemsize': 80}
-)  # fmt: skip
-"""One slam_interfaces/FeatureTrack in CDR (id, u, v, covariance[3], warp[4]: 80 bytes)."""
+FEATURE_TRACK_CDR = np.dtype(
+    [('id', '<i8'), ('u', '<f8'), ('v', '<f8'), ('covariance', '<f8', (3,)), ('warp', '<f8', (4,))]
+)
+"""One slam_interfaces/FeatureTrack in little-endian CDR (id, u, v, covariance[3], warp[4]):
+80 bytes, 8-aligned, as in a sequence."""
+
+
+def _feature_tracks_cdr(data: bytes) -> tuple[int, str, np.ndarray]:
+    """Return the stamp (ns), frame id and tracks (FEATURE_TRACK_CDR records, a read-only
+    view of ``data``) of a serialized FeatureTrackArray; ValueError (or IndexError,
+    struct.error, UnicodeDecodeError) when the bytes are not plain little-endian CDR of one."""
+    if data[:4] != _CDR_LITTLE_ENDIAN:
+        raise ValueError('not plain little-endian CDR')
+    sec, nanosec, length = struct.unpack_from('<iII', data, 4)
+    if length < 1 or data[15 + length] != 0:
+        raise ValueError('frame_id is not a NUL-terminated string')
+    frame_id = data[16 : 15 + length].decode()
+    offset = 16 + length
+    offset += -(offset - 4) % 4  # CDR alignment counts from after the encapsulation
+    (count,) = struct.unpack_from('<I', data, offset)
+    offset += 4
+    if count:
+        offset += -(offset - 4) % 8
+    if len(data) < offset + FEATURE_TRACK_CDR.itemsize * count:
+        raise ValueError('shorter than its tracks')
+    tracks = np.frombuffer(data, dtype=FEATURE_TRACK_CDR, count=count, offset=offset)
+    return sec * 1_000_000_000 + nanosec, frame_id, tracks
+
+
+def _deserialized(data: bytes, deserialize: Callable[[bytes], Any]) -> Any:
+    """Return ``deserialize(data)``; ValueError naming the bytes' size when they are no
+    FeatureTrackArray at all."""
+    try:
+        return deserialize(data)
+    except Exception as err:  # rclpy raises its RMWError (not exported) for bad bytes
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise ValueError(
+            f'a features message of {len(data)} bytes is not a '
+            f'slam_interfaces/FeatureTrackArray ({reason})'
+        ) from None
+
+
+_CDR_ERRORS = (ValueError, IndexError, struct.error, UnicodeDecodeError)
 
 
 def features_from_cdr(data: bytes, deserialize: Callable[[bytes], Any]) -> Features:
@@ -132,48 +172,63 @@ def features_from_cdr(data: bytes, deserialize: Callable[[bytes], Any]) -> Featu
     through ``deserialize`` (bytes -> message) and ``features_from_message``; ValueError
     naming their size and the reason when the bytes are no such message at all."""
     try:
-        if data[:4] != _CDR_LITTLE_ENDIAN:
-            raise ValueError('not plain little-endian CDR')
-        sec, nanosec, length = struct.unpack_from('<iII', data, 4)
-        if length < 1 or data[15 + length] != 0:
-            raise ValueError('frame_id is not a NUL-terminated string')
-        frame_id = data[16 : 15 + length].decode()
-        offset = 16 + length
-        offset += -(offset - 4) % 4  # CDR alignment counts from after the encapsulation
-        (count,) = struct.unpack_from('<I', data, offset)
-        offset += 4
-        if count:
-            offset += -(offset - 4) % 8
-        if len(data) < offset + 80 * count:
-            raise ValueError('shorter than its tracks')
-        tracks = np.frombuffer(data, dtype=_FEATURE_TRACK_CDR, count=count, offset=offset)
-    except (ValueError, IndexError, struct.error, UnicodeDecodeError):
-        try:
-            message = deserialize(data)
-        except Exception as err:  # rclpy raises its RMWError (not exported) for bad bytes
-            reason = str(err).splitlines()[0] if str(err) else type(err).__name__
-            raise ValueError(
-                f'a features message of {len(data)} bytes is not a '
-                f'slam_interfaces/FeatureTrackArray ({reason})'
-            ) from None
-        return features_from_message(message)
-    return Features(
-        sec * 1_000_000_000 + nanosec,
-        frame_id,
-        tracks['id'].astype(np.int64),
-        np.column_stack([tracks['u'], tracks['v']]).astype(np.float64),
-    )
+        stamp_ns, frame_id, tracks = _feature_tracks_cdr(data)
+    except _CDR_ERRORS:
+        return features_from_message(_deserialized(data, deserialize))
+    pixels = np.column_stack([tracks['u'], tracks['v']]).astype(np.float64)
+    return Features(stamp_ns, frame_id, tracks['id'].astype(np.int64), pixels)
+
+
+def predictions_from_cdr(
+    data: bytes, deserialize: Callable[[bytes], Any]
+) -> tuple[Features, FloatArray, FloatArray]:
+    """Return the predicted pixels of a serialized FeatureTrackArray (``features_from_cdr``)
+    with their covariances (K, 2, 2) and warps (K, 2, 2) (``prediction_covariances``,
+    ``prediction_warps``), read from the bytes the same way."""
+    try:
+        stamp_ns, frame_id, tracks = _feature_tracks_cdr(data)
+    except _CDR_ERRORS:
+        message = _deserialized(data, deserialize)
+        return (
+            features_from_message(message),
+            prediction_covariances(message),
+            prediction_warps(message),
+        )
+    pixels = np.column_stack([tracks['u'], tracks['v']]).astype(np.float64)
+    features = Features(stamp_ns, frame_id, tracks['id'].astype(np.int64), pixels)
+    return features, _covariances_2x2(tracks['covariance']), tracks['warp'].reshape(-1, 2, 2)
+
+
+def feature_array_cdr(tracks: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:
+    """Return a slam_interfaces/FeatureTrackArray serialized (little-endian CDR, the layout
+    ``features_from_cdr`` reads; the bytes rclpy makes of that message): header = stamp and
+    frame id, ``tracks`` FEATURE_TRACK_CDR records. Built in one numpy array instead of a
+    Python object per track."""
+    tracks = np.ascontiguousarray(tracks, dtype=FEATURE_TRACK_CDR)
+    name = frame_id.encode('utf-8') + b'\x00'
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    head = _CDR_LITTLE_ENDIAN + struct.pack('<iII', sec, nanosec, len(name)) + name
+    head += bytes(-(len(head) - 4) % 4) + struct.pack('<I', len(tracks))
+    if len(tracks):
+        head += bytes(-(len(head) - 4) % 8)
+    return head + tracks.tobytes()
+
+
+def _covariances_2x2(upper: FloatArray) -> FloatArray:
+    """Return the covariances (K, 2, 2) of FeatureTrack.covariance rows (K, 3) [uu, uv, vv]."""
+    upper = np.asarray(upper, dtype=np.float64).reshape(-1, 3)
+    covariances = np.empty((len(upper), 2, 2))
+    covariances[:, 0, 0], covariances[:, 1, 1] = upper[:, 0], upper[:, 2]
+    covariances[:, 0, 1] = covariances[:, 1, 0] = upper[:, 1]
+    return covariances
 
 
 def prediction_covariances(message: Any) -> FloatArray:
     """Return the covariances (K, 2, 2), px^2, of a slam_interfaces/FeatureTrackArray's
     predicted pixels (FeatureTrack.covariance [uu, uv, vv]; zeros where not given)."""
-    upper = np.array([list(track.covariance) for track in message.tracks], dtype=np.float64)
-    upper = upper.reshape(-1, 3)
-    covariances = np.empty((len(upper), 2, 2))
-    covariances[:, 0, 0], covariances[:, 1, 1] = upper[:, 0], upper[:, 2]
-    covariances[:, 0, 1] = covariances[:, 1, 0] = upper[:, 1]
-    return covariances
+    return _covariances_2x2(
+        np.array([list(track.covariance) for track in message.tracks], dtype=np.float64)
+    )
 
 
 def prediction_warps(message: Any) -> FloatArray:
@@ -381,8 +436,6 @@ def fill_track_array(
     return message
 
 
-_CDR_LITTLE_ENDIAN = b'\x00\x01\x00\x00'
-"""The encapsulation header of a serialized ROS 2 message: plain CDR, little endian."""
 _SHADOW_TRACK_CDR = np.dtype(
     {
         'names': [

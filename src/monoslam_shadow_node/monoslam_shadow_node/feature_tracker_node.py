@@ -13,14 +13,14 @@ Topics:
               image_transport is 'raw', or camera/image_raw/compressed
               (sensor_msgs/CompressedImage) when it is 'compressed'; best effort, depth 5.
               camera/camera_info (sensor_msgs/CameraInfo, best effort): optional, see below.
-              features/predicted (slam_interfaces/FeatureTrackArray, reliable, depth 10), when
-              use_predictions is true: predicted raw pixels of some track ids (e.g. the SLAM
-              filter's projection of its map) for the image whose stamp is header.stamp; LK
-              starts from them. Used only for the image with exactly that stamp; an image
-              waits up to prediction_timeout_s (wall time) for its prediction, then is tracked
-              without one. Ids neither tracked nor remembered and predictions for images
-              already tracked are ignored. A prediction with a covariance (FeatureTrack
-              covariance, px^2) for a dropped track is an active search for it
+              features/predicted (slam_interfaces/FeatureTrackArray, reliable, depth 10, taken
+              serialized and read from its bytes), when use_predictions is true: predicted raw
+              pixels of some track ids (e.g. the SLAM filter's projection of its map) for the image
+              whose stamp is header.stamp; LK starts from them. Used only for the image with
+              exactly that stamp; an image waits up to prediction_timeout_s (wall time) for its
+              prediction, then is tracked without one. Ids neither tracked nor remembered and
+              predictions for images already tracked are ignored. A prediction with a covariance
+              (FeatureTrack covariance, px^2) for a dropped track is an active search for it
               (re-identification, core.feature_tracker).
   publishes   features (slam_interfaces/FeatureTrackArray, reliable, depth 10), one per image
               tracked (also when it holds no feature): header.stamp = the image stamp,
@@ -111,10 +111,12 @@ from __future__ import annotations
 
 import sys
 import time
+from functools import partial
 from typing import Any
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from marker_detector.conversions import (
@@ -123,11 +125,7 @@ from marker_detector.conversions import (
     image_from_message,
 )
 from marker_detector.core.images import ImageError, ImageTooLargeError
-from monoslam_shadow_node.conversions import (
-    features_from_message,
-    prediction_covariances,
-    prediction_warps,
-)
+from monoslam_shadow_node.conversions import predictions_from_cdr
 from monoslam_shadow_node.feature_overlay import StatusBook, draw_features
 from monoslam_shadow_node.feature_tracker_settings import (
     NODE_NAME,
@@ -139,13 +137,13 @@ from monoslam_shadow_node.feature_tracking import (
     FeatureFrame,
     FeatureTrackingProcessor,
     Outcome,
-    fill_feature_array,
+    feature_frame_cdr,
     status_line,
 )
 from monoslam_shadow_node.notices import Notice
 from slam_core.cli import console_main
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
-from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrackArray
+from slam_interfaces.msg import FeatureTrackArray, ShadowTrackArray
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.qos import output_qos, sensor_qos
@@ -200,6 +198,7 @@ class FeatureTrackerNode(Node):
             camera_info_topic=CAMERA_INFO_TOPIC,
         )
         self.undecodable = 0
+        self.undecodable_predictions = 0
         self.too_large = 0
         self.busy_s = 0.0
         self._throttle = KindThrottle(REPEAT_PERIOD_S)
@@ -224,11 +223,16 @@ class FeatureTrackerNode(Node):
         )
         self._poll_timer = None
         if self.settings.use_predictions:
+            # taken serialized: predictions_from_cdr reads them from the bytes
+            self._deserialize_predictions = partial(
+                deserialize_message, message_type=FeatureTrackArray
+            )
             self.create_subscription(
                 FeatureTrackArray,
                 PREDICTIONS_TOPIC,
                 timed(self._on_predictions, 'predictions'),
                 output_qos(),
+                raw=True,
             )
             # Runs only while an image waits for its prediction (see _arm_poll).
             self._poll_timer = self.create_timer(
@@ -300,9 +304,15 @@ class FeatureTrackerNode(Node):
         if notice is not None:
             self._log(notice)
 
-    def _on_predictions(self, message: FeatureTrackArray) -> None:
-        predicted = features_from_message(message)
-        covariances, warps = prediction_covariances(message), prediction_warps(message)
+    def _on_predictions(self, data: bytes) -> None:
+        try:
+            predicted, covariances, warps = predictions_from_cdr(
+                data, self._deserialize_predictions
+            )
+        except ValueError as err:  # not what a publisher of the type sends: counted, dropped
+            self.undecodable_predictions += 1
+            self._log(Notice('undecodable_predictions', 'error', f'prediction dropped: {err}'))
+            return
         self._handle(
             self.processor.add_predictions(
                 predicted.stamp_ns, predicted.ids, predicted.pixels, covariances, warps
@@ -329,9 +339,7 @@ class FeatureTrackerNode(Node):
     def _handle(self, outcomes: list[Outcome]) -> None:
         for outcome in outcomes:
             if isinstance(outcome, FeatureFrame):
-                self.features_publisher.publish(
-                    fill_feature_array(outcome, FeatureTrackArray(), FeatureTrack)
-                )
+                self.features_publisher.publish(feature_frame_cdr(outcome))
                 self._publish_debug_image(outcome)
             else:
                 self._log(outcome)
@@ -373,8 +381,12 @@ class FeatureTrackerNode(Node):
         stats = self.processor.stats
         return {
             'processed': stats.frames,
-            'dropped': sum(stats.images_dropped.values()) + self.undecodable + self.too_large,
+            'dropped': sum(stats.images_dropped.values())
+            + self.undecodable
+            + self.too_large
+            + self.undecodable_predictions,
             'refused too large': self.too_large,
+            'predictions undecodable': self.undecodable_predictions,
             'camera_info rejected': stats.camera_rejected,
             'restarts': stats.restarts,
             'features': stats.latest_features,

@@ -32,12 +32,12 @@ Rules:
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
+from monoslam_shadow_node.conversions import FEATURE_TRACK_CDR, feature_array_cdr
 from monoslam_shadow_node.core.feature_tracker import (
     DROP_REASONS,
     FeatureTracker,
@@ -51,7 +51,6 @@ from monoslam_shadow_node.core.feature_tracker import (
 )
 from monoslam_shadow_node.notices import Notice
 from slam_core.camera import CameraModel
-from slam_core.stamps import ns_to_stamp
 
 PREDICTIONS_KEPT = 10
 DROP_KINDS = ('out_of_order', 'repeated_stamp', 'size_mismatch', 'bad_image')
@@ -409,19 +408,13 @@ def status_line(stats: TrackingStats, rate_hz: float | None = None) -> str:
     return text
 
 
-def fill_feature_array(frame: FeatureFrame, message: Any, make_track: Callable[[], Any]) -> Any:
-    """Fill a slam_interfaces/FeatureTrackArray (``message``; ``make_track`` builds an empty
-    FeatureTrack) from ``frame`` and return it: header = image stamp and camera frame id,
-    one track per feature (id, u, v). Features with non-finite pixels are left out (the core
-    never returns any)."""
-    ns_to_stamp(frame.stamp_ns, message.header.stamp)
-    message.header.frame_id = frame.frame_id
-    tracks = []
+def feature_frame_cdr(frame: FeatureFrame) -> bytes:
+    """Return the slam_interfaces/FeatureTrackArray of ``frame`` serialized (the bytes
+    rclpy makes of that message; ``conversions.feature_array_cdr``): header = image stamp
+    and camera frame id, one track per feature (id, u, v; covariance and warp zero).
+    Features with non-finite pixels are left out (the core never returns any)."""
     ids, pixels = frame.features.ids, frame.features.pixels
     finite = np.all(np.isfinite(pixels), axis=1)
-    for track_id, (u, v) in zip(ids[finite].tolist(), pixels[finite].tolist(), strict=True):
-        track = make_track()
-        track.id, track.u, track.v = int(track_id), float(u), float(v)
-        tracks.append(track)
-    message.tracks = tracks
-    return message
+    tracks = np.zeros(int(np.count_nonzero(finite)), FEATURE_TRACK_CDR)
+    tracks['id'], tracks['u'], tracks['v'] = ids[finite], pixels[finite, 0], pixels[finite, 1]
+    return feature_array_cdr(tracks, frame.stamp_ns, frame.frame_id)

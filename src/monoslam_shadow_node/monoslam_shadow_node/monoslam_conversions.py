@@ -19,7 +19,6 @@ world axes), which is geometry_msgs/PoseWithCovariance's order and convention (s
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -27,7 +26,12 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from monoslam_shadow_node.conversions import FloatArray, IntArray
+from monoslam_shadow_node.conversions import (
+    FEATURE_TRACK_CDR,
+    FloatArray,
+    IntArray,
+    feature_array_cdr,
+)
 from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamResult
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
@@ -114,15 +118,6 @@ class PoseFields:
             f'camera at ({x:.3f}, {y:.3f}, {z:.3f}) m, sigma {position_sigma:.3f} m / '
             f'{rotation_sigma:.4f} rad'
         )
-
-
-FEATURE_TRACK_DTYPE = np.dtype(
-    [('id', '<i8'), ('u', '<f8'), ('v', '<f8'), ('covariance', '<f8', (3,)), ('warp', '<f8', (4,))]
-)
-"""One slam_interfaces/FeatureTrack in little-endian CDR: 80 bytes, 8-aligned."""
-CDR_LITTLE_ENDIAN = b'\x00\x01'
-"""The encapsulation header's first two bytes for plain little-endian CDR (what the rmw
-layers send for ROS 2 messages)."""
 
 
 def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> TargetSighting:
@@ -313,17 +308,11 @@ def predictions_cdr(
     (little-endian CDR, the layout ``conversions.features_from_cdr`` reads), built in one
     numpy array instead of a Python object per track: the bytes rclpy makes of that message."""
     pixels, upper, flat, finite = prediction_rows(pixels, covariances, warps)
-    tracks = np.zeros(int(np.count_nonzero(finite)), FEATURE_TRACK_DTYPE)
+    tracks = np.zeros(int(np.count_nonzero(finite)), FEATURE_TRACK_CDR)
     tracks['id'] = np.asarray(ids, dtype=np.int64)[finite]
     tracks['u'], tracks['v'] = pixels[finite, 0], pixels[finite, 1]
     tracks['covariance'], tracks['warp'] = upper[finite], flat[finite]
-    name = frame_id.encode('utf-8') + b'\x00'
-    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    head = CDR_LITTLE_ENDIAN + bytes(2) + struct.pack('<iII', sec, nanosec, len(name)) + name
-    head += bytes(-(len(head) - 4) % 4) + struct.pack('<I', len(tracks))
-    if len(tracks):
-        head += bytes(-(len(head) - 4) % 8)
-    return head + tracks.tobytes()
+    return feature_array_cdr(tracks, stamp_ns, frame_id)
 
 
 DYNAMIC_STATUS = 2

@@ -7,12 +7,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import cv2
 import numpy as np
 import pytest
+from rclpy.serialization import deserialize_message, serialize_message
 
 from monoslam_shadow_node import feature_tracker_node
 from monoslam_shadow_node import feature_tracker_settings as settings
@@ -22,7 +22,7 @@ from monoslam_shadow_node.feature_tracking import (
     FeatureFrame,
     FeatureTrackingProcessor,
     Outcome,
-    fill_feature_array,
+    feature_frame_cdr,
     status_line,
 )
 from monoslam_shadow_node.notices import Notice
@@ -407,24 +407,30 @@ def test_throttle_lets_one_line_per_kind_through_and_counts_the_rest() -> None:
 # --- conversions ---------------------------------------------------------------------------
 
 
-def test_feature_arrays_are_filled_with_stamp_frame_ids_and_pixels() -> None:
+def test_feature_frames_are_serialized_as_rclpy_serializes_the_message() -> None:
     tracker = processor()
     (frame,) = frames(tracker.add_image(3 * S + 5, 'camera_optical_frame', IMAGE, now_s=0.0))
-    message = fill_feature_array(frame, FeatureTrackArray(), FeatureTrack)
-    assert (message.header.stamp.sec, message.header.stamp.nanosec) == (3, 5)
-    assert message.header.frame_id == 'camera_optical_frame'
-    assert [t.id for t in message.tracks] == frame.features.ids.tolist()
-    assert message.tracks[0].u == frame.features.pixels[0, 0]
-    assert message.tracks[0].v == frame.features.pixels[0, 1]
+    data = feature_frame_cdr(frame)
+    message = FeatureTrackArray()
+    message.header.stamp.sec, message.header.stamp.nanosec = 3, 5
+    message.header.frame_id = 'camera_optical_frame'
+    ids, pixels = frame.features.ids.tolist(), frame.features.pixels.tolist()
+    message.tracks = [FeatureTrack(id=i, u=u, v=v) for i, (u, v) in zip(ids, pixels, strict=True)]
+    assert len(data) == len(serialize_message(message))  # padding bytes are not defined
+    read = deserialize_message(data, FeatureTrackArray)
+    assert (read.header.stamp.sec, read.header.stamp.nanosec) == (3, 5)
+    assert read.header.frame_id == 'camera_optical_frame'
+    assert [(t.id, t.u, t.v) for t in read.tracks] == [(t.id, t.u, t.v) for t in message.tracks]
+    assert all(not any(t.covariance) and not any(t.warp) for t in read.tracks)
     # a non-finite pixel (which the core never returns) is left out
-    pixels = frame.features.pixels.copy()
-    pixels[0, 1] = math.nan
-    broken = dataclasses.replace(frame.features, pixels=pixels)
-    plain = SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(), frame_id=''))
-    filled = fill_feature_array(
-        dataclasses.replace(frame, features=broken), plain, lambda: SimpleNamespace()
+    broken_pixels = frame.features.pixels.copy()
+    broken_pixels[0, 1] = math.nan
+    broken = dataclasses.replace(frame.features, pixels=broken_pixels)
+    read = deserialize_message(
+        feature_frame_cdr(dataclasses.replace(frame, features=broken)), FeatureTrackArray
     )
-    assert len(filled.tracks) == 39 and all(math.isfinite(t.u) for t in filled.tracks)
+    assert len(read.tracks) == 39 and all(math.isfinite(t.v) for t in read.tracks)
+    assert [t.id for t in read.tracks] == ids[1:]
 
 
 # --- launch file ---------------------------------------------------------------------------

@@ -1,7 +1,9 @@
 """monoslam reads its features serialized (``conversions.features_from_cdr``): the same ids,
 pixels, stamp and frame as the message rclpy deserializes, for every alignment of the frame
-id; and it publishes its predictions serialized (``predictions_cdr``): the message
-``fill_predictions`` fills, as rclpy deserializes the bytes."""
+id; it publishes its predictions serialized (``predictions_cdr``): the message
+``fill_predictions`` fills, as rclpy deserializes the bytes; and the feature tracker reads
+them serialized (``conversions.predictions_from_cdr``): the same covariances and warps as
+from the message."""
 
 from __future__ import annotations
 
@@ -9,7 +11,13 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 
-from monoslam_shadow_node.conversions import features_from_cdr, features_from_message
+from monoslam_shadow_node.conversions import (
+    features_from_cdr,
+    features_from_message,
+    prediction_covariances,
+    prediction_warps,
+    predictions_from_cdr,
+)
 from monoslam_shadow_node.monoslam_conversions import (
     fill_predictions,
     predictions_cdr,
@@ -45,6 +53,23 @@ def test_serialized_features_read_as_the_message(frame_id: str, count: int) -> N
     assert features.ids.dtype == np.int64 and np.array_equal(features.ids, expected.ids)
     assert features.pixels.shape == (count, 2)
     assert np.array_equal(features.pixels, expected.pixels)
+
+
+@pytest.mark.parametrize('frame_id', ['', 'cam', 'camera_optical'])
+@pytest.mark.parametrize('count', [0, 1, 100])
+def test_serialized_predictions_read_as_the_message(frame_id: str, count: int) -> None:
+    sent = message(frame_id, count, seed=count + 7)
+    features, covariances, warps = predictions_from_cdr(serialize_message(sent), deserialize)
+    expected = features_from_message(sent)
+    assert (features.stamp_ns, features.frame_id) == (expected.stamp_ns, expected.frame_id)
+    assert np.array_equal(features.ids, expected.ids)
+    assert np.array_equal(features.pixels, expected.pixels)
+    assert covariances.shape == warps.shape == (count, 2, 2)
+    assert np.array_equal(covariances, prediction_covariances(sent))
+    assert np.array_equal(warps, prediction_warps(sent))
+    # bytes of no message are refused as the features' are
+    with pytest.raises(ValueError, match='features message of 5 bytes is not a '):
+        predictions_from_cdr(serialize_message(sent)[:5], deserialize)
 
 
 def deserialize(raw: bytes) -> FeatureTrackArray:
