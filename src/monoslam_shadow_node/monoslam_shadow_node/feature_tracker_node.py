@@ -64,8 +64,8 @@ the core's, written out in config/feature_tracker.yaml (a test keeps the two equ
                                   closer than half of it to an older one are dropped.
   grid_rows, grid_cols (4, 4)     grid of cells that each get up to max_features / cells new
                                   features first, so that they spread over the image.
-  detect_every_n_frames (1)       look for new features every n-th image (and whenever none
-                                  is left).
+  detect_every_n_frames (3)       look for new features every n-th image (and whenever none
+                                  is left); 3 detects at 10 Hz on a 30 Hz camera.
   subpixel_refinement (true)      refine new corners with cv2.cornerSubPix.
   lk_window_px (21)               side of the Lucas-Kanade patch, px.
   lk_pyramid_levels (3)           pyramid levels above the image.

@@ -270,7 +270,7 @@ def test_the_grid_spreads_features_where_texture_is_weak() -> None:
 def test_detection_fills_only_where_tracks_were_lost(scene: np.ndarray) -> None:
     """A cell-sized patch changes to other texture in frame 1 (an object passes): its tracks
     die, and the new features of that frame start there; the other tracks go on."""
-    tracker = FeatureTracker()
+    tracker = FeatureTracker(TrackerConfig(detect_every_n_frames=1))
     first = tracker.track(warped(scene, np.eye(3)))
     changed = warped(scene, shifted(1.0, 0.5))
     changed[120:240, 160:320] = to_gray(texture(120, 160, seed=5))  # cell (1, 1) of 4x4
@@ -284,6 +284,28 @@ def test_detection_fills_only_where_tracks_were_lost(scene: np.ndarray) -> None:
     new = second.pixels[second.ages == 1]
     assert second.counts.new >= inside.sum()
     assert np.all((new >= [160 - 12, 120 - 12]) & (new < [320 + 12, 240 + 12]))  # and its edges
+
+
+def test_detection_runs_every_third_image_by_default_and_whenever_no_track_is_left(
+    scene: np.ndarray,
+) -> None:
+    """Between detections a lost track leaves its place empty; the third image after a
+    detection fills it. An image with no track left detects at once."""
+    tracker = FeatureTracker()
+    assert tracker.config.detect_every_n_frames == 3
+    news = []
+    for k in range(7):
+        image = warped(scene, shifted(1.0 * k, 0.5 * k))
+        if k in (1, 4):  # an object passes over cell (1, 1): its tracks die
+            image[120:240, 160:320] = to_gray(texture(120, 160, seed=5 + k))
+        result = tracker.track(image)
+        check_output(result, tracker.config)
+        news.append(result.counts.new)
+    assert news[0] == 150 and news[1] == news[2] == news[4] == news[5] == 0
+    assert news[3] > 0 and news[6] > 0
+    # nothing left (a blank image drops every track): the next image detects at once
+    tracker.track(np.full((HEIGHT, WIDTH), 90, np.uint8))
+    assert tracker.track(warped(scene, np.eye(3))).counts.new == 150
 
 
 def test_cells_without_texture_leave_their_share_to_the_others() -> None:
@@ -300,7 +322,11 @@ def test_max_features_and_min_distance_hold_over_a_sequence(
     scene: np.ndarray, detector: str, subpixel: bool
 ) -> None:
     config = TrackerConfig(
-        max_features=40, detector=detector, min_distance_px=15.0, subpixel_refinement=subpixel
+        max_features=40,
+        detector=detector,
+        min_distance_px=15.0,
+        subpixel_refinement=subpixel,
+        detect_every_n_frames=1,
     )
     # Detection keeps min_distance_px between pixels (existing tracks rounded); refinement
     # then moves a new corner by at most SUBPIXEL_HALF_WINDOW_PX.
@@ -456,7 +482,7 @@ def test_a_dropped_track_is_re_identified_where_its_prediction_expects_it() -> N
     """The camera turns away and back: predictions with a 4 px sigma (as SLAM's 3-sigma
     search region) bring view A's tracks back with their own ids, within half a pixel; the
     tracks started in between are not duplicated on them."""
-    config = TrackerConfig(max_features=120)
+    config = TrackerConfig(max_features=120, detect_every_n_frames=1)
     back = shifted(3.0, -2.0)
     tracker, first, truth = _away_and_back(config, back)
     rng = np.random.default_rng(1)
@@ -483,7 +509,7 @@ def test_a_dropped_track_is_re_identified_where_its_prediction_expects_it() -> N
 
 
 def test_re_identification_needs_a_covariance_and_a_match_inside_the_ellipse() -> None:
-    config = TrackerConfig(max_features=120)
+    config = TrackerConfig(max_features=120, detect_every_n_frames=1)
     back = shifted(3.0, -2.0)
     source = texture(HEIGHT, WIDTH, seed=5)
     # no covariance: LK guesses only, and dropped tracks stay dropped
@@ -507,7 +533,7 @@ def test_a_revived_track_displaces_a_younger_one_on_the_same_corner() -> None:
     """Back at view A without predictions, new tracks start on A's corners; when the
     predictions come a frame later, the old ids return and the younger duplicates go
     (crowded), so the map point keeps its id."""
-    config = TrackerConfig(max_features=120)
+    config = TrackerConfig(max_features=120, detect_every_n_frames=1)
     back = shifted(3.0, -2.0)
     source = texture(HEIGHT, WIDTH, seed=5)
     tracker, first, _ = _away_and_back(config, back)
@@ -570,7 +596,7 @@ def test_a_warped_template_finds_a_track_seen_larger_and_rolled() -> None:
 def test_a_template_warped_past_recognition_is_not_searched() -> None:
     """A warp that shrinks the template below MIN_CORE_PX (seen from four times farther)
     or mirrors it: not searched, counted as unsearched, nothing revived."""
-    config = TrackerConfig(max_features=120)
+    config = TrackerConfig(max_features=120, detect_every_n_frames=1)
     back = shifted(3.0, -2.0)
     source = texture(HEIGHT, WIDTH, seed=5)
     for warp in (0.25 * np.eye(2), np.diag([1.0, -1.0])):
