@@ -58,7 +58,9 @@ Parameters:
                               and the whole image again when a box misses it. A few markers
                               followed at a camera's rate then cost a fraction of a frame's
                               time; a marker newly in view is found at most
-                              search_period_frames - 1 frames late. 1: every frame.
+                              search_period_frames - 1 frames late. 1: every frame. With
+                              allowed_ids set, no whole-image search while every allowed id
+                              is followed (nothing else could be found).
   search_margin_px (32.0)     how far a followed marker may move between frames and still be
                               found in its box, px (32: a turn of 1.8 rad/s at fx 525 px and
                               30 Hz); a marker that moves farther is found by the whole-image

@@ -196,7 +196,8 @@ PARAMETERS = ParamTable(
             'search_period_frames',
             1,
             'search the whole image every this many frames, between them only about the '
-            'markers of the frame before (1: every frame)',
+            'markers of the frame before (1: every frame; none while every allowed id is '
+            'followed)',
             range=Range(1.0, None),
         ),
         Param(
@@ -214,7 +215,14 @@ def search_plan(values: dict[str, Any]) -> SearchPlan:
     """Validate the search parameters into a SearchPlan (raises ParameterError)."""
     period = PARAMETERS.validate_one('search_period_frames', values['search_period_frames'])
     margin = PARAMETERS.validate_one('search_margin_px', values['search_margin_px'])
-    return PARAMETERS.build(lambda: SearchPlan(period=int(period), margin_px=float(margin)))
+    allowed = PARAMETERS.validate_one('allowed_ids', values['allowed_ids'])
+    return PARAMETERS.build(
+        lambda: SearchPlan(
+            period=int(period),
+            margin_px=float(margin),
+            wanted=frozenset(parse_id_ranges(allowed)),
+        )
+    )
 
 
 def detector_config(values: dict[str, Any]) -> DetectorConfig:

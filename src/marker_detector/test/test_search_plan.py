@@ -48,6 +48,22 @@ def test_a_period_of_three_searches_the_whole_image_every_third_frame() -> None:
     assert plan.boxes(8, SHAPE) == [(77, 77, 174, 174)]
 
 
+def test_no_whole_image_search_while_every_wanted_id_is_followed() -> None:
+    plan = SearchPlan(period=2, wanted=frozenset({0}))
+    kinds = []
+    for stamp, markers in enumerate([{0: SQUARE}] * 5 + [{}, {}, {0: SQUARE}, {0: SQUARE}]):
+        boxes = plan.boxes(stamp, SHAPE)
+        kinds.append('whole' if boxes is None else 'box')
+        plan.searched(boxes is None, markers)  # frames 5, 6: the target is gone
+    assert kinds == ['whole', 'box', 'box', 'box', 'box', 'box', 'whole', 'whole', 'box']
+    # another wanted id not followed yet: the period holds
+    plan = SearchPlan(period=2, wanted=frozenset({0, 7}))
+    plan.searched(True, {0: SQUARE})
+    assert plan.boxes(1, SHAPE) is not None
+    plan.searched(False, {0: SQUARE})
+    assert plan.boxes(2, SHAPE) is None
+
+
 def test_nothing_followed_stamps_back_and_image_borders() -> None:
     plan = SearchPlan(period=4)
     assert plan.boxes(10, SHAPE) is None  # nothing followed yet

@@ -10,6 +10,11 @@ between two frames). When a box search misses a marker that was followed, the ca
 searches the whole image in the same frame (``needs_full_search``), so a marker that moved
 farther than the margin is not lost, only paid for; what a box search cannot see is a
 marker newly in view, found at the next whole-image search, at most n - 1 frames later.
+When the detector looks for given ids only (``wanted``, its allowed_ids) and follows every
+one of them, nothing new can come into view: the periodic whole-image search is skipped
+until one of them is lost (e.g. MonoSLAM's one initialization target, followed in a box
+of a few thousand pixels per frame instead of a whole-image search of the textured scene
+every period).
 
 A box search gives the corners a whole-image search gives: cv2.aruco thresholds the box as
 it would the image (the margin holds the threshold windows, at most 23 px), and the corners
@@ -37,6 +42,7 @@ class SearchPlan:
 
     period: int = 1
     margin_px: float = 32.0
+    wanted: frozenset[int] = frozenset()  # the only ids looked for (empty: any id)
     followed: dict[int, FloatArray] = field(default_factory=dict)  # id -> corners (4, 2)
     since_full: int = 0  # frames since the last whole-image search
     last_stamp_ns: int | None = None
@@ -56,11 +62,18 @@ class SearchPlan:
         if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
             self.reset()
         self.last_stamp_ns = stamp_ns
-        if self.period == 1 or not self.followed or self.since_full + 1 >= self.period:
+        if self.period == 1 or not self.followed:
+            return None
+        if self.since_full + 1 >= self.period and not self.follows_every_wanted_id:
             return None
         height, width = shape[0], shape[1]
         boxes = [self._box(corners, width, height) for corners in self.followed.values()]
         return merge_boxes([b for b in boxes if b[2] > b[0] and b[3] > b[1]])
+
+    @property
+    def follows_every_wanted_id(self) -> bool:
+        """Whether only given ids are looked for and each of them is followed."""
+        return bool(self.wanted) and self.wanted <= set(self.followed)
 
     def needs_full_search(self, found: set[int]) -> bool:
         """Whether a box search that found the ids ``found`` missed a followed marker."""
