@@ -417,7 +417,8 @@ def first_contact(images: Any, features: Collector, image: np.ndarray) -> int:
 def test_the_node_process_logs_bad_input_and_stops_cleanly(
     ros_harness: RosHarness, source: np.ndarray
 ) -> None:
-    node = start_node(ros_harness, '-p', 'max_features:=80')
+    # detection in every image: the image after the bad ones is filled up to max_features
+    node = start_node(ros_harness, '-p', 'max_features:=80', '-p', 'detect_every_n_frames:=1')
     features = ros_harness.collect('features', FeatureTrackArray)
     images = ros_harness.publisher('camera/image_raw', Image)
     ros_harness.wait_for_subscribers(images)
