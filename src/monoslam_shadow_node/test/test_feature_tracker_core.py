@@ -286,28 +286,6 @@ def test_detection_fills_only_where_tracks_were_lost(scene: np.ndarray) -> None:
     assert np.all((new >= [160 - 12, 120 - 12]) & (new < [320 + 12, 240 + 12]))  # and its edges
 
 
-def test_detection_runs_every_third_image_by_default_and_whenever_no_track_is_left(
-    scene: np.ndarray,
-) -> None:
-    """Between detections a lost track leaves its place empty; the third image after a
-    detection fills it. An image with no track left detects at once."""
-    tracker = FeatureTracker()
-    assert tracker.config.detect_every_n_frames == 3
-    news = []
-    for k in range(7):
-        image = warped(scene, shifted(1.0 * k, 0.5 * k))
-        if k in (1, 4):  # an object passes over cell (1, 1): its tracks die
-            image[120:240, 160:320] = to_gray(texture(120, 160, seed=5 + k))
-        result = tracker.track(image)
-        check_output(result, tracker.config)
-        news.append(result.counts.new)
-    assert news[0] == 150 and news[1] == news[2] == news[4] == news[5] == 0
-    assert news[3] > 0 and news[6] > 0
-    # nothing left (a blank image drops every track): the next image detects at once
-    tracker.track(np.full((HEIGHT, WIDTH), 90, np.uint8))
-    assert tracker.track(warped(scene, np.eye(3))).counts.new == 150
-
-
 def test_cells_without_texture_leave_their_share_to_the_others() -> None:
     """The left half is flat: all max_features features go to the right half."""
     image = to_gray(texture(HEIGHT, WIDTH, seed=4))
@@ -471,7 +449,7 @@ def _away_and_back(
     ``back`` (view A moved by a homography). Return the tracker (before tracking ``back``),
     view A's features and where they are in ``back``."""
     source = texture(HEIGHT, WIDTH, seed=5)
-    tracker = FeatureTracker(config)
+    tracker = FeatureTracker(dataclasses.replace(config, detect_every_n_frames=1))
     first = tracker.track(warped(source, np.eye(3)))
     away = tracker.track(warped(texture(HEIGHT, WIDTH, seed=6), np.eye(3)))
     assert away.counts.tracked <= 3 and away.counts.new >= 50  # A's tracks are all but gone

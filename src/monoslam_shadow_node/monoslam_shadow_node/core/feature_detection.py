@@ -168,3 +168,28 @@ def _refined(
         & (refined[:, 1] <= height - 1 - margin_px)
     )
     return np.where(good[:, None], refined, corners).astype(np.float32)
+
+
+def crowded(
+    pixels: NDArray[np.float32],
+    ids: NDArray[np.int64],
+    ages: NDArray[np.int64],
+    distance_px: float,
+) -> NDArray[np.bool_]:
+    """Return which of the tracks (pixels (N, 2), ids (N,), ages (N,) in images) lie within
+    half of ``distance_px`` (min_distance_px) of an older one (older: more images; equal
+    age: smaller id): both follow the same image structure, the younger goes."""
+    count = len(ids)
+    result = np.zeros(count, bool)
+    if count < 2:
+        return result
+    radius = 0.5 * distance_px
+    points = pixels.astype(np.float64)
+    close = np.sum((points[:, None, :] - points[None, :, :]) ** 2, axis=2) < radius**2
+    np.fill_diagonal(close, False)
+    if not np.any(close):
+        return result
+    for row in np.lexsort((ids, -ages)):  # oldest first
+        if not result[row]:
+            result |= close[row] & ((ages < ages[row]) | ((ages == ages[row]) & (ids > ids[row])))
+    return result

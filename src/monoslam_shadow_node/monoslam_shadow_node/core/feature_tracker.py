@@ -9,7 +9,8 @@ Per image (``FeatureTracker.track``):
    the first reason that applies, when LK loses it (status 0, or a non-finite result:
    ``lost``), its patch error is above ``max_lk_error`` (``error``), it ends within
    ``border_margin_px`` of the image edge or was predicted outside the image (``border``),
-   tracking it back into the previous image lands more than ``fb_threshold_px`` from where
+   tracking it back into the previous image (on the pyramid levels the forward pass's
+   correction of its starting pixel needs) lands more than ``fb_threshold_px`` from where
    it started (``forward_backward``), it drifted from what it looked like when it was
    detected (``drift``, below), or it came closer than half of ``min_distance_px`` to an
    older track (``crowded``: both follow the same image structure now; the younger goes).
@@ -68,7 +69,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.feature_detection import CornerDetector
+from monoslam_shadow_node.core.feature_detection import CornerDetector, crowded
 from monoslam_shadow_node.core.feature_reid import (
     TEMPLATE_MARGIN_PX,
     Search,
@@ -415,7 +416,8 @@ class FeatureTracker:
             # Back from the end, starting where the guess's offset says the start should be
             # (the start itself for tracks without a prediction).
             back_guess = end[rows] - (guess[rows] - start[rows])
-            back, back_ok, _ = self._lk(gray, previous, end[rows], back_guess)
+            levels = self._levels_for(np.linalg.norm(guess[rows] - end[rows], axis=1))
+            back, back_ok, _ = self._lk(gray, previous, end[rows], back_guess, levels)
             distance = np.linalg.norm(back - start[rows], axis=1)
             failed = ~(back_ok & (distance <= config.fb_threshold_px))
             drops['forward_backward'] = int(np.count_nonzero(failed))
@@ -435,6 +437,18 @@ class FeatureTracker:
             drops['crowded'] = int(np.count_nonzero(crowded))
             self._keep(~crowded)
         return predicted
+
+    def _levels_for(self, shifts: FloatArray) -> int:
+        """Return the pyramid levels LK needs to cover ``shifts`` (M,) px from its starting
+        pixels: the fewest levels L at which the largest shift, 2^L times smaller, is within
+        a quarter of the window (LK's linearization holds over about half of it), at most
+        lk_pyramid_levels."""
+        reach = self.config.lk_window_px / 4.0
+        largest = float(np.max(shifts, initial=0.0))
+        levels = 0
+        while levels < self.config.lk_pyramid_levels and largest > reach * 2**levels:
+            levels += 1
+        return levels
 
     def _keep(self, keep: NDArray[np.bool_]) -> None:
         """Keep the held tracks ``keep`` (N,); remember the others' templates and ages for
@@ -553,25 +567,8 @@ class FeatureTracker:
         return drifted
 
     def _crowded(self) -> NDArray[np.bool_]:
-        """Return which held tracks lie within half of min_distance_px of an older one
-        (older: more images; equal age: smaller id)."""
-        count = len(self._ids)
-        crowded = np.zeros(count, bool)
-        if count < 2:
-            return crowded
-        radius = 0.5 * self.config.min_distance_px
-        pixels = self._pixels.astype(np.float64)
-        close = np.sum((pixels[:, None, :] - pixels[None, :, :]) ** 2, axis=2) < radius**2
-        np.fill_diagonal(close, False)
-        if not np.any(close):
-            return crowded
-        for row in np.lexsort((self._ids, -self._ages)):  # oldest first
-            if not crowded[row]:
-                crowded |= close[row] & (
-                    (self._ages < self._ages[row])
-                    | ((self._ages == self._ages[row]) & (self._ids > self._ids[row]))
-                )
-        return crowded
+        """Return which held tracks lie within half of min_distance_px of an older one."""
+        return crowded(self._pixels, self._ids, self._ages, self.config.min_distance_px)
 
     # --- detection --------------------------------------------------------------------------
 

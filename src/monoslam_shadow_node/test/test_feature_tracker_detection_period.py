@@ -1,0 +1,38 @@
+"""The feature tracker's detection period (``detect_every_n_frames``, 3 by default): new
+features start every third image and at once when no track is left."""
+
+from __future__ import annotations
+
+import numpy as np
+from test_feature_tracker_core import (
+    HEIGHT,
+    WIDTH,
+    check_output,
+    shifted,
+    texture,
+    to_gray,
+    warped,
+)
+
+from monoslam_shadow_node.core.feature_tracker import FeatureTracker
+
+
+def test_detection_runs_every_third_image_by_default_and_whenever_no_track_is_left() -> None:
+    """Between detections a lost track leaves its place empty; the third image after a
+    detection fills it. An image with no track left detects at once."""
+    scene = texture(HEIGHT, WIDTH, seed=0)
+    tracker = FeatureTracker()
+    assert tracker.config.detect_every_n_frames == 3
+    news = []
+    for k in range(7):
+        image = warped(scene, shifted(1.0 * k, 0.5 * k))
+        if k in (1, 4):  # an object passes over cell (1, 1): its tracks die
+            image[120:240, 160:320] = to_gray(texture(120, 160, seed=5 + k))
+        result = tracker.track(image)
+        check_output(result, tracker.config)
+        news.append(result.counts.new)
+    assert news[0] == 150 and news[1] == news[2] == news[4] == news[5] == 0
+    assert news[3] > 0 and news[6] > 0
+    # nothing left (a blank image drops every track): the next image detects at once
+    tracker.track(np.full((HEIGHT, WIDTH), 90, np.uint8))
+    assert tracker.track(warped(scene, np.eye(3))).counts.new == 150
