@@ -130,6 +130,11 @@ def _count(values: dict[str, str], prefix: str) -> int:
     return sum(int(v) for k, v in values.items() if k.startswith(prefix) and v.isdigit())
 
 
+def _number(values: dict[str, str], key: str) -> int:
+    value = values.get(key, '0')
+    return int(value) if value.isdigit() else 0
+
+
 def rows(mode: str, first: Snapshot, last: Snapshot) -> tuple[list[str], bool]:
     """Return the table rows of one mode (counts over the window: last minus first) and
     whether nothing was lost or dropped in the window."""
@@ -138,10 +143,17 @@ def rows(mode: str, first: Snapshot, last: Snapshot) -> tuple[list[str], bool]:
         values, before = last[name], first.get(name, {})
         received = _count(values, 'received ') - _count(before, 'received ')
         lost = _count(values, 'lost ') - _count(before, 'lost ')
+        by_input = {
+            key.removeprefix('lost '): _number(values, key) - _number(before, key)
+            for key in values
+            if key.startswith('lost ')
+        }
+        where = ', '.join(f'{k} {v}' for k, v in sorted(by_input.items()) if v)
         dropped = int(values.get('dropped', '0')) - int(before.get('dropped', '0'))
         clean &= lost == 0 and dropped == 0
         lines.append(
-            f'| {mode} | {name} | {received} | {lost} | {dropped} | {values.get("busy %", "")} '
+            f'| {mode} | {name} | {received} | {lost}{f" ({where})" if where else ""} '
+            f'| {dropped} | {values.get("busy %", "")} '
             f'| {values.get("processing ms mean", "")} | {values.get("processing ms max", "")} |'
         )
     for source, sink, taken_key in (
