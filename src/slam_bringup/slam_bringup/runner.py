@@ -90,7 +90,8 @@ POLL_S = 0.05
 QUIET_S = 0.25  # the recorder has drained when nothing new arrived for this long
 NODES_DRAIN_TIMEOUT_S = 60.0  # the longest the nodes may take to work off their queued inputs
 NODES_QUIET_S = 2.0  # drained: no input for this long, twice odometry_ingest's idle flush (1 s)
-INTERRUPT_TIMEOUT_S = 10.0  # then SIGTERM
+INTERRUPT_TIMEOUT_S = 60.0  # then SIGTERM; the mapper's last solve and report take this long
+WAIT_LOG_PERIOD_S = 10.0  # meanwhile the nodes still running are named this often
 TERMINATE_TIMEOUT_S = 5.0  # then SIGKILL
 CLEAN_STOP_CODES = frozenset({0, 130, 143, -signal.SIGINT, -signal.SIGTERM})
 STOP_ORDER = {'player': 0, 'node': 1, 'recorder': 2}
@@ -444,11 +445,23 @@ def drain_children(
     return failure[0] if failure else None
 
 
+def wait_for(children: Sequence[Child], timeout_s: float) -> None:
+    """Wait up to ``timeout_s`` for ``children`` to exit, naming those still running."""
+    deadline = (start := time.monotonic()) + timeout_s
+    while True:
+        say_at = min(time.monotonic() + WAIT_LOG_PERIOD_S, deadline)
+        for child in children:
+            with suppress(subprocess.TimeoutExpired):
+                child.process.wait(timeout=max(say_at - time.monotonic(), 0.0))
+        running = [c.description.name for c in children if c.process.poll() is None]
+        if not running or time.monotonic() >= deadline:
+            return
+        say(f'waiting for {", ".join(running)} to finish ({time.monotonic() - start:.0f} s)')
+
+
 def stop_children(children: Sequence[Child]) -> list[Child]:
     """Stop the player, then the nodes, then the recorder; return those that stopped badly.
-
-    Each group gets SIGINT, then SIGTERM, then SIGKILL, each after a timeout.
-    """
+    Each group gets SIGINT, then SIGTERM, then SIGKILL, each after a timeout."""
     failed: list[Child] = []
     for rank in sorted(set(STOP_ORDER.values())):
         group = [c for c in children if STOP_ORDER[c.description.role] == rank]
@@ -463,10 +476,7 @@ def stop_children(children: Sequence[Child]) -> list[Child]:
                     say(f'node {child.description.name!r} did not stop; sending {sig.name}')
                 with suppress(ProcessLookupError):
                     os.killpg(child.process.pid, sig)
-            deadline = time.monotonic() + timeout_s
-            for child in running:
-                with suppress(subprocess.TimeoutExpired):
-                    child.process.wait(timeout=max(deadline - time.monotonic(), 0.0))
+            wait_for(running, timeout_s)
         failed += [
             c for c in group if not c.reported and c.process.returncode not in CLEAN_STOP_CODES
         ]

@@ -407,3 +407,26 @@ def test_missing_executable_is_named(tmp_path: Path) -> None:
     graph = load_graph(path)
     with pytest.raises(GraphError, match=r"graph\.nodes\[0\]\.executable: 'no_such_executable'"):
         runner.executable(graph, node_descriptions(graph)[0])
+
+
+def test_nodes_finishing_after_sigint_are_waited_for_and_named(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A node still writing its report after SIGINT is given time (up to the timeout) and
+    named while the runner waits; the wait ends as soon as it exits."""
+    from types import SimpleNamespace
+
+    monkeypatch.setattr(runner, 'WAIT_LOG_PERIOD_S', 0.2)
+    slow = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(1.0)'])
+    child = SimpleNamespace(description=SimpleNamespace(name='em_sam_mapper'), process=slow)
+    started = time.monotonic()
+    runner.wait_for([child], timeout_s=30.0)  # type: ignore[list-item]
+    assert slow.poll() == 0 and time.monotonic() - started < 10.0
+    assert 'waiting for em_sam_mapper to finish' in capsys.readouterr().err
+    hung = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])
+    child.process = hung
+    started = time.monotonic()
+    runner.wait_for([child], timeout_s=0.5)  # type: ignore[list-item]
+    assert hung.poll() is None and time.monotonic() - started < 5.0  # the timeout holds
+    hung.kill()
+    hung.wait()
