@@ -2,9 +2,11 @@
 
     python bench/fault_paced.py [--runs 5] [--graph em_sam_office_camera.yaml]
                                 [--bag bags/office_camera.mcap] [--processes]
+                                [--idle-runs N] [--loaded-runs N] [--json FILE]
 
 Runs ``slam_run GRAPH --bag BAG --paced --exit-when-player-done`` ``--runs`` times on an idle
-machine, then ``--runs`` times with one busy-loop process pinned to each core (taskset), each
+machine (``--idle-runs``), then ``--runs`` times (``--loaded-runs``) with one busy-loop
+process pinned to each core (taskset), each
 run in its own temporary directory and ROS domain, and reads the mapper's report
 (out/<report_dir>/em_sam_report.json): keyframes, landmarks and the moveable set. PASS when
 every run gives the same keyframe stamps and the same moveable set, and no run's player
@@ -84,17 +86,25 @@ def main() -> int:
     parser.add_argument('--graph', default='em_sam_office_camera.yaml')
     parser.add_argument('--bag', type=Path, default=ROOT / 'bags' / 'office_camera.mcap')
     parser.add_argument('--processes', action='store_true', help='one process per node')
+    parser.add_argument('--idle-runs', type=int, help='runs without load (default --runs)')
+    parser.add_argument('--loaded-runs', type=int, help='runs with load (default --runs)')
+    parser.add_argument('--json', type=Path, help='write every run here')
     args = parser.parse_args()
+    idle = args.runs if args.idle_runs is None else args.idle_runs
+    loaded_runs = args.runs if args.loaded_runs is None else args.loaded_runs
     runs = []
-    for index, loaded in enumerate([False] * args.runs + [True] * args.runs):
+    plan = [False] * idle + [True] * loaded_runs
+    for index, loaded in enumerate(plan):
         run = one_run(args, index, loaded)
         state = 'loaded' if loaded else 'idle'
         print(
-            f'fault_paced: run {index + 1}/{2 * args.runs} ({state}): '
+            f'fault_paced: run {index + 1}/{len(plan)} ({state}): '
             f'{ {k: v for k, v in run.items() if k != "stamps"} }',
             flush=True,
         )
         runs.append(run)
+        if args.json is not None:
+            args.json.write_text(json.dumps(runs))
     good = [run for run in runs if run.get('ok')]
     same = bool(good) and all(
         run['stamps'] == good[0]['stamps'] and run['moveable'] == good[0]['moveable']
@@ -112,7 +122,7 @@ def main() -> int:
     print(
         f'\n**{verdict}**: {args.graph} on {args.bag.name}, paced, '
         f'{"--processes" if args.processes else "one process"}: identical keyframe stamps '
-        f'and moveable set on {len(runs)} runs ({args.runs} idle, {args.runs} with a busy '
+        f'and moveable set on {len(runs)} runs ({idle} idle, {loaded_runs} with a busy '
         'loop on each core), no wait for the graph timed out'
     )
     return 0 if verdict == 'PASS' else 1
