@@ -148,6 +148,12 @@ def _feature_tracks_cdr(data: bytes) -> tuple[int, str, np.ndarray]:
     return sec * 1_000_000_000 + nanosec, frame_id, tracks
 
 
+def _cdr_features(stamp_ns: int, frame_id: str, tracks: np.ndarray) -> Features:
+    """Return the Features of FEATURE_TRACK_CDR records (ids and pixels copied out)."""
+    pixels = np.column_stack([tracks['u'], tracks['v']]).astype(np.float64)
+    return Features(stamp_ns, frame_id, tracks['id'].astype(np.int64), pixels)
+
+
 def _deserialized(data: bytes, deserialize: Callable[[bytes], Any]) -> Any:
     """Return ``deserialize(data)``; ValueError naming the bytes' size when they are no
     FeatureTrackArray at all."""
@@ -175,8 +181,7 @@ def features_from_cdr(data: bytes, deserialize: Callable[[bytes], Any]) -> Featu
         stamp_ns, frame_id, tracks = _feature_tracks_cdr(data)
     except _CDR_ERRORS:
         return features_from_message(_deserialized(data, deserialize))
-    pixels = np.column_stack([tracks['u'], tracks['v']]).astype(np.float64)
-    return Features(stamp_ns, frame_id, tracks['id'].astype(np.int64), pixels)
+    return _cdr_features(stamp_ns, frame_id, tracks)
 
 
 def predictions_from_cdr(
@@ -194,8 +199,7 @@ def predictions_from_cdr(
             prediction_covariances(message),
             prediction_warps(message),
         )
-    pixels = np.column_stack([tracks['u'], tracks['v']]).astype(np.float64)
-    features = Features(stamp_ns, frame_id, tracks['id'].astype(np.int64), pixels)
+    features = _cdr_features(stamp_ns, frame_id, tracks)
     return features, _covariances_2x2(tracks['covariance']), tracks['warp'].reshape(-1, 2, 2)
 
 

@@ -11,6 +11,7 @@ import threading
 import time
 from dataclasses import fields, is_dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -414,8 +415,6 @@ def test_nodes_finishing_after_sigint_are_waited_for_and_named(
 ) -> None:
     """A node still writing its report after SIGINT is given time (up to the timeout) and
     named while the runner waits; the wait ends as soon as it exits."""
-    from types import SimpleNamespace
-
     monkeypatch.setattr(runner, 'WAIT_LOG_PERIOD_S', 0.2)
     slow = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(1.0)'])
     child = SimpleNamespace(description=SimpleNamespace(name='em_sam_mapper'), process=slow)

@@ -170,7 +170,7 @@ def _refined(
     return np.where(good[:, None], refined, corners).astype(np.float32)
 
 
-def crowded(
+def crowded_tracks(
     pixels: NDArray[np.float32],
     ids: NDArray[np.int64],
     ages: NDArray[np.int64],

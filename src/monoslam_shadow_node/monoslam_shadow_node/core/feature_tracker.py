@@ -69,7 +69,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.feature_detection import CornerDetector, crowded
+from monoslam_shadow_node.core.feature_detection import CornerDetector, crowded_tracks
 from monoslam_shadow_node.core.feature_reid import (
     TEMPLATE_MARGIN_PX,
     Search,
@@ -568,7 +568,7 @@ class FeatureTracker:
 
     def _crowded(self) -> NDArray[np.bool_]:
         """Return which held tracks lie within half of min_distance_px of an older one."""
-        return crowded(self._pixels, self._ids, self._ages, self.config.min_distance_px)
+        return crowded_tracks(self._pixels, self._ids, self._ages, self.config.min_distance_px)
 
     # --- detection --------------------------------------------------------------------------
 
