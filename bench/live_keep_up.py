@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -65,9 +66,11 @@ def with_settings(graph: str, settings: list[str], directory: Path) -> str:
     return str(path)
 
 
-def measure(graph: str, processes: bool, duration_s: float) -> tuple[Snapshot, Snapshot]:
+def measure(
+    graph: str, processes: bool, duration_s: float, keep_log: Path
+) -> tuple[Snapshot, Snapshot]:
     """Run ``graph`` live for ``duration_s`` s; return each node's /diagnostics values at
-    the start and at the end of the window."""
+    the start and at the end of the window. The graph's log is copied to ``keep_log``."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
@@ -123,6 +126,8 @@ def measure(graph: str, processes: bool, duration_s: float) -> tuple[Snapshot, S
             executor.shutdown()
             node.destroy_node()
             rclpy.shutdown()
+            keep_log.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(log, keep_log)
     return first, snapshot
 
 
@@ -188,7 +193,12 @@ def main() -> int:
         help='a parameter of a node (repeatable), e.g. dynamic_scene_sim.duration_s=40',
     )
     parser.add_argument('--modes', default='processes,one', help='processes, one, or both')
-    parser.add_argument('--output', type=Path, default=ROOT / 'bench' / 'results')
+    parser.add_argument(
+        '--output',
+        type=Path,
+        default=ROOT / 'bench' / 'results',
+        help="the report (.md) and each mode's graph log (.log) go here",
+    )
     args = parser.parse_args()
     os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 100))
     meta = run_meta('not pinned (the graph uses both cores)')
@@ -201,9 +211,11 @@ def main() -> int:
         graph = with_settings(args.graph, args.set, Path(directory))
         for mode in args.modes.split(','):
             processes = mode.strip() == 'processes'
+            name = 'processes' if processes else 'one'
+            keep_log = args.output / f'live_keep_up_{Path(args.graph).stem}_{name}.log'
             lines, clean = rows(
                 'processes' if processes else 'one process',
-                *measure(graph, processes, args.duration_s),
+                *measure(graph, processes, args.duration_s, keep_log),
             )
             table += lines
             verdicts.append((processes, clean))

@@ -311,3 +311,40 @@ def test_an_oversized_image_and_a_bad_camera_info_are_refused_and_counted(
     counts = node._counts()
     assert counts['refused too large'] == 1 and counts['camera_info rejected'] == 1
     assert counts['dropped'] == 1 and counts['processed'] == 1
+
+
+def test_with_detect_every_n_frames_the_images_between_get_empty_fiducials(
+    ros_harness: RosHarness, frames: list[CameraFrame]
+) -> None:
+    """detect_every_n_frames 3: the first image and every third are searched; the others
+    are not decoded, get a header-only fiducials message (a node pairing per image does not
+    wait) and no observations, and are counted 'not searched'."""
+    node = ros_harness.add_node(
+        make_node(
+            extrinsics_source='parameters',
+            camera_xyz_m=[CAMERA_FORWARD_M, 0.0, CAMERA_HEIGHT_M],
+            detect_every_n_frames=3,
+        )
+    )
+    fiducials = ros_harness.collect('fiducials', FiducialArray)
+    observations = ros_harness.collect('landmark_observations', LandmarkObservationArray)
+    info = ros_harness.publisher('camera/camera_info', CameraInfo)
+    images = ros_harness.publisher('camera/image_raw/compressed', CompressedImage)
+    ros_harness.wait_for_subscribers(images)
+    ros_harness.wait_for_subscribers(info)
+    info.publish(camera_info(CameraRig()))
+    wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
+    shown = [f for f in frames if np.sum(f.truth.visible & (f.truth.side_px > 40)) >= 1][:6]
+    assert len(shown) == 6
+    stamps = [2_000_000_000 + index * 100_000_000 for index in range(len(shown))]
+    for index, frame in enumerate(shown):
+        images.publish(compressed(frame, stamps[index]))
+        wait_until(lambda n=index + 1: len(fiducials) == n, what=f'fiducials of image {index}')
+    got = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in fiducials.messages]
+    assert got == stamps
+    assert all(m.header.frame_id == OPTICAL for m in fiducials.messages)
+    found = [len(m.detections) > 0 for m in fiducials.messages]
+    assert found == [True, False, False, True, False, False]
+    wait_until(lambda: len(observations) == 2, what='the observations of the searched images')
+    counts = node._counts()
+    assert counts['not searched'] == 4 and counts['processed'] == 6 and counts['dropped'] == 0

@@ -20,7 +20,8 @@ Topics:
               camera/camera_info (sensor_msgs/CameraInfo, best effort)
               /tf_static (tf2_msgs/TFMessage, transient local) when extrinsics_source is
               'tf_static'
-  publishes   fiducials (slam_interfaces/FiducialArray, camera optical frame, every image)
+  publishes   fiducials (slam_interfaces/FiducialArray, camera optical frame, every image;
+              empty, header only, for an image not searched: detect_every_n_frames)
               landmark_observations (slam_interfaces/LandmarkObservationArray, base frame,
               only for images with at least one accepted marker; reliable, depth 1000, so
               that a mapper busy solving does not lose them from this side; transient-local,
@@ -65,6 +66,12 @@ Parameters:
                               found in its box, px (32: a turn of 1.8 rad/s at fx 525 px and
                               30 Hz); a marker that moves farther is found by the whole-image
                               search that follows in the same frame (time, not detections).
+  detect_every_n_frames (1)   detect in every this many images (the first, then every n-th);
+                              an image between is not decoded, and its fiducials message is
+                              empty (header only), so that a node pairing fiducials with the
+                              image's other data (monoslam) does not wait for them; counted
+                              as 'not searched'. A marker newly in view is found at most
+                              n - 1 images late. 1: every image.
   publish_debug_image (false)  publish the image with the detections drawn.
 
 The detector settings (dictionary to pixel_noise_px) can be changed at run time with
@@ -164,6 +171,8 @@ class MarkerDetectorNode(Node):
         self.publish_debug = bool(values['publish_debug_image'])
         self.images = 0
         self.dropped = 0
+        self.detect_every = int(values['detect_every_n_frames'])
+        self.not_searched = 0
         self.detections = 0
         self.too_large = 0
         self.camera_info_rejected = 0
@@ -186,14 +195,14 @@ class MarkerDetectorNode(Node):
         )
         if transport == 'raw':
             self.create_subscription(
-                Image, 'camera/image_raw', timed(self._on_image, 'image'), sensor_qos(depth=5)
+                Image, 'camera/image_raw', timed(self._on_image, 'image'), sensor_qos()
             )
         else:
             self.create_subscription(
                 CompressedImage,
                 'camera/image_raw/compressed',
                 timed(self._on_image, 'image'),
-                sensor_qos(depth=5),
+                sensor_qos(),
             )
         self.create_subscription(
             CameraInfo,
@@ -292,6 +301,11 @@ class MarkerDetectorNode(Node):
 
     def _detect(self, message: Image | CompressedImage) -> None:
         self.images += 1
+        if (self.images - 1) % self.detect_every:  # not due: said empty (module docstring)
+            self.not_searched += 1
+            self.fiducials_publisher.publish(FiducialArray(header=message.header))
+            self._report_status()
+            return
         stamp_ns = stamp_to_ns(message.header.stamp)
         try:
             image = image_from_message(message, self.max_image_pixels)
@@ -352,8 +366,9 @@ class MarkerDetectorNode(Node):
         return debug
 
     def _counts(self) -> dict[str, int]:
-        """The counts on /diagnostics: images processed, dropped (bad, or no camera_info in
-        time; of them refused too large) and held for a camera_info, markers accepted,
+        """The counts on /diagnostics: images processed (those not searched among them),
+        dropped (bad, or no camera_info in time; of them refused too large) and held for a
+        camera_info, markers accepted,
         camera_info messages and /tf_static transforms rejected."""
         return {
             'processed': self.images - self.dropped,
@@ -362,6 +377,7 @@ class MarkerDetectorNode(Node):
             'camera_info rejected': self.camera_info_rejected,
             'tf_static rejected': self.tf_rejected,
             'held': len(self.held),
+            'not searched': self.not_searched,
             'markers': self.detections,
             'whole-image searches': self.processor.search.full_searches,
             'box searches': self.processor.search.box_searches,
@@ -375,6 +391,7 @@ class MarkerDetectorNode(Node):
         self.get_logger().info(
             f'{self.images} images ({rate:.1f}/s), {self.detections} markers accepted, '
             f'{self.dropped} images dropped'
+            + (f', {self.not_searched} not searched' if self.detect_every > 1 else '')
         )
         self._status_time, self._status_images = now, self.images
 

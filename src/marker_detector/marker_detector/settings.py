@@ -206,6 +206,13 @@ PARAMETERS = ParamTable(
             'a box search looks this far (plus half the marker) round a followed marker, px',
             range=NON_NEGATIVE,
         ),
+        Param(
+            'detect_every_n_frames',
+            1,
+            'detect in every this many images; the images between get an empty fiducials '
+            'message (1: every image)',
+            range=Range(1.0, None),
+        ),
         Param('publish_debug_image', False, 'publish the image with the detections drawn'),
     ),
 )

@@ -11,9 +11,10 @@ Topics:
   subscribes  camera/image_raw (sensor_msgs/Image: mono8, 8UC1, bgr8, rgb8, bgra8, rgba8;
               decoded by marker_detector.conversions.image_from_message) when
               image_transport is 'raw', or camera/image_raw/compressed
-              (sensor_msgs/CompressedImage) when it is 'compressed'; best effort, depth 5.
+              (sensor_msgs/CompressedImage) when it is 'compressed'; best effort, depth 15
+              (slam_ros.qos.SENSOR_DEPTH: 0.5 s at 30 Hz, to ride out a stall).
               camera/camera_info (sensor_msgs/CameraInfo, best effort): optional, see below.
-              features/predicted (slam_interfaces/FeatureTrackArray, reliable, depth 10, taken
+              features/predicted (slam_interfaces/FeatureTrackArray, reliable, depth 15, taken
               serialized and read from its bytes), when use_predictions is true: predicted raw
               pixels of some track ids (e.g. the SLAM filter's projection of its map) for the image
               whose stamp is header.stamp; LK starts from them. Used only for the image with
@@ -146,7 +147,7 @@ from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import FeatureTrackArray, ShadowTrackArray
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
-from slam_ros.qos import output_qos, sensor_qos
+from slam_ros.qos import SENSOR_DEPTH, output_qos, sensor_qos
 from slam_ros.spin import spin_node
 
 IMAGE_TOPIC = 'camera/image_raw'
@@ -157,7 +158,6 @@ PREDICTIONS_TOPIC = 'features/predicted'
 DEBUG_IMAGE_TOPIC = '~/debug_image'
 STATUS_TOPICS = ('shadow/tracks', 'shadow/static_features', 'monoslam/revoked')
 DEBUG_IMAGES_HELD = 3  # decoded images kept until tracked (one may wait for its prediction)
-IMAGE_DEPTH = 5
 STATUS_PERIOD_S = 10.0
 REPEAT_PERIOD_S = 2.0
 MIN_POLL_PERIOD_S = 0.001
@@ -212,12 +212,10 @@ class FeatureTrackerNode(Node):
         on_image = timed(self._on_image, 'image')
         if self.settings.image_transport == 'raw':
             image_topic = IMAGE_TOPIC
-            self.create_subscription(Image, IMAGE_TOPIC, on_image, sensor_qos(IMAGE_DEPTH))
+            self.create_subscription(Image, IMAGE_TOPIC, on_image, sensor_qos())
         else:
             image_topic = COMPRESSED_TOPIC
-            self.create_subscription(
-                CompressedImage, COMPRESSED_TOPIC, on_image, sensor_qos(IMAGE_DEPTH)
-            )
+            self.create_subscription(CompressedImage, COMPRESSED_TOPIC, on_image, sensor_qos())
         self.create_subscription(
             CameraInfo, CAMERA_INFO_TOPIC, timed(self._on_camera_info, 'camera_info'), sensor_qos()
         )
@@ -231,7 +229,7 @@ class FeatureTrackerNode(Node):
                 FeatureTrackArray,
                 PREDICTIONS_TOPIC,
                 timed(self._on_predictions, 'predictions'),
-                output_qos(),
+                output_qos(SENSOR_DEPTH),  # one per image, as the images
                 raw=True,
             )
             # Runs only while an image waits for its prediction (see _arm_poll).

@@ -49,8 +49,9 @@ Topics:
               the SLAM that publishes map -> odom. Off by default: use monoslam/pose.
               features/predicted (slam_interfaces/FeatureTrackArray, reliable, depth 10), when
               publish_predictions is true: per camera_info stamp after the last processed
-              frame, the predicted raw pixels of the features the filter owns (empty while it
-              has none or is not tracking), for feature_tracker's use_predictions.
+              frame, the predicted raw pixels of the features the filter owns (for
+              feature_tracker's use_predictions); empty while it has none, is not tracking
+              or is behind (the image before is not processed: it would come late; counted).
               monoslam/revoked (slam_interfaces/ShadowTrackArray, reliable, depth 100), when
               initialize is 'handover', in frames that revoke: handed-over features that
               failed the persistent-outlier test (they moved after all), status DYNAMIC, no
@@ -536,9 +537,8 @@ class MonoSlamNode(Node):
         )
 
     def _counts(self) -> dict[str, int]:
-        """The counts on /diagnostics: frames processed, without fiducials and skipped,
-        inputs dropped by the pairing, handovers, times lost, map size, camera_info messages
-        rejected."""
+        """The counts on /diagnostics: frames, inputs dropped by the pairing, handovers,
+        losses, resumes, predictions skipped, measured features, camera_infos rejected."""
         counts = self.processor.counts
         return {
             'processed': counts.processed,
@@ -548,6 +548,7 @@ class MonoSlamNode(Node):
             'handovers accepted': counts.accepted,
             'handovers refused': counts.refused,
             'lost': counts.lost,
+            'predictions skipped (behind)': counts.predictions_behind,
             'resumes predicted': counts.resumes_predicted,
             'resumes re-localised': counts.resumes_relocalised,
             'measured': counts.measured,

@@ -133,8 +133,9 @@ class MonoSlamCounts:
     processed without fiducials and skipped (refused by the core), inputs dropped by the
     pairing (by ``Drop.kind``), handovers accepted and refused, handed-over features revoked
     (``MonoSlam``'s persistent-outlier test), times tracking was lost, resumes from a
-    checkpoint that predicted over the gap and that re-localised, and the features measured
-    and the update's counts in the latest frame."""
+    checkpoint that predicted over the gap and that re-localised, the features measured
+    and the update's counts in the latest frame, and predictions made and not made because
+    the filter was behind (``MonoSlamProcessor.predictions``)."""
 
     features_received: int = 0
     fiducials_received: int = 0
@@ -150,6 +151,8 @@ class MonoSlamCounts:
     resumes_relocalised: int = 0
     measured: int = 0
     update: UpdateCounts = field(default_factory=UpdateCounts)
+    predictions: int = 0
+    predictions_behind: int = 0
 
     @property
     def dropped_total(self) -> int:
@@ -190,6 +193,8 @@ class MonoSlamProcessor:
             names=names,
         )
         self._predicted_ns: int | None = None
+        self._asked_ns: int | None = None  # the image predictions were last asked for
+        self._processed_ns: int | None = None  # the last frame given to the filter
         self._resumed = False  # the gap to the next frame is still to be judged
         self._relocalising = False
         self.resume_text = 'no'
@@ -308,6 +313,7 @@ class MonoSlamProcessor:
         if self.slam is None:
             raise ValueError(f'no camera yet: set it (from {self.camera_info_topic}) first')
         resumed = self._judge_gap(frame.stamp_ns)
+        self._processed_ns = frame.stamp_ns
         result = self.slam.process(frame)
         self.counts.processed += 1
         self.counts.measured = len(result.measured_ids)
@@ -456,14 +462,25 @@ class MonoSlamProcessor:
         """Return the owned features' ids (P,), predicted raw pixels (P, 2), their
         covariances (P, 2, 2) px^2 (zero where no search is due) and template warps (P, 2, 2)
         (``MonoSlam.predictions``) for the image at ``stamp_ns`` (int ns), or None when not
-        due: no camera yet, already predicted for this stamp, or not after the last processed
-        frame."""
+        due: no camera yet, already predicted for this stamp, not after the last processed
+        frame. When the filter is behind (the image asked for before this one, the one
+        before it, is not processed yet) the prediction would come late: it is empty instead,
+        so that a tracker waiting for it goes on at once, and the filter catches up (counted,
+        ``predictions_behind``)."""
         last_ns = self.sync.last_ns
         if self.slam is None or stamp_ns == self._predicted_ns:
             return None
         if last_ns is not None and stamp_ns <= last_ns:
             return None
+        before, self._asked_ns = self._asked_ns, stamp_ns
+        processed = self._processed_ns
+        if before is not None and processed is not None and processed < before < stamp_ns:
+            self.counts.predictions_behind += 1
+            self._predicted_ns = stamp_ns
+            nothing = np.zeros((0, 2, 2))
+            return np.zeros(0, np.int64), np.zeros((0, 2)), nothing, nothing.copy()
         self._predicted_ns = stamp_ns
+        self.counts.predictions += 1
         return self.slam.predictions(stamp_ns)
 
     def status_line(self, rate_hz: float | None = None) -> str:

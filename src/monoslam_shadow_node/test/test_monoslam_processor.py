@@ -164,6 +164,28 @@ def test_predictions_are_due_once_per_later_stamp() -> None:
     assert processor.predictions(4 * 33 * MS) is None  # once per stamp
 
 
+def test_a_filter_behind_its_images_sends_empty_predictions_and_catches_up() -> None:
+    """Asked for image 5 before image 4 (asked for before it) is processed, the prediction
+    would come late: it is empty (a tracker waiting for it goes on) and counted; once the
+    image before is processed, the predictions come again."""
+    processor = _processor()
+    processor.set_camera(CAMERA)
+    for index in (3,):
+        processor.add_features(_features(index))
+        processor.add_sighting(_sighting(index))
+    assert processor.predictions(4 * 33 * MS) is not None
+    assert (processor.counts.predictions, processor.counts.predictions_behind) == (1, 0)
+    behind = processor.predictions(5 * 33 * MS)  # image 4 not processed yet
+    assert behind is not None and all(len(part) == 0 for part in behind)
+    assert (processor.counts.predictions, processor.counts.predictions_behind) == (1, 1)
+    assert processor.predictions(5 * 33 * MS) is None  # once per stamp
+    for index in (4, 5):
+        processor.add_features(_features(index))
+        processor.add_sighting(_sighting(index))
+    assert processor.predictions(6 * 33 * MS) is not None
+    assert (processor.counts.predictions, processor.counts.predictions_behind) == (2, 1)
+
+
 def _points_features(index: int, ids: list[int]) -> Features:
     """Features of static points 2-3 m ahead of the camera at CENTRE (ids 1..), raw pixels."""
     rng = np.random.default_rng(7)

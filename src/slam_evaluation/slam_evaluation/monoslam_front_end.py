@@ -79,8 +79,11 @@ class FrontEnd:
     """Turns images into SLAM frames with their truth (module docstring): the feature tracker,
     the marker detector on the target, and the moving flags from the labels."""
 
-    def __init__(self, camera: CameraModel, target: InitTarget) -> None:
+    def __init__(
+        self, camera: CameraModel, target: InitTarget, target_every_n_frames: int = 1
+    ) -> None:
         self.camera, self.target = camera, target
+        self.target_every_n_frames = target_every_n_frames
         self.tracker = FeatureTracker(TrackerConfig())
         self.detector_config = DetectorConfig(
             dictionary=target.dictionary,
@@ -145,7 +148,11 @@ class FrontEnd:
 
     def _detect(self, image_frame: ImageFrame) -> FloatArray | None:
         """Return the target's detected raw corners (4, 2) px (None if not detected) and
-        count the detection against the truth."""
+        count the detection against the truth. Only every ``target_every_n_frames``-th image
+        is searched (marker_detector's detect_every_n_frames); the others give None and are
+        not counted."""
+        if self.stats.frames % self.target_every_n_frames:
+            return None
         result = detect_markers(
             image_frame.image, self.camera, self.detector_config, self._detector
         )

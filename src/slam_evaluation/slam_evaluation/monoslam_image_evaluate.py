@@ -103,7 +103,16 @@ def _arguments(argv: list[str] | None) -> Settings:
         choices=(0, 1, 2),
         help="the Shadow filter's STATIC rule as monoslam_evaluate (default 1)",
     )
+    parser.add_argument(
+        '--target-every-n-frames',
+        type=int,
+        default=1,
+        help="search the target in every n-th image only (marker_detector's "
+        'detect_every_n_frames; default 1)',
+    )
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.target_every_n_frames < 1:
+        parser.error(f'--target-every-n-frames {args.target_every_n_frames}: must be >= 1')
     if args.bag and (args.seeds is not None or args.duration_s is not None):
         parser.error('--bag: a bag brings its own seed and duration; drop --seeds/--duration-s')
     try:
@@ -127,7 +136,7 @@ def _arguments(argv: list[str] | None) -> Settings:
             sources = [bag_source(path) for path in args.bag]
         except BagError as error:
             parser.error(f'--bag: {error}')
-    return Settings(tuple(sources), evaluation, args.out)
+    return Settings(tuple(sources), evaluation, args.out, args.target_every_n_frames)
 
 
 @console_main(PROG)

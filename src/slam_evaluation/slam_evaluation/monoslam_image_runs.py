@@ -46,6 +46,7 @@ class Settings:
     sources: tuple[FrameSource, ...]
     evaluation: monoslam_runs.Settings
     out: Path
+    target_every_n_frames: int = 1  # the target detector's detect_every_n_frames
 
     def pipeline(self, target: InitTarget) -> PipelineConfig:
         """Return the filters' settings of both levels for ``target``."""
@@ -93,7 +94,7 @@ def evaluate_source(
 ) -> SeedResult:
     """Build the image-level frames of a source, run every filter (``RUNS``) and return the
     result; ``advance()`` after each image."""
-    front_end = FrontEnd(source.camera, source.target)
+    front_end = FrontEnd(source.camera, source.target, settings.target_every_n_frames)
     frames = []
     for image_frame in source.frames():
         frames.append(front_end.frame(image_frame))

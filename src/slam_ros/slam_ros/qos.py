@@ -22,6 +22,12 @@ from rosbags.interfaces import (
 )
 
 DEFAULT_DEPTH = 10
+# Sensor inputs (images, camera_info) keep 0.5 s of a 30 Hz camera. On a busy machine a node's
+# process may not run for a while: on 2 cores shared by a camera driver and four monocular
+# nodes, single stalls of 70-290 ms were measured, and with the rclpy default of 5 (167 ms)
+# they lost frames. A stall shorter than this delays frames instead; a node slower than its
+# input on average still loses them, and /diagnostics counts them ('lost <input>').
+SENSOR_DEPTH = 15
 # rosbag2 writes "infinite" durations as the largest (sec, nsec) it can represent.
 _INFINITE_SEC = 0x7FFFFFFF
 
@@ -39,8 +45,9 @@ _LIVELINESS = {
 }
 
 
-def sensor_qos(depth: int = 5) -> QoSProfile:
-    """Sensor inputs: best effort, volatile, keep last ``depth`` (rclpy's sensor-data profile)."""
+def sensor_qos(depth: int = SENSOR_DEPTH) -> QoSProfile:
+    """Sensor inputs: best effort, volatile, keep last ``depth`` (rclpy's sensor-data profile,
+    deeper: SENSOR_DEPTH)."""
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
         depth=depth,
