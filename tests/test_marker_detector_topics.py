@@ -176,20 +176,29 @@ def test_observations_match_the_rendered_ground_truth(
     assert node.dropped == 0
 
 
+def compressed_node(
+    harness: RosHarness, **overrides: object
+) -> tuple[MarkerDetectorNode, Any, Any, Any]:
+    """A detector on compressed images that has its camera_info; its fiducials and
+    landmark_observations collected, and an image publisher it has matched."""
+    node = harness.add_node(make_node(**overrides))
+    fiducials = harness.collect('fiducials', FiducialArray)
+    observations = harness.collect('landmark_observations', LandmarkObservationArray)
+    info = harness.publisher('camera/camera_info', CameraInfo)
+    images = harness.publisher('camera/image_raw/compressed', CompressedImage)
+    harness.wait_for_subscribers(images)
+    harness.wait_for_subscribers(info)
+    info.publish(camera_info(CameraRig()))
+    wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
+    return node, fiducials, observations, images
+
+
 def test_images_before_the_camera_mount_are_held_until_it_comes(
     ros_harness: RosHarness, frames: list[CameraFrame]
 ) -> None:
     """Live, the mount's publisher and the camera start together and discovery takes a
     second or two: images that come before the mount are held, not dropped."""
-    node = ros_harness.add_node(make_node())
-    fiducials = ros_harness.collect('fiducials', FiducialArray)
-    observations = ros_harness.collect('landmark_observations', LandmarkObservationArray)
-    info = ros_harness.publisher('camera/camera_info', CameraInfo)
-    images = ros_harness.publisher('camera/image_raw/compressed', CompressedImage)
-    ros_harness.wait_for_subscribers(images)
-    ros_harness.wait_for_subscribers(info)
-    info.publish(camera_info(CameraRig()))
-    wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
+    node, fiducials, observations, images = compressed_node(ros_harness)
     shown = [f for f in frames if np.sum(f.truth.visible & (f.truth.side_px > 40)) >= 1][:3]
     for index, frame in enumerate(shown):
         images.publish(compressed(frame, 1_000_000_000 + index * 100_000_000))
@@ -319,21 +328,12 @@ def test_with_detect_every_n_frames_the_images_between_get_empty_fiducials(
     """detect_every_n_frames 3: the first image and every third are searched; the others
     are not decoded, get a header-only fiducials message (a node pairing per image does not
     wait) and no observations, and are counted 'not searched'."""
-    node = ros_harness.add_node(
-        make_node(
-            extrinsics_source='parameters',
-            camera_xyz_m=[CAMERA_FORWARD_M, 0.0, CAMERA_HEIGHT_M],
-            detect_every_n_frames=3,
-        )
+    node, fiducials, observations, images = compressed_node(
+        ros_harness,
+        extrinsics_source='parameters',
+        camera_xyz_m=[CAMERA_FORWARD_M, 0.0, CAMERA_HEIGHT_M],
+        detect_every_n_frames=3,
     )
-    fiducials = ros_harness.collect('fiducials', FiducialArray)
-    observations = ros_harness.collect('landmark_observations', LandmarkObservationArray)
-    info = ros_harness.publisher('camera/camera_info', CameraInfo)
-    images = ros_harness.publisher('camera/image_raw/compressed', CompressedImage)
-    ros_harness.wait_for_subscribers(images)
-    ros_harness.wait_for_subscribers(info)
-    info.publish(camera_info(CameraRig()))
-    wait_until(lambda: node.processor.camera is not None, what='the camera_info to arrive')
     shown = [f for f in frames if np.sum(f.truth.visible & (f.truth.side_px > 40)) >= 1][:6]
     assert len(shown) == 6
     stamps = [2_000_000_000 + index * 100_000_000 for index in range(len(shown))]

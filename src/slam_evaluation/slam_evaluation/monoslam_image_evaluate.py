@@ -3,6 +3,7 @@ level (issue 7: the full pipeline from images reaches (c) within 1.5x of its
 measurement-level ATE).
 
     monoslam_image_evaluate --out out/monoslam_image_eval [--seeds 0-9] [--duration-s 20]
+                            [--target-every-n-frames 1]
     monoslam_image_evaluate --out out/bag_eval --bag bags/dynamic_camera.mcap [more bags]
                             [--unchecked-directions 1]
 
@@ -16,8 +17,9 @@ camera_info are read before the work starts.
 Front end (``FrontEnd``, the same for every variant): the feature tracker
 (``core.feature_tracker``, the node's defaults, no predictions: one set of tracks feeds all
 variants) and the marker detector (``marker_detector.core.detection``, the node's defaults,
-only the target's id and side) on each image give ``MonoSlamFrame``: track ids with raw
-pixels, and the known points 0-3 (the detected corners, TL TR BR BL as
+only the target's id and side; with ``--target-every-n-frames`` n only on every n-th
+image, as the node's detect_every_n_frames) on each image give ``MonoSlamFrame``: track ids
+with raw pixels, and the known points 0-3 (the detected corners, TL TR BR BL as
 ``target_known_points``) when the target is detected. Truth: the camera pose of the image,
 and per feature whether it is on a moving object: a feature is moving if a label within
 ``MOVING_RADIUS_PX`` pixels (a square window about its rounded pixel) is a moving object, so

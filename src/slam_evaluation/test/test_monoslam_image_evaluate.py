@@ -122,6 +122,19 @@ def test_known_points_are_the_detected_target_corners(built: Built) -> None:
     assert stats['corner_rms_px'] < 0.3
 
 
+def test_the_target_every_n_frames_is_searched_in_every_nth_image_only(built: Built) -> None:
+    images, frames, _ = built
+    source = rendered_source(0, FIG5_SHORT)
+    front_end = FrontEnd(source.camera, source.target, target_every_n_frames=3)
+    every_third = [front_end.frame(image) for image in images[:9]]
+    for index, (frame, every) in enumerate(zip(frames[:9], every_third, strict=True)):
+        expected = frame.measurements.known_pixels if index % 3 == 0 else np.zeros((0, 2))
+        np.testing.assert_array_equal(every.measurements.known_pixels, expected)
+    assert front_end.stats.target_visible == sum(
+        images[k].target_corners_px is not None for k in (0, 3, 6)
+    )
+
+
 def test_moving_near_looks_at_a_square_window_clipped_at_the_border() -> None:
     labels = np.full((20, 30), -1, dtype=np.int16)
     labels[10, 20] = 2  # one pixel of moving object 2
