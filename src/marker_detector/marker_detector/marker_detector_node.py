@@ -368,8 +368,8 @@ class MarkerDetectorNode(Node):
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: images processed (those not searched among them),
         dropped (bad, or no camera_info in time; of them refused too large) and held for a
-        camera_info, markers accepted,
-        camera_info messages and /tf_static transforms rejected."""
+        camera_info, markers accepted, camera_info messages and /tf_static transforms
+        rejected."""
         return {
             'processed': self.images - self.dropped,
             'dropped': self.dropped,

@@ -537,8 +537,7 @@ class MonoSlamNode(Node):
         )
 
     def _counts(self) -> dict[str, int]:
-        """The counts on /diagnostics: frames, inputs dropped by the pairing, handovers,
-        losses, resumes, predictions skipped, measured features, camera_infos rejected."""
+        """The counts on /diagnostics: the processor's, and camera_infos rejected."""
         counts = self.processor.counts
         return {
             'processed': counts.processed,
@@ -548,6 +547,7 @@ class MonoSlamNode(Node):
             'handovers accepted': counts.accepted,
             'handovers refused': counts.refused,
             'lost': counts.lost,
+            'predictions': counts.predictions,
             'predictions skipped (behind)': counts.predictions_behind,
             'resumes predicted': counts.resumes_predicted,
             'resumes re-localised': counts.resumes_relocalised,
