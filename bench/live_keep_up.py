@@ -12,8 +12,10 @@ the same run, is what the source offered: the frames the simulated camera publis
 (``peoplebot_sim`` or ``dynamic_scene_sim``). Reported per node, over the window (its last
 report minus the one at the start): inputs received and lost (DDS dropped them from a full
 queue, or a best-effort sample never came), the node's own drops, its busy share of one core
-and its mean and maximum processing time; and the ratio of frames the first image node took
-to the frames offered. PASS when no node lost or dropped an input in the window with one
+(time in callbacks over the window) and mean processing time, and the longest processing
+time and queue wait (how long a message had waited in its subscription's queue when taken)
+of any report in the window; and the ratio of frames the first image node took to the
+frames offered. PASS when no node lost or dropped an input in the window with one
 process per node, and MonoSLAM never lost tracking (its 'lost' count).
 """
 
@@ -40,6 +42,7 @@ STOP_TIMEOUT_S = 120.0
 
 
 Snapshot = dict[str, dict[str, str]]
+PEAKS = ('processing ms max', 'queue wait ms max')  # per report; their maximum over the window
 
 
 def with_settings(graph: str, settings: list[str], directory: Path) -> str:
@@ -80,10 +83,16 @@ def measure(
     rclpy.init()
     node = rclpy.create_node('live_keep_up_probe')
     last: dict[str, dict[str, str]] = {}
+    peaks: dict[str, dict[str, float]] = {}  # per node, the window's maximum of PEAKS
 
     def on_diagnostics(array: DiagnosticArray) -> None:
         for status in array.status:
-            last[status.name] = {value.key: value.value for value in status.values}
+            values = {value.key: value.value for value in status.values}
+            last[status.name] = values
+            node_peaks = peaks.setdefault(status.name, {})
+            for key in PEAKS:
+                if key in values:
+                    node_peaks[key] = max(node_peaks.get(key, 0.0), float(values[key]))
 
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, output_qos(100))
     executor = SingleThreadedExecutor()
@@ -104,6 +113,7 @@ def measure(
             while time.monotonic() < warm:
                 executor.spin_once(timeout_sec=0.1)
             first = {name: dict(values) for name, values in last.items()}
+            peaks.clear()
             started = time.monotonic()
             next_line = started
             while time.monotonic() - started < duration_s:
@@ -117,6 +127,8 @@ def measure(
                     )
                     next_line += 30.0
             snapshot = {name: dict(values) for name, values in last.items()}
+            for name, node_peaks in peaks.items():
+                snapshot[name].update({key: f'{value:.2f}' for key, value in node_peaks.items()})
         finally:
             run.send_signal(signal.SIGINT)
             try:
@@ -140,9 +152,14 @@ def _number(values: dict[str, str], key: str) -> int:
     return int(value) if value.isdigit() else 0
 
 
-def rows(mode: str, first: Snapshot, last: Snapshot) -> tuple[list[str], bool]:
-    """Return the table rows of one mode (counts over the window: last minus first) and
-    whether nothing was lost or dropped in the window."""
+def _busy_s(values: dict[str, str]) -> float:
+    """Seconds in callbacks so far: the mean per received input times those received."""
+    return float(values.get('processing ms mean', 0.0)) * _count(values, 'received ') / 1e3
+
+
+def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[list[str], bool]:
+    """Return the table rows of one mode (counts over the ``window_s`` s window: last minus
+    first) and whether nothing was lost or dropped in the window."""
     lines, clean = [], True
     for name in sorted(last):
         values, before = last[name], first.get(name, {})
@@ -158,12 +175,14 @@ def rows(mode: str, first: Snapshot, last: Snapshot) -> tuple[list[str], bool]:
         # monoslam's 'lost' counts times tracking was lost (the inputs lost are 'lost <input>')
         tracking_lost = _number(values, 'lost') - _number(before, 'lost')
         clean &= lost == 0 and dropped == 0 and tracking_lost == 0
+        busy = 100.0 * (_busy_s(values) - _busy_s(before)) / window_s
         if tracking_lost:
             where = ', '.join(filter(None, [where, f'tracking lost {tracking_lost} times']))
         lines.append(
             f'| {mode} | {name} | {received} | {lost}{f" ({where})" if where else ""} '
-            f'| {dropped} | {values.get("busy %", "")} '
-            f'| {values.get("processing ms mean", "")} | {values.get("processing ms max", "")} |'
+            f'| {dropped} | {busy:.1f} '
+            f'| {values.get("processing ms mean", "")} | {values.get("processing ms max", "")} '
+            f'| {values.get("queue wait ms max", "")} |'
         )
     for source, sink, taken_key in (
         ('/peoplebot_sim', '/marker_detector', 'processed'),
@@ -180,7 +199,7 @@ def rows(mode: str, first: Snapshot, last: Snapshot) -> tuple[list[str], bool]:
             lines.append(
                 f'| {mode} | {sink} {taken_key} / {source} frames | {taken} / {offered} = '
                 f'{taken / max(offered, 1):.3f} | | | frames late or skipped '
-                f'{last[source].get("frames late", last[source].get("frames skipped"))} | | |'
+                f'{last[source].get("frames late", last[source].get("frames skipped"))} | | | |'
             )
     return lines, clean
 
@@ -207,8 +226,9 @@ def main() -> int:
     os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 100))
     meta = run_meta('not pinned (the graph uses both cores)')
     table = [
-        '| mode | node | received | lost | dropped | busy % | ms mean | ms max |',
-        '|---|---|---|---|---|---|---|---|',
+        '| mode | node | received | lost | dropped | busy % | ms mean | ms max '
+        '| queue wait ms max |',
+        '|---|---|---|---|---|---|---|---|---|',
     ]
     verdicts = []
     with tempfile.TemporaryDirectory(prefix='live_keep_up-graph-') as directory:
@@ -220,6 +240,7 @@ def main() -> int:
             lines, clean = rows(
                 'processes' if processes else 'one process',
                 *measure(graph, processes, args.duration_s, keep_log),
+                args.duration_s,
             )
             table += lines
             verdicts.append((processes, clean))

@@ -17,11 +17,11 @@ Topics:
               detections in the same image (one message per image, empty when nothing was
               found); the target's corners (TL, TR, BR, BL raw pixels) are the known points
               0-3 of the frame.
-              camera/camera_info (sensor_msgs/CameraInfo, best effort): intrinsics and
-              plumb_bob/rational_polynomial distortion; a change is applied from the next
-              frame on and logged. With publish_predictions it also triggers the predictions
-              for the image of its stamp (it comes once per image, before the tracker tracks
-              that image).
+              camera/camera_info (sensor_msgs/CameraInfo, best effort, depth 100 as it is taken
+              in step with features): intrinsics and plumb_bob/rational_polynomial distortion;
+              a change is applied from the next frame on and logged. With publish_predictions
+              it also triggers the predictions for the image of its stamp (once per image,
+              before the tracker tracks that image).
               shadow/static_features (slam_interfaces/ShadowTrackArray, reliable, depth 100),
               when initialize is 'handover': features the Shadow filter handed over as STATIC
               (world position and covariance in map_frame); each enters the map when next
@@ -310,7 +310,7 @@ class MonoSlamNode(Node):
             if self.config.initialize == 'handover'
             else None
         )
-        inputs = output_qos(depth=INPUT_DEPTH)
+        inputs, info_qos = output_qos(depth=INPUT_DEPTH), sensor_qos(depth=INPUT_DEPTH)
         self.diagnostics = Diagnostics(
             self, self._counts, values=lambda: {'resumed': self.processor.resume_text}
         )
@@ -323,7 +323,7 @@ class MonoSlamNode(Node):
             FiducialArray, FIDUCIALS_TOPIC, timed(self._on_fiducials, 'fiducials'), inputs
         )
         self.create_subscription(
-            CameraInfo, CAMERA_INFO_TOPIC, timed(self._on_camera_info, 'camera_info'), sensor_qos()
+            CameraInfo, CAMERA_INFO_TOPIC, timed(self._on_camera_info, 'camera_info'), info_qos
         )
         if self.config.initialize == 'handover':
             self.create_subscription(

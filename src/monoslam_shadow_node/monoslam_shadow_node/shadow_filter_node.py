@@ -20,9 +20,9 @@ Topics:
               all zero = a known pose. Every frame with a pose is processed, however
               uncertain the pose: its covariance widens the rays, so decisions come later.
               A frame whose pose covariance is not finite is skipped (a warning, counted).
-              camera/camera_info (sensor_msgs/CameraInfo, best effort): intrinsics and
-              plumb_bob/rational_polynomial distortion; a change is applied from the next
-              frame on and logged.
+              camera/camera_info (sensor_msgs/CameraInfo, best effort, depth 100 as it is taken
+              in step with features): intrinsics and plumb_bob/rational_polynomial distortion;
+              a change is applied from the next frame on and logged.
               monoslam/revoked (slam_interfaces/ShadowTrackArray, reliable, depth 100):
               features handed over earlier that SLAM then found moving. Each comes back as a
               suspect: tracked again from its next sighting, PENDING, with fresh views only,
@@ -208,7 +208,7 @@ class ShadowFilterNode(Node):
         )
         self.diagnostics = Diagnostics(self, self._counts)
         timed = self.diagnostics.timed
-        inputs = output_qos(depth=INPUT_DEPTH)
+        inputs, info_qos = output_qos(depth=INPUT_DEPTH), sensor_qos(depth=INPUT_DEPTH)
         # taken serialized: features_from_cdr reads the ids and pixels from the bytes
         self.create_subscription(
             FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs,
@@ -221,7 +221,7 @@ class ShadowFilterNode(Node):
             inputs,
         )
         self.create_subscription(
-            CameraInfo, CAMERA_INFO_TOPIC, timed(self._on_camera_info, 'camera_info'), sensor_qos()
+            CameraInfo, CAMERA_INFO_TOPIC, timed(self._on_camera_info, 'camera_info'), info_qos
         )
         self.create_subscription(
             ShadowTrackArray, REVOKED_TOPIC, timed(self._on_revoked, 'revoked'), inputs

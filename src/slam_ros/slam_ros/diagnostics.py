@@ -12,17 +12,21 @@ subscription's queue (KEEP_LAST depth) while the node was busy, or never deliver
 counted from the gaps in the publisher's sequence numbers (rmw's message info) after the
 first one the node took (reported: a node that joins late did not lose what came before);
 with several publishers on the input the numbers interleave, and its losses are 'unknown'.
+Which of the two it was shows in how long the message after a gap had waited in the queue
+(taken minus received, rmw's message info), logged with the loss: about the queue's depth
+times the input's period when the queue overflowed, near zero when DDS never delivered them.
 The node's own counters (what it processed, what it dropped and why) come from the
 ``counts`` callable it passes, other figures (text) from the optional ``values`` callable.
 One DiagnosticStatus per publish, named after the node (its fully qualified name):
 
 - values: ``received <input>``, ``lost <input>`` and ``first sequence <input>`` per
   input, then the node's counts and values, then ``processing ms mean`` (per received
-  message), ``processing ms max`` (since the last publish), ``busy %`` (processing time over
-  wall time since the last publish), ``lag s`` (the node clock's now minus the latest input
-  stamp: bag time on /clock in replay, wall time live) and ``idle s`` (IDLE_KEY: steady
-  seconds since an input callback last ended, or since the node started; ``slam_run`` stops
-  a graph when its nodes have been idle for a while, ``slam_bringup.drain``);
+  message), ``processing ms max`` and ``queue wait ms max`` (the longest a message had
+  waited in its subscription's queue when taken; both since the last publish), ``busy %``
+  (processing time over wall time since the last publish), ``lag s`` (the node clock's now
+  minus the latest input stamp: bag time on /clock in replay, wall time live) and ``idle s``
+  (IDLE_KEY: steady seconds since an input callback last ended, or since the node started;
+  ``slam_run`` stops a graph when its nodes have been idle for a while, ``slam_bringup.drain``);
 - level: WARN while the count named ``dropped`` or the messages lost grew since the last
   publish (lost ones are also logged as a warning) or the node was busy more than
   ``BUSY_WARN`` of the time ("falling behind"), else OK.
@@ -66,6 +70,8 @@ class Diagnostics:
         self.unknown_lost: set[str] = set()
         self._sequence: dict[str, int] = {}  # per input, the last sequence number taken
         self.first_sequence: dict[str, int] = {}  # per input, the first one taken
+        self.gap_wait_ms: dict[str, float] = {}  # per input, the queue wait after its last gap
+        self._window_wait_ms = 0.0
         self._last_lost = 0
         self.processing_s = 0.0
         self.latest_stamp_ns: int | None = None
@@ -107,7 +113,12 @@ class Diagnostics:
 
         def wrapper(message: Any, info: Mapping[str, Any]) -> None:
             self.received[input] += 1
-            self._count_lost(input, info.get('publication_sequence_number'))
+            wait_ms = math.nan
+            received_ns = info.get('received_timestamp')
+            if received_ns:  # system clock, as rmw stamps it
+                wait_ms = max(0.0, (time.time_ns() - received_ns) / 1e6)
+                self._window_wait_ms = max(self._window_wait_ms, wait_ms)
+            self._count_lost(input, info.get('publication_sequence_number'), wait_ms)
             start = time.perf_counter()
             self.active += 1
             try:
@@ -148,11 +159,12 @@ class Diagnostics:
         self._window_s += spent
         self._window_max_s = max(self._window_max_s, spent)
 
-    def _count_lost(self, input: str, sequence: int | None) -> None:
+    def _count_lost(self, input: str, sequence: int | None, wait_ms: float) -> None:
         """Count the gap in the publisher's sequence numbers before ``sequence`` as lost,
         from the first number taken on (what the publisher sent before is not lost: the
-        node may have joined later); a number that does not increase (several publishers,
-        or one restarted) makes the input's losses unknown from then on."""
+        node may have joined later), and keep ``wait_ms``, the queue wait of the message
+        after it; a number that does not increase (several publishers, or one restarted)
+        makes the input's losses unknown from then on."""
         if sequence is None or input in self.unknown_lost:
             return
         last = self._sequence.get(input)
@@ -162,7 +174,9 @@ class Diagnostics:
             self.unknown_lost.add(input)
             return
         else:
-            self.lost[input] += sequence - last - 1
+            if sequence > last + 1:
+                self.lost[input] += sequence - last - 1
+                self.gap_wait_ms[input] = wait_ms
         self._sequence[input] = sequence
 
     def status(self) -> DiagnosticStatus:
@@ -188,6 +202,7 @@ class Diagnostics:
         values.update({
             'processing ms mean': f'{mean_ms:.2f}',
             'processing ms max': f'{1e3 * self._window_max_s:.2f}',
+            'queue wait ms max': f'{self._window_wait_ms:.2f}',
             'busy %': f'{100.0 * busy:.1f}',
             'lag s': f'{lag_s:.3f}',
             IDLE_KEY: f'{time.monotonic() - self.last_input_s:.3f}',
@@ -196,20 +211,23 @@ class Diagnostics:
         if dropped > self._last_dropped:
             problems.append(f'dropping inputs ({dropped - self._last_dropped} since the last)')
         if lost > self._last_lost:
-            problems.append(
-                f'lost {lost - self._last_lost} messages before taking them (falling behind '
-                'its input queue)'
-            )
+            problems.append(f'lost {lost - self._last_lost} messages before taking them')
             self.node.get_logger().warning(
                 f'{lost - self._last_lost} input messages lost before they were taken '
-                f'(their queue overflowed: the node falls behind); {lost} so far, by input: '
-                + ', '.join(f'{name} {count}' for name, count in self.lost.items() if count)
+                '(a queue that overflowed waited about its depth times the period; one that '
+                f'DDS never delivered to, about 0 ms); {lost} so far, by input: '
+                + ', '.join(
+                    f'{name} {count} (the message after the last gap waited '
+                    f'{self.gap_wait_ms.get(name, math.nan):.0f} ms)'
+                    for name, count in self.lost.items()
+                    if count
+                )
             )
         self._last_lost = lost
         if busy > BUSY_WARN:
             problems.append(f'falling behind (busy {100.0 * busy:.0f} %)')
         self._last_dropped = dropped
-        self._window_s = self._window_max_s = 0.0
+        self._window_s = self._window_max_s = self._window_wait_ms = 0.0
         self._window_start = now
         status = DiagnosticStatus()
         status.name = self.node.get_fully_qualified_name()

@@ -26,7 +26,9 @@ DEFAULT_DEPTH = 10
 # process may not run for a while: on 2 cores shared by a camera driver and four monocular
 # nodes, single stalls of 70-290 ms were measured, and with the rclpy default of 5 (167 ms)
 # they lost frames. A stall shorter than this delays frames instead; a node slower than its
-# input on average still loses them, and /diagnostics counts them ('lost <input>').
+# input on average still loses them, and /diagnostics counts them ('lost <input>'). A node
+# that takes camera_info in step with reliable inputs (monoslam and shadow_filter: one per
+# features message) keeps as many of it as of them, or it would lose camera_info first.
 SENSOR_DEPTH = 15
 # rosbag2 writes "infinite" durations as the largest (sec, nsec) it can represent.
 _INFINITE_SEC = 0x7FFFFFFF

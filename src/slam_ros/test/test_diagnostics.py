@@ -3,6 +3,7 @@ it drops inputs (a real rclpy node; its status is read, the timer is not waited 
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -93,6 +94,28 @@ def test_gaps_in_the_publishers_sequence_numbers_are_lost_messages(node: Node) -
     on_info(CameraInfo(), {'publication_sequence_number': 3})
     on_info(CameraInfo(), {'publication_sequence_number': 50})
     assert values(diagnostics.status())['lost camera_info'] == 'unknown'
+
+
+def test_the_wait_in_the_queue_tells_an_overflow_from_a_message_never_delivered(
+    node: Node,
+) -> None:
+    """rmw's received stamp gives how long each message waited in the queue: the longest in
+    the window is shown, and the wait of the message after a gap is kept with the loss
+    (0.5 s: the queue overflowed; about 0: DDS never delivered the ones before)."""
+    diagnostics = Diagnostics(node, dict, period_s=3600.0)
+    on_info = diagnostics.timed(lambda message: None, 'camera_info')
+    now_ns = time.time_ns()
+    for sequence, waited_s in ((1, 0.0), (2, 0.1), (5, 0.5), (6, 0.0), (9, 0.0)):
+        received_ns = now_ns - int(waited_s * 1e9)
+        info = {'publication_sequence_number': sequence, 'received_timestamp': received_ns}
+        on_info(CameraInfo(), info)
+        if sequence == 5:
+            assert 500.0 <= diagnostics.gap_wait_ms['camera_info'] < 1500.0
+    assert diagnostics.gap_wait_ms['camera_info'] < 500.0  # the last gap: never delivered
+    status = values(diagnostics.status())
+    assert status['lost camera_info'] == '4'
+    assert 500.0 <= float(status['queue wait ms max']) < 1500.0
+    assert float(values(diagnostics.status())['queue wait ms max']) == 0.0  # a new window
 
 
 def test_idle_counts_from_the_last_input_taken(node: Node) -> None:
