@@ -196,10 +196,11 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
             taken = int(last[sink].get(taken_key, '0')) - int(
                 first.get(sink, {}).get(taken_key, '0')
             )
+            late_key = 'frames late' if 'frames late' in last[source] else 'frames skipped'
+            late = _number(last[source], late_key) - _number(first.get(source, {}), late_key)
             lines.append(
                 f'| {mode} | {sink} {taken_key} / {source} frames | {taken} / {offered} = '
-                f'{taken / max(offered, 1):.3f} | | | frames late or skipped '
-                f'{last[source].get("frames late", last[source].get("frames skipped"))} | | | |'
+                f'{taken / max(offered, 1):.3f} | | | {late_key} {late} | | | |'
             )
     return lines, clean
 
