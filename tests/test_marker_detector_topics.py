@@ -327,7 +327,8 @@ def test_with_detect_every_n_frames_the_images_between_get_empty_fiducials(
 ) -> None:
     """detect_every_n_frames 3: the first image and every third are searched; the others
     are not decoded, get a header-only fiducials message (a node pairing per image does not
-    wait) and no observations, and are counted 'not searched'."""
+    wait) and no observations, and are counted 'not searched'. The last three images carry
+    no frame: searched or not, their fiducials are in the camera_info's frame."""
     node, fiducials, observations, images = compressed_node(
         ros_harness,
         extrinsics_source='parameters',
@@ -338,11 +339,13 @@ def test_with_detect_every_n_frames_the_images_between_get_empty_fiducials(
     assert len(shown) == 6
     stamps = [2_000_000_000 + index * 100_000_000 for index in range(len(shown))]
     for index, frame in enumerate(shown):
-        images.publish(compressed(frame, stamps[index]))
+        image = compressed(frame, stamps[index])
+        image.header.frame_id = OPTICAL if index < 3 else ''
+        images.publish(image)
         wait_until(lambda n=index + 1: len(fiducials) == n, what=f'fiducials of image {index}')
     got = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in fiducials.messages]
     assert got == stamps
-    assert all(m.header.frame_id == OPTICAL for m in fiducials.messages)
+    assert [m.header.frame_id for m in fiducials.messages] == [OPTICAL] * 6
     found = [len(m.detections) > 0 for m in fiducials.messages]
     assert found == [True, False, False, True, False, False]
     wait_until(lambda: len(observations) == 2, what='the observations of the searched images')

@@ -303,7 +303,10 @@ class MarkerDetectorNode(Node):
         self.images += 1
         if (self.images - 1) % self.detect_every:  # not due: said empty (module docstring)
             self.not_searched += 1
-            self.fiducials_publisher.publish(FiducialArray(header=message.header))
+            empty = FiducialArray()  # stamped and framed as a searched image's would be
+            empty.header.stamp = message.header.stamp
+            empty.header.frame_id = self.processor.image_frame(message.header.frame_id)
+            self.fiducials_publisher.publish(empty)
             self._report_status()
             return
         stamp_ns = stamp_to_ns(message.header.stamp)

@@ -174,6 +174,10 @@ class MarkerProcessor:
         self.camera = camera
         self.camera_frame = frame_id
 
+    def image_frame(self, frame_id: str) -> str:
+        """An image's camera frame: its header's, or the camera_info's when it has none."""
+        return frame_id or self.camera_frame
+
     def base_from_camera(self, camera_frame: str) -> np.ndarray:
         """T_base_camera (4x4) of the image's frame; raise InputError when unknown."""
         if self._fixed_extrinsics is not None:
@@ -195,7 +199,7 @@ class MarkerProcessor:
                 f'no camera_info received yet: image at {stamp_ns} ns (frame {frame_id!r}) '
                 'dropped; is camera/camera_info published?'
             )
-        camera_frame = frame_id or self.camera_frame
+        camera_frame = self.image_frame(frame_id)
         base_from_camera = self.base_from_camera(camera_frame)
         try:
             result = self._detect(stamp_ns, image, self.camera)
