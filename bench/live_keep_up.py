@@ -152,11 +152,6 @@ def _number(values: dict[str, str], key: str) -> int:
     return int(value) if value.isdigit() else 0
 
 
-def _busy_s(values: dict[str, str]) -> float:
-    """Seconds in callbacks so far: the mean per received input times those received."""
-    return float(values.get('processing ms mean', 0.0)) * _count(values, 'received ') / 1e3
-
-
 def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[list[str], bool]:
     """Return the table rows of one mode (counts over the ``window_s`` s window: last minus
     first) and whether nothing was lost or dropped in the window."""
@@ -175,7 +170,8 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
         # monoslam's 'lost' counts times tracking was lost (the inputs lost are 'lost <input>')
         tracking_lost = _number(values, 'lost') - _number(before, 'lost')
         clean &= lost == 0 and dropped == 0 and tracking_lost == 0
-        busy = 100.0 * (_busy_s(values) - _busy_s(before)) / window_s
+        spent_s = float(values.get('processing s', 0.0)) - float(before.get('processing s', 0.0))
+        busy = 100.0 * spent_s / window_s
         if tracking_lost:
             where = ', '.join(filter(None, [where, f'tracking lost {tracking_lost} times']))
         lines.append(

@@ -170,9 +170,8 @@ def test_a_filter_behind_its_images_sends_empty_predictions_and_catches_up() -> 
     image before is processed, the predictions come again."""
     processor = _processor()
     processor.set_camera(CAMERA)
-    for index in (3,):
-        processor.add_features(_features(index))
-        processor.add_sighting(_sighting(index))
+    processor.add_features(_features(3))
+    processor.add_sighting(_sighting(3))
     assert processor.predictions(4 * 33 * MS) is not None
     assert (processor.counts.predictions, processor.counts.predictions_behind) == (1, 0)
     behind = processor.predictions(5 * 33 * MS)  # image 4 not processed yet

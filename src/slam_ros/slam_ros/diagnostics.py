@@ -20,13 +20,14 @@ The node's own counters (what it processed, what it dropped and why) come from t
 One DiagnosticStatus per publish, named after the node (its fully qualified name):
 
 - values: ``received <input>``, ``lost <input>`` and ``first sequence <input>`` per
-  input, then the node's counts and values, then ``processing ms mean`` (per received
-  message), ``processing ms max`` and ``queue wait ms max`` (the longest a message had
-  waited in its subscription's queue when taken; both since the last publish), ``busy %``
-  (processing time over wall time since the last publish), ``lag s`` (the node clock's now
-  minus the latest input stamp: bag time on /clock in replay, wall time live) and ``idle s``
-  (IDLE_KEY: steady seconds since an input callback last ended, or since the node started;
-  ``slam_run`` stops a graph when its nodes have been idle for a while, ``slam_bringup.drain``);
+  input, then the node's counts and values, then ``processing s`` (time in callbacks since
+  the node started), ``processing ms mean`` (per received message), ``processing ms max``
+  and ``queue wait ms max`` (the longest a message had waited in its subscription's queue
+  when taken; both since the last publish), ``busy %`` (processing time over wall time since
+  the last publish), ``lag s`` (the node clock's now minus the latest input stamp: bag time
+  on /clock in replay, wall time live) and ``idle s`` (IDLE_KEY: steady seconds since an
+  input callback last ended, or since the node started; ``slam_run`` stops a graph when its
+  nodes have been idle for a while, ``slam_bringup.drain``);
 - level: WARN while the count named ``dropped`` or the messages lost grew since the last
   publish (lost ones are also logged as a warning) or the node was busy more than
   ``BUSY_WARN`` of the time ("falling behind"), else OK.
@@ -200,6 +201,7 @@ class Diagnostics:
             values.update(self.values())
         mean_ms = 1e3 * self.processing_s / received if received else 0.0  # per input
         values.update({
+            'processing s': f'{self.processing_s:.3f}',
             'processing ms mean': f'{mean_ms:.2f}',
             'processing ms max': f'{1e3 * self._window_max_s:.2f}',
             'queue wait ms max': f'{self._window_wait_ms:.2f}',
