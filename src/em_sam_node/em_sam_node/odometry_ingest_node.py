@@ -40,6 +40,12 @@ Parameters:
   base_frame ('base_link'), odom_frame ('odom')  frame ids written into the increments.
   publish_tf (false)          publish odom_frame -> base_frame (above). Off on a robot: its
                               base driver owns that transform (REP 105: one parent a frame).
+  observations_transient_local (false)  subscribe to landmark_observations transient-local
+                              (a transient-local subscription only hears transient-local
+                              publishers, as marker_detector's). Live graphs set it: the
+                              detector may publish before this node has discovered it, and
+                              the sightings it missed (and the mapper took) get their keyframes
+                              from the detector's history when it matches.
 
 Frames: increments are motion of base_frame, expressed in odom_frame poses.
 """
@@ -137,9 +143,20 @@ PARAMETERS = ParamTable(
             'publish odom_frame -> base_frame on /tf from the odometry (replay without the '
             "driver's TF)",
         ),
+        Param(
+            'observations_transient_local',
+            False,
+            'subscribe to landmark_observations transient-local (their publishers must be too)',
+        ),
     ),
 )
-_NODE_ONLY = ('idle_flush_s', 'base_frame', 'odom_frame', 'publish_tf')
+_NODE_ONLY = (
+    'idle_flush_s',
+    'base_frame',
+    'odom_frame',
+    'publish_tf',
+    'observations_transient_local',
+)
 
 
 def odometry_transform(message: Any, odom_frame: str, base_frame: str) -> Any:
@@ -202,7 +219,7 @@ class OdometryIngestNode(Node):
             LandmarkObservationArray,
             'landmark_observations',
             timed(self._on_observations, 'landmark_observations'),
-            output_qos(depth=1000),
+            replayed_qos(1000) if values['observations_transient_local'] else output_qos(1000),
         )
         self._last_odometry_wall = time.monotonic()
         self.flushed = True
