@@ -4,7 +4,13 @@ Keyframes are made at every observation stamp (the odometry pose interpolated th
 whenever the robot has moved ``keyframe_distance_m`` or turned ``keyframe_angle_rad`` or
 ``keyframe_interval_s`` has passed since the last keyframe. Keyframes are emitted once the
 odometry is ``observation_delay_s`` past them, so observations that arrive late (camera
-processing) still get their keyframe. Each increment is the paper's eq. 2 parameterization
+processing) still get their keyframe. At the start, keyframes are held (at most
+``startup_hold_s`` of odometry) until an observation arrives that is no more than
+``observation_delay_s`` behind the odometry: live, the detector's history of sightings
+(transient-local) reaches this node only when the two have discovered each other, and the
+sightings it holds must not be older than a keyframe already emitted. When observations come
+on time (a bag, or a detector discovered first) the hold changes nothing: the same keyframes
+come out, later. Each increment is the paper's eq. 2 parameterization
 (u0 forward, u1 side, u2 angular) with a covariance that grows with the motion:
 
     var(u0) = var(u1) = a3 d^2 + a4 phi^2 + min_sigma_xy^2
@@ -54,6 +60,7 @@ class IngestConfig:
     reset_speed_mps: float = 5.0
     reset_sigma: tuple[float, float, float] = (1.0, 1.0, 0.5)
     max_buffer_s: float = 30.0
+    startup_hold_s: float = 5.0
 
     def __post_init__(self) -> None:
         positive = {
@@ -73,6 +80,11 @@ class IngestConfig:
         if not (math.isfinite(self.observation_delay_s) and self.observation_delay_s >= 0):
             raise ValueError(
                 f'parameter observation_delay_s={self.observation_delay_s!r}: must be >= 0'
+            )
+        if not (0 <= self.startup_hold_s < self.max_buffer_s):  # NaN fails too
+            raise ValueError(
+                f'parameter startup_hold_s={self.startup_hold_s!r}: must be >= 0 and less than '
+                f'max_buffer_s={self.max_buffer_s!r}, or held keyframes lose their odometry'
             )
         if self.observation_delay_s >= self.max_buffer_s:
             raise ValueError(
@@ -143,6 +155,7 @@ class _State:
     rewound_dropped: int = 0
     # Samples up to this stamp were found not to have moved enough from the current keyframe.
     checked_ns: int | None = None
+    holding: bool = True  # the startup hold (module docstring) is on
 
 
 class OdometryIngest:
@@ -154,6 +167,8 @@ class OdometryIngest:
         self._state = _State()
         self.dropped_samples = 0
         self.resets = 0
+        # How the startup hold ended ('' while it holds); the node logs it once.
+        self.hold_ended = ''
 
     # -- input ----------------------------------------------------------------------------
     def add_odometry(self, stamp_ns: int, pose: FloatArray) -> list[Increment]:
@@ -191,6 +206,12 @@ class OdometryIngest:
         if state.keyframe is None:
             state.keyframe = (stamp_ns, pose.copy())  # the first keyframe: the first sample
             self._release_before_odometry(stamp_ns)
+        if state.holding:
+            held_s = (stamp_ns - state.samples[0][0]) / 1e9
+            if held_s < self.config.startup_hold_s:
+                return []
+            state.holding = False
+            self.hold_ended = f'after {held_s:.1f} s of odometry without a timely observation'
         return self._emit(horizon_ns=stamp_ns - round(self.config.observation_delay_s * 1e9))
 
     def add_observation_stamp(self, stamp_ns: int) -> list[Increment]:
@@ -222,7 +243,13 @@ class OdometryIngest:
         if index == len(state.pending_stamps) or state.pending_stamps[index] != stamp_ns:
             state.pending_stamps.insert(index, stamp_ns)
         latest = state.samples[-1][0]
-        return self._emit(horizon_ns=latest - round(self.config.observation_delay_s * 1e9))
+        horizon = latest - round(self.config.observation_delay_s * 1e9)
+        if state.holding:
+            if stamp_ns < horizon:
+                return []  # history from before this node matched its publisher: more may come
+            state.holding = False
+            self.hold_ended = f'at the first timely observation ({stamp_ns} ns)'
+        return self._emit(horizon_ns=horizon)
 
     def _hold_before_odometry(self, stamp_ns: int) -> None:
         """Keep an observation stamp that came before any odometry (live, the two streams
@@ -256,6 +283,9 @@ class OdometryIngest:
         """Emit every keyframe the odometry covers (at shutdown or at the end of a bag)."""
         if not self._state.samples:
             return []
+        if self._state.holding:
+            self._state.holding = False
+            self.hold_ended = 'at a flush'
         return self._emit(horizon_ns=self._state.samples[-1][0], final=True)
 
     # -- keyframing -----------------------------------------------------------------------

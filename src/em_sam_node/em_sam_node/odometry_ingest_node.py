@@ -35,6 +35,14 @@ Parameters:
                               odometry reset: a jump this large at this speed, or time going back.
   reset_sigma ([1.0, 1.0, 0.5])  std. dev. of the zero-motion increment bridging a reset.
   max_buffer_s (30.0)         odometry kept for interpolation.
+  startup_hold_s (5.0)        at the start, hold keyframes until an observation comes no
+                              more than observation_delay_s behind the odometry, for at most
+                              this long of odometry (0: no hold; < max_buffer_s). Live, the
+                              detector's earlier sightings reach this node only once the two
+                              have discovered each other; a participant that missed the first
+                              announcements is found at the next, 3 s later with Fast DDS's
+                              defaults. Logged when it ends. In replay it changes nothing
+                              but when the first keyframes come out.
   idle_flush_s (1.0)          emit held-back keyframes after this long without odometry
                               (seen on two timer ticks in a row, half this apart).
   base_frame ('base_link'), odom_frame ('odom')  frame ids written into the increments.
@@ -130,6 +138,13 @@ PARAMETERS = ParamTable(
         ),
         Param('max_buffer_s', 30.0, 'odometry kept for interpolation, s', range=POSITIVE),
         Param(
+            'startup_hold_s',
+            5.0,
+            'hold the first keyframes until an observation is on time, at most this long, s '
+            '(< max_buffer_s)',
+            range=NON_NEGATIVE,
+        ),
+        Param(
             'idle_flush_s',
             1.0,
             'emit held-back keyframes after this long without odometry, s',
@@ -210,6 +225,7 @@ class OdometryIngestNode(Node):
         self.tf_skipped = 0
         self._last_tf_ns: int | None = None
         self.published = 0
+        self._hold_logged = False
         self.diagnostics = Diagnostics(self, self._counts)
         timed = self.diagnostics.timed
         self.create_subscription(
@@ -291,6 +307,9 @@ class OdometryIngestNode(Node):
         self._publish(self.ingest.flush())
 
     def _publish(self, increments: list[Increment]) -> None:
+        if self.ingest.hold_ended and not self._hold_logged:
+            self._hold_logged = True
+            self.get_logger().info(f'startup hold of keyframes ended {self.ingest.hold_ended}')
         for increment in increments:
             self.publisher.publish(
                 increment_to_message(

@@ -43,6 +43,9 @@ class Recorder:
 
 
 def make_ingest(**overrides: object) -> tuple[OdometryIngest, Recorder]:
+    """An ingest without the startup hold unless asked (test_ingest_startup_hold.py has its
+    tests): these test the keyframing from the first sample on."""
+    overrides.setdefault('startup_hold_s', 0.0)
     warnings = Recorder()
     return OdometryIngest(IngestConfig(**overrides), warn=warnings), warnings  # type: ignore[arg-type]
 
@@ -479,6 +482,9 @@ def test_flush_before_any_odometry_is_empty() -> None:
         ('reset_jump_m', -1.0),
         ('reset_backwards_s', 0.0),
         ('max_buffer_s', 0.0),
+        ('startup_hold_s', -1.0),
+        ('startup_hold_s', math.nan),
+        ('startup_hold_s', 30.0),
         ('noise_alphas', (0.1, 0.1, 0.1)),
         ('noise_alphas', (0.1, -0.1, 0.1, 0.1)),
         ('noise_alphas', (0.1, math.nan, 0.1, 0.1)),
