@@ -156,6 +156,7 @@ class _State:
     # Samples up to this stamp were found not to have moved enough from the current keyframe.
     checked_ns: int | None = None
     holding: bool = True  # the startup hold (module docstring) is on
+    first_ns: int | None = None  # the first odometry stamp
 
 
 class OdometryIngest:
@@ -205,6 +206,7 @@ class OdometryIngest:
         state.samples.append((stamp_ns, pose))
         if state.keyframe is None:
             state.keyframe = (stamp_ns, pose.copy())  # the first keyframe: the first sample
+            state.first_ns = stamp_ns
             self._release_before_odometry(stamp_ns)
         if state.holding:
             held_s = (stamp_ns - state.samples[0][0]) / 1e9
@@ -217,6 +219,12 @@ class OdometryIngest:
     def add_observation_stamp(self, stamp_ns: int) -> list[Increment]:
         """Ask for a keyframe at an observation stamp; return increments that became ready."""
         state = self._state
+        if state.first_ns is not None and stamp_ns < state.first_ns:
+            self.warn(
+                f'observation stamp {stamp_ns} ns came before the first odometry (at '
+                f'{state.first_ns} ns); it gets no keyframe'
+            )
+            return []
         if state.keyframe is not None and stamp_ns <= state.keyframe[0]:
             if stamp_ns != state.keyframe[0]:
                 self.warn(

@@ -105,3 +105,15 @@ def test_with_sightings_on_time_the_hold_changes_no_keyframe(
         runs.append(([(i.stamp_from_ns, i.stamp_to_ns) for i in out], warnings.messages))
     assert runs[1] == runs[0]
     assert runs[2] == runs[0]
+
+
+def test_a_sighting_from_before_the_first_odometry_delivered_late_is_named_as_such() -> None:
+    ingest, warnings = make(hold_s=5.0)
+    stamps, poses = straight_line(10, 0.05)
+    for stamp, pose in zip((stamps + SECOND_NS).tolist(), poses, strict=True):
+        ingest.add_odometry(int(stamp), pose)
+    assert ingest.add_observation_stamp(SECOND_NS // 2) == []
+    assert warnings.messages == [
+        f'observation stamp {SECOND_NS // 2} ns came before the first odometry (at '
+        f'{SECOND_NS} ns); it gets no keyframe'
+    ]
