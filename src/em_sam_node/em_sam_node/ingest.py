@@ -155,7 +155,7 @@ class _State:
     rewound_dropped: int = 0
     # Samples up to this stamp were found not to have moved enough from the current keyframe.
     checked_ns: int | None = None
-    holding: bool = True  # the startup hold (module docstring) is on
+    hold_ended: str = ''  # how the startup hold (module docstring) ended; '' while it holds
     first_ns: int | None = None  # the first odometry stamp
 
 
@@ -168,8 +168,11 @@ class OdometryIngest:
         self._state = _State()
         self.dropped_samples = 0
         self.resets = 0
-        # How the startup hold ended ('' while it holds); the node logs it once.
-        self.hold_ended = ''
+
+    @property
+    def hold_ended(self) -> str:
+        """How the startup hold ended, '' while it holds (the node logs it once)."""
+        return self._state.hold_ended
 
     # -- input ----------------------------------------------------------------------------
     def add_odometry(self, stamp_ns: int, pose: FloatArray) -> list[Increment]:
@@ -208,12 +211,11 @@ class OdometryIngest:
             state.keyframe = (stamp_ns, pose.copy())  # the first keyframe: the first sample
             state.first_ns = stamp_ns
             self._release_before_odometry(stamp_ns)
-        if state.holding:
+        if not state.hold_ended:
             held_s = (stamp_ns - state.samples[0][0]) / 1e9
             if held_s < self.config.startup_hold_s:
                 return []
-            state.holding = False
-            self.hold_ended = f'after {held_s:.1f} s of odometry without a timely observation'
+            state.hold_ended = f'after {held_s:.1f} s of odometry without a timely observation'
         return self._emit(horizon_ns=stamp_ns - round(self.config.observation_delay_s * 1e9))
 
     def add_observation_stamp(self, stamp_ns: int) -> list[Increment]:
@@ -252,11 +254,10 @@ class OdometryIngest:
             state.pending_stamps.insert(index, stamp_ns)
         latest = state.samples[-1][0]
         horizon = latest - round(self.config.observation_delay_s * 1e9)
-        if state.holding:
+        if not state.hold_ended:
             if stamp_ns < horizon:
                 return []  # history from before this node matched its publisher: more may come
-            state.holding = False
-            self.hold_ended = f'at the first timely observation ({stamp_ns} ns)'
+            state.hold_ended = f'at the first timely observation ({stamp_ns} ns)'
         return self._emit(horizon_ns=horizon)
 
     def _hold_before_odometry(self, stamp_ns: int) -> None:
@@ -291,9 +292,8 @@ class OdometryIngest:
         """Emit every keyframe the odometry covers (at shutdown or at the end of a bag)."""
         if not self._state.samples:
             return []
-        if self._state.holding:
-            self._state.holding = False
-            self.hold_ended = 'at a flush'
+        if not self._state.hold_ended:
+            self._state.hold_ended = 'at a flush'
         return self._emit(horizon_ns=self._state.samples[-1][0], final=True)
 
     # -- keyframing -----------------------------------------------------------------------
