@@ -1,0 +1,150 @@
+"""How well the ground-truth camera poses of a TUM-layout sequence explain its depth maps on
+a static stretch (ROS-free).
+
+``static_consistency``: every image of the stretch with a depth map and a pose is paired
+with every later one ``min_separation_s`` to ``max_separation_s`` after it (by default
+2-5 s: the camera has moved, so a pose error shows); for each pair
+``rgbd_depth.consistency_residuals`` gives the depth residuals of a regular pixel grid
+(``step_px``). With exact poses and a static scene they are depth noise; the median
+absolute residual measures the poses (and the hand-eye transform behind them), and
+``rgbd_depth.pose_sigma_from_residuals`` turns the residuals into the per-axis position
+error of a back-projected point.
+
+``pose_error``: that error per band of separations (``SEPARATION_BANDS_S``), as the table
+the label rule interpolates (``depth_labels.PoseError``): poses close in time err alike,
+so their error grows with the separation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from slam_core.arrays import FloatArray
+from slam_sim.core.depth_labels import PoseError
+from slam_sim.core.rgbd_depth import (
+    DepthSampling,
+    Residuals,
+    consistency_residuals,
+    pose_sigma_from_residuals,
+    read_depth_m,
+    robust_sigma,
+)
+from slam_sim.core.tum_rgbd import TumRgbd
+
+SEPARATION_BANDS_S = ((0.05, 0.15), (0.15, 0.35), (0.35, 0.7), (0.7, 1.5), (1.5, 3.0), (3.0, 5.0))
+"""Bands of separations (s) of ``pose_error``: at 30 Hz with a depth map every third image,
+the first holds the pairs one depth map apart."""
+
+
+@dataclass(frozen=True, eq=False)
+class Consistency:
+    """The static stretch's depth consistency: images with depth and pose used, pairs, all
+    residuals (M,) m with their predicted depths (M,) m, and their summary figures."""
+
+    images: int
+    pairs: int
+    residuals: Residuals
+    separation_s: float = float('nan')
+
+    @property
+    def median_abs_error_m(self) -> float:
+        """The median absolute depth residual, m (NaN for none)."""
+        values = self.residuals.residual_m
+        return float(np.median(np.abs(values))) if len(values) else float('nan')
+
+    @property
+    def pose_sigma_m(self) -> float:
+        """The per-axis position error of a back-projected point the poses explain, m."""
+        return pose_sigma_from_residuals(self.residuals)
+
+    def summary(self) -> dict[str, float | int]:
+        """Return the counts and figures (m) for a report (NaN where there are none)."""
+        residual, predicted = self.residuals.residual_m, self.residuals.predicted_m
+        empty = not len(residual)
+        return {
+            'images': self.images,
+            'pairs': self.pairs,
+            'median_separation_s': self.separation_s,
+            'residuals': len(residual),
+            'median_abs_error_m': self.median_abs_error_m,
+            'median_error_m': float('nan') if empty else float(np.median(residual)),
+            'robust_sigma_m': robust_sigma(residual),
+            'median_depth_m': float('nan') if empty else float(np.median(predicted)),
+            'pose_sigma_m': self.pose_sigma_m,
+        }
+
+
+def static_consistency(
+    sequence: TumRgbd,
+    images: range,
+    *,
+    poses: FloatArray | None = None,
+    min_separation_s: float = 2.0,
+    max_separation_s: float = 5.0,
+    step_px: int = 16,
+    sampling: DepthSampling | None = None,
+) -> Consistency:
+    """Return the depth consistency of the colour images ``images`` (indices into rgb.txt)
+    that have a depth map and a pose (module docstring); ``poses`` (N, 4, 4) replaces the
+    sequence's T_world_camera (e.g. another hand-eye transform)."""
+    poses = sequence.poses if poses is None else poses
+    used = [
+        k
+        for k in images
+        if 0 <= k < len(sequence.rgb)
+        and sequence.depth_index[k] >= 0
+        and np.all(np.isfinite(poses[k]))
+    ]
+    depths = {
+        k: read_depth_m(sequence.depth.files[sequence.depth_index[k]], sequence.depth_units_per_m)
+        for k in used
+    }
+    stamps = sequence.stamps_ns
+    parts: list[Residuals] = []
+    separations: list[float] = []
+    for a in used:
+        for b in used:
+            separation_s = (int(stamps[b]) - int(stamps[a])) / 1e9
+            if min_separation_s <= separation_s <= max_separation_s:
+                separations.append(separation_s)
+                parts.append(
+                    consistency_residuals(
+                        sequence.camera,
+                        ((depths[a], poses[a]), (depths[b], poses[b])),
+                        step_px=step_px,
+                        sampling=sampling,
+                    )
+                )
+    residuals = Residuals(
+        np.concatenate([p.residual_m for p in parts]) if parts else np.zeros(0),
+        np.concatenate([p.predicted_m for p in parts]) if parts else np.zeros(0),
+    )
+    separation = float(np.median(separations)) if separations else float('nan')
+    return Consistency(len(used), len(parts), residuals, separation)
+
+
+def pose_error(
+    sequence: TumRgbd,
+    images: range,
+    *,
+    bands_s: tuple[tuple[float, float], ...] = SEPARATION_BANDS_S,
+    step_px: int = 16,
+) -> tuple[PoseError, list[Consistency]]:
+    """Return the pose error table of the static stretch ``images`` (module docstring): per
+    band with pairs, its median separation (s) and sigma_pose (m); and every band's
+    consistency. Raises ValueError when no band has pairs."""
+    bands = [
+        static_consistency(
+            sequence, images, min_separation_s=low, max_separation_s=high, step_px=step_px
+        )
+        for low, high in bands_s
+    ]
+    usable = [b for b in bands if len(b.residuals.residual_m) and np.isfinite(b.pose_sigma_m)]
+    if not usable:
+        raise ValueError('no two images with depth and pose in the static stretch')
+    return (
+        PoseError(tuple(b.separation_s for b in usable), tuple(b.pose_sigma_m for b in usable)),
+        bands,
+    )
