@@ -27,6 +27,7 @@ setup(
             'dynamic_camera_sim = slam_sim.dynamic_camera_bag:main',
             'victoria_park_import = slam_sim.victoria_park_bag:main',
             'mrclam_import = slam_sim.mrclam_bag:main',
+            'tum_rgbd_import = slam_sim.tum_rgbd_bag:main',
             'peoplebot_sim = slam_sim.peoplebot_sim_node:main',
             'route_driver = slam_sim.route_driver_node:main',
             'dynamic_scene_sim = slam_sim.dynamic_scene_sim_node:main',
