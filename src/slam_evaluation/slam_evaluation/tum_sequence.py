@@ -1,0 +1,341 @@
+"""tum_rgbd_sequence: an RGB-D sequence in the TUM layout (TUM RGB-D benchmark, Bonn RGB-D
+Dynamic) as a monocular sequence directory (``sequence_files``) for the evaluators, with
+tracks from our feature tracker and moving/static labels from the depth maps.
+
+Steps:
+
+1. Read the sequence (``slam_sim.core.tum_rgbd``; the options are ``tum_rgbd_import``'s).
+2. The ground truth's position error: the depth consistency of the static opening (the
+   first ``--static-images`` colour images, 180 by default: no person in bonn_crowd;
+   ``slam_sim.core.tum_consistency.pose_error``) gives the per-axis error sigma_pose(dt)
+   the label rule adds to each of two back-projected points dt apart, unless
+   ``--pose-sigma-m`` gives one sigma for every dt.
+3. Tracks (``tum_tracking``): ``FeatureTracker(TrackerConfig())``, the feature tracker
+   node's defaults as ``monoslam_front_end.FrontEnd`` builds it, over every colour image
+   decoded to grey as the node decodes a CompressedImage. Images without a ground-truth
+   pose are tracked too (the tracks go on through them) but left out of the sequence:
+   frame k of poses.txt and tracks.csv is the k-th image with a pose.
+4. Labels (``slam_sim.core.depth_labels``): a track is moving (1) or static (0) by the
+   chi-square rule on its depth sightings; an unknown track (fewer than two depth
+   sightings) has no row in labels.csv, so the evaluators count it static; import.json
+   counts them. The false-alarm rate is the share of the tracks labelled from the static
+   opening alone (their sightings in it) that are called moving: every one is static.
+5. Known points (``tum_known_points``): up to ``--known-points`` (16) static tracks of the
+   first image with reliable depth, at their back-projection there; import.json says how
+   long they stay in view.
+
+Output directory (``--output``, new; written under a hidden name and renamed into place
+when complete): camera.yaml, poses.txt, tracks.csv, labels.csv, known_points.csv (the
+sequence format), ``labels.png`` (the tracks of ``--figure-images`` drawn in their label's
+colour: moving red, static green, unknown grey) and ``import.json`` (the counts, the label
+rule's settings, the static opening's pose error per separation and false-alarm rate, the
+known points and their visibility).
+
+Example: ``tum_rgbd_sequence --dataset ../shared/data/bonn_crowd --convention bonn --output
+out/bonn_crowd/sequence``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from slam_core.cli import console_main
+from slam_core.errors import DatasetError
+from slam_core.files import write_atomically, write_json
+from slam_core.progress import ProgressReporter
+from slam_evaluation.sequence_files import Sequence, write_sequence
+from slam_evaluation.tum_known_points import KnownPoints, choose_known_points, visibility
+from slam_evaluation.tum_label_figure import LabelledImage, labels_png
+from slam_evaluation.tum_tracking import TrackedImages, track_images
+from slam_sim.core.depth_labels import LabelRule, PoseError, TrackLabels, label_tracks
+from slam_sim.core.tum_consistency import Consistency, pose_error
+from slam_sim.core.tum_rgbd import TumRgbd
+from slam_sim.tum_rgbd_bag import add_dataset_arguments, read_dataset
+
+PROG = 'tum_rgbd_sequence'
+FIGURE_IMAGES = (100, 300, 500, 700)
+
+
+@dataclass(frozen=True)
+class ImportSettings:
+    """The import's settings (module docstring): images of the static opening, largest
+    number of known points, the ground truth's position error (None: estimated), the
+    tracker's pixel noise (px) and the images drawn in labels.png."""
+
+    static_images: int = 180
+    known_points: int = 16
+    pose_sigma_m: float | None = None
+    pixel_sigma_px: float = 1.0
+    figure_images: tuple[int, ...] = FIGURE_IMAGES
+
+
+def pose_rule(sequence: TumRgbd, settings: ImportSettings) -> tuple[LabelRule, list[Consistency]]:
+    """Return the label rule, with sigma_pose from ``settings`` or else measured on the
+    static opening (``tum_consistency.pose_error``; its bands are returned too, none when
+    given)."""
+    if settings.pose_sigma_m is not None:
+        error = PoseError.constant(settings.pose_sigma_m)
+        return LabelRule(settings.pixel_sigma_px, error), []
+    try:
+        error, bands = pose_error(sequence, range(settings.static_images))
+    except ValueError:
+        raise DatasetError(
+            f'{sequence.directory}: the first {settings.static_images} images hold no two '
+            'depth maps with poses to measure the pose error; give --pose-sigma-m'
+        ) from None
+    return LabelRule(settings.pixel_sigma_px, error), bands
+
+
+@dataclass(frozen=True, eq=False)
+class ImportResult:
+    """What an import made: the sequence, the labels (all tracks and the static opening's),
+    the known points and the report (import.json's content)."""
+
+    sequence: Sequence
+    labels: TrackLabels
+    opening: TrackLabels
+    known: KnownPoints
+    report: dict[str, Any]
+
+
+def import_sequence(
+    sequence: TumRgbd,
+    settings: ImportSettings,
+    *,
+    rule: tuple[LabelRule, list[Consistency]] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[ImportResult, bytes | None]:
+    """Return the sequence of a TUM-layout sequence (module docstring) and the labels PNG
+    (None when no figure image has a pose); ``rule``: ``pose_rule``'s result if known."""
+    started = time.monotonic()
+    label_rule, bands = rule if rule is not None else pose_rule(sequence, settings)
+    tracked = track_images(sequence, label_rule, keep=settings.figure_images, progress=progress)
+    posed = sequence.has_pose[tracked.images]
+    frame_of = np.cumsum(sequence.has_pose) - 1
+    frames, ids = frame_of[tracked.images[posed]], tracked.ids[posed]
+    labels = label_tracks(ids, tracked.depth, label_rule)
+    in_opening = tracked.depth.frames < settings.static_images
+    opening_ids = ids[tracked.images[posed] < settings.static_images]
+    opening = label_tracks(opening_ids, tracked.depth.select(in_opening), label_rule)
+    pixel_of = {
+        (int(i), int(k)): (float(p[0]), float(p[1]))
+        for i, k, p in zip(tracked.images, tracked.ids, tracked.pixels, strict=True)
+    }
+    track_ids, seen = np.unique(ids, return_counts=True)
+    lifetimes = {int(k): int(n) for k, n in zip(track_ids, seen, strict=True)}
+    known = choose_known_points(
+        sequence.camera, tracked.depth, pixel_of, labels, lifetimes, cap=settings.known_points
+    )
+    poses = sequence.poses[sequence.has_pose]
+    result = Sequence(
+        sequence.camera, sequence.stamps_ns[sequence.has_pose], poses[:, :3, 3],
+        poses[:, :3, :3], frames, ids, tracked.pixels[posed], labels.moving_by_id(),
+        known.points,
+    )  # fmt: skip
+    figure = _figure(sequence, tracked, labels)
+    report = {
+        **_inputs(sequence),
+        'frames_written': len(result.stamps_ns),
+        'sightings': len(ids),
+        'depth_sightings': len(tracked.depth.ids),
+        'tracks': labels.counts(),
+        'label_rule': {**asdict(label_rule), 'chi2_bound': label_rule.bound},
+        'static_opening': {
+            'images': settings.static_images,
+            'tracks': opening.counts(),
+            'false_alarm_rate': opening.moving_share(),
+            'pose_error_bands': [band.summary() for band in bands],
+        },
+        'known_points': {
+            'image': known.image,
+            'frame': int(frame_of[known.image]) if known.image >= 0 else -1,
+            'candidates': known.candidates,
+            'ids': sorted(known.points),
+            **visibility(frames, ids, sorted(known.points), _rate_hz(sequence)),
+        },
+        'figure': {'file': 'labels.png' if figure else None, 'images': sorted(tracked.kept)},
+        'elapsed_s': time.monotonic() - started,
+    }
+    return ImportResult(result, labels, opening, known, report), figure
+
+
+def _inputs(sequence: TumRgbd) -> dict[str, Any]:
+    """Return the report's description of the input: dataset, convention, camera, counts."""
+    camera = sequence.camera
+    return {
+        'dataset': str(sequence.directory),
+        'convention': sequence.convention,
+        'camera': {
+            'width': camera.width, 'height': camera.height, 'fx': camera.fx, 'fy': camera.fy,
+            'cx': camera.cx, 'cy': camera.cy, 'd': camera.D.tolist(),
+        },
+        'images': sequence.counts(),
+        'tracker': 'FeatureTracker(TrackerConfig()): the feature_tracker node defaults',
+    }  # fmt: skip
+
+
+def _rate_hz(sequence: TumRgbd) -> float:
+    """Return the colour images' mean rate, Hz (NaN for one image)."""
+    span_s = (int(sequence.stamps_ns[-1]) - int(sequence.stamps_ns[0])) / 1e9
+    return (len(sequence.rgb) - 1) / span_s if span_s > 0 else float('nan')
+
+
+def _figure(sequence: TumRgbd, tracked: TrackedImages, labels: TrackLabels) -> bytes | None:
+    items = []
+    for index, image in sorted(tracked.kept.items()):
+        here = tracked.images == index
+        if not sequence.has_pose[index]:
+            continue
+        track_ids = tracked.ids[here]
+        items.append(LabelledImage(index, image, tracked.pixels[here], labels.label_of(track_ids)))
+    return labels_png(items) if items else None
+
+
+def write_import(output: Path, result: ImportResult, figure: bytes | None) -> Path:
+    """Write the sequence, labels.png and import.json into the new directory ``output``,
+    under a hidden name renamed into place when complete.
+
+    Raises:
+        DatasetError: ``output`` exists, its directory is missing, or it cannot be written.
+
+    """
+    target = Path(output).expanduser().absolute()
+    if target.exists():
+        raise DatasetError(f'output {str(target)!r} exists already; remove it or choose another')
+    if not target.parent.is_dir():
+        raise DatasetError(f'output {str(target)!r}: directory {str(target.parent)!r} is missing')
+    staging = target.parent / f'.{target.name}.writing-{os.getpid()}'
+    try:
+        staging.mkdir()
+        write_sequence(staging, result.sequence)
+        if figure is not None:
+            write_atomically(staging / 'labels.png', figure)
+        write_json(staging / 'import.json', result.report)
+        staging.rename(target)
+    except OSError as err:
+        raise DatasetError(f'output {str(target)!r} cannot be written: {err}') from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return target
+
+
+def summary(output: Path, report: dict[str, Any]) -> str:
+    """Return the one-line summary of an import."""
+    tracks, opening = report['tracks'], report['static_opening']
+    known = report['known_points']
+    in_view = (
+        f'in view for {known["frames_in_view_min"]}-{known["frames_in_view_max"]} frames '
+        f'(median {known["frames_in_view_median"]:g}, {known["seconds_in_view_median"]:.1f} s), '
+        f'at least 4 of them up to frame {known["last_frame_with_at_least_4"]}'
+        if known['count']
+        else 'none'
+    )
+    return (
+        f'{PROG}: wrote {output}: {report["frames_written"]} frames, {tracks["tracks"]} tracks '
+        f'({tracks["moving"]} moving, {tracks["static"]} static, {tracks["unknown"]} unknown); '
+        f'static opening: {opening["tracks"]["moving"]} of '
+        f'{opening["tracks"]["moving"] + opening["tracks"]["static"]} labelled moving '
+        f'(false alarms {100 * (opening["false_alarm_rate"] or 0.0):.1f} %); '
+        f'sigma_pose {_sigmas(report["label_rule"]["pose_error"])}; {known["count"]} known '
+        f'points from image {known["image"]}, {in_view}; {report["elapsed_s"]:.1f} s'
+    )
+
+
+def _sigmas(error: dict[str, Any]) -> str:
+    pairs = zip(error['separations_s'], error['sigmas_m'], strict=True)
+    return ', '.join(f'{1e3 * sigma:.0f} mm at {dt:.2f} s' for dt, sigma in pairs)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    add_dataset_arguments(parser)
+    defaults = ImportSettings()
+    parser.add_argument(
+        '--output', required=True, type=Path, metavar='DIR', help='new sequence directory'
+    )
+    parser.add_argument(
+        '--static-images',
+        type=int,
+        metavar='N',
+        default=defaults.static_images,
+        help='colour images at the start with nothing moving (default 180)',
+    )
+    parser.add_argument(
+        '--known-points',
+        type=int,
+        metavar='N',
+        default=defaults.known_points,
+        help='most known points (default 16; 0: none)',
+    )
+    parser.add_argument(
+        '--pose-sigma-m',
+        type=float,
+        metavar='M',
+        default=None,
+        help="ground truth's position error per axis, m (default: from the static opening)",
+    )
+    parser.add_argument(
+        '--pixel-sigma-px',
+        type=float,
+        metavar='PX',
+        default=defaults.pixel_sigma_px,
+        help="tracker's pixel noise per axis, px (default 1)",
+    )
+    parser.add_argument(
+        '--figure-images',
+        type=int,
+        metavar='INDEX',
+        nargs='*',
+        default=list(defaults.figure_images),
+        help='colour images drawn in labels.png (default 100 300 500 700)',
+    )
+    return parser
+
+
+@console_main(PROG)
+def main(argv: list[str] | None = None) -> int:
+    """Import a TUM-layout RGB-D sequence as a sequence directory."""
+    parser = _parser()
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    sequence = read_dataset(parser, args)
+    if args.static_images < 0 or args.known_points < 0:
+        parser.error('--static-images and --known-points must be >= 0')
+    for option, value in (('--pose-sigma-m', args.pose_sigma_m),
+                          ('--pixel-sigma-px', args.pixel_sigma_px)):  # fmt: skip
+        if value is not None and not (np.isfinite(value) and value >= 0.0):
+            parser.error(f'{option} must be a finite number >= 0, got {value}')
+    settings = ImportSettings(
+        args.static_images, args.known_points, args.pose_sigma_m, args.pixel_sigma_px,
+        tuple(args.figure_images),
+    )  # fmt: skip
+    target = Path(args.output).expanduser().absolute()
+    if target.exists():
+        raise DatasetError(f'output {str(target)!r} exists already; remove it or choose another')
+    if settings.pose_sigma_m is None:
+        note = f'{PROG}: measuring the pose error on the first {settings.static_images} images'
+        print(note, file=sys.stderr)  # noqa: T201
+    rule = pose_rule(sequence, settings)
+    reporter = ProgressReporter(len(sequence.rgb), label=PROG, unit=' images')
+    result, figure = import_sequence(
+        sequence, settings, rule=rule, progress=lambda done: reporter.update(done)
+    )
+    reporter.finish()
+    output = write_import(target, result, figure)
+    print(summary(output, result.report))  # noqa: T201
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

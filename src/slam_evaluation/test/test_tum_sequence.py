@@ -1,0 +1,141 @@
+"""tum_rgbd_sequence: a synthetic TUM-layout sequence (a wall and a sliding board) imported into a
+sequence directory and read back with ``read_sequence``; the real bonn_crowd's first two
+seconds (no person: every label there is a false alarm)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from slam_core.datasets import data_root, dataset
+from slam_evaluation.sequence_files import measurement_frames, read_sequence
+from slam_evaluation.tum_sequence import main
+from slam_sim.core.tum_rgbd import read_tum_rgbd
+from slam_sim.core.tum_synthetic import SyntheticTum, board_mask, write_synthetic_tum
+
+INTRINSICS = ['--fx', '300', '--fy', '300', '--cx', '160', '--cy', '120']
+CONFIG = SyntheticTum()
+
+
+@pytest.fixture(scope='module')
+def imported(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The synthetic sequence (45 images, the board enters at about image 9) and its import."""
+    root = tmp_path_factory.mktemp('tum')
+    source = write_synthetic_tum(root / 'source', CONFIG)
+    output = root / 'sequence'
+    argv = ['--dataset', str(source), *INTRINSICS, '--output', str(output)]
+    assert main([*argv, '--static-images', '9', '--figure-images', '5', '20', '30', '40']) == 0
+    return source, output
+
+
+def test_the_sequence_reads_back_with_the_images_that_have_poses(
+    imported: tuple[Path, Path],
+) -> None:
+    source, output = imported
+    assert sorted(p.name for p in output.iterdir()) == [
+        'camera.yaml', 'import.json', 'known_points.csv', 'labels.csv', 'labels.png',
+        'poses.txt', 'tracks.csv',
+    ]  # fmt: skip
+    sequence = read_sequence(output)
+    tum = read_tum_rgbd(source, intrinsics='tum_fr3')
+    assert len(sequence.stamps_ns) == CONFIG.images - 1  # image 0 precedes the ground truth
+    np.testing.assert_array_equal(sequence.stamps_ns, tum.stamps_ns[1:])
+    np.testing.assert_allclose(sequence.centres, tum.poses[1:, :3, 3], atol=1e-9)
+    assert sequence.camera.K[0, 0] == 300.0 and sequence.camera.width == CONFIG.width
+    assert set(np.unique(sequence.frame)) == set(range(CONFIG.images - 1))
+
+
+def test_board_tracks_are_moving_and_wall_tracks_static(imported: tuple[Path, Path]) -> None:
+    source, output = imported
+    sequence = read_sequence(output)
+    tum = read_tum_rgbd(source, intrinsics='tum_fr3')
+    seen_on: dict[int, list[bool]] = {}  # per track: inside the board, per image
+    near: set[int] = set()  # tracks within 5 px of the board in some image
+    kernel = np.ones((11, 11), np.uint8)
+    for k, (ids, pixels) in enumerate(sequence.by_frame()):
+        mask = board_mask(CONFIG, int(tum.stamps_ns[k + 1])).astype(np.uint8)
+        inside, around = cv2.erode(mask, kernel), cv2.dilate(mask, kernel)
+        u, v = np.clip(np.rint(pixels).astype(int), 0, [CONFIG.width - 1, CONFIG.height - 1]).T
+        for track, is_inside, is_near in zip(ids, inside[v, u], around[v, u], strict=True):
+            seen_on.setdefault(int(track), []).append(bool(is_inside))
+            if is_near:
+                near.add(int(track))
+    labels = sequence.labels or {}
+    board = [labels[i] for i in labels if all(seen_on[i])]
+    wall = [labels[i] for i in labels if i not in near]
+    assert len(board) >= 8 and np.mean(board) >= 0.8
+    assert len(wall) >= 100 and np.mean(wall) <= 0.02
+    report = json.loads((output / 'import.json').read_text(encoding='utf-8'))
+    tracks = report['tracks']
+    assert tracks['moving'] + tracks['static'] == len(labels)
+    assert tracks['moving'] + tracks['static'] + tracks['unknown'] == tracks['tracks']
+    assert tracks['tracks'] == len(np.unique(sequence.ids))
+    assert report['static_opening']['false_alarm_rate'] == 0.0
+    assert report['frames_written'] == CONFIG.images - 1
+
+
+def test_known_points_lie_on_the_wall_and_are_tracks(imported: tuple[Path, Path]) -> None:
+    _, output = imported
+    sequence = read_sequence(output)
+    known = sequence.known_points or {}
+    assert 4 <= len(known) <= 16
+    assert set(known) <= set(sequence.ids.tolist())
+    points = np.array(list(known.values()))
+    np.testing.assert_allclose(points[:, 2], CONFIG.wall_z_m, atol=0.01)
+    report = json.loads((output / 'import.json').read_text(encoding='utf-8'))['known_points']
+    assert report['count'] == len(known) and report['ids'] == sorted(known)
+    assert report['frames_in_view_max'] <= CONFIG.images - 1
+    frames = measurement_frames(sequence)
+    first = report['frame']
+    assert set(frames[first].measurements.known_keys.tolist()) == set(known)
+    assert not set(frames[first].measurements.ids.tolist()) & set(known)
+
+
+def test_the_labels_figure_tiles_the_chosen_images(imported: tuple[Path, Path]) -> None:
+    _, output = imported
+    figure = cv2.imread(str(output / 'labels.png'))
+    assert figure is not None
+    assert figure.shape == (2 * CONFIG.height, 2 * CONFIG.width, 3)
+    red = (figure[:, :, 2] > 200) & (figure[:, :, 1] < 60) & (figure[:, :, 0] < 60)
+    assert np.count_nonzero(red[CONFIG.height :]) > 100  # movers drawn in images 30 and 40
+    report = json.loads((output / 'import.json').read_text(encoding='utf-8'))
+    assert report['figure'] == {'file': 'labels.png', 'images': [5, 20, 30, 40]}
+
+
+def test_an_existing_output_is_refused(
+    imported: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    source, output = imported
+    argv = ['--dataset', str(source), *INTRINSICS, '--output', str(output)]
+    assert main(argv) == 2
+    assert 'exists already' in capsys.readouterr().err
+
+
+def test_the_static_opening_of_bonn_crowd(tmp_path: Path) -> None:
+    source = dataset('bonn_crowd')
+    if source is None:
+        pytest.skip(f'Bonn bonn_crowd not found at {data_root() / "bonn_crowd"}')
+    excerpt = tmp_path / 'excerpt'
+    excerpt.mkdir()
+    for name, rows in (('rgb.txt', 60), ('depth.txt', 20), ('groundtruth.txt', 62)):
+        lines = (source / name).read_text(encoding='utf-8').splitlines()
+        kept = [line for line in lines if not line.startswith('#')][:rows]
+        if name != 'groundtruth.txt':  # the files stay where they are
+            kept = [f'{line.split()[0]} {source / line.split()[1]}' for line in kept]
+        (excerpt / name).write_text('\n'.join(kept) + '\n', encoding='utf-8')
+    output = tmp_path / 'sequence'
+    argv = ['--dataset', str(excerpt), '--convention', 'bonn', '--output', str(output)]
+    assert main([*argv, '--static-images', '60', '--figure-images', '30']) == 0
+    report = json.loads((output / 'import.json').read_text(encoding='utf-8'))
+    opening = report['static_opening']
+    assert opening['tracks'] == report['tracks']  # all of it is the opening
+    assert opening['tracks']['static'] > 200
+    assert opening['false_alarm_rate'] < 0.05  # no person: every moving label is false
+    assert report['known_points']['count'] >= 8
+    assert report['known_points']['last_frame_with_at_least_4'] == 58
+    sigmas = report['label_rule']['pose_error']['sigmas_m']
+    assert 0.0 < sigmas[0] < 0.03 and sigmas[0] < sigmas[-1] < 0.1  # m, per axis
