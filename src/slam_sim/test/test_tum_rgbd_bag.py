@@ -148,7 +148,9 @@ def test_the_cli_never_overwrites_and_names_bad_input(
 def test_the_first_two_seconds_of_bonn_crowd(tmp_path: Path) -> None:
     source = dataset('bonn_crowd')
     if source is None:
-        pytest.skip(f'Bonn bonn_crowd not found at {data_root() / "bonn_crowd"}')
+        pytest.skip(
+            f'Bonn bonn_crowd not found at {data_root() / "bonn_crowd"} (set SLAM_DATA_DIR)'
+        )
     excerpt = tmp_path / 'excerpt'
     excerpt.mkdir()
     for name, rows in (('rgb.txt', 60), ('depth.txt', 20), ('groundtruth.txt', 62)):
