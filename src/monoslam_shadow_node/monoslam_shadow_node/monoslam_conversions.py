@@ -33,6 +33,7 @@ from monoslam_shadow_node.conversions import (
     feature_array_cdr,
 )
 from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamResult
+from monoslam_shadow_node.known_points_input import DepthImage
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
@@ -135,6 +136,30 @@ def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> Targ
         problem = f'target corners {corners.tolist()} are not {TARGET_CORNERS} finite pixels'
         return TargetSighting(stamp_ns, frame_id, None, detected, problem)
     return TargetSighting(stamp_ns, frame_id, corners.reshape(TARGET_CORNERS, 2), detected)
+
+
+def depth_from_image(message: Any) -> DepthImage:
+    """Return a sensor_msgs/Image depth image (REP 118: 16UC1 in mm, 0 = none, or 32FC1 in
+    m, NaN = none) in metres; raise ValueError naming the encoding or size problem."""
+    encoding = str(message.encoding)
+    kinds: dict[str, np.dtype[Any]] = {
+        '16UC1': np.dtype('<u2'), 'mono16': np.dtype('<u2'), '32FC1': np.dtype('<f4')
+    }  # fmt: skip
+    if encoding not in kinds:
+        raise ValueError(f'depth image encoding {encoding!r}: expected 16UC1 (mm) or 32FC1 (m)')
+    dtype = kinds[encoding].newbyteorder('>' if message.is_bigendian else '<')
+    height, width, step = int(message.height), int(message.width), int(message.step)
+    data = np.frombuffer(bytes(message.data), dtype=np.uint8)
+    if height < 1 or width < 1 or step < width * dtype.itemsize or len(data) < height * step:
+        raise ValueError(
+            f'depth image {width}x{height} px, step {step}: {len(data)} bytes do not hold it'
+        )
+    rows = data[: height * step].reshape(height, step)[:, : width * dtype.itemsize]
+    depth = rows.copy().view(dtype).reshape(height, width).astype(np.float64)
+    if dtype.kind == 'u':
+        depth = np.where(depth > 0, depth * 1e-3, np.nan)
+    stamp = stamp_to_ns(message.header.stamp)
+    return DepthImage(stamp, str(message.header.frame_id), depth)
 
 
 def dynamic_ids(message: Any) -> list[int]:

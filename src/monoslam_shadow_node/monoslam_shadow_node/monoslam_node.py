@@ -1,14 +1,10 @@
 """monoslam: tracked features and the initialization target in, camera pose and map out.
 
-The MonoSLAM filter of paper 001 (sec. II): one EKF over the camera and a map of static point
-features. It starts from the four corners of a fiducial marker of known size and pose (the
-paper's checkerboard: a monocular camera cannot observe scale), and with the Shadow filter
-(``initialize`` 'handover') it adds only the features the Shadow filter hands over as static;
-the Shadow filter in turn takes this node's pose. The algorithm is ``core.monoslam.MonoSlam``;
-the pairing of each FeatureTrackArray with the FiducialArray of the same image, the tracking
-state, the handover intake and the counts are ``monoslam_processor.MonoSlamProcessor``'s;
-this node converts the messages, hands them to it, publishes the result and logs what it
-reports.
+The MonoSLAM filter of paper 001 (sec. II, ``core.monoslam.MonoSlam``; the pairing, state and
+counts: ``monoslam_processor``): one EKF over the camera and a map of static point features.
+It starts from known points (a marker of known size and pose, a depth image or a file: a
+monocular camera cannot observe scale), and with the Shadow filter (``initialize``
+'handover') the features it hands over as static fix the camera.
 
 Topics:
   subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100): track ids and
@@ -27,6 +23,8 @@ Topics:
               (world position and covariance in map_frame); each enters the map when next
               observed. A handover that is not STATIC, not finite, not positive
               semi-definite or in another frame is refused and logged with its id.
+              camera/depth/image_raw (sensor_msgs/Image 16UC1 mm or 32FC1 m, best effort,
+              depth 100), with known_points_source 'depth': held until the start.
               shadow/tracks (slam_interfaces/ShadowTrackArray, reliable, depth 100), when
               initialize is 'handover' and fill_undecided: the features the Shadow filter
               found DYNAMIC never fill the map undecided, and leave it if they had.
@@ -73,15 +71,9 @@ sync_horizon_s of wall time) is processed without them once the filter has start
 a throttled warning), and dropped before (the filter needs the target to start). Features
 before any camera_info are held until it comes.
 
-Logs: the camera; waiting for the target (throttled, with what was detected instead); the
-start (stamp, initial pose and its sigma); tracking lost (why) and the re-initialization from
-the target when it is seen again; a resume (from where, and on its first frame whether it
-predicted over the gap or re-localises); a camera_info change; every bad input with its culprit,
-after which the node goes on: an unusable camera_info, a frame out of stamp order, NaN
-pixels (those features are ignored), NaN target corners, a refused handover. Every 10 s a
-status line: frames per second, state, map size, features measured and the latest update's
-counts (compatible, RANSAC hypotheses, low-innovation inliers, rescued, rejected), handovers
-accepted and refused, losses, skips and drops.
+Logs: waiting for the target (throttled), the start, tracking lost (why), a resume, a
+camera_info change, every bad input with its culprit (the node goes on), and every 10 s a
+status line (rate, state, map, the update's counts, handovers, losses, skips and drops).
 
 Parameters (filter): the fields of the core's MonoSlamConfig, one to one (four renamed with
 their unit); their defaults are the core's, written out in config/monoslam.yaml (a test
@@ -103,15 +95,9 @@ keeps the two equal).
   target_measured, max_new_per_frame, min_new_spacing_px  initialize 'all': add features
                                   while fewer are measured, at most this many per frame,
                                   at least this far apart (px).
-  max_view_angle_deg (45)         map features stay in the state out of view; one predicted
-                                  in view (in the image, within this angle of the ray it was
-                                  first seen along) and not found counts a failed search, and
-                                  one found in fewer than min_success_ratio of at least
-                                  failure_window searches is deleted. When the state is full,
-                                  the least measured feature out of view is retired to the map.
-  view_margin_px (11)             in the image means this far inside its border: the feature
-                                  tracker follows nothing nearer (its border_margin_px, 10 px,
-                                  and half its 21 px window), so a search there would fail.
+  max_view_angle_deg (45), view_margin_px (11)  a map feature is searched for only within
+                                  this angle of its first ray and this far inside the image
+                                  (the tracker's border margin and half its window).
   failure_window, min_success_ratio, max_consecutive_failures  deleting failing features.
   lost_after_frames, max_position_sigma_m  tracking is lost after this many frames measuring
                                   nothing, or when the position sigma exceeds this (m).
@@ -127,12 +113,17 @@ keeps the two equal).
                                   Schmidt consider update), not the camera, until its
                                   inverse depth becomes Euclidean (SLAM's own views fix it),
                                   or until fewer than 3 others are measured in a frame.
-  fill_undecided (true)           with initialize 'handover', when handovers leave fewer
-                                  than target_measured features measured, features the
-                                  Shadow filter has not decided on (and not found DYNAMIC)
-                                  fill the gap, as classic MonoSLAM initializes them; one
-                                  failing the persistent-outlier test, or found DYNAMIC by
-                                  the Shadow filter later, is revoked.
+  fill_undecided (true)           with initialize 'handover', features the Shadow filter
+                                  has not decided on fill the map on probation (consider
+                                  updates: they never move the camera) until it hands them
+                                  over as static; found DYNAMIC or failing: revoked.
+  known_points_source ('marker')  what fixes the world and its scale at the start: 'marker'
+                                  (the target below), 'depth' (the features with a depth in
+                                  the first camera/depth/image_raw paired with a features
+                                  frame; map_frame is then that camera's optical frame) or
+                                  'file' (known_points_file).
+  depth_noise_per_m (1.425e-3), depth_start_points (50)  'depth': the sensor's noise,
+                                  sigma_z = c z^2, and most features the start maps.
   update ('ransac'), ransac_seed (0)  'ransac': the 1-point RANSAC update (Civera et al.
                                   2010), its draws seeded for reproducible runs; 'gated':
                                   every measurement inside the chi-square gate.
@@ -166,15 +157,15 @@ Parameters (node):
                                   state, every feature's parameters and track id, the full
                                   covariance, template views and counters, the target
                                   initialization state, the last stamp; '' = none.
+  known_points_file (''), known_points_match_px (3.0)  'file': CSV id,x,y,z,u,v (position
+                                  in map_frame, m; raw pixel in the first image): the track
+                                  nearest each pixel, within the match distance, is that point.
+  depth_stamp_tolerance_s (0.02)  'depth': largest features-to-depth stamp difference, s.
   resume_from ('')                start from this checkpoint; 'auto' = checkpoint_file when it
-                                  exists (a GRAPH's respawn_parameters). A bad checkpoint, or
-                                  one of another target, stops the node naming it. The first
-                                  frame after it predicts over the gap with the motion model
-                                  and measures the tracker's features by their ids, or, when
-                                  the gap is too long for the motion model (about 0.1 s at
-                                  the defaults; why: core.monoslam_snapshot), keeps the map
-                                  and re-localises from the target as at the start; the log
-                                  and /diagnostics say which.
+                                  exists (a GRAPH's respawn_parameters); a bad one stops the
+                                  node naming it. The first frame after it predicts over the
+                                  gap, or, if too long (core.monoslam_snapshot), re-localises
+                                  from the target; the log and /diagnostics say which.
 All are read-only; a bad value stops the node with an error naming the parameter.
 
 Frames: map_frame is defined by the target's pose; features and fiducials are in the camera
@@ -187,7 +178,6 @@ import sys
 import time
 from collections import deque
 from functools import partial
-from pathlib import Path as FilePath
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TransformStamped
@@ -195,7 +185,7 @@ from nav_msgs.msg import Path
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
@@ -203,11 +193,11 @@ from monoslam_shadow_node.conversions import CameraInfoWatch, Features, features
 from monoslam_shadow_node.core.monoslam import MonoSlam
 from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamResult
 from monoslam_shadow_node.frame_sync import StampSync
-from monoslam_shadow_node.monoslam_checkpoint import load_checkpoint, save_checkpoint
 from monoslam_shadow_node.monoslam_conversions import (
     PoseFields,
     TargetSighting,
     cloud_points,
+    depth_from_image,
     dynamic_ids,
     fill_cloud,
     fill_pose_stamped,
@@ -220,10 +210,12 @@ from monoslam_shadow_node.monoslam_conversions import (
     target_from_fiducials,
     tum_text,
 )
+from monoslam_shadow_node.monoslam_node_checkpoints import CheckpointsMixin
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep, Outcome
 from monoslam_shadow_node.monoslam_settings import (
     NODE_NAME,
     PARAMETERS,
+    known_point_rows,
     monoslam_config,
     node_settings,
     target_settings,
@@ -245,6 +237,7 @@ from slam_ros.spin import spin_node
 
 FEATURES_TOPIC = 'features'
 FIDUCIALS_TOPIC = 'fiducials'
+DEPTH_TOPIC = 'camera/depth/image_raw'
 CAMERA_INFO_TOPIC = 'camera/camera_info'
 HANDOVER_TOPIC = 'shadow/static_features'
 SHADOW_TRACKS_TOPIC = 'shadow/tracks'
@@ -259,7 +252,7 @@ WAITING_LOG_PERIOD_S = 5.0
 DEFAULT_CAMERA_FRAME = 'camera_optical_frame'
 
 
-class MonoSlamNode(Node):
+class MonoSlamNode(CheckpointsMixin, Node):
     """Thin adapter around MonoSlamProcessor: features, fiducials and handovers in, pose and
     map published."""
 
@@ -267,11 +260,21 @@ class MonoSlamNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         values = declare_parameters(self, PARAMETERS)
         self.target = target_settings(values)
-        self.config = monoslam_config(values, self.target)
+        rows = known_point_rows(values)
+        self.config = monoslam_config(values, self.target, rows)
         self.settings = node_settings(values)
+        source = self.config.known_points_source
+        self.start_text = {
+            'marker': self.target.describe(),
+            'depth': f'features with a depth on {DEPTH_TOPIC}',
+            'file': f'known points of {values["known_points_file"]}',
+        }[source]
         self.processor = MonoSlamProcessor(
             self.config,
-            target_text=self.target.describe(),
+            target_text=self.start_text,
+            known_rows=rows,
+            match_px=self.settings.known_points_match_px,
+            depth_tolerance_ns=self.settings.depth_stamp_tolerance_ns,
             map_frame=self.settings.map_frame,
             stamp_tolerance_ns=self.settings.stamp_tolerance_ns,
             sync_horizon_ns=self.settings.sync_horizon_ns,
@@ -319,9 +322,11 @@ class MonoSlamNode(Node):
             FeatureTrackArray, FEATURES_TOPIC, timed(self._on_features, 'features'), inputs,
             raw=True,
         )  # fmt: skip
-        self.create_subscription(
-            FiducialArray, FIDUCIALS_TOPIC, timed(self._on_fiducials, 'fiducials'), inputs
-        )
+        if source == 'marker':
+            callback = timed(self._on_fiducials, 'fiducials')
+            self.create_subscription(FiducialArray, FIDUCIALS_TOPIC, callback, inputs)
+        if source == 'depth':
+            self.create_subscription(Image, DEPTH_TOPIC, timed(self._on_depth, 'depth'), info_qos)
         self.create_subscription(
             CameraInfo, CAMERA_INFO_TOPIC, timed(self._on_camera_info, 'camera_info'), info_qos
         )
@@ -348,8 +353,8 @@ class MonoSlamNode(Node):
         handovers = f' and {HANDOVER_TOPIC}' if self.config.initialize == 'handover' else ''
         self.get_logger().info(
             f'initialize={self.config.initialize}: waiting for {FEATURES_TOPIC}, '
-            f'{FIDUCIALS_TOPIC}{handovers} and {CAMERA_INFO_TOPIC}; initialization target '
-            f'{self.target.describe()} in {self.settings.map_frame}'
+            f'{FIDUCIALS_TOPIC if source == "marker" else DEPTH_TOPIC}{handovers} and '
+            f'{CAMERA_INFO_TOPIC}; start from {self.start_text} in {self.settings.map_frame}'
         )
 
     @property
@@ -361,62 +366,6 @@ class MonoSlamNode(Node):
     def sync(self) -> StampSync[Features, TargetSighting]:
         """The processor's pairing of features with fiducials."""
         return self.processor.sync
-
-    # --- checkpoints ------------------------------------------------------------------------
-
-    def _resume(self, resume_from: str) -> None:
-        if not resume_from:
-            return
-        file = self.settings.checkpoint_file
-        path = file if resume_from == 'auto' else FilePath(resume_from).expanduser()
-        if path is None or (resume_from == 'auto' and not path.exists()):
-            self.get_logger().info(
-                f'resume_from auto: no checkpoint at {str(path)!r}; fresh start'
-            )
-            return
-        self.trajectory = load_checkpoint(self.processor, path)
-        self._saved_state = self._state_key()
-        slam, last_ns = self.processor.slam, self.processor.sync.last_ns
-        points = len(slam.map_points()) if slam is not None else 0
-        self.get_logger().info(
-            f'resumed from {str(path)!r}: {self.processor.status}, {points} map points, '
-            f'last frame at stamp {last_ns} ns; the first frame after it decides whether to '
-            'predict over the gap or re-localise from the target'
-        )
-
-    def _state_key(self) -> tuple[int, ...]:
-        counts = self.processor.counts
-        return (counts.features_received, counts.fiducials_received, counts.processed,
-                counts.accepted, counts.refused, counts.dropped_total)  # fmt: skip
-
-    def save_checkpoint(self) -> str:
-        """Write the map's checkpoint to checkpoint_file; return a one-line summary. Raises
-        ValueError before the camera (no map yet) and OSError when it cannot be written."""
-        path = self.settings.checkpoint_file
-        if path is None:
-            return 'no checkpoint_file is set'
-        save_checkpoint(self.processor, path, self.trajectory)
-        self._saved_state = self._state_key()
-        points = len(self.processor.map_points())
-        return (
-            f'checkpoint of {self.processor.counts.processed} frames, {points} map points '
-            f'({self.processor.status}) written to {str(path)!r}'
-        )
-
-    def _on_checkpoint(self) -> None:
-        if self.processor.slam is not None and self._state_key() != self._saved_state:
-            try:
-                self.get_logger().debug(self.save_checkpoint())
-            except OSError as err:
-                self.get_logger().error(f'could not write the checkpoint: {err}')
-
-    def _on_save_map(self, request: Trigger.Request, response: Trigger.Response) -> Any:
-        try:
-            response.message = self.save_checkpoint()
-            response.success = self.settings.checkpoint_file is not None
-        except (OSError, ValueError) as err:
-            response.success, response.message = False, f'could not write the checkpoint: {err}'
-        return response
 
     # --- inputs -----------------------------------------------------------------------------
 
@@ -455,6 +404,15 @@ class MonoSlamNode(Node):
         self._last_input = time.monotonic()
         sighting = target_from_fiducials(message, self.target.marker_id, self.target.dictionary)
         self._handle(self.processor.add_sighting(sighting))
+
+    def _on_depth(self, message: Image) -> None:
+        self._last_input = time.monotonic()
+        try:
+            image = depth_from_image(message)
+        except ValueError as error:
+            self._handle(self.processor.reject('bad_depth', f'{DEPTH_TOPIC}: {error}; dropped'))
+            return
+        self._handle(self.processor.add_depth(image))
 
     def _on_handovers(self, message: ShadowTrackArray) -> None:
         handovers = handovers_from_message(message)
@@ -547,6 +505,8 @@ class MonoSlamNode(Node):
             'handovers accepted': counts.accepted,
             'handovers refused': counts.refused,
             'lost': counts.lost,
+            'depth images': counts.depth_received,
+            'depth images not needed': counts.depth_unused,
             'predictions': counts.predictions,
             'predictions skipped (behind)': counts.predictions_behind,
             'resumes predicted': counts.resumes_predicted,

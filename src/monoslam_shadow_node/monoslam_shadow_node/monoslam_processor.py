@@ -46,6 +46,7 @@ import numpy as np
 
 from monoslam_shadow_node.conversions import Features, FloatArray, IntArray
 from monoslam_shadow_node.core.monoslam import MonoSlam
+from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS
 from monoslam_shadow_node.core.monoslam_snapshot import GapVerdict, gap_verdict, relocalise
 from monoslam_shadow_node.core.monoslam_types import (
     LOST,
@@ -60,6 +61,13 @@ from monoslam_shadow_node.core.monoslam_types import (
 )
 from monoslam_shadow_node.core.shadow_track import STATIC
 from monoslam_shadow_node.frame_sync import Drop, StampSync, SyncNames
+from monoslam_shadow_node.known_points_input import (
+    DepthImage,
+    DepthStart,
+    KnownPointRows,
+    assign_known_points,
+    feature_depths,
+)
 from monoslam_shadow_node.monoslam_conversions import (
     HandoverInput,
     PoseFields,
@@ -135,7 +143,8 @@ class MonoSlamCounts:
     (``MonoSlam``'s persistent-outlier test), times tracking was lost, resumes from a
     checkpoint that predicted over the gap and that re-localised, the features measured
     and the update's counts in the latest frame, and predictions made and not made because
-    the filter was behind (``MonoSlamProcessor.predictions``)."""
+    the filter was behind (``MonoSlamProcessor.predictions``), depth images received and
+    those not needed (the filter tracked already)."""
 
     features_received: int = 0
     fiducials_received: int = 0
@@ -153,6 +162,8 @@ class MonoSlamCounts:
     update: UpdateCounts = field(default_factory=UpdateCounts)
     predictions: int = 0
     predictions_behind: int = 0
+    depth_received: int = 0
+    depth_unused: int = 0
 
     @property
     def dropped_total(self) -> int:
@@ -176,8 +187,16 @@ class MonoSlamProcessor:
         queue_size: int = 100,
         fiducials_topic: str = 'fiducials',
         camera_info_topic: str = 'camera/camera_info',
+        known_rows: KnownPointRows | None = None,
+        match_px: float = 3.0,
+        depth_tolerance_ns: int = 20_000_000,
     ) -> None:
         self.config = config
+        self.known_source = config.known_points_source
+        self.known_rows = known_rows
+        self.match_px = match_px
+        self.assigned: dict[int, int] = {}  # track id -> known key ('file')
+        self.depth_start = DepthStart(depth_tolerance_ns, sync_horizon_ns, queue_size)
         self.target_text = target_text
         self.map_frame = map_frame
         self.camera_info_topic = camera_info_topic
@@ -219,11 +238,20 @@ class MonoSlamProcessor:
             self.slam = MonoSlam(camera, self.config)
         else:
             self.slam.set_camera(camera)
-        return self._drain()
+        return self._drain() + self._drain_direct()
 
     def add_features(self, features: Features) -> list[Outcome]:
         """Queue a feature frame; process what is ready."""
         self.counts.features_received += 1
+        if self.known_source != 'marker':  # no fiducials to pair with
+            held = self.depth_start.frames
+            outcomes: list[Outcome] = []
+            if len(held) == held.maxlen:
+                old = held.popleft()
+                text = f'features frame at stamp {old.stamp_ns} ns: queue full, dropped'
+                outcomes = self._drops([Drop('queue_full', old.stamp_ns, text)])
+            held.append(features)
+            return outcomes + self._drain_direct()
         outcomes = self._drops(self.sync.add_primary(features))
         if self.slam is None:
             text = (
@@ -233,14 +261,74 @@ class MonoSlamProcessor:
             outcomes.append(Notice('no_camera', 'warning', text, features.stamp_ns, True))
         return outcomes + self._drain()
 
+    def add_depth(self, image: DepthImage) -> list[Outcome]:
+        """Take a depth image (``known_points_source`` 'depth'): held for the start while the
+        filter waits, counted as not needed while it tracks."""
+        self.counts.depth_received += 1
+        if self.known_source != 'depth' or self.status == TRACKING:
+            self.counts.depth_unused += 1
+            return []
+        self.depth_start.add_depth(image)
+        return self._drain_direct()
+
+    def _drain_direct(self, flush: bool = False) -> list[Outcome]:
+        """Process the held frames that are ready ('depth' and 'file' sources)."""
+        outcomes: list[Outcome] = []
+        start = self.depth_start
+        while self.slam is not None and start.frames:
+            if self.known_source == 'file' or self.status == TRACKING:
+                outcomes += self._process_direct(start.frames.popleft(), None)
+                continue
+            ready = start.next(flush)
+            if ready is None:
+                break
+            features, depth = ready
+            if depth is None:
+                text = (f'features frame at stamp {features.stamp_ns} ns: no depth image within '
+                        'the tolerance; the filter needs one to start')  # fmt: skip
+                outcomes += self._drops([Drop('no_depth', features.stamp_ns, text)])
+                continue
+            outcomes += self._process_direct(features, depth)
+        return outcomes
+
+    def _process_direct(self, features: Features, depth: DepthImage | None) -> list[Outcome]:
+        """Run a frame with its depths (a depth start) or its known points from the file."""
+        assert self.slam is not None
+        ids, pixels = features.ids, features.pixels
+        if depth is not None:
+            camera = self.slam.camera
+            if depth.depth_m.shape != (camera.height, camera.width):
+                text = (f'depth image at stamp {depth.stamp_ns} ns is {depth.depth_m.shape[1]}x'
+                        f'{depth.depth_m.shape[0]} px, the camera {camera.width}x'
+                        f'{camera.height}: it must be registered to the colour image')  # fmt: skip
+                return self._drops([Drop('depth_size', depth.stamp_ns, text)])
+            depths = feature_depths(
+                depth.depth_m, pixels, float(camera.K[0, 0]), self.config.depth_noise_per_m
+            )
+            frame = MonoSlamFrame(features.stamp_ns, ids, pixels, depths_m=depths)
+            return self.process(features, None, prepared=frame)
+        notices: list[Outcome] = []
+        if self.known_rows is not None and not self.assigned:
+            assigned = assign_known_points(self.known_rows, features, self.match_px)
+            if len(assigned) >= MIN_KNOWN_POINTS:
+                self.assigned = assigned
+                text = (f'known points: {len(assigned)} of {len(self.known_rows.keys)} from '
+                        f'the file matched tracks at stamp {features.stamp_ns} ns')  # fmt: skip
+                notices.append(Notice('known_points', 'info', text, features.stamp_ns))
+        known = np.array([int(i) in self.assigned for i in ids], dtype=bool)
+        keys = np.array([self.assigned[int(i)] for i in ids[known]], dtype=np.int64)
+        frame = MonoSlamFrame(features.stamp_ns, ids[~known], pixels[~known], keys, pixels[known])
+        return notices + self.process(features, None, prepared=frame)
+
     def add_sighting(self, sighting: TargetSighting) -> list[Outcome]:
         """Queue the target sighting of one image (its fiducials); process what is ready."""
         self.counts.fiducials_received += 1
         return self._drops(self.sync.add_partner(sighting)) + self._drain()
 
     def flush(self) -> list[Outcome]:
-        """The inputs stopped: frames still without fiducials go now (alone or dropped)."""
-        return self._drain(flush=True)
+        """The inputs stopped: frames still without fiducials (or depth) go now (alone or
+        dropped)."""
+        return self._drain(flush=True) + self._drain_direct(flush=True)
 
     def mark_moving(self, ids: Sequence[int]) -> None:
         """Note features the Shadow filter found DYNAMIC (``MonoSlam.mark_moving``); before
@@ -331,13 +419,18 @@ class MonoSlamProcessor:
                 transition, self._relocalising = 're-localised', False
         return MonoSlamStep(result, frame_id, pose_fields(result), transition, resumed)
 
-    def process(self, features: Features, sighting: TargetSighting | None) -> list[Outcome]:
+    def process(
+        self,
+        features: Features,
+        sighting: TargetSighting | None,
+        prepared: MonoSlamFrame | None = None,
+    ) -> list[Outcome]:
         """Run one features frame with its target sighting (None: processed without
-        fiducials); return the step and what to log. A frame the core refuses or fails on is
-        skipped (an error notice)."""
+        fiducials), or as ``prepared`` (the other known-point sources); return the step and
+        what to log. A frame the core refuses or fails on is skipped (an error notice)."""
         stamp_ns = features.stamp_ns
         notices: list[Outcome] = []
-        if sighting is None:
+        if prepared is None and sighting is None:
             self.counts.alone += 1
             text = (
                 f'features frame at stamp {stamp_ns} ns processed without fiducials (none '
@@ -345,11 +438,12 @@ class MonoSlamProcessor:
                 f'{self.counts.alone} so far'
             )
             notices.append(Notice('alone', 'warning', text, stamp_ns, True))
-        elif sighting.problem is not None:
+        elif sighting is not None and sighting.problem is not None:
             text = f'fiducials at stamp {sighting.stamp_ns} ns: {sighting.problem}; not used'
             notices.append(Notice('bad_fiducials', 'warning', text, stamp_ns))
         try:
-            step = self.process_frame(monoslam_frame(features, sighting), features.frame_id)
+            frame = prepared if prepared is not None else monoslam_frame(features, sighting)
+            step = self.process_frame(frame, features.frame_id)
         except (MonoSlamInputError, np.linalg.LinAlgError) as err:
             self.counts.skipped += 1
             text = f'features frame at stamp {stamp_ns} ns skipped: {err}'
@@ -408,6 +502,8 @@ class MonoSlamProcessor:
 
     def _waiting_text(self, stamp_ns: int, sighting: TargetSighting | None) -> str:
         target = f'initialization target ({self.target_text})'
+        if self.known_source != 'marker':
+            return f'waiting for the {target} at stamp {stamp_ns} ns'
         if sighting is not None and sighting.corners_px is not None:
             return (
                 f'{target} seen at stamp {stamp_ns} ns, but no camera pose fits its corners '

@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
 from monoslam_shadow_node.core.projective import FloatArray
+from monoslam_shadow_node.known_points_input import KnownPointRows, read_known_points
 from slam_core.params import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Param, ParamTable
 
 NODE_NAME = 'monoslam'
@@ -39,6 +40,25 @@ def _core(field: str, description: str, name: str = '') -> Param:
 
 
 CORE_PARAMETERS = (
+    Param(
+        'known_points_source',
+        _CORE.known_points_source,
+        "what fixes the world and its scale at the start: 'marker' (the target_* marker's "
+        "corners, from fiducials), 'depth' (the features with a depth in the first depth "
+        'image paired with a features frame: camera/depth/image_raw, registered to the colour '
+        "image; the camera's optical frame then is map_frame) or 'file' (known_points_file)",
+        field='known_points_source',
+        choices=('marker', 'depth', 'file'),
+    ),
+    _core(
+        'depth_noise_per_m',
+        "known_points_source 'depth': the depth sensor's noise, sigma_z = c z^2 (c in 1/m; "
+        '1.425e-3 for structured light, Khoshelham and Elberink 2012)',
+    ),
+    _core(
+        'depth_start_points',
+        "known_points_source 'depth': most features the start puts in the map (>= 1)",
+    ),
     _core('pixel_sigma_px', 'feature and target corner pixel noise per coordinate, px (> 0)'),
     _core(
         'tracking_offset_px',
@@ -111,8 +131,9 @@ CORE_PARAMETERS = (
     ),
     _core(
         'fill_undecided',
-        "with initialize 'handover': when handovers leave fewer than target_measured "
-        'features measured, undecided features fill the gap; DYNAMIC in shadow/tracks: out',
+        "with initialize 'handover': when fewer than target_measured features are measured, "
+        'undecided features fill the map on probation (they never move the camera) until the '
+        'Shadow filter hands them over as static; DYNAMIC in shadow/tracks: out',
     ),
     Param(
         'update',
@@ -204,6 +225,27 @@ NODE_PARAMETERS = (
         'how long (stamp time) a features frame waits for its fiducials, s (> stamp_tolerance_s)',
     ),
     Param(
+        'known_points_file',
+        '',
+        "known_points_source 'file': CSV 'id,x,y,z,u,v' (header first): each known point's "
+        'position in map_frame (m) and its raw pixel in the first image; the track nearest '
+        'each pixel (within known_points_match_px) in the first frame becomes that point',
+        validator=_file_rule,
+    ),
+    Param(
+        'known_points_match_px',
+        3.0,
+        "known_points_file: how far a track may be from a row's pixel, px",
+        range=POSITIVE,
+    ),
+    Param(
+        'depth_stamp_tolerance_s',
+        0.02,
+        "known_points_source 'depth': largest features-to-depth image stamp difference, s "
+        "(TUM's association: an RGB-D camera's colour and depth images are up to 1/60 s apart)",
+        range=POSITIVE,
+    ),
+    Param(
         'queue_size',
         100,
         'feature frames and fiducial arrays held while waiting',
@@ -277,8 +319,9 @@ class NodeSettings:
     """The node's own settings: map frame, which outputs (TF and its camera frame,
     predictions), path length
     (poses), map period (s), stamp tolerance and waiting horizon (int ns), queue bound, the
-    trajectory file (None: none), the checkpoint period (s), file (None: none) and where to
-    resume from ('', 'auto' or a path)."""
+    trajectory file (None: none), the checkpoint period (s), file (None: none), where to
+    resume from ('', 'auto' or a path), how far a known point file's pixel may be from its
+    track (px) and the depth images' stamp tolerance (int ns)."""
 
     map_frame: str
     publish_tf: bool
@@ -293,6 +336,8 @@ class NodeSettings:
     checkpoint_period_s: float = 10.0
     checkpoint_file: Path | None = None
     resume_from: str = ''
+    known_points_match_px: float = 3.0
+    depth_stamp_tolerance_ns: int = 20_000_000
 
 
 def target_settings(values: Mapping[str, Any]) -> TargetSettings:
@@ -309,11 +354,29 @@ def target_settings(values: Mapping[str, Any]) -> TargetSettings:
     )
 
 
-def monoslam_config(values: Mapping[str, Any], target: TargetSettings) -> MonoSlamConfig:
+def known_point_rows(values: Mapping[str, Any]) -> KnownPointRows | None:
+    """Read known_points_file when known_points_source is 'file' (None otherwise; raises
+    ParameterError naming the file's problem)."""
+    checked = PARAMETERS.validate(values)
+    path = checked['known_points_file'].strip()
+    if checked['known_points_source'] != 'file':
+        return None
+    if not path:
+        raise PARAMETERS.fail('known_points_file', path, "needed with known_points_source 'file'")
+    try:
+        return read_known_points(Path(path).expanduser())
+    except ValueError as error:
+        raise PARAMETERS.fail('known_points_file', path, str(error)) from error
+
+
+def monoslam_config(
+    values: Mapping[str, Any], target: TargetSettings, rows: KnownPointRows | None = None
+) -> MonoSlamConfig:
     """Validate the filter's parameters into a MonoSlamConfig whose known points are the
-    target's corners (raises ParameterError)."""
+    target's corners, or the file's ``rows`` (raises ParameterError)."""
     fields = PARAMETERS.fields(PARAMETERS.validate(values))
-    return PARAMETERS.build(lambda: MonoSlamConfig(known_points=target.known_points(), **fields))
+    known = rows.known_points() if rows is not None else target.known_points()
+    return PARAMETERS.build(lambda: MonoSlamConfig(known_points=known, **fields))
 
 
 def node_settings(values: Mapping[str, Any]) -> NodeSettings:
@@ -344,4 +407,6 @@ def node_settings(values: Mapping[str, Any]) -> NodeSettings:
         checkpoint_period_s=checked['checkpoint_period_s'],
         checkpoint_file=Path(checkpoint).expanduser() if checkpoint.strip() else None,
         resume_from=checked['resume_from'].strip(),
+        known_points_match_px=checked['known_points_match_px'],
+        depth_stamp_tolerance_ns=round(checked['depth_stamp_tolerance_s'] * 1e9),
     )

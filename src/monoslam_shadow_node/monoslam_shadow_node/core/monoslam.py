@@ -1,86 +1,34 @@
 """The MonoSLAM filter: one EKF over the camera and its map of static point features
 (``monoslam_model`` has the state, the models and their Jacobians).
 
-Per frame (``MonoSlam.process``):
+Per frame (``MonoSlam.process``; each step in full: docs/design/monoslam.md):
 
-1. until started: wait for the known points (``MonoSlamConfig.known_points``) to be in view,
-   then take the camera pose from them (``monoslam_init``);
-2. predict with the constant velocity model (each feature's tracker offset, a state when the
-   tracker declares offsets that persist, decays: ``MonoSlamConfig.offset_states``; a
-   rejected feature forgets its offset, as after a re-anchoring jump);
-3. predict every owned feature and every known point in view, with its innovation
-   covariance S_i = H_i P H_i^T + R (the active search region: the tracker may use the
-   predicted pixel, ``MonoSlam.predictions``); a measurement whose Mahalanobis distance
-   exceeds the chi-square gate is not individually compatible;
-4. update (``MonoSlamConfig.update``): 'ransac' (default), the 1-point RANSAC update
-   (``monoslam_ransac``): the most supported one-match hypothesis picks the low-innovation
-   inliers, the state is updated with them, then again with the other compatible matches
-   that pass the gate from the updated state; 'gated': with all compatible measurements at
-   once. Updates are in Joseph form P = (I - K H) P (I - K H)^T + K R K^T, then the
-   quaternion is renormalized (with its Jacobian). Measurements not used are rejected
-   (counted against their feature);
-5. map management: inverse-depth features whose linearity index allows it become Euclidean;
-   features failing too often are deleted (the persistent-outlier test: rejected in
-   ``max_consecutive_failures`` frames in a row, or in more than half of at least
-   ``failure_window`` attempts; a consistent feature is rejected with the gate's probability,
-   1 - ``gate_probability``, so three in a row happen by chance with probability 1e-9 per
-   feature and frame). A deleted feature that came from a handover is revoked: SLAM no longer
-   owns it, and the result reports it (``removed`` reason 'revoked') so that the Shadow filter
-   takes it back as a suspect. The map is persistent (Davison's MonoSLAM): a feature out of
-   view stays in the state, and is measured again when its id comes back (a tracker that
-   re-identifies it, or known data association); a feature predicted in view (in front, in
-   the image by ``view_margin_px``, within ``max_view_angle_deg`` of its first ray) is searched
-   for, and one found in fewer than ``min_success_ratio`` of at least ``failure_window``
-   searches is deleted (a frame without any feature searches nothing). When the state is
-   full, features out of view are evicted into the frozen map ('evicted'), the least measured
-   first (then the longest unseen): the landmarks a loop closes on stay; new features are added
-   - in ``initialize='all'`` (classic MonoSLAM, the paper's Fig. 5(a), (b)) from every new
-   track, undelayed, with the inverse-depth prior, while fewer than ``target_measured``
-   features were measured; in ``initialize='handover'`` (with the Shadow filter, Fig. 5(c))
-   first from features handed over as STATIC (``add_handover``), and only while fewer than
-   ``target_measured`` features were measured (handovers beyond that wait, and expire);
-   with ``fill_undecided`` (default), while fewer than ``target_measured`` features that
-   fix the camera (not on probation) were measured, also from tracks the Shadow filter has
-   not decided on, as ``'all'`` does, except those it found DYNAMIC (``mark_moving``) or
-   SLAM revoked; the Shadow filter goes on judging a filled feature (``undecided_ids``),
-   and its DYNAMIC verdict takes it out of the state (``mark_moving``; reason 'revoked').
-   Why: the Shadow filter decides only with parallax, so on a turn (and in the first
-   seconds) the map starved while the camera saw plenty, and features at unknown depth
-   still fix its rotation (figures: the README, ``monoslam_loop_evaluate``). A handover
-   enters with the ray of the current measurement anchored at the current camera, the
-   inverse depth from the handed-over point, its variance from the handed-over covariance
-   but never below the prior's
-   (``initial_inverse_depth_sigma``): the Shadow filter triangulated the point from SLAM's
-   own poses, so its depth is not independent of SLAM's state, and taking its variance as is
-   counts SLAM's pose information twice (an overconfident depth then pulls the camera: on
-   ``monoslam_evaluate`` seed 3, whose map had one mover, ATE 0.22 m against 0.04 m with the
-   prior's variance). With ``handover_probation`` (default) a handed-over feature enters on
-   probation: its measurements correct only its own block (a Schmidt 'consider' update,
-   ``monoslam_ekf.consider_update``) until SLAM's own views have fixed its position, the
-   moment its inverse depth is linear enough to become Euclidean (``linearity_threshold``).
-   Why: the Shadow filter's default STATIC rule leaves the direction of motion its views see
-   least unchecked (often along the line of sight), so some movers are handed over; a rigid
-   group of them, moving consistently, outvotes a small target in SLAM's first seconds (the
-   target's four corners fix the camera to tenths of a metre) and drags the camera along. On
-   probation they cannot move the camera, and the persistent-outlier test below judges them
-   against a camera the rest of the map fixed. (``monoslam_evaluate``, seeds 0-19: tracking
-   lost on 3 seeds with probation, 11 without.) The map never holds more than
-   ``max_features``;
-6. tracking is lost when no measurement was accepted for ``lost_after_frames`` frames, the
-   camera's position uncertainty exceeds ``max_position_sigma_m``, or the known points in
-   view (at least ``MIN_KNOWN_POINTS`` of them) disagree with the estimate in
-   ``lost_after_known_rejected_frames`` frames in a row: the update rejected more than half
-   of them, or the updated state reprojects them farther from their measurements than pixel
-   noise allows (chi-square at ``gate_probability``). Known points are certain, so an
-   estimate they disagree with has diverged (e.g. dragged along by moving features), even
-   while its grown covariance lets a few of them through now and then; or when the pose
-   covariance collapsed (``monoslam_checks.MIN_POSE_EIGENVALUE_RATIO``). The filter reports
-   it, retires its map and starts again from the known points.
+1. until started: the camera pose from the known points in view (``monoslam_init``), or,
+   with ``known_points_source='depth'``, the world from the first frame with feature depths;
+2. predict with the constant velocity model (tracker offsets as states when declared:
+   ``MonoSlamConfig.offset_states``);
+3. predict every owned feature and known point in view with its innovation covariance (the
+   active search regions, ``MonoSlam.predictions``), gated by chi-square;
+4. update (``MonoSlamConfig.update``): 'ransac' (1-point RANSAC, ``monoslam_ransac``) or
+   'gated', in Joseph form; features on probation get consider updates only
+   (``monoslam_ekf``);
+5. map management: linear inverse-depth features become Euclidean; persistent outliers and
+   features not found where predicted are deleted (a handed-over or undecided one is
+   'revoked'); out-of-view features stay (the map is persistent) and are evicted into the
+   frozen map when the state is full; new features come from every new track
+   (``initialize='all'``), or from handovers of the Shadow filter (``'handover'``) and, with
+   ``fill_undecided``, from undecided tracks that stay on probation (never moving the
+   camera) until the Shadow filter clears them (``add_handover``) or finds them DYNAMIC
+   (``mark_moving``); at most ``max_features``;
+6. tracking is lost when nothing was accepted for ``lost_after_frames`` frames, the position
+   uncertainty exceeds ``max_position_sigma_m``, the known points in view disagree with the
+   estimate for ``lost_after_known_rejected_frames`` frames, or the pose covariance
+   collapsed; the map is retired and the filter starts again.
 
-The interface types are in ``monoslam_types``, the state with its feature blocks in
-``monoslam_state``, the EKF steps (prediction, search regions, gated update) in
-``monoslam_ekf``, the 1-point RANSAC update in ``monoslam_ransac``, the input and loss checks
-in ``monoslam_checks``; this module holds the frame loop, map management, start and loss.
+The interface types are in ``monoslam_types``, the state in ``monoslam_state``, the EKF steps
+in ``monoslam_ekf``, the 1-point RANSAC update in ``monoslam_ransac``, the input and loss
+checks in ``monoslam_checks``; this module holds the frame loop, map management, start and
+loss.
 """
 
 from __future__ import annotations
@@ -103,7 +51,12 @@ from monoslam_shadow_node.core.monoslam_ekf import (
     predict,
     predicted_measurements,
 )
-from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
+from monoslam_shadow_node.core.monoslam_init import (
+    MIN_KNOWN_POINTS,
+    camera_from_known_points,
+    depth_start_features,
+    depth_start_pose,
+)
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     Q_SLICE,
@@ -186,7 +139,7 @@ class MonoSlam:
         Shadow filter goes on judging them, and a DYNAMIC verdict revokes them."""
         if self.config.initialize != 'handover':
             return frozenset()
-        return frozenset(f.id for f in self._state.features if f.source != 'handover')
+        return frozenset(f.id for f in self._state.features if not f.cleared)
 
     @property
     def state_size(self) -> int:
@@ -212,6 +165,7 @@ class MonoSlam:
         if np.min(np.linalg.eigvalsh(0.5 * (covariance + covariance.T))) < 0.0:
             return f'handover of feature {feature_id}: covariance not positive semi-definite'
         if feature_id in self._owned_ids:
+            self._clear(feature_id)
             return None
         if self.config.initialize != 'handover':
             mode = self.config.initialize
@@ -219,6 +173,16 @@ class MonoSlam:
         self._handovers[feature_id] = _Handover(feature_id, position, covariance, self._frame)
         self._moving_ids.pop(feature_id, None)
         return None
+
+    def _clear(self, feature_id: int) -> None:
+        """Clear an undecided feature handed over as STATIC (it leaves probation once linear)."""
+        for feature in self._state.features:
+            if feature.id == feature_id and not feature.cleared:
+                feature.cleared = True
+                feature.probation = self.config.handover_probation and (
+                    feature.reference is not None
+                )
+                self._moving_ids.pop(feature_id, None)
 
     def mark_moving(self, ids: Iterable[int]) -> None:
         """Note features the Shadow filter found DYNAMIC (or SLAM revoked): they never fill
@@ -279,6 +243,8 @@ class MonoSlam:
             frame, self._last_stamp_ns, self._known_keys
         )
         self._frame += 1
+        if self._status != TRACKING and self.config.known_points_source == 'depth':
+            return self._try_depth_start(frame, warnings)
         if self._status != TRACKING:
             return self._try_start(frame.stamp_ns, known_keys, known_pixels, warnings)
         assert self._last_stamp_ns is not None
@@ -366,6 +332,39 @@ class MonoSlam:
         )
         return self._result(stamp_ns, TRACKING, [], [], [], {}, fix.points, warnings)
 
+    def _try_depth_start(self, frame: MonoSlamFrame, warnings: list[str]) -> MonoSlamResult:
+        """Start from the features with a measured depth (``monoslam_init``), or report
+        waiting for them."""
+        config, stamp_ns = self.config, frame.stamp_ns
+        self._last_stamp_ns = stamp_ns
+        start = None
+        if frame.depths_m is not None:
+            start = depth_start_features(
+                self.camera, frame.ids, frame.pixels, frame.depths_m, config.depth_noise_per_m,
+                config.depth_start_points, config.min_new_spacing_px,
+            )  # fmt: skip
+        found = 0 if start is None else len(start.ids)
+        if start is None or found < MIN_KNOWN_POINTS:
+            self._status = WAITING
+            warnings.append(f'waiting for the initialization target: {found} features with a '
+                            f'depth (at least {MIN_KNOWN_POINTS} needed)')  # fmt: skip
+            return self._result(stamp_ns, WAITING, [], [], [], {}, 0, warnings)
+        pose, covariance = depth_start_pose()
+        self._state.start(pose, covariance, config.initial_velocity_sigma_m_s,
+                          config.initial_angular_velocity_sigma_rad_s)  # fmt: skip
+        added = []
+        for i, pixel, rho, variance in zip(start.ids.tolist(), start.pixels, start.rho,
+                                           start.rho_variance, strict=True):  # fmt: skip
+            if self._state.insert_inverse_depth(
+                self.camera, i, pixel, float(rho), float(variance), config.pixel_sigma_px,
+                'new', self._frame, config.tracking_offset_px,
+            ):  # fmt: skip
+                self._owned_ids.add(i)
+                added.append(i)
+        self._status, self._idle_frames = TRACKING, 0
+        warnings.append(f'started from {len(added)} features with a depth')
+        return self._result(stamp_ns, TRACKING, [], [], added, {}, 0, warnings)
+
     def _update(
         self, observed: dict[int, FloatArray], keys: IntArray, known_pixels: FloatArray
     ) -> UpdateOutcome:
@@ -421,7 +420,7 @@ class MonoSlam:
                 removed[feature.id] = 'failed'
                 self._remove(feature, retire=False)
         for feature in state.convert_linear(config.linearity_threshold):
-            feature.probation = False  # SLAM's own views fix it now
+            feature.probation = not feature.cleared  # SLAM's own views fix it now
         return removed
 
     def _in_view(self, features: list[FeatureBlock]) -> IntArray:
@@ -467,20 +466,21 @@ class MonoSlam:
     ) -> tuple[int, int]:
         """Return how many handovers and how many undecided or new features this frame would
         add. Handovers (``initialize='handover'``): the observed ones while fewer than
-        ``target_measured`` features were measured. New features (``initialize='all'``, or
-        undecided ones with ``fill_undecided``): up to ``max_new_per_frame`` while fewer than
-        ``target_measured`` were measured that fix the camera (``trusted``: not on
-        probation, counting the handovers taken when they do not go on probation)."""
+        ``target_measured`` cleared features (trusted, or handovers on probation) were
+        measured. New features (``initialize='all'``, or undecided ones with
+        ``fill_undecided``, on probation): up to ``max_new_per_frame`` while fewer than
+        ``target_measured`` were measured, counting the handovers taken."""
         config = self.config
         target = config.target_measured
         if config.initialize != 'handover':
             return 0, min(config.max_new_per_frame, max(0, target - len(measured)))
         offered = sum(1 for i in self._handovers if i in observed)
-        take = min(offered, max(0, target - len(measured)))
+        seen = set(measured)
+        cleared = sum(1 for f in self._state.features if f.id in seen and f.cleared)
+        take = min(offered, max(0, target - cleared))
         if not config.fill_undecided:
             return take, 0
-        fixing = len(trusted) + (0 if config.handover_probation else take)
-        return take, min(config.max_new_per_frame, max(0, target - fixing))
+        return take, min(config.max_new_per_frame, max(0, target - len(measured) - take))
 
     def _add_features(
         self, observed: dict[int, FloatArray], measured: list[int], trusted: list[int]
@@ -546,7 +546,11 @@ class MonoSlam:
         )  # fmt: skip
         if inserted:
             self._owned_ids.add(feature_id)
-            self._state.features[-1].probation = (
+            feature = self._state.features[-1]
+            # undecided (filling the map before the Shadow filter decided): on probation
+            # until it is cleared (module docstring)
+            feature.cleared = handover is not None or self.config.initialize != 'handover'
+            feature.probation = not feature.cleared or (
                 handover is not None and self.config.handover_probation
             )
         return inserted

@@ -15,11 +15,10 @@ the other features are not corrected by it, while their uncertainty is in its S.
 feature on probation therefore cannot drag the camera; its innovations are judged against
 a camera the rest of the map fixed. When the rest of the map offers fewer than
 ``MIN_POSE_POINTS`` measurements in a frame (the camera turned away from everything SLAM
-trusts), nothing is left to judge them against and nothing else to fix the camera: the
-features on probation measured in that frame leave probation and update the camera as the
-others do (``split_probation``). Without this, a turn away from the trusted map leaves the
-camera to dead reckoning however many features it sees (the loop scene, issue 21: tracking
-lost on the turn, the position sigma growing past a metre with 50 features measured).
+trusts), the features on probation that the Shadow filter cleared as static (handovers,
+``FeatureBlock.cleared``) leave probation and update the camera as the others do
+(``split_probation``); features it has not cleared (undecided, ``fill_undecided``) never
+do: they stay consider-only until a handover clears them.
 """
 
 from __future__ import annotations
@@ -287,15 +286,16 @@ features on probation are all SLAM has to fix the camera with."""
 def split_probation(all_matches: list[Match]) -> tuple[list[Match], list[Match]]:
     """Return the matches that update the camera (known points, features not on probation)
     and those of features on probation, each in their order. With fewer than
-    ``MIN_POSE_POINTS`` of the former, the features on probation leave it (module
-    docstring) and all matches update the camera."""
+    ``MIN_POSE_POINTS`` of the former, the cleared features on probation leave it (module
+    docstring) and update the camera too; uncleared ones stay on probation."""
     on_probation = [m for m in all_matches if m.feature is not None and m.feature.probation]
     rest = [m for m in all_matches if m.feature is None or not m.feature.probation]
     if on_probation and len(rest) < MIN_POSE_POINTS:
         for match in on_probation:
             assert match.feature is not None
-            match.feature.probation = False
-        return all_matches, []
+            match.feature.probation = not match.feature.cleared
+        rest = [m for m in all_matches if m.feature is None or not m.feature.probation]
+        on_probation = [m for m in on_probation if m.feature is not None and m.feature.probation]
     return rest, on_probation
 
 

@@ -6,6 +6,14 @@ four corners of a fiducial marker of known size and pose, or any known point set
 returns it with its first-order covariance, which the filter takes as its initial camera
 state; the known points stay in the filter as measurements of zero-uncertainty landmarks
 (Davison et al. 2007 start the same way), so the scale stays anchored while they are in view.
+
+Or from depth (``MonoSlamConfig.known_points_source='depth'``, an RGB-D or stereo camera at start):
+the first frame that carries per-feature depths (``MonoSlamFrame.depths_m``) defines the
+world (the camera's optical frame then), and ``depth_start_features`` picks the features
+that enter the map as points of known position: their depth is measured, so they enter with
+the inverse depth it gives and its variance from the sensor's noise, sigma_z = c z^2 (c =
+``depth_noise_per_m``: 1.425e-3 /m for structured light, Khoshelham and Elberink 2012); the
+scale is then the depth sensor's, held by these features while the tracker keeps them.
 """
 
 from __future__ import annotations
@@ -14,6 +22,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
@@ -33,6 +42,66 @@ from slam_core.geometry.quaternion import (
 
 MIN_KNOWN_POINTS = 4
 _REFINE_ITERATIONS = 10
+START_POSE_SIGMA = 1e-6
+"""Standard deviation (m, rad) of the camera pose a depth start defines the world with: the
+pose is exact by definition; a tiny positive value keeps the covariance well conditioned."""
+
+
+@dataclass(frozen=True, eq=False)
+class DepthStart:
+    """Features a depth start puts in the map: track ids (M,), raw pixels (M, 2), inverse
+    depths along each ray (M,) 1/m and their variances (M,) 1/m^2."""
+
+    ids: NDArray[np.int64]
+    pixels: FloatArray
+    rho: FloatArray
+    rho_variance: FloatArray
+
+
+def depth_start_features(
+    camera: CameraModel,
+    ids: NDArray[np.int64],
+    pixels: FloatArray,
+    depths_m: FloatArray,
+    noise_per_m: float,
+    max_points: int,
+    min_spacing_px: float,
+) -> DepthStart:
+    """Pick the features with a measured depth (finite, > 0; z along the optical axis, m) for
+    a depth start, spread over the image (farthest first from those already taken, at least
+    ``min_spacing_px`` apart, at most ``max_points``), with the inverse depth along the ray
+    rho = 1 / (z |r|), r = (x_n, y_n, 1), and var(rho) = (c z^2 |r|)^2 rho^4."""
+    track_ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    depths = np.asarray(depths_m, dtype=np.float64).reshape(-1)
+    normalized, valid = camera.unproject(pixels) if len(pixels) else (pixels, np.zeros(0, bool))
+    with np.errstate(invalid='ignore'):
+        valid = valid & np.isfinite(depths) & (depths > 0.0) & np.all(np.isfinite(pixels), axis=1)
+    candidates = np.flatnonzero(valid)
+    chosen: list[int] = []
+    gap = np.full(len(candidates), np.inf)
+    while len(chosen) < max_points and len(candidates):
+        best = int(np.argmax(gap))
+        if gap[best] < max(min_spacing_px, 0.0):
+            break
+        chosen.append(int(candidates[best]))
+        spacing = np.linalg.norm(pixels[candidates] - pixels[candidates[best]], axis=1)
+        gap = np.minimum(gap, spacing)
+        gap[best] = -1.0
+    index = np.array(sorted(chosen), dtype=np.int64)
+    norm = np.hypot(np.hypot(normalized[index, 0], normalized[index, 1]), 1.0)
+    distance = depths[index] * norm
+    rho = 1.0 / distance
+    sigma = noise_per_m * depths[index] ** 2 * norm
+    return DepthStart(track_ids[index], pixels[index], rho, (sigma * rho**2) ** 2)
+
+
+def depth_start_pose() -> tuple[FloatArray, FloatArray]:
+    """Return the camera's (r, q) state (7,) and covariance (7, 7) of a depth start: the
+    camera's optical frame is the world (``START_POSE_SIGMA``)."""
+    state = np.zeros(7)
+    state[3] = 1.0  # q = (1, 0, 0, 0)
+    return state, START_POSE_SIGMA**2 * np.eye(7)
 
 
 @dataclass(frozen=True, eq=False)

@@ -97,6 +97,7 @@ def filter_state(slam: MonoSlam) -> tuple[dict[str, np.ndarray], dict[str, Any]]
                 'offset_size': f.offset_size,
                 'source': f.source,
                 'probation': f.probation,
+                'cleared': f.cleared,
                 **{name: getattr(f, name) for name in _RECORD},
             }
             for f in features
@@ -185,6 +186,8 @@ def _blocks(
             0,
             0,
             probation=bool(item['probation']),
+            # snapshots from before 'cleared': only handovers were ever on probation
+            cleared=bool(item.get('cleared', True)),
             offset_size=offset_size,
             first_ray=rays[k].copy(),
         )

@@ -43,8 +43,10 @@ class FeatureBlock:
     depth with its anchor ray ``reference``; 3: Euclidean, no reference), how it entered
     ('new' or 'handover'), the frames it was added and last seen in, its measurement record
     (attempts, successes, consecutive failures), whether it is on probation (its
-    measurements correct only its own block: ``monoslam_ekf.consider_update``), and the size
-    of the tracker's offset right after the point (0, or 2: u, v in px)."""
+    measurements correct only its own block: ``monoslam_ekf.consider_update``), whether the
+    Shadow filter cleared it as static (False: an undecided feature, on probation until it
+    is cleared), and the size of the tracker's offset right after the point (0, or 2: u, v
+    in px)."""
 
     id: int
     start: int
@@ -57,6 +59,7 @@ class FeatureBlock:
     successes: int = 0
     consecutive_failures: int = 0
     probation: bool = False
+    cleared: bool = True
     offset_size: int = 0
     first_ray: FloatArray | None = None  # world unit ray it was first seen along
     searches: int = 0  # frames it was predicted in view (with features in the frame)

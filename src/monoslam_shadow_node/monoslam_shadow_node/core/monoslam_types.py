@@ -16,6 +16,7 @@ from monoslam_shadow_node.core.tracking_noise import TrackingNoise
 IntArray = NDArray[np.int64]
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
 INITIALIZE_MODES = ('all', 'handover')
+KNOWN_POINT_SOURCES = ('marker', 'depth', 'file')
 UPDATE_MODES = ('ransac', 'gated')
 
 
@@ -27,10 +28,15 @@ class MonoSlamInputError(ValueError):
 class MonoSlamConfig:
     """Noise, gating, map management and initialization settings (``monoslam``'s docstring).
 
-    ``known_points`` maps a key (e.g. 4 marker id + corner index) to a world point (3,) m.
+    ``known_points`` maps a key (e.g. 4 marker id + corner index) to a world point (3,) m:
+    the start with ``known_points_source`` 'marker' or 'file' (the same to the filter: only
+    where the node takes them from differs); 'depth' starts from a frame's feature depths.
     """
 
     known_points: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    known_points_source: str = 'marker'  # 'marker', 'file': known_points; 'depth': monoslam_init
+    depth_noise_per_m: float = 1.425e-3  # sigma_z = c z^2, structured light, 1/m
+    depth_start_points: int = 50  # features a depth start puts in the map, at most
     pixel_sigma_px: float = 1.0
     tracking_offset_px: float = 0.0  # tracker offsets that persist (tracking_noise), px
     tracking_offset_time_s: float = 1.0  # their correlation time, s
@@ -68,6 +74,7 @@ class MonoSlamConfig:
             'initial_velocity_sigma_m_s', 'initial_angular_velocity_sigma_rad_s',
             'initial_inverse_depth', 'initial_inverse_depth_sigma', 'linearity_threshold',
             'max_position_sigma_m', 'max_gap_s', 'tracking_offset_time_s', 'max_view_angle_deg',
+            'depth_noise_per_m',
         )  # fmt: skip
         for name in positive:
             value = getattr(self, name)
@@ -83,7 +90,7 @@ class MonoSlamConfig:
         counts = (
             'max_features', 'target_measured', 'max_new_per_frame',
             'failure_window', 'max_consecutive_failures', 'lost_after_frames',
-            'lost_after_known_rejected_frames',
+            'lost_after_known_rejected_frames', 'depth_start_points',
         )  # fmt: skip
         for name in counts:
             value = getattr(self, name)
@@ -101,6 +108,11 @@ class MonoSlamConfig:
         for name in ('handover_probation', 'fill_undecided'):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f'{name}={getattr(self, name)!r}: must be a bool')
+        if self.known_points_source not in KNOWN_POINT_SOURCES:
+            raise ValueError(
+                f'known_points_source={self.known_points_source!r}: must be one of '
+                f'{", ".join(KNOWN_POINT_SOURCES)}'
+            )
         if self.update not in UPDATE_MODES:
             raise ValueError(f'update={self.update!r}: must be one of {", ".join(UPDATE_MODES)}')
         seed = self.ransac_seed
@@ -166,14 +178,16 @@ class UpdateCounts:
 
 @dataclass(frozen=True, eq=False)
 class MonoSlamFrame:
-    """One image's measurements: track ids (N,) and raw pixels (N, 2) of tracked features, and
-    known-point keys (T,) with their raw pixels (T, 2)."""
+    """One image's measurements: track ids (N,) and raw pixels (N, 2) of tracked features,
+    known-point keys (T,) with their raw pixels (T, 2), and optionally each feature's measured
+    depth (N,) m along the optical axis (NaN: none), which a depth start uses."""
 
     stamp_ns: int
     ids: IntArray
     pixels: FloatArray
     known_keys: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     known_pixels: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    depths_m: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
