@@ -24,6 +24,7 @@ setup(
             'monoslam_image_evaluate = slam_evaluation.monoslam_image_evaluate:main',
             'monoslam_loop_evaluate = slam_evaluation.monoslam_loop_evaluate:main',
             'tum_rgbd_sequence = slam_evaluation.tum_sequence:main',
+            'trajectory_evaluate = slam_evaluation.trajectory_evaluate:main',
         ],
     },
 )

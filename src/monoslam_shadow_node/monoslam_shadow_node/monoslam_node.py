@@ -114,9 +114,10 @@ keeps the two equal).
                                   inverse depth becomes Euclidean (SLAM's own views fix it),
                                   or until fewer than 3 others are measured in a frame.
   fill_undecided (true)           with initialize 'handover', features the Shadow filter
-                                  has not decided on fill the map on probation (consider
-                                  updates: they never move the camera) until it hands them
-                                  over as static; found DYNAMIC or failing: revoked.
+                                  has not decided on fill the map; found DYNAMIC or
+                                  failing: revoked.
+  undecided_probation (false)     such a feature corrects only itself (a consider update:
+                                  never the camera) until the Shadow filter clears it.
   known_points_source ('marker')  what fixes the world and its scale at the start: 'marker'
                                   (the target below), 'depth' (the features with a depth in
                                   the first camera/depth/image_raw paired with a features

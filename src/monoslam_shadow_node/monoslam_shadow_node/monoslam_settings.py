@@ -132,8 +132,13 @@ CORE_PARAMETERS = (
     _core(
         'fill_undecided',
         "with initialize 'handover': when fewer than target_measured features are measured, "
-        'undecided features fill the map on probation (they never move the camera) until the '
-        'Shadow filter hands them over as static; DYNAMIC in shadow/tracks: out',
+        'features the Shadow filter has not decided on fill the map; DYNAMIC in '
+        'shadow/tracks: out',
+    ),
+    _core(
+        'undecided_probation',
+        'fill_undecided: such a feature corrects only itself (a consider update, never the '
+        'camera) until the Shadow filter hands it over as static',
     ),
     Param(
         'update',

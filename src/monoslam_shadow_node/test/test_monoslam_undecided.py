@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_monoslam_probation import CAMERA, CONFIG, GROUP, _observed, _on_probation, _state
 
 from monoslam_shadow_node.core.monoslam import MonoSlam
 from monoslam_shadow_node.core.monoslam_ekf import MIN_POSE_POINTS, gated_update
@@ -21,12 +22,9 @@ from monoslam_shadow_node.core.monoslam_types import (
 )
 from slam_core.camera import CameraModel
 
-from test_monoslam_probation import CAMERA, CONFIG, GROUP, _observed, _on_probation, _state
-
 MS = 1_000_000
-POINTS = np.column_stack(
-    [np.random.default_rng(5).uniform(-1.2, 1.2, (40, 2)), np.random.default_rng(6).uniform(2, 4, 40)]
-)  # fmt: skip
+_LATERAL = np.random.default_rng(5).uniform(-1.2, 1.2, (40, 2))
+POINTS = np.column_stack([_LATERAL, np.random.default_rng(6).uniform(2, 4, 40)])
 """Static world points in front of a camera at the origin looking along +z."""
 
 
@@ -67,8 +65,11 @@ def _frame(index: int, centre: np.ndarray, ids: np.ndarray, depths: bool = False
 
 
 def _depth_slam(**config: object) -> MonoSlam:
-    settings = {'known_points_source': 'depth', 'initialize': 'handover', 'target_measured': 60,
-                'max_new_per_frame': 40, 'depth_start_points': 10, 'min_new_spacing_px': 0.0}  # fmt: skip
+    settings = {
+        'known_points_source': 'depth', 'initialize': 'handover', 'target_measured': 60,
+        'undecided_probation': True, 'max_new_per_frame': 40, 'depth_start_points': 10,
+        'min_new_spacing_px': 0.0,
+    }  # fmt: skip
     settings.update(config)
     return MonoSlam(CAMERA, MonoSlamConfig(**settings))  # type: ignore[arg-type]
 

@@ -157,6 +157,12 @@ def _arguments(argv: list[str] | None) -> Settings:
         action='store_true',
         help='drop handovers of truly moving features (a diagnostic bound)',
     )
+    parser.add_argument(
+        '--undecided-probation',
+        action='store_true',
+        help="(c): features the Shadow filter has not decided on fill SLAM's map on probation "
+        '(consider updates: they never move the camera) until it clears them',
+    )
     add_tracking_noise_arguments(parser)
     parser.add_argument(
         '--sequence',
@@ -164,7 +170,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         default=None,
         metavar='DIR',
         help='run an on-disk sequence (camera.yaml, poses.txt, tracks.csv, optional '
-        'labels.csv and known_points.csv: see the README) instead of simulated seeds',
+        'labels.csv, known_points.csv, depths.csv: see the README) instead of simulated seeds',
     )
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     try:
@@ -189,6 +195,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         args.sequence,
         args.tracking_offset_px,
         args.tracking_jump_probability,
+        args.undecided_probation,
     )
     try:
         settings.scene()

@@ -284,8 +284,12 @@ def run_variant(
         measurements = frame.measurements
         if variant == 'a':
             static = ~frame.moving
+            depths = measurements.depths_m
             measurements = dataclasses.replace(
-                measurements, ids=ids[static], pixels=measurements.pixels[static]
+                measurements,
+                ids=ids[static],
+                pixels=measurements.pixels[static],
+                depths_m=None if depths is None else depths[static],
             )
         if variant == 'c' and config.oracle_handovers:  # nor do they fill the map undecided
             slam.mark_moving(ids[frame.moving].tolist())

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -306,9 +307,15 @@ def summary_text(content: Mapping[str, Any]) -> str:
     source = f'seeds {config["seeds"]}, {config["scene"]["duration_s"]:g} s'
     if config.get('sequence'):
         source, known = f'sequence {config["sequence"]}', "the sequence's"
+        folder = Path(config['sequence'])
+        if (folder / 'depths.csv').exists() and not (folder / 'known_points.csv').exists():
+            known = 'the first frame with depths'
+    waits = (
+        '; undecided features on probation' if pipeline['slam'].get('undecided_probation') else ''
+    )
     lines = [
         f'MonoSLAM Fig. 5, {source}; known points: {known}; STATIC rule: {rule} unchecked '
-        'direction(s)',
+        f'direction(s){waits}',
         f'  {"variant":36s}' + ''.join(f'{header:>9s}' for header, _, _ in SUMMARY_COLUMNS),
     ]
     for variant, data in content['variants'].items():

@@ -5,6 +5,7 @@ what the seeds collect for the report and the figures.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import traceback
@@ -37,7 +38,7 @@ from slam_evaluation.monoslam_pipeline import (
     target_known_points,
 )
 from slam_evaluation.sequence_files import Sequence as FileSequence
-from slam_evaluation.sequence_files import Tracker, measurement_frames
+from slam_evaluation.sequence_files import Tracker, in_depth_start_frame, measurement_frames
 from slam_evaluation.shadow_consistency import nees
 from slam_evaluation.shadow_runs import camera_model
 from slam_sim.core.dynamic_config import DynamicSceneConfig
@@ -64,7 +65,7 @@ class Settings:
     filter's STATIC rule, the known board, the diagnostic settings, a sequence directory
     to run instead of the simulator (``sequence_files``), and the simulated tracking noise
     that is not white (offsets with jumps, ``dynamic_scene``; the filters are told of it as
-    a tracker declares its noise)."""
+    a tracker declares its noise), and whether undecided features wait on probation."""
 
     seeds: tuple[int, ...]
     duration_s: float
@@ -77,6 +78,7 @@ class Settings:
     sequence: Path | None = None
     tracking_offset_px: float = 0.0
     tracking_jump_probability: float = 0.0
+    undecided_probation: bool = False
 
     def scene(self) -> DynamicSceneConfig:
         """Return the Fig. 5 scene: 200 static points, 8 moving objects x 8 points."""
@@ -105,7 +107,7 @@ class Settings:
         unless given), the STATIC rule, the tracker's declared noise and the diagnostic
         settings."""
         known = target_known_points(markers) if known_points is None else known_points
-        slam = MonoSlamConfig(known_points=known)
+        slam = MonoSlamConfig(known_points=known, undecided_probation=self.undecided_probation)
         classifier = ClassifierConfig(unchecked_directions=self.unchecked_directions)
         shadow = ShadowConfig(classifier=classifier)
         config = PipelineConfig(
@@ -169,6 +171,10 @@ def evaluate_sequence(
     known = {k: (float(p[0]), float(p[1]), float(p[2]))
              for k, p in (sequence.known_points or {}).items()}  # fmt: skip
     config = settings.pipeline(settings.markers(), known)
+    if sequence.depths is not None and not sequence.known_points:
+        slam = dataclasses.replace(config.slam, known_points_source='depth')
+        config = dataclasses.replace(config, slam=slam)
+        frames = in_depth_start_frame(frames)
     if sequence.tracker is not None:
         config = sequence.tracker.declared(config)
     labels = sequence.labels or {}

@@ -21,6 +21,11 @@ A sequence is a directory:
 - ``known_points.csv`` (optional): header ``id,x,y,z``, tracks whose world position (m) is
   known (an initialization target's corners): their sightings in tracks.csv are SLAM's known
   points, not features;
+- ``depths.csv`` (optional): header ``frame,id,depth_m``, a track's measured depth (m along
+  the optical axis, > 0) in a frame (an RGB-D camera's registered depth): with it and without
+  ``known_points.csv``, MonoSLAM starts from the first frame with depths
+  (``known_points_source='depth'``: that camera's frame is its world, and the evaluators
+  express the truth in it through that frame's pose);
 - ``tracker.yaml`` (optional): the tracker's noise as it declares it, any of
   ``pixel_sigma_px`` (white noise per axis, default 1), ``tracking_offset_px`` (offsets that
   persist between images, default 0) and ``tracking_offset_time_s`` (their correlation
@@ -59,7 +64,8 @@ from slam_sim.core.init_target import InitTarget, target_pixels
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 FILES = (
-    'camera.yaml', 'poses.txt', 'tracks.csv', 'labels.csv', 'known_points.csv', 'tracker.yaml'
+    'camera.yaml', 'poses.txt', 'tracks.csv', 'labels.csv', 'known_points.csv', 'depths.csv',
+    'tracker.yaml',
 )  # fmt: skip
 KNOWN_ID_BASE = 1_000_000
 """``simulated_sequence`` gives the target's corners the ids KNOWN_ID_BASE + corner."""
@@ -118,8 +124,8 @@ class Tracker:
 class Sequence:
     """A sequence in memory: the camera, per frame (K) the stamp (int ns), the optical centre
     (K, 3) m and R_world_camera (K, 3, 3), the sightings (frame (N,), id (N,), pixel (N, 2)),
-    and the optional labels (id -> moving), known points (id -> world point (3,) m) and the
-    tracker's declared noise."""
+    and the optional labels (id -> moving), known points (id -> world point (3,) m), the
+    tracker's declared noise and measured depths ((frame, id) -> m)."""
 
     camera: CameraModel
     stamps_ns: IntArray
@@ -131,6 +137,7 @@ class Sequence:
     labels: dict[int, bool] | None = None
     known_points: dict[int, FloatArray] | None = None
     tracker: Tracker | None = None
+    depths: dict[tuple[int, int], float] | None = None  # (frame, id) -> depth, m
 
     def by_frame(self) -> list[tuple[IntArray, FloatArray]]:
         """Return per frame the ids (M,) and raw pixels (M, 2) seen in it (one stable sort
@@ -178,7 +185,17 @@ def read_sequence(directory: Path) -> Sequence:
     tracker = None
     if (directory / 'tracker.yaml').exists():
         tracker = _read_tracker(directory / 'tracker.yaml')
-    return Sequence(camera, stamps, centres, rotations, frame, ids, pixels, labels, known, tracker)
+    depths = None
+    if (directory / 'depths.csv').exists():
+        path = directory / 'depths.csv'
+        depths = {}
+        for line, r in _read_csv(path, ('frame', 'id', 'depth_m'), integers=2):
+            if not r[2] > 0.0:
+                raise SequenceError(f'{path}:{line}: depth_m must be > 0')
+            depths[int(r[0]), int(r[1])] = float(r[2])
+    return Sequence(
+        camera, stamps, centres, rotations, frame, ids, pixels, labels, known, tracker, depths
+    )
 
 
 def measurement_frames(sequence: Sequence) -> list[MeasurementFrame]:
@@ -188,12 +205,18 @@ def measurement_frames(sequence: Sequence) -> list[MeasurementFrame]:
     known = np.array(sorted(sequence.known_points or {}), dtype=np.int64)
     labels = sequence.labels or {}
     frames = []
+    depths = sequence.depths or {}
+    with_depth = {k for k, _ in depths}
     for index, (ids, pixels) in enumerate(sequence.by_frame()):
         stamp_ns = sequence.stamps_ns[index]
         is_known = np.isin(ids, known)
+        measured = None
+        if index in with_depth:
+            measured = np.array([depths.get((index, int(i)), np.nan) for i in ids[~is_known]])
         measurements = MonoSlamFrame(
-            int(stamp_ns), ids[~is_known], pixels[~is_known], ids[is_known], pixels[is_known]
-        )
+            int(stamp_ns), ids[~is_known], pixels[~is_known], ids[is_known], pixels[is_known],
+            depths_m=measured,
+        )  # fmt: skip
         moving = np.array([labels.get(int(i), False) for i in ids[~is_known]], dtype=bool)
         frames.append(
             MeasurementFrame(
@@ -201,6 +224,23 @@ def measurement_frames(sequence: Sequence) -> list[MeasurementFrame]:
             )
         )
     return frames
+
+
+def in_depth_start_frame(frames: list[MeasurementFrame]) -> list[MeasurementFrame]:
+    """Return ``frames`` with their truth expressed in the camera frame of the first frame
+    with depths (the world of a depth start): c' = R0' (c - c0), R' = R0' R."""
+    start = next((f for f in frames if f.measurements.depths_m is not None), None)
+    if start is None:
+        raise SequenceError('depths.csv: no frame with a depth to start from')
+    rotation, centre = start.true_rotation, start.true_centre
+    return [
+        dataclasses.replace(
+            f,
+            true_rotation=rotation.T @ f.true_rotation,
+            true_centre=rotation.T @ (f.true_centre - centre),
+        )
+        for f in frames
+    ]
 
 
 def write_sequence(directory: Path, sequence: Sequence) -> None:
@@ -234,6 +274,9 @@ def write_sequence(directory: Path, sequence: Sequence) -> None:
     if sequence.known_points is not None:
         known = [(i, *(f'{c:.6f}' for c in p)) for i, p in sorted(sequence.known_points.items())]
         write_atomically(directory / 'known_points.csv', _csv(('id', 'x', 'y', 'z'), known))
+    if sequence.depths is not None:
+        depth_rows = [(k, i, f'{z:.4f}') for (k, i), z in sorted(sequence.depths.items())]
+        write_atomically(directory / 'depths.csv', _csv(('frame', 'id', 'depth_m'), depth_rows))
     if sequence.tracker is not None:
         tracker = {k: float(v) for k, v in dataclasses.asdict(sequence.tracker).items()}
         write_atomically(directory / 'tracker.yaml', yaml.safe_dump(tracker, sort_keys=False))

@@ -17,9 +17,9 @@ Per frame (``MonoSlam.process``; each step in full: docs/design/monoslam.md):
    'revoked'); out-of-view features stay (the map is persistent) and are evicted into the
    frozen map when the state is full; new features come from every new track
    (``initialize='all'``), or from handovers of the Shadow filter (``'handover'``) and, with
-   ``fill_undecided``, from undecided tracks that stay on probation (never moving the
-   camera) until the Shadow filter clears them (``add_handover``) or finds them DYNAMIC
-   (``mark_moving``); at most ``max_features``;
+   ``fill_undecided``, from undecided tracks (with ``undecided_probation`` on probation,
+   never moving the camera, until the Shadow filter clears them, ``add_handover``) until it
+   finds them DYNAMIC (``mark_moving``); at most ``max_features``;
 6. tracking is lost when nothing was accepted for ``lost_after_frames`` frames, the position
    uncertainty exceeds ``max_position_sigma_m``, the known points in view disagree with the
    estimate for ``lost_after_known_rejected_frames`` frames, or the pose covariance
@@ -179,7 +179,7 @@ class MonoSlam:
         for feature in self._state.features:
             if feature.id == feature_id and not feature.cleared:
                 feature.cleared = True
-                feature.probation = self.config.handover_probation and (
+                feature.probation &= self.config.handover_probation and (
                     feature.reference is not None
                 )
                 self._moving_ids.pop(feature_id, None)
@@ -420,7 +420,7 @@ class MonoSlam:
                 removed[feature.id] = 'failed'
                 self._remove(feature, retire=False)
         for feature in state.convert_linear(config.linearity_threshold):
-            feature.probation = not feature.cleared  # SLAM's own views fix it now
+            feature.probation &= not feature.cleared  # SLAM's own views fix it now
         return removed
 
     def _in_view(self, features: list[FeatureBlock]) -> IntArray:
@@ -465,22 +465,22 @@ class MonoSlam:
         self, observed: dict[int, FloatArray], measured: list[int], trusted: list[int]
     ) -> tuple[int, int]:
         """Return how many handovers and how many undecided or new features this frame would
-        add. Handovers (``initialize='handover'``): the observed ones while fewer than
-        ``target_measured`` cleared features (trusted, or handovers on probation) were
-        measured. New features (``initialize='all'``, or undecided ones with
-        ``fill_undecided``, on probation): up to ``max_new_per_frame`` while fewer than
-        ``target_measured`` were measured, counting the handovers taken."""
-        config = self.config
-        target = config.target_measured
+        add: handovers while fewer than ``target_measured`` features were measured (cleared
+        ones with ``undecided_probation``), and new or undecided features, up to
+        ``max_new_per_frame``, while fewer than that fix the camera (all measured ones with
+        ``undecided_probation``), counting the handovers taken."""
+        config, target = self.config, self.config.target_measured
+        probation = int(config.handover_probation)
         if config.initialize != 'handover':
             return 0, min(config.max_new_per_frame, max(0, target - len(measured)))
         offered = sum(1 for i in self._handovers if i in observed)
-        seen = set(measured)
+        seen, waiting = set(measured), config.undecided_probation  # fills wait on probation?
         cleared = sum(1 for f in self._state.features if f.id in seen and f.cleared)
-        take = min(offered, max(0, target - cleared))
+        take = min(offered, max(0, target - (cleared if waiting else len(measured))))
         if not config.fill_undecided:
             return take, 0
-        return take, min(config.max_new_per_frame, max(0, target - len(measured) - take))
+        fixing = len(measured) + take if waiting else len(trusted) + take * (1 - probation)
+        return take, min(config.max_new_per_frame, max(0, target - fixing))
 
     def _add_features(
         self, observed: dict[int, FloatArray], measured: list[int], trusted: list[int]
@@ -547,10 +547,9 @@ class MonoSlam:
         if inserted:
             self._owned_ids.add(feature_id)
             feature = self._state.features[-1]
-            # undecided (filling the map before the Shadow filter decided): on probation
-            # until it is cleared (module docstring)
+            # undecided: with undecided_probation on probation until cleared (module doc)
             feature.cleared = handover is not None or self.config.initialize != 'handover'
-            feature.probation = not feature.cleared or (
+            feature.probation = (not feature.cleared and self.config.undecided_probation) or (
                 handover is not None and self.config.handover_probation
             )
         return inserted

@@ -41,10 +41,11 @@ def validated_frame(
     pixels = np.asarray(frame.pixels, dtype=np.float64).reshape(-1, 2)
     keys = np.asarray(frame.known_keys, dtype=np.int64).reshape(-1)
     known = np.asarray(frame.known_pixels, dtype=np.float64).reshape(-1, 2)
-    if len(ids) != len(pixels) or len(keys) != len(known):
+    depths = len(ids) if frame.depths_m is None else np.size(frame.depths_m)
+    if len(ids) != len(pixels) or len(keys) != len(known) or depths != len(ids):
         raise MonoSlamInputError(
-            f'{len(ids)} ids for {len(pixels)} pixels, {len(keys)} known-point keys for '
-            f'{len(known)} pixels: counts must match'
+            f'{len(ids)} ids for {len(pixels)} pixels and {depths} depths, {len(keys)} '
+            f'known-point keys for {len(known)} pixels: counts must match'
         )
     warnings = []
     finite = np.all(np.isfinite(pixels), axis=1)

@@ -64,6 +64,7 @@ class MonoSlamConfig:
     initialize: str = 'all'
     handover_probation: bool = True
     fill_undecided: bool = True
+    undecided_probation: bool = False  # fills correct only themselves until cleared
     update: str = 'ransac'
     ransac_seed: int = 0
 
@@ -105,7 +106,7 @@ class MonoSlamConfig:
             raise ValueError(
                 f'initialize={self.initialize!r}: must be one of {", ".join(INITIALIZE_MODES)}'
             )
-        for name in ('handover_probation', 'fill_undecided'):
+        for name in ('handover_probation', 'fill_undecided', 'undecided_probation'):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f'{name}={getattr(self, name)!r}: must be a bool')
         if self.known_points_source not in KNOWN_POINT_SOURCES:

@@ -1,0 +1,110 @@
+"""trajectory_evaluate (a node's TUM trajectory against a reference) and sequences with
+measured depths (depths.csv: MonoSLAM's depth start, the truth in the start camera's frame)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from slam_core.camera import CameraModel
+from slam_evaluation import trajectory_evaluate as te
+from slam_evaluation.sequence_files import Sequence as FileSequence
+from slam_evaluation.sequence_files import (
+    in_depth_start_frame,
+    measurement_frames,
+    read_sequence,
+    write_sequence,
+)
+
+RNG = np.random.default_rng(4)
+STAMPS = 1_548_339_819_874_260_000 + np.arange(60, dtype=np.int64) * 33_366_667
+CENTRES = np.column_stack([np.linspace(0, 1.2, 60), np.sin(np.linspace(0, 3, 60)), np.zeros(60)])
+ROTATIONS = Rotation.from_euler('z', np.linspace(0, 0.8, 60)[:, None]).as_matrix()
+
+
+def _tum(path: Path, stamps: np.ndarray, centres: np.ndarray, digits: int = 9) -> Path:
+    quaternions = Rotation.from_matrix(ROTATIONS[: len(stamps)]).as_quat()
+    lines = ['# stamp x y z qx qy qz qw']
+    for stamp, centre, quaternion in zip(stamps, centres, quaternions, strict=True):
+        seconds = (
+            f'{stamp / 1e9:.{digits}f}' if digits < 9 else f'{stamp // 10**9}.{stamp % 10**9:09d}'
+        )
+        lines.append(' '.join([seconds, *(f'{v:.9f}' for v in (*centre, *quaternion))]))
+    path.write_text('\n'.join(lines) + '\n')
+    return path
+
+
+def test_a_scaled_and_moved_copy_aligns_to_zero_and_a_collapsed_one_diverges(
+    tmp_path: Path,
+) -> None:
+    truth = _tum(tmp_path / 'truth.txt', STAMPS, CENTRES)
+    moved = 0.8 * CENTRES @ ROTATIONS[10].T + np.array([3.0, -1.0, 2.0])
+    estimate = _tum(tmp_path / 'estimate.tum', STAMPS, moved, digits=4)  # stamps rounded
+    result = te.evaluate(te.read_tum(estimate), te.read_tum(truth), 1_000_000, False)
+    assert result['paired'] == 60 and result['ate_sim3_m'] < 1e-6
+    assert result['sim3_scale'] == pytest.approx(1.25) and not result['diverged']
+    collapsed = _tum(
+        tmp_path / 'collapsed.tum', STAMPS, 0.001 * CENTRES + RNG.normal(0, 1e-4, (60, 3))
+    )
+    assert te.evaluate(te.read_tum(collapsed), te.read_tum(truth), 1_000_000, False)['diverged']
+
+
+def test_the_anchored_ate_uses_the_first_reference_pose(tmp_path: Path) -> None:
+    """An estimate in its start camera's frame, anchored through the reference pose of its
+    first stamp, has no error; a drift of 2 m makes it diverged."""
+    truth = _tum(tmp_path / 'truth.txt', STAMPS, CENTRES)
+    local = (CENTRES - CENTRES[5]) @ ROTATIONS[5]  # R0' (c - c0) for each pose
+    estimate = _tum(tmp_path / 'estimate.tum', STAMPS[5:], local[5:])
+    result = te.evaluate(te.read_tum(estimate), te.read_tum(truth), 1_000_000, True)
+    assert result['ate_anchored_m'] < 1e-6 and not result['diverged']
+    assert result['tracked_share'] == pytest.approx(55 / 60)
+    drifted = _tum(tmp_path / 'drift.tum', STAMPS[5:], local[5:] + np.linspace(0, 4, 55)[:, None])
+    assert te.evaluate(te.read_tum(drifted), te.read_tum(truth), 1_000_000, True)['diverged']
+
+
+def test_a_bad_trajectory_file_is_named_with_its_line(tmp_path: Path) -> None:
+    path = tmp_path / 'bad.tum'
+    path.write_text('1.0 0 0 0 0 0 0 1\n2.0 0 0 nan 0 0 0 1\n')
+    with pytest.raises(ValueError, match=r'bad\.tum:2'):
+        te.read_tum(path)
+    path.write_text('1.0 0 0 0 0 0 1\n')
+    with pytest.raises(ValueError, match=r'bad\.tum:1: 7 fields'):
+        te.read_tum(path)
+
+
+def _depth_sequence() -> FileSequence:
+    camera = CameraModel(
+        640, 480, np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), np.zeros(5)
+    )
+    frames = np.repeat(np.arange(3), 2)
+    ids = np.tile(np.array([7, 9]), 3)
+    pixels = RNG.uniform(100, 400, (6, 2))
+    return FileSequence(
+        camera, STAMPS[:3], CENTRES[:3], ROTATIONS[:3], frames, ids, pixels,
+        depths={(1, 7): 2.5, (1, 9): 3.25},
+    )  # fmt: skip
+
+
+def test_depths_round_trip_and_start_the_frames_with_their_truth(tmp_path: Path) -> None:
+    write_sequence(tmp_path / 'seq', _depth_sequence())
+    sequence = read_sequence(tmp_path / 'seq')
+    assert sequence.depths == {(1, 7): 2.5, (1, 9): 3.25}
+    frames = measurement_frames(sequence)
+    assert frames[0].measurements.depths_m is None
+    np.testing.assert_array_equal(frames[1].measurements.depths_m, [2.5, 3.25])
+    started = in_depth_start_frame(frames)
+    np.testing.assert_allclose(started[1].true_centre, 0.0, atol=1e-12)
+    np.testing.assert_allclose(started[1].true_rotation, np.eye(3), atol=1e-12)
+    expected = ROTATIONS[1].T @ (CENTRES[2] - CENTRES[1])
+    np.testing.assert_allclose(started[2].true_centre, expected, atol=1e-12)
+
+
+def test_a_non_positive_depth_is_named(tmp_path: Path) -> None:
+    write_sequence(tmp_path / 'seq', dataclasses.replace(_depth_sequence(), depths=None))
+    (tmp_path / 'seq' / 'depths.csv').write_text('frame,id,depth_m\n1,7,0\n')
+    with pytest.raises(ValueError, match=r'depths\.csv:2: depth_m must be > 0'):
+        read_sequence(tmp_path / 'seq')
