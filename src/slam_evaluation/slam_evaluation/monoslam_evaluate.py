@@ -165,6 +165,12 @@ def _arguments(argv: list[str] | None) -> Settings:
     )
     add_tracking_noise_arguments(parser)
     parser.add_argument(
+        '--undeclared',
+        action='store_true',
+        help='simulate the tracking noise but tell the filters nothing of it (they keep white '
+        '1 px): noise a user could not declare',
+    )
+    parser.add_argument(
         '--sequence',
         type=Path,
         default=None,
@@ -196,6 +202,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         args.tracking_offset_px,
         args.tracking_jump_probability,
         args.undecided_probation,
+        not args.undeclared,
     )
     try:
         settings.scene()

@@ -65,7 +65,8 @@ class Settings:
     filter's STATIC rule, the known board, the diagnostic settings, a sequence directory
     to run instead of the simulator (``sequence_files``), and the simulated tracking noise
     that is not white (offsets with jumps, ``dynamic_scene``; the filters are told of it as
-    a tracker declares its noise), and whether undecided features wait on probation."""
+    a tracker declares its noise, unless ``declare_noise`` is False), and whether undecided
+    features wait on probation."""
 
     seeds: tuple[int, ...]
     duration_s: float
@@ -79,6 +80,7 @@ class Settings:
     tracking_offset_px: float = 0.0
     tracking_jump_probability: float = 0.0
     undecided_probation: bool = False
+    declare_noise: bool = True
 
     def scene(self) -> DynamicSceneConfig:
         """Return the Fig. 5 scene: 200 static points, 8 moving objects x 8 points."""
@@ -116,6 +118,8 @@ class Settings:
             shadow_poses=self.shadow_poses,
             oracle_handovers=self.oracle_handovers,
         )
+        if not self.declare_noise:
+            return config
         return Tracker.of_scene(self.scene()).declared(config)
 
 
