@@ -187,7 +187,9 @@ def frame_sightings(
 @dataclass(frozen=True, eq=False)
 class TrackLabels:
     """Labels of tracks (T): ids ascending, label codes (MOVING 1, STATIC 0, UNKNOWN -1),
-    chi-square statistics (NaN for unknown) and depth sightings per track."""
+    the rule's statistic (NaN for unknown) and the evidence per track: by ``label_tracks``
+    the chi-square statistics and the depth sightings; by ``mask_labels.label_by_masks`` the
+    moving shares and the decided mask sightings."""
 
     ids: IntArray
     labels: IntArray
@@ -195,15 +197,17 @@ class TrackLabels:
     depth_sightings: IntArray
 
     def counts(self) -> dict[str, int]:
-        """Return the tracks: moving, static, unknown, and of the unknown those never seen
-        with depth and those seen with depth once."""
+        """Return the tracks: moving, static, unknown, and of the unknown those with no
+        evidence (never seen with depth; no decided mask sighting) and with one (seen with
+        depth once)."""
+        unknown = self.labels == UNKNOWN
         return {
             'tracks': len(self.ids),
             'moving': int(np.count_nonzero(self.labels == MOVING)),
             'static': int(np.count_nonzero(self.labels == STATIC)),
-            'unknown': int(np.count_nonzero(self.labels == UNKNOWN)),
-            'unknown_no_depth': int(np.count_nonzero(self.depth_sightings == 0)),
-            'unknown_one_depth': int(np.count_nonzero(self.depth_sightings == 1)),
+            'unknown': int(np.count_nonzero(unknown)),
+            'unknown_no_depth': int(np.count_nonzero(unknown & (self.depth_sightings == 0))),
+            'unknown_one_depth': int(np.count_nonzero(unknown & (self.depth_sightings == 1))),
         }
 
     def moving_share(self) -> float:
