@@ -1,6 +1,8 @@
-"""The labels PNG of ``tum_rgbd_sequence``: the tracks of a few colour images drawn over them
-in their depth label's colour (moving red, static green, unknown grey), tiled two per row
-with each image's counts written on it (OpenCV)."""
+"""The figures of ``tum_rgbd_sequence`` (OpenCV), a few colour images tiled two per row with a
+caption each: labels.png, the tracks drawn in their label's colour (moving red, static green,
+unknown grey) with the counts; masks.png, the motion mask of a depth map over its colour
+image (moving translucent red, unknown (no depth, depth edges, too little evidence)
+translucent grey) with the shares of the image."""
 
 from __future__ import annotations
 
@@ -42,15 +44,48 @@ def draw_labels(item: LabelledImage) -> NDArray[np.uint8]:
         f'{int(np.count_nonzero(item.labels == code))} {LABEL_NAMES[code]}'
         for code in (MOVING, STATIC, UNKNOWN)
     )
-    caption = f'image {item.index}: {counts}'
+    _caption(canvas, f'image {item.index}: {counts}')
+    return canvas
+
+
+@dataclass(frozen=True, eq=False)
+class MaskedImage:
+    """One motion mask to draw: the index in rgb.txt of the image it is drawn for and of the
+    image with the depth map it belongs to, that image (H, W, 3) uint8 BGR and the mask (H,
+    W) int8 (MOVING, STATIC, UNKNOWN)."""
+
+    index: int
+    mask_index: int
+    image: NDArray[np.uint8]
+    mask: NDArray[np.int8]
+
+
+def draw_mask(item: MaskedImage) -> NDArray[np.uint8]:
+    """Return a copy of the image (H, W, 3) with the mask blended in (moving half red,
+    unknown a third grey) and a caption with the images and the shares of the pixels."""
+    canvas = item.image.astype(np.float64)
+    for code, colour, alpha in ((MOVING, (0, 0, 255), 0.5), (UNKNOWN, (128, 128, 128), 0.35)):
+        where = item.mask == code
+        canvas[where] = (1.0 - alpha) * canvas[where] + alpha * np.asarray(colour, np.float64)
+    out = np.ascontiguousarray(np.clip(np.rint(canvas), 0, 255).astype(np.uint8))
+    shares = ', '.join(
+        f'{100 * np.count_nonzero(item.mask == code) / item.mask.size:.1f} % {LABEL_NAMES[code]}'
+        for code in (MOVING, UNKNOWN)
+    )
+    source = '' if item.mask_index == item.index else f' (mask of image {item.mask_index})'
+    _caption(out, f'image {item.index}{source}: {shares}')
+    return out
+
+
+def _caption(canvas: NDArray[np.uint8], text: str) -> None:
+    """Write ``text`` on a white bar at the top of ``canvas`` (in place)."""
     scale = min(0.6, canvas.shape[1] / 1100)  # the caption fits a 640 px wide image at 0.6
+    width_px = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0]
+    scale *= min(1.0, (canvas.shape[1] - 16) / max(width_px, 1))  # a longer one is shrunk
     bar_px = round(46 * scale)
     cv2.rectangle(canvas, (0, 0), (canvas.shape[1], bar_px), (255, 255, 255), -1)
     origin = (8, round(33 * scale))
-    cv2.putText(
-        canvas, caption, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1, cv2.LINE_AA
-    )
-    return canvas
+    cv2.putText(canvas, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1, cv2.LINE_AA)
 
 
 def labels_png(items: Sequence[LabelledImage], columns: int = 2) -> bytes:
@@ -63,7 +98,24 @@ def labels_png(items: Sequence[LabelledImage], columns: int = 2) -> bytes:
     """
     if not items:
         raise ValueError('no image to draw')
-    tiles = [draw_labels(item) for item in items]
+    return _tiled_png([draw_labels(item) for item in items], columns)
+
+
+def masks_png(items: Sequence[MaskedImage], columns: int = 2) -> bytes:
+    """Return the PNG bytes of the drawn masks (``draw_mask``) tiled ``columns`` per row
+    (images of one size; an empty tile is white).
+
+    Raises:
+        ValueError: no image, images of different sizes, or OpenCV cannot encode the PNG.
+
+    """
+    if not items:
+        raise ValueError('no mask to draw')
+    return _tiled_png([draw_mask(item) for item in items], columns)
+
+
+def _tiled_png(tiles: list[NDArray[np.uint8]], columns: int) -> bytes:
+    """Return the PNG bytes of ``tiles`` (one size) tiled ``columns`` per row."""
     shape = tiles[0].shape
     if any(tile.shape != shape for tile in tiles):
         raise ValueError('the images to draw differ in size')
@@ -72,5 +124,5 @@ def labels_png(items: Sequence[LabelledImage], columns: int = 2) -> bytes:
     grid = np.vstack([np.hstack(tiles[r * columns : (r + 1) * columns]) for r in range(rows)])
     ok, data = cv2.imencode('.png', grid)
     if not ok:
-        raise ValueError('OpenCV could not encode the labels figure as PNG')
+        raise ValueError('OpenCV could not encode the figure as PNG')
     return bytes(data.tobytes())

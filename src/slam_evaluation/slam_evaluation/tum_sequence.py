@@ -15,11 +15,15 @@ Steps:
    decoded to grey as the node decodes a CompressedImage. Images without a ground-truth
    pose are tracked too (the tracks go on through them) but left out of the sequence:
    frame k of poses.txt and tracks.csv is the k-th image with a pose.
-4. Labels (``slam_sim.core.depth_labels``): a track is moving (1) or static (0) by the
-   chi-square rule on its depth sightings; an unknown track (fewer than two depth
-   sightings) has no row in labels.csv, so the evaluators count it static; import.json
-   counts them. The false-alarm rate is the share of the tracks labelled from the static
-   opening alone (their sightings in it) that are called moving: every one is static.
+4. Labels (``tum_labels``, ``--label-rule``): ``masks`` (default) labels a track moving (1)
+   or static (0) by the per-pixel motion masks of the depth maps at its pixels
+   (``slam_sim.core.motion_masks``, ``mask_labels``); ``endpoints`` by the chi-square rule on
+   its first and last depth sightings (``slam_sim.core.depth_labels``). An unknown track
+   (no decided mask sighting; fewer than two depth sightings) has no row in labels.csv, so
+   the evaluators count it static; import.json counts them. The false-alarm rate is the
+   share of the tracks labelled from the static opening alone (their sightings in it) that
+   are called moving: every one is static. The endpoint rule's figures are reported beside
+   the mask rule's.
 5. Known points (``tum_known_points``): up to ``--known-points`` (16) static tracks of the
    first image with reliable depth, at their back-projection there; import.json says how
    long they stay in view.
@@ -27,9 +31,11 @@ Steps:
 Output directory (``--output``, new; written under a hidden name and renamed into place
 when complete): camera.yaml, poses.txt, tracks.csv, labels.csv, known_points.csv (the
 sequence format), ``labels.png`` (the tracks of ``--figure-images`` drawn in their label's
-colour: moving red, static green, unknown grey) and ``import.json`` (the counts, the label
-rule's settings, the static opening's pose error per separation and false-alarm rate, the
-known points and their visibility).
+colour: moving red, static green, unknown grey), ``masks.png`` (with the mask rule: the
+motion mask of the depth map nearest each figure image over its colour image, moving
+translucent red) and ``import.json`` (the counts, the label rules' settings, the static
+opening's pose error per separation and false-alarm rate, the known points and their
+visibility).
 
 Example: ``tum_rgbd_sequence --dataset ../shared/data/bonn_crowd --convention bonn --output
 out/bonn_crowd/sequence``.
@@ -43,7 +49,7 @@ import shutil
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -55,9 +61,15 @@ from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
 from slam_evaluation.sequence_files import Sequence, write_sequence
 from slam_evaluation.tum_known_points import KnownPoints, choose_known_points, visibility
-from slam_evaluation.tum_label_figure import LabelledImage, labels_png
-from slam_evaluation.tum_tracking import TrackedImages, track_images
-from slam_sim.core.depth_labels import LabelRule, PoseError, TrackLabels, label_tracks
+from slam_evaluation.tum_labels import (
+    LABEL_RULES,
+    label_figures,
+    label_sequence,
+    mask_images,
+    rule_report,
+)
+from slam_evaluation.tum_tracking import track_images
+from slam_sim.core.depth_labels import LabelRule, PoseError, TrackLabels
 from slam_sim.core.tum_consistency import Consistency, pose_error
 from slam_sim.core.tum_rgbd import TumRgbd
 from slam_sim.tum_rgbd_bag import add_dataset_arguments, read_dataset
@@ -70,13 +82,15 @@ FIGURE_IMAGES = (100, 300, 500, 700)
 class ImportSettings:
     """The import's settings (module docstring): images of the static opening, largest
     number of known points, the ground truth's position error (None: estimated), the
-    tracker's pixel noise (px) and the images drawn in labels.png."""
+    tracker's pixel noise (px), the images drawn in labels.png and masks.png, and the label
+    rule (``tum_labels.LABEL_RULES``)."""
 
     static_images: int = 180
     known_points: int = 16
     pose_sigma_m: float | None = None
     pixel_sigma_px: float = 1.0
     figure_images: tuple[int, ...] = FIGURE_IMAGES
+    label_rule: str = 'masks'
 
 
 def pose_rule(sequence: TumRgbd, settings: ImportSettings) -> tuple[LabelRule, list[Consistency]]:
@@ -98,14 +112,16 @@ def pose_rule(sequence: TumRgbd, settings: ImportSettings) -> tuple[LabelRule, l
 
 @dataclass(frozen=True, eq=False)
 class ImportResult:
-    """What an import made: the sequence, the labels (all tracks and the static opening's),
-    the known points and the report (import.json's content)."""
+    """What an import made: the sequence, the labels (all tracks and the static opening's,
+    by the chosen rule), the known points, the report (import.json's content) and the
+    figures (file name -> PNG bytes)."""
 
     sequence: Sequence
     labels: TrackLabels
     opening: TrackLabels
     known: KnownPoints
     report: dict[str, Any]
+    figures: dict[str, bytes]
 
 
 def import_sequence(
@@ -114,19 +130,25 @@ def import_sequence(
     *,
     rule: tuple[LabelRule, list[Consistency]] | None = None,
     progress: Callable[[int], None] | None = None,
-) -> tuple[ImportResult, bytes | None]:
-    """Return the sequence of a TUM-layout sequence (module docstring) and the labels PNG
-    (None when no figure image has a pose); ``rule``: ``pose_rule``'s result if known."""
+    mask_progress: Callable[[int], None] | None = None,
+) -> ImportResult:
+    """Return the sequence of a TUM-layout sequence (module docstring) with its report and
+    figures (none when no figure image has a pose); ``rule``: ``pose_rule``'s result if
+    known; ``progress(images tracked)``, ``mask_progress(masks done)``."""
     started = time.monotonic()
     label_rule, bands = rule if rule is not None else pose_rule(sequence, settings)
-    tracked = track_images(sequence, label_rule, keep=settings.figure_images, progress=progress)
+    mask_of = mask_images(sequence, settings.figure_images)
+    keep = tuple(sorted({*settings.figure_images, *mask_of.values()}))
+    tracked = track_images(sequence, label_rule, keep=keep, progress=progress)
     posed = sequence.has_pose[tracked.images]
     frame_of = np.cumsum(sequence.has_pose) - 1
     frames, ids = frame_of[tracked.images[posed]], tracked.ids[posed]
-    labels = label_tracks(ids, tracked.depth, label_rule)
-    in_opening = tracked.depth.frames < settings.static_images
-    opening_ids = ids[tracked.images[posed] < settings.static_images]
-    opening = label_tracks(opening_ids, tracked.depth.select(in_opening), label_rule)
+    labelled = label_sequence(
+        sequence, tracked, rule=settings.label_rule, endpoint_rule=label_rule,
+        static_images=settings.static_images, keep_masks=tuple(mask_of.values()),
+        progress=mask_progress,
+    )  # fmt: skip
+    labels, opening = labelled.chosen.labels, labelled.chosen.opening
     pixel_of = {
         (int(i), int(k)): (float(p[0]), float(p[1]))
         for i, k, p in zip(tracked.images, tracked.ids, tracked.pixels, strict=True)
@@ -142,20 +164,21 @@ def import_sequence(
         poses[:, :3, :3], frames, ids, tracked.pixels[posed], labels.moving_by_id(),
         known.points,
     )  # fmt: skip
-    figure = _figure(sequence, tracked, labels)
+    figures = label_figures(sequence, tracked, labelled, settings.figure_images)
     report = {
         **_inputs(sequence),
         'frames_written': len(result.stamps_ns),
         'sightings': len(ids),
         'depth_sightings': len(tracked.depth.ids),
         'tracks': labels.counts(),
-        'label_rule': {**asdict(label_rule), 'chi2_bound': label_rule.bound},
+        'label_rule': rule_report(labelled.rule, label_rule),
         'static_opening': {
             'images': settings.static_images,
             'tracks': opening.counts(),
             'false_alarm_rate': opening.moving_share(),
             'pose_error_bands': [band.summary() for band in bands],
         },
+        'by_rule': {name: by.summary() for name, by in labelled.by_rule.items()},
         'known_points': {
             'image': known.image,
             'frame': int(frame_of[known.image]) if known.image >= 0 else -1,
@@ -163,10 +186,15 @@ def import_sequence(
             'ids': sorted(known.points),
             **visibility(frames, ids, sorted(known.points), _rate_hz(sequence)),
         },
-        'figure': {'file': 'labels.png' if figure else None, 'images': sorted(tracked.kept)},
+        'figure': {
+            'file': 'labels.png' if 'labels.png' in figures else None,
+            'images': [i for i in settings.figure_images if i in tracked.kept],
+            'masks_file': 'masks.png' if 'masks.png' in figures else None,
+            'mask_images': {str(i): m for i, m in mask_of.items() if m in labelled.masks},
+        },
         'elapsed_s': time.monotonic() - started,
     }
-    return ImportResult(result, labels, opening, known, report), figure
+    return ImportResult(result, labels, opening, known, report, figures)
 
 
 def _inputs(sequence: TumRgbd) -> dict[str, Any]:
@@ -190,19 +218,8 @@ def _rate_hz(sequence: TumRgbd) -> float:
     return (len(sequence.rgb) - 1) / span_s if span_s > 0 else float('nan')
 
 
-def _figure(sequence: TumRgbd, tracked: TrackedImages, labels: TrackLabels) -> bytes | None:
-    items = []
-    for index, image in sorted(tracked.kept.items()):
-        here = tracked.images == index
-        if not sequence.has_pose[index]:
-            continue
-        track_ids = tracked.ids[here]
-        items.append(LabelledImage(index, image, tracked.pixels[here], labels.label_of(track_ids)))
-    return labels_png(items) if items else None
-
-
-def write_import(output: Path, result: ImportResult, figure: bytes | None) -> Path:
-    """Write the sequence, labels.png and import.json into the new directory ``output``,
+def write_import(output: Path, result: ImportResult) -> Path:
+    """Write the sequence, the figures and import.json into the new directory ``output``,
     under a hidden name renamed into place when complete.
 
     Raises:
@@ -218,8 +235,8 @@ def write_import(output: Path, result: ImportResult, figure: bytes | None) -> Pa
     try:
         staging.mkdir()
         write_sequence(staging, result.sequence)
-        if figure is not None:
-            write_atomically(staging / 'labels.png', figure)
+        for name, data in result.figures.items():
+            write_atomically(staging / name, data)
         write_json(staging / 'import.json', result.report)
         staging.rename(target)
     except OSError as err:
@@ -299,9 +316,30 @@ def _parser() -> argparse.ArgumentParser:
         metavar='INDEX',
         nargs='*',
         default=list(defaults.figure_images),
-        help='colour images drawn in labels.png (default 100 300 500 700)',
+        help='colour images drawn in labels.png and masks.png (default 100 300 500 700)',
+    )
+    parser.add_argument(
+        '--label-rule',
+        choices=LABEL_RULES,
+        default=defaults.label_rule,
+        help='masks: per-pixel motion masks (default); endpoints: first vs last depth points',
     )
     return parser
+
+
+def _stage(total: int, label: str, unit: str) -> Callable[[int], None]:
+    """Return a progress callback (units done) for one stage: a ``ProgressReporter`` started
+    at its first call and finished at ``total``."""
+    reporters: list[ProgressReporter] = []
+
+    def update(done: int) -> None:
+        if not reporters:
+            reporters.append(ProgressReporter(total, label=label, unit=unit))
+        reporters[0].update(done)
+        if done >= total:
+            reporters[0].finish()
+
+    return update
 
 
 @console_main(PROG)
@@ -318,7 +356,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f'{option} must be a finite number >= 0, got {value}')
     settings = ImportSettings(
         args.static_images, args.known_points, args.pose_sigma_m, args.pixel_sigma_px,
-        tuple(args.figure_images),
+        tuple(args.figure_images), args.label_rule,
     )  # fmt: skip
     target = Path(args.output).expanduser().absolute()
     if target.exists():
@@ -327,12 +365,12 @@ def main(argv: list[str] | None = None) -> int:
         note = f'{PROG}: measuring the pose error on the first {settings.static_images} images'
         print(note, file=sys.stderr)  # noqa: T201
     rule = pose_rule(sequence, settings)
-    reporter = ProgressReporter(len(sequence.rgb), label=PROG, unit=' images')
-    result, figure = import_sequence(
-        sequence, settings, rule=rule, progress=lambda done: reporter.update(done)
-    )
-    reporter.finish()
-    output = write_import(target, result, figure)
+    masked = int(np.count_nonzero((sequence.depth_index >= 0) & sequence.has_pose))
+    result = import_sequence(
+        sequence, settings, rule=rule, progress=_stage(len(sequence.rgb), PROG, ' images'),
+        mask_progress=_stage(masked, f'{PROG} masks', ' depth maps'),
+    )  # fmt: skip
+    output = write_import(target, result)
     print(summary(output, result.report))  # noqa: T201
     return 0
 

@@ -38,7 +38,7 @@ def test_the_sequence_reads_back_with_the_images_that_have_poses(
     source, output = imported
     assert sorted(p.name for p in output.iterdir()) == [
         'camera.yaml', 'import.json', 'known_points.csv', 'labels.csv', 'labels.png',
-        'poses.txt', 'tracks.csv',
+        'masks.png', 'poses.txt', 'tracks.csv',
     ]  # fmt: skip
     sequence = read_sequence(output)
     tum = read_tum_rgbd(source, intrinsics='tum_fr3')
@@ -65,9 +65,13 @@ def test_board_tracks_are_moving_and_wall_tracks_static(imported: tuple[Path, Pa
             if is_near:
                 near.add(int(track))
     labels = sequence.labels or {}
-    board = [labels[i] for i in labels if all(seen_on[i])]
+    # A track born in the last 0.2 s (two depth maps) has no later depth map: on the board,
+    # which slides along itself, neither its depth nor its own motion can show it moving yet.
+    born = {int(i): int(sequence.frame[sequence.ids == i].min()) for i in labels}
+    seen_early = {i for i in labels if born[i] < CONFIG.images - 1 - 6}
+    board = [labels[i] for i in labels if all(seen_on[i]) and i in seen_early]
     wall = [labels[i] for i in labels if i not in near]
-    assert len(board) >= 8 and np.mean(board) >= 0.8
+    assert len(board) >= 8 and np.mean(board) >= 0.9
     assert len(wall) >= 100 and np.mean(wall) <= 0.02
     report = json.loads((output / 'import.json').read_text(encoding='utf-8'))
     tracks = report['tracks']
@@ -103,7 +107,12 @@ def test_the_labels_figure_tiles_the_chosen_images(imported: tuple[Path, Path]) 
     red = (figure[:, :, 2] > 200) & (figure[:, :, 1] < 60) & (figure[:, :, 0] < 60)
     assert np.count_nonzero(red[CONFIG.height :]) > 100  # movers drawn in images 30 and 40
     report = json.loads((output / 'import.json').read_text(encoding='utf-8'))
-    assert report['figure'] == {'file': 'labels.png', 'images': [5, 20, 30, 40]}
+    assert report['figure'] == {
+        'file': 'labels.png', 'images': [5, 20, 30, 40], 'masks_file': 'masks.png',
+        'mask_images': {'5': 6, '20': 21, '30': 30, '40': 39},  # the nearest depth maps
+    }  # fmt: skip
+    masks = cv2.imread(str(output / 'masks.png'))
+    assert masks is not None and masks.shape == figure.shape
 
 
 def test_an_existing_output_is_refused(
@@ -135,8 +144,12 @@ def test_the_static_opening_of_bonn_crowd(tmp_path: Path) -> None:
     report = json.loads((output / 'import.json').read_text(encoding='utf-8'))
     opening = report['static_opening']
     assert opening['tracks'] == report['tracks']  # all of it is the opening
-    assert opening['tracks']['static'] > 200
-    assert opening['false_alarm_rate'] < 0.05  # no person: every moving label is false
+    assert opening['tracks']['static'] > 300
+    assert opening['false_alarm_rate'] < 0.01  # no person: every moving label is false
+    assert opening['tracks']['unknown'] < 0.1 * opening['tracks']['tracks']
+    endpoints = report['by_rule']['endpoints']
+    assert endpoints['tracks']['tracks'] == report['tracks']['tracks']
+    assert endpoints['tracks']['unknown'] > opening['tracks']['unknown']
     assert report['known_points']['count'] >= 8
     assert report['known_points']['last_frame_with_at_least_4'] == 58
     sigmas = report['label_rule']['pose_error']['sigmas_m']
