@@ -24,18 +24,20 @@ Steps:
    share of the tracks labelled from the static opening alone (their sightings in it) that
    are called moving: every one is static. The endpoint rule's figures are reported beside
    the mask rule's.
-5. Known points (``tum_known_points``): up to ``--known-points`` (16) static tracks of the
-   first image with reliable depth, at their back-projection there; import.json says how
-   long they stay in view.
+5. Depths: every track's depth (m along the optical axis) in every image with a depth map,
+   as the depth sampling read it (depths.csv): MonoSLAM starts from the first frame's
+   (``known_points_source='depth'``, the graph's start). With ``--known-points N`` (default
+   0) instead: up to N static tracks of the first image with reliable depth as known points
+   at their back-projection there (``tum_known_points``, a known-point start); import.json
+   says how long they stay in view.
 
-Output directory (``--output``, new; written under a hidden name and renamed into place
-when complete): camera.yaml, poses.txt, tracks.csv, labels.csv, known_points.csv (the
+Output directory (``--output``, new; written under a hidden name and renamed into place when
+complete): camera.yaml, poses.txt, tracks.csv, labels.csv, depths.csv or known_points.csv (the
 sequence format), ``labels.png`` (the tracks of ``--figure-images`` drawn in their label's
-colour: moving red, static green, unknown grey), ``masks.png`` (with the mask rule: the
-motion mask of the depth map nearest each figure image over its colour image, moving
-translucent red) and ``import.json`` (the counts, the label rules' settings, the static
-opening's pose error per separation and false-alarm rate, the known points and their
-visibility).
+colour: moving red, static green, unknown grey), ``masks.png`` (with the mask rule: the motion
+mask of the depth map nearest each figure image over its colour image, moving translucent red)
+and ``import.json`` (the counts, the label rules' settings, the static opening's pose error per
+separation and false-alarm rate, the known points and their visibility).
 
 Example: ``tum_rgbd_sequence --dataset ../shared/data/bonn_crowd --convention bonn --output
 out/bonn_crowd/sequence``.
@@ -86,7 +88,7 @@ class ImportSettings:
     rule (``tum_labels.LABEL_RULES``)."""
 
     static_images: int = 180
-    known_points: int = 16
+    known_points: int = 0
     pose_sigma_m: float | None = None
     pixel_sigma_px: float = 1.0
     figure_images: tuple[int, ...] = FIGURE_IMAGES
@@ -159,10 +161,18 @@ def import_sequence(
         sequence.camera, tracked.depth, pixel_of, labels, lifetimes, cap=settings.known_points
     )
     poses = sequence.poses[sequence.has_pose]
+    depth = tracked.depth
+    camera_of = sequence.poses[depth.frames]  # T_world_camera of each depth sighting's image
+    local = np.einsum('sji,sj->si', camera_of[:, :3, :3], depth.points - camera_of[:, :3, 3])
+    usable = sequence.has_pose[depth.frames] & (local[:, 2] > 0.0)
+    depths = {
+        (int(frame_of[f]), int(i)): float(z)
+        for f, i, z in zip(depth.frames[usable], depth.ids[usable], local[usable, 2], strict=True)
+    }
     result = Sequence(
         sequence.camera, sequence.stamps_ns[sequence.has_pose], poses[:, :3, 3],
         poses[:, :3, :3], frames, ids, tracked.pixels[posed], labels.moving_by_id(),
-        known.points,
+        known.points if known.points else None, None, None if known.points else depths,
     )  # fmt: skip
     figures = label_figures(sequence, tracked, labelled, settings.figure_images)
     report = {
@@ -294,7 +304,7 @@ def _parser() -> argparse.ArgumentParser:
         type=int,
         metavar='N',
         default=defaults.known_points,
-        help='most known points (default 16; 0: none)',
+        help='most known points (default 0: none, MonoSLAM starts from the depths)',
     )
     parser.add_argument(
         '--pose-sigma-m',

@@ -37,7 +37,7 @@ def test_the_sequence_reads_back_with_the_images_that_have_poses(
 ) -> None:
     source, output = imported
     assert sorted(p.name for p in output.iterdir()) == [
-        'camera.yaml', 'import.json', 'known_points.csv', 'labels.csv', 'labels.png',
+        'camera.yaml', 'depths.csv', 'import.json', 'labels.csv', 'labels.png',
         'masks.png', 'poses.txt', 'tracks.csv',
     ]  # fmt: skip
     sequence = read_sequence(output)
@@ -82,9 +82,36 @@ def test_board_tracks_are_moving_and_wall_tracks_static(imported: tuple[Path, Pa
     assert report['frames_written'] == CONFIG.images - 1
 
 
-def test_known_points_lie_on_the_wall_and_are_tracks(imported: tuple[Path, Path]) -> None:
+def test_depths_are_the_tracks_depths_and_start_monoslam(imported: tuple[Path, Path]) -> None:
+    """By default the sequence carries the tracks' depths (no known points): on the wall they
+    are its distance along the optical axis, and the first frame's features carry them."""
     _, output = imported
     sequence = read_sequence(output)
+    assert sequence.known_points is None and sequence.depths
+    frames = measurement_frames(sequence)
+    start = next(k for k, f in enumerate(frames) if f.measurements.depths_m is not None)
+    first = frames[start].measurements
+    assert first.depths_m is not None and np.sum(np.isfinite(first.depths_m)) >= 8
+    wall = np.array([0.0, 0.0, CONFIG.wall_z_m]) - sequence.centres[start]
+    local = sequence.rotations[start].T @ wall
+    assert np.nanmax(first.depths_m) <= local[2] + 0.05  # nothing behind the wall
+
+
+@pytest.fixture(scope='module')
+def imported_known(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The synthetic sequence imported with known points instead of depths."""
+    root = tmp_path_factory.mktemp('tum_known')
+    source = write_synthetic_tum(root / 'source', CONFIG)
+    output = root / 'sequence'
+    argv = ['--dataset', str(source), *INTRINSICS, '--output', str(output)]
+    assert main([*argv, '--static-images', '9', '--known-points', '16']) == 0
+    return output
+
+
+def test_known_points_lie_on_the_wall_and_are_tracks(imported_known: Path) -> None:
+    output = imported_known
+    sequence = read_sequence(output)
+    assert sequence.depths is None
     known = sequence.known_points or {}
     assert 4 <= len(known) <= 16
     assert set(known) <= set(sequence.ids.tolist())
@@ -140,7 +167,10 @@ def test_the_static_opening_of_bonn_crowd(tmp_path: Path) -> None:
         (excerpt / name).write_text('\n'.join(kept) + '\n', encoding='utf-8')
     output = tmp_path / 'sequence'
     argv = ['--dataset', str(excerpt), '--convention', 'bonn', '--output', str(output)]
-    assert main([*argv, '--static-images', '60', '--figure-images', '30']) == 0
+    assert (
+        main([*argv, '--static-images', '60', '--figure-images', '30', '--known-points', '16'])
+        == 0
+    )
     report = json.loads((output / 'import.json').read_text(encoding='utf-8'))
     opening = report['static_opening']
     assert opening['tracks'] == report['tracks']  # all of it is the opening
