@@ -156,7 +156,7 @@ def read_sequence(directory: Path) -> Sequence:
     if not directory.is_dir():
         raise SequenceError(f'{directory}: not a directory')
     camera = _read_camera(directory / 'camera.yaml')
-    stamps, centres, rotations = _read_poses(directory / 'poses.txt')
+    stamps, centres, rotations = read_poses(directory / 'poses.txt')
     rows = _read_csv(
         directory / 'tracks.csv', ('frame', 'id', 'u', 'v'), integers=2, required=True
     )
@@ -353,7 +353,9 @@ def _read_tracker(path: Path) -> Tracker:
         raise SequenceError(f'{path}: {error}') from None
 
 
-def _read_poses(path: Path) -> tuple[IntArray, FloatArray, FloatArray]:
+def read_poses(path: Path) -> tuple[IntArray, FloatArray, FloatArray]:
+    """Return the stamps (K,) int ns, centres (K, 3) m and R_world_camera (K, 3, 3) of a TUM
+    pose file (poses.txt, or a node's trajectory); SequenceError names the file and line."""
     try:
         text = path.read_text(encoding='utf-8')
     except FileNotFoundError:

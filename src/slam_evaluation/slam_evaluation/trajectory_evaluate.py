@@ -26,11 +26,11 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_evaluation.monoslam_metrics import DIVERGED_ATE_M, rms, umeyama_alignment
+from slam_evaluation.sequence_files import read_poses
 
 FloatArray = NDArray[np.float64]
 MIN_SCALE = 0.5
@@ -40,29 +40,8 @@ inverse) says the estimate lost its scale: the run diverged, whatever its aligne
 
 def read_tum(path: Path) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
     """Return stamps (K,) int ns, centres (K, 3) m and rotations (K, 3, 3) of a TUM file
-    ('stamp x y z qx qy qz qw' per line, '#' comments); ValueError names file and line."""
-    stamps, centres, quaternions = [], [], []
-    for line, text in enumerate(Path(path).read_text(encoding='utf-8').splitlines(), start=1):
-        if not text.strip() or text.lstrip().startswith('#'):
-            continue
-        fields = text.split()
-        try:
-            if len(fields) != 8:
-                raise ValueError(f'{len(fields)} fields, expected 8')
-            seconds, _, fraction = fields[0].partition('.')
-            stamp = int(seconds) * 10**9 + int((fraction + '000000000')[:9] or 0)
-            values = [float(v) for v in fields[1:]]
-        except ValueError as error:
-            raise ValueError(f'{path}:{line}: {error}') from error
-        if not np.all(np.isfinite(values)) or np.linalg.norm(values[3:]) < 1e-9:
-            raise ValueError(f'{path}:{line}: not a finite pose with a unit quaternion')
-        stamps.append(stamp)
-        centres.append(values[:3])
-        quaternions.append(values[3:])
-    if not stamps:
-        raise ValueError(f'{path}: no poses')
-    rotations = Rotation.from_quat(np.array(quaternions)).as_matrix()
-    return np.array(stamps, dtype=np.int64), np.array(centres), rotations
+    (``sequence_files.read_poses``); ValueError names the file and line."""
+    return read_poses(Path(path))
 
 
 def evaluate(
