@@ -126,3 +126,21 @@ def test_depth_start_features_are_spread_and_skip_missing_depths() -> None:
     np.testing.assert_allclose(1.0 / start.rho[1], 4.0)  # on the axis: distance = depth
     sigma_rho = np.sqrt(start.rho_variance[1])
     np.testing.assert_allclose(sigma_rho, 1.425e-3 * 16 / 16)  # sigma_z / z^2 on the axis
+
+
+def test_a_depth_restart_after_a_loss_keeps_the_world() -> None:
+    """Lost (nothing measured for lost_after_frames), the filter starts again from the next
+    frame with depths at the last pose it had, not at the origin: the world stays put."""
+    slam = _depth_slam(lost_after_frames=2)
+    ids = np.arange(40)
+    slam.process(_frame(0, np.zeros(3), ids, depths=True))
+    for k in range(1, 10):
+        result = slam.process(_frame(k, np.array([0.01 * k, 0.0, 0.0]), ids))
+    before = result.centre
+    assert before is not None and before[0] > 0.05
+    empty = np.zeros(0, dtype=np.int64)
+    statuses = [slam.process(_frame(k, np.zeros(3), empty)).status for k in range(10, 14)]
+    assert 'lost' in statuses
+    restarted = slam.process(_frame(14, np.array([0.14, 0.0, 0.0]), ids, depths=True))
+    assert restarted.status == TRACKING and restarted.centre is not None
+    np.testing.assert_allclose(restarted.centre, before, atol=0.05)

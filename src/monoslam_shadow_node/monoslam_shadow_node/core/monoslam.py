@@ -119,6 +119,7 @@ class MonoSlam:
         self._known_rejected_frames = 0
         self._known_rejected = (0, 0)  # (rejected, in view) in the latest such frame
         self._rng = np.random.default_rng(self.config.ransac_seed)
+        self._lost_pose: FloatArray | None = None  # a depth re-start keeps the world
 
     # --- public state ----------------------------------------------------------------------
 
@@ -186,9 +187,8 @@ class MonoSlam:
 
     def mark_moving(self, ids: Iterable[int]) -> None:
         """Note features the Shadow filter found DYNAMIC (or SLAM revoked): they never fill
-        the map undecided (``fill_undecided``) until handed over as STATIC, and one that
-        filled it already leaves the state (reason 'revoked' in the next frame's result).
-        The newest ``MAX_MOVING_IDS`` are kept."""
+        the map undecided until handed over as STATIC, and one that filled it already leaves
+        the state ('revoked' in the next frame's result); the newest MAX_MOVING_IDS kept."""
         for feature_id in ids:
             self._moving_ids.pop(int(feature_id), None)
             self._moving_ids[int(feature_id)] = None
@@ -349,7 +349,7 @@ class MonoSlam:
             warnings.append(f'waiting for the initialization target: {found} features with a '
                             f'depth (at least {MIN_KNOWN_POINTS} needed)')  # fmt: skip
             return self._result(stamp_ns, WAITING, [], [], [], {}, 0, warnings)
-        pose, covariance = depth_start_pose()
+        pose, covariance = depth_start_pose(self._lost_pose)
         self._state.start(pose, covariance, config.initial_velocity_sigma_m_s,
                           config.initial_angular_velocity_sigma_rad_s)  # fmt: skip
         added = []
@@ -562,6 +562,7 @@ class MonoSlam:
 
     def _reset(self) -> None:
         """Retire the map and wait for the known points again."""
+        self._lost_pose = self._state.x[:7].copy() if len(self._state.x) >= 7 else None
         for feature in list(self._state.features):
             self._remove(feature, retire=True)
         self._state.x = np.zeros(0)

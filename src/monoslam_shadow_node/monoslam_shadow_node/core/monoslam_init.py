@@ -96,11 +96,14 @@ def depth_start_features(
     return DepthStart(track_ids[index], pixels[index], rho, (sigma * rho**2) ** 2)
 
 
-def depth_start_pose() -> tuple[FloatArray, FloatArray]:
+def depth_start_pose(last: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
     """Return the camera's (r, q) state (7,) and covariance (7, 7) of a depth start: the
-    camera's optical frame is the world (``START_POSE_SIGMA``)."""
+    camera's optical frame is the world (``START_POSE_SIGMA``), or, after tracking was lost,
+    the last pose (r, q) (7,) the filter had, so that the world stays where it was."""
     state = np.zeros(7)
     state[3] = 1.0  # q = (1, 0, 0, 0)
+    if last is not None and np.all(np.isfinite(last)) and np.linalg.norm(last[3:7]) > 0.0:
+        state = np.concatenate([last[:3], last[3:7] / np.linalg.norm(last[3:7])])
     return state, START_POSE_SIGMA**2 * np.eye(7)
 
 
