@@ -9,7 +9,8 @@
 #      (shadow_evaluate --sequence);
 #   4. Bonn crowd through the graph on its images (slam_run monoslam_shadow_rgbd.yaml: feature
 #      tracker, monoslam started from depth, shadow_filter; paced, one process per node),
-#      scored by trajectory_evaluate.
+#      scored by trajectory_evaluate, its classification drawn on the images at 3, 9, 15 and
+#      21 s (classification_figure).
 # Part 3 and 4 need the data set: SLAM_DATA_DIR (default ../shared/data) holds bonn_crowd/
 # (https://www.ipb.uni-bonn.de/data/rgbd-dynamic-dataset/); without it they are skipped, said.
 # Outputs go to bench/results/monoslam_real/; each evaluator prints its summary. About 40
@@ -22,7 +23,7 @@ bash scripts/bootstrap.sh || exit 1
 source scripts/env.sh
 OUT=bench/results/monoslam_real
 DATA="${SLAM_DATA_DIR:-../shared/data}/bonn_crowd"
-mkdir -p "$OUT"
+mkdir -p "$OUT" out
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$((100 + $$ % 100))}"
 status=0
 run() { echo "== $*"; "$@" || status=1; }
@@ -38,11 +39,13 @@ if [[ -d "$DATA" ]]; then
   rm -f "$OUT/bonn_sequence/known_points.csv"
   run monoslam_evaluate --sequence "$OUT/bonn_sequence" --out "$OUT/bonn_sequence_eval"
   run shadow_evaluate --sequence "$OUT/bonn_sequence" --out "$OUT/bonn_shadow_eval"
-  rm -rf out/monoslam_shadow_rgbd
+  rm -rf out/monoslam_shadow_rgbd out/monoslam_shadow_rgbd_record
   run slam_run monoslam_shadow_rgbd.yaml --bag "$OUT/bonn_crowd.mcap" --paced --processes \
     --exit-when-player-done
   run trajectory_evaluate --trajectory out/monoslam_shadow_rgbd/trajectory.tum \
     --truth "$OUT/bonn_sequence/poses.txt" --anchor --out "$OUT/bonn_graph_eval"
+  run classification_figure --bag "$OUT/bonn_crowd.mcap" --record out/monoslam_shadow_rgbd_record \
+    --times 3,9,15,21 --out "$OUT/bonn_graph_eval/classification.png"
 else
   echo "bench/monoslam_real_table.sh: no $DATA: Bonn crowd skipped (set SLAM_DATA_DIR)"
 fi

@@ -25,6 +25,7 @@ setup(
             'monoslam_loop_evaluate = slam_evaluation.monoslam_loop_evaluate:main',
             'tum_rgbd_sequence = slam_evaluation.tum_sequence:main',
             'trajectory_evaluate = slam_evaluation.trajectory_evaluate:main',
+            'classification_figure = slam_evaluation.classification_figure:main',
         ],
     },
 )
