@@ -5,6 +5,8 @@ Shadow filter hands it over as STATIC; and the depth start (``known_points_sourc
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from test_monoslam_probation import CAMERA, CONFIG, GROUP, _observed, _on_probation, _state
@@ -14,6 +16,7 @@ from monoslam_shadow_node.core.monoslam_ekf import MIN_POSE_POINTS, gated_update
 from monoslam_shadow_node.core.monoslam_init import depth_start_features
 from monoslam_shadow_node.core.monoslam_model import R_SLICE
 from monoslam_shadow_node.core.monoslam_ransac import ransac_update
+from monoslam_shadow_node.core.monoslam_snapshot import filter_state, restore_filter
 from monoslam_shadow_node.core.monoslam_types import (
     TRACKING,
     WAITING,
@@ -144,3 +147,25 @@ def test_a_depth_restart_after_a_loss_keeps_the_world() -> None:
     restarted = slam.process(_frame(14, np.array([0.14, 0.0, 0.0]), ids, depths=True))
     assert restarted.status == TRACKING and restarted.centre is not None
     np.testing.assert_allclose(restarted.centre, before, atol=0.05)
+
+
+def test_a_snapshot_keeps_which_features_are_cleared_and_reads_older_ones() -> None:
+    """filter_state / restore_filter carry 'cleared'; a snapshot written before it existed
+    restores a feature not handed over as undecided (as it was then)."""
+    slam = _depth_slam()
+    ids = np.arange(40)
+    slam.process(_frame(0, np.zeros(3), ids, depths=True))
+    for k in range(1, 6):
+        slam.process(_frame(k, np.array([0.01 * k, 0.0, 0.0]), ids))
+    undecided = slam.undecided_ids
+    assert undecided
+    arrays, meta = filter_state(slam)
+    again = _depth_slam()
+    restore_filter(again, arrays, json.loads(json.dumps(meta)))
+    assert again.undecided_ids == undecided
+    for item in meta['features']:
+        del item['cleared']
+    older = _depth_slam()
+    restore_filter(older, arrays, meta)
+    handed = {f.id for f in slam._state.features if f.source == 'handover'}
+    assert older.undecided_ids == {f.id for f in slam._state.features} - handed

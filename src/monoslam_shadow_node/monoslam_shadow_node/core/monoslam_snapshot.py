@@ -186,8 +186,8 @@ def _blocks(
             0,
             0,
             probation=bool(item['probation']),
-            # snapshots from before 'cleared': only handovers were ever on probation
-            cleared=bool(item.get('cleared', True)),
+            # snapshots from before 'cleared': a feature not handed over was undecided
+            cleared=bool(item.get('cleared', item['source'] == 'handover')),
             offset_size=offset_size,
             first_ray=rays[k].copy(),
         )
