@@ -30,6 +30,7 @@ from monoslam_shadow_node.feature_overlay import StatusBook, draw_features
 from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_core.stamps import stamp_to_ns
+from slam_evaluation.tum_label_figure import tiled_png
 from slam_ros.bag.source import BagSource
 
 IMAGE_TOPIC = '/camera/image_raw/compressed'
@@ -107,17 +108,6 @@ def panels(bag: Path, record: Path, times_s: Sequence[float]) -> list[np.ndarray
     return drawn
 
 
-def mosaic(images: Sequence[np.ndarray], columns: int = 2) -> np.ndarray:
-    """Return the images (same size) tiled ``columns`` wide (blank cells black)."""
-    height, width = images[0].shape[:2]
-    rows = -(-len(images) // columns)
-    canvas = np.zeros((rows * height, columns * width, 3), np.uint8)
-    for k, image in enumerate(images):
-        r, c = divmod(k, columns)
-        canvas[r * height : (r + 1) * height, c * width : (c + 1) * width] = image
-    return canvas
-
-
 @console_main('classification_figure')
 def main(argv: list[str] | None = None) -> int:
     """Command line (module docstring)."""
@@ -133,13 +123,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         times = [float(t) for t in args.times.split(',') if t.strip()]
         drawn = panels(args.bag, args.record, times)
+        png = tiled_png(drawn)
     except ValueError as error:
         print(f'classification_figure: error: {error}', file=sys.stderr)  # noqa: T201
         return 2
-    ok, png = cv2.imencode('.png', mosaic(drawn))
-    if not ok:
-        print('classification_figure: error: PNG encoding failed', file=sys.stderr)  # noqa: T201
-        return 2
-    write_atomically(args.out, png.tobytes())
+    write_atomically(args.out, png)
     print(f'wrote {args.out}: {len(drawn)} images at {times} s')  # noqa: T201
     return 0

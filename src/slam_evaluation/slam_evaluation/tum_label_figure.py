@@ -98,7 +98,7 @@ def labels_png(items: Sequence[LabelledImage], columns: int = 2) -> bytes:
     """
     if not items:
         raise ValueError('no image to draw')
-    return _tiled_png([draw_labels(item) for item in items], columns)
+    return tiled_png([draw_labels(item) for item in items], columns)
 
 
 def masks_png(items: Sequence[MaskedImage], columns: int = 2) -> bytes:
@@ -111,16 +111,20 @@ def masks_png(items: Sequence[MaskedImage], columns: int = 2) -> bytes:
     """
     if not items:
         raise ValueError('no mask to draw')
-    return _tiled_png([draw_mask(item) for item in items], columns)
+    return tiled_png([draw_mask(item) for item in items], columns)
 
 
-def _tiled_png(tiles: list[NDArray[np.uint8]], columns: int) -> bytes:
-    """Return the PNG bytes of ``tiles`` (one size) tiled ``columns`` per row."""
-    shape = tiles[0].shape
-    if any(tile.shape != shape for tile in tiles):
+def tiled_png(images: Sequence[NDArray[np.uint8]], columns: int = 2) -> bytes:
+    """Return the PNG bytes of ``images`` (one size, at least one) tiled ``columns`` per row
+    (an empty tile is white); ValueError for no image, sizes that differ or a failed
+    encoding."""
+    if not images:
+        raise ValueError('no image to draw')
+    shape = images[0].shape
+    if any(tile.shape != shape for tile in images):
         raise ValueError('the images to draw differ in size')
-    rows = -(-len(tiles) // columns)
-    tiles += [np.full(shape, 255, dtype=np.uint8)] * (rows * columns - len(tiles))
+    rows = -(-len(images) // columns)
+    tiles = [*images, *[np.full(shape, 255, dtype=np.uint8)] * (rows * columns - len(images))]
     grid = np.vstack([np.hstack(tiles[r * columns : (r + 1) * columns]) for r in range(rows)])
     ok, data = cv2.imencode('.png', grid)
     if not ok:

@@ -1,17 +1,15 @@
-"""classification_figure: statuses as of an image's stamp, the images nearest the asked
-times, and the mosaic (the bag reading is the graph's recording, exercised by
-bench/monoslam_real_table.sh)."""
+"""classification_figure: statuses as of an image's stamp and the images nearest the asked
+times (the tiling is tum_label_figure's; the bag reading is exercised on the graph's
+recording by bench/monoslam_real_table.sh)."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
 from monoslam_shadow_node.feature_overlay import UNKNOWN
 from slam_evaluation.classification_figure import (
     StatusEvent,
-    mosaic,
     nearest_stamps,
     statuses_as_of,
 )
@@ -35,11 +33,3 @@ def test_the_nearest_images_to_the_times_and_no_images_named() -> None:
     assert nearest_stamps(stamps[::-1], [0.0, 1.0, 100.0]) == [stamps[0], stamps[30], stamps[-1]]
     with pytest.raises(ValueError, match='no images'):
         nearest_stamps([], [1.0])
-
-
-def test_the_mosaic_tiles_the_panels() -> None:
-    panels = [np.full((4, 6, 3), k, np.uint8) for k in (1, 2, 3)]
-    tiled = mosaic(panels, columns=2)
-    assert tiled.shape == (8, 12, 3)
-    assert tiled[0, 0, 0] == 1 and tiled[0, 6, 0] == 2 and tiled[4, 0, 0] == 3
-    assert tiled[4, 6, 0] == 0
