@@ -108,14 +108,21 @@ def _run(tmp_path: Path, offset: int) -> tuple[dict[int, np.ndarray], Any]:
         depth = harness.publisher('camera/depth/image_raw', Image)
         for publisher in (info, features, depth):
             harness.wait_for_subscribers(publisher)
+        sent = 0
         for index in range(FRAMES):
             stamp_ns = START_NS + index * PERIOD_NS
             info.publish(_camera_info(stamp_ns))
             features.publish(_features(index, stamp_ns, offset))
-            if index == 2:  # one the node cannot read: dropped, the node goes on
-                depth.publish(_depth(index, stamp_ns + 14_000_000, encoding='rgb8'))
-            elif index >= 3 and index % 3 == 0:
-                depth.publish(_depth(index, stamp_ns + 14_000_000))
+            if index == 2 or (index >= 3 and index % 3 == 0):
+                # index 2: one the node cannot read (dropped, the node goes on); paced: the
+                # node takes each depth image before the next one is sent
+                encoding = 'rgb8' if index == 2 else '16UC1'
+                sent += 1
+                depth.publish(_depth(index, stamp_ns + 14_000_000, encoding=encoding))
+                wait_until(
+                    lambda n=sent: node.processor.counts.depth_received == n,
+                    timeout_s=10.0, what=f'depth image {sent} received',
+                )  # fmt: skip
             # paced: each frame once the one before was processed (or held for its depth)
             wait_until(
                 lambda n=index + 1: node.processor.counts.features_received == n,

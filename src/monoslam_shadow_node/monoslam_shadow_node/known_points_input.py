@@ -93,10 +93,12 @@ class DepthStart:
         self.frames: deque[Features] = deque(maxlen=queue_size)
         self.depths: deque[DepthImage] = deque(maxlen=DEPTH_IMAGES_KEPT)
 
-    def add_depth(self, image: DepthImage) -> None:
-        """Hold a depth image (in stamp order; an older one than the newest is ignored)."""
-        if not self.depths or image.stamp_ns > self.depths[-1].stamp_ns:
-            self.depths.append(image)
+    def add_depth(self, image: DepthImage) -> bool:
+        """Hold a depth image; False (not held) for one not newer than the newest held."""
+        if self.depths and image.stamp_ns <= self.depths[-1].stamp_ns:
+            return False
+        self.depths.append(image)
+        return True
 
     def next(self, flush: bool = False) -> tuple[Features, DepthImage | None] | None:
         """Return the oldest held frame with the depth image it pairs with, or with None when

@@ -407,13 +407,8 @@ class MonoSlamNode(CheckpointsMixin, Node):
         self._handle(self.processor.add_sighting(sighting))
 
     def _on_depth(self, message: Image) -> None:
-        self._last_input = time.monotonic()
-        try:
-            image = depth_from_image(message)
-        except ValueError as error:
-            self._handle(self.processor.reject('bad_depth', f'{DEPTH_TOPIC}: {error}; dropped'))
-            return
-        self._handle(self.processor.add_depth(image))
+        self._last_input = time.monotonic()  # decoded only while the filter waits for one
+        self._handle(self.processor.add_depth(partial(depth_from_image, message)))
 
     def _on_handovers(self, message: ShadowTrackArray) -> None:
         handovers = handovers_from_message(message)

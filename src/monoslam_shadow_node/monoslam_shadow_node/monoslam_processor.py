@@ -1,12 +1,10 @@
 """The monoslam node's ROS-free processor: stamp pairing, the tracking state, handover intake
 and bookkeeping around ``core.monoslam.MonoSlam``.
 
-The node hands it the camera (from camera_info), feature frames (``Features``), target
-sightings (``TargetSighting``, from the fiducials of the same image) and handovers
-(``HandoverInput``); offline tools do the same, or call ``MonoSlamProcessor.process_frame``
-with a ``MonoSlamFrame`` whose known points they associated themselves. Every call returns
-outcomes in the order they happened: ``MonoSlamStep`` (a processed frame, to publish) and
-``Notice`` (a line to log).
+The node (or an offline tool) hands it the camera, feature frames (``Features``), target
+sightings (``TargetSighting``), depth images and handovers (``HandoverInput``), or calls
+``process_frame`` with an associated ``MonoSlamFrame``. Every call returns outcomes in order:
+``MonoSlamStep`` (a processed frame, to publish) and ``Notice`` (a line to log).
 
 Rules:
 
@@ -15,31 +13,28 @@ Rules:
   within ``sync_horizon_ns`` (or when the caller flushes because the inputs stopped) is
   processed without it once the filter tracks (``alone``), and dropped before: the filter
   needs the target to start. Frames are held until the camera is set.
-- The target sighting gives the known points: its corners (TL, TR, BR, BL raw pixels) are the
-  known points 0-3 of the frame (``monoslam_frame``); a sighting without usable corners gives
-  none.
+- The target's corners (TL, TR, BR, BL raw pixels) are the known points 0-3 of the frame
+  (``monoslam_frame``). With ``known_points_source`` 'depth' or 'file' there is no pairing:
+  frames wait for a depth image to start from, or carry the file's points
+  (``known_points_input``).
 - The state: 'waiting' for the target, 'tracking'; when the core reports 'lost' the map is
   retired and the state is 'waiting' again until the target re-initializes it. Each step
   says its ``transition``: 'started', 're-initialized', 'lost' or None.
-- Handovers (``refusal``) are refused, with the reason, when no camera has come yet, when
-  they are in another frame than ``map_frame``, when their status is not STATIC, and when the
-  core refuses them (position or covariance not finite, covariance not positive
-  semi-definite, initialize is not 'handover'). Accepted ones enter the map when next
-  observed.
+- Handovers (``refusal``) are refused, with the reason: no camera yet, another frame than
+  ``map_frame``, status not STATIC, or refused by the core. Accepted ones enter the map
+  when next observed.
 - A frame the core refuses (MonoSlamInputError: stamps out of order, malformed arrays) or
   fails on (LinAlgError) is skipped with the reason; the filter is unchanged.
-- Resumed from a checkpoint (``resume``, ``monoslam_checkpoint``), the first frame after the
-  last saved one decides (``core.monoslam_snapshot.gap_verdict``): the filter predicts over
-  the gap and measures the tracker's features by their ids, or, when the gap is too long for
-  the motion model, keeps its map and re-localises from the target (the state is 'waiting'
-  until then, and the transition is 're-localised'). The step carries the verdict, and a
-  notice says which it did.
+- Resumed from a checkpoint (``resume``), the first frame after the last saved one decides
+  (``core.monoslam_snapshot.gap_verdict``): predict over the gap, or, when it is too long
+  for the motion model, keep the map and re-localise from the target ('re-localised'); the
+  step carries the verdict, and a notice says which.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -261,14 +256,22 @@ class MonoSlamProcessor:
             outcomes.append(Notice('no_camera', 'warning', text, features.stamp_ns, True))
         return outcomes + self._drain()
 
-    def add_depth(self, image: DepthImage) -> list[Outcome]:
-        """Take a depth image (``known_points_source`` 'depth'): held for the start while the
-        filter waits, counted as not needed while it tracks."""
+    def add_depth(self, image: DepthImage | Callable[[], DepthImage]) -> list[Outcome]:
+        """Take a depth image (``known_points_source`` 'depth'), or a callable that decodes it
+        only when it is needed: held for the start while the filter waits, counted as not
+        needed while it tracks; one that does not decode (ValueError) or is not newer than
+        the last is dropped, said."""
         self.counts.depth_received += 1
         if self.known_source != 'depth' or self.status == TRACKING:
             self.counts.depth_unused += 1
             return []
-        self.depth_start.add_depth(image)
+        try:
+            image = image() if callable(image) else image
+        except ValueError as error:
+            return self._drops([Drop('bad_depth', 0, f'depth image: {error}; dropped')])
+        if not self.depth_start.add_depth(image):
+            text = f'depth image at stamp {image.stamp_ns} ns: not after the last; dropped'
+            return self._drops([Drop('depth_out_of_order', image.stamp_ns, text)])
         return self._drain_direct()
 
     def _drain_direct(self, flush: bool = False) -> list[Outcome]:

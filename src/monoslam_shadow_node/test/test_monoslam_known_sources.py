@@ -113,6 +113,33 @@ def test_the_depth_start_pairs_a_frame_with_its_depth_in_either_order(depth_firs
     assert processor.counts.depth_unused == 28 and processor.counts.depth_received == 29
 
 
+def test_depth_images_are_decoded_only_while_needed_and_in_order() -> None:
+    """A depth image given as a decoder is decoded only while the filter waits for one; one
+    that does not decode, or is not after the last held one, is dropped and counted."""
+    processor = _depth_processor()
+    decoded: list[int] = []
+
+    def decoder(stamp_ns: int):  # type: ignore[no-untyped-def]
+        def decode() -> DepthImage:
+            decoded.append(stamp_ns)
+            return _depth_of_points(stamp_ns)
+
+        return decode
+
+    def broken() -> DepthImage:
+        raise ValueError("encoding 'rgb8'")
+
+    processor.add_depth(broken)
+    processor.add_depth(decoder(47 * MS))
+    processor.add_depth(decoder(40 * MS))  # older than the one held
+    assert processor.counts.dropped == {'bad_depth': 1, 'depth_out_of_order': 1}
+    processor.add_features(_features(1))  # 33 ms: pairs with the depth image at 47 ms
+    assert processor.status == TRACKING
+    processor.add_depth(decoder(80 * MS))
+    assert decoded == [47 * MS, 40 * MS]  # not the one that came while tracking
+    assert processor.counts.depth_received == 4 and processor.counts.depth_unused == 1
+
+
 def test_frames_wait_at_most_the_horizon_for_a_depth_image() -> None:
     processor = _depth_processor()
     for index in range(8):  # 33 ms apart: the horizon (200 ms) passes
