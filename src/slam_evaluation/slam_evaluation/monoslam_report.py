@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -252,6 +251,7 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
             'pipeline': dataclasses.asdict(settings.pipeline(markers)),
             'diverged_ate_m': DIVERGED_ATE_M,
             'target_noise_seed': f'{TARGET_NOISE_SEED_OFFSET} + seed',
+            'start': collected.start,
         },
         'variants': variants,
         'ratios': kept_ratios,
@@ -307,9 +307,8 @@ def summary_text(content: Mapping[str, Any]) -> str:
     source = f'seeds {config["seeds"]}, {config["scene"]["duration_s"]:g} s'
     if config.get('sequence'):
         source, known = f'sequence {config["sequence"]}', "the sequence's"
-        folder = Path(config['sequence'])
-        if (folder / 'depths.csv').exists() and not (folder / 'known_points.csv').exists():
-            known = 'the first frame with depths'
+    if config.get('start') == 'depth':
+        known = 'the first frame with depths'
     waits = (
         '; undecided features on probation' if pipeline['slam'].get('undecided_probation') else ''
     )

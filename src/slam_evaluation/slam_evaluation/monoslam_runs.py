@@ -126,7 +126,8 @@ class Settings:
 @dataclass
 class Collected:
     """Per variant: per-seed metrics, position errors (K,) and NEES (K,) per seed; the top
-    view data of the first seed; failures; filter time and frames."""
+    view data of the first seed; failures; filter time and frames; and what MonoSLAM started
+    from ('known_points', or 'depth' for a sequence with depths and no known points)."""
 
     per_seed: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
     position_error: dict[str, list[FloatArray]] = field(default_factory=dict)
@@ -135,6 +136,7 @@ class Collected:
     failures: list[dict[str, Any]] = field(default_factory=list)
     filter_s: dict[str, float] = field(default_factory=dict)
     frames: dict[str, int] = field(default_factory=dict)
+    start: str = 'known_points'
 
 
 def evaluate_seed(
@@ -179,6 +181,7 @@ def evaluate_sequence(
         slam = dataclasses.replace(config.slam, known_points_source='depth')
         config = dataclasses.replace(config, slam=slam)
         frames = in_depth_start_frame(frames)
+        collected.start = 'depth'
     if sequence.tracker is not None:
         config = sequence.tracker.declared(config)
     labels = sequence.labels or {}

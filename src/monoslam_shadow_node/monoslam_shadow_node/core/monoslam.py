@@ -470,7 +470,6 @@ class MonoSlam:
         ``max_new_per_frame``, while fewer than that fix the camera (all measured ones with
         ``undecided_probation``), counting the handovers taken."""
         config, target = self.config, self.config.target_measured
-        probation = int(config.handover_probation)
         if config.initialize != 'handover':
             return 0, min(config.max_new_per_frame, max(0, target - len(measured)))
         offered = sum(1 for i in self._handovers if i in observed)
@@ -479,7 +478,8 @@ class MonoSlam:
         take = min(offered, max(0, target - (cleared if waiting else len(measured))))
         if not config.fill_undecided:
             return take, 0
-        fixing = len(measured) + take if waiting else len(trusted) + take * (1 - probation)
+        taken_fix = 0 if config.handover_probation else take  # handovers fixing the camera
+        fixing = len(measured) + take if waiting else len(trusted) + taken_fix
         return take, min(config.max_new_per_frame, max(0, target - fixing))
 
     def _add_features(
