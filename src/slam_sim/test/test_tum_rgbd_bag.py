@@ -14,7 +14,7 @@ from rosbags.highlevel import AnyReader
 from slam_core.datasets import data_root, dataset
 from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_sim.core.tum_rgbd import read_tum_rgbd
-from slam_sim.core.tum_synthetic import SyntheticTum, write_synthetic_tum
+from slam_sim.core.tum_synthetic import SyntheticTum, write_synthetic_tum, write_tum_excerpt
 from slam_sim.tum_rgbd_bag import (
     CAMERA_INFO_TOPIC,
     CAMERA_POSE_TOPIC,
@@ -151,14 +151,7 @@ def test_the_first_two_seconds_of_bonn_crowd(tmp_path: Path) -> None:
         pytest.skip(
             f'Bonn bonn_crowd not found at {data_root() / "bonn_crowd"} (set SLAM_DATA_DIR)'
         )
-    excerpt = tmp_path / 'excerpt'
-    excerpt.mkdir()
-    for name, rows in (('rgb.txt', 60), ('depth.txt', 20), ('groundtruth.txt', 62)):
-        lines = (source / name).read_text(encoding='utf-8').splitlines()
-        kept = [line for line in lines if not line.startswith('#')][:rows]
-        if name != 'groundtruth.txt':  # the files stay where they are
-            kept = [f'{line.split()[0]} {source / line.split()[1]}' for line in kept]
-        (excerpt / name).write_text('\n'.join(kept) + '\n', encoding='utf-8')
+    excerpt = write_tum_excerpt(source, tmp_path / 'excerpt', rgb=60, depth=20, truth=62)
     output = tmp_path / 'bonn.mcap'
     argv = ['--dataset', str(excerpt), '--convention', 'bonn', '--output', str(output)]
     assert main([*argv, '--single-file']) == 0

@@ -139,3 +139,17 @@ def write_synthetic_tum(directory: Path, config: SyntheticTum | None = None) -> 
 def _seconds(stamp_ns: int) -> str:
     """Return int ns as decimal seconds with 6 decimals, as TUM writes them (exact to 1 us)."""
     return f'{stamp_ns // 1_000_000_000}.{stamp_ns % 1_000_000_000 // 1000:06d}'
+
+
+def write_tum_excerpt(source: Path, target: Path, rgb: int, depth: int, truth: int) -> Path:
+    """Write into ``target`` (created) the lists of a TUM-layout directory ``source`` cut to
+    their first ``rgb``, ``depth`` and ``truth`` rows; the images stay where they are (the
+    lists name them by absolute path). Return ``target``."""
+    target.mkdir(parents=True)
+    for name, rows in (('rgb.txt', rgb), ('depth.txt', depth), ('groundtruth.txt', truth)):
+        lines = (source / name).read_text(encoding='utf-8').splitlines()
+        kept = [line for line in lines if not line.startswith('#')][:rows]
+        if name != 'groundtruth.txt':
+            kept = [f'{line.split()[0]} {source / line.split()[1]}' for line in kept]
+        (target / name).write_text('\n'.join(kept) + '\n', encoding='utf-8')
+    return target
