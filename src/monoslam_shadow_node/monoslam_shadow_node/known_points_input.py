@@ -2,7 +2,7 @@
 
 - 'depth': a depth image registered to the colour camera (same pixel grid, REP 118) at start.
   ``DepthStart`` holds feature frames until one pairs with a depth image within the stamp
-  tolerance; that frame carries each feature's depth (``feature_depths``) and the filter
+  tolerance; that frame carries each feature's depth (``sample_depth``) and the filter
   starts from it (``MonoSlamConfig.known_points_source``, ``core.monoslam_init``). Frames that
   cannot pair any more (a newer depth image came, or they waited longer than the horizon) are
   dropped, counted by the processor. Once the filter tracks, depth is not needed.
@@ -12,11 +12,7 @@
   that matches at least ``MIN_KNOWN_POINTS`` rows; their sightings are then the known points
   (key = the row's id), whatever ids the tracker gives.
 
-A feature's depth (``feature_depths``) is the median of the valid depths (finite, > 0) in a
-(2 ``DEPTH_WINDOW_PX`` + 1)^2 window around its rounded pixel, kept only when at least half the
-window is valid and its depths spread no more than a slanted surface and the sensor's noise
-explain: spread <= z (2 w / f) tan(``MAX_SLANT_DEG``) + 6 c z^2 (c = ``noise_per_m``, sigma_z =
-c z^2). A window across a depth edge (an object's silhouette) spreads more: no depth there.
+A feature's depth is ``slam_core.depth.sample_depth``'s (the rule the importers use too).
 """
 
 from __future__ import annotations
@@ -32,12 +28,6 @@ import numpy as np
 from monoslam_shadow_node.conversions import Features, FloatArray
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS
 
-DEPTH_WINDOW_PX = 2
-"""Half-size of the window a feature's depth is read in (5 x 5 px): a tracked corner's depth
-is that of the surface around it, and a single depth pixel may be missing."""
-MAX_SLANT_DEG = 70.0
-"""The steepest surface a depth window may lie on and still count as one surface: beyond
-~70 deg from the line of sight structured-light depth is mostly missing anyway."""
 DEPTH_IMAGES_KEPT = 30
 """Depth images held for pairing while the filter waits (about 1 s at 30 Hz)."""
 
@@ -50,38 +40,6 @@ class DepthImage:
     stamp_ns: int
     frame_id: str
     depth_m: FloatArray
-
-
-def feature_depths(
-    depth_m: FloatArray, pixels: FloatArray, focal_px: float, noise_per_m: float
-) -> FloatArray:
-    """Return each raw pixel's (N, 2) depth (N,) m by the module's rule (NaN: none)."""
-    depth = np.asarray(depth_m, dtype=np.float64)
-    height, width = depth.shape
-    points = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-    out = np.full(len(points), np.nan)
-    if not len(points):
-        return out
-    offsets = np.arange(-DEPTH_WINDOW_PX, DEPTH_WINDOW_PX + 1)
-    with np.errstate(invalid='ignore'):
-        centre = np.rint(points).astype(np.int64)
-    inside = np.all(np.isfinite(points), axis=1)
-    inside &= (centre[:, 0] >= 0) & (centre[:, 0] < width)
-    inside &= (centre[:, 1] >= 0) & (centre[:, 1] < height)
-    cols = np.clip(centre[:, 0, None, None] + offsets[None, None, :], 0, width - 1)
-    rows = np.clip(centre[:, 1, None, None] + offsets[None, :, None], 0, height - 1)
-    windows = depth[rows, cols].reshape(len(points), -1)
-    windows = np.where(np.isfinite(windows) & (windows > 0.0), windows, np.nan)
-    valid = np.sum(np.isfinite(windows), axis=1)
-    enough = inside & (valid * 2 >= windows.shape[1])
-    if not np.any(enough):
-        return out
-    z = np.nanmedian(windows[enough], axis=1)
-    spread = np.nanmax(windows[enough], axis=1) - np.nanmin(windows[enough], axis=1)
-    slope = 2.0 * DEPTH_WINDOW_PX / focal_px * math.tan(math.radians(MAX_SLANT_DEG))
-    flat = spread <= z * slope + 6.0 * noise_per_m * z**2
-    out[np.flatnonzero(enough)[flat]] = z[flat]
-    return out
 
 
 class DepthStart:

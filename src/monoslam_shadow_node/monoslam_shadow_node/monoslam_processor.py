@@ -61,7 +61,6 @@ from monoslam_shadow_node.known_points_input import (
     DepthStart,
     KnownPointRows,
     assign_known_points,
-    feature_depths,
 )
 from monoslam_shadow_node.monoslam_conversions import (
     HandoverInput,
@@ -72,6 +71,7 @@ from monoslam_shadow_node.monoslam_conversions import (
 from monoslam_shadow_node.monoslam_settings import TARGET_CORNERS
 from monoslam_shadow_node.notices import Notice
 from slam_core.camera import CameraModel
+from slam_core.depth import sample_depth
 
 SYNC_NAMES = SyncNames(
     primary='features frame',
@@ -305,9 +305,7 @@ class MonoSlamProcessor:
                         f'{depth.depth_m.shape[0]} px, the camera {camera.width}x'
                         f'{camera.height}: it must be registered to the colour image')  # fmt: skip
                 return self._drops([Drop('depth_size', depth.stamp_ns, text)])
-            depths = feature_depths(
-                depth.depth_m, pixels, float(camera.K[0, 0]), self.config.depth_noise_per_m
-            )
+            depths = sample_depth(depth.depth_m, pixels)
             frame = MonoSlamFrame(features.stamp_ns, ids, pixels, depths_m=depths)
             return self.process(features, None, prepared=frame)
         notices: list[Outcome] = []

@@ -16,18 +16,17 @@ from monoslam_shadow_node.core.monoslam_types import TRACKING, WAITING, MonoSlam
 from monoslam_shadow_node.known_points_input import (
     DepthImage,
     assign_known_points,
-    feature_depths,
     read_known_points,
 )
 from monoslam_shadow_node.monoslam_conversions import depth_from_image
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
 from slam_core.camera import CameraModel
+from slam_core.depth import sample_depth
 
 CAMERA = CameraModel(
     640, 480, np.array([[500.0, 0, 320.0], [0, 500.0, 240.0], [0, 0, 1]]), np.zeros(5)
 )  # fmt: skip
 MS = 1_000_000
-NOISE = 1.425e-3
 RNG = np.random.default_rng(11)
 POINTS = np.column_stack([RNG.uniform(-1.5, 1.5, (60, 2)), RNG.uniform(2.5, 4.0, 60)])
 """A static scene in front of the camera, which starts at the origin looking along +z."""
@@ -62,18 +61,19 @@ def _steps(outcomes: list) -> list[MonoSlamStep]:
 
 
 def test_a_feature_depth_is_the_window_median_and_none_across_an_edge_or_a_hole() -> None:
+    """The processor reads depths with slam_core.depth.sample_depth, the importers' rule."""
     depth = _wall_depth()
     depth[:, 320:] = 1.0  # a step edge at u = 320
     depth[100:110, 100:110] = 0.0  # a hole (no depth)
     depth[300, 500] = 2.0  # a pixel off the surface: the window is not one surface
-    depth[50, 500] = 0.0  # one missing pixel: the median of the rest
+    depth[50, 501] = 0.0  # one missing pixel beside the feature's: the median of the rest
     pixels = np.array([[200.0, 200], [320, 200], [104, 104], [500, 300], [-5, 0], [500, 50]])
-    z = feature_depths(depth, pixels, 500.0, NOISE)
+    z = sample_depth(depth, pixels)
     assert z[0] == 3.0 and z[5] == 1.0
     assert np.isnan(z[1]) and np.isnan(z[2]) and np.isnan(z[3]) and np.isnan(z[4])
     # a slanted floor (60 deg from the line of sight) keeps its depth
     slant = 3.0 + (np.arange(480)[:, None] - 240) * 3.0 / 500.0 * np.tan(np.radians(60))
-    z = feature_depths(np.repeat(slant, 640, axis=1), np.array([[320.0, 300.0]]), 500.0, NOISE)
+    z = sample_depth(np.repeat(slant, 640, axis=1), np.array([[320.0, 300.0]]))
     np.testing.assert_allclose(z, slant[300, 0])
 
 

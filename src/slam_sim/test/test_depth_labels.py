@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from slam_core.camera import CameraModel
+from slam_core.depth import DepthSampling, depth_sigma_m, sample_depth
 from slam_sim.core.depth_labels import (
     MOVING,
     STATIC,
@@ -18,7 +19,6 @@ from slam_sim.core.depth_labels import (
     frame_sightings,
     label_tracks,
 )
-from slam_sim.core.rgbd_depth import DepthSampling, depth_sigma_m, sample_depth
 
 CAMERA = CameraModel.from_intrinsics(320, 240, (300.0, 300.0), (160.0, 120.0), (0.0,) * 5)
 RATE_HZ = 10.0

@@ -11,6 +11,7 @@ import pytest
 
 from slam_core.camera import CameraModel
 from slam_core.datasets import data_root, dataset
+from slam_core.depth import DepthSampling, sample_depth
 from slam_sim.core.depth_labels import MOVING, STATIC, UNKNOWN, PoseError
 from slam_sim.core.motion_masks import (
     DepthFrame,
@@ -21,7 +22,7 @@ from slam_sim.core.motion_masks import (
     pixel_rays,
     sequence_masks,
 )
-from slam_sim.core.rgbd_depth import DepthSampling, read_depth_m, sample_depth
+from slam_sim.core.rgbd_depth import read_depth_m
 from slam_sim.core.tum_rgbd import read_tum_rgbd
 from slam_sim.core.tum_synthetic import SyntheticTum, board_mask, write_synthetic_tum
 

@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from monoslam_shadow_node.core.monoslam_model import FloatArray
 from monoslam_shadow_node.core.projective import chi2_quantile
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
+from slam_core.depth import DEPTH_NOISE_COEFFICIENT
 
 IntArray = NDArray[np.int64]
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
@@ -35,7 +36,7 @@ class MonoSlamConfig:
 
     known_points: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     known_points_source: str = 'marker'  # 'marker', 'file': known_points; 'depth': monoslam_init
-    depth_noise_per_m: float = 1.425e-3  # sigma_z = c z^2, structured light, 1/m
+    depth_noise_per_m: float = DEPTH_NOISE_COEFFICIENT  # sigma_z = c z^2, 1/m
     depth_start_points: int = 50  # features a depth start puts in the map, at most
     pixel_sigma_px: float = 1.0
     tracking_offset_px: float = 0.0  # tracker offsets that persist (tracking_noise), px

@@ -41,13 +41,8 @@ from scipy.stats import chi2
 
 from slam_core.arrays import BoolArray, FloatArray, IntArray
 from slam_core.camera import CameraModel
-from slam_sim.core.rgbd_depth import (
-    DepthSampling,
-    camera_points,
-    depth_sigma_m,
-    sample_depth,
-    world_points,
-)
+from slam_core.depth import DepthSampling, depth_sigma_m, sample_depth
+from slam_sim.core.rgbd_depth import camera_points, world_points
 
 MOVING, STATIC, UNKNOWN = 1, 0, -1
 LABEL_NAMES = {MOVING: 'moving', STATIC: 'static', UNKNOWN: 'unknown'}

@@ -66,8 +66,9 @@ from numpy.typing import NDArray
 
 from slam_core.arrays import BoolArray, FloatArray
 from slam_core.camera import CameraModel
+from slam_core.depth import DepthSampling, depth_sigma_m
 from slam_sim.core.depth_labels import MOVING, STATIC, UNKNOWN, PoseError
-from slam_sim.core.rgbd_depth import DepthSampling, depth_sigma_m, read_depth_m
+from slam_sim.core.rgbd_depth import read_depth_m
 from slam_sim.core.tum_rgbd import TumRgbd
 
 Float32Array = NDArray[np.float32]

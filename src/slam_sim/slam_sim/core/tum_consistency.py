@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from slam_core.arrays import FloatArray
+from slam_core.depth import DepthSampling
 from slam_sim.core.depth_labels import PoseError
 from slam_sim.core.rgbd_depth import (
-    DepthSampling,
     Residuals,
     consistency_residuals,
     pose_sigma_from_residuals,
