@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.core.shadow_classifier import STATIC_TESTS, ClassifierConfig
 from monoslam_shadow_node.core.shadow_ekf import EkfConfig
 from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from slam_core.params import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Param, ParamTable, Range
@@ -62,6 +62,13 @@ CORE_PARAMETERS = (
         'classifier',
         'unchecked_directions',
         'least visible directions of motion not required to be visible (0, 1 or 2)',
+    ),
+    Param(
+        'static_test',
+        _CLASSIFIER.static_test,
+        "the static/dynamic test: both, the paper's three_ray alone, or all_view alone",
+        choices=STATIC_TESTS,
+        field='classifier.static_test',
     ),
     _core('ekf', 'pixel_sigma_px', 'feature pixel noise per coordinate, px (> 0)'),
     _core(

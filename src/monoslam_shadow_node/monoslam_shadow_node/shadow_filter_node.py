@@ -88,6 +88,8 @@ config/shadow_filter.yaml (a test keeps the two equal).
                                   speed (m/s) would have been seen with this power in all but
                                   the unchecked_directions least visible directions of motion
                                   (0 m/s: any accepted test decides).
+  static_test                     the test of the static hypothesis: both (either rejecting
+                                  is DYNAMIC), three_ray (the paper's) or all_view.
   pixel_sigma_px                  pixel noise per coordinate, px.
   tracking_offset_px, tracking_offset_time_s  the tracker's offsets that persist between
                                   images (px per coordinate; 0: white noise) and their

@@ -389,3 +389,23 @@ def test_score_test_declines_views_that_do_not_fix_a_point() -> None:
         for k in range(10)
     ]
     assert motion_score_test(along, 0.01, np.array([0.0, 0.0, 5.0])) is None
+
+
+@pytest.mark.parametrize('name', ['both', 'three_ray', 'all_view'])
+def test_each_static_test_behind_the_seam_decides_the_scene(name: str) -> None:
+    """One parameter chooses the test (``static_test``): each alone, at alpha / max_tests,
+    and both together, at half that, separate the scene's static points from the movers."""
+    classifier = ClassifierConfig(static_test=name)
+    assert classifier.test_alpha == pytest.approx(
+        classifier.alpha / ((2 if name == 'both' else 1) * classifier.max_tests)
+    )
+    status, handed, _ = _run_scene(ShadowConfig(classifier=classifier))
+    assert sum(status.get(i) == DYNAMIC for i in range(40, 60)) >= 18
+    assert not set(handed) & set(range(40, 60))
+    assert len(handed) >= 28
+    assert sum(status.get(i) == DYNAMIC for i in range(40)) <= 4
+
+
+def test_an_unknown_static_test_is_named() -> None:
+    with pytest.raises(ValueError, match="static_test='pluecker'"):
+        ClassifierConfig(static_test='pluecker')

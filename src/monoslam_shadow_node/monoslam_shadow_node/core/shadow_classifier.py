@@ -9,6 +9,11 @@ score test over all views (``static_fit``):
 - both accept where the geometry could have seen motion: STATIC. It is handed over with the
   world position and covariance triangulated from all its views as a static point.
 
+The tests sit behind one seam (``StaticTest``), chosen by ``ClassifierConfig.static_test``:
+``both`` (the default), the paper's ``three_ray`` test alone, or the ``all_view`` score test
+alone. Whatever the test, the all-view fit gives the handover's point and says whether motion
+could have been seen.
+
 Why two tests: three rays see motion that keeps them concurrent to first order (along the
 viewing ray of a distant point, or parallel to a camera moving straight) only weakly, and in
 the simulated room those are common; the all-view test sees it as soon as the camera path
@@ -40,6 +45,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,7 +58,6 @@ from monoslam_shadow_node.core.rays import (
     View,
     conditioning,
     three_ray_relations,
-    three_ray_test,
     viewing_lines,
 )
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC, Track
@@ -69,6 +74,9 @@ from monoslam_shadow_node.core.static_fit import (
 )
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
 
+STATIC_TESTS = ('both', 'three_ray', 'all_view')
+"""The choices of ``ClassifierConfig.static_test``: both tests (either rejecting is DYNAMIC),
+the paper's three-ray test alone, or the all-view score test alone."""
 UNFIT_TESTS = 3
 """Evidence of motion: a feature whose views, past a parallax milestone, fix no static point
 in front of every camera (the all-view fit lands behind a camera or is singular) at this many
@@ -103,7 +111,8 @@ class ClassifierConfig:
     long: motion along the viewing ray of a distant point, or parallel to a camera moving
     straight, shows only at second order in time); 1 (the default) leaves the least visible
     direction unchecked. After ``max_tests`` tests without a decision the feature stays
-    PENDING.
+    PENDING. ``static_test`` chooses the tests (``STATIC_TESTS``): with one alone, each test
+    is at alpha / max_tests.
     """
 
     alpha: float = 0.05
@@ -115,8 +124,13 @@ class ClassifierConfig:
     min_detectable_speed_m_s: float = 0.3
     detection_power: float = 0.99
     unchecked_directions: int = 1
+    static_test: str = 'both'
 
     def __post_init__(self) -> None:
+        if self.static_test not in STATIC_TESTS:
+            raise ValueError(
+                f'static_test={self.static_test!r}: must be one of {", ".join(STATIC_TESTS)}'
+            )
         checks = (
             ('alpha', self.alpha, 0 < self.alpha < 1, 'must be in (0, 1)'),
             ('min_parallax_rad', self.min_parallax_rad, 0 < self.min_parallax_rad < math.pi,
@@ -142,8 +156,8 @@ class ClassifierConfig:
 
     @property
     def test_alpha(self) -> float:
-        """The level of each test (alpha split over both tests of every round, Bonferroni)."""
-        return self.alpha / (2 * self.max_tests)
+        """The level of each test (alpha split over the tests of every round, Bonferroni)."""
+        return self.alpha / ((2 if self.static_test == 'both' else 1) * self.max_tests)
 
     def parallax_for_test(self, index: int) -> float:
         """Return the parallax (rad) test ``index`` (0-based) waits for."""
@@ -348,13 +362,88 @@ def score_tests(
     ]
 
 
-def needs_three_ray(due: DueTest, motion: MotionScoreTest | None) -> bool:
-    """Whether ``decide`` runs the three-ray test of ``due`` given its score test: when the
+def needs_test(due: DueTest, motion: MotionScoreTest | None) -> bool:
+    """Whether ``decide`` tests ``due``'s static hypothesis given its score test: when the
     views fixed a static point and either motion would have been visible or a parallax
     milestone is due."""
     if motion is None:
         return False
     return due.track.milestone_due or _decisive(due.settings, motion)
+
+
+Verdict = RelationTest | ValueError | None
+"""A ``StaticTest``'s outcome for one due test: the test (rejected: DYNAMIC), the ValueError
+of a geometry too degenerate to test, or None where nothing was tested (``needs_test``)."""
+
+
+class StaticTest(Protocol):
+    """The static/dynamic decision's seam: test the static hypothesis of due tests, given
+    their score tests (``score_tests``; None where the views fix no static point)."""
+
+    def verdicts(
+        self, dues: list[DueTest], motions: list[MotionScoreTest | None],
+        noise: TrackingNoise | None,
+    ) -> list[Verdict]:  # fmt: skip
+        """Return one ``Verdict`` per due test, each at its rule's ``test_alpha``."""
+        ...
+
+
+class ThreeRayTest:
+    """The paper's test: the first, a middle and the last ray (``rays.three_ray_test``)."""
+
+    def verdicts(
+        self, dues: list[DueTest], motions: list[MotionScoreTest | None],
+        noise: TrackingNoise | None,
+    ) -> list[Verdict]:  # fmt: skip
+        """``StaticTest.verdicts``: all the frame's three-ray tests at once."""
+        tested = [k for k, due in enumerate(dues) if needs_test(due, motions[k])]
+        out: list[Verdict] = [None] * len(dues)
+        for k, outcome in zip(
+            tested, three_ray_tests([dues[k] for k in tested], noise), strict=True
+        ):
+            out[k] = outcome
+        return out
+
+
+class AllViewTest:
+    """The score test of a constant velocity over all views (``static_fit``)."""
+
+    def verdicts(
+        self, dues: list[DueTest], motions: list[MotionScoreTest | None],
+        noise: TrackingNoise | None,
+    ) -> list[Verdict]:  # fmt: skip
+        """``StaticTest.verdicts``: the score tests' own results."""
+        return [
+            motion.result if motion is not None and needs_test(due, motion) else None
+            for due, motion in zip(dues, motions, strict=True)
+        ]
+
+
+class BothTests:
+    """Both tests: either rejecting rejects; the verdict carries the three-ray statistic."""
+
+    def verdicts(
+        self, dues: list[DueTest], motions: list[MotionScoreTest | None],
+        noise: TrackingNoise | None,
+    ) -> list[Verdict]:  # fmt: skip
+        """``StaticTest.verdicts``: the three-ray verdict, rejected also when the score
+        test rejects."""
+        out = ThreeRayTest().verdicts(dues, motions, noise)
+        for k, (verdict, motion) in enumerate(zip(out, motions, strict=True)):
+            if isinstance(verdict, RelationTest) and motion is not None:
+                rejected = verdict.rejected or motion.result.rejected
+                out[k] = RelationTest(verdict.statistic, verdict.dof, verdict.threshold, rejected)
+        return out
+
+
+def static_test(name: str) -> StaticTest:
+    """Return the ``StaticTest`` that ``ClassifierConfig.static_test`` names."""
+    tests: dict[str, StaticTest] = {
+        'both': BothTests(), 'three_ray': ThreeRayTest(), 'all_view': AllViewTest()
+    }  # fmt: skip
+    if name not in tests:
+        raise ValueError(f'static_test={name!r}: must be one of {", ".join(STATIC_TESTS)}')
+    return tests[name]
 
 
 def _decisive(settings: ClassifierConfig, motion: MotionScoreTest) -> bool:
@@ -394,15 +483,13 @@ def decide(
     frame: int,
     warnings: list[str],
     noise: TrackingNoise | None = None,
-    three_ray: RelationTest | ValueError | None = None,
+    verdict: Verdict = None,
 ) -> Decision | None:
-    """The deciding half of ``classify``: given the score test of a due test, run the
-    three-ray test and decide (module docstring). ``three_ray``: its ``three_ray_tests``
-    outcome, if computed already."""
+    """The deciding half of ``classify``: given the score test of a due test, run the rule's
+    ``StaticTest`` and decide (module docstring). ``verdict``: that test's outcome, if
+    computed already."""
     track, settings = due.track, due.settings
     parallax, baseline = due.parallax, due.baseline
-    first, last = track.views[0], track.views[-1]
-    level = settings.test_alpha
     if motion is None:
         track.unfit += 1
         frames = frame - track.first_frame
@@ -422,18 +509,17 @@ def decide(
         track.visibility_wait = 1.5 * track.predicted_visible
         if not track.milestone_due:
             return None
-    if three_ray is None:
-        try:
-            three_ray = three_ray_test(first, due.middle, last, level, noise=noise).result
-        except ValueError as error:
-            three_ray = error
-    if isinstance(three_ray, ValueError):
-        warnings.append(f'feature {track.id}: test skipped, degenerate geometry ({three_ray})')
+    if verdict is None:
+        (verdict,) = static_test(settings.static_test).verdicts([due], [motion], noise)
+    if isinstance(verdict, ValueError):
+        warnings.append(f'feature {track.id}: test skipped, degenerate geometry ({verdict})')
         return None
-    track.statistic = three_ray.statistic
+    if verdict is None:  # pragma: no cover - needs_test holds here
+        return None
+    track.statistic = verdict.statistic
     track.tests_run += 1
     frames = frame - track.first_frame
-    if three_ray.rejected or motion.result.rejected:
+    if verdict.rejected:
         track.status, track.decided_frame = DYNAMIC, frame
         track.clear_views()
         return Decision(track.id, DYNAMIC, frames, parallax, baseline, track.statistic)

@@ -36,17 +36,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.projective import FloatArray, RelationTest
+from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.core.rays import THREE_RAY_DOF, View, pixel_ray_directions, ray_angle
 from monoslam_shadow_node.core.shadow_classifier import (
     ClassifierConfig,
     Decision,
     decide,
     due_test,
-    needs_three_ray,
     predicted_visibility,
     score_tests,
-    three_ray_tests,
+    static_test,
 )
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
@@ -216,6 +215,7 @@ class ShadowFilter:
         self._released: set[int] = set()
         self._suspects: set[int] = set()
         self._strict = dataclasses.replace(self.config.classifier, unchecked_directions=0)
+        self._static_test = static_test(self.config.classifier.static_test)
         self._frame = -1
         self._last: FrameInput | None = None
 
@@ -351,13 +351,9 @@ class ShadowFilter:
         # the frame's score tests together (shadow_classifier.classify, one track at a time)
         decisions = []
         motions = score_tests(dues, noise)
-        tested = [k for k, due in enumerate(dues) if needs_three_ray(due, motions[k])]
-        relations: list[RelationTest | ValueError | None] = [None] * len(dues)
-        outcomes = three_ray_tests([dues[k] for k in tested], noise)
-        for k, outcome in zip(tested, outcomes, strict=True):
-            relations[k] = outcome
-        for due, motion, relation in zip(dues, motions, relations, strict=True):
-            decision = decide(due, motion, self._frame, warnings, noise, relation)
+        verdicts = self._static_test.verdicts(dues, motions, noise)
+        for due, motion, verdict in zip(dues, motions, verdicts, strict=True):
+            decision = decide(due, motion, self._frame, warnings, noise, verdict)
             if decision is not None:
                 decisions.append(decision)
         return decisions
