@@ -3,6 +3,7 @@ the Shadow filter in a scene with moving objects.
 
     monoslam_evaluate --out out/monoslam_eval [--seeds 0-9] [--duration-s 20]
                       [--variants a,b,c] [--unchecked-directions 1] [--known-board 3x3]
+                      [--static-test both|three_ray|all_view]
                       [--shadow-poses slam|truth] [--oracle-handovers] [--sequence DIR]
 
 ``--sequence DIR`` runs an on-disk sequence (``sequence_files``: intrinsics, camera poses,
@@ -66,6 +67,7 @@ import sys
 import time
 from pathlib import Path
 
+from monoslam_shadow_node.core.shadow_classifier import STATIC_TESTS, ClassifierConfig
 from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.files import write_json
@@ -139,6 +141,13 @@ def _arguments(argv: list[str] | None) -> Settings:
         '(0: strict, no moving feature handed over in the issue-6 runs; default 1)',
     )
     parser.add_argument(
+        '--static-test',
+        choices=STATIC_TESTS,
+        default=ClassifierConfig().static_test,
+        help="the Shadow filter's STATIC tests: both, three_ray (the three-ray test alone) "
+        'or all_view (the all-view score test alone); default %(default)s',
+    )
+    parser.add_argument(
         '--known-board',
         default=None,
         metavar='RxC',
@@ -195,6 +204,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         variants,
         args.out,
         args.unchecked_directions,
+        args.static_test,
         board,
         args.shadow_poses,
         args.oracle_handovers,

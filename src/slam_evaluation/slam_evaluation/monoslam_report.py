@@ -301,7 +301,8 @@ def summary_text(content: Mapping[str, Any]) -> str:
     and PASS/FAIL per acceptance point."""
     config = content['config']
     pipeline = config['pipeline']
-    rule = pipeline['shadow']['classifier']['unchecked_directions']
+    classifier = pipeline['shadow']['classifier']
+    rule = classifier['unchecked_directions']
     board = config.get('known_board')
     known = f'board {board[0]}x{board[1]}' if board else 'one target'
     source = f'seeds {config["seeds"]}, {config["scene"]["duration_s"]:g} s'
@@ -314,7 +315,7 @@ def summary_text(content: Mapping[str, Any]) -> str:
     )
     lines = [
         f'MonoSLAM Fig. 5, {source}; known points: {known}; STATIC rule: {rule} unchecked '
-        f'direction(s){waits}',
+        f'direction(s), static test {classifier["static_test"]}{waits}',
         f'  {"variant":36s}' + ''.join(f'{header:>9s}' for header, _, _ in SUMMARY_COLUMNS),
     ]
     for variant, data in content['variants'].items():

@@ -73,6 +73,7 @@ class Settings:
     variants: tuple[str, ...]
     out: Path
     unchecked_directions: int = 1
+    static_test: str = ClassifierConfig().static_test
     known_board: tuple[int, int] | None = None
     shadow_poses: str = 'slam'
     oracle_handovers: bool = False
@@ -110,7 +111,9 @@ class Settings:
         settings."""
         known = target_known_points(markers) if known_points is None else known_points
         slam = MonoSlamConfig(known_points=known, undecided_probation=self.undecided_probation)
-        classifier = ClassifierConfig(unchecked_directions=self.unchecked_directions)
+        classifier = ClassifierConfig(
+            unchecked_directions=self.unchecked_directions, static_test=self.static_test
+        )
         shadow = ShadowConfig(classifier=classifier)
         config = PipelineConfig(
             slam,

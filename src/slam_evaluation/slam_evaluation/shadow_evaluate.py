@@ -1,6 +1,7 @@
 """shadow_evaluate: the Shadow filter on simulated runs, scored like paper 001's Figs. 2-4.
 
     shadow_evaluate [--seeds 0-9] [--out out/shadow_eval] [--alpha 0.05] [--quick]
+                    [--unchecked-directions 1] [--static-test both|three_ray|all_view]
     shadow_evaluate --sequence DIR [--out out/shadow_eval] [--alpha 0.05]
 
 ``--sequence DIR`` runs the filter over an on-disk sequence instead (``sequence_files``; its
@@ -73,7 +74,7 @@ import sys
 import time
 from pathlib import Path
 
-from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.core.shadow_classifier import STATIC_TESTS, ClassifierConfig
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter
@@ -155,6 +156,13 @@ def _arguments(argv: list[str] | None) -> Settings:
         help='directions of motion the STATIC rule may leave unchecked: 0 (strict: no moving '
         'feature handed over, slow), 1 (default) or 2',
     )
+    parser.add_argument(
+        '--static-test',
+        choices=STATIC_TESTS,
+        default=ClassifierConfig().static_test,
+        help='the STATIC tests: both, three_ray (the three-ray test alone) or all_view (the '
+        'all-view score test alone); default %(default)s',
+    )
     add_tracking_noise_arguments(parser)
     parser.add_argument(
         '--sequence',
@@ -190,6 +198,7 @@ def _arguments(argv: list[str] | None) -> Settings:
             args.consistency_objects,
             args.out,
             args.unchecked_directions,
+            args.static_test,
             args.sequence,
             args.tracking_offset_px,
             args.tracking_jump_probability,

@@ -47,9 +47,9 @@ from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 class Settings:
     """What to evaluate: seeds, the main alpha and the alpha sweep (it includes the main one),
     run length (s), focal length (px), the decision window (frames), model objects per
-    consistency run, the output directory, a sequence directory to run instead
-    (``shadow_sequence``), and the simulated tracking noise that is not white (slowly varying
-    offsets with jumps, ``dynamic_scene``)."""
+    consistency run, the output directory, the STATIC rule (unchecked directions, tests), a
+    sequence directory to run instead (``shadow_sequence``), and the simulated tracking noise
+    that is not white (slowly varying offsets with jumps, ``dynamic_scene``)."""
 
     seeds: tuple[int, ...]
     consistency_seeds: tuple[int, ...]
@@ -61,6 +61,7 @@ class Settings:
     consistency_objects: int
     out: Path
     unchecked_directions: int = ClassifierConfig().unchecked_directions
+    static_test: str = ClassifierConfig().static_test
     sequence: Path | None = None
     tracking_offset_px: float = 0.0
     tracking_jump_probability: float = 0.0
@@ -86,10 +87,14 @@ class Settings:
         )
 
     def shadow(self, alpha: float) -> ShadowConfig:
-        """Return the filter's configuration: the defaults with ``alpha`` and the rule's
-        ``unchecked_directions``, and the tracker's noise as the tracker declares it (its
-        persistent offsets and their correlation time, ``tracking_noise``)."""
-        classifier = ClassifierConfig(alpha=alpha, unchecked_directions=self.unchecked_directions)
+        """Return the filter's configuration: the defaults with ``alpha``, the rule's
+        ``unchecked_directions`` and ``static_test``, and the tracker's noise as the tracker
+        declares it (its persistent offsets and their correlation time, ``tracking_noise``)."""
+        classifier = ClassifierConfig(
+            alpha=alpha,
+            unchecked_directions=self.unchecked_directions,
+            static_test=self.static_test,
+        )
         ekf = Tracker.of_scene(self.scene()).ekf(EkfConfig())
         return ShadowConfig(ekf=ekf, classifier=classifier)
 

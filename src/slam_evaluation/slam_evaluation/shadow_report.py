@@ -49,7 +49,8 @@ def summary_text(content: Mapping[str, Any]) -> str:
         f'{scene["rate_hz"]:g} Hz, focal {scene["focal_px"]:g} px, '
         f'{scene["pixel_noise_px"]:g} px noise{_offsets(scene)}, true poses, alpha '
         f'{config["alpha"]:g}, '
-        f'unchecked directions {config["shadow"]["classifier"]["unchecked_directions"]}',
+        f'unchecked directions {config["shadow"]["classifier"]["unchecked_directions"]}, '
+        f'static test {config["shadow"]["classifier"]["static_test"]}',
         f'classification, {totals["tracks"]} tracks (truth x final status):',
         f'  {"":8s}' + ''.join(f'{name:>9s}' for name in STATUS_ORDER),
     ]
