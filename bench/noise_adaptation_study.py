@@ -1,0 +1,124 @@
+"""Study: MonoSLAM adopting the online tracking-noise estimate (``noise_estimate``) mid-run.
+
+``monoslam_evaluate`` runs as usual (every option passes through), with SLAM's frame step
+wrapped: each frame the residuals z - h(x+) of the features SLAM measured feed a
+``TrackingNoiseEstimator`` (the ``measured`` column of ``bench/noise_estimate_study.py``);
+once a second, when the estimate is confident, SLAM's configuration takes it:
+
+* ``--adapt full``: white sigma max(declared, estimated); the offset, when its variance is at
+  least ``OFFSET_RELEVANCE`` of the white's, with its correlation time (features added from
+  then on get offset states, ``MonoSlamConfig.offset_states``);
+* ``--adapt marginal``: white noise only, at max(declared, the estimate's marginal sigma).
+
+It is a study, not a feature: the node does not adapt (a checkpoint of a filter whose
+features have mixed offset states does not load, ``monoslam_snapshot``), and the figures it
+reaches are in bench/README.md. Run (after ``bash scripts/bootstrap.sh``, about 4 min per
+setting on 2 cores)::
+
+    source scripts/env.sh
+    python bench/noise_adaptation_study.py --adapt full --seeds 0-19 --variants a,c \\
+        --tracking-offset-px 2 --tracking-jump-probability 0.02 --undeclared --out DIR
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import weakref
+
+import numpy as np
+
+from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
+from monoslam_shadow_node.core.noise_estimate import OFFSET_RELEVANCE, TrackingNoiseEstimator
+from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
+from slam_core.arrays import IntArray
+from slam_evaluation import monoslam_evaluate
+
+ADAPT_PERIOD_NS = 10**9
+MODES = ('full', 'marginal')
+
+
+def _rows(ids: IntArray, wanted: IntArray) -> IntArray:
+    """Return the rows of ``ids`` (N,) holding ``wanted`` (M,), each of which is in ids."""
+    order = np.argsort(ids)
+    return np.asarray(order[np.searchsorted(ids, wanted, sorter=order)], dtype=np.int64)
+
+
+@dataclasses.dataclass
+class _Adaptation:
+    """One processor's estimator, its declared configuration and the next adoption time."""
+
+    declared: MonoSlamConfig
+    estimator: TrackingNoiseEstimator = dataclasses.field(default_factory=TrackingNoiseEstimator)
+    next_ns: int = -1
+    adopted: int = 0
+
+
+def adapted(
+    declared: MonoSlamConfig, mode: str, estimator: TrackingNoiseEstimator
+) -> MonoSlamConfig:
+    """Return the configuration SLAM takes from a confident estimate (module docstring), or
+    the declared one."""
+    estimate = estimator.estimate()
+    if not estimate.confident:
+        return declared
+    if mode == 'marginal':
+        marginal = math.hypot(estimate.white_px, estimate.offset_px)
+        return dataclasses.replace(declared, pixel_sigma_px=max(declared.pixel_sigma_px, marginal))
+    relevant = estimate.offset_px**2 >= OFFSET_RELEVANCE * estimate.white_px**2
+    return dataclasses.replace(
+        declared,
+        pixel_sigma_px=max(declared.pixel_sigma_px, estimate.white_px),
+        tracking_offset_px=estimate.offset_px if relevant else declared.tracking_offset_px,
+        tracking_offset_time_s=(
+            estimate.offset_time_s if relevant else declared.tracking_offset_time_s
+        ),
+    )
+
+
+def wrap(mode: str) -> None:
+    """Wrap ``MonoSlamProcessor.process_frame`` so that every processor adapts (``mode``)."""
+    step_frame = MonoSlamProcessor.process_frame
+    states: weakref.WeakKeyDictionary[MonoSlamProcessor, _Adaptation] = weakref.WeakKeyDictionary()
+
+    def process_frame(
+        processor: MonoSlamProcessor, frame: MonoSlamFrame, frame_id: str = ''
+    ) -> MonoSlamStep:
+        step = step_frame(processor, frame, frame_id)
+        slam = processor.slam
+        if slam is None:
+            return step
+        state = states.setdefault(processor, _Adaptation(slam.config))
+        result = step.result
+        if result.status == TRACKING and result.measured_ids:
+            ids, predicted, _, _ = slam.predictions(frame.stamp_ns, sorted(result.measured_ids))
+            residuals = frame.pixels[_rows(frame.ids, ids)] - predicted
+            state.estimator.add(frame.stamp_ns, ids, residuals)
+        if state.next_ns < 0:
+            state.next_ns = frame.stamp_ns + ADAPT_PERIOD_NS
+        if frame.stamp_ns >= state.next_ns:
+            state.next_ns += ADAPT_PERIOD_NS
+            slam.config = adapted(state.declared, mode, state.estimator)
+        return step
+
+    setattr(MonoSlamProcessor, 'process_frame', process_frame)  # noqa: B010 (a study's wrapper)
+
+
+def main() -> int:
+    """Parse ``--adapt``, wrap, and run ``monoslam_evaluate`` with the other arguments."""
+    args = sys.argv[1:]
+    mode = 'full'
+    if '--adapt' in args:
+        at = args.index('--adapt')
+        if at + 1 >= len(args) or args[at + 1] not in MODES:
+            print(f'noise_adaptation_study: --adapt needs one of {", ".join(MODES)}')
+            return 2
+        mode = args[at + 1]
+        del args[at : at + 2]
+    wrap(mode)
+    return monoslam_evaluate.main(args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
