@@ -19,7 +19,7 @@ from synthetic_datasets import (
 )
 
 from em_sam_node.offline import replay_bag
-from slam_core.datasets import data_root, dataset
+from slam_core.testing.datasets import dataset_or_skip
 from slam_evaluation import em_sam_evaluate as evaluate
 from slam_evaluation.em_sam_metrics import robust_map_error
 from slam_evaluation.em_sam_runs import parse_window, solve_all_static, window_label
@@ -172,9 +172,7 @@ REAL_DATASET_1 = 'mrclam/MRCLAM_Dataset1'
 
 
 def test_real_dataset_1_short_window(tmp_path: Path) -> None:
-    directory = dataset(REAL_DATASET_1)
-    if directory is None:
-        pytest.skip(f'MRCLAM data set 1 not found at {data_root() / REAL_DATASET_1}')
+    directory = dataset_or_skip(REAL_DATASET_1, 'MRCLAM data set 1')
     argv = ['--mrclam', str(directory), '--robots', '1', '--window-s', '120', '--no-figures']
     result = _run(argv, tmp_path / 'out')
     robust = _scores(result, '120 s')['em_sam_robust']

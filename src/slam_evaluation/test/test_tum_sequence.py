@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from slam_core.datasets import data_root, dataset
+from slam_core.testing.datasets import dataset_or_skip
 from slam_evaluation.sequence_files import measurement_frames, read_sequence
 from slam_evaluation.tum_sequence import main
 from slam_sim.core.tum_rgbd import read_tum_rgbd
@@ -157,11 +157,7 @@ def test_an_existing_output_is_refused(
 
 
 def test_the_static_opening_of_bonn_crowd(tmp_path: Path) -> None:
-    source = dataset('bonn_crowd')
-    if source is None:
-        pytest.skip(
-            f'Bonn bonn_crowd not found at {data_root() / "bonn_crowd"} (set SLAM_DATA_DIR)'
-        )
+    source = dataset_or_skip('bonn_crowd', 'Bonn bonn_crowd')
     excerpt = write_tum_excerpt(source, tmp_path / 'excerpt', rgb=60, depth=20, truth=62)
     output = tmp_path / 'sequence'
     argv = ['--dataset', str(excerpt), '--convention', 'bonn', '--output', str(output)]

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from slam_core.camera import CameraModel
-from slam_core.datasets import data_root, dataset
 from slam_core.depth import DepthSampling, sample_depth
+from slam_core.testing.datasets import dataset_or_skip
 from slam_sim.core.depth_labels import MOVING, STATIC, UNKNOWN, PoseError
 from slam_sim.core.motion_masks import (
     DepthFrame,
@@ -132,11 +132,7 @@ def test_the_synthetic_board_is_moving_and_the_wall_static(synthetic: Path) -> N
 
 
 def test_bonn_crowd_static_opening_and_a_walking_person() -> None:
-    source = dataset('bonn_crowd')
-    if source is None:
-        pytest.skip(
-            f'Bonn bonn_crowd not found at {data_root() / "bonn_crowd"} (set SLAM_DATA_DIR)'
-        )
+    source = dataset_or_skip('bonn_crowd', 'Bonn bonn_crowd')
     sequence = read_tum_rgbd(source, convention='bonn')
     rule = MaskRule(pose_error=PoseError((0.1, 0.2, 0.5), (0.004, 0.013, 0.023)))
     rays = pixel_rays(sequence.camera)

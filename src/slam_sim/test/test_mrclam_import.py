@@ -10,9 +10,9 @@ import pytest
 from rosbags.interfaces import QosDurability
 
 from em_sam_node.offline import read_ground_truth, replay_bag
-from slam_core.datasets import data_root, dataset
 from slam_core.errors import DatasetError
 from slam_core.geometry.se2 import between, wrap_angle
+from slam_core.testing.datasets import dataset_or_skip
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
 from slam_sim.core.mrclam import (
@@ -42,10 +42,7 @@ SECOND_NS = 1_000_000_000
 
 @pytest.fixture(scope='module')
 def dataset_dir() -> Path:
-    path = dataset(DATA_DIR)
-    if path is None:
-        pytest.skip(f'MRCLAM data set 6 not found at {data_root() / DATA_DIR} (set SLAM_DATA_DIR)')
-    return path
+    return dataset_or_skip(DATA_DIR, 'MRCLAM data set 6')
 
 
 @pytest.fixture(scope='module')

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from slam_core.datasets import data_root, dataset
 from slam_core.errors import DatasetError
+from slam_core.testing.datasets import dataset_or_skip
 from slam_sim.core.tum_consistency import static_consistency
 from slam_sim.core.tum_rgbd import (
     BONN_T_M,
@@ -177,10 +177,7 @@ def test_bonn_t_m_is_made_a_rotation() -> None:
 
 @pytest.fixture(scope='module')
 def bonn_dir() -> Path:
-    path = dataset(DATA_DIR)
-    if path is None:
-        pytest.skip(f'Bonn bonn_crowd not found at {data_root() / DATA_DIR} (set SLAM_DATA_DIR)')
-    return path
+    return dataset_or_skip(DATA_DIR, 'Bonn bonn_crowd')
 
 
 def test_bonn_conversion_is_the_readme_formula_on_one_row(bonn_dir: Path) -> None:

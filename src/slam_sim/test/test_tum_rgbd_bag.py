@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from slam_core.datasets import data_root, dataset
 from slam_core.geometry.quaternion import quaternion_from_rotation
+from slam_core.testing.datasets import dataset_or_skip
 from slam_sim.core.tum_rgbd import read_tum_rgbd
 from slam_sim.core.tum_synthetic import SyntheticTum, write_synthetic_tum, write_tum_excerpt
 from slam_sim.tum_rgbd_bag import (
@@ -146,11 +146,7 @@ def test_the_cli_never_overwrites_and_names_bad_input(
 
 
 def test_the_first_two_seconds_of_bonn_crowd(tmp_path: Path) -> None:
-    source = dataset('bonn_crowd')
-    if source is None:
-        pytest.skip(
-            f'Bonn bonn_crowd not found at {data_root() / "bonn_crowd"} (set SLAM_DATA_DIR)'
-        )
+    source = dataset_or_skip('bonn_crowd', 'Bonn bonn_crowd')
     excerpt = write_tum_excerpt(source, tmp_path / 'excerpt', rgb=60, depth=20, truth=62)
     output = tmp_path / 'bonn.mcap'
     argv = ['--dataset', str(excerpt), '--convention', 'bonn', '--output', str(output)]

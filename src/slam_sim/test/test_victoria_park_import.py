@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from em_sam_node.offline import replay_bag
-from slam_core.datasets import data_root, dataset
 from slam_core.errors import BagError
 from slam_core.geometry.se2 import apply_increment, compose, wrap_angle
+from slam_core.testing.datasets import dataset_or_skip
 from slam_core.testing.jacobians import numerical_jacobian
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry
@@ -48,10 +48,7 @@ GOOD_LINES = [
 
 @pytest.fixture(scope='module')
 def real_file() -> Path:
-    path = dataset(DATA_FILE)
-    if path is None:
-        pytest.skip(f'Victoria Park not found at {data_root() / DATA_FILE} (set SLAM_DATA_DIR)')
-    return path
+    return dataset_or_skip(DATA_FILE, 'Victoria Park')
 
 
 @pytest.fixture(scope='module')
