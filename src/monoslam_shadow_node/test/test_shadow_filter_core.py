@@ -406,6 +406,29 @@ def test_each_static_test_behind_the_seam_decides_the_scene(name: str) -> None:
     assert sum(status.get(i) == DYNAMIC for i in range(40)) <= 4
 
 
+def test_the_static_test_parameter_chooses_the_statistic_that_decides() -> None:
+    """The decisions carry the deciding test's statistic: the three-ray T with ``three_ray``
+    and ``both``, the score test's T with ``all_view``."""
+    statistics = {}
+    for name in ('both', 'three_ray', 'all_view'):
+        rng = np.random.default_rng(11)
+        points = np.column_stack(
+            [rng.uniform(3, 7, 60), rng.uniform(-1.0, 1.5, 60), rng.uniform(0.5, 2.5, 60)]
+        )
+        velocities = np.zeros((60, 3))
+        velocities[40:, 2] = rng.choice([-0.5, 0.5], 20)
+        shadow = ShadowFilter(CAMERA, ShadowConfig(classifier=ClassifierConfig(static_test=name)))
+        statistics[name] = {
+            decision.id: decision.statistic
+            for frame in _scene_frames(velocities, points, rng)
+            for decision in shadow.process(frame).decisions
+            if decision.status == STATIC
+        }
+    shared = set(statistics['three_ray']) & set(statistics['all_view'])
+    assert len(shared) >= 20
+    assert all(statistics['three_ray'][i] != statistics['all_view'][i] for i in shared)
+
+
 def test_an_unknown_static_test_is_named() -> None:
     with pytest.raises(ValueError, match="static_test='pluecker'"):
         ClassifierConfig(static_test='pluecker')

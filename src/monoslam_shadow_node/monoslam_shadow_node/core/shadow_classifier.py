@@ -436,14 +436,15 @@ class BothTests:
         return out
 
 
+_TESTS: dict[str, StaticTest] = {
+    'both': BothTests(), 'three_ray': ThreeRayTest(), 'all_view': AllViewTest()
+}  # fmt: skip
+
+
 def static_test(name: str) -> StaticTest:
-    """Return the ``StaticTest`` that ``ClassifierConfig.static_test`` names."""
-    tests: dict[str, StaticTest] = {
-        'both': BothTests(), 'three_ray': ThreeRayTest(), 'all_view': AllViewTest()
-    }  # fmt: skip
-    if name not in tests:
-        raise ValueError(f'static_test={name!r}: must be one of {", ".join(STATIC_TESTS)}')
-    return tests[name]
+    """Return the ``StaticTest`` that ``ClassifierConfig.static_test`` names (one of
+    ``STATIC_TESTS``, which the config validates)."""
+    return _TESTS[name]
 
 
 def _decisive(settings: ClassifierConfig, motion: MotionScoreTest) -> bool:
@@ -514,8 +515,7 @@ def decide(
     if isinstance(verdict, ValueError):
         warnings.append(f'feature {track.id}: test skipped, degenerate geometry ({verdict})')
         return None
-    if verdict is None:  # pragma: no cover - needs_test holds here
-        return None
+    assert verdict is not None  # needs_test holds here: decisive, or a milestone is due
     track.statistic = verdict.statistic
     track.tests_run += 1
     frames = frame - track.first_frame
