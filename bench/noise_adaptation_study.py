@@ -22,6 +22,7 @@ setting on 2 cores)::
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 import sys
@@ -107,17 +108,13 @@ def wrap(mode: str) -> None:
 
 def main() -> int:
     """Parse ``--adapt``, wrap, and run ``monoslam_evaluate`` with the other arguments."""
-    args = sys.argv[1:]
-    mode = 'full'
-    if '--adapt' in args:
-        at = args.index('--adapt')
-        if at + 1 >= len(args) or args[at + 1] not in MODES:
-            print(f'noise_adaptation_study: --adapt needs one of {", ".join(MODES)}')
-            return 2
-        mode = args[at + 1]
-        del args[at : at + 2]
-    wrap(mode)
-    return monoslam_evaluate.main(args)
+    parser = argparse.ArgumentParser(
+        prog='noise_adaptation_study', description='monoslam_evaluate, SLAM adapting its noise'
+    )
+    parser.add_argument('--adapt', choices=MODES, default='full', help='default %(default)s')
+    args, rest = parser.parse_known_args()
+    wrap(args.adapt)
+    return monoslam_evaluate.main(rest)
 
 
 if __name__ == '__main__':
