@@ -91,6 +91,12 @@ CORE_PARAMETERS = (
         'its standard deviation, 1/m (> 0)',
         'initial_inverse_depth_sigma_per_m',
     ),
+    _core(
+        'second_order',
+        "an inverse-depth feature's innovation covariance takes the product of its inverse "
+        "depth's and its baseline's uncertainties, which the EKF's linearization drops (a "
+        'study, docs/design/monoslam.md)',
+    ),
     _core('gate_probability', 'chi-square gate of a measurement (2 dof), in (0, 1)'),
     _core(
         'linearity_threshold',

@@ -4,7 +4,8 @@ the Shadow filter in a scene with moving objects.
     monoslam_evaluate --out out/monoslam_eval [--seeds 0-9] [--duration-s 20]
                       [--variants a,b,c] [--unchecked-directions 1] [--known-board 3x3]
                       [--static-test both|three_ray|all_view]
-                      [--shadow-poses slam|truth] [--oracle-handovers] [--sequence DIR]
+                      [--shadow-poses slam|truth] [--oracle-handovers] [--second-order]
+                      [--sequence DIR]
 
 ``--sequence DIR`` runs an on-disk sequence (``sequence_files``: intrinsics, camera poses,
 feature tracks, optional labels and known points) instead of simulated seeds: one run, scored
@@ -172,6 +173,12 @@ def _arguments(argv: list[str] | None) -> Settings:
         help="(c): features the Shadow filter has not decided on fill SLAM's map on probation "
         '(consider updates: they never move the camera) until it clears them',
     )
+    parser.add_argument(
+        '--second-order',
+        action='store_true',
+        help="MonoSLAM adds an inverse-depth feature's second-order term (the product of its "
+        "inverse depth's and its baseline's uncertainties) to its innovation covariance",
+    )
     add_tracking_noise_arguments(parser)
     parser.add_argument(
         '--undeclared',
@@ -213,6 +220,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         args.tracking_jump_probability,
         args.undecided_probation,
         not args.undeclared,
+        args.second_order,
     )
     try:
         settings.scene()

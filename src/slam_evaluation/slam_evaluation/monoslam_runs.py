@@ -82,6 +82,7 @@ class Settings:
     tracking_jump_probability: float = 0.0
     undecided_probation: bool = False
     declare_noise: bool = True
+    second_order: bool = False
 
     def scene(self) -> DynamicSceneConfig:
         """Return the Fig. 5 scene: 200 static points, 8 moving objects x 8 points."""
@@ -110,7 +111,11 @@ class Settings:
         unless given), the STATIC rule, the tracker's declared noise and the diagnostic
         settings."""
         known = target_known_points(markers) if known_points is None else known_points
-        slam = MonoSlamConfig(known_points=known, undecided_probation=self.undecided_probation)
+        slam = MonoSlamConfig(
+            known_points=known,
+            undecided_probation=self.undecided_probation,
+            second_order=self.second_order,
+        )
         classifier = ClassifierConfig(
             unchecked_directions=self.unchecked_directions, static_test=self.static_test
         )

@@ -1,5 +1,6 @@
 """monoslam_evaluate's options for issue 43: --undeclared (the simulated tracking noise is
-not told to the filters) and --undecided-probation (fills wait on probation)."""
+not told to the filters), --undecided-probation (fills wait on probation) and --second-order
+(MonoSLAM's second-order inverse-depth term)."""
 
 from __future__ import annotations
 
@@ -19,3 +20,9 @@ def test_undeclared_noise_leaves_the_filters_white_and_probation_reaches_slam() 
     assert undeclared.scene().tracking_offset_px == 2.0  # the simulation still has them
     assert untold.slam.undecided_probation and not told.slam.undecided_probation
     assert declared.out == Path('unused')
+
+
+def test_second_order_reaches_slam() -> None:
+    plain, second = _arguments([]), _arguments(['--second-order'])
+    assert not plain.pipeline(plain.markers()).slam.second_order
+    assert second.pipeline(second.markers()).slam.second_order

@@ -2,7 +2,9 @@
 measurements with their innovation covariances (the active search regions), and the gated
 update of all accepted measurements at once in Joseph form.
 
-A measurement i is predicted with S_i = H_i P H_i^T + R, R = pixel_sigma_px^2 I, and rejected
+A measurement i is predicted with S_i = H_i P H_i^T + R, R = pixel_sigma_px^2 I (with
+``MonoSlamConfig.second_order``, plus an inverse-depth feature's second-order term,
+``second_order_covariance``), and rejected
 when its Mahalanobis distance exceeds the chi-square gate (``MonoSlamConfig.gate``). The
 update is P = (I - K H) P (I - K H)^T + K R K^T, then the quaternion is renormalized (with
 its Jacobian).
@@ -23,13 +25,15 @@ do: they stay consider-only until a handover clears them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
+    INVERSE_DEPTH_SIZE,
     Q_SLICE,
+    R_SLICE,
     FloatArray,
     predict_camera,
     project_features,
@@ -157,11 +161,13 @@ class Linearized:
     h_c: FloatArray
     h_f: FloatArray
     block: slice | None
+    second_order: FloatArray = field(default_factory=lambda: np.zeros((2, 2)))
 
     def innovation_covariance(self, p: FloatArray, sigma2: float) -> FloatArray:
-        """Return S = H P H^T + sigma2 I (2, 2) px^2 for the state covariance ``p``."""
+        """Return S = H P H^T + sigma2 I + the second-order term (2, 2) px^2 for the state
+        covariance ``p`` (``second_order_covariance``)."""
         c = slice(0, CAMERA_SIZE)
-        s = self.h_c @ p[c, c] @ self.h_c.T + sigma2 * np.eye(2)
+        s = self.h_c @ p[c, c] @ self.h_c.T + sigma2 * np.eye(2) + self.second_order
         if self.block is not None:
             cross = self.h_c @ p[c, self.block] @ self.h_f.T
             s += cross + cross.T + self.h_f @ p[self.block, self.block] @ self.h_f.T
@@ -206,10 +212,14 @@ def matches(
 
 
 def linearize_all(
-    state: FilterState, camera_model: CameraModel, all_matches: list[Match]
+    state: FilterState,
+    camera_model: CameraModel,
+    all_matches: list[Match],
+    second_order: bool = False,
 ) -> list[Linearized | None]:
     """Return every match's prediction at the current state (one batched projection), None
-    for those behind the camera."""
+    for those behind the camera; with ``second_order`` (``MonoSlamConfig.second_order``)
+    each with its second-order covariance term (``second_order_covariance``)."""
     if not all_matches:
         return []
     camera = state.x[:CAMERA_SIZE]
@@ -237,8 +247,35 @@ def linearize_all(
             offset = feature.offset
             pixel = pixels[k] if offset is None else pixels[k] + state.x[offset]
             h_f = feature_jacobian(feature, d_feature[k])
-            out.append(Linearized(pixel, d_camera[k], h_f, blocks[k]))
+            extra = np.zeros((2, 2))
+            if second_order:
+                extra = second_order_covariance(state, feature, d_feature[k])
+            out.append(Linearized(pixel, d_camera[k], h_f, blocks[k], extra))
     return out
+
+
+def second_order_covariance(
+    state: FilterState, feature: FeatureBlock, d_point: FloatArray
+) -> FloatArray:
+    """Return the second-order term of an inverse-depth feature's measurement covariance
+    (2, 2) px^2 (zero for a Euclidean one). Its camera-frame ray is R^T (rho d + m) with
+    d = anchor - centre: rho d is the product of two uncertain states, whose variance
+    rho^2 Sigma_d + d d^T sigma_rho^2 the linearization keeps, while the product of their
+    deviations, sigma_rho^2 Sigma_d + c c^T (c = Cov(d, rho); Gaussian, Isserlis), it drops:
+    the scale a monocular camera does not observe (docs/design/monoslam.md). It is
+    G (sigma_rho^2 Sigma_d + c c^T) G^T with G = d(pixel)/d(anchor) / rho."""
+    if feature.size != INVERSE_DEPTH_SIZE or state.x[feature.start + 5] <= 1e-9:
+        return np.zeros((2, 2))
+    start = feature.start
+    rho = float(state.x[start + 5])
+    anchor = np.arange(start, start + 3)
+    centre = np.arange(R_SLICE.start, R_SLICE.stop)
+    both = np.concatenate([anchor, centre, [start + 5]])
+    p = state.p[np.ix_(both, both)]
+    sigma_d = p[:3, :3] - p[:3, 3:6] - p[3:6, :3] + p[3:6, 3:6]
+    c = p[:3, 6] - p[3:6, 6]
+    g = d_point[:, :3] / rho
+    return np.asarray(g @ (p[6, 6] * sigma_d + np.outer(c, c)) @ g.T, dtype=np.float64)
 
 
 def gate_all(
@@ -272,6 +309,7 @@ def gate_all(
     innovation = np.array(
         [all_matches[k].pixel - lin.predicted for k, lin in zip(rows, used, strict=True)]
     )
+    s += np.array([lin.second_order for lin in used])
     whitened = np.linalg.solve(s, innovation[:, :, None])[:, :, 0]
     for k, value in zip(rows, np.einsum('ni,ni->n', innovation, whitened), strict=True):
         passed[k] = bool(value <= config.gate)
@@ -309,7 +347,7 @@ def probation_update(
     the gate corrects its own block only (``consider_update``); return the indices (into
     ``on_probation``) used. One feature's consider update changes only its own rows and
     columns of P, so the others' gates, computed together first, are unchanged by it."""
-    linearized = linearize_all(state, camera_model, on_probation)
+    linearized = linearize_all(state, camera_model, on_probation, config.second_order)
     gates = gate_all(on_probation, linearized, state.p, config)
     used: set[int] = set()
     for index, (match, lin) in enumerate(zip(on_probation, linearized, strict=True)):
@@ -391,7 +429,8 @@ def apply_update(
             h[2 * k : 2 * k + 2, first : first + block.stop - block.start] = linearized.h_f
     residual = np.concatenate([match.pixel - linearized.predicted for match, linearized in used])
     variances = np.repeat([measurement_variance(match, config) for match, _ in used], 2)
-    joseph_update(state, h, residual, variances, columns)
+    second_order = np.array([linearized.second_order for _, linearized in used])
+    joseph_update(state, h, residual, variances, columns, second_order)
 
 
 def record_attempts(all_matches: list[Match], accepted: set[int]) -> UpdateOutcome:
@@ -428,7 +467,7 @@ def gated_update(
     all_matches, on_probation = split_probation(matches(state, observed, known))
     used: list[tuple[Match, Linearized]] = []
     accepted: set[int] = set()
-    linearized_all = linearize_all(state, camera_model, all_matches)
+    linearized_all = linearize_all(state, camera_model, all_matches, config.second_order)
     gates = gate_all(all_matches, linearized_all, state.p, config)
     for index, (match, linearized) in enumerate(zip(all_matches, linearized_all, strict=True)):
         if linearized is not None and gates[index]:
@@ -450,10 +489,12 @@ def joseph_update(
     residual: FloatArray,
     variances: FloatArray,
     columns: IntArray | None = None,
+    second_order: FloatArray | None = None,
 ) -> None:
     """x += K nu; P = (I - K H) P (I - K H)^T + K R K^T, R = diag(``variances``) (one per
-    row of H); renormalize q. ``h`` (m, k) holds H's ``columns`` (k,) of the state (None:
-    all of them); H is zero elsewhere.
+    row of H) plus the (m / 2, 2, 2) blocks ``second_order`` on its diagonal (one per
+    measurement, ``second_order_covariance``); renormalize q. ``h`` (m, k) holds H's
+    ``columns`` (k,) of the state (None: all of them); H is zero elsewhere.
 
     The Joseph form is evaluated expanded and symmetric, P + M + M^T with M = K (S K^T / 2
     - B^T), B = P H^T and S = H B + R: that is P - K B^T - B K^T + K S K^T, the same matrix
@@ -463,6 +504,9 @@ def joseph_update(
         columns = np.arange(len(state.x))
     ph_t = state.p[:, columns] @ h.T
     s = h @ ph_t[columns] + np.diag(variances)
+    if second_order is not None:
+        for k, block in enumerate(second_order):
+            s[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += block
     gain = ph_t @ np.linalg.inv(s)  # S is m x m, well conditioned (R >= pixel noise)
     state.x = state.x + gain @ residual
     half = gain @ (0.5 * (s @ gain.T) - ph_t.T)

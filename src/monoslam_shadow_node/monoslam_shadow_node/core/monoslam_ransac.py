@@ -90,7 +90,7 @@ def ransac_update(
     and rejected, with the counts."""
     all_matches, on_probation = split_probation(matches(state, observed, known))
     compatible: list[tuple[int, Linearized]] = []
-    linearized_all = linearize_all(state, camera_model, all_matches)
+    linearized_all = linearize_all(state, camera_model, all_matches, config.second_order)
     gates = gate_all(all_matches, linearized_all, state.p, config)
     for index, linearized in enumerate(linearized_all):
         if linearized is not None and gates[index]:
@@ -103,7 +103,7 @@ def ransac_update(
     rescued_indices: set[int] = set()
     others = [index for index, _ in compatible if index not in low]
     candidates = [all_matches[index] for index in others]
-    again = linearize_all(state, camera_model, candidates)
+    again = linearize_all(state, camera_model, candidates, config.second_order)
     gates = gate_all(candidates, again, state.p, config)
     for index, match, linearized, passed in zip(others, candidates, again, gates, strict=True):
         if linearized is not None and passed:

@@ -47,6 +47,7 @@ class MonoSlamConfig:
     initial_angular_velocity_sigma_rad_s: float = 0.5
     initial_inverse_depth: float = 0.2  # 1/m
     initial_inverse_depth_sigma: float = 0.3  # 1/m
+    second_order: bool = False  # inverse depth x baseline term in S (monoslam_ekf)
     gate_probability: float = 0.999
     linearity_threshold: float = 0.1
     max_features: int = 100
@@ -107,7 +108,12 @@ class MonoSlamConfig:
             raise ValueError(
                 f'initialize={self.initialize!r}: must be one of {", ".join(INITIALIZE_MODES)}'
             )
-        for name in ('handover_probation', 'fill_undecided', 'undecided_probation'):
+        for name in (
+            'handover_probation',
+            'fill_undecided',
+            'undecided_probation',
+            'second_order',
+        ):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f'{name}={getattr(self, name)!r}: must be a bool')
         if self.known_points_source not in KNOWN_POINT_SOURCES:
