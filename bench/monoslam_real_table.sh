@@ -7,7 +7,8 @@
 #   3. Bonn RGB-D Dynamic rgbd_bonn_crowd at the sequence level: our feature tracker's tracks,
 #      labels from depth and the motion capture, MonoSLAM started from the first frame's
 #      depth (monoslam_evaluate --sequence) and the Shadow filter on the motion-capture poses
-#      (shadow_evaluate --sequence, both tests and the paper's three-ray test alone);
+#      (shadow_evaluate --sequence, both tests and the paper's three-ray test alone), and the
+#      study of MonoSLAM's drift on its static opening (bench/monoslam_track_life_study.py);
 #   4. Bonn crowd through the graph on its images (slam_run monoslam_shadow_rgbd.yaml: feature
 #      tracker, monoslam started from depth, shadow_filter; paced, one process per node),
 #      scored by trajectory_evaluate, its classification drawn on the images at 3, 9, 15 and
@@ -50,6 +51,11 @@ if [[ -d "$DATA" ]]; then
   run shadow_evaluate --sequence "$OUT/bonn_sequence" --out "$OUT/bonn_shadow_eval"
   run shadow_evaluate --sequence "$OUT/bonn_sequence" --static-test three_ray \
     --out "$OUT/bonn_shadow_eval_three_ray"
+  # MonoSLAM on the static opening: recorded tracks against exact measurements (feature lives)
+  for order in "" --first-order; do
+    run python bench/monoslam_track_life_study.py --sequence "$OUT/bonn_sequence" \
+      --lives 0,15,30,60,120 $order
+  done
   rm -rf out/monoslam_shadow_rgbd out/monoslam_shadow_rgbd_record
   run slam_run monoslam_shadow_rgbd.yaml --bag "$OUT/bonn_crowd.mcap" --paced --processes \
     --exit-when-player-done

@@ -90,7 +90,7 @@ keeps the two equal).
   initial_inverse_depth_per_m, initial_inverse_depth_sigma_per_m  a new feature's inverse
                                   depth and its sigma (initialize 'all'), 1/m.
   second_order                    add the inverse depth x baseline term to an
-                                  inverse-depth feature's innovation covariance (false).
+                                  inverse-depth feature's innovation covariance (true).
   gate_probability                chi-square gate of each measurement.
   linearity_threshold             inverse depth -> Euclidean below this linearity index.
   max_features                    most features in the filter.

@@ -94,8 +94,8 @@ CORE_PARAMETERS = (
     _core(
         'second_order',
         "an inverse-depth feature's innovation covariance takes the product of its inverse "
-        "depth's and its baseline's uncertainties, which the EKF's linearization drops (a "
-        'study, docs/design/monoslam.md)',
+        "depth's and its baseline's uncertainties, which the EKF's linearization drops "
+        '(docs/design/monoslam.md)',
     ),
     _core('gate_probability', 'chi-square gate of a measurement (2 dof), in (0, 1)'),
     _core(

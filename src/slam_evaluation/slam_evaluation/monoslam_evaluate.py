@@ -4,7 +4,7 @@ the Shadow filter in a scene with moving objects.
     monoslam_evaluate --out out/monoslam_eval [--seeds 0-9] [--duration-s 20]
                       [--variants a,b,c] [--unchecked-directions 1] [--known-board 3x3]
                       [--static-test both|three_ray|all_view]
-                      [--shadow-poses slam|truth] [--oracle-handovers] [--second-order]
+                      [--shadow-poses slam|truth] [--oracle-handovers] [--first-order]
                       [--sequence DIR]
 
 ``--sequence DIR`` runs an on-disk sequence (``sequence_files``: intrinsics, camera poses,
@@ -174,10 +174,10 @@ def _arguments(argv: list[str] | None) -> Settings:
         '(consider updates: they never move the camera) until it clears them',
     )
     parser.add_argument(
-        '--second-order',
+        '--first-order',
         action='store_true',
-        help="MonoSLAM adds an inverse-depth feature's second-order term (the product of its "
-        "inverse depth's and its baseline's uncertainties) to its innovation covariance",
+        help="MonoSLAM without an inverse-depth feature's second-order term (the product of its "
+        "inverse depth's and its baseline's uncertainties) in its innovation covariance",
     )
     add_tracking_noise_arguments(parser)
     parser.add_argument(
@@ -220,7 +220,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         args.tracking_jump_probability,
         args.undecided_probation,
         not args.undeclared,
-        args.second_order,
+        not args.first_order,
     )
     try:
         settings.scene()

@@ -312,7 +312,7 @@ def summary_text(content: Mapping[str, Any]) -> str:
         known = 'the first frame with depths'
     waits = (
         '; undecided features on probation' if pipeline['slam'].get('undecided_probation') else ''
-    ) + ('; second-order inverse-depth term' if pipeline['slam'].get('second_order') else '')
+    ) + ('' if pipeline['slam'].get('second_order', True) else '; first-order inverse depth')
     lines = [
         f'MonoSLAM Fig. 5, {source}; known points: {known}; STATIC rule: {rule} unchecked '
         f'direction(s), static test {classifier["static_test"]}{waits}',

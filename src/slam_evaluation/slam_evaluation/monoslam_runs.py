@@ -82,7 +82,7 @@ class Settings:
     tracking_jump_probability: float = 0.0
     undecided_probation: bool = False
     declare_noise: bool = True
-    second_order: bool = False
+    second_order: bool = True
 
     def scene(self) -> DynamicSceneConfig:
         """Return the Fig. 5 scene: 200 static points, 8 moving objects x 8 points."""

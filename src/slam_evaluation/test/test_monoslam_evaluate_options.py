@@ -1,6 +1,6 @@
 """monoslam_evaluate's options for issue 43: --undeclared (the simulated tracking noise is
-not told to the filters), --undecided-probation (fills wait on probation) and --second-order
-(MonoSLAM's second-order inverse-depth term)."""
+not told to the filters), --undecided-probation (fills wait on probation) and --first-order
+(MonoSLAM without its second-order inverse-depth term)."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ def test_undeclared_noise_leaves_the_filters_white_and_probation_reaches_slam() 
     assert declared.out == Path('unused')
 
 
-def test_second_order_reaches_slam() -> None:
-    plain, second = _arguments([]), _arguments(['--second-order'])
-    assert not plain.pipeline(plain.markers()).slam.second_order
-    assert second.pipeline(second.markers()).slam.second_order
+def test_first_order_reaches_slam() -> None:
+    default, first = _arguments([]), _arguments(['--first-order'])
+    assert default.pipeline(default.markers()).slam.second_order
+    assert not first.pipeline(first.markers()).slam.second_order

@@ -47,7 +47,7 @@ class MonoSlamConfig:
     initial_angular_velocity_sigma_rad_s: float = 0.5
     initial_inverse_depth: float = 0.2  # 1/m
     initial_inverse_depth_sigma: float = 0.3  # 1/m
-    second_order: bool = False  # inverse depth x baseline term in S (monoslam_ekf)
+    second_order: bool = True  # inverse depth x baseline term in S (monoslam_ekf)
     gate_probability: float = 0.999
     linearity_threshold: float = 0.1
     max_features: int = 100
