@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.core.monoslam_ekf import (
+    apply_update,
     gate_all,
     gated_update,
     linearize_all,
@@ -26,7 +27,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     W_SLICE,
     project_feature,
 )
-from monoslam_shadow_node.core.monoslam_ransac import hypotheses_needed, ransac_update
+from monoslam_shadow_node.core.monoslam_ransac import hypotheses_needed, previewed, ransac_update
 from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
 from slam_core.camera import CameraModel
@@ -241,3 +242,35 @@ def test_the_batched_gate_is_the_per_match_one() -> None:
         expected.append(float(innovation @ np.linalg.solve(s, innovation)) <= CONFIG.gate)
     assert decided == expected
     assert 0 < sum(decided) < len(decided)  # the offsets put some matches outside
+
+
+def test_the_preview_is_the_update_where_the_rescue_reads_it() -> None:
+    """``previewed`` gives the mean of the update with the low-innovation inliers and its
+    covariance over the camera and the judged features, as the full update does, and leaves
+    the state as it was."""
+    rng = np.random.default_rng(8)
+    state = _state(rng)
+    base = rng.normal(size=(len(state.x), len(state.x)))
+    state.p = state.p + 1e-4 * base @ base.T / len(state.x)
+    all_matches = matches(state, _measurements(state, rng, {}), [])
+    linearized = linearize_all(state, CAMERA, all_matches, True)
+    used = [(m, lin) for m, lin in zip(all_matches[:6], linearized[:6], strict=True) if lin]
+    judged = all_matches[6:9]
+    before = copy.deepcopy(state)
+    preview = previewed(state, used, judged, CONFIG)
+    np.testing.assert_array_equal(state.x, before.x)
+    np.testing.assert_array_equal(state.p, before.p)
+    full = copy.deepcopy(state)
+    apply_update(full, used, CONFIG)
+    np.testing.assert_allclose(preview.x, full.x, atol=1e-12)
+    rows = np.concatenate(
+        [np.arange(13)]
+        + [
+            np.arange(m.feature.start, m.feature.start + m.feature.extent)
+            for m in judged
+            if m.feature
+        ]
+    )
+    np.testing.assert_allclose(
+        preview.p[np.ix_(rows, rows)], full.p[np.ix_(rows, rows)], atol=1e-12, rtol=1e-9
+    )

@@ -408,11 +408,17 @@ def marginal_variance(match: Match, config: MonoSlamConfig) -> float:
 def apply_update(
     state: FilterState, used: list[tuple[Match, Linearized]], config: MonoSlamConfig
 ) -> None:
-    """Update with all ``used`` measurements at once (Joseph form; nothing when empty). H is
-    built over the states the measurements touch only: the camera and the measured
-    features' blocks."""
-    if not used:
-        return
+    """Update with all ``used`` measurements at once (Joseph form; nothing when empty)."""
+    if used:
+        joseph_update(state, *stacked(used, config))
+
+
+def stacked(
+    used: list[tuple[Match, Linearized]], config: MonoSlamConfig
+) -> tuple[FloatArray, FloatArray, FloatArray, IntArray, FloatArray]:
+    """Return the update's H (2m, k), residual (2m,), R's diagonal (2m,), the state columns
+    H covers (k,) and the second-order blocks (m, 2, 2) of ``used`` (m > 0). H is built
+    over the states the measurements touch only: the camera and the features' blocks."""
     blocks = sorted(
         {(lin.block.start, lin.block.stop) for _, lin in used if lin.block is not None}
     )
@@ -430,7 +436,7 @@ def apply_update(
     residual = np.concatenate([match.pixel - linearized.predicted for match, linearized in used])
     variances = np.repeat([measurement_variance(match, config) for match, _ in used], 2)
     second_order = np.array([linearized.second_order for _, linearized in used])
-    joseph_update(state, h, residual, variances, columns, second_order)
+    return h, residual, variances, columns, second_order
 
 
 def record_attempts(all_matches: list[Match], accepted: set[int]) -> UpdateOutcome:

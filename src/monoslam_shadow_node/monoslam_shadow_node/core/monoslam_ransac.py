@@ -22,18 +22,18 @@ Per frame, after the prediction:
    n_hyp = log(1 - p) / log(1 - epsilon), p = ``RANSAC_PROBABILITY``. The matches are drawn
    without replacement (``rng.permutation``), so no more hypotheses are tried than there are
    compatible matches: beyond that every distinct one has been tried;
-3. low-innovation update: a full EKF update (Joseph form) with the best hypothesis's
-   low-innovation inliers, linearized at the prior;
+3. low-innovation update, as a preview: the EKF update's mean with the best hypothesis's
+   low-innovation inliers, linearized at the prior, and its covariance where step 4 reads it;
 4. high-innovation rescue: each remaining compatible match is predicted again from the
    updated mean, with S from the updated covariance; those inside the chi-square gate now are
    inliers the low-innovation test was too strict for (e.g. features whose depth is still
    uncertain);
-5. the update: steps 3-4 decide which matches are inliers; the state then takes all of them
-   in one update from the prior (the paper updates twice, low-innovation inliers first: the
-   first update then sees only the innovations closest to one match's hypothesis, a
-   truncated sample, and the filter grows sure of an error; on measurements that agree
-   exactly with the truth but whose features keep being replaced its position NEES was 2-4x
-   the gated update's, docs/design/monoslam.md).
+5. the update: steps 3-4 (``previewed``) decide which matches are inliers; the state then
+   takes all of them in one update from the prior (the paper updates twice, low-innovation
+   inliers first: the first update then sees only the innovations closest to one match's
+   hypothesis, a truncated sample, and the filter grows sure of an error; on measurements
+   that agree exactly with the truth but whose features keep being replaced its position
+   NEES was 2-4x the gated update's, docs/design/monoslam.md).
 
 Features on probation (handed over and not yet fixed by SLAM's own views) take no part in
 steps 1-4; after them, each is measured alone from the updated state without correcting the
@@ -64,9 +64,11 @@ from monoslam_shadow_node.core.monoslam_ekf import (
     probation_update,
     record_attempts,
     split_probation,
+    stacked,
 )
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
 from monoslam_shadow_node.core.monoslam_model import (
+    CAMERA_SIZE,
     Q_SLICE,
     R_SLICE,
     FloatArray,
@@ -103,21 +105,19 @@ def ransac_update(
             compatible.append((index, linearized))
     pairs = [(all_matches[index], linearized) for index, linearized in compatible]
     inliers, hypotheses = best_hypothesis(state, camera_model, pairs, config, rng)
-    prior_x, prior_p = state.x.copy(), state.p.copy()
-    apply_update(state, [pairs[k] for k in inliers], config)  # to judge the rest by
     low = {compatible[k][0] for k in inliers}
     rescued: list[tuple[Match, Linearized]] = []
     rescued_indices: set[int] = set()
     others = [index for index, _ in compatible if index not in low]
     candidates = [all_matches[index] for index in others]
-    again = linearize_all(state, camera_model, candidates, config.second_order)
-    gates = gate_all(candidates, again, state.p, config)
+    judge = previewed(state, [pairs[k] for k in inliers], candidates, config)
+    again = linearize_all(judge, camera_model, candidates, config.second_order)
+    gates = gate_all(candidates, again, judge.p, config)
     for index, match, linearized, passed in zip(others, candidates, again, gates, strict=True):
         if linearized is not None and passed:
             rescued.append((match, linearized))
             rescued_indices.add(index)
-    state.x, state.p = prior_x, prior_p  # every inlier in one update from the prior
-    chosen = low | rescued_indices
+    chosen = low | rescued_indices  # every inlier in one update from the prior
     apply_update(state, [(all_matches[i], lin) for i, lin in compatible if i in chosen], config)
     considered = probation_update(state, camera_model, on_probation, config)
     accepted = low | rescued_indices | {len(all_matches) + index for index in considered}
@@ -131,6 +131,43 @@ def ransac_update(
         probation=len(considered),
     )
     return UpdateOutcome(outcome.measured, outcome.rejected, outcome.known_used, counts)
+
+
+def previewed(
+    state: FilterState,
+    used: list[tuple[Match, Linearized]],
+    judged: list[Match],
+    config: MonoSlamConfig,
+) -> FilterState:
+    """Return the state as the update with ``used`` would leave it, to judge the matches
+    ``judged`` by (step 4): its mean in full, its covariance only over the camera and the
+    judged features' blocks (zero elsewhere; those are all that predicting and gating them
+    reads), so that the rest of the n x n update is not computed. ``state`` is unchanged."""
+    out = FilterState()
+    out.features, out.x, out.p = state.features, state.x.copy(), state.p
+    if not used:
+        return out
+    h, residual, variances, columns, second_order = stacked(used, config)
+    blocks = [np.arange(m.feature.start, m.feature.start + m.feature.extent)
+              for m in judged if m.feature is not None]  # fmt: skip
+    rows = np.unique(np.concatenate([np.arange(CAMERA_SIZE), *blocks]))
+    ph_t = state.p[:, columns] @ h.T
+    s = h @ ph_t[columns] + np.diag(variances)
+    for k, block in enumerate(second_order):
+        s[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += block
+    s_inverse = np.linalg.inv(s)
+    out.x = state.x + ph_t @ (s_inverse @ residual)
+    sub = ph_t[rows]
+    local = state.p[np.ix_(rows, rows)] - sub @ s_inverse @ sub.T
+    norm = float(np.linalg.norm(out.x[Q_SLICE]))
+    q = out.x[Q_SLICE] / norm
+    out.x[Q_SLICE] = q
+    quaternion = np.flatnonzero(np.isin(rows, np.arange(Q_SLICE.start, Q_SLICE.stop)))
+    jacobian = np.eye(len(rows))
+    jacobian[np.ix_(quaternion, quaternion)] = (np.eye(4) - np.outer(q, q)) / norm
+    out.p = np.zeros_like(state.p)
+    out.p[np.ix_(rows, rows)] = jacobian @ local @ jacobian.T
+    return out
 
 
 def best_hypothesis(
