@@ -509,22 +509,36 @@ def joseph_update(
     if columns is None:
         columns = np.arange(len(state.x))
     ph_t = state.p[:, columns] @ h.T
-    s = h @ ph_t[columns] + np.diag(variances)
-    if second_order is not None:
-        for k, block in enumerate(second_order):
-            s[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += block
+    s = innovation_matrix(h, ph_t[columns], variances, second_order)
     gain = ph_t @ np.linalg.inv(s)  # S is m x m, well conditioned (R >= pixel noise)
     state.x = state.x + gain @ residual
     half = gain @ (0.5 * (s @ gain.T) - ph_t.T)
     p = half + half.T  # (not in place: numpy would copy the transposed operand first)
     p += state.p
-    norm = float(np.linalg.norm(state.x[Q_SLICE]))
-    q = state.x[Q_SLICE] / norm
-    jacobian = (np.eye(4) - np.outer(q, q)) / norm
-    state.x[Q_SLICE] = q
+    jacobian = renormalize_quaternion(state.x)
     rows = jacobian @ p[Q_SLICE, :]
     corner = rows[:, Q_SLICE] @ jacobian.T
     p[Q_SLICE, :] = rows
     p[:, Q_SLICE] = rows.T
     p[Q_SLICE, Q_SLICE] = 0.5 * (corner + corner.T)
     state.p = p
+
+
+def innovation_matrix(
+    h: FloatArray, h_p: FloatArray, variances: FloatArray, second_order: FloatArray | None
+) -> FloatArray:
+    """Return S = H P H^T + R (m, m) from H (m, k) and P H^T over H's columns ``h_p`` (k, m),
+    R = diag(``variances``) plus the (m / 2, 2, 2) ``second_order`` blocks on its diagonal."""
+    s = h @ h_p + np.diag(variances)
+    for k, block in enumerate(() if second_order is None else second_order):
+        s[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += block
+    return np.asarray(s, dtype=np.float64)
+
+
+def renormalize_quaternion(x: FloatArray) -> FloatArray:
+    """Make the camera quaternion of the state mean ``x`` (n,) a unit one, in place; return
+    the Jacobian (4, 4) of the normalization, (I - q q^T) / |q|, for the covariance."""
+    norm = float(np.linalg.norm(x[Q_SLICE]))
+    q = x[Q_SLICE] / norm
+    x[Q_SLICE] = q
+    return np.asarray((np.eye(4) - np.outer(q, q)) / norm, dtype=np.float64)

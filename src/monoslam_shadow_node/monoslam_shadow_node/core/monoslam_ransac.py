@@ -57,12 +57,14 @@ from monoslam_shadow_node.core.monoslam_ekf import (
     UpdateOutcome,
     apply_update,
     gate_all,
+    innovation_matrix,
     linearize_all,
     marginal_variance,
     matches,
     measurement_variance,
     probation_update,
     record_attempts,
+    renormalize_quaternion,
     split_probation,
     stacked,
 )
@@ -152,19 +154,13 @@ def previewed(
               for m in judged if m.feature is not None]  # fmt: skip
     rows = np.unique(np.concatenate([np.arange(CAMERA_SIZE), *blocks]))
     ph_t = state.p[:, columns] @ h.T
-    s = h @ ph_t[columns] + np.diag(variances)
-    for k, block in enumerate(second_order):
-        s[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += block
-    s_inverse = np.linalg.inv(s)
+    s_inverse = np.linalg.inv(innovation_matrix(h, ph_t[columns], variances, second_order))
     out.x = state.x + ph_t @ (s_inverse @ residual)
     sub = ph_t[rows]
     local = state.p[np.ix_(rows, rows)] - sub @ s_inverse @ sub.T
-    norm = float(np.linalg.norm(out.x[Q_SLICE]))
-    q = out.x[Q_SLICE] / norm
-    out.x[Q_SLICE] = q
     quaternion = np.flatnonzero(np.isin(rows, np.arange(Q_SLICE.start, Q_SLICE.stop)))
     jacobian = np.eye(len(rows))
-    jacobian[np.ix_(quaternion, quaternion)] = (np.eye(4) - np.outer(q, q)) / norm
+    jacobian[np.ix_(quaternion, quaternion)] = renormalize_quaternion(out.x)
     out.p = np.zeros_like(state.p)
     out.p[np.ix_(rows, rows)] = jacobian @ local @ jacobian.T
     return out
