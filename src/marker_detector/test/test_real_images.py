@@ -29,8 +29,8 @@ from scipy.spatial.transform import Rotation
 from marker_detector.core.candidates import MarkerCorners, locate_markers
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
 from slam_core.camera import CameraModel
-from slam_core.datasets import DATA_ENV, data_root, dataset
 from slam_core.geometry.quaternion import log_rotation
+from slam_core.testing.datasets import dataset_or_skip
 
 APRILTAG_PHOTOS = (
     '33369213973_9d9bb4cc96_c',
@@ -45,10 +45,7 @@ UBIQUITY = DetectorConfig(dictionary='DICT_5X5_1000', default_marker_size_m=0.14
 
 def data_dir(relative: str) -> Path:
     """Return ``data_root()/relative`` ($SLAM_DATA_DIR, else next to the repository), or skip."""
-    path = dataset(relative)
-    if path is None:
-        pytest.skip(f'{relative} not found in {data_root()} (set {DATA_ENV})')
-    return path
+    return dataset_or_skip(relative, relative)
 
 
 def read_expected(path: Path) -> list[tuple[int, np.ndarray]]:

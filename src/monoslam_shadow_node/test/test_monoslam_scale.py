@@ -18,24 +18,6 @@ from slam_core.camera import CameraModel
 CAMERA = CameraModel.from_intrinsics(640, 480, (500.0, 500.0), (319.5, 239.5))
 
 
-def _state_with_points(points: np.ndarray) -> FilterState:
-    """A state whose camera is at the origin, looking along z, with Euclidean features at
-    ``points`` (N, 3) m."""
-    state = FilterState()
-    pose = np.concatenate([np.zeros(3), [1.0, 0.0, 0.0, 0.0]])
-    state.start(pose, 1e-4 * np.eye(7), 0.1, 0.1)
-    for k, point in enumerate(points):
-        pixel = CAMERA.project(point[None])[0]
-        assert state.insert_inverse_depth(
-            CAMERA, k + 1, pixel, 1.0 / point[2], 1e-4, 1.0, 'new', 0
-        )
-        state.to_euclidean(state.features[-1])
-    return state
-
-
-POINTS = np.array([[0.5, -0.2, 2.0], [-0.8, 0.3, 3.0], [0.1, 0.6, 4.5], [1.0, 1.0, 6.0]])
-
-
 def _inverse_depth_state(rho: float, sigma_rho: float, sigma_d: float) -> FilterState:
     """A camera at the origin and one inverse-depth feature along the optical axis with
     inverse depth rho, its anchor sigma_d from the camera per axis, independent."""
@@ -77,7 +59,12 @@ def test_the_second_order_term_is_the_product_of_the_two_uncertainties() -> None
 
 
 def test_a_euclidean_feature_has_no_second_order_term() -> None:
-    state = _state_with_points(POINTS[:1])
+    state = FilterState()
+    state.start(np.array([0, 0, 0, 1.0, 0, 0, 0]), 1e-4 * np.eye(7), 0.1, 0.1)
+    point = np.array([0.5, -0.2, 2.0])
+    pixel = CAMERA.project(point[None])[0]
+    assert state.insert_inverse_depth(CAMERA, 1, pixel, 0.5, 1e-4, 1.0, 'new', 0)
+    state.to_euclidean(state.features[0])
     (lin,) = linearize_all(state, CAMERA, [Match(np.zeros(2), feature=state.features[0])], True)
     assert lin is not None and not np.any(lin.second_order)
 

@@ -424,9 +424,14 @@ def test_the_static_test_parameter_chooses_the_statistic_that_decides() -> None:
             for decision in shadow.process(frame).decisions
             if decision.status == STATIC
         }
-    shared = set(statistics['three_ray']) & set(statistics['all_view'])
+    three_ray, all_view, both = statistics['three_ray'], statistics['all_view'], statistics['both']
+    shared = set(three_ray) & set(all_view)
     assert len(shared) >= 20
-    assert all(statistics['three_ray'][i] != statistics['all_view'][i] for i in shared)
+    assert all(three_ray[i] != all_view[i] for i in shared)
+    with_both = set(both) & set(all_view)
+    assert len(with_both) >= 20 and all(both[i] != all_view[i] for i in with_both)
+    # decided in the same image (its alpha is halved, so not always), both carries the three-ray T
+    assert any(both[i] == three_ray[i] for i in set(both) & set(three_ray))
 
 
 def test_an_unknown_static_test_is_named() -> None:
