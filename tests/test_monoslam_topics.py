@@ -133,6 +133,8 @@ class PipelineRun:
     transforms: list[TFMessage]
     unpaced: list[int]
     """Stamps (int ns) of images monoslam had not processed after PACE_TIMEOUT_S."""
+    links: tuple[int, int]
+    """Poses the shadow_filter took with and without their monoslam/pose/link."""
 
 
 def read_truth() -> Truth:
@@ -224,7 +226,9 @@ def play(harness: RosHarness, truth: Truth) -> PipelineRun:
     with contextlib.suppress(TimeoutError):
         wait_until(delivered, timeout_s=DELIVERY_TIMEOUT_S, what='the last pose and path')
     messages = {name: list(c.messages) for name, c in collectors.items()}
-    return PipelineRun(**messages, unpaced=unpaced)
+    counts = shadow.diagnostics_counts()
+    links = (counts['poses linked'], counts['poses unlinked'])
+    return PipelineRun(**messages, unpaced=unpaced, links=links)
 
 
 def pace(harness: RosHarness, slam: MonoSlamNode) -> list[int]:
@@ -332,6 +336,15 @@ def test_the_shadow_filter_engages_and_fills_the_map(pipeline: PipelineRun, trut
     assert len(points) >= MIN_HANDED_FEATURES // 2
     assert set(points['id'][from_handover].astype(int)) <= handed
     assert np.count_nonzero(from_handover) >= 1
+
+
+def test_the_poses_reach_the_shadow_filter_with_their_links(pipeline: PipelineRun) -> None:
+    """monoslam publishes each pose's error covariances with its earlier poses' on
+    monoslam/pose/link just before the pose; the shadow_filter attaches them (pose_links). All
+    but the first pose after a start come with one (a link may come late: then that pose is
+    taken as independent, counted)."""
+    linked, unlinked = pipeline.links
+    assert linked >= 0.9 * (linked + unlinked), pipeline.links
 
 
 def test_map_path_and_tf_are_published_without_nan(pipeline: PipelineRun) -> None:

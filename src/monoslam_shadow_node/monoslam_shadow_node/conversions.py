@@ -82,13 +82,17 @@ class Features:
 class CameraPose:
     """One PoseWithCovarianceStamped of the camera optical frame: stamp (int ns), world frame
     (header.frame_id), R_world_camera (3, 3), optical centre (3,) m, and the covariance
-    (6, 6) over (position, rotation about the world axes), None when all zero."""
+    (6, 6) over (position, rotation about the world axes), None when all zero; and when the
+    source gives them (``pose_links``), the covariances (K, 6, 6) of the pose's error with
+    those of its earlier poses stamped ``cross_stamps``."""
 
     stamp_ns: int
     frame_id: str
     rotation: FloatArray
     centre: FloatArray
     covariance: FloatArray | None
+    cross_stamps: tuple[int, ...] = ()
+    cross_covariances: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -344,13 +348,9 @@ def frame_input(features: Features, pose: CameraPose) -> FrameInput:
     """Return the core's input for one image: the features at their own stamp, with the
     pose paired with them."""
     return FrameInput(
-        features.stamp_ns,
-        pose.rotation,
-        pose.centre,
-        features.ids,
-        features.pixels,
-        pose.covariance,
-    )
+        features.stamp_ns, pose.rotation, pose.centre, features.ids, features.pixels,
+        pose.covariance, pose.cross_stamps, pose.cross_covariances,
+    )  # fmt: skip
 
 
 def _finite_vector(values: FloatArray) -> tuple[float, float, float] | None:

@@ -97,12 +97,16 @@ class HandoverInput:
 class PoseFields:
     """The finite numbers of one camera pose: image stamp (int ns), optical centre (3) m,
     orientation quaternion (x, y, z, w) of R_world_camera and covariance (36, row-major,
-    position then rotation about the world axes)."""
+    position then rotation about the world axes); and the covariances of its error with the
+    errors of the earlier poses stamped ``cross_stamps`` (36 each, the same order;
+    ``pose_link_messages``)."""
 
     stamp_ns: int
     position: tuple[float, float, float]
     orientation: tuple[float, float, float, float]
     covariance: tuple[float, ...]
+    cross_stamps: tuple[int, ...] = ()
+    cross_covariances: tuple[float, ...] = ()
 
     @property
     def sigmas(self) -> tuple[float, float]:
@@ -191,12 +195,13 @@ def pose_fields(result: MonoSlamResult) -> PoseFields | None:
     x, y, z, w = Rotation.from_matrix(result.rotation).as_quat()
     cx, cy, cz = (float(v) for v in result.centre)
     covariance = np.asarray(result.pose_covariance, dtype=np.float64).reshape(36)
+    cross, stamps = result.pose_cross_covariances, tuple(result.pose_cross_stamps)
+    if cross is None or not stamps or not np.all(np.isfinite(cross)):
+        cross, stamps = np.zeros(0), ()
     return PoseFields(
-        result.stamp_ns,
-        (cx, cy, cz),
-        (float(x), float(y), float(z), float(w)),
-        tuple(float(v) for v in covariance),
-    )
+        result.stamp_ns, (cx, cy, cz), (float(x), float(y), float(z), float(w)),
+        tuple(float(v) for v in covariance), stamps, tuple(np.ravel(cross).tolist()),
+    )  # fmt: skip
 
 
 def _fill_pose(fields: PoseFields, pose: Any) -> Any:

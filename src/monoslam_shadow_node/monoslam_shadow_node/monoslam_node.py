@@ -183,6 +183,7 @@ from collections import deque
 from functools import partial
 from typing import Any
 
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TransformStamped
 from nav_msgs.msg import Path
 from rclpy.clock import Clock, ClockType
@@ -224,12 +225,14 @@ from monoslam_shadow_node.monoslam_settings import (
     target_settings,
 )
 from monoslam_shadow_node.notices import LogThrottle, Notice, log_notice
+from monoslam_shadow_node.pose_link_messages import LINK_SUFFIX, fill_pose_link
 from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import (
     FeatureTrackArray,
     FiducialArray,
+    PoseLink,
     ShadowTrack,
     ShadowTrackArray,
 )
@@ -298,6 +301,9 @@ class MonoSlamNode(CheckpointsMixin, Node):
         self._status_time, self._status_seen = time.monotonic(), (0, 0, 0)
         self.pose_publisher = self.create_publisher(
             PoseWithCovarianceStamped, POSE_TOPIC, output_qos()
+        )
+        self.link_publisher = self.create_publisher(
+            PoseLink, POSE_TOPIC + LINK_SUFFIX, output_qos()
         )
         self.path_publisher = self.create_publisher(Path, PATH_TOPIC, output_qos(depth=1))
         self.map_publisher = self.create_publisher(PointCloud2, MAP_TOPIC, latched_qos())
@@ -440,6 +446,16 @@ class MonoSlamNode(CheckpointsMixin, Node):
 
     def _publish_pose(self, fields: PoseFields) -> None:
         frame = self.settings.map_frame
+        if fields.cross_stamps:  # before the pose (pose_link_messages)
+            link = fill_pose_link(
+                fields.stamp_ns,
+                fields.cross_stamps,
+                fields.cross_covariances,
+                frame,
+                PoseLink(),
+                Time,
+            )
+            self.link_publisher.publish(link)
         self.pose_publisher.publish(
             fill_pose_with_covariance(fields, frame, PoseWithCovarianceStamped())
         )

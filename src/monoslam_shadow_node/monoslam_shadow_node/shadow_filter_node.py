@@ -152,10 +152,11 @@ from monoslam_shadow_node.conversions import (
 from monoslam_shadow_node.core.shadow_filter import FrameResult, ShadowFilter
 from monoslam_shadow_node.frame_sync import FrameSynchronizer
 from monoslam_shadow_node.notices import LogThrottle, Notice, log_notice
+from monoslam_shadow_node.pose_link_messages import LINK_SUFFIX, PoseLinks, link_from_message
 from monoslam_shadow_node.settings import NODE_NAME, PARAMETERS, node_settings, shadow_config
 from monoslam_shadow_node.shadow_processor import Outcome, ShadowProcessor, ShadowStep
 from slam_core.cli import console_main
-from slam_interfaces.msg import FeatureTrackArray, ShadowTrack, ShadowTrackArray
+from slam_interfaces.msg import FeatureTrackArray, PoseLink, ShadowTrack, ShadowTrackArray
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.qos import output_qos, sensor_qos
@@ -222,6 +223,10 @@ class ShadowFilterNode(Node):
             timed(self._on_pose, 'pose'),
             inputs,
         )
+        self._links = PoseLinks()  # pose_link_messages: the drift the poses share
+        self.create_subscription(
+            PoseLink, self.settings.pose_topic + LINK_SUFFIX, timed(self._on_link, 'link'), inputs
+        )
         self.create_subscription(
             CameraInfo, CAMERA_INFO_TOPIC, timed(self._on_camera_info, 'camera_info'), info_qos
         )
@@ -237,10 +242,15 @@ class ShadowFilterNode(Node):
             f'waiting for {FEATURES_TOPIC}, {self.settings.pose_topic} and {CAMERA_INFO_TOPIC}'
         )
 
+    def diagnostics_counts(self) -> dict[str, int]:
+        """The counts the node reports on /diagnostics (``_counts``)."""
+        return self._counts()
+
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: frames processed, refused (pose covariance not
         finite) and skipped, inputs dropped by the pairing, features handed over as static
-        and called dynamic, held pending, camera_info messages rejected."""
+        and called dynamic, held pending, camera_info messages rejected, and the poses that
+        came with and without a link to the previous one (``pose_link_messages``)."""
         counts = self.processor.counts
         return {
             'processed': counts.processed,
@@ -251,6 +261,8 @@ class ShadowFilterNode(Node):
             'dynamic': counts.dynamic_total,
             'pending': counts.held_pending,
             'camera_info rejected': self._camera_watch.rejected,
+            'poses linked': self._links.linked,
+            'poses unlinked': self._links.unlinked,
         }
 
     @property
@@ -293,7 +305,14 @@ class ShadowFilterNode(Node):
 
     def _on_pose(self, message: PoseWithCovarianceStamped) -> None:
         self._last_input = time.monotonic()
-        self._handle(self.processor.add_pose(pose_from_message(message)))
+        pose = self._links.attach(pose_from_message(message))
+        self._handle(self.processor.add_pose(pose))
+
+    def _on_link(self, message: PoseLink) -> None:
+        try:
+            self._links.add(link_from_message(message))
+        except ValueError as err:
+            self.get_logger().warning(f'{self.settings.pose_topic}{LINK_SUFFIX}: {err}; ignored')
 
     def _on_revoked(self, message: ShadowTrackArray) -> None:
         ids = revoked_from_message(message)

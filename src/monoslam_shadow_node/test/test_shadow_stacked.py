@@ -23,11 +23,11 @@ from monoslam_shadow_node.core.static_fit import (
     ROW_NOISE,
     ROW_POSE,
     ROW_TAU,
-    _fit,
     _views_as_rows,
     motion_score_test,
     motion_score_tests,
 )
+from monoslam_shadow_node.core.view_fit import fit
 
 
 def _views(
@@ -56,7 +56,7 @@ def _reference_score_test(
     """The score test as computed before the stacked form (one feature, whitened per view
     by the Cholesky factor of W_i): T at S's numerical rank, that rank, the fitted point and
     the visibility."""
-    fitted = _fit(views, start, 6, None)
+    fitted = fit(views, start, 6, None)
     if fitted is None:
         return None
     point, normal, geometry = fitted

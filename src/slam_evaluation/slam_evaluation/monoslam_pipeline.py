@@ -368,8 +368,10 @@ def _shadow_step(
         return
     centre, rotation, slam_covariance = pose
     covariance: FloatArray | None = slam_covariance
+    stamps, cross = tuple(result.pose_cross_stamps), result.pose_cross_covariances
     if config.shadow_poses == 'truth':
         centre, rotation, covariance = frame.true_centre, frame.true_rotation, None
+        stamps, cross = (), None
     owned = slam.owned_ids
     measurements = frame.measurements
     stamp_ns, ids, pixels = measurements.stamp_ns, measurements.ids, measurements.pixels
@@ -378,7 +380,7 @@ def _shadow_step(
     free = np.array([int(i) not in owned or int(i) in undecided for i in ids], dtype=bool)
     outcome = shadow.process(
         Features(stamp_ns, '', ids[free], pixels[free]),
-        CameraPose(stamp_ns, slam.map_frame, rotation, centre, covariance),
+        CameraPose(stamp_ns, slam.map_frame, rotation, centre, covariance, stamps, cross),
     )
     if not isinstance(outcome, ShadowStep):  # a pose covariance that is not finite
         books.refused += 1

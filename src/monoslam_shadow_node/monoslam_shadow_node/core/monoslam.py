@@ -25,10 +25,8 @@ Per frame (``MonoSlam.process``; each step in full: docs/design/monoslam.md):
    estimate for ``lost_after_known_rejected_frames`` frames, or the pose covariance
    collapsed; the map is retired and the filter starts again.
 
-The interface types are in ``monoslam_types``, the state in ``monoslam_state``, the EKF steps
-in ``monoslam_ekf``, the 1-point RANSAC update in ``monoslam_ransac``, the input and loss
-checks in ``monoslam_checks``; this module holds the frame loop, map management, start and
-loss.
+Elsewhere: the types (``monoslam_types``), state, EKF steps, 1-point RANSAC and checks
+(``monoslam_state``, ``_ekf``, ``_ransac``, ``_checks``). Here: frames, map, start, loss.
 """
 
 from __future__ import annotations
@@ -48,6 +46,7 @@ from monoslam_shadow_node.core.monoslam_checks import (
 from monoslam_shadow_node.core.monoslam_ekf import (
     UpdateOutcome,
     gated_update,
+    pose_cross,
     predict,
     predicted_measurements,
 )
@@ -89,7 +88,7 @@ MAX_MOVING_IDS = 10_000
 
 
 @dataclass
-class _Handover:
+class _Handover:  # a STATIC feature the Shadow filter handed over, until SLAM takes it
     id: int
     position: FloatArray
     covariance: FloatArray
@@ -102,8 +101,7 @@ class MonoSlam:
     def __init__(self, camera: CameraModel, config: MonoSlamConfig | None = None) -> None:
         self.camera = camera
         self.config = config or MonoSlamConfig()
-        self._known = {int(k): np.asarray(v, dtype=np.float64)
-                       for k, v in self.config.known_points.items()}  # fmt: skip
+        self._known = {int(k): np.asarray(v, float) for k, v in self.config.known_points.items()}
         self._known_keys = np.array(sorted(self._known), dtype=np.int64)
         self._state = FilterState()
         self._views = TemplateViews()  # where each track's template was captured
@@ -251,10 +249,12 @@ class MonoSlam:
         dt_s = (frame.stamp_ns - self._last_stamp_ns) * 1e-9
         if dt_s > self.config.max_gap_s:
             warnings.append(f'{dt_s:.2f} s since the last frame (more than max_gap_s)')
+        self._state.remember_pose(self._last_stamp_ns, self._frame - 1, self._frame)
         predict(self._state, dt_s, self.config)
         self._last_stamp_ns = frame.stamp_ns
         observed = {int(i): pixels[k] for k, i in enumerate(ids)}
         outcome = self._update(observed, known_keys, known_pixels)
+        cross = pose_cross(self._state)  # the pose error's covariance with earlier ones'
         measured, rejected, known_used = outcome.measured, outcome.rejected, outcome.known_used
         unseen = [feature for feature in self._state.features if feature.id not in observed]
         searchable = set(self._in_view(unseen).tolist())  # predicted in view, not seen
@@ -294,8 +294,9 @@ class MonoSlam:
                               known_used, warnings, outcome.counts)  # fmt: skip
         searched = sorted(i for i in searchable if i not in removed)
         return dataclasses.replace(
-            result, searched_ids=searched, state_features=len(self._state.features)
-        )
+            result, searched_ids=searched, state_features=len(self._state.features),
+            pose_cross_stamps=cross[0], pose_cross_covariances=cross[1],
+        )  # fmt: skip
 
     # --- steps -----------------------------------------------------------------------------
 
@@ -536,8 +537,7 @@ class MonoSlam:
             direction = offset / depth
             depth_variance = float(direction @ handover.covariance @ direction)
             rho = 1.0 / depth
-            # at least the prior's variance: the handover was triangulated from SLAM's own
-            # poses, so its variance is not independent of the state (module docstring)
+            # at least the prior's: triangulated from SLAM's poses, not independent of them
             rho_variance = max(depth_variance * rho**4, rho_variance)
         source = 'handover' if handover is not None else 'new'
         inserted = self._state.insert_inverse_depth(

@@ -50,6 +50,9 @@ def predict(state: FilterState, dt_s: float, config: MonoSlamConfig) -> None:
     camera, f, q = predict_camera(state.x[:CAMERA_SIZE], dt_s, *sigmas)
     state.x[:CAMERA_SIZE] = camera
     c = slice(0, CAMERA_SIZE)
+    history = state.history  # F applies to the remembered poses' columns too (pose_cross)
+    if history.shape[0] == len(state.x):
+        history[c] = f @ history[c]
     state.p[c, c] = f @ state.p[c, c] @ f.T + q
     state.p[c, CAMERA_SIZE:] = f @ state.p[c, CAMERA_SIZE:]
     state.p[CAMERA_SIZE:, c] = state.p[c, CAMERA_SIZE:].T
@@ -57,6 +60,8 @@ def predict(state: FilterState, dt_s: float, config: MonoSlamConfig) -> None:
     if len(offsets):
         decay, fresh = config.tracking_noise.step(dt_s)
         state.x[offsets] *= decay
+        if history.shape[0] == len(state.x):
+            history[offsets] *= decay
         state.p[offsets, :] *= decay
         state.p[:, offsets] *= decay
         state.p[offsets, offsets] += fresh
@@ -372,6 +377,8 @@ def consider_update(
     s = linearized.innovation_covariance(state.p, sigma2)
     gain = np.linalg.solve(s, b[block].T).T
     state.x[block] = state.x[block] + gain @ (match.pixel - linearized.predicted)
+    if state.history.shape[0] == len(state.x):
+        state.history[block] -= gain @ linearized.p_h_t(state.history.T).T
     k_b = gain @ b.T
     rows = state.p[block, :] - k_b
     own = rows[:, block] - k_b[:, block].T + gain @ s @ gain.T
@@ -516,6 +523,10 @@ def joseph_update(
     p = half + half.T  # (not in place: numpy would copy the transposed operand first)
     p += state.p
     jacobian = renormalize_quaternion(state.x)
+    if state.history.shape[0] == len(state.x):
+        history = state.history - gain @ (h @ state.history[columns])
+        history[Q_SLICE] = jacobian @ history[Q_SLICE]
+        state.history = history
     rows = jacobian @ p[Q_SLICE, :]
     corner = rows[:, Q_SLICE] @ jacobian.T
     p[Q_SLICE, :] = rows
@@ -542,3 +553,18 @@ def renormalize_quaternion(x: FloatArray) -> FloatArray:
     q = x[Q_SLICE] / norm
     x[Q_SLICE] = q
     return np.asarray((np.eye(4) - np.outer(q, q)) / norm, dtype=np.float64)
+
+
+def pose_cross(state: FilterState) -> tuple[list[int], FloatArray]:
+    """Return the stamps of the remembered earlier pose estimates (``FilterState.history``)
+    and Cov(e_now, e_then) (K, 6, 6) of the current pose error with each of theirs, over
+    (position, rotation about the world axes) as ``FilterState.pose_covariance``. The EKF
+    carries them exactly through every prediction, update and change of the map (the
+    errors' linear propagation: F, then I - K H, at each step); the Shadow filter's static
+    test takes the drift its views share from them (``pose_links``)."""
+    history = state.history
+    if history.shape[0] != len(state.x) or not state.history_stamps:
+        return [], np.zeros((0, 6, 6))
+    now = state.pose_jacobian() @ history[:CAMERA_SIZE]  # (6, 6 K)
+    crosses = now.reshape(6, -1, 6).transpose(1, 0, 2)
+    return list(state.history_stamps), np.asarray(crosses, dtype=np.float64)

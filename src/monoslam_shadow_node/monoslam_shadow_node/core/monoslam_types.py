@@ -224,7 +224,11 @@ class MonoSlamResult:
     feature: back to the Shadow filter), 'evicted' (out of view when the state was full:
     retired to the frozen map) or 'lost' (tracking was lost: the map is retired).
     ``searched_ids`` are the features predicted in view but not observed (searched for in
-    vain), ``state_features`` the features in the filter after the frame."""
+    vain), ``state_features`` the features in the filter after the frame.
+    ``pose_cross_covariances`` (K, 6, 6) are Cov(this pose's error, the error of the pose
+    stamped ``pose_cross_stamps[k]``) for the K latest earlier poses, over the coordinates
+    of ``pose_covariance``: the drift the Shadow filter's tests need
+    (``monoslam_ekf.pose_cross``; None and empty when not tracking)."""
 
     stamp_ns: int
     frame: int
@@ -243,3 +247,5 @@ class MonoSlamResult:
     update: UpdateCounts = field(default_factory=UpdateCounts)
     searched_ids: list[int] = field(default_factory=list)
     state_features: int = 0
+    pose_cross_stamps: list[int] = field(default_factory=list)
+    pose_cross_covariances: FloatArray | None = None

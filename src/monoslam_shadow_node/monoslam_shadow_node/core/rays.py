@@ -30,6 +30,7 @@ the arithmetic well conditioned.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,7 +67,9 @@ class View:
     the world axes) as in geometry_msgs/PoseWithCovariance, or None for a known pose.
     ``frame`` is the index of the image the feature was seen in. ``pixel_jacobian`` (3, 2)
     is d(direction)/d(pixel), which the correlated tracking offsets need (None: not known,
-    the view's errors are taken as independent of every other view's).
+    the view's errors are taken as independent of every other view's). ``pose_cross`` maps
+    the stamps of earlier poses to the covariance (6, 6) of this pose's error with theirs
+    (``pose_links``; None or missing stamps: independent).
     """
 
     frame: int
@@ -76,6 +79,7 @@ class View:
     direction_covariance: FloatArray
     pose_covariance: FloatArray | None = None
     pixel_jacobian: FloatArray | None = None
+    pose_cross: Mapping[int, FloatArray] | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -69,6 +69,7 @@ from monoslam_shadow_node.core.static_fit import (
     ROW_TAU,
     ROW_VISIBILITY,
     MotionScoreTest,
+    linked,
     motion_score_test,
     motion_score_tests,
 )
@@ -349,17 +350,25 @@ def score_tests(
 ) -> list[MotionScoreTest | None]:
     """The score tests (``static_fit``) of due tests over all their views, each at its
     rule's level and from its static position estimate: all at once with white tracking
-    noise, one by one with persistent offsets."""
-    if noise is None or noise.white:
-        return motion_score_tests(
-            [due.track.rows for due in dues],
-            [due.settings.test_alpha for due in dues],
-            [due.position for due in dues],
+    noise and independent pose errors, one by one with persistent offsets or linked poses
+    (``pose_links``)."""
+    white = noise is None or noise.white
+    alone = [k for k, due in enumerate(dues) if not white or linked(due.track.views)]
+    together = sorted(set(range(len(dues))) - set(alone))
+    results: list[MotionScoreTest | None] = [None] * len(dues)
+    stacked = motion_score_tests(
+        [dues[k].track.rows for k in together],
+        [dues[k].settings.test_alpha for k in together],
+        [dues[k].position for k in together],
+    )
+    for k, test in zip(together, stacked, strict=True):
+        results[k] = test
+    for k in alone:
+        due = dues[k]
+        results[k] = motion_score_test(
+            due.track.views, due.settings.test_alpha, due.position, noise=noise
         )
-    return [
-        motion_score_test(due.track.views, due.settings.test_alpha, due.position, noise=noise)
-        for due in dues
-    ]
+    return results
 
 
 def needs_test(due: DueTest, motion: MotionScoreTest | None) -> bool:

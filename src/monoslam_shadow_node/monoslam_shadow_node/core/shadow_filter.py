@@ -24,7 +24,10 @@ The classifier (when to test, the two tests, the decision) is in ``shadow_classi
 feature's record is a ``shadow_track.Track``.
 
 Camera poses come from outside (the SLAM filter, or ground truth in the paper's Fig. 3
-experiment) with their covariance; the filter assumes them independent between frames.
+experiment) with their covariance. Their errors are independent between frames unless the
+source gives each pose's error covariance with its recent earlier poses'
+(``FrameInput.pose_cross_covariances``, ``pose_links``); the all-view test then models the
+drift they share.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from monoslam_shadow_node.core.pose_links import cross_table
 from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.core.rays import THREE_RAY_DOF, View, pixel_ray_directions, ray_angle
 from monoslam_shadow_node.core.shadow_classifier import (
@@ -96,13 +100,14 @@ class _FrameViews:
     covariances: FloatArray
     to_pixel: FloatArray
     constants: FloatArray
+    pose_cross: dict[int, FloatArray]
 
     def view(self, k: int) -> View:
         """The ``View`` of ray k."""
         frame = self.frame
         return View(
             self.index, frame.stamp_ns, frame.centre, self.directions[k], self.covariances[k],
-            frame.pose_covariance, self.to_pixel[k],
+            frame.pose_covariance, self.to_pixel[k], self.pose_cross,
         )  # fmt: skip
 
     def precision(self, k: int) -> FloatArray:
@@ -143,6 +148,9 @@ class FrameInput:
     ``rotation`` (3, 3) is R_world_camera of the optical frame, ``centre`` (3,) m its
     position, ``pose_covariance`` (6, 6) over (position, rotation about the world axes) or
     None (known pose); ``ids`` (M,) track ids and ``pixels`` (M, 2) raw-image pixels.
+    ``pose_cross_covariances`` (K, 6, 6) are Cov(this pose's error, the error of the pose
+    stamped ``pose_cross_stamps[k]``), in the same coordinates, for earlier poses the source
+    remembers (None: independent errors; ``pose_links``).
     """
 
     stamp_ns: int
@@ -151,6 +159,8 @@ class FrameInput:
     ids: IntArray
     pixels: FloatArray
     pose_covariance: FloatArray | None = None
+    pose_cross_stamps: tuple[int, ...] = ()
+    pose_cross_covariances: FloatArray | None = None
 
 
 @dataclass(eq=False)
@@ -218,6 +228,7 @@ class ShadowFilter:
         self._static_test = static_test(self.config.classifier.static_test)
         self._frame = -1
         self._last: FrameInput | None = None
+        self.linked_frames = 0  # frames whose pose came with a table (pose_links)
 
     @property
     def frame_count(self) -> int:
@@ -258,6 +269,7 @@ class ShadowFilter:
             warnings.append(f'ignored features with non-finite pixels: ids {bad}')
         ids, pixels = frame.ids[finite], frame.pixels[finite]
         self._frame += 1
+        self.linked_frames += frame.pose_cross_covariances is not None
         if self._last is not None and len(self._tracks):
             self._predict(self._last, frame)
         row_of = {track.id: row for row, track in enumerate(self._tracks)}
@@ -375,6 +387,18 @@ class ShadowFilter:
                 raise InputError('camera pose: the covariance is not a finite 6x6 matrix')
             if not np.any(covariance):
                 covariance = None
+        cross, cross_stamps = frame.pose_cross_covariances, tuple(frame.pose_cross_stamps)
+        if cross is not None:
+            cross = np.asarray(cross, dtype=np.float64)
+            if cross.shape != (len(cross_stamps), 6, 6) or not np.all(np.isfinite(cross)):
+                raise InputError(
+                    'camera pose: the cross-covariances are not one finite 6x6 matrix per '
+                    f'earlier stamp ({len(cross_stamps)} stamps, shape {cross.shape})'
+                )
+            if any(stamp >= frame.stamp_ns for stamp in cross_stamps):
+                raise InputError('camera pose: a cross-covariance stamp is not earlier')
+            if covariance is None or not len(cross_stamps):
+                cross, cross_stamps = None, ()
         if self._last is not None and frame.stamp_ns <= self._last.stamp_ns:
             raise InputError(
                 f'stamp {frame.stamp_ns} ns is not after the previous frame '
@@ -386,7 +410,9 @@ class ShadowFilter:
             raise InputError(f'{len(ids)} feature ids but {len(pixels)} pixel pairs')
         if len(set(ids.tolist())) != len(ids):
             raise InputError('feature ids repeat within one frame')
-        return FrameInput(frame.stamp_ns, rotation, centre, ids, pixels, covariance)
+        return FrameInput(
+            frame.stamp_ns, rotation, centre, ids, pixels, covariance, cross_stamps, cross
+        )
 
     def _predict(self, previous: FrameInput, frame: FrameInput) -> None:
         rotation = frame.rotation.T @ previous.rotation
@@ -402,7 +428,7 @@ class ShadowFilter:
             empty = np.zeros((0, 3))
             return _FrameViews(
                 self._frame, frame, empty, np.zeros((0, 3, 3)), np.zeros((0, 3, 2)),
-                np.zeros((0, ROW_SIZE)),
+                np.zeros((0, ROW_SIZE)), {},
             )  # fmt: skip
         rays, jacobians = self.camera.pixel_rays(pixels)
         directions, covariances, to_pixel = pixel_ray_directions(
@@ -411,7 +437,8 @@ class ShadowFilter:
         precisions = _ray_precisions(to_pixel, self.config.ekf.measurement_sigma_px)
         centres = np.broadcast_to(frame.centre, (len(directions), 3))
         constants = view_rows(centres, directions, covariances, precisions, frame.pose_covariance)
-        return _FrameViews(self._frame, frame, directions, covariances, to_pixel, constants)
+        table = cross_table(frame.pose_cross_stamps, frame.pose_cross_covariances)
+        return _FrameViews(self._frame, frame, directions, covariances, to_pixel, constants, table)
 
     def _initial(self, frame: FrameInput, views: list[View]) -> tuple[FloatArray, FloatArray]:
         """EKF states and covariances of features first seen (or restarted) along views."""

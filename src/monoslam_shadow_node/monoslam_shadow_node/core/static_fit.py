@@ -21,10 +21,11 @@ assumes (eq. 2: constant velocity):
   the eigenvalues of S say how visible motion in each direction has been so far (per
   (m/s)^2): the test's power against a given speed, independent of the noise in the rays.
 
-The views' pose errors are taken as independent between images, as everywhere in the Shadow
-filter. The tracker's errors are too, unless its offsets persist (``tracking_noise``): then
-r's covariance Sigma holds the offsets' covariance between views, and every sum above is the
-generalized least squares one, with J and r premultiplied by L^-1 (Sigma = L L').
+The views' pose errors are independent between images unless the pose source links them
+(``pose_links``: a SLAM filter's errors drift), and so are the tracker's unless its offsets
+persist (``tracking_noise``). Either way r's covariance Sigma then holds the covariance
+between views, and every sum above is the generalized least squares one, with J and r
+premultiplied by L^-1 (Sigma = L L'; ``view_fit``).
 
 With independent errors (white tracking noise, the Shadow filter's default) each view's
 residual has its own 2 x 2 covariance Sigma_i, so every sum above is a sum over views of
@@ -43,15 +44,15 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import solve_triangular
 
+from monoslam_shadow_node.core.pose_links import covered_views
 from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile
 from monoslam_shadow_node.core.rays import View
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
+from monoslam_shadow_node.core.view_fit import CONDITION_LIMIT, bases, fit
 from slam_core.geometry.so3 import skew
 
 MOTION_DOF = 3
-_CONDITION_LIMIT = 1e12
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,155 +67,6 @@ class MotionScoreTest:
     covariance: FloatArray
     visibility: FloatArray
     views: int
-
-
-@dataclass(frozen=True, eq=False)
-class _Geometry:
-    """All views at a point, whitened: the residuals (2N,) and their Jacobian with respect to
-    the point (2N, 3) premultiplied by a root of the residuals' inverse covariance, and that
-    root (``whiten``), so that r' Sigma^-1 r = |whitened residual|^2; ``raw_jacobian``
-    (N, 2, 3) is the Jacobian per view before whitening."""
-
-    residual: FloatArray
-    jacobian: FloatArray
-    raw_jacobian: FloatArray
-    whiten: _Whitening
-
-
-@dataclass(frozen=True, eq=False)
-class _Whitening:
-    """A root of the inverse of the residuals' covariance: per view (N, 2, 2) blocks U_i with
-    U_i' U_i = W_i when the views' errors are independent, else L^-1 (2N, 2N) with L the
-    lower Cholesky factor of the whole covariance Sigma."""
-
-    blocks: FloatArray | None
-    inverse_factor: FloatArray | None
-
-    def apply(self, values: FloatArray) -> FloatArray:
-        """Whiten per-view values (N, 2, k) into (2N, k)."""
-        if self.blocks is not None:
-            return (self.blocks @ values).reshape(-1, values.shape[2])
-        assert self.inverse_factor is not None
-        return self.inverse_factor @ values.reshape(-1, values.shape[2])
-
-    @property
-    def fixed(self) -> bool:
-        """True for the whole covariance's root, which is reused across iterations."""
-        return self.inverse_factor is not None
-
-
-def _bases(directions: FloatArray) -> FloatArray:
-    """Return orthonormal bases (N, 3, 2) across unit directions (N, 3)."""
-    helper = np.where(np.abs(directions[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    first = np.cross(directions, helper)
-    first /= np.linalg.norm(first, axis=1, keepdims=True)
-    return np.stack([first, np.cross(directions, first)], axis=2)
-
-
-def _geometry(
-    views: list[View],
-    basis: FloatArray,
-    point: FloatArray,
-    noise: TrackingNoise | None,
-    whiten: _Whitening | None = None,
-) -> _Geometry | None:
-    """Whitened residuals of all views at ``point``; None if it is behind a camera or the
-    residuals' covariance is not positive definite. ``whiten``: reuse this root of the
-    inverse covariance instead of computing it at ``point``."""
-    centres = np.array([view.centre for view in views])
-    directions = np.array([view.direction for view in views])
-    offset = point - centres
-    depth = np.einsum('ni,ni->n', directions, offset)
-    if np.any(depth <= 0):
-        return None
-    across = np.swapaxes(basis, 1, 2)  # (N, 2, 3)
-    covariance = across @ np.array([view.direction_covariance for view in views]) @ basis
-    posed = np.array([view.pose_covariance is not None for view in views], dtype=bool)
-    if np.any(posed):
-        # r = B' (P - C) / rho: dr/dC = -B' / rho; a rotation dtheta of the camera turns
-        # the measured ray, i.e. the offset by -dtheta: dr/dtheta = B' [P - C]x / rho.
-        pose_covariances = np.array(
-            [v.pose_covariance for v in views if v.pose_covariance is not None]
-        )
-        pose_jacobian = (
-            np.concatenate([-across[posed], across[posed] @ skew(offset[posed])], axis=2)
-            / depth[posed, None, None]
-        )
-        covariance[posed] += pose_jacobian @ pose_covariances @ np.swapaxes(pose_jacobian, 1, 2)
-    residual = (across @ offset[:, :, None])[:, :, 0] / depth[:, None]
-    # The exact derivative, including the depth's: dr/dP = (B' - r d') / rho. Dropping the
-    # second term (r is small) looks harmless but biases the fit along the rays by about one
-    # standard deviation at 1 px noise: sum_i d_i |r_i|^2 / rho_i does not average out.
-    jacobian = (across - residual[:, :, None] * directions[:, None, :]) / depth[:, None, None]
-    if whiten is None:
-        whiten = _whitening(views, across, covariance, noise)
-        if whiten is None:
-            return None
-    values = whiten.apply(np.concatenate([residual[:, :, None], jacobian], axis=2))
-    return _Geometry(values[:, 0], values[:, 1:], jacobian, whiten)
-
-
-def _whitening(
-    views: list[View], across: FloatArray, covariance: FloatArray, noise: TrackingNoise | None
-) -> _Whitening | None:
-    """Return a root of the residuals' inverse covariance: the views' own covariances
-    (N, 2, 2) and, with correlated tracking offsets, the offsets' covariance between views
-    (B_i' Sigma_didj B_j); None if that is not positive definite."""
-    regular = covariance + 1e-18 * np.eye(2)
-    if noise is None or noise.white:
-        weight = np.linalg.inv(regular)
-        return _Whitening(np.swapaxes(np.linalg.cholesky(weight), 1, 2), None)
-    missing = [view.frame for view in views if view.pixel_jacobian is None]
-    if missing:
-        raise ValueError(f'views of frames {missing} carry no pixel Jacobian for the offsets')
-    # r_i = -B_i' e_i for a direction error e_i = A_i o_i: the offset o_i enters r_i
-    # through B_i' A_i (N, 2, 2)
-    to_residual = across @ np.array([view.pixel_jacobian for view in views])
-    blocks = noise.cross_covariances(np.array([view.stamp_ns for view in views]), to_residual)
-    count = len(views)
-    blocks[np.arange(count), np.arange(count)] = regular
-    full = blocks.transpose(0, 2, 1, 3).reshape(2 * count, 2 * count)
-    try:
-        factor = np.linalg.cholesky(0.5 * (full + full.T))
-    except np.linalg.LinAlgError:
-        return None
-    inverse = solve_triangular(factor, np.eye(2 * count), lower=True)
-    return _Whitening(None, np.asarray(inverse, dtype=np.float64))
-
-
-def _fit(
-    views: list[View], start: FloatArray, iterations: int, noise: TrackingNoise | None
-) -> tuple[FloatArray, FloatArray, _Geometry] | None:
-    """Gauss-Newton for the static point; returns it, its normal matrix and the geometry."""
-    basis = _bases(np.array([view.direction for view in views]))
-    point = np.asarray(start, dtype=np.float64).copy()
-    # With correlated offsets the whole covariance is factored once at the start and kept
-    # while iterating (its pose part changes only with the depths); it is factored again
-    # at the final point when the poses are uncertain, so the normal matrix and the score
-    # test use the covariance there.
-    kept: _Whitening | None = None
-    posed = any(view.pose_covariance is not None for view in views)
-    for _ in range(iterations):
-        geometry = _geometry(views, basis, point, noise, kept)
-        if geometry is None:
-            return None
-        if geometry.whiten.fixed:
-            kept = geometry.whiten
-        normal = geometry.jacobian.T @ geometry.jacobian
-        gradient = geometry.jacobian.T @ geometry.residual
-        if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > _CONDITION_LIMIT:
-            return None
-        step = np.linalg.solve(normal, gradient)
-        point = point - step
-        if np.linalg.norm(step) < 1e-9 * (1.0 + np.linalg.norm(point)):
-            break
-    final = _geometry(views, basis, point, noise, None if posed else kept)
-    if final is None:
-        return None
-    normal = final.jacobian.T @ final.jacobian
-    if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > _CONDITION_LIMIT:
-        return None
-    return point, normal, final
 
 
 # Per-view constants of the white-noise path, packed in one row per view (``view_rows``):
@@ -249,7 +101,7 @@ def view_rows(
     tau column is 0.
 
     The pose part of view i's residual covariance is G P G' with G = B'[-I, [o]x] / rho
-    (``_geometry``), so rho^2 G P G' = B'P_pp B - U Q' - Q U' + Q P_rr Q' with U = B'P_pr
+    (``geometry``), so rho^2 G P G' = B'P_pp B - U Q' - Q U' + Q P_rr Q' with U = B'P_pr
     and Q = B'[o]x, whose row k is (b_k x o)' = ([b_k]x o)': entry (k, l) is
     A_kl - c_kl . o + o' R_kl o with A = B'P_pp B, c_kl = u_k x b_l + u_l x b_k and
     R_kl = [b_k]x' P_rr [b_l]x (symmetrized)."""
@@ -257,13 +109,13 @@ def view_rows(
     rows = np.zeros((count, ROW_SIZE))
     if not count:
         return rows
-    across = np.swapaxes(_bases(directions), 1, 2)  # (M, 2, 3)
+    across = np.swapaxes(bases(directions), 1, 2)  # (M, 2, 3)
     basis = np.swapaxes(across, 1, 2)
     rows[:, ROW_CENTRE] = centres
     rows[:, ROW_DIRECTION] = directions
     rows[:, ROW_PRECISION] = precisions.reshape(count, 9)
     rows[:, ROW_ACROSS] = across.reshape(count, 6)
-    noise = across @ direction_covariances @ basis + 1e-18 * np.eye(2)  # (as _whitening)
+    noise = across @ direction_covariances @ basis + 1e-18 * np.eye(2)  # (as whitening)
     rows[:, ROW_NOISE] = np.stack([noise[:, k, m] for k, m in _ENTRIES], axis=1)
     if pose_covariances is not None and np.any(pose_covariances):
         # one (6, 6) for all views (one image's), or one per view (M, 6, 6)
@@ -328,7 +180,7 @@ def _normal_equations(
     """Evaluate r_i, J_i and Sigma_i of every view (rows) at its feature's point (points
     (K, 3), ``segment`` (M,) the feature of each view, ``starts`` (K,) each feature's first
     row) and sum J' W J and J' W r per feature, W = Sigma^-1 (the white-noise path of
-    ``_geometry``): [J_i | r_i] (2, 4) is whitened by Sigma_i = L_i L_i' (Cholesky, written
+    ``geometry``): [J_i | r_i] (2, 4) is whitened by Sigma_i = L_i L_i' (Cholesky, written
     out for 2 x 2), so that J' W J and J' W r are blocks of the sum of the whitened rows'
     outer products."""
     count = len(rows)
@@ -337,7 +189,7 @@ def _normal_equations(
     along = np.einsum('mji,mi->mj', frame, offset)  # rho = d' o, then B' o
     inverse = 1.0 / along[:, 0]
     behind = np.logical_or.reduceat(along[:, 0] <= 0, starts)
-    augmented = np.empty((count, 2, 4))  # [J | r], dr/dP = (B' - r d') / rho (see _geometry)
+    augmented = np.empty((count, 2, 4))  # [J | r], dr/dP = (B' - r d') / rho (see geometry)
     residual = augmented[:, :, 3]
     np.multiply(along[:, 1:], inverse[:, None], out=residual)
     jacobian = augmented[:, :, :3]
@@ -365,13 +217,13 @@ def _normal_equations(
 
 def _unusable(normal: FloatArray) -> NDArray[np.bool_]:
     """Normal matrices (K, 3, 3) that are not finite or worse conditioned than
-    ``_CONDITION_LIMIT`` (np.linalg.cond's 2-norm condition number: for these symmetric
+    ``CONDITION_LIMIT`` (np.linalg.cond's 2-norm condition number: for these symmetric
     matrices the ratio of the largest to the smallest eigenvalue magnitude)."""
     finite = np.all(np.isfinite(normal), axis=(1, 2))
     values = np.abs(np.linalg.eigvalsh(np.where(finite[:, None, None], normal, np.eye(3))))
     with np.errstate(divide='ignore', invalid='ignore'):
         condition = values.max(axis=1) / values.min(axis=1)
-    return np.asarray(~finite | ~(condition <= _CONDITION_LIMIT), dtype=bool)
+    return np.asarray(~finite | ~(condition <= CONDITION_LIMIT), dtype=bool)
 
 
 def motion_score_tests(
@@ -530,6 +382,13 @@ def _score_test(
     )
 
 
+def linked(views: list[View]) -> bool:
+    """True when the latest view carries its pose error's covariance with earlier poses'
+    (``pose_links``): the fit and the test then take the generalized least squares path,
+    over the views that table covers."""
+    return len(views) > 1 and bool(views[-1].pose_cross)
+
+
 def triangulate(
     views: list[View],
     start: FloatArray,
@@ -539,7 +398,7 @@ def triangulate(
     """Return the static point (3,) that best explains all views' rays and its covariance
     (3, 3) (the inverse normal matrix), or None if the rays do not fix it (e.g. no
     baseline). ``noise``: correlated tracking offsets between the views, if any."""
-    fitted = _fit(views, start, iterations, noise)
+    fitted = fit(covered_views(views), start, iterations, noise)
     if fitted is None:
         return None
     point, normal, _ = fitted
@@ -559,11 +418,12 @@ def motion_score_test(
     tracking offsets between the views, if any (generalized least squares with them)."""
     if not 0.0 < alpha < 1.0:
         raise ValueError(f'alpha={alpha!r}: the significance level must be in (0, 1)')
+    views = covered_views(views)
     if len(views) < 3:
         return None
-    if noise is None or noise.white:
+    if (noise is None or noise.white) and not linked(views):
         return motion_score_tests([_views_as_rows(views)], [alpha], [start], iterations)[0]
-    fitted = _fit(views, start, iterations, noise)
+    fitted = fit(views, start, iterations, noise)
     if fitted is None:
         return None
     point, normal, geometry = fitted
