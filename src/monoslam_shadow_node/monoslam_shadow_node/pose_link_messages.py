@@ -3,11 +3,10 @@ are passed in).
 
 A pose source whose errors drift (monoslam) publishes, on ``<pose topic>/link`` just before
 each pose, the covariances of that pose's error with the errors of its recent earlier poses.
-The
-shadow_filter keeps the links it received by stamp (``PoseLinks``) and attaches one to the
-pose of the same stamp; a pose whose link did not come (not published, lost, or later than
-the pose) goes on without one, and the Shadow filter takes its error as independent, which is
-what it did before links existed. Counted, never silent.
+The shadow_filter pairs each pose with the link of its stamp (``PoseLinks``); a pose whose
+link did not come (not published, or lost) goes on without one, and the Shadow filter takes
+its error as independent, which is what it did before links existed. Counted, never
+silent.
 """
 
 from __future__ import annotations
@@ -70,30 +69,51 @@ def fill_pose_link(
 
 
 class PoseLinks:
-    """The links received, by stamp, until their pose comes (``attach``); counts what came
-    (``received``), what was attached (``linked``), the poses that went without
-    (``unlinked``) and the links no pose took (``unused``)."""
+    """Pairs the poses with their links, whichever comes first (one executor may hand a node
+    the pose before the link published just ahead of it). Once links have come, a pose
+    without its link waits for it until the next pose or ``flush``; before any link, poses
+    pass at once (a source without links is not delayed). Counts the links that came
+    (``received``), the poses that went with one (``linked``) and without (``unlinked``)
+    and the links no pose took (``unused``)."""
 
     def __init__(self, capacity: int = MAX_LINKS) -> None:
         self._links: OrderedDict[int, PoseLinkInput] = OrderedDict()
         self._capacity = capacity
+        self._waiting: CameraPose | None = None
         self.received = self.linked = self.unlinked = self.unused = 0
 
-    def add(self, link: PoseLinkInput) -> None:
-        """Keep a link until the pose of its stamp comes (the oldest go beyond capacity)."""
+    def on_pose(self, pose: CameraPose) -> list[CameraPose]:
+        """Take a pose; return the poses ready to use, in order."""
+        ready = self.flush()
+        while self._links and next(iter(self._links)) < pose.stamp_ns:
+            self._links.popitem(last=False)  # their poses have passed
+            self.unused += 1
+        link = self._links.pop(pose.stamp_ns, None)
+        if link is not None or pose.covariance is None or not self.received:
+            ready.append(self._with(pose, link))
+        else:
+            self._waiting = pose
+        return ready
+
+    def on_link(self, link: PoseLinkInput) -> list[CameraPose]:
+        """Take a link; return the waiting pose it completes (or nothing)."""
         self.received += 1
+        waiting = self._waiting
+        if waiting is not None and waiting.stamp_ns == link.stamp_ns:
+            self._waiting = None
+            return [self._with(waiting, link)]
         self._links[link.stamp_ns] = link
         while len(self._links) > self._capacity:
             self._links.popitem(last=False)
             self.unused += 1
+        return []
 
-    def attach(self, pose: CameraPose) -> CameraPose:
-        """Return the pose with its link (``CameraPose.cross_covariance``) when one came for
-        its stamp, else as it is; older links are let go (their poses have passed)."""
-        while self._links and next(iter(self._links)) < pose.stamp_ns:
-            self._links.popitem(last=False)
-            self.unused += 1
-        link = self._links.pop(pose.stamp_ns, None)
+    def flush(self) -> list[CameraPose]:
+        """Release the pose waiting for its link, without it (the inputs went quiet)."""
+        waiting, self._waiting = self._waiting, None
+        return [] if waiting is None else [self._with(waiting, None)]
+
+    def _with(self, pose: CameraPose, link: PoseLinkInput | None) -> CameraPose:
         if link is None or pose.covariance is None:
             self.unlinked += 1
             return pose

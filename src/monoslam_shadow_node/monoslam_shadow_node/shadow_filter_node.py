@@ -305,14 +305,18 @@ class ShadowFilterNode(Node):
 
     def _on_pose(self, message: PoseWithCovarianceStamped) -> None:
         self._last_input = time.monotonic()
-        pose = self._links.attach(pose_from_message(message))
-        self._handle(self.processor.add_pose(pose))
+        for pose in self._links.on_pose(pose_from_message(message)):
+            self._handle(self.processor.add_pose(pose))
 
     def _on_link(self, message: PoseLink) -> None:
+        self._last_input = time.monotonic()
         try:
-            self._links.add(link_from_message(message))
+            ready = self._links.on_link(link_from_message(message))
         except ValueError as err:
             self.get_logger().warning(f'{self.settings.pose_topic}{LINK_SUFFIX}: {err}; ignored')
+            return
+        for pose in ready:
+            self._handle(self.processor.add_pose(pose))
 
     def _on_revoked(self, message: ShadowTrackArray) -> None:
         ids = revoked_from_message(message)
@@ -325,8 +329,11 @@ class ShadowFilterNode(Node):
 
     def _flush_when_idle(self) -> None:
         idle_s = time.monotonic() - self._last_input
-        if self.processor.waiting_features and idle_s > self.settings.sync_horizon_ns / 1e9:
-            self._handle(self.processor.flush())
+        if idle_s > self.settings.sync_horizon_ns / 1e9:
+            for pose in self._links.flush():  # its link did not come
+                self._handle(self.processor.add_pose(pose))
+            if self.processor.waiting_features:
+                self._handle(self.processor.flush())
 
     # --- outputs ----------------------------------------------------------------------------
 
@@ -400,7 +407,11 @@ class ShadowFilterNode(Node):
         """Log the final summary, then destroy."""
         counts = self.processor.counts
         if counts.processed or counts.dropped_total or counts.skipped or counts.pose_refused:
-            self.get_logger().info(f'done: {self.processor.status_line()}')
+            links = self._links
+            self.get_logger().info(
+                f'done: {self.processor.status_line()}; poses with their link {links.linked}, '
+                f'without {links.unlinked + len(links.flush())}'
+            )
         super().destroy_node()
 
 
