@@ -117,8 +117,9 @@ class FrameTimes:
 def shadow_input(
     frame: MeasurementFrame, slam: MonoSlam, count: int, result: MonoSlamResult
 ) -> FrameInput | None:
-    """Return the Shadow filter's input for this frame: SLAM's pose and covariance and the
-    ``count`` lowest ids SLAM does not own; None without a pose."""
+    """Return the Shadow filter's input for this frame: SLAM's pose, its covariance and its
+    covariances with the earlier poses' (as the pipeline passes them) and the ``count``
+    lowest ids SLAM does not own; None without a pose."""
     if result.status != TRACKING or result.centre is None or result.rotation is None:
         return None
     owned = slam.owned_ids
@@ -132,6 +133,8 @@ def shadow_input(
         ids[chosen],
         pixels[chosen],
         result.pose_covariance,
+        tuple(result.pose_cross_stamps),
+        result.pose_cross_covariances,
     )
 
 
