@@ -205,7 +205,19 @@ def _compressed(rng: np.random.Generator) -> Any:
     return message
 
 
+def _pose_link(rng: np.random.Generator) -> Any:
+    """A link to 1-3 earlier poses (stamps near 0, before any the feeder gives) with small
+    cross-covariances, 36 per stamp."""
+    message = message_class('slam_interfaces/PoseLink')()
+    time = message_class('builtin_interfaces/Time')
+    count = int(rng.integers(1, 4))
+    message.earlier_stamps = [time(sec=0, nanosec=k + 1) for k in range(count)]
+    message.cross_covariances = (1e-4 * rng.standard_normal(36 * count)).tolist()
+    return message
+
+
 SANE_BUILDERS: dict[str, Callable[[np.random.Generator], Any]] = {
+    'slam_interfaces/PoseLink': _pose_link,
     'geometry_msgs/Quaternion': _quaternion_message,
     'sensor_msgs/CameraInfo': _camera_info,
     'sensor_msgs/Image': _image,
@@ -469,7 +481,10 @@ INPUTS: dict[str, tuple[str, ...]] = {
         '/features', '/fiducials', '/camera/camera_info', '/shadow/static_features',
         '/shadow/tracks',
     ),
-    'shadow_filter': ('/features', '/monoslam/pose', '/camera/camera_info', '/monoslam/revoked'),
+    'shadow_filter': (
+        '/features', '/monoslam/pose', '/monoslam/pose/link', '/camera/camera_info',
+        '/monoslam/revoked',
+    ),
     'odometry_ingest': ('/odom', '/landmark_observations'),
     'em_sam_mapper': ('/odometry_increments', '/landmark_observations'),
 }  # fmt: skip

@@ -32,7 +32,9 @@ Topics:
               every frame with a pose (tracking): the pose of the camera OPTICAL frame (x right,
               y down, z forward) in map_frame, R_world_camera and the optical centre, covariance
               in ROS order (x, y, z, rotation about the map's X, Y, Z axes) -- what
-              shadow_filter's pose_topic expects.
+              shadow_filter's pose_topic expects. Just before it, monoslam/pose/link
+              (slam_interfaces/PoseLink): the pose error's covariances with the errors of
+              the earlier poses the filter remembers (core/monoslam_state.POSE_HISTORY).
               monoslam/path (nav_msgs/Path, reliable, depth 1), every frame with a pose while
               someone subscribes: the latest path_length poses.
               monoslam/map (sensor_msgs/PointCloud2, reliable, transient local), at most every

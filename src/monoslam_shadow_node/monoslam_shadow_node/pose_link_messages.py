@@ -73,14 +73,15 @@ class PoseLinks:
     the pose before the link published just ahead of it). Once links have come, a pose
     without its link waits for it until the next pose or ``flush``; before any link, poses
     pass at once (a source without links is not delayed). Counts the links that came
-    (``received``), the poses that went with one (``linked``) and without (``unlinked``)
-    and the links no pose took (``unused``)."""
+    (``received``), the poses that went with one (``linked``) and without (``unlinked``),
+    the links no pose took (``unused``) and those that could not be read (``rejected``)."""
 
     def __init__(self, capacity: int = MAX_LINKS) -> None:
         self._links: OrderedDict[int, PoseLinkInput] = OrderedDict()
         self._capacity = capacity
         self._waiting: CameraPose | None = None
         self.received = self.linked = self.unlinked = self.unused = 0
+        self.rejected = 0  # counted by the caller, which reads the messages
 
     def on_pose(self, pose: CameraPose) -> list[CameraPose]:
         """Take a pose; return the poses ready to use, in order."""

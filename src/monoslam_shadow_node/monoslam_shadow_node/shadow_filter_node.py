@@ -20,6 +20,9 @@ Topics:
               all zero = a known pose. Every frame with a pose is processed, however
               uncertain the pose: its covariance widens the rays, so decisions come later.
               A frame whose pose covariance is not finite is skipped (a warning, counted).
+              <pose_topic>/link (slam_interfaces/PoseLink, reliable, depth 100), optional:
+              the pose error's covariances with the source's earlier poses; with them the
+              all-view test models the drift the poses share (pose_link_messages).
               camera/camera_info (sensor_msgs/CameraInfo, best effort, depth 100 as it is taken
               in step with features): intrinsics and plumb_bob/rational_polynomial distortion;
               a change is applied from the next frame on and logged.
@@ -263,6 +266,7 @@ class ShadowFilterNode(Node):
             'camera_info rejected': self._camera_watch.rejected,
             'poses linked': self._links.linked,
             'poses unlinked': self._links.unlinked,
+            'links rejected': self._links.rejected,
         }
 
     @property
@@ -313,7 +317,11 @@ class ShadowFilterNode(Node):
         try:
             ready = self._links.on_link(link_from_message(message))
         except ValueError as err:
-            self.get_logger().warning(f'{self.settings.pose_topic}{LINK_SUFFIX}: {err}; ignored')
+            self._links.rejected += 1
+            self.get_logger().warning(
+                f'{self.settings.pose_topic}{LINK_SUFFIX}: {err}; link rejected, its pose is '
+                'taken as independent of the earlier ones'
+            )
             return
         for pose in ready:
             self._handle(self.processor.add_pose(pose))
