@@ -37,12 +37,20 @@ def reliable_qos(depth: int = 1000, *, latched: bool = False) -> QoSProfile:
     )
 
 
+_STOPPED: list[str] = []
+"""Why the latest harness's executor stopped (an exception escaped a node's callback), if it
+did: nothing spins any more, so ``wait_until`` fails at once instead of at its deadline."""
+
+
 def wait_until(
     predicate: Callable[[], bool], *, timeout_s: float = DEFAULT_TIMEOUT_S, what: str = 'condition'
 ) -> None:
-    """Poll ``predicate`` until it is true; raise TimeoutError naming ``what`` at the deadline."""
+    """Poll ``predicate`` until it is true; raise TimeoutError naming ``what`` at the deadline,
+    or RuntimeError as soon as the harness's executor has stopped on an exception."""
     deadline = time.monotonic() + timeout_s
     while not predicate():
+        if _STOPPED:
+            raise RuntimeError(f'waiting for {what}: {_STOPPED[-1]}')
         if time.monotonic() > deadline:
             raise TimeoutError(f'timed out after {timeout_s:.1f} s waiting for {what}')
         time.sleep(POLL_S)
@@ -153,11 +161,19 @@ class RosHarness:
         self._processes: list[NodeProcess] = []
         self._thread = threading.Thread(target=self._spin, name='harness-executor', daemon=True)
         self._running = True
+        _STOPPED.clear()
         self._thread.start()
 
     def _spin(self) -> None:
-        while self._running and rclpy.ok():
-            self.executor.spin_once(timeout_sec=0.05)
+        try:
+            while self._running and rclpy.ok():
+                self.executor.spin_once(timeout_sec=0.05)
+        except Exception as error:  # a node's callback raised: the graph stops here
+            _STOPPED.append(
+                f'the harness executor stopped: {type(error).__name__}: {error} '
+                '(an exception escaped a node callback; its traceback follows the test)'
+            )
+            raise
 
     # -- nodes ----------------------------------------------------------------------------
     def add_node(self, node: Node) -> Node:
