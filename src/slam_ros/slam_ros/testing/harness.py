@@ -251,6 +251,7 @@ class RosHarness:
             handle.stop()
         self._running = False
         self._thread.join(timeout=10.0)
+        _STOPPED.clear()  # a later wait is not this graph's
         for node in [*self._nodes, self.node]:
             self.executor.remove_node(node)
             node.destroy_node()
