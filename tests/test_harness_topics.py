@@ -3,7 +3,6 @@ executor stops, and ``wait_until`` says so at once instead of waiting out its de
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import pytest
@@ -30,7 +29,6 @@ def test_an_escaped_exception_ends_the_wait_at_once(ros_harness: RosHarness) -> 
     publisher = ros_harness.publisher('harness_check', String, output_qos())
     ros_harness.wait_for_subscribers(publisher, 1, timeout_s=20.0)
     publisher.publish(String(data='boom'))
-    started = time.monotonic()
+    # a RuntimeError naming the exception, not the TimeoutError of the deadline
     with pytest.raises(RuntimeError, match="ValueError: bad input 'boom'"):
         wait_until(lambda: False, timeout_s=60.0, what='something that never comes')
-    assert time.monotonic() - started < 30.0

@@ -252,8 +252,9 @@ class ShadowFilterNode(Node):
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: frames processed, refused (pose covariance not
         finite) and skipped, inputs dropped by the pairing, features handed over as static
-        and called dynamic, held pending, camera_info messages rejected, and the poses that
-        came with and without a link to the previous one (``pose_link_messages``)."""
+        and called dynamic, held pending, camera_info messages rejected, the poses that came
+        with and without their link to earlier poses, and the links rejected (unreadable) or
+        unused (no pose of their stamp came) (``pose_link_messages``)."""
         counts = self.processor.counts
         return {
             'processed': counts.processed,
@@ -267,6 +268,7 @@ class ShadowFilterNode(Node):
             'poses linked': self._links.linked,
             'poses unlinked': self._links.unlinked,
             'links rejected': self._links.rejected,
+            'links unused': self._links.unused,
         }
 
     @property

@@ -50,8 +50,8 @@ def predict(state: FilterState, dt_s: float, config: MonoSlamConfig) -> None:
     camera, f, q = predict_camera(state.x[:CAMERA_SIZE], dt_s, *sigmas)
     state.x[:CAMERA_SIZE] = camera
     c = slice(0, CAMERA_SIZE)
-    history = state.history  # F applies to the remembered poses' columns too (pose_cross)
-    if history.shape[0] == len(state.x):
+    history = state.carried_history()  # F applies to the remembered poses' too (pose_cross)
+    if history is not None:
         history[c] = f @ history[c]
     state.p[c, c] = f @ state.p[c, c] @ f.T + q
     state.p[c, CAMERA_SIZE:] = f @ state.p[c, CAMERA_SIZE:]
@@ -60,7 +60,7 @@ def predict(state: FilterState, dt_s: float, config: MonoSlamConfig) -> None:
     if len(offsets):
         decay, fresh = config.tracking_noise.step(dt_s)
         state.x[offsets] *= decay
-        if history.shape[0] == len(state.x):
+        if history is not None:
             history[offsets] *= decay
         state.p[offsets, :] *= decay
         state.p[:, offsets] *= decay
@@ -377,8 +377,9 @@ def consider_update(
     s = linearized.innovation_covariance(state.p, sigma2)
     gain = np.linalg.solve(s, b[block].T).T
     state.x[block] = state.x[block] + gain @ (match.pixel - linearized.predicted)
-    if state.history.shape[0] == len(state.x):
-        state.history[block] -= gain @ linearized.p_h_t(state.history.T).T
+    history = state.carried_history()
+    if history is not None:
+        history[block] -= gain @ linearized.p_h_t(history.T).T
     k_b = gain @ b.T
     rows = state.p[block, :] - k_b
     own = rows[:, block] - k_b[:, block].T + gain @ s @ gain.T
@@ -523,8 +524,9 @@ def joseph_update(
     p = half + half.T  # (not in place: numpy would copy the transposed operand first)
     p += state.p
     jacobian = renormalize_quaternion(state.x)
-    if state.history.shape[0] == len(state.x):
-        history = state.history - gain @ (h @ state.history[columns])
+    history = state.carried_history()
+    if history is not None:
+        history = history - gain @ (h @ history[columns])
         history[Q_SLICE] = jacobian @ history[Q_SLICE]
         state.history = history
     rows = jacobian @ p[Q_SLICE, :]
@@ -562,8 +564,8 @@ def pose_cross(state: FilterState) -> tuple[list[int], FloatArray]:
     carries them exactly through every prediction, update and change of the map (the
     errors' linear propagation: F, then I - K H, at each step); the Shadow filter's static
     test takes the drift its views share from them (``pose_links``)."""
-    history = state.history
-    if history.shape[0] != len(state.x) or not state.history_stamps:
+    history = state.carried_history()
+    if history is None or not state.history_stamps:
         return [], np.zeros((0, 6, 6))
     now = state.pose_jacobian() @ history[:CAMERA_SIZE]  # (6, 6 K)
     crosses = now.reshape(6, -1, 6).transpose(1, 0, 2)

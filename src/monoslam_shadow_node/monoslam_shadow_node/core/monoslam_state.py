@@ -298,6 +298,11 @@ class FilterState:
         self.history_stamps = [self.history_stamps[k] for k in kept] + [stamp_ns]
         self.history_frames = [self.history_frames[k] for k in kept] + [frame]
 
+    def carried_history(self) -> FloatArray | None:
+        """The history when it covers x (an update carries it then), else None (a state set
+        from outside, such as the RANSAC preview's)."""
+        return self.history if self.history.shape[0] == len(self.x) else None
+
     def _history_rows(self) -> FloatArray:
         """The history, emptied when it does not cover x (a state set from outside)."""
         if self.history.shape[0] != len(self.x):

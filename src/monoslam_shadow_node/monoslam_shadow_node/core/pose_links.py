@@ -13,7 +13,7 @@ frame's table (``View.pose_cross``), so the errors of a feature's views have the
 The test uses the views the latest view's table covers (``covered_views``; a source without
 tables: all views, their errors independent, as before). Cutting the table off instead
 (taking views further apart than the source remembers as independent) does not give a
-covariance: see ``monoslam_ekf.POSE_HISTORY``.
+covariance: see ``monoslam_state.POSE_HISTORY``.
 
 What the static test does with it (``view_fit``, generalized least squares):
 
@@ -65,7 +65,7 @@ def cross_table(stamps: Sequence[int], covariances: FloatArray | None) -> dict[i
 def covered_views(views: Sequence[V]) -> list[V]:
     """Return the views (in stamp order) whose pose errors the latest view's table covers,
     and the latest: any two of them are covered by the later one's (the source remembers
-    every recent pose and every k-th older one, ``monoslam_ekf.POSE_HISTORY``). All views
+    every recent pose and every k-th older one, ``monoslam_state.POSE_HISTORY``). All views
     when the latest has no table."""
     table = views[-1].pose_cross if views else None
     if not table:
