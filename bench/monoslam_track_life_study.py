@@ -12,6 +12,9 @@ whose first 180 frames show no person), in three forms:
   ``--pixel-sigma-px`` (the filter's default noise): measurements that agree exactly with the
   reference trajectory and the filter's noise model, with the tracker's track lives. Tracks
   without a depth sighting are left out;
+* ``recorded + start kept``: the recorded static tracks, and beside them (ids apart) the
+  depth start's points as ``persistent 0`` has them: what re-identifying the known points
+  would give on top of our tracker's tracks;
 * ``persistent L``: only the tracks of the depth start (the first frame with depths), their
   world points projected into every frame where they lie in the image, with white noise;
   each track's id changes every ``L`` frames (0: never; staggered over the tracks), so a
@@ -136,6 +139,27 @@ def persistent(
     return _with_sightings(sequence, rows, start_depths)
 
 
+def start_kept(sequence: Sequence, sigma_px: float, rng: np.random.Generator) -> Sequence:
+    """Return the ``recorded + start kept`` form (module docstring)."""
+    kept = persistent(sequence, 0, sigma_px, rng)
+    labels = sequence.labels or {}
+    static = np.array([not labels.get(t, False) for t in sequence.ids.tolist()], dtype=bool)
+    offset = int(sequence.ids.max(initial=0)) + 1
+    frame = np.concatenate([sequence.frame[static], kept.frame])
+    ids = np.concatenate([sequence.ids[static], kept.ids + offset])
+    pixels = np.vstack([sequence.pixels[static], kept.pixels])
+    order = np.lexsort((ids, frame))
+    depths = {(f, t + offset): d for (f, t), d in (kept.depths or {}).items()}
+    return dataclasses.replace(
+        sequence,
+        frame=frame[order],
+        ids=ids[order],
+        pixels=pixels[order],
+        labels={},
+        depths=depths,
+    )
+
+
 def _with_sightings(
     sequence: Sequence,
     rows: list[tuple[int, int, FloatArray]],
@@ -212,6 +236,7 @@ def main(argv: list[str] | None = None) -> int:
     forms: list[tuple[str, int, Callable[[np.random.Generator], Sequence]]] = [
         ('recorded', -2, lambda _: sequence),
         ('consistent', -1, lambda rng: consistent(sequence, sigma, rng)),
+        ('recorded + start kept', ID_STRIDE, lambda rng: start_kept(sequence, sigma, rng)),
     ]
     for life in (int(x) for x in args.lives.split(',')):
         forms.append((f'persistent {life}', life, functools.partial(persistent_form, life)))

@@ -14,8 +14,9 @@ Per frame (``MonoSlam.process``; each step in full: docs/design/monoslam.md):
    (``monoslam_ekf``);
 5. map management: linear inverse-depth features become Euclidean; persistent outliers and
    features not found where predicted are deleted (a handed-over or undecided one is
-   'revoked'); out-of-view features stay (the map is persistent) and are evicted into the
-   frozen map when the state is full; new features come from every new track
+   'revoked'; a depth start's point, known, is never deleted for not being found nor
+   evicted: it holds the scale); out-of-view features stay (the map is persistent) and are
+   evicted into the frozen map when the state is full; new features come from every new track
    (``initialize='all'``), or from handovers of the Shadow filter (``'handover'``) and, with
    ``fill_undecided``, from undecided tracks (with ``undecided_probation`` on probation,
    never moving the camera, until the Shadow filter clears them, ``add_handover``) until it
@@ -25,8 +26,8 @@ Per frame (``MonoSlam.process``; each step in full: docs/design/monoslam.md):
    estimate for ``lost_after_known_rejected_frames`` frames, or the pose covariance
    collapsed; the map is retired and the filter starts again.
 
-Elsewhere: the types (``monoslam_types``), state, EKF steps, 1-point RANSAC and checks
-(``monoslam_state``, ``_ekf``, ``_ransac``, ``_checks``). Here: frames, map, start, loss.
+Elsewhere: types, state, EKF steps, 1-point RANSAC, checks (``monoslam_types``, ``_state``,
+``_ekf``, ``_ransac``, ``_checks``). Here: frames, map, start, loss.
 """
 
 from __future__ import annotations
@@ -118,8 +119,6 @@ class MonoSlam:
         self._known_rejected = (0, 0)  # (rejected, in view) in the latest such frame
         self._rng = np.random.default_rng(self.config.ransac_seed)
         self._lost_pose: FloatArray | None = None  # a depth re-start keeps the world
-
-    # --- public state ----------------------------------------------------------------------
 
     @property
     def status(self) -> str:
@@ -256,7 +255,7 @@ class MonoSlam:
         outcome = self._update(observed, known_keys, known_pixels)
         cross = pose_cross(self._state)  # the pose error's covariance with earlier ones'
         measured, rejected, known_used = outcome.measured, outcome.rejected, outcome.known_used
-        unseen = [feature for feature in self._state.features if feature.id not in observed]
+        unseen = [f for f in self._state.features if f.id not in observed]
         searchable = set(self._in_view(unseen).tolist())  # predicted in view, not seen
         removed = self._manage_map(observed, rejected, searchable)
         removed.update(dict.fromkeys(self._revoked_by_shadow, 'revoked'))
@@ -358,7 +357,7 @@ class MonoSlam:
                                            start.rho_variance, strict=True):  # fmt: skip
             if self._state.insert_inverse_depth(
                 self.camera, i, pixel, float(rho), float(variance), config.pixel_sigma_px,
-                'new', self._frame, config.tracking_offset_px,
+                'start', self._frame, config.tracking_offset_px,
             ):  # fmt: skip
                 self._owned_ids.add(i)
                 added.append(i)
@@ -410,6 +409,7 @@ class MonoSlam:
                 feature.attempts >= window and feature.successes < ratio * feature.attempts
             )
             not_found = feature.searches >= window and feature.found < ratio * feature.searches
+            not_found &= feature.source != 'start'  # the known points stay, to be found again
             if failing and config.initialize == 'handover':
                 # revoked: it moved after all (handed over, or filling the map undecided);
                 # the Shadow filter takes it back, and it fills the map no more
@@ -451,7 +451,7 @@ class MonoSlam:
         excess -= config.max_features
         if excess <= 0:
             return {}
-        unseen = [feature for feature in self._state.features if feature.id not in observed]
+        unseen = [f for f in self._state.features if f.id not in observed and f.source != 'start']
         away = sorted(
             (feature for feature in unseen if feature.id not in in_view),
             key=lambda feature: (feature.successes, feature.last_seen_frame),

@@ -61,7 +61,7 @@ _RECORD = (
     'searches',
     'found',
 )
-SOURCES = ('new', 'handover')
+SOURCES = ('start', 'new', 'handover')
 
 
 def _ints(values: Any) -> np.ndarray:
@@ -175,7 +175,9 @@ def _blocks(
                 f"{offset} (tracking_offset_px differs from the saved run's)"
             )
         if item['source'] not in SOURCES:
-            raise ValueError(f'{where}: source {item["source"]!r}, expected new or handover')
+            raise ValueError(
+                f'{where}: source {item["source"]!r}, expected one of {", ".join(SOURCES)}'
+            )
         reference = references[k].copy() if size == INVERSE_DEPTH_SIZE else None
         block = FeatureBlock(
             int(item['id']),

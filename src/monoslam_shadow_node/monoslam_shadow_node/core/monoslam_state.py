@@ -60,12 +60,12 @@ def keeps_pose(current: int, earlier: int) -> bool:
 class FeatureBlock:
     """A feature in the state: its track id, its block x[start:start + size] (6: inverse
     depth with its anchor ray ``reference``; 3: Euclidean, no reference), how it entered
-    ('new' or 'handover'), the frames it was added and last seen in, its measurement record
-    (attempts, successes, consecutive failures), whether it is on probation (its
-    measurements correct only its own block: ``monoslam_ekf.consider_update``), whether the
-    Shadow filter cleared it as static (False: an undecided feature, on probation until it
-    is cleared), and the size of the tracker's offset right after the point (0, or 2: u, v
-    in px)."""
+    ('start': a depth start's point, 'new' or 'handover'), the frames it was added and last
+    seen in, its measurement record (attempts, successes, consecutive failures), whether it
+    is on probation (its measurements correct only its own block:
+    ``monoslam_ekf.consider_update``), whether the Shadow filter cleared it as static
+    (False: an undecided feature, on probation until it is cleared), and the size of the
+    tracker's offset right after the point (0, or 2: u, v in px)."""
 
     id: int
     start: int

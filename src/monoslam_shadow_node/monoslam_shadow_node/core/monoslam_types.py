@@ -203,7 +203,7 @@ class MapPoint:
     """A map feature in the world frame: id, position (3,) m and covariance (3, 3) m^2
     (None while an inverse-depth feature's depth is not known: rho within 3 sigma of 0),
     its parametrization ('inverse_depth' or 'euclidean'), whether it is in the filter (or
-    retired) and how it entered ('new' or 'handover')."""
+    retired) and how it entered ('start': from a depth start, 'new' or 'handover')."""
 
     id: int
     position: FloatArray
