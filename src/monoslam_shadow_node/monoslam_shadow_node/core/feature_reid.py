@@ -14,8 +14,19 @@ camera's pose was estimated, do not show it: they drifted with the camera.) Wher
 ``SHIFT_MIN_MATCHES`` agree, a search with several places takes the one place within 3 sigma
 of its prediction moved by their median shift, sigma being their spread about it (at least a
 match's own ``TRACKING_SIGMA_PX``), if only one lies there. Each map point has its own error
-too (its depth), so the shift only decides between look-alikes and never narrows a search:
-a few matches' spread says little of another point's."""
+too (its depth), so this shift only decides between look-alikes and never narrows a search:
+a few matches' spread says little of another point's.
+
+The image's motion. A prediction made before the image is seen carries the camera's motion
+noise over one frame (a hand-held camera's turn: 25-35 px sigma at 30 Hz), the same for
+every point, and a 3-sigma ellipse that wide is not searched (``reid_max_search_px``). The
+tracks carried into the image with a prediction show how the image actually moved:
+``aligned_predictions`` fits an affine map of their predicted pixels onto their tracked
+ones (at least ``MOTION_MIN_TRACKS``, one reweighting that drops those beyond
+``SEARCH_SIGMAS`` robust sigma), moves each remembered track's prediction through it, and
+takes as its covariance the spread of the carried tracks about the fit (at least
+``TRACKING_SIGMA_PX``) plus the part of its own covariance above the carried tracks'
+median one (its own error: an uncertain depth), when that is smaller than the prediction's."""
 
 from __future__ import annotations
 
@@ -54,6 +65,13 @@ MAX_REFINE_SCALE = 2.0
 it is no longer the same view of the patch)."""
 REFINE_ITERATIONS = 50
 """Iterations of the affine alignment (it converges in a few from a pixel off)."""
+ALIGNMENTS_PER_IMAGE = 6
+"""At most this many ``refine_match`` alignments per image, in the predictions' order
+(SLAM sends its features oldest first: a depth start's points before all). One costs about
+3 ms (up to ``REFINE_ITERATIONS`` of enhanced correlation on the core, profiled on Bonn
+crowd), and the tracker's other work 10-15 ms of a 30 Hz image's 33 (bench/README.md):
+unbounded, searching every remembered track in view took 110 ms an image there. A peak
+that matches as it is needs no alignment and is always taken."""
 SHIFT_MIN_MATCHES = 3
 """Unique matches in an image needed to decide look-alikes by their shared shift
 (``resolve_by_shift``): their median tolerates one wrong match."""
@@ -159,6 +177,7 @@ def find_peaks(
     pixel: FloatArray,
     covariance: FloatArray,
     region: tuple[int, int, int, int],
+    alignments: list[int] | None = None,
 ) -> list[Peak]:
     """Return the places inside the 3-sigma ellipse where ``core`` (a square patch,
     ``search_core``) matches ``gray``, best first: the ``CANDIDATES`` highest local maxima of
@@ -167,7 +186,9 @@ def find_peaks(
     reid_min_ncc as they are (refined to subpixel by a parabola through the peak) or aligned
     by ``refine_match``; candidates within ``SAME_PLACE_PX`` of a better one are the same
     place. (The alignment is only for those below: on a patch with little texture it may
-    slide to a shrunken fit elsewhere, which it refuses, losing a match that was there.)"""
+    slide to a shrunken fit elsewhere, which it refuses, losing a match that was there.)
+    ``alignments`` ([count left], None: no limit) is spent one per alignment; once it is 0
+    the candidates below reid_min_ncc are left."""
     x0, y0, x1, y1 = region
     window = core.shape[0]
     before = (window - 1) // 2  # the core's pixels left of (above) its centre
@@ -196,8 +217,12 @@ def find_peaks(
             du = parabola_peak(scores[row, column - 1 : column + 2])
             dv = parabola_peak(scores[row - 1 : row + 2, column])
             peak: Peak | None = Peak(x0 + column + du, y0 + row + dv, score)
-        else:
+        elif alignments is None or alignments[0] > 0:
+            if alignments is not None:
+                alignments[0] -= 1
             peak = refine_match(gray, core, x0 + column, y0 + row)
+        else:
+            continue
         if peak is None or peak.ncc < config.reid_min_ncc:
             continue
         if all(math.hypot(peak.u - p.u, peak.v - p.v) > SAME_PLACE_PX for p in peaks):
@@ -251,6 +276,60 @@ def shared_shift(predicted: FloatArray, matched: FloatArray) -> tuple[FloatArray
     return shift, SEARCH_SIGMAS * max(TRACKING_SIGMA_PX, spread)
 
 
+MOTION_MIN_TRACKS = 8
+"""Carried tracks needed to fit the image's motion (an affine map: 6 unknowns)."""
+
+
+def _affine_fit(source: FloatArray, target: FloatArray) -> FloatArray:
+    """Least-squares affine map (2, 3) of pixels ``source`` (N, 2) onto ``target`` (N, 2)."""
+    design = np.column_stack([source, np.ones(len(source))])
+    solution, *_ = np.linalg.lstsq(design, target, rcond=None)
+    return np.asarray(solution.T, dtype=np.float64)
+
+
+def aligned_predictions(
+    pixels: FloatArray,
+    covariances: FloatArray,
+    ids: NDArray[np.int64],
+    rows: dict[int, int],
+    tracked: NDArray[np.float32],
+) -> tuple[FloatArray, FloatArray]:
+    """Return the predictions' pixels (K, 2) and covariances (K, 2, 2) of ``ids`` (K,) moved
+    by the image's motion (module docstring); ``rows`` maps each track carried into this
+    image to its row of ``tracked`` (N, 2), its pixel now. Unchanged with fewer than
+    ``MOTION_MIN_TRACKS`` usable carried tracks."""
+    pixels = np.asarray(pixels, np.float64)
+    covariances = np.asarray(covariances, np.float64)
+    carried = np.array([i in rows for i in ids.tolist()], dtype=bool).reshape(-1)
+    finite = np.all(np.isfinite(pixels), axis=1)
+    usable = carried & finite & (covariances[:, 0, 0] > 0.0)
+    if np.count_nonzero(usable) < MOTION_MIN_TRACKS:
+        return pixels, covariances
+    source = pixels[usable]
+    target = np.asarray(tracked, np.float64)[[rows[i] for i in ids[usable].tolist()]]
+    inliers = np.ones(len(source), dtype=bool)
+    for _ in range(2):  # a fit, then a fit without the tracks beyond 3 robust sigma of it
+        affine = _affine_fit(source[inliers], target[inliers])
+        distance = np.linalg.norm(target - (source @ affine[:, :2].T + affine[:, 2]), axis=1)
+        sigma = float(np.median(distance[inliers])) / RAYLEIGH_MEDIAN
+        inliers = distance <= SEARCH_SIGMAS * max(sigma, TRACKING_SIGMA_PX)
+        if np.count_nonzero(inliers) < MOTION_MIN_TRACKS:
+            return pixels, covariances
+    residual = target[inliers] - (source[inliers] @ affine[:, :2].T + affine[:, 2])
+    dof = max(len(residual) - 3, 1)  # 6 unknowns over 2 coordinates
+    spread = residual.T @ residual / dof + TRACKING_SIGMA_PX**2 * np.eye(2)
+    typical = np.median(covariances[usable], axis=0)
+    out_pixels, out_covariances = pixels.copy(), covariances.copy()
+    for k in np.flatnonzero(~carried & finite & (covariances[:, 0, 0] > 0.0)).tolist():
+        excess = covariances[k] - typical  # its own error: what it has above the others
+        values, vectors = np.linalg.eigh(0.5 * (excess + excess.T))
+        narrowed = spread + (vectors * np.clip(values, 0.0, None)) @ vectors.T
+        if np.trace(narrowed) < np.trace(covariances[k]):
+            out_pixels[k] = affine[:, :2] @ pixels[k] + affine[:, 2]
+            out_covariances[k] = narrowed
+    return out_pixels, out_covariances
+
+
 def resolve_by_shift(
     predicted: FloatArray, matched: FloatArray, pending: list[tuple[FloatArray, list[Peak]]]
 ) -> list[Peak | None]:
@@ -287,6 +366,7 @@ def search_predicted(
     expected: list[FloatArray] = []
     pending: list[tuple[int, FloatArray, list[Peak]]] = []
     searched = unsearched = 0
+    alignments = [ALIGNMENTS_PER_IMAGE]
     ids, pixels, covariances, warps = predictions
     for track_id, pixel, covariance, warp in zip(
         ids.tolist(), pixels, covariances, warps, strict=True
@@ -301,7 +381,7 @@ def search_predicted(
             unsearched += 1
             continue
         searched += 1
-        peaks = find_peaks(config, gray, core, pixel, covariance, region)
+        peaks = find_peaks(config, gray, core, pixel, covariance, region, alignments)
         if len(peaks) == 1:
             found.append((track_id, peaks[0].u, peaks[0].v, peaks[0].ncc))
             expected.append(pixel)

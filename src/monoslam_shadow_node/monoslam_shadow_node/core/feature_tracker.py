@@ -27,8 +27,8 @@ Per image (``FeatureTracker.track``):
 2. Re-identification (active search, Davison's MonoSLAM). A dropped track is remembered (its
    template and age; the ``max_dormant`` most recently dropped). When a prediction with a
    covariance comes for a remembered id (e.g. the SLAM filter expects its map point back in
-   view), the track's template is searched for inside the prediction's 3-sigma ellipse ((x -
-   u)^T S^-1 (x - u) <= 9) by normalized cross-correlation (cv2.matchTemplate,
+   view), the track's template is searched for inside the prediction's 3-sigma ellipse, moved
+   by the motion the carried tracks show (``feature_reid``), by correlation (cv2.matchTemplate,
    TM_CCOEFF_NORMED, on the LK window's core of the template); its highest local maxima are
    aligned by an affine map (``feature_reid.refine_match``), and where exactly one place
    correlates, aligned, at least ``reid_min_ncc``, the track comes back there with its id
@@ -73,6 +73,7 @@ from monoslam_shadow_node.core.feature_detection import CornerDetector, crowded_
 from monoslam_shadow_node.core.feature_reid import (
     TEMPLATE_MARGIN_PX,
     Search,
+    aligned_predictions,
     make_room,
     search_predicted,
 )
@@ -496,6 +497,7 @@ class FeatureTracker:
         anchors = [k for k, i in enumerate(ids.tolist()) if i in self._returned]
         anchors = [k for k in anchors if np.all(np.isfinite(pixels[k]))]
         held = pixels[anchors], self._pixels[[rows[int(ids[k])] for k in anchors]].astype(float)
+        pixels, covariances = aligned_predictions(pixels, covariances, ids, rows, self._pixels)
         found, search = search_predicted(
             config, gray, templates, (ids, pixels, covariances, np.asarray(warps, float)), held
         )
