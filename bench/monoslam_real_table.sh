@@ -12,7 +12,8 @@
 #   4. Bonn crowd through the graph on its images (slam_run monoslam_shadow_rgbd.yaml: feature
 #      tracker, monoslam started from depth, shadow_filter; paced, one process per node),
 #      scored by trajectory_evaluate, its classification drawn on the images at 3, 9, 15 and
-#      21 s (classification_figure).
+#      21 s (classification_figure) and its decisions scored against the depth labels
+#      (bench/graph_classification.py).
 # Part 3 and 4 need the data set: SLAM_DATA_DIR (default ../shared/data) holds bonn_crowd/
 # (https://www.ipb.uni-bonn.de/data/rgbd-dynamic-dataset/); without it they are skipped, said.
 # Outputs go to bench/results/monoslam_real/; each evaluator prints its summary. About 60
@@ -63,6 +64,8 @@ if [[ -d "$DATA" ]]; then
     --truth "$OUT/bonn_sequence/poses.txt" --anchor --out "$OUT/bonn_graph_eval"
   run classification_figure --bag "$OUT/bonn_crowd.mcap" --record out/monoslam_shadow_rgbd_record \
     --times 3,9,15,21 --out "$OUT/bonn_graph_eval/classification.png"
+  run python bench/graph_classification.py --dataset "$DATA" --record out/monoslam_shadow_rgbd_record \
+    --out "$OUT/bonn_graph_eval/classification.json"
 else
   echo "bench/monoslam_real_table.sh: no $DATA: Bonn crowd skipped (set SLAM_DATA_DIR)"
 fi
