@@ -373,7 +373,8 @@ class FeatureTrackerNode(Node):
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: images tracked, dropped (by the processor, undecodable
-        and refused too large), features in the latest, tracks started and re-identified,
+        and refused too large), features in the latest, tracks started and re-identified
+        (searches made, predictions too uncertain to search, candidates left unaligned),
         camera_info messages rejected, restarts (tracks dropped for a stamp jump back or
         a camera change), debug images published."""
         stats = self.processor.stats
@@ -390,6 +391,9 @@ class FeatureTrackerNode(Node):
             'features': stats.latest_features,
             'tracks started': stats.started,
             're-identified': stats.revived,
+            're-identification searches': stats.searched,
+            'not searched (too uncertain)': stats.unsearched,
+            'candidates left unaligned': stats.unaligned,
             'debug images': self.debug_images,
         }
 

@@ -39,16 +39,14 @@ import numpy as np
 
 from monoslam_shadow_node.conversions import FEATURE_TRACK_CDR, feature_array_cdr
 from monoslam_shadow_node.core.feature_tracker import (
-    DROP_REASONS,
     FeatureTracker,
     FloatArray,
     GrayImage,
     IntArray,
-    Predictions,
-    TrackedFeatures,
     TrackerConfig,
     as_gray_image,
 )
+from monoslam_shadow_node.core.feature_types import DROP_REASONS, Predictions, TrackedFeatures
 from monoslam_shadow_node.notices import Notice
 from slam_core.camera import CameraModel
 
@@ -109,8 +107,9 @@ class TrackingStats:
     """Running totals: images tracked and dropped (by kind), features published (in all and
     in the latest image), tracks started, started from a prediction and dropped (by reason),
     predictions used, missed (an image tracked without its prediction) and late (a
-    prediction for an image already tracked), dropped tracks searched for and re-identified
-    (``revived``), and restarts."""
+    prediction for an image already tracked), dropped tracks searched for, not searched (too
+    uncertain) and re-identified (``revived``), candidates left without an alignment, and
+    restarts."""
 
     frames: int = 0
     features: int = 0
@@ -118,6 +117,8 @@ class TrackingStats:
     started: int = 0
     predicted_tracks: int = 0
     searched: int = 0
+    unsearched: int = 0
+    unaligned: int = 0
     revived: int = 0
     images_dropped: dict[str, int] = field(default_factory=dict)
     tracks_dropped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DROP_REASONS, 0))
@@ -136,6 +137,8 @@ class TrackingStats:
         self.started += counts.new
         self.predicted_tracks += counts.predicted
         self.searched += counts.searched
+        self.unsearched += counts.unsearched
+        self.unaligned += counts.unaligned
         self.revived += counts.revived
         for reason, count in counts.dropped_by_reason().items():
             self.tracks_dropped[reason] += count
@@ -403,8 +406,12 @@ def status_line(stats: TrackingStats, rate_hz: float | None = None) -> str:
             f'; predictions used for {stats.predictions_used} images ({stats.predicted_tracks} '
             f'tracks), missing for {stats.predictions_missed}, {stats.predictions_late} late'
         )
-    if stats.searched:
-        text += f'; {stats.revived} dropped tracks re-identified of {stats.searched} searched'
+    if stats.searched or stats.unsearched:
+        text += (
+            f'; {stats.revived} dropped tracks re-identified of {stats.searched} searched '
+            f'({stats.unsearched} too uncertain to search, {stats.unaligned} candidates left '
+            'unaligned for time)'
+        )
     return text
 
 

@@ -12,7 +12,8 @@ import pytest
 import monoslam_shadow_node.core.feature_reid as feature_reid
 import monoslam_shadow_node.core.feature_tracker as feature_tracker
 from monoslam_shadow_node.core.feature_reid import MOTION_MIN_TRACKS, aligned_predictions
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker, Predictions, TrackerConfig
+from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
+from monoslam_shadow_node.core.feature_types import Predictions, TrackedFeatures
 
 WIDTH, HEIGHT = 640, 480
 
@@ -90,7 +91,7 @@ def _texture(seed: int) -> np.ndarray:
 
 def _turn(
     monkeypatch: pytest.MonkeyPatch, aligned: bool
-) -> tuple[feature_tracker.TrackedFeatures, dict[int, np.ndarray]]:
+) -> tuple[TrackedFeatures, dict[int, np.ndarray]]:
     """View A; then A with its left third covered (those tracks are dropped and remembered);
     then A uncovered and shifted by (30, 12) px, with predictions at A's pixels and a 30 px
     sigma, as a camera's prediction made before a turn it did not foresee. Return the last
@@ -136,7 +137,7 @@ def test_alignments_per_image_are_bounded_in_the_predictions_order(
 ) -> None:
     """20 remembered tracks whose templates match nowhere as they are: every candidate would
     need an alignment, and only the first ``ALIGNMENTS_PER_IMAGE`` are made, for the first
-    predictions; all 20 still count as searched."""
+    predictions; all 20 still count as searched, and the candidates left are counted."""
     calls: list[tuple[int, int]] = []
 
     def counted(gray: np.ndarray, core: np.ndarray, x: int, y: int) -> None:
@@ -160,5 +161,6 @@ def test_alignments_per_image_are_bounded_in_the_predictions_order(
     )
     assert not found and search.searched == 20
     assert len(calls) == feature_reid.ALIGNMENTS_PER_IMAGE
+    assert search.unaligned >= 20 - feature_reid.ALIGNMENTS_PER_IMAGE  # counted, not silent
     first = pixels[0]
     assert np.hypot(calls[0][0] - first[0], calls[0][1] - first[1]) <= 3 * 5.0 + 1

@@ -10,13 +10,8 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.core.feature_detection import SUBPIXEL_HALF_WINDOW_PX
-from monoslam_shadow_node.core.feature_tracker import (
-    DROP_REASONS,
-    FeatureTracker,
-    Predictions,
-    TrackedFeatures,
-    TrackerConfig,
-)
+from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
+from monoslam_shadow_node.core.feature_types import DROP_REASONS, Predictions, TrackedFeatures
 
 WIDTH, HEIGHT = 640, 480
 ACCURACY_PX = 0.3

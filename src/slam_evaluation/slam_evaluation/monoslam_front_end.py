@@ -15,7 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker, Predictions, TrackerConfig
+from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
+from monoslam_shadow_node.core.feature_types import Predictions
 from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
 from monoslam_shadow_node.core.tracking_noise import drift_bounded_offset_px
 from slam_core.camera import CameraModel

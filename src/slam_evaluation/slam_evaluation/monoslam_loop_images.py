@@ -34,7 +34,7 @@ from typing import Any, overload
 
 import numpy as np
 
-from monoslam_shadow_node.core.feature_tracker import Predictions
+from monoslam_shadow_node.core.feature_types import Predictions
 from monoslam_shadow_node.core.monoslam_model import beyond_fold
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor
 from slam_evaluation.monoslam_front_end import FrontEnd

@@ -87,14 +87,16 @@ median residual into a per-axis sigma."""
 class Search:
     """One image's re-identification: tracks brought back (of them ``resolved``: among
     look-alikes, decided by the image's shared shift), searches made, predictions not
-    searched (too uncertain, or a template warped past recognition: ``search_core``), and
-    held tracks a revived one displaced (crowded)."""
+    searched (too uncertain, or a template warped past recognition: ``search_core``),
+    held tracks a revived one displaced (crowded), and candidates left without an alignment
+    (``ALIGNMENTS_PER_IMAGE``)."""
 
     revived: int = 0
     searched: int = 0
     unsearched: int = 0
     displaced: int = 0
     resolved: int = 0
+    unaligned: int = 0
 
 
 def parabola_peak(values: NDArray[Any]) -> float:
@@ -187,8 +189,8 @@ def find_peaks(
     by ``refine_match``; candidates within ``SAME_PLACE_PX`` of a better one are the same
     place. (The alignment is only for those below: on a patch with little texture it may
     slide to a shrunken fit elsewhere, which it refuses, losing a match that was there.)
-    ``alignments`` ([count left], None: no limit) is spent one per alignment; once it is 0
-    the candidates below reid_min_ncc are left."""
+    ``alignments`` ([count left, count refused], None: no limit) is spent one per
+    alignment; once it is 0 the candidates below reid_min_ncc are left, and counted."""
     x0, y0, x1, y1 = region
     window = core.shape[0]
     before = (window - 1) // 2  # the core's pixels left of (above) its centre
@@ -222,6 +224,7 @@ def find_peaks(
                 alignments[0] -= 1
             peak = refine_match(gray, core, x0 + column, y0 + row)
         else:
+            alignments[1] += 1
             continue
         if peak is None or peak.ncc < config.reid_min_ncc:
             continue
@@ -366,7 +369,7 @@ def search_predicted(
     expected: list[FloatArray] = []
     pending: list[tuple[int, FloatArray, list[Peak]]] = []
     searched = unsearched = 0
-    alignments = [ALIGNMENTS_PER_IMAGE]
+    alignments = [ALIGNMENTS_PER_IMAGE, 0]
     ids, pixels, covariances, warps = predictions
     for track_id, pixel, covariance, warp in zip(
         ids.tolist(), pixels, covariances, warps, strict=True
@@ -397,7 +400,7 @@ def search_predicted(
         if peak is not None:
             found.append((track_id, peak.u, peak.v, peak.ncc))
     resolved = len(found) - len(unique)
-    return found, Search(len(found), searched, unsearched, 0, resolved)
+    return found, Search(len(found), searched, unsearched, 0, resolved, alignments[1])
 
 
 def make_room(

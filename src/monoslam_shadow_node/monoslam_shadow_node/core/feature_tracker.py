@@ -77,6 +77,12 @@ from monoslam_shadow_node.core.feature_reid import (
     make_room,
     search_predicted,
 )
+from monoslam_shadow_node.core.feature_types import (
+    DROP_REASONS,
+    Predictions,
+    TrackCounts,
+    TrackedFeatures,
+)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -84,7 +90,6 @@ GrayImage = NDArray[np.uint8]
 GrayStack = NDArray[np.uint8]
 
 DETECTORS = ('shi_tomasi', 'fast')
-DROP_REASONS = ('lost', 'error', 'border', 'forward_backward', 'drift', 'crowded', 'reset')
 
 
 @dataclass(frozen=True)
@@ -170,66 +175,6 @@ class TrackerConfig:
         return math.ceil(self.max_features / (self.grid_rows * self.grid_cols))
 
 
-@dataclass(frozen=True)
-class TrackCounts:
-    """What happened in one image: tracks carried over from the previous image
-    (``tracked``, of them ``predicted`` from a predicted pixel), dropped tracks searched for
-    (``searched``; ``unsearched``: predicted too uncertainly) and found again (``revived``;
-    ``resolved``: look-alikes decided by the image's shared shift, ``feature_reid``),
-    tracks started (``new``) and tracks dropped, by reason (``DROP_REASONS``; ``reset``: by a
-    restart)."""
-
-    tracked: int = 0
-    predicted: int = 0
-    new: int = 0
-    revived: int = 0
-    searched: int = 0
-    unsearched: int = 0
-    resolved: int = 0
-    lost: int = 0
-    error: int = 0
-    border: int = 0
-    forward_backward: int = 0
-    drift: int = 0
-    crowded: int = 0
-    reset: int = 0
-
-    @property
-    def dropped(self) -> int:
-        """All tracks dropped in this image."""
-        return sum(getattr(self, reason) for reason in DROP_REASONS)
-
-    def dropped_by_reason(self) -> dict[str, int]:
-        """Return the drops by reason (DROP_REASONS order)."""
-        return {reason: getattr(self, reason) for reason in DROP_REASONS}
-
-
-@dataclass(frozen=True, eq=False)
-class Predictions:
-    """Predicted pixels of some tracks in the image about to be tracked: ids (K,) int64 and
-    raw-image pixels (K, 2) float64, with their covariances (K, 2, 2) px^2 when known (the
-    search regions of re-identification). Ids neither tracked nor remembered and non-finite
-    pixels are ignored; a track predicted outside the image is dropped (it is expected to
-    have left the view). ``warps`` (K, 2, 2), when known, map each template to the predicted
-    view (zero: no warp known)."""
-
-    ids: IntArray
-    pixels: FloatArray
-    covariances: FloatArray | None = None
-    warps: FloatArray | None = None
-
-
-@dataclass(frozen=True, eq=False)
-class TrackedFeatures:
-    """The features of one image: ids (N,) int64 ascending, raw-image pixels (N, 2) float64
-    (finite), ages (N,) int64 (images each track has been seen in; 1 = new), and the counts."""
-
-    ids: IntArray
-    pixels: FloatArray
-    ages: IntArray
-    counts: TrackCounts
-
-
 def as_gray_image(image: object) -> GrayImage:
     """Return ``image`` as a C-contiguous (H, W) uint8 array; raise ValueError if it is not a
     non-empty 2-D uint8 array."""
@@ -312,6 +257,7 @@ class FeatureTracker:
                 revived=search.revived,
                 searched=search.searched,
                 unsearched=search.unsearched,
+                unaligned=search.unaligned,
                 resolved=search.resolved,
                 **drops,
             ),
@@ -535,7 +481,10 @@ class FeatureTracker:
             u, v = (float(c) for c in self._pixels[row])
             self._templates[row] = cv2.getRectSubPix(gray, (self._side, self._side), (u, v))
         revived = int(np.count_nonzero(is_revived))
-        return Search(revived, search.searched, search.unsearched, displaced, search.resolved)
+        return Search(
+            revived, search.searched, search.unsearched, displaced, search.resolved,
+            search.unaligned,
+        )  # fmt: skip
 
     def _drifted(
         self, gray: GrayImage, rows: IntArray, pixels: NDArray[np.float32]
