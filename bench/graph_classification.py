@@ -6,7 +6,11 @@ on the static opening), and each labelled track's first decision (``/shadow/trac
 ``/shadow/static_features``; a revocation on ``/monoslam/revoked`` counts as DYNAMIC) and
 last status are compared with its label (issue 43's acceptance: static called DYNAMIC at
 most 10 % of the decided static tracks, moving called STATIC at most 2 % of the decided
-moving ones).
+moving ones). When the recording has monoslam's ``/features/predicted``, it also counts,
+per moving track, the images in which SLAM predicted it in view (a feature of its map) and
+the tracker published it: an upper bound of the images SLAM measured it in (the gate may
+refuse some; features on probation are measured with consider updates), against the bound
+of 15.
 
 Run (after ``slam_run monoslam_shadow_rgbd.yaml --bag out/bonn_crowd/bonn_crowd.mcap
 --paced --processes --exit-when-player-done``; a few minutes: the masks)::
@@ -36,20 +40,31 @@ from slam_sim.core.depth_labels import DepthSightings, frame_sightings
 from slam_sim.core.rgbd_depth import read_depth_m
 from slam_sim.core.tum_rgbd import read_tum_rgbd
 
+PREDICTIONS_TOPIC = '/features/predicted'
+MAX_MOVING_FRAMES = 15
+"""Issue 43: no feature labelled moving is measured by SLAM in more than this many images."""
+
 
 def recorded_tracks(
     record: Path, stamps_ns: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int, int]], dict[int, set[int]]]:
     """Return the recorded features as (image index, id, pixel) arrays, matched to the
-    sequence's images by stamp, and the status events (stamp ns, id, status) in stamp
-    order."""
+    sequence's images by stamp, the status events (stamp ns, id, status) in stamp order and,
+    per image index, the ids SLAM predicted in view for it."""
     index_of = {int(s): k for k, s in enumerate(stamps_ns.tolist())}
     images, ids, pixels = [], [], []
     events: list[tuple[int, int, int]] = []
+    predicted: dict[int, set[int]] = {}
     unmatched = 0
-    for topic, message in _read(record, [FEATURES_TOPIC, *STATUS_TOPICS], FEATURES_TOPIC):
+    topics = [FEATURES_TOPIC, *STATUS_TOPICS, PREDICTIONS_TOPIC]
+    for topic, message in _read(record, topics, FEATURES_TOPIC):
         stamp = stamp_to_ns(message.header.stamp)
-        if topic == FEATURES_TOPIC:
+        if topic == PREDICTIONS_TOPIC:
+            image = index_of.get(stamp)
+            if image is not None:  # in view: a search region (covariance) was sent
+                in_view = {int(t.id) for t in message.tracks if float(t.covariance[0]) > 0.0}
+                predicted.setdefault(image, set()).update(in_view)
+        elif topic == FEATURES_TOPIC:
             image = index_of.get(stamp)
             if image is None:
                 unmatched += 1
@@ -70,7 +85,30 @@ def recorded_tracks(
         np.array(ids, dtype=np.int64),
         np.array(pixels, dtype=np.float64).reshape(-1, 2),
         events,
+        predicted,
     )
+
+
+def moving_in_map(
+    moving_by_id: dict[int, bool],
+    images: np.ndarray,
+    ids: np.ndarray,
+    predicted: dict[int, set[int]],
+) -> dict[str, Any]:
+    """Return, over the moving tracks, the images each was both published by the tracker and
+    predicted in view by SLAM (module docstring): how many exceed ``MAX_MOVING_FRAMES`` and
+    the most."""
+    frames: dict[int, int] = {}
+    for image, track_id in zip(images.tolist(), ids.tolist(), strict=True):
+        if moving_by_id.get(track_id) and track_id in predicted.get(image, ()):
+            frames[track_id] = frames.get(track_id, 0) + 1
+    over = sorted(n for n in frames.values() if n > MAX_MOVING_FRAMES)
+    return {
+        'moving_tracks_in_map': len(frames),
+        'over_bound': len(over),
+        'bound_frames': MAX_MOVING_FRAMES,
+        'most_frames': max(frames.values(), default=0),
+    }
 
 
 def score(moving_by_id: dict[int, bool], events: list[tuple[int, int, int]]) -> dict[str, Any]:
@@ -110,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     sequence = read_tum_rgbd(args.dataset, convention=args.convention)
     settings = ImportSettings()
     rule, _ = pose_rule(sequence, settings)
-    images, ids, pixels, events = recorded_tracks(args.record, sequence.stamps_ns)
+    images, ids, pixels, events, predicted = recorded_tracks(args.record, sequence.stamps_ns)
     depth = []
     for image in np.unique(images).tolist():
         if not (sequence.has_pose[image] and sequence.depth_index[image] >= 0):
@@ -131,7 +169,12 @@ def main(argv: list[str] | None = None) -> int:
         static_images=settings.static_images,
     )  # fmt: skip
     labels = labelled.chosen.labels
-    report = {'tracks': labels.counts(), **score(labels.moving_by_id(), events)}
+    moving = labels.moving_by_id()
+    report: dict[str, Any] = {'tracks': labels.counts(), **score(moving, events)}
+    if predicted:
+        report['moving_in_slam_map'] = moving_in_map(moving, images, ids, predicted)
+    else:
+        print(f"{args.record}: no {PREDICTIONS_TOPIC}: SLAM's map is not scored")
     print(json.dumps(report, indent=1))
     if args.out is not None:
         args.out.write_text(json.dumps(report, indent=1) + '\n')
