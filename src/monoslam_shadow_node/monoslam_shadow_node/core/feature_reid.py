@@ -99,6 +99,23 @@ class Search:
     unaligned: int = 0
 
 
+@dataclass
+class Alignments:
+    """One image's budget of ``refine_match`` alignments (``ALIGNMENTS_PER_IMAGE``): those
+    still allowed, and the candidates refused one."""
+
+    left: int = ALIGNMENTS_PER_IMAGE
+    refused: int = 0
+
+    def take(self) -> bool:
+        """Spend one alignment if any is left (True), else count a refused candidate."""
+        if self.left > 0:
+            self.left -= 1
+            return True
+        self.refused += 1
+        return False
+
+
 def parabola_peak(values: NDArray[Any]) -> float:
     """Return the offset (-0.5 .. 0.5) of the peak of the parabola through three values
     around a maximum in the middle; 0 if they do not bend (or one is not finite)."""
@@ -179,7 +196,7 @@ def find_peaks(
     pixel: FloatArray,
     covariance: FloatArray,
     region: tuple[int, int, int, int],
-    alignments: list[int] | None = None,
+    alignments: Alignments | None = None,
 ) -> list[Peak]:
     """Return the places inside the 3-sigma ellipse where ``core`` (a square patch,
     ``search_core``) matches ``gray``, best first: the ``CANDIDATES`` highest local maxima of
@@ -189,8 +206,8 @@ def find_peaks(
     by ``refine_match``; candidates within ``SAME_PLACE_PX`` of a better one are the same
     place. (The alignment is only for those below: on a patch with little texture it may
     slide to a shrunken fit elsewhere, which it refuses, losing a match that was there.)
-    ``alignments`` ([count left, count refused], None: no limit) is spent one per
-    alignment; once it is 0 the candidates below reid_min_ncc are left, and counted."""
+    ``alignments`` (None: no limit) is spent one per alignment; once it is spent the
+    candidates below reid_min_ncc are left, and counted."""
     x0, y0, x1, y1 = region
     window = core.shape[0]
     before = (window - 1) // 2  # the core's pixels left of (above) its centre
@@ -219,12 +236,9 @@ def find_peaks(
             du = parabola_peak(scores[row, column - 1 : column + 2])
             dv = parabola_peak(scores[row - 1 : row + 2, column])
             peak: Peak | None = Peak(x0 + column + du, y0 + row + dv, score)
-        elif alignments is None or alignments[0] > 0:
-            if alignments is not None:
-                alignments[0] -= 1
+        elif alignments is None or alignments.take():
             peak = refine_match(gray, core, x0 + column, y0 + row)
         else:
-            alignments[1] += 1
             continue
         if peak is None or peak.ncc < config.reid_min_ncc:
             continue
@@ -369,7 +383,7 @@ def search_predicted(
     expected: list[FloatArray] = []
     pending: list[tuple[int, FloatArray, list[Peak]]] = []
     searched = unsearched = 0
-    alignments = [ALIGNMENTS_PER_IMAGE, 0]
+    alignments = Alignments()
     ids, pixels, covariances, warps = predictions
     for track_id, pixel, covariance, warp in zip(
         ids.tolist(), pixels, covariances, warps, strict=True
@@ -400,7 +414,7 @@ def search_predicted(
         if peak is not None:
             found.append((track_id, peak.u, peak.v, peak.ncc))
     resolved = len(found) - len(unique)
-    return found, Search(len(found), searched, unsearched, 0, resolved, alignments[1])
+    return found, Search(len(found), searched, unsearched, 0, resolved, alignments.refused)
 
 
 def make_room(
