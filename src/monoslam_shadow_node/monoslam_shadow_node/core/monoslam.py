@@ -255,7 +255,7 @@ class MonoSlam:
         outcome = self._update(observed, known_keys, known_pixels)
         cross = pose_cross(self._state)  # the pose error's covariance with earlier ones'
         measured, rejected, known_used = outcome.measured, outcome.rejected, outcome.known_used
-        unseen = [f for f in self._state.features if f.id not in observed]
+        unseen = [feature for feature in self._state.features if feature.id not in observed]
         searchable = set(self._in_view(unseen).tolist())  # predicted in view, not seen
         removed = self._manage_map(observed, rejected, searchable)
         removed.update(dict.fromkeys(self._revoked_by_shadow, 'revoked'))
