@@ -32,7 +32,7 @@ import numpy as np
 
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
 from slam_core.stamps import stamp_to_ns
-from slam_evaluation.classification_figure import FEATURES_TOPIC, STATUS_TOPICS, _read
+from slam_evaluation.classification_figure import FEATURES_TOPIC, STATUS_TOPICS, read_messages
 from slam_evaluation.tum_labels import label_sequence
 from slam_evaluation.tum_sequence import ImportSettings, pose_rule
 from slam_evaluation.tum_tracking import TrackedImages
@@ -57,7 +57,7 @@ def recorded_tracks(
     predicted: dict[int, set[int]] = {}
     unmatched = 0
     topics = [FEATURES_TOPIC, *STATUS_TOPICS, PREDICTIONS_TOPIC]
-    for topic, message in _read(record, topics, FEATURES_TOPIC):
+    for topic, message in read_messages(record, topics, FEATURES_TOPIC):
         stamp = stamp_to_ns(message.header.stamp)
         if topic == PREDICTIONS_TOPIC:
             image = index_of.get(stamp)

@@ -66,7 +66,7 @@ def nearest_stamps(stamps: Sequence[int], times_s: Iterable[float]) -> list[int]
     return [int(ordered[np.argmin(np.abs(ordered - w))]) for w in wanted]
 
 
-def _read(path: Path, topics: Sequence[str], required: str) -> list[tuple[str, Any]]:
+def read_messages(path: Path, topics: Sequence[str], required: str) -> list[tuple[str, Any]]:
     """Return (topic, message) of ``topics`` in ``path`` in stamp order; ValueError when the
     bag lacks ``required``."""
     with BagSource(path) as bag:
@@ -81,8 +81,10 @@ def _read(path: Path, topics: Sequence[str], required: str) -> list[tuple[str, A
 
 def panels(bag: Path, record: Path, times_s: Sequence[float]) -> list[np.ndarray]:
     """Return the drawn images (BGR) of the module docstring."""
-    images = {stamp_to_ns(m.header.stamp): m for _, m in _read(bag, [IMAGE_TOPIC], IMAGE_TOPIC)}
-    recorded = _read(record, [FEATURES_TOPIC, *STATUS_TOPICS], FEATURES_TOPIC)
+    images = {
+        stamp_to_ns(m.header.stamp): m for _, m in read_messages(bag, [IMAGE_TOPIC], IMAGE_TOPIC)
+    }
+    recorded = read_messages(record, [FEATURES_TOPIC, *STATUS_TOPICS], FEATURES_TOPIC)
     features = {stamp_to_ns(m.header.stamp): m for t, m in recorded if t == FEATURES_TOPIC}
     events = []
     for topic, message in recorded:
