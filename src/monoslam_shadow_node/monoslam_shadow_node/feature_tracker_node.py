@@ -86,7 +86,8 @@ the core's, written out in config/feature_tracker.yaml (a test keeps the two equ
                                   0.95-1.0; at 0.8 the alignment fits other places of a
                                   smooth texture.
   reid_max_search_px (80.0)       wider ellipses (half-axis, px) are not searched.
-  max_dormant (1000)              dropped tracks remembered for re-identification.
+  max_dormant (1000)              dropped tracks remembered for re-identification (the
+                                  SLAM map's, the ids of predictions, forgotten last).
 Parameters (node):
   image_transport ('raw')         'raw' (Image) or 'compressed' (CompressedImage).
   max_image_pixels (16777216)     larger images (4096 x 4096) are refused before they are

@@ -25,7 +25,8 @@ Per image (``FeatureTracker.track``):
    the tracked pixel, or does not converge, is dropped. A slow scale change moves the
    template's centre little, so tracks survive the camera's approach within limits.
 2. Re-identification (active search, Davison's MonoSLAM). A dropped track is remembered (its
-   template and age; the ``max_dormant`` most recently dropped). When a prediction with a
+   template and age; the ``max_dormant`` most recently dropped, those in SLAM's map, the
+   ids of the latest predictions, kept before all others). When a prediction with a
    covariance comes for a remembered id (e.g. the SLAM filter expects its map point back in
    view), the track's template is searched for inside the prediction's 3-sigma ellipse, moved
    by the motion the carried tracks show (``feature_reid``), by correlation (cv2.matchTemplate,
@@ -106,7 +107,8 @@ class TrackerConfig:
     largest distance of the template from the tracked pixel; 0 switches each check off.
     ``reid_min_ncc`` is the correlation a re-identified track's template must reach once
     aligned (affine; 0: no re-identification), ``reid_max_search_px`` the largest half-axis
-    of a searched ellipse, ``max_dormant`` how many dropped tracks are remembered for it.
+    of a searched ellipse, ``max_dormant`` how many dropped tracks are remembered for it
+    (SLAM's map features, the ids of the latest predictions, forgotten last).
     Invalid values raise ValueError naming the field.
     """
 
@@ -203,6 +205,7 @@ class FeatureTracker:
         self._detector = CornerDetector(self.config)
         self._dormant: dict[int, tuple[GrayImage, int]] = {}  # id -> (template, age)
         self._returned: set[int] = set()  # held tracks that came back by re-identification
+        self._mapped: set[int] = set()  # ids of the latest predictions: the SLAM map's features
 
     @property
     def next_id(self) -> int:
@@ -221,6 +224,7 @@ class FeatureTracker:
         self._pending_reset += dropped
         self._clear()
         self._dormant.clear()  # another camera: the templates no longer apply
+        self._mapped.clear()
         return dropped
 
     def track(self, image: object, predictions: Predictions | None = None) -> TrackedFeatures:
@@ -233,6 +237,8 @@ class FeatureTracker:
         if self._previous is not None and self._previous.shape != gray.shape:
             self.reset()
         drops['reset'], self._pending_reset = self._pending_reset, 0
+        if predictions is not None:  # SLAM predicts every feature of its map (in view or not)
+            self._mapped = set(np.asarray(predictions.ids).reshape(-1).tolist())
         tracked = predicted = 0
         if self._previous is not None and len(self._ids):
             predicted = self._follow(self._previous, gray, predictions, drops)
@@ -399,19 +405,29 @@ class FeatureTracker:
 
     def _keep(self, keep: NDArray[np.bool_]) -> None:
         """Keep the held tracks ``keep`` (N,); remember the others' templates and ages for
-        re-identification (the ``max_dormant`` most recently dropped)."""
+        re-identification (``_forget``)."""
         if self.config.reid_min_ncc > 0 and self.config.max_dormant > 0:
             for row in np.flatnonzero(~keep):
                 track_id = int(self._ids[row])
                 self._dormant.pop(track_id, None)
                 # a copy: a view would keep the whole stack of this image alive
                 self._dormant[track_id] = (self._templates[row].copy(), int(self._ages[row]))
-            while len(self._dormant) > self.config.max_dormant:
-                del self._dormant[next(iter(self._dormant))]
+            self._forget(len(self._dormant) - self.config.max_dormant)
         self._ids, self._ages = self._ids[keep], self._ages[keep]
         self._pixels = np.ascontiguousarray(self._pixels[keep], np.float32)
         self._templates = self._templates[keep]
         self._returned.intersection_update(self._ids.tolist())
+
+    def _forget(self, excess: int) -> None:
+        """Forget ``excess`` remembered tracks: the earliest dropped of those not in SLAM's map
+        (the ids of the latest predictions), then, if that is not enough, the earliest of the
+        rest. A map feature is what a prediction will come for, however long it is away."""
+        if excess <= 0:
+            return
+        unmapped = [i for i in self._dormant if i not in self._mapped][:excess]
+        mapped = [i for i in self._dormant if i in self._mapped][: excess - len(unmapped)]
+        for track_id in [*unmapped, *mapped]:
+            del self._dormant[track_id]
 
     # --- re-identification ------------------------------------------------------------------
 
