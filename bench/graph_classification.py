@@ -35,9 +35,7 @@ from slam_core.stamps import stamp_to_ns
 from slam_evaluation.classification_figure import FEATURES_TOPIC, STATUS_TOPICS, read_messages
 from slam_evaluation.tum_labels import label_sequence
 from slam_evaluation.tum_sequence import ImportSettings, pose_rule
-from slam_evaluation.tum_tracking import TrackedImages
-from slam_sim.core.depth_labels import DepthSightings, frame_sightings
-from slam_sim.core.rgbd_depth import read_depth_m
+from slam_evaluation.tum_tracking import recorded_features, track_images
 from slam_sim.core.tum_rgbd import read_tum_rgbd
 
 PREDICTIONS_TOPIC = '/features/predicted'
@@ -45,48 +43,29 @@ MAX_MOVING_FRAMES = 15
 """Issue 43: no feature labelled moving is measured by SLAM in more than this many images."""
 
 
-def recorded_tracks(
+def recorded_statuses(
     record: Path, stamps_ns: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int, int]], dict[int, set[int]]]:
-    """Return the recorded features as (image index, id, pixel) arrays, matched to the
-    sequence's images by stamp, the status events (stamp ns, id, status) in stamp order and,
-    per image index, the ids SLAM predicted in view for it."""
+) -> tuple[list[tuple[int, int, int]], dict[int, set[int]]]:
+    """Return the status events (stamp ns, id, status) in stamp order and, per image index
+    (matched by stamp), the ids SLAM predicted in view for it."""
     index_of = {int(s): k for k, s in enumerate(stamps_ns.tolist())}
-    images, ids, pixels = [], [], []
     events: list[tuple[int, int, int]] = []
     predicted: dict[int, set[int]] = {}
-    unmatched = 0
-    topics = [FEATURES_TOPIC, *STATUS_TOPICS, PREDICTIONS_TOPIC]
-    for topic, message in read_messages(record, topics, FEATURES_TOPIC):
+    for topic, message in read_messages(
+        record, [*STATUS_TOPICS, PREDICTIONS_TOPIC], FEATURES_TOPIC
+    ):
         stamp = stamp_to_ns(message.header.stamp)
         if topic == PREDICTIONS_TOPIC:
             image = index_of.get(stamp)
             if image is not None:  # in view: a search region (covariance) was sent
                 in_view = {int(t.id) for t in message.tracks if float(t.covariance[0]) > 0.0}
                 predicted.setdefault(image, set()).update(in_view)
-        elif topic == FEATURES_TOPIC:
-            image = index_of.get(stamp)
-            if image is None:
-                unmatched += 1
-                continue
-            for track in message.tracks:
-                images.append(image)
-                ids.append(int(track.id))
-                pixels.append((float(track.u), float(track.v)))
         else:
             revoked = topic == '/monoslam/revoked'
             for track in message.tracks:
                 events.append((stamp, int(track.id), DYNAMIC if revoked else int(track.status)))
-    if unmatched:
-        print(f'{unmatched} features messages match no image stamp (left out)')
     events.sort(key=lambda event: event[0])
-    return (
-        np.array(images, dtype=np.int64),
-        np.array(ids, dtype=np.int64),
-        np.array(pixels, dtype=np.float64).reshape(-1, 2),
-        events,
-        predicted,
-    )
+    return events, predicted
 
 
 def moving_in_map(
@@ -148,22 +127,12 @@ def main(argv: list[str] | None = None) -> int:
     sequence = read_tum_rgbd(args.dataset, convention=args.convention)
     settings = ImportSettings()
     rule, _ = pose_rule(sequence, settings)
-    images, ids, pixels, events, predicted = recorded_tracks(args.record, sequence.stamps_ns)
-    depth = []
-    for image in np.unique(images).tolist():
-        if not (sequence.has_pose[image] and sequence.depth_index[image] >= 0):
-            continue
-        depth_m = read_depth_m(
-            sequence.depth.files[sequence.depth_index[image]], sequence.depth_units_per_m
-        )
-        here = images == image
-        depth.append(
-            frame_sightings(
-                sequence.camera, (image, int(sequence.stamps_ns[image])), ids[here],
-                pixels[here], depth_m, sequence.poses[image], rule,
-            )
-        )  # fmt: skip
-    tracked = TrackedImages(images, ids, pixels, DepthSightings.concatenate(depth))
+    features = recorded_features(args.record)
+    unmatched = len(set(features) - set(sequence.stamps_ns.tolist()))
+    if unmatched:
+        print(f'{unmatched} features messages match no image stamp (left out)')
+    tracked = track_images(sequence, rule, recorded=features)
+    events, predicted = recorded_statuses(args.record, sequence.stamps_ns)
     labelled = label_sequence(
         sequence, tracked, rule=settings.label_rule, endpoint_rule=rule,
         static_images=settings.static_images,
@@ -172,7 +141,9 @@ def main(argv: list[str] | None = None) -> int:
     moving = labels.moving_by_id()
     report: dict[str, Any] = {'tracks': labels.counts(), **score(moving, events)}
     if predicted:
-        report['moving_in_slam_map'] = moving_in_map(moving, images, ids, predicted)
+        report['moving_in_slam_map'] = moving_in_map(
+            moving, tracked.images, tracked.ids, predicted
+        )
     else:
         print(f"{args.record}: no {PREDICTIONS_TOPIC}: SLAM's map is not scored")
     print(json.dumps(report, indent=1))

@@ -13,7 +13,8 @@
 #      tracker, monoslam started from depth, shadow_filter; paced, one process per node),
 #      scored by trajectory_evaluate, its classification drawn on the images at 3, 9, 15 and
 #      21 s (classification_figure) and its decisions scored against the depth labels
-#      (bench/graph_classification.py).
+#      (bench/graph_classification.py); then (a), (b) and (c) at the sequence level on the
+#      graph's own tracks (tum_rgbd_sequence --tracks, monoslam_evaluate --sequence).
 # Part 3 and 4 need the data set: SLAM_DATA_DIR (default ../shared/data) holds bonn_crowd/
 # (https://www.ipb.uni-bonn.de/data/rgbd-dynamic-dataset/); without it they are skipped, said.
 # Outputs go to bench/results/monoslam_real/; each evaluator prints its summary. About 60
@@ -66,6 +67,17 @@ if [[ -d "$DATA" ]]; then
     --times 3,9,15,21 --out "$OUT/bonn_graph_eval/classification.png"
   run python bench/graph_classification.py --dataset "$DATA" --record out/monoslam_shadow_rgbd_record \
     --out "$OUT/bonn_graph_eval/classification.json"
+  # (a), (b) and (c) on the graph's own tracks (with the re-identifications SLAM's predictions
+  # brought), with the graph's monoslam settings: offsets declared as it declares them
+  # (tracking_offset_px 1.5) and undecided features on probation
+  rm -rf "$OUT/bonn_graph_sequence"
+  run tum_rgbd_sequence --dataset "$DATA" --convention bonn --tracks out/monoslam_shadow_rgbd_record \
+    --output "$OUT/bonn_graph_sequence"
+  if [[ -d "$OUT/bonn_graph_sequence" ]]; then
+    printf 'tracking_offset_px: 1.5\n' > "$OUT/bonn_graph_sequence/tracker.yaml"
+    run monoslam_evaluate --sequence "$OUT/bonn_graph_sequence" --undecided-probation \
+      --out "$OUT/bonn_graph_sequence_eval"
+  fi
 else
   echo "bench/monoslam_real_table.sh: no $DATA: Bonn crowd skipped (set SLAM_DATA_DIR)"
 fi

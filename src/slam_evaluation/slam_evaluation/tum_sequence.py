@@ -14,7 +14,11 @@ Steps:
    node's defaults as ``monoslam_front_end.FrontEnd`` builds it, over every colour image
    decoded to grey as the node decodes a CompressedImage. Images without a ground-truth
    pose are tracked too (the tracks go on through them) but left out of the sequence:
-   frame k of poses.txt and tracks.csv is the k-th image with a pose.
+   frame k of poses.txt and tracks.csv is the k-th image with a pose. With ``--tracks
+   RECORDING`` instead: the tracks a graph recorded on ``/features`` (e.g. slam_run
+   monoslam_shadow_rgbd.yaml's recorder: our tracker with the re-identifications SLAM's
+   predictions brought), matched to the images by stamp; then the evaluators' variants run
+   on the graph's own tracks.
 4. Labels (``tum_labels``, ``--label-rule``): ``masks`` (default) labels a track moving (1)
    or static (0) by the per-pixel motion masks of the depth maps at its pixels
    (``slam_sim.core.motion_masks``, ``mask_labels``); ``endpoints`` by the chi-square rule on
@@ -70,7 +74,7 @@ from slam_evaluation.tum_labels import (
     mask_images,
     rule_report,
 )
-from slam_evaluation.tum_tracking import track_images
+from slam_evaluation.tum_tracking import recorded_features, track_images
 from slam_sim.core.depth_labels import LabelRule, PoseError, TrackLabels
 from slam_sim.core.tum_consistency import Consistency, pose_error
 from slam_sim.core.tum_rgbd import TumRgbd
@@ -85,7 +89,8 @@ class ImportSettings:
     """The import's settings (module docstring): images of the static opening, largest
     number of known points, the ground truth's position error (None: estimated), the
     tracker's pixel noise (px), the images drawn in labels.png and masks.png, and the label
-    rule (``tum_labels.LABEL_RULES``)."""
+    rule (``tum_labels.LABEL_RULES``); the graph recording whose ``/features`` are the
+    tracks (None: run the tracker)."""
 
     static_images: int = 180
     known_points: int = 0
@@ -93,6 +98,7 @@ class ImportSettings:
     pixel_sigma_px: float = 1.0
     figure_images: tuple[int, ...] = FIGURE_IMAGES
     label_rule: str = 'masks'
+    tracks_from: Path | None = None
 
 
 def pose_rule(sequence: TumRgbd, settings: ImportSettings) -> tuple[LabelRule, list[Consistency]]:
@@ -141,7 +147,8 @@ def import_sequence(
     label_rule, bands = rule if rule is not None else pose_rule(sequence, settings)
     mask_of = mask_images(sequence, settings.figure_images)
     keep = tuple(sorted({*settings.figure_images, *mask_of.values()}))
-    tracked = track_images(sequence, label_rule, keep=keep, progress=progress)
+    recorded = None if settings.tracks_from is None else recorded_features(settings.tracks_from)
+    tracked = track_images(sequence, label_rule, keep=keep, progress=progress, recorded=recorded)
     posed = sequence.has_pose[tracked.images]
     frame_of = np.cumsum(sequence.has_pose) - 1
     frames, ids = frame_of[tracked.images[posed]], tracked.ids[posed]
@@ -178,6 +185,10 @@ def import_sequence(
     report = {
         **_inputs(sequence),
         'frames_written': len(result.stamps_ns),
+        'tracks_from': None if settings.tracks_from is None else str(settings.tracks_from),
+        'recorded_frames_matched': (
+            None if recorded is None else int(np.isin(sequence.stamps_ns, list(recorded)).sum())
+        ),
         'sightings': len(ids),
         'depth_sightings': len(tracked.depth.ids),
         'tracks': labels.counts(),
@@ -267,9 +278,16 @@ def summary(output: Path, report: dict[str, Any]) -> str:
         if known['count']
         else 'none'
     )
+    source = (
+        f', recorded in {report["tracks_from"]} ({report["recorded_frames_matched"]} images '
+        'matched)'
+        if report.get('tracks_from')
+        else ''
+    )
     return (
         f'{PROG}: wrote {output}: {report["frames_written"]} frames, {tracks["tracks"]} tracks '
-        f'({tracks["moving"]} moving, {tracks["static"]} static, {tracks["unknown"]} unknown); '
+        f'({tracks["moving"]} moving, {tracks["static"]} static, {tracks["unknown"]} unknown)'
+        f'{source}; '
         f'static opening: {opening["tracks"]["moving"]} of '
         f'{opening["tracks"]["moving"] + opening["tracks"]["static"]} labelled moving '
         f'(false alarms {100 * (opening["false_alarm_rate"] or 0.0):.1f} %); '
@@ -329,6 +347,13 @@ def _parser() -> argparse.ArgumentParser:
         help='colour images drawn in labels.png and masks.png (default 100 300 500 700)',
     )
     parser.add_argument(
+        '--tracks',
+        type=Path,
+        metavar='RECORDING',
+        default=None,
+        help="a graph recording's /features as the tracks (default: run the feature tracker)",
+    )
+    parser.add_argument(
         '--label-rule',
         choices=LABEL_RULES,
         default=defaults.label_rule,
@@ -366,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f'{option} must be a finite number >= 0, got {value}')
     settings = ImportSettings(
         args.static_images, args.known_points, args.pose_sigma_m, args.pixel_sigma_px,
-        tuple(args.figure_images), args.label_rule,
+        tuple(args.figure_images), args.label_rule, args.tracks,
     )  # fmt: skip
     target = Path(args.output).expanduser().absolute()
     if target.exists():

@@ -10,10 +10,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
 
+from monoslam_shadow_node.conversions import FEATURE_TRACK_CDR, feature_array_cdr
 from slam_core.testing.datasets import dataset_or_skip
 from slam_evaluation.sequence_files import measurement_frames, read_sequence
 from slam_evaluation.tum_sequence import main
+from slam_ros.testing.messages import RELIABLE_QOS
+from slam_ros.typesys import TypeRegistry
 from slam_sim.core.tum_rgbd import read_tum_rgbd
 from slam_sim.core.tum_synthetic import (
     SyntheticTum,
@@ -178,3 +182,42 @@ def test_the_static_opening_of_bonn_crowd(tmp_path: Path) -> None:
     assert report['known_points']['last_frame_with_at_least_4'] == 58
     sigmas = report['label_rule']['pose_error']['sigmas_m']
     assert 0.0 < sigmas[0] < 0.03 and sigmas[0] < sigmas[-1] < 0.1  # m, per axis
+
+
+def test_recorded_tracks_with_other_ids_give_the_same_sequence(
+    imported: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """``--tracks``: the imported sequence's tracks written as a graph's /features recording,
+    ids renumbered, give the same sightings, labels and depths under the new ids."""
+    source, output = imported
+    sequence = read_sequence(output)
+
+    def renumbered(ids: np.ndarray) -> np.ndarray:
+        return 7 * ids + 1000
+
+    record = tmp_path / 'record'
+    registry = TypeRegistry()
+    with Writer(record, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        features = registry.add_connection(
+            writer, '/features', 'slam_interfaces/msg/FeatureTrackArray', [RELIABLE_QOS]
+        )
+        for k, (ids, pixels) in enumerate(sequence.by_frame()):
+            tracks = np.zeros(len(ids), FEATURE_TRACK_CDR)
+            tracks['id'], tracks['u'], tracks['v'] = renumbered(ids), pixels[:, 0], pixels[:, 1]
+            stamp = int(sequence.stamps_ns[k])
+            writer.write(features, stamp, feature_array_cdr(tracks, stamp, 'camera'))
+    again = tmp_path / 'again'
+    argv = ['--dataset', str(source), *INTRINSICS, '--output', str(again), '--tracks', str(record)]
+    assert main([*argv, '--static-images', '9', '--figure-images', '5']) == 0
+    replay = read_sequence(again)
+    np.testing.assert_array_equal(replay.frame, sequence.frame)
+    np.testing.assert_array_equal(replay.ids, renumbered(sequence.ids))
+    np.testing.assert_allclose(replay.pixels, sequence.pixels, atol=1e-9)
+    assert replay.labels == {int(renumbered(np.int64(i))): m for i, m in sequence.labels.items()}
+    assert replay.depths is not None and sequence.depths is not None
+    assert replay.depths == pytest.approx(
+        {(f, int(renumbered(np.int64(i)))): z for (f, i), z in sequence.depths.items()}
+    )
+    report = json.loads((again / 'import.json').read_text())
+    assert report['recorded_frames_matched'] == CONFIG.images - 1
+    assert report['tracks_from'] == str(record)
