@@ -1,20 +1,27 @@
-"""trajectory_evaluate: a camera trajectory written by a node (TUM text) against a reference
-(TUM text, e.g. a sequence's poses.txt or a motion-capture file).
+"""trajectory_evaluate: a camera trajectory written by a node (TUM text) or recorded from its
+pose topic (a bag: geometry_msgs/PoseWithCovarianceStamped) against a reference (TUM text,
+e.g. a sequence's poses.txt or a motion-capture file).
 
     trajectory_evaluate --trajectory out/monoslam_shadow_rgbd/trajectory.tum \\
                         --truth out/bonn_crowd/sequence/poses.txt [--out DIR] [--anchor]
+    trajectory_evaluate --record out/monoslam_shadow_rgbd_record [--pose-topic /monoslam/pose] \\
+                        --truth out/bonn_crowd/sequence/poses.txt --anchor
 
 Poses pair by stamp (within ``--tolerance-ms``, 1 ms by default: the node stamps each pose
 with its image's stamp, and a file may round it). Reported: poses estimated and reference
 poses, the share of reference poses with an estimate, the ATE (RMS of the camera centre
 error, m) after the Sim(3) alignment that minimizes it (Umeyama) with its scale, and with
-``--anchor`` the raw ATE after expressing the estimate in the reference's world through the
-reference pose of the first estimated stamp (the world of a depth start is that camera's
-frame: a known transform, not a fit). A run diverged when the alignment's scale is off by more
-than a factor 2 (``MIN_SCALE``) or the anchored ATE exceeds ``DIVERGED_ATE_M`` (exit status
-1). Writes ``trajectory_eval.json`` and
-``trajectory_topview.png`` (estimate, aligned, against the reference; x-y and x-z) into
-``--out`` and prints a summary.
+``--anchor`` the raw ATE after expressing the estimate in the reference's world by the
+rigid transform that puts its first paired pose on the reference's (the world of a depth
+start is that camera's frame: a known transform, not a fit). From a recording with
+``--anchor``, also the pose NEES (6 degrees of freedom: the centre error and log(R_est
+R_ref^T), in the estimate's world axes, against the message's covariance, position then
+rotation about the world axes as monoslam publishes it) and the position and rotation NEES
+(3 each), over the poses with a positive definite covariance (the others are counted); the
+reference's own error is not added. A run diverged when the alignment's scale is off by more than a factor 2
+(``MIN_SCALE``) or the anchored ATE exceeds ``DIVERGED_ATE_M`` (exit status 1). Writes
+``trajectory_eval.json`` and ``trajectory_topview.png`` (estimate, aligned, against the
+reference; x-y and x-z) into ``--out`` and prints a summary.
 """
 
 from __future__ import annotations
@@ -29,6 +36,9 @@ from numpy.typing import NDArray
 
 from slam_core.cli import console_main
 from slam_core.files import write_json
+from slam_core.geometry.quaternion import log_rotation
+from slam_core.stamps import stamp_to_ns
+from slam_evaluation.classification_figure import read_messages
 from slam_evaluation.monoslam_metrics import DIVERGED_ATE_M, rms, umeyama_alignment
 from slam_evaluation.sequence_files import read_poses
 
@@ -44,14 +54,78 @@ def read_tum(path: Path) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
     return read_poses(Path(path))
 
 
+POSE_TOPIC = '/monoslam/pose'
+
+
+def read_record(
+    path: Path, topic: str
+) -> tuple[NDArray[np.int64], FloatArray, FloatArray, FloatArray]:
+    """Return stamps (K,) int ns, centres (K, 3) m, rotations (K, 3, 3) and covariances
+    (K, 6, 6) of the PoseWithCovarianceStamped messages on ``topic`` in a bag, in stamp
+    order; ValueError for a bag without the topic or a quaternion that is not finite and
+    nonzero (named by stamp)."""
+    from scipy.spatial.transform import Rotation
+
+    stamps, centres, quaternions, covariances = [], [], [], []
+    for _, message in read_messages(path, [topic], topic):
+        pose = message.pose.pose
+        q = np.array([pose.orientation.x, pose.orientation.y, pose.orientation.z,
+                      pose.orientation.w])  # fmt: skip
+        stamp = stamp_to_ns(message.header.stamp)
+        if not (np.all(np.isfinite(q)) and np.linalg.norm(q) > 0.0):
+            raise ValueError(f'{path}: {topic} at stamp {stamp} ns: orientation {q.tolist()}')
+        stamps.append(stamp)
+        centres.append((pose.position.x, pose.position.y, pose.position.z))
+        quaternions.append(q)
+        covariances.append(np.reshape(np.asarray(message.pose.covariance, np.float64), (6, 6)))
+    order = np.argsort(np.array(stamps, np.int64), kind='stable')
+    rotations = Rotation.from_quat(np.array(quaternions)).as_matrix()
+    return (
+        np.array(stamps, np.int64)[order], np.array(centres, np.float64)[order],
+        rotations[order], np.array(covariances)[order],
+    )  # fmt: skip
+
+
+def pose_nees(errors: FloatArray, covariances: FloatArray) -> tuple[dict[str, Any], FloatArray]:
+    """Return the NEES figures of pose errors (K, 6) against covariances (K, 6, 6) (module
+    docstring) and the pose NEES per pose (NaN where the covariance is not positive
+    definite)."""
+    values = np.full(len(errors), np.nan)
+    position = np.full(len(errors), np.nan)
+    rotation = np.full(len(errors), np.nan)
+    for k, (error, covariance) in enumerate(zip(errors, covariances, strict=True)):
+        symmetric = 0.5 * (covariance + covariance.T)
+        if not (np.all(np.isfinite(symmetric)) and np.all(np.isfinite(error))):
+            continue
+        try:
+            whitened = np.linalg.solve(np.linalg.cholesky(symmetric), error)  # not PD: raises
+            values[k] = float(whitened @ whitened)
+            position[k] = error[:3] @ np.linalg.solve(symmetric[:3, :3], error[:3])
+            rotation[k] = error[3:] @ np.linalg.solve(symmetric[3:, 3:], error[3:])
+        except np.linalg.LinAlgError:
+            continue
+    used = np.isfinite(values)
+    figures = {
+        'poses_with_covariance': int(np.count_nonzero(used)),
+        'poses_without_covariance': int(np.count_nonzero(~used)),
+        'pose_nees_mean': float(values[used].mean()) if used.any() else None,
+        'pose_nees_median': float(np.median(values[used])) if used.any() else None,
+        'position_nees_mean': float(position[used].mean()) if used.any() else None,
+        'rotation_nees_mean': float(rotation[used].mean()) if used.any() else None,
+    }
+    return figures, values
+
+
 def evaluate(
     estimate: tuple[NDArray[np.int64], FloatArray, FloatArray],
     truth: tuple[NDArray[np.int64], FloatArray, FloatArray],
     tolerance_ns: int,
     anchor: bool,
+    covariances: FloatArray | None = None,
 ) -> dict[str, Any]:
-    """Return the figures of the module docstring (and the paired centres for the plot)."""
-    e_stamps, e_centres, _ = estimate
+    """Return the figures of the module docstring (and the paired centres for the plot);
+    ``covariances`` (K, 6, 6), the estimate's, give the NEES when ``anchor``."""
+    e_stamps, e_centres, e_rotations = estimate
     t_stamps, t_centres, t_rotations = truth
     index = np.searchsorted(t_stamps, e_stamps)
     pairs = []
@@ -76,11 +150,20 @@ def evaluate(
         'max_error_sim3_m': float(np.max(np.linalg.norm(aligned - target, axis=1))),
     }
     diverged = not MIN_SCALE <= similarity.scale <= 1.0 / MIN_SCALE
-    if anchor:
+    if anchor:  # the estimate's world -> the reference's, through the first paired pose
         first = int(j[0])
-        raw = target[0] + source @ t_rotations[first].T - source[0] @ t_rotations[first].T
+        world = t_rotations[first] @ e_rotations[int(k[0])].T
+        raw = target[0] + (source - source[0]) @ world.T
         result['ate_anchored_m'] = rms(np.linalg.norm(raw - target, axis=1))
         diverged |= result['ate_anchored_m'] > DIVERGED_ATE_M
+        if covariances is not None:  # errors in the estimate's world axes, as its covariance
+            errors = np.zeros((len(k), 6))
+            errors[:, :3] = (raw - target) @ world
+            for row, (ek, tj) in enumerate(zip(k.tolist(), j.tolist(), strict=True)):
+                true_rotation = world.T @ t_rotations[tj]
+                errors[row, 3:] = log_rotation(e_rotations[ek] @ true_rotation.T)
+            figures, _ = pose_nees(errors, covariances[k])
+            result.update(figures)
     result['diverged'] = bool(diverged)
     result['_plot'] = (aligned, target)
     return result
@@ -118,7 +201,13 @@ def main(argv: list[str] | None = None) -> int:
         prog='trajectory_evaluate',
         description="a node's camera trajectory (TUM text) against a reference (TUM text)",
     )
-    parser.add_argument('--trajectory', type=Path, required=True, help='estimate, TUM text')
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument('--trajectory', type=Path, help='estimate, TUM text')
+    source.add_argument(
+        '--record', type=Path,
+        help='estimate, a bag with the pose topic (PoseWithCovarianceStamped): also the NEES',
+    )  # fmt: skip
+    parser.add_argument('--pose-topic', default=POSE_TOPIC, help=f'default {POSE_TOPIC}')
     parser.add_argument('--truth', type=Path, required=True, help='reference, TUM text')
     parser.add_argument('--out', type=Path, default=Path('out/trajectory_eval'))
     parser.add_argument('--tolerance-ms', type=float, default=1.0, help='stamp pairing, ms')
@@ -127,14 +216,23 @@ def main(argv: list[str] | None = None) -> int:
         help="also the raw ATE with the estimate's world anchored at the first pose's reference",
     )  # fmt: skip
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    covariances = None
     try:
+        if args.record is not None:
+            stamps, centres, rotations, covariances = read_record(args.record, args.pose_topic)
+            estimate = stamps, centres, rotations
+        else:
+            estimate = read_tum(args.trajectory)
         result = evaluate(
-            read_tum(args.trajectory), read_tum(args.truth),
-            round(args.tolerance_ms * 1e6), args.anchor,
+            estimate, read_tum(args.truth), round(args.tolerance_ms * 1e6), args.anchor,
+            covariances,
         )  # fmt: skip
     except (OSError, ValueError) as error:
         print(f'trajectory_evaluate: error: {error}', file=sys.stderr)  # noqa: T201
         return 2
+    if covariances is not None and not args.anchor:
+        note = "the NEES needs --anchor (the estimate in the reference's world)"
+        print(f'trajectory_evaluate: {note}', file=sys.stderr)  # noqa: T201
     aligned, target = result.pop('_plot')
     write_json(args.out / 'trajectory_eval.json', result)
     write_topview(args.out / 'trajectory_topview.png', aligned, target)
@@ -146,6 +244,15 @@ def main(argv: list[str] | None = None) -> int:
         f'of them estimated); ATE after Sim(3) {result["ate_sim3_m"]:.3f} m (scale '
         f'{result["sim3_scale"]:.3f}, max {result["max_error_sim3_m"]:.3f} m)'
         + (f'; anchored at the first pose {anchored:.3f} m' if anchored is not None else '')
+        + (
+            f'; pose NEES mean {result["pose_nees_mean"]:.1f}, median '
+            f'{result["pose_nees_median"]:.1f} (6 dof), position and rotation NEES means '
+            f'{result["position_nees_mean"]:.1f} and {result["rotation_nees_mean"]:.1f} (3 dof '
+            f'each), over {result["poses_with_covariance"]} '
+            f'poses ({result["poses_without_covariance"]} without a usable covariance)'
+            if result.get('pose_nees_mean') is not None
+            else ''
+        )
     )
     print(f'wrote {args.out / "trajectory_eval.json"}, {args.out / "trajectory_topview.png"}')  # noqa: T201
     return 1 if result['diverged'] else 0

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
 from scipy.spatial.transform import Rotation
 
 from slam_core.camera import CameraModel
@@ -19,6 +20,8 @@ from slam_evaluation.sequence_files import (
     read_sequence,
     write_sequence,
 )
+from slam_ros.testing.messages import RELIABLE_QOS
+from slam_ros.typesys import TypeRegistry
 
 RNG = np.random.default_rng(4)
 STAMPS = 1_548_339_819_874_260_000 + np.arange(60, dtype=np.int64) * 33_366_667
@@ -108,3 +111,79 @@ def test_a_non_positive_depth_is_named(tmp_path: Path) -> None:
     (tmp_path / 'seq' / 'depths.csv').write_text('frame,id,depth_m\n1,7,0\n')
     with pytest.raises(ValueError, match=r'depths\.csv:2: depth_m must be > 0'):
         read_sequence(tmp_path / 'seq')
+
+
+def _pose_record(
+    path: Path, centres: np.ndarray, rotations: np.ndarray, covariance: np.ndarray,
+    flip: bool = False,
+) -> Path:  # fmt: skip
+    """Write PoseWithCovarianceStamped messages on /monoslam/pose (one per STAMPS[5:]); with
+    ``flip`` every other quaternion written with the opposite sign."""
+    registry = TypeRegistry()
+    types = registry.typestore.types
+    msgtype = 'geometry_msgs/msg/PoseWithCovarianceStamped'
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = registry.add_connection(writer, '/monoslam/pose', msgtype, [RELIABLE_QOS])
+        stamps = STAMPS[5:]
+        quaternions = Rotation.from_matrix(rotations).as_quat()
+        for n, (stamp, centre, q) in enumerate(zip(stamps, centres, quaternions, strict=True)):
+            q = -q if flip and n % 2 else q
+            sec, nanosec = divmod(int(stamp), 10**9)
+            header = types['std_msgs/msg/Header'](
+                stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
+                frame_id='monoslam_map',
+            )
+            pose = types['geometry_msgs/msg/Pose'](
+                position=types['geometry_msgs/msg/Point'](x=centre[0], y=centre[1], z=centre[2]),
+                orientation=types['geometry_msgs/msg/Quaternion'](x=q[0], y=q[1], z=q[2], w=q[3]),
+            )
+            message = types['geometry_msgs/msg/PoseWithCovarianceStamped'](
+                header=header,
+                pose=types['geometry_msgs/msg/PoseWithCovariance'](
+                    pose=pose, covariance=covariance.reshape(36).astype(np.float64)
+                ),
+            )
+            data = bytes(registry.typestore.serialize_cdr(message, msgtype))
+            writer.write(connection, int(stamp), data)
+    return path
+
+
+def test_a_recorded_trajectory_gives_the_pose_nees_of_its_covariance(tmp_path: Path) -> None:
+    """Pose errors drawn from a correlated 6x6 covariance (position then rotation about the
+    world axes, in the start camera's world): the recorded trajectory's NEES is about 6 (6
+    degrees of freedom), and 100 times larger against a covariance 100 times smaller; the
+    quaternions written with either sign give the same figures."""
+    truth = _tum(tmp_path / 'truth.txt', STAMPS, CENTRES)
+    rotations = Rotation.from_euler('z', np.linspace(0, 0.8, 60)[:, None]).as_matrix()
+    world = rotations[5]
+    local_centres = (CENTRES[5:] - CENTRES[5]) @ world  # R0' (c - c0)
+    local_rotations = world.T @ rotations[5:]
+    rng = np.random.default_rng(8)
+    factor = rng.normal(size=(6, 6))
+    covariance = 1e-4 * (factor @ factor.T + 0.5 * np.eye(6))
+    errors = rng.multivariate_normal(np.zeros(6), covariance, size=55)
+    errors[0] = 0.0  # the anchor: the first pose is where the reference puts it
+    centres = local_centres + errors[:, :3]
+    noisy = Rotation.from_rotvec(errors[:, 3:]).as_matrix() @ local_rotations
+    results = []
+    for name, scale, flip in (
+        ('plain', 1.0, False),
+        ('flipped', 1.0, True),
+        ('small', 0.01, False),
+    ):
+        record = _pose_record(tmp_path / name, centres, noisy, scale * covariance, flip)
+        stamps, found_centres, found_rotations, covariances = te.read_record(
+            record, '/monoslam/pose'
+        )
+        results.append(
+            te.evaluate(
+                (stamps, found_centres, found_rotations), te.read_tum(truth), 1_000_000, True,
+                covariances,
+            )
+        )  # fmt: skip
+    plain, flipped, small = results
+    assert plain['poses_with_covariance'] == 55 and plain['poses_without_covariance'] == 0
+    assert 4.0 < plain['pose_nees_mean'] < 8.5  # 6 +- 3 sigma of a mean of 54 chi-square(6)
+    assert 1.5 < plain['position_nees_mean'] < 4.5
+    assert flipped['pose_nees_mean'] == pytest.approx(plain['pose_nees_mean'], rel=1e-9)
+    assert small['pose_nees_mean'] == pytest.approx(100 * plain['pose_nees_mean'], rel=1e-6)
