@@ -10,7 +10,8 @@ moving ones). When the recording has monoslam's ``/features/predicted``, it also
 per moving track, the images in which SLAM predicted it in view (a feature of its map) and
 the tracker published it: an upper bound of the images SLAM measured it in (the gate may
 refuse some; features on probation are measured with consider updates), against the bound
-of 15.
+of 15, and the same from each track's first STATIC status on (cleared: before it, with
+``undecided_probation``, SLAM only gives it consider updates, which never move the camera).
 
 Run (after ``slam_run monoslam_shadow_rgbd.yaml --bag out/bonn_crowd/bonn_crowd.mcap
 --paced --processes --exit-when-player-done``; a few minutes: the masks)::
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -39,6 +41,8 @@ from slam_evaluation.tum_tracking import recorded_features, track_images
 from slam_sim.core.tum_rgbd import read_tum_rgbd
 
 PREDICTIONS_TOPIC = '/features/predicted'
+BIN_S = 3.0
+"""Width of the time bins of ``decisions_over_time``, s."""
 MAX_MOVING_FRAMES = 15
 """Issue 43: no feature labelled moving is measured by SLAM in more than this many images."""
 
@@ -73,21 +77,35 @@ def moving_in_map(
     images: np.ndarray,
     ids: np.ndarray,
     predicted: dict[int, set[int]],
+    cleared_at: dict[int, int] | None = None,
+    stamps_ns: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Return, over the moving tracks, the images each was both published by the tracker and
     predicted in view by SLAM (module docstring): how many exceed ``MAX_MOVING_FRAMES`` and
-    the most."""
+    the most; with ``cleared_at`` (id -> stamp of its first STATIC status) and the images'
+    ``stamps_ns``, the same over the images from its clearance on (before it, a feature of
+    SLAM's map is on probation with ``undecided_probation``: consider updates, which never
+    move the camera)."""
     frames: dict[int, int] = {}
+    cleared: dict[int, int] = {}
     for image, track_id in zip(images.tolist(), ids.tolist(), strict=True):
         if moving_by_id.get(track_id) and track_id in predicted.get(image, ()):
             frames[track_id] = frames.get(track_id, 0) + 1
+            since = None if cleared_at is None else cleared_at.get(track_id)
+            if since is not None and stamps_ns is not None and since <= int(stamps_ns[image]):
+                cleared[track_id] = cleared.get(track_id, 0) + 1
     over = sorted(n for n in frames.values() if n > MAX_MOVING_FRAMES)
-    return {
+    report: dict[str, Any] = {
         'moving_tracks_in_map': len(frames),
         'over_bound': len(over),
         'bound_frames': MAX_MOVING_FRAMES,
         'most_frames': max(frames.values(), default=0),
     }
+    if cleared_at is not None:
+        report['moving_tracks_cleared_in_map'] = len(cleared)
+        report['over_bound_cleared'] = sum(1 for n in cleared.values() if n > MAX_MOVING_FRAMES)
+        report['most_frames_cleared'] = max(cleared.values(), default=0)
+    return report
 
 
 def score(moving_by_id: dict[int, bool], events: list[tuple[int, int, int]]) -> dict[str, Any]:
@@ -117,6 +135,26 @@ def score(moving_by_id: dict[int, bool], events: list[tuple[int, int, int]]) -> 
     return out
 
 
+def decisions_over_time(
+    moving_by_id: dict[int, bool], events: list[tuple[int, int, int]], start_ns: int
+) -> dict[str, Any]:
+    """Return the first decisions on the static tracks per ``BIN_S`` seconds from
+    ``start_ns``: how many were STATIC and how many DYNAMIC (false alarms cluster where
+    SLAM's pose is wrong)."""
+    first: dict[int, tuple[int, int]] = {}
+    for stamp, track_id, status in events:
+        if status in (STATIC, DYNAMIC) and track_id not in first:
+            first[track_id] = (stamp, status)
+    bins: dict[str, dict[str, int]] = {}
+    for track_id, (stamp, status) in first.items():
+        if moving_by_id.get(track_id) is not False:
+            continue
+        start = BIN_S * math.floor((stamp - start_ns) * 1e-9 / BIN_S)
+        counts = bins.setdefault(f'{start:g}-{start + BIN_S:g} s', {'STATIC': 0, 'DYNAMIC': 0})
+        counts['STATIC' if status == STATIC else 'DYNAMIC'] += 1
+    return dict(sorted(bins.items(), key=lambda item: float(item[0].split('-')[0])))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--dataset', type=Path, required=True, help='TUM-layout sequence')
@@ -140,9 +178,16 @@ def main(argv: list[str] | None = None) -> int:
     labels = labelled.chosen.labels
     moving = labels.moving_by_id()
     report: dict[str, Any] = {'tracks': labels.counts(), **score(moving, events)}
+    report['static_first_decisions_over_time'] = decisions_over_time(
+        moving, events, int(sequence.stamps_ns[0])
+    )
     if predicted:
+        cleared_at: dict[int, int] = {}
+        for stamp, track_id, status in events:
+            if status == STATIC:
+                cleared_at.setdefault(track_id, stamp)
         report['moving_in_slam_map'] = moving_in_map(
-            moving, tracked.images, tracked.ids, predicted
+            moving, tracked.images, tracked.ids, predicted, cleared_at, sequence.stamps_ns
         )
     else:
         print(f"{args.record}: no {PREDICTIONS_TOPIC}: SLAM's map is not scored")
