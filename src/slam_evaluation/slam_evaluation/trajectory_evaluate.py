@@ -18,10 +18,10 @@ start is that camera's frame: a known transform, not a fit). From a recording wi
 R_ref^T), in the estimate's world axes, against the message's covariance, position then
 rotation about the world axes as monoslam publishes it) and the position and rotation NEES
 (3 each), over the poses with a positive definite covariance (the others are counted); the
-reference's own error is not added. A run diverged when the alignment's scale is off by more than a factor 2
-(``MIN_SCALE``) or the anchored ATE exceeds ``DIVERGED_ATE_M`` (exit status 1). Writes
-``trajectory_eval.json`` and ``trajectory_topview.png`` (estimate, aligned, against the
-reference; x-y and x-z) into ``--out`` and prints a summary.
+reference's own error is not added. A run diverged when the alignment's scale is off by more
+than a factor 2 (``MIN_SCALE``) or the anchored ATE exceeds ``DIVERGED_ATE_M`` (exit status
+1). Writes ``trajectory_eval.json`` and ``trajectory_topview.png`` (estimate, aligned,
+against the reference; x-y and x-z) into ``--out`` and prints a summary.
 """
 
 from __future__ import annotations
