@@ -132,13 +132,12 @@ def test_tracks_behind_an_occluder_come_back_after_an_unforeseen_turn(
     assert plain.counts.revived == 0 and plain.counts.unsearched >= 0.8 * len(hidden)
 
 
-def test_alignments_per_image_go_to_the_best_correlations(
+def test_alignments_per_image_are_bounded_in_the_predictions_order(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """20 remembered tracks whose templates match nowhere as they are: every candidate would
-    need an alignment, and only ``ALIGNMENTS_PER_IMAGE`` are made, for the candidates with
-    the highest correlation among all the image's searches (not the first predictions'); all
-    20 still count as searched, and the candidates left are counted."""
+    need an alignment, and only the first ``ALIGNMENTS_PER_IMAGE`` are made, for the first
+    predictions; all 20 still count as searched, and the candidates left are counted."""
     calls: list[tuple[int, int]] = []
 
     def counted(gray: np.ndarray, core: np.ndarray, x: int, y: int) -> None:
@@ -162,23 +161,6 @@ def test_alignments_per_image_go_to_the_best_correlations(
     )
     assert not found and search.searched == 20
     assert len(calls) == feature_reid.ALIGNMENTS_PER_IMAGE
-    candidates = []  # every search's candidates, as the tracker scores them
-    for k in range(20):
-        region = feature_reid.search_region(config, gray.shape, pixels[k], covariances[k])
-        assert isinstance(region, tuple)
-        core = feature_reid.search_core(templates[k], config.lk_window_px, None)
-        assert core is not None
-        matches, below = feature_reid.correlation_peaks(
-            config, gray, core, pixels[k], covariances[k], region
-        )
-        assert not matches
-        candidates += below
-    assert search.unaligned == len(candidates) - feature_reid.ALIGNMENTS_PER_IMAGE
-    best = sorted(candidates, key=lambda item: -item[0])[: feature_reid.ALIGNMENTS_PER_IMAGE]
-    assert calls == [(x, y) for _, x, y in best]
-    # the budget did not go in the predictions' order: the first search's own best is not
-    # among the image's best here
-    first = max(
-        (item for item in candidates if np.hypot(item[1] - pixels[0][0], item[2] - pixels[0][1])
-         <= 3 * 5.0 + 1), key=lambda item: item[0])  # fmt: skip
-    assert (first[1], first[2]) != calls[0]
+    assert search.unaligned >= 20 - feature_reid.ALIGNMENTS_PER_IMAGE  # counted, not silent
+    first = pixels[0]
+    assert np.hypot(calls[0][0] - first[0], calls[0][1] - first[1]) <= 3 * 5.0 + 1

@@ -66,14 +66,12 @@ it is no longer the same view of the patch)."""
 REFINE_ITERATIONS = 50
 """Iterations of the affine alignment (it converges in a few from a pixel off)."""
 ALIGNMENTS_PER_IMAGE = 6
-"""At most this many ``refine_match`` alignments per image, for the candidates with the
-highest correlation as they are among all the image's searches (``search_predicted``): on
-Bonn crowd none of 2060 candidates below 0.5 aligned to reid_min_ncc, and 98 of 476 between
-0.8 and 0.9 did (docs/design/monoslam.md). One costs about 3 ms (up to
-``REFINE_ITERATIONS`` of enhanced correlation on the core, profiled there), and the
-tracker's other work 10-15 ms of a 30 Hz image's 33 (bench/README.md): unbounded, searching
-every remembered track in view took 110 ms an image there. A peak that matches as it is
-needs no alignment and is always taken."""
+"""At most this many ``refine_match`` alignments per image, in the predictions' order
+(SLAM sends its features oldest first: a depth start's points before all). One costs about
+3 ms (up to ``REFINE_ITERATIONS`` of enhanced correlation on the core, profiled on Bonn
+crowd), and the tracker's other work 10-15 ms of a 30 Hz image's 33 (bench/README.md):
+unbounded, searching every remembered track in view took 110 ms an image there. A peak
+that matches as it is needs no alignment and is always taken."""
 SHIFT_MIN_MATCHES = 3
 """Unique matches in an image needed to decide look-alikes by their shared shift
 (``resolve_by_shift``): their median tolerates one wrong match."""
@@ -99,6 +97,23 @@ class Search:
     displaced: int = 0
     resolved: int = 0
     unaligned: int = 0
+
+
+@dataclass
+class Alignments:
+    """One image's budget of ``refine_match`` alignments (``ALIGNMENTS_PER_IMAGE``): those
+    still allowed, and the candidates refused one."""
+
+    left: int = ALIGNMENTS_PER_IMAGE
+    refused: int = 0
+
+    def take(self) -> bool:
+        """Spend one alignment if any is left (True), else count a refused candidate."""
+        if self.left > 0:
+            self.left -= 1
+            return True
+        self.refused += 1
+        return False
 
 
 def parabola_peak(values: NDArray[Any]) -> float:
@@ -174,20 +189,25 @@ class Peak:
     ncc: float
 
 
-def correlation_peaks(
+def find_peaks(
     config: TrackerConfig,
     gray: GrayImage,
     core: GrayImage,
     pixel: FloatArray,
     covariance: FloatArray,
     region: tuple[int, int, int, int],
-) -> tuple[list[Peak], list[tuple[float, int, int]]]:
-    """Return the ``CANDIDATES`` highest local maxima of the normalized correlation of
-    ``core`` (a square patch, ``search_core``) over the centres of ``region`` inside the
-    prediction's 3-sigma ellipse (not on the search's border or the ellipse's rim, where the
-    true peak may lie beyond), split in two: those that reach reid_min_ncc as they are, as
-    peaks refined to subpixel by a parabola through the peak, and the rest as (correlation,
-    x, y), best first, for ``refine_match``."""
+    alignments: Alignments | None = None,
+) -> list[Peak]:
+    """Return the places inside the 3-sigma ellipse where ``core`` (a square patch,
+    ``search_core``) matches ``gray``, best first: the ``CANDIDATES`` highest local maxima of
+    the normalized correlation over the centres of ``region`` inside the ellipse (not on the
+    search's border or the ellipse's rim, where the true peak may lie beyond) that reach
+    reid_min_ncc as they are (refined to subpixel by a parabola through the peak) or aligned
+    by ``refine_match``; candidates within ``SAME_PLACE_PX`` of a better one are the same
+    place. (The alignment is only for those below: on a patch with little texture it may
+    slide to a shrunken fit elsewhere, which it refuses, losing a match that was there.)
+    ``alignments`` (None: no limit) is spent one per alignment; once it is spent the
+    candidates below reid_min_ncc are left, and counted."""
     x0, y0, x1, y1 = region
     window = core.shape[0]
     before = (window - 1) // 2  # the core's pixels left of (above) its centre
@@ -209,49 +229,22 @@ def correlation_peaks(
     local &= ndimage.minimum_filter(inside, size=3, mode='constant', cval=False)
     rows, columns = np.nonzero(local)
     order = np.argsort(-scores[rows, columns], kind='stable')[:CANDIDATES]
-    matches: list[Peak] = []
-    below: list[tuple[float, int, int]] = []
+    peaks: list[Peak] = []
     for row, column in zip(rows[order].tolist(), columns[order].tolist(), strict=True):
         score = float(scores[row, column])
         if score >= config.reid_min_ncc:  # matches as it is: the subpixel peak of the shift
             du = parabola_peak(scores[row, column - 1 : column + 2])
             dv = parabola_peak(scores[row - 1 : row + 2, column])
-            matches.append(Peak(x0 + column + du, y0 + row + dv, score))
+            peak: Peak | None = Peak(x0 + column + du, y0 + row + dv, score)
+        elif alignments is None or alignments.take():
+            peak = refine_match(gray, core, x0 + column, y0 + row)
         else:
-            below.append((score, x0 + column, y0 + row))
-    return matches, below
-
-
-def distinct_peaks(config: TrackerConfig, peaks: list[Peak | None]) -> list[Peak]:
-    """Return the ``peaks`` (best candidate first; None: an alignment refused) that reach
-    reid_min_ncc, less those within ``SAME_PLACE_PX`` of an earlier one (two maxima of one
-    blob), best correlation first."""
-    out: list[Peak] = []
-    for peak in peaks:
+            continue
         if peak is None or peak.ncc < config.reid_min_ncc:
             continue
-        if all(math.hypot(peak.u - p.u, peak.v - p.v) > SAME_PLACE_PX for p in out):
-            out.append(peak)
-    return sorted(out, key=lambda peak: -peak.ncc)
-
-
-def find_peaks(
-    config: TrackerConfig,
-    gray: GrayImage,
-    core: GrayImage,
-    pixel: FloatArray,
-    covariance: FloatArray,
-    region: tuple[int, int, int, int],
-) -> list[Peak]:
-    """Return the places inside the 3-sigma ellipse where ``core`` matches ``gray``, best
-    first: the candidates of ``correlation_peaks`` that match as they are, and those below
-    reid_min_ncc once aligned by ``refine_match`` (``distinct_peaks``). (The alignment is
-    only for those below: on a patch with little texture it may slide to a shrunken fit
-    elsewhere, which it refuses, losing a match that was there.) One search alone, every
-    candidate aligned; ``search_predicted`` shares an image's alignments among its searches."""
-    matches, below = correlation_peaks(config, gray, core, pixel, covariance, region)
-    aligned = [refine_match(gray, core, x, y) for _, x, y in below]
-    return distinct_peaks(config, [*matches, *aligned])
+        if all(math.hypot(peak.u - p.u, peak.v - p.v) > SAME_PLACE_PX for p in peaks):
+            peaks.append(peak)
+    return sorted(peaks, key=lambda peak: -peak.ncc)
 
 
 def refine_match(gray: GrayImage, core: GrayImage, x: int, y: int) -> Peak | None:
@@ -383,15 +376,14 @@ def search_predicted(
     """Search ``gray`` for the remembered ``templates`` (id -> template) that the
     ``predictions`` (ids (K,), pixels (K, 2), covariances (K, 2, 2), warps (K, 2, 2)) expect
     in view; return what was found, (id, u, v, correlation) each, and the counts (revived:
-    all found). Every search's correlation first (``correlation_peaks``); then the image's
-    ``ALIGNMENTS_PER_IMAGE`` alignments go to the candidates below reid_min_ncc with the
-    highest correlation, whichever search they belong to (the rest are counted unaligned);
-    then the unique matches (one place: ``distinct_peaks``), and the look-alikes decided by
-    the shift that they and the ``held`` tracks that came back earlier (their predicted and
+    all found): the unique matches (one place: ``find_peaks``), then the look-alikes decided by the
+    shift that they and the ``held`` tracks that came back earlier (their predicted and
     tracked pixels, (H, 2) each) share (``resolve_by_shift``)."""
-    searches: list[tuple[int, FloatArray, GrayImage, list[Peak]]] = []
-    pool: list[tuple[float, int, int, int]] = []  # (correlation, search, x, y)
-    unsearched = 0
+    found: list[tuple[int, float, float, float]] = []
+    expected: list[FloatArray] = []
+    pending: list[tuple[int, FloatArray, list[Peak]]] = []
+    searched = unsearched = 0
+    alignments = Alignments()
     ids, pixels, covariances, warps = predictions
     for track_id, pixel, covariance, warp in zip(
         ids.tolist(), pixels, covariances, warps, strict=True
@@ -405,20 +397,8 @@ def search_predicted(
         if isinstance(region, str) or core is None:  # 'too_wide', or too far from it
             unsearched += 1
             continue
-        matches, below = correlation_peaks(config, gray, core, pixel, covariance, region)
-        pool.extend((score, len(searches), x, y) for score, x, y in below)
-        searches.append((track_id, pixel, core, matches))
-    pool.sort(key=lambda item: -item[0])  # stable: a search's own order kept among ties
-    aligned: dict[int, list[tuple[float, Peak | None]]] = {}
-    for score, index, x, y in pool[:ALIGNMENTS_PER_IMAGE]:
-        peak = refine_match(gray, searches[index][2], x, y)
-        aligned.setdefault(index, []).append((score, peak))
-    found: list[tuple[int, float, float, float]] = []
-    expected: list[FloatArray] = []
-    pending: list[tuple[int, FloatArray, list[Peak]]] = []
-    for index, (track_id, pixel, _, matches) in enumerate(searches):
-        mine = [peak for _, peak in aligned.get(index, [])]
-        peaks = distinct_peaks(config, [*matches, *mine])
+        searched += 1
+        peaks = find_peaks(config, gray, core, pixel, covariance, region, alignments)
         if len(peaks) == 1:
             found.append((track_id, peaks[0].u, peaks[0].v, peaks[0].ncc))
             expected.append(pixel)
@@ -434,8 +414,7 @@ def search_predicted(
         if peak is not None:
             found.append((track_id, peak.u, peak.v, peak.ncc))
     resolved = len(found) - len(unique)
-    unaligned = max(len(pool) - ALIGNMENTS_PER_IMAGE, 0)
-    return found, Search(len(found), len(searches), unsearched, 0, resolved, unaligned)
+    return found, Search(len(found), searched, unsearched, 0, resolved, alignments.refused)
 
 
 def make_room(
