@@ -54,7 +54,7 @@ import os
 import shutil
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -74,7 +74,7 @@ from slam_evaluation.tum_labels import (
     mask_images,
     rule_report,
 )
-from slam_evaluation.tum_tracking import recorded_features, track_images
+from slam_evaluation.tum_tracking import Features, recorded_features, track_images
 from slam_sim.core.depth_labels import LabelRule, PoseError, TrackLabels
 from slam_sim.core.tum_consistency import Consistency, pose_error
 from slam_sim.core.tum_rgbd import TumRgbd
@@ -139,15 +139,18 @@ def import_sequence(
     rule: tuple[LabelRule, list[Consistency]] | None = None,
     progress: Callable[[int], None] | None = None,
     mask_progress: Callable[[int], None] | None = None,
+    recorded: Mapping[int, Features] | None = None,
 ) -> ImportResult:
     """Return the sequence of a TUM-layout sequence (module docstring) with its report and
     figures (none when no figure image has a pose); ``rule``: ``pose_rule``'s result if
-    known; ``progress(images tracked)``, ``mask_progress(masks done)``."""
+    known; ``progress(images tracked)``, ``mask_progress(masks done)``; ``recorded``:
+    ``settings.tracks_from``'s features if read already."""
     started = time.monotonic()
     label_rule, bands = rule if rule is not None else pose_rule(sequence, settings)
     mask_of = mask_images(sequence, settings.figure_images)
     keep = tuple(sorted({*settings.figure_images, *mask_of.values()}))
-    recorded = None if settings.tracks_from is None else recorded_features(settings.tracks_from)
+    if recorded is None and settings.tracks_from is not None:
+        recorded = recorded_features(settings.tracks_from)
     tracked = track_images(sequence, label_rule, keep=keep, progress=progress, recorded=recorded)
     posed = sequence.has_pose[tracked.images]
     frame_of = np.cumsum(sequence.has_pose) - 1
@@ -396,6 +399,8 @@ def main(argv: list[str] | None = None) -> int:
     target = Path(args.output).expanduser().absolute()
     if target.exists():
         raise DatasetError(f'output {str(target)!r} exists already; remove it or choose another')
+    # a recording without /features is named before the slow steps
+    recorded = None if args.tracks is None else recorded_features(args.tracks)
     if settings.pose_sigma_m is None:
         note = f'{PROG}: measuring the pose error on the first {settings.static_images} images'
         print(note, file=sys.stderr)  # noqa: T201
@@ -403,7 +408,7 @@ def main(argv: list[str] | None = None) -> int:
     masked = int(np.count_nonzero((sequence.depth_index >= 0) & sequence.has_pose))
     result = import_sequence(
         sequence, settings, rule=rule, progress=_stage(len(sequence.rgb), PROG, ' images'),
-        mask_progress=_stage(masked, f'{PROG} masks', ' depth maps'),
+        mask_progress=_stage(masked, f'{PROG} masks', ' depth maps'), recorded=recorded,
     )  # fmt: skip
     output = write_import(target, result)
     print(summary(output, result.report))  # noqa: T201

@@ -47,9 +47,13 @@ Features = tuple[IntArray, FloatArray]
 
 def recorded_features(record: Path) -> dict[int, Features]:
     """Return a graph recording's ``/features`` (slam_interfaces/FeatureTrackArray) by stamp,
-    ns. Raises ValueError for a recording without that topic (``read_messages``)."""
+    ns. Raises DatasetError naming the recording when it lacks that topic."""
     out: dict[int, Features] = {}
-    for _, message in read_messages(record, [FEATURES_TOPIC], FEATURES_TOPIC):
+    try:
+        messages = read_messages(record, [FEATURES_TOPIC], FEATURES_TOPIC)
+    except ValueError as err:
+        raise DatasetError(f'--tracks: {err}') from None
+    for _, message in messages:
         tracks = list(message.tracks)
         ids = np.array([int(track.id) for track in tracks], dtype=np.int64)
         pixels = np.array([(float(t.u), float(t.v)) for t in tracks], dtype=np.float64)

@@ -221,3 +221,35 @@ def test_recorded_tracks_with_other_ids_give_the_same_sequence(
     report = json.loads((again / 'import.json').read_text())
     assert report['recorded_frames_matched'] == CONFIG.images - 1
     assert report['tracks_from'] == str(record)
+
+
+def test_a_recording_without_features_is_named(
+    imported: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--tracks`` with a bag that has no /features: exit status 2, the bag and the missing
+    topic named, and no output written."""
+    source, _ = imported
+    record = tmp_path / 'other'
+    registry = TypeRegistry()
+    with Writer(record, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = registry.add_connection(
+            writer, '/chatter', 'std_msgs/msg/String', [RELIABLE_QOS]
+        )
+        message = registry.typestore.types['std_msgs/msg/String'](data='hello')
+        writer.write(
+            connection, 1, bytes(registry.typestore.serialize_cdr(message, 'std_msgs/msg/String'))
+        )
+    output = tmp_path / 'out'
+    argv = [
+        '--dataset',
+        str(source),
+        *INTRINSICS,
+        '--output',
+        str(output),
+        '--tracks',
+        str(record),
+    ]
+    assert main(argv) == 2
+    error = capsys.readouterr().err
+    assert str(record) in error and 'no /features' in error and '/chatter' in error
+    assert not output.exists()
