@@ -77,22 +77,20 @@ def moving_in_map(
     images: np.ndarray,
     ids: np.ndarray,
     predicted: dict[int, set[int]],
-    cleared_at: dict[int, int] | None = None,
-    stamps_ns: np.ndarray | None = None,
+    cleared_from: dict[int, int] | None = None,
 ) -> dict[str, Any]:
     """Return, over the moving tracks, the images each was both published by the tracker and
     predicted in view by SLAM (module docstring): how many exceed ``MAX_MOVING_FRAMES`` and
-    the most; with ``cleared_at`` (id -> stamp of its first STATIC status) and the images'
-    ``stamps_ns``, the same over the images from its clearance on (before it, a feature of
-    SLAM's map is on probation with ``undecided_probation``: consider updates, which never
-    move the camera)."""
+    the most; with ``cleared_from`` (id -> index of the first image stamped at or after its
+    first STATIC status), the same over the images from its clearance on (before it, a
+    feature of SLAM's map is on probation with ``undecided_probation``: consider updates,
+    which never move the camera)."""
     frames: dict[int, int] = {}
     cleared: dict[int, int] = {}
     for image, track_id in zip(images.tolist(), ids.tolist(), strict=True):
         if moving_by_id.get(track_id) and track_id in predicted.get(image, ()):
             frames[track_id] = frames.get(track_id, 0) + 1
-            since = None if cleared_at is None else cleared_at.get(track_id)
-            if since is not None and stamps_ns is not None and since <= int(stamps_ns[image]):
+            if cleared_from is not None and image >= cleared_from.get(track_id, len(images) + 1):
                 cleared[track_id] = cleared.get(track_id, 0) + 1
     over = sorted(n for n in frames.values() if n > MAX_MOVING_FRAMES)
     report: dict[str, Any] = {
@@ -101,7 +99,7 @@ def moving_in_map(
         'bound_frames': MAX_MOVING_FRAMES,
         'most_frames': max(frames.values(), default=0),
     }
-    if cleared_at is not None:
+    if cleared_from is not None:
         report['moving_tracks_cleared_in_map'] = len(cleared)
         report['over_bound_cleared'] = sum(1 for n in cleared.values() if n > MAX_MOVING_FRAMES)
         report['most_frames_cleared'] = max(cleared.values(), default=0)
@@ -182,12 +180,12 @@ def main(argv: list[str] | None = None) -> int:
         moving, events, int(sequence.stamps_ns[0])
     )
     if predicted:
-        cleared_at: dict[int, int] = {}
+        cleared_from: dict[int, int] = {}  # the first image from each first STATIC status on
         for stamp, track_id, status in events:
-            if status == STATIC:
-                cleared_at.setdefault(track_id, stamp)
+            if status == STATIC and track_id not in cleared_from:
+                cleared_from[track_id] = int(np.searchsorted(sequence.stamps_ns, stamp))
         report['moving_in_slam_map'] = moving_in_map(
-            moving, tracked.images, tracked.ids, predicted, cleared_at, sequence.stamps_ns
+            moving, tracked.images, tracked.ids, predicted, cleared_from
         )
     else:
         print(f"{args.record}: no {PREDICTIONS_TOPIC}: SLAM's map is not scored")

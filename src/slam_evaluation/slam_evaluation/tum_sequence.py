@@ -74,7 +74,7 @@ from slam_evaluation.tum_labels import (
     mask_images,
     rule_report,
 )
-from slam_evaluation.tum_tracking import Features, recorded_features, track_images
+from slam_evaluation.tum_tracking import ImageTracks, recorded_features, track_images
 from slam_sim.core.depth_labels import LabelRule, PoseError, TrackLabels
 from slam_sim.core.tum_consistency import Consistency, pose_error
 from slam_sim.core.tum_rgbd import TumRgbd
@@ -139,7 +139,7 @@ def import_sequence(
     rule: tuple[LabelRule, list[Consistency]] | None = None,
     progress: Callable[[int], None] | None = None,
     mask_progress: Callable[[int], None] | None = None,
-    recorded: Mapping[int, Features] | None = None,
+    recorded: Mapping[int, ImageTracks] | None = None,
 ) -> ImportResult:
     """Return the sequence of a TUM-layout sequence (module docstring) with its report and
     figures (none when no figure image has a pose); ``rule``: ``pose_rule``'s result if

@@ -17,10 +17,10 @@ import cv2
 import numpy as np
 
 from marker_detector.core.images import ImageError, decode_compressed
+from monoslam_shadow_node.conversions import features_from_message
 from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.errors import DatasetError
-from slam_core.stamps import stamp_to_ns
 from slam_evaluation.classification_figure import FEATURES_TOPIC, read_messages
 from slam_sim.core.depth_labels import DepthSightings, LabelRule, frame_sightings
 from slam_sim.core.rgbd_depth import read_depth_m
@@ -41,23 +41,23 @@ class TrackedImages:
     kept: dict[int, np.ndarray] = field(default_factory=dict)
 
 
-Features = tuple[IntArray, FloatArray]
+ImageTracks = tuple[IntArray, FloatArray]
 """One image's tracks: ids (N,) and raw pixels (N, 2)."""
 
 
-def recorded_features(record: Path) -> dict[int, Features]:
+def recorded_features(record: Path) -> dict[int, ImageTracks]:
     """Return a graph recording's ``/features`` (slam_interfaces/FeatureTrackArray) by stamp,
-    ns. Raises DatasetError naming the recording when it lacks that topic."""
-    out: dict[int, Features] = {}
+    ns, without pixels that are not finite. Raises DatasetError naming the recording when it
+    lacks that topic."""
+    out: dict[int, ImageTracks] = {}
     try:
         messages = read_messages(record, [FEATURES_TOPIC], FEATURES_TOPIC)
     except ValueError as err:
         raise DatasetError(f'--tracks: {err}') from None
     for _, message in messages:
-        tracks = list(message.tracks)
-        ids = np.array([int(track.id) for track in tracks], dtype=np.int64)
-        pixels = np.array([(float(t.u), float(t.v)) for t in tracks], dtype=np.float64)
-        out[stamp_to_ns(message.header.stamp)] = ids, pixels.reshape(-1, 2)
+        features = features_from_message(message)
+        finite = np.all(np.isfinite(features.pixels), axis=1)
+        out[features.stamp_ns] = features.ids[finite], features.pixels[finite]
     return out
 
 
@@ -67,7 +67,7 @@ def track_images(
     *,
     keep: tuple[int, ...] = (),
     progress: Callable[[int], None] | None = None,
-    recorded: Mapping[int, Features] | None = None,
+    recorded: Mapping[int, ImageTracks] | None = None,
 ) -> TrackedImages:
     """Run the feature tracker over every colour image (module docstring), or take each
     image's tracks from ``recorded`` (stamp ns -> features; an image without an entry has
@@ -81,7 +81,7 @@ def track_images(
     """
     tracker = FeatureTracker(TrackerConfig())
     images, ids, pixels, depth, kept = [], [], [], [], {}
-    nothing: Features = (np.zeros(0, np.int64), np.zeros((0, 2)))
+    nothing: ImageTracks = (np.zeros(0, np.int64), np.zeros((0, 2)))
     if recorded is not None and not set(recorded) & set(sequence.stamps_ns.tolist()):
         raise DatasetError(f'{sequence.directory}: no image stamp matches a recorded frame')
     for index, path in enumerate(sequence.rgb.files):
