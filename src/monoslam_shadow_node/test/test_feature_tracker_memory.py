@@ -3,8 +3,6 @@ SLAM's map features, the ids of the latest predictions, are forgotten last."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 from test_feature_tracker_core import (
     HEIGHT,
@@ -27,10 +25,13 @@ def test_a_map_feature_is_remembered_longer_than_tracks_no_map_holds() -> None:
     source = texture(HEIGHT, WIDTH, seed=5)
     back = shifted(3.0, -2.0)
 
+    # view A fills max_features, and each away view's drops alone fill max_dormant
+    config = TrackerConfig(max_features=120, detect_every_n_frames=1, max_dormant=120)
+
     def run(predicted_away: bool) -> TrackedFeatures:
-        tracker = FeatureTracker(TrackerConfig(max_features=120, detect_every_n_frames=1))
+        tracker = FeatureTracker(config)
         first = tracker.track(warped(source, np.eye(3)))
-        tracker.config = dataclasses.replace(tracker.config, max_dormant=len(first.ids))
+        assert len(first.ids) == config.max_features
         outside = np.full((len(first.ids), 2), -50.0)  # predicted out of view: no search
         away = Predictions(first.ids, outside, np.zeros((len(first.ids), 2, 2)))
         for seed in (6, 7):
@@ -42,7 +43,7 @@ def test_a_map_feature_is_remembered_longer_than_tracks_no_map_holds() -> None:
         truth = moved(back, first.pixels)
         covariance = np.broadcast_to(16.0 * np.eye(2), (len(first.ids), 2, 2))
         result = tracker.track(warped(source, back), Predictions(first.ids, truth, covariance))
-        check_output(result, tracker.config)
+        check_output(result, config)
         return result
 
     kept = run(predicted_away=True)
