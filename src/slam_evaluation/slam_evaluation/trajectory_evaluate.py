@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from slam_core.cli import console_main
 from slam_core.files import write_json
@@ -64,8 +65,6 @@ def read_record(
     (K, 6, 6) of the PoseWithCovarianceStamped messages on ``topic`` in a bag, in stamp
     order; ValueError for a bag without the topic or a quaternion that is not finite and
     nonzero (named by stamp)."""
-    from scipy.spatial.transform import Rotation
-
     stamps, centres, quaternions, covariances = [], [], [], []
     for _, message in read_messages(path, [topic], topic):
         pose = message.pose.pose
