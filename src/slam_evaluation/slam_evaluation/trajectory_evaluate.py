@@ -17,8 +17,14 @@ start is that camera's frame: a known transform, not a fit). From a recording wi
 ``--anchor``, also the pose NEES (6 degrees of freedom: the centre error and log(R_est
 R_ref^T), in the estimate's world axes, against the message's covariance, position then
 rotation about the world axes as monoslam publishes it) and the position and rotation NEES
-(3 each), over the poses with a positive definite covariance (the others are counted); the
-reference's own error is not added. A run diverged when the alignment's scale is off by more
+(3 each), over the poses with a positive definite covariance (the others are counted).
+The reference errs too; with ``--reference-error FILE`` the NEES is reported a second time
+(``reference_*`` figures) against the estimate's covariance plus the reference's position
+error: sigma_pose(t - t0)^2 on each axis, t0 the anchor's stamp, from the table of a JSON file
+(``separations_s``, ``sigmas_m``; or a sequence's import.json, whose ``label_rule.pose_error``
+``tum_rgbd_sequence`` measures on the static opening: the reference's per-axis error between
+two poses that far apart, linear in between, the end values beyond). The reference's rotation
+error has no table and is not added. A run diverged when the alignment's scale is off by more
 than a factor 2 (``MIN_SCALE``) or the anchored ATE exceeds ``DIVERGED_ATE_M`` (exit status
 1). Writes ``trajectory_eval.json`` and ``trajectory_topview.png`` (estimate, aligned,
 against the reference; x-y and x-z) into ``--out`` and prints a summary.
@@ -27,6 +33,7 @@ against the reference; x-y and x-z) into ``--out`` and prints a summary.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -42,6 +49,7 @@ from slam_core.stamps import stamp_to_ns
 from slam_evaluation.classification_figure import read_messages
 from slam_evaluation.monoslam_metrics import DIVERGED_ATE_M, rms, umeyama_alignment
 from slam_evaluation.sequence_files import read_poses
+from slam_sim.core.depth_labels import PoseError
 
 FloatArray = NDArray[np.float64]
 MIN_SCALE = 0.5
@@ -121,9 +129,11 @@ def evaluate(
     tolerance_ns: int,
     anchor: bool,
     covariances: FloatArray | None = None,
+    reference_error: PoseError | None = None,
 ) -> dict[str, Any]:
     """Return the figures of the module docstring (and the paired centres for the plot);
-    ``covariances`` (K, 6, 6), the estimate's, give the NEES when ``anchor``."""
+    ``covariances`` (K, 6, 6), the estimate's, give the NEES when ``anchor``, and with
+    ``reference_error`` also the ``reference_*`` NEES figures."""
     e_stamps, e_centres, e_rotations = estimate
     t_stamps, t_centres, t_rotations = truth
     index = np.searchsorted(t_stamps, e_stamps)
@@ -163,9 +173,30 @@ def evaluate(
                 errors[row, 3:] = log_rotation(e_rotations[ek] @ true_rotation.T)
             figures, _ = pose_nees(errors, covariances[k])
             result.update(figures)
+            if reference_error is not None:
+                since_s = (e_stamps[k] - e_stamps[k[0]]) * 1e-9
+                sigmas = np.array([reference_error.at(s) for s in since_s])
+                widened = np.array(covariances[k], dtype=np.float64)
+                widened[:, :3, :3] += sigmas[:, None, None] ** 2 * np.eye(3)
+                figures, _ = pose_nees(errors, widened)
+                result.update({f'reference_{name}': v for name, v in figures.items()})
     result['diverged'] = bool(diverged)
     result['_plot'] = (aligned, target)
     return result
+
+
+def read_reference_error(path: Path) -> PoseError:
+    """Return the reference's pose error table of a JSON file (module docstring); ValueError
+    names the file when it holds no usable table."""
+    try:
+        content = json.loads(Path(path).read_text())
+        table = content.get('label_rule', {}).get('pose_error', content)
+        return PoseError(tuple(table['separations_s']), tuple(table['sigmas_m']))
+    except (json.JSONDecodeError, AttributeError, KeyError, TypeError, ValueError) as error:
+        raise ValueError(
+            f'{path}: no reference error table (separations_s, sigmas_m, or a sequence '
+            f"import.json's label_rule.pose_error): {error}"
+        ) from error
 
 
 def write_topview(path: Path, aligned: FloatArray, target: FloatArray) -> None:
@@ -214,9 +245,17 @@ def main(argv: list[str] | None = None) -> int:
         '--anchor', action='store_true',
         help="also the raw ATE with the estimate's world anchored at the first pose's reference",
     )  # fmt: skip
+    parser.add_argument(
+        '--reference-error', type=Path, metavar='JSON',
+        help="the reference's position error by separation (a sequence's import.json): the "
+        'NEES again with it added',
+    )  # fmt: skip
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     covariances = None
     try:
+        reference_error = (
+            None if args.reference_error is None else read_reference_error(args.reference_error)
+        )
         if args.record is not None:
             stamps, centres, rotations, covariances = read_record(args.record, args.pose_topic)
             estimate = stamps, centres, rotations
@@ -224,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
             estimate = read_tum(args.trajectory)
         result = evaluate(
             estimate, read_tum(args.truth), round(args.tolerance_ms * 1e6), args.anchor,
-            covariances,
+            covariances, reference_error,
         )  # fmt: skip
     except (OSError, ValueError) as error:
         print(f'trajectory_evaluate: error: {error}', file=sys.stderr)  # noqa: T201
@@ -250,6 +289,13 @@ def main(argv: list[str] | None = None) -> int:
             f'each), over {result["poses_with_covariance"]} '
             f'poses ({result["poses_without_covariance"]} without a usable covariance)'
             if result.get('pose_nees_mean') is not None
+            else ''
+        )
+        + (
+            f"; with the reference's position error added: pose NEES mean "
+            f'{result["reference_pose_nees_mean"]:.1f}, position '
+            f'{result["reference_position_nees_mean"]:.1f}'
+            if result.get('reference_pose_nees_mean') is not None
             else ''
         )
     )

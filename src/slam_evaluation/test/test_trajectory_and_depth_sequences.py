@@ -4,6 +4,7 @@ measured depths (depths.csv: MonoSLAM's depth start, the truth in the start came
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -187,3 +188,47 @@ def test_a_recorded_trajectory_gives_the_pose_nees_of_its_covariance(tmp_path: P
     assert 1.5 < plain['position_nees_mean'] < 4.5
     assert flipped['pose_nees_mean'] == pytest.approx(plain['pose_nees_mean'], rel=1e-9)
     assert small['pose_nees_mean'] == pytest.approx(100 * plain['pose_nees_mean'], rel=1e-6)
+
+
+def test_the_reference_error_table_brings_the_nees_back_to_its_degrees_of_freedom(
+    tmp_path: Path,
+) -> None:
+    """A reference whose centres err by 5 cm per axis a second after the anchor (and 0 at it)
+    against an estimate that errs by its covariance: the NEES without the reference's error
+    is far above 6, with the table (as a bare table or inside a sequence's import.json) it is
+    about 6 and the position NEES about 3; a file without a table is named."""
+    rng = np.random.default_rng(11)
+    since_s = (STAMPS[5:] - STAMPS[5]) * 1e-9
+    table = {'separations_s': [0.0, 1.0], 'sigmas_m': [0.0, 0.05]}
+    wrong = CENTRES.copy()
+    wrong[5:] += rng.normal(size=(55, 3)) * np.interp(since_s, [0.0, 1.0], [0.0, 0.05])[:, None]
+    truth = _tum(tmp_path / 'truth.txt', STAMPS, wrong)
+    world = ROTATIONS[5]
+    factor = rng.normal(size=(6, 6))
+    covariance = 1e-5 * (factor @ factor.T + 0.5 * np.eye(6))
+    errors = rng.multivariate_normal(np.zeros(6), covariance, size=55)
+    errors[0] = 0.0
+    centres = (CENTRES[5:] - CENTRES[5]) @ world + errors[:, :3]
+    noisy = Rotation.from_rotvec(errors[:, 3:]).as_matrix() @ world.T @ ROTATIONS[5:]
+    record = _pose_record(tmp_path / 'record', centres, noisy, covariance)
+    stamps, found_centres, found_rotations, covariances = te.read_record(record, '/monoslam/pose')
+    (tmp_path / 'table.json').write_text(json.dumps(table))
+    (tmp_path / 'import.json').write_text(json.dumps({'label_rule': {'pose_error': table}}))
+    results = [
+        te.evaluate(
+            (stamps, found_centres, found_rotations),
+            te.read_tum(truth),
+            1_000_000,
+            True,
+            covariances,
+            te.read_reference_error(tmp_path / name),
+        )
+        for name in ('table.json', 'import.json')
+    ]
+    assert results[0]['pose_nees_mean'] > 30.0
+    assert 4.0 < results[0]['reference_pose_nees_mean'] < 8.5
+    assert 1.5 < results[0]['reference_position_nees_mean'] < 4.5
+    assert results[1]['reference_pose_nees_mean'] == results[0]['reference_pose_nees_mean']
+    (tmp_path / 'other.json').write_text(json.dumps({'tracks': 3}))
+    with pytest.raises(ValueError, match=r'other\.json: no reference error table'):
+        te.read_reference_error(tmp_path / 'other.json')
