@@ -36,6 +36,7 @@ NODE_EXECUTABLES = {
     'route_driver',
     'dynamic_scene_sim',
     'camera_mount',
+    'label_gate',
 }
 
 

@@ -31,6 +31,7 @@ setup(
             'peoplebot_sim = slam_sim.peoplebot_sim_node:main',
             'route_driver = slam_sim.route_driver_node:main',
             'dynamic_scene_sim = slam_sim.dynamic_scene_sim_node:main',
+            'label_gate = slam_sim.label_gate_node:main',
         ],
     },
 )

@@ -25,14 +25,17 @@ from typing import Any
 
 import numpy as np
 
+from slam_core.arrays import FloatArray
 from slam_evaluation.tum_label_figure import LabelledImage, MaskedImage, labels_png, masks_png
 from slam_evaluation.tum_tracking import TrackedImages
 from slam_sim.core.depth_labels import LabelRule, TrackLabels, label_tracks
+from slam_sim.core.label_gate import DepthMm, depth_to_mm
 from slam_sim.core.mask_labels import (
     MaskLabelRule,
     TrackSightings,
     label_by_masks,
     mask_sightings,
+    pixel_codes,
 )
 from slam_sim.core.motion_masks import CodeArray, MaskedFrame, MaskRule, sequence_masks
 from slam_sim.core.tum_rgbd import TumRgbd
@@ -59,11 +62,14 @@ class RuleLabels:
 @dataclass(frozen=True, eq=False)
 class SequenceLabels:
     """The labels by rule name (the chosen one and the endpoint rule), the chosen rule's
-    name, and the motion masks kept for the figure (colour image index -> mask (H, W))."""
+    name, the motion masks kept for the figure (colour image index -> mask (H, W)) and what
+    the label gate needs of every mask."""
 
     rule: str
     by_rule: dict[str, RuleLabels]
     masks: dict[int, CodeArray] = field(default_factory=dict)
+    gate_masks: dict[int, GateMask] = field(default_factory=dict)
+    """With the mask rule: per colour image with a mask, what ``label_gate`` reads (GateMask)."""
 
     @property
     def chosen(self) -> RuleLabels:
@@ -120,9 +126,11 @@ def label_sequence(
         )
     }
     masks: dict[int, CodeArray] = {}
+    gate: dict[int, GateMask] = {}
     if rule == 'masks':
         mask_rule, label_rule = mask_rules(endpoint_rule)
         frames = _keeping(sequence_masks(sequence, mask_rule), keep_masks, masks, progress)
+        frames = _coding(frames, label_rule.radius_px, gate)
         tracks = TrackSightings.of(tracked.images, tracked.ids, tracked.pixels)
         sightings = mask_sightings(sequence.camera, tracks, frames, label_rule)
         in_opening = sightings.images < static_images
@@ -135,7 +143,7 @@ def label_sequence(
             label_by_masks(ids, depth_only, label_rule),
             label_by_masks(opening_ids, depth_only.select(in_opening), label_rule),
         )
-    return SequenceLabels(rule, by_rule, masks)
+    return SequenceLabels(rule, by_rule, masks, gate)
 
 
 def _keeping(
@@ -151,6 +159,27 @@ def _keeping(
             kept[frame.image] = frame.mask
         if progress is not None:
             progress(done)
+        yield frame
+
+
+@dataclass(frozen=True, eq=False)
+class GateMask:
+    """What ``slam_sim.core.label_gate`` takes of one mask: the pixel codes (H, W), the depth
+    map (H, W) mm and the pose (4, 4)."""
+
+    codes: CodeArray
+    depth_mm: DepthMm
+    pose: FloatArray
+
+
+def _coding(
+    frames: Iterator[MaskedFrame], radius_px: int, kept: dict[int, GateMask]
+) -> Iterator[MaskedFrame]:
+    """Yield ``frames``, storing each one's GateMask into ``kept`` by colour image."""
+    for frame in frames:
+        kept[frame.image] = GateMask(
+            pixel_codes(frame, radius_px), depth_to_mm(frame.depth_m), frame.pose
+        )
         yield frame
 
 

@@ -39,9 +39,12 @@ Output directory (``--output``, new; written under a hidden name and renamed int
 complete): camera.yaml, poses.txt, tracks.csv, labels.csv, depths.csv or known_points.csv (the
 sequence format), ``labels.png`` (the tracks of ``--figure-images`` drawn in their label's
 colour: moving red, static green, unknown grey), ``masks.png`` (with the mask rule: the motion
-mask of the depth map nearest each figure image over its colour image, moving translucent red)
-and ``import.json`` (the counts, the label rules' settings, the static opening's pose error per
-separation and false-alarm rate, the known points and their visibility).
+mask of the depth map nearest each figure image over its colour image, moving translucent red),
+``label_masks.npz`` (with the mask rule: per colour image with a mask, the code a track's
+sighting gets at each pixel, the depth map and the pose; the ``label_gate`` node's oracle for
+variant (a) through a graph, ``slam_sim.core.label_gate``) and ``import.json`` (the counts,
+the label rules' settings, the static opening's pose error per separation and false-alarm
+rate, the known points and their visibility).
 
 Example: ``tum_rgbd_sequence --dataset ../shared/data/bonn_crowd --convention bonn --output
 out/bonn_crowd/sequence``.
@@ -55,7 +58,7 @@ import shutil
 import sys
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +79,7 @@ from slam_evaluation.tum_labels import (
 )
 from slam_evaluation.tum_tracking import ImageTracks, recorded_features, track_images
 from slam_sim.core.depth_labels import LabelRule, PoseError, TrackLabels
+from slam_sim.core.label_gate import LabelMasks, write_label_masks
 from slam_sim.core.tum_consistency import Consistency, pose_error
 from slam_sim.core.tum_rgbd import TumRgbd
 from slam_sim.tum_rgbd_bag import add_dataset_arguments, read_dataset
@@ -130,6 +134,8 @@ class ImportResult:
     known: KnownPoints
     report: dict[str, Any]
     figures: dict[str, bytes]
+    files: dict[str, bytes] = field(default_factory=dict)
+    """Other files (name -> bytes): label_masks.npz with the mask rule."""
 
 
 def import_sequence(
@@ -218,7 +224,21 @@ def import_sequence(
         },
         'elapsed_s': time.monotonic() - started,
     }
-    return ImportResult(result, labels, opening, known, report, figures)
+    files = {}
+    if labelled.gate_masks:
+        images = sorted(labelled.gate_masks)
+        gate = [labelled.gate_masks[i] for i in images]
+        files['label_masks.npz'] = write_label_masks(
+            LabelMasks(
+                sequence.stamps_ns[images].astype(np.int64),
+                np.stack([g.codes for g in gate]),
+                np.stack([g.depth_mm for g in gate]),
+                np.stack([g.pose for g in gate]),
+                sequence.camera,
+                label_rule.pose_error,
+            )
+        )
+    return ImportResult(result, labels, opening, known, report, figures, files)
 
 
 def _inputs(sequence: TumRgbd) -> dict[str, Any]:
@@ -259,7 +279,7 @@ def write_import(output: Path, result: ImportResult) -> Path:
     try:
         staging.mkdir()
         write_sequence(staging, result.sequence)
-        for name, data in result.figures.items():
+        for name, data in {**result.figures, **result.files}.items():
             write_atomically(staging / name, data)
         write_json(staging / 'import.json', result.report)
         staging.rename(target)

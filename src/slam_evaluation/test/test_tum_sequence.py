@@ -18,6 +18,7 @@ from slam_evaluation.sequence_files import measurement_frames, read_sequence
 from slam_evaluation.tum_sequence import main
 from slam_ros.testing.messages import RELIABLE_QOS
 from slam_ros.typesys import TypeRegistry
+from slam_sim.core.label_gate import LabelGate, read_label_masks
 from slam_sim.core.tum_rgbd import read_tum_rgbd
 from slam_sim.core.tum_synthetic import (
     SyntheticTum,
@@ -46,8 +47,8 @@ def test_the_sequence_reads_back_with_the_images_that_have_poses(
 ) -> None:
     source, output = imported
     assert sorted(p.name for p in output.iterdir()) == [
-        'camera.yaml', 'depths.csv', 'import.json', 'labels.csv', 'labels.png',
-        'masks.png', 'poses.txt', 'tracks.csv',
+        'camera.yaml', 'depths.csv', 'import.json', 'label_masks.npz', 'labels.csv',
+        'labels.png', 'masks.png', 'poses.txt', 'tracks.csv',
     ]  # fmt: skip
     sequence = read_sequence(output)
     tum = read_tum_rgbd(source, intrinsics='tum_fr3')
@@ -89,6 +90,33 @@ def test_board_tracks_are_moving_and_wall_tracks_static(imported: tuple[Path, Pa
     assert tracks['tracks'] == len(np.unique(sequence.ids))
     assert report['static_opening']['false_alarm_rate'] == 0.0
     assert report['frames_written'] == CONFIG.images - 1
+
+
+def test_the_label_gate_passes_wall_tracks_and_withholds_board_tracks(
+    imported: tuple[Path, Path],
+) -> None:
+    """label_gate's oracle on the import's label masks, the tracks fed frame by frame with
+    their ids renumbered: 90 % of the board's tracks labelled moving end withheld (the board
+    slides along itself, so most are found by their own motion), and 90 % of the wall's pass."""
+    _, output = imported
+    sequence = read_sequence(output)
+    masks = read_label_masks(output / 'label_masks.npz')
+    assert len(masks.stamps_ns) >= 10 and masks.codes.shape[1:] == (CONFIG.height, CONFIG.width)
+    gate = LabelGate(masks)
+    labels = sequence.labels or {}
+    passed: dict[int, int] = {}
+    for k, (ids, pixels) in enumerate(sequence.by_frame()):
+        keep = gate.admit(int(sequence.stamps_ns[k]), 7 * ids + 1000, pixels)
+        for track in ids[keep].tolist():
+            passed[track] = passed.get(track, 0) + 1
+    board = [i for i in labels if labels[i]]
+    wall = [i for i in labels if not labels[i]]
+    assert len(board) >= 8 and len(wall) >= 100
+    assert sum(gate.withheld(7 * i + 1000) for i in board) >= 0.9 * len(board)
+    assert sum(i in passed for i in wall) >= 0.9 * len(wall)
+    assert gate.frames == len(sequence.stamps_ns) and gate.frames_with_masks == len(
+        masks.stamps_ns
+    )
 
 
 def test_depths_are_the_tracks_depths_and_start_monoslam(imported: tuple[Path, Path]) -> None:

@@ -138,28 +138,39 @@ class TrackSightings:
         return self.ids[near][known], pixels[known]
 
 
-def sighting_codes(frame: MaskedFrame, pixels: FloatArray, radius_px: int) -> IntArray:
-    """Return the mask's code (N,) at raw pixels (N, 2), UNKNOWN ones taken from the nearest
-    surface within ``radius_px`` (module docstring); UNKNOWN outside the image."""
+def pixel_codes(frame: MaskedFrame, radius_px: int) -> CodeArray:
+    """Return the code (H, W) a track's sighting gets at each pixel of the mask's image: the
+    mask's code where it is decided, else the nearest surface's within ``radius_px``
+    (module docstring)."""
     mask, depth = frame.mask, frame.depth_m
-    height, width = mask.shape
+    nearest_moving = _nearest_depth(mask, depth, MOVING, radius_px)
+    nearest_static = _nearest_depth(mask, depth, STATIC, radius_px)
+    around = np.where(np.isfinite(nearest_static), STATIC, UNKNOWN)
+    around = np.where(
+        np.isfinite(nearest_moving) & (nearest_moving <= nearest_static), MOVING, around
+    )
+    return np.asarray(np.where(mask == UNKNOWN, around, mask), dtype=np.int8)
+
+
+def codes_at(codes: CodeArray, pixels: FloatArray) -> IntArray:
+    """Return ``pixel_codes``' codes (N,) at raw pixels (N, 2), rounded to the nearest
+    pixel; UNKNOWN outside the image or where a pixel is not finite."""
+    height, width = codes.shape
     pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-    codes = np.full(len(pixels), UNKNOWN, dtype=np.int64)
+    found = np.full(len(pixels), UNKNOWN, dtype=np.int64)
     finite = np.all(np.isfinite(pixels), axis=1)
     spot = np.zeros((len(pixels), 2), dtype=np.int64)
     spot[finite] = np.rint(pixels[finite]).astype(np.int64)
     inside = finite & (spot[:, 0] >= 0) & (spot[:, 0] < width)
     inside &= (spot[:, 1] >= 0) & (spot[:, 1] < height)
-    column, row = spot[inside, 0], spot[inside, 1]
-    own = mask[row, column].astype(np.int64)
-    nearest_moving = _nearest_depth(mask, depth, MOVING, radius_px)[row, column]
-    nearest_static = _nearest_depth(mask, depth, STATIC, radius_px)[row, column]
-    around = np.where(np.isfinite(nearest_static), STATIC, UNKNOWN)
-    around = np.where(
-        np.isfinite(nearest_moving) & (nearest_moving <= nearest_static), MOVING, around
-    )
-    codes[inside] = np.where(own == UNKNOWN, around, own)
-    return codes
+    found[inside] = codes[spot[inside, 1], spot[inside, 0]]
+    return found
+
+
+def sighting_codes(frame: MaskedFrame, pixels: FloatArray, radius_px: int) -> IntArray:
+    """Return the mask's code (N,) at raw pixels (N, 2), UNKNOWN ones taken from the nearest
+    surface within ``radius_px`` (module docstring); UNKNOWN outside the image."""
+    return codes_at(pixel_codes(frame, radius_px), pixels)
 
 
 def _nearest_depth(mask: CodeArray, depth_m: FloatArray, code: int, radius_px: int) -> FloatArray:
