@@ -14,7 +14,9 @@
 #      scored by trajectory_evaluate, its classification drawn on the images at 3, 9, 15 and
 #      21 s (classification_figure) and its decisions scored against the depth labels
 #      (bench/graph_classification.py); then (a), (b) and (c) at the sequence level on the
-#      graph's own tracks (tum_rgbd_sequence --tracks, monoslam_evaluate --sequence).
+#      graph's own tracks (tum_rgbd_sequence --tracks, monoslam_evaluate --sequence); and (a)
+#      and (b) through the graph on the same images (monoslam_labelled_rgbd.yaml,
+#      monoslam_shadow_labelled_rgbd.yaml, monoslam_classic_rgbd.yaml).
 # Part 3 and 4 need the data set: SLAM_DATA_DIR (default ../shared/data) holds bonn_crowd/
 # (https://www.ipb.uni-bonn.de/data/rgbd-dynamic-dataset/); without it they are skipped, said.
 # Outputs go to bench/results/monoslam_real/; each evaluator prints its summary. About 60
@@ -83,6 +85,20 @@ if [[ -d "$DATA" ]]; then
     run monoslam_evaluate --sequence "$OUT/bonn_graph_sequence" --undecided-probation \
       --out "$OUT/bonn_graph_sequence_eval"
   fi
+  # (a) and (b) through the graph on the same images: (a) classic MonoSLAM on the features
+  # labelled static (label_gate, an oracle reading the sequence's label_masks.npz), (a') the
+  # Shadow filter's graph on those features, (b) classic MonoSLAM on every feature
+  graphs=(monoslam_labelled_rgbd monoslam_shadow_labelled_rgbd monoslam_classic_rgbd)
+  share="$(python -c 'from ament_index_python.packages import get_package_share_directory as d; print(d("slam_bringup"))')"
+  for graph in "${graphs[@]}"; do
+    sed "s|out/bonn_crowd/sequence/label_masks.npz|$OUT/bonn_sequence/label_masks.npz|" \
+      "$share/graphs/$graph.yaml" > "$OUT/$graph.yaml"
+    rm -rf "out/$graph" "out/${graph}_record"
+    run slam_run "$OUT/$graph.yaml" --bag "$OUT/bonn_crowd.mcap" --paced --processes \
+      --exit-when-player-done
+    run trajectory_evaluate --record "out/${graph}_record" --truth "$OUT/bonn_sequence/poses.txt" \
+      --anchor --reference-error "$OUT/bonn_sequence/import.json" --out "$OUT/${graph}_eval"
+  done
 else
   echo "bench/monoslam_real_table.sh: no $DATA: Bonn crowd skipped (set SLAM_DATA_DIR)"
 fi
