@@ -134,6 +134,12 @@ def _player_description(graph: Graph, player: PlayerSpec) -> NodeDescription:
 def _recorder_description(graph: Graph, recorder: RecorderSpec) -> NodeDescription:
     values: dict[str, Any] = {}
     if recorder.output is not None:
+        if Path(recorder.output).expanduser().exists():  # checked before any node starts
+            raise graph.error(
+                'graph.recorder.output',
+                f'{str(recorder.output)!r} exists already (a recording is never overwritten); '
+                'remove it or record elsewhere with --record PATH',
+            )
         values['output'] = str(recorder.output)
     if recorder.topics:
         values['topics'] = list(recorder.topics)

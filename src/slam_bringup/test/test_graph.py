@@ -215,6 +215,7 @@ def test_missing_graph_file(tmp_path: Path) -> None:
         ({'player': {}}, 'graph.player.bag:', 'give --bag'),
         ({'player': {'bag': 'absent'}}, 'graph.player.bag:', 'does not exist'),
         ({'exit_when_player_done': True}, 'graph.exit_when_player_done:', 'no player'),
+        ({'recorder': {'output': '.'}}, 'graph.recorder.output:', 'exists already'),
     ],
 )
 def test_graphs_that_cannot_run(
