@@ -96,7 +96,8 @@ class LabelMasks:
         return best if abs(int(self.stamps_ns[best]) - stamp_ns) <= tolerance_ns else None
 
     def frame(self, index: int) -> MaskedFrame:
-        """Return mask ``index`` as a MaskedFrame (its depth in m, NaN where none)."""
+        """Return mask ``index`` as a MaskedFrame: its depth in m (NaN where none), its pose
+        and stamp, and in place of the motion mask its pixel codes."""
         depth = self.depth_mm[index].astype(np.float64) / 1000.0
         depth[self.depth_mm[index] == 0] = np.nan
         stamp = int(self.stamps_ns[index])
