@@ -35,7 +35,6 @@ from slam_sim.core.mask_labels import (
     TrackSightings,
     label_by_masks,
     mask_sightings,
-    pixel_codes,
 )
 from slam_sim.core.motion_masks import CodeArray, MaskedFrame, MaskRule, sequence_masks
 from slam_sim.core.tum_rgbd import TumRgbd
@@ -130,9 +129,12 @@ def label_sequence(
     if rule == 'masks':
         mask_rule, label_rule = mask_rules(endpoint_rule)
         frames = _keeping(sequence_masks(sequence, mask_rule), keep_masks, masks, progress)
-        frames = _coding(frames, label_rule.radius_px, gate)
         tracks = TrackSightings.of(tracked.images, tracked.ids, tracked.pixels)
-        sightings = mask_sightings(sequence.camera, tracks, frames, label_rule)
+
+        def coded(frame: MaskedFrame, codes: CodeArray) -> None:
+            gate[frame.image] = GateMask(codes, depth_to_mm(frame.depth_m), frame.pose)
+
+        sightings = mask_sightings(sequence.camera, tracks, frames, label_rule, coded)
         in_opening = sightings.images < static_images
         depth_only = sightings.depth_only()
         by_rule['masks'] = RuleLabels(
@@ -170,17 +172,6 @@ class GateMask:
     codes: CodeArray
     depth_mm: DepthMm
     pose: FloatArray
-
-
-def _coding(
-    frames: Iterator[MaskedFrame], radius_px: int, kept: dict[int, GateMask]
-) -> Iterator[MaskedFrame]:
-    """Yield ``frames``, storing each one's GateMask into ``kept`` by colour image."""
-    for frame in frames:
-        kept[frame.image] = GateMask(
-            pixel_codes(frame, radius_px), depth_to_mm(frame.depth_m), frame.pose
-        )
-        yield frame
 
 
 def rule_report(name: str, endpoint_rule: LabelRule) -> dict[str, Any]:

@@ -46,7 +46,7 @@ sightings.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import cv2
@@ -260,12 +260,16 @@ def mask_sightings(
     tracks: TrackSightings,
     frames: Iterable[MaskedFrame],
     rule: MaskLabelRule,
+    coded: Callable[[MaskedFrame, CodeArray], None] | None = None,
 ) -> MaskSightings:
     """Return every track's mask sighting at every mask, in mask order (module
-    docstring)."""
+    docstring); ``coded(frame, pixel codes)`` gets each mask's ``pixel_codes``."""
     parts: list[tuple[IntArray, IntArray, IntArray, IntArray]] = []
     previous: _FrameSightings | None = None
     for frame in frames:
+        frame_codes = pixel_codes(frame, rule.radius_px)
+        if coded is not None:
+            coded(frame, frame_codes)
         track_ids, pixels = tracks.at_image(frame.image, rule.max_gap_images)
         order = np.argsort(track_ids)
         track_ids, pixels = track_ids[order], pixels[order]
@@ -278,7 +282,7 @@ def mask_sightings(
             (
                 track_ids,
                 np.full(len(track_ids), frame.image, dtype=np.int64),
-                sighting_codes(frame, pixels, rule.radius_px),
+                codes_at(frame_codes, pixels),
                 np.full(len(track_ids), UNKNOWN, dtype=np.int64),
             )
         )
