@@ -271,6 +271,9 @@ def main(argv: list[str] | None = None) -> int:
     if covariances is not None and not args.anchor:
         note = "the NEES needs --anchor (the estimate in the reference's world)"
         print(f'trajectory_evaluate: {note}', file=sys.stderr)  # noqa: T201
+    if reference_error is not None and covariances is None:
+        note = '--reference-error is for the NEES, which needs --record (its covariances)'
+        print(f'trajectory_evaluate: {note}', file=sys.stderr)  # noqa: T201
     aligned, target = result.pop('_plot')
     write_json(args.out / 'trajectory_eval.json', result)
     write_topview(args.out / 'trajectory_topview.png', aligned, target)
