@@ -19,12 +19,13 @@ R_ref^T), in the estimate's world axes, against the message's covariance, positi
 rotation about the world axes as monoslam publishes it) and the position and rotation NEES
 (3 each), over the poses with a positive definite covariance (the others are counted).
 The reference errs too; with ``--reference-error FILE`` the NEES is reported a second time
-(``reference_*`` figures) against the estimate's covariance plus the reference's position
-error: sigma_pose(t - t0)^2 on each axis, t0 the anchor's stamp, from the table of a JSON file
-(``separations_s``, ``sigmas_m``; or a sequence's import.json, whose ``label_rule.pose_error``
-``tum_rgbd_sequence`` measures on the static opening: the reference's per-axis error between
-two poses that far apart, linear in between, the end values beyond). The reference's rotation
-error has no table and is not added. A run diverged when the alignment's scale is off by more
+(``reference_*`` figures) against the estimate's covariance plus the reference's own error
+between the anchor and each pose, per axis: sigma_rot(t - t0)^2 on the rotation and
+sigma_centre(t - t0)^2 on the position, t0 the anchor's stamp, from the table of a JSON file
+(``separations_s``, ``rotation_sigmas_rad``, ``translation_sigmas_m``; or a sequence's
+import.json, whose ``reference_pose_error`` ``tum_rgbd_sequence`` measures on the static
+opening against its images: ``slam_sim.core.reference_error``; linear in between, the end
+values beyond). A run diverged when the alignment's scale is off by more
 than a factor 2 (``MIN_SCALE``) or the anchored ATE exceeds ``DIVERGED_ATE_M`` (exit status
 1). Writes ``trajectory_eval.json`` and ``trajectory_topview.png`` (estimate, aligned,
 against the reference; x-y and x-z) into ``--out`` and prints a summary.
@@ -49,7 +50,7 @@ from slam_core.stamps import stamp_to_ns
 from slam_evaluation.classification_figure import read_messages
 from slam_evaluation.monoslam_metrics import DIVERGED_ATE_M, rms, umeyama_alignment
 from slam_evaluation.sequence_files import read_poses
-from slam_sim.core.depth_labels import PoseError
+from slam_sim.core.reference_error import ReferencePoseError
 
 FloatArray = NDArray[np.float64]
 MIN_SCALE = 0.5
@@ -129,7 +130,7 @@ def evaluate(
     tolerance_ns: int,
     anchor: bool,
     covariances: FloatArray | None = None,
-    reference_error: PoseError | None = None,
+    reference_error: ReferencePoseError | None = None,
 ) -> dict[str, Any]:
     """Return the figures of the module docstring (and the paired centres for the plot);
     ``covariances`` (K, 6, 6), the estimate's, give the NEES when ``anchor``, and with
@@ -175,9 +176,10 @@ def evaluate(
             result.update(figures)
             if reference_error is not None:
                 since_s = (e_stamps[k] - e_stamps[k[0]]) * 1e-9
-                sigmas = np.array([reference_error.at(s) for s in since_s])
+                sigmas = np.array([reference_error.at(s) for s in since_s])  # (rotation, centre)
                 widened = np.array(covariances[k], dtype=np.float64)
-                widened[:, :3, :3] += sigmas[:, None, None] ** 2 * np.eye(3)
+                widened[:, :3, :3] += sigmas[:, 1, None, None] ** 2 * np.eye(3)
+                widened[:, 3:, 3:] += sigmas[:, 0, None, None] ** 2 * np.eye(3)
                 figures, _ = pose_nees(errors, widened)
                 result.update({f'reference_{name}': v for name, v in figures.items()})
     result['diverged'] = bool(diverged)
@@ -185,17 +187,19 @@ def evaluate(
     return result
 
 
-def read_reference_error(path: Path) -> PoseError:
+def read_reference_error(path: Path) -> ReferencePoseError:
     """Return the reference's pose error table of a JSON file (module docstring); ValueError
-    names the file when it holds no usable table."""
+    names the file when it holds no usable table (and says why an import measured none)."""
     try:
         content = json.loads(Path(path).read_text())
-        table = content.get('label_rule', {}).get('pose_error', content)
-        return PoseError(tuple(table['separations_s']), tuple(table['sigmas_m']))
+        measured = content.get('reference_pose_error')
+        if isinstance(measured, dict) and measured.get('table') is None:
+            raise ValueError(f'the import measured none: {measured.get("reason")}')
+        return ReferencePoseError.from_json(measured['table'] if measured else content)
     except (json.JSONDecodeError, AttributeError, KeyError, TypeError, ValueError) as error:
         raise ValueError(
-            f'{path}: no reference error table (separations_s, sigmas_m, or a sequence '
-            f"import.json's label_rule.pose_error): {error}"
+            f'{path}: no reference error table (separations_s, rotation_sigmas_rad, '
+            f"translation_sigmas_m, or a sequence import.json's reference_pose_error): {error}"
         ) from error
 
 
@@ -247,8 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     parser.add_argument(
         '--reference-error', type=Path, metavar='JSON',
-        help="the reference's position error by separation (a sequence's import.json): the "
-        'NEES again with it added',
+        help="the reference's rotation and centre error by separation (a sequence's "
+        'import.json): the NEES again with it added',
     )  # fmt: skip
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     covariances = None
@@ -295,9 +299,10 @@ def main(argv: list[str] | None = None) -> int:
             else ''
         )
         + (
-            f"; with the reference's position error added: pose NEES mean "
-            f'{result["reference_pose_nees_mean"]:.1f}, position '
-            f'{result["reference_position_nees_mean"]:.1f}'
+            f"; with the reference's own error added: pose NEES mean "
+            f'{result["reference_pose_nees_mean"]:.1f}, position and rotation '
+            f'{result["reference_position_nees_mean"]:.1f} and '
+            f'{result["reference_rotation_nees_mean"]:.1f}'
             if result.get('reference_pose_nees_mean') is not None
             else ''
         )

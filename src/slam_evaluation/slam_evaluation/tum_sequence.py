@@ -44,7 +44,10 @@ mask of the depth map nearest each figure image over its colour image, moving tr
 sighting gets at each pixel, the depth map and the pose; the ``label_gate`` node's oracle for
 variant (a) through a graph, ``slam_sim.core.label_gate``) and ``import.json`` (the counts,
 the label rules' settings, the static opening's pose error per separation and false-alarm
-rate, the known points and their visibility).
+rate, the reference's rotation and centre error per separation (``reference_pose_error``:
+``slam_sim.core.reference_error``, from the opening's images; ``trajectory_evaluate
+--reference-error`` adds it to an estimate's covariance), the known points and their
+visibility).
 
 Example: ``tum_rgbd_sequence --dataset ../shared/data/bonn_crowd --convention bonn --output
 out/bonn_crowd/sequence``.
@@ -80,7 +83,8 @@ from slam_evaluation.tum_labels import (
 from slam_evaluation.tum_tracking import ImageTracks, recorded_features, track_images
 from slam_sim.core.depth_labels import LabelRule, PoseError, TrackLabels
 from slam_sim.core.label_gate import LabelMasks, write_label_masks
-from slam_sim.core.tum_consistency import Consistency, pose_error
+from slam_sim.core.reference_error import BandErrors, ReferencePoseError
+from slam_sim.core.tum_consistency import Consistency, pose_error, reference_error
 from slam_sim.core.tum_rgbd import TumRgbd
 from slam_sim.tum_rgbd_bag import add_dataset_arguments, read_dataset
 
@@ -122,6 +126,19 @@ def pose_rule(sequence: TumRgbd, settings: ImportSettings) -> tuple[LabelRule, l
     return LabelRule(settings.pixel_sigma_px, error), bands
 
 
+def reference_rule(
+    sequence: TumRgbd, settings: ImportSettings
+) -> tuple[ReferencePoseError, list[BandErrors]] | str:
+    """Return the reference's rotation and centre error table of the static opening with its
+    bands (``tum_consistency.reference_error``), or why there is none."""
+    try:
+        return reference_error(
+            sequence, range(settings.static_images), pixel_sigma_px=settings.pixel_sigma_px
+        )
+    except ValueError as error:
+        return f'the first {settings.static_images} images: {error}'
+
+
 @dataclass(frozen=True, eq=False)
 class ImportResult:
     """What an import made: the sequence, the labels (all tracks and the static opening's,
@@ -146,13 +163,17 @@ def import_sequence(
     progress: Callable[[int], None] | None = None,
     mask_progress: Callable[[int], None] | None = None,
     recorded: Mapping[int, ImageTracks] | None = None,
+    reference: tuple[ReferencePoseError, list[BandErrors]] | str | None = None,
 ) -> ImportResult:
     """Return the sequence of a TUM-layout sequence (module docstring) with its report and
     figures (none when no figure image has a pose); ``rule``: ``pose_rule``'s result if
     known; ``progress(images tracked)``, ``mask_progress(masks done)``; ``recorded``:
-    ``settings.tracks_from``'s features if read already."""
+    ``settings.tracks_from``'s features if read already; ``reference``: ``reference_rule``'s
+    result if known."""
     started = time.monotonic()
     label_rule, bands = rule if rule is not None else pose_rule(sequence, settings)
+    if reference is None:
+        reference = reference_rule(sequence, settings)
     mask_of = mask_images(sequence, settings.figure_images)
     keep = tuple(sorted({*settings.figure_images, *mask_of.values()}))
     if recorded is None and settings.tracks_from is not None:
@@ -208,6 +229,14 @@ def import_sequence(
             'false_alarm_rate': opening.moving_share(),
             'pose_error_bands': [band.summary() for band in bands],
         },
+        'reference_pose_error': (
+            {'table': None, 'reason': reference}
+            if isinstance(reference, str)
+            else {
+                'table': reference[0].to_json(),
+                'bands': [band.summary() for band in reference[1]],
+            }
+        ),
         'by_rule': {name: by.summary() for name, by in labelled.by_rule.items()},
         'known_points': {
             'image': known.image,
@@ -314,7 +343,8 @@ def summary(output: Path, report: dict[str, Any]) -> str:
         f'static opening: {opening["tracks"]["moving"]} of '
         f'{opening["tracks"]["moving"] + opening["tracks"]["static"]} labelled moving '
         f'(false alarms {100 * (opening["false_alarm_rate"] or 0.0):.1f} %); '
-        f'sigma_pose {_sigmas(report["label_rule"]["pose_error"])}; {known["count"]} known '
+        f'sigma_pose {_sigmas(report["label_rule"]["pose_error"])}; '
+        f'reference error {_reference(report["reference_pose_error"])}; {known["count"]} known '
         f'points from image {known["image"]}, {in_view}; {report["elapsed_s"]:.1f} s'
     )
 
@@ -322,6 +352,22 @@ def summary(output: Path, report: dict[str, Any]) -> str:
 def _sigmas(error: dict[str, Any]) -> str:
     pairs = zip(error['separations_s'], error['sigmas_m'], strict=True)
     return ', '.join(f'{1e3 * sigma:.0f} mm at {dt:.2f} s' for dt, sigma in pairs)
+
+
+def _reference(error: dict[str, Any]) -> str:
+    table = error['table']
+    if table is None:
+        return f'none ({error["reason"]})'
+    rows = zip(
+        table['separations_s'],
+        table['rotation_sigmas_rad'],
+        table['translation_sigmas_m'],
+        strict=True,
+    )
+    return ', '.join(
+        f'{np.degrees(rotation):.2f} deg and {1e3 * centre:.0f} mm at {dt:.2f} s'
+        for dt, rotation, centre in rows
+    )
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -425,10 +471,17 @@ def main(argv: list[str] | None = None) -> int:
         note = f'{PROG}: measuring the pose error on the first {settings.static_images} images'
         print(note, file=sys.stderr)  # noqa: T201
     rule = pose_rule(sequence, settings)
+    note = (
+        f"{PROG}: measuring the reference's rotation and centre error on the first "
+        f'{settings.static_images} images (SIFT matches and PnP)'
+    )
+    print(note, file=sys.stderr)  # noqa: T201
+    reference = reference_rule(sequence, settings)
     masked = int(np.count_nonzero((sequence.depth_index >= 0) & sequence.has_pose))
     result = import_sequence(
         sequence, settings, rule=rule, progress=_stage(len(sequence.rgb), PROG, ' images'),
         mask_progress=_stage(masked, f'{PROG} masks', ' depth maps'), recorded=recorded,
+        reference=reference,
     )  # fmt: skip
     output = write_import(target, result)
     print(summary(output, result.report))  # noqa: T201

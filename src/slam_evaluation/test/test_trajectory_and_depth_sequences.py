@@ -30,8 +30,11 @@ CENTRES = np.column_stack([np.linspace(0, 1.2, 60), np.sin(np.linspace(0, 3, 60)
 ROTATIONS = Rotation.from_euler('z', np.linspace(0, 0.8, 60)[:, None]).as_matrix()
 
 
-def _tum(path: Path, stamps: np.ndarray, centres: np.ndarray, digits: int = 9) -> Path:
-    quaternions = Rotation.from_matrix(ROTATIONS[: len(stamps)]).as_quat()
+def _tum(
+    path: Path, stamps: np.ndarray, centres: np.ndarray, digits: int = 9,
+    rotations: np.ndarray = ROTATIONS,
+) -> Path:  # fmt: skip
+    quaternions = Rotation.from_matrix(rotations[: len(stamps)]).as_quat()
     lines = ['# stamp x y z qx qy qz qw']
     for stamp, centre, quaternion in zip(stamps, centres, quaternions, strict=True):
         seconds = (
@@ -193,16 +196,25 @@ def test_a_recorded_trajectory_gives_the_pose_nees_of_its_covariance(tmp_path: P
 def test_the_reference_error_table_brings_the_nees_back_to_its_degrees_of_freedom(
     tmp_path: Path,
 ) -> None:
-    """A reference whose centres err by 5 cm per axis a second after the anchor (and 0 at it)
-    against an estimate that errs by its covariance: the NEES without the reference's error
-    is far above 6, with the table (as a bare table or inside a sequence's import.json) it is
-    about 6 and the position NEES about 3; a file without a table is named."""
+    """A reference whose centres err by 5 cm and whose rotations err by 1 deg per axis a
+    second after the anchor (and 0 at it), against an estimate that errs by its covariance:
+    the NEES without the reference's error is far above 6; with the table (bare, or inside a
+    sequence's import.json) it is about 6, the position and rotation NEES about 3 each, and
+    with the rotation column zeroed the rotation NEES stays far above 3; a file without a
+    table, or an import that measured none, is named."""
     rng = np.random.default_rng(11)
     since_s = (STAMPS[5:] - STAMPS[5]) * 1e-9
-    table = {'separations_s': [0.0, 1.0], 'sigmas_m': [0.0, 0.05]}
-    wrong = CENTRES.copy()
-    wrong[5:] += rng.normal(size=(55, 3)) * np.interp(since_s, [0.0, 1.0], [0.0, 0.05])[:, None]
-    truth = _tum(tmp_path / 'truth.txt', STAMPS, wrong)
+    table = {
+        'separations_s': [0.0, 1.0],
+        'rotation_sigmas_rad': [0.0, float(np.radians(1.0))],
+        'translation_sigmas_m': [0.0, 0.05],
+    }
+    wrong, turned = CENTRES.copy(), ROTATIONS.copy()
+    grows = np.interp(since_s, [0.0, 1.0], [0.0, 1.0])[:, None]
+    wrong[5:] += rng.normal(size=(55, 3)) * 0.05 * grows
+    errors_rad = rng.normal(size=(55, 3)) * np.radians(1.0) * grows
+    turned[5:] = Rotation.from_rotvec(errors_rad).as_matrix() @ ROTATIONS[5:]
+    truth = _tum(tmp_path / 'truth.txt', STAMPS, wrong, rotations=turned)
     world = ROTATIONS[5]
     factor = rng.normal(size=(6, 6))
     covariance = 1e-5 * (factor @ factor.T + 0.5 * np.eye(6))
@@ -212,8 +224,10 @@ def test_the_reference_error_table_brings_the_nees_back_to_its_degrees_of_freedo
     noisy = Rotation.from_rotvec(errors[:, 3:]).as_matrix() @ world.T @ ROTATIONS[5:]
     record = _pose_record(tmp_path / 'record', centres, noisy, covariance)
     stamps, found_centres, found_rotations, covariances = te.read_record(record, '/monoslam/pose')
+    no_rotation = {**table, 'rotation_sigmas_rad': [0.0, 0.0]}
     (tmp_path / 'table.json').write_text(json.dumps(table))
-    (tmp_path / 'import.json').write_text(json.dumps({'label_rule': {'pose_error': table}}))
+    (tmp_path / 'no_rotation.json').write_text(json.dumps(no_rotation))
+    (tmp_path / 'import.json').write_text(json.dumps({'reference_pose_error': {'table': table}}))
     results = [
         te.evaluate(
             (stamps, found_centres, found_rotations),
@@ -223,12 +237,18 @@ def test_the_reference_error_table_brings_the_nees_back_to_its_degrees_of_freedo
             covariances,
             te.read_reference_error(tmp_path / name),
         )
-        for name in ('table.json', 'import.json')
+        for name in ('table.json', 'import.json', 'no_rotation.json')
     ]
     assert results[0]['pose_nees_mean'] > 30.0
     assert 4.0 < results[0]['reference_pose_nees_mean'] < 8.5
     assert 1.5 < results[0]['reference_position_nees_mean'] < 4.5
+    assert 1.5 < results[0]['reference_rotation_nees_mean'] < 4.5
     assert results[1]['reference_pose_nees_mean'] == results[0]['reference_pose_nees_mean']
+    assert results[2]['reference_rotation_nees_mean'] > 10.0
     (tmp_path / 'other.json').write_text(json.dumps({'tracks': 3}))
     with pytest.raises(ValueError, match=r'other\.json: no reference error table'):
         te.read_reference_error(tmp_path / 'other.json')
+    none = {'reference_pose_error': {'table': None, 'reason': 'no pair matched'}}
+    (tmp_path / 'none.json').write_text(json.dumps(none))
+    with pytest.raises(ValueError, match=r'none\.json: .*measured none: no pair matched'):
+        te.read_reference_error(tmp_path / 'none.json')

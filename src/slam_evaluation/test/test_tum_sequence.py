@@ -210,6 +210,10 @@ def test_the_static_opening_of_bonn_crowd(tmp_path: Path) -> None:
     assert report['known_points']['last_frame_with_at_least_4'] == 58
     sigmas = report['label_rule']['pose_error']['sigmas_m']
     assert 0.0 < sigmas[0] < 0.03 and sigmas[0] < sigmas[-1] < 0.1  # m, per axis
+    reference = report['reference_pose_error']['table']  # motion capture against the images
+    rotations = np.degrees(reference['rotation_sigmas_rad'])
+    assert 0.02 < rotations[0] < 0.5 and rotations[0] < rotations[-1] < 2.0  # deg, per axis
+    assert 0.0 < reference['translation_sigmas_m'][0] < 0.02
 
 
 def test_recorded_tracks_with_other_ids_give_the_same_sequence(

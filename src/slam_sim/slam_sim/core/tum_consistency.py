@@ -13,17 +13,26 @@ error of a back-projected point.
 ``pose_error``: that error per band of separations (``SEPARATION_BANDS_S``), as the table
 the label rule interpolates (``depth_labels.PoseError``): poses close in time err alike,
 so their error grows with the separation.
+
+``reference_error``: the reference's rotation and centre error per band of separations,
+from the stretch's images (``reference_error.reference_pose_error``): what an evaluator adds
+to an estimate's covariance.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
 
+import cv2
 import numpy as np
 
 from slam_core.arrays import FloatArray
 from slam_core.depth import DepthSampling
+from slam_core.errors import DatasetError
 from slam_sim.core.depth_labels import PoseError
+from slam_sim.core.reference_error import BandErrors, ReferencePoseError, reference_pose_error
 from slam_sim.core.rgbd_depth import (
     Residuals,
     consistency_residuals,
@@ -147,4 +156,39 @@ def pose_error(
     return (
         PoseError(tuple(b.separation_s for b in usable), tuple(b.pose_sigma_m for b in usable)),
         bands,
+    )
+
+
+def _grey(path: Path) -> np.ndarray:
+    """Return a colour image file as grey (uint8); DatasetError names an unreadable file."""
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None or not image.size:
+        raise DatasetError(f'{path}: not a readable image')
+    return np.asarray(image)
+
+
+def reference_error(
+    sequence: TumRgbd,
+    images: range,
+    *,
+    bands_s: tuple[tuple[float, float], ...] = SEPARATION_BANDS_S,
+    pixel_sigma_px: float = 1.0,
+) -> tuple[ReferencePoseError, list[BandErrors]]:
+    """Return the reference's rotation and centre error table of the static stretch
+    ``images`` (module docstring) and its bands; ValueError when no pair matched."""
+    frames = {
+        k: (
+            partial(_grey, sequence.rgb.files[k]),
+            read_depth_m(
+                sequence.depth.files[sequence.depth_index[k]], sequence.depth_units_per_m
+            ),
+            sequence.poses[k],
+        )
+        for k in images
+        if 0 <= k < len(sequence.rgb)
+        and sequence.depth_index[k] >= 0
+        and np.all(np.isfinite(sequence.poses[k]))
+    }
+    return reference_pose_error(
+        sequence.camera, sequence.stamps_ns, frames, bands_s, pixel_sigma_px=pixel_sigma_px
     )
