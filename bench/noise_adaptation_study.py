@@ -8,7 +8,13 @@ once a second, when the estimate is confident, SLAM's configuration takes it:
 * ``--adapt full``: white sigma max(declared, estimated); the offset, when its variance is at
   least ``OFFSET_RELEVANCE`` of the white's, with its correlation time (features added from
   then on get offset states, ``MonoSlamConfig.offset_states``);
-* ``--adapt marginal``: white noise only, at max(declared, the estimate's marginal sigma).
+* ``--adapt marginal``: white noise only, at max(declared, the estimate's marginal sigma);
+* ``--adapt batch``: as ``full``, but the estimator is fed (rebuilt once a second) the
+  residuals of every sighting, in the frames SLAM tracked, of the tracks SLAM has measured,
+  each against its point triangulated over all its sightings so far with SLAM's poses
+  (``noise_estimate_study``'s ``batch`` column: neither the gate nor the filter's moving
+  point estimate biases them); until the estimate is confident, SLAM takes the estimator's
+  prior white sigma (``DEFAULT_PRIOR_WHITE_PX``) if it is larger than the declared one.
 
 It is a study, not a feature: the node does not adapt (a checkpoint of a filter whose
 features have mixed offset states does not load, ``monoslam_snapshot``), and the figures it
@@ -29,15 +35,17 @@ import sys
 import weakref
 
 import numpy as np
+from noise_estimate_study import BATCH_MIN_VIEWS, batch_residuals
 
 from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
 from monoslam_shadow_node.core.noise_estimate import OFFSET_RELEVANCE, TrackingNoiseEstimator
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
-from slam_core.arrays import IntArray
+from slam_core.arrays import FloatArray, IntArray
+from slam_core.camera import CameraModel
 from slam_evaluation import monoslam_evaluate
 
 ADAPT_PERIOD_NS = 10**9
-MODES = ('full', 'marginal')
+MODES = ('full', 'marginal', 'batch')
 
 
 def _rows(ids: IntArray, wanted: IntArray) -> IntArray:
@@ -54,6 +62,39 @@ class _Adaptation:
     estimator: TrackingNoiseEstimator = dataclasses.field(default_factory=TrackingNoiseEstimator)
     next_ns: int = -1
     adopted: int = 0
+    frames: list[tuple[int, FloatArray, FloatArray, IntArray, FloatArray]] = dataclasses.field(
+        default_factory=list
+    )
+    trusted: set[int] = dataclasses.field(default_factory=set)
+    fitted: dict[int, tuple[int, IntArray, FloatArray]] = dataclasses.field(default_factory=dict)
+
+    def rebuild(self, camera: CameraModel) -> None:
+        """Refill the estimator from the trusted tracks' batch residuals (module docstring);
+        a track without new sightings keeps its residuals."""
+        sightings: dict[int, list[tuple[int, FloatArray]]] = {}
+        for row, (_, _, _, ids, pixels) in enumerate(self.frames):
+            for track_id, pixel in zip(ids.tolist(), pixels, strict=True):
+                if track_id in self.trusted:
+                    sightings.setdefault(track_id, []).append((row, pixel))
+        centres = np.array([c for _, c, _, _, _ in self.frames])
+        rotations = np.array([r for _, _, r, _, _ in self.frames])
+        by_row: dict[int, list[tuple[int, FloatArray]]] = {}
+        for track_id, seen in sightings.items():
+            if len(seen) < BATCH_MIN_VIEWS:
+                continue
+            cached = self.fitted.get(track_id)
+            if cached is None or cached[0] != len(seen):
+                rows = np.array([row for row, _ in seen])
+                pixels = np.array([pixel for _, pixel in seen])
+                residuals = batch_residuals(camera, centres[rows], rotations[rows], pixels)
+                cached = (len(seen), rows, residuals)
+                self.fitted[track_id] = cached
+            for row, residual in zip(cached[1].tolist(), cached[2], strict=True):
+                by_row.setdefault(row, []).append((track_id, residual))
+        self.estimator = TrackingNoiseEstimator()
+        for row in sorted(by_row):
+            ids = np.array([track_id for track_id, _ in by_row[row]], dtype=np.int64)
+            self.estimator.add(self.frames[row][0], ids, np.array([r for _, r in by_row[row]]))
 
 
 def adapted(
@@ -62,6 +103,10 @@ def adapted(
     """Return the configuration SLAM takes from a confident estimate (module docstring), or
     the declared one."""
     estimate = estimator.estimate()
+    if not estimate.confident and mode == 'prior':  # until then, the estimator's prior
+        return dataclasses.replace(
+            declared, pixel_sigma_px=max(declared.pixel_sigma_px, estimate.white_px)
+        )
     if not estimate.confident:
         return declared
     if mode == 'marginal':
@@ -92,7 +137,13 @@ def wrap(mode: str) -> None:
             return step
         state = states.setdefault(processor, _Adaptation(slam.config))
         result = step.result
-        if result.status == TRACKING and result.measured_ids:
+        if result.status == TRACKING and result.measured_ids and mode == 'batch':
+            assert result.centre is not None and result.rotation is not None
+            state.frames.append(
+                (frame.stamp_ns, result.centre, result.rotation, frame.ids, frame.pixels)
+            )
+            state.trusted.update(result.measured_ids)
+        elif result.status == TRACKING and result.measured_ids:
             ids, predicted, _, _ = slam.predictions(frame.stamp_ns, sorted(result.measured_ids))
             residuals = frame.pixels[_rows(frame.ids, ids)] - predicted
             state.estimator.add(frame.stamp_ns, ids, residuals)
@@ -100,7 +151,11 @@ def wrap(mode: str) -> None:
             state.next_ns = frame.stamp_ns + ADAPT_PERIOD_NS
         if frame.stamp_ns >= state.next_ns:
             state.next_ns += ADAPT_PERIOD_NS
-            slam.config = adapted(state.declared, mode, state.estimator)
+            if mode == 'batch':
+                state.rebuild(slam.camera)
+            slam.config = adapted(
+                state.declared, 'prior' if mode == 'batch' else mode, state.estimator
+            )
         return step
 
     setattr(MonoSlamProcessor, 'process_frame', process_frame)  # noqa: B010 (a study's wrapper)

@@ -24,7 +24,12 @@ public state and fed to one estimator per column:
   the map's points absorb is back in);
 * ``true_measured``: the measured features' true tracking error (pixel - true projection):
   the estimator with a perfect filter, on the features SLAM's gate let through;
-* ``true_all``: every static feature's true tracking error: the estimator alone.
+* ``true_all``: every static feature's true tracking error: the estimator alone;
+* ``batch``: after the run, each track fed to SLAM with at least ``BATCH_MIN_VIEWS``
+  sightings in tracking frames is triangulated over all of them with SLAM's poses (least
+  squares in the image), and its sightings' residuals against that fixed point are fed in
+  time order: neither SLAM's gate nor its moving point estimate touches them (a point fixed
+  over the track absorbs only its mean offset, which the variogram cancels anyway).
 
 The first table lists per setting and seed the truth and each estimate as white / offset /
 tau (px, px, s; "(prior)": not confident), and from when the ``measured`` and ``true_all``
@@ -52,6 +57,7 @@ from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamConfig, M
 from monoslam_shadow_node.core.noise_estimate import NoiseEstimate, TrackingNoiseEstimator
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
 from slam_core.arrays import FloatArray, IntArray
+from slam_core.camera import CameraModel
 from slam_evaluation.monoslam_pipeline import (
     PipelineConfig,
     run_variant,
@@ -64,7 +70,8 @@ from slam_sim.core.dynamic_scene import DynamicSceneRun, FeatureFrame, simulate_
 
 SETTINGS = {'white': (0.0, 0.0), 'offsets': (2.0, 0.02)}  # offset px, jump probability
 COLUMNS = ('measured', 'established', 'innovation', 'observed', 'true_points',
-           'true_measured', 'true_all')  # fmt: skip
+           'true_measured', 'true_all', 'batch')  # fmt: skip
+BATCH_MIN_VIEWS = 10
 TIMED = ('measured', 'true_all')
 STABLE_FRACTION = 0.2
 
@@ -80,6 +87,9 @@ class _Feed:
         default_factory=lambda: {name: TrackingNoiseEstimator() for name in COLUMNS}
     )
     measured_count: dict[int, int] = field(default_factory=dict)
+    tracked: list[tuple[int, FloatArray, FloatArray, IntArray, FloatArray]] = field(
+        default_factory=list
+    )
     history: dict[str, list[tuple[float, NoiseEstimate]]] = field(default_factory=dict)
     next_report_ns: int = 0
 
@@ -150,6 +160,7 @@ def _feed_frame(
     rows = _rows(truth.track_ids, ids)
     add['true_measured'].add(stamp_ns, ids, truth.pixels[rows] - truth.true_pixels[rows])
     assert result.centre is not None and result.rotation is not None
+    feed.tracked.append((stamp_ns, result.centre, result.rotation, frame.ids, frame.pixels))
     points = feed.run.point_positions[0][[feed.run.track_point[i] for i in ids.tolist()]]
     seen = slam.camera.project((points - result.centre) @ result.rotation)
     add['true_points'].add(stamp_ns, ids, frame.pixels[_rows(frame.ids, ids)] - seen)
@@ -157,6 +168,50 @@ def _feed_frame(
     add['true_all'].add(
         stamp_ns, truth.track_ids[static], (truth.pixels - truth.true_pixels)[static]
     )
+
+
+def feed_batch(feed: _Feed, camera: CameraModel) -> None:
+    """Feed the ``batch`` column (module docstring) from the frames SLAM tracked."""
+    sightings: dict[int, list[tuple[int, FloatArray]]] = {}
+    for row, (_, _, _, ids, pixels) in enumerate(feed.tracked):
+        for track_id, pixel in zip(ids.tolist(), pixels, strict=True):
+            sightings.setdefault(track_id, []).append((row, pixel))
+    centres = np.array([c for _, c, _, _, _ in feed.tracked])
+    rotations = np.array([r for _, _, r, _, _ in feed.tracked])
+    by_frame: dict[int, list[tuple[int, FloatArray]]] = {}
+    for track_id, seen in sightings.items():
+        if len(seen) < BATCH_MIN_VIEWS:
+            continue
+        rows = np.array([row for row, _ in seen])
+        pixels = np.array([pixel for _, pixel in seen])
+        residuals = batch_residuals(camera, centres[rows], rotations[rows], pixels)
+        for row, residual in zip(rows.tolist(), residuals, strict=True):
+            by_frame.setdefault(row, []).append((track_id, residual))
+    for row in sorted(by_frame):
+        ids = np.array([track_id for track_id, _ in by_frame[row]], dtype=np.int64)
+        values = np.array([residual for _, residual in by_frame[row]])
+        feed.estimators['batch'].add(feed.tracked[row][0], ids, values)
+
+
+def batch_residuals(
+    camera: CameraModel, centres: FloatArray, rotations: FloatArray, pixels: FloatArray
+) -> FloatArray:
+    """Return the pixel residuals (N, 2) of one track's sightings against its point
+    triangulated over all of them (midpoint start, then Gauss-Newton in the image)."""
+    normalized, _ = camera.unproject(pixels)
+    rays = np.einsum('nij,nj->ni', rotations, np.column_stack([normalized, np.ones(len(pixels))]))
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    across = np.eye(3) - rays[:, :, None] * rays[:, None, :]
+    point = np.linalg.solve(across.sum(0), np.einsum('nij,nj->i', across, centres))
+    for _ in range(5):
+        local = np.einsum('nji,nj->ni', rotations, point - centres)  # R' (X - C)
+        projected, jacobian = camera.project_with_jacobian(local)
+        jacobian = jacobian @ np.swapaxes(rotations, 1, 2)  # d pixel / d X
+        stacked = jacobian.reshape(-1, 3)
+        step = np.linalg.lstsq(stacked, (pixels - projected).reshape(-1), rcond=None)[0]
+        point = point + step
+    local = np.einsum('nji,nj->ni', rotations, point - centres)
+    return np.asarray(pixels - camera.project(local), dtype=np.float64)
 
 
 def usable_after_s(history: list[tuple[float, NoiseEstimate]]) -> float:
@@ -214,6 +269,7 @@ def study_run(setting: str, seed: int, duration_s: float, established: int) -> S
     feed = _Feed(run, established)
     started = time.perf_counter()
     record = run_variant('a', frames, camera_model(run), config, attach=_attach(feed))
+    feed_batch(feed, camera_model(run))
     tau_s = scene.tracking_correlation_time_s if offset_px > 0.0 else math.nan
     return StudyRow(
         setting,

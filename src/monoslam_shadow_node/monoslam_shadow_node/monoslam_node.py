@@ -85,6 +85,10 @@ keeps the two equal).
                                   between images, px, and their correlation time, s (the
                                   shadow_filter's parameters); with offsets, each feature
                                   keeps its own in the state (2 states, Gauss-Markov).
+  estimate_noise (true)           the tracker's noise estimated from the measured tracks
+                                  (core.noise_monitor) and taken once a second: white at
+                                  least pixel_sigma_px, offsets when they matter; the
+                                  status line says which is in force.
   linear_acceleration_sigma_m_s2, angular_acceleration_sigma_rad_s2  constant velocity
                                   model noise, m/s^2 and rad/s^2 per sqrt(Hz).
   initial_velocity_sigma_m_s, initial_angular_velocity_sigma_rad_s  camera velocity

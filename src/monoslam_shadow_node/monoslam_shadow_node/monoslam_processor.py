@@ -53,7 +53,9 @@ from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamInputError,
     MonoSlamResult,
     UpdateCounts,
+    update_text,
 )
+from monoslam_shadow_node.core.noise_monitor import NoiseAdaptation
 from monoslam_shadow_node.core.shadow_track import STATIC
 from monoslam_shadow_node.frame_sync import Drop, StampSync, SyncNames
 from monoslam_shadow_node.known_points_input import (
@@ -96,21 +98,6 @@ def monoslam_frame(features: Features, sighting: TargetSighting | None) -> MonoS
     return MonoSlamFrame(
         features.stamp_ns, features.ids, features.pixels, keys, sighting.corners_px
     )
-
-
-def update_text(counts: UpdateCounts) -> str:
-    """Return the update's counts for the log: '12 compatible, 2 hypotheses, 10
-    low-innovation inliers, 1 rescued, 4 on probation, 3 rejected' (no RANSAC counts for the
-    gated update, no probation count when none was measured)."""
-    text = f'{counts.compatible} compatible'
-    if counts.hypotheses:
-        text += (
-            f', {counts.hypotheses} hypotheses, {counts.low_innovation_inliers} low-innovation '
-            f'inliers, {counts.rescued} rescued'
-        )
-    if counts.probation:
-        text += f', {counts.probation} on probation'
-    return f'{text}, {counts.rejected} rejected'
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,6 +183,7 @@ class MonoSlamProcessor:
         self.map_frame = map_frame
         self.camera_info_topic = camera_info_topic
         self.slam: MonoSlam | None = None
+        self.noise: NoiseAdaptation | None = None  # config.estimate_noise
         self.status = WAITING
         self.counts = MonoSlamCounts()
         names = dataclasses.replace(SYNC_NAMES, partner_topic=fiducials_topic)
@@ -230,9 +218,13 @@ class MonoSlamProcessor:
         """Use ``camera`` from the next frame on (the first one creates the filter); process
         what was waiting for it."""
         if self.slam is None:
-            self.slam = MonoSlam(camera, self.config)
+            if self.config.estimate_noise:
+                self.noise = NoiseAdaptation(self.config, camera)
+            self.slam = MonoSlam(camera, self.noise.config if self.noise else self.config)
         else:
             self.slam.set_camera(camera)
+            if self.noise is not None:
+                self.noise.monitor.camera = camera
         return self._drain() + self._drain_direct()
 
     def add_features(self, features: Features) -> list[Outcome]:
@@ -369,6 +361,9 @@ class MonoSlamProcessor:
         """Continue from a checkpoint's filter, counts and last processed stamp (frames up to
         it are refused as out of order); the next frame judges the gap."""
         self.slam, self.counts, self.status = slam, counts, slam.status
+        if self.config.estimate_noise:
+            self.noise = NoiseAdaptation(self.config, slam.camera)
+            self.noise.resume(slam.config)
         if last_ns is not None:
             self.sync.start_after(last_ns)
         self._resumed = slam.status == TRACKING
@@ -404,6 +399,8 @@ class MonoSlamProcessor:
         resumed = self._judge_gap(frame.stamp_ns)
         self._processed_ns = frame.stamp_ns
         result = self.slam.process(frame)
+        if self.noise is not None:
+            self.noise.observe(self.slam, frame, result)
         self.counts.processed += 1
         self.counts.measured = len(result.measured_ids)
         self.counts.update = result.update
@@ -595,4 +592,5 @@ class MonoSlamProcessor:
             f'{counts.accepted} accepted, {counts.refused} refused, {counts.revoked} revoked; '
             f'lost {counts.lost} times, {counts.skipped} frames skipped, '
             f'{counts.alone} without fiducials, {counts.dropped_total} inputs dropped'
+            + (f'; tracking noise {self.noise.text()}' if self.noise is not None else '')
         )

@@ -155,6 +155,13 @@ CORE_PARAMETERS = (
         field='update',
     ),
     _core('ransac_seed', 'seed of the 1-point RANSAC draws: runs are reproducible (>= 0)'),
+    _core(
+        'estimate_noise',
+        "the tracker's noise estimated online from the tracks SLAM measures (each against its "
+        'point fixed over the track) and taken once a second: white sigma at least '
+        'pixel_sigma_px, offsets that persist when they matter (else tracking_offset_px); the '
+        'declared values until the estimate is confident',
+    ),
 )
 
 

@@ -4,6 +4,7 @@ a gap its motion model cannot bridge (keeps the map, re-localises from the targe
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -162,9 +163,47 @@ def test_an_unreadable_or_missing_file_is_named(tmp_path: Path) -> None:
 def test_a_checkpoint_of_other_tracker_offsets_is_refused(
     tracking: MonoSlamProcessor, tmp_path: Path
 ) -> None:
+    """Declared offsets (estimate_noise off) must match the saved run's."""
     save_checkpoint(tracking, tmp_path / 'map.npz')
     with pytest.raises(CheckpointError, match='tracking_offset_px differs'):
-        load_checkpoint(_processor(tracking_offset_px=1.5), tmp_path / 'map.npz')
+        load_checkpoint(
+            _processor(tracking_offset_px=1.5, estimate_noise=False), tmp_path / 'map.npz'
+        )
+
+
+def test_a_checkpoint_keeps_the_estimated_noise_and_its_mixed_offset_states(
+    tracking: MonoSlamProcessor, tmp_path: Path
+) -> None:
+    """With estimate_noise the filter took offsets mid-run: the features added before have no
+    offset states, those after have; the checkpoint restores both and the noise in force,
+    which the resumed run holds until its own estimate is confident."""
+    slam = tracking.slam
+    assert slam is not None and tracking.noise is not None
+    slam.config = dataclasses.replace(
+        slam.config, tracking_offset_px=1.2, tracking_offset_time_s=0.7, pixel_sigma_px=1.1
+    )
+    rng = np.random.default_rng(3)
+    points = np.column_stack([rng.uniform(-0.8, 0.8, (12, 2)), rng.uniform(1.0, 2.0, 12)])
+    for index in range(8, 14):  # 12 new points, 20 of the old ones out of view
+        stamp = index * 33 * MS
+        seen = np.vstack([POINTS[:10], points])
+        pixels = CAMERA.project(seen - CENTRE) + rng.normal(0, 0.5, (22, 2))
+        ids = np.array([*IDS[:10], *range(101, 113)])
+        tracking.add_features(Features(stamp, 'camera', ids, pixels))
+        tracking.add_sighting(
+            TargetSighting(stamp, 'camera', CAMERA.project(CORNERS_M - CENTRE), ())
+        )
+    offsets = {f.offset_size for f in slam._state.features}
+    assert offsets == {0, 2}
+    save_checkpoint(tracking, tmp_path / 'map.npz')
+    resumed = _processor()
+    load_checkpoint(resumed, tmp_path / 'map.npz')
+    assert resumed.slam is not None and resumed.noise is not None
+    assert {f.offset_size for f in resumed.slam._state.features} == offsets
+    restored = resumed.slam.config
+    assert (restored.tracking_offset_px, restored.tracking_offset_time_s) == (1.2, 0.7)
+    assert restored.pixel_sigma_px == 1.1 and resumed.noise.held == restored
+    assert np.array_equal(resumed.slam._state.x, slam._state.x)
 
 
 def test_after_a_long_gap_it_keeps_the_map_and_re_localises_from_the_target(

@@ -31,6 +31,7 @@ two predicts; a restarted node (at least its respawn delay, a second) re-localis
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -62,6 +63,9 @@ _RECORD = (
     'found',
 )
 SOURCES = ('start', 'new', 'handover')
+NOISE_FIELDS = ('pixel_sigma_px', 'tracking_offset_px', 'tracking_offset_time_s')
+"""The tracking noise in force when saved: with ``estimate_noise`` it was estimated, and the
+restored filter takes it (its features' offset states were made for it)."""
 
 
 def _ints(values: Any) -> np.ndarray:
@@ -90,6 +94,7 @@ def filter_state(slam: MonoSlam) -> tuple[dict[str, np.ndarray], dict[str, Any]]
         'known_rejected_frames': slam._known_rejected_frames,
         'known_rejected': list(slam._known_rejected),
         'rng': slam._rng.bit_generator.state,
+        'tracking_noise': {name: getattr(slam.config, name) for name in NOISE_FIELDS},
         'features': [
             {
                 'id': f.id,
@@ -156,9 +161,11 @@ def saved_camera(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> CameraM
 
 
 def _blocks(
-    meta: dict[str, Any], arrays: dict[str, np.ndarray], offset: int
+    meta: dict[str, Any], arrays: dict[str, np.ndarray], offset: int, mixed: bool = False
 ) -> list[FeatureBlock]:
-    """The feature blocks laid out from x[13] on, checked (ValueError names the culprit)."""
+    """The feature blocks laid out from x[13] on, checked (ValueError names the culprit);
+    ``mixed``: features without offset states may sit beside those with ``offset`` (added
+    before an estimated offset was taken)."""
     items = meta['features']
     count = len(items)
     references = shaped(arrays, 'feature_reference', (count, 3, 3))
@@ -169,7 +176,7 @@ def _blocks(
         where = f'feature {item["id"]}'
         if size not in (EUCLIDEAN_SIZE, INVERSE_DEPTH_SIZE):
             raise ValueError(f'{where}: block of {size} states, expected 3 or 6')
-        if offset_size != offset:
+        if offset_size != offset and not (mixed and offset_size == 0):
             raise ValueError(
                 f'{where}: tracker offset of {offset_size} states, but this filter keeps '
                 f"{offset} (tracking_offset_px differs from the saved run's)"
@@ -231,7 +238,16 @@ def restore_filter(slam: MonoSlam, arrays: dict[str, np.ndarray], meta: dict[str
     status = meta['status']
     if status not in (WAITING, TRACKING):
         raise ValueError(f'tracking state {status!r}, expected {WAITING} or {TRACKING}')
-    blocks = _blocks(meta, arrays, 2 if slam.config.offset_states else 0)
+    if slam.config.estimate_noise and 'tracking_noise' in meta:
+        noise = meta['tracking_noise']
+        slam.config = dataclasses.replace(
+            slam.config,
+            pixel_sigma_px=float(noise['pixel_sigma_px']),
+            tracking_offset_px=float(noise['tracking_offset_px']),
+            tracking_offset_time_s=float(noise['tracking_offset_time_s']),
+        )
+    offset = 2 if slam.config.offset_states else 0
+    blocks = _blocks(meta, arrays, offset, mixed=slam.config.estimate_noise)
     n = blocks[-1].start + blocks[-1].extent if blocks else CAMERA_SIZE
     x = shaped(arrays, 'x', (None,))
     if (len(x) or status == TRACKING or blocks) and len(x) != n:

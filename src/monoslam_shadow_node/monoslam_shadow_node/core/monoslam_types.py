@@ -41,6 +41,7 @@ class MonoSlamConfig:
     pixel_sigma_px: float = 1.0
     tracking_offset_px: float = 0.0  # tracker offsets that persist (tracking_noise), px
     tracking_offset_time_s: float = 1.0  # their correlation time, s
+    estimate_noise: bool = True  # take the tracker's noise from its tracks (noise_monitor)
     linear_acceleration_sigma: float = 2.0  # m/s^2/sqrt(Hz)
     angular_acceleration_sigma: float = 8.0  # rad/s^2/sqrt(Hz): hand tremor at 2-6 Hz
     initial_velocity_sigma_m_s: float = 0.5
@@ -113,6 +114,7 @@ class MonoSlamConfig:
             'fill_undecided',
             'undecided_probation',
             'second_order',
+            'estimate_noise',
         ):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f'{name}={getattr(self, name)!r}: must be a bool')
@@ -249,3 +251,18 @@ class MonoSlamResult:
     state_features: int = 0
     pose_cross_stamps: list[int] = field(default_factory=list)
     pose_cross_covariances: FloatArray | None = None
+
+
+def update_text(counts: UpdateCounts) -> str:
+    """Return the update's counts for the log: '12 compatible, 2 hypotheses, 10
+    low-innovation inliers, 1 rescued, 4 on probation, 3 rejected' (no RANSAC counts for the
+    gated update, no probation count when none was measured)."""
+    text = f'{counts.compatible} compatible'
+    if counts.hypotheses:
+        text += (
+            f', {counts.hypotheses} hypotheses, {counts.low_innovation_inliers} low-innovation '
+            f'inliers, {counts.rescued} rescued'
+        )
+    if counts.probation:
+        text += f', {counts.probation} on probation'
+    return f'{text}, {counts.rejected} rejected'
