@@ -35,10 +35,11 @@ import sys
 import weakref
 
 import numpy as np
-from noise_estimate_study import BATCH_MIN_VIEWS, batch_residuals
+from noise_estimate_study import BATCH_MIN_VIEWS
 
 from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
 from monoslam_shadow_node.core.noise_estimate import OFFSET_RELEVANCE, TrackingNoiseEstimator
+from monoslam_shadow_node.core.noise_monitor import batch_residuals
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
@@ -131,6 +132,7 @@ def wrap(mode: str) -> None:
     def process_frame(
         processor: MonoSlamProcessor, frame: MonoSlamFrame, frame_id: str = ''
     ) -> MonoSlamStep:
+        processor.noise = None  # the study's adoption replaces the node's (estimate_noise)
         step = step_frame(processor, frame, frame_id)
         slam = processor.slam
         if slam is None:

@@ -26,10 +26,11 @@ public state and fed to one estimator per column:
   the estimator with a perfect filter, on the features SLAM's gate let through;
 * ``true_all``: every static feature's true tracking error: the estimator alone;
 * ``batch``: after the run, each track fed to SLAM with at least ``BATCH_MIN_VIEWS``
-  sightings in tracking frames is triangulated over all of them with SLAM's poses (least
-  squares in the image), and its sightings' residuals against that fixed point are fed in
-  time order: neither SLAM's gate nor its moving point estimate touches them (a point fixed
-  over the track absorbs only its mean offset, which the variogram cancels anyway).
+  sightings in tracking frames is triangulated over all of them with SLAM's poses
+  (``noise_monitor.batch_residuals``), and its sightings' residuals against that fixed
+  point are fed in time order: neither SLAM's gate nor its moving point estimate touches
+  them (a point fixed over the track absorbs only its mean offset, which the variogram
+  cancels anyway).
 
 The first table lists per setting and seed the truth and each estimate as white / offset /
 tau (px, px, s; "(prior)": not confident), and from when the ``measured`` and ``true_all``
@@ -55,6 +56,7 @@ import numpy as np
 
 from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
 from monoslam_shadow_node.core.noise_estimate import NoiseEstimate, TrackingNoiseEstimator
+from monoslam_shadow_node.core.noise_monitor import batch_residuals
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
@@ -193,27 +195,6 @@ def feed_batch(feed: _Feed, camera: CameraModel) -> None:
         feed.estimators['batch'].add(feed.tracked[row][0], ids, values)
 
 
-def batch_residuals(
-    camera: CameraModel, centres: FloatArray, rotations: FloatArray, pixels: FloatArray
-) -> FloatArray:
-    """Return the pixel residuals (N, 2) of one track's sightings against its point
-    triangulated over all of them (midpoint start, then Gauss-Newton in the image)."""
-    normalized, _ = camera.unproject(pixels)
-    rays = np.einsum('nij,nj->ni', rotations, np.column_stack([normalized, np.ones(len(pixels))]))
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    across = np.eye(3) - rays[:, :, None] * rays[:, None, :]
-    point = np.linalg.solve(across.sum(0), np.einsum('nij,nj->i', across, centres))
-    for _ in range(5):
-        local = np.einsum('nji,nj->ni', rotations, point - centres)  # R' (X - C)
-        projected, jacobian = camera.project_with_jacobian(local)
-        jacobian = jacobian @ np.swapaxes(rotations, 1, 2)  # d pixel / d X
-        stacked = jacobian.reshape(-1, 3)
-        step = np.linalg.lstsq(stacked, (pixels - projected).reshape(-1), rcond=None)[0]
-        point = point + step
-    local = np.einsum('nji,nj->ni', rotations, point - centres)
-    return np.asarray(pixels - camera.project(local), dtype=np.float64)
-
-
 def usable_after_s(history: list[tuple[float, NoiseEstimate]]) -> float:
     """Return the time (s) from which the estimate is confident and its white and marginal
     sigma stay within ``STABLE_FRACTION`` of the final ones (NaN: never)."""
@@ -264,8 +245,10 @@ def study_run(setting: str, seed: int, duration_s: float, established: int) -> S
     markers = settings.markers()
     rng = np.random.default_rng(TARGET_NOISE_SEED_OFFSET + seed)
     frames = simulation_frames(run, markers, rng=rng)
-    # nothing declared: SLAM is told white 1 px (its default), no offsets
-    config = PipelineConfig(MonoSlamConfig(known_points=target_known_points(markers)))
+    # nothing declared: SLAM is told white 1 px (its default), no offsets, and takes no estimate
+    config = PipelineConfig(
+        MonoSlamConfig(known_points=target_known_points(markers), estimate_noise=False)
+    )
     feed = _Feed(run, established)
     started = time.perf_counter()
     record = run_variant('a', frames, camera_model(run), config, attach=_attach(feed))
