@@ -160,11 +160,13 @@ def test_an_unreadable_or_missing_file_is_named(tmp_path: Path) -> None:
         load_checkpoint(_processor(), tmp_path / 'missing.npz')
 
 
-def test_a_checkpoint_of_other_tracker_offsets_is_refused(
-    tracking: MonoSlamProcessor, tmp_path: Path
-) -> None:
+def test_a_checkpoint_of_other_tracker_offsets_is_refused(tmp_path: Path) -> None:
     """Declared offsets (estimate_noise off) must match the saved run's."""
-    save_checkpoint(tracking, tmp_path / 'map.npz')
+    declared = _processor(estimate_noise=False)
+    declared.set_camera(CAMERA)
+    for index in range(8):
+        _feed(declared, index)
+    save_checkpoint(declared, tmp_path / 'map.npz')
     with pytest.raises(CheckpointError, match='tracking_offset_px differs'):
         load_checkpoint(
             _processor(tracking_offset_px=1.5, estimate_noise=False), tmp_path / 'map.npz'
@@ -174,11 +176,13 @@ def test_a_checkpoint_of_other_tracker_offsets_is_refused(
 def test_a_checkpoint_keeps_the_estimated_noise_and_its_mixed_offset_states(
     tracking: MonoSlamProcessor, tmp_path: Path
 ) -> None:
-    """With estimate_noise the filter took offsets mid-run: the features added before have no
-    offset states, those after have; the checkpoint restores both and the noise in force,
-    which the resumed run holds until its own estimate is confident."""
+    """With estimate_noise the noise in force changed mid-run: the features added under the
+    first noise carry no offset states, those added once offsets were taken have them; the
+    checkpoint restores both and the noise in force, which the resumed run holds until its
+    own estimate is confident."""
     slam = tracking.slam
     assert slam is not None and tracking.noise is not None
+    assert {f.offset_size for f in slam._state.features} == {0}
     slam.config = dataclasses.replace(
         slam.config, tracking_offset_px=1.2, tracking_offset_time_s=0.7, pixel_sigma_px=1.1
     )

@@ -164,8 +164,8 @@ def _blocks(
     meta: dict[str, Any], arrays: dict[str, np.ndarray], offset: int, mixed: bool = False
 ) -> list[FeatureBlock]:
     """The feature blocks laid out from x[13] on, checked (ValueError names the culprit);
-    ``mixed``: features without offset states may sit beside those with ``offset`` (added
-    before an estimated offset was taken)."""
+    ``mixed``: features with and without offset states may sit side by side (the noise in
+    force changed while they were added, ``estimate_noise``)."""
     items = meta['features']
     count = len(items)
     references = shaped(arrays, 'feature_reference', (count, 3, 3))
@@ -176,7 +176,7 @@ def _blocks(
         where = f'feature {item["id"]}'
         if size not in (EUCLIDEAN_SIZE, INVERSE_DEPTH_SIZE):
             raise ValueError(f'{where}: block of {size} states, expected 3 or 6')
-        if offset_size != offset and not (mixed and offset_size == 0):
+        if offset_size not in ((0, 2) if mixed else (offset,)):  # 2: one per image axis
             raise ValueError(
                 f'{where}: tracker offset of {offset_size} states, but this filter keeps '
                 f"{offset} (tracking_offset_px differs from the saved run's)"

@@ -15,14 +15,14 @@ only when a sighting to be fed is newer than its last fit (about once per ``dela
 is seen). Memory and work are bounded: the frames of the last ``delay_s``, and each track's
 sightings of the last ``track_memory_s``.
 
-``adopted``: the configuration SLAM takes from the estimate (module ``noise_monitor``'s rule,
-``MonoSlamConfig.estimate_noise``): the declared noise until the estimate is confident (taking
-the estimator's conservative prior, 2 px white, until then made (c) 1.18x (a) under white noise
-instead of 1.03x: bench/README.md); then white noise at the larger of the declared and the
-estimated, and the estimated offsets (size and
-correlation time) when they matter (``OFFSET_RELEVANCE`` of the white variance), else the
-declared ones. Features added from then on carry offset states; those added before keep none
-and are measured with the white noise and the offset together (``feature_sigma_px``).
+``adopted``: the configuration SLAM takes from the estimate (``MonoSlamConfig.estimate_noise``):
+the declared noise until the estimate is confident, and the last confident one while a later
+estimate is not (``NoiseAdaptation``); otherwise white noise at the larger of the declared and
+the estimated sigma, and the estimated offsets (size and correlation time) when they matter
+(``OFFSET_RELEVANCE`` of the white variance), else the declared ones. Features added from then
+on carry offset states; those added before keep none and are measured with the white noise
+and the offset together (``feature_sigma_px``). Tried and not kept: the estimator's 2 px prior
+until it is confident (bench/README.md, "The tracker's noise from its own tracks").
 """
 
 from __future__ import annotations
@@ -212,15 +212,16 @@ def adopted(declared: MonoSlamConfig, estimate: NoiseEstimate) -> MonoSlamConfig
 
 
 class NoiseAdaptation:
-    """SLAM's tracking noise taken from a ``NoiseMonitor`` once a ``period_s`` (``adopted``);
-    ``config`` is the configuration in force, ``adoptions`` counts its changes."""
+    """SLAM's tracking noise taken from a ``NoiseMonitor`` once a ``period_s`` (``adopted``),
+    the last confident one held while a later estimate is not; ``config`` is the
+    configuration in force, ``adoptions`` counts its changes."""
 
     def __init__(self, declared: MonoSlamConfig, camera: CameraModel, period_s: float = 1.0):
         self.declared = declared
         self.monitor = NoiseMonitor(camera)
         self.period_ns = round(period_s * 1e9)
         self.next_ns = -1
-        self.held: MonoSlamConfig | None = None  # a resumed run's noise, until confident
+        self.held: MonoSlamConfig | None = None  # the last confident (or resumed) noise
         self.config = adopted(declared, self.monitor.estimate())
         self.adoptions = 0
 
@@ -229,7 +230,10 @@ class NoiseAdaptation:
         config, estimate = self.config, self.monitor.estimate()
         offset, tau = config.tracking_offset_px, config.tracking_offset_time_s
         offsets = f', offsets {offset:.2f} px over {tau:.2f} s' if config.offset_states else ''
-        state = 'estimated' if estimate.confident else f'declared ({estimate.reason})'
+        state = (
+            'estimated' if estimate.confident else f'estimate not confident ({estimate.reason})'
+        )
+        state += '' if estimate.confident or self.held is None else ', the last confident held'
         return f'white {config.pixel_sigma_px:.2f} px{offsets}, {state}, {self.adoptions} changes'
 
     def resume(self, config: MonoSlamConfig) -> None:
@@ -260,6 +264,8 @@ class NoiseAdaptation:
             if self.held is not None and not estimate.confident
             else adopted(self.declared, estimate)
         )
+        if estimate.confident:  # kept while a later estimate is not confident
+            self.held = config
         if config != slam.config:
             slam.config = self.config = config
             self.adoptions += 1
