@@ -224,7 +224,7 @@ class MonoSlamProcessor:
         else:
             self.slam.set_camera(camera)
             if self.noise is not None:
-                self.noise.monitor.camera = camera
+                self.noise.set_camera(camera)
         return self._drain() + self._drain_direct()
 
     def add_features(self, features: Features) -> list[Outcome]:

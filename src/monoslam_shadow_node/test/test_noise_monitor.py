@@ -12,7 +12,12 @@ import pytest
 
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
 from monoslam_shadow_node.core.noise_estimate import NoiseEstimate
-from monoslam_shadow_node.core.noise_monitor import NoiseMonitor, adopted, batch_residuals
+from monoslam_shadow_node.core.noise_monitor import (
+    NoiseAdaptation,
+    NoiseMonitor,
+    adopted,
+    batch_residuals,
+)
 from slam_core.camera import CameraModel
 
 CAMERA = CameraModel.from_intrinsics(640, 480, (300.0, 300.0), (320.0, 240.0))
@@ -124,3 +129,14 @@ def test_memory_is_bounded_and_bad_settings_are_named() -> None:
     assert all(t.stamps[-1] - t.stamps[0] <= 3e9 for t in monitor._tracks.values())
     with pytest.raises(ValueError, match='delay_s'):
         NoiseMonitor(CAMERA, delay_s=0.0)
+
+
+def test_another_camera_restarts_the_monitor_and_holds_the_noise_in_force() -> None:
+    """The same camera keeps the sightings; new intrinsics start the monitor over, and the
+    noise in force is held until the new estimate is confident."""
+    adaptation = NoiseAdaptation(MonoSlamConfig(), CAMERA)
+    first = adaptation.monitor
+    adaptation.set_camera(CAMERA)
+    assert adaptation.monitor is first and adaptation.held is None
+    adaptation.set_camera(CameraModel.from_intrinsics(640, 480, (310.0, 310.0), (320.0, 240.0)))
+    assert adaptation.monitor is not first and adaptation.held == adaptation.config

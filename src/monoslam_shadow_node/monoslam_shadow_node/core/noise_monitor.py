@@ -124,7 +124,6 @@ class NoiseMonitor:
         self.estimator = estimator if estimator is not None else TrackingNoiseEstimator()
         self._frames: deque[tuple[int, int, IntArray]] = deque()  # (number, stamp, measured)
         self._tracks: dict[int, _Track] = {}
-        self._last_seen: dict[int, int] = {}
         self._number = 0
 
     def add(
@@ -141,14 +140,16 @@ class NoiseMonitor:
         then feed the estimator the frames now ``delay_s`` old."""
         number = self._number
         self._number += 1
-        for track_id, pixel in zip(np.asarray(ids).tolist(), np.asarray(pixels), strict=True):
+        centre = np.asarray(centre, dtype=np.float64)
+        rotation = np.asarray(rotation, dtype=np.float64)
+        pixels = np.asarray(pixels, dtype=np.float64)
+        for track_id, pixel in zip(np.asarray(ids).tolist(), pixels, strict=True):
             track = self._tracks.setdefault(track_id, _Track())
             track.frames.append(number)
             track.stamps.append(stamp_ns)
-            track.centres.append(np.asarray(centre, dtype=np.float64))
-            track.rotations.append(np.asarray(rotation, dtype=np.float64))
-            track.pixels.append(np.asarray(pixel, dtype=np.float64))
-            self._last_seen[track_id] = stamp_ns
+            track.centres.append(centre)
+            track.rotations.append(rotation)
+            track.pixels.append(pixel)
         self._frames.append((number, stamp_ns, np.asarray(measured, dtype=np.int64)))
         while self._frames and self._frames[0][1] <= stamp_ns - self.delay_ns:
             self._feed(*self._frames.popleft())
@@ -184,9 +185,8 @@ class NoiseMonitor:
         """Drop the tracks not seen within ``track_memory_s``, and older sightings of the
         others (the next fit goes without them)."""
         horizon = stamp_ns - self.track_memory_ns
-        for track_id in [i for i, seen in self._last_seen.items() if seen < horizon]:
-            del self._last_seen[track_id]
-            self._tracks.pop(track_id, None)
+        for track_id in [i for i, t in self._tracks.items() if t.stamps[-1] < horizon]:
+            del self._tracks[track_id]
         for track in self._tracks.values():
             if track.stamps[0] < horizon:
                 cut = bisect_left(track.stamps, horizon)
@@ -224,6 +224,13 @@ class NoiseAdaptation:
         self.held: MonoSlamConfig | None = None  # the last confident (or resumed) noise
         self.config = adopted(declared, self.monitor.estimate())
         self.adoptions = 0
+
+    def set_camera(self, camera: CameraModel) -> None:
+        """Measure with another camera: the sightings held were taken with the old one, so
+        the monitor starts over (the noise in force is held until it is confident again)."""
+        if camera != self.monitor.camera:
+            self.monitor = NoiseMonitor(camera)
+            self.held = self.config
 
     def text(self) -> str:
         """Return the noise in force and the estimate's state for a status line."""
