@@ -35,11 +35,10 @@ import sys
 import weakref
 
 import numpy as np
-from noise_estimate_study import BATCH_MIN_VIEWS
+from noise_estimate_study import TrackedFrame, feed_fixed_points
 
 from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
 from monoslam_shadow_node.core.noise_estimate import OFFSET_RELEVANCE, TrackingNoiseEstimator
-from monoslam_shadow_node.core.noise_monitor import batch_residuals
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
@@ -63,39 +62,15 @@ class _Adaptation:
     estimator: TrackingNoiseEstimator = dataclasses.field(default_factory=TrackingNoiseEstimator)
     next_ns: int = -1
     adopted: int = 0
-    frames: list[tuple[int, FloatArray, FloatArray, IntArray, FloatArray]] = dataclasses.field(
-        default_factory=list
-    )
+    frames: list[TrackedFrame] = dataclasses.field(default_factory=list)
     trusted: set[int] = dataclasses.field(default_factory=set)
     fitted: dict[int, tuple[int, IntArray, FloatArray]] = dataclasses.field(default_factory=dict)
 
     def rebuild(self, camera: CameraModel) -> None:
-        """Refill the estimator from the trusted tracks' batch residuals (module docstring);
-        a track without new sightings keeps its residuals."""
-        sightings: dict[int, list[tuple[int, FloatArray]]] = {}
-        for row, (_, _, _, ids, pixels) in enumerate(self.frames):
-            for track_id, pixel in zip(ids.tolist(), pixels, strict=True):
-                if track_id in self.trusted:
-                    sightings.setdefault(track_id, []).append((row, pixel))
-        centres = np.array([c for _, c, _, _, _ in self.frames])
-        rotations = np.array([r for _, _, r, _, _ in self.frames])
-        by_row: dict[int, list[tuple[int, FloatArray]]] = {}
-        for track_id, seen in sightings.items():
-            if len(seen) < BATCH_MIN_VIEWS:
-                continue
-            cached = self.fitted.get(track_id)
-            if cached is None or cached[0] != len(seen):
-                rows = np.array([row for row, _ in seen])
-                pixels = np.array([pixel for _, pixel in seen])
-                residuals = batch_residuals(camera, centres[rows], rotations[rows], pixels)
-                cached = (len(seen), rows, residuals)
-                self.fitted[track_id] = cached
-            for row, residual in zip(cached[1].tolist(), cached[2], strict=True):
-                by_row.setdefault(row, []).append((track_id, residual))
+        """Refill the estimator from the trusted tracks' fixed-point residuals (module
+        docstring); a track without new sightings keeps its fit."""
         self.estimator = TrackingNoiseEstimator()
-        for row in sorted(by_row):
-            ids = np.array([track_id for track_id, _ in by_row[row]], dtype=np.int64)
-            self.estimator.add(self.frames[row][0], ids, np.array([r for _, r in by_row[row]]))
+        feed_fixed_points(self.estimator, self.frames, camera, self.trusted, self.fitted)
 
 
 def adapted(

@@ -78,6 +78,11 @@ TIMED = ('measured', 'true_all')
 STABLE_FRACTION = 0.2
 
 
+TrackedFrame = tuple[int, FloatArray, FloatArray, IntArray, FloatArray]
+"""A frame SLAM tracked: stamp ns, camera centre (3,), T_world_camera rotation (3, 3), every
+feature's id (N,) and pixel (N, 2)."""
+
+
 @dataclass
 class _Feed:
     """One run's estimators, the measured count per feature and the TIMED estimates each
@@ -89,9 +94,7 @@ class _Feed:
         default_factory=lambda: {name: TrackingNoiseEstimator() for name in COLUMNS}
     )
     measured_count: dict[int, int] = field(default_factory=dict)
-    tracked: list[tuple[int, FloatArray, FloatArray, IntArray, FloatArray]] = field(
-        default_factory=list
-    )
+    tracked: list[TrackedFrame] = field(default_factory=list)
     history: dict[str, list[tuple[float, NoiseEstimate]]] = field(default_factory=dict)
     next_report_ns: int = 0
 
@@ -172,27 +175,45 @@ def _feed_frame(
     )
 
 
-def feed_batch(feed: _Feed, camera: CameraModel) -> None:
-    """Feed the ``batch`` column (module docstring) from the frames SLAM tracked."""
+def feed_fixed_points(
+    estimator: TrackingNoiseEstimator,
+    frames: list[TrackedFrame],
+    camera: CameraModel,
+    keep: set[int] | None = None,
+    cache: dict[int, tuple[int, IntArray, FloatArray]] | None = None,
+) -> None:
+    """Feed ``estimator``, in time order, the residuals of every track (of ``keep``, None:
+    all) with at least ``BATCH_MIN_VIEWS`` sightings in ``frames``, each against its point
+    fixed over them (``noise_monitor.batch_residuals``); ``cache`` keeps a track's fit until it
+    gains sightings."""
     sightings: dict[int, list[tuple[int, FloatArray]]] = {}
-    for row, (_, _, _, ids, pixels) in enumerate(feed.tracked):
+    for row, (_, _, _, ids, pixels) in enumerate(frames):
         for track_id, pixel in zip(ids.tolist(), pixels, strict=True):
-            sightings.setdefault(track_id, []).append((row, pixel))
-    centres = np.array([c for _, c, _, _, _ in feed.tracked])
-    rotations = np.array([r for _, _, r, _, _ in feed.tracked])
-    by_frame: dict[int, list[tuple[int, FloatArray]]] = {}
+            if keep is None or track_id in keep:
+                sightings.setdefault(track_id, []).append((row, pixel))
+    centres = np.array([c for _, c, _, _, _ in frames])
+    rotations = np.array([r for _, _, r, _, _ in frames])
+    cache = {} if cache is None else cache
+    by_row: dict[int, list[tuple[int, FloatArray]]] = {}
     for track_id, seen in sightings.items():
         if len(seen) < BATCH_MIN_VIEWS:
             continue
-        rows = np.array([row for row, _ in seen])
-        pixels = np.array([pixel for _, pixel in seen])
-        residuals = batch_residuals(camera, centres[rows], rotations[rows], pixels)
-        for row, residual in zip(rows.tolist(), residuals, strict=True):
-            by_frame.setdefault(row, []).append((track_id, residual))
-    for row in sorted(by_frame):
-        ids = np.array([track_id for track_id, _ in by_frame[row]], dtype=np.int64)
-        values = np.array([residual for _, residual in by_frame[row]])
-        feed.estimators['batch'].add(feed.tracked[row][0], ids, values)
+        fitted = cache.get(track_id)
+        if fitted is None or fitted[0] != len(seen):
+            rows = np.array([row for row, _ in seen])
+            pixels = np.array([pixel for _, pixel in seen])
+            fitted = (
+                len(seen),
+                rows,
+                batch_residuals(camera, centres[rows], rotations[rows], pixels),
+            )
+            cache[track_id] = fitted
+        for row, residual in zip(fitted[1].tolist(), fitted[2], strict=True):
+            if np.all(np.isfinite(residual)):  # NaN: no ray, or the point behind the camera
+                by_row.setdefault(row, []).append((track_id, residual))
+    for row in sorted(by_row):
+        ids = np.array([track_id for track_id, _ in by_row[row]], dtype=np.int64)
+        estimator.add(frames[row][0], ids, np.array([residual for _, residual in by_row[row]]))
 
 
 def usable_after_s(history: list[tuple[float, NoiseEstimate]]) -> float:
@@ -252,7 +273,7 @@ def study_run(setting: str, seed: int, duration_s: float, established: int) -> S
     feed = _Feed(run, established)
     started = time.perf_counter()
     record = run_variant('a', frames, camera_model(run), config, attach=_attach(feed))
-    feed_batch(feed, camera_model(run))
+    feed_fixed_points(feed.estimators['batch'], feed.tracked, camera_model(run))
     tau_s = scene.tracking_correlation_time_s if offset_px > 0.0 else math.nan
     return StudyRow(
         setting,
