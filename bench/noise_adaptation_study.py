@@ -13,11 +13,13 @@ once a second, when the estimate is confident, SLAM's configuration takes it:
   residuals of every sighting, in the frames SLAM tracked, of the tracks SLAM has measured,
   each against its point triangulated over all its sightings so far with SLAM's poses
   (``noise_estimate_study``'s ``batch`` column: neither the gate nor the filter's moving
-  point estimate biases them); until the estimate is confident, SLAM takes the estimator's
-  prior white sigma (``DEFAULT_PRIOR_WHITE_PX``) if it is larger than the declared one.
+  point estimate biases them);
+* ``--adapt batch_prior``: as ``batch``, and until the estimate is confident SLAM takes the
+  estimator's prior white sigma (``DEFAULT_PRIOR_WHITE_PX``) if it is larger than the
+  declared one.
 
-It is a study, not a feature: the node does not adapt (a checkpoint of a filter whose
-features have mixed offset states does not load, ``monoslam_snapshot``), and the figures it
+It is a study: the node's own adoption (``estimate_noise``, ``core/noise_monitor``) is
+switched off while it runs its own, and the figures it
 reaches are in bench/README.md. Run (after ``bash scripts/bootstrap.sh``, about 4 min per
 setting on 2 cores)::
 
@@ -45,7 +47,8 @@ from slam_core.camera import CameraModel
 from slam_evaluation import monoslam_evaluate
 
 ADAPT_PERIOD_NS = 10**9
-MODES = ('full', 'marginal', 'batch')
+MODES = ('full', 'marginal', 'batch', 'batch_prior')
+ADOPTION = {'batch': 'full', 'batch_prior': 'prior'}  # the batch modes' adoption rules
 
 
 def _rows(ids: IntArray, wanted: IntArray) -> IntArray:
@@ -114,7 +117,7 @@ def wrap(mode: str) -> None:
             return step
         state = states.setdefault(processor, _Adaptation(slam.config))
         result = step.result
-        if result.status == TRACKING and result.measured_ids and mode == 'batch':
+        if result.status == TRACKING and result.measured_ids and mode.startswith('batch'):
             assert result.centre is not None and result.rotation is not None
             state.frames.append(
                 (frame.stamp_ns, result.centre, result.rotation, frame.ids, frame.pixels)
@@ -128,11 +131,9 @@ def wrap(mode: str) -> None:
             state.next_ns = frame.stamp_ns + ADAPT_PERIOD_NS
         if frame.stamp_ns >= state.next_ns:
             state.next_ns += ADAPT_PERIOD_NS
-            if mode == 'batch':
+            if mode.startswith('batch'):
                 state.rebuild(slam.camera)
-            slam.config = adapted(
-                state.declared, 'prior' if mode == 'batch' else mode, state.estimator
-            )
+            slam.config = adapted(state.declared, ADOPTION.get(mode, mode), state.estimator)
         return step
 
     setattr(MonoSlamProcessor, 'process_frame', process_frame)  # noqa: B010 (a study's wrapper)
