@@ -16,8 +16,12 @@ assumes (eq. 2: constant velocity):
   P(t) = P + v (t - t_0). With the Jacobians J_P,i = (B_i' - r_i d_i') / rho_i and
   J_v,i = tau_i J_P,i,
   the score g = sum_i J_v,i' W_i r_i and the velocity information with P eliminated,
-  S = I_vv - I_vP I_PP^-1 I_Pv, T = g' S^-1 g is chi-square(3) under H0 (P's own score is
-  zero at the fit). Under a true velocity v, T is noncentral with noncentrality v' S v, so
+  S = I_vv - I_vP I_PP^-1 I_Pv, T = g' S^-1 g is chi-square(3) under H0. The score taken is
+  the efficient one, g = g_v - I_vP I_PP^-1 g_P (Neyman's C(alpha) form): at the fit P's own
+  score g_P is zero and it is Rao's; where Gauss-Newton stopped short of the fit (a few
+  percent of the Shadow filter's fits on SLAM's linked poses still move by more than a
+  standard deviation after the last iteration) it removes the first-order effect of P's
+  error on g. Under a true velocity v, T is noncentral with noncentrality v' S v, so
   the eigenvalues of S say how visible motion in each direction has been so far (per
   (m/s)^2): the test's power against a given speed, independent of the noise in the rays.
 
@@ -49,7 +53,7 @@ from monoslam_shadow_node.core.pose_links import covered_views
 from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile
 from monoslam_shadow_node.core.rays import View
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
-from monoslam_shadow_node.core.view_fit import CONDITION_LIMIT, bases, fit
+from monoslam_shadow_node.core.view_fit import CONDITION_LIMIT, CONVERGED_SIGMAS, bases, fit
 from slam_core.geometry.so3 import skew
 
 MOTION_DOF = 3
@@ -265,7 +269,8 @@ def motion_score_tests(
             break
         step = np.linalg.solve(sums.normal[moving], sums.gradient[moving][:, :, None])[:, :, 0]
         points[moving] -= step
-        done = np.linalg.norm(step, axis=1) < 1e-9 * (1.0 + np.linalg.norm(points[moving], axis=1))
+        length = np.einsum('ki,kij,kj->k', step, sums.normal[moving], step)
+        done = length < CONVERGED_SIGMAS**2  # the stopping rule of ``view_fit.fit``
         active[moving[done]] = False
     final = _normal_equations(points, segment, first, rows, posed)
     failed |= final.behind | _unusable(final.normal)
@@ -274,7 +279,7 @@ def motion_score_tests(
     tau = rows[:, ROW_TAU]
     tau = np.repeat(tau - (np.add.reduceat(tau, first) / counts)[segment], 2)  # per row
     weighted = np.add.reduceat(tau[:, None, None] * final.row_products, 2 * first)
-    information_pv, score = weighted[:, :3, :3], weighted[:, :3, 3]
+    information_pv, score = weighted[:, :3, :3], weighted[:, :3, 3]  # score: g_v
     information_vv = np.add.reduceat(
         (tau * tau)[:, None, None] * final.row_products[:, :3, :3], 2 * first
     )
@@ -283,7 +288,8 @@ def motion_score_tests(
         return results
     tests = _score_tests(
         final.normal[fitted], information_pv[fitted], information_vv[fitted], score[fitted],
-        points[fitted], [alphas[used[index]] for index in fitted], counts[fitted].tolist(),
+        final.gradient[fitted], points[fitted], [alphas[used[index]] for index in fitted],
+        counts[fitted].tolist(),
     )  # fmt: skip
     for index, test in zip(fitted, tests, strict=True):
         results[used[index]] = test
@@ -295,6 +301,7 @@ def _score_tests(
     information_pv: FloatArray,
     information_vv: FloatArray,
     score: FloatArray,
+    gradient: FloatArray,
     points: FloatArray,
     alphas: list[float],
     views: list[int],
@@ -304,18 +311,20 @@ def _score_tests(
         eliminated = np.linalg.solve(information_pp, information_pv)
     except np.linalg.LinAlgError:  # one is singular: each alone
         return [
-            _score_test(pp, pv, vv, g, point, alpha, n)
-            for pp, pv, vv, g, point, alpha, n in zip(
+            _score_test(pp, pv, vv, g, g_p, point, alpha, n)
+            for pp, pv, vv, g, g_p, point, alpha, n in zip(
                 information_pp,
                 information_pv,
                 information_vv,
                 score,
+                gradient,
                 points,
                 alphas,
                 views,
                 strict=True,
             )
         ]
+    score = score - np.einsum('kij,ki->kj', eliminated, gradient)  # the efficient score
     schur = information_vv - np.swapaxes(information_pv, 1, 2) @ eliminated
     schur = 0.5 * (schur + np.swapaxes(schur, 1, 2))
     values, vectors = np.linalg.eigh(schur)
@@ -351,16 +360,19 @@ def _score_test(
     information_pv: FloatArray,
     information_vv: FloatArray,
     score: FloatArray,
+    gradient: FloatArray,
     point: FloatArray,
     alpha: float,
     views: int,
 ) -> MotionScoreTest | None:
-    """T = g' S^-1 g with S = I_vv - I_vP I_PP^-1 I_Pv, at S's numerical rank (module
+    """T = g' S^-1 g with S = I_vv - I_vP I_PP^-1 I_Pv and the efficient score g = g_v -
+    I_vP I_PP^-1 g_P (``score`` g_v, ``gradient`` g_P), at S's numerical rank (module
     docstring); None if S vanishes or I_PP is singular."""
     try:
         eliminated = np.linalg.solve(information_pp, information_pv)
     except np.linalg.LinAlgError:
         return None  # the views do not fix the point (no parallax left after the fit)
+    score = score - eliminated.T @ gradient
     schur = information_vv - information_pv.T @ eliminated
     schur = 0.5 * (schur + schur.T)
     values, vectors = np.linalg.eigh(schur)
@@ -436,6 +448,7 @@ def motion_score_test(
     information_pv = geometry.jacobian.T @ velocity
     information_vv = velocity.T @ velocity
     score = velocity.T @ geometry.residual
+    gradient = geometry.jacobian.T @ geometry.residual
     return _score_test(
-        information_pp, information_pv, information_vv, score, point, alpha, len(views)
+        information_pp, information_pv, information_vv, score, gradient, point, alpha, len(views)
     )

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_triangular
+from scipy.linalg import cho_solve, solve_triangular
 
 from monoslam_shadow_node.core.pose_links import (
     CENTRE,
@@ -26,6 +26,11 @@ from slam_core.geometry.so3 import skew
 
 CONDITION_LIMIT = 1e12
 """The largest condition number of a normal matrix the fit accepts."""
+
+CONVERGED_SIGMAS = 1e-3
+"""Gauss-Newton stops once a step is shorter than this many of the point's own standard
+deviations (its Mahalanobis length under the normal matrix): what is left moves the score
+test's statistic by about its square, far below anything the test resolves."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,23 +49,30 @@ class Geometry:
 @dataclass(frozen=True, eq=False)
 class Whitening:
     """A root of the inverse of the residuals' covariance: per view (N, 2, 2) blocks U_i with
-    U_i' U_i = W_i when the views' errors are independent, else L^-1 (2N, 2N) with L the
-    lower Cholesky factor of the whole covariance Sigma."""
+    U_i' U_i = W_i when the views' errors are independent, else L^-1 (2N, 2N), applied by
+    triangular solves with ``factor``, L, the lower Cholesky factor of the whole covariance
+    Sigma."""
 
     blocks: FloatArray | None
-    inverse_factor: FloatArray | None
+    factor: FloatArray | None
 
     def apply(self, values: FloatArray) -> FloatArray:
         """Whiten per-view values (N, 2, k) into (2N, k)."""
         if self.blocks is not None:
             return (self.blocks @ values).reshape(-1, values.shape[2])
-        assert self.inverse_factor is not None
-        return self.inverse_factor @ values.reshape(-1, values.shape[2])
+        assert self.factor is not None
+        flat = values.reshape(-1, values.shape[2])
+        return np.asarray(solve_triangular(self.factor, flat, lower=True, check_finite=False))
+
+    def weigh(self, values: FloatArray) -> FloatArray:
+        """Return Sigma^-1 values for values (2N,) (the whole covariance's root only)."""
+        assert self.factor is not None
+        return np.asarray(cho_solve((self.factor, True), values, check_finite=False))
 
     @property
     def fixed(self) -> bool:
         """True for the whole covariance's root, which is reused across iterations."""
-        return self.inverse_factor is not None
+        return self.factor is not None
 
 
 def bases(directions: FloatArray) -> FloatArray:
@@ -114,10 +126,9 @@ def view_geometry(
     # standard deviation at 1 px noise: sum_i d_i |r_i|^2 / rho_i does not average out. With
     # shared pose errors, r there is taken without the centre errors (``pose_links``).
     carried = residual
-    if between is not None and pose_jacobian is not None and whiten.inverse_factor is not None:
+    if between is not None and pose_jacobian is not None and whiten.fixed:
         centre = cross_blocks(between[:, :, CENTRE], pose_jacobian[:, :, CENTRE], pose_jacobian)
-        factor = whiten.inverse_factor
-        carried = centre_free_residuals(residual, centre, factor.T @ (factor @ residual.ravel()))
+        carried = centre_free_residuals(residual, centre, whiten.weigh(residual.ravel()))
     jacobian = (across - carried[:, :, None] * directions[:, None, :]) / depth[:, None, None]
     values = whiten.apply(np.concatenate([residual[:, :, None], jacobian], axis=2))
     return Geometry(values[:, 0], values[:, 1:], jacobian, whiten)
@@ -159,8 +170,7 @@ def whitening(
         factor = np.linalg.cholesky(0.5 * (full + full.T))
     except np.linalg.LinAlgError:
         return None
-    inverse = solve_triangular(factor, np.eye(2 * count), lower=True)
-    return Whitening(None, np.asarray(inverse, dtype=np.float64))
+    return Whitening(None, np.asarray(factor, dtype=np.float64))
 
 
 def shared_pose_errors(views: list[View]) -> FloatArray | None:
@@ -200,7 +210,7 @@ def fit(
             return None
         step = np.linalg.solve(normal, gradient)
         point = point - step
-        if np.linalg.norm(step) < 1e-9 * (1.0 + np.linalg.norm(point)):
+        if step @ normal @ step < CONVERGED_SIGMAS**2:
             break
     final = view_geometry(views, basis, point, noise, between, None if posed else kept)
     if final is None:
