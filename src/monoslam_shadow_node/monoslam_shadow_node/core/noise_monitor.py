@@ -13,7 +13,7 @@ estimator's variogram cancels; so the estimate sees the offset's size and correl
 where SLAM's residuals see about half (the study's ``batch`` column). A track is fitted again
 only when a sighting to be fed is newer than its last fit (about once per ``delay_s`` while it
 is seen). Memory and work are bounded: the frames of the last ``delay_s``, and each track's
-sightings of the last ``track_memory_s``.
+sightings of the last ``track_memory_s`` (swept once a second, ``SWEEP_PERIOD_NS``).
 
 ``adopted``: the configuration SLAM takes from the estimate (``MonoSlamConfig.estimate_noise``):
 the declared noise until the estimate is confident, and the last confident one while a later
@@ -50,6 +50,8 @@ from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 
 GAUSS_NEWTON_STEPS = 5  # from the midpoint the reprojection fit converges in 2-3 steps
+CONVERGED_PX = 1e-4  # a step that moves no sighting by more than this ends the fit
+SWEEP_PERIOD_NS = 1_000_000_000  # how often the tracks out of memory are dropped
 
 
 def batch_residuals(
@@ -77,7 +79,10 @@ def batch_residuals(
             return residuals
         projected, jacobian = camera.project_with_jacobian(local)
         stacked = (jacobian @ np.swapaxes(rotations, 1, 2)).reshape(-1, 3)  # d pixel / d X
-        point = point + np.linalg.lstsq(stacked, (seen - projected).reshape(-1), rcond=None)[0]
+        step = np.linalg.lstsq(stacked, (seen - projected).reshape(-1), rcond=None)[0]
+        point = point + step
+        if np.abs(stacked @ step).max() < CONVERGED_PX:
+            break
     local = np.einsum('nji,nj->ni', rotations, point - centres)
     if np.any(local[:, 2] <= 0.0):
         return residuals
@@ -125,6 +130,7 @@ class NoiseMonitor:
         self._frames: deque[tuple[int, int, IntArray]] = deque()  # (number, stamp, measured)
         self._tracks: dict[int, _Track] = {}
         self._number = 0
+        self._next_sweep_ns: int | None = None
 
     def add(
         self,
@@ -182,8 +188,11 @@ class NoiseMonitor:
             self.estimator.add(stamp_ns, np.array(ids, dtype=np.int64), np.array(residuals))
 
     def _forget(self, stamp_ns: int) -> None:
-        """Drop the tracks not seen within ``track_memory_s``, and older sightings of the
-        others (the next fit goes without them)."""
+        """Once a ``SWEEP_PERIOD_NS``, drop the tracks not seen within ``track_memory_s``, and
+        older sightings of the others (the next fit goes without them)."""
+        if self._next_sweep_ns is not None and stamp_ns < self._next_sweep_ns:
+            return
+        self._next_sweep_ns = stamp_ns + SWEEP_PERIOD_NS
         horizon = stamp_ns - self.track_memory_ns
         for track_id in [i for i, t in self._tracks.items() if t.stamps[-1] < horizon]:
             del self._tracks[track_id]
