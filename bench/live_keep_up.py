@@ -3,6 +3,7 @@ process, with every node's /diagnostics read back.
 
     python bench/live_keep_up.py [--graph peoplebot_sim_em_sam.yaml] [--duration-s 120]
                                  [--modes processes,one] [--output bench/results]
+                                 [--bag BAG [--rate 1.0]]
 
 For each mode, ``slam_run GRAPH`` (``--processes`` or not) runs as a separate process in a
 temporary directory; a probe node in this process subscribes to /diagnostics. From the first
@@ -17,6 +18,13 @@ time and queue wait (how long a message had waited in its subscription's queue w
 of any report in the window; and the ratio of frames the first image node took to the
 frames offered. PASS when no node lost or dropped an input in the window with one
 process per node, and MonoSLAM never lost tracking (its 'lost' count).
+
+With ``--bag`` the source is a recorded camera: the GRAPH plays BAG at ``--rate`` (1: the
+camera's own rate; ``slam_run --bag --rate``, not paced), and the window is the whole bag
+(``--duration-s`` defaults to its length at that rate) from the player's first message, with
+no warm-up. The reference is then the images the player published, and the feature tracker's
+images tracked without MonoSLAM's prediction for them (missing, of which late) are reported
+beside it.
 """
 
 from __future__ import annotations
@@ -43,6 +51,7 @@ STOP_TIMEOUT_S = 120.0
 
 Snapshot = dict[str, dict[str, str]]
 PEAKS = ('processing ms max', 'queue wait ms max')  # per report; their maximum over the window
+IMAGE_TOPICS = ('published /camera/image_raw', 'published /camera/image_raw/compressed')
 
 
 def with_settings(graph: str, settings: list[str], directory: Path) -> str:
@@ -69,11 +78,33 @@ def with_settings(graph: str, settings: list[str], directory: Path) -> str:
     return str(path)
 
 
+def bag_duration_s(bag: Path) -> float:
+    """Return the span of a bag's messages, s."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        return float(reader.duration) * 1e-9
+
+
+def source_started(values: dict[str, str]) -> bool:
+    """Whether a source's diagnostics show its first frame: a simulated camera's ``frames
+    published`` or the bag player's ``published <topic>``."""
+    return any(
+        (key == 'frames published' or key.startswith('published ')) and value not in ('', '0')
+        for key, value in values.items()
+    )
+
+
 def measure(
-    graph: str, processes: bool, duration_s: float, keep_log: Path
+    graph: str,
+    processes: bool,
+    duration_s: float,
+    keep_log: Path,
+    bag: tuple[Path, float] | None = None,
 ) -> tuple[Snapshot, Snapshot]:
-    """Run ``graph`` live for ``duration_s`` s; return each node's /diagnostics values at
-    the start and at the end of the window. The graph's log is copied to ``keep_log``."""
+    """Run ``graph`` live for ``duration_s`` s (``bag``: playing that bag at that rate, no
+    warm-up); return each node's /diagnostics values at the start and at the end of the
+    window. The graph's log is copied to ``keep_log``."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
@@ -99,20 +130,24 @@ def measure(
     executor.add_node(node)
     command = [sys.executable, '-m', 'slam_bringup.runner', str(graph)]
     command += ['--processes'] if processes else []
+    if bag is not None:
+        command += ['--bag', str(bag[0].resolve()), '--rate', str(bag[1])]
     with tempfile.TemporaryDirectory(prefix='live_keep_up-') as scratch:
         log = Path(scratch) / 'slam_run.log'
+        (Path(scratch) / 'out').mkdir()  # where GRAPH files put their recordings
         with log.open('wb') as out:
             run = subprocess.Popen(command, cwd=scratch, stdout=out, stderr=subprocess.STDOUT)
         try:
             deadline = time.monotonic() + START_TIMEOUT_S
-            while not any(v.get('frames published', '0') != '0' for v in last.values()):
+            while not any(source_started(values) for values in last.values()):
                 executor.spin_once(timeout_sec=0.1)
                 if time.monotonic() > deadline or run.poll() is not None:
                     raise RuntimeError(f'the graph did not start:\n{log.read_text()[-3000:]}')
-            warm = time.monotonic() + WARM_UP_S
+            warm = time.monotonic() + (WARM_UP_S if bag is None else 0.0)
             while time.monotonic() < warm:
                 executor.spin_once(timeout_sec=0.1)
-            first = {name: dict(values) for name, values in last.items()}
+            # a bag is counted from its first message: nothing before it is left out
+            first = {} if bag is not None else {k: dict(v) for k, v in last.items()}
             peaks.clear()
             started = time.monotonic()
             next_line = started
@@ -184,27 +219,57 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
         ('/peoplebot_sim', '/marker_detector', 'processed'),
         ('/dynamic_scene_sim', '/feature_tracker', 'received image'),
         ('/dynamic_scene_sim', '/monoslam', 'received features'),
+        ('/bag_player', '/feature_tracker', 'received image'),
+        ('/bag_player', '/monoslam', 'received features'),
     ):
         if source in last and sink in last:
-            offered = int(last[source]['frames published']) - int(
-                first.get(source, {}).get('frames published', '0')
+            published = next(
+                (key for key in ('frames published', *IMAGE_TOPICS) if key in last[source]), None
             )
+            if published is None:
+                continue
+            offered = _number(last[source], published) - _number(first.get(source, {}), published)
             taken = int(last[sink].get(taken_key, '0')) - int(
                 first.get(sink, {}).get(taken_key, '0')
             )
-            late_key = 'frames late' if 'frames late' in last[source] else 'frames skipped'
+            late_keys = ('frames late', 'frames skipped', 'skipped')
+            late_key = next((key for key in late_keys if key in last[source]), 'frames late')
             late = _number(last[source], late_key) - _number(first.get(source, {}), late_key)
             lines.append(
                 f'| {mode} | {sink} {taken_key} / {source} frames | {taken} / {offered} = '
                 f'{taken / max(offered, 1):.3f} | | | {late_key} {late} | | | |'
             )
+    slam = last.get('/monoslam', {})
+    if 'predictions skipped (behind)' in slam:
+        before = first.get('/monoslam', {})
+        behind = _number(slam, 'predictions skipped (behind)') - _number(
+            before, 'predictions skipped (behind)'
+        )
+        lines.append(
+            f'| {mode} | /monoslam predictions sent empty (behind: the image before not '
+            f'filtered yet) | {behind} | | | | | | |'
+        )
+    tracker = last.get('/feature_tracker', {})
+    if 'predictions missing' in tracker:
+        before = first.get('/feature_tracker', {})
+        missing, late = (
+            _number(tracker, key) - _number(before, key)
+            for key in ('predictions missing', 'predictions late')
+        )
+        tracked = _number(tracker, 'processed') - _number(before, 'processed')
+        lines.append(
+            f'| {mode} | /feature_tracker images tracked without their prediction | '
+            f'{missing} of {tracked} ({late} late) | | | | | | |'
+        )
     return lines, clean
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--graph', default='peoplebot_sim_em_sam.yaml')
-    parser.add_argument('--duration-s', type=float, default=120.0)
+    parser.add_argument(
+        '--duration-s', type=float, help='window, s (default 120; with --bag the bag at --rate)'
+    )
     parser.add_argument(
         '--set',
         action='append',
@@ -213,6 +278,8 @@ def main() -> int:
         help='a parameter of a node (repeatable), e.g. dynamic_scene_sim.duration_s=40',
     )
     parser.add_argument('--modes', default='processes,one', help='processes, one, or both')
+    parser.add_argument('--bag', type=Path, help='play this bag as the camera (module doc)')
+    parser.add_argument('--rate', type=float, default=1.0, help='with --bag: playback rate')
     parser.add_argument(
         '--output',
         type=Path,
@@ -220,6 +287,13 @@ def main() -> int:
         help="the report (.md) and each mode's graph log (.log) go here",
     )
     args = parser.parse_args()
+    bag = None
+    if args.bag is not None:
+        if not args.bag.exists() or not args.rate > 0:
+            raise SystemExit(f'--bag {args.bag}: not found, or --rate {args.rate} not > 0')
+        bag = (args.bag, args.rate)
+    if args.duration_s is None:
+        args.duration_s = 120.0 if bag is None else bag_duration_s(args.bag) / args.rate
     os.environ.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 100))
     meta = run_meta('not pinned (the graph uses both cores)')
     table = [
@@ -236,7 +310,7 @@ def main() -> int:
             keep_log = args.output / f'live_keep_up_{Path(args.graph).stem}_{name}.log'
             lines, clean = rows(
                 'processes' if processes else 'one process',
-                *measure(graph, processes, args.duration_s, keep_log),
+                *measure(graph, processes, args.duration_s, keep_log, bag),
                 args.duration_s,
             )
             table += lines
@@ -244,6 +318,7 @@ def main() -> int:
     passed = all(clean for processes, clean in verdicts if processes)
     report = [
         f'# live_keep_up: {args.graph}, {args.duration_s:g} s live'
+        + (f', {args.bag.name} at rate {args.rate:g}' if args.bag is not None else '')
         + (f' ({", ".join(args.set)})' if args.set else ''),
         '',
         ', '.join(f'{k} {v}' for k, v in meta.items()),

@@ -109,6 +109,7 @@ class LoopRun:
     maps: list[tuple[int, np.ndarray]]  # (stamp, POINT_DTYPE rows)
     predictions_used: int
     revived: int
+    tracker_counts: dict[str, int]  # feature_tracker's /diagnostics counts at the end
 
 
 def overrides(**parameters: Any) -> list[Parameter]:
@@ -205,7 +206,10 @@ def play(harness: RosHarness, bag: Path) -> LoopRun:
         (stamp_to_ns(m.header.stamp), np.frombuffer(bytes(m.data), POINT_DTYPE))
         for m in maps.messages
     ]
-    return LoopRun(stamps, published, centres, clouds, stats.predictions_used, stats.revived)
+    return LoopRun(
+        stamps, published, centres, clouds, stats.predictions_used, stats.revived,
+        tracker.diagnostics_counts(),
+    )  # fmt: skip
 
 
 def active_ids(rows: np.ndarray) -> set[int]:
@@ -215,6 +219,10 @@ def active_ids(rows: np.ndarray) -> set[int]:
 
 def test_the_tracker_follows_slams_predictions(loop_run: LoopRun) -> None:
     assert loop_run.predictions_used >= MIN_PREDICTED_SHARE * len(loop_run.stamps)
+    # /diagnostics says how many images went without their prediction (bench/live_keep_up)
+    counts = loop_run.tracker_counts
+    assert counts['processed'] == loop_run.predictions_used + counts['predictions missing']
+    assert 0 <= counts['predictions late'] <= counts['predictions missing']
 
 
 def first_sightings(run: LoopRun) -> dict[int, tuple[int, np.ndarray]]:

@@ -35,8 +35,9 @@ Topics:
               (feature_overlay: pending and unknown red, static blue, dynamic green), same
               header as the image.
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): images
-              received, tracked and dropped, features, tracks, debug images, processing
-              time, lag (slam_ros.diagnostics)
+              received, tracked and dropped, features, tracks, images tracked without
+              their prediction (missing, late), debug images, processing time, lag
+              (slam_ros.diagnostics)
   subscribes, when publish_debug_image is true, the statuses it draws:
               shadow/tracks, shadow/static_features, monoslam/revoked
               (slam_interfaces/ShadowTrackArray, reliable, depth 100).
@@ -372,12 +373,17 @@ class FeatureTrackerNode(Node):
         else:
             self.get_logger().error(text)
 
+    def diagnostics_counts(self) -> dict[str, int]:
+        """The counts the node reports on /diagnostics (``_counts``)."""
+        return self._counts()
+
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: images tracked, dropped (by the processor, undecodable
         and refused too large), features in the latest, tracks started and re-identified
         (searches made, predictions too uncertain to search, candidates left unaligned),
-        camera_info messages rejected, restarts (tracks dropped for a stamp jump back or
-        a camera change), debug images published."""
+        images tracked without their prediction (missing; of those, late: it came after its
+        image was tracked), camera_info messages rejected, restarts (tracks dropped for a
+        stamp jump back or a camera change), debug images published."""
         stats = self.processor.stats
         return {
             'processed': stats.frames,
@@ -395,6 +401,8 @@ class FeatureTrackerNode(Node):
             're-identification searches': stats.searched,
             'not searched (too uncertain)': stats.unsearched,
             'candidates left unaligned': stats.unaligned,
+            'predictions missing': stats.predictions_missed,
+            'predictions late': stats.predictions_late,
             'debug images': self.debug_images,
         }
 
