@@ -239,24 +239,20 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
                 f'| {mode} | {sink} {taken_key} / {source} frames | {taken} / {offered} = '
                 f'{taken / max(offered, 1):.3f} | | | {late_key} {late} | | | |'
             )
-    slam = last.get('/monoslam', {})
-    if 'predictions skipped (behind)' in slam:
-        before = first.get('/monoslam', {})
-        behind = _number(slam, 'predictions skipped (behind)') - _number(
-            before, 'predictions skipped (behind)'
-        )
+
+    def change(node: str, key: str) -> int:  # a count over the window
+        return _number(last.get(node, {}), key) - _number(first.get(node, {}), key)
+
+    if 'predictions skipped (behind)' in last.get('/monoslam', {}):
         lines.append(
             f'| {mode} | /monoslam predictions sent empty (behind: the image before not '
-            f'filtered yet) | {behind} | | | | | | |'
+            f'filtered yet) | {change("/monoslam", "predictions skipped (behind)")} | | | | | | |'
         )
-    tracker = last.get('/feature_tracker', {})
-    if 'predictions missing' in tracker:
-        before = first.get('/feature_tracker', {})
-        missing, late = (
-            _number(tracker, key) - _number(before, key)
-            for key in ('predictions missing', 'predictions late')
+    if 'predictions missing' in last.get('/feature_tracker', {}):
+        missing, late, tracked = (
+            change('/feature_tracker', key)
+            for key in ('predictions missing', 'predictions late', 'processed')
         )
-        tracked = _number(tracker, 'processed') - _number(before, 'processed')
         lines.append(
             f'| {mode} | /feature_tracker images tracked without their prediction | '
             f'{missing} of {tracked} ({late} late) | | | | | | |'
