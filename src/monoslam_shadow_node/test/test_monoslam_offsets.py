@@ -86,3 +86,27 @@ def test_a_rejected_feature_forgets_its_offset() -> None:
     block = slice(feature.start, feature.start + feature.size)
     assert np.all(state.p[offset, block] == 0.0) and np.all(state.p[offset, :CAMERA_SIZE] == 0.0)
     np.testing.assert_array_equal(state.p[offset, offset], OFFSET_PX**2 * np.eye(2))
+
+
+def test_a_feature_mapped_without_an_offset_is_given_one_in_place() -> None:
+    """Two features without offsets; the first gets one: its 2 states follow its point, the
+    second moves 2 along, and every earlier entry of x and P is where it was."""
+    state = _state_with_feature(0.0)
+    assert state.insert_inverse_depth(
+        CAMERA, 6, np.array([200.0, 300.0]), 0.5, 1e-4, WHITE_PX, 'new', 0
+    )
+    first, second = state.features
+    x, p = state.x.copy(), state.p.copy()
+    state.add_offset(first, OFFSET_PX)
+    assert first.offset_size == 2 and second.offset_size == 0
+    assert second.start == first.start + INVERSE_DEPTH_SIZE + 2 and len(state.x) == len(x) + 2
+    offset = first.offset
+    assert offset is not None
+    np.testing.assert_array_equal(state.x[offset], [0.0, 0.0])
+    np.testing.assert_array_equal(state.p[offset, offset], OFFSET_PX**2 * np.eye(2))
+    kept = np.r_[0 : offset.start, offset.stop : len(state.x)]
+    np.testing.assert_array_equal(state.x[kept], x)
+    np.testing.assert_array_equal(state.p[np.ix_(kept, kept)], p)
+    assert np.all(state.p[offset, :][:, kept] == 0.0)
+    state.add_offset(first, 5.0)  # it has one already: nothing changes
+    np.testing.assert_array_equal(state.p[offset, offset], OFFSET_PX**2 * np.eye(2))

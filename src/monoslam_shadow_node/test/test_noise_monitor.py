@@ -6,11 +6,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from types import SimpleNamespace
+from typing import cast
 
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
+from monoslam_shadow_node.core.monoslam import MonoSlam
+from monoslam_shadow_node.core.monoslam_types import (
+    WAITING,
+    MonoSlamConfig,
+    MonoSlamFrame,
+    MonoSlamResult,
+)
 from monoslam_shadow_node.core.noise_estimate import NoiseEstimate
 from monoslam_shadow_node.core.noise_monitor import (
     SWEEP_PERIOD_NS,
@@ -145,3 +153,33 @@ def test_another_camera_restarts_the_monitor_and_holds_the_noise_in_force() -> N
     assert adaptation.monitor is first and adaptation.held is None
     adaptation.set_camera(CameraModel.from_intrinsics(640, 480, (310.0, 310.0), (320.0, 240.0)))
     assert adaptation.monitor is not first and adaptation.held == adaptation.config
+
+
+def test_taking_offsets_gives_the_features_mapped_before_an_offset_state() -> None:
+    """Two features mapped under white noise; once the estimate takes offsets, both carry
+    an offset state at its size (``MonoSlam.set_noise``); taking white noise adds none."""
+    slam = MonoSlam(CAMERA, MonoSlamConfig())
+    state = slam._state
+    pose = np.zeros(7)
+    pose[3] = 1.0  # identity quaternion (w, x, y, z)
+    state.start(pose, 1e-12 * np.eye(7), 1e-6, 1e-6)
+    for feature_id, pixel in ((5, (400.0, 200.0)), (6, (200.0, 300.0))):
+        assert state.insert_inverse_depth(CAMERA, feature_id, np.array(pixel), 0.25, 1e-4, 1.0,
+                                          'new', 0)  # fmt: skip
+    white = dataclasses.replace(slam.config, pixel_sigma_px=1.2)
+    slam.set_noise(white)
+    assert [f.offset_size for f in state.features] == [0, 0] and slam.config is white
+    adaptation = NoiseAdaptation(MonoSlamConfig(), CAMERA)
+    _run(1.0, 2.0, 0.6, 0, adaptation.monitor)
+    waiting = cast(MonoSlamResult, SimpleNamespace(status=WAITING))  # not fed to the monitor
+    frame = MonoSlamFrame(round(30e9), np.zeros(0, np.int64), np.zeros((0, 2)))
+    adaptation.observe(slam, frame, waiting)
+    adaptation.observe(slam, dataclasses.replace(frame, stamp_ns=round(32e9)), waiting)
+    assert slam.config.offset_states and slam.config is adaptation.config
+    assert [f.offset_size for f in state.features] == [2, 2]
+    for feature in state.features:
+        offset = feature.offset
+        assert offset is not None
+        np.testing.assert_allclose(
+            state.p[offset, offset], slam.config.tracking_offset_px**2 * np.eye(2)
+        )

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from monoslam_shadow_node.core.monoslam_checks import (
+    handover_problem,
     in_view_mask,
     known_disagreement,
     tracking_lost_reason,
@@ -149,6 +150,13 @@ class MonoSlam:
         """Use new intrinsics from the next frame on (a camera_info change)."""
         self.camera = camera
 
+    def set_noise(self, config: MonoSlamConfig) -> None:
+        """Measure with ``config`` (another tracking noise) from now on; with offsets as
+        states, the features mapped without one get one (``FilterState.add_offset``)."""
+        self.config = config
+        for feature in self._state.features if config.offset_states else []:
+            self._state.add_offset(feature, config.tracking_offset_px)
+
     def add_handover(
         self, feature_id: int, position_m: FloatArray, covariance_m2: FloatArray
     ) -> str | None:
@@ -156,12 +164,9 @@ class MonoSlam:
         it enters the map when next observed. Return why it was refused, or None."""
         position = np.asarray(position_m, dtype=np.float64).reshape(-1)
         covariance = np.asarray(covariance_m2, dtype=np.float64)
-        if position.shape != (3,) or not np.all(np.isfinite(position)):
-            return f'handover of feature {feature_id}: position {position.tolist()} not finite'
-        if covariance.shape != (3, 3) or not np.all(np.isfinite(covariance)):
-            return f'handover of feature {feature_id}: covariance not a finite 3x3 matrix'
-        if np.min(np.linalg.eigvalsh(0.5 * (covariance + covariance.T))) < 0.0:
-            return f'handover of feature {feature_id}: covariance not positive semi-definite'
+        problem = handover_problem(feature_id, position, covariance)
+        if problem is not None:
+            return problem
         if feature_id in self._owned_ids:
             self._clear(feature_id)
             return None
@@ -575,17 +580,10 @@ class MonoSlam:
     # --- outputs ---------------------------------------------------------------------------
 
     def _result(
-        self,
-        stamp_ns: int,
-        status: str,
-        measured: list[int],
-        rejected: list[int],
-        added: list[int],
-        removed: dict[int, str],
-        known_used: int,
-        warnings: list[str],
+        self, stamp_ns: int, status: str, measured: list[int], rejected: list[int],
+        added: list[int], removed: dict[int, str], known_used: int, warnings: list[str],
         counts: UpdateCounts | None = None,
-    ) -> MonoSlamResult:
+    ) -> MonoSlamResult:  # fmt: skip
         counts = counts or UpdateCounts()
         if status == WAITING or len(self._state.x) < CAMERA_SIZE:
             return MonoSlamResult(

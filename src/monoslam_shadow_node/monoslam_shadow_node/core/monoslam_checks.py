@@ -1,5 +1,5 @@
-"""MonoSLAM's checks (``monoslam``): a frame's input, the known points against the updated
-state, and the reasons tracking is lost."""
+"""MonoSLAM's checks (``monoslam``): a frame's and a handover's input, the known points
+against the updated state, and the reasons tracking is lost."""
 
 from __future__ import annotations
 
@@ -25,6 +25,17 @@ from slam_core.camera import CameraModel
 MIN_POSE_EIGENVALUE_RATIO = 1e-12
 """Tracking is lost when the pose covariance's smallest eigenvalue is not above this share of
 its largest: numerically singular, or not positive definite (measured in tracking: ~1e-4)."""
+
+
+def handover_problem(feature_id: int, position: FloatArray, covariance: FloatArray) -> str | None:
+    """Why a handover's position (3,) m and covariance (3, 3) are unusable, or None."""
+    if position.shape != (3,) or not np.all(np.isfinite(position)):
+        return f'handover of feature {feature_id}: position {position.tolist()} not finite'
+    if covariance.shape != (3, 3) or not np.all(np.isfinite(covariance)):
+        return f'handover of feature {feature_id}: covariance not a finite 3x3 matrix'
+    if np.min(np.linalg.eigvalsh(0.5 * (covariance + covariance.T))) < 0.0:
+        return f'handover of feature {feature_id}: covariance not positive semi-definite'
+    return None
 
 
 def validated_frame(

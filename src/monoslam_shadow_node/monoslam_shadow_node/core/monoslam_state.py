@@ -260,6 +260,25 @@ class FilterState:
         self.p[offset, offset] = sigma_px**2 * np.eye(2)
         self._history_rows()[offset] = 0.0
 
+    def add_offset(self, feature: FeatureBlock, sigma_px: float) -> None:
+        """Give a feature without one a tracker offset: 2 states right after its point,
+        estimated 0 with standard deviation ``sigma_px``, uncorrelated with the rest."""
+        if feature.offset_size:
+            return
+        at, n = feature.start + feature.size, len(self.x)
+        history = self._history_rows()
+        p = np.zeros((n + 2, n + 2))
+        p[:at, :at], p[:at, at + 2 :] = self.p[:at, :at], self.p[:at, at:]
+        p[at + 2 :, :at], p[at + 2 :, at + 2 :] = self.p[at:, :at], self.p[at:, at:]
+        p[at : at + 2, at : at + 2] = sigma_px**2 * np.eye(2)
+        self.p = p
+        self.x = np.concatenate([self.x[:at], np.zeros(2), self.x[at:]])
+        self.history = np.vstack([history[:at], np.zeros((2, history.shape[1])), history[at:]])
+        for other in self.features:
+            if other.start > feature.start:
+                other.start += 2
+        feature.offset_size = 2
+
     def remove(self, feature: FeatureBlock) -> None:
         """Take a feature out of the state (its rows and columns are one block: the four
         blocks around it are copied as slices, ten times faster than fancy indexing)."""

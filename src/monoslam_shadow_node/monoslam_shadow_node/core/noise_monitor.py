@@ -19,10 +19,12 @@ sightings of the last ``track_memory_s`` (swept once a second, ``SWEEP_PERIOD_NS
 the declared noise until the estimate is confident, and the last confident one while a later
 estimate is not (``NoiseAdaptation``); otherwise white noise at the larger of the declared and
 the estimated sigma, and the estimated offsets (size and correlation time) when they matter
-(``OFFSET_RELEVANCE`` of the white variance), else the declared ones. Features added from then
-on carry offset states; those added before keep none and are measured with the white noise
-and the offset together (``feature_sigma_px``). Tried and not kept: the estimator's 2 px prior
-until it is confident (bench/README.md, "The tracker's noise from its own tracks").
+(``OFFSET_RELEVANCE`` of the white variance), else the declared ones. When the offsets are
+taken, every feature gets an offset state (``MonoSlam.set_noise``): those mapped before carry
+it from then on, 0 with the offset's standard deviation and uncorrelated with their points
+(what their points took in of earlier offsets is not modelled). Tried and not kept: the
+estimator's 2 px prior until it is confident (bench/README.md, "The tracker's noise from its
+own tracks").
 """
 
 from __future__ import annotations
@@ -283,5 +285,6 @@ class NoiseAdaptation:
         if estimate.confident:  # kept while a later estimate is not confident
             self.held = config
         if config != slam.config:
-            slam.config = self.config = config
+            slam.set_noise(config)
+            self.config = config
             self.adoptions += 1
