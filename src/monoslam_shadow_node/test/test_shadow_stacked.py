@@ -23,6 +23,7 @@ from monoslam_shadow_node.core.static_fit import (
     ROW_NOISE,
     ROW_POSE,
     ROW_TAU,
+    _score_tests,
     _views_as_rows,
     motion_score_test,
     motion_score_tests,
@@ -116,6 +117,20 @@ def test_the_efficient_score_holds_where_the_fit_stopped_short(speed: float) -> 
     error = abs(short.result.statistic - converged.result.statistic)
     assert error < 0.05 * max(converged.result.statistic, 1.0)
     assert abs(plain[0] - converged.result.statistic) > 10 * max(error, 0.05)
+
+
+def test_a_singular_information_is_declined_alone() -> None:
+    """Stacked with a feature whose I_PP is singular, a sound one gets its own test: the
+    singular one None, the other as when it is tested alone."""
+    pv, vv, g_v, g_p, point = np.eye(3), 2.0 * np.eye(3), np.ones(3), np.zeros(3), np.ones(3)
+    sound = (np.diag([4.0, 5.0, 6.0]), pv, vv, g_v, g_p, point)
+    singular = (np.zeros((3, 3)), pv, vv, g_v, g_p, point)
+    alone = _score_tests(*(a[None] for a in sound), [0.01], [12])[0]
+    both = _score_tests(*(np.stack(pair) for pair in zip(singular, sound, strict=True)),
+                        [0.01, 0.01], [12, 12])  # fmt: skip
+    assert both[0] is None and alone is not None and both[1] is not None
+    assert both[1].result.statistic == pytest.approx(alone.result.statistic, rel=1e-12)
+    assert _score_tests(*(a[None] for a in singular), [0.01], [12]) == [None]
 
 
 def test_stacked_score_tests_decline_what_the_fit_declines() -> None:

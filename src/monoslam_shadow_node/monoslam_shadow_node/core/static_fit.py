@@ -306,24 +306,23 @@ def _score_tests(
     alphas: list[float],
     views: list[int],
 ) -> list[MotionScoreTest | None]:
-    """``_score_test`` of K features at once (stacked (K, ...) arguments)."""
+    """The score tests of K features (stacked (K, ...) arguments): T = g' S^-1 g with S =
+    I_vv - I_vP I_PP^-1 I_Pv and the efficient score g = g_v - I_vP I_PP^-1 g_P (``score``
+    g_v, ``gradient`` g_P), at S's numerical rank (module docstring); None where S vanishes or
+    I_PP is singular."""
     try:
         eliminated = np.linalg.solve(information_pp, information_pv)
     except np.linalg.LinAlgError:  # one is singular: each alone
+        if len(points) == 1:
+            return [None]  # the views do not fix the point (no parallax left after the fit)
         return [
-            _score_test(pp, pv, vv, g, g_p, point, alpha, n)
-            for pp, pv, vv, g, g_p, point, alpha, n in zip(
-                information_pp,
-                information_pv,
-                information_vv,
-                score,
-                gradient,
-                points,
-                alphas,
-                views,
-                strict=True,
-            )
-        ]
+            _score_tests(
+                information_pp[k : k + 1], information_pv[k : k + 1], information_vv[k : k + 1],
+                score[k : k + 1], gradient[k : k + 1], points[k : k + 1], alphas[k : k + 1],
+                views[k : k + 1],
+            )[0]
+            for k in range(len(points))
+        ]  # fmt: skip
     score = score - np.einsum('kij,ki->kj', eliminated, gradient)  # the efficient score
     schur = information_vv - np.swapaxes(information_pv, 1, 2) @ eliminated
     schur = 0.5 * (schur + np.swapaxes(schur, 1, 2))
@@ -353,45 +352,6 @@ def _score_tests(
             )
         )
     return out
-
-
-def _score_test(
-    information_pp: FloatArray,
-    information_pv: FloatArray,
-    information_vv: FloatArray,
-    score: FloatArray,
-    gradient: FloatArray,
-    point: FloatArray,
-    alpha: float,
-    views: int,
-) -> MotionScoreTest | None:
-    """T = g' S^-1 g with S = I_vv - I_vP I_PP^-1 I_Pv and the efficient score g = g_v -
-    I_vP I_PP^-1 g_P (``score`` g_v, ``gradient`` g_P), at S's numerical rank (module
-    docstring); None if S vanishes or I_PP is singular."""
-    try:
-        eliminated = np.linalg.solve(information_pp, information_pv)
-    except np.linalg.LinAlgError:
-        return None  # the views do not fix the point (no parallax left after the fit)
-    score = score - eliminated.T @ gradient
-    schur = information_vv - information_pv.T @ eliminated
-    schur = 0.5 * (schur + schur.T)
-    values, vectors = np.linalg.eigh(schur)
-    values = np.maximum(values, 0.0)
-    if not values[-1] > 0.0:
-        return None
-    kept = values > 1e-12 * values[-1]
-    projected = vectors[:, kept].T @ score
-    statistic = float(np.sum(projected**2 / values[kept]))
-    dof = int(np.count_nonzero(kept))
-    threshold = chi2_quantile(1.0 - alpha, dof)
-    covariance = np.linalg.inv(information_pp)
-    return MotionScoreTest(
-        RelationTest(statistic, dof, threshold, statistic > threshold),
-        point.copy(),
-        0.5 * (covariance + covariance.T),
-        values,
-        views,
-    )
 
 
 def linked(views: list[View]) -> bool:
@@ -449,6 +409,7 @@ def motion_score_test(
     information_vv = velocity.T @ velocity
     score = velocity.T @ geometry.residual
     gradient = geometry.jacobian.T @ geometry.residual
-    return _score_test(
-        information_pp, information_pv, information_vv, score, gradient, point, alpha, len(views)
-    )
+    return _score_tests(
+        information_pp[None], information_pv[None], information_vv[None], score[None],
+        gradient[None], point[None], [alpha], [len(views)],
+    )[0]  # fmt: skip
