@@ -216,6 +216,10 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
             f'| {values.get("processing ms mean", "")} | {values.get("processing ms max", "")} '
             f'| {values.get("queue wait ms max", "")} |'
         )
+
+    def change(node: str, key: str) -> int:  # a count over the window
+        return _number(last.get(node, {}), key) - _number(first.get(node, {}), key)
+
     for source, sink, taken_key in (
         ('/peoplebot_sim', '/marker_detector', 'processed'),
         ('/dynamic_scene_sim', '/feature_tracker', 'received image'),
@@ -229,20 +233,14 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
             )
             if published is None:
                 continue
-            offered = _number(last[source], published) - _number(first.get(source, {}), published)
-            taken = int(last[sink].get(taken_key, '0')) - int(
-                first.get(sink, {}).get(taken_key, '0')
-            )
+            offered, taken = change(source, published), change(sink, taken_key)
             late_keys = ('frames late', 'frames skipped', 'skipped')
             late_key = next((key for key in late_keys if key in last[source]), 'frames late')
-            late = _number(last[source], late_key) - _number(first.get(source, {}), late_key)
+            late = change(source, late_key)
             lines.append(
                 f'| {mode} | {sink} {taken_key} / {source} frames | {taken} / {offered} = '
                 f'{taken / max(offered, 1):.3f} | | | {late_key} {late} | | | |'
             )
-
-    def change(node: str, key: str) -> int:  # a count over the window
-        return _number(last.get(node, {}), key) - _number(first.get(node, {}), key)
 
     if 'predictions skipped (behind)' in last.get('/monoslam', {}):
         lines.append(
