@@ -35,9 +35,9 @@ Topics:
               (feature_overlay: pending and unknown red, static blue, dynamic green), same
               header as the image.
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): images
-              received, tracked and dropped, features, tracks, images tracked without
-              their prediction (missing, late), debug images, processing time, lag
-              (slam_ros.diagnostics)
+              received, tracked and dropped, features, tracks, images tracked with and
+              without their prediction and predictions come late, debug images,
+              processing time, lag (slam_ros.diagnostics)
   subscribes, when publish_debug_image is true, the statuses it draws:
               shadow/tracks, shadow/static_features, monoslam/revoked
               (slam_interfaces/ShadowTrackArray, reliable, depth 100).
@@ -381,9 +381,9 @@ class FeatureTrackerNode(Node):
         """The counts on /diagnostics: images tracked, dropped (by the processor, undecodable
         and refused too large), features in the latest, tracks started and re-identified
         (searches made, predictions too uncertain to search, candidates left unaligned),
-        images tracked without their prediction (missing; of those, late: it came after its
-        image was tracked), camera_info messages rejected, restarts (tracks dropped for a
-        stamp jump back or a camera change), debug images published."""
+        images tracked with and without their prediction (used, missing) and predictions
+        that came after their image (late), camera_info messages rejected, restarts (tracks
+        dropped for a stamp jump back or a camera change), debug images published."""
         stats = self.processor.stats
         return {
             'processed': stats.frames,
@@ -401,6 +401,7 @@ class FeatureTrackerNode(Node):
             're-identification searches': stats.searched,
             'not searched (too uncertain)': stats.unsearched,
             'candidates left unaligned': stats.unaligned,
+            'predictions used': stats.predictions_used,
             'predictions missing': stats.predictions_missed,
             'predictions late': stats.predictions_late,
             'debug images': self.debug_images,
