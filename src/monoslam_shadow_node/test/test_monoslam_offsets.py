@@ -95,8 +95,10 @@ def test_a_feature_mapped_without_an_offset_is_given_one_in_place() -> None:
     assert state.insert_inverse_depth(
         CAMERA, 6, np.array([200.0, 300.0]), 0.5, 1e-4, WHITE_PX, 'new', 0
     )
+    state.remember_pose(1, 0, 0)  # the pose history carries rows for every state
     first, second = state.features
-    x, p = state.x.copy(), state.p.copy()
+    x, p, history = state.x.copy(), state.p.copy(), state.history.copy()
+    assert history.shape == (len(x), 6)
     state.add_offset(first, OFFSET_PX)
     assert first.offset_size == 2 and second.offset_size == 0
     assert second.start == first.start + INVERSE_DEPTH_SIZE + 2 and len(state.x) == len(x) + 2
@@ -108,5 +110,7 @@ def test_a_feature_mapped_without_an_offset_is_given_one_in_place() -> None:
     np.testing.assert_array_equal(state.x[kept], x)
     np.testing.assert_array_equal(state.p[np.ix_(kept, kept)], p)
     assert np.all(state.p[offset, :][:, kept] == 0.0)
+    np.testing.assert_array_equal(state.history[kept], history)
+    assert state.history.shape == (len(state.x), 6) and np.all(state.history[offset] == 0.0)
     state.add_offset(first, 5.0)  # it has one already: nothing changes
     np.testing.assert_array_equal(state.p[offset, offset], OFFSET_PX**2 * np.eye(2))
