@@ -17,8 +17,9 @@ queue, or a best-effort sample never came), the node's own drops, its busy share
 time and queue wait (how long a message had waited in its subscription's queue when taken)
 of any report in the window; and the ratio of frames the first image node took to the
 frames offered. PASS when no node lost or dropped an input in the window with one
-process per node, and MonoSLAM never lost tracking (its 'lost' count); ``--modes one`` alone
-gives no verdict.
+process per node, MonoSLAM never lost tracking (its 'lost' count) and the first image node
+took frames (from a bag: every image the player published); a graph whose nodes never
+report fails. ``--modes one`` alone gives no verdict.
 
 With ``--bag`` the source is a recorded camera: the GRAPH plays BAG at ``--rate`` (1: the
 camera's own rate; ``slam_run --bag --rate``, not paced), and the window is the whole bag
@@ -220,6 +221,7 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
     def change(node: str, key: str) -> int:  # a count over the window
         return _number(last.get(node, {}), key) - _number(first.get(node, {}), key)
 
+    pairs = 0  # source/sink pairs found: none when the graph's nodes never reported
     for source, sink, taken_key in (
         ('/peoplebot_sim', '/marker_detector', 'processed'),
         ('/dynamic_scene_sim', '/feature_tracker', 'received image'),
@@ -234,6 +236,9 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
             if published is None:
                 continue
             offered, taken = change(source, published), change(sink, taken_key)
+            pairs += 1
+            # a node that took nothing is not keeping up; from a bag every image counts
+            clean &= taken > 0 and (source != '/bag_player' or taken >= offered)
             late_keys = ('frames late', 'frames skipped', 'skipped')
             late_key = next((key for key in late_keys if key in last[source]), 'frames late')
             late = change(source, late_key)
@@ -257,7 +262,11 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
             f'{missing} of {tracked}; predictions that came after their image: {late} '
             '| | | | | | |'
         )
-    return lines, clean
+    if not pairs:
+        lines.append(
+            f'| {mode} | no source and image node reported: nothing measured | | | | | | | |'
+        )
+    return lines, clean and pairs > 0
 
 
 def main() -> int:
