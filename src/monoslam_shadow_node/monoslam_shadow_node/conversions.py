@@ -130,10 +130,14 @@ FEATURE_TRACK_CDR = np.dtype(
 80 bytes, 8-aligned, as in a sequence."""
 
 
-def _feature_tracks_cdr(data: bytes) -> tuple[int, str, np.ndarray]:
-    """Return the stamp (ns), frame id and tracks (FEATURE_TRACK_CDR records, a read-only
-    view of ``data``) of a serialized FeatureTrackArray; ValueError (or IndexError,
-    struct.error, UnicodeDecodeError) when the bytes are not plain little-endian CDR of one."""
+def tracks_cdr(
+    data: bytes, record: np.dtype = FEATURE_TRACK_CDR, stride: int | None = None
+) -> tuple[int, str, np.ndarray]:
+    """Return the stamp (ns), frame id and tracks (``record`` records ``stride`` bytes apart,
+    default its size: a read-only view of ``data``) of a serialized message of a header and
+    a sequence of 8-aligned tracks (FeatureTrackArray, ShadowTrackArray); ValueError (or
+    IndexError, struct.error, UnicodeDecodeError) when the bytes are not plain little-endian
+    CDR of one."""
     if data[:4] != _CDR_LITTLE_ENDIAN:
         raise ValueError('not plain little-endian CDR')
     sec, nanosec, length = struct.unpack_from('<iII', data, 4)
@@ -146,9 +150,10 @@ def _feature_tracks_cdr(data: bytes) -> tuple[int, str, np.ndarray]:
     offset += 4
     if count:
         offset += -(offset - 4) % 8
-    if len(data) < offset + FEATURE_TRACK_CDR.itemsize * count:
+    stride = record.itemsize if stride is None else stride
+    if len(data) < offset + stride * count - (stride - record.itemsize):
         raise ValueError('shorter than its tracks')
-    tracks = np.frombuffer(data, dtype=FEATURE_TRACK_CDR, count=count, offset=offset)
+    tracks = np.ndarray((count,), record, buffer=data, offset=offset, strides=(stride,))
     return sec * 1_000_000_000 + nanosec, frame_id, tracks
 
 
@@ -158,20 +163,22 @@ def _cdr_features(stamp_ns: int, frame_id: str, tracks: np.ndarray) -> Features:
     return Features(stamp_ns, frame_id, tracks['id'].astype(np.int64), pixels)
 
 
-def _deserialized(data: bytes, deserialize: Callable[[bytes], Any]) -> Any:
+def deserialized(data: bytes, deserialize: Callable[[bytes], Any], kind: str = 'features') -> Any:
     """Return ``deserialize(data)``; ValueError naming the bytes' size when they are no
-    FeatureTrackArray at all."""
+    message of the ``kind``'s type at all."""
     try:
         return deserialize(data)
     except Exception as err:  # rclpy raises its RMWError (not exported) for bad bytes
         reason = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise ValueError(
-            f'a features message of {len(data)} bytes is not a '
-            f'slam_interfaces/FeatureTrackArray ({reason})'
+            f'a {kind} message of {len(data)} bytes is not a '
+            f'slam_interfaces/{CDR_TYPES[kind]} ({reason})'
         ) from None
 
 
-_CDR_ERRORS = (ValueError, IndexError, struct.error, UnicodeDecodeError)
+CDR_TYPES = {'features': 'FeatureTrackArray', 'shadow tracks': 'ShadowTrackArray'}
+"""The message type of each kind ``deserialized`` names."""
+CDR_ERRORS = (ValueError, IndexError, struct.error, UnicodeDecodeError)
 
 
 def features_from_cdr(data: bytes, deserialize: Callable[[bytes], Any]) -> Features:
@@ -182,9 +189,9 @@ def features_from_cdr(data: bytes, deserialize: Callable[[bytes], Any]) -> Featu
     through ``deserialize`` (bytes -> message) and ``features_from_message``; ValueError
     naming their size and the reason when the bytes are no such message at all."""
     try:
-        stamp_ns, frame_id, tracks = _feature_tracks_cdr(data)
-    except _CDR_ERRORS:
-        return features_from_message(_deserialized(data, deserialize))
+        stamp_ns, frame_id, tracks = tracks_cdr(data)
+    except CDR_ERRORS:
+        return features_from_message(deserialized(data, deserialize))
     return _cdr_features(stamp_ns, frame_id, tracks)
 
 
@@ -195,9 +202,9 @@ def predictions_from_cdr(
     with their covariances (K, 2, 2) and warps (K, 2, 2) (``prediction_covariances``,
     ``prediction_warps``), read from the bytes the same way."""
     try:
-        stamp_ns, frame_id, tracks = _feature_tracks_cdr(data)
-    except _CDR_ERRORS:
-        message = _deserialized(data, deserialize)
+        stamp_ns, frame_id, tracks = tracks_cdr(data)
+    except CDR_ERRORS:
+        message = deserialized(data, deserialize)
         return (
             features_from_message(message),
             prediction_covariances(message),

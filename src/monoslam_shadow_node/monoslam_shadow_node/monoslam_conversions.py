@@ -27,10 +27,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from monoslam_shadow_node.conversions import (
+    CDR_ERRORS,
     FEATURE_TRACK_CDR,
     FloatArray,
     IntArray,
+    deserialized,
     feature_array_cdr,
+    tracks_cdr,
 )
 from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamResult
 from monoslam_shadow_node.known_points_input import DepthImage
@@ -169,6 +172,28 @@ def depth_from_image(message: Any) -> DepthImage:
 def dynamic_ids(message: Any) -> list[int]:
     """Return the ids of the DYNAMIC tracks of a slam_interfaces/ShadowTrackArray."""
     return [int(track.id) for track in message.tracks if int(track.status) == DYNAMIC_STATUS]
+
+
+SHADOW_TRACK_CDR = np.dtype(
+    {'names': ['id', 'status'], 'formats': ['<i8', 'u1'], 'offsets': [0, 8], 'itemsize': 220}
+)
+"""A slam_interfaces/ShadowTrack in little-endian CDR, its id and status read (220 bytes: the
+last one in a sequence has no padding after it)."""
+SHADOW_TRACK_STRIDE = 224
+"""Bytes from one ShadowTrack to the next in a sequence: id 8, status 1 (+7 to align), position
+and velocity 24 each, their covariances 72 each, test statistic 8, its dof 4 (+4 to align the
+next id)."""
+
+
+def dynamic_ids_from_cdr(data: bytes, deserialize: Callable[[bytes], Any]) -> list[int]:
+    """Return ``dynamic_ids`` of a serialized slam_interfaces/ShadowTrackArray, read from its
+    bytes (``tracks_cdr``; ``deserialize`` for bytes in another encoding). Raises ValueError
+    for bytes of no such message."""
+    try:
+        _, _, tracks = tracks_cdr(data, SHADOW_TRACK_CDR, SHADOW_TRACK_STRIDE)
+    except CDR_ERRORS:
+        return dynamic_ids(deserialized(data, deserialize, 'shadow tracks'))
+    return tracks['id'][tracks['status'] == DYNAMIC_STATUS].astype(np.int64).tolist()
 
 
 def handovers_from_message(message: Any) -> list[HandoverInput]:

@@ -208,7 +208,7 @@ from monoslam_shadow_node.monoslam_conversions import (
     TargetSighting,
     cloud_points,
     depth_from_image,
-    dynamic_ids,
+    dynamic_ids_from_cdr,
     fill_cloud,
     fill_pose_stamped,
     fill_pose_with_covariance,
@@ -296,6 +296,9 @@ class MonoSlamNode(CheckpointsMixin, Node):
         )
         self._camera_watch = CameraInfoWatch(CAMERA_INFO_TOPIC)
         self._deserialize_features = partial(deserialize_message, message_type=FeatureTrackArray)
+        self._deserialize_shadow_tracks = partial(
+            deserialize_message, message_type=ShadowTrackArray
+        )
         self._camera_frame = DEFAULT_CAMERA_FRAME
         self._throttle = LogThrottle(WAITING_LOG_PERIOD_S)
         self.trajectory: list[PoseFields] = []
@@ -355,6 +358,7 @@ class MonoSlamNode(CheckpointsMixin, Node):
                     SHADOW_TRACKS_TOPIC,
                     timed(self._on_shadow_tracks, 'shadow_tracks'),
                     inputs,
+                    raw=True,
                 )
         self.create_service(Trigger, '~/save_map', self._on_save_map)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -429,8 +433,13 @@ class MonoSlamNode(CheckpointsMixin, Node):
         for notice in self.processor.add_handovers(handovers, str(message.header.frame_id)):
             self.get_logger().warning(f'{HANDOVER_TOPIC}: {notice.text}')
 
-    def _on_shadow_tracks(self, message: ShadowTrackArray) -> None:
-        self.processor.mark_moving(dynamic_ids(message))
+    def _on_shadow_tracks(self, data: bytes) -> None:  # taken serialized: only ids, statuses
+        try:
+            ids = dynamic_ids_from_cdr(data, self._deserialize_shadow_tracks)
+        except ValueError as err:  # not what a publisher of the type sends: counted, dropped
+            self._handle(self.processor.reject('undecodable', str(err)))
+            return
+        self.processor.mark_moving(ids)
 
     def _flush_when_idle(self) -> None:
         idle_s = time.monotonic() - self._last_input

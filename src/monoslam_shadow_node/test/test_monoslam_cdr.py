@@ -3,7 +3,8 @@ pixels, stamp and frame as the message rclpy deserializes, for every alignment o
 id; it publishes its predictions serialized (``predictions_cdr``): the message
 ``fill_predictions`` fills, as rclpy deserializes the bytes; and the feature tracker reads
 them serialized (``conversions.predictions_from_cdr``): the same covariances and warps as
-from the message."""
+from the message; monoslam reads the Shadow filter's statuses serialized
+(``monoslam_conversions.dynamic_ids_from_cdr``): the message's DYNAMIC ids."""
 
 from __future__ import annotations
 
@@ -19,10 +20,12 @@ from monoslam_shadow_node.conversions import (
     predictions_from_cdr,
 )
 from monoslam_shadow_node.monoslam_conversions import (
+    dynamic_ids,
+    dynamic_ids_from_cdr,
     fill_predictions,
     predictions_cdr,
 )
-from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
+from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrack, ShadowTrackArray
 
 
 def message(frame_id: str, count: int, seed: int) -> FeatureTrackArray:
@@ -122,3 +125,48 @@ def test_serialized_predictions_are_the_filled_message(
     )
     assert len(data) == len(serialize_message(filled))
     assert fields(deserialize_message(data, FeatureTrackArray)) == fields(filled)
+
+
+def shadow_tracks(frame_id: str, count: int, seed: int) -> ShadowTrackArray:
+    rng = np.random.default_rng(seed)
+    tracks = [
+        ShadowTrack(
+            id=int(rng.integers(-5, 1 << 40)), status=int(rng.integers(0, 3)),
+            position_covariance=rng.normal(size=9), velocity_covariance=rng.normal(size=9),
+            test_statistic=float(rng.normal()), test_dof=int(rng.integers(0, 1 << 31)),
+        )
+        for _ in range(count)
+    ]  # fmt: skip
+    for track in tracks:
+        track.position.x, track.velocity.z = rng.normal(size=2)
+    out = ShadowTrackArray(tracks=tracks)
+    out.header.frame_id = frame_id
+    out.header.stamp.sec = int(rng.integers(0, 2**31 - 1))
+    return out
+
+
+def deserialize_shadow(raw: bytes) -> ShadowTrackArray:
+    return deserialize_message(raw, ShadowTrackArray)
+
+
+@pytest.mark.parametrize('frame_id', ['', 'c', 'cam', 'came', 'camera_optical'])
+@pytest.mark.parametrize('count', [0, 1, 2, 150])
+def test_serialized_shadow_tracks_give_the_dynamic_ids_of_the_message(
+    frame_id: str, count: int
+) -> None:
+    sent = shadow_tracks(frame_id, count, seed=count)
+    data = serialize_message(sent)
+    assert dynamic_ids_from_cdr(data, deserialize_shadow) == dynamic_ids(sent)
+    calls: list[int] = []
+
+    def counted(raw: bytes) -> ShadowTrackArray:
+        calls.append(len(raw))
+        return sent
+
+    big_endian = dynamic_ids_from_cdr(b'\x00\x00' + data[2:], counted)  # to the deserializer
+    assert calls == [len(data)] and big_endian == dynamic_ids(sent)
+    if count:
+        with pytest.raises(
+            ValueError, match=r'shadow tracks message of \d+ bytes is not a slam_interfaces/Sh'
+        ):
+            dynamic_ids_from_cdr(data[: len(data) - 8], deserialize_shadow)
