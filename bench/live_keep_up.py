@@ -18,8 +18,9 @@ time and queue wait (how long a message had waited in its subscription's queue w
 of any report in the window; and the ratio of frames the first image node took to the
 frames offered. PASS when no node lost or dropped an input in the window with one
 process per node, MonoSLAM never lost tracking (its 'lost' count) and the first image node
-took frames (from a bag: every image the player published); a graph whose nodes never
-report fails. ``--modes one`` alone gives no verdict.
+took frames (from a bag: every image the player published, by an image node of the graph:
+a simulator's graph given a bag fails); a graph whose nodes never report fails. ``--modes
+one`` alone gives no verdict.
 
 With ``--bag`` the source is a recorded camera: the GRAPH plays BAG at ``--rate`` (1: the
 camera's own rate; ``slam_run --bag --rate``, not paced), and the window is the whole bag
@@ -222,6 +223,7 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
         return _number(last.get(node, {}), key) - _number(first.get(node, {}), key)
 
     pairs = 0  # source/sink pairs found: none when the graph's nodes never reported
+    from_bag = False  # a node took the played bag's images (a simulator's graph does not)
     for source, sink, taken_key in (
         ('/peoplebot_sim', '/marker_detector', 'processed'),
         ('/dynamic_scene_sim', '/feature_tracker', 'received image'),
@@ -237,6 +239,7 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
                 continue
             offered, taken = change(source, published), change(sink, taken_key)
             pairs += 1
+            from_bag |= source == '/bag_player'
             # a node that took nothing is not keeping up; from a bag every image counts
             clean &= taken > 0 and (source != '/bag_player' or taken >= offered)
             late_keys = ('frames late', 'frames skipped', 'skipped')
@@ -261,6 +264,11 @@ def rows(mode: str, first: Snapshot, last: Snapshot, window_s: float) -> tuple[l
             f'| {mode} | /feature_tracker images tracked without their prediction | '
             f'{missing} of {tracked}; predictions that came after their image: {late} '
             '| | | | | | |'
+        )
+    if '/bag_player' in last and not from_bag:
+        clean = False
+        lines.append(
+            f"| {mode} | no image node took the bag's images (none in the graph?) | | | | | | | |"
         )
     if not pairs:
         lines.append(

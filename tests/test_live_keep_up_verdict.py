@@ -46,3 +46,17 @@ def test_images_of_a_bag_not_taken_fail_the_run() -> None:
     assert not clean
     _, clean = live.rows('processes', {}, _snapshot(0), 31.0)
     assert not clean
+
+
+def test_a_bag_played_beside_a_simulator_graph_that_ignores_it_fails() -> None:
+    """The simulator's frames were all taken, but no node took the bag's images."""
+    live = _live_keep_up()
+    snapshot = {
+        '/bag_player': {'published /camera/image_raw/compressed': '928'},
+        '/peoplebot_sim': {'frames published': '310', 'frames late': '0'},
+        '/marker_detector': {'processed': '310', 'dropped': '0'},
+    }
+    lines, clean = live.rows('processes', {}, snapshot, 31.0)
+    assert not clean and any("took the bag's images" in line for line in lines)
+    del snapshot['/bag_player']
+    assert live.rows('processes', {}, snapshot, 31.0)[1]  # the simulator alone passes
