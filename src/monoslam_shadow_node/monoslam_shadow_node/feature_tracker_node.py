@@ -87,6 +87,11 @@ the core's, written out in config/feature_tracker.yaml (a test keeps the two equ
                                   0.95-1.0; at 0.8 the alignment fits other places of a
                                   smooth texture.
   reid_max_search_px (80.0)       wider ellipses (half-axis, px) are not searched.
+  reid_max_alignments (6)         affine alignments of search candidates per image (about 3
+                                  ms each), the oldest predictions' first; candidates left
+                                  over are counted. A speed setting that moves results on
+                                  real footage (docs/design/monoslam.md, "Keeping up at 30
+                                  Hz").
   max_dormant (1000)              dropped tracks remembered for re-identification (the
                                   SLAM map's, the ids of predictions, forgotten last).
 Parameters (node):

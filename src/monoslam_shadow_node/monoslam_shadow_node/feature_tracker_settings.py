@@ -45,6 +45,8 @@ _CORE_DESCRIPTIONS = {
     'reid_min_ncc': 'correlation a dropped track must reach, aligned (affine), to be '
     're-identified where a prediction with a covariance expects it, in [0, 1] (0: none)',
     'reid_max_search_px': 'largest half-axis of a searched 3-sigma ellipse, px (> 0)',
+    'reid_max_alignments': 'affine alignments of search candidates per image, the oldest '
+    "predictions' first (>= 0)",
     'max_dormant': 'dropped tracks remembered for re-identification (>= 0)',
 }
 CORE_PARAMETERS = tuple(

@@ -132,12 +132,14 @@ def test_tracks_behind_an_occluder_come_back_after_an_unforeseen_turn(
     assert plain.counts.revived == 0 and plain.counts.unsearched >= 0.8 * len(hidden)
 
 
+@pytest.mark.parametrize('budget', [None, 2])
 def test_alignments_per_image_are_bounded_in_the_predictions_order(
-    monkeypatch: pytest.MonkeyPatch,
+    monkeypatch: pytest.MonkeyPatch, budget: int | None
 ) -> None:
     """20 remembered tracks whose templates match nowhere as they are: every candidate would
-    need an alignment, and only the first ``ALIGNMENTS_PER_IMAGE`` are made, for the first
-    predictions; all 20 still count as searched, and the candidates left are counted."""
+    need an alignment, and only the first ``reid_max_alignments`` are made (the default, and
+    2), for the first predictions; all 20 still count as searched, and the candidates left
+    are counted."""
     calls: list[tuple[int, int]] = []
 
     def counted(gray: np.ndarray, core: np.ndarray, x: int, y: int) -> None:
@@ -146,7 +148,7 @@ def test_alignments_per_image_are_bounded_in_the_predictions_order(
     monkeypatch.setattr(feature_reid, 'refine_match', counted)
     gray = _texture(7)
     other = _texture(8)
-    config = TrackerConfig()
+    config = TrackerConfig() if budget is None else TrackerConfig(reid_max_alignments=budget)
     side = config.lk_window_px + 2 * feature_reid.TEMPLATE_MARGIN_PX
     pixels, covariances = _predictions(20, 5.0, seed=9)
     templates = {}
@@ -160,7 +162,7 @@ def test_alignments_per_image_are_bounded_in_the_predictions_order(
         config, gray, templates, (ids, pixels, covariances, warps), empty
     )
     assert not found and search.searched == 20
-    assert len(calls) == feature_reid.ALIGNMENTS_PER_IMAGE
-    assert search.unaligned >= 20 - feature_reid.ALIGNMENTS_PER_IMAGE  # counted, not silent
+    assert len(calls) == config.reid_max_alignments
+    assert search.unaligned >= 20 - config.reid_max_alignments  # counted, not silent
     first = pixels[0]
     assert np.hypot(calls[0][0] - first[0], calls[0][1] - first[1]) <= 3 * 5.0 + 1

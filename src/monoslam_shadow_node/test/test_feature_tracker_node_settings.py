@@ -123,6 +123,11 @@ def test_parameters_reach_the_core_config() -> None:
             r'parameter feature_tracker\.subpixel_refinement=1: must be true or false',
         ),
         ('grid_rows', 'four', r"parameter feature_tracker\.grid_rows='four': must be an integer"),
+        (
+            'reid_max_alignments',
+            -1,
+            r'parameter feature_tracker\.reid_max_alignments=-1: must be >= 0',
+        ),
     ],
 )
 def test_invalid_tracker_parameters_are_named(name: str, value: object, message: str) -> None:

@@ -65,13 +65,6 @@ MAX_REFINE_SCALE = 2.0
 it is no longer the same view of the patch)."""
 REFINE_ITERATIONS = 50
 """Iterations of the affine alignment (it converges in a few from a pixel off)."""
-ALIGNMENTS_PER_IMAGE = 6
-"""At most this many ``refine_match`` alignments per image, in the predictions' order
-(SLAM sends its features oldest first: a depth start's points before all). One costs about
-3 ms (up to ``REFINE_ITERATIONS`` of enhanced correlation on the core, profiled on Bonn
-crowd), and the tracker's other work 10-15 ms of a 30 Hz image's 33 (bench/README.md):
-unbounded, searching every remembered track in view took 110 ms an image there. A peak
-that matches as it is needs no alignment and is always taken."""
 SHIFT_MIN_MATCHES = 3
 """Unique matches in an image needed to decide look-alikes by their shared shift
 (``resolve_by_shift``): their median tolerates one wrong match."""
@@ -89,7 +82,7 @@ class Search:
     look-alikes, decided by the image's shared shift), searches made, predictions not
     searched (too uncertain, or a template warped past recognition: ``search_core``),
     held tracks a revived one displaced (crowded), and candidates left without an alignment
-    (``ALIGNMENTS_PER_IMAGE``)."""
+    (``Alignments``)."""
 
     revived: int = 0
     searched: int = 0
@@ -101,10 +94,16 @@ class Search:
 
 @dataclass
 class Alignments:
-    """One image's budget of ``refine_match`` alignments (``ALIGNMENTS_PER_IMAGE``): those
-    still allowed, and the candidates refused one."""
+    """One image's budget of ``refine_match`` alignments (the tracker's
+    ``reid_max_alignments``): those still allowed, and the candidates refused one. They go
+    in the predictions' order (SLAM sends its features oldest first: a depth start's points
+    before all). One costs about 3 ms (up to ``REFINE_ITERATIONS`` of enhanced correlation
+    on the core, profiled on Bonn crowd), and the tracker's other work 10-15 ms of a 30 Hz
+    image's 33 (bench/README.md): unbounded, searching every remembered track in view took
+    110 ms an image there. A peak that matches as it is needs no alignment and is always
+    taken."""
 
-    left: int = ALIGNMENTS_PER_IMAGE
+    left: int
     refused: int = 0
 
     def take(self) -> bool:
@@ -383,7 +382,7 @@ def search_predicted(
     expected: list[FloatArray] = []
     pending: list[tuple[int, FloatArray, list[Peak]]] = []
     searched = unsearched = 0
-    alignments = Alignments()
+    alignments = Alignments(config.reid_max_alignments)
     ids, pixels, covariances, warps = predictions
     for track_id, pixel, covariance, warp in zip(
         ids.tolist(), pixels, covariances, warps, strict=True

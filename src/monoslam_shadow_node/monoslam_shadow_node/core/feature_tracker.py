@@ -107,8 +107,10 @@ class TrackerConfig:
     largest distance of the template from the tracked pixel; 0 switches each check off.
     ``reid_min_ncc`` is the correlation a re-identified track's template must reach once
     aligned (affine; 0: no re-identification), ``reid_max_search_px`` the largest half-axis
-    of a searched ellipse, ``max_dormant`` how many dropped tracks are remembered for it
-    (SLAM's map features, the ids of the latest predictions, forgotten last).
+    of a searched ellipse, ``reid_max_alignments`` the most affine alignments an image
+    (``feature_reid.refine_match``, about 3 ms each), ``max_dormant`` how many dropped
+    tracks are remembered for it (SLAM's map features, the ids of the latest predictions,
+    forgotten last).
     Invalid values raise ValueError naming the field.
     """
 
@@ -131,6 +133,7 @@ class TrackerConfig:
     border_margin_px: float = 10.0
     reid_min_ncc: float = 0.9
     reid_max_search_px: float = 80.0
+    reid_max_alignments: int = 6
     max_dormant: int = 1000
 
     def __post_init__(self) -> None:
@@ -165,6 +168,7 @@ class TrackerConfig:
             ('border_margin_px', self.border_margin_px >= 0, 'must be >= 0 px'),
             ('reid_min_ncc', 0 <= self.reid_min_ncc <= 1, 'must be in [0, 1] (0: no search)'),
             ('reid_max_search_px', self.reid_max_search_px > 0, 'must be > 0 px'),
+            ('reid_max_alignments', self.reid_max_alignments >= 0, 'must be >= 0'),
             ('max_dormant', self.max_dormant >= 0, 'must be >= 0'),
         )
         for name, ok, rule in checks:

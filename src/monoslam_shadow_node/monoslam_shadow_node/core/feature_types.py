@@ -19,7 +19,7 @@ class TrackCounts:
     """What happened in one image: tracks carried over from the previous image
     (``tracked``, of them ``predicted`` from a predicted pixel), dropped tracks searched for
     (``searched``; ``unsearched``: predicted too uncertainly; ``unaligned``: candidates
-    left without an alignment, ``feature_reid.ALIGNMENTS_PER_IMAGE``) and found again (``revived``;
+    left without an alignment, ``TrackerConfig.reid_max_alignments``) and found again (``revived``;
     ``resolved``: look-alikes decided by the image's shared shift, ``feature_reid``),
     tracks started (``new``) and tracks dropped, by reason (``DROP_REASONS``; ``reset``: by a
     restart)."""
