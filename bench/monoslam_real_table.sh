@@ -20,7 +20,7 @@
 #      monoslam_shadow_labelled_rgbd.yaml, monoslam_classic_rgbd.yaml).
 # Part 3 and 4 need the data set: SLAM_DATA_DIR (default ../shared/data) holds bonn_crowd/
 # (https://www.ipb.uni-bonn.de/data/rgbd-dynamic-dataset/); without it they are skipped, said.
-# Outputs go to bench/results/monoslam_real/; each evaluator prints its summary. About 60
+# Outputs go to bench/results/monoslam_real/; each evaluator prints its summary. About 75
 # minutes on 2 cores. Exit status 1 if a run failed (not if a figure misses its target: the
 # summaries say PASS/FAIL).
 set -uo pipefail
