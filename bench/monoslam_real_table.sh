@@ -85,6 +85,11 @@ if [[ -d "$DATA" ]]; then
     graph="$OUT/monoslam_shadow_rgbd_align$budget.yaml"
     sed "s|^\( *\)- {image_transport: compressed, use_predictions: true}|&\n\1- {reid_max_alignments: $budget}|" \
       "$share/graphs/monoslam_shadow_rgbd.yaml" > "$graph"
+    if ! grep -q "reid_max_alignments: $budget" "$graph"; then  # else it would run the default
+      echo "bench/monoslam_real_table.sh: could not set reid_max_alignments in $graph" >&2
+      status=1
+      continue
+    fi
     record="out/monoslam_shadow_rgbd_align${budget}_record"
     rm -rf "$record"
     run slam_run "$graph" --bag "$OUT/bonn_crowd.mcap" --paced --processes --exit-when-player-done \
