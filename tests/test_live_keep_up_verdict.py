@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+from functools import cache
 from pathlib import Path
 from types import ModuleType
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@cache
 def _live_keep_up() -> ModuleType:
+    """bench/live_keep_up.py as a module (bench/ on the path for its bench_common), once."""
     sys.path.insert(0, str(ROOT / 'bench'))
     spec = importlib.util.spec_from_file_location(
         'live_keep_up', ROOT / 'bench' / 'live_keep_up.py'
