@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from monoslam_shadow_node.core.monoslam_ekf import (
-    MIN_POSE_POINTS,
+    MIN_TRUSTED_POINTS,
     consider_update,
     gated_update,
     linearize_all,
@@ -158,7 +158,10 @@ def test_a_handover_enters_on_probation_and_leaves_it_when_euclidean() -> None:
     from monoslam_shadow_node.core.monoslam import MonoSlam
     from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
 
-    corners = np.array([[-0.3, -0.3, 4.0], [0.3, -0.3, 4.0], [0.3, 0.3, 4.0], [-0.3, 0.3, 4.0]])
+    # a target of six points: enough trusted measurements that the handover is not needed for
+    # the camera (with fewer than MIN_TRUSTED_POINTS, split_probation lets it in at once)
+    corners = np.array([[-0.3, -0.3, 4.0], [0.3, -0.3, 4.0], [0.3, 0.3, 4.0], [-0.3, 0.3, 4.0],
+                        [0.0, -0.3, 4.0], [0.0, 0.3, 4.0]])  # fmt: skip
     known = {k: tuple(point) for k, point in enumerate(corners)}
     point = np.array([0.8, 0.2, 2.5])
     camera_x = np.zeros(CAMERA_SIZE)
@@ -178,7 +181,7 @@ def test_a_handover_enters_on_probation_and_leaves_it_when_euclidean() -> None:
             result = slam.process(
                 MonoSlamFrame(
                     int(frame * 1e9 / 30), ids, feature_pixel.reshape(-1, 2)[: len(ids)],
-                    np.arange(4, dtype=np.int64), pixels,
+                    np.arange(len(corners), dtype=np.int64), pixels,
                 )
             )  # fmt: skip
             if frame == 1:
@@ -194,13 +197,14 @@ def test_a_handover_enters_on_probation_and_leaves_it_when_euclidean() -> None:
         assert not math.isnan(float(slam._state.x[R_SLICE][0]))
 
 
-def test_probation_ends_when_fewer_than_three_others_are_measured() -> None:
-    """Turned away from everything trusted, the features on probation are all there is to
-    fix the camera with: they leave probation and update it (monoslam_ekf's docstring)."""
+def test_probation_ends_when_too_few_others_to_find_a_wrong_one_are_measured() -> None:
+    """With fewer trusted measurements than it takes to find a wrong one among them
+    (monoslam_ekf.MIN_TRUSTED_POINTS), the cleared features on probation leave it and update
+    the camera (monoslam_ekf's docstring)."""
     rng = np.random.default_rng(3)
     prior = _state(rng)
     observed = _observed(prior, rng)
-    trusted_seen = {i: p for i, p in observed.items() if i in GROUP or i < MIN_POSE_POINTS - 1}
+    trusted_seen = {i: p for i, p in observed.items() if i in GROUP or i < MIN_TRUSTED_POINTS - 1}
     for update in ('ransac', 'gated'):
         state = _on_probation(prior)
         if update == 'ransac':
@@ -213,8 +217,23 @@ def test_probation_ends_when_fewer_than_three_others_are_measured() -> None:
         assert not any(feature.probation for feature in state.features if feature.id in GROUP)
         moved = np.abs(state.x[R_SLICE] - prior.x[R_SLICE]) / np.sqrt(np.diag(prior.p)[R_SLICE])
         assert np.max(moved) > 0.05  # the shifted group now moves the camera
-        # with three trusted features seen, the group stays on probation
+        # with that many trusted features seen, the group stays on probation
         state = _on_probation(prior)
-        three = {i: p for i, p in observed.items() if i in GROUP or i < MIN_POSE_POINTS}
-        gated_update(state, CAMERA, three, [], CONFIG)
+        enough = {i: p for i, p in observed.items() if i in GROUP or i < MIN_TRUSTED_POINTS}
+        gated_update(state, CAMERA, enough, [], CONFIG)
         assert all(feature.probation for feature in state.features if feature.id in GROUP)
+
+
+def test_four_trusted_measurements_do_not_keep_the_cleared_features_on_probation() -> None:
+    """Four trusted measurements fix a pose with one to spare, which shows that one is wrong
+    but not which: the cleared features on probation in view join the update (on Bonn crowd
+    the camera left the truth while four to seven trusted features fixed it, one of them
+    wrong; docs/design/monoslam.md, "Too few trusted measurements")."""
+    rng = np.random.default_rng(3)
+    prior = _state(rng)
+    observed = _observed(prior, rng)
+    four = {i: p for i, p in observed.items() if i in GROUP or i < 4}
+    state = _on_probation(prior)
+    outcome = ransac_update(state, CAMERA, four, [], CONFIG, np.random.default_rng(1))
+    assert outcome.counts.probation == 0
+    assert not any(feature.probation for feature in state.features if feature.id in GROUP)

@@ -12,7 +12,7 @@ import pytest
 from test_monoslam_probation import CAMERA, CONFIG, GROUP, _observed, _on_probation, _state
 
 from monoslam_shadow_node.core.monoslam import MonoSlam
-from monoslam_shadow_node.core.monoslam_ekf import MIN_POSE_POINTS, gated_update
+from monoslam_shadow_node.core.monoslam_ekf import MIN_TRUSTED_POINTS, gated_update
 from monoslam_shadow_node.core.monoslam_init import depth_start_features
 from monoslam_shadow_node.core.monoslam_model import R_SLICE
 from monoslam_shadow_node.core.monoslam_ransac import ransac_update
@@ -45,7 +45,7 @@ def test_undecided_features_stay_on_probation_when_nothing_trusted_is_seen(updat
     rng = np.random.default_rng(3)
     prior = _state(rng)
     observed = _observed(prior, rng)
-    seen = {i: p for i, p in observed.items() if i in GROUP or i < MIN_POSE_POINTS - 1}
+    seen = {i: p for i, p in observed.items() if i in GROUP or i < MIN_TRUSTED_POINTS - 1}
     state = _uncleared(prior)
     if update == 'ransac':
         outcome = ransac_update(state, CAMERA, seen, [], CONFIG, np.random.default_rng(1))

@@ -16,11 +16,11 @@ After it, each one inside the gate from the updated state is a Schmidt ('conside
 the other features are not corrected by it, while their uncertainty is in its S. A moving
 feature on probation therefore cannot drag the camera; its innovations are judged against
 a camera the rest of the map fixed. When the rest of the map offers fewer than
-``MIN_POSE_POINTS`` measurements in a frame (the camera turned away from everything SLAM
-trusts), the features on probation that the Shadow filter cleared as static (handovers,
-``FeatureBlock.cleared``) leave probation and update the camera as the others do
-(``split_probation``); features it has not cleared (undecided, ``fill_undecided``) never
-do: they stay consider-only until a handover clears them.
+``MIN_TRUSTED_POINTS`` measurements in a frame (too few to find a wrong one among them: the
+camera turned away from most of what SLAM trusts), the features on probation that the Shadow
+filter cleared as static (handovers, ``FeatureBlock.cleared``) leave probation and update the
+camera as the others do (``split_probation``); features it has not cleared (undecided,
+``fill_undecided``) never do: they stay consider-only until a handover clears them.
 """
 
 from __future__ import annotations
@@ -322,18 +322,21 @@ def gate_all(
 
 
 MIN_POSE_POINTS = 3
-"""Points that fix a camera pose (P3P): with fewer trusted measurements in a frame, the
-features on probation are all SLAM has to fix the camera with."""
+"""Points that fix a camera pose (P3P)."""
+MIN_TRUSTED_POINTS = MIN_POSE_POINTS + 2
+"""Trusted measurements a frame needs for its update to find a wrong one among them: any
+three fix a pose, a fourth shows that one of them is wrong, a fifth says which. With fewer,
+the cleared features on probation join the update (``split_probation``)."""
 
 
 def split_probation(all_matches: list[Match]) -> tuple[list[Match], list[Match]]:
     """Return the matches that update the camera (known points, features not on probation)
     and those of features on probation, each in their order. With fewer than
-    ``MIN_POSE_POINTS`` of the former, the cleared features on probation leave it (module
+    ``MIN_TRUSTED_POINTS`` of the former, the cleared features on probation leave it (module
     docstring) and update the camera too; uncleared ones stay on probation."""
     on_probation = [m for m in all_matches if m.feature is not None and m.feature.probation]
     rest = [m for m in all_matches if m.feature is None or not m.feature.probation]
-    if on_probation and len(rest) < MIN_POSE_POINTS:
+    if on_probation and len(rest) < MIN_TRUSTED_POINTS:
         for match in on_probation:
             assert match.feature is not None
             match.feature.probation = not match.feature.cleared
