@@ -17,10 +17,11 @@ the other features are not corrected by it, while their uncertainty is in its S.
 feature on probation therefore cannot drag the camera; its innovations are judged against
 a camera the rest of the map fixed. When the rest of the map offers fewer than
 ``MIN_TRUSTED_POINTS`` measurements in a frame (too few to find a wrong one among them: the
-camera turned away from most of what SLAM trusts), the features on probation that the Shadow
-filter cleared as static (handovers, ``FeatureBlock.cleared``) leave probation and update the
-camera as the others do (``split_probation``); features it has not cleared (undecided,
-``fill_undecided``) never do: they stay consider-only until a handover clears them.
+camera turned away from most of what SLAM trusts) and not a target's ``MIN_KNOWN_POINTS``
+known points, the features on probation that the Shadow filter cleared as static (handovers,
+``FeatureBlock.cleared``) leave probation and update the camera as the others do
+(``split_probation``); features it has not cleared (undecided, ``fill_undecided``) never do:
+they stay consider-only until a handover clears them.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     INVERSE_DEPTH_SIZE,
@@ -326,17 +328,21 @@ MIN_POSE_POINTS = 3
 MIN_TRUSTED_POINTS = MIN_POSE_POINTS + 2
 """Trusted measurements a frame needs for its update to find a wrong one among them: any
 three fix a pose, a fourth shows that one of them is wrong, a fifth says which. With fewer,
-the cleared features on probation join the update (``split_probation``)."""
+the cleared features on probation join the update (``split_probation``), unless at least
+``MIN_KNOWN_POINTS`` known points are among them: those are certain (a target's geometry,
+found by its code), and fix the camera on their own."""
 
 
 def split_probation(all_matches: list[Match]) -> tuple[list[Match], list[Match]]:
     """Return the matches that update the camera (known points, features not on probation)
     and those of features on probation, each in their order. With fewer than
-    ``MIN_TRUSTED_POINTS`` of the former, the cleared features on probation leave it (module
-    docstring) and update the camera too; uncleared ones stay on probation."""
+    ``MIN_TRUSTED_POINTS`` of the former, of them fewer than ``MIN_KNOWN_POINTS`` known
+    points, the cleared features on probation leave it (module docstring) and update the
+    camera too; uncleared ones stay on probation."""
     on_probation = [m for m in all_matches if m.feature is not None and m.feature.probation]
     rest = [m for m in all_matches if m.feature is None or not m.feature.probation]
-    if on_probation and len(rest) < MIN_TRUSTED_POINTS:
+    known = sum(1 for m in rest if m.feature is None)
+    if on_probation and len(rest) < MIN_TRUSTED_POINTS and known < MIN_KNOWN_POINTS:
         for match in on_probation:
             assert match.feature is not None
             match.feature.probation = not match.feature.cleared
