@@ -6,8 +6,8 @@ decide (``ClassifierConfig``): the paper's three-ray test (``rays.three_ray_test
 score test over all views (``static_fit``):
 
 - either rejects: DYNAMIC. The feature stays in the Shadow filter and is tracked as it moves;
-- both accept where the geometry could have seen motion: STATIC. It is handed over with the
-  world position and covariance triangulated from all its views as a static point.
+- both accept where the geometry could have seen motion: STATIC, handed over with the world
+  position and covariance triangulated from all its views (unless implausibly near: waits).
 
 The tests sit behind one seam (``StaticTest``), chosen by ``ClassifierConfig.static_test``:
 ``both`` (the default), the paper's ``three_ray`` test alone, or the ``all_view`` score test
@@ -52,6 +52,7 @@ from numpy.typing import NDArray
 from scipy.optimize import brentq
 from scipy.stats import ncx2
 
+from monoslam_shadow_node.core.near_static import implausibly_near
 from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile
 from monoslam_shadow_node.core.rays import (
     UncertainLine,
@@ -494,10 +495,12 @@ def decide(
     warnings: list[str],
     noise: TrackingNoise | None = None,
     verdict: Verdict = None,
+    depth_prior: tuple[float, float] | None = None,
 ) -> Decision | None:
     """The deciding half of ``classify``: given the score test of a due test, run the rule's
     ``StaticTest`` and decide (module docstring). ``verdict``: that test's outcome, if
-    computed already."""
+    computed already; ``depth_prior`` (inverse depth mean, sigma; per m): a static fit
+    implausibly near a camera waits (``near_static``)."""
     track, settings = due.track, due.settings
     parallax, baseline = due.parallax, due.baseline
     if motion is None:
@@ -534,6 +537,13 @@ def decide(
         return Decision(track.id, DYNAMIC, frames, parallax, baseline, track.statistic)
     if not decisive:
         return None  # accepted, but motion could have gone unseen: wait for more views
+    near = None if depth_prior is None else implausibly_near(
+        motion.point, track.views, depth_prior, settings.test_alpha
+    )  # fmt: skip
+    if near is not None:
+        warnings.append(f'feature {track.id}: its static fit lies {near:.2f} m along a ray, '
+                        'nearer than the depth prior allows: waiting for more views')  # fmt: skip
+        return None
     track.status, track.decided_frame = STATIC, frame
     track.handover = (motion.point, motion.covariance)
     return Decision(track.id, STATIC, frames, parallax, baseline, track.statistic)

@@ -363,9 +363,11 @@ class ShadowFilter:
         # the frame's score tests together (shadow_classifier.classify, one track at a time)
         decisions = []
         motions = score_tests(dues, noise)
+        ekf = self.config.ekf  # a static fit implausibly near a camera waits (near_static)
+        prior = (ekf.initial_inverse_depth_per_m, ekf.initial_inverse_depth_sigma_per_m)
         verdicts = self._static_test.verdicts(dues, motions, noise)
         for due, motion, verdict in zip(dues, motions, verdicts, strict=True):
-            decision = decide(due, motion, self._frame, warnings, noise, verdict)
+            decision = decide(due, motion, self._frame, warnings, noise, verdict, prior)
             if decision is not None:
                 decisions.append(decision)
         return decisions
