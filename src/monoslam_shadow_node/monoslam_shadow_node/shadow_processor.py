@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from monoslam_shadow_node.conversions import CameraPose, Features, FloatArray, frame_input
+from monoslam_shadow_node.core.near_static import WAIT_WARNING
 from monoslam_shadow_node.core.shadow_filter import (
     FrameResult,
     InputError,
@@ -83,8 +84,8 @@ Outcome = ShadowStep | Notice
 class ShadowCounts:
     """Running totals: inputs received (feature frames, poses), frames processed, frames
     refused for a pose covariance that is not finite or by the core, inputs dropped by the
-    pairing (by
-    ``Drop.kind``), measurements outside the innovation gate, features handed over as static
+    pairing (by ``Drop.kind``), measurements outside the innovation gate, static fits put off
+    for lying too near a camera (``near_static``), features handed over as static
     and called dynamic, the pending and dynamic features held after the latest frame, and the
     features SLAM revoked that came back here as suspects."""
 
@@ -95,6 +96,7 @@ class ShadowCounts:
     skipped: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
     innovation_gated: int = 0
+    near_waits: int = 0
     static_total: int = 0
     dynamic_total: int = 0
     held_pending: int = 0
@@ -233,6 +235,7 @@ class ShadowProcessor:
                 notices.append(Notice('input', 'warning', text, result.stamp_ns))
                 continue
             self.counts.innovation_gated += GATE_WARNING in warning
+            self.counts.near_waits += WAIT_WARNING in warning
             notices.append(Notice('filter', 'debug', text, result.stamp_ns))
         return notices
 
@@ -269,5 +272,6 @@ class ShadowProcessor:
             f'static, {counts.dynamic_total} called dynamic so far; {counts.skipped} frames '
             f'skipped, {counts.pose_refused} with a non-finite pose covariance, '
             f'{counts.dropped_total} inputs dropped, {counts.innovation_gated} measurements '
-            f'outside the innovation gate; {counts.revoked_total} revoked by SLAM and taken back'
+            f'outside the innovation gate, {counts.near_waits} static fits too near a camera put '
+            f'off; {counts.revoked_total} revoked by SLAM and taken back'
         )

@@ -5,15 +5,18 @@ skipped and dropped inputs and their counts."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from monoslam_shadow_node.conversions import CameraPose, Features
+from monoslam_shadow_node.core.near_static import WAIT_WARNING
 from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from monoslam_shadow_node.notices import LogThrottle, Notice, log_notice
 from monoslam_shadow_node.shadow_processor import (
+    GATE_WARNING,
     ShadowProcessor,
     ShadowStep,
     pose_covariance_refusal,
@@ -179,6 +182,23 @@ def test_nan_pixels_are_bad_input_and_the_rest_is_processed() -> None:
     assert [n.level for n in _notices(outcomes, 'input')] == ['warning']
     (step,) = _steps(outcomes)
     assert sorted(t.id for t in step.result.tracks) == [1, 2]
+
+
+def test_static_fits_put_off_as_too_near_are_counted_and_said() -> None:
+    """Nothing silent: a frame whose classifier put off a static fit lying too near a camera
+    (near_static) counts it, in the status line, apart from the gated measurements."""
+    processor = ShadowProcessor(ShadowConfig())
+    processor.set_camera(CAMERA)
+    (step,) = _steps(processor.add_features(_features(0)) + processor.add_pose(_pose(0)))
+    near = (
+        f'feature 7: its static fit lies 0.13 m along a ray, {WAIT_WARNING}: waiting for more '
+        'views'
+    )
+    result = dataclasses.replace(step.result, warnings=[near, f'feature 8: {GATE_WARNING}'])
+    notices = processor._warnings(result)
+    assert [n.level for n in notices] == ['debug', 'debug']
+    assert processor.counts.near_waits == 1 and processor.counts.innovation_gated == 1
+    assert '1 static fits too near a camera put off' in processor.status_line()
 
 
 # --- notices --------------------------------------------------------------------------------

@@ -22,6 +22,10 @@ from scipy.stats import norm
 from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.core.rays import View
 
+WAIT_WARNING = 'nearer than the depth prior allows'
+"""In the warning of a static fit that waits (``shadow_classifier.decide``; counted by the
+shadow_filter node)."""
+
 
 def implausibly_near(
     point: FloatArray, views: Sequence[View], prior: tuple[float, float], alpha: float

@@ -52,7 +52,7 @@ from numpy.typing import NDArray
 from scipy.optimize import brentq
 from scipy.stats import ncx2
 
-from monoslam_shadow_node.core.near_static import implausibly_near
+from monoslam_shadow_node.core.near_static import WAIT_WARNING, implausibly_near
 from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile
 from monoslam_shadow_node.core.rays import (
     UncertainLine,
@@ -542,7 +542,7 @@ def decide(
     )  # fmt: skip
     if near is not None:
         warnings.append(f'feature {track.id}: its static fit lies {near:.2f} m along a ray, '
-                        'nearer than the depth prior allows: waiting for more views')  # fmt: skip
+                        f'{WAIT_WARNING}: waiting for more views')  # fmt: skip
         return None
     track.status, track.decided_frame = STATIC, frame
     track.handover = (motion.point, motion.covariance)
