@@ -1,16 +1,9 @@
 """The depth a static fit may have: a feature's all-view static fit is handed over only where
 its inverse depth is plausible under the prior every feature starts with in the Shadow
-filter's EKF (``EkfConfig.initial_inverse_depth_per_m`` and its sigma, the inverse-depth
-parametrization of Civera et al.: the inverse distance along the viewing ray).
-
-Why: the rays of a point moving parallel to a camera that moves straight meet exactly, in one
-point between the camera and the mover, as a static point's would; motion along that
-direction is the one the classifier leaves unchecked by default
-(``ClassifierConfig.unchecked_directions``). When the mover is fast against the camera, that
-point lies a hand's width from the lens (on Bonn crowd, people walking across a hand-held
-camera's slow sideways drift were handed over 0.11-0.15 m from it; the scene's static points
-lay beyond 2 m for 95 % of the handovers). Such a fit waits for more views (the camera's
-path bends, the all-view test then sees the motion) instead of being handed over."""
+filter's EKF (``EkfConfig.initial_inverse_depth_per_m`` and its sigma, the inverse distance
+along the viewing ray); nearer, it waits for more views. Why (a mover against a camera that
+moves straight has rays that meet near the lens) and the figures: docs/design/shadow_filter.md,
+section 5."""
 
 from __future__ import annotations
 
