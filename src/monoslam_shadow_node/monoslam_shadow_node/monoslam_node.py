@@ -120,12 +120,15 @@ keeps the two equal).
   handover_probation (true)       a handed-over feature corrects only its own estimate (a
                                   Schmidt consider update), not the camera, until its
                                   inverse depth becomes Euclidean (SLAM's own views fix it),
-                                  or until fewer than 3 others are measured in a frame.
+                                  or while fewer than 5 others are measured in a frame.
   fill_undecided (true)           with initialize 'handover', features the Shadow filter
                                   has not decided on fill the map; found DYNAMIC or
                                   failing: revoked.
   undecided_probation (false)     such a feature corrects only itself (a consider update:
                                   never the camera) until the Shadow filter clears it.
+  new_probation (false)           initialize 'all': a new feature corrects only itself until
+                                  its inverse depth becomes Euclidean, as a handover does
+                                  (the oracle graph monoslam_labelled_rgbd.yaml sets it).
   known_points_source ('marker')  what fixes the world and its scale at the start: 'marker'
                                   (the target below), 'depth' (the features with a depth in
                                   the first camera/depth/image_raw paired with a features

@@ -132,7 +132,7 @@ CORE_PARAMETERS = (
     _core(
         'handover_probation',
         'a handed-over feature corrects only itself (a Schmidt consider update), not the '
-        'camera, until its inverse depth becomes Euclidean (or fewer than 3 others are '
+        'camera, until its inverse depth becomes Euclidean (or while fewer than 5 others are '
         'measured in a frame)',
     ),
     _core(
@@ -145,6 +145,11 @@ CORE_PARAMETERS = (
         'undecided_probation',
         'fill_undecided: such a feature corrects only itself (a consider update, never the '
         'camera) until the Shadow filter hands it over as static',
+    ),
+    _core(
+        'new_probation',
+        "initialize 'all': a new feature corrects only itself (a consider update) until its "
+        'inverse depth becomes Euclidean, as a handover does',
     ),
     Param(
         'update',

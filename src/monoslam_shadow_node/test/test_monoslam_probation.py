@@ -236,3 +236,44 @@ def test_four_trusted_measurements_do_not_keep_the_cleared_features_on_probation
     outcome = ransac_update(state, CAMERA, four, [], CONFIG, np.random.default_rng(1))
     assert outcome.counts.probation == 0
     assert not any(feature.probation for feature in state.features if feature.id in GROUP)
+
+
+def test_a_new_feature_waits_on_probation_with_new_probation() -> None:
+    """initialize='all' with new_probation: a new feature enters on probation (it corrects
+    only itself) and leaves it when Euclidean, as a handover does; without it, classic
+    MonoSLAM, it moves the camera from its first measurement."""
+    from monoslam_shadow_node.core.monoslam import MonoSlam
+    from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
+
+    corners = np.array([[-0.3, -0.3, 4.0], [0.3, -0.3, 4.0], [0.3, 0.3, 4.0], [-0.3, 0.3, 4.0]])
+    known = {k: tuple(point) for k, point in enumerate(corners)}
+    point = np.array([0.8, 0.2, 2.5])
+    camera_x = np.zeros(CAMERA_SIZE)
+    camera_x[Q_SLICE] = [1.0, 0.0, 0.0, 0.0]
+    for probation in (True, False):
+        config = MonoSlamConfig(known_points=known, initialize='all', new_probation=probation)
+        slam = MonoSlam(CAMERA, config)
+        states = []
+        for frame in range(FRAMES):
+            camera_x[R_SLICE] = [0.02 * frame, 0.0, 0.0]
+            pixels = np.array([project_feature(CAMERA, camera_x, c, None)[0] for c in corners])
+            feature_pixel = project_feature(CAMERA, camera_x, point, None)[0]
+            ids = np.array([7] if frame >= 2 else [], dtype=np.int64)
+            result = slam.process(
+                MonoSlamFrame(
+                    int(frame * 1e9 / 30), ids, feature_pixel.reshape(-1, 2)[: len(ids)],
+                    np.arange(len(corners), dtype=np.int64), pixels,
+                )
+            )  # fmt: skip
+            features = slam._state.features
+            states.append((features[0].size, features[0].probation) if features else None)
+            assert result.status == 'tracking'
+        first = next(k for k, s in enumerate(states) if s is not None)
+        assert states[first] == (6, probation)
+        if not probation:
+            assert not any(s[1] for s in states[first:] if s is not None)
+            continue
+        euclidean = [k for k, s in enumerate(states) if s is not None and s[0] == EUCLIDEAN_SIZE]
+        assert euclidean, 'the feature never became Euclidean'
+        assert all(states[k] == (EUCLIDEAN_SIZE, False) for k in euclidean)
+        assert all(s == (6, True) for s in states[first : euclidean[0]])

@@ -174,6 +174,12 @@ def _arguments(argv: list[str] | None) -> Settings:
         '(consider updates: they never move the camera) until it clears them',
     )
     parser.add_argument(
+        '--new-probation',
+        action='store_true',
+        help='(a): a new feature corrects only itself (consider updates) until its inverse '
+        'depth is linear, as a handover does in (c): (a) is then (c) with a perfect classifier',
+    )
+    parser.add_argument(
         '--first-order',
         action='store_true',
         help="MonoSLAM without an inverse-depth feature's second-order term (the product of its "
@@ -221,6 +227,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         args.undecided_probation,
         not args.undeclared,
         not args.first_order,
+        args.new_probation,
     )
     try:
         settings.scene()

@@ -3,7 +3,8 @@
 Three variants run over the same frames (``run_variant``):
 
 - ``a``: MonoSLAM (``initialize='all'``) fed only static features: the features on moving
-  objects are removed by ground truth (``MeasurementFrame.moving``);
+  objects are removed by ground truth (``MeasurementFrame.moving``); with
+  ``MonoSlamConfig.new_probation`` each waits on probation until linear, as (c)'s handovers;
 - ``b``: MonoSLAM (``initialize='all'``) fed every feature, moving ones included, with the
   classic per-feature gated update (``update='gated'``): paper 001's baseline, the MonoSLAM
   its Shadow filter is compared with (the product's default, the 1-point RANSAC update,
@@ -257,7 +258,7 @@ def run_variant(
     initialize = 'handover' if variant == 'c' else 'all'
     slam_config = dataclasses.replace(config.slam, initialize=initialize)
     if variant == 'b':  # the paper's baseline: classic MonoSLAM (module docstring)
-        slam_config = dataclasses.replace(slam_config, update='gated')
+        slam_config = dataclasses.replace(slam_config, update='gated', new_probation=False)
     slam = MonoSlamProcessor(slam_config)
     slam.set_camera(camera)
     if attach is not None:

@@ -313,6 +313,7 @@ def summary_text(content: Mapping[str, Any]) -> str:
     waits = (
         '; undecided features on probation' if pipeline['slam'].get('undecided_probation') else ''
     ) + ('' if pipeline['slam'].get('second_order', True) else '; first-order inverse depth')
+    waits += '; (a) new features on probation' if pipeline['slam'].get('new_probation') else ''
     lines = [
         f'MonoSLAM Fig. 5, {source}; known points: {known}; STATIC rule: {rule} unchecked '
         f'direction(s), static test {classifier["static_test"]}{waits}',

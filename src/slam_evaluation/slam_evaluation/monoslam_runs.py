@@ -66,7 +66,7 @@ class Settings:
     to run instead of the simulator (``sequence_files``), and the simulated tracking noise
     that is not white (offsets with jumps, ``dynamic_scene``; the filters are told of it as
     a tracker declares its noise, unless ``declare_noise`` is False), and whether undecided
-    features wait on probation."""
+    features (c) and new ones (a) wait on probation."""
 
     seeds: tuple[int, ...]
     duration_s: float
@@ -83,6 +83,7 @@ class Settings:
     undecided_probation: bool = False
     declare_noise: bool = True
     second_order: bool = True
+    new_probation: bool = False
 
     def scene(self) -> DynamicSceneConfig:
         """Return the Fig. 5 scene: 200 static points, 8 moving objects x 8 points."""
@@ -114,6 +115,7 @@ class Settings:
         slam = MonoSlamConfig(
             known_points=known,
             undecided_probation=self.undecided_probation,
+            new_probation=self.new_probation,
             second_order=self.second_order,
         )
         classifier = ClassifierConfig(

@@ -17,10 +17,10 @@ Per frame (``MonoSlam.process``; each step in full: docs/design/monoslam.md):
    'revoked'; a depth start's point, known, is never deleted for not being found nor
    evicted: it holds the scale); out-of-view features stay (the map is persistent) and are
    evicted into the frozen map when the state is full; new features come from every new track
-   (``initialize='all'``), or from handovers of the Shadow filter (``'handover'``) and, with
-   ``fill_undecided``, from undecided tracks (with ``undecided_probation`` on probation,
-   never moving the camera, until the Shadow filter clears them, ``add_handover``) until it
-   finds them DYNAMIC (``mark_moving``); at most ``max_features``;
+   (``initialize='all'``, on probation until linear with ``new_probation``), or from handovers
+   of the Shadow filter (``'handover'``) and, with ``fill_undecided``, from undecided tracks
+   (with ``undecided_probation`` on probation until the Shadow filter clears them,
+   ``add_handover``) until it finds them DYNAMIC (``mark_moving``); at most ``max_features``;
 6. tracking is lost when nothing was accepted for ``lost_after_frames`` frames, the position
    uncertainty exceeds ``max_position_sigma_m``, the known points in view disagree with the
    estimate for ``lost_after_known_rejected_frames`` frames, or the pose covariance
@@ -552,10 +552,12 @@ class MonoSlam:
         if inserted:
             self._owned_ids.add(feature_id)
             feature = self._state.features[-1]
-            # undecided: with undecided_probation on probation until cleared (module doc)
+            # on probation: undecided ones until cleared, the others until linear (module doc)
             feature.cleared = handover is not None or self.config.initialize != 'handover'
-            feature.probation = (not feature.cleared and self.config.undecided_probation) or (
-                handover is not None and self.config.handover_probation
+            feature.probation = (
+                (not feature.cleared and self.config.undecided_probation)
+                or (handover is not None and self.config.handover_probation)
+                or (self.config.initialize == 'all' and self.config.new_probation)
             )
         return inserted
 

@@ -68,6 +68,7 @@ class MonoSlamConfig:
     handover_probation: bool = True
     fill_undecided: bool = True
     undecided_probation: bool = False  # fills correct only themselves until cleared
+    new_probation: bool = False  # 'all': new features correct only themselves until linear
     update: str = 'ransac'
     ransac_seed: int = 0
 
@@ -113,6 +114,7 @@ class MonoSlamConfig:
             'handover_probation',
             'fill_undecided',
             'undecided_probation',
+            'new_probation',
             'second_order',
             'estimate_noise',
         ):
