@@ -6,6 +6,7 @@ that gain; a handover enters on probation and leaves it when it becomes Euclidea
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 
 import numpy as np
@@ -154,46 +155,61 @@ def test_the_consider_update_is_the_joseph_form_of_the_schmidt_gain() -> None:
     assert np.all(gain[untouched] == 0.0)
 
 
-def test_a_handover_enters_on_probation_and_leaves_it_when_euclidean() -> None:
+# a target's four corners: known points, certain, that fix the camera on their own (a feature
+# stays on probation although fewer than MIN_TRUSTED_POINTS are trusted)
+CORNERS = np.array([[-0.3, -0.3, 4.0], [0.3, -0.3, 4.0], [0.3, 0.3, 4.0], [-0.3, 0.3, 4.0]])
+POINT = np.array([0.8, 0.2, 2.5])
+
+
+def _walk(config: MonoSlamConfig, handover: bool) -> list[tuple[int, bool] | None]:
+    """Run MonoSLAM with CORNERS known while the camera walks sideways at 0.6 m/s (POINT's
+    parallax grows), POINT tracked as feature 7 from frame 2 (handed over at frame 1 when
+    ``handover``); return per frame (size, probation) of the first feature in the state."""
     from monoslam_shadow_node.core.monoslam import MonoSlam
     from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
 
-    # a target's four corners: known points, certain, that fix the camera on their own (the
-    # handover stays on probation although fewer than MIN_TRUSTED_POINTS are trusted)
-    corners = np.array([[-0.3, -0.3, 4.0], [0.3, -0.3, 4.0], [0.3, 0.3, 4.0], [-0.3, 0.3, 4.0]])
-    known = {k: tuple(point) for k, point in enumerate(corners)}
-    point = np.array([0.8, 0.2, 2.5])
+    known = {k: tuple(point) for k, point in enumerate(CORNERS)}
+    slam = MonoSlam(CAMERA, dataclasses.replace(config, known_points=known))
     camera_x = np.zeros(CAMERA_SIZE)
     camera_x[Q_SLICE] = [1.0, 0.0, 0.0, 0.0]
-    for probation in (True, False):
-        config = MonoSlamConfig(
-            known_points=known, initialize='handover', handover_probation=probation
-        )
-        slam = MonoSlam(CAMERA, config)
-        states = []
-        for frame in range(FRAMES):
-            # the camera walks sideways at 0.6 m/s: the point's parallax grows
-            camera_x[R_SLICE] = [0.02 * frame, 0.0, 0.0]
-            pixels = np.array([project_feature(CAMERA, camera_x, c, None)[0] for c in corners])
-            feature_pixel = project_feature(CAMERA, camera_x, point, None)[0]
-            ids = np.array([7] if frame >= 2 else [], dtype=np.int64)
-            result = slam.process(
-                MonoSlamFrame(
-                    int(frame * 1e9 / 30), ids, feature_pixel.reshape(-1, 2)[: len(ids)],
-                    np.arange(len(corners), dtype=np.int64), pixels,
-                )
-            )  # fmt: skip
-            if frame == 1:
-                assert slam.add_handover(7, point, 0.04 * np.eye(3)) is None
-            features = slam._state.features
-            states.append((features[0].size, features[0].probation) if features else None)
-            assert result.status == 'tracking'
-        assert states[2] == (6, probation)  # entered as inverse depth, on probation if set
-        euclidean = [k for k, s in enumerate(states) if s is not None and s[0] == EUCLIDEAN_SIZE]
-        assert euclidean, 'the feature never became Euclidean'
-        assert all(states[k] == (EUCLIDEAN_SIZE, False) for k in euclidean)
-        assert all(s == (6, probation) for s in states[2 : euclidean[0]])
+    states: list[tuple[int, bool] | None] = []
+    for frame in range(FRAMES):
+        camera_x[R_SLICE] = [0.02 * frame, 0.0, 0.0]
+        pixels = np.array([project_feature(CAMERA, camera_x, c, None)[0] for c in CORNERS])
+        feature_pixel = project_feature(CAMERA, camera_x, POINT, None)[0]
+        ids = np.array([7] if frame >= 2 else [], dtype=np.int64)
+        result = slam.process(
+            MonoSlamFrame(
+                int(frame * 1e9 / 30), ids, feature_pixel.reshape(-1, 2)[: len(ids)],
+                np.arange(len(CORNERS), dtype=np.int64), pixels,
+            )
+        )  # fmt: skip
+        if frame == 1 and handover:
+            assert slam.add_handover(7, POINT, 0.04 * np.eye(3)) is None
+        features = slam._state.features
+        states.append((features[0].size, features[0].probation) if features else None)
+        assert result.status == 'tracking'
         assert not math.isnan(float(slam._state.x[R_SLICE][0]))
+    return states
+
+
+def _waits_until_euclidean(
+    states: list[tuple[int, bool] | None], first: int, probation: bool = True
+) -> None:
+    """The feature entered at ``first`` as inverse depth (on ``probation``) and was off
+    probation once it became Euclidean."""
+    euclidean = [k for k, s in enumerate(states) if s is not None and s[0] == EUCLIDEAN_SIZE]
+    assert euclidean, 'the feature never became Euclidean'
+    assert all(states[k] == (EUCLIDEAN_SIZE, False) for k in euclidean)
+    assert all(s == (6, probation) for s in states[first : euclidean[0]])
+
+
+def test_a_handover_enters_on_probation_and_leaves_it_when_euclidean() -> None:
+    for probation in (True, False):
+        config = MonoSlamConfig(initialize='handover', handover_probation=probation)
+        states = _walk(config, handover=True)
+        assert states[2] == (6, probation)  # entered as inverse depth, on probation if set
+        _waits_until_euclidean(states, 2, probation)
 
 
 def test_probation_ends_when_too_few_others_to_find_a_wrong_one_are_measured() -> None:
@@ -242,38 +258,11 @@ def test_a_new_feature_waits_on_probation_with_new_probation() -> None:
     """initialize='all' with new_probation: a new feature enters on probation (it corrects
     only itself) and leaves it when Euclidean, as a handover does; without it, classic
     MonoSLAM, it moves the camera from its first measurement."""
-    from monoslam_shadow_node.core.monoslam import MonoSlam
-    from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
-
-    corners = np.array([[-0.3, -0.3, 4.0], [0.3, -0.3, 4.0], [0.3, 0.3, 4.0], [-0.3, 0.3, 4.0]])
-    known = {k: tuple(point) for k, point in enumerate(corners)}
-    point = np.array([0.8, 0.2, 2.5])
-    camera_x = np.zeros(CAMERA_SIZE)
-    camera_x[Q_SLICE] = [1.0, 0.0, 0.0, 0.0]
     for probation in (True, False):
-        config = MonoSlamConfig(known_points=known, initialize='all', new_probation=probation)
-        slam = MonoSlam(CAMERA, config)
-        states = []
-        for frame in range(FRAMES):
-            camera_x[R_SLICE] = [0.02 * frame, 0.0, 0.0]
-            pixels = np.array([project_feature(CAMERA, camera_x, c, None)[0] for c in corners])
-            feature_pixel = project_feature(CAMERA, camera_x, point, None)[0]
-            ids = np.array([7] if frame >= 2 else [], dtype=np.int64)
-            result = slam.process(
-                MonoSlamFrame(
-                    int(frame * 1e9 / 30), ids, feature_pixel.reshape(-1, 2)[: len(ids)],
-                    np.arange(len(corners), dtype=np.int64), pixels,
-                )
-            )  # fmt: skip
-            features = slam._state.features
-            states.append((features[0].size, features[0].probation) if features else None)
-            assert result.status == 'tracking'
+        states = _walk(MonoSlamConfig(initialize='all', new_probation=probation), handover=False)
         first = next(k for k, s in enumerate(states) if s is not None)
         assert states[first] == (6, probation)
-        if not probation:
+        if probation:
+            _waits_until_euclidean(states, first)
+        else:
             assert not any(s[1] for s in states[first:] if s is not None)
-            continue
-        euclidean = [k for k, s in enumerate(states) if s is not None and s[0] == EUCLIDEAN_SIZE]
-        assert euclidean, 'the feature never became Euclidean'
-        assert all(states[k] == (EUCLIDEAN_SIZE, False) for k in euclidean)
-        assert all(s == (6, True) for s in states[first : euclidean[0]])
