@@ -16,6 +16,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from slam_evaluation.monoslam_metrics import (
     DIVERGED_ATE_M,
@@ -205,6 +206,15 @@ def acceptance_point(
     }
 
 
+def rms_over_runs(errors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per frame, the RMS of ``errors`` (runs, frames) over the runs with an estimate there;
+    NaN where no run has one (before a depth start), without numpy's empty-slice warning."""
+    finite = np.isfinite(errors)
+    counts = np.count_nonzero(finite, axis=0)
+    sums = np.sum(np.where(finite, errors, 0.0) ** 2, axis=0)
+    return np.where(counts > 0, np.sqrt(sums / np.maximum(counts, 1)), np.nan)
+
+
 def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str, Any]:
     """Return the JSON report: configuration, per variant totals and seeds, curves,
     ratios, acceptance, failures and run time."""
@@ -218,7 +228,7 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
         }
         errors = np.array(collected.position_error[variant])
         curves[variant] = {
-            'ate_rms_m': np.sqrt(np.nanmean(errors**2, axis=0)),
+            'ate_rms_m': rms_over_runs(errors),
             **{f'nees_{k}': v for k, v in nees_by_frame(values).items()},
         }
     per_variant, base = collected.per_seed, collected.per_seed.get('a')

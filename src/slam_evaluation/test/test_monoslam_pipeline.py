@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -464,3 +465,16 @@ def test_the_map_survives_a_turn_away_and_is_remeasured_on_return() -> None:
     history = map_history(loop.record, loop.scene.rate_hz)
     assert history['rematched'][-1] >= metrics['rematched']
     assert np.all(history['searched'] <= history['state'])
+
+
+def test_the_ate_curve_is_nan_where_no_run_has_a_pose_and_warns_nothing() -> None:
+    import warnings
+
+    from slam_evaluation.monoslam_report import rms_over_runs
+
+    errors = np.array([[np.nan, 3.0, np.nan], [np.nan, 4.0, 1.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        curve = rms_over_runs(errors)
+    assert np.isnan(curve[0])
+    assert curve[1:] == pytest.approx([math.sqrt(12.5), 1.0])
