@@ -39,6 +39,7 @@ import numpy as np
 
 from monoslam_shadow_node.conversions import CameraPose, Features, FloatArray, frame_input
 from monoslam_shadow_node.core.near_static import WAIT_WARNING
+from monoslam_shadow_node.core.shadow_classifier import UNFIT_WARNING
 from monoslam_shadow_node.core.shadow_filter import (
     FrameResult,
     InputError,
@@ -85,8 +86,8 @@ class ShadowCounts:
     """Running totals: inputs received (feature frames, poses), frames processed, frames
     refused for a pose covariance that is not finite or by the core, inputs dropped by the
     pairing (by ``Drop.kind``), measurements outside the innovation gate, static fits put off
-    for lying too near a camera (``near_static``), features handed over as static
-    and called dynamic, the pending and dynamic features held after the latest frame, and the
+    for lying too near a camera (``near_static``), due tests whose views fixed no static
+    point (``UNFIT_WARNING``), features handed over as static and called dynamic, the pending and dynamic features held after the latest frame, and the
     features SLAM revoked that came back here as suspects."""
 
     features_received: int = 0
@@ -97,6 +98,7 @@ class ShadowCounts:
     dropped: dict[str, int] = field(default_factory=dict)
     innovation_gated: int = 0
     near_waits: int = 0
+    unfit: int = 0
     static_total: int = 0
     dynamic_total: int = 0
     held_pending: int = 0
@@ -236,6 +238,7 @@ class ShadowProcessor:
                 continue
             self.counts.innovation_gated += GATE_WARNING in warning
             self.counts.near_waits += WAIT_WARNING in warning
+            self.counts.unfit += UNFIT_WARNING in warning
             notices.append(Notice('filter', 'debug', text, result.stamp_ns))
         return notices
 
@@ -273,5 +276,6 @@ class ShadowProcessor:
             f'skipped, {counts.pose_refused} with a non-finite pose covariance, '
             f'{counts.dropped_total} inputs dropped, {counts.innovation_gated} measurements '
             f'outside the innovation gate, {counts.near_waits} static fits too near a camera put '
-            f'off; {counts.revoked_total} revoked by SLAM and taken back'
+            f'off, {counts.unfit} tests without a static fit; {counts.revoked_total} revoked by '
+            'SLAM and taken back'
         )

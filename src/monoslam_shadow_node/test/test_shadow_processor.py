@@ -13,6 +13,7 @@ import pytest
 
 from monoslam_shadow_node.conversions import CameraPose, Features
 from monoslam_shadow_node.core.near_static import WAIT_WARNING
+from monoslam_shadow_node.core.shadow_classifier import UNFIT_WARNING
 from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from monoslam_shadow_node.notices import LogThrottle, Notice, log_notice
 from monoslam_shadow_node.shadow_processor import (
@@ -186,7 +187,8 @@ def test_nan_pixels_are_bad_input_and_the_rest_is_processed() -> None:
 
 def test_static_fits_put_off_as_too_near_are_counted_and_said() -> None:
     """Nothing silent: a frame whose classifier put off a static fit lying too near a camera
-    (near_static) counts it, in the status line, apart from the gated measurements."""
+    (near_static), or tested a feature whose views fix no static point, counts it, in the
+    status line, apart from the gated measurements."""
     processor = ShadowProcessor(ShadowConfig())
     processor.set_camera(CAMERA)
     (step,) = _steps(processor.add_features(_features(0)) + processor.add_pose(_pose(0)))
@@ -194,11 +196,13 @@ def test_static_fits_put_off_as_too_near_are_counted_and_said() -> None:
         f'feature 7: its static fit lies 0.13 m along a ray, {WAIT_WARNING}: waiting for more '
         'views'
     )
-    result = dataclasses.replace(step.result, warnings=[near, f'feature 8: {GATE_WARNING}'])
-    notices = processor._warnings(result)
-    assert [n.level for n in notices] == ['debug', 'debug']
+    warnings = [near, f'feature 8: {GATE_WARNING}', f'feature 9: {UNFIT_WARNING}']
+    notices = processor._warnings(dataclasses.replace(step.result, warnings=warnings))
+    assert [n.level for n in notices] == ['debug', 'debug', 'debug']
     assert processor.counts.near_waits == 1 and processor.counts.innovation_gated == 1
+    assert processor.counts.unfit == 1
     assert '1 static fits too near a camera put off' in processor.status_line()
+    assert '1 tests without a static fit' in processor.status_line()
 
 
 # --- notices --------------------------------------------------------------------------------

@@ -80,9 +80,9 @@ STATIC_TESTS = ('both', 'three_ray', 'all_view')
 """The choices of ``ClassifierConfig.static_test``: both tests (either rejecting is DYNAMIC),
 the paper's three-ray test alone, or the all-view score test alone."""
 UNFIT_TESTS = 3
-"""Evidence of motion: a feature whose views, past a parallax milestone, fix no static point
-in front of every camera (the all-view fit lands behind a camera or is singular) at this many
-scheduled tests in a row is DYNAMIC (module docstring)."""
+"""Evidence of motion: DYNAMIC after this many scheduled tests in a row, past a parallax
+milestone, at which the views fix no static point in front of every camera (module doc)."""
+UNFIT_WARNING = 'its views do not fix a static point yet'  # a due test without a fit (counted)
 TEST_DELAY_FRAMES = 1
 """A test triggered in frame k uses the view of frame k + 1 as its last ray, whose noise did
 not take part in the trigger (the EKF estimate just updated with frame k's ray). With
@@ -511,7 +511,7 @@ def decide(
             track.status, track.decided_frame = DYNAMIC, frame
             track.clear_views()
             return Decision(track.id, DYNAMIC, frames, parallax, baseline, math.nan)
-        warnings.append(f'feature {track.id}: its views do not fix a static point yet')
+        warnings.append(f'feature {track.id}: {UNFIT_WARNING}')
         return None
     track.unfit = 0
     # Whether a decision is possible is geometry (S), not the test's outcome: when it
