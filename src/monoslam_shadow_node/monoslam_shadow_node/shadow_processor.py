@@ -87,8 +87,9 @@ class ShadowCounts:
     refused for a pose covariance that is not finite or by the core, inputs dropped by the
     pairing (by ``Drop.kind``), measurements outside the innovation gate, static fits put off
     for lying too near a camera (``near_static``), due tests whose views fixed no static
-    point (``UNFIT_WARNING``), features handed over as static and called dynamic, the pending and dynamic features held after the latest frame, and the
-    features SLAM revoked that came back here as suspects."""
+    point (``UNFIT_WARNING``), features handed over as static and called dynamic, the pending
+    and dynamic features held after the latest frame, and the features SLAM revoked that came
+    back here as suspects."""
 
     features_received: int = 0
     poses_received: int = 0
