@@ -53,7 +53,8 @@ import cv2
 import numpy as np
 from bench_common import best_of, pin_to_one_core, run_meta
 
-from monoslam_shadow_node.core import shadow_classifier as shadow_classifier_module
+from monoslam_shadow_node.core import shadow_decision as shadow_decision_module
+from monoslam_shadow_node.core import shadow_filter as shadow_filter_module
 from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
 from monoslam_shadow_node.core.rays import View, pixel_ray_directions, ray_angle, three_ray_test
 from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
@@ -263,9 +264,13 @@ def frame_inputs(run: DynamicSceneRun, pose_covariance: FloatArray | None) -> li
     ]  # fmt: skip
 
 
-CLASSIFIER_TESTS = ('three_ray_test', 'motion_score_test')
-"""The tests ``ShadowFilter`` calls per classification round, by their names in
-``shadow_filter``'s namespace; the counting pass wraps each (it fails if one is renamed)."""
+CLASSIFIER_TESTS = {
+    'three_ray_test': (shadow_decision_module, 'three_ray_tests'),
+    'motion_score_test': (shadow_filter_module, 'score_tests'),
+}
+"""The tests ``ShadowFilter`` runs per classification round: where it looks each stage up
+(module, name; each takes the round's due tests together) under the name counted. The
+counting pass wraps each and counts its due tests (it fails if one is renamed)."""
 
 
 def run_process(shadow: ShadowFilter, frames: list[FrameInput]) -> tuple[FloatArray, list[int]]:
@@ -295,14 +300,14 @@ def tests_in_process(
                 return function(*args, **kwargs)
             finally:
                 spent[name] += time.perf_counter() - started
-                calls[name] += 1
+                calls[name] += len(args[0])  # the due tests of the round
 
         return counted
 
     with contextlib.ExitStack() as stack:
-        for name in CLASSIFIER_TESTS:
-            wrapper = counting(name, getattr(shadow_classifier_module, name))
-            stack.enter_context(mock.patch.object(shadow_classifier_module, name, wrapper))
+        for name, (module, attribute) in CLASSIFIER_TESTS.items():
+            wrapper = counting(name, getattr(module, attribute))
+            stack.enter_context(mock.patch.object(module, attribute, wrapper))
         seconds, _ = run_process(ShadowFilter(camera), frames)
     return calls, spent, float(np.sum(seconds))
 

@@ -39,7 +39,7 @@ import numpy as np
 
 from monoslam_shadow_node.conversions import CameraPose, Features, FloatArray, frame_input
 from monoslam_shadow_node.core.near_static import WAIT_WARNING
-from monoslam_shadow_node.core.shadow_classifier import UNFIT_WARNING
+from monoslam_shadow_node.core.shadow_decision import UNFIT_WARNING
 from monoslam_shadow_node.core.shadow_filter import (
     FrameResult,
     InputError,

@@ -7,12 +7,8 @@ import numpy as np
 
 from monoslam_shadow_node.core.near_static import implausibly_near
 from monoslam_shadow_node.core.rays import View
-from monoslam_shadow_node.core.shadow_classifier import (
-    ClassifierConfig,
-    decide,
-    due_test,
-    score_tests,
-)
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig, due_test, score_tests
+from monoslam_shadow_node.core.shadow_decision import decide
 from monoslam_shadow_node.core.shadow_track import PENDING, STATIC, Track
 
 PRIOR = (0.25, 0.25)

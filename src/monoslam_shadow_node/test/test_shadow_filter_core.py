@@ -7,12 +7,8 @@ import pytest
 
 from monoslam_shadow_node.core import shadow_filter as shadow_filter_module
 from monoslam_shadow_node.core.rays import View
-from monoslam_shadow_node.core.shadow_classifier import (
-    UNFIT_TESTS,
-    ClassifierConfig,
-    classify,
-    due_test,
-)
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig, due_test
+from monoslam_shadow_node.core.shadow_decision import UNFIT_TESTS, classify
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
     initial_states,

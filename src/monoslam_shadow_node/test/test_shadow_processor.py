@@ -13,7 +13,7 @@ import pytest
 
 from monoslam_shadow_node.conversions import CameraPose, Features
 from monoslam_shadow_node.core.near_static import WAIT_WARNING
-from monoslam_shadow_node.core.shadow_classifier import UNFIT_WARNING
+from monoslam_shadow_node.core.shadow_decision import UNFIT_WARNING
 from monoslam_shadow_node.core.shadow_filter import ShadowConfig
 from monoslam_shadow_node.notices import LogThrottle, Notice, log_notice
 from monoslam_shadow_node.shadow_processor import (

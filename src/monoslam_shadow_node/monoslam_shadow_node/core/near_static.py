@@ -16,7 +16,7 @@ from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.core.rays import View
 
 WAIT_WARNING = 'nearer than the depth prior allows'
-"""In the warning of a static fit that waits (``shadow_classifier.decide``; counted by the
+"""In the warning of a static fit that waits (``shadow_decision.decide``; counted by the
 shadow_filter node)."""
 
 

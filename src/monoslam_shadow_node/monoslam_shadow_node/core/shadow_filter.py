@@ -45,12 +45,11 @@ from monoslam_shadow_node.core.rays import THREE_RAY_DOF, View, pixel_ray_direct
 from monoslam_shadow_node.core.shadow_classifier import (
     ClassifierConfig,
     Decision,
-    decide,
     due_test,
     predicted_visibility,
     score_tests,
-    static_test,
 )
+from monoslam_shadow_node.core.shadow_decision import decide, static_test
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
     EuclideanEstimate,
@@ -334,7 +333,7 @@ class ShadowFilter:
 
     def _classify_pending(self, frame: FrameInput, warnings: list[str]) -> list[Decision]:
         """Classify every PENDING feature observed in this frame whose static estimate is
-        defined (``shadow_classifier.classify``); return the decisions."""
+        defined (``shadow_decision.classify``); return the decisions."""
         # the static estimate of the features that can be classified in this frame
         candidates = [
             row
@@ -360,7 +359,7 @@ class ShadowFilter:
                 due = due_test(track, position[row], seen, self._frame, rule, noise)
                 if due is not None:
                     dues.append(due)
-        # the frame's score tests together (shadow_classifier.classify, one track at a time)
+        # the frame's score tests together (shadow_decision.classify, one track at a time)
         decisions = []
         motions = score_tests(dues, noise)
         ekf = self.config.ekf  # a static fit implausibly near a camera waits (near_static)
