@@ -7,8 +7,8 @@ import numpy as np
 
 from monoslam_shadow_node.core.near_static import implausibly_near
 from monoslam_shadow_node.core.rays import View
-from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig, due_test, score_tests
-from monoslam_shadow_node.core.shadow_decision import decide
+from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.core.shadow_decision import classify
 from monoslam_shadow_node.core.shadow_track import PENDING, STATIC, Track
 
 PRIOR = (0.25, 0.25)
@@ -53,11 +53,7 @@ def _first_decision(
     settings = ClassifierConfig(min_detectable_speed_m_s=0.0)  # every test decides
     warnings: list[str] = []
     for frame in range(40, 80):
-        due = due_test(track, position, 0.0, frame, settings)
-        if due is None:
-            continue
-        (motion,) = score_tests([due])
-        decision = decide(due, motion, frame, warnings, depth_prior=prior)
+        decision = classify(track, position, 0.0, frame, settings, warnings, depth_prior=prior)
         if decision is not None:
             return decision.status, warnings
     return track.status, warnings

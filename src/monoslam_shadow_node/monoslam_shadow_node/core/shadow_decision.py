@@ -47,6 +47,7 @@ def classify(
     settings: ClassifierConfig,
     warnings: list[str],
     noise: TrackingNoise | None = None,
+    depth_prior: tuple[float, float] | None = None,
 ) -> Decision | None:
     """Run the next pair of tests once the geometry allows it: at the next parallax
     milestone, or as soon as the predicted visibility of motion suffices for a decision.
@@ -59,8 +60,9 @@ def classify(
 
     ``frame`` is the current frame index; ``visibility`` the track's
     ``predicted_visibility``; ``noise`` the tracker's persistent offsets, if any (both tests
-    then take the covariance between views into account). Updates the track's schedule,
-    status and statistic; returns the decision made in this frame, or None.
+    then take the covariance between views into account); ``depth_prior`` as ``decide``'s.
+    Updates the track's schedule, status and statistic; returns the decision made in this
+    frame, or None.
 
     This is ``due_test``, ``score_tests`` and ``decide`` for one track; the Shadow filter
     calls them for all its tracks at once, so that the score tests of a frame run together.
@@ -69,7 +71,7 @@ def classify(
     if due is None:
         return None
     (motion,) = score_tests([due], noise)
-    return decide(due, motion, frame, warnings, noise)
+    return decide(due, motion, frame, warnings, noise, depth_prior=depth_prior)
 
 
 def needs_test(due: DueTest, motion: MotionScoreTest | None) -> bool:
