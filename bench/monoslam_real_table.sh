@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Paper 001 (MonoSLAM + Shadow filter) in one command, every variant on the data of issue 43:
 #   1. the simulator, seeds 0-19, white 1 px tracking noise (the defaults), and the same with
-#      undecided features on probation (--undecided-probation);
+#      undecided features on probation (--undecided-probation), and (a) with its new features
+#      on probation (--new-probation, as monoslam_labelled_rgbd.yaml runs it);
 #   2. the simulator with 2 px persistent offsets and jumps, told nothing (--undeclared), and
 #      the study of MonoSLAM taking the online noise estimate (bench/noise_adaptation_study.py);
 #   3. Bonn RGB-D Dynamic rgbd_bonn_crowd at the sequence level: our feature tracker's tracks,
@@ -20,7 +21,7 @@
 #      monoslam_shadow_labelled_rgbd.yaml, monoslam_classic_rgbd.yaml).
 # Part 3 and 4 need the data set: SLAM_DATA_DIR (default ../shared/data) holds bonn_crowd/
 # (https://www.ipb.uni-bonn.de/data/rgbd-dynamic-dataset/); without it they are skipped, said.
-# Outputs go to bench/results/monoslam_real/; each evaluator prints its summary. About 75
+# Outputs go to bench/results/monoslam_real/; each evaluator prints its summary. About 80
 # minutes on 2 cores. Exit status 1 if a run failed (not if a figure misses its target: the
 # summaries say PASS/FAIL).
 set -uo pipefail
@@ -41,6 +42,10 @@ run monoslam_evaluate --seeds 0-19 --out "$OUT/sim_white"
 run monoslam_evaluate --seeds 0-19 --variants a,c --undecided-probation --out "$OUT/sim_white_probation"
 run monoslam_evaluate --seeds 0-19 --tracking-offset-px 2 --tracking-jump-probability 0.02 \
   --undeclared --out "$OUT/sim_offsets_undeclared"
+# (a) as the labelled graph runs it: each new feature on probation until linear
+run monoslam_evaluate --seeds 0-19 --variants a --new-probation --out "$OUT/sim_white_a_probation"
+run monoslam_evaluate --seeds 0-19 --variants a --new-probation --tracking-offset-px 2 \
+  --tracking-jump-probability 0.02 --undeclared --out "$OUT/sim_offsets_a_probation"
 # the study of MonoSLAM taking the online tracking-noise estimate (not the node's behaviour)
 for adapt in full marginal; do
   run python bench/noise_adaptation_study.py --adapt "$adapt" --seeds 0-19 --variants a,c \
