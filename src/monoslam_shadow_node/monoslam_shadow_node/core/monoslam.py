@@ -58,6 +58,11 @@ from monoslam_shadow_node.core.monoslam_init import (
     depth_start_features,
     depth_start_pose,
 )
+from monoslam_shadow_node.core.monoslam_intake import (
+    farthest_first,
+    handover_inverse_depth,
+    wanted,
+)
 from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     Q_SLICE,
@@ -470,28 +475,16 @@ class MonoSlam:
     def _wanted(
         self, observed: dict[int, FloatArray], measured: list[int], trusted: list[int]
     ) -> tuple[int, int]:
-        """Return how many handovers and how many undecided or new features this frame would
-        add: handovers while fewer than ``target_measured`` features were measured (cleared
-        ones with ``undecided_probation``), and new or undecided features, up to
-        ``max_new_per_frame``, while fewer than that fix the camera (all measured ones with
-        ``undecided_probation``), counting the handovers taken."""
-        config, target = self.config, self.config.target_measured
-        if config.initialize != 'handover':
-            return 0, min(config.max_new_per_frame, max(0, target - len(measured)))
-        offered = sum(1 for i in self._handovers if i in observed)
-        seen, waiting = set(measured), config.undecided_probation  # fills wait on probation?
+        """The handovers and new features this frame would add (``monoslam_intake.wanted``)."""
+        seen = set(measured)
         cleared = sum(1 for f in self._state.features if f.id in seen and f.cleared)
-        take = min(offered, max(0, target - (cleared if waiting else len(measured))))
-        if not config.fill_undecided:
-            return take, 0
-        taken_fix = 0 if config.handover_probation else take  # handovers fixing the camera
-        fixing = len(measured) + take if waiting else len(trusted) + taken_fix
-        return take, min(config.max_new_per_frame, max(0, target - fixing))
+        offered = sum(1 for i in self._handovers if i in observed)
+        return wanted(self.config, offered, len(measured), cleared, len(trusted))
 
     def _add_features(
         self, observed: dict[int, FloatArray], measured: list[int], trusted: list[int]
     ) -> list[int]:
-        """Add handovers, then new features (``_wanted``); return their ids."""
+        """Add handovers, then new features (``monoslam_intake``); return their ids."""
         config = self.config
         room = config.max_features - len(self._state.features)
         take, budget = self._wanted(observed, measured, trusted)
@@ -504,46 +497,30 @@ class MonoSlam:
                 if self._insert(feature_id, observed[feature_id], handover):
                     added.append(feature_id)
         budget = min(budget, room - len(added))
-        if budget <= 0:
-            return added
-        measured = measured + added
         excluded = (self._owned_ids, self._moving_ids, self._handovers)
         candidates = [i for i in observed if not any(i in ids for ids in excluded)]
-        if not candidates:
+        if budget <= 0 or not candidates:
             return added
         pixels = np.array([observed[i] for i in candidates])
-        taken = np.array([observed[i] for i in measured]).reshape(-1, 2)
-        # farthest first: each new feature goes where the measured ones leave the largest gap
-        gap = np.full(len(candidates), np.inf)
-        if len(taken):
-            gap = np.min(np.linalg.norm(pixels[:, None] - taken[None], axis=2), axis=1)
-        budget += len(added)
-        while len(added) < budget:
-            best = int(np.argmax(gap))
-            if gap[best] < config.min_new_spacing_px:
-                break
-            gap[best] = -1.0
-            if self._insert(candidates[best], pixels[best], None):
-                added.append(candidates[best])
-                gap = np.minimum(gap, np.linalg.norm(pixels - pixels[best], axis=1))
-        return added
+        taken = np.array([observed[i] for i in measured + added]).reshape(-1, 2)
+        new = farthest_first(
+            pixels, taken, budget, config.min_new_spacing_px,
+            lambda k: self._insert(candidates[k], pixels[k], None),
+        )  # fmt: skip
+        return added + [candidates[k] for k in new]
 
     def _insert(self, feature_id: int, pixel: FloatArray, handover: _Handover | None) -> bool:
         """Append an inverse-depth feature seen at ``pixel`` (its inverse depth from the
         handover, else the prior); True if it went in."""
-        camera = self._state.x[:CAMERA_SIZE]
         rho = self.config.initial_inverse_depth
         rho_variance = self.config.initial_inverse_depth_sigma**2
         if handover is not None:
-            offset = handover.position - camera[R_SLICE]
-            depth = float(np.linalg.norm(offset))
-            if depth <= 1e-3:
+            start = handover_inverse_depth(
+                handover.position, handover.covariance, self._state.x[R_SLICE], rho_variance
+            )
+            if start is None:
                 return False
-            direction = offset / depth
-            depth_variance = float(direction @ handover.covariance @ direction)
-            rho = 1.0 / depth
-            # at least the prior's: triangulated from SLAM's poses, not independent of them
-            rho_variance = max(depth_variance * rho**4, rho_variance)
+            rho, rho_variance = start
         source = 'handover' if handover is not None else 'new'
         inserted = self._state.insert_inverse_depth(
             self.camera, feature_id, pixel, rho, rho_variance, self.config.pixel_sigma_px,
