@@ -8,7 +8,7 @@ import pytest
 from monoslam_shadow_node.core import shadow_filter as shadow_filter_module
 from monoslam_shadow_node.core.rays import View
 from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig, due_test
-from monoslam_shadow_node.core.shadow_decision import UNFIT_TESTS, classify
+from monoslam_shadow_node.core.shadow_decision import UNFIT_TESTS, classify, decide
 from monoslam_shadow_node.core.shadow_ekf import (
     EkfConfig,
     initial_states,
@@ -286,6 +286,27 @@ def test_a_revoked_feature_comes_back_as_a_suspect_with_fresh_views(
     for frame in frames[index + 1 :]:
         shadow.process(frame)
     assert rules == {True: {0}, False: {1}}  # the suspect is judged by the strict rule
+
+
+def test_the_filter_judges_static_fits_by_its_own_inverse_depth_prior(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """ShadowFilter hands its EKF's inverse-depth prior to the decision, which makes a static
+    fit implausibly near a camera wait (near_static)."""
+    ekf = EkfConfig(initial_inverse_depth_per_m=0.2, initial_inverse_depth_sigma_per_m=0.3)
+    priors: list[object] = []
+
+    def spy(*args, **kwargs):  # type: ignore[no-untyped-def]
+        priors.append(args[6] if len(args) > 6 else kwargs.get('depth_prior'))
+        return decide(*args, **kwargs)
+
+    monkeypatch.setattr(shadow_filter_module, 'decide', spy)
+    rng = np.random.default_rng(11)
+    points = np.column_stack([rng.uniform(3, 7, 20), rng.uniform(-1, 1.5, 20), np.ones(20)])
+    shadow = ShadowFilter(CAMERA, ShadowConfig(ekf=ekf))
+    for frame in _scene_frames(np.zeros((20, 3)), points, rng, frames=90):
+        shadow.process(frame)
+    assert priors and all(prior == (0.2, 0.3) for prior in priors)
 
 
 def test_bad_input_is_named_and_leaves_the_filter_usable() -> None:

@@ -225,6 +225,8 @@ class ShadowFilter:
         self._suspects: set[int] = set()
         self._strict = dataclasses.replace(self.config.classifier, unchecked_directions=0)
         self._static_test = static_test(self.config.classifier.static_test)
+        ekf = self.config.ekf  # a static fit implausibly near a camera waits (near_static)
+        self._prior = (ekf.initial_inverse_depth_per_m, ekf.initial_inverse_depth_sigma_per_m)
         self._frame = -1
         self._last: FrameInput | None = None
         self.linked_frames = 0  # frames whose pose came with a table (pose_links)
@@ -362,11 +364,9 @@ class ShadowFilter:
         # the frame's score tests together (shadow_decision.classify, one track at a time)
         decisions = []
         motions = score_tests(dues, noise)
-        ekf = self.config.ekf  # a static fit implausibly near a camera waits (near_static)
-        prior = (ekf.initial_inverse_depth_per_m, ekf.initial_inverse_depth_sigma_per_m)
         verdicts = self._static_test.verdicts(dues, motions, noise)
         for due, motion, verdict in zip(dues, motions, verdicts, strict=True):
-            decision = decide(due, motion, self._frame, warnings, noise, verdict, prior)
+            decision = decide(due, motion, self._frame, warnings, noise, verdict, self._prior)
             if decision is not None:
                 decisions.append(decision)
         return decisions
