@@ -27,6 +27,7 @@ from em_sam_node.core.assembly import (
     dead_reckoning,
     initial_estimate,
 )
+from em_sam_node.core.incremental import between_of_increment
 
 GRID_BITS = 30  # grid 2^-30: ~9.3e-10 absolute (m, rad, correlation), 9 digits relative
 
@@ -55,21 +56,6 @@ def covariance_on_grid(covariance: np.ndarray) -> np.ndarray:
     sigma = relative_grid(sigma)
     gridded: np.ndarray = correlation * (sigma[..., :, None] * sigma[..., None, :])
     return gridded
-
-
-def between_of_increment(u: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return the SE(2) relative poses (M,3) of differential-drive increments u (M,3) (the
-    EM-SAM paper's eq. 2: exact for the mean) and their first-order covariances (M,3,3)."""
-    half = u[:, 2] / 2.0
-    c, s = np.cos(half), np.sin(half)
-    between = np.column_stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1], u[:, 2]])
-    jacobian = np.zeros((len(u), 3, 3))
-    jacobian[:, 0, 0], jacobian[:, 0, 1] = c, -s
-    jacobian[:, 1, 0], jacobian[:, 1, 1] = s, c
-    jacobian[:, 0, 2] = -0.5 * between[:, 1]
-    jacobian[:, 1, 2] = 0.5 * between[:, 0]
-    jacobian[:, 2, 2] = 1.0
-    return between, jacobian @ cov @ np.swapaxes(jacobian, 1, 2)
 
 
 @dataclass(frozen=True)

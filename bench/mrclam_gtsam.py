@@ -1,6 +1,6 @@
 """Benchmark: EM-SAM on UTIAS MRCLAM data sets, per robot and time window, against GTSAM.
 
-    pip install -r requirements/bench.txt      # gtsam, a benchmark-only dependency
+    bash scripts/bootstrap.sh                  # installs gtsam (requirements/python.txt)
     python bench/mrclam_gtsam.py [--dataset DIR [DIR ...]] [--robots 1 2 3 4 5]
         [--window-s full 600 300] [--gnc-spread N] [--output bench/results]
 
@@ -369,7 +369,7 @@ def main() -> int:
     try:
         gtsam: Any = importlib.import_module('gtsam')
     except ImportError:
-        print('mrclam_gtsam: gtsam is not installed: pip install -r requirements/bench.txt')
+        print('mrclam_gtsam: gtsam is not installed: run bash scripts/bootstrap.sh')
         return 2
     datasets = args.dataset or [data_root() / DEFAULT_DATASET]
     names = ', '.join(d.name for d in datasets)

@@ -1,6 +1,6 @@
 """Benchmark: Victoria Park SAM, our solvers against GTSAM (batch and iSAM2) on the same factors.
 
-    pip install -r requirements/bench.txt      # gtsam, a benchmark-only dependency
+    bash scripts/bootstrap.sh                  # installs gtsam (requirements/python.txt)
     python bench/victoria_park_gtsam.py [--repeats 3] [--output bench/results]
 
 Both solvers get the same problem, built once from the parsed file
@@ -336,7 +336,7 @@ def main() -> int:
     try:
         gtsam: Any = importlib.import_module('gtsam')  # Any: gtsam has no type hints
     except ImportError:
-        print('victoria_park_gtsam: gtsam is not installed: pip install -r requirements/bench.txt')
+        print('victoria_park_gtsam: gtsam is not installed: run bash scripts/bootstrap.sh')
         return 2
     path = args.data or data_root() / 'victoria_park' / 'victoria_park.txt'
     data = parse_victoria_park(path)

@@ -1,0 +1,313 @@
+"""EM-SAM online: an incremental smoother with the EM weights updated where a change lands.
+
+The smoother is GTSAM's iSAM2 (a Bayes tree: a new keyframe relinearizes and re-solves
+only the cliques its factors touch). Poses are ``Pose2`` (key: the keyframe's index),
+landmarks ``Point2`` (key: symbol 'l' and the landmark id). A differential-drive increment
+(paper 000, eq. 2) enters as the SE(2) relative pose it gives, exact for the mean, with its
+first-order covariance (``between_of_increment``); a sighting as a bearing-range factor.
+
+The EM weights (``core.em_weights``, the robust mode's per-landmark test) are updated online
+for the landmarks a keyframe sees: their sightings' squared Mahalanobis innovations at the
+smoother's estimate (with the test's model error and the variance factors of the last full
+pass), the per-sighting gate, and the M-step. A landmark whose weight moved by more than
+``weight_step`` has its sightings' factors replaced with the new row scale (information
+times w, as the E-step's sqrt(w) row scale) in the next update. Landmarks below
+``moveable_threshold`` are the moveable set.
+
+The full pass (``core.em.run_em`` over everything collected) is the batch answer; the
+smoother restarts from its estimate and weights (``restart``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from em_sam_node.core.em_types import EmConfig
+from em_sam_node.core.em_weights import (
+    ROW_SCALE_FLOOR,
+    covariances_for_test,
+    gate_outliers,
+    m_step,
+    squared_mahalanobis,
+)
+from em_sam_node.core.factors import range_bearing_error
+from em_sam_node.core.problem import FloatArray
+
+
+def between_of_increment(u: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Return the SE(2) relative poses (M, 3) of differential-drive increments u (M, 3)
+    (eq. 2: exact for the mean) and their first-order covariances (M, 3, 3)."""
+    u = np.asarray(u, dtype=np.float64).reshape(-1, 3)
+    half = u[:, 2] / 2.0
+    c, s = np.cos(half), np.sin(half)
+    between = np.column_stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1], u[:, 2]])
+    jacobian = np.zeros((len(u), 3, 3))
+    jacobian[:, 0, 0], jacobian[:, 0, 1] = c, -s
+    jacobian[:, 1, 0], jacobian[:, 1, 1] = s, c
+    jacobian[:, 0, 2] = -0.5 * between[:, 1]
+    jacobian[:, 1, 2] = 0.5 * between[:, 0]
+    jacobian[:, 2, 2] = 1.0
+    covariance: FloatArray = jacobian @ np.asarray(cov, np.float64) @ np.swapaxes(jacobian, 1, 2)
+    return between, covariance
+
+
+def load_gtsam() -> Any:
+    """Import GTSAM (a dependency of the online mapper); a clear error if it is missing."""
+    try:
+        import gtsam
+    except ImportError as err:  # pragma: no cover - the bootstrap installs it
+        raise ImportError(
+            'EM-SAM online needs GTSAM (pip install gtsam==4.3.0; scripts/bootstrap.sh '
+            'installs it)'
+        ) from err
+    return gtsam
+
+
+@dataclass(frozen=True)
+class IncrementalConfig:
+    """The smoother's settings: iSAM2's relinearization (a variable is relinearized when
+    its update exceeds ``relinearize_threshold``, checked every ``relinearize_skip``
+    updates; GTSAM's defaults) and the weight change that replaces a landmark's factors."""
+
+    relinearize_threshold: float = 0.1
+    relinearize_skip: int = 10
+    weight_step: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.relinearize_threshold) and self.relinearize_threshold > 0):
+            raise ValueError(f'relinearize_threshold={self.relinearize_threshold!r}: must be > 0')
+        if self.relinearize_skip < 1:
+            raise ValueError(f'relinearize_skip={self.relinearize_skip!r}: must be >= 1')
+        if not 0 < self.weight_step < 1:
+            raise ValueError(f'weight_step={self.weight_step!r}: must be in (0, 1)')
+
+
+@dataclass
+class _Landmark:
+    """A landmark's sightings: keyframe index, (range, bearing), covariance, and the index
+    of its factor in the smoother (-1 until the update that adds it)."""
+
+    poses: list[int] = field(default_factory=list)
+    z: list[FloatArray] = field(default_factory=list)
+    cov: list[FloatArray] = field(default_factory=list)
+    factors: list[int] = field(default_factory=list)
+    gated: list[bool] = field(default_factory=list)
+    weight: float = 1.0
+    applied: float = 1.0  # the weight its factors carry
+    applied_gated: tuple[bool, ...] = ()  # the gate its factors carry
+
+
+@dataclass(frozen=True)
+class UpdateStats:
+    """One keyframe's update: its wall time (s), the landmarks it saw, those whose factors
+    were replaced for a new weight, and the moveable set after it."""
+
+    seconds: float
+    seen: tuple[int, ...]
+    reweighted: tuple[int, ...]
+    moveable: frozenset[int]
+
+
+class IncrementalEmSam:
+    """The online smoother (module docstring). Keyframes come in order, one per call."""
+
+    def __init__(
+        self,
+        config: EmConfig,
+        prior_pose: FloatArray,
+        prior_cov: FloatArray,
+        incremental: IncrementalConfig | None = None,
+    ) -> None:
+        self.gtsam = load_gtsam()
+        self.config = config
+        self.incremental = incremental or IncrementalConfig()
+        self.prior_pose = np.asarray(prior_pose, np.float64).reshape(3)
+        self.prior_cov = np.asarray(prior_cov, np.float64).reshape(3, 3)
+        self.noise_scales = np.ones(2)  # the sensor's variance factors (the last full pass)
+        self.landmarks: dict[int, _Landmark] = {}
+        self.num_keyframes = 0
+        self._pending_removals: list[int] = []
+        self._pending: list[tuple[int, int]] = []  # (landmark id, sighting) to (re)add
+        self._new_solver()
+
+    def _new_solver(self) -> None:
+        gtsam = self.gtsam
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self.incremental.relinearize_threshold)
+        params.relinearizeSkip = self.incremental.relinearize_skip
+        self.solver = gtsam.ISAM2(params)
+
+    # --- keyframes ----------------------------------------------------------------------
+
+    def add_keyframe(
+        self,
+        odometry: tuple[FloatArray, FloatArray] | None,
+        sightings: list[tuple[int, FloatArray, FloatArray]],
+    ) -> UpdateStats:
+        """Add the next keyframe: its increment from the one before ((u (3,), cov (3, 3)),
+        None for the first keyframe, which takes the prior) and its sightings (landmark id,
+        (range m, bearing rad), covariance (2, 2)); update the smoother and the weights of
+        the landmarks it saw."""
+        started = time.perf_counter()
+        gtsam = self.gtsam
+        index = self.num_keyframes
+        if (odometry is None) != (index == 0):
+            raise ValueError('the first keyframe takes the prior, every later one an increment')
+        factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if odometry is None:
+            start = gtsam.Pose2(*self.prior_pose)
+            factors.add(
+                gtsam.PriorFactorPose2(
+                    0, start, gtsam.noiseModel.Gaussian.Covariance(self.prior_cov)
+                )
+            )
+        else:
+            between, covariance = between_of_increment(odometry[0], odometry[1][None])
+            relative = gtsam.Pose2(*between[0])
+            start = self._pose(index - 1).compose(relative)
+            factors.add(
+                gtsam.BetweenFactorPose2(
+                    index - 1, index, relative, gtsam.noiseModel.Gaussian.Covariance(covariance[0])
+                )
+            )
+        values.insert(index, start)
+        sighted: list[tuple[int, int]] = []
+        for landmark_id, z, cov in sightings:
+            landmark = self.landmarks.get(int(landmark_id))
+            z = np.asarray(z, np.float64).reshape(2)
+            if landmark is None:
+                landmark = self.landmarks[int(landmark_id)] = _Landmark()
+                point = start.transformFrom(gtsam.Point2(z[0] * np.cos(z[1]), z[0] * np.sin(z[1])))
+                values.insert(gtsam.symbol('l', int(landmark_id)), point)
+            landmark.poses.append(index)
+            landmark.z.append(z)
+            landmark.cov.append(np.asarray(cov, np.float64).reshape(2, 2))
+            landmark.factors.append(-1)
+            landmark.gated.append(False)
+            landmark.applied_gated += (False,)
+            sighted.append((int(landmark_id), len(landmark.poses) - 1))
+        self.num_keyframes += 1
+        self._update(factors, values, sighted)
+        seen = tuple(sorted({i for i, _ in sighted}))
+        reweighted: set[int] = set()
+        for _ in range(self.config.max_iterations):  # EM on the landmarks the keyframe saw
+            changed = self._update_weights(seen)
+            if not changed:
+                break
+            reweighted.update(changed)
+            self._update(gtsam.NonlinearFactorGraph(), gtsam.Values(), [])
+        return UpdateStats(
+            time.perf_counter() - started, seen, tuple(sorted(reweighted)), self.moveable
+        )
+
+    def _update(self, factors: Any, values: Any, sighted: list[tuple[int, int]]) -> None:
+        """One smoother update: ``factors`` and ``values``, the new sightings, and the
+        factors queued for replacement."""
+        queued, self._pending = [*self._pending, *sighted], []
+        for landmark_id, k in queued:
+            factors.add(self._sighting_factor(landmark_id, k))
+        removals, self._pending_removals = self._pending_removals, []
+        result = self.solver.update(factors, values, removals)
+        new_indices = list(result.getNewFactorsIndices())  # in the order they were added
+        for (landmark_id, k), factor in zip(
+            queued, new_indices[len(new_indices) - len(queued) :], strict=True
+        ):
+            self.landmarks[landmark_id].factors[k] = int(factor)
+
+    def _pose(self, index: int) -> Any:
+        return self.solver.calculateEstimatePose2(index)
+
+    def _sighting_factor(self, landmark_id: int, k: int) -> Any:
+        gtsam = self.gtsam
+        landmark = self.landmarks[landmark_id]
+        rows = (
+            ROW_SCALE_FLOOR
+            if landmark.gated[k]
+            else max(np.sqrt(landmark.applied), ROW_SCALE_FLOOR)
+        )
+        cov = landmark.cov[k][np.ix_([1, 0], [1, 0])] / rows**2  # (bearing, range) order
+        z = landmark.z[k]
+        return gtsam.BearingRangeFactor2D(
+            landmark.poses[k],
+            gtsam.symbol('l', landmark_id),
+            gtsam.Rot2(float(z[1])),
+            float(z[0]),
+            gtsam.noiseModel.Gaussian.Covariance(cov),
+        )
+
+    # --- weights ------------------------------------------------------------------------
+
+    def _update_weights(self, seen: tuple[int, ...]) -> tuple[int, ...]:
+        """The M-step and the gate for the landmarks ``seen``; queue the factors of those
+        whose weight moved past ``weight_step`` or whose gated sightings changed for
+        replacement; return their ids."""
+        reweighted = []
+        for landmark_id in seen:
+            landmark = self.landmarks[landmark_id]
+            landmark.weight, gated = self._weight(landmark_id)
+            landmark.gated = gated
+            moved = abs(landmark.weight - landmark.applied) > self.incremental.weight_step
+            if moved or tuple(gated) != landmark.applied_gated:
+                if moved:
+                    landmark.applied = landmark.weight
+                landmark.applied_gated = tuple(gated)
+                ready = [(k, f) for k, f in enumerate(landmark.factors) if f >= 0]
+                self._pending_removals += [f for _, f in ready]
+                self._pending += [(landmark_id, k) for k, _ in ready]
+                reweighted.append(landmark_id)
+        return tuple(reweighted)
+
+    def _weight(self, landmark_id: int) -> tuple[float, list[bool]]:
+        """The landmark's M-step weight and its gated sightings at the smoother's estimate."""
+        landmark = self.landmarks[landmark_id]
+        count = len(landmark.poses)
+        if count <= 1:
+            return 1.0, [False] * count
+        z, cov = np.array(landmark.z), np.array(landmark.cov)
+        root = np.sqrt(self.noise_scales)
+        cov = cov * root[None, :, None] * root[None, None, :]
+        tested = covariances_for_test(self.config, cov, z)
+        poses = np.array([self._xyt(i) for i in landmark.poses])
+        point = self._point(landmark_id)
+        innovation = range_bearing_error(poses, np.repeat(point[None], count, axis=0), z)
+        mahalanobis = squared_mahalanobis(innovation, cov if tested is None else tested)
+        owner = np.zeros(count, dtype=np.int64)
+        if self.config.mode == 'paper':
+            gated = np.zeros(count, dtype=bool)
+        else:
+            gated = gate_outliers(self.config, mahalanobis, owner, 1)
+        weight = float(m_step(self.config, mahalanobis, owner, 1, ~gated)[0])
+        return weight, gated.tolist()
+
+    def _xyt(self, index: int) -> tuple[float, float, float]:
+        pose = self._pose(index)
+        return pose.x(), pose.y(), pose.theta()
+
+    def _point(self, landmark_id: int) -> FloatArray:
+        symbol = self.gtsam.symbol('l', landmark_id)
+        return np.asarray(self.solver.calculateEstimatePoint2(symbol), np.float64)
+
+    # --- what it holds ------------------------------------------------------------------
+
+    @property
+    def moveable(self) -> frozenset[int]:
+        """The landmarks whose weight is below the moveable threshold."""
+        threshold = self.config.moveable_threshold
+        return frozenset(i for i, lm in self.landmarks.items() if lm.weight < threshold)
+
+    @property
+    def weights(self) -> dict[int, float]:
+        """The current weight of every landmark, by id."""
+        return {i: lm.weight for i, lm in self.landmarks.items()}
+
+    def poses(self) -> FloatArray:
+        """The smoother's keyframe poses (N, 3) as (x m, y m, theta rad)."""
+        return np.array([self._xyt(i) for i in range(self.num_keyframes)]).reshape(-1, 3)
+
+    def landmark_positions(self) -> dict[int, FloatArray]:
+        """The smoother's landmark positions, by id."""
+        return {i: self._point(i) for i in self.landmarks}

@@ -1,0 +1,96 @@
+"""The online smoother (core.incremental): EM weights updated where a keyframe lands."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from synthetic_room import MOVEABLE_IDS, STATIC_IDS, make_room
+
+from em_sam_node.core.assembly import MappingData
+from em_sam_node.core.em import run_em
+from em_sam_node.core.em_types import EmConfig
+from em_sam_node.core.incremental import (
+    IncrementalConfig,
+    IncrementalEmSam,
+    UpdateStats,
+    between_of_increment,
+)
+
+pytest.importorskip('gtsam', reason='the online mapper needs GTSAM (requirements/python.txt)')
+
+
+def _replay(data: MappingData, config: EmConfig) -> tuple[IncrementalEmSam, list[UpdateStats]]:
+    smoother = IncrementalEmSam(config, data.prior_pose, data.prior_cov)
+    incoming = {int(to): m for m, to in enumerate(data.odometry_to.tolist())}
+    steps = []
+    for index in range(data.num_keyframes):
+        m = incoming.get(index)
+        odometry = None if m is None else (data.odometry_u[m], data.odometry_cov[m])
+        rows = np.flatnonzero(data.obs_keyframe == index)
+        sightings = [(int(data.obs_landmark_id[k]), data.obs_z[k], data.obs_cov[k]) for k in rows]
+        steps.append(smoother.add_keyframe(odometry, sightings))
+    return smoother, steps
+
+
+def test_moved_landmarks_are_flagged_online_soon_after_they_move_and_statics_never() -> None:
+    """Two landmarks move at the middle keyframe: each is flagged within a few of its
+    sightings at the new place, and no static landmark is ever flagged on the way."""
+    room = make_room(0)
+    smoother, steps = _replay(room.data, EmConfig())
+    for step in steps:
+        assert not step.moveable & set(STATIC_IDS)
+    assert smoother.moveable == set(MOVEABLE_IDS)
+    data = room.data
+    for landmark in MOVEABLE_IDS:
+        after = sorted(
+            int(k)
+            for k in data.obs_keyframe[data.obs_landmark_id == landmark]
+            if k >= room.move_keyframe
+        )
+        flagged = next(i for i, step in enumerate(steps) if landmark in step.moveable)
+        assert flagged >= room.move_keyframe
+        assert flagged <= after[min(4, len(after) - 1)]  # by its 5th sighting there
+    # a flagged landmark's factors were replaced with its new weight
+    assert set(MOVEABLE_IDS) <= {i for step in steps for i in step.reweighted}
+
+
+def test_without_a_move_nothing_is_flagged_and_the_path_follows_the_truth() -> None:
+    room = make_room(1, moving=False)
+    smoother, steps = _replay(room.data, EmConfig())
+    assert all(not step.moveable for step in steps)
+    error = np.linalg.norm(smoother.poses()[:, :2] - room.true_poses[:, :2], axis=1)
+    assert float(np.sqrt(np.mean(error**2))) < 0.1
+
+
+def test_its_map_agrees_with_the_batch_solution() -> None:
+    """On a static room the online estimate is the batch EM-SAM solution to within the
+    smoother's relinearization threshold."""
+    room = make_room(2, moving=False)
+    smoother, _ = _replay(room.data, EmConfig())
+    batch = run_em(room.data, EmConfig())
+    online = smoother.landmark_positions()
+    for row, landmark in enumerate(batch.landmark_ids.tolist()):
+        assert np.linalg.norm(online[landmark] - batch.positions[row]) < 0.05
+
+
+def test_the_increment_becomes_the_exact_relative_pose() -> None:
+    """Eq. 2's increment composed as a relative pose lands where eq. 2 puts the robot."""
+    u = np.array([[0.5, 0.1, 0.3]])
+    between, covariance = between_of_increment(u, np.diag([1e-4, 1e-4, 1e-5])[None])
+    theta = 0.7
+    mid = theta + u[0, 2] / 2
+    expected = [
+        u[0, 0] * np.cos(mid) - u[0, 1] * np.sin(mid),
+        u[0, 0] * np.sin(mid) + u[0, 1] * np.cos(mid),
+    ]
+    c, s = np.cos(theta), np.sin(theta)
+    moved = [c * between[0, 0] - s * between[0, 1], s * between[0, 0] + c * between[0, 1]]
+    np.testing.assert_allclose(moved, expected, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(covariance[0]) > 0)
+
+
+def test_settings_out_of_range_are_refused() -> None:
+    with pytest.raises(ValueError, match='weight_step'):
+        IncrementalConfig(weight_step=0.0)
+    with pytest.raises(ValueError, match='relinearize_skip'):
+        IncrementalConfig(relinearize_skip=0)
