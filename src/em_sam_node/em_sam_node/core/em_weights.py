@@ -8,6 +8,7 @@ stay defined.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 from scipy.stats import chi2
@@ -18,6 +19,13 @@ from em_sam_node.core.factors import observation_innovations
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
 
 ROW_SCALE_FLOOR = 1e-3
+
+
+@functools.lru_cache(maxsize=65536)
+def chi2_quantile(probability: float, dof: int) -> float:
+    """The chi-square quantile, remembered: the online smoother tests one landmark at a
+    time, and scipy's ppf costs more than the rest of such a test."""
+    return float(chi2.ppf(probability, dof))
 
 
 def covariances_for_test(
@@ -113,7 +121,8 @@ def m_step(
     if config.mode == 'paper':
         return np.clip(1.0 - sums / (2.0 * config.lagrange_lambda), 0.0, 1.0)
     dof = np.maximum(2 * counts - 2, 1)
-    quantile = chi2.ppf(1.0 - config.false_alarm_probability, dof)
+    level = 1.0 - config.false_alarm_probability
+    quantile = np.array([chi2_quantile(level, int(n)) for n in dof.tolist()])
     excess = np.maximum(sums - dof, 0.0)
     weights: FloatArray = np.clip(1.0 - excess / (2.0 * (quantile - dof)), 0.0, 1.0)
     weights[counts <= 1] = 1.0  # a single sighting carries no evidence of motion
@@ -129,7 +138,7 @@ def gate_outliers(
     are gated, the largest first: a landmark that moved has many large innovations, of which
     only a few are gated, so it still fails its test.
     """
-    gate = chi2.ppf(1.0 - config.gate_probability, 2)
+    gate = chi2_quantile(1.0 - config.gate_probability, 2)
     gated = np.zeros(mahalanobis.shape, dtype=bool)
     counts = np.bincount(obs_landmark, minlength=num_landmarks)
     allowed = np.floor(config.max_gated_fraction * counts).astype(np.int64)

@@ -271,7 +271,7 @@ class IncrementalEmSam:
         root = np.sqrt(self.noise_scales)
         cov = cov * root[None, :, None] * root[None, None, :]
         tested = covariances_for_test(self.config, cov, z)
-        poses = np.array([self._xyt(i) for i in landmark.poses])
+        poses = self._poses_at(landmark.poses)
         point = self._point(landmark_id)
         innovation = range_bearing_error(poses, np.repeat(point[None], count, axis=0), z)
         mahalanobis = squared_mahalanobis(innovation, cov if tested is None else tested)
@@ -286,6 +286,13 @@ class IncrementalEmSam:
     def _xyt(self, index: int) -> tuple[float, float, float]:
         pose = self._pose(index)
         return pose.x(), pose.y(), pose.theta()
+
+    def _poses_at(self, indices: list[int]) -> FloatArray:
+        """The estimates of the poses ``indices`` (K, 3): the linearization point moved by
+        the solution's delta, read once for all (a call per pose costs more)."""
+        point, delta = self.solver.getLinearizationPoint(), self.solver.getDelta()
+        moved = [point.atPose2(i).retract(delta.at(i)) for i in indices]
+        return np.array([(p.x(), p.y(), p.theta()) for p in moved]).reshape(-1, 3)
 
     def _point(self, landmark_id: int) -> FloatArray:
         symbol = self.gtsam.symbol('l', landmark_id)
