@@ -9,7 +9,13 @@ as such (``before_start_observations``) with a warning: the map never had a pose
 whose keyframe never came is dropped with a warning that names it.
 
 Inputs already held are skipped and counted apart, not as dropped: an increment between two
-keyframes the chain has, an observation whose (stamp, landmark) was taken before. A mapper
+keyframes the chain has, an observation whose (stamp, landmark) was taken before.
+
+Online (``MapperConfig.online``): each keyframe goes into the incremental smoother
+(``core.incremental``) once the next keyframe has come (its observations have had the time
+between two keyframes to arrive), with the observations attached since to keyframes already
+in it; the smoother's moveable set and its per-keyframe latency follow. ``optimize`` stays
+the full EM pass over everything collected. A mapper
 resumed from a checkpoint (em_sam_node.checkpoint) gets its inputs' history again from the
 transient-local publishers and continues at its last keyframe.
 """
@@ -26,6 +32,7 @@ import numpy as np
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, is_covariance
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
+from em_sam_node.core.incremental import IncrementalEmSam, UpdateStats
 from em_sam_node.core.problem import Estimate, FloatArray
 from em_sam_node.core.sightings import Sightings, sightings_of
 from em_sam_node.ingest import Increment
@@ -50,6 +57,7 @@ class MapperConfig:
     stamp_tolerance_s: float = 0.005
     prior_sigma: tuple[float, float, float] = (1e-3, 1e-3, 1e-3)
     pending_timeout_s: float = 10.0
+    online: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.stamp_tolerance_s) and self.stamp_tolerance_s >= 0):
@@ -86,6 +94,9 @@ class MapperProcessor:
         self.duplicate_increments = 0
         self.duplicate_observations = 0
         self.seen_observations: set[tuple[int, int]] = set()  # (stamp ns, landmark id)
+        self.online: IncrementalEmSam | None = None  # config.online, from the first keyframe
+        self.online_updates: list[UpdateStats] = []
+        self._unfed: list[int] = []  # rows of self.observations not in the smoother yet
 
     # -- input ----------------------------------------------------------------------------
     def add_increment(self, increment: Increment) -> None:
@@ -127,6 +138,41 @@ class MapperProcessor:
         self.odom_poses.append(increment.odom_pose_to.copy())
         self.increments.append(increment)
         self._attach_pending()
+        if self.config.online:
+            self._feed(self.num_keyframes - 1)
+
+    # -- online ---------------------------------------------------------------------------
+    def _feed(self, count: int) -> None:
+        """Put the keyframes before ``count`` that are not in the smoother yet into it."""
+        if self.online is None:
+            sigma = np.array(self.config.prior_sigma)
+            self.online = IncrementalEmSam(self.config.em, self.odom_poses[0], np.diag(sigma**2))
+        smoother = self.online
+        while smoother.num_keyframes < count:
+            index = smoother.num_keyframes
+            rows = [row for row in self._unfed if self.observations[row][0] <= index]
+            self._unfed = [row for row in self._unfed if self.observations[row][0] > index]
+            now, late = [], []
+            for row in rows:
+                keyframe, seen = self.observations[row]
+                item = (seen.landmark_id, seen.z, seen.covariance)
+                if keyframe == index:
+                    now.append(item)
+                else:
+                    late.append((keyframe, *item))
+            increment = self.increments[index - 1] if index > 0 else None
+            odometry = None if increment is None else (increment.u, increment.covariance)
+            self.online_updates.append(smoother.add_keyframe(odometry, now, late))
+
+    @property
+    def online_waiting(self) -> int:
+        """Observations attached to keyframes that are not in the smoother yet."""
+        return len(self._unfed)
+
+    @property
+    def online_moveable(self) -> frozenset[int]:
+        """The smoother's moveable set (empty before its first keyframe or offline)."""
+        return self.online.moveable if self.online is not None else frozenset()
 
     def add_observation(self, observation: Observation) -> None:
         """Attach an observation to its keyframe, or keep it until the keyframe arrives."""
@@ -153,6 +199,7 @@ class MapperProcessor:
             index < len(self.stamps_ns)
             and abs(self.stamps_ns[index] - observation.stamp_ns) <= tolerance
         ):
+            self._unfed.append(len(self.observations))
             self.observations.append((index, observation))
             return True
         return False

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from synthetic_room import MOVEABLE_IDS, STATIC_IDS, make_room
+from synthetic_room import MOVEABLE_IDS, STATIC_IDS, make_room, mapper_inputs
 
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.em import run_em
@@ -15,6 +15,8 @@ from em_sam_node.core.incremental import (
     UpdateStats,
     between_of_increment,
 )
+from em_sam_node.ingest import Increment
+from em_sam_node.mapper import MapperConfig, MapperProcessor, Observation
 
 pytest.importorskip('gtsam', reason='the online mapper needs GTSAM (requirements/python.txt)')
 
@@ -94,3 +96,49 @@ def test_settings_out_of_range_are_refused() -> None:
         IncrementalConfig(weight_step=0.0)
     with pytest.raises(ValueError, match='relinearize_skip'):
         IncrementalConfig(relinearize_skip=0)
+
+
+def _live_order(data: MappingData, delay_keyframes: int) -> list[object]:
+    """The mapper's inputs in arrival order: each keyframe's increment, and its
+    observations ``delay_keyframes`` keyframes later (a detector that lags)."""
+    increments, observations = mapper_inputs(data)
+    by_stamp: dict[int, list[Observation]] = {}
+    for item in observations:
+        by_stamp.setdefault(item.stamp_ns, []).append(item)
+    stamps = data.keyframe_stamps_ns.tolist()
+    order: list[object] = []
+    for m, increment in enumerate(increments):
+        order.append(increment)
+        if m + 1 - delay_keyframes >= 0:
+            order += by_stamp.get(stamps[m + 1 - delay_keyframes], [])
+    for stamp in stamps[len(stamps) - delay_keyframes :]:
+        order += by_stamp.get(stamp, [])
+    return [*by_stamp.get(stamps[0], []), *order]
+
+
+@pytest.mark.parametrize('delay', [0, 3])
+def test_the_mapper_online_flags_what_the_full_pass_flags_and_no_static_on_the_way(
+    delay: int,
+) -> None:
+    """MapperProcessor with ``online``: keyframes enter the smoother as the next one comes,
+    observations that come late enter with a later keyframe; the online moveable set never
+    holds a static landmark and ends as the full EM pass's."""
+    room = make_room(0)
+    processor = MapperProcessor(MapperConfig(em=EmConfig(), online=True))
+    for item in _live_order(room.data, delay):
+        if isinstance(item, Increment):
+            processor.add_increment(item)
+        else:
+            processor.add_observation(item)  # type: ignore[arg-type]
+    assert processor.online is not None
+    assert processor.online.num_keyframes == processor.num_keyframes - 1  # the last waits
+    fed = sum(len(landmark.poses) for landmark in processor.online.landmarks.values())
+    assert fed + processor.online_waiting == len(processor.observations)
+    last = processor.num_keyframes - 1  # what came after the last increment waits
+    assert processor.online_waiting == sum(k >= last - delay for k, _ in processor.observations)
+    for step in processor.online_updates:
+        assert not step.moveable & set(STATIC_IDS)
+    result = processor.optimize()
+    assert result is not None
+    assert processor.online_moveable == set(result.landmark_ids[result.moveable].tolist())
+    assert processor.online_moveable == set(MOVEABLE_IDS)

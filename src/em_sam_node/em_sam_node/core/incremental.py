@@ -21,6 +21,7 @@ smoother restarts from its estimate and weights (``restart``).
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -146,12 +147,14 @@ class IncrementalEmSam:
     def add_keyframe(
         self,
         odometry: tuple[FloatArray, FloatArray] | None,
-        sightings: list[tuple[int, FloatArray, FloatArray]],
+        sightings: Sequence[tuple[int, FloatArray, FloatArray]],
+        late: Sequence[tuple[int, int, FloatArray, FloatArray]] = (),
     ) -> UpdateStats:
         """Add the next keyframe: its increment from the one before ((u (3,), cov (3, 3)),
         None for the first keyframe, which takes the prior) and its sightings (landmark id,
-        (range m, bearing rad), covariance (2, 2)); update the smoother and the weights of
-        the landmarks it saw."""
+        (range m, bearing rad), covariance (2, 2)), with ``late`` sightings of earlier
+        keyframes (keyframe index first); update the smoother and the weights of the
+        landmarks they saw."""
         started = time.perf_counter()
         gtsam = self.gtsam
         index = self.num_keyframes
@@ -176,14 +179,19 @@ class IncrementalEmSam:
             )
         values.insert(index, start)
         sighted: list[tuple[int, int]] = []
-        for landmark_id, z, cov in sightings:
+        for keyframe, landmark_id, z, cov in [*late, *((index, *s) for s in sightings)]:
+            if not 0 <= keyframe <= index:
+                raise ValueError(f'a sighting of keyframe {keyframe}: there are {index + 1}')
             landmark = self.landmarks.get(int(landmark_id))
             z = np.asarray(z, np.float64).reshape(2)
             if landmark is None:
                 landmark = self.landmarks[int(landmark_id)] = _Landmark()
-                point = start.transformFrom(gtsam.Point2(z[0] * np.cos(z[1]), z[0] * np.sin(z[1])))
+                seen_from = start if keyframe == index else self._pose(keyframe)
+                point = seen_from.transformFrom(
+                    gtsam.Point2(z[0] * np.cos(z[1]), z[0] * np.sin(z[1]))
+                )
                 values.insert(gtsam.symbol('l', int(landmark_id)), point)
-            landmark.poses.append(index)
+            landmark.poses.append(int(keyframe))
             landmark.z.append(z)
             landmark.cov.append(np.asarray(cov, np.float64).reshape(2, 2))
             landmark.factors.append(-1)
