@@ -57,6 +57,10 @@ Parameters:
   final_kernel ('cauchy'), final_kernel_scale (2.3849)  'robust': kernel on the static
                                   sightings of the final solve ('none' for least squares).
   solver_method ('levenberg_marquardt')  or 'gauss_newton'.
+  online (true)                   incremental smoothing (GTSAM iSAM2) with the EM weights
+                                  of the landmarks each keyframe sees; moveable landmarks
+                                  are logged as they change, the per-keyframe latency is on
+                                  /diagnostics. The full pass (run_em) stays below.
   optimize_period_s (2.0)         re-solve period when new data came; 0 = only on request.
   stamp_tolerance_s (0.005)       how close an observation's stamp must be to a keyframe's.
   prior_sigma ([0.001, 0.001, 0.001])  std. dev. of the prior on the first keyframe.
@@ -139,6 +143,8 @@ class EmSamMapperNode(Node):
         self.checkpoint_period_s = float(values['checkpoint_period_s'])
         self._saved_state: tuple[int, ...] | None = None
         self.solves = 0
+        self._online_seen, self._online_max_s = 0, 0.0
+        self._online_moveable: frozenset[int] = frozenset()
         self._resume(str(values['resume_from']))
 
         latched = latched_qos()
@@ -181,6 +187,7 @@ class EmSamMapperNode(Node):
         increments and observations dropped (bad or out of order), observations from before
         the first keyframe, solves."""
         mapper = self.mapper
+        last = mapper.online_updates[-1] if mapper.online_updates else None
         return {
             'keyframes': len(mapper.stamps_ns),
             'observations': len(mapper.observations),
@@ -189,6 +196,11 @@ class EmSamMapperNode(Node):
             'before first keyframe': mapper.before_start_observations,
             'already held': mapper.duplicate_increments + mapper.duplicate_observations,
             'solves': self.solves,
+            'online keyframes': mapper.online.num_keyframes if mapper.online else 0,
+            'online observations waiting': mapper.online_waiting,
+            'online update ms (last)': round(1e3 * last.seconds) if last else 0,
+            'online update ms (max)': round(1e3 * self._online_max_s),
+            'online moveable': len(mapper.online_moveable),
         }
 
     def _warn(self, message: str) -> None:
@@ -256,6 +268,24 @@ class EmSamMapperNode(Node):
     def _on_increment(self, message: OdometryIncrement) -> None:
         self.mapper.add_increment(increment_from_message(message))
         self._dirty = True
+        self._online_changes()
+
+    def _online_changes(self) -> None:
+        """Log the online moveable set when it changes; keep the longest update."""
+        updates = self.mapper.online_updates
+        for step in updates[self._online_seen :]:
+            self._online_max_s = max(self._online_max_s, step.seconds)
+        self._online_seen = len(updates)
+        moveable = self.mapper.online_moveable
+        if moveable != self._online_moveable:
+            added = sorted(moveable - self._online_moveable)
+            cleared = sorted(self._online_moveable - moveable)
+            self.get_logger().info(
+                f'online, keyframe {self._online_seen}: moveable {sorted(moveable)}'
+                + (f' (new {added})' if added else '')
+                + (f' (cleared {cleared})' if cleared else '')
+            )
+            self._online_moveable = moveable
 
     def _on_observations(self, message: LandmarkObservationArray) -> None:
         for observation in observations_from_message(message):

@@ -144,9 +144,10 @@ class MapperProcessor:
     # -- online ---------------------------------------------------------------------------
     def _feed(self, count: int) -> None:
         """Put the keyframes before ``count`` that are not in the smoother yet into it."""
-        if self.online is None:
+        if self.online is None:  # every observation held waits for it (a resumed mapper's too)
             sigma = np.array(self.config.prior_sigma)
             self.online = IncrementalEmSam(self.config.em, self.odom_poses[0], np.diag(sigma**2))
+            self._unfed = list(range(len(self.observations)))
         smoother = self.online
         while smoother.num_keyframes < count:
             index = smoother.num_keyframes

@@ -2,7 +2,7 @@
 
 ``PARAMETERS`` is the node's one declaration (``em_sam_mapper_node`` declares it and documents
 it in its docstring); the EM-SAM parameters set the fields of the core's ``EmConfig``
-(``Param.field`` ``em.<field>``; ``max_em_iterations`` is its ``max_iterations``), two set
+(``Param.field`` ``em.<field>``; ``max_em_iterations`` is its ``max_iterations``), three set
 ``MapperConfig``, the rest configure the node (periods, frames, report directory).
 """
 
@@ -158,6 +158,13 @@ PARAMETERS = ParamTable(
             2.0,
             're-solve period when new data came, s; 0 = on request',
             range=NON_NEGATIVE,
+        ),
+        Param(
+            'online',
+            True,
+            'incremental smoothing (iSAM2) with the EM weights per keyframe; the full pass '
+            'runs on optimize_period_s and ~/optimize',
+            field='mapper.online',
         ),
         Param(
             'stamp_tolerance_s',

@@ -194,3 +194,31 @@ def test_a_missing_or_unreadable_checkpoint_is_refused(tmp_path: Path) -> None:
     garbage.write_bytes(b'not a zip file at all')
     with pytest.raises(CheckpointError, match=r'garbage\.npz.*not a readable \.npz'):
         load_checkpoint(new_mapper(), garbage)
+
+
+def test_a_resumed_online_mapper_smooths_what_it_held_as_an_uninterrupted_one(
+    tmp_path: Path,
+) -> None:
+    """The smoother is not in the checkpoint: a resumed mapper puts every keyframe and
+    observation it holds into a new one, and ends with the uninterrupted one's moveable
+    set, its map within a millimetre."""
+    pytest.importorskip('gtsam', reason='the online mapper needs GTSAM')
+    items = room_inputs()
+    half = len(items) // 2
+    online = MapperConfig(em=EmConfig(), online=True)
+    reference = MapperProcessor(online)
+    feed(reference, items)
+    first = MapperProcessor(online)
+    feed(first, items[:half])
+    path = tmp_path / 'em_sam_checkpoint.npz'
+    save_checkpoint(first, path)
+    resumed = MapperProcessor(online)
+    load_checkpoint(resumed, path)
+    feed(resumed, items)
+    assert resumed.online is not None and reference.online is not None
+    assert resumed.online.num_keyframes == reference.online.num_keyframes
+    assert resumed.online_moveable == reference.online_moveable == set(MOVEABLE_IDS)
+    kept, again = reference.online.landmark_positions(), resumed.online.landmark_positions()
+    assert kept.keys() == again.keys()
+    for landmark, position in kept.items():
+        assert np.linalg.norm(again[landmark] - position) < 1e-3
