@@ -52,6 +52,7 @@ ROSDEP_KEYS = {
     'hypothesis': 'python3-hypothesis',
     'pytest': 'python3-pytest',
     'setuptools': 'python3-setuptools',
+    'gtsam': 'python3-gtsam-pip',  # pip's convention; requirements/python.txt installs it
 }
 """Third-party Python modules -> the rosdep key a package.xml declares them under."""
 

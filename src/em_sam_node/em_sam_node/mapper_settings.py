@@ -161,9 +161,10 @@ PARAMETERS = ParamTable(
         ),
         Param(
             'online',
-            True,
-            'incremental smoothing (iSAM2) with the EM weights per keyframe; the full pass '
-            'runs on optimize_period_s and ~/optimize',
+            False,
+            'also smooth incrementally (iSAM2) with the EM weights per keyframe (in progress: '
+            'docs/design/em_sam_online.md); the full pass runs on optimize_period_s and '
+            '~/optimize',
             field='mapper.online',
         ),
         Param(

@@ -250,20 +250,26 @@ class IncrementalEmSam:
     # --- weights ------------------------------------------------------------------------
 
     def _update_weights(self, seen: tuple[int, ...]) -> tuple[int, ...]:
-        """The M-step and the gate for the landmarks ``seen``; queue the factors of those
-        whose weight moved past ``weight_step`` or whose gated sightings changed for
-        replacement; return their ids."""
+        """The M-step and the gate for the landmarks ``seen``; queue for replacement the
+        factors of those whose weight moved past ``weight_step`` (all its sightings) or
+        whose gate changed (those sightings; none while the weight keeps them all at the
+        floor); return their ids."""
         reweighted = []
+        floored = ROW_SCALE_FLOOR**2
         for landmark_id in seen:
             landmark = self.landmarks[landmark_id]
-            landmark.weight, gated = self._weight(landmark_id)
-            landmark.gated = gated
-            moved = abs(landmark.weight - landmark.applied) > self.incremental.weight_step
-            if moved or tuple(gated) != landmark.applied_gated:
-                if moved:
-                    landmark.applied = landmark.weight
-                landmark.applied_gated = tuple(gated)
-                ready = [(k, f) for k, f in enumerate(landmark.factors) if f >= 0]
+            landmark.weight, landmark.gated = self._weight(landmark_id)
+            every = range(len(landmark.poses))
+            if abs(landmark.weight - landmark.applied) > self.incremental.weight_step:
+                landmark.applied = landmark.weight
+                changed = list(every)
+            elif landmark.applied <= floored:
+                changed = []
+            else:
+                changed = [k for k in every if landmark.gated[k] != landmark.applied_gated[k]]
+            landmark.applied_gated = tuple(landmark.gated)
+            ready = [(k, landmark.factors[k]) for k in changed if landmark.factors[k] >= 0]
+            if ready:
                 self._pending_removals += [f for _, f in ready]
                 self._pending += [(landmark_id, k) for k, _ in ready]
                 reweighted.append(landmark_id)
