@@ -42,19 +42,21 @@ def call(
     return future.result()
 
 
-@pytest.fixture
-def mapped(ros_harness: RosHarness, tmp_path: Path) -> tuple[RosHarness, EmSamMapperNode]:
-    """Play the office bag at 20x through both nodes and solve once at the end."""
-    ingest = ros_harness.add_node(OdometryIngestNode())
-    mapper = ros_harness.add_node(
+def play_office(
+    harness: RosHarness, tmp_path: Path, *, online: bool = False
+) -> tuple[OdometryIngestNode, EmSamMapperNode]:
+    """Play the office bag at 20x through odometry_ingest and em_sam_mapper."""
+    ingest = harness.add_node(OdometryIngestNode())
+    mapper = harness.add_node(
         EmSamMapperNode(
             parameter_overrides=[
                 Parameter('optimize_period_s', value=0.0),
                 Parameter('report_dir', value=str(tmp_path / 'report')),
+                Parameter('online', value=online),
             ]
         )
     )
-    player = ros_harness.add_node(
+    player = harness.add_node(
         BagPlayerNode(
             parameter_overrides=[
                 Parameter('bag_path', value=str(BAG)),
@@ -69,6 +71,13 @@ def mapped(ros_harness: RosHarness, tmp_path: Path) -> tuple[RosHarness, EmSamMa
     )
     assert player.finished.wait(120) and player.error is None
     wait_until(lambda: ingest.flushed, timeout_s=20, what='odometry_ingest to flush')
+    return ingest, mapper
+
+
+@pytest.fixture
+def mapped(ros_harness: RosHarness, tmp_path: Path) -> tuple[RosHarness, EmSamMapperNode]:
+    """Play the office bag at 20x through both nodes and solve once at the end."""
+    _, mapper = play_office(ros_harness, tmp_path)
     reply = call(ros_harness, Trigger, '/em_sam_mapper/optimize', Trigger.Request())
     assert reply.success, reply.message  # type: ignore[attr-defined]
     return ros_harness, mapper  # type: ignore[return-value]
@@ -95,6 +104,43 @@ def test_moveable_landmarks_and_map(mapped: tuple[RosHarness, EmSamMapperNode]) 
     assert all(e.weight > 0.5 and e.num_observations > 0 for e in static)
     assert all(e.covariance[0] > 0 and e.covariance[3] > 0 for e in static)
     assert map_message.header.frame_id == 'map'
+
+
+def test_online_the_moveable_set_is_published_as_it_changes(
+    ros_harness: RosHarness, tmp_path: Path
+) -> None:
+    """With ``online``, em_sam/moveable_online carries the smoother's set each time it
+    changes; once every keyframe is in, it is the moved markers, each placed where it was
+    seen, most recent first."""
+    online = ros_harness.collect('em_sam/moveable_online', MoveableLandmarkArray, latched_qos())
+    ingest, mapper = play_office(ros_harness, tmp_path, online=True)
+    wait_until(
+        lambda: mapper.mapper.num_keyframes == ingest.published + 1,
+        timeout_s=120,
+        what='em_sam_mapper to take every keyframe',
+    )
+    smoothed = mapper.mapper.num_keyframes - 1  # the last waits for the next one
+    wait_until(
+        lambda: (
+            mapper.mapper.online is not None and mapper.mapper.online.num_keyframes == smoothed
+        ),
+        timeout_s=120,
+        what='the smoother to take every keyframe but the last',
+    )
+    assert mapper.mapper.online_moveable == MOVED
+    wait_until(
+        lambda: (
+            bool(online.messages)
+            and {m.landmark_id for m in online.messages[-1].landmarks} == MOVED
+        ),
+        timeout_s=30,
+        what='the online set to be published',
+    )
+    assert len(online.messages) >= 2  # it changed on the way
+    for landmark in online.messages[-1].landmarks:
+        stamps = [s.stamp.sec * 10**9 + s.stamp.nanosec for s in landmark.sightings]
+        assert stamps == sorted(stamps, reverse=True) and len(stamps) > 20
+        assert landmark.weight < 0.5
 
 
 def test_find_landmark(mapped: tuple[RosHarness, EmSamMapperNode]) -> None:

@@ -17,6 +17,8 @@ Topics:
               is true, for graphs whose detectors publish them so; bags replay them volatile)
   publishes   em_sam/path (nav_msgs/Path), em_sam/landmarks (slam_interfaces/LandmarkMap),
               em_sam/moveable (slam_interfaces/MoveableLandmarkArray),
+              em_sam/moveable_online (the same type, with ``online``: the smoother's set
+              each time it changes, sightings placed through its poses),
               em_sam/markers (visualization_msgs/MarkerArray): reliable, transient-local, 1
               /tf (tf2_msgs/TFMessage): map->odom, every tf_period_s
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
@@ -119,6 +121,7 @@ from slam_core.cli import console_main
 from slam_interfaces.msg import (
     LandmarkMap,
     LandmarkObservationArray,
+    MoveableLandmark,
     MoveableLandmarkArray,
     OdometryIncrement,
 )
@@ -156,6 +159,9 @@ class EmSamMapperNode(Node):
             MoveableLandmarkArray, 'em_sam/moveable', latched
         )
         self.marker_publisher = self.create_publisher(MarkerArray, 'em_sam/markers', latched)
+        self.online_publisher = self.create_publisher(
+            MoveableLandmarkArray, 'em_sam/moveable_online', latched
+        )
         self.tf_publisher = self.create_publisher(TFMessage, '/tf', output_qos(depth=100))
         self.diagnostics = Diagnostics(self, self._counts)
         timed = self.diagnostics.timed
@@ -288,6 +294,22 @@ class EmSamMapperNode(Node):
                 + (f' (cleared {cleared})' if cleared else '')
             )
             self._online_moveable = moveable
+            self.online_publisher.publish(self._online_message(moveable))
+
+    def _online_message(self, moveable: frozenset[int]) -> MoveableLandmarkArray:
+        """The online moveable set with each landmark's weight and sightings."""
+        message = MoveableLandmarkArray()
+        message.header.frame_id = self.map_frame
+        message.header.stamp = self.get_clock().now().to_msg()
+        assert self.mapper.online is not None
+        weights = self.mapper.online.weights
+        for landmark_id in sorted(moveable):
+            entry = MoveableLandmark()
+            entry.landmark_id, entry.weight = landmark_id, float(weights[landmark_id])
+            sightings = self.mapper.online_sightings(landmark_id)
+            entry.sightings = sighting_messages(sightings) if sightings is not None else []
+            message.landmarks.append(entry)
+        return message
 
     def _on_observations(self, message: LandmarkObservationArray) -> None:
         for observation in observations_from_message(message):

@@ -170,6 +170,16 @@ class MapperProcessor:
         """Observations attached to keyframes that are not in the smoother yet."""
         return len(self._unfed)
 
+    def online_sightings(self, landmark_id: int) -> Sightings | None:
+        """Every sighting of a landmark the smoother holds, placed through its poses, most
+        recent first (``IncrementalEmSam.placed_sightings``); None for one it does not."""
+        if self.online is None or landmark_id not in self.online.landmarks:
+            return None
+        keyframes, positions, covariances = self.online.placed_sightings(landmark_id)
+        stamps = np.array(self.stamps_ns, dtype=np.int64)[keyframes]
+        order = np.argsort(-stamps, kind='stable')
+        return Sightings(stamps[order], positions[order], covariances[order])
+
     @property
     def online_moveable(self) -> frozenset[int]:
         """The smoother's moveable set (empty before its first keyframe or offline)."""

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from synthetic_room import MOVEABLE_IDS, STATIC_IDS, make_room, mapper_inputs
+from synthetic_room import (
+    MOVEABLE_AFTER,
+    MOVEABLE_BEFORE,
+    MOVEABLE_IDS,
+    STATIC_IDS,
+    make_room,
+    mapper_inputs,
+)
 
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.em import run_em
@@ -142,3 +149,23 @@ def test_the_mapper_online_flags_what_the_full_pass_flags_and_no_static_on_the_w
     assert result is not None
     assert processor.online_moveable == set(result.landmark_ids[result.moveable].tolist())
     assert processor.online_moveable == set(MOVEABLE_IDS)
+
+
+def test_a_moved_landmark_is_placed_where_it_was_seen_most_recent_first() -> None:
+    """The online sightings of a mover, placed through the smoother's poses: the newest
+    at its new place, the oldest at its old one, each with the sensor's covariance."""
+    room = make_room(0)
+    processor = MapperProcessor(MapperConfig(em=EmConfig(), online=True))
+    for item in _live_order(room.data, 0):
+        if isinstance(item, Increment):
+            processor.add_increment(item)
+        else:
+            processor.add_observation(item)  # type: ignore[arg-type]
+    assert processor.online_sightings(999) is None
+    for landmark, before, after in zip(MOVEABLE_IDS, MOVEABLE_BEFORE, MOVEABLE_AFTER, strict=True):
+        sightings = processor.online_sightings(landmark)
+        assert sightings is not None
+        assert np.all(np.diff(sightings.stamps_ns) < 0)  # most recent first
+        assert np.linalg.norm(sightings.positions[0] - after) < 0.3
+        assert np.linalg.norm(sightings.positions[-1] - before) < 0.3
+        assert np.all(np.linalg.eigvalsh(sightings.covariances) > 0)

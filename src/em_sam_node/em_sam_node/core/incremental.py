@@ -332,3 +332,20 @@ class IncrementalEmSam:
     def landmark_positions(self) -> dict[int, FloatArray]:
         """The smoother's landmark positions, by id."""
         return {i: self._point(i) for i in self.landmarks}
+
+    def placed_sightings(self, landmark_id: int) -> tuple[list[int], FloatArray, FloatArray]:
+        """Where the landmark was seen, in the order it was: the keyframes, the sightings
+        placed in the map through the smoother's poses (S, 2) m, and their covariances
+        (S, 2, 2) m^2 from the sensor's alone (the poses' own uncertainty is left out: a
+        marginal per sighting would cost a solve each)."""
+        landmark = self.landmarks[landmark_id]
+        poses = self._poses_at(landmark.poses)
+        z, cov = np.array(landmark.z).reshape(-1, 2), np.array(landmark.cov).reshape(-1, 2, 2)
+        angle = poses[:, 2] + z[:, 1]
+        c, s = np.cos(angle), np.sin(angle)
+        positions = poses[:, :2] + z[:, :1] * np.column_stack([c, s])
+        jacobian = np.zeros((len(z), 2, 2))  # d(x, y) / d(range, bearing)
+        jacobian[:, 0, 0], jacobian[:, 1, 0] = c, s
+        jacobian[:, 0, 1], jacobian[:, 1, 1] = -z[:, 0] * s, z[:, 0] * c
+        covariances = jacobian @ cov @ np.swapaxes(jacobian, 1, 2)
+        return list(landmark.poses), positions, covariances
