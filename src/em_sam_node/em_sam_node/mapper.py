@@ -9,15 +9,16 @@ as such (``before_start_observations``) with a warning: the map never had a pose
 whose keyframe never came is dropped with a warning that names it.
 
 Inputs already held are skipped and counted apart, not as dropped: an increment between two
-keyframes the chain has, an observation whose (stamp, landmark) was taken before.
+keyframes the chain has, an observation whose (stamp, landmark) was taken before. A mapper
+resumed from a checkpoint (em_sam_node.checkpoint) gets its inputs' history again from the
+transient-local publishers and continues at its last keyframe.
 
 Online (``MapperConfig.online``): each keyframe goes into the incremental smoother
 (``core.incremental``) once the next keyframe has come (its observations have had the time
 between two keyframes to arrive), with the observations attached since to keyframes already
-in it; the smoother's moveable set and its per-keyframe latency follow. ``optimize`` stays
-the full EM pass over everything collected. A mapper
-resumed from a checkpoint (em_sam_node.checkpoint) gets its inputs' history again from the
-transient-local publishers and continues at its last keyframe.
+in it; the smoother's moveable set and its per-keyframe latency follow. The checkpoint does
+not hold the smoother: a resumed mapper builds a new one from everything it holds.
+``optimize`` stays the full EM pass over everything collected.
 """
 
 from __future__ import annotations

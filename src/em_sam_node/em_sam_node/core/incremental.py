@@ -8,14 +8,15 @@ first-order covariance (``between_of_increment``); a sighting as a bearing-range
 
 The EM weights (``core.em_weights``, the robust mode's per-landmark test) are updated online
 for the landmarks a keyframe sees: their sightings' squared Mahalanobis innovations at the
-smoother's estimate (with the test's model error and the variance factors of the last full
-pass), the per-sighting gate, and the M-step. A landmark whose weight moved by more than
-``weight_step`` has its sightings' factors replaced with the new row scale (information
-times w, as the E-step's sqrt(w) row scale) in the next update. Landmarks below
-``moveable_threshold`` are the moveable set.
+smoother's estimate (with the test's model error and ``noise_scales``, the sensor's variance
+factors: 1 unless the caller sets them), the per-sighting gate, and the M-step. A landmark
+whose weight moved by more than ``weight_step`` has all its sightings' factors replaced with
+the new row scale (information times w, as the E-step's sqrt(w) row scale), one whose gate
+changed those sightings' factors; the test repeats within the keyframe until no weight
+moves. Landmarks below ``moveable_threshold`` are the moveable set.
 
-The full pass (``core.em.run_em`` over everything collected) is the batch answer; the
-smoother restarts from its estimate and weights (``restart``).
+The full pass (``core.em.run_em`` over everything collected) stays the batch answer; this
+smoother does not take its result.
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ from em_sam_node.core.em_weights import (
 )
 from em_sam_node.core.factors import range_bearing_error
 from em_sam_node.core.problem import FloatArray
+from em_sam_node.core.sightings import sighting_jacobians
+from slam_core.geometry.se2 import range_bearing_to_point
 
 
 def between_of_increment(u: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -133,14 +136,10 @@ class IncrementalEmSam:
         self.num_keyframes = 0
         self._pending_removals: list[int] = []
         self._pending: list[tuple[int, int]] = []  # (landmark id, sighting) to (re)add
-        self._new_solver()
-
-    def _new_solver(self) -> None:
-        gtsam = self.gtsam
-        params = gtsam.ISAM2Params()
+        params = self.gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.incremental.relinearize_threshold)
         params.relinearizeSkip = self.incremental.relinearize_skip
-        self.solver = gtsam.ISAM2(params)
+        self.solver = self.gtsam.ISAM2(params)
 
     # --- keyframes ----------------------------------------------------------------------
 
@@ -297,10 +296,6 @@ class IncrementalEmSam:
         weight = float(m_step(self.config, mahalanobis, owner, 1, ~gated)[0])
         return weight, gated.tolist()
 
-    def _xyt(self, index: int) -> tuple[float, float, float]:
-        pose = self._pose(index)
-        return pose.x(), pose.y(), pose.theta()
-
     def _poses_at(self, indices: list[int]) -> FloatArray:
         """The estimates of the poses ``indices`` (K, 3): the linearization point moved by
         the solution's delta, read once for all (a call per pose costs more)."""
@@ -327,7 +322,7 @@ class IncrementalEmSam:
 
     def poses(self) -> FloatArray:
         """The smoother's keyframe poses (N, 3) as (x m, y m, theta rad)."""
-        return np.array([self._xyt(i) for i in range(self.num_keyframes)]).reshape(-1, 3)
+        return self._poses_at(list(range(self.num_keyframes)))
 
     def landmark_positions(self) -> dict[int, FloatArray]:
         """The smoother's landmark positions, by id."""
@@ -341,11 +336,6 @@ class IncrementalEmSam:
         landmark = self.landmarks[landmark_id]
         poses = self._poses_at(landmark.poses)
         z, cov = np.array(landmark.z).reshape(-1, 2), np.array(landmark.cov).reshape(-1, 2, 2)
-        angle = poses[:, 2] + z[:, 1]
-        c, s = np.cos(angle), np.sin(angle)
-        positions = poses[:, :2] + z[:, :1] * np.column_stack([c, s])
-        jacobian = np.zeros((len(z), 2, 2))  # d(x, y) / d(range, bearing)
-        jacobian[:, 0, 0], jacobian[:, 1, 0] = c, s
-        jacobian[:, 0, 1], jacobian[:, 1, 1] = -z[:, 0] * s, z[:, 0] * c
-        covariances = jacobian @ cov @ np.swapaxes(jacobian, 1, 2)
-        return list(landmark.poses), positions, covariances
+        _, by_z = sighting_jacobians(poses, z)
+        covariances = by_z @ cov @ np.swapaxes(by_z, 1, 2)
+        return list(landmark.poses), range_bearing_to_point(poses, z), covariances
