@@ -202,7 +202,6 @@ def test_a_resumed_online_mapper_smooths_what_it_held_as_an_uninterrupted_one(
     """The smoother is not in the checkpoint: a resumed mapper puts every keyframe and
     observation it holds into a new one, and ends with the uninterrupted one's moveable
     set, its map within a millimetre."""
-    pytest.importorskip('gtsam', reason='the online mapper needs GTSAM')
     items = room_inputs()
     half = len(items) // 2
     online = MapperConfig(em=EmConfig(), online=True)

@@ -25,8 +25,6 @@ from em_sam_node.core.incremental import (
 from em_sam_node.ingest import Increment
 from em_sam_node.mapper import MapperConfig, MapperProcessor, Observation
 
-pytest.importorskip('gtsam', reason='the online mapper needs GTSAM (requirements/python.txt)')
-
 
 def _replay(data: MappingData, config: EmConfig) -> tuple[IncrementalEmSam, list[UpdateStats]]:
     smoother = IncrementalEmSam(config, data.prior_pose, data.prior_cov)
