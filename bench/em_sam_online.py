@@ -8,8 +8,8 @@ time as em_sam_mapper gets it (``victoria_park_gtsam.mapping_data``: eq. 2 incre
 range-bearing sightings):
 
 - reference: GTSAM 4.3 iSAM2 with its default parameters, one ``update`` per pose with its
-  odometry factor and sightings, every tree static (``victoria_park_gtsam.isam2``'s loop,
-  timed per update);
+  odometry factor and sightings, every tree static (``victoria_park_gtsam.isam2``, timed
+  per update);
 - ours: ``IncrementalEmSam`` with the default EmConfig (robust mode) and IncrementalConfig:
   the same iSAM2 underneath, plus each keyframe's EM test of the trees it saw and the
   replacement of the factors whose weight or gate changed.
@@ -40,7 +40,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'bench'))
 
 from bench_common import run_meta  # noqa: E402
-from victoria_park_gtsam import from_values, gtsam_graph, mapping_data, our_problem  # noqa: E402
+from victoria_park_gtsam import (  # noqa: E402
+    from_values,
+    gtsam_graph,
+    isam2,
+    mapping_data,
+    our_problem,
+)
 
 from em_sam_node.core.assembly import MappingData  # noqa: E402
 from em_sam_node.core.em_types import EmConfig  # noqa: E402
@@ -50,45 +56,11 @@ from em_sam_node.core.solver import solve  # noqa: E402
 from slam_core.blas import single_threaded_blas  # noqa: E402
 from slam_core.datasets import data_root  # noqa: E402
 from slam_core.files import write_atomically  # noqa: E402
-from slam_sim.core.victoria_park import VictoriaPark, parse_victoria_park  # noqa: E402
+from slam_sim.core.victoria_park import parse_victoria_park  # noqa: E402
 
 BEST_KNOWN_COST = 2339.2  # GTSAM LM polished from iSAM2's estimate (issue 44)
 P95_MAX_MS, MAX_MS, MAX_FLAGGED, COST_RATIO = 50.0, 500.0, 3, 1.01
 PLOT_WINDOW = 100  # keyframes per point of the latency plot
-
-
-def plain_isam2(gtsam: Any, graph: Any, data: VictoriaPark, count: int) -> tuple[Any, list[float]]:
-    """iSAM2 one pose per update on the first ``count`` poses; its estimate and latencies."""
-    first_sighting = 1 + len(data.odometry_from)
-    by_pose: dict[int, list[int]] = {}
-    for factor, pose in enumerate(data.obs_pose.tolist(), start=first_sighting):
-        by_pose.setdefault(pose, []).append(factor)
-    incoming = {int(to): m for m, to in enumerate(data.odometry_to.tolist())}
-    solver = gtsam.ISAM2(gtsam.ISAM2Params())
-    known: set[int] = set()
-    latencies = []
-    for pose in range(count):
-        started = time.perf_counter()
-        factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        if pose == 0:
-            factors.add(graph.at(0))
-            start = gtsam.Pose2(0.0, 0.0, 0.0)
-        else:
-            m = incoming[pose]
-            factors.add(graph.at(1 + m))
-            previous = solver.calculateEstimatePose2(int(data.odometry_from[m]))
-            start = previous.compose(gtsam.Pose2(*data.odometry_between[m]))
-        values.insert(pose, start)
-        for factor in by_pose.get(pose, []):
-            k = factor - first_sighting
-            tree = int(data.obs_landmark[k])
-            factors.add(graph.at(factor))
-            if tree not in known:
-                known.add(tree)
-                values.insert(gtsam.symbol('l', tree), start.transformFrom(data.obs_xy[k]))
-        solver.update(factors, values)
-        latencies.append(time.perf_counter() - started)
-    return solver.calculateEstimate(), latencies
 
 
 def online(data: MappingData, count: int) -> tuple[IncrementalEmSam, list[float]]:
@@ -129,7 +101,8 @@ def main() -> int:
     landmark_ids = np.unique(data.obs_landmark)
 
     print(f'em_sam_online: Victoria Park, {count} poses, iSAM2 ...', file=sys.stderr)
-    reference, plain = plain_isam2(gtsam, graph, data, count)
+    plain: list[float] = []
+    reference, _ = isam2(gtsam, graph, data, count=count, latencies=plain)
     print('em_sam_online: ours ...', file=sys.stderr)
     smoother, ours = online(mapping_data(data), count)
     rows = [('GTSAM iSAM2 (reference)', plain), ('EM-SAM online (ours)', ours)]

@@ -205,15 +205,25 @@ def mapping_data(data: VictoriaPark) -> MappingData:
     )
 
 
-def isam2(gtsam: Any, graph: Any, data: VictoriaPark) -> tuple[Any, str]:
-    """GTSAM iSAM2, one pose per update (see the module docstring); the final estimate."""
+def isam2(
+    gtsam: Any,
+    graph: Any,
+    data: VictoriaPark,
+    *,
+    count: int | None = None,
+    latencies: list[float] | None = None,
+) -> tuple[Any, str]:
+    """GTSAM iSAM2, one pose per update (see the module docstring); the final estimate.
+    ``count``: only the first poses; ``latencies`` gets each update's wall time (s)."""
     by_pose: dict[int, list[int]] = {}
     for factor, pose in enumerate(data.obs_pose.tolist(), start=1 + len(data.odometry_from)):
         by_pose.setdefault(pose, []).append(factor)  # graph: prior, odometry, sightings
     incoming = {int(to): m for m, to in enumerate(data.odometry_to.tolist())}
     solver = gtsam.ISAM2(gtsam.ISAM2Params())
     known: set[int] = set()
-    for pose in range(data.num_poses):
+    count = data.num_poses if count is None else count
+    for pose in range(count):
+        started = time.perf_counter()
         factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if pose == 0:
             factors.add(graph.at(0))
@@ -233,7 +243,9 @@ def isam2(gtsam: Any, graph: Any, data: VictoriaPark) -> tuple[Any, str]:
                 point = start.transformFrom(gtsam.Point2(*data.obs_xy[k]))
                 values.insert(gtsam.symbol('l', tree), point)
         solver.update(factors, values)
-    return solver.calculateEstimate(), f'{data.num_poses} updates'
+        if latencies is not None:
+            latencies.append(time.perf_counter() - started)
+    return solver.calculateEstimate(), f'{count} updates'
 
 
 def em_sam_all_static(data: VictoriaPark, landmark_ids: np.ndarray) -> tuple[float, Estimate]:
