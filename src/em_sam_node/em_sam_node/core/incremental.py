@@ -15,6 +15,14 @@ the new row scale (information times w, as the E-step's sqrt(w) row scale), one 
 changed those sightings' factors; the test repeats within the keyframe until no weight
 moves. Landmarks below ``moveable_threshold`` are the moveable set.
 
+Rows the batch scales to the floor (gated sightings; every sighting of a landmark whose
+weight is at the floor) carry no factor here: their pull is nil, and GTSAM's factorization
+does not take rows a million times weaker than their neighbours reliably. A landmark left
+without factors is parked (a prior holds its variable) and placed by its own least squares
+while it is. A new sighting of a mapped landmark is gated before it enters, with the
+landmark's gate at the estimate with it added: a gross outlier never carries full weight
+into an update, because one step of the smoother with it cannot be taken back by removing it.
+
 The full pass (``core.em.run_em`` over everything collected) stays the batch answer; this
 smoother does not take its result.
 """
@@ -36,7 +44,7 @@ from em_sam_node.core.em_weights import (
     m_step,
     squared_mahalanobis,
 )
-from em_sam_node.core.factors import range_bearing_error
+from em_sam_node.core.factors import range_bearing_error, range_bearing_error_jacobians
 from em_sam_node.core.problem import FloatArray
 from em_sam_node.core.sightings import sighting_jacobians
 from slam_core.geometry.se2 import range_bearing_to_point
@@ -90,10 +98,15 @@ class IncrementalConfig:
             raise ValueError(f'weight_step={self.weight_step!r}: must be in (0, 1)')
 
 
+PARKING_SIGMA_M = 1.0  # the parking prior's standard deviation
+PARKED_ITERATIONS = 10  # Gauss-Newton steps placing a parked landmark
+
+
 @dataclass
 class _Landmark:
-    """A landmark's sightings: keyframe index, (range, bearing), covariance, and the index
-    of its factor in the smoother (-1 until the update that adds it)."""
+    """A landmark's sightings: keyframe index, (range, bearing), covariance, the index of
+    its factor in the smoother (-1 while it has none) and its gate; the weight its factors
+    carry; while none does, the index of the prior that parks it and its own estimate."""
 
     poses: list[int] = field(default_factory=list)
     z: list[FloatArray] = field(default_factory=list)
@@ -102,7 +115,14 @@ class _Landmark:
     gated: list[bool] = field(default_factory=list)
     weight: float = 1.0
     applied: float = 1.0  # the weight its factors carry
-    applied_gated: tuple[bool, ...] = ()  # the gate its factors carry
+    parked: int = -1  # the parking prior's factor, -1 when it has sightings in the smoother
+    position: FloatArray | None = None  # its own estimate while parked
+
+    def carries(self, k: int) -> bool:
+        """Whether sighting k belongs in the smoother: not gated, and the landmark's weight
+        above the floor (below it the E-step's row scale is the floor, whose pull on the
+        poses is nil; GTSAM's factorization does not take such rows reliably)."""
+        return not self.gated[k] and np.sqrt(self.applied) > ROW_SCALE_FLOOR
 
 
 @dataclass(frozen=True)
@@ -177,53 +197,63 @@ class IncrementalEmSam:
                 )
             )
         values.insert(index, start)
-        sighted: list[tuple[int, int]] = []
+        sighted: set[int] = set()
         for keyframe, landmark_id, z, cov in [*late, *((index, *s) for s in sightings)]:
             if not 0 <= keyframe <= index:
                 raise ValueError(f'a sighting of keyframe {keyframe}: there are {index + 1}')
-            landmark = self.landmarks.get(int(landmark_id))
+            landmark_id = int(landmark_id)
+            landmark = self.landmarks.get(landmark_id)
             z = np.asarray(z, np.float64).reshape(2)
+            cov = np.asarray(cov, np.float64).reshape(2, 2)
+            seen_from = start if keyframe == index else self._pose(keyframe)
+            gated = landmark is not None and self._enter(landmark_id, seen_from, z, cov)
             if landmark is None:
-                landmark = self.landmarks[int(landmark_id)] = _Landmark()
-                seen_from = start if keyframe == index else self._pose(keyframe)
+                landmark = self.landmarks[landmark_id] = _Landmark()
                 point = seen_from.transformFrom(
                     gtsam.Point2(z[0] * np.cos(z[1]), z[0] * np.sin(z[1]))
                 )
-                values.insert(gtsam.symbol('l', int(landmark_id)), point)
+                values.insert(gtsam.symbol('l', landmark_id), point)
             landmark.poses.append(int(keyframe))
             landmark.z.append(z)
-            landmark.cov.append(np.asarray(cov, np.float64).reshape(2, 2))
+            landmark.cov.append(cov)
             landmark.factors.append(-1)
-            landmark.gated.append(False)
-            landmark.applied_gated += (False,)
-            sighted.append((int(landmark_id), len(landmark.poses) - 1))
+            landmark.gated.append(gated)
+            if landmark.carries(len(landmark.poses) - 1):
+                self._pending.append((landmark_id, len(landmark.poses) - 1))
+            sighted.add(landmark_id)
         self.num_keyframes += 1
-        self._update(factors, values, sighted)
-        seen = tuple(sorted({i for i, _ in sighted}))
+        self._update(factors, values)
+        seen = tuple(sorted(sighted))
         reweighted: set[int] = set()
         for _ in range(self.config.max_iterations):  # EM on the landmarks the keyframe saw
             changed = self._update_weights(seen)
             if not changed:
                 break
             reweighted.update(changed)
-            self._update(gtsam.NonlinearFactorGraph(), gtsam.Values(), [])
+            self._update(gtsam.NonlinearFactorGraph(), gtsam.Values())
         return UpdateStats(
             time.perf_counter() - started, seen, tuple(sorted(reweighted)), self.moveable
         )
 
-    def _update(self, factors: Any, values: Any, sighted: list[tuple[int, int]]) -> None:
-        """One smoother update: ``factors`` and ``values``, the new sightings, and the
-        factors queued for replacement."""
-        queued, self._pending = [*self._pending, *sighted], []
+    def _update(self, factors: Any, values: Any) -> None:
+        """One smoother update: ``factors`` and ``values``, and the queued sighting factors
+        (k >= 0), parking priors (k = -1) and removals."""
+        queued, self._pending = self._pending, []
         for landmark_id, k in queued:
-            factors.add(self._sighting_factor(landmark_id, k))
+            factors.add(
+                self._sighting_factor(landmark_id, k) if k >= 0 else self._parking(landmark_id)
+            )
         removals, self._pending_removals = self._pending_removals, []
         result = self.solver.update(factors, values, removals)
         new_indices = list(result.getNewFactorsIndices())  # in the order they were added
         for (landmark_id, k), factor in zip(
             queued, new_indices[len(new_indices) - len(queued) :], strict=True
         ):
-            self.landmarks[landmark_id].factors[k] = int(factor)
+            landmark = self.landmarks[landmark_id]
+            if k >= 0:
+                landmark.factors[k] = int(factor)
+            else:
+                landmark.parked = int(factor)
 
     def _pose(self, index: int) -> Any:
         return self.solver.calculateEstimatePose2(index)
@@ -231,12 +261,7 @@ class IncrementalEmSam:
     def _sighting_factor(self, landmark_id: int, k: int) -> Any:
         gtsam = self.gtsam
         landmark = self.landmarks[landmark_id]
-        rows = (
-            ROW_SCALE_FLOOR
-            if landmark.gated[k]
-            else max(np.sqrt(landmark.applied), ROW_SCALE_FLOOR)
-        )
-        cov = landmark.cov[k][np.ix_([1, 0], [1, 0])] / rows**2  # (bearing, range) order
+        cov = landmark.cov[k][np.ix_([1, 0], [1, 0])] / landmark.applied  # (bearing, range)
         z = landmark.z[k]
         return gtsam.BearingRangeFactor2D(
             landmark.poses[k],
@@ -246,33 +271,55 @@ class IncrementalEmSam:
             gtsam.noiseModel.Gaussian.Covariance(cov),
         )
 
+    def _parking(self, landmark_id: int) -> Any:
+        """A prior that holds a landmark without sightings in the smoother where it is. It
+        pulls nothing (the landmark has no other factor); a weak one would put a pivot out
+        of the factorization's range (GTSAM reports such a clique as indeterminate)."""
+        gtsam = self.gtsam
+        symbol = gtsam.symbol('l', landmark_id)
+        return gtsam.PriorFactorPoint2(
+            symbol,
+            self.solver.calculateEstimatePoint2(symbol),
+            gtsam.noiseModel.Isotropic.Sigma(2, PARKING_SIGMA_M),
+        )
+
     # --- weights ------------------------------------------------------------------------
 
     def _update_weights(self, seen: tuple[int, ...]) -> tuple[int, ...]:
-        """The M-step and the gate for the landmarks ``seen``; queue for replacement the
-        factors of those whose weight moved past ``weight_step`` (all its sightings) or
-        whose gate changed (those sightings; none while the weight keeps them all at the
-        floor); return their ids."""
-        reweighted = []
-        floored = ROW_SCALE_FLOOR**2
-        for landmark_id in seen:
-            landmark = self.landmarks[landmark_id]
-            landmark.weight, landmark.gated = self._weight(landmark_id)
-            every = range(len(landmark.poses))
-            if abs(landmark.weight - landmark.applied) > self.incremental.weight_step:
-                landmark.applied = landmark.weight
-                changed = list(every)
-            elif landmark.applied <= floored:
-                changed = []
-            else:
-                changed = [k for k in every if landmark.gated[k] != landmark.applied_gated[k]]
-            landmark.applied_gated = tuple(landmark.gated)
-            ready = [(k, landmark.factors[k]) for k in changed if landmark.factors[k] >= 0]
-            if ready:
-                self._pending_removals += [f for _, f in ready]
-                self._pending += [(landmark_id, k) for k, _ in ready]
-                reweighted.append(landmark_id)
-        return tuple(reweighted)
+        """The M-step and the gate for the landmarks ``seen``; queue the changes to their
+        factors: all of a landmark's when its weight moved past ``weight_step``, a
+        sighting's when its gate changed; park a landmark left without any; return the ids
+        of those changed."""
+        return tuple(i for i in seen if self._apply(i, *self._weight(i)))
+
+    def _apply(self, landmark_id: int, weight: float, gated: list[bool]) -> bool:
+        """Take a landmark's new weight and gate; queue the changes to its factors; return
+        whether there were any."""
+        landmark = self.landmarks[landmark_id]
+        carried = [landmark.carries(k) for k in range(len(landmark.poses))]
+        landmark.weight, landmark.gated = weight, gated
+        rescaled = abs(weight - landmark.applied) > self.incremental.weight_step
+        if rescaled:
+            landmark.applied = weight
+        queued = len(self._pending) + len(self._pending_removals)
+        for k, was in enumerate(carried):
+            wanted = landmark.carries(k)
+            if was and (rescaled or not wanted):
+                if landmark.factors[k] >= 0:
+                    self._pending_removals.append(landmark.factors[k])
+                    landmark.factors[k] = -1
+                else:  # queued in this keyframe, not in the smoother yet
+                    self._pending.remove((landmark_id, k))
+            if wanted and (rescaled or not was):
+                self._pending.append((landmark_id, k))
+        any_carried = any(landmark.carries(k) for k in range(len(landmark.poses)))
+        if not any_carried and landmark.parked < 0:
+            landmark.position = self._point(landmark_id)
+            self._pending.append((landmark_id, -1))
+        elif any_carried and landmark.parked >= 0:
+            self._pending_removals.append(landmark.parked)
+            landmark.parked, landmark.position = -1, None
+        return len(self._pending) + len(self._pending_removals) > queued
 
     def _weight(self, landmark_id: int) -> tuple[float, list[bool]]:
         """The landmark's M-step weight and its gated sightings at the smoother's estimate."""
@@ -280,14 +327,12 @@ class IncrementalEmSam:
         count = len(landmark.poses)
         if count <= 1:
             return 1.0, [False] * count
-        z, cov = np.array(landmark.z), np.array(landmark.cov)
-        root = np.sqrt(self.noise_scales)
-        cov = cov * root[None, :, None] * root[None, None, :]
-        tested = covariances_for_test(self.config, cov, z)
-        poses = self._poses_at(landmark.poses)
-        point = self._point(landmark_id)
-        innovation = range_bearing_error(poses, np.repeat(point[None], count, axis=0), z)
-        mahalanobis = squared_mahalanobis(innovation, cov if tested is None else tested)
+        mahalanobis = self._mahalanobis(
+            landmark_id,
+            self._poses_at(landmark.poses),
+            np.array(landmark.z),
+            np.array(landmark.cov),
+        )
         owner = np.zeros(count, dtype=np.int64)
         if self.config.mode == 'paper':
             gated = np.zeros(count, dtype=bool)
@@ -295,6 +340,34 @@ class IncrementalEmSam:
             gated = gate_outliers(self.config, mahalanobis, owner, 1)
         weight = float(m_step(self.config, mahalanobis, owner, 1, ~gated)[0])
         return weight, gated.tolist()
+
+    def _mahalanobis(
+        self, landmark_id: int, poses: FloatArray, z: FloatArray, cov: FloatArray
+    ) -> FloatArray:
+        """The test's squared Mahalanobis innovations (K,) of sightings z (K, 2) from
+        ``poses`` (K, 3) of the landmark where the smoother (or, parked, its own estimate)
+        has it, with the test's model error and ``noise_scales``."""
+        root = np.sqrt(self.noise_scales)
+        cov = cov * root[None, :, None] * root[None, None, :]
+        tested = covariances_for_test(self.config, cov, z)
+        point = self._position(landmark_id, poses)
+        innovation = range_bearing_error(poses, np.repeat(point[None], len(z), axis=0), z)
+        return squared_mahalanobis(innovation, cov if tested is None else tested)
+
+    def _enter(self, landmark_id: int, pose: Any, z: FloatArray, cov: FloatArray) -> bool:
+        """Whether a new sighting (from ``pose``) of a mapped landmark enters gated: the
+        landmark's gate, at the smoother's estimate with the sighting added, gates it. A
+        sighting the test would gate never carries full weight into an update: one step of
+        the smoother with a gross outlier in it cannot be taken back by removing it."""
+        landmark = self.landmarks[landmark_id]
+        if self.config.mode == 'paper' or landmark.parked >= 0:
+            return False
+        poses = np.vstack([self._poses_at(landmark.poses), [pose.x(), pose.y(), pose.theta()]])
+        mahalanobis = self._mahalanobis(
+            landmark_id, poses, np.array([*landmark.z, z]), np.array([*landmark.cov, cov])
+        )
+        owner = np.zeros(len(mahalanobis), dtype=np.int64)
+        return bool(gate_outliers(self.config, mahalanobis, owner, 1)[-1])
 
     def _poses_at(self, indices: list[int]) -> FloatArray:
         """The estimates of the poses ``indices`` (K, 3): the linearization point moved by
@@ -306,6 +379,31 @@ class IncrementalEmSam:
     def _point(self, landmark_id: int) -> FloatArray:
         symbol = self.gtsam.symbol('l', landmark_id)
         return np.asarray(self.solver.calculateEstimatePoint2(symbol), np.float64)
+
+    def _position(self, landmark_id: int, poses: FloatArray) -> FloatArray:
+        """Where the landmark is: the smoother's estimate, or, parked, the least-squares
+        point of all its sightings from ``poses`` (the first len(landmark.poses) rows; as
+        the batch's E-step places a landmark whose rows all carry the floor), refined from
+        the last one."""
+        landmark = self.landmarks[landmark_id]
+        if landmark.parked < 0 or landmark.position is None:
+            return self._point(landmark_id)
+        count = len(landmark.poses)
+        poses, z = poses[:count], np.array(landmark.z)
+        information = np.linalg.inv(np.array(landmark.cov))
+        point = landmark.position
+        for _ in range(PARKED_ITERATIONS):
+            innovation = range_bearing_error(poses, np.repeat(point[None], count, axis=0), z)
+            _, by_point = range_bearing_error_jacobians(poses, np.repeat(point[None], count, 0))
+            weighted = np.swapaxes(by_point, 1, 2) @ information
+            hessian = np.einsum('kij,kjl->il', weighted, by_point)
+            gradient = np.einsum('kij,kj->i', weighted, innovation)
+            step = -np.linalg.lstsq(hessian, gradient, rcond=None)[0]
+            point = point + step
+            if np.linalg.norm(step) < 1e-6:
+                break
+        landmark.position = point
+        return point
 
     # --- what it holds ------------------------------------------------------------------
 
@@ -325,8 +423,8 @@ class IncrementalEmSam:
         return self._poses_at(list(range(self.num_keyframes)))
 
     def landmark_positions(self) -> dict[int, FloatArray]:
-        """The smoother's landmark positions, by id."""
-        return {i: self._point(i) for i in self.landmarks}
+        """The landmark positions, by id: the smoother's, a parked landmark's own."""
+        return {i: self._position(i, self._poses_at(lm.poses)) for i, lm in self.landmarks.items()}
 
     def placed_sightings(self, landmark_id: int) -> tuple[list[int], FloatArray, FloatArray]:
         """Where the landmark was seen, in the order it was: the keyframes, the sightings
