@@ -20,8 +20,10 @@ weight is at the floor) carry no factor here: their pull is nil, and GTSAM's fac
 does not take rows a million times weaker than their neighbours reliably. A landmark left
 without factors is parked (a prior holds its variable) and placed by its own least squares
 while it is. A new sighting of a mapped landmark is gated before it enters, with the
-landmark's gate at the estimate with it added: a gross outlier never carries full weight
-into an update, because one step of the smoother with it cannot be taken back by removing it.
+landmark's gate at the estimate with it added, and a sighting whose bearing innovation
+exceeds a right angle is held out until the estimate brings it within one (the bearing's
+linearization points no way toward it): a gross outlier never carries full weight into an
+update, because one step of the smoother with it cannot be taken back by removing it.
 
 The full pass (``core.em.run_em`` over everything collected) stays the batch answer; this
 smoother does not take its result.
@@ -113,6 +115,7 @@ class _Landmark:
     cov: list[FloatArray] = field(default_factory=list)
     factors: list[int] = field(default_factory=list)
     gated: list[bool] = field(default_factory=list)
+    held: list[bool] = field(default_factory=list)  # beyond linearization at the last test
     weight: float = 1.0
     applied: float = 1.0  # the weight its factors carry
     parked: int = -1  # the parking prior's factor, -1 when it has sightings in the smoother
@@ -122,7 +125,7 @@ class _Landmark:
         """Whether sighting k belongs in the smoother: not gated, and the landmark's weight
         above the floor (below it the E-step's row scale is the floor, whose pull on the
         poses is nil; GTSAM's factorization does not take such rows reliably)."""
-        return not self.gated[k] and np.sqrt(self.applied) > ROW_SCALE_FLOOR
+        return not (self.gated[k] or self.held[k]) and np.sqrt(self.applied) > ROW_SCALE_FLOOR
 
 
 @dataclass(frozen=True)
@@ -206,7 +209,9 @@ class IncrementalEmSam:
             z = np.asarray(z, np.float64).reshape(2)
             cov = np.asarray(cov, np.float64).reshape(2, 2)
             seen_from = start if keyframe == index else self._pose(keyframe)
-            gated = landmark is not None and self._enter(landmark_id, seen_from, z, cov)
+            gated, held = (
+                self._enter(landmark_id, seen_from, z, cov) if landmark else (False, False)
+            )
             if landmark is None:
                 landmark = self.landmarks[landmark_id] = _Landmark()
                 point = seen_from.transformFrom(
@@ -218,6 +223,7 @@ class IncrementalEmSam:
             landmark.cov.append(cov)
             landmark.factors.append(-1)
             landmark.gated.append(gated)
+            landmark.held.append(held)
             if landmark.carries(len(landmark.poses) - 1):
                 self._pending.append((landmark_id, len(landmark.poses) - 1))
             sighted.add(landmark_id)
@@ -292,12 +298,12 @@ class IncrementalEmSam:
         of those changed."""
         return tuple(i for i in seen if self._apply(i, *self._weight(i)))
 
-    def _apply(self, landmark_id: int, weight: float, gated: list[bool]) -> bool:
-        """Take a landmark's new weight and gate; queue the changes to its factors; return
-        whether there were any."""
+    def _apply(self, landmark_id: int, weight: float, gated: list[bool], held: list[bool]) -> bool:
+        """Take a landmark's new weight, gate and held sightings; queue the changes to its
+        factors; return whether there were any."""
         landmark = self.landmarks[landmark_id]
         carried = [landmark.carries(k) for k in range(len(landmark.poses))]
-        landmark.weight, landmark.gated = weight, gated
+        landmark.weight, landmark.gated, landmark.held = weight, gated, held
         rescaled = abs(weight - landmark.applied) > self.incremental.weight_step
         if rescaled:
             landmark.applied = weight
@@ -321,17 +327,17 @@ class IncrementalEmSam:
             landmark.parked, landmark.position = -1, None
         return len(self._pending) + len(self._pending_removals) > queued
 
-    def _weight(self, landmark_id: int) -> tuple[float, list[bool]]:
-        """The landmark's M-step weight and its gated sightings at the smoother's estimate."""
+    def _weight(self, landmark_id: int) -> tuple[float, list[bool], list[bool]]:
+        """The landmark's M-step weight, its gated sightings and those held out (beyond
+        linearization), at the smoother's estimate."""
         landmark = self.landmarks[landmark_id]
         count = len(landmark.poses)
+        poses = self._poses_at(landmark.poses)
+        held = self._beyond_linearization(landmark_id, poses, np.array(landmark.z))
         if count <= 1:
-            return 1.0, [False] * count
+            return 1.0, [False] * count, held.tolist()
         mahalanobis = self._mahalanobis(
-            landmark_id,
-            self._poses_at(landmark.poses),
-            np.array(landmark.z),
-            np.array(landmark.cov),
+            landmark_id, poses, np.array(landmark.z), np.array(landmark.cov)
         )
         owner = np.zeros(count, dtype=np.int64)
         if self.config.mode == 'paper':
@@ -339,7 +345,7 @@ class IncrementalEmSam:
         else:
             gated = gate_outliers(self.config, mahalanobis, owner, 1)
         weight = float(m_step(self.config, mahalanobis, owner, 1, ~gated)[0])
-        return weight, gated.tolist()
+        return weight, gated.tolist(), held.tolist()
 
     def _mahalanobis(
         self, landmark_id: int, poses: FloatArray, z: FloatArray, cov: FloatArray
@@ -354,20 +360,40 @@ class IncrementalEmSam:
         innovation = range_bearing_error(poses, np.repeat(point[None], len(z), axis=0), z)
         return squared_mahalanobis(innovation, cov if tested is None else tested)
 
-    def _enter(self, landmark_id: int, pose: Any, z: FloatArray, cov: FloatArray) -> bool:
-        """Whether a new sighting (from ``pose``) of a mapped landmark enters gated: the
-        landmark's gate, at the smoother's estimate with the sighting added, gates it. A
-        sighting the test would gate never carries full weight into an update: one step of
-        the smoother with a gross outlier in it cannot be taken back by removing it."""
+    def _enter(
+        self, landmark_id: int, pose: Any, z: FloatArray, cov: FloatArray
+    ) -> tuple[bool, bool]:
+        """Whether a new sighting (from ``pose``) of a mapped landmark enters gated (the
+        landmark's gate, at the smoother's estimate with the sighting added, gates it) and
+        whether it is held out (beyond linearization). Either way it carries no factor
+        into the update: one step of the smoother with a gross outlier in it cannot be
+        taken back by removing the outlier."""
         landmark = self.landmarks[landmark_id]
-        if self.config.mode == 'paper' or landmark.parked >= 0:
-            return False
-        poses = np.vstack([self._poses_at(landmark.poses), [pose.x(), pose.y(), pose.theta()]])
+        if landmark.parked >= 0:
+            return False, False
+        pose_row = np.array([[pose.x(), pose.y(), pose.theta()]])
+        held = bool(self._beyond_linearization(landmark_id, pose_row, z[None])[0])
+        if self.config.mode == 'paper':
+            return False, held
+        poses = np.vstack([self._poses_at(landmark.poses), pose_row])
         mahalanobis = self._mahalanobis(
             landmark_id, poses, np.array([*landmark.z, z]), np.array([*landmark.cov, cov])
         )
         owner = np.zeros(len(mahalanobis), dtype=np.int64)
-        return bool(gate_outliers(self.config, mahalanobis, owner, 1)[-1])
+        return bool(gate_outliers(self.config, mahalanobis, owner, 1)[-1]), held
+
+    def _beyond_linearization(
+        self, landmark_id: int, poses: FloatArray, z: FloatArray
+    ) -> np.ndarray:
+        """Sightings (K,) whose bearing innovation at the estimate exceeds a right angle:
+        the smoother has the landmark in the other half-plane from where it was seen, so
+        the bearing's linearization there points no way toward the measurement and a
+        Gauss-Newton step with the factor is no step toward it. They stay out of the
+        smoother (the test still counts them) until the estimate brings them within it."""
+        point = self._position(landmark_id, poses)
+        innovation = range_bearing_error(poses, np.repeat(point[None], len(z), axis=0), z)
+        result: np.ndarray = np.abs(innovation[:, 1]) > np.pi / 2
+        return result
 
     def _poses_at(self, indices: list[int]) -> FloatArray:
         """The estimates of the poses ``indices`` (K, 3): the linearization point moved by
