@@ -59,12 +59,12 @@ Parameters:
   final_kernel ('cauchy'), final_kernel_scale (2.3849)  'robust': kernel on the static
                                   sightings of the final solve ('none' for least squares).
   solver_method ('levenberg_marquardt')  or 'gauss_newton'.
-  online (false)                  also smooth incrementally (GTSAM iSAM2) with the EM
+  online (true)                   also smooth incrementally (GTSAM iSAM2) with the EM
                                   weights of the landmarks each keyframe sees; moveable
-                                  landmarks are logged as they change, the per-keyframe
-                                  latency is on /diagnostics. The full pass (run_em) stays
-                                  the published answer. Off by default until it meets its
-                                  figures (docs/design/em_sam_online.md).
+                                  landmarks are published (em_sam/moveable_online) and
+                                  logged as they change, the per-keyframe latency is on
+                                  /diagnostics. The full pass (run_em) stays the published
+                                  map (docs/design/em_sam_online.md).
   optimize_period_s (2.0)         re-solve period when new data came; 0 = only on request.
   stamp_tolerance_s (0.005)       how close an observation's stamp must be to a keyframe's.
   prior_sigma ([0.001, 0.001, 0.001])  std. dev. of the prior on the first keyframe.

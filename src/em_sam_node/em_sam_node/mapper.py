@@ -58,7 +58,7 @@ class MapperConfig:
     stamp_tolerance_s: float = 0.005
     prior_sigma: tuple[float, float, float] = (1e-3, 1e-3, 1e-3)
     pending_timeout_s: float = 10.0
-    online: bool = False
+    online: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.stamp_tolerance_s) and self.stamp_tolerance_s >= 0):

@@ -161,10 +161,10 @@ PARAMETERS = ParamTable(
         ),
         Param(
             'online',
-            False,
-            'also smooth incrementally (iSAM2) with the EM weights per keyframe (in progress: '
-            'docs/design/em_sam_online.md); the full pass runs on optimize_period_s and '
-            '~/optimize',
+            True,
+            'also smooth incrementally (iSAM2) with the EM weights per keyframe, publishing '
+            'the moveable set as it changes (docs/design/em_sam_online.md); the full pass '
+            'runs on optimize_period_s and ~/optimize',
             field='mapper.online',
         ),
         Param(

@@ -37,10 +37,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.stats import chi2
 
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.em_weights import (
     ROW_SCALE_FLOOR,
+    chi2_quantile,
     covariances_for_test,
     gate_outliers,
     m_step,
@@ -101,6 +103,8 @@ class IncrementalConfig:
 
 
 PARKING_SIGMA_M = 1.0  # the parking prior's standard deviation
+NOISE_SCALE_GROWTH = 0.01  # re-estimate the variance factors when sightings grow by 1 %
+CHI2_MEDIAN_1 = float(chi2.median(1))  # the median of a squared standard normal
 PARKED_ITERATIONS = 10  # Gauss-Newton steps placing a parked landmark
 
 
@@ -120,6 +124,7 @@ class _Landmark:
     applied: float = 1.0  # the weight its factors carry
     parked: int = -1  # the parking prior's factor, -1 when it has sightings in the smoother
     position: FloatArray | None = None  # its own estimate while parked
+    standardized: FloatArray | None = None  # innovations^2 / nominal variances, last test
 
     def carries(self, k: int) -> bool:
         """Whether sighting k belongs in the smoother: not gated, and the landmark's weight
@@ -154,7 +159,8 @@ class IncrementalEmSam:
         self.incremental = incremental or IncrementalConfig()
         self.prior_pose = np.asarray(prior_pose, np.float64).reshape(3)
         self.prior_cov = np.asarray(prior_cov, np.float64).reshape(3, 3)
-        self.noise_scales = np.ones(2)  # the sensor's variance factors (the last full pass)
+        self.noise_scales = np.ones(2)  # the sensor's variance factors (range, bearing)
+        self._scaled_at = 0  # the sighting count the variance factors were estimated at
         self.landmarks: dict[int, _Landmark] = {}
         self.num_keyframes = 0
         self._pending_removals: list[int] = []
@@ -201,6 +207,7 @@ class IncrementalEmSam:
             )
         values.insert(index, start)
         sighted: set[int] = set()
+        created: set[int] = set()
         for keyframe, landmark_id, z, cov in [*late, *((index, *s) for s in sightings)]:
             if not 0 <= keyframe <= index:
                 raise ValueError(f'a sighting of keyframe {keyframe}: there are {index + 1}')
@@ -209,10 +216,14 @@ class IncrementalEmSam:
             z = np.asarray(z, np.float64).reshape(2)
             cov = np.asarray(cov, np.float64).reshape(2, 2)
             seen_from = start if keyframe == index else self._pose(keyframe)
+            increment = (relative, covariance[0]) if keyframe == index and index > 0 else None
             gated, held = (
-                self._enter(landmark_id, seen_from, z, cov) if landmark else (False, False)
+                self._enter(landmark_id, keyframe, seen_from, increment, z, cov)
+                if landmark and landmark_id not in created
+                else (False, False)  # a landmark this keyframe maps is not in the smoother yet
             )
             if landmark is None:
+                created.add(landmark_id)
                 landmark = self.landmarks[landmark_id] = _Landmark()
                 point = seen_from.transformFrom(
                     gtsam.Point2(z[0] * np.cos(z[1]), z[0] * np.sin(z[1]))
@@ -237,9 +248,29 @@ class IncrementalEmSam:
                 break
             reweighted.update(changed)
             self._update(gtsam.NonlinearFactorGraph(), gtsam.Values())
+        self._estimate_noise_scales()
         return UpdateStats(
             time.perf_counter() - started, seen, tuple(sorted(reweighted)), self.moveable
         )
+
+    def _estimate_noise_scales(self) -> None:
+        """The robust mode's variance factors (``em_weights.observation_noise_scales``: the
+        median standardized innovation per component, at least 1, capped), from every
+        landmark's innovations at its last test; re-estimated each time the sightings have
+        grown by ``NOISE_SCALE_GROWTH`` (a median over all of them each keyframe would cost
+        a pass over the run)."""
+        config = self.config
+        if config.mode != 'robust' or not config.estimate_noise_scale:
+            return
+        count = sum(len(landmark.poses) for landmark in self.landmarks.values())
+        if count < (1.0 + NOISE_SCALE_GROWTH) * self._scaled_at:
+            return
+        self._scaled_at = count
+        tested = [lm.standardized for lm in self.landmarks.values() if lm.standardized is not None]
+        if not tested:
+            return
+        factors = np.median(np.concatenate(tested), axis=0) / CHI2_MEDIAN_1
+        self.noise_scales = np.clip(factors, 1.0, config.max_noise_scale)
 
     def _update(self, factors: Any, values: Any) -> None:
         """One smoother update: ``factors`` and ``values``, and the queued sighting factors
@@ -329,16 +360,17 @@ class IncrementalEmSam:
 
     def _weight(self, landmark_id: int) -> tuple[float, list[bool], list[bool]]:
         """The landmark's M-step weight, its gated sightings and those held out (beyond
-        linearization), at the smoother's estimate."""
+        linearization), at the smoother's estimate; keep its standardized innovations for
+        the variance factors."""
         landmark = self.landmarks[landmark_id]
         count = len(landmark.poses)
-        poses = self._poses_at(landmark.poses)
-        held = self._beyond_linearization(landmark_id, poses, np.array(landmark.z))
+        z, cov = np.array(landmark.z), np.array(landmark.cov)
+        innovation = self._innovations(landmark_id, self._poses_at(landmark.poses), z)
+        landmark.standardized = innovation**2 / np.stack([cov[:, 0, 0], cov[:, 1, 1]], axis=1)
+        held = _beyond_linearization(innovation)
         if count <= 1:
             return 1.0, [False] * count, held.tolist()
-        mahalanobis = self._mahalanobis(
-            landmark_id, poses, np.array(landmark.z), np.array(landmark.cov)
-        )
+        mahalanobis = self._mahalanobis(innovation, z, cov)
         owner = np.zeros(count, dtype=np.int64)
         if self.config.mode == 'paper':
             gated = np.zeros(count, dtype=bool)
@@ -347,21 +379,28 @@ class IncrementalEmSam:
         weight = float(m_step(self.config, mahalanobis, owner, 1, ~gated)[0])
         return weight, gated.tolist(), held.tolist()
 
-    def _mahalanobis(
-        self, landmark_id: int, poses: FloatArray, z: FloatArray, cov: FloatArray
-    ) -> FloatArray:
-        """The test's squared Mahalanobis innovations (K,) of sightings z (K, 2) from
-        ``poses`` (K, 3) of the landmark where the smoother (or, parked, its own estimate)
-        has it, with the test's model error and ``noise_scales``."""
+    def _innovations(self, landmark_id: int, poses: FloatArray, z: FloatArray) -> FloatArray:
+        """The innovations (K, 2) of sightings z (K, 2) from ``poses`` (K, 3) of the
+        landmark where the smoother (or, parked, its own estimate) has it."""
+        point = self._position(landmark_id, poses)
+        return range_bearing_error(poses, np.repeat(point[None], len(z), axis=0), z)
+
+    def _mahalanobis(self, innovation: FloatArray, z: FloatArray, cov: FloatArray) -> FloatArray:
+        """The test's squared Mahalanobis distances (K,) of ``innovation`` (K, 2): the
+        sightings' covariances (K, 2, 2) times the variance factors, with the model error."""
         root = np.sqrt(self.noise_scales)
         cov = cov * root[None, :, None] * root[None, None, :]
         tested = covariances_for_test(self.config, cov, z)
-        point = self._position(landmark_id, poses)
-        innovation = range_bearing_error(poses, np.repeat(point[None], len(z), axis=0), z)
         return squared_mahalanobis(innovation, cov if tested is None else tested)
 
     def _enter(
-        self, landmark_id: int, pose: Any, z: FloatArray, cov: FloatArray
+        self,
+        landmark_id: int,
+        keyframe: int,
+        pose: Any,
+        increment: tuple[Any, FloatArray] | None,
+        z: FloatArray,
+        cov: FloatArray,
     ) -> tuple[bool, bool]:
         """Whether a new sighting (from ``pose``) of a mapped landmark enters gated (the
         landmark's gate, at the smoother's estimate with the sighting added, gates it) and
@@ -371,29 +410,64 @@ class IncrementalEmSam:
         landmark = self.landmarks[landmark_id]
         if landmark.parked >= 0:
             return False, False
-        pose_row = np.array([[pose.x(), pose.y(), pose.theta()]])
-        held = bool(self._beyond_linearization(landmark_id, pose_row, z[None])[0])
+        poses = np.vstack([self._poses_at(landmark.poses), [pose.x(), pose.y(), pose.theta()]])
+        z_all, cov_all = np.array([*landmark.z, z]), np.array([*landmark.cov, cov])
+        innovation = self._innovations(landmark_id, poses, z_all)
+        held = bool(_beyond_linearization(innovation[-1:])[0])
         if self.config.mode == 'paper':
             return False, held
-        poses = np.vstack([self._poses_at(landmark.poses), pose_row])
-        mahalanobis = self._mahalanobis(
-            landmark_id, poses, np.array([*landmark.z, z]), np.array([*landmark.cov, cov])
-        )
+        mahalanobis = self._mahalanobis(innovation, z_all, cov_all)
         owner = np.zeros(len(mahalanobis), dtype=np.int64)
-        return bool(gate_outliers(self.config, mahalanobis, owner, 1)[-1]), held
+        gated = bool(gate_outliers(self.config, mahalanobis, owner, 1)[-1])
+        if gated and self._predicted_fit(landmark_id, keyframe, pose, increment, z, cov):
+            gated = False  # the estimate, not the sighting, is what is off (drift)
+        return gated, held
 
-    def _beyond_linearization(
-        self, landmark_id: int, poses: FloatArray, z: FloatArray
-    ) -> np.ndarray:
-        """Sightings (K,) whose bearing innovation at the estimate exceeds a right angle:
-        the smoother has the landmark in the other half-plane from where it was seen, so
-        the bearing's linearization there points no way toward the measurement and a
-        Gauss-Newton step with the factor is no step toward it. They stay out of the
-        smoother (the test still counts them) until the estimate brings them within it."""
-        point = self._position(landmark_id, poses)
-        innovation = range_bearing_error(poses, np.repeat(point[None], len(z), axis=0), z)
-        result: np.ndarray = np.abs(innovation[:, 1]) > np.pi / 2
-        return result
+    def _predicted_fit(
+        self,
+        landmark_id: int,
+        keyframe: int,
+        pose: Any,
+        increment: tuple[Any, FloatArray] | None,
+        z: FloatArray,
+        cov: FloatArray,
+    ) -> bool:
+        """Whether a sighting from ``pose`` (keyframe ``keyframe``; a new one, with the
+        ``increment`` (relative pose, covariance) from the keyframe before) is within the
+        gate of its predicted innovation covariance: the pose's and the landmark's
+        marginals through the sighting's Jacobians, plus the test's covariance (their
+        correlation left out, which only widens it)."""
+        gtsam = self.gtsam
+        symbol = gtsam.symbol('l', landmark_id)
+        tested = covariances_for_test(self.config, cov[None], z[None])
+        test_cov = (cov if tested is None else tested[0])[np.ix_([1, 0], [1, 0])]
+        factor = gtsam.BearingRangeFactor2D(
+            keyframe,
+            symbol,
+            gtsam.Rot2(float(z[1])),
+            float(z[0]),
+            gtsam.noiseModel.Gaussian.Covariance(test_cov),
+        )
+        if increment is None:
+            pose_cov = self.solver.marginalCovariance(keyframe)
+        else:
+            relative, increment_cov = increment
+            adjoint = relative.inverse().AdjointMap()
+            previous = self.solver.marginalCovariance(keyframe - 1)
+            pose_cov = adjoint @ previous @ adjoint.T + increment_cov
+        values = gtsam.Values()
+        values.insert(keyframe, pose)
+        values.insert(symbol, self.solver.calculateEstimatePoint2(symbol))
+        jacobian, whitened = factor.linearize(values).jacobian()
+        by_pose, by_point = jacobian[:, :3], jacobian[:, 3:]
+        innovation_cov = (
+            np.eye(2)
+            + by_pose @ pose_cov @ by_pose.T
+            + by_point @ self.solver.marginalCovariance(symbol) @ by_point.T
+        )
+        return float(whitened @ np.linalg.solve(innovation_cov, whitened)) <= chi2_quantile(
+            1.0 - self.config.gate_probability, 2
+        )
 
     def _poses_at(self, indices: list[int]) -> FloatArray:
         """The estimates of the poses ``indices`` (K, 3): the linearization point moved by
@@ -463,3 +537,13 @@ class IncrementalEmSam:
         _, by_z = sighting_jacobians(poses, z)
         covariances = by_z @ cov @ np.swapaxes(by_z, 1, 2)
         return list(landmark.poses), range_bearing_to_point(poses, z), covariances
+
+
+def _beyond_linearization(innovation: FloatArray) -> np.ndarray:
+    """Sightings (K,) whose bearing innovation (K, 2) exceeds a right angle: the smoother
+    has the landmark in the other half-plane from where it was seen, so the bearing's
+    linearization there points no way toward the measurement and a Gauss-Newton step with
+    the factor is no step toward it. They stay out of the smoother (the test still counts
+    them) until the estimate brings them within it."""
+    result: np.ndarray = np.abs(innovation[:, 1]) > np.pi / 2
+    return result
