@@ -43,7 +43,7 @@ def call(
 
 
 def play_office(
-    harness: RosHarness, tmp_path: Path, *, online: bool = False
+    harness: RosHarness, tmp_path: Path, *, online: bool = True
 ) -> tuple[OdometryIngestNode, EmSamMapperNode]:
     """Play the office bag at 20x through odometry_ingest and em_sam_mapper."""
     ingest = harness.add_node(OdometryIngestNode())

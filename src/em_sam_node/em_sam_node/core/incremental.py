@@ -168,6 +168,9 @@ class IncrementalEmSam:
         params = self.gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.incremental.relinearize_threshold)
         params.relinearizeSkip = self.incremental.relinearize_skip
+        # check only the cliques an update touched for relinearization, not every variable:
+        # per-update cost independent of the run's length
+        params.enablePartialRelinearizationCheck = True
         self.solver = self.gtsam.ISAM2(params)
 
     # --- keyframes ----------------------------------------------------------------------
@@ -470,10 +473,9 @@ class IncrementalEmSam:
         )
 
     def _poses_at(self, indices: list[int]) -> FloatArray:
-        """The estimates of the poses ``indices`` (K, 3): the linearization point moved by
-        the solution's delta, read once for all (a call per pose costs more)."""
-        point, delta = self.solver.getLinearizationPoint(), self.solver.getDelta()
-        moved = [point.atPose2(i).retract(delta.at(i)) for i in indices]
+        """The estimates of the poses ``indices`` (K, 3), one lookup each (a copy of the
+        whole linearization point and delta would cost a pass over the run per call)."""
+        moved = [self.solver.calculateEstimatePose2(i) for i in indices]
         return np.array([(p.x(), p.y(), p.theta()) for p in moved]).reshape(-1, 3)
 
     def _point(self, landmark_id: int) -> FloatArray:
