@@ -37,7 +37,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
 
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.em_weights import (
@@ -103,8 +102,6 @@ class IncrementalConfig:
 
 
 PARKING_SIGMA_M = 1.0  # the parking prior's standard deviation
-NOISE_SCALE_GROWTH = 0.01  # re-estimate the variance factors when sightings grow by 1 %
-CHI2_MEDIAN_1 = float(chi2.median(1))  # the median of a squared standard normal
 PARKED_ITERATIONS = 10  # Gauss-Newton steps placing a parked landmark
 
 
@@ -124,7 +121,6 @@ class _Landmark:
     applied: float = 1.0  # the weight its factors carry
     parked: int = -1  # the parking prior's factor, -1 when it has sightings in the smoother
     position: FloatArray | None = None  # its own estimate while parked
-    standardized: FloatArray | None = None  # innovations^2 / nominal variances, last test
 
     def carries(self, k: int) -> bool:
         """Whether sighting k belongs in the smoother: not gated, and the landmark's weight
@@ -160,7 +156,6 @@ class IncrementalEmSam:
         self.prior_pose = np.asarray(prior_pose, np.float64).reshape(3)
         self.prior_cov = np.asarray(prior_cov, np.float64).reshape(3, 3)
         self.noise_scales = np.ones(2)  # the sensor's variance factors (range, bearing)
-        self._scaled_at = 0  # the sighting count the variance factors were estimated at
         self.landmarks: dict[int, _Landmark] = {}
         self.num_keyframes = 0
         self._pending_removals: list[int] = []
@@ -251,29 +246,9 @@ class IncrementalEmSam:
                 break
             reweighted.update(changed)
             self._update(gtsam.NonlinearFactorGraph(), gtsam.Values())
-        self._estimate_noise_scales()
         return UpdateStats(
             time.perf_counter() - started, seen, tuple(sorted(reweighted)), self.moveable
         )
-
-    def _estimate_noise_scales(self) -> None:
-        """The robust mode's variance factors (``em_weights.observation_noise_scales``: the
-        median standardized innovation per component, at least 1, capped), from every
-        landmark's innovations at its last test; re-estimated each time the sightings have
-        grown by ``NOISE_SCALE_GROWTH`` (a median over all of them each keyframe would cost
-        a pass over the run)."""
-        config = self.config
-        if config.mode != 'robust' or not config.estimate_noise_scale:
-            return
-        count = sum(len(landmark.poses) for landmark in self.landmarks.values())
-        if count < (1.0 + NOISE_SCALE_GROWTH) * self._scaled_at:
-            return
-        self._scaled_at = count
-        tested = [lm.standardized for lm in self.landmarks.values() if lm.standardized is not None]
-        if not tested:
-            return
-        factors = np.median(np.concatenate(tested), axis=0) / CHI2_MEDIAN_1
-        self.noise_scales = np.clip(factors, 1.0, config.max_noise_scale)
 
     def _update(self, factors: Any, values: Any) -> None:
         """One smoother update: ``factors`` and ``values``, and the queued sighting factors
@@ -363,13 +338,11 @@ class IncrementalEmSam:
 
     def _weight(self, landmark_id: int) -> tuple[float, list[bool], list[bool]]:
         """The landmark's M-step weight, its gated sightings and those held out (beyond
-        linearization), at the smoother's estimate; keep its standardized innovations for
-        the variance factors."""
+        linearization), at the smoother's estimate."""
         landmark = self.landmarks[landmark_id]
         count = len(landmark.poses)
         z, cov = np.array(landmark.z), np.array(landmark.cov)
         innovation = self._innovations(landmark_id, self._poses_at(landmark.poses), z)
-        landmark.standardized = innovation**2 / np.stack([cov[:, 0, 0], cov[:, 1, 1]], axis=1)
         held = _beyond_linearization(innovation)
         if count <= 1:
             return 1.0, [False] * count, held.tolist()
