@@ -8,8 +8,8 @@ first-order covariance (``between_of_increment``); a sighting as a bearing-range
 
 The EM weights (``core.em_weights``, the robust mode's per-landmark test) are updated online
 for the landmarks a keyframe sees: their sightings' squared Mahalanobis innovations at the
-smoother's estimate (with the test's model error and ``noise_scales``, the sensor's variance
-factors: 1 unless the caller sets them), the per-sighting gate, and the M-step. A landmark
+smoother's estimate (with the test's model error; the sensor model as given, without the
+batch's variance factors), the per-sighting gate, and the M-step. A landmark
 whose weight moved by more than ``weight_step`` has all its sightings' factors replaced with
 the new row scale (information times w, as the E-step's sqrt(w) row scale), one whose gate
 changed those sightings' factors; the test repeats within the keyframe until no weight
@@ -130,6 +130,19 @@ class _Landmark:
 
 
 @dataclass(frozen=True)
+class _NewSighting:
+    """A sighting about to enter: its keyframe, that keyframe's pose (a gtsam Pose2), the
+    increment (relative Pose2, covariance (3, 3)) that placed it if it is the new keyframe
+    (else None), (range m, bearing rad) and covariance (2, 2)."""
+
+    keyframe: int
+    pose: Any
+    increment: tuple[Any, FloatArray] | None
+    z: FloatArray
+    cov: FloatArray
+
+
+@dataclass(frozen=True)
 class UpdateStats:
     """One keyframe's update: its wall time (s), the landmarks it saw, those whose factors
     were replaced for a new weight, and the moveable set after it."""
@@ -155,7 +168,6 @@ class IncrementalEmSam:
         self.incremental = incremental or IncrementalConfig()
         self.prior_pose = np.asarray(prior_pose, np.float64).reshape(3)
         self.prior_cov = np.asarray(prior_cov, np.float64).reshape(3, 3)
-        self.noise_scales = np.ones(2)  # the sensor's variance factors (range, bearing)
         self.landmarks: dict[int, _Landmark] = {}
         self.num_keyframes = 0
         self._pending_removals: list[int] = []
@@ -216,7 +228,7 @@ class IncrementalEmSam:
             seen_from = start if keyframe == index else self._pose(keyframe)
             increment = (relative, covariance[0]) if keyframe == index and index > 0 else None
             gated, held = (
-                self._enter(landmark_id, keyframe, seen_from, increment, z, cov)
+                self._enter(landmark_id, _NewSighting(keyframe, seen_from, increment, z, cov))
                 if landmark and landmark_id not in created
                 else (False, False)  # a landmark this keyframe maps is not in the smoother yet
             )
@@ -319,12 +331,9 @@ class IncrementalEmSam:
         queued = len(self._pending) + len(self._pending_removals)
         for k, was in enumerate(carried):
             wanted = landmark.carries(k)
-            if was and (rescaled or not wanted):
-                if landmark.factors[k] >= 0:
-                    self._pending_removals.append(landmark.factors[k])
-                    landmark.factors[k] = -1
-                else:  # queued in this keyframe, not in the smoother yet
-                    self._pending.remove((landmark_id, k))
+            if was and (rescaled or not wanted):  # every carried factor is in the smoother
+                self._pending_removals.append(landmark.factors[k])
+                landmark.factors[k] = -1
             if wanted and (rescaled or not was):
                 self._pending.append((landmark_id, k))
         any_carried = any(landmark.carries(k) for k in range(len(landmark.poses)))
@@ -363,22 +372,12 @@ class IncrementalEmSam:
 
     def _mahalanobis(self, innovation: FloatArray, z: FloatArray, cov: FloatArray) -> FloatArray:
         """The test's squared Mahalanobis distances (K,) of ``innovation`` (K, 2): the
-        sightings' covariances (K, 2, 2) times the variance factors, with the model error."""
-        root = np.sqrt(self.noise_scales)
-        cov = cov * root[None, :, None] * root[None, None, :]
+        sightings' covariances (K, 2, 2) with the model error."""
         tested = covariances_for_test(self.config, cov, z)
         return squared_mahalanobis(innovation, cov if tested is None else tested)
 
-    def _enter(
-        self,
-        landmark_id: int,
-        keyframe: int,
-        pose: Any,
-        increment: tuple[Any, FloatArray] | None,
-        z: FloatArray,
-        cov: FloatArray,
-    ) -> tuple[bool, bool]:
-        """Whether a new sighting (from ``pose``) of a mapped landmark enters gated (the
+    def _enter(self, landmark_id: int, new: _NewSighting) -> tuple[bool, bool]:
+        """Whether a new sighting of a mapped landmark enters gated (the
         landmark's gate, at the smoother's estimate with the sighting added, gates it) and
         whether it is held out (beyond linearization). Either way it carries no factor
         into the update: one step of the smoother with a gross outlier in it cannot be
@@ -386,8 +385,9 @@ class IncrementalEmSam:
         landmark = self.landmarks[landmark_id]
         if landmark.parked >= 0:
             return False, False
+        pose = new.pose
         poses = np.vstack([self._poses_at(landmark.poses), [pose.x(), pose.y(), pose.theta()]])
-        z_all, cov_all = np.array([*landmark.z, z]), np.array([*landmark.cov, cov])
+        z_all, cov_all = np.array([*landmark.z, new.z]), np.array([*landmark.cov, new.cov])
         innovation = self._innovations(landmark_id, poses, z_all)
         held = bool(_beyond_linearization(innovation[-1:])[0])
         if self.config.mode == 'paper':
@@ -395,25 +395,17 @@ class IncrementalEmSam:
         mahalanobis = self._mahalanobis(innovation, z_all, cov_all)
         owner = np.zeros(len(mahalanobis), dtype=np.int64)
         gated = bool(gate_outliers(self.config, mahalanobis, owner, 1)[-1])
-        if gated and self._predicted_fit(landmark_id, keyframe, pose, increment, z, cov):
+        if gated and self._predicted_fit(landmark_id, new):
             gated = False  # the estimate, not the sighting, is what is off (drift)
         return gated, held
 
-    def _predicted_fit(
-        self,
-        landmark_id: int,
-        keyframe: int,
-        pose: Any,
-        increment: tuple[Any, FloatArray] | None,
-        z: FloatArray,
-        cov: FloatArray,
-    ) -> bool:
-        """Whether a sighting from ``pose`` (keyframe ``keyframe``; a new one, with the
-        ``increment`` (relative pose, covariance) from the keyframe before) is within the
-        gate of its predicted innovation covariance: the pose's and the landmark's
-        marginals through the sighting's Jacobians, plus the test's covariance (their
-        correlation left out, which only widens it)."""
+    def _predicted_fit(self, landmark_id: int, new: _NewSighting) -> bool:
+        """Whether a new sighting is within the gate of its predicted innovation covariance:
+        the pose's marginal (a new keyframe's propagated from the one before by its
+        increment) and the landmark's through the sighting's Jacobians, plus the test's
+        covariance (their correlation left out, which only widens it)."""
         gtsam = self.gtsam
+        keyframe, z, cov = new.keyframe, new.z, new.cov
         symbol = gtsam.symbol('l', landmark_id)
         tested = covariances_for_test(self.config, cov[None], z[None])
         test_cov = (cov if tested is None else tested[0])[np.ix_([1, 0], [1, 0])]
@@ -424,15 +416,15 @@ class IncrementalEmSam:
             float(z[0]),
             gtsam.noiseModel.Gaussian.Covariance(test_cov),
         )
-        if increment is None:
+        if new.increment is None:
             pose_cov = self.solver.marginalCovariance(keyframe)
         else:
-            relative, increment_cov = increment
+            relative, increment_cov = new.increment
             adjoint = relative.inverse().AdjointMap()
             previous = self.solver.marginalCovariance(keyframe - 1)
             pose_cov = adjoint @ previous @ adjoint.T + increment_cov
         values = gtsam.Values()
-        values.insert(keyframe, pose)
+        values.insert(keyframe, new.pose)
         values.insert(symbol, self.solver.calculateEstimatePoint2(symbol))
         jacobian, whitened = factor.linearize(values).jacobian()
         by_pose, by_point = jacobian[:, :3], jacobian[:, 3:]
