@@ -148,7 +148,6 @@ class EmSamMapperNode(Node):
         self.checkpoint_period_s = float(values['checkpoint_period_s'])
         self._saved_state: tuple[int, ...] | None = None
         self.solves = 0
-        self._online_seen, self._online_max_s = 0, 0.0
         self._online_moveable: frozenset[int] = frozenset()
         self._resume(str(values['resume_from']))
 
@@ -195,7 +194,7 @@ class EmSamMapperNode(Node):
         increments and observations dropped (bad or out of order), observations from before
         the first keyframe, solves."""
         mapper = self.mapper
-        last = mapper.online_updates[-1] if mapper.online_updates else None
+        last = mapper.online_last
         return {
             'keyframes': len(mapper.stamps_ns),
             'observations': len(mapper.observations),
@@ -207,7 +206,7 @@ class EmSamMapperNode(Node):
             'online keyframes': mapper.online.num_keyframes if mapper.online else 0,
             'online observations waiting': mapper.online_waiting,
             'online update ms (last)': round(1e3 * last.seconds) if last else 0,
-            'online update ms (max)': round(1e3 * self._online_max_s),
+            'online update ms (max)': round(1e3 * mapper.online_max_s),
             'online moveable': len(mapper.online_moveable),
         }
 
@@ -279,17 +278,14 @@ class EmSamMapperNode(Node):
         self._online_changes()
 
     def _online_changes(self) -> None:
-        """Log the online moveable set when it changes; keep the longest update."""
-        updates = self.mapper.online_updates
-        for step in updates[self._online_seen :]:
-            self._online_max_s = max(self._online_max_s, step.seconds)
-        self._online_seen = len(updates)
+        """Log and publish the online moveable set when it changes."""
         moveable = self.mapper.online_moveable
         if moveable != self._online_moveable:
             added = sorted(moveable - self._online_moveable)
             cleared = sorted(self._online_moveable - moveable)
+            smoothed = self.mapper.online.num_keyframes if self.mapper.online else 0
             self.get_logger().info(
-                f'online, keyframe {self._online_seen}: moveable {sorted(moveable)}'
+                f'online, keyframe {smoothed}: moveable {sorted(moveable)}'
                 + (f' (new {added})' if added else '')
                 + (f' (cleared {cleared})' if cleared else '')
             )

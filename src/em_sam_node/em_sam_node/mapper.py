@@ -96,7 +96,8 @@ class MapperProcessor:
         self.duplicate_observations = 0
         self.seen_observations: set[tuple[int, int]] = set()  # (stamp ns, landmark id)
         self.online: IncrementalEmSam | None = None  # config.online, from the first keyframe
-        self.online_updates: list[UpdateStats] = []
+        self.online_last: UpdateStats | None = None  # the smoother's latest update
+        self.online_max_s = 0.0  # its longest update, s
         self._unfed: list[int] = []  # rows of self.observations not in the smoother yet
 
     # -- input ----------------------------------------------------------------------------
@@ -164,7 +165,8 @@ class MapperProcessor:
                     late.append((keyframe, *item))
             increment = self.increments[index - 1] if index > 0 else None
             odometry = None if increment is None else (increment.u, increment.covariance)
-            self.online_updates.append(smoother.add_keyframe(odometry, now, late))
+            self.online_last = smoother.add_keyframe(odometry, now, late)
+            self.online_max_s = max(self.online_max_s, self.online_last.seconds)
 
     @property
     def online_waiting(self) -> int:
