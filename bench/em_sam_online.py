@@ -50,7 +50,8 @@ from victoria_park_gtsam import (  # noqa: E402
 
 from em_sam_node.core.assembly import MappingData  # noqa: E402
 from em_sam_node.core.em_types import EmConfig  # noqa: E402
-from em_sam_node.core.incremental import IncrementalEmSam, load_gtsam  # noqa: E402
+from em_sam_node.core.incremental import IncrementalEmSam  # noqa: E402
+from em_sam_node.core.incremental_parts import load_gtsam  # noqa: E402
 from em_sam_node.core.problem import Estimate  # noqa: E402
 from em_sam_node.core.solver import solve  # noqa: E402
 from slam_core.blas import single_threaded_blas  # noqa: E402

@@ -46,11 +46,8 @@ from em_sam_office import tile  # noqa: E402
 
 from em_sam_node.core.assembly import MappingData  # noqa: E402
 from em_sam_node.core.em_types import EmConfig  # noqa: E402
-from em_sam_node.core.incremental import (  # noqa: E402
-    IncrementalEmSam,
-    between_of_increment,
-    load_gtsam,
-)
+from em_sam_node.core.incremental import IncrementalEmSam  # noqa: E402
+from em_sam_node.core.incremental_parts import between_of_increment, load_gtsam  # noqa: E402
 from em_sam_node.offline import replay_bag  # noqa: E402
 from slam_core.blas import single_threaded_blas  # noqa: E402
 from slam_core.files import write_atomically  # noqa: E402

@@ -27,7 +27,7 @@ from em_sam_node.core.assembly import (
     dead_reckoning,
     initial_estimate,
 )
-from em_sam_node.core.incremental import between_of_increment
+from em_sam_node.core.incremental_parts import between_of_increment
 
 GRID_BITS = 30  # grid 2^-30: ~9.3e-10 absolute (m, rad, correlation), 9 digits relative
 

@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT / 'bench'))
 
 from bench_common import run_meta  # noqa: E402
 
-from em_sam_node.core.incremental import load_gtsam  # noqa: E402
+from em_sam_node.core.incremental_parts import load_gtsam  # noqa: E402
 from slam_core.blas import single_threaded_blas  # noqa: E402
 from slam_core.files import write_atomically  # noqa: E402
 

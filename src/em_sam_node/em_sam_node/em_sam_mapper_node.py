@@ -204,6 +204,9 @@ class EmSamMapperNode(Node):
             'already held': mapper.duplicate_increments + mapper.duplicate_observations,
             'solves': self.solves,
             'online keyframes': mapper.online.num_keyframes if mapper.online else 0,
+            # beyond the smoother's horizon: marginalized, their late sightings not smoothed
+            'online keyframes marginalized': mapper.online.kept_from if mapper.online else 0,
+            'online late sightings dropped': mapper.online.dropped_late if mapper.online else 0,
             'online observations waiting': mapper.online_waiting,
             'online update ms (last)': round(1e3 * last.seconds) if last else 0,
             'online update ms (max)': round(1e3 * mapper.online_max_s),

@@ -33,7 +33,8 @@ import numpy as np
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, is_covariance
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
-from em_sam_node.core.incremental import IncrementalEmSam, UpdateStats
+from em_sam_node.core.incremental import IncrementalEmSam
+from em_sam_node.core.incremental_types import UpdateStats
 from em_sam_node.core.problem import Estimate, FloatArray
 from em_sam_node.core.sightings import Sightings, sightings_of
 from em_sam_node.ingest import Increment

@@ -16,12 +16,9 @@ from synthetic_room import (
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.core.incremental import (
-    IncrementalConfig,
-    IncrementalEmSam,
-    UpdateStats,
-    between_of_increment,
-)
+from em_sam_node.core.incremental import IncrementalEmSam
+from em_sam_node.core.incremental_parts import between_of_increment
+from em_sam_node.core.incremental_types import IncrementalConfig, UpdateStats
 from em_sam_node.ingest import Increment
 from em_sam_node.mapper import MapperConfig, MapperProcessor, Observation
 
@@ -101,6 +98,38 @@ def test_settings_out_of_range_are_refused() -> None:
         IncrementalConfig(weight_step=0.0)
     with pytest.raises(ValueError, match='relinearize_skip'):
         IncrementalConfig(relinearize_skip=0)
+    with pytest.raises(ValueError, match='horizon'):
+        IncrementalConfig(horizon=-1)
+
+
+def test_keyframes_beyond_the_horizon_leave_and_a_late_sighting_of_one_is_counted() -> None:
+    """A horizon of 5 keyframes: the smoother keeps the latest ones, estimates of the older
+    ones stay as they were, and a late sighting of a keyframe that left is counted, not
+    smoothed (its pose is no longer a variable)."""
+    landmark = np.array([3.0, 1.0])
+    cov = np.diag([0.01**2, 0.002**2])
+    step = (np.array([0.1, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
+
+    def sighting(i: int) -> tuple[int, np.ndarray, np.ndarray]:
+        offset = landmark - np.array([0.1 * i, 0.0])
+        return 7, np.array([np.hypot(*offset), np.arctan2(offset[1], offset[0])]), cov
+
+    smoother = IncrementalEmSam(
+        EmConfig(), np.zeros(3), np.diag([1e-6, 1e-6, 1e-7]), IncrementalConfig(horizon=5)
+    )
+    smoother.add_keyframe(None, [sighting(0)])
+    for i in range(1, 11):
+        smoother.add_keyframe(step, [sighting(i)])
+    assert smoother.kept_from == 10 - 5
+    _, z, _ = sighting(2)
+    smoother.add_keyframe(step, [], late=[(2, 7, z, cov)])
+    assert smoother.dropped_late == 1
+    assert len(smoother.landmarks[7].poses) == 11  # not recorded either
+    poses = smoother.poses()
+    assert poses.shape == (12, 3)
+    np.testing.assert_allclose(poses[:, 0], 0.1 * np.arange(12), atol=1e-3)
+    np.testing.assert_allclose(smoother.landmark_positions()[7], landmark, atol=1e-3)
+    assert not smoother.moveable
 
 
 def _live_order(data: MappingData, delay_keyframes: int) -> list[object]:
@@ -205,3 +234,30 @@ def test_a_moved_landmark_seen_behind_where_it_was_never_pulls_the_path() -> Non
         error = np.linalg.norm(smoother.poses()[:, :2] - path, axis=1)
         assert error.max() < 0.2, (index, float(error.max()))
     assert smoother.moveable == {mover}
+
+
+def test_a_landmark_seen_often_before_it_moved_is_flagged_by_its_5th_sighting_elsewhere() -> None:
+    """A landmark seen 150 times at one place, then at another: the gate may take out up
+    to a tenth of its sightings as isolated misreads (15 here), but five in a row that
+    agree on one other place are a move, flagged at the fifth, not at the sixteenth."""
+    rng = np.random.default_rng(3)
+    sigma = np.array([0.02, 0.005])  # range m, bearing rad
+    cov = np.diag(sigma**2)
+    places = {1: [np.array([2.0, 3.0])], 2: [np.array([4.0, -3.0])], 7: [np.array([3.0, 2.0])]}
+    places[7].append(np.array([5.0, 1.0]))  # where 7 is after the move
+    step = (np.array([0.02, 0.0, 0.0]), np.diag([1e-6, 1e-6, 1e-7]))
+    smoother = IncrementalEmSam(
+        EmConfig(), np.zeros(3), np.diag([1e-6, 1e-6, 1e-7]), IncrementalConfig()
+    )
+    move, flagged = 150, None
+    for i in range(move + 10):
+        sightings = []
+        for landmark, where in places.items():
+            offset = where[1 if landmark == 7 and i >= move else 0] - np.array([0.02 * i, 0.0])
+            z = np.array([np.hypot(*offset), np.arctan2(offset[1], offset[0])])
+            sightings.append((landmark, z + rng.normal(0.0, sigma), cov))
+        step_in = None if i == 0 else step
+        if 7 in smoother.add_keyframe(step_in, sightings).moveable and flagged is None:
+            flagged = i
+    assert flagged is not None and move <= flagged <= move + 4  # by its 5th sighting there
+    assert smoother.moveable == {7}

@@ -1,8 +1,12 @@
 """EM-SAM online: an incremental smoother with the EM weights updated where a change lands.
 
 The smoother is GTSAM's iSAM2 (a Bayes tree: a new keyframe relinearizes and re-solves
-only the cliques its factors touch). Poses are ``Pose2`` (key: the keyframe's index),
-landmarks ``Point2`` (key: symbol 'l' and the landmark id). A differential-drive increment
+only the cliques its factors touch) inside GTSAM's fixed-lag smoother: keyframes more than
+``IncrementalConfig.horizon`` behind the newest are marginalized, with the landmarks seen
+only from them (their last estimates kept; a landmark seen again comes back anchored where
+it was), so an update's cost does not grow with the run. Poses are ``Pose2`` (key: the
+keyframe's index), landmarks ``Point2`` (key: symbol 'l' and the landmark id; 'r' and a
+count once it came back). A differential-drive increment
 (paper 000, eq. 2) enters as the SE(2) relative pose it gives, exact for the mean, with its
 first-order covariance (``between_of_increment``); a sighting as a bearing-range factor.
 
@@ -13,7 +17,8 @@ batch's variance factors), the per-sighting gate, and the M-step. A landmark
 whose weight moved by more than ``weight_step`` has all its sightings' factors replaced with
 the new row scale (information times w, as the E-step's sqrt(w) row scale), one whose gate
 changed those sightings' factors; the test repeats within the keyframe until no weight
-moves. Landmarks below ``moveable_threshold`` are the moveable set.
+moves. The gate takes out isolated misreads, not a run of sightings that agree on another
+place (a move). Landmarks below ``moveable_threshold`` are the moveable set.
 
 Rows the batch scales to the floor (gated sightings; every sighting of a landmark whose
 weight is at the floor) carry no factor here: their pull is nil, and GTSAM's factorization
@@ -31,126 +36,41 @@ smoother does not take its result.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.em_weights import (
-    ROW_SCALE_FLOOR,
     chi2_quantile,
     covariances_for_test,
     gate_outliers,
     m_step,
     squared_mahalanobis,
 )
-from em_sam_node.core.factors import range_bearing_error, range_bearing_error_jacobians
+from em_sam_node.core.factors import range_bearing_error
+from em_sam_node.core.incremental_parts import (
+    between_of_increment,
+    beyond_linearization,
+    least_squares_point,
+    load_gtsam,
+)
+from em_sam_node.core.incremental_types import (
+    ANCHOR,
+    FOLDED,
+    PARKING_SIGMA_M,
+    PLACE_SIGHTINGS,
+    IncrementalConfig,
+    LandmarkTrack,
+    NewSighting,
+    UpdateStats,
+)
 from em_sam_node.core.problem import FloatArray
 from em_sam_node.core.sightings import sighting_jacobians
 from slam_core.geometry.se2 import range_bearing_to_point
-
-
-def between_of_increment(u: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Return the SE(2) relative poses (M, 3) of differential-drive increments u (M, 3)
-    (eq. 2: exact for the mean) and their first-order covariances (M, 3, 3)."""
-    u = np.asarray(u, dtype=np.float64).reshape(-1, 3)
-    half = u[:, 2] / 2.0
-    c, s = np.cos(half), np.sin(half)
-    between = np.column_stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1], u[:, 2]])
-    jacobian = np.zeros((len(u), 3, 3))
-    jacobian[:, 0, 0], jacobian[:, 0, 1] = c, -s
-    jacobian[:, 1, 0], jacobian[:, 1, 1] = s, c
-    jacobian[:, 0, 2] = -0.5 * between[:, 1]
-    jacobian[:, 1, 2] = 0.5 * between[:, 0]
-    jacobian[:, 2, 2] = 1.0
-    covariance: FloatArray = jacobian @ np.asarray(cov, np.float64) @ np.swapaxes(jacobian, 1, 2)
-    return between, covariance
-
-
-def load_gtsam() -> Any:
-    """Import GTSAM (a dependency of the online mapper); a clear error if it is missing."""
-    try:
-        import gtsam
-    except ImportError as err:  # pragma: no cover - the bootstrap installs it
-        raise ImportError(
-            'EM-SAM online needs GTSAM (pip install gtsam==4.3.0; scripts/bootstrap.sh '
-            'installs it)'
-        ) from err
-    return gtsam
-
-
-@dataclass(frozen=True)
-class IncrementalConfig:
-    """The smoother's settings: iSAM2's relinearization (a variable is relinearized when
-    its update exceeds ``relinearize_threshold``, checked every ``relinearize_skip``
-    updates; GTSAM's defaults) and the weight change that replaces a landmark's factors."""
-
-    relinearize_threshold: float = 0.1
-    relinearize_skip: int = 10
-    weight_step: float = 0.05
-
-    def __post_init__(self) -> None:
-        if not (np.isfinite(self.relinearize_threshold) and self.relinearize_threshold > 0):
-            raise ValueError(f'relinearize_threshold={self.relinearize_threshold!r}: must be > 0')
-        if self.relinearize_skip < 1:
-            raise ValueError(f'relinearize_skip={self.relinearize_skip!r}: must be >= 1')
-        if not 0 < self.weight_step < 1:
-            raise ValueError(f'weight_step={self.weight_step!r}: must be in (0, 1)')
-
-
-PARKING_SIGMA_M = 1.0  # the parking prior's standard deviation
-PARKED_ITERATIONS = 10  # Gauss-Newton steps placing a parked landmark
-
-
-@dataclass
-class _Landmark:
-    """A landmark's sightings: keyframe index, (range, bearing), covariance, the index of
-    its factor in the smoother (-1 while it has none) and its gate; the weight its factors
-    carry; while none does, the index of the prior that parks it and its own estimate."""
-
-    poses: list[int] = field(default_factory=list)
-    z: list[FloatArray] = field(default_factory=list)
-    cov: list[FloatArray] = field(default_factory=list)
-    factors: list[int] = field(default_factory=list)
-    gated: list[bool] = field(default_factory=list)
-    held: list[bool] = field(default_factory=list)  # beyond linearization at the last test
-    weight: float = 1.0
-    applied: float = 1.0  # the weight its factors carry
-    parked: int = -1  # the parking prior's factor, -1 when it has sightings in the smoother
-    position: FloatArray | None = None  # its own estimate while parked
-
-    def carries(self, k: int) -> bool:
-        """Whether sighting k belongs in the smoother: not gated, and the landmark's weight
-        above the floor (below it the E-step's row scale is the floor, whose pull on the
-        poses is nil; GTSAM's factorization does not take such rows reliably)."""
-        return not (self.gated[k] or self.held[k]) and np.sqrt(self.applied) > ROW_SCALE_FLOOR
-
-
-@dataclass(frozen=True)
-class _NewSighting:
-    """A sighting about to enter: its keyframe, that keyframe's pose (a gtsam Pose2), the
-    increment (relative Pose2, covariance (3, 3)) that placed it if it is the new keyframe
-    (else None), (range m, bearing rad) and covariance (2, 2)."""
-
-    keyframe: int
-    pose: Any
-    increment: tuple[Any, FloatArray] | None
-    z: FloatArray
-    cov: FloatArray
-
-
-@dataclass(frozen=True)
-class UpdateStats:
-    """One keyframe's update: its wall time (s), the landmarks it saw, those whose factors
-    were replaced for a new weight, and the moveable set after it."""
-
-    seconds: float
-    seen: tuple[int, ...]
-    reweighted: tuple[int, ...]
-    moveable: frozenset[int]
 
 
 class IncrementalEmSam:
@@ -168,17 +88,31 @@ class IncrementalEmSam:
         self.incremental = incremental or IncrementalConfig()
         self.prior_pose = np.asarray(prior_pose, np.float64).reshape(3)
         self.prior_cov = np.asarray(prior_cov, np.float64).reshape(3, 3)
-        self.landmarks: dict[int, _Landmark] = {}
+        self.landmarks: dict[int, LandmarkTrack] = {}
         self.num_keyframes = 0
         self._pending_removals: list[int] = []
         self._pending: list[tuple[int, int]] = []  # (landmark id, sighting) to (re)add
+        self._reviving: list[int] = []  # landmarks coming back in this update
+        self._first_live = 0  # poses before it have left the smoother
+        self._frozen_poses: list[tuple[float, float, float]] = []  # their last estimates
+        self._sightings_at: dict[int, list[tuple[int, int]]] = {}  # live pose: (id, k)
+        self._returns = 0  # keys given to landmarks that came back
+        self.dropped_late = 0  # late sightings of keyframes that had left the smoother
         params = self.gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.incremental.relinearize_threshold)
         params.relinearizeSkip = self.incremental.relinearize_skip
         # check only the cliques an update touched for relinearization, not every variable:
         # per-update cost independent of the run's length
         params.enablePartialRelinearizationCheck = True
-        self.solver = self.gtsam.ISAM2(params)
+        # iSAM2 behind GTSAM's fixed-lag smoother, which marginalizes the keys whose
+        # timestamp is more than the horizon behind the newest. A timestamp is the block
+        # of a tenth of the horizon that holds the keyframe (a pose's own, the latest a
+        # landmark was seen from): marginalizing re-eliminates the path from the oldest
+        # pose to the root, the whole window, so it happens once a block, not per keyframe
+        horizon = self.incremental.horizon
+        self._block = max(1, horizon // 10)
+        lag = horizon / self._block if horizon else float('inf')
+        self.solver = self.gtsam.IncrementalFixedLagSmoother(lag, params)
 
     # --- keyframes ----------------------------------------------------------------------
 
@@ -218,27 +152,41 @@ class IncrementalEmSam:
         values.insert(index, start)
         sighted: set[int] = set()
         created: set[int] = set()
+        block, horizon = self._block, self.incremental.horizon
+        cutoff = index // block - horizon / block  # in blocks, as the smoother's timestamps
+        end = block * math.ceil(cutoff) if horizon and cutoff > 0 else 0  # poses before leave
         for keyframe, landmark_id, z, cov in [*late, *((index, *s) for s in sightings)]:
             if not 0 <= keyframe <= index:
                 raise ValueError(f'a sighting of keyframe {keyframe}: there are {index + 1}')
+            if keyframe < max(end, self._first_live):
+                self.dropped_late += 1  # its pose leaves the smoother: nothing to attach it to
+                continue
             landmark_id = int(landmark_id)
             landmark = self.landmarks.get(landmark_id)
+            if landmark and landmark.retired is not None and landmark_id not in self._reviving:
+                self._revive(landmark_id, values)
             z = np.asarray(z, np.float64).reshape(2)
             cov = np.asarray(cov, np.float64).reshape(2, 2)
             seen_from = start if keyframe == index else self._pose(keyframe)
             increment = (relative, covariance[0]) if keyframe == index and index > 0 else None
             gated, held = (
-                self._enter(landmark_id, _NewSighting(keyframe, seen_from, increment, z, cov))
+                self._enter(landmark_id, NewSighting(keyframe, seen_from, increment, z, cov))
                 if landmark and landmark_id not in created
                 else (False, False)  # a landmark this keyframe maps is not in the smoother yet
             )
             if landmark is None:
                 created.add(landmark_id)
-                landmark = self.landmarks[landmark_id] = _Landmark()
+                landmark = LandmarkTrack(gtsam.symbol('l', landmark_id))
+                self.landmarks[landmark_id] = landmark
                 point = seen_from.transformFrom(
                     gtsam.Point2(z[0] * np.cos(z[1]), z[0] * np.sin(z[1]))
                 )
-                values.insert(gtsam.symbol('l', landmark_id), point)
+                values.insert(landmark.key, point)
+            self._sightings_at.setdefault(int(keyframe), []).append(
+                (landmark_id, len(landmark.poses))
+            )
+            landmark.last = max(landmark.last, int(keyframe))
+            landmark.frozen.append(False)
             landmark.poses.append(int(keyframe))
             landmark.z.append(z)
             landmark.cov.append(cov)
@@ -249,7 +197,13 @@ class IncrementalEmSam:
                 self._pending.append((landmark_id, len(landmark.poses) - 1))
             sighted.add(landmark_id)
         self.num_keyframes += 1
-        self._update(factors, values)
+        timestamps = {index: float(index // block)}
+        for landmark_id in sighted:
+            landmark = self.landmarks[landmark_id]
+            timestamps[landmark.key] = float(landmark.last // block)
+        if end > self._first_live:
+            self._freeze(end)
+        self._update(factors, values, timestamps)
         seen = tuple(sorted(sighted))
         reweighted: set[int] = set()
         for _ in range(self.config.max_iterations):  # EM on the landmarks the keyframe saw
@@ -262,16 +216,22 @@ class IncrementalEmSam:
             time.perf_counter() - started, seen, tuple(sorted(reweighted)), self.moveable
         )
 
-    def _update(self, factors: Any, values: Any) -> None:
-        """One smoother update: ``factors`` and ``values``, and the queued sighting factors
-        (k >= 0), parking priors (k = -1) and removals."""
+    def _update(
+        self, factors: Any, values: Any, timestamps: dict[int, float] | None = None
+    ) -> None:
+        """One smoother update: ``factors`` and ``values`` (keys' ``timestamps``), and the
+        queued sighting factors (k >= 0), anchors, parking priors (k = -1) and removals."""
         queued, self._pending = self._pending, []
         for landmark_id, k in queued:
-            factors.add(
-                self._sighting_factor(landmark_id, k) if k >= 0 else self._parking(landmark_id)
-            )
+            if k >= 0:
+                factors.add(self._sighting_factor(landmark_id, k))
+            else:
+                factors.add(
+                    self._anchor(landmark_id) if k == ANCHOR else self._parking(landmark_id)
+                )
         removals, self._pending_removals = self._pending_removals, []
-        result = self.solver.update(factors, values, removals)
+        self.solver.update(factors, values, timestamps or {}, removals)
+        result = self.solver.getISAM2Result()
         new_indices = list(result.getNewFactorsIndices())  # in the order they were added
         for (landmark_id, k), factor in zip(
             queued, new_indices[len(new_indices) - len(queued) :], strict=True
@@ -279,10 +239,17 @@ class IncrementalEmSam:
             landmark = self.landmarks[landmark_id]
             if k >= 0:
                 landmark.factors[k] = int(factor)
+            elif k == ANCHOR:
+                landmark.anchor = int(factor)
             else:
                 landmark.parked = int(factor)
+        for landmark_id in self._reviving:  # in the smoother now
+            self.landmarks[landmark_id].retired = None
+        self._reviving = []
 
     def _pose(self, index: int) -> Any:
+        if index < self._first_live:
+            return self.gtsam.Pose2(*self._frozen_poses[index])
         return self.solver.calculateEstimatePose2(index)
 
     def _sighting_factor(self, landmark_id: int, k: int) -> Any:
@@ -292,7 +259,7 @@ class IncrementalEmSam:
         z = landmark.z[k]
         return gtsam.BearingRangeFactor2D(
             landmark.poses[k],
-            gtsam.symbol('l', landmark_id),
+            landmark.key,
             gtsam.Rot2(float(z[1])),
             float(z[0]),
             gtsam.noiseModel.Gaussian.Covariance(cov),
@@ -303,12 +270,78 @@ class IncrementalEmSam:
         pulls nothing (the landmark has no other factor); a weak one would put a pivot out
         of the factorization's range (GTSAM reports such a clique as indeterminate)."""
         gtsam = self.gtsam
-        symbol = gtsam.symbol('l', landmark_id)
         return gtsam.PriorFactorPoint2(
-            symbol,
-            self.solver.calculateEstimatePoint2(symbol),
+            self.landmarks[landmark_id].key,
+            gtsam.Point2(*self._point(landmark_id)),
             gtsam.noiseModel.Isotropic.Sigma(2, PARKING_SIGMA_M),
         )
+
+    def _anchor(self, landmark_id: int) -> Any:
+        """The prior that holds a landmark that came back where it was when it left, with
+        its covariance then (scaled by its weight, as its sightings are). Its correlation
+        with the poses is left out, which only widens what it allows."""
+        gtsam = self.gtsam
+        landmark = self.landmarks[landmark_id]
+        assert landmark.anchor_prior is not None
+        point, cov = landmark.anchor_prior
+        return gtsam.PriorFactorPoint2(
+            landmark.key,
+            gtsam.Point2(*point),
+            gtsam.noiseModel.Gaussian.Covariance(cov / landmark.applied),
+        )
+
+    # --- the horizon --------------------------------------------------------------------
+
+    def _freeze(self, end: int) -> None:
+        """Before the update that marginalizes them: keep the last estimates of the poses
+        before ``end`` and of the landmarks seen only from them (with the covariance), and
+        mark what the marginal takes over (their sightings' factors, the landmarks'
+        anchors and parking priors)."""
+        poses = list(range(self._first_live, end))
+        leaving = sorted(
+            {
+                landmark_id
+                for p in poses
+                for landmark_id, _ in self._sightings_at.get(p, ())
+                if self.landmarks[landmark_id].last < end
+            }
+        )
+        self._frozen_poses.extend(tuple(row) for row in self._poses_at(poses).tolist())
+        for landmark_id in leaving:
+            landmark = self.landmarks[landmark_id]
+            cov = (
+                np.eye(2) * PARKING_SIGMA_M**2
+                if landmark.parked >= 0
+                else self.solver.marginalCovariance(landmark.key)
+            )
+            point = self._position(landmark_id, self._poses_at(landmark.poses))
+            landmark.retired, landmark.anchor_prior = (point, cov), None
+            landmark.anchor = landmark.parked = -1
+            landmark.position = None
+        for p in poses:
+            for landmark_id, k in self._sightings_at.pop(p, ()):
+                landmark = self.landmarks[landmark_id]
+                landmark.frozen[k] = True
+                if landmark.factors[k] >= 0:
+                    landmark.factors[k] = FOLDED
+        self._first_live = end
+
+    def _revive(self, landmark_id: int, values: Any) -> None:
+        """Bring a landmark that left the smoother back under a new key, where it was when
+        it left: anchored there while its weight is above the floor, else parked."""
+        gtsam = self.gtsam
+        landmark = self.landmarks[landmark_id]
+        assert landmark.retired is not None
+        landmark.key = gtsam.symbol('r', self._returns)
+        self._returns += 1
+        values.insert(landmark.key, gtsam.Point2(*landmark.retired[0]))
+        landmark.anchor_prior = landmark.retired
+        if landmark.wants_anchor():
+            self._pending.append((landmark_id, ANCHOR))
+        else:
+            landmark.position = landmark.retired[0]
+            self._pending.append((landmark_id, -1))
+        self._reviving.append(landmark_id)
 
     # --- weights ------------------------------------------------------------------------
 
@@ -336,7 +369,14 @@ class IncrementalEmSam:
                 landmark.factors[k] = -1
             if wanted and (rescaled or not was):
                 self._pending.append((landmark_id, k))
-        any_carried = any(landmark.carries(k) for k in range(len(landmark.poses)))
+        if landmark.anchor >= 0 and (rescaled or not landmark.wants_anchor()):
+            self._pending_removals.append(landmark.anchor)
+            landmark.anchor = -1
+        if landmark.wants_anchor() and landmark.anchor < 0:
+            self._pending.append((landmark_id, ANCHOR))
+        any_carried = landmark.wants_anchor() or any(
+            landmark.carries(k) for k in range(len(landmark.poses))
+        )
         if not any_carried and landmark.parked < 0:
             landmark.position = self._point(landmark_id)
             self._pending.append((landmark_id, -1))
@@ -351,8 +391,9 @@ class IncrementalEmSam:
         landmark = self.landmarks[landmark_id]
         count = len(landmark.poses)
         z, cov = np.array(landmark.z), np.array(landmark.cov)
-        innovation = self._innovations(landmark_id, self._poses_at(landmark.poses), z)
-        held = _beyond_linearization(innovation)
+        poses = self._poses_at(landmark.poses)
+        innovation = self._innovations(landmark_id, poses, z)
+        held = beyond_linearization(innovation)
         if count <= 1:
             return 1.0, [False] * count, held.tolist()
         mahalanobis = self._mahalanobis(innovation, z, cov)
@@ -361,8 +402,34 @@ class IncrementalEmSam:
             gated = np.zeros(count, dtype=bool)
         else:
             gated = gate_outliers(self.config, mahalanobis, owner, 1)
+            gated &= ~self._seen_elsewhere(poses, z, cov, mahalanobis)
         weight = float(m_step(self.config, mahalanobis, owner, 1, ~gated)[0])
         return weight, gated.tolist(), held.tolist()
+
+    def _seen_elsewhere(
+        self, poses: FloatArray, z: FloatArray, cov: FloatArray, mahalanobis: FloatArray
+    ) -> np.ndarray:
+        """The landmark's latest sightings (mask, K) when at least PLACE_SIGHTINGS of them
+        in a row are beyond the gate and agree with each other on one point (their test at
+        that point, 2m - 2 degrees of freedom, passes at the false-alarm probability): the
+        landmark seen at another place, which the gate, there for isolated misreads, does
+        not take out of the test."""
+        config = self.config
+        beyond = mahalanobis > chi2_quantile(1.0 - config.gate_probability, 2)
+        within = np.flatnonzero(~beyond)
+        run = len(beyond) - (int(within[-1]) + 1 if len(within) else 0)
+        result = np.zeros(len(z), dtype=bool)
+        if run < PLACE_SIGHTINGS:
+            return result
+        rows = slice(len(z) - run, None)
+        tested = covariances_for_test(config, cov[rows], z[rows])
+        test_cov = cov[rows] if tested is None else tested
+        start = range_bearing_to_point(poses[rows][-1:], z[rows][-1:])[0]
+        point = least_squares_point(poses[rows], z[rows], test_cov, start)
+        innovation = range_bearing_error(poses[rows], np.repeat(point[None], run, axis=0), z[rows])
+        level = chi2_quantile(1.0 - config.false_alarm_probability, 2 * run - 2)
+        result[rows] = squared_mahalanobis(innovation, test_cov).sum() <= level
+        return result
 
     def _innovations(self, landmark_id: int, poses: FloatArray, z: FloatArray) -> FloatArray:
         """The innovations (K, 2) of sightings z (K, 2) from ``poses`` (K, 3) of the
@@ -376,7 +443,7 @@ class IncrementalEmSam:
         tested = covariances_for_test(self.config, cov, z)
         return squared_mahalanobis(innovation, cov if tested is None else tested)
 
-    def _enter(self, landmark_id: int, new: _NewSighting) -> tuple[bool, bool]:
+    def _enter(self, landmark_id: int, new: NewSighting) -> tuple[bool, bool]:
         """Whether a new sighting of a mapped landmark enters gated (the
         landmark's gate, at the smoother's estimate with the sighting added, gates it) and
         whether it is held out (beyond linearization). Either way it carries no factor
@@ -389,7 +456,7 @@ class IncrementalEmSam:
         poses = np.vstack([self._poses_at(landmark.poses), [pose.x(), pose.y(), pose.theta()]])
         z_all, cov_all = np.array([*landmark.z, new.z]), np.array([*landmark.cov, new.cov])
         innovation = self._innovations(landmark_id, poses, z_all)
-        held = bool(_beyond_linearization(innovation[-1:])[0])
+        held = bool(beyond_linearization(innovation[-1:])[0])
         if self.config.mode == 'paper':
             return False, held
         mahalanobis = self._mahalanobis(innovation, z_all, cov_all)
@@ -399,14 +466,15 @@ class IncrementalEmSam:
             gated = False  # the estimate, not the sighting, is what is off (drift)
         return gated, held
 
-    def _predicted_fit(self, landmark_id: int, new: _NewSighting) -> bool:
+    def _predicted_fit(self, landmark_id: int, new: NewSighting) -> bool:
         """Whether a new sighting is within the gate of its predicted innovation covariance:
         the pose's marginal (a new keyframe's propagated from the one before by its
         increment) and the landmark's through the sighting's Jacobians, plus the test's
         covariance (their correlation left out, which only widens it)."""
         gtsam = self.gtsam
         keyframe, z, cov = new.keyframe, new.z, new.cov
-        symbol = gtsam.symbol('l', landmark_id)
+        landmark = self.landmarks[landmark_id]
+        symbol = landmark.key
         tested = covariances_for_test(self.config, cov[None], z[None])
         test_cov = (cov if tested is None else tested[0])[np.ix_([1, 0], [1, 0])]
         factor = gtsam.BearingRangeFactor2D(
@@ -425,13 +493,16 @@ class IncrementalEmSam:
             pose_cov = adjoint @ previous @ adjoint.T + increment_cov
         values = gtsam.Values()
         values.insert(keyframe, new.pose)
-        values.insert(symbol, self.solver.calculateEstimatePoint2(symbol))
+        values.insert(symbol, gtsam.Point2(*self._point(landmark_id)))
         jacobian, whitened = factor.linearize(values).jacobian()
         by_pose, by_point = jacobian[:, :3], jacobian[:, 3:]
+        point_cov = (
+            landmark.retired[1]
+            if landmark.retired is not None
+            else self.solver.marginalCovariance(symbol)
+        )
         innovation_cov = (
-            np.eye(2)
-            + by_pose @ pose_cov @ by_pose.T
-            + by_point @ self.solver.marginalCovariance(symbol) @ by_point.T
+            np.eye(2) + by_pose @ pose_cov @ by_pose.T + by_point @ point_cov @ by_point.T
         )
         return float(whitened @ np.linalg.solve(innovation_cov, whitened)) <= chi2_quantile(
             1.0 - self.config.gate_probability, 2
@@ -440,12 +511,23 @@ class IncrementalEmSam:
     def _poses_at(self, indices: list[int]) -> FloatArray:
         """The estimates of the poses ``indices`` (K, 3), one lookup each (a copy of the
         whole linearization point and delta would cost a pass over the run per call)."""
-        moved = [self.solver.calculateEstimatePose2(i) for i in indices]
-        return np.array([(p.x(), p.y(), p.theta()) for p in moved]).reshape(-1, 3)
+        first, frozen, solver = self._first_live, self._frozen_poses, self.solver
+        rows = []
+        for i in indices:
+            if i < first:
+                rows.append(frozen[i])
+            else:
+                pose = solver.calculateEstimatePose2(i)
+                rows.append((pose.x(), pose.y(), pose.theta()))
+        return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
     def _point(self, landmark_id: int) -> FloatArray:
-        symbol = self.gtsam.symbol('l', landmark_id)
-        return np.asarray(self.solver.calculateEstimatePoint2(symbol), np.float64)
+        """The smoother's estimate of a landmark; where it was when it left the smoother
+        while it is out (or on its way back in)."""
+        landmark = self.landmarks[landmark_id]
+        if landmark.retired is not None:
+            return np.asarray(landmark.retired[0], np.float64)
+        return np.asarray(self.solver.calculateEstimatePoint2(landmark.key), np.float64)
 
     def _position(self, landmark_id: int, poses: FloatArray) -> FloatArray:
         """Where the landmark is: the smoother's estimate, or, parked, the least-squares
@@ -456,21 +538,10 @@ class IncrementalEmSam:
         if landmark.parked < 0 or landmark.position is None:
             return self._point(landmark_id)
         count = len(landmark.poses)
-        poses, z = poses[:count], np.array(landmark.z)
-        information = np.linalg.inv(np.array(landmark.cov))
-        point = landmark.position
-        for _ in range(PARKED_ITERATIONS):
-            innovation = range_bearing_error(poses, np.repeat(point[None], count, axis=0), z)
-            _, by_point = range_bearing_error_jacobians(poses, np.repeat(point[None], count, 0))
-            weighted = np.swapaxes(by_point, 1, 2) @ information
-            hessian = np.einsum('kij,kjl->il', weighted, by_point)
-            gradient = np.einsum('kij,kj->i', weighted, innovation)
-            step = -np.linalg.lstsq(hessian, gradient, rcond=None)[0]
-            point = point + step
-            if np.linalg.norm(step) < 1e-6:
-                break
-        landmark.position = point
-        return point
+        landmark.position = least_squares_point(
+            poses[:count], np.array(landmark.z), np.array(landmark.cov), landmark.position
+        )
+        return landmark.position
 
     # --- what it holds ------------------------------------------------------------------
 
@@ -479,6 +550,16 @@ class IncrementalEmSam:
         """The landmarks whose weight is below the moveable threshold."""
         threshold = self.config.moveable_threshold
         return frozenset(i for i, lm in self.landmarks.items() if lm.weight < threshold)
+
+    @property
+    def kept_from(self) -> int:
+        """The oldest keyframe still in the smoother (older ones are marginalized)."""
+        return self._first_live
+
+    @property
+    def returned(self) -> int:
+        """How many times a landmark that had left the smoother came back into it."""
+        return self._returns
 
     @property
     def weights(self) -> dict[int, float]:
@@ -504,13 +585,3 @@ class IncrementalEmSam:
         _, by_z = sighting_jacobians(poses, z)
         covariances = by_z @ cov @ np.swapaxes(by_z, 1, 2)
         return list(landmark.poses), range_bearing_to_point(poses, z), covariances
-
-
-def _beyond_linearization(innovation: FloatArray) -> np.ndarray:
-    """Sightings (K,) whose bearing innovation (K, 2) exceeds a right angle: the smoother
-    has the landmark in the other half-plane from where it was seen, so the bearing's
-    linearization there points no way toward the measurement and a Gauss-Newton step with
-    the factor is no step toward it. They stay out of the smoother (the test still counts
-    them) until the estimate brings them within it."""
-    result: np.ndarray = np.abs(innovation[:, 1]) > np.pi / 2
-    return result
