@@ -169,10 +169,10 @@ class IncrementalEmSam:
             cov = np.asarray(cov, np.float64).reshape(2, 2)
             seen_from = start if keyframe == index else self._pose(keyframe)
             increment = (relative, covariance[0]) if keyframe == index and index > 0 else None
-            gated, held = (
+            gated, held, explained = (
                 self._enter(landmark_id, NewSighting(keyframe, seen_from, increment, z, cov))
                 if landmark and landmark_id not in created
-                else (False, False)  # a landmark this keyframe maps is not in the smoother yet
+                else (False, False, False)  # this keyframe maps it: not in the smoother yet
             )
             if landmark is None:
                 created.add(landmark_id)
@@ -193,6 +193,7 @@ class IncrementalEmSam:
             landmark.factors.append(-1)
             landmark.gated.append(gated)
             landmark.held.append(held)
+            landmark.explained.append(explained)
             if landmark.carries(len(landmark.poses) - 1):
                 self._pending.append((landmark_id, len(landmark.poses) - 1))
             sighted.add(landmark_id)
@@ -402,20 +403,21 @@ class IncrementalEmSam:
             gated = np.zeros(count, dtype=bool)
         else:
             gated = gate_outliers(self.config, mahalanobis, owner, 1)
-            gated &= ~self._seen_elsewhere(poses, z, cov, mahalanobis)
+            beyond = mahalanobis > chi2_quantile(1.0 - self.config.gate_probability, 2)
+            gated &= ~self._seen_elsewhere(poses, z, cov, beyond & ~np.array(landmark.explained))
         weight = float(m_step(self.config, mahalanobis, owner, 1, ~gated)[0])
         return weight, gated.tolist(), held.tolist()
 
     def _seen_elsewhere(
-        self, poses: FloatArray, z: FloatArray, cov: FloatArray, mahalanobis: FloatArray
+        self, poses: FloatArray, z: FloatArray, cov: FloatArray, beyond: np.ndarray
     ) -> np.ndarray:
         """The landmark's latest sightings (mask, K) when at least PLACE_SIGHTINGS of them
-        in a row are beyond the gate and agree with each other on one point (their test at
-        that point, 2m - 2 degrees of freedom, passes at the false-alarm probability): the
+        in a row are ``beyond`` (the gate now, and not within their predicted innovation
+        when they entered: not drift) and agree with each other on one point (their test at that
+        point, 2m - 2 degrees of freedom, passes at the false-alarm probability): the
         landmark seen at another place, which the gate, there for isolated misreads, does
         not take out of the test."""
         config = self.config
-        beyond = mahalanobis > chi2_quantile(1.0 - config.gate_probability, 2)
         within = np.flatnonzero(~beyond)
         run = len(beyond) - (int(within[-1]) + 1 if len(within) else 0)
         result = np.zeros(len(z), dtype=bool)
@@ -443,28 +445,30 @@ class IncrementalEmSam:
         tested = covariances_for_test(self.config, cov, z)
         return squared_mahalanobis(innovation, cov if tested is None else tested)
 
-    def _enter(self, landmark_id: int, new: NewSighting) -> tuple[bool, bool]:
+    def _enter(self, landmark_id: int, new: NewSighting) -> tuple[bool, bool, bool]:
         """Whether a new sighting of a mapped landmark enters gated (the
-        landmark's gate, at the smoother's estimate with the sighting added, gates it) and
-        whether it is held out (beyond linearization). Either way it carries no factor
-        into the update: one step of the smoother with a gross outlier in it cannot be
-        taken back by removing the outlier."""
+        landmark's gate, at the smoother's estimate with the sighting added, gates it),
+        whether it is held out (beyond linearization), and whether, beyond the gate, it is
+        within its predicted innovation (drift explains it). Gated or held, it carries no
+        factor into the update: one step of the smoother with a gross outlier in it cannot
+        be taken back by removing the outlier."""
         landmark = self.landmarks[landmark_id]
         if landmark.parked >= 0:
-            return False, False
+            return False, False, False
         pose = new.pose
         poses = np.vstack([self._poses_at(landmark.poses), [pose.x(), pose.y(), pose.theta()]])
         z_all, cov_all = np.array([*landmark.z, new.z]), np.array([*landmark.cov, new.cov])
         innovation = self._innovations(landmark_id, poses, z_all)
         held = bool(beyond_linearization(innovation[-1:])[0])
         if self.config.mode == 'paper':
-            return False, held
+            return False, held, False
         mahalanobis = self._mahalanobis(innovation, z_all, cov_all)
         owner = np.zeros(len(mahalanobis), dtype=np.int64)
         gated = bool(gate_outliers(self.config, mahalanobis, owner, 1)[-1])
-        if gated and self._predicted_fit(landmark_id, new):
-            gated = False  # the estimate, not the sighting, is what is off (drift)
-        return gated, held
+        beyond = mahalanobis[-1] > chi2_quantile(1.0 - self.config.gate_probability, 2)
+        explained = bool(beyond and self._predicted_fit(landmark_id, new))
+        # explained: the estimate, not the sighting, is what is off (drift)
+        return gated and not explained, held, explained
 
     def _predicted_fit(self, landmark_id: int, new: NewSighting) -> bool:
         """Whether a new sighting is within the gate of its predicted innovation covariance:

@@ -58,6 +58,7 @@ class LandmarkTrack:
     factors: list[int] = field(default_factory=list)
     gated: list[bool] = field(default_factory=list)
     held: list[bool] = field(default_factory=list)  # beyond linearization at the last test
+    explained: list[bool] = field(default_factory=list)  # within its prediction on entry
     frozen: list[bool] = field(default_factory=list)  # its pose marginalized
     last: int = -1  # the latest keyframe it was seen from
     weight: float = 1.0
