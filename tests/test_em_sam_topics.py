@@ -11,9 +11,11 @@ import time
 from pathlib import Path
 
 import pytest
+import rclpy
 from bag_fixtures import invalid_parameter_error
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
+from std_msgs.msg import Empty
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
@@ -23,6 +25,7 @@ from slam_bringup.bag_player import BagPlayerNode
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import LandmarkMap, MoveableLandmarkArray
 from slam_interfaces.srv import FindLandmark
+from slam_ros.progress import END_QOS, END_TOPIC, PACED_ENV
 from slam_ros.qos import latched_qos, sensor_qos
 from slam_ros.testing.harness import RosHarness, wait_until
 
@@ -43,9 +46,11 @@ def call(
 
 
 def play_office(
-    harness: RosHarness, tmp_path: Path, *, online: bool = True
+    harness: RosHarness, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, *, online: bool = True
 ) -> tuple[OdometryIngestNode, EmSamMapperNode]:
-    """Play the office bag at 20x through odometry_ingest and em_sam_mapper."""
+    """Play the office bag paced (slam_ros.progress: each message once both nodes are done
+    with the last, whatever the machine's load) through odometry_ingest and em_sam_mapper."""
+    monkeypatch.setenv(PACED_ENV, '1')  # the nodes report their progress
     ingest = harness.add_node(OdometryIngestNode())
     mapper = harness.add_node(
         EmSamMapperNode(
@@ -60,7 +65,8 @@ def play_office(
         BagPlayerNode(
             parameter_overrides=[
                 Parameter('bag_path', value=str(BAG)),
-                Parameter('rate', value=20.0),
+                Parameter('paced', value=True),
+                Parameter('paced_nodes', value=['/odometry_ingest', '/em_sam_mapper']),
                 Parameter('topics', value=['/odom', '/landmark_observations']),
                 Parameter(
                     'remap', value=['/odom:=odom', '/landmark_observations:=landmark_observations']
@@ -69,15 +75,18 @@ def play_office(
             ]
         )
     )
-    assert player.finished.wait(120) and player.error is None
+    assert player.finished.wait(240) and player.error is None
+    assert player.paced_timeouts == 0  # every message waited for the graph
     wait_until(lambda: ingest.flushed, timeout_s=20, what='odometry_ingest to flush')
     return ingest, mapper
 
 
 @pytest.fixture
-def mapped(ros_harness: RosHarness, tmp_path: Path) -> tuple[RosHarness, EmSamMapperNode]:
-    """Play the office bag at 20x through both nodes and solve once at the end."""
-    _, mapper = play_office(ros_harness, tmp_path)
+def mapped(
+    ros_harness: RosHarness, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> tuple[RosHarness, EmSamMapperNode]:
+    """Play the office bag paced through both nodes and solve once at the end."""
+    _, mapper = play_office(ros_harness, tmp_path, monkeypatch)
     reply = call(ros_harness, Trigger, '/em_sam_mapper/optimize', Trigger.Request())
     assert reply.success, reply.message  # type: ignore[attr-defined]
     return ros_harness, mapper  # type: ignore[return-value]
@@ -107,13 +116,13 @@ def test_moveable_landmarks_and_map(mapped: tuple[RosHarness, EmSamMapperNode]) 
 
 
 def test_online_the_moveable_set_is_published_as_it_changes(
-    ros_harness: RosHarness, tmp_path: Path
+    ros_harness: RosHarness, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """With ``online``, em_sam/moveable_online carries the smoother's set each time it
     changes; once every keyframe is in, it is the moved markers, each placed where it was
     seen, most recent first."""
     online = ros_harness.collect('em_sam/moveable_online', MoveableLandmarkArray, latched_qos())
-    ingest, mapper = play_office(ros_harness, tmp_path, online=True)
+    ingest, mapper = play_office(ros_harness, tmp_path, monkeypatch, online=True)
     wait_until(
         lambda: mapper.mapper.num_keyframes == ingest.published + 1,
         timeout_s=120,
@@ -248,4 +257,50 @@ def test_odometry_ingest_does_not_flush_when_its_process_only_stalled(ros_contex
         ingest._flush_when_idle()  # once
         assert flushes == [1]
     finally:
+        ingest.destroy_node()
+
+
+def test_odometry_ingest_waits_for_a_running_players_end_of_input(ros_context: None) -> None:
+    """While a bag_player that says the end of its bag runs, a pause of the odometry is not
+    its end (a busy machine paused the player: CI, test_mapper_respawn_topics, 1803 keyframes
+    against 1802); the player's /slam/end_of_input flushes. Once no such player runs, idle
+    odometry flushes again, and odometry after an idle flush is counted. Not spun: the test
+    calls the callbacks as the executor would (count_publishers reads the DDS graph)."""
+    ingest = OdometryIngestNode()
+    player = rclpy.create_node('end_of_input_speaker')
+    flushes: list[int] = []
+    ingest.ingest.flush = lambda: flushes.append(1) or []  # type: ignore[method-assign]
+    sample = Odometry()
+    sample.pose.pose.orientation.w = 1.0
+
+    def odometry(stamp_ns: int) -> None:
+        ns_to_stamp(stamp_ns, sample.header.stamp)
+        ingest._on_odometry(sample)
+
+    try:
+        end = player.create_publisher(Empty, END_TOPIC, END_QOS)
+        wait_until(
+            lambda: ingest.count_publishers(END_TOPIC) > 0, timeout_s=10, what='the speaker'
+        )
+        odometry(1_000_000)
+        ingest._last_odometry_wall = time.monotonic() - 10 * ingest.idle_flush_s
+        for _ in range(4):
+            ingest._flush_when_idle()
+        assert flushes == []
+        ingest._on_end(Empty())
+        assert flushes == [1]
+        odometry(2_000_000)
+        player.destroy_publisher(end)
+        wait_until(
+            lambda: ingest.count_publishers(END_TOPIC) == 0, timeout_s=10, what='no speaker'
+        )
+        ingest._last_odometry_wall = time.monotonic() - 10 * ingest.idle_flush_s
+        ingest._flush_when_idle()
+        ingest._flush_when_idle()
+        assert flushes == [1, 1]
+        assert ingest.idle_flushes == 1
+        odometry(3_000_000)  # after an idle flush: warned, counted on /diagnostics
+        assert ingest._counts()['idle flushes'] == 1
+    finally:
+        player.destroy_node()
         ingest.destroy_node()

@@ -3,16 +3,17 @@
 Makes a keyframe at every observation stamp (odometry interpolated there) and at motion
 thresholds; each increment carries the paper's eq. 2 motion (forward, side, angular) and a
 covariance that grows with the motion (see em_sam_node.ingest). Copes with odometry resets,
-out-of-order stamps and NaN poses (dropped with a throttled warning). When odometry stops
-(end of a bag) for ``idle_flush_s``, the keyframes still held back are emitted; in paced
-replay (slam_ros.progress), when the player says on /slam/end_of_input that the bag has
-ended.
+out-of-order stamps and NaN poses (dropped with a throttled warning). The keyframes still
+held back are emitted when a bag_player says on /slam/end_of_input that its bag has ended
+(slam_ros.progress); with no such player running (live), when odometry stops for
+``idle_flush_s``. A flush followed by more odometry is warned about and counted.
 
 Topics:
   subscribes  odom (nav_msgs/Odometry, best effort, depth 1000: deep, so a long callback of
               another node in the same executor loses no samples)
               landmark_observations (slam_interfaces/LandmarkObservationArray, reliable,
               depth 1000, as deep for the same reason; only the stamps are used)
+              /slam/end_of_input (std_msgs/Empty, reliable, transient-local): flush
   publishes   odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000,
               transient-local: a restarted em_sam_mapper gets the last 1000 again and skips
               those it holds. 1000 is 100 s of keyframes at 10 Hz observations live, 10 s
@@ -22,7 +23,8 @@ Topics:
               driver publishes on a robot; for replaying a bag that has no /tf). Samples with
               a pose that is not finite or a stamp not after the last one are not published.
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): samples received
-              and dropped, increments, resets, TF, processing time, lag (slam_ros.diagnostics)
+              and dropped, increments, resets, TF, idle flushes, processing time, lag
+              (slam_ros.diagnostics)
 
 Parameters:
   keyframe_distance_m (0.5), keyframe_angle_rad (0.35), keyframe_interval_s (5.0)
@@ -44,7 +46,8 @@ Parameters:
                               defaults. Logged when it ends. In replay it changes nothing
                               but when the first keyframes come out.
   idle_flush_s (1.0)          emit held-back keyframes after this long without odometry
-                              (seen on two timer ticks in a row, half this apart).
+                              (seen on two timer ticks in a row, half this apart) when no
+                              player publishes /slam/end_of_input.
   base_frame ('base_link'), odom_frame ('odom')  frame ids written into the increments.
   publish_tf (false)          publish odom_frame -> base_frame (above). Off on a robot: its
                               base driver owns that transform (REP 105: one parent a frame).
@@ -239,10 +242,11 @@ class OdometryIngestNode(Node):
         )
         self._last_odometry_wall = time.monotonic()
         self.flushed = True
+        self.idle_flushes = 0  # flushes on idle odometry (not said by a player)
         self._idle_armed = False
-        if paced():  # the end of the inputs is said by the player (slam_ros.progress)
-            self.create_subscription(Empty, END_TOPIC, timed(self._on_end, 'end'), END_QOS)
-        else:
+        # the end of the inputs is said by the player when there is one (slam_ros.progress)
+        self.create_subscription(Empty, END_TOPIC, timed(self._on_end, 'end'), END_QOS)
+        if not paced():
             self.create_timer(
                 self.idle_flush_s / 2.0,
                 timed(self._flush_when_idle),
@@ -258,6 +262,7 @@ class OdometryIngestNode(Node):
             'resets': self.ingest.resets,
             'tf published': self.tf_published,
             'tf skipped': self.tf_skipped,
+            'idle flushes': self.idle_flushes,
         }
 
     def _warn(self, message: str) -> None:
@@ -266,6 +271,13 @@ class OdometryIngestNode(Node):
     def _on_odometry(self, message: Odometry) -> None:
         stamp_ns, pose = odometry_pose(message)
         self._last_odometry_wall = time.monotonic()
+        if self.flushed and self.idle_flushes and self.published:
+            self.get_logger().warning(
+                f'odometry resumed after a pause of more than idle_flush_s='
+                f'{self.idle_flush_s:g} s, taken for its end: the held-back keyframes were '
+                f'flushed, so this run has a keyframe that an unpaused stream does not '
+                f'({self.idle_flushes} such flush(es) so far)'
+            )
         self.flushed = False
         self._publish(self.ingest.add_odometry(stamp_ns, pose))
         if self.tf_publisher is not None:
@@ -293,13 +305,16 @@ class OdometryIngestNode(Node):
         meanwhile: one idle tick only arms the flush, and the queued samples, taken before the
         next tick, disarm it (else the flush would add a keyframe mid-run)."""
         idle = time.monotonic() - self._last_odometry_wall > self.idle_flush_s
-        if self.flushed or not idle:
+        # a player that says the end of its bag is running: a pause is not the end
+        player = self.count_publishers(END_TOPIC) > 0
+        if self.flushed or not idle or player:
             self._idle_armed = False
             return
         if not self._idle_armed:
             self._idle_armed = True
             return
         self.flushed = True
+        self.idle_flushes += 1
         self._publish(self.ingest.flush())
 
     def _on_end(self, message: Empty) -> None:

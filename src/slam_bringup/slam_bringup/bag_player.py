@@ -8,6 +8,9 @@ terminal, periodic log lines otherwise.
 Topics:
   publishes  every recorded topic (or those in ``topics``), renamed by ``remap``;
              ``/clock`` (rosgraph_msgs/Clock, best effort, depth 1) when clock_hz > 0;
+             /slam/end_of_input (std_msgs/Empty, reliable, transient-local) once a pass
+             that does not loop has played (paced: once the graph is done with it), for the
+             nodes that hold work back until their inputs end (slam_ros.progress);
              /diagnostics (diagnostic_msgs/DiagnosticArray, every second, and once more
              when the bag has played): ``published <topic>`` per played topic (its
              published name), ``skipped`` (messages of the played topics that a finished
@@ -269,10 +272,12 @@ class BagPlayerNode(Node):
             self._wait_for_subscribers()
             while not self._stop.is_set():
                 if self.paced:
-                    self._play_paced()
+                    self._play_paced()  # says the end itself, once the graph is done
                 else:
                     self._play_once()
                 if not self.config.loop:
+                    if not self.paced and not self._stop.is_set():
+                        self.end_publisher.publish(Empty())
                     break
         except SlamError as err:
             self.error = err  # reported by whoever runs the node (CLI or graph runner)

@@ -14,9 +14,10 @@ is done with everything when every node has taken as many messages of each topic
 player and the nodes have published on it.
 
 A node that holds work back until its inputs stop (odometry_ingest's last keyframes) does
-not decide that on the wall clock in paced replay (the player pauses for as long as the
-slowest node needs, seconds during a solve): it waits for END_TOPIC (std_msgs/Empty,
-END_QOS), which the player publishes once the graph is done with the whole bag.
+not decide that on the wall clock while a player runs (paced, the player pauses for as long
+as the slowest node needs, seconds during a solve; timed, a busy machine can pause it): it
+waits for END_TOPIC (std_msgs/Empty, END_QOS), which the player publishes once it has played
+the bag (paced: once the graph is done with the whole bag).
 
 Publishes are counted by wrapping the ``publish`` of each of the node's publishers, those
 made before and after (``create_publisher`` is wrapped on the node). The reports, the
