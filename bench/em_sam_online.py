@@ -20,8 +20,13 @@ polish a full pass starts from: our Levenberg-Marquardt (``core.solver.solve``, 
 from ours's last estimate, its cost against the best known (2339.2, GTSAM LM from iSAM2's
 estimate; issue 44).
 
+Then the full pass (``run_em`` from dead reckoning) scored with its flagged trees left out,
+in the nominal odometry model and in the model it estimates (its odometry calibration),
+each against the best cost known in that model (``full_pass``).
+
 Acceptance (issue 44): ours p95 <= 50 ms, max <= 500 ms, mean <= iSAM2's; at most 3 trees
-flagged; the polished cost <= 1.01 x 2339.2. PASS or FAIL per point; any FAIL exits 1.
+flagged; the polished cost <= 1.01 x 2339.2; the full pass's cost in its own model <= 1.01 x
+the best known there. PASS or FAIL per point; any FAIL exits 1.
 Writes ``em_sam_online.md`` and a plot of the latency's mean and p95 per 100 keyframes
 (PNG) to ``--output``.
 """
@@ -29,6 +34,7 @@ Writes ``em_sam_online.md`` and a plot of the latency's mean and p95 per 100 key
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -48,11 +54,22 @@ from victoria_park_gtsam import (  # noqa: E402
     our_problem,
 )
 
-from em_sam_node.core.assembly import MappingData  # noqa: E402
+from em_sam_node.core.assembly import (  # noqa: E402
+    MappingData,
+    build_problem,
+    initial_estimate,
+)
+from em_sam_node.core.em import run_em  # noqa: E402
 from em_sam_node.core.em_types import EmConfig  # noqa: E402
+from em_sam_node.core.factors import (  # noqa: E402
+    observation_residuals,
+    odometry_residuals,
+    prior_residual,
+)
 from em_sam_node.core.incremental import IncrementalEmSam  # noqa: E402
 from em_sam_node.core.incremental_parts import load_gtsam  # noqa: E402
-from em_sam_node.core.problem import Estimate  # noqa: E402
+from em_sam_node.core.odometry_calibration import OdometryCalibration  # noqa: E402
+from em_sam_node.core.problem import Estimate, SlamProblem, SolveResult  # noqa: E402
 from em_sam_node.core.solver import solve  # noqa: E402
 from slam_core.blas import single_threaded_blas  # noqa: E402
 from slam_core.datasets import data_root  # noqa: E402
@@ -157,6 +174,9 @@ def main() -> int:
                 polished_cost <= COST_RATIO * BEST_KNOWN_COST,
             )
         )
+        full_lines, full_checks = full_pass(mapping_data(data), ours_estimate.poses)
+        lines += full_lines
+        checks += full_checks
     lines += ['', *(f'- {"PASS" if ok else "FAIL"}: {text}' for text, ok in checks)]
     report = '\n'.join(lines) + '\n'
     print(report)
@@ -164,6 +184,88 @@ def main() -> int:
     write_atomically(args.output / 'em_sam_online.md', report)
     _plot(args.output / 'em_sam_online.png', rows)
     return 0 if all(ok for _, ok in checks) else 1
+
+
+def full_pass(
+    data: MappingData, online_poses: np.ndarray
+) -> tuple[list[str], list[tuple[str, bool]]]:
+    """The full pass (``run_em``, default EmConfig, from dead reckoning, as the mapper's
+    first ``optimize``) scored in two models with its flagged trees left out: the nominal
+    odometry, and the odometry calibrated as the full pass estimated it (its M-step). In
+    each, the best known cost is the lower of our LM from the online estimate and from the
+    full pass; the cost of the all-static problem is given for each model as well."""
+    started = time.perf_counter()
+    result = run_em(data, EmConfig())
+    seconds = time.perf_counter() - started
+    calibration = OdometryCalibration(*result.odometry_calibration)
+    flagged = result.landmark_ids[result.moveable].tolist()
+    rows, checks = [], []
+    for name, model in (('nominal odometry', OdometryCalibration()), ('calibrated', calibration)):
+        calibrated = model.apply(data)
+        built = build_problem(calibrated, exclude_ids=flagged)
+        index = {int(j): k for k, j in enumerate(result.landmark_ids.tolist())}
+        ours = Estimate(
+            result.poses, np.array([result.positions[index[int(j)]] for j in built.landmark_ids])
+        )
+        best = min(
+            _model_cost(built.problem, _lm(built.problem, start).estimate)
+            for start in (ours, initial_estimate(built.problem, online_poses))
+        )
+        everything = build_problem(calibrated).problem
+        all_static = _lm(everything, initial_estimate(everything, online_poses)).estimate
+        cost = _model_cost(built.problem, ours)
+        rows.append(
+            f'| {name} | {cost:.1f} | {best:.1f} | {cost / best:.4f} | '
+            f'{_model_cost(everything, all_static):.1f} |'
+        )
+        if model is calibration:
+            checks.append(
+                (
+                    f'full pass cost in its own model {cost:.1f} <= {COST_RATIO} x best known '
+                    f'{best:.1f}',
+                    cost <= COST_RATIO * best,
+                )
+            )
+    uncalibrated = run_em(data, dataclasses.replace(EmConfig(), calibrate_odometry=False))
+    flagged_nominal = uncalibrated.landmark_ids[uncalibrated.moveable].tolist()
+    built = build_problem(data, exclude_ids=flagged_nominal)
+    index = {int(j): k for k, j in enumerate(uncalibrated.landmark_ids.tolist())}
+    nominal = _model_cost(
+        built.problem,
+        Estimate(
+            uncalibrated.poses,
+            np.array([uncalibrated.positions[index[int(j)]] for j in built.landmark_ids]),
+        ),
+    )
+    scales = ', '.join(f'{v:.4f}' for v in result.odometry_calibration)
+    lines = [
+        '',
+        f'The full pass (run_em from dead reckoning, {seconds:.1f} s) flags {flagged} and '
+        f'calibrates the odometry by (translation, rotation) = ({scales}). Costs without the '
+        'flagged trees; the last column is the all-static optimum (LM from the online estimate):',
+        '',
+        '| odometry model | full pass | best known | ratio | all static, best known |',
+        '|---|---|---|---|---|',
+        *rows,
+        '',
+        f'With calibrate_odometry off, the full pass flags {flagged_nominal} and costs '
+        f'{nominal:.1f} in the nominal model without them.',
+    ]
+    return lines, checks
+
+
+def _lm(problem: SlamProblem, start: Estimate) -> SolveResult:
+    return solve(problem, start, method='levenberg_marquardt', max_iterations=200)
+
+
+def _model_cost(problem: SlamProblem, estimate: Estimate) -> float:
+    """0.5 x the squared whitened residuals (our terms, GTSAM's ``error``)."""
+    parts = (
+        prior_residual(problem, estimate),
+        odometry_residuals(problem, estimate),
+        observation_residuals(problem, estimate),
+    )
+    return 0.5 * sum(float(np.sum(part * part)) for part in parts)
 
 
 def _cost(gtsam: Any, graph: Any, estimate: Estimate, landmark_ids: np.ndarray) -> float:
