@@ -485,12 +485,17 @@ INPUTS: dict[str, tuple[str, ...]] = {
         '/features', '/monoslam/pose', '/monoslam/pose/link', '/camera/camera_info',
         '/monoslam/revoked',
     ),
-    'odometry_ingest': ('/odom', '/landmark_observations'),
+    'odometry_ingest': ('/odom', '/landmark_observations', '/slam/end_of_input'),
     'em_sam_mapper': ('/odometry_increments', '/landmark_observations'),
 }  # fmt: skip
 """The inputs fuzzed per node (the compressed variants: the inputs the raw ones lack)."""
 
-TARGETS = [(node, topic) for node, topics in INPUTS.items() for topic in topics]
+FIELDLESS = ('/slam/end_of_input',)
+"""Inputs of a type with no field (std_msgs/Empty): nothing to fuzz, only listed."""
+
+TARGETS = [
+    (node, topic) for node, topics in INPUTS.items() for topic in topics if topic not in FIELDLESS
+]
 
 
 def type_name(subscription: Any) -> str:
