@@ -92,6 +92,10 @@ def _stats(latencies: list[float]) -> tuple[float, float, float, float]:
     return float(ms.mean()), float(np.median(ms)), float(np.percentile(ms, 95)), float(ms.max())
 
 
+def _ratio(mean: float, reference_mean: float | None) -> str:
+    return 'n/a' if reference_mean is None else f'{mean / reference_mean:.2f}'
+
+
 def _ate(poses: np.ndarray, data: MappingData, truth: GroundTruth) -> str:
     if not truth.has_poses:
         return 'n/a'
@@ -112,7 +116,11 @@ def bench_run(gtsam: Any, dataset: Path, robot: int) -> list[str]:
         shutil.rmtree(scratch)
     graph = mrclam_graph(gtsam, data)
     plain: list[float] = []
-    reference = isam2(gtsam, graph, data, plain)
+    try:
+        reference = isam2(gtsam, graph, data, plain)
+    except RuntimeError as error:  # GTSAM's IndeterminateLinearSystemException and kin
+        reference = None
+        failure = str(error).strip().splitlines()[0]
     smoother, ours = online(data, data.num_keyframes)
     ours_values = gtsam.Values()
     poses = smoother.poses()
@@ -121,29 +129,38 @@ def bench_run(gtsam: Any, dataset: Path, robot: int) -> list[str]:
     positions = smoother.landmark_positions()
     for j, landmark_id in enumerate(graph.built.landmark_ids.tolist()):
         ours_values.insert(gtsam.symbol('l', j), np.asarray(positions[int(landmark_id)]))
-    reference_poses = np.array(
-        [[(p := reference.atPose2(i)).x(), p.y(), p.theta()] for i in range(len(poses))]
-    )
+    name = f'{dataset.name} robot {robot} ({data.num_keyframes} keyframes)'
+    rows = []
+    if reference is None:
+        rows.append(
+            f'| {name} | iSAM2 | failed at keyframe {len(plain)}: {failure} | | | | | | | |'
+        )
+        reference_mean = float('nan')
+    else:
+        reference_mean = _stats(plain)[0]
+        reference_poses = np.array(
+            [[(p := reference.atPose2(i)).x(), p.y(), p.theta()] for i in range(len(poses))]
+        )
     statics = set(truth.landmark_ids[~truth.moveable].tolist())
     positives = set(mrclam_positives(run, data, whole_run=True))
     flagged = set(smoother.moveable)
-    name = f'{dataset.name} robot {robot} ({data.num_keyframes} keyframes)'
-    reference_mean = _stats(plain)[0]
-    rows = []
-    for solver, latencies, values, estimate, flags in (
-        ('iSAM2', plain, reference, reference_poses, '-'),
+    runs = [
         (
             'ours',
             ours,
             ours_values,
             poses,
             f'{sorted(flagged & statics) or "-"} / {sorted(positives - flagged) or "-"}',
-        ),
-    ):
+        )
+    ]
+    if reference is not None:
+        runs.insert(0, ('iSAM2', plain, reference, reference_poses, '-'))
+    for solver, latencies, values, estimate, flags in runs:
         mean, median, p95, peak = _stats(latencies)
         rows.append(
             f'| {name} | {solver} | {mean:.2f} | {median:.2f} | {p95:.1f} | {peak:.1f} | '
-            f'{mean / reference_mean:.2f} | {graph.graph.error(values):.1f} | '
+            f'{_ratio(mean, None if reference is None else reference_mean)} | '
+            f'{graph.graph.error(values):.1f} | '
             f'{_ate(estimate, data, truth)} | {flags} |'
         )
     return rows
