@@ -177,7 +177,8 @@ def test_real_dataset_1_short_window(tmp_path: Path) -> None:
     result = _run(argv, tmp_path / 'out')
     robust = _scores(result, '120 s')['em_sam_robust']
     assert robust['ate_m'] is None  # data set 1 has no Vicon track of the robots
-    assert robust['positives'] and set(robust['positives']) <= {2, 3, 4, 5}
+    # without Vicon tracks a window has no positives: it is scored on static barcodes only
+    assert robust['positives'] == [] and robust['static_flagged'] == []
     assert 200 < robust['keyframes'] < 400 and robust['sightings'] > 300
     assert np.isfinite(robust['map_median_m'])
     assert not list((tmp_path / 'out').glob('*.png'))
