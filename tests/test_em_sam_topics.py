@@ -269,7 +269,10 @@ def test_odometry_ingest_waits_for_a_running_players_end_of_input(ros_context: N
     ingest = OdometryIngestNode()
     player = rclpy.create_node('end_of_input_speaker')
     flushes: list[int] = []
-    ingest.ingest.flush = lambda: flushes.append(1) or []  # type: ignore[method-assign]
+    flush = ingest.ingest.flush
+    ingest.ingest.flush = lambda: flushes.append(1) or flush()  # type: ignore[method-assign]
+    warnings: list[str] = []
+    ingest.get_logger().warning = lambda text, **_: warnings.append(text)  # type: ignore[method-assign]
     sample = Odometry()
     sample.pose.pose.orientation.w = 1.0
 
@@ -283,13 +286,15 @@ def test_odometry_ingest_waits_for_a_running_players_end_of_input(ros_context: N
             lambda: ingest.count_publishers(END_TOPIC) > 0, timeout_s=10, what='the speaker'
         )
         odometry(1_000_000)
+        odometry(500_000_000)
         ingest._last_odometry_wall = time.monotonic() - 10 * ingest.idle_flush_s
         for _ in range(4):
             ingest._flush_when_idle()
         assert flushes == []
         ingest._on_end(Empty())
-        assert flushes == [1]
-        odometry(2_000_000)
+        assert flushes == [1] and ingest.published == 1  # the held-back keyframe, said
+        odometry(900_000_000)
+        odometry(1_300_000_000)
         player.destroy_publisher(end)
         wait_until(
             lambda: ingest.count_publishers(END_TOPIC) == 0, timeout_s=10, what='no speaker'
@@ -297,10 +302,11 @@ def test_odometry_ingest_waits_for_a_running_players_end_of_input(ros_context: N
         ingest._last_odometry_wall = time.monotonic() - 10 * ingest.idle_flush_s
         ingest._flush_when_idle()
         ingest._flush_when_idle()
-        assert flushes == [1, 1]
-        assert ingest.idle_flushes == 1
-        odometry(3_000_000)  # after an idle flush: warned, counted on /diagnostics
+        assert flushes == [1, 1] and ingest.published == 2
+        assert ingest.idle_flushes == 1 and warnings == []
+        odometry(1_700_000_000)  # after an idle flush that emitted: warned, counted
         assert ingest._counts()['idle flushes'] == 1
+        assert len(warnings) == 1 and 'odometry resumed after a pause' in warnings[0]
     finally:
         player.destroy_node()
         ingest.destroy_node()

@@ -243,6 +243,7 @@ class OdometryIngestNode(Node):
         self._last_odometry_wall = time.monotonic()
         self.flushed = True
         self.idle_flushes = 0  # flushes on idle odometry (not said by a player)
+        self._idle_flush_emitted = False  # the last flush was on idle and emitted keyframes
         self._idle_armed = False
         # the end of the inputs is said by the player when there is one (slam_ros.progress)
         self.create_subscription(Empty, END_TOPIC, timed(self._on_end, 'end'), END_QOS)
@@ -271,14 +272,14 @@ class OdometryIngestNode(Node):
     def _on_odometry(self, message: Odometry) -> None:
         stamp_ns, pose = odometry_pose(message)
         self._last_odometry_wall = time.monotonic()
-        if self.flushed and self.idle_flushes and self.published:
+        if self._idle_flush_emitted:
             self.get_logger().warning(
                 f'odometry resumed after a pause of more than idle_flush_s='
                 f'{self.idle_flush_s:g} s, taken for its end: the held-back keyframes were '
                 f'flushed, so this run has a keyframe that an unpaused stream does not '
                 f'({self.idle_flushes} such flush(es) so far)'
             )
-        self.flushed = False
+        self.flushed, self._idle_flush_emitted = False, False
         self._publish(self.ingest.add_odometry(stamp_ns, pose))
         if self.tf_publisher is not None:
             self._publish_tf(self.tf_publisher, message, stamp_ns)
@@ -315,7 +316,9 @@ class OdometryIngestNode(Node):
             return
         self.flushed = True
         self.idle_flushes += 1
-        self._publish(self.ingest.flush())
+        increments = self.ingest.flush()
+        self._idle_flush_emitted = bool(increments)
+        self._publish(increments)
 
     def _on_end(self, message: Empty) -> None:
         self.flushed = True
