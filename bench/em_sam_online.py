@@ -55,12 +55,13 @@ from victoria_park_gtsam import (  # noqa: E402
 )
 
 from em_sam_node.core.assembly import (  # noqa: E402
+    BuiltProblem,
     MappingData,
     build_problem,
     initial_estimate,
 )
 from em_sam_node.core.em import run_em  # noqa: E402
-from em_sam_node.core.em_types import EmConfig  # noqa: E402
+from em_sam_node.core.em_types import EmConfig, EmResult  # noqa: E402
 from em_sam_node.core.factors import (  # noqa: E402
     observation_residuals,
     odometry_residuals,
@@ -203,10 +204,7 @@ def full_pass(
     for name, model in (('nominal odometry', OdometryCalibration()), ('calibrated', calibration)):
         calibrated = model.apply(data)
         built = build_problem(calibrated, exclude_ids=flagged)
-        index = {int(j): k for k, j in enumerate(result.landmark_ids.tolist())}
-        ours = Estimate(
-            result.poses, np.array([result.positions[index[int(j)]] for j in built.landmark_ids])
-        )
+        ours = _kept(result, built)
         best = min(
             _model_cost(built.problem, _lm(built.problem, start).estimate)
             for start in (ours, initial_estimate(built.problem, online_poses))
@@ -229,14 +227,7 @@ def full_pass(
     uncalibrated = run_em(data, dataclasses.replace(EmConfig(), calibrate_odometry=False))
     flagged_nominal = uncalibrated.landmark_ids[uncalibrated.moveable].tolist()
     built = build_problem(data, exclude_ids=flagged_nominal)
-    index = {int(j): k for k, j in enumerate(uncalibrated.landmark_ids.tolist())}
-    nominal = _model_cost(
-        built.problem,
-        Estimate(
-            uncalibrated.poses,
-            np.array([uncalibrated.positions[index[int(j)]] for j in built.landmark_ids]),
-        ),
-    )
+    nominal = _model_cost(built.problem, _kept(uncalibrated, built))
     scales = ', '.join(f'{v:.4f}' for v in result.odometry_calibration)
     lines = [
         '',
@@ -252,6 +243,13 @@ def full_pass(
         f'{nominal:.1f} in the nominal model without them.',
     ]
     return lines, checks
+
+
+def _kept(result: EmResult, built: BuiltProblem) -> Estimate:
+    """``result``'s poses and its positions of ``built``'s landmarks."""
+    index = {int(j): k for k, j in enumerate(result.landmark_ids.tolist())}
+    positions = [result.positions[index[int(j)]] for j in built.landmark_ids]
+    return Estimate(result.poses, np.array(positions))
 
 
 def _lm(problem: SlamProblem, start: Estimate) -> SolveResult:
