@@ -7,7 +7,7 @@ import os
 import platform
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -51,6 +51,35 @@ def best_of(repeats: int, function: Callable[[], T]) -> tuple[float, T]:
     started = time.perf_counter()
     result = function()
     return min(best, time.perf_counter() - started), result
+
+
+def side_by_side(
+    steppers: Sequence[Iterator[object]], count: int
+) -> tuple[list[list[float]], list[str | None]]:
+    """Advance each of ``steppers`` (one update per ``next``) ``count`` times, the first to
+    go alternating from one step to the next so that the machine's load falls on all
+    alike. Returns each one's wall time per step (s) and, for one that raised RuntimeError,
+    the error's first line (it is not stepped again); one that ends early stops too."""
+    latencies: list[list[float]] = [[] for _ in steppers]
+    failures: list[str | None] = [None] * len(steppers)
+    live = list(range(len(steppers)))
+    for step in range(count):
+        if not live:
+            break
+        turn = step % len(live)
+        for which in live[turn:] + live[:turn]:
+            started = time.perf_counter()
+            try:
+                next(steppers[which])
+            except StopIteration:
+                live.remove(which)
+                continue
+            except RuntimeError as error:  # e.g. GTSAM's IndeterminateLinearSystemException
+                failures[which] = (str(error).strip().splitlines() or [repr(error)])[0]
+                live.remove(which)
+                continue
+            latencies[which].append(time.perf_counter() - started)
+    return latencies, failures
 
 
 def pin_to_one_core(cpu: int | None) -> str:

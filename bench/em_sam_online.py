@@ -14,7 +14,9 @@ range-bearing sightings):
   the same iSAM2 underneath, plus each keyframe's EM test of the trees it saw and the
   replacement of the factors whose weight or gate changed.
 
-Per row: latency per update (mean, median, p95, max, ms), the ratio of the means, the cost
+The two advance together, one update of each per keyframe, the first to go alternating
+(``bench_common.side_by_side``): the machine's load, which drifts on a shared VM, falls on
+both alike. Per row: latency per update (mean, median, p95, max, ms), the ratio of the means, the cost
 of the last estimate on GTSAM's full all-static graph, and ours's flagged trees. Then the
 polish a full pass starts from: our Levenberg-Marquardt (``core.solver.solve``, all static)
 from ours's last estimate, its cost against the best known (2339.2, GTSAM LM from iSAM2's
@@ -37,6 +39,7 @@ import argparse
 import dataclasses
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -45,11 +48,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'bench'))
 
-from bench_common import run_meta  # noqa: E402
+from bench_common import run_meta, side_by_side  # noqa: E402
 from victoria_park_gtsam import (  # noqa: E402
     from_values,
     gtsam_graph,
-    isam2,
+    isam2_updates,
     mapping_data,
     our_problem,
 )
@@ -69,6 +72,7 @@ from em_sam_node.core.factors import (  # noqa: E402
 )
 from em_sam_node.core.incremental import IncrementalEmSam  # noqa: E402
 from em_sam_node.core.incremental_parts import load_gtsam  # noqa: E402
+from em_sam_node.core.incremental_types import UpdateStats  # noqa: E402
 from em_sam_node.core.odometry_calibration import OdometryCalibration  # noqa: E402
 from em_sam_node.core.problem import Estimate, SlamProblem, SolveResult  # noqa: E402
 from em_sam_node.core.solver import solve  # noqa: E402
@@ -85,11 +89,19 @@ PLOT_WINDOW = 100  # keyframes per point of the latency plot
 def online(data: MappingData, count: int) -> tuple[IncrementalEmSam, list[float]]:
     """Ours over the first ``count`` keyframes; the smoother and its latencies."""
     smoother = IncrementalEmSam(EmConfig(), data.prior_pose, data.prior_cov)
+    latencies = [stats.seconds for stats in online_updates(smoother, data, count)]
+    return smoother, latencies
+
+
+def online_updates(
+    smoother: IncrementalEmSam, data: MappingData, count: int
+) -> Iterator[UpdateStats]:
+    """Feed ``smoother`` the first ``count`` keyframes of ``data``, one ``add_keyframe``
+    per ``next``; yields its UpdateStats."""
     incoming = {int(to): m for m, to in enumerate(data.odometry_to.tolist())}
     rows_of: dict[int, list[int]] = {}
     for k, keyframe in enumerate(data.obs_keyframe.tolist()):
         rows_of.setdefault(keyframe, []).append(k)
-    latencies = []
     for index in range(count):
         m = incoming.get(index)
         odometry = None if m is None else (data.odometry_u[m], data.odometry_cov[m])
@@ -97,8 +109,7 @@ def online(data: MappingData, count: int) -> tuple[IncrementalEmSam, list[float]
             (int(data.obs_landmark_id[k]), data.obs_z[k], data.obs_cov[k])
             for k in rows_of.get(index, [])
         ]
-        latencies.append(smoother.add_keyframe(odometry, sightings).seconds)
-    return smoother, latencies
+        yield smoother.add_keyframe(odometry, sightings)
 
 
 def _stats(latencies: list[float]) -> tuple[float, float, float, float]:
@@ -119,11 +130,20 @@ def main() -> int:
     graph, _ = gtsam_graph(gtsam, data, start)
     landmark_ids = np.unique(data.obs_landmark)
 
-    print(f'em_sam_online: Victoria Park, {count} poses, iSAM2 ...', file=sys.stderr)
-    plain: list[float] = []
-    reference, _ = isam2(gtsam, graph, data, count=count, latencies=plain)
-    print('em_sam_online: ours ...', file=sys.stderr)
-    smoother, ours = online(mapping_data(data), count)
+    print(f'em_sam_online: Victoria Park, {count} poses, iSAM2 and ours ...', file=sys.stderr)
+    solver = gtsam.ISAM2(gtsam.ISAM2Params())
+    ours_data = mapping_data(data)
+    smoother = IncrementalEmSam(EmConfig(), ours_data.prior_pose, ours_data.prior_cov)
+    (plain, ours), failures = side_by_side(
+        [
+            isam2_updates(gtsam, graph, data, solver, count),
+            online_updates(smoother, ours_data, count),
+        ],
+        count,
+    )
+    if any(failures):
+        raise RuntimeError(f'a solver failed: {failures}')
+    reference = solver.calculateEstimate()
     rows = [('GTSAM iSAM2 (reference)', plain), ('EM-SAM online (ours)', ours)]
     lines = [
         f'# EM-SAM online against iSAM2: Victoria Park, {count} poses, one per update',

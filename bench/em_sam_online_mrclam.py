@@ -5,7 +5,8 @@ per update, side by side in the same run.
 
 Each robot's whole run is imported with ``mrclam_import``'s writer into a temporary
 directory and replayed through ``odometry_ingest``'s keyframing (``offline.replay_bag``),
-as em_sam_mapper gets it. Then, one keyframe per update:
+as em_sam_mapper gets it. Then, one keyframe per update, the two interleaved
+(``bench_common.side_by_side``, as in em_sam_online.py):
 
 - reference: GTSAM 4.3 iSAM2 with its default parameters on the same factors, every
   landmark static (``gtsam_inputs.mrclam_graph``): a keyframe's odometry factor and
@@ -26,7 +27,7 @@ import argparse
 import shutil
 import sys
 import tempfile
-import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -35,11 +36,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'bench'))
 
-from bench_common import run_meta  # noqa: E402
-from em_sam_online import online  # noqa: E402
+from bench_common import run_meta, side_by_side  # noqa: E402
+from em_sam_online import online_updates  # noqa: E402
 from gtsam_inputs import Graph, mrclam_graph, on_grid  # noqa: E402
 
 from em_sam_node.core.assembly import MappingData  # noqa: E402
+from em_sam_node.core.em_types import EmConfig  # noqa: E402
+from em_sam_node.core.incremental import IncrementalEmSam  # noqa: E402
 from em_sam_node.core.incremental_parts import load_gtsam  # noqa: E402
 from em_sam_node.offline import GroundTruth, read_ground_truth, replay_bag  # noqa: E402
 from slam_core.blas import single_threaded_blas  # noqa: E402
@@ -51,19 +54,17 @@ from slam_sim.core.mrclam import robots_with_odometry  # noqa: E402
 from slam_sim.mrclam_bag import load_run, write_mrclam_bag  # noqa: E402
 
 
-def isam2(gtsam: Any, graph: Graph, data: MappingData, latencies: list[float]) -> Any:
-    """GTSAM iSAM2 over ``graph``'s factors, one keyframe per update (module docstring);
-    ``latencies`` gets each update's wall time (s). Returns the last estimate (Values)."""
+def isam2_updates(gtsam: Any, graph: Graph, data: MappingData, solver: Any) -> Iterator[int]:
+    """Feed ``solver`` (a gtsam.ISAM2) ``graph``'s factors, one keyframe per ``next``
+    (module docstring); yields the keyframe just added."""
     problem = graph.built.problem
     incoming = {int(to): m for m, to in enumerate(data.odometry_to.tolist())}
     rows_of: dict[int, list[int]] = {}
     for k, pose in enumerate(problem.obs_pose.tolist()):
         rows_of.setdefault(pose, []).append(k)
     z = on_grid(problem.obs_z)
-    solver = gtsam.ISAM2(gtsam.ISAM2Params())
     known: set[int] = set()
     for pose in range(problem.num_poses):
-        started = time.perf_counter()
         factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if pose == 0:
             factors.add(graph.graph.at(0))
@@ -83,8 +84,7 @@ def isam2(gtsam: Any, graph: Graph, data: MappingData, latencies: list[float]) -
                 local = gtsam.Point2(z[k, 0] * np.cos(z[k, 1]), z[k, 0] * np.sin(z[k, 1]))
                 values.insert(gtsam.symbol('l', landmark), start.transformFrom(local))
         solver.update(factors, values)
-        latencies.append(time.perf_counter() - started)
-    return solver.calculateEstimate()
+        yield pose
 
 
 def _stats(latencies: list[float]) -> tuple[float, float, float, float]:
@@ -115,13 +115,18 @@ def bench_run(gtsam: Any, dataset: Path, robot: int) -> list[str]:
     finally:
         shutil.rmtree(scratch)
     graph = mrclam_graph(gtsam, data)
-    plain: list[float] = []
-    try:
-        reference = isam2(gtsam, graph, data, plain)
-    except RuntimeError as error:  # GTSAM's IndeterminateLinearSystemException and kin
-        reference = None
-        failure = str(error).strip().splitlines()[0]
-    smoother, ours = online(data, data.num_keyframes)
+    solver = gtsam.ISAM2(gtsam.ISAM2Params())
+    smoother = IncrementalEmSam(EmConfig(), data.prior_pose, data.prior_cov)
+    (plain, ours), (failure, ours_failure) = side_by_side(
+        [
+            isam2_updates(gtsam, graph, data, solver),
+            online_updates(smoother, data, data.num_keyframes),
+        ],
+        data.num_keyframes,
+    )
+    if ours_failure is not None:
+        raise RuntimeError(f'ours failed at keyframe {len(ours)}: {ours_failure}')
+    reference = None if failure is not None else solver.calculateEstimate()
     ours_values = gtsam.Values()
     poses = smoother.poses()
     for i, pose in enumerate(poses):

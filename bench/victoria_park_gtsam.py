@@ -63,7 +63,7 @@ import argparse
 import importlib
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -215,15 +215,29 @@ def isam2(
 ) -> tuple[Any, str]:
     """GTSAM iSAM2, one pose per update (see the module docstring); the final estimate.
     ``count``: only the first poses; ``latencies`` gets each update's wall time (s)."""
+    solver = gtsam.ISAM2(gtsam.ISAM2Params())
+    count = data.num_poses if count is None else count
+    updates = isam2_updates(gtsam, graph, data, solver, count)
+    while True:
+        started = time.perf_counter()
+        if next(updates, None) is None:
+            break
+        if latencies is not None:
+            latencies.append(time.perf_counter() - started)
+    return solver.calculateEstimate(), f'{count} updates'
+
+
+def isam2_updates(
+    gtsam: Any, graph: Any, data: VictoriaPark, solver: Any, count: int
+) -> Iterator[int]:
+    """Feed ``solver`` (a gtsam.ISAM2) the first ``count`` poses, one ``update`` per
+    ``next`` (module docstring); yields the pose just added."""
     by_pose: dict[int, list[int]] = {}
     for factor, pose in enumerate(data.obs_pose.tolist(), start=1 + len(data.odometry_from)):
         by_pose.setdefault(pose, []).append(factor)  # graph: prior, odometry, sightings
     incoming = {int(to): m for m, to in enumerate(data.odometry_to.tolist())}
-    solver = gtsam.ISAM2(gtsam.ISAM2Params())
     known: set[int] = set()
-    count = data.num_poses if count is None else count
     for pose in range(count):
-        started = time.perf_counter()
         factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if pose == 0:
             factors.add(graph.at(0))
@@ -243,9 +257,7 @@ def isam2(
                 point = start.transformFrom(gtsam.Point2(*data.obs_xy[k]))
                 values.insert(gtsam.symbol('l', tree), point)
         solver.update(factors, values)
-        if latencies is not None:
-            latencies.append(time.perf_counter() - started)
-    return solver.calculateEstimate(), f'{count} updates'
+        yield pose
 
 
 def em_sam_all_static(data: VictoriaPark, landmark_ids: np.ndarray) -> tuple[float, Estimate]:

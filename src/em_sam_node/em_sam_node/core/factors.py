@@ -154,8 +154,15 @@ def range_bearing_error_jacobians(
 ) -> tuple[FloatArray, FloatArray]:
     """Return d eta / d x (K, 2, 3) and d eta / d l (K, 2, 2) of the range-bearing error."""
     zeros = np.zeros((*np.broadcast_shapes(np.shape(poses)[:-1], np.shape(landmarks)[:-1]), 2))
-    jacobian = _range_bearing(poses, landmarks, zeros, want_jacobian=True)[1]
-    return jacobian[..., :3], jacobian[..., 3:]
+    return range_bearing_error_with_jacobians(poses, landmarks, zeros)[1:]
+
+
+def range_bearing_error_with_jacobians(
+    poses: FloatArray, landmarks: FloatArray, z: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Return the innovation (K, 2), d eta / d x (K, 2, 3) and d eta / d l (K, 2, 2)."""
+    eta, jacobian = _range_bearing(poses, landmarks, z, want_jacobian=True)
+    return eta, jacobian[..., :3], jacobian[..., 3:]
 
 
 def prior_error(poses: FloatArray, mean: FloatArray) -> FloatArray:
@@ -473,9 +480,10 @@ def _range_bearing(
     dy = landmarks[..., 1] - poses[..., 1]
     range_sq = np.maximum(dx * dx + dy * dy, _MIN_RANGE_SQ_M2)
     range_m = np.sqrt(range_sq)
-    eta = np.empty(np.broadcast_shapes((*dx.shape, 2), z.shape))
+    bearing = wrap_angle(z[..., 1] - (np.arctan2(dy, dx) - poses[..., 2]))
+    eta = np.empty((*bearing.shape, 2))  # the range's shape too: the same operands
     eta[..., 0] = z[..., 0] - range_m
-    eta[..., 1] = wrap_angle(z[..., 1] - (np.arctan2(dy, dx) - poses[..., 2]))
+    eta[..., 1] = bearing
     if not want_jacobian:
         return eta, None
     # d eta/d l = -d h/d l (columns 3-4); d eta/d (x, y) = +d h/d l; d eta/d theta = (0, 1).

@@ -97,6 +97,7 @@ class IncrementalEmSam:
         self._frozen_poses: list[tuple[float, float, float]] = []  # their last estimates
         self._sightings_at: dict[int, list[tuple[int, int]]] = {}  # live pose: (id, k)
         self._returns = 0  # keys given to landmarks that came back
+        self._moveable: set[int] = set()  # the landmarks below moveable_threshold
         self.dropped_late = 0  # late sightings of keyframes that had left the smoother
         params = self.gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.incremental.relinearize_threshold)
@@ -256,7 +257,7 @@ class IncrementalEmSam:
     def _sighting_factor(self, landmark_id: int, k: int) -> Any:
         gtsam = self.gtsam
         landmark = self.landmarks[landmark_id]
-        cov = landmark.cov[k][np.ix_([1, 0], [1, 0])] / landmark.applied  # (bearing, range)
+        cov = landmark.cov[k][::-1, ::-1] / landmark.applied  # (bearing, range)
         z = landmark.z[k]
         return gtsam.BearingRangeFactor2D(
             landmark.poses[k],
@@ -359,6 +360,10 @@ class IncrementalEmSam:
         landmark = self.landmarks[landmark_id]
         carried = [landmark.carries(k) for k in range(len(landmark.poses))]
         landmark.weight, landmark.gated, landmark.held = weight, gated, held
+        if weight < self.config.moveable_threshold:
+            self._moveable.add(landmark_id)
+        else:
+            self._moveable.discard(landmark_id)
         rescaled = abs(weight - landmark.applied) > self.incremental.weight_step
         if rescaled:
             landmark.applied = weight
@@ -428,7 +433,7 @@ class IncrementalEmSam:
         test_cov = cov[rows] if tested is None else tested
         start = range_bearing_to_point(poses[rows][-1:], z[rows][-1:])[0]
         point = least_squares_point(poses[rows], z[rows], test_cov, start)
-        innovation = range_bearing_error(poses[rows], np.repeat(point[None], run, axis=0), z[rows])
+        innovation = range_bearing_error(poses[rows], point, z[rows])
         level = chi2_quantile(1.0 - config.false_alarm_probability, 2 * run - 2)
         result[rows] = squared_mahalanobis(innovation, test_cov).sum() <= level
         return result
@@ -437,7 +442,7 @@ class IncrementalEmSam:
         """The innovations (K, 2) of sightings z (K, 2) from ``poses`` (K, 3) of the
         landmark where the smoother (or, parked, its own estimate) has it."""
         point = self._position(landmark_id, poses)
-        return range_bearing_error(poses, np.repeat(point[None], len(z), axis=0), z)
+        return range_bearing_error(poses, point, z)
 
     def _mahalanobis(self, innovation: FloatArray, z: FloatArray, cov: FloatArray) -> FloatArray:
         """The test's squared Mahalanobis distances (K,) of ``innovation`` (K, 2): the
@@ -480,7 +485,8 @@ class IncrementalEmSam:
         landmark = self.landmarks[landmark_id]
         symbol = landmark.key
         tested = covariances_for_test(self.config, cov[None], z[None])
-        test_cov = (cov if tested is None else tested[0])[np.ix_([1, 0], [1, 0])]
+        # (bearing, range), as GTSAM orders them
+        test_cov = np.ascontiguousarray((cov if tested is None else tested[0])[::-1, ::-1])
         factor = gtsam.BearingRangeFactor2D(
             keyframe,
             symbol,
@@ -552,8 +558,7 @@ class IncrementalEmSam:
     @property
     def moveable(self) -> frozenset[int]:
         """The landmarks whose weight is below the moveable threshold."""
-        threshold = self.config.moveable_threshold
-        return frozenset(i for i, lm in self.landmarks.items() if lm.weight < threshold)
+        return frozenset(self._moveable)
 
     @property
     def kept_from(self) -> int:

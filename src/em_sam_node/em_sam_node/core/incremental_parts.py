@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from em_sam_node.core.factors import range_bearing_error, range_bearing_error_jacobians
+from em_sam_node.core.factors import range_bearing_error_with_jacobians
 from em_sam_node.core.problem import FloatArray
 
 POINT_ITERATIONS = 10  # Gauss-Newton steps placing a landmark from its sightings alone
@@ -59,12 +59,10 @@ def least_squares_point(
 ) -> FloatArray:
     """The point (2,) that best explains sightings z (K, 2) with covariances (K, 2, 2) from
     ``poses`` (K, 3), by Gauss-Newton from ``start`` (2,)."""
-    count = len(z)
     information = np.linalg.inv(cov)
     point = np.asarray(start, np.float64)
     for _ in range(POINT_ITERATIONS):
-        innovation = range_bearing_error(poses, np.repeat(point[None], count, axis=0), z)
-        _, by_point = range_bearing_error_jacobians(poses, np.repeat(point[None], count, 0))
+        innovation, _, by_point = range_bearing_error_with_jacobians(poses, point, z)
         weighted = np.swapaxes(by_point, 1, 2) @ information
         hessian = np.einsum('kij,kjl->il', weighted, by_point)
         gradient = np.einsum('kij,kj->i', weighted, innovation)
