@@ -16,11 +16,11 @@ range-bearing sightings):
 
 The two advance together, one update of each per keyframe, the first to go alternating
 (``bench_common.side_by_side``): the machine's load, which drifts on a shared VM, falls on
-both alike. Per row: latency per update (mean, median, p95, max, ms), the ratio of the means, the cost
-of the last estimate on GTSAM's full all-static graph, and ours's flagged trees. Then the
-polish a full pass starts from: our Levenberg-Marquardt (``core.solver.solve``, all static)
-from ours's last estimate, its cost against the best known (2339.2, GTSAM LM from iSAM2's
-estimate; issue 44).
+both alike. Per row: latency per update (mean, median, p95, max, ms), the ratio of the
+means, the cost of the last estimate on GTSAM's full all-static graph, and ours's flagged
+trees. Then the polish a full pass starts from: our Levenberg-Marquardt
+(``core.solver.solve``, all static) from ours's last estimate, its cost against the best
+known (2339.2, GTSAM LM from iSAM2's estimate; issue 44).
 
 Then the full pass (``run_em`` from dead reckoning) scored with its flagged trees left out,
 in the nominal odometry model and in the model it estimates (its odometry calibration),
@@ -84,13 +84,6 @@ from slam_sim.core.victoria_park import parse_victoria_park  # noqa: E402
 BEST_KNOWN_COST = 2339.2  # GTSAM LM polished from iSAM2's estimate (issue 44)
 P95_MAX_MS, MAX_MS, MAX_FLAGGED, COST_RATIO = 50.0, 500.0, 3, 1.01
 PLOT_WINDOW = 100  # keyframes per point of the latency plot
-
-
-def online(data: MappingData, count: int) -> tuple[IncrementalEmSam, list[float]]:
-    """Ours over the first ``count`` keyframes; the smoother and its latencies."""
-    smoother = IncrementalEmSam(EmConfig(), data.prior_pose, data.prior_cov)
-    latencies = [stats.seconds for stats in online_updates(smoother, data, count)]
-    return smoother, latencies
 
 
 def online_updates(
