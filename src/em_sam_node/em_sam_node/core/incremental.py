@@ -97,7 +97,6 @@ class IncrementalEmSam:
         self._frozen_poses: list[tuple[float, float, float]] = []  # their last estimates
         self._sightings_at: dict[int, list[tuple[int, int]]] = {}  # live pose: (id, k)
         self._returns = 0  # keys given to landmarks that came back
-        self._moveable: set[int] = set()  # the landmarks below moveable_threshold
         self.dropped_late = 0  # late sightings of keyframes that had left the smoother
         params = self.gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.incremental.relinearize_threshold)
@@ -360,10 +359,6 @@ class IncrementalEmSam:
         landmark = self.landmarks[landmark_id]
         carried = [landmark.carries(k) for k in range(len(landmark.poses))]
         landmark.weight, landmark.gated, landmark.held = weight, gated, held
-        if weight < self.config.moveable_threshold:
-            self._moveable.add(landmark_id)
-        else:
-            self._moveable.discard(landmark_id)
         rescaled = abs(weight - landmark.applied) > self.incremental.weight_step
         if rescaled:
             landmark.applied = weight
@@ -558,7 +553,8 @@ class IncrementalEmSam:
     @property
     def moveable(self) -> frozenset[int]:
         """The landmarks whose weight is below the moveable threshold."""
-        return frozenset(self._moveable)
+        threshold = self.config.moveable_threshold
+        return frozenset(i for i, lm in self.landmarks.items() if lm.weight < threshold)
 
     @property
     def kept_from(self) -> int:
