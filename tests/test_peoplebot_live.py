@@ -12,6 +12,9 @@ the mapper writes its report (a final solve over everything it took). Checked:
   and no marker that stayed where it was;
 - on /tf and /tf_static no frame ever has two parents, and from the first map -> odom on,
   map -> camera_optical_frame resolves at the stamp of every camera image;
+- the README's tools read the running graph as a user without the ROS CLI does:
+  ``slam_echo em_sam/moveable --once``, ``slam_diag --once`` and ``slam_call find_landmark``
+  for a moved marker, and their answers agree with the mapper's report;
 - /diagnostics adds up: every image the simulator published from the first the detector
   took was taken or counted lost, the mapper lost no increment of the ingest's and dropped
   no sighting, and its first keyframe (the odometry connected) came within the discovery
@@ -21,12 +24,14 @@ the mapper writes its report (a final solve over everything it took). Checked:
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from graph_checks import EM_SAM_CAMERA_TREE, last_reports, parents, tf_tree
 from sensor_msgs.msg import CameraInfo
@@ -62,6 +67,40 @@ def seen_at_both_positions(
     return moved, moved & seen[False] & seen[True], set(before) - moved
 
 
+def run_tool(*command: str) -> subprocess.CompletedProcess[str]:
+    """A command-line tool of the README, run to its end."""
+    return subprocess.run(list(command), capture_output=True, text=True, timeout=120, check=False)
+
+
+def user_tools(moved_ids: list[int]) -> dict[str, subprocess.CompletedProcess[str]]:
+    """What the README's tools print about the running graph."""
+    tools = {
+        'echo': run_tool('slam_echo', 'em_sam/moveable', '--once', '--wait', '30'),
+        'diag': run_tool('slam_diag', '--once', '--wait', '3'),
+    }
+    if moved_ids:
+        request = f'{{landmark_id: {moved_ids[0]}}}'
+        tools['call'] = run_tool('slam_call', 'find_landmark', request, '--wait', '30')
+    return tools
+
+
+def check_user_tools(
+    tools: dict[str, subprocess.CompletedProcess[str]], flagged: set[int]
+) -> None:
+    """The tools' answers agree with the mapper's final report (``flagged``)."""
+    echo, diag = tools['echo'], tools['diag']
+    assert echo.returncode == 0, echo.stderr
+    moveable = yaml.safe_load(echo.stdout.split('---')[0])
+    assert {landmark['landmark_id'] for landmark in moveable['landmarks']} <= flagged, moveable
+    assert diag.returncode in (0, 1, 3), diag.stdout + diag.stderr  # something came
+    names = {line.split()[1] for line in diag.stdout.splitlines()[1:-1]}
+    assert {'/em_sam_mapper', '/odometry_ingest', '/marker_detector'} <= names, diag.stdout
+    if 'call' in tools:
+        call = tools['call']
+        assert call.returncode == 0, call.stdout + call.stderr  # found: true
+        assert yaml.safe_load(call.stdout)['sightings'], call.stdout
+
+
 def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_path: Path) -> None:
     harness = ros_harness
     diagnostics = harness.collect('/diagnostics', DiagnosticArray, output_qos(depth=100))
@@ -85,6 +124,8 @@ def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_pat
         what=f'{LIVE_S:g} s of the route',
     )
     assert run.process.poll() is None, run.log()
+    moved_now = seen_at_both_positions(list(observations.messages), list(truth.messages))[1]
+    tools = user_tools(sorted(moved_now)[:1])  # while the graph runs, as a user would
     run.stop(timeout_s=STOP_TIMEOUT_S)
     assert run.process.returncode == 0, run.log()
 
@@ -98,6 +139,7 @@ def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_pat
         f'seen at both positions {sorted(seen_both)}, flagged {sorted(flagged)}'
     )
     assert not flagged & unmoved, f'static markers flagged: {sorted(flagged & unmoved)}'
+    check_user_tools(tools, flagged)
 
     tree = tf_tree(tf_static.messages, tf.messages)
     assert parents(tree) == EM_SAM_CAMERA_TREE

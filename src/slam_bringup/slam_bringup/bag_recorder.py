@@ -48,7 +48,6 @@ import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from slam_core.cli import console_main
@@ -57,7 +56,7 @@ from slam_core.params import AT_LEAST_ONE, POSITIVE, Param, ParamTable, ParamTyp
 from slam_ros.bag.recording import AtomicBagWriter
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import check_parameter_files, declare_parameters
-from slam_ros.qos import recorded_from_profile
+from slam_ros.qos import matching_qos, recorded_from_profile
 from slam_ros.typesys import TypeRegistry, message_class
 
 PARAMETERS = ParamTable(
@@ -167,16 +166,7 @@ class BagRecorderNode(Node):
             rihs01=rihs01,
             offered_qos=[recorded_from_profile(q) for q in offered],
         )
-        qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=self.queue_depth,
-            reliability=ReliabilityPolicy.RELIABLE
-            if offered and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
-            else ReliabilityPolicy.BEST_EFFORT,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL
-            if offered and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
-            else DurabilityPolicy.VOLATILE,
-        )
+        qos = matching_qos(offered, self.queue_depth)
         on_message = self.diagnostics.timed(functools.partial(self._on_message, topic), topic)
         self.create_subscription(cls, topic, on_message, qos, raw=True)
         self.get_logger().info(f'recording {topic!r} ({msgtype})')

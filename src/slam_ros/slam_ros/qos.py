@@ -47,6 +47,21 @@ _LIVELINESS = {
 }
 
 
+def matching_qos(offered: Sequence[QoSProfile], depth: int) -> QoSProfile:
+    """A subscription's QoS that receives from every publisher in ``offered``: reliable and
+    transient-local only when all of them are (what ``ros2 topic echo`` and rosbag2 do)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE
+        if offered and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
+        else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL
+        if offered and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+        else DurabilityPolicy.VOLATILE,
+    )
+
+
 def sensor_qos(depth: int = SENSOR_DEPTH) -> QoSProfile:
     """Sensor inputs: best effort, volatile, keep last ``depth`` (rclpy's sensor-data profile,
     deeper: SENSOR_DEPTH)."""

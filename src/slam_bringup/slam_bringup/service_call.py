@@ -1,0 +1,104 @@
+"""slam_call: call a service and print the response as YAML, like `ros2 service call`.
+
+    slam_call /em_sam_mapper/optimize                   # std_srvs/Trigger: no request fields
+    slam_call save_map                                  # a unique tail of the name works
+    slam_call find_landmark '{landmark_id: 7}'          # the request as YAML
+
+The service's type is read from the graph (--type when it is not up yet, with --wait). The
+request is a YAML mapping of field names to values; a misspelled field is named with the
+closest one. The response is printed whole. Exit status: 0; 1 when the response has a
+`success` or `found` field that is false; 2 on a usage error, an unknown service or a
+request that does not fit; 3 when no response came within --timeout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from typing import Any
+
+from slam_core.cli import console_main
+from slam_core.errors import SlamError
+
+EXIT_FALSE = 1
+EXIT_NO_RESPONSE = 3
+OUTCOME_FIELDS = ('success', 'found')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of slam_call."""
+    parser = argparse.ArgumentParser(
+        prog='slam_call', description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    add = parser.add_argument
+    add('service', help='service name, e.g. /em_sam_mapper/optimize (a unique tail works)')
+    add('request', nargs='?', default='{}', help="the request as YAML, e.g. '{landmark_id: 7}'")
+    add('--type', help='service type, e.g. std_srvs/srv/Trigger (default: from the graph)')
+    add('--wait', type=float, default=5.0, metavar='S', help='wait S s for the service to appear')
+    add('--timeout', type=float, default=60.0, metavar='S', help='wait S s for the response')
+    return parser
+
+
+def parse_request(text: str) -> object:
+    """The request YAML as data.
+
+    Raises:
+        SlamError: not YAML.
+
+    """
+    import yaml
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise SlamError(f'the request {text!r} is not YAML: {err}') from None
+
+
+def outcome(response: dict[str, Any]) -> int:
+    """1 when a success/found field of ``response`` is false, else 0."""
+    return EXIT_FALSE if any(response.get(key) is False for key in OUTCOME_FIELDS) else 0
+
+
+@console_main('slam_call')
+def main(argv: list[str] | None = None) -> int:
+    """Call one service once."""
+    args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    for name in ('wait', 'timeout'):
+        if not getattr(args, name) > 0:
+            raise SlamError(f'--{name} must be > 0, got {getattr(args, name)}')
+    values = parse_request(args.request)
+    from slam_bringup.graph_lookup import Found, RosSession, find_service
+    from slam_bringup.message_yaml import fill_message, message_to_data, to_yaml
+    from slam_ros.typesys import message_class
+
+    with RosSession('slam_call') as ros:
+        if args.type:
+            found = Found('/' + args.service.lstrip('/'), args.type)
+        else:
+            found = find_service(ros.node, args.service, args.wait)
+        service_type: Any = message_class(found.type_name)
+        request = fill_message(service_type.Request(), values)
+        client = ros.node.create_client(service_type, found.name)
+        deadline = time.monotonic() + args.wait
+        while not client.service_is_ready():
+            if time.monotonic() > deadline or not ros.spin_once(0.05):
+                raise SlamError(f'service {found.name} ({found.type_name}) is not ready')
+        print(f'calling {found.name} ({found.type_name})', file=sys.stderr)  # noqa: T201
+        future = client.call_async(request)
+        deadline = time.monotonic() + args.timeout
+        while not future.done():
+            if time.monotonic() > deadline or not ros.spin_once(0.05):
+                print(  # noqa: T201
+                    f'slam_call: error: no response from {found.name} within {args.timeout:g} s',
+                    file=sys.stderr,
+                )
+                return EXIT_NO_RESPONSE
+        response = future.result()
+    data = message_to_data(response, truncate=None)
+    sys.stdout.write(to_yaml(data))
+    return outcome(data)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
