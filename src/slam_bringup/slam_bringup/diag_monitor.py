@@ -19,7 +19,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from slam_core.cli import console_main
+from slam_core.cli import console_main, positive_float
 
 LEVELS = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
 STALE = 3
@@ -122,9 +122,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add = parser.add_argument
     add('--once', action='store_true', help='print the table once after --wait s, then exit')
-    add('--wait', type=float, default=3.0, metavar='S', help='seconds to listen with --once')
-    add('--period', type=float, default=1.0, metavar='S', help='seconds between redraws')
-    add('--stale', type=float, default=5.0, metavar='S', help='a status older than S is STALE')
+    add(
+        '--wait',
+        type=positive_float,
+        default=3.0,
+        metavar='S',
+        help='seconds to listen with --once',
+    )
+    add('--period', type=positive_float, default=1.0, metavar='S', help='seconds between redraws')
+    add(
+        '--stale',
+        type=positive_float,
+        default=5.0,
+        metavar='S',
+        help='a status older than S is STALE',
+    )
     add('--filter', default='', metavar='TEXT', help='only statuses whose name contains TEXT')
     add('-v', '--verbose', action='store_true', help='print every key and value')
     add('--topic', default='/diagnostics', help='diagnostics topic (default /diagnostics)')
@@ -136,11 +148,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Show the diagnostics table until Ctrl-C (or once)."""
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    for name in ('wait', 'period', 'stale'):
-        if not getattr(args, name) > 0:
-            from slam_core.errors import SlamError
-
-            raise SlamError(f'--{name} must be > 0, got {getattr(args, name)}')
     from diagnostic_msgs.msg import DiagnosticArray
 
     from slam_bringup.graph_lookup import RosSession

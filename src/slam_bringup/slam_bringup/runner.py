@@ -80,7 +80,7 @@ from slam_bringup.graph_nodes import (
 )
 from slam_bringup.supervise import Respawner, failing_node, warn_if_respawn_ignored
 from slam_core.blas import single_threaded_blas
-from slam_core.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main
+from slam_core.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main, positive_float
 from slam_core.errors import SlamError
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.progress import PACED_ENV
@@ -532,16 +532,6 @@ def run_processes(
 
 
 # -- command line -------------------------------------------------------------------------
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
-    if not value > 0 or value == float('inf'):
-        raise argparse.ArgumentTypeError(f'{text!r} must be a finite number > 0')
-    return value
-
-
 def build_arg_parser() -> argparse.ArgumentParser:
     """Command-line options of slam_run."""
     parser = argparse.ArgumentParser(
@@ -556,7 +546,7 @@ def build_arg_parser() -> argparse.ArgumentParser:
         '--exit-when-player-done', action='store_true', help='stop once the bag has played'
     )
     parser.add_argument('--bag', type=Path, help="bag to play (replaces the GRAPH's player.bag)")
-    parser.add_argument('--rate', type=_positive_float, help='playback speed factor')
+    parser.add_argument('--rate', type=positive_float, help='playback speed factor')
     parser.add_argument(
         '--paced',
         action='store_true',

@@ -18,7 +18,7 @@ import sys
 import time
 from typing import Any
 
-from slam_core.cli import console_main
+from slam_core.cli import console_main, positive_float
 from slam_core.errors import SlamError
 
 EXIT_FALSE = 1
@@ -35,8 +35,20 @@ def build_parser() -> argparse.ArgumentParser:
     add('service', help='service name, e.g. /em_sam_mapper/optimize (a unique tail works)')
     add('request', nargs='?', default='{}', help="the request as YAML, e.g. '{landmark_id: 7}'")
     add('--type', help='service type, e.g. std_srvs/srv/Trigger (default: from the graph)')
-    add('--wait', type=float, default=5.0, metavar='S', help='wait S s for the service to appear')
-    add('--timeout', type=float, default=60.0, metavar='S', help='wait S s for the response')
+    add(
+        '--wait',
+        type=positive_float,
+        default=5.0,
+        metavar='S',
+        help='wait S s for the service to appear',
+    )
+    add(
+        '--timeout',
+        type=positive_float,
+        default=60.0,
+        metavar='S',
+        help='wait S s for the response',
+    )
     return parser
 
 
@@ -64,9 +76,6 @@ def outcome(response: dict[str, Any]) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Call one service once."""
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    for name in ('wait', 'timeout'):
-        if not getattr(args, name) > 0:
-            raise SlamError(f'--{name} must be > 0, got {getattr(args, name)}')
     values = parse_request(args.request)
     from slam_bringup.graph_lookup import Found, RosSession, find_service
     from slam_bringup.message_yaml import fill_message, message_to_data, to_yaml

@@ -20,18 +20,11 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from slam_core.cli import console_main
+from slam_core.cli import console_main, positive_float
 from slam_core.errors import SlamError
 
 TRUNCATE = 128
 EXIT_TIMEOUT = 1
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f'must be > 0, got {text}')
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,10 +39,10 @@ def build_parser() -> argparse.ArgumentParser:
     add('--type', help='message type, e.g. nav_msgs/msg/Path (default: from the graph)')
     add('--once', action='store_true', help='print one message, then exit')
     add('--count', type=int, metavar='N', help='print N messages, then exit')
-    add('--rate', type=_positive, metavar='HZ', help='print at most HZ messages a second')
+    add('--rate', type=positive_float, metavar='HZ', help='print at most HZ messages a second')
     add('--field', metavar='A.B', help='print only this field, e.g. header.stamp')
-    add('--timeout', type=_positive, metavar='S', help='exit 1 after S s without a message')
-    add('--wait', type=_positive, default=5.0, metavar='S', help='wait S s for a publisher')
+    add('--timeout', type=positive_float, metavar='S', help='exit 1 after S s without a message')
+    add('--wait', type=positive_float, default=5.0, metavar='S', help='wait S s for a publisher')
     add('--full-length', action='store_true', help='print long arrays and strings whole')
     add('--no-arr', action='store_true', help='leave arrays out')
     add('--depth', type=int, default=10, metavar='N', help='subscription queue depth')

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import functools
 import sys
 from collections.abc import Callable
@@ -30,6 +31,17 @@ def console_main(prog: str) -> Callable[[Callable[[list[str] | None], int]], Cal
         return wrapper
 
     return decorate
+
+
+def positive_float(text: str) -> float:
+    """argparse ``type``: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
+    if not value > 0 or value == float('inf'):
+        raise argparse.ArgumentTypeError(f'{text!r} must be a finite number > 0')
+    return value
 
 
 HELP_FLAGS = ('-h', '--help')
