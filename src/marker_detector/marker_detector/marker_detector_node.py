@@ -274,7 +274,7 @@ class MarkerDetectorNode(Node):
         """What an image in ``frame_id`` waits for (None: nothing)."""
         processor = self.processor
         if processor.camera is None:
-            return 'no camera_info received yet'
+            return processor.no_camera_reason()
         source = processor.extrinsics.source
         base = processor.extrinsics.base_frame
         if source == 'tf_static' and processor.transforms.lookup(base, frame_id) is None:
@@ -333,11 +333,8 @@ class MarkerDetectorNode(Node):
         """Keep an image that cannot be detected yet (module docstring)."""
         self.held.append(message)
         stamp_ns = stamp_to_ns(message.header.stamp)
-        hint = (
-            'is camera/camera_info published?'
-            if 'camera_info' in missing
-            else ('is the camera mount published on /tf_static?')
-        )
+        hint = '' if 'camera_info' in missing else '; is the camera mount published on /tf_static?'
+
         self._held_bytes += len(message.data)
         while len(self.held) > 1 and (
             stamp_ns - stamp_to_ns(self.held[0].header.stamp) > HOLD_S * 1e9
@@ -349,12 +346,12 @@ class MarkerDetectorNode(Node):
             self.dropped += 1
             self._error(
                 f'image dropped ({self.dropped} so far): {missing}, and images are held for '
-                f'at most {HOLD_S:g} s (the image at {stamp_to_ns(oldest.header.stamp)} ns); '
+                f'at most {HOLD_S:g} s (the image at {stamp_to_ns(oldest.header.stamp)} ns)'
                 f'{hint}'
             )
         self.get_logger().warning(
             f'{missing}: image at {stamp_ns} ns held ({len(self.held)} held, for at most '
-            f'{HOLD_S:g} s) until it arrives; {hint}',
+            f'{HOLD_S:g} s) until it arrives{hint}',
             throttle_duration_sec=2.0,
         )
 

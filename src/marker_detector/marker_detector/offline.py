@@ -199,11 +199,27 @@ def detect_bag(
                         )
             if reporter is not None:
                 reporter.finish()
+            _check_something_detected(stats, image_topic)
         except BaseException:
             writer.abort()
             raise
         stats.output = writer.close()
     return stats
+
+
+def _check_something_detected(stats: DetectStats, image_topic: str) -> None:
+    """Raise BagError when no image could be searched (nothing worth writing)."""
+    dropped = sum(stats.dropped.values())
+    if stats.images and dropped < stats.images:
+        return
+    if not stats.images:
+        raise BagError(f'{image_topic} has no messages: nothing to detect in; nothing written')
+    reason, count = stats.dropped.most_common(1)[0]
+    others = f' ({dropped - count} for other reasons)' if dropped > count else ''
+    raise BagError(
+        f'all {stats.images} images on {image_topic} were dropped, {count} of them because '
+        f'{reason}{others}; nothing written'
+    )
 
 
 def _detect_one(

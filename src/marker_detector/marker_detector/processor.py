@@ -142,6 +142,7 @@ class MarkerProcessor:
         self.detector = make_detector(config)
         self.camera: CameraModel | None = None
         self.camera_frame = ''
+        self.camera_info_error: str | None = None  # why the last camera_info was rejected
         self.transforms = StaticTransforms()
         self._fixed_extrinsics: np.ndarray | None = None
         if extrinsics.source == 'parameters':
@@ -168,11 +169,23 @@ class MarkerProcessor:
         try:
             camera = CameraModel.from_camera_info(width, height, k, d, distortion_model)
         except ValueError as err:
-            raise InputError(f'camera_info (frame {frame_id!r}) rejected: {err}') from None
+            self.camera_info_error = f'camera_info (frame {frame_id!r}) rejected: {err}'
+            raise InputError(self.camera_info_error) from None
+        self.camera_info_error = None
         if self.camera is not None and camera != self.camera:
             self.search.reset()
         self.camera = camera
         self.camera_frame = frame_id
+
+    def no_camera_reason(self) -> str:
+        """Why there is no camera model (images wait or are dropped): the rejection of the
+        last camera_info, or that none came."""
+        if self.camera_info_error is not None:
+            return (
+                f'no usable camera_info: {self.camera_info_error}; fix the calibration the '
+                'camera driver publishes'
+            )
+        return 'no camera_info received yet; is camera/camera_info published?'
 
     def image_frame(self, frame_id: str) -> str:
         """An image's camera frame: its header's, or the camera_info's when it has none."""
@@ -195,10 +208,7 @@ class MarkerProcessor:
     def process(self, stamp_ns: int, frame_id: str, image: np.ndarray) -> FrameOutput:
         """Detect markers in ``image`` (gray or BGR) taken at ``stamp_ns`` in ``frame_id``."""
         if self.camera is None:
-            raise InputError(
-                f'no camera_info received yet: image at {stamp_ns} ns (frame {frame_id!r}) '
-                'dropped; is camera/camera_info published?'
-            )
+            raise InputError(self.no_camera_reason())
         camera_frame = self.image_frame(frame_id)
         base_from_camera = self.base_from_camera(camera_frame)
         try:

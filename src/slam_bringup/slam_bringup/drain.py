@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -125,16 +125,20 @@ class DrainWatch:
         return busy
 
 
-def listen(context: Context, watch: DrainWatch) -> Node:
-    """Return a node (``slam_run``) that feeds every /diagnostics message into ``watch``;
-    spin it with the executor of ``context``."""
+def listen(context: Context, watch: DrainWatch, *also: Callable[[DiagnosticArray], None]) -> Node:
+    """Return a node (``slam_run``) that feeds every /diagnostics message into ``watch`` (and
+    into each of ``also``); spin it with the executor of ``context``."""
     node = Node(
         'slam_run',
         context=context,
         use_global_arguments=False,
         start_parameter_services=False,
     )
-    node.create_subscription(
-        DiagnosticArray, '/diagnostics', lambda array: watch.add(array), output_qos(depth=100)
-    )
+
+    def take(array: DiagnosticArray) -> None:
+        watch.add(array)
+        for consumer in also:
+            consumer(array)
+
+    node.create_subscription(DiagnosticArray, '/diagnostics', take, output_qos(depth=100))
     return node

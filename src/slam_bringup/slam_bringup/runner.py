@@ -78,6 +78,7 @@ from slam_bringup.graph_nodes import (
     ros_arguments,
     with_overrides,
 )
+from slam_bringup.keep_up import KeepUpHint, keep_up_options, start_note
 from slam_bringup.supervise import Respawner, failing_node, warn_if_respawn_ignored
 from slam_core.blas import single_threaded_blas
 from slam_core.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main, positive_float
@@ -209,6 +210,14 @@ def wait_until_drained(recorder: BagRecorderNode) -> None:
             quiet_since = time.monotonic()
 
 
+def keep_up_hint(
+    graph: Graph, descriptions: Sequence[NodeDescription], *, processes: bool
+) -> KeepUpHint:
+    """Says when a node of the graph first loses messages (slam_bringup.keep_up)."""
+    options = keep_up_options(graph.player, processes=processes)
+    return KeepUpHint(processing_nodes(descriptions), options, say)
+
+
 def processing_nodes(descriptions: Sequence[NodeDescription]) -> list[str]:
     """The fully qualified names of the graph's nodes (not its player and recorder)."""
     return [d.fully_qualified_name for d in descriptions if d.role == 'node']
@@ -264,7 +273,7 @@ def run_in_process(
     rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor(context=context)
     watch = DrainWatch(processing_nodes(descriptions), NODES_QUIET_S)
-    listener = listen(context, watch)
+    listener = listen(context, watch, keep_up_hint(graph, descriptions, processes=False).add)
     executor.add_node(listener)
     nodes: list[tuple[NodeDescription, Node]] = []
     spinner: Spinner | None = None
@@ -493,7 +502,7 @@ def run_processes(
     context = Context()
     rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
     watch = DrainWatch(processing_nodes(descriptions), NODES_QUIET_S)
-    listener = listen(context, watch)
+    listener = listen(context, watch, keep_up_hint(graph, descriptions, processes=True).add)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(listener)
     spinner = Spinner(executor)
@@ -578,6 +587,9 @@ def main(argv: list[str] | None = None) -> int:
         raise graph.error('graph', 'has no nodes, player or recorder to run')
     mode = 'one process per node' if args.processes else 'one process'
     say(f'running {str(graph.path)!r} ({len(descriptions)} nodes, {mode})')
+    note = start_note(keep_up_options(graph.player, processes=args.processes))
+    if note is not None and graph.player is not None:
+        say(note)
     stop = threading.Event()
     with tempfile.TemporaryDirectory(prefix='slam_run-') as scratch, stop_on_signals(stop):
         run = run_processes if args.processes else run_in_process

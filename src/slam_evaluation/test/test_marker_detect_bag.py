@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 from ament_index_python.packages import get_package_share_directory
@@ -145,3 +146,48 @@ def test_an_unusable_tf_static_transform_is_counted_and_the_run_goes_on(
     assert 'must be finite' in next(iter(stats.tf_static_errors))
     assert stats.images_with_markers > 0  # the camera's own mount came too
     assert '1 /tf_static transforms unusable' in stats.summary()
+
+
+def with_zero_focal_length(source: Path, target: Path) -> Path:
+    """Copy the bag ``source`` to ``target`` with fx = fy = 0 in every camera_info."""
+    with AnyReader([source]) as reader:
+        store = reader.typestore
+        writer = Writer(target, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer.open()
+        try:
+            out = {
+                c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
+                for c in reader.connections
+            }
+            for connection, timestamp, raw in reader.messages():
+                if connection.topic == '/camera/camera_info':
+                    info: Any = store.deserialize_cdr(raw, connection.msgtype)
+                    info.k = info.k.copy()
+                    info.k[0] = info.k[4] = 0.0
+                    raw = store.serialize_cdr(info, connection.msgtype)
+                writer.write(out[connection.id], timestamp, raw)
+        finally:
+            writer.close()
+    return target
+
+
+def test_a_camera_info_that_is_unusable_is_named_and_nothing_is_written(
+    camera_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag = with_zero_focal_length(camera_bag, tmp_path / 'zero_fx')
+    output = tmp_path / 'detected'
+    with pytest.raises(BagError) as raised:
+        detect_bag(bag, output, office_values(), progress=False)
+    message = str(raised.value)
+    assert (
+        message.startswith('all ')
+        and 'images on /camera/image_raw/compressed were dropped' in message
+    )
+    assert "no usable camera_info: camera_info (frame 'camera_optical_frame') rejected" in message
+    assert message.endswith('; nothing written')
+    assert not output.exists()
+    assert main([str(bag), '--output', str(output)]) == 2
+    error = capsys.readouterr().err.splitlines()  # progress lines, then the error
+    assert error[-1].startswith('marker_detect_bag: error: all ') and 'rejected' in error[-1]
+    assert not any('no camera_info received yet' in line for line in error)
+    assert not output.exists()

@@ -29,8 +29,13 @@ One DiagnosticStatus per publish, named after the node (its fully qualified name
   input callback last ended, or since the node started; ``slam_run`` stops a graph when its
   nodes have been idle for a while, ``slam_bringup.drain``);
 - level: WARN while the count named ``dropped`` or the messages lost grew since the last
-  publish (lost ones are also logged as a warning) or the node was busy more than
-  ``BUSY_WARN`` of the time ("falling behind"), else OK.
+  publish or the node was busy more than ``BUSY_WARN`` of the time ("falling behind"),
+  else OK.
+
+The node's log says what /diagnostics says, once per change: a warning when a kind of
+problem starts (with the losses by input), and one line when the node has been OK again for
+``OK_AGAIN_REPORTS`` reports in a row (a problem that comes back within them is not logged
+again), so a console shows what ``slam_diag`` shows without a line per report.
 """
 
 from __future__ import annotations
@@ -51,6 +56,8 @@ from slam_ros.qos import output_qos
 BUSY_WARN = 0.9
 """Busy above this share of the wall time, a node cannot keep up with a higher input rate."""
 IDLE_KEY = 'idle s'
+OK_AGAIN_REPORTS = 5
+"""Reports in a row without a problem before the log says the node is OK again."""
 """The value with the seconds since the node last took an input (module docstring)."""
 
 
@@ -64,8 +71,13 @@ class Diagnostics:
         period_s: float = 1.0,
         *,
         values: Callable[[], Mapping[str, str]] | None = None,
+        log: Callable[[str, str], None] | None = None,
     ) -> None:
+        """``log(level, text)`` receives the state changes (default: the node's logger)."""
         self.node, self.counts, self.values = node, counts, values
+        self._log = log or self._node_log
+        self._warned: set[str] = set()  # kinds of problem logged and not yet OK again
+        self._ok_reports = 0
         self.received: dict[str, int] = {}
         self.lost: dict[str, int] = {}
         self.unknown_lost: set[str] = set()
@@ -209,25 +221,17 @@ class Diagnostics:
             'lag s': f'{lag_s:.3f}',
             IDLE_KEY: f'{time.monotonic() - self.last_input_s:.3f}',
         })  # fmt: skip
-        problems = []
+        problems: dict[str, str] = {}
         if dropped > self._last_dropped:
-            problems.append(f'dropping inputs ({dropped - self._last_dropped} since the last)')
-        if lost > self._last_lost:
-            problems.append(f'lost {lost - self._last_lost} messages before taking them')
-            self.node.get_logger().warning(
-                f'{lost - self._last_lost} input messages lost before they were taken '
-                '(a queue that overflowed waited about its depth times the period; one that '
-                f'DDS never delivered to, about 0 ms); {lost} so far, by input: '
-                + ', '.join(
-                    f'{name} {count} (the message after the last gap waited '
-                    f'{self.gap_wait_ms.get(name, math.nan):.0f} ms)'
-                    for name, count in self.lost.items()
-                    if count
-                )
+            problems['dropping'] = (
+                f'dropping inputs ({dropped - self._last_dropped} since the last)'
             )
+        if lost > self._last_lost:
+            problems['lost'] = f'lost {lost - self._last_lost} messages before taking them'
         self._last_lost = lost
         if busy > BUSY_WARN:
-            problems.append(f'falling behind (busy {100.0 * busy:.0f} %)')
+            problems['busy'] = f'falling behind (busy {100.0 * busy:.0f} %)'
+        self._log_change(problems, lost, dropped)
         self._last_dropped = dropped
         self._window_s = self._window_max_s = self._window_wait_ms = 0.0
         self._window_start = now
@@ -238,9 +242,44 @@ class Diagnostics:
         summary = f'{received} received, {lost} lost, {dropped} dropped'
         if not self.received:  # no inputs (a bag player): its counts
             summary = ', '.join(f'{name} {value}' for name, value in counts.items()) or 'OK'
-        status.message = '; '.join(problems) or summary
+        status.message = '; '.join(problems.values()) or summary
         status.values = [KeyValue(key=key, value=value) for key, value in values.items()]
         return status
+
+    def _node_log(self, level: str, text: str) -> None:
+        # one call site per severity: an rclpy logger call site keeps its first severity
+        if level == 'warning':
+            self.node.get_logger().warning(text)
+        else:
+            self.node.get_logger().info(text)
+
+    def _log_change(self, problems: Mapping[str, str], lost: int, dropped: int) -> None:
+        """Log the kinds of problem that start, and the return to OK (module docstring)."""
+        new = [kind for kind in problems if kind not in self._warned]
+        if new:
+            text = '; '.join(problems[kind] for kind in new)
+            if 'lost' in new:
+                text += (
+                    f' ({lost} so far, by input: '
+                    + ', '.join(
+                        f'{name} {count}, the message after the last gap waited '
+                        f'{self.gap_wait_ms.get(name, math.nan):.0f} ms'
+                        for name, count in self.lost.items()
+                        if count
+                    )
+                    + '; a queue that overflowed waited about its depth times the period, '
+                    'one that DDS never delivered to about 0 ms)'
+                )
+            self._log('warning', f'WARN on /diagnostics: {text}')
+            self._warned.update(new)
+        self._ok_reports = 0 if problems else self._ok_reports + 1
+        if self._warned and self._ok_reports >= OK_AGAIN_REPORTS:
+            self._log(
+                'info',
+                f'OK again on /diagnostics (was: {", ".join(sorted(self._warned))}); '
+                f'{lost} lost and {dropped} dropped so far',
+            )
+            self._warned.clear()
 
     def publish(self) -> None:
         """Publish the status (the timer's callback)."""

@@ -12,7 +12,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo
 
 from slam_core.stamps import ns_to_stamp
-from slam_ros.diagnostics import IDLE_KEY, Diagnostics
+from slam_ros.diagnostics import IDLE_KEY, OK_AGAIN_REPORTS, Diagnostics
 
 
 @pytest.fixture
@@ -137,3 +137,53 @@ def test_a_node_without_inputs_reports_its_counts_and_values(node: Node) -> None
     status = diagnostics.status()
     assert values(status)['published /odom'] == '3' and values(status)['late ms'] == '1.5'
     assert status.message == 'published /odom 3' and status.level == DiagnosticStatus.OK
+
+
+def test_the_log_says_each_change_of_state_once(node: Node) -> None:
+    """A problem is logged when it starts, not at every report while it lasts; the return to
+    OK after OK_AGAIN_REPORTS quiet reports; a problem back within them is not logged again."""
+    counts = {'dropped': 0}
+    logged: list[tuple[str, str]] = []
+    diagnostics = Diagnostics(
+        node, lambda: counts, period_s=3600.0, log=lambda *line: logged.append(line)
+    )
+    on_info = diagnostics.timed(lambda message: None, 'camera_info')
+    diagnostics.status()
+    assert logged == []
+    for _ in range(3):  # dropping in three reports in a row
+        counts['dropped'] += 2
+        diagnostics.status()
+    assert logged == [('warning', 'WARN on /diagnostics: dropping inputs (2 since the last)')]
+    for sequence in (1, 4):  # 2 lost: a new kind of problem
+        on_info(CameraInfo(), {'publication_sequence_number': sequence})
+    diagnostics.status()
+    assert len(logged) == 2 and logged[1][1].startswith(
+        'WARN on /diagnostics: lost 2 messages before taking them (2 so far, by input: '
+        'camera_info 2, the message after the last gap waited'
+    )
+    for _ in range(OK_AGAIN_REPORTS - 1):
+        diagnostics.status()
+    counts['dropped'] += 1  # back before the node was OK long enough: not logged again
+    diagnostics.status()
+    assert len(logged) == 2
+    for _ in range(OK_AGAIN_REPORTS):
+        diagnostics.status()
+    assert logged[2] == (
+        'info',
+        'OK again on /diagnostics (was: dropping, lost); 2 lost and 7 dropped so far',
+    )
+    counts['dropped'] += 1
+    diagnostics.status()
+    assert logged[3] == ('warning', 'WARN on /diagnostics: dropping inputs (1 since the last)')
+
+
+def test_the_node_logger_takes_both_severities(node: Node) -> None:
+    """Through the node's own logger (rclpy refuses one call site at two severities)."""
+    counts = {'dropped': 0}
+    diagnostics = Diagnostics(node, lambda: counts, period_s=3600.0)
+    counts['dropped'] = 1
+    diagnostics.status()  # a warning
+    for _ in range(OK_AGAIN_REPORTS):
+        diagnostics.status()  # then OK again: an info
+    counts['dropped'] = 2
+    diagnostics.status()  # a warning again
