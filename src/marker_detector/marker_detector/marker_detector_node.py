@@ -10,8 +10,8 @@ reason, and the node goes on with the next image. Images that come before the fi
 camera_info, or (extrinsics_source 'tf_static') before the camera mount of their frame on
 /tf_static (drivers and the mount's publisher start together, and discovery between
 processes takes a second or two, longer on a loaded machine), are held, those of the last
-HOLD_S seconds (at most HOLD_MAX_BYTES), and detected in order once both are there; older ones
-are dropped and counted, with the reason in the log.
+5 s of stamps (at most 64 MiB of images), and detected in order once both are there; older
+ones are dropped and counted, with the reason in the log.
 
 Topics:
   subscribes  camera/image_raw (sensor_msgs/Image: mono8, bgr8, rgb8, bgra8, rgba8) when

@@ -24,3 +24,11 @@ def test_config_yaml_matches_declared_parameters() -> None:
 
 def test_docstring_types_and_defaults_match_the_declaration() -> None:
     assert docstring_mismatches(marker_detector_node) == []
+
+
+def test_the_help_states_the_hold_limits_the_node_uses() -> None:
+    from marker_detector import marker_detector_node
+
+    doc = ' '.join((marker_detector_node.__doc__ or '').split())
+    assert f'{marker_detector_node.HOLD_S:g} s of stamps' in doc
+    assert f'{marker_detector_node.HOLD_MAX_BYTES / 2**20:g} MiB of images' in doc

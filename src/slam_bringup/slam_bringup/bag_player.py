@@ -69,7 +69,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Empty
 
 from slam_bringup.pacing import PacedGate
-from slam_core.cli import console_main
+from slam_core.cli import PlainDescriptionHelpFormatter, console_main, without_parameter_section
 from slam_core.errors import ParameterError, SlamError
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamType
 from slam_core.progress import ProgressReporter
@@ -466,9 +466,9 @@ def build_arg_parser() -> argparse.ArgumentParser:
     """Command-line options; each maps onto a node parameter."""
     parser = argparse.ArgumentParser(
         prog='bag_player',
-        description=__doc__,
+        description=without_parameter_section(__doc__ or ''),
         epilog=PARAMETERS.render() + '\n\nROS arguments (--ros-args ...) are accepted too.',
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=PlainDescriptionHelpFormatter,
     )
     parser.add_argument('bag', nargs='?', help='bag directory, .mcap, .db3 or .bag file')
     parser.add_argument('-r', '--rate', type=float, help='speed factor (default 1.0)')

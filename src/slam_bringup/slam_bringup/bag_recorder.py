@@ -50,7 +50,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from slam_core.cli import console_main
+from slam_core.cli import PlainDescriptionHelpFormatter, console_main, without_parameter_section
 from slam_core.errors import SlamError
 from slam_core.params import AT_LEAST_ONE, POSITIVE, Param, ParamTable, ParamType
 from slam_ros.bag.recording import AtomicBagWriter
@@ -212,9 +212,9 @@ def build_arg_parser() -> argparse.ArgumentParser:
     """Command-line options; each maps onto a node parameter."""
     parser = argparse.ArgumentParser(
         prog='bag_recorder',
-        description=__doc__,
+        description=without_parameter_section(__doc__ or ''),
         epilog=PARAMETERS.render() + '\n\nROS arguments (--ros-args ...) are accepted too.',
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=PlainDescriptionHelpFormatter,
     )
     parser.add_argument('topics', nargs='*', help='topics to record (with -a: all)')
     parser.add_argument('-a', '--all', action='store_true', help='record every topic')

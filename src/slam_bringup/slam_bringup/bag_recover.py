@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from slam_core.cli import console_main
+from slam_core.cli import PlainDescriptionHelpFormatter, console_main
 from slam_core.errors import BagError
 from slam_ros.bag.recover import default_output, recover
 
@@ -26,7 +26,7 @@ def build_arg_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='bag_recover',
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=PlainDescriptionHelpFormatter,
     )
     parser.add_argument('input', help='staging directory, rosbag2 directory or .mcap file')
     parser.add_argument('-o', '--output', help='bag directory to create (must not exist)')

@@ -19,7 +19,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from slam_core.cli import console_main, positive_float
+from slam_core.cli import PlainDescriptionHelpFormatter, console_main, positive_float
 
 LEVELS = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
 STALE = 3
@@ -118,7 +118,7 @@ def exit_code(worst: str | None) -> int:
 def build_parser() -> argparse.ArgumentParser:
     """The command line of slam_diag."""
     parser = argparse.ArgumentParser(
-        prog='slam_diag', description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog='slam_diag', description=__doc__, formatter_class=PlainDescriptionHelpFormatter
     )
     add = parser.add_argument
     add('--once', action='store_true', help='print the table once after --wait s, then exit')

@@ -8,6 +8,7 @@ launch_ros ``Node`` actions and slam_run onto in-process nodes or processes.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -232,19 +233,52 @@ def ros_arguments(description: NodeDescription, scratch_dir: Path) -> list[str]:
     return arguments
 
 
+def bundled_graphs_dir() -> Path | None:
+    """slam_bringup's installed graphs/ directory, or None when the package is not found."""
+    try:
+        return Path(get_package_share_directory('slam_bringup')) / 'graphs'
+    except (PackageNotFoundError, ValueError):
+        return None
+
+
+def bundled_graphs() -> dict[str, str]:
+    """``{name: description}`` of the bundled GRAPH files (their ``graph.description``)."""
+    share = bundled_graphs_dir()
+    graphs: dict[str, str] = {}
+    for path in sorted(share.glob('*.yaml')) if share is not None else []:
+        try:
+            document = yaml.safe_load(path.read_text(encoding='utf-8'))
+            description = str(document['graph'].get('description', ''))
+        except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError):
+            description = '(unreadable)'
+        graphs[path.name] = description
+    return graphs
+
+
+def bundled_graphs_help() -> str:
+    """The bundled GRAPH files, one line each, for ``slam_run --help``."""
+    lines = [f'  {name:<36} {text}' for name, text in bundled_graphs().items()]
+    return 'bundled graphs (give the name alone):\n' + '\n'.join(lines)
+
+
 def find_graph(text: str) -> Path:
     """Return the GRAPH file ``text``: a path, or a name in slam_bringup's installed graphs/.
 
-    Raises GraphError when neither exists.
+    Raises GraphError when neither exists, with the closest bundled names.
     """
     path = Path(text).expanduser()
     if path.exists() or os.sep in text:
         return path
-    try:
-        share = Path(get_package_share_directory('slam_bringup')) / 'graphs'
-    except (PackageNotFoundError, ValueError):
+    share = bundled_graphs_dir()
+    if share is None:
         return path
     for candidate in (share / text, share / f'{text}.yaml'):
         if candidate.is_file():
             return candidate
-    return path
+    names = sorted(p.name for p in share.glob('*.yaml'))
+    close = difflib.get_close_matches(text if text.endswith('.yaml') else f'{text}.yaml', names)
+    hint = f'; did you mean {" or ".join(repr(c) for c in close[:2])}?' if close else ''
+    raise GraphError(
+        f'graph {text!r} is neither a file nor a bundled graph{hint} (bundled: '
+        f'{", ".join(names)}; `slam_run --help` describes each)'
+    )

@@ -10,9 +10,9 @@ The parts are the entries of ``config/peoplebot.yaml`` (GRAPH node entries): a b
 (``sim``: the simulated robot's own camera; ``usb_cam``; ``v4l2_camera``), the camera mount
 (``camera_mount``, on /tf_static) and a pipeline (``em_sam``, ``monoslam`` or ``both``).
 The driver entries remap the drivers' topic names onto ours, so the pipelines are the same
-on every robot. The GRAPH runs on the wall clock (live). ``compose`` checks the choices and
-``write_graph`` writes the GRAPH, which ``load_graph`` validates like any other (every
-parameter of our nodes checked against their declarations).
+on every robot. The GRAPH runs on the wall clock (live). A choice that does not exist is
+refused with the ones that do, and the GRAPH written is checked like any other: every
+parameter of our nodes against what the node declares.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import yaml
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
 from slam_bringup.graph import Graph, load_graph, read_yaml
-from slam_core.cli import console_main
+from slam_core.cli import PlainDescriptionHelpFormatter, console_main
 from slam_core.errors import GraphError
 from slam_core.files import write_atomically
 
@@ -104,7 +104,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='peoplebot_graph',
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=PlainDescriptionHelpFormatter,
     )
     parser.add_argument('--robot', choices=ROBOTS, default='sim', help='base driver')
     parser.add_argument('--camera', choices=CAMERAS, default='sim', help='camera driver')

@@ -73,6 +73,7 @@ from slam_bringup.drain import DrainWatch, listen
 from slam_bringup.graph import Graph, load_graph
 from slam_bringup.graph_nodes import (
     NodeDescription,
+    bundled_graphs_help,
     find_graph,
     node_descriptions,
     ros_arguments,
@@ -210,14 +211,6 @@ def wait_until_drained(recorder: BagRecorderNode) -> None:
             quiet_since = time.monotonic()
 
 
-def keep_up_hint(
-    graph: Graph, descriptions: Sequence[NodeDescription], *, processes: bool
-) -> KeepUpHint:
-    """Says when a node of the graph first loses messages (slam_bringup.keep_up)."""
-    options = keep_up_options(graph.player, processes=processes)
-    return KeepUpHint(processing_nodes(descriptions), options, say)
-
-
 def processing_nodes(descriptions: Sequence[NodeDescription]) -> list[str]:
     """The fully qualified names of the graph's nodes (not its player and recorder)."""
     return [d.fully_qualified_name for d in descriptions if d.role == 'node']
@@ -273,7 +266,8 @@ def run_in_process(
     rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
     executor = SingleThreadedExecutor(context=context)
     watch = DrainWatch(processing_nodes(descriptions), NODES_QUIET_S)
-    listener = listen(context, watch, keep_up_hint(graph, descriptions, processes=False).add)
+    hint = KeepUpHint(watch.names, keep_up_options(graph.player, processes=False), say)
+    listener = listen(context, watch, hint.add)
     executor.add_node(listener)
     nodes: list[tuple[NodeDescription, Node]] = []
     spinner: Spinner | None = None
@@ -502,7 +496,8 @@ def run_processes(
     context = Context()
     rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
     watch = DrainWatch(processing_nodes(descriptions), NODES_QUIET_S)
-    listener = listen(context, watch, keep_up_hint(graph, descriptions, processes=True).add)
+    hint = KeepUpHint(watch.names, keep_up_options(graph.player, processes=True), say)
+    listener = listen(context, watch, hint.add)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(listener)
     spinner = Spinner(executor)
@@ -546,6 +541,8 @@ def build_arg_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='slam_run',
         description='Run the nodes of a GRAPH file (the graph that graph.launch.py launches).',
+        epilog=bundled_graphs_help(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument('graph', help="GRAPH file, or the name of one in slam_bringup's graphs/")
     parser.add_argument(

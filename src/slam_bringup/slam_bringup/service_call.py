@@ -18,7 +18,7 @@ import sys
 import time
 from typing import Any
 
-from slam_core.cli import console_main, positive_float
+from slam_core.cli import PlainDescriptionHelpFormatter, console_main, positive_float
 from slam_core.errors import SlamError
 
 EXIT_FALSE = 1
@@ -29,7 +29,7 @@ OUTCOME_FIELDS = ('success', 'found')
 def build_parser() -> argparse.ArgumentParser:
     """The command line of slam_call."""
     parser = argparse.ArgumentParser(
-        prog='slam_call', description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog='slam_call', description=__doc__, formatter_class=PlainDescriptionHelpFormatter
     )
     add = parser.add_argument
     add('service', help='service name, e.g. /em_sam_mapper/optimize (a unique tail works)')

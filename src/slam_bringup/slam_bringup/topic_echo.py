@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from slam_core.cli import console_main, positive_float
+from slam_core.cli import PlainDescriptionHelpFormatter, console_main, positive_float
 from slam_core.errors import SlamError
 
 TRUNCATE = 128
@@ -32,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='slam_echo',
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=PlainDescriptionHelpFormatter,
     )
     add = parser.add_argument
     add('topic', help='topic name, e.g. /em_sam/moveable (a unique tail works)')

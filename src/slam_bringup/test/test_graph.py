@@ -428,3 +428,14 @@ def test_player_and_recorder_keys_are_the_bag_tools_parameters() -> None:
     player = {'bag_path' if key == 'bag' else key for key in graph_module._PLAYER_KEYS}
     assert player == set(bag_player.PARAMETERS.names)
     assert set(graph_module._RECORDER_KEYS) == set(bag_recorder.PARAMETERS.names)
+
+
+def test_a_misspelled_bundled_graph_gets_the_closest_names() -> None:
+    from slam_bringup.graph_nodes import bundled_graphs, bundled_graphs_help, find_graph
+
+    assert find_graph('em_sam_office').name == 'em_sam_office.yaml'
+    with pytest.raises(GraphError, match=r"did you mean 'em_sam_office\.yaml'"):
+        find_graph('em_sam_ofice')
+    graphs = bundled_graphs()
+    assert 'em_sam_office.yaml' in graphs and all(graphs.values())  # each described
+    assert all(name in bundled_graphs_help() for name in graphs)

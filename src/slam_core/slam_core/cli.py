@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import re
 import sys
 from collections.abc import Callable
 
@@ -44,6 +45,30 @@ def positive_float(text: str) -> float:
     return value
 
 
+_DOUBLE_BACKTICKS = re.compile(r'``([^`]+)``')
+_ROLE = re.compile(r':(?:mod|func|class|meth|attr|data|ref):`~?([^`]+)`')
+
+
+def plain_text(text: str) -> str:
+    """``text`` (a docstring) for a terminal: reStructuredText code marks and roles taken off
+    (``name`` and :func:`name` read name)."""
+    return _DOUBLE_BACKTICKS.sub(r'\1', _ROLE.sub(r'\1', text))
+
+
+class PlainDescriptionHelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """argparse's RawDescriptionHelpFormatter, its output through ``plain_text``."""
+
+    def format_help(self) -> str:
+        return plain_text(super().format_help())
+
+
+class PlainTextHelpFormatter(argparse.RawTextHelpFormatter):
+    """argparse's RawTextHelpFormatter, its output through ``plain_text``."""
+
+    def format_help(self) -> str:
+        return plain_text(super().format_help())
+
+
 HELP_FLAGS = ('-h', '--help')
 
 
@@ -63,4 +88,27 @@ def node_help(prog: str, doc: str | None, parameters: ParamTable) -> str:
     usage = (
         f'usage: {prog} [-h] [--ros-args [-p NAME:=VALUE] [--params-file FILE] [-r FROM:=TO] ...]'
     )
-    return '\n\n'.join(part for part in (usage, (doc or '').strip(), parameters.render()) if part)
+    text = plain_text(without_parameter_section((doc or '').strip()))
+    return '\n\n'.join(part for part in (usage, text, parameters.render()) if part)
+
+
+_PARAMETER_HEADING = re.compile(r'^Parameters\b[^:]*:')
+
+
+def without_parameter_section(doc: str) -> str:
+    """``doc`` without its parameter sections (an unindented line starting 'Parameters...:',
+    up to the next blank line followed by an unindented line that is not one): the declared
+    table is printed instead, so each parameter shows once."""
+    lines = doc.splitlines()
+    kept: list[str] = []
+    skipping = False
+    for index, line in enumerate(lines):
+        starts_section = not line.startswith((' ', '\t')) and bool(line.strip())
+        if starts_section and _PARAMETER_HEADING.match(line):
+            skipping = True
+            continue
+        if skipping and starts_section and index > 0 and not lines[index - 1].strip():
+            skipping = False
+        if not skipping:
+            kept.append(line)
+    return '\n'.join(kept).strip()

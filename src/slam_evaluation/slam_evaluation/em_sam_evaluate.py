@@ -40,12 +40,13 @@ from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.problem import FloatArray
 from em_sam_node.offline import GroundTruth, read_ground_truth, replay_bag, seen_at_both_positions
 from em_sam_node.report import write_figures
-from slam_core.cli import console_main
+from slam_core.cli import PlainDescriptionHelpFormatter, console_main
 from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
 from slam_evaluation.em_sam_datasets import add_dataset_options, run_datasets
 from slam_evaluation.em_sam_metrics import align_se2, ate_rmse, classify, landmark_rmse
 from slam_evaluation.em_sam_runs import solve_all_static
+from slam_sim.core.office import Variant
 
 METHODS = ('odometry', 'plain_sam', 'em_sam_paper', 'em_sam_robust', 'oracle', 'live_mapper')
 
@@ -226,11 +227,16 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='em_sam_evaluate',
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=PlainDescriptionHelpFormatter,
     )
     parser.add_argument('bags', nargs='*', type=Path, help='simulated bags with ground truth')
     parser.add_argument('--simulate', metavar='SEEDS', help="simulate seeds, e.g. '0-9' or '1,4'")
-    parser.add_argument('--variant', default='standard', help='simulation variant')
+    parser.add_argument(
+        '--variant',
+        default=Variant.STANDARD.value,
+        choices=[v.value for v in Variant],
+        help='what the moveable markers of the simulated runs do',
+    )
     parser.add_argument('--output', type=Path, help='directory for results and figures')
     parser.add_argument('--no-figures', action='store_true', help='skip the figures')
     parser.add_argument(

@@ -59,19 +59,19 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.errors import BagError
 from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
-from slam_evaluation import monoslam_runs
 from slam_evaluation.evaluation_cli import parse_seeds
-from slam_evaluation.monoslam_image_figures import write_figures
-from slam_evaluation.monoslam_image_report import report, table_text
-from slam_evaluation.monoslam_image_runs import PROG, Settings, evaluate_source, seed_line
-from slam_evaluation.monoslam_image_sources import bag_source, rendered_source
-from slam_evaluation.monoslam_pipeline import VARIANTS
+
+if TYPE_CHECKING:
+    from slam_evaluation.monoslam_image_runs import Settings
+
+PROG = 'monoslam_image_evaluate'
 
 REPORT_NAME = 'monoslam_image_eval.json'
 TABLE_NAME = 'monoslam_image_eval.md'
@@ -113,6 +113,12 @@ def _arguments(argv: list[str] | None) -> Settings:
         'detect_every_n_frames; default 1)',
     )
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    # the pipeline (OpenCV, the renderer, the filters): imported once --help is out of the way
+    from slam_evaluation import monoslam_runs
+    from slam_evaluation.monoslam_image_runs import Settings
+    from slam_evaluation.monoslam_image_sources import bag_source, rendered_source
+    from slam_evaluation.monoslam_pipeline import VARIANTS
+
     if args.target_every_n_frames < 1:
         parser.error(f'--target-every-n-frames {args.target_every_n_frames}: must be >= 1')
     if args.bag and (args.seeds is not None or args.duration_s is not None):
@@ -146,6 +152,10 @@ def main(argv: list[str] | None = None) -> int:
     """Run the evaluation; print the table; write the JSON report, the table and the figures
     to --out. Exit status 1 if a filter raised on a run (listed in the report)."""
     settings = _arguments(argv)
+    from slam_evaluation.monoslam_image_figures import write_figures
+    from slam_evaluation.monoslam_image_report import report, table_text
+    from slam_evaluation.monoslam_image_runs import evaluate_source, seed_line
+
     single_threaded_blas()
     started = time.perf_counter()
     total = sum(source.frame_count for source in settings.sources)

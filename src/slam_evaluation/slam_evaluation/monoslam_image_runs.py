@@ -16,6 +16,7 @@ import numpy as np
 
 from slam_evaluation import monoslam_runs
 from slam_evaluation.monoslam_front_end import FrontEnd, FrontEndStats
+from slam_evaluation.monoslam_image_evaluate import PROG
 from slam_evaluation.monoslam_image_sources import FloatArray, FrameSource
 from slam_evaluation.monoslam_metrics import pose_errors, shadow_numbers, trajectory_metrics
 from slam_evaluation.monoslam_pipeline import (
@@ -33,7 +34,6 @@ from slam_sim.core.dynamic_scene import (
 )
 from slam_sim.core.init_target import InitTarget
 
-PROG = 'monoslam_image_evaluate'
 RUNS = (*(('image', v) for v in VARIANTS), ('measurement', 'c'))
 """The filter runs per seed: (level, variant)."""
 

@@ -45,7 +45,6 @@ from slam_core.cli import console_main
 from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
 from slam_evaluation.evaluation_cli import parse_seeds
-from slam_evaluation.monoslam_image_sources import rendered_source
 from slam_evaluation.monoslam_loop import (
     LOOP_AWAY_S,
     LOOP_DURATION_S,
@@ -56,7 +55,6 @@ from slam_evaluation.monoslam_loop import (
     position_errors,
     run_loop,
 )
-from slam_evaluation.monoslam_loop_images import run_image_loop
 from slam_evaluation.monoslam_pipeline import PipelineError
 from slam_evaluation.monoslam_runs import Settings
 from slam_evaluation.plotting import render_png
@@ -208,6 +206,10 @@ def _mark_loop(axes: Any, run: LoopRun) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run the loop evaluation; print the summary; write the report and figures."""
     args = _arguments(argv)
+    # the image pipeline (OpenCV, the renderer): imported once --help is out of the way
+    from slam_evaluation.monoslam_image_sources import rendered_source
+    from slam_evaluation.monoslam_loop_images import run_image_loop
+
     single_threaded_blas()
     started = time.perf_counter()
     settings = Settings(args.seeds, args.duration_s, args.variants, args.out)

@@ -50,7 +50,6 @@ from pathlib import Path
 import numpy as np
 import yaml
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
 from monoslam_shadow_node.core.shadow_ekf import EkfConfig
@@ -255,6 +254,8 @@ def write_sequence(directory: Path, sequence: Sequence) -> None:
         'k': [float(v) for v in info.k],
     }
     write_atomically(directory / 'camera.yaml', yaml.safe_dump(camera, sort_keys=False))
+    from scipy.spatial.transform import Rotation  # here: 0.2 s to import
+
     quaternions = Rotation.from_matrix(sequence.rotations).as_quat()  # x, y, z, w
     lines = ['# stamp_s x y z qx qy qz qw: the optical frame in the world']
     for stamp, centre, quaternion in zip(
@@ -387,6 +388,8 @@ def read_poses(path: Path) -> tuple[IntArray, FloatArray, FloatArray]:
         quaternions.append(values[3:])
     if not stamps:
         raise SequenceError(f'{path}: no pose')
+    from scipy.spatial.transform import Rotation  # here: 0.2 s to import
+
     rotations = Rotation.from_quat(np.array(quaternions)).as_matrix()
     return np.array(stamps, dtype=np.int64), np.array(centres), rotations
 

@@ -11,10 +11,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
-from scipy.stats import t as t_dist
 
 from monoslam_shadow_node.core.shadow_track import STATIC
+from slam_core.lazy_stats import chi2
+from slam_core.lazy_stats import t as t_dist
 from slam_evaluation.shadow_classification import count_ratio
 from slam_evaluation.shadow_runs import BoolArray, FilterRecord, FloatArray, IntArray, track_truths
 from slam_sim.core.dynamic_scene import DynamicSceneRun

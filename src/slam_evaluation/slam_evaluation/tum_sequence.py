@@ -67,7 +67,7 @@ from typing import Any
 
 import numpy as np
 
-from slam_core.cli import console_main
+from slam_core.cli import PlainDescriptionHelpFormatter, console_main
 from slam_core.errors import DatasetError
 from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter
@@ -372,7 +372,7 @@ def _reference(error: dict[str, Any]) -> str:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=PROG, description=__doc__, formatter_class=PlainDescriptionHelpFormatter
     )
     add_dataset_arguments(parser)
     defaults = ImportSettings()

@@ -51,7 +51,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from slam_core.cli import console_main
+from slam_core.cli import PlainTextHelpFormatter, console_main
 from slam_core.files import jsonable
 from slam_core.progress import ProgressReporter
 from slam_ros.qos import latched_qos, output_qos
@@ -370,7 +370,7 @@ _OPTIONS = {
 def _parser() -> argparse.ArgumentParser:
     defaults = DynamicSceneConfig()
     parser = argparse.ArgumentParser(
-        prog=GENERATOR, description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+        prog=GENERATOR, description=__doc__, formatter_class=PlainTextHelpFormatter
     )
     parser.add_argument('--seed', type=int, required=True, help='random seed of the run')
     parser.add_argument(

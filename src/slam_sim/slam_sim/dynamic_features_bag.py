@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from slam_core.cli import console_main
+from slam_core.cli import PlainTextHelpFormatter, console_main
 from slam_core.errors import BagError
 from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_core.progress import ProgressReporter
@@ -262,7 +262,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='dynamic_features_sim',
         description=__doc__,
-        formatter_class=argparse.RawTextHelpFormatter,
+        formatter_class=PlainTextHelpFormatter,
     )
     parser.add_argument('--seed', type=int, required=True, help='random seed of the run')
     parser.add_argument(

@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 from slam_core.arrays import FloatArray, IntArray
-from slam_core.cli import console_main
+from slam_core.cli import PlainTextHelpFormatter, console_main
 from slam_core.datasets import data_root
 from slam_core.errors import BagError
 from slam_core.progress import ProgressReporter
@@ -305,7 +305,7 @@ def summary(run: MrclamRun, written: WrittenBag) -> str:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+        prog=PROG, description=__doc__, formatter_class=PlainTextHelpFormatter
     )
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument('--robot', type=int, choices=ROBOT_SUBJECTS, help='robot to import')

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from slam_core.cli import console_main
+from slam_core.cli import PlainTextHelpFormatter, console_main
 from slam_core.progress import ProgressReporter
 from slam_ros.qos import latched_qos, output_qos
 from slam_ros.typesys import TypeRegistry
@@ -212,7 +212,7 @@ def summary(run: OfficeRun, written: WrittenBag) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Simulate one office run and write it as a bag."""
     parser = argparse.ArgumentParser(
-        prog='office_sim', description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+        prog='office_sim', description=__doc__, formatter_class=PlainTextHelpFormatter
     )
     parser.add_argument('--seed', type=int, required=True, help='random seed of the run')
     parser.add_argument(

@@ -44,7 +44,7 @@ import numpy as np
 
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
-from slam_core.cli import console_main
+from slam_core.cli import PlainTextHelpFormatter, console_main
 from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_core.geometry.se3 import OPTICAL_IN_LINK
 from slam_core.progress import ProgressReporter
@@ -341,7 +341,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='office_camera_sim',
         description=__doc__,
-        formatter_class=argparse.RawTextHelpFormatter,
+        formatter_class=PlainTextHelpFormatter,
     )
     parser.add_argument('--seed', type=int, required=True, help='random seed of the run')
     parser.add_argument(

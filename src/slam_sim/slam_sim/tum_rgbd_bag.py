@@ -44,7 +44,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from slam_core.cli import console_main
+from slam_core.cli import PlainDescriptionHelpFormatter, console_main
 from slam_core.errors import DatasetError
 from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_core.progress import ProgressReporter
@@ -346,7 +346,7 @@ def read_dataset(parser: argparse.ArgumentParser, args: argparse.Namespace) -> T
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=PROG, description=__doc__, formatter_class=PlainDescriptionHelpFormatter
     )
     add_dataset_arguments(parser)
     parser.add_argument(

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from slam_core.cli import console_main
+from slam_core.cli import PlainTextHelpFormatter, console_main
 from slam_core.datasets import data_root
 from slam_core.progress import ProgressReporter
 from slam_ros.qos import output_qos
@@ -159,7 +159,7 @@ def summary(data: VictoriaPark, written: WrittenBag, period_s: float) -> str:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+        prog=PROG, description=__doc__, formatter_class=PlainTextHelpFormatter
     )
     parser.add_argument(
         '--input',

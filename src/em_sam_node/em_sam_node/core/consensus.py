@@ -15,9 +15,9 @@ from dataclasses import dataclass
 from itertools import combinations
 
 import numpy as np
-from scipy.stats import chi2
 
 from em_sam_node.core.problem import FloatArray
+from slam_core.lazy_stats import chi2
 
 MIN_CONSENSUS = 3  # a pair defines a correction; a third landmark is the first to confirm it
 

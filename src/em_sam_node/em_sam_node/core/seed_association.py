@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 
 from em_sam_node.core.assembly import MappingData, dead_reckoning
 from em_sam_node.core.consensus import IDENTITY, Correction, consensus
@@ -33,6 +32,7 @@ from em_sam_node.core.linear_system import linearize_factors, normal_equations, 
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
 from em_sam_node.core.sightings import sighting_jacobians
 from slam_core.geometry.se2 import between, range_bearing_to_point
+from slam_core.lazy_stats import chi2
 
 # Stretches of the step's length the solved prefix must hold before the drift it shows can
 # refuse a consensus correction (before, most landmarks agreeing is enough).

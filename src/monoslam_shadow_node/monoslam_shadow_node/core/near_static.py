@@ -10,10 +10,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.stats import norm
 
 from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.core.rays import View
+from slam_core.lazy_stats import norm
 
 WAIT_WARNING = 'nearer than the depth prior allows'
 """In the warning of a static fit that waits (``shadow_decision.decide``; counted by the

@@ -33,9 +33,9 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2
 
 from slam_core.geometry.so3 import skew
+from slam_core.lazy_stats import chi2
 
 FloatArray = NDArray[np.float64]
 

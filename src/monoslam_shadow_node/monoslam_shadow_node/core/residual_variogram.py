@@ -22,10 +22,10 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.stats import chi2
 
 from slam_core.arrays import FloatArray, IntArray
 
@@ -35,7 +35,7 @@ duplicate or jittered stamps."""
 LAG_BIN_RATIO = 2.0**0.25
 """Lag bins are geometric, four per octave: gamma changes by at most ~19 % of its rise across
 a bin, and bins are found from the stamps' lags, whatever the frame rate."""
-CHI2_1_MEDIAN = float(chi2.ppf(0.5, 1))
+CHI2_1_MEDIAN = NormalDist().inv_cdf(0.75) ** 2  # chi2.ppf(0.5, 1): |Z| <= z_0.75 half the time
 """Median of d^2 / (2 gamma) for a Gaussian difference d: median(d^2 / 2) / it is a robust
 gamma, the scale for trimming."""
 TRIM_SIGMA = 5.0
@@ -44,7 +44,9 @@ from their median): gross outliers (a lost or swapped track, 10 px and more) are
 while re-anchoring jumps, whose differences at short lags are a few times the usual (the
 offset's marginal over the increment's), mostly stay in (a median, or trimming at 3.5,
 drops them: the white part comes out low, tau long). 6e-7 of Gaussian values lie beyond."""
-TRIM_CONSISTENCY = float(chi2.cdf(TRIM_SIGMA**2, 3) / chi2.cdf(TRIM_SIGMA**2, 1))
+TRIM_CONSISTENCY = 1.0 - math.sqrt(2.0 / math.pi) * TRIM_SIGMA * math.exp(
+    -(TRIM_SIGMA**2) / 2.0
+) / math.erf(TRIM_SIGMA / math.sqrt(2.0))  # chi2.cdf(s^2, 3) / chi2.cdf(s^2, 1), closed form
 """E[Z^2 | |Z| <= TRIM_SIGMA] = P(chi2(3) <= TRIM_SIGMA^2) / P(chi2(1) <= TRIM_SIGMA^2) for a
 standard normal Z: the trimmed mean's Gaussian bias, divided out."""
 MEDIAN_VARIANCE_FACTOR = math.pi / 2.0

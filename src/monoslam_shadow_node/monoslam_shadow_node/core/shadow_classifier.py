@@ -50,8 +50,6 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import brentq
-from scipy.stats import ncx2
 
 from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
 from monoslam_shadow_node.core.rays import (
@@ -71,6 +69,7 @@ from monoslam_shadow_node.core.static_fit import (
     motion_score_tests,
 )
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
+from slam_core.lazy_stats import ncx2
 
 STATIC_TESTS = ('both', 'three_ray', 'all_view')
 """The choices of ``ClassifierConfig.static_test``: both tests (either rejecting is DYNAMIC),
@@ -170,6 +169,8 @@ def _required_noncentrality(alpha: float, power: float) -> float:
 
     def shortfall(noncentrality: float) -> float:
         return float(ncx2.sf(threshold, MOTION_DOF, noncentrality)) - power
+
+    from scipy.optimize import brentq  # here: scipy.optimize costs 0.3 s to import
 
     return float(brentq(shortfall, 1e-6, 1e4))
 

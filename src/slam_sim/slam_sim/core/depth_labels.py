@@ -37,11 +37,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 
 from slam_core.arrays import BoolArray, FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_core.depth import DepthSampling, depth_sigma_m, sample_depth
+from slam_core.lazy_stats import chi2
 from slam_sim.core.rgbd_depth import camera_points, world_points
 
 MOVING, STATIC, UNKNOWN = 1, 0, -1

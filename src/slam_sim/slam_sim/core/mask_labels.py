@@ -51,11 +51,11 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.stats import chi2
 
 from slam_core.arrays import BoolArray, FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_core.depth import DepthSampling, depth_sigma_m, sample_depth
+from slam_core.lazy_stats import chi2
 from slam_sim.core.depth_labels import MOVING, STATIC, UNKNOWN, PoseError, TrackLabels
 from slam_sim.core.motion_masks import CodeArray, MaskedFrame
 from slam_sim.core.rgbd_depth import camera_points, in_camera, world_points
