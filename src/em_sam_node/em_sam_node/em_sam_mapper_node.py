@@ -118,6 +118,7 @@ from em_sam_node.mapper_outputs import (
 from em_sam_node.mapper_settings import PARAMETERS, config_from_parameters
 from em_sam_node.report import write_report
 from slam_core.cli import console_main
+from slam_core.files import keep_previous_run
 from slam_interfaces.msg import (
     LandmarkMap,
     LandmarkObservationArray,
@@ -144,6 +145,8 @@ class EmSamMapperNode(Node):
         self.map_frame = str(values['map_frame'])
         self.odom_frame = str(values['odom_frame'])
         self.report_dir = Path(values['report_dir']).expanduser() if values['report_dir'] else None
+        if self.report_dir is not None and not values['resume_from']:
+            self._keep_previous_run(self.report_dir)
         self.checkpoint_file = self._checkpoint_path(str(values['checkpoint_file']))
         self.checkpoint_period_s = float(values['checkpoint_period_s'])
         self._saved_state: tuple[int, ...] | None = None
@@ -212,6 +215,19 @@ class EmSamMapperNode(Node):
             'online update ms (max)': round(1e3 * mapper.online_max_s),
             'online moveable': len(mapper.online_moveable),
         }
+
+    def _keep_previous_run(self, report_dir: Path) -> None:
+        """A fresh run does not overwrite the last one's report and checkpoint."""
+        moved = keep_previous_run(report_dir, 'em_sam_')
+        if moved is not None:
+            self.get_logger().info(
+                f'the previous run in {str(report_dir)!r} was moved to {str(moved)!r}'
+            )
+        elif any(report_dir.glob('em_sam_*')):
+            self.get_logger().warning(
+                f'{str(report_dir)!r} holds other files too: the em_sam_* files of the '
+                'previous run there will be replaced (give report_dir a directory of its own)'
+            )
 
     def _warn(self, message: str) -> None:
         self.get_logger().warning(message, throttle_duration_sec=2.0)
@@ -419,7 +435,9 @@ class EmSamMapperNode(Node):
             self.write_report()
         except Exception as err:  # a report must never prevent the node from shutting down
             self.get_logger().error(f'could not write the report: {err}')
-        if self.checkpoint_period_s > 0 and self.checkpoint_file is not None:
+        if self.mapper.num_keyframes == 0 and not self.mapper.observations:
+            self.get_logger().info('no checkpoint written: nothing was received')
+        elif self.checkpoint_period_s > 0 and self.checkpoint_file is not None:
             try:
                 self.save_checkpoint()
             except Exception as err:

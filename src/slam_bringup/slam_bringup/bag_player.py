@@ -51,6 +51,7 @@ Frames: none (messages keep their recorded frame ids).
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import threading
 import time
@@ -65,6 +66,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Empty
 
@@ -521,22 +523,30 @@ def main(argv: list[str] | None = None) -> int:
     ros_args = rclpy.utilities.remove_ros_args(['bag_player', *argv])[1:]
     args = build_arg_parser().parse_args(ros_args)
     check_parameter_files(argv, PARAMETERS)
-    rclpy.init(args=['bag_player', *argv])
+    # Ctrl-C and SIGTERM stop the playback; the context stays valid for the last words
+    stop = threading.Event()
+    rclpy.init(args=['bag_player', *argv], signal_handler_options=SignalHandlerOptions.NO)
+    previous = {
+        s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)
+    }
     node = None
     try:
         node = BagPlayerNode(parameter_overrides=overrides_from_args(args))
-        while rclpy.ok() and not node.finished.is_set():
+        while rclpy.ok() and not node.finished.is_set() and not stop.is_set():
             rclpy.spin_once(node, timeout_sec=0.1)
         if node.error is not None:
             raise node.error
         node.report_progress()
-        node.get_logger().info(node.summary())
+        stopped = stop.is_set() and not node.finished.is_set()
+        node.get_logger().info(('stopped: ' if stopped else '') + node.summary())
         node.diagnostics.publish()  # the final counts
         time.sleep(FINAL_REPORT_S)  # on their way (reliable) before the process ends
-        return 0
+        return 130 if stopped else 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 130
     finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -7,6 +7,7 @@ import json
 import math
 import os
 import tempfile
+import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -75,3 +76,26 @@ def write_json(path: Path, content: Mapping[str, Any]) -> Path:
     """Write ``content`` as indented strict JSON, atomically."""
     text = json.dumps(jsonable(content), indent=2, allow_nan=False)
     return write_atomically(path, text + '\n')
+
+
+def keep_previous_run(directory: Path, prefix: str) -> Path | None:
+    """Move a previous run's outputs out of the way of a new run.
+
+    When every file under ``directory`` is a run's output (its name starts with ``prefix``),
+    the directory is renamed to ``<directory>.<stamp>`` (the newest modification time inside,
+    local time, ``YYYYmmdd-HHMMSS``, with ``-2``, ``-3`` ... if taken) and the new name
+    returned; nothing is deleted. An absent or empty directory, or one that also holds other
+    files (then the caller says that the run's files will be replaced), gives None.
+    """
+    files = [path for path in directory.rglob('*') if path.is_file()] if directory.is_dir() else []
+    if not files or not all(path.name.startswith(prefix) for path in files):
+        return None
+    newest = max(path.stat().st_mtime for path in files)
+    stamp = time.strftime('%Y%m%d-%H%M%S', time.localtime(newest))
+    target = directory.with_name(f'{directory.name}.{stamp}')
+    suffix = 2
+    while target.exists():
+        target = directory.with_name(f'{directory.name}.{stamp}-{suffix}')
+        suffix += 1
+    directory.rename(target)
+    return target

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from slam_core.files import write_atomically, write_json
+from slam_core.files import keep_previous_run, write_atomically, write_json
 
 
 def test_atomic_write_replaces_the_file_and_leaves_nothing_else(tmp_path: Path) -> None:
@@ -40,3 +41,27 @@ def _umask() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
+
+
+def test_a_previous_run_is_moved_aside_not_overwritten(tmp_path: Path) -> None:
+    run = tmp_path / 'em_sam_live'
+    assert keep_previous_run(run, 'em_sam_') is None  # nothing there
+    run.mkdir()
+    assert keep_previous_run(run, 'em_sam_') is None  # empty
+    for _ in range(2):  # two runs finished in the same second
+        run.mkdir(exist_ok=True)
+        (run / 'em_sam_report.json').write_text('{}')
+        (run / 'em_sam_map.png').write_bytes(b'png')
+        for path in run.iterdir():
+            os.utime(path, (1.7e9, 1.7e9))
+        moved = keep_previous_run(run, 'em_sam_')
+        assert moved is not None and (moved / 'em_sam_report.json').read_text() == '{}'
+        assert not run.exists()
+    assert sorted(p.name[len('em_sam_live.') :] for p in tmp_path.iterdir()) == [
+        time.strftime('%Y%m%d-%H%M%S', time.localtime(1.7e9)) + suffix for suffix in ('', '-2')
+    ]
+    shared = tmp_path / 'shared'
+    shared.mkdir()
+    (shared / 'em_sam_report.json').write_text('{}')
+    (shared / 'notes.txt').write_text('mine')
+    assert keep_previous_run(shared, 'em_sam_') is None and shared.exists()  # not ours alone
