@@ -248,9 +248,9 @@ def table_text(content: Mapping[str, Any]) -> str:
         'frames image a tracked.',
     ]
     lines += [
-        f'Acceptance {point["name"]} = {number_text(point["value"], 2)} '
+        f'{point["name"]} = {number_text(point["value"], 2)} '
         f'(target {point["target"]}; '
-        f'seeds meeting {point["seeds_meeting"]}): {"PASS" if point["passed"] else "FAIL"}'
+        f'seeds meeting {point["seeds_meeting"]}): {"met" if point["passed"] else "NOT met"}'
         for point in content['acceptance']
     ]
     shadow = content['totals']['image']['c'].get('shadow')

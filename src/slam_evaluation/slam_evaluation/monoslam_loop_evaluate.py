@@ -25,7 +25,7 @@ Writes ``monoslam_loop.json`` and, for the first seed, ``loop_map_<variant>_<sce
 (the map's features over time: in the state, measured, searched for in vain, re-matched,
 deleted, evicted) and ``loop_error_<variant>_<scene>.png`` (the position error over time
 with the turns and the first re-match marked) into ``--out``; prints the per-seed table and
-PASS or FAIL per point; logs progress (rate, ETA). Exit status 1 if a filter raised.
+met or NOT met per point; logs progress (rate, ETA). Exit status 1 if a filter raised.
 """
 
 from __future__ import annotations
@@ -148,7 +148,7 @@ def summary_text(content: dict[str, Any]) -> str:
     for key, group in content['groups'].items():
         points = group['acceptance']['points']
         verdict = ' '.join(
-            f'{name} {"PASS" if point["pass"] else "FAIL"}' for name, point in points.items()
+            f'{name} {"met" if point["pass"] else "NOT met"}' for name, point in points.items()
         )
         share = points['rematched']['value']
         wrong = group['acceptance']['wrong']

@@ -385,8 +385,10 @@ def summary_text(content: Mapping[str, Any]) -> str:
             f'{number_text(seen["latency_median_frames"], 1)} frames'
         )
     lines += seed_lines(content)
+    if content['acceptance']:
+        lines.append("  paper 001's claims on these seeds (the means; seeds meeting it alone):")
     for point in content['acceptance']:
-        verdict = 'PASS' if point['passed'] else 'FAIL'
+        verdict = 'met' if point['passed'] else 'NOT met'
         value = number_text(point['value'], 2)
         lines.append(
             f'  {point["name"]:16s} {value:>8s}  target {point["target"]:30s}'
