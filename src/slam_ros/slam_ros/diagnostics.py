@@ -29,8 +29,8 @@ One DiagnosticStatus per publish, named after the node (its fully qualified name
   input callback last ended, or since the node started; ``slam_run`` stops a graph when its
   nodes have been idle for a while, ``slam_bringup.drain``);
 - level: WARN while the count named ``dropped`` or the messages lost grew since the last
-  publish or the node was busy more than ``BUSY_WARN`` of the time ("falling behind"),
-  else OK.
+  publish or the node was busy more than ``BUSY_WARN`` of the time ("falling behind"; not
+  in a paced replay, where the player waits for the nodes by design), else OK.
 
 The node's log says what /diagnostics says, once per change: a warning when a kind of
 problem starts (with the losses by input), and one line when the node has been OK again for
@@ -229,7 +229,7 @@ class Diagnostics:
         if lost > self._last_lost:
             problems['lost'] = f'lost {lost - self._last_lost} messages before taking them'
         self._last_lost = lost
-        if busy > BUSY_WARN:
+        if busy > BUSY_WARN and self.progress is None:  # paced: the player waits for it
             problems['busy'] = f'falling behind (busy {100.0 * busy:.0f} %)'
         self._log_change(problems, lost, dropped)
         self._last_dropped = dropped

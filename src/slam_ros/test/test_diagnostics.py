@@ -187,3 +187,22 @@ def test_the_node_logger_takes_both_severities(node: Node) -> None:
         diagnostics.status()  # then OK again: an info
     counts['dropped'] = 2
     diagnostics.status()  # a warning again
+
+
+@pytest.mark.parametrize('paced', [False, True])
+def test_busy_is_a_warning_only_when_free_running(
+    node: Node, paced: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """In a paced replay the player waits for the nodes: a node busy all the time is the
+    replay going as fast as it can, not a node falling behind."""
+    from slam_ros.progress import PACED_ENV
+
+    if paced:
+        monkeypatch.setenv(PACED_ENV, '1')
+    else:
+        monkeypatch.delenv(PACED_ENV, raising=False)
+    diagnostics = Diagnostics(node, dict, period_s=3600.0)
+    diagnostics._add_time(1e6)  # busy all of the window
+    status = diagnostics.status()
+    assert float(values(status)['busy %']) > 90.0
+    assert (status.level == DiagnosticStatus.WARN) is not paced
