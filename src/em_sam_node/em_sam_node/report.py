@@ -83,6 +83,11 @@ def _figure_bytes(figure: Any) -> bytes:
     return buffer.getvalue()
 
 
+MAX_ID_LABELS = 80
+"""Landmark ids are written next to the landmarks up to this many (beyond, they would hide
+the map; the weights figure names every id)."""
+
+
 def draw_map(
     axes: Any,
     poses: np.ndarray,
@@ -92,12 +97,19 @@ def draw_map(
     sightings: Mapping[int, Any] | None,
     title: str,
 ) -> None:
-    """Draw poses (red), static landmarks (green), moveable ones (blue, dotted history)."""
-    axes.plot(poses[:, 0], poses[:, 1], '-', color='tab:red', lw=0.8, label='poses')
+    """Draw poses (red), static landmarks (green), moveable ones (blue: every sighting placed
+    in the map, joined in time order by a dotted line, the latest a square), each landmark's
+    id, axes fitted to the data with equal scales, and the legend outside the map."""
+    axes.plot(poses[:, 0], poses[:, 1], '-', color='tab:red', lw=0.8, label='trajectory')
     flags = np.zeros(len(ids), dtype=bool) if moveable is None else moveable
     static = ~flags
     axes.scatter(
-        positions[static, 0], positions[static, 1], c='tab:green', s=18, label='static', zorder=3
+        positions[static, 0],
+        positions[static, 1],
+        c='tab:green',
+        s=18,
+        label='static landmark',
+        zorder=3,
     )
     for index in np.flatnonzero(flags):
         history = (sightings or {}).get(int(ids[index]))
@@ -107,12 +119,63 @@ def draw_map(
             axes.scatter(points[:, 0], points[:, 1], c='tab:blue', s=8, zorder=3)
         axes.scatter(*positions[index], c='tab:blue', marker='s', s=24, zorder=4)
     if flags.any():
-        axes.scatter([], [], c='tab:blue', marker='s', s=24, label='moveable')
+        axes.plot([], [], ':o', color='tab:blue', ms=3, lw=1.0, label='moveable: its sightings')
+        axes.scatter([], [], c='tab:blue', marker='s', s=24, label='moveable: latest sighting')
+    if len(ids) <= MAX_ID_LABELS:
+        for row, landmark_id in enumerate(ids.tolist()):
+            axes.annotate(
+                str(landmark_id),
+                positions[row],
+                xytext=(3, 3),
+                textcoords='offset points',
+                fontsize=6,
+                color='tab:blue' if flags[row] else 'darkgreen',
+            )
     axes.set_title(title)
-    axes.set_aspect('equal', adjustable='datalim')
+    axes.set_aspect('equal', adjustable='box')
     axes.set_xlabel('x [m]')
     axes.set_ylabel('y [m]')
     axes.grid(True, lw=0.3)
+
+
+def map_figure_size(
+    poses: np.ndarray, positions: np.ndarray, width_in: float = 7.0
+) -> tuple[float, float]:
+    """A figure size whose map area has the data's aspect (within 1:3 and 3:1)."""
+    points = np.vstack([poses[:, :2], positions.reshape(-1, 2)])
+    points = points[np.all(np.isfinite(points), axis=1)]
+    span = np.ptp(points, axis=0) if len(points) else np.ones(2)
+    aspect = float(np.clip((span[1] + 1.0) / (span[0] + 1.0), 1 / 3, 3))
+    return (width_in + 2.5, min(max(width_in * aspect, 3.0), 12.0))
+
+
+def draw_weights(axes: Any, result: EmResult) -> Any:
+    """Every landmark's weight per EM iteration as a table of colours (rows: landmarks by
+    id, the moveable ones first; columns: iterations); return the image for a colour bar."""
+    history = result.weight_history
+    order = np.lexsort((result.landmark_ids, ~result.moveable))
+    image = axes.imshow(
+        history[:, order].T,
+        aspect='auto',
+        cmap='RdYlGn',
+        vmin=0.0,
+        vmax=1.0,
+        interpolation='nearest',
+    )
+    axes.set_xticks(np.arange(history.shape[0]))
+    axes.set_xlabel('EM iteration (0: before the first M-step)')
+    labels = [str(i) for i in result.landmark_ids[order].tolist()]
+    axes.set_yticks(
+        np.arange(len(labels)), labels, fontsize=max(4, min(8, 400 // max(len(labels), 1)))
+    )
+    for tick, index in zip(axes.get_yticklabels(), order.tolist(), strict=True):
+        tick.set_color('tab:blue' if result.moveable[index] else 'black')
+    axes.set_ylabel('landmark id (blue: moveable)')
+    axes.set_title(
+        f'EM weight w_l per iteration: {int(result.moveable.sum())} of '
+        f'{len(result.landmark_ids)} landmarks moveable (w_l < 0.5)'
+    )
+    return image
 
 
 def write_figures(result: EmResult, directory: Path, *, prefix: str = 'em_sam') -> list[Path]:
@@ -123,7 +186,8 @@ def write_figures(result: EmResult, directory: Path, *, prefix: str = 'em_sam') 
     import matplotlib.pyplot as plt
 
     written = []
-    figure, axes = plt.subplots(figsize=(9, 4.5), layout='constrained')
+    size = map_figure_size(result.poses, result.positions)
+    figure, axes = plt.subplots(figsize=size, layout='constrained')
     draw_map(
         axes,
         result.poses,
@@ -131,16 +195,16 @@ def write_figures(result: EmResult, directory: Path, *, prefix: str = 'em_sam') 
         result.positions,
         result.moveable,
         result.sightings,
-        f'EM-SAM ({result.mode}): final map',
+        f'EM-SAM ({result.mode}): final map, {int(result.moveable.sum())} moveable landmarks',
     )
-    axes.legend(loc='best', fontsize=8)
+    axes.legend(loc='upper left', bbox_to_anchor=(1.02, 1.0), fontsize=8)
     written.append(write_atomically(directory / f'{prefix}_map.png', _figure_bytes(figure)))
     plt.close(figure)
 
     if result.snapshots:
         stages = [s for s in SNAPSHOT_TITLES if s in result.snapshots]
         figure, grid = plt.subplots(
-            1, len(stages), figsize=(4.2 * len(stages), 6), layout='constrained'
+            1, len(stages), figsize=(4.2 * len(stages), size[1]), layout='constrained'
         )
         for axes, stage in zip(np.atleast_1d(grid), stages, strict=True):
             snapshot: Snapshot = result.snapshots[stage]
@@ -154,20 +218,14 @@ def write_figures(result: EmResult, directory: Path, *, prefix: str = 'em_sam') 
                 result.sightings if final else None,
                 SNAPSHOT_TITLES[stage],
             )
+        np.atleast_1d(grid)[-1].legend(loc='upper left', bbox_to_anchor=(1.02, 1.0), fontsize=7)
         written.append(write_atomically(directory / f'{prefix}_stages.png', _figure_bytes(figure)))
         plt.close(figure)
 
-    figure, axes = plt.subplots(figsize=(7, 4), layout='constrained')
-    history = result.weight_history
-    iterations = np.arange(history.shape[0])
-    for index in range(len(result.landmark_ids)):
-        color = 'tab:blue' if result.moveable[index] else 'tab:green'
-        axes.plot(iterations, history[:, index], '-', color=color, lw=0.8, alpha=0.8)
-    axes.axhline(0.5, color='k', ls='--', lw=0.6)
-    axes.set_xlabel('EM iteration')
-    axes.set_ylabel('weight w_l')
-    axes.set_ylim(-0.05, 1.05)
-    axes.set_title('weights per EM iteration (blue: classified moveable)')
+    rows = len(result.landmark_ids)
+    figure, axes = plt.subplots(figsize=(7, min(3.0 + 0.12 * rows, 20.0)), layout='constrained')
+    image = draw_weights(axes, result)
+    figure.colorbar(image, ax=axes, label='weight w_l (0: moveable, 1: static)')
     written.append(write_atomically(directory / f'{prefix}_weights.png', _figure_bytes(figure)))
     plt.close(figure)
     return written
