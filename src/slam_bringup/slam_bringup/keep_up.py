@@ -21,12 +21,14 @@ LOSS_WORDS = ('lost', 'dropping inputs')
 
 def remedies(*, has_player: bool, paced: bool, processes: bool) -> list[str]:
     """The slam_run options that would keep every message, for this run."""
+    if paced:  # the player waits for the nodes: nothing to lose, nothing to suggest
+        return []
     options = []
-    if has_player and not paced:
+    if has_player:
         options.append('--paced (the player waits for the nodes: every message, on any machine)')
     if not processes:
         options.append('--processes (one process per node: each node gets a core)')
-    if has_player and not paced:
+    if has_player:
         options.append('a lower --rate')
     return options
 

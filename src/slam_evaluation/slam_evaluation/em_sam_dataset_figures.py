@@ -9,10 +9,10 @@ import numpy as np
 
 from slam_evaluation.em_sam_mrclam import MAP_OUTLIER_M, MrclamRunResult
 from slam_evaluation.em_sam_victoria_park import VictoriaParkResult
+from slam_sim.core.mrclam import ROBOT_SUBJECTS
 
 ZOOM_PANELS = 6  # flagged Victoria Park trees shown close up, the worst first
 MRCLAM_SIZE_IN = (12.0, 5.5)
-VICTORIA_PARK_SIZE_IN = (14.0, 7.0)
 
 
 def draw_mrclam_run(figure: Any, result: MrclamRunResult) -> None:
@@ -31,7 +31,8 @@ def draw_mrclam_run(figure: Any, result: MrclamRunResult) -> None:
     kept = ~robust.moveable
     ax_map.plot(*aligned(robust.positions[kept]).T, 'g.', ms=8, label='static estimate')
     for subject, sightings in robust.sightings.items():
-        ax_map.plot(*aligned(sightings.positions).T, '.', ms=2, label=f'{subject} sightings')
+        name = f'robot {subject}' if subject in ROBOT_SUBJECTS else f'barcode {subject}'
+        ax_map.plot(*aligned(sightings.positions).T, '.', ms=2, label=f"{name}'s sightings")
     if error is not None:
         far = set(error.far_ids)
         placed = aligned(robust.positions[kept])
@@ -40,8 +41,10 @@ def draw_mrclam_run(figure: Any, result: MrclamRunResult) -> None:
                 ax_map.annotate(str(int(lid)), position, color='red', fontsize=8)
     title = f'{result.name}: static map aligned on landmarks within {MAP_OUTLIER_M} m'
     ax_map.set_title(title if error is not None else f'{result.name} (not aligned)', fontsize=9)
-    ax_map.set_aspect('equal')
-    ax_map.legend(fontsize=6, loc='best')
+    ax_map.set_aspect('equal', adjustable='box')
+    ax_map.set_xlabel('x [m] (Vicon frame)' if error is not None else 'x [m]')
+    ax_map.set_ylabel('y [m]')
+    ax_map.legend(fontsize=6, loc='upper left', bbox_to_anchor=(0.0, -0.12), ncols=3)
     ids = robust.landmark_ids
     ax_weights.bar(range(len(ids)), robust.weights, color=np.where(robust.moveable, 'C3', 'C2'))
     ax_weights.set_xticks(range(len(ids)), [str(i) for i in ids.tolist()], fontsize=7)
@@ -54,7 +57,9 @@ def draw_victoria_park(figure: Any, result: VictoriaParkResult) -> None:
     """Left: the all-static trajectory and trees, the flagged trees' sightings placed
     through it and their all-static positions. Right: the worst flagged trees close up."""
     static = result.all_static
-    grid = figure.add_gridspec(2, 1 + (ZOOM_PANELS + 1) // 2, width_ratios=(3, *[1] * 3))
+    zoomed = result.flagged[:ZOOM_PANELS]
+    columns = (len(zoomed) + 1) // 2  # as many close-ups as trees flagged: no empty panels
+    grid = figure.add_gridspec(2, 1 + columns, width_ratios=(3, *[1] * columns))
     overview = figure.add_subplot(grid[:, 0])
     overview.plot(*static.poses[:, :2].T, color='0.8', lw=0.5, label='all-static trajectory')
     overview.plot(*static.positions.T, 'g.', ms=3, label='trees (all static)')
@@ -68,9 +73,12 @@ def draw_victoria_park(figure: Any, result: VictoriaParkResult) -> None:
         )
         overview.plot(*tree.fitted_m, 'kx', ms=5)
     overview.set_title(f'Victoria Park: trees EM-SAM robust flagged: {len(result.flagged)}')
-    overview.set_aspect('equal')
+    overview.set_aspect('equal', adjustable='box')
+    overview.set_xlabel('x [m]')
+    overview.set_ylabel('y [m]')
+    overview.plot([], [], 'kx', ms=5, label="a flagged tree's all-static position")
     overview.legend(fontsize=7, loc='best')
-    for panel, tree in enumerate(result.flagged[:ZOOM_PANELS]):
+    for panel, tree in enumerate(zoomed):
         ax = figure.add_subplot(grid[panel % 2, 1 + panel // 2])
         ax.plot(*tree.sightings_m.T, '.', color='C3', ms=4)
         ax.plot(*tree.fitted_m, 'kx', ms=8)
@@ -80,4 +88,12 @@ def draw_victoria_park(figure: Any, result: VictoriaParkResult) -> None:
             fontsize=8,
         )
         ax.set_aspect('equal', adjustable='datalim')
+        ax.set_xlabel('x [m]', fontsize=7)
+        ax.set_ylabel('y [m]', fontsize=7)
         ax.tick_params(labelsize=6)
+
+
+def victoria_park_size_in(result: VictoriaParkResult) -> tuple[float, float]:
+    """The Victoria Park figure's size: the overview and as many close-up columns as needed."""
+    columns = (min(len(result.flagged), ZOOM_PANELS) + 1) // 2
+    return (8.0 + 2.4 * columns, 7.0)

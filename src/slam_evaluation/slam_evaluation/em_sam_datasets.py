@@ -147,7 +147,7 @@ def _victoria_park(source: Path | None) -> tuple[str, str, dict[str, Any], Any]:
     }
 
     def pngs() -> dict[str, bytes]:
-        png = render_png(figures.draw_victoria_park, result, figures.VICTORIA_PARK_SIZE_IN)
+        png = render_png(figures.draw_victoria_park, result, figures.victoria_park_size_in(result))
         return {'victoria_park_flagged.png': png}
 
     return 'EM-SAM on Victoria Park', markdown(result), content, pngs

@@ -22,6 +22,9 @@ RUN_STYLES = {
     'image c': {'color': 'tab:blue', 'lw': 1.0},
     'measurement c': {'color': 'tab:orange', 'lw': 1.0, 'ls': '--'},
 }
+MAP_RUN = 'image c'
+"""The run whose map the top views show: the system (the Shadow filter's variant, from
+images)."""
 TOPVIEW_COLUMNS = 5
 TOPVIEW_MARGIN_M = 0.75
 
@@ -37,7 +40,7 @@ def write_figures(directory: Path, results: Sequence[SeedResult], rate_hz: float
     columns = min(TOPVIEW_COLUMNS, len(results))
     rows = math.ceil(len(results) / columns)
     drawings: list[tuple[str, Callable[[Any, Any], None], Any, tuple[float, float]]] = [
-        ('monoslam_image_topview.png', _topviews, results, (4.0 * columns, 3.6 * rows)),
+        ('monoslam_image_topview.png', _topviews, results, (4.0 * columns + 2.0, 3.6 * rows)),
         ('monoslam_image_ate_time.png', _errors_over_time, (results, rate_hz), (11.0, 3.8)),
     ]
     return [
@@ -52,11 +55,21 @@ def _topviews(figure: Any, results: Sequence[SeedResult]) -> None:
     grid = np.atleast_1d(figure.subplots(rows, columns, squeeze=False)).ravel()
     for axes, result in zip(grid, results, strict=False):
         truth = result.truth
-        axes.plot(truth[:, 0], truth[:, 1], 'k-', lw=1.6, alpha=0.5, label='truth')
+        points = result.map_points.get(MAP_RUN, np.zeros((0, 3)))
+        axes.scatter(
+            points[:, 0],
+            points[:, 1],
+            s=4,
+            c='tab:blue',
+            alpha=0.35,
+            label=f'{MAP_RUN} map points',
+        )
+        axes.plot(truth[:, 0], truth[:, 1], 'k-', lw=1.6, alpha=0.5, label='true camera path')
         for name, centres in result.centres.items():
-            axes.plot(centres[:, 0], centres[:, 1], label=name, **RUN_STYLES[name])
-        low = truth[:, :2].min(axis=0) - TOPVIEW_MARGIN_M
-        high = truth[:, :2].max(axis=0) + TOPVIEW_MARGIN_M
+            axes.plot(centres[:, 0], centres[:, 1], label=f'{name} camera', **RUN_STYLES[name])
+        extent = np.vstack([truth[:, :2], points[:, :2]]) if len(points) else truth[:, :2]
+        low = extent.min(axis=0) - TOPVIEW_MARGIN_M
+        high = extent.max(axis=0) + TOPVIEW_MARGIN_M
         axes.set_xlim(low[0], high[0])
         axes.set_ylim(low[1], high[1])
         axes.set_aspect('equal')
@@ -64,7 +77,7 @@ def _topviews(figure: Any, results: Sequence[SeedResult]) -> None:
         axes.set_ylabel('y [m]')
         axes.set_title(f'seed {result.entry["seed"]}: camera top view', fontsize=9)
         axes.grid(True, lw=0.3)
-    grid[0].legend(fontsize=6, loc='lower right')
+    grid[0].legend(fontsize=6, loc='upper left', bbox_to_anchor=(1.02, 1.0))
     for axes in grid[len(results) :]:
         axes.set_visible(False)
 
@@ -79,7 +92,8 @@ def _errors_over_time(figure: Any, data: tuple[Sequence[SeedResult], float]) -> 
         if name in ('image c', 'measurement c'):
             for row in values:
                 right.plot(times, row, color=RUN_STYLES[name]['color'], lw=0.4, alpha=0.6)
-    left.set_title('camera position error, RMS over seeds', fontsize=9)
+    over = 'RMS over seeds' if len(results) > 1 else f'seed {results[0].entry["seed"]}'
+    left.set_title(f'camera position error, {over}', fontsize=9)
     right.set_title('per seed: image c (blue), measurement c (orange)', fontsize=9)
     left.set_ylabel('|centre error| [m]')
     for axes in (left, right):

@@ -57,13 +57,15 @@ class Settings:
 class SeedResult:
     """One run's report entry, its front-end counts, and per filter run ('image a', ...,
     'measurement c') the position error (K,) m and estimated centres (K, 3) m; the true
-    centres (K, 3) m, for the figures."""
+    centres (K, 3) m, and per filter run its map points with a known position (M, 3) m at the
+    end, for the figures."""
 
     entry: dict[str, Any]
     front_end: FrontEndStats
     errors: dict[str, FloatArray] = field(default_factory=dict)
     centres: dict[str, FloatArray] = field(default_factory=dict)
     truth: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    map_points: dict[str, FloatArray] = field(default_factory=dict)
 
 
 def measurement_frames(source: FrameSource) -> list[MeasurementFrame]:
@@ -120,6 +122,8 @@ def evaluate_source(
         entry.setdefault(level, {})[variant] = run_metrics(record, errors)
         result.errors[f'{level} {variant}'] = np.linalg.norm(errors[:, :3], axis=1)
         result.centres[f'{level} {variant}'] = record.centres
+        known = [p.position for p in record.map_points if p.covariance is not None]
+        result.map_points[f'{level} {variant}'] = np.array(known).reshape(-1, 3)
     entry['ratio_c'] = {key: _level_ratio_of(entry, key) for key in ('ate_m', 'ate_sim3_m')}
     return result
 
