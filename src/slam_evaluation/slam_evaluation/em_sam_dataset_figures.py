@@ -12,15 +12,15 @@ from slam_evaluation.em_sam_victoria_park import VictoriaParkResult
 from slam_sim.core.mrclam import ROBOT_SUBJECTS
 
 ZOOM_PANELS = 6  # flagged Victoria Park trees shown close up, the worst first
-MRCLAM_SIZE_IN = (12.0, 5.5)
+MRCLAM_SIZE_IN = (12.0, 7.0)
 
 
 def draw_mrclam_run(figure: Any, result: MrclamRunResult) -> None:
     """Left: EM-SAM robust's static map and trajectory, aligned onto the Vicon landmarks
-    (landmarks further off than MAP_OUTLIER_M named in red), and the sightings of the
-    robots it flagged. Right: every landmark's weight."""
+    (each barcode named; those further off than MAP_OUTLIER_M in red), and the sightings of
+    the robots it flagged. Right: every landmark's weight."""
     robust, truth, error = result.robust, result.truth, result.robust_map
-    ax_map, ax_weights = figure.subplots(1, 2, width_ratios=(1.4, 1.0))
+    ax_map, ax_weights = figure.subplots(1, 2, width_ratios=(1.2, 1.0))
 
     def aligned(points: np.ndarray) -> np.ndarray:
         return error.alignment.apply(points) if error is not None else points
@@ -33,12 +33,18 @@ def draw_mrclam_run(figure: Any, result: MrclamRunResult) -> None:
     for subject, sightings in robust.sightings.items():
         name = f'robot {subject}' if subject in ROBOT_SUBJECTS else f'barcode {subject}'
         ax_map.plot(*aligned(sightings.positions).T, '.', ms=2, label=f"{name}'s sightings")
-    if error is not None:
-        far = set(error.far_ids)
-        placed = aligned(robust.positions[kept])
-        for lid, position in zip(robust.landmark_ids[kept], placed, strict=True):
-            if int(lid) in far:
-                ax_map.annotate(str(int(lid)), position, color='red', fontsize=8)
+    far = set(error.far_ids) if error is not None else set()
+    placed = aligned(robust.positions[kept])
+    for lid, position in zip(robust.landmark_ids[kept], placed, strict=True):
+        off = int(lid) in far  # more than MAP_OUTLIER_M from Vicon's: in red
+        ax_map.annotate(
+            str(int(lid)),
+            position,
+            xytext=(3, 3),
+            textcoords='offset points',
+            color='red' if off else 'darkgreen',
+            fontsize=8 if off else 6,
+        )
     title = f'{result.name}: static map aligned on landmarks within {MAP_OUTLIER_M} m'
     ax_map.set_title(title if error is not None else f'{result.name} (not aligned)', fontsize=9)
     ax_map.set_aspect('equal', adjustable='box')
@@ -46,11 +52,17 @@ def draw_mrclam_run(figure: Any, result: MrclamRunResult) -> None:
     ax_map.set_ylabel('y [m]')
     ax_map.legend(fontsize=6, loc='upper left', bbox_to_anchor=(0.0, -0.12), ncols=3)
     ids = robust.landmark_ids
-    ax_weights.bar(range(len(ids)), robust.weights, color=np.where(robust.moveable, 'C3', 'C2'))
-    ax_weights.set_xticks(range(len(ids)), [str(i) for i in ids.tolist()], fontsize=7)
+    flags = robust.moveable
+    where = np.arange(len(ids))
+    ax_weights.vlines(where, 0.0, robust.weights, color='0.7', lw=1.0)
+    ax_weights.plot(where[~flags], robust.weights[~flags], 'o', color='C2', label='static')
+    ax_weights.plot(where[flags], robust.weights[flags], 's', color='C3', label='moveable')
+    ax_weights.axhline(0.5, color='k', ls='--', lw=0.6, label='threshold 0.5')
+    ax_weights.set_xticks(where, [str(i) for i in ids.tolist()], fontsize=7)
     ax_weights.set_xlabel('subject (1-5 robots, 6-20 barcodes)')
     ax_weights.set_ylabel('EM weight (robust)')
-    ax_weights.set_ylim(0.0, 1.05)
+    ax_weights.set_ylim(-0.05, 1.05)
+    ax_weights.legend(fontsize=7, loc='center right')
 
 
 def draw_victoria_park(figure: Any, result: VictoriaParkResult) -> None:
