@@ -207,15 +207,23 @@ def evaluate_mrclam(
 ) -> list[MrclamRunResult]:
     """Evaluate every robot in every window of an MRCLAM data set; log progress."""
     say = log if log is not None else (lambda text: print(text, file=sys.stderr))  # noqa: T201
+    runs = {robot: load_run(dataset, robot) for robot in robots}
+    # the work is the data replayed and solved: seconds of data per run, not the run count
+    # (a whole run is 4-6 times a 300 s window)
+    seconds = {
+        (robot, window_s): _data_seconds(runs[robot], window_s)
+        for robot in robots
+        for window_s in windows
+    }
     progress = ProgressReporter(
-        len(robots) * len(windows), label='em_sam_evaluate mrclam', unit=' runs', period_s=0.0
+        sum(seconds.values()), label='em_sam_evaluate mrclam', unit=' s of data', period_s=0.0
     )
     results = []
+    done_s = 0.0
     with tempfile.TemporaryDirectory(prefix='em_sam_mrclam_') as scratch:
         for robot in robots:
-            run = load_run(dataset, robot)
             for window_s in windows:
-                result = evaluate_run(run, window_s, Path(scratch))
+                result = evaluate_run(runs[robot], window_s, Path(scratch))
                 robust = next(s for s in result.scores if s.method == 'em_sam_robust')
                 say(
                     f'em_sam_evaluate: {result.name}: {robust.keyframes} keyframes, '
@@ -224,11 +232,19 @@ def evaluate_mrclam(
                     f'{robust.runtime_s:.1f} s'
                 )
                 results.append(result)
-                progress.update(len(results))
+                done_s += seconds[robot, window_s]
+                progress.update(done_s)
                 for path in Path(scratch).iterdir():  # bags are big; keep one at a time
                     shutil.rmtree(path)
     progress.finish()
     return results
+
+
+def _data_seconds(run: MrclamRun, window_s: float | None) -> float:
+    """Seconds of odometry in ``run``'s window (the whole run for None)."""
+    stamps = run.odometry.stamps_ns
+    whole_s = (int(stamps[-1]) - int(stamps[0])) / 1e9 if len(stamps) else 0.0
+    return whole_s if window_s is None else min(window_s, whole_s)
 
 
 def _ids(values: list[int]) -> str:

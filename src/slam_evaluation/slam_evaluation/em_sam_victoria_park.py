@@ -35,7 +35,7 @@ from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.em_types import EmResult
 from em_sam_node.offline import replay_bag
 from slam_core.geometry.se2 import range_bearing_to_point
-from slam_core.progress import ProgressReporter
+from slam_core.progress import StepProgress
 from slam_evaluation.em_sam_runs import (
     AllStatic,
     flagged_ids,
@@ -118,20 +118,18 @@ def evaluate_victoria_park(
     source: Path, *, log: Callable[[str], None] | None = None
 ) -> VictoriaParkResult:
     """Replay Victoria Park (text file or bag), run the methods and explain the flags."""
-    progress = ProgressReporter(
-        len(STEPS), label='em_sam_evaluate victoria park', unit=' steps', period_s=0.0, log=log
-    )
+    progress = StepProgress(STEPS, label='em_sam_evaluate victoria park', log=log)
     timings: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix='em_sam_vp_') as scratch:
+        progress.start(0)
         timings['import_s'], bag = timed(lambda: _bag_of(source, Path(scratch)))
-        progress.update(1)
+        progress.start(1)
         timings['replay_s'], replay = timed(lambda: replay_bag(bag))
-        progress.update(2)
     data = replay.data
+    progress.start(2)
     static = solve_all_static(data, incremental=True)
-    progress.update(3)
+    progress.start(3)
     em = run_em_modes(data)
-    progress.update(4)
     progress.finish()
     return VictoriaParkResult(
         source, data, static, em, explain_flags(data, em['robust'][1], static), timings
