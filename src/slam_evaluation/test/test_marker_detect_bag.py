@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -95,11 +96,40 @@ def test_the_command_line_names_a_bad_parameter(camera_bag: Path, tmp_path: Path
     assert list(tmp_path.iterdir()) == []
 
 
+def copy_bag(
+    source: Path,
+    target: Path,
+    edit: Callable[[Any, Any, bytes], bytes] = lambda store, connection, raw: raw,
+    first: Callable[[Any], tuple[str, bytes]] | None = None,
+) -> Path:
+    """Copy the bag ``source`` to ``target`` (mcap); ``edit(typestore, connection, raw)``
+    may change a message's bytes, ``first(typestore)`` gives a (topic, bytes) written first
+    at the bag's start time."""
+    with AnyReader([source]) as reader:
+        store = reader.typestore
+        writer = Writer(target, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer.open()
+        try:
+            out = {
+                c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
+                for c in reader.connections
+            }
+            if first is not None:
+                topic, raw = first(store)
+                connection = next(c.id for c in reader.connections if c.topic == topic)
+                writer.write(out[connection], reader.start_time, raw)
+            for connection, timestamp, raw in reader.messages():
+                writer.write(out[connection.id], timestamp, edit(store, connection, raw))
+        finally:
+            writer.close()
+    return target
+
+
 def with_bad_mount(source: Path, target: Path) -> Path:
     """Copy the bag ``source`` to ``target`` with one more /tf_static message whose
     translation is NaN (base_link -> broken_link)."""
-    with AnyReader([source]) as reader:
-        store = reader.typestore
+
+    def bad_transform(store: Any) -> tuple[str, bytes]:
         tf_type = 'tf2_msgs/msg/TFMessage'
         Transform = store.types['geometry_msgs/msg/TransformStamped']  # noqa: N806
         message = store.types[tf_type](
@@ -121,20 +151,9 @@ def with_bad_mount(source: Path, target: Path) -> Path:
                 )
             ]
         )
-        writer = Writer(target, version=9, storage_plugin=StoragePlugin.MCAP)
-        writer.open()
-        try:
-            out = {
-                c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
-                for c in reader.connections
-            }
-            bad = next(c.id for c in reader.connections if c.topic == '/tf_static')
-            writer.write(out[bad], reader.start_time, store.serialize_cdr(message, tf_type))
-            for connection, timestamp, raw in reader.messages():
-                writer.write(out[connection.id], timestamp, raw)
-        finally:
-            writer.close()
-    return target
+        return '/tf_static', store.serialize_cdr(message, tf_type)
+
+    return copy_bag(source, target, first=bad_transform)
 
 
 def test_an_unusable_tf_static_transform_is_counted_and_the_run_goes_on(
@@ -150,25 +169,16 @@ def test_an_unusable_tf_static_transform_is_counted_and_the_run_goes_on(
 
 def with_zero_focal_length(source: Path, target: Path) -> Path:
     """Copy the bag ``source`` to ``target`` with fx = fy = 0 in every camera_info."""
-    with AnyReader([source]) as reader:
-        store = reader.typestore
-        writer = Writer(target, version=9, storage_plugin=StoragePlugin.MCAP)
-        writer.open()
-        try:
-            out = {
-                c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
-                for c in reader.connections
-            }
-            for connection, timestamp, raw in reader.messages():
-                if connection.topic == '/camera/camera_info':
-                    info: Any = store.deserialize_cdr(raw, connection.msgtype)
-                    info.k = info.k.copy()
-                    info.k[0] = info.k[4] = 0.0
-                    raw = store.serialize_cdr(info, connection.msgtype)
-                writer.write(out[connection.id], timestamp, raw)
-        finally:
-            writer.close()
-    return target
+
+    def zero_focal_length(store: Any, connection: Any, raw: bytes) -> bytes:
+        if connection.topic != '/camera/camera_info':
+            return raw
+        info = store.deserialize_cdr(raw, connection.msgtype)
+        info.k = info.k.copy()
+        info.k[0] = info.k[4] = 0.0
+        return bytes(store.serialize_cdr(info, connection.msgtype))
+
+    return copy_bag(source, target, edit=zero_focal_length)
 
 
 def test_a_camera_info_that_is_unusable_is_named_and_nothing_is_written(
