@@ -6,10 +6,12 @@ The bag (bags/office_moveable.mcap, seed 7) has 29 static wall markers and 10 de
 
 from __future__ import annotations
 
+import csv
 import math
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import rclpy
 from bag_fixtures import invalid_parameter_error
@@ -20,6 +22,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from em_sam_node.em_sam_mapper_node import EmSamMapperNode
+from em_sam_node.map_files import read_map
 from em_sam_node.odometry_ingest_node import OdometryIngestNode
 from slam_bringup.bag_player import BagPlayerNode
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
@@ -310,3 +313,26 @@ def test_odometry_ingest_waits_for_a_running_players_end_of_input(ros_context: N
     finally:
         player.destroy_node()
         ingest.destroy_node()
+
+
+def test_save_map_writes_a_map_readable_without_numpy(
+    mapped: tuple[RosHarness, EmSamMapperNode],
+) -> None:
+    """~/save_map writes the checkpoint and, beside it, the YAML + CSV map: the same
+    landmarks, moveable flags and trajectory as the mapper's result, and plain CSV text."""
+    harness, mapper = mapped
+    reply = call(harness, Trigger, '/em_sam_mapper/save_map', Trigger.Request())
+    assert reply.success and 'em_sam_map.yaml' in reply.message  # type: ignore[attr-defined]
+    assert mapper.checkpoint_file is not None
+    saved = read_map(mapper.checkpoint_file.parent)
+    result = mapper.mapper.result
+    assert result is not None
+    assert saved.ids.tolist() == result.landmark_ids.tolist()
+    assert saved.moveable.tolist() == result.moveable.tolist()
+    assert set(saved.ids[saved.moveable].tolist()) == set(range(100, 110))
+    assert np.array_equal(saved.positions, result.positions)  # repr() round-trips floats
+    assert np.array_equal(saved.poses, result.poses[: len(saved.poses)])
+    assert saved.stamps_ns.tolist() == mapper.mapper.stamps_ns[: len(saved.stamps_ns)]
+    with (mapper.checkpoint_file.parent / 'em_sam_landmarks.csv').open() as rows:
+        header = next(csv.reader(rows))
+    assert header[:3] == ['id', 'x_m', 'y_m']

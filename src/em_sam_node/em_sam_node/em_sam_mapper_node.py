@@ -30,7 +30,10 @@ Services:
   ~/optimize (std_srvs/Trigger)          solve now and publish.
   ~/find_landmark (slam_interfaces/FindLandmark)  sightings of a landmark, most recent first.
   ~/write_report (std_srvs/Trigger)      write the report now.
-  ~/save_map (std_srvs/Trigger)          write a checkpoint to checkpoint_file now.
+  ~/save_map (std_srvs/Trigger)          write a checkpoint to checkpoint_file now, and the
+                                         solved map beside it, readable without numpy:
+                                         em_sam_map.yaml, em_sam_landmarks.csv and
+                                         em_sam_trajectory.csv (em_sam_node.map_files).
 
 Parameters:
   mode ('robust')                 'paper' (as published) or 'robust'.
@@ -106,6 +109,7 @@ from visualization_msgs.msg import MarkerArray
 
 from em_sam_node.checkpoint import load_checkpoint, save_checkpoint
 from em_sam_node.conversions import increment_from_message, observations_from_message
+from em_sam_node.map_files import MAP_FILE, write_map
 from em_sam_node.mapper import MapperProcessor
 from em_sam_node.mapper_outputs import (
     landmark_map_message,
@@ -272,10 +276,16 @@ class EmSamMapperNode(Node):
             return 'no checkpoint_file (and no report_dir) is set'
         save_checkpoint(self.mapper, self.checkpoint_file)
         self._saved_state = self._state_key()
+        readable = ''
+        result = self.mapper.result
+        if result is not None:  # the solved map beside it, readable without numpy
+            stamps = np.array(self.mapper.stamps_ns[: self.mapper.result_keyframes])
+            write_map(result, stamps, self.checkpoint_file.parent, self.map_frame)
+            readable = f' (and the map as {MAP_FILE} with CSVs beside it)'
         return (
             f'checkpoint of {self.mapper.num_keyframes} keyframes, '
             f'{len(self.mapper.observations)} observations written to '
-            f'{str(self.checkpoint_file)!r}'
+            f'{str(self.checkpoint_file)!r}{readable}'
         )
 
     def _on_checkpoint(self) -> None:
