@@ -102,7 +102,7 @@ def test_diag_once_shows_the_table_worst_first(ros_harness: RosHarness) -> None:
     array = diagnostics({'/fine_node': DiagnosticStatus.OK, '/slow_node': DiagnosticStatus.WARN})
     timer = ros_harness.node.create_timer(0.2, lambda: publisher.publish(array))
     try:
-        result = run_tool('slam_diag', '--once', '--wait', '3', '-v')
+        result = run_tool('slam_diag', '--once', '--wait', '8', '-v')  # discovery, when busy
     finally:
         ros_harness.node.destroy_timer(timer)
     assert result.returncode == 1, result.stdout + result.stderr  # the worst is WARN

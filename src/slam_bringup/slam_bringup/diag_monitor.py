@@ -22,7 +22,6 @@ from typing import Any
 from slam_core.cli import PlainDescriptionHelpFormatter, console_main, positive_float
 
 LEVELS = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
-STALE = 3
 SEVERITY = {'ERROR': 3, 'STALE': 2, 'WARN': 1, 'OK': 0}
 COLORS = {'WARN': '\033[33m', 'ERROR': '\033[31m', 'STALE': '\033[31m'}
 RESET = '\033[0m'
@@ -83,15 +82,16 @@ class DiagnosticsTable:
     def render(self, now_s: float, *, verbose: bool = False, color: bool = False) -> str:
         """The table, worst first, then by name."""
         rows = sorted(
-            self.statuses.values(),
-            key=lambda s: (-SEVERITY.get(self.level_of(s, now_s), 3), s.name),
+            ((self.level_of(s, now_s), s) for s in self.statuses.values()),
+            key=lambda row: (-SEVERITY.get(row[0], 3), row[1].name),
         )
         if not rows:
             return f'no diagnostics yet ({self.arrays} messages on /diagnostics)'
-        width = max(len(s.name) for s in rows)
+        width = max(len(status.name) for _, status in rows)
         lines = [f'{"LEVEL":<6} {"NAME":<{width}}  {"AGE":>6}  MESSAGE']
-        for status in rows:
-            level = self.level_of(status, now_s)
+        counts = dict.fromkeys(SEVERITY, 0)
+        for level, status in rows:
+            counts[level] = counts.get(level, 0) + 1
             age = f'{now_s - status.received_s:5.1f}s'
             text = f'{level:<6} {status.name:<{width}}  {age:>6}  {status.message}'
             if color and level in COLORS:
@@ -99,10 +99,6 @@ class DiagnosticsTable:
             lines.append(text)
             if verbose:
                 lines.extend(f'{"":<6}   {key}: {value}' for key, value in status.values)
-        counts = {lv: 0 for lv in SEVERITY}
-        for status in rows:
-            level = self.level_of(status, now_s)
-            counts[level] = counts.get(level, 0) + 1
         summary = ', '.join(f'{n} {lv}' for lv, n in counts.items() if n)
         lines.append(f'{len(rows)} statuses: {summary}')
         return '\n'.join(lines)

@@ -67,8 +67,6 @@ def wait_for(
     wanted: str,
     list_entities: Callable[[], list[tuple[str, list[str]]]],
     timeout_s: float,
-    *,
-    interrupted: Callable[[], bool] = lambda: False,
 ) -> Found:
     """Poll ``list_entities()`` ((name, [types]) pairs) until ``wanted`` resolves.
 
@@ -89,7 +87,7 @@ def wait_for(
                 )
             return Found(name, types[0])
         waited = time.monotonic() - started
-        if waited >= timeout_s or interrupted():
+        if waited >= timeout_s:
             raise DiscoveryError(not_found_message(kind, wanted, list(entities), waited))
         time.sleep(POLL_S)
 

@@ -58,9 +58,10 @@ def message_to_data(message: Any, *, truncate: int | None = 128, arrays: bool = 
     if isinstance(message, np.ndarray | array.array | bytes | list | tuple):
         if not arrays:
             return f'<sequence of {len(message)}>'
-        items = list(message.tolist() if isinstance(message, np.ndarray) else message)
-        cut = truncate is not None and len(items) > truncate
-        converted = [message_to_data(item, truncate=truncate) for item in items[:truncate]]
+        cut = truncate is not None and len(message) > truncate
+        kept = message[:truncate]  # before any conversion: an image is a million items
+        items = list(kept.tolist() if isinstance(kept, np.ndarray) else kept)
+        converted = [message_to_data(item, truncate=truncate) for item in items]
         return [*converted, '...'] if cut else converted
     if isinstance(message, str) and truncate is not None and len(message) > truncate:
         return message[:truncate] + '...'

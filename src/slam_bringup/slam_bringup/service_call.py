@@ -97,7 +97,9 @@ def main(argv: list[str] | None = None) -> int:
         future = client.call_async(request)
         deadline = time.monotonic() + args.timeout
         while not future.done():
-            if time.monotonic() > deadline or not ros.spin_once(0.05):
+            if not ros.spin_once(0.05):
+                raise KeyboardInterrupt  # Ctrl-C: console_main exits 130
+            if time.monotonic() > deadline:
                 print(  # noqa: T201
                     f'slam_call: error: no response from {found.name} within {args.timeout:g} s',
                     file=sys.stderr,

@@ -142,8 +142,9 @@ def subscription_qos(offered: Sequence[Any], depth: int) -> Any:
 def main(argv: list[str] | None = None) -> int:
     """Echo one topic until Ctrl-C, --once, --count or --timeout."""
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    if args.count is not None and args.count < 1:
-        raise SlamError(f'--count must be at least 1, got {args.count}')
+    for name in ('count', 'depth'):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            raise SlamError(f'--{name} must be at least 1, got {getattr(args, name)}')
     from slam_bringup.graph_lookup import Found, RosSession, find_topic
     from slam_ros.typesys import message_class
 
