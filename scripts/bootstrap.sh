@@ -6,6 +6,8 @@
 #   4. the colcon workspace in ros2_ws/ built (slam_interfaces, the vendored message packages
 #      tf2_msgs and apriltag_msgs where missing, our packages).
 # A second run with nothing changed only checks stamps and returns in a few seconds.
+# With --test (scripts/test.sh) it also installs what only the tests use: a headless browser
+# (Debian's chromium) for the dashboard's browser test.
 # Afterwards `source scripts/env.sh` gives a shell everything (like install/setup.bash).
 set -euo pipefail
 
@@ -14,6 +16,14 @@ VENV="$ROOT/.venv"
 WS="$ROOT/ros2_ws"
 REQ="$ROOT/requirements"
 STAMPS="$VENV/.slam-stamps"
+
+WITH_TEST_TOOLS=0
+for arg in "$@"; do
+  case "$arg" in
+    --test) WITH_TEST_TOOLS=1 ;;
+    *) printf '[bootstrap] error: unknown option %s (usage: bootstrap.sh [--test])\n' "$arg" >&2; exit 2 ;;
+  esac
+done
 
 say() { printf '[bootstrap] %s\n' "$*" >&2; }
 die() { printf '[bootstrap] error: %s\n' "$*" >&2; exit 1; }
@@ -153,5 +163,20 @@ if [[ "$(cat "$STAMPS/workspace" 2>/dev/null)" != "$src_hash" || ! -f "$WS/insta
     die "colcon build failed; full log: $STAMPS/colcon.log"
   }
   echo "$src_hash" >"$STAMPS/workspace"
+fi
+# --- test tools ------------------------------------------------------------------------
+# The dashboard test drives a real browser. Debian packages Chromium as `chromium`; Ubuntu's
+# `chromium-browser` is a snap, which containers cannot run, so there the test is skipped
+# (tests/browser.py says so) unless SLAM_REQUIRE_BROWSER_TEST=1 makes it a failure.
+if ((WITH_TEST_TOOLS)) && ! command -v chromium >/dev/null 2>&1; then
+  if [[ $(id -u) == 0 ]] && command -v apt-get >/dev/null 2>&1 &&
+     apt-cache show chromium 2>/dev/null | grep -q '^Version: [0-9]'; then
+    say "installing the headless browser for the dashboard test (apt: chromium)"
+    DEBIAN_FRONTEND=noninteractive apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium >/dev/null ||
+      say "warning: apt-get install chromium failed; the dashboard's browser test will be skipped"
+  else
+    say "note: no chromium (Debian: sudo apt-get install chromium); the dashboard's browser test will be skipped"
+  fi
 fi
 say "ready ($MODE mode). In a shell: source scripts/env.sh"

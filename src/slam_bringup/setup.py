@@ -8,6 +8,7 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
+    package_data={'slam_bringup.dashboard': ['web/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -32,6 +33,7 @@ setup(
             'slam_echo = slam_bringup.topic_echo:main',
             'slam_diag = slam_bringup.diag_monitor:main',
             'slam_call = slam_bringup.service_call:main',
+            'slam_dashboard = slam_bringup.dashboard.node:main',
             'camera_mount = slam_bringup.camera_mount:main',
             'peoplebot_graph = slam_bringup.peoplebot:main',
         ],
