@@ -19,6 +19,7 @@ setup(
     entry_points={
         'console_scripts': [
             'em_sam_evaluate = slam_evaluation.em_sam_evaluate:main',
+            'em_sam_sessions_evaluate = slam_evaluation.em_sam_sessions:main',
             'shadow_evaluate = slam_evaluation.shadow_evaluate:main',
             'monoslam_evaluate = slam_evaluation.monoslam_evaluate:main',
             'monoslam_image_evaluate = slam_evaluation.monoslam_image_evaluate:main',

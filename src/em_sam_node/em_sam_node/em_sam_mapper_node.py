@@ -20,6 +20,9 @@ Topics:
               em_sam/moveable_online (the same type, with ``online``: the smoother's set
               each time it changes, sightings placed through its poses),
               em_sam/markers (visualization_msgs/MarkerArray): reliable, transient-local, 1
+              em_sam/pose (geometry_msgs/PoseWithCovarianceStamped, reliable, depth 10): after
+              every solve, the latest solved keyframe in map_frame with its marginal
+              covariance (ROS order; z, roll and pitch 0), as slam_toolbox's pose
               /tf (tf2_msgs/TFMessage): map->odom, every tf_period_s
               /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
               and dropped, keyframes, observations (and those from before the first
@@ -34,9 +37,18 @@ Services:
                                          solved map beside it, readable without numpy:
                                          em_sam_map.yaml, em_sam_landmarks.csv and
                                          em_sam_trajectory.csv (em_sam_node.map_files).
+  ~/load_map (slam_interfaces/LoadMap)   localize on that saved map from now on.
 
 Parameters:
-  mode ('robust')                 'paper' (as published) or 'robust'.
+  mode ('mapping')                'mapping', or 'localization' on the saved map map_file: its
+                                  static landmarks held fixed, the trajectory estimated on
+                                  them, landmarks that moved since flagged (core.localization;
+                                  the full pass only, no online smoother).
+  map_file ('')                   the saved map (em_sam_map.yaml) for localization.
+  map_start_at_dock (true), map_start_pose ([0, 0, 0]), map_start_sigma ([0.5, 0.5, 0.2618])
+                                  localization's start: the map's first pose, or
+                                  map_start_pose (x m, y m, theta rad), with that std. dev.
+  em_mode ('robust')              EM weight model: 'paper' (as published) or 'robust'.
   lagrange_lambda (50.0)          lambda of the paper's eq. 14 ('paper' mode), > 0.
   moveable_threshold (0.5)        weights below this are moveable, in (0, 1).
   max_em_iterations (20), weight_tolerance (0.001)  EM stopping rule.
@@ -89,7 +101,8 @@ Parameters:
                                   the two subscriptions (a transient-local one only hears
                                   transient-local publishers).
 
-Frames: the map frame is the odometry frame at the first keyframe.
+Frames: the map frame is the odometry frame at the first keyframe; in localization, the
+saved map's frame.
 """
 
 from __future__ import annotations
@@ -100,6 +113,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Path as PathMessage
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -109,7 +123,7 @@ from visualization_msgs.msg import MarkerArray
 
 from em_sam_node.checkpoint import load_checkpoint, save_checkpoint
 from em_sam_node.conversions import increment_from_message, observations_from_message
-from em_sam_node.map_files import MAP_FILE, write_map
+from em_sam_node.map_files import MAP_FILE, MapFileError, known_map, read_map, write_map
 from em_sam_node.mapper import MapperProcessor
 from em_sam_node.mapper_outputs import (
     landmark_map_message,
@@ -117,6 +131,7 @@ from em_sam_node.mapper_outputs import (
     markers_message,
     moveable_message,
     path_message,
+    pose_message,
     sighting_messages,
 )
 from em_sam_node.mapper_settings import PARAMETERS, config_from_parameters
@@ -130,7 +145,7 @@ from slam_interfaces.msg import (
     MoveableLandmarkArray,
     OdometryIncrement,
 )
-from slam_interfaces.srv import FindLandmark
+from slam_interfaces.srv import FindLandmark, LoadMap
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
 from slam_ros.qos import latched_qos, output_qos, replayed_qos
@@ -144,6 +159,18 @@ class EmSamMapperNode(Node):
         super().__init__('em_sam_mapper', **kwargs)
         values = declare_parameters(self, PARAMETERS)
         self.mapper = MapperProcessor(config_from_parameters(values), warn=self._warn)
+        self.map_start = (
+            bool(values['map_start_at_dock']),
+            tuple(float(v) for v in values['map_start_pose']),
+            tuple(float(v) for v in values['map_start_sigma']),
+        )
+        if values['mode'] == 'localization':
+            if not values['map_file']:
+                raise ValueError(
+                    'em_sam_mapper: mode localization needs map_file (the em_sam_map.yaml '
+                    'that a mapping run wrote beside its checkpoint)'
+                )
+            self.get_logger().info(self.load_map(str(values['map_file'])))
         self.optimize_period_s = float(values['optimize_period_s'])
         tf_period_s = float(values['tf_period_s'])
         self.map_frame = str(values['map_frame'])
@@ -169,6 +196,9 @@ class EmSamMapperNode(Node):
             MoveableLandmarkArray, 'em_sam/moveable_online', latched
         )
         self.tf_publisher = self.create_publisher(TFMessage, '/tf', output_qos(depth=100))
+        self.pose_publisher = self.create_publisher(
+            PoseWithCovarianceStamped, 'em_sam/pose', output_qos()
+        )
         self.diagnostics = Diagnostics(self, self._counts)
         timed = self.diagnostics.timed
         self.create_subscription(
@@ -187,6 +217,7 @@ class EmSamMapperNode(Node):
         self.create_service(Trigger, '~/write_report', self._on_write_report)
         self.create_service(FindLandmark, '~/find_landmark', self._on_find_landmark)
         self.create_service(Trigger, '~/save_map', self._on_save_map)
+        self.create_service(LoadMap, '~/load_map', self._on_load_map)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.checkpoint_period_s > 0 and self.checkpoint_file is not None:
             self.create_timer(self.checkpoint_period_s, timed(self._on_checkpoint), clock=steady)
@@ -280,7 +311,8 @@ class EmSamMapperNode(Node):
         result = self.mapper.result
         if result is not None:  # the solved map beside it, readable without numpy
             stamps = np.array(self.mapper.stamps_ns[: self.mapper.result_keyframes])
-            write_map(result, stamps, self.checkpoint_file.parent, self.map_frame)
+            joint = self.mapper.static_joint_covariance()
+            write_map(result, stamps, self.checkpoint_file.parent, self.map_frame, joint)
             readable = f' (and the map as {MAP_FILE} with CSVs beside it)'
         return (
             f'checkpoint of {self.mapper.num_keyframes} keyframes, '
@@ -298,6 +330,40 @@ class EmSamMapperNode(Node):
             response.success = self.checkpoint_file is not None
         except OSError as err:
             response.success, response.message = False, f'could not write the checkpoint: {err}'
+        return response
+
+    def load_map(self, map_file: str) -> str:
+        """Localize on the saved map ``map_file`` from now on; return a one-line summary.
+
+        Raises:
+            MapFileError: the map cannot be read or holds no usable static landmark.
+        """
+        path = Path(map_file).expanduser()
+        saved = read_map(path)
+        fixed = known_map(saved, path)
+        at_dock, start_pose, sigma = self.map_start
+        if at_dock and len(saved.poses):
+            start_pose = tuple(float(v) for v in saved.poses[0])
+        self.mapper.use_map(fixed, start_pose, sigma)  # type: ignore[arg-type]
+        self._dirty = self.mapper.num_keyframes >= 2
+        x, y, theta = start_pose
+        return (
+            f'localizing on {str(path)!r}: {len(fixed.landmark_ids)} static landmarks held '
+            f'fixed (frame {saved.frame_id!r}), start at ({x:.3f} m, {y:.3f} m, '
+            f'{theta:.3f} rad)' + (" (the map's first pose)" if at_dock else '')
+        )
+
+    def _on_load_map(self, request: Any, response: Any) -> Any:
+        try:
+            response.message = self.load_map(str(request.map_file))
+        except (MapFileError, OSError) as err:
+            response.success, response.message = False, str(err)
+            self.get_logger().error(f'~/load_map: {err}')
+            return response
+        self.get_logger().info(response.message)
+        response.success = True
+        assert self.mapper.config.known_map is not None
+        response.landmarks = len(self.mapper.config.known_map.landmark_ids)
         return response
 
     # -- inputs ---------------------------------------------------------------------------
@@ -361,9 +427,13 @@ class EmSamMapperNode(Node):
         self.map_publisher.publish(landmark_map_message(result, self.map_frame, stamp))
         self.moveable_publisher.publish(moveable_message(result, self.map_frame, stamp))
         self.marker_publisher.publish(markers_message(result, self.map_frame, stamp))
+        latest = self.mapper.latest_pose()
+        if latest is not None:
+            self.pose_publisher.publish(pose_message(*latest, self.map_frame))
         self._publish_tf()
+        where = ', on the saved map' if self.mapper.config.localizing else ''
         summary = (
-            f'EM-SAM ({result.mode}): {len(stamps)} keyframes, {len(result.landmark_ids)} '
+            f'EM-SAM ({result.mode}{where}): {len(stamps)} keyframes, {len(result.landmark_ids)} '
             f'landmarks, moveable {result.landmark_ids[result.moveable].tolist()}, '
             f'{result.em_iterations} EM iterations in {time.perf_counter() - started:.3f} s'
         )

@@ -10,11 +10,15 @@
     moveable_ids: [100, 101]     # landmarks EM-SAM found moveable
     landmarks_file: em_sam_landmarks.csv
     trajectory_file: em_sam_trajectory.csv
+    static_covariance_file: em_sam_static_covariance.csv   # when written
 
 ``em_sam_landmarks.csv``: ``id,x_m,y_m,cov_xx_m2,cov_xy_m2,cov_yy_m2,weight,moveable,
 sightings``; one row per landmark. A static landmark's position is its place in the map. A
 moveable one's is where it was last seen. ``em_sam_trajectory.csv``: ``stamp_ns,x_m,y_m,
-theta_rad``, one row per keyframe.
+theta_rad``, one row per keyframe. ``em_sam_static_covariance.csv`` (when the map was solved
+here, not localized on another): ``id_a,id_b,xx_m2,xy_m2,yx_m2,yy_m2``, the joint covariance
+of the static landmarks, one row per pair (id_a <= id_b): the 2x2 block cov(a, b), x then y.
+Localization on the map tests a landmark against the others with it.
 
 ``write_map`` writes the three files, each atomically. ``read_map`` reads them back, and a
 problem is reported with its file, line and field.
@@ -31,7 +35,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from em_sam_node.core.assembly import is_covariance
 from em_sam_node.core.em_types import EmResult
+from em_sam_node.core.localization import KnownMap
 from slam_core.errors import SlamError
 from slam_core.files import write_atomically
 
@@ -43,6 +49,8 @@ LANDMARK_COLUMNS = (
     'id', 'x_m', 'y_m', 'cov_xx_m2', 'cov_xy_m2', 'cov_yy_m2', 'weight', 'moveable', 'sightings',
 )  # fmt: skip
 TRAJECTORY_COLUMNS = ('stamp_ns', 'x_m', 'y_m', 'theta_rad')
+COVARIANCE_FILE = 'em_sam_static_covariance.csv'
+COVARIANCE_COLUMNS = ('id_a', 'id_b', 'xx_m2', 'xy_m2', 'yx_m2', 'yy_m2')
 
 
 class MapFileError(SlamError):
@@ -65,6 +73,10 @@ class SavedMap:
     sightings: np.ndarray
     stamps_ns: np.ndarray
     poses: np.ndarray
+    joint_ids: np.ndarray | None = None
+    joint: np.ndarray | None = None
+    """The static landmarks' joint covariance (2S, 2S) m^2 in ``joint_ids`` (S,) order, when
+    the map holds one."""
 
 
 def _csv_text(columns: tuple[str, ...], rows: list[list[object]]) -> bytes:
@@ -76,9 +88,17 @@ def _csv_text(columns: tuple[str, ...], rows: list[list[object]]) -> bytes:
 
 
 def write_map(
-    result: EmResult, stamps_ns: np.ndarray, directory: Path, frame_id: str
+    result: EmResult,
+    stamps_ns: np.ndarray,
+    directory: Path,
+    frame_id: str,
+    joint: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[Path]:
-    """Write the YAML header and the two CSVs into ``directory``; return their paths."""
+    """Write the YAML header and the CSVs into ``directory``; return their paths.
+
+    ``joint``: (ids (S,), covariance (2S, 2S)) of the static landmarks, written as
+    COVARIANCE_FILE (module docstring); without it, the map has no such file.
+    """
     landmarks = [
         [
             int(landmark_id),
@@ -107,15 +127,26 @@ def write_map(
         'landmarks_file': LANDMARKS_FILE,
         'trajectory_file': TRAJECTORY_FILE,
     }
-    text = yaml.safe_dump(header, sort_keys=False, default_flow_style=None)
-    return [
+    written = [
         write_atomically(directory / LANDMARKS_FILE, _csv_text(LANDMARK_COLUMNS, landmarks)),
         write_atomically(directory / TRAJECTORY_FILE, _csv_text(TRAJECTORY_COLUMNS, trajectory)),
-        write_atomically(directory / MAP_FILE, text.encode('utf-8')),
     ]
+    if joint is not None:
+        ids, matrix = joint
+        rows: list[list[object]] = []
+        for a in range(len(ids)):
+            for b in range(a, len(ids)):
+                block = matrix[2 * a : 2 * a + 2, 2 * b : 2 * b + 2].ravel()
+                rows.append([int(ids[a]), int(ids[b]), *(repr(float(v)) for v in block)])
+        written.append(
+            write_atomically(directory / COVARIANCE_FILE, _csv_text(COVARIANCE_COLUMNS, rows))
+        )
+        header['static_covariance_file'] = COVARIANCE_FILE
+    text = yaml.safe_dump(header, sort_keys=False, default_flow_style=None)
+    return [*written, write_atomically(directory / MAP_FILE, text.encode('utf-8'))]
 
 
-INTEGER_COLUMNS = frozenset({'id', 'moveable', 'sightings', 'stamp_ns'})
+INTEGER_COLUMNS = frozenset({'id', 'moveable', 'sightings', 'stamp_ns', 'id_a', 'id_b'})
 
 
 def _rows(path: Path, columns: tuple[str, ...]) -> list[list[int | float]]:
@@ -179,7 +210,13 @@ def read_map(path: Path) -> SavedMap:
     covariances[:, 0, 0] = landmarks[:, 3]
     covariances[:, 0, 1] = covariances[:, 1, 0] = landmarks[:, 4]
     covariances[:, 1, 1] = landmarks[:, 5]
+    joint_ids, joint = None, None
+    if header.get('static_covariance_file'):
+        joint_path = folder / str(header['static_covariance_file'])
+        joint_ids, joint = _joint(joint_path, _rows(joint_path, COVARIANCE_COLUMNS))
     return SavedMap(
+        joint_ids=joint_ids,
+        joint=joint,
         frame_id=str(header.get('frame_id', 'map')),
         mode=str(header.get('mode', '')),
         ids=ids,
@@ -191,3 +228,53 @@ def read_map(path: Path) -> SavedMap:
         stamps_ns=np.array([int(row[0]) for row in trajectory_rows], dtype=np.int64),
         poses=trajectory[:, 1:4],
     )
+
+
+def _joint(path: Path, rows: list[list[int | float]]) -> tuple[np.ndarray, np.ndarray]:
+    """The joint covariance from COVARIANCE_FILE's rows: every pair once, symmetric."""
+    ids = np.array(sorted({int(row[0]) for row in rows} | {int(row[1]) for row in rows}))
+    where = {int(landmark_id): k for k, landmark_id in enumerate(ids.tolist())}
+    matrix = np.full((2 * len(ids), 2 * len(ids)), np.nan)
+    for row in rows:
+        a, b = where[int(row[0])], where[int(row[1])]
+        block = np.array(row[2:], dtype=float).reshape(2, 2)
+        matrix[2 * a : 2 * a + 2, 2 * b : 2 * b + 2] = block
+        matrix[2 * b : 2 * b + 2, 2 * a : 2 * a + 2] = block.T
+    if np.isnan(matrix).any():
+        raise MapFileError(f'{path}: some pairs of landmarks are missing')
+    if np.max(np.abs(matrix - matrix.T), initial=0.0) > 1e-9 * np.max(np.abs(matrix)):
+        raise MapFileError(f"{path}: a landmark's own block is not symmetric")
+    return ids, matrix
+
+
+def known_map(saved: SavedMap, source: Path) -> KnownMap:
+    """The static landmarks of ``saved`` (read from ``source``) as localization's fixed map.
+
+    Raises:
+        MapFileError: no static landmark, or one whose position is not finite or whose
+            covariance is not symmetric positive definite (named by id).
+    """
+    static = ~saved.moveable
+    for index in np.flatnonzero(static):
+        landmark_id = int(saved.ids[index])
+        if not np.all(np.isfinite(saved.positions[index])):
+            raise MapFileError(f'{source}: landmark {landmark_id}: position is not finite')
+        if not is_covariance(saved.covariances[index]):
+            raise MapFileError(
+                f'{source}: landmark {landmark_id}: covariance '
+                f'{saved.covariances[index].tolist()} is not symmetric positive definite'
+            )
+    if not static.any():
+        raise MapFileError(f'{source}: holds no static landmark to localize against')
+    ids = saved.ids[static]
+    joint = None
+    if saved.joint is not None and saved.joint_ids is not None:
+        if set(ids.tolist()) - set(saved.joint_ids.tolist()):
+            raise MapFileError(
+                f'{source}: the static covariance file lacks landmarks '
+                f'{sorted(set(ids.tolist()) - set(saved.joint_ids.tolist()))}'
+            )
+        at = np.searchsorted(saved.joint_ids, ids)
+        rows = (2 * at[:, None] + np.arange(2)).ravel()
+        joint = saved.joint[np.ix_(rows, rows)]
+    return KnownMap(ids, saved.positions[static], saved.covariances[static], joint)

@@ -19,11 +19,16 @@ between two keyframes to arrive), with the observations attached since to keyfra
 in it; the smoother's moveable set and its per-keyframe latency follow. The checkpoint does
 not hold the smoother: a resumed mapper builds a new one from everything it holds.
 ``optimize`` stays the full EM pass over everything collected.
+
+Localization (``MapperConfig.known_map``, or ``use_map``): keyframe 0 is placed at
+``start_pose`` in the saved map's frame, and ``optimize`` solves on the saved static map
+(``core.localization``); there is no online smoother.
 """
 
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -31,11 +36,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, is_covariance
-from em_sam_node.core.em import run_em
+from em_sam_node.core.em import anchored_problem, run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.incremental import IncrementalEmSam
 from em_sam_node.core.incremental_types import UpdateStats
-from em_sam_node.core.problem import Estimate, FloatArray
+from em_sam_node.core.localization import (
+    KnownMap,
+    run_localization,
+    static_joint_covariance,
+)
+from em_sam_node.core.marginals import marginal_pose_covariance
+from em_sam_node.core.problem import Estimate, FloatArray, IntArray
 from em_sam_node.core.sightings import Sightings, sightings_of
 from em_sam_node.ingest import Increment
 from slam_core.geometry.se2 import apply_increment, compose, inverse
@@ -60,6 +71,9 @@ class MapperConfig:
     prior_sigma: tuple[float, float, float] = (1e-3, 1e-3, 1e-3)
     pending_timeout_s: float = 10.0
     online: bool = True
+    known_map: KnownMap | None = None
+    start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    start_sigma: tuple[float, float, float] = (0.5, 0.5, 0.2618)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.stamp_tolerance_s) and self.stamp_tolerance_s >= 0):
@@ -74,6 +88,14 @@ class MapperConfig:
             raise ValueError(
                 f'parameter pending_timeout_s={self.pending_timeout_s!r}: must be > 0'
             )
+        if self.known_map is not None and self.online:
+            raise ValueError('localization on a saved map runs the full pass only (online off)')
+
+    @property
+    def localizing(self) -> bool:
+        """True on a saved map (``known_map``): keyframe 0 is placed at ``start_pose`` in the
+        map's frame with ``start_sigma``, and the saved static landmarks stay fixed."""
+        return self.known_map is not None
 
 
 class MapperProcessor:
@@ -258,6 +280,10 @@ class MapperProcessor:
         count = len(self.increments)
         observations = sorted(self.observations, key=lambda item: item[0])
         sigma = np.array(self.config.prior_sigma)
+        prior_pose = self.odom_poses[0].copy() if self.odom_poses else np.zeros(3)
+        if self.config.localizing:
+            prior_pose = np.array(self.config.start_pose, dtype=float)
+            sigma = np.array(self.config.start_sigma)
         return MappingData(
             keyframe_stamps_ns=np.array(self.stamps_ns, dtype=np.int64),
             odometry_from=np.arange(count, dtype=np.int64),
@@ -268,7 +294,7 @@ class MapperProcessor:
             obs_landmark_id=np.array([o.landmark_id for _, o in observations], dtype=np.int64),
             obs_z=np.array([o.z for _, o in observations]).reshape(-1, 2),
             obs_cov=np.array([o.covariance for _, o in observations]).reshape(-1, 2, 2),
-            prior_pose=self.odom_poses[0].copy() if self.odom_poses else np.zeros(3),
+            prior_pose=prior_pose,
             prior_cov=np.diag(sigma**2),
         )
 
@@ -278,19 +304,24 @@ class MapperProcessor:
             self.warn('nothing to optimize yet: fewer than two keyframes')
             return None
         data = self.data()
-        self.result = run_em(
-            data,
-            self.config.em,
-            initial_poses=self._warm_start(data),
-            record_snapshots=record_snapshots,
-        )
+        if self.config.known_map is not None:
+            self.result = run_localization(
+                data, self.config.known_map, self.config.em, initial_poses=self._warm_start(data)
+            )
+        else:
+            self.result = run_em(
+                data,
+                self.config.em,
+                initial_poses=self._warm_start(data),
+                record_snapshots=record_snapshots,
+            )
         self.result_data = data
         self.result_keyframes = data.num_keyframes
         return self.result
 
     def _warm_start(self, data: MappingData) -> FloatArray | None:
         """Previous poses for old keyframes, odometry composed onto them for new ones."""
-        if self.result is None:
+        if self.result is None or len(self.result.poses) < 1:
             return None
         poses = dead_reckoning(data)
         known = min(self.result_keyframes, data.num_keyframes)
@@ -301,6 +332,26 @@ class MapperProcessor:
             )[0]
         return poses
 
+    def use_map(
+        self,
+        known_map: KnownMap,
+        start_pose: tuple[float, float, float],
+        start_sigma: tuple[float, float, float],
+    ) -> None:
+        """Localize on ``known_map`` from now on: everything collected is solved on it at the
+        next ``optimize`` (the result so far, in another frame, is dropped; so is the online
+        smoother, which maps only)."""
+        self.config = dataclasses.replace(
+            self.config,
+            known_map=known_map,
+            start_pose=start_pose,
+            start_sigma=start_sigma,
+            online=False,
+        )
+        self.result = self.result_data = None
+        self.result_keyframes = 0
+        self.online, self.online_last, self._unfed = None, None, []
+
     # -- queries --------------------------------------------------------------------------
     def map_to_odom(self) -> FloatArray | None:
         """Return the map->odom transform (x, y, theta) at the latest solved keyframe."""
@@ -308,6 +359,32 @@ class MapperProcessor:
             return None
         index = self.result_keyframes - 1
         return compose(self.result.poses[index][None], inverse(self.odom_poses[index][None]))[0]
+
+    def static_joint_covariance(self) -> tuple[IntArray, FloatArray] | None:
+        """The static landmarks' ids and joint covariance of a mapping solution (what a later
+        localization tests against); None before a solve and on a saved map (its landmarks
+        are held, not estimated)."""
+        if self.result is None or self.result_data is None or self.config.localizing:
+            return None
+        return static_joint_covariance(self.result_data, self.result)
+
+    def latest_pose(self) -> tuple[int, FloatArray, FloatArray] | None:
+        """The latest solved keyframe: stamp int ns, pose (x m, y m, theta rad) in the map
+        frame and its marginal covariance (3, 3), from the solution's static problem."""
+        result, data = self.result, self.result_data
+        if result is None or data is None or not len(result.poses):
+            return None
+        moveable = result.landmark_ids[result.moveable].tolist()
+        built = build_problem(data, exclude_ids=moveable)
+        keep = np.isin(result.landmark_ids, built.landmark_ids)
+        problem, _ = anchored_problem(built, result.poses)
+        if self.config.known_map is not None:
+            fixed = np.isin(built.landmark_ids, self.config.known_map.landmark_ids)
+            problem = dataclasses.replace(problem, fixed_landmarks=fixed)
+        index = len(result.poses) - 1
+        estimate = Estimate(result.poses, result.positions[keep])
+        covariance = marginal_pose_covariance(problem, estimate, [index])[0]
+        return int(data.keyframe_stamps_ns[index]), result.poses[index].copy(), covariance
 
     def find_landmark(self, landmark_id: int) -> Sightings | None:
         """Return every sighting of a landmark placed in the map, most recent first."""

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
-from geometry_msgs.msg import Point, PoseStamped, TransformStamped
+from geometry_msgs.msg import Point, PoseStamped, PoseWithCovarianceStamped, TransformStamped
 from nav_msgs.msg import Path
 from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
@@ -191,3 +191,20 @@ def map_to_odom_tf(
     message.transform.translation.y = float(transform[1])
     fill_yaw_quaternion(float(transform[2]), message.transform.rotation)
     return TFMessage(transforms=[message])
+
+
+def pose_message(
+    stamp_ns: int, pose: FloatArray, covariance: FloatArray, frame: str
+) -> PoseWithCovarianceStamped:
+    """The robot's pose (x, y, theta) with its covariance (3, 3) in ROS order: x, y, z and the
+    rotations about X, Y, Z (6 x 6, row-major); z, roll and pitch are not estimated (0)."""
+    message = PoseWithCovarianceStamped()
+    message.header.frame_id = frame
+    ns_to_stamp(int(stamp_ns), message.header.stamp)
+    message.pose.pose.position.x, message.pose.pose.position.y = float(pose[0]), float(pose[1])
+    fill_yaw_quaternion(float(pose[2]), message.pose.pose.orientation)
+    full = np.zeros((6, 6))
+    planar = [0, 1, 5]
+    full[np.ix_(planar, planar)] = covariance
+    message.pose.covariance = full.ravel().tolist()
+    return message

@@ -23,13 +23,58 @@ from slam_core.params import (
 )
 
 SOLVER_METHODS = ('levenberg_marquardt', 'gauss_newton')
+SLAM_MODES = ('mapping', 'localization')
+
+
+def _slam_mode(value: str) -> str | None:
+    if value in SLAM_MODES:
+        return None
+    moved = f' (the EM weight model {value!r} is set by em_mode now)' if value in MODES else ''
+    return f"must be 'mapping' or 'localization'{moved}"
+
+
 PARAMETERS = ParamTable(
     'em_sam_mapper',
     (
         Param(
             'mode',
+            'mapping',
+            'mapping: build the map; localization: hold the static landmarks of map_file '
+            'fixed, estimate the trajectory on them, and still flag landmarks that moved '
+            '(saved ones included)',
+            validator=_slam_mode,
+        ),
+        Param(
+            'map_file',
+            '',
+            'saved map to localize on (em_sam_map.yaml, written beside each checkpoint); '
+            'needed with mode localization',
+        ),
+        Param(
+            'map_start_at_dock',
+            True,
+            "localization: the run starts where the saved map's trajectory started (its "
+            'first pose); false: at map_start_pose',
+        ),
+        Param(
+            'map_start_pose',
+            [0.0, 0.0, 0.0],
+            'localization: start pose in the map frame when map_start_at_dock is false '
+            '(x m, y m, theta rad)',
+            length=3,
+        ),
+        Param(
+            'map_start_sigma',
+            [0.5, 0.5, 0.2618],
+            "localization: std. dev. of the start pose (x m, y m, theta rad; AMCL's "
+            'initial covariance)',
+            length=3,
+            range=POSITIVE,
+        ),
+        Param(
+            'em_mode',
             'robust',
-            "EM-SAM mode: 'paper' (as published) or 'robust'",
+            "EM-SAM weight model: 'paper' (as published) or 'robust'",
             choices=MODES,
             field='em.mode',
         ),
@@ -218,7 +263,8 @@ PARAMETERS = ParamTable(
 
 
 def config_from_parameters(values: dict[str, Any]) -> MapperConfig:
-    """Validate parameter values into a MapperConfig (raises ParameterError)."""
+    """Validate parameter values into a MapperConfig (raises ParameterError); the saved map
+    of localization is not read here (``em_sam_mapper_node`` loads it)."""
     checked = PARAMETERS.validate(values)
     return PARAMETERS.build(
         lambda: MapperConfig(

@@ -205,6 +205,11 @@ def summary(run: OfficeRun, written: WrittenBag) -> str:
         f'frames with {len(run.observations)} observations, '
         f'{written.counts[TRUE_LANDMARKS_TOPIC]} ground-truth maps; moveable landmarks seen '
         f'at both positions {len(both)}/{len(moved)} {both}'
+        + (
+            f'; wall markers moved before the run {run.relocated_ids.tolist()}'
+            if len(run.relocated_ids)
+            else ''
+        )
     )
 
 
@@ -229,6 +234,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument('--odom-hz', type=float, default=20.0, help='odometry rate, Hz')
     parser.add_argument(
+        '--relocated-static',
+        type=int,
+        default=0,
+        metavar='N',
+        help='wall markers moved along their wall by 0.8-1.5 m before the run (0-10): a '
+        'later session on a map saved before they moved',
+    )
+    parser.add_argument(
         '--start-ns',
         type=int,
         default=DEFAULT_START_NS,
@@ -241,9 +254,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        config = OfficeConfig(odom_rate_hz=args.odom_hz)
+        config = OfficeConfig(
+            odom_rate_hz=args.odom_hz, relocated_static_count=args.relocated_static
+        )
     except ValueError as err:
-        parser.error(f'--odom-hz: {err}')
+        parser.error(str(err))
     run = simulate_office(args.seed, args.variant, config=config)
     reporter = ProgressReporter(run.duration_s, label='office_sim', unit='s')
     written = write_office_bag(

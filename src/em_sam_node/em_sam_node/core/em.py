@@ -72,7 +72,7 @@ from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
 
 
-def _anchored(built: BuiltProblem, poses: FloatArray) -> tuple[SlamProblem, int]:
+def anchored_problem(built: BuiltProblem, poses: FloatArray) -> tuple[SlamProblem, int]:
     anchored = anchor_pieces(built.problem, poses)
     problem = with_weak_priors(
         built.problem, anchored.extra_prior_poses, anchored.extra_prior_means
@@ -118,7 +118,7 @@ def run_em(
     if built.problem.num_landmarks == 0:
         return _odometry_only_result(data, config, initial_poses)
     poses0 = dead_reckoning(data) if initial_poses is None else initial_poses
-    problem, num_pieces = _anchored(built, poses0)
+    problem, num_pieces = anchored_problem(built, poses0)
     estimate = initial_estimate(problem, poses0)
     snapshots: dict[str, Snapshot] = {}
     if record_snapshots:
@@ -136,14 +136,14 @@ def run_em(
         if not calibration.is_identity:
             data = calibration.apply(data)
             built = build_problem(data)
-            problem, num_pieces = _anchored(built, poses0)
+            problem, num_pieces = anchored_problem(built, poses0)
     timings['first_e_step'] = time.perf_counter() - started
     sensor_data = data
     noise_scale = capped_noise_scales(config, data, built, problem, estimate)
     if np.any(noise_scale > 1.0):
         data = with_noise_scales(sensor_data, noise_scale)
         built = build_problem(data)
-        problem, num_pieces = _anchored(built, poses0)
+        problem, num_pieces = anchored_problem(built, poses0)
 
     num_landmarks = problem.num_landmarks
     weights = np.ones(num_landmarks)
@@ -254,7 +254,7 @@ def _final_solve(
         if np.any(noise_scale > 1.0):
             data = with_noise_scales(data, noise_scale)
             static = build_problem(data, exclude_ids=moveable_ids.tolist())
-    problem, num_pieces = _anchored(static, estimate.poses)
+    problem, num_pieces = anchored_problem(static, estimate.poses)
     if static.problem.num_landmarks:
         gated_rows = np.isin(static.observation_rows, built.observation_rows[gated])
         scale = np.where(gated_rows, ROW_SCALE_FLOOR, 1.0)

@@ -93,3 +93,17 @@ def _unknown_to_infinite(
     unknown = np.isin(variables.reshape(-1, size)[:, 0], held)
     blocks[unknown] = np.where(np.eye(size, dtype=bool), np.inf, 0.0)
     return blocks
+
+
+def joint_landmark_covariance(
+    problem: SlamProblem, estimate: Estimate, indices: IntArray | list[int]
+) -> FloatArray:
+    """Return the joint covariance (2m, 2m), m^2, of the landmarks ``indices`` (m,): their
+    marginal blocks and the cross-covariances between them, x then y of each in turn."""
+    landmark_indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+    layout, factor, _ = _information_factor(problem, estimate, None)
+    variables = (3 * problem.num_poses + 2 * landmark_indices[:, None] + np.arange(2)).ravel()
+    rhs = np.zeros((layout.num_variables, variables.size))
+    rhs[variables, np.arange(variables.size)] = 1.0
+    joint: FloatArray = factor.solve(rhs)[variables]
+    return 0.5 * (joint + joint.T)

@@ -16,6 +16,10 @@ the corridor (``move_time_ns``) the moveable markers are moved, depending on the
 - ``one_position``: as ``standard``, but ``one_position_count`` of them are put down in
   office 2 facing the wall, so the robot sees them at their first position only.
 
+``relocated_static_count`` wall markers are somewhere else than ``static_markers`` puts
+them for the whole run: moved along their wall by 0.8-1.5 m before it started, as between
+two sessions (the paper's robot that returns days later, on a map saved before the move).
+
 Every variant of a seed has the same world, path, odometry noise and static-marker
 observations: separate random streams feed the desk layout, the moves, the odometry and
 the detector. Times are int ns from the run start; the map frame is the world frame and
@@ -41,7 +45,13 @@ from slam_sim.core.odometry import (
     sample_indices,
 )
 from slam_sim.core.trajectory import MotionConfig, TrueTrajectory, follow_path, office_path
-from slam_sim.core.world import OfficeWorld, build_world, desk_spots, static_markers
+from slam_sim.core.world import (
+    MarkerSet,
+    OfficeWorld,
+    build_world,
+    desk_spots,
+    static_markers,
+)
 
 MOVEABLE_ID_BASE = 100
 # A marker belongs to the room its face looks into: the room this far in front of it.
@@ -71,6 +81,7 @@ class OfficeConfig:
     moveable_count: int = 10
     one_position_count: int = 4
     coherent_rotation_rad: float = 0.55
+    relocated_static_count: int = 0
     odom_rate_hz: float = 20.0
     motion: MotionConfig = field(default_factory=MotionConfig)
     odometry_noise: OdometryNoise = field(default_factory=OdometryNoise)
@@ -80,6 +91,10 @@ class OfficeConfig:
         """Reject counts and rates that the scenario cannot honour."""
         if not 0 <= self.moveable_count <= 40:
             raise ValueError(f'moveable_count {self.moveable_count} must be in [0, 40]')
+        if not 0 <= self.relocated_static_count <= 10:
+            raise ValueError(
+                f'relocated_static_count {self.relocated_static_count} must be in [0, 10]'
+            )
         if not 0 <= self.one_position_count <= self.moveable_count:
             raise ValueError(
                 f'one_position_count {self.one_position_count} must be in '
@@ -142,6 +157,8 @@ class OfficeRun:
 
     ``seen_at_both_positions`` (S,) the ids of moved markers observed (non-outlier) both
     before and after the move: the ones a moveable-landmark detector can find.
+    ``relocated_ids`` (R,) the wall markers moved before the run and ``relocated_from_m``
+    (R, 2) where ``static_markers`` puts them (where an earlier session saw them).
     """
 
     seed: int
@@ -153,6 +170,8 @@ class OfficeRun:
     observations: Observations
     landmarks: LandmarkTruth
     seen_at_both_positions: IntArray
+    relocated_ids: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    relocated_from_m: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
 
     @property
     def duration_s(self) -> float:
@@ -266,9 +285,40 @@ def _moved_desks(
     return moved, moved_normals
 
 
+def relocate_walls(
+    world: OfficeWorld, walls: MarkerSet, count: int, rng: np.random.Generator
+) -> tuple[MarkerSet, IntArray]:
+    """Move ``count`` wall markers along their wall by 0.8-1.5 m, each staying on a wall of
+    its room and at least 0.5 m from every other marker; the new set and the moved ids."""
+    positions = walls.positions_m.copy()
+    moved: list[int] = []
+    for index in rng.permutation(len(walls.ids)).tolist():
+        if len(moved) == count:
+            break
+        normal = walls.normals[index]
+        tangent = np.array([-normal[1], normal[0]])
+        room = world.room_of((positions[index] + _FACE_OFFSET_M * normal)[None])[0]
+        for _ in range(20):
+            shift = rng.uniform(0.8, 1.5) * rng.choice((-1.0, 1.0))
+            new = positions[index] + shift * tangent
+            front, back = world.room_of(
+                np.array([new + _FACE_OFFSET_M * normal, new - _FACE_OFFSET_M * normal])
+            )
+            others = np.delete(positions, index, axis=0)
+            if front == room and back != room and np.min(np.hypot(*(others - new).T)) >= 0.5:
+                positions[index] = new
+                moved.append(int(walls.ids[index]))
+                break
+    if len(moved) < count:
+        raise ValueError(f'could only relocate {len(moved)} of {count} wall markers')
+    relocated = MarkerSet(walls.ids, positions, walls.normals, walls.rooms)
+    return relocated, np.array(sorted(moved), dtype=np.int64)
+
+
 def _landmarks(
     variant: Variant,
     world: OfficeWorld,
+    walls: MarkerSet,
     truth: TrueTrajectory,
     frames_ns: IntArray,
     config: OfficeConfig,
@@ -276,7 +326,6 @@ def _landmarks(
     move_rng: np.random.Generator,
 ) -> LandmarkTruth:
     """Return the ground truth: wall markers, then desk markers before and after the move."""
-    walls = static_markers(world)
     desks = desk_spots(world.office_1, layout_rng, config.moveable_count, door_direction_rad=0.0)
     moved = _moved_desks(variant, world, desks, truth, frames_ns, config, move_rng)
     count = config.moveable_count
@@ -333,8 +382,9 @@ def simulate_office(
     """Return the office run of ``seed`` and ``variant``; the same inputs give the same run."""
     chosen = parse_variant(variant)
     config = config if config is not None else OfficeConfig()
-    layout_rng, move_rng, odometry_rng, detector_rng = (
-        np.random.default_rng(stream) for stream in np.random.SeedSequence(seed).spawn(4)
+    # a fifth stream for the relocations: the first four streams stay those of spawn(4)
+    layout_rng, move_rng, odometry_rng, detector_rng, relocation_rng = (
+        np.random.default_rng(stream) for stream in np.random.SeedSequence(seed).spawn(5)
     )
     world, path, start = office_route(config)
     truth = follow_path(path, start, config.motion)
@@ -345,7 +395,15 @@ def simulate_office(
         1e9 / config.detector.rate_hz,
     )
     frames_ns = (np.round(frame_ns / step_ns) * step_ns).astype(np.int64)
-    landmarks = _landmarks(chosen, world, truth, frames_ns, config, layout_rng, move_rng)
+    walls = static_markers(world)
+    relocated_ids = np.zeros(0, dtype=np.int64)
+    if config.relocated_static_count:
+        original = walls
+        walls, relocated_ids = relocate_walls(
+            world, walls, config.relocated_static_count, relocation_rng
+        )
+        relocated_from = original.positions_m[np.isin(original.ids, relocated_ids)]
+    landmarks = _landmarks(chosen, world, walls, truth, frames_ns, config, layout_rng, move_rng)
 
     positions, normals = landmarks.positions_at(frames_ns)
     observations = detect(
@@ -380,4 +438,6 @@ def simulate_office(
         observations=observations,
         landmarks=landmarks,
         seen_at_both_positions=_seen_at_both(landmarks, observations),
+        relocated_ids=relocated_ids,
+        relocated_from_m=relocated_from if len(relocated_ids) else np.zeros((0, 2)),
     )

@@ -1,0 +1,402 @@
+"""EM-SAM on a saved map: the static landmarks of an earlier session held fixed.
+
+The paper's robot that "returns several days later". Three steps:
+
+1. **The session alone**: EM-SAM of the session's data (``core.em.run_em``), in the frame
+   of its start pose. It flags what moved during the session; nothing from the saved map
+   can pull its trajectory.
+2. **Between the sessions**: the session's static landmarks are registered to the saved
+   static map by a rigid transform, found by consensus over pairs of common landmarks
+   and refitted on the consistent ones. A common landmark is tested by the squared
+   Mahalanobis distance of its two positions under that transform (2 degrees of freedom;
+   both covariances plus the robust mode's model error), with the EM test's weight formula
+   at its level (``false_alarm_probability``): one that fails has moved since the map was
+   saved, and is moveable.
+3. **On the saved map**: the session's trajectory is solved again with the consistent saved
+   landmarks held fixed at their saved positions (``SlamProblem.fixed_landmarks``) and the
+   session's new static landmarks estimated, from the registered first solution. Every
+   sighting of a moveable landmark is placed through this trajectory.
+
+With fewer than two consistent common landmarks the registration is the start pose
+(``data.prior_pose``): the session is placed where the user said it starts. The map returned
+holds the saved landmarks not seen in the session too, with their saved positions, weight 1
+and no sightings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from em_sam_node.core.assembly import MappingData, build_problem
+from em_sam_node.core.em import _solve, anchored_problem, run_em
+from em_sam_node.core.em_types import SEED_KERNELS, EmConfig, EmResult
+from em_sam_node.core.em_weights import chi2_quantile, with_noise_scales
+from em_sam_node.core.marginals import joint_landmark_covariance, marginal_landmark_covariances
+from em_sam_node.core.problem import Estimate, FloatArray, IntArray
+from em_sam_node.core.robust_kernels import RobustKernel
+from em_sam_node.core.sightings import sightings_of
+from slam_core.geometry.se2 import compose, wrap_angle
+
+SESSION_PRIOR_COV = np.diag([1e-6, 1e-6, 1e-6])
+"""The session's own frame is its first pose (mapping's default prior, 1 mm and 1 mrad)."""
+
+
+@dataclass(frozen=True)
+class KnownMap:
+    """The static landmarks of a saved map: ids (S,), positions (S, 2) m and covariances
+    (S, 2, 2) m^2, map frame."""
+
+    landmark_ids: IntArray
+    positions: FloatArray
+    covariances: FloatArray
+    joint: FloatArray | None = None
+    """The joint covariance (2S, 2S) of the positions, when the map holds it (the errors of
+    a map are correlated: a stretch of it is off together)."""
+
+    def __post_init__(self) -> None:
+        count = len(self.landmark_ids)
+        if self.joint is not None and self.joint.shape != (2 * count, 2 * count):
+            raise ValueError(f'saved map: joint covariance {self.joint.shape} for {count} ids')
+        if self.positions.shape != (count, 2) or self.covariances.shape != (count, 2, 2):
+            raise ValueError(
+                f'saved map: {count} ids, positions {self.positions.shape}, covariances '
+                f'{self.covariances.shape}; expected (S, 2) and (S, 2, 2)'
+            )
+        if len(np.unique(self.landmark_ids)) != count:
+            raise ValueError('saved map: a landmark id appears twice')
+        if not (np.all(np.isfinite(self.positions)) and np.all(np.isfinite(self.covariances))):
+            raise ValueError('saved map: positions and covariances must be finite')
+
+
+@dataclass(frozen=True)
+class Registration:
+    """The session frame in the map frame, (x m, y m, theta rad), and per common landmark
+    (aligned with ``ids``) its squared Mahalanobis distance, weight and whether it moved, and
+    the covariance (2, 2) m^2 of its residual that the distance uses (``spreads``)."""
+
+    pose: FloatArray
+    ids: IntArray
+    distances: FloatArray
+    weights: FloatArray
+    moved: np.ndarray
+    consistent: int
+    spreads: FloatArray
+
+
+def _kernel(config: EmConfig) -> RobustKernel | None:
+    if config.mode != 'robust' or config.final_kernel == 'none':
+        return None
+    return SEED_KERNELS[config.final_kernel](config.final_kernel_scale)
+
+
+def _rotation(angle: float) -> FloatArray:
+    cos, sin = np.cos(angle), np.sin(angle)
+    return np.array([[cos, -sin], [sin, cos]])
+
+
+def _fit(points: FloatArray, targets: FloatArray) -> FloatArray:
+    """The rigid transform (x, y, theta) taking ``points`` (n, 2) onto ``targets``."""
+    mean_p, mean_t = points.mean(axis=0), targets.mean(axis=0)
+    a, b = points - mean_p, targets - mean_t
+    angle = float(np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a * b)))
+    return np.array([*(mean_t - _rotation(angle) @ mean_p), angle])
+
+
+def _distances(
+    pose: FloatArray, points: FloatArray, cov_p: FloatArray, targets: FloatArray, cov_t: FloatArray
+) -> FloatArray:
+    rotation = _rotation(float(pose[2]))
+    residual = targets - (points @ rotation.T + pose[:2])
+    covariance = cov_t + rotation @ cov_p @ rotation.T
+    solved = np.linalg.solve(covariance, residual[..., None])[..., 0]
+    result: FloatArray = np.einsum('ki,ki->k', residual, solved)
+    return result
+
+
+def _jacobian(pose: FloatArray, points: FloatArray) -> FloatArray:
+    """d(R p + t)/d(x, y, theta) (2m, 3) at each point, x then y of each in turn."""
+    rotated = points @ _rotation(float(pose[2])).T
+    jacobian = np.zeros((len(points), 2, 3))
+    jacobian[:, 0, 0] = jacobian[:, 1, 1] = 1.0
+    jacobian[:, 0, 2], jacobian[:, 1, 2] = -rotated[:, 1], rotated[:, 0]
+    return jacobian.reshape(2 * len(points), 3)
+
+
+GAUGE_COVARIANCE = np.diag([1e4, 1e4, 1e2])
+"""The registration's transform as a random variable with this covariance (100 m, 100 m,
+10 rad: unknown) added to the residuals' covariance, so that conditioning on the consistent
+landmarks also fits the transform."""
+
+
+def _leave_one_out(
+    residual: FloatArray, covariance: FloatArray, inliers: np.ndarray
+) -> tuple[FloatArray, FloatArray]:
+    """Each landmark's squared Mahalanobis distance (m,) given the consistent ones (an
+    inlier: given the other inliers), and the covariance (m, 2, 2) it is measured with."""
+    count = len(inliers)
+    rows = np.repeat(inliers, 2)
+    held = np.flatnonzero(rows)
+    precision = np.linalg.inv(covariance[np.ix_(held, held)])
+    weighted = precision @ residual[held]
+    distances, spreads = np.empty(count), np.empty((count, 2, 2))
+    position = {int(v): k for k, v in enumerate(held.tolist())}
+    for i in range(count):
+        own = np.array([2 * i, 2 * i + 1])
+        if inliers[i]:
+            at = np.array([position[2 * i], position[2 * i + 1]])
+            spread = np.linalg.inv(precision[np.ix_(at, at)])
+            innovation = spread @ weighted[at]
+        else:
+            cross = covariance[np.ix_(own, held)]
+            spread = covariance[np.ix_(own, own)] - cross @ precision @ cross.T
+            innovation = residual[own] - cross @ weighted
+        spreads[i] = spread
+        distances[i] = float(innovation @ np.linalg.solve(spread, innovation))
+    return distances, spreads
+
+
+def register(
+    config: EmConfig,
+    session: EmResult,
+    joint: FloatArray,
+    saved: KnownMap,
+    start_pose: FloatArray,
+) -> Registration:
+    """Register the session's static landmarks to the saved map (step 2, module docstring).
+
+    ``joint`` (2S, 2S) is the joint covariance of the session's static landmarks that the
+    saved map holds, in ``session.landmark_ids`` order. Each landmark is tested given the
+    consistent others (leave one out) under both maps' joint covariances, the saved map's
+    block diagonal when it holds none; the least consistent is dropped in turn until the
+    rest pass.
+    """
+    static = ~session.moveable & np.isin(session.landmark_ids, saved.landmark_ids)
+    ids = session.landmark_ids[static]
+    order = np.argsort(saved.landmark_ids)
+    index = order[np.searchsorted(saved.landmark_ids[order], ids)]
+    points, targets = session.positions[static], saved.positions[index]
+    count = len(ids)
+    gate = chi2_quantile(1.0 - config.false_alarm_probability, 2)
+    if count < 2:
+        return _unregistered(start_pose, ids, config)
+    rows = (2 * index[:, None] + np.arange(2)).ravel()
+    if saved.joint is not None:
+        saved_joint = saved.joint[np.ix_(rows, rows)]
+    else:
+        saved_joint = np.zeros((2 * count, 2 * count))
+        for k, j in enumerate(index.tolist()):
+            saved_joint[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = saved.covariances[j]
+    model = config.model_error_m**2 if config.mode == 'robust' else 0.0
+    pose = _consensus_pose(points, targets, joint, saved_joint, model, gate, start_pose)
+    inliers = np.ones(count, dtype=bool)
+    while True:
+        for _ in range(3):  # the transform's linearization point: the consistent ones' fit
+            turn = np.kron(np.eye(count), _rotation(float(pose[2]))).astype(np.float64)
+            jacobian = _jacobian(pose, points)
+            covariance = (
+                saved_joint
+                + turn @ joint @ turn.T
+                + model * np.eye(2 * count)
+                + jacobian @ GAUGE_COVARIANCE @ jacobian.T
+            )
+            if inliers.sum() >= 2:
+                pose = _fit(points[inliers], targets[inliers])
+        residual = (targets - (points @ _rotation(float(pose[2])).T + pose[:2])).ravel()
+        distances, spreads = _leave_one_out(residual, covariance, inliers)
+        worst = int(np.argmax(np.where(inliers, distances, -np.inf)))
+        if distances[worst] < gate or inliers.sum() <= 2:
+            break
+        inliers[worst] = False
+    if inliers.sum() < 2:
+        return _unregistered(start_pose, ids, config)
+    excess = np.maximum(distances - 2.0, 0.0)
+    weights = np.clip(1.0 - excess / (2.0 * (gate - 2.0)), 0.0, 1.0)
+    pose = np.array([pose[0], pose[1], wrap_angle(float(pose[2]))])
+    moved = weights < config.moveable_threshold
+    return Registration(pose, ids, distances, weights, moved, int((~moved).sum()), spreads)
+
+
+def _consensus_pose(
+    points: FloatArray,
+    targets: FloatArray,
+    session_joint: FloatArray,
+    saved_joint: FloatArray,
+    model: float,
+    gate: float,
+    start_pose: FloatArray,
+) -> FloatArray:
+    """The transform of the pair of common landmarks that most others agree with, each on
+    its own marginal covariance (a seed for the fit, which moved landmarks must not bend)."""
+    count = len(points)
+
+    def blocks(matrix: FloatArray) -> FloatArray:
+        return np.stack([matrix[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] for k in range(count)])
+
+    session_blocks = blocks(session_joint)
+    saved_blocks = blocks(saved_joint) + model * np.eye(2)
+    best = (-1, np.inf, np.asarray(start_pose, dtype=float))
+    for i in range(count):
+        for j in range(i + 1, count):
+            pose = _fit(points[[i, j]], targets[[i, j]])
+            rotation = _rotation(float(pose[2]))
+            residual = targets - (points @ rotation.T + pose[:2])
+            spread = saved_blocks + rotation @ session_blocks @ rotation.T
+            distances = np.einsum(
+                'ki,ki->k', residual, np.linalg.solve(spread, residual[..., None])[..., 0]
+            )
+            agree = distances < gate
+            candidate = (int(agree.sum()), float(distances[agree].sum()), pose)
+            if candidate[0] > best[0] or (candidate[0] == best[0] and candidate[1] < best[1]):
+                best = candidate
+    return best[2]
+
+
+def _unregistered(start_pose: FloatArray, ids: IntArray, config: EmConfig) -> Registration:
+    """Too few common landmarks to register: the session placed at its start pose, nothing
+    found moved."""
+    count = len(ids)
+    return Registration(
+        np.asarray(start_pose, dtype=float), ids, np.zeros(count), np.ones(count),
+        np.zeros(count, dtype=bool), 0, np.zeros((count, 2, 2)),
+    )  # fmt: skip
+
+
+def run_localization(
+    data: MappingData,
+    saved: KnownMap,
+    config: EmConfig,
+    *,
+    initial_poses: FloatArray | None = None,
+    on_iteration: Callable[[int, FloatArray], None] | None = None,
+) -> EmResult:
+    """EM-SAM of ``data`` on the ``saved`` static map (``localize``'s result)."""
+    return localize(data, saved, config, initial_poses=initial_poses, on_iteration=on_iteration)[0]
+
+
+def localize(
+    data: MappingData,
+    saved: KnownMap,
+    config: EmConfig,
+    *,
+    initial_poses: FloatArray | None = None,
+    on_iteration: Callable[[int, FloatArray], None] | None = None,
+) -> tuple[EmResult, Registration]:
+    """EM-SAM of ``data`` on the ``saved`` static map (module docstring), and how the
+    session was registered to it.
+
+    ``data.prior_pose`` / ``prior_cov`` give the start pose in the map frame and how well it
+    is known; ``initial_poses`` (N, 3), in the map frame, warm-start the session's solve.
+    """
+    started = time.perf_counter()
+    start_pose = np.asarray(data.prior_pose, dtype=float)
+    # 1. the session alone, in the frame of its first keyframe
+    local = dataclasses.replace(data, prior_pose=np.zeros(3), prior_cov=SESSION_PRIOR_COV)
+    warm = None
+    if initial_poses is not None:
+        warm = compose(np.tile(_inverse(initial_poses[0]), (len(initial_poses), 1)), initial_poses)
+    session = run_em(
+        local, config, initial_poses=warm, record_snapshots=False, on_iteration=on_iteration
+    )
+    timings = {'session': time.perf_counter() - started}
+    # 2. between the sessions
+    _, joint = static_joint_covariance(local, session, saved.landmark_ids)
+    registration = register(config, session, joint, saved, start_pose)
+    moved_ids = registration.ids[registration.moved]
+    moveable = session.moveable | np.isin(session.landmark_ids, moved_ids)
+    weights = session.weights.copy()
+    common = np.searchsorted(session.landmark_ids, registration.ids)
+    weights[common] = np.minimum(weights[common], registration.weights)
+    # 3. on the saved map
+    fixed_ids = saved.landmark_ids[~np.isin(saved.landmark_ids, moved_ids)]
+    moveable_ids = session.landmark_ids[moveable]
+    if np.any(session.final_noise_scale > 1.0):  # the sensor model the session estimated
+        data = with_noise_scales(data, session.final_noise_scale)
+    static = build_problem(data, exclude_ids=moveable_ids.tolist())
+    poses0 = compose(np.tile(registration.pose, (len(session.poses), 1)), session.poses)
+    problem, pieces = anchored_problem(static, poses0)
+    fixed = np.isin(static.landmark_ids, fixed_ids)
+    problem = dataclasses.replace(problem, fixed_landmarks=fixed)
+    in_session = np.searchsorted(session.landmark_ids, static.landmark_ids)
+    landmarks = _transform(registration.pose, session.positions[in_session])
+    saved_order = np.argsort(saved.landmark_ids)
+    saved_at = saved_order[
+        np.searchsorted(saved.landmark_ids[saved_order], static.landmark_ids[fixed])
+    ]
+    landmarks[fixed] = saved.positions[saved_at]
+    positions = _transform(registration.pose, session.positions)
+    rotation = _rotation(float(registration.pose[2]))
+    covariances = rotation @ session.covariances @ rotation.T
+    if problem.num_landmarks:
+        solved = _solve(
+            config, problem, Estimate(poses0, landmarks), robust_kernel=_kernel(config)
+        )
+        estimated = marginal_landmark_covariances(problem, solved)
+        positions[in_session] = solved.landmarks
+        covariances[in_session] = estimated
+        covariances[in_session[fixed]] = saved.covariances[saved_at]
+    else:
+        solved = Estimate(poses0, np.zeros((0, 2)))
+    sightings = sightings_of(data, problem, solved, moveable_ids.tolist())
+    for index in np.flatnonzero(moveable):
+        latest = sightings[int(session.landmark_ids[index])]
+        positions[index] = latest.positions[0]
+        covariances[index] = latest.covariances[0]
+    timings['total'] = time.perf_counter() - started
+    unseen = ~np.isin(saved.landmark_ids, session.landmark_ids)
+    extra = int(unseen.sum())
+    ids = np.concatenate([session.landmark_ids, saved.landmark_ids[unseen]])
+    order = np.argsort(ids, kind='stable')
+    history = np.vstack([session.weight_history, weights[None]])
+    result = dataclasses.replace(
+        session,
+        poses=solved.poses,
+        landmark_ids=ids[order],
+        positions=np.concatenate([positions, saved.positions[unseen]])[order],
+        covariances=np.concatenate([covariances, saved.covariances[unseen]])[order],
+        weights=np.concatenate([weights, np.ones(extra)])[order],
+        moveable=np.concatenate([moveable, np.zeros(extra, dtype=bool)])[order],
+        num_observations=np.concatenate(
+            [session.num_observations, np.zeros(extra, dtype=np.int64)]
+        )[order],
+        weight_history=np.hstack([history, np.ones((len(history), extra))])[:, order],
+        sightings=sightings,
+        num_pieces=max(session.num_pieces, pieces),
+        timings_s={**session.timings_s, **timings},
+        odometry_calibration=session.odometry_calibration,
+    )
+    return result, registration
+
+
+def _inverse(pose: FloatArray) -> FloatArray:
+    rotation = _rotation(float(pose[2]))
+    return np.array([*(-rotation.T @ pose[:2]), -pose[2]])
+
+
+def _transform(pose: FloatArray, points: FloatArray) -> FloatArray:
+    result: FloatArray = points @ _rotation(float(pose[2])).T + pose[:2]
+    return result
+
+
+def static_joint_covariance(
+    data: MappingData, result: EmResult, among: IntArray | None = None
+) -> tuple[IntArray, FloatArray]:
+    """The ids (S,) and joint covariance (2S, 2S) m^2 of the static landmarks of a mapping
+    ``result`` solved from ``data`` (those in ``among`` only, when given), from its static
+    problem at its solution with the sensor model it estimated."""
+    if np.any(result.final_noise_scale > 1.0):
+        data = with_noise_scales(data, result.final_noise_scale)
+    static = build_problem(data, exclude_ids=result.landmark_ids[result.moveable].tolist())
+    keep = np.isin(result.landmark_ids, static.landmark_ids)
+    problem, _ = anchored_problem(static, result.poses)
+    estimate = Estimate(result.poses, result.positions[keep])
+    chosen = np.arange(len(static.landmark_ids))
+    if among is not None:
+        chosen = np.flatnonzero(np.isin(static.landmark_ids, among))
+    if len(chosen) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 0))
+    return static.landmark_ids[chosen], joint_landmark_covariance(problem, estimate, chosen)
