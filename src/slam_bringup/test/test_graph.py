@@ -411,7 +411,7 @@ def test_misspelled_inline_parameter_and_bad_value_are_named(tmp_path: Path) -> 
 
 def test_sections_for_other_nodes_and_ros_parameters_are_accepted(tmp_path: Path) -> None:
     (tmp_path / 'all.yaml').write_text(
-        'em_sam_mapper:\n  ros__parameters:\n    mode: paper\n'
+        'em_sam_mapper:\n  ros__parameters:\n    em_mode: paper\n'
         'odometry_ingest:\n  ros__parameters:\n    keyframe_distance_m: 0.3\n'
         '    use_sim_time: true\n',
         encoding='utf-8',

@@ -316,8 +316,10 @@ def localize(
     moveable_ids = session.landmark_ids[moveable]
     if np.any(session.final_noise_scale > 1.0):  # the sensor model the session estimated
         data = with_noise_scales(data, session.final_noise_scale)
-    static = build_problem(data, exclude_ids=moveable_ids.tolist())
     poses0 = compose(np.tile(registration.pose, (len(session.poses), 1)), session.poses)
+    # the start's prior where the registration put it (the saved map anchors the rest)
+    data = dataclasses.replace(data, prior_pose=poses0[0])
+    static = build_problem(data, exclude_ids=moveable_ids.tolist())
     problem, pieces = anchored_problem(static, poses0)
     fixed = np.isin(static.landmark_ids, fixed_ids)
     problem = dataclasses.replace(problem, fixed_landmarks=fixed)
