@@ -24,6 +24,7 @@ setup(
         'console_scripts': [
             'odometry_ingest = em_sam_node.odometry_ingest_node:main',
             'em_sam_mapper = em_sam_node.em_sam_mapper_node:main',
+            'em_sam_mapper_lifecycle = em_sam_node.em_sam_mapper_lifecycle:main',
         ],
     },
 )

@@ -26,6 +26,7 @@ setup(
     entry_points={
         'console_scripts': [
             'marker_detector = marker_detector.marker_detector_node:main',
+            'marker_detector_lifecycle = marker_detector.marker_detector_lifecycle:main',
             'marker_detect_bag = marker_detector.offline:main',
             'apriltag_bridge = marker_detector.apriltag_bridge_node:main',
         ],

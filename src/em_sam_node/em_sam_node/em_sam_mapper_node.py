@@ -152,12 +152,13 @@ from slam_ros.qos import latched_qos, output_qos, replayed_qos
 from slam_ros.spin import spin_node
 
 
-class EmSamMapperNode(Node):
-    """Thin adapter around MapperProcessor."""
+class MapperBehaviour(Node):
+    """em_sam_mapper on an rclpy node, plain (EmSamMapperNode) or lifecycle
+    (em_sam_mapper_lifecycle): ``_configure`` builds the processor, publishers and services,
+    ``_activate`` the subscriptions and timers, ``_deactivate`` removes those again."""
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__('em_sam_mapper', **kwargs)
-        values = declare_parameters(self, PARAMETERS)
+    def _configure(self, values: dict[str, Any]) -> None:
+        self._active: list[Any] = []
         self.mapper = MapperProcessor(config_from_parameters(values), warn=self._warn)
         self.map_start = (
             bool(values['map_start_at_dock']),
@@ -172,7 +173,6 @@ class EmSamMapperNode(Node):
                 )
             self.get_logger().info(self.load_map(str(values['map_file'])))
         self.optimize_period_s = float(values['optimize_period_s'])
-        tf_period_s = float(values['tf_period_s'])
         self.map_frame = str(values['map_frame'])
         self.odom_frame = str(values['odom_frame'])
         self.report_dir = Path(values['report_dir']).expanduser() if values['report_dir'] else None
@@ -200,32 +200,50 @@ class EmSamMapperNode(Node):
             PoseWithCovarianceStamped, 'em_sam/pose', output_qos()
         )
         self.diagnostics = Diagnostics(self, self._counts)
-        timed = self.diagnostics.timed
-        self.create_subscription(
-            OdometryIncrement,
-            'odometry_increments',
-            timed(self._on_increment, 'odometry_increments'),
-            replayed_qos(1000) if values['increments_transient_local'] else output_qos(1000),
-        )
-        self.create_subscription(
-            LandmarkObservationArray,
-            'landmark_observations',
-            timed(self._on_observations, 'landmark_observations'),
-            replayed_qos(1000) if values['observations_transient_local'] else output_qos(1000),
-        )
         self.create_service(Trigger, '~/optimize', self._on_optimize)
         self.create_service(Trigger, '~/write_report', self._on_write_report)
         self.create_service(FindLandmark, '~/find_landmark', self._on_find_landmark)
         self.create_service(Trigger, '~/save_map', self._on_save_map)
         self.create_service(LoadMap, '~/load_map', self._on_load_map)
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
-        if self.checkpoint_period_s > 0 and self.checkpoint_file is not None:
-            self.create_timer(self.checkpoint_period_s, timed(self._on_checkpoint), clock=steady)
-        if self.optimize_period_s > 0:
-            self.create_timer(self.optimize_period_s, timed(self._on_timer), clock=steady)
-        self.create_timer(tf_period_s, timed(self._publish_tf), clock=steady)
         # a resumed solution has no sightings: the next solve (warm-started from it) makes them
         self._dirty = self.mapper.result is not None
+
+    def _activate(self, values: dict[str, Any]) -> None:
+        """Take inputs and run the timers."""
+        timed = self.diagnostics.timed
+        tf_period_s = float(values['tf_period_s'])
+        subscription = self.create_subscription(
+            OdometryIncrement,
+            'odometry_increments',
+            timed(self._on_increment, 'odometry_increments'),
+            replayed_qos(1000) if values['increments_transient_local'] else output_qos(1000),
+        )
+        observations = self.create_subscription(
+            LandmarkObservationArray,
+            'landmark_observations',
+            timed(self._on_observations, 'landmark_observations'),
+            replayed_qos(1000) if values['observations_transient_local'] else output_qos(1000),
+        )
+        self._active += [subscription, observations]
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if self.checkpoint_period_s > 0 and self.checkpoint_file is not None:
+            checkpoint = timed(self._on_checkpoint)
+            self._active.append(
+                self.create_timer(self.checkpoint_period_s, checkpoint, clock=steady)
+            )
+        if self.optimize_period_s > 0:
+            solve = timed(self._on_timer)
+            self._active.append(self.create_timer(self.optimize_period_s, solve, clock=steady))
+        self._active.append(self.create_timer(tf_period_s, timed(self._publish_tf), clock=steady))
+
+    def _deactivate(self) -> None:
+        """Stop taking inputs and running the timers; what is held stays."""
+        for entity in self._active:
+            if hasattr(entity, 'cancel'):
+                self.destroy_timer(entity)
+            else:
+                self.destroy_subscription(entity)
+        self._active = []
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: keyframes, observations on them and waiting for one,
@@ -511,6 +529,11 @@ class EmSamMapperNode(Node):
 
     def destroy_node(self) -> None:
         """Write the final report (and checkpoint) before going away."""
+        self._finalize()
+        super().destroy_node()
+
+    def _finalize(self) -> None:
+        """Write the report, and the checkpoint when anything was received."""
         try:
             self.write_report()
         except Exception as err:  # a report must never prevent the node from shutting down
@@ -522,7 +545,16 @@ class EmSamMapperNode(Node):
                 self.save_checkpoint()
             except Exception as err:
                 self.get_logger().error(f'could not write the checkpoint: {err}')
-        super().destroy_node()
+
+
+class EmSamMapperNode(MapperBehaviour):
+    """em_sam_mapper as a plain node: configured and active from the start."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('em_sam_mapper', **kwargs)
+        values = declare_parameters(self, PARAMETERS)
+        self._configure(values)
+        self._activate(values)
 
 
 @console_main('em_sam_mapper')

@@ -157,13 +157,12 @@ HOLD_MAX_BYTES = 64 * 2**20
 """And at most this many image bytes (5 s of 640x480 mono8 at 30 Hz is 46 MB)."""
 
 
-class MarkerDetectorNode(Node):
-    """Thin adapter around MarkerProcessor."""
+class DetectorBehaviour(Node):
+    """marker_detector on an rclpy node, plain (MarkerDetectorNode) or lifecycle
+    (marker_detector_lifecycle): ``_configure`` builds the processor and publishers,
+    ``_activate`` the subscriptions, ``_deactivate`` removes them again."""
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__('marker_detector', **kwargs)
-        values = declare_parameters(self, PARAMETERS)
-        transport = str(values['image_transport'])
+    def _configure(self, values: dict[str, Any]) -> None:
         self.processor = MarkerProcessor(
             detector_config(values), extrinsics_config(values), search_plan(values)
         )
@@ -183,7 +182,6 @@ class MarkerDetectorNode(Node):
         self._status_time = time.monotonic()
         self._status_images = 0
         self.diagnostics = Diagnostics(self, self._counts)
-        timed = self.diagnostics.timed
         self.fiducials_publisher = self.create_publisher(FiducialArray, 'fiducials', output_qos())
         self.observations_publisher = self.create_publisher(
             LandmarkObservationArray, 'landmark_observations', replayed_qos(depth=1000)
@@ -193,31 +191,50 @@ class MarkerDetectorNode(Node):
             if self.publish_debug
             else None
         )
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._inputs: list[Any] = []
+
+    def _activate(self, values: dict[str, Any]) -> None:
+        """Take images, camera_info and the camera mount."""
+        timed = self.diagnostics.timed
+        transport = str(values['image_transport'])
         if transport == 'raw':
-            self.create_subscription(
+            image = self.create_subscription(
                 Image, 'camera/image_raw', timed(self._on_image, 'image'), sensor_qos()
             )
         else:
-            self.create_subscription(
+            image = self.create_subscription(
                 CompressedImage,
                 'camera/image_raw/compressed',
                 timed(self._on_image, 'image'),
                 sensor_qos(),
             )
-        self.create_subscription(
+        info = self.create_subscription(
             CameraInfo,
             'camera/camera_info',
             timed(self._on_camera_info, 'camera_info'),
             sensor_qos(),
         )
+        self._inputs = [image, info]
         if self.processor.extrinsics.source == 'tf_static':
-            self.create_subscription(
-                TFMessage,
-                '/tf_static',
-                timed(self._on_tf_static, 'tf_static'),
-                latched_qos(depth=100),
+            self._inputs.append(
+                self.create_subscription(
+                    TFMessage,
+                    '/tf_static',
+                    timed(self._on_tf_static, 'tf_static'),
+                    latched_qos(depth=100),
+                )
             )
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+    def _deactivate(self) -> None:
+        """Stop taking inputs; camera_info and the mount already taken stay."""
+        for subscription in self._inputs:
+            self.destroy_subscription(subscription)
+        self._inputs = []
+
+    def _finalize(self) -> None:
+        """Forget the parameter-change check (the lifecycle node's cleanup)."""
+        self.remove_on_set_parameters_callback(self._on_set_parameters)
 
     def _error(self, message: str) -> None:
         self.get_logger().error(message, throttle_duration_sec=2.0)
@@ -394,6 +411,16 @@ class MarkerDetectorNode(Node):
             + (f', {self.not_searched} not searched' if self.detect_every > 1 else '')
         )
         self._status_time, self._status_images = now, self.images
+
+
+class MarkerDetectorNode(DetectorBehaviour):
+    """marker_detector as a plain node: configured and active from the start."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('marker_detector', **kwargs)
+        values = declare_parameters(self, PARAMETERS)
+        self._configure(values)
+        self._activate(values)
 
 
 @console_main('marker_detector')

@@ -51,7 +51,6 @@ def declare_parameters(node: Node, table: ParamTable) -> dict[str, Any]:
         where=f'node {node.get_fully_qualified_name()}: parameter override (-p, --params-file '
         'or parameter_overrides)',
     )
-    values: dict[str, Any] = {}
     for param in table:
         ptype = _ROS_TYPES[param.param_type]
         try:
@@ -65,6 +64,14 @@ def declare_parameters(node: Node, table: ParamTable) -> dict[str, Any]:
             ParameterException,
         ) as err:
             raise _declare_error(node, table, param, err) from None
+    return current_values(node, table)
+
+
+def current_values(node: Node, table: ParamTable) -> dict[str, Any]:
+    """The validated values of ``table``'s parameters as declared on ``node`` now (an empty
+    array declared without a value: its default). Raises ParameterError."""
+    values: dict[str, Any] = {}
+    for param in table:
         try:
             value = node.get_parameter(param.name).value
         except ParameterUninitializedException:

@@ -1,0 +1,43 @@
+"""marker_detector_lifecycle: marker_detector as a lifecycle (managed) node.
+
+The same node (name marker_detector), topics and parameters as ``marker_detector``
+(``marker_detector --help``), started unconfigured:
+
+- configure: the parameters are validated, the detector is built, the publishers made;
+- activate: images, camera_info and the camera mount (/tf_static) are taken;
+- deactivate: inputs pause (camera_info and the mount already taken stay);
+- cleanup: everything is dropped (back to unconfigured).
+
+Transitions come from ``marker_detector/change_state`` (lifecycle_msgs/srv/ChangeState): a
+launch file (``em_sam_lifecycle.launch.py`` in slam_bringup), a lifecycle manager, or
+``slam_call marker_detector/change_state '{transition: {id: 1}}'`` (1 configure,
+3 activate, 4 deactivate, 2 cleanup).
+"""
+
+from __future__ import annotations
+
+import sys
+
+from marker_detector.marker_detector_node import DetectorBehaviour
+from marker_detector.settings import PARAMETERS
+from slam_core.cli import console_main
+from slam_ros.lifecycle import managed
+from slam_ros.spin import spin_node
+
+MarkerDetectorLifecycleNode = managed(DetectorBehaviour, 'marker_detector', PARAMETERS)
+
+
+@console_main('marker_detector_lifecycle')
+def main(argv: list[str] | None = None) -> int:
+    """Run the lifecycle node until Ctrl-C."""
+    return spin_node(
+        'marker_detector_lifecycle',
+        MarkerDetectorLifecycleNode,
+        argv,
+        parameters=PARAMETERS,
+        doc=__doc__,
+    )
+
+
+if __name__ == '__main__':
+    sys.exit(main())
