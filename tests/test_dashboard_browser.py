@@ -21,7 +21,7 @@ from browser import HeadlessChromium, find_chromium
 
 from slam_interfaces.msg import LandmarkMap
 from slam_ros.qos import latched_qos
-from slam_ros.testing.harness import RosHarness
+from slam_ros.testing.harness import NodeProcess, RosHarness
 
 pytestmark = pytest.mark.topic
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,6 +36,18 @@ def output_dir() -> Path:
     return path
 
 
+def start_dashboard(harness: RosHarness) -> tuple[NodeProcess, str]:
+    """Start slam_dashboard on a free local port as a user does; it and its page's address."""
+    dashboard = harness.start_process(
+        'slam_dashboard',
+        ['slam_dashboard', '--ros-args', '-p', 'host:=127.0.0.1', '-p', 'port:=0'],
+    )
+    line = dashboard.wait_for_line(60.0, 'open http://')
+    url = re.search(r'(http://\S+/)', line)
+    assert url is not None, line
+    return dashboard, url.group(1)
+
+
 COUNT = "+(document.getElementById('landmark-count').textContent) || 0"
 ROWS = """Array.from(document.querySelectorAll('#diagnostics tbody tr')).map(
   (row) => [row.className, row.cells[0].textContent, row.cells[1].textContent])"""
@@ -46,13 +58,7 @@ def test_dashboard_shows_the_live_map_and_diagnostics(
 ) -> None:
     browser_binary = find_chromium()
     maps = ros_harness.collect('/em_sam/landmarks', LandmarkMap, latched_qos())
-    dashboard = ros_harness.start_process(
-        'slam_dashboard',
-        ['slam_dashboard', '--ros-args', '-p', 'host:=127.0.0.1', '-p', 'port:=0'],
-    )
-    line = dashboard.wait_for_line(60.0, 'open http://')
-    url = re.search(r'(http://\S+/)', line)
-    assert url is not None, line
+    dashboard, url = start_dashboard(ros_harness)
     graph = ros_harness.start_process(
         'slam_run',
         ['slam_run', 'em_sam_office.yaml', '--bag', str(BAG), '--paced'],
@@ -60,7 +66,7 @@ def test_dashboard_shows_the_live_map_and_diagnostics(
     )
     browser = HeadlessChromium(browser_binary)
     try:
-        browser.navigate(url.group(1))
+        browser.navigate(url)
         browser.wait_for(
             "document.getElementById('connection').textContent", lambda v: v == 'live', 60.0
         )
@@ -81,7 +87,7 @@ def test_dashboard_shows_the_live_map_and_diagnostics(
             assert class_name == f'level-{level}', (name, class_name, level)
             assert level in ('OK', 'WARN', 'ERROR', 'STALE'), (name, level)
         # ids are drawn on the map: the moveable table and the canvas come from one state
-        state = json.load(urllib.request.urlopen(url.group(1) + 'state.json', timeout=10))
+        state = json.load(urllib.request.urlopen(url + 'state.json', timeout=10))
         assert browser.evaluate("document.getElementById('static-count').textContent") == str(
             state['map']['static']
         )
@@ -103,12 +109,7 @@ def test_dashboard_shows_the_camera_features_and_monoslam_path(
     ros_harness: RosHarness, tmp_path: Path
 ) -> None:
     browser_binary = find_chromium()
-    dashboard = ros_harness.start_process(
-        'slam_dashboard',
-        ['slam_dashboard', '--ros-args', '-p', 'host:=127.0.0.1', '-p', 'port:=0'],
-    )
-    url = re.search(r'(http://\S+/)', dashboard.wait_for_line(60.0, 'open http://'))
-    assert url is not None
+    dashboard, url = start_dashboard(ros_harness)
     graph = ros_harness.start_process(
         'slam_run',
         ['slam_run', 'monoslam_shadow.yaml', '--bag', str(CAMERA_BAG), '--paced'],
@@ -116,7 +117,7 @@ def test_dashboard_shows_the_camera_features_and_monoslam_path(
     )
     browser = HeadlessChromium(browser_binary)
     try:
-        browser.navigate(url.group(1))
+        browser.navigate(url)
         browser.wait_for(FEATURES, lambda v: v > 0, MAP_TIMEOUT_S)
         browser.wait_for('shownImage !== null', lambda v: v is True, 60.0)
         # the Shadow filter's classes reach the overlay: some features are judged static

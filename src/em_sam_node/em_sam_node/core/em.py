@@ -67,7 +67,7 @@ from em_sam_node.core.odometry_calibration import OdometryCalibration, estimate_
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
 from em_sam_node.core.robust_kernels import RobustKernel
 from em_sam_node.core.seeding import Solver, incremental_seed
-from em_sam_node.core.sightings import Sightings, sightings_of
+from em_sam_node.core.sightings import Sightings, at_latest_sightings, sightings_of
 from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
 
@@ -270,10 +270,7 @@ def _final_solve(
         poses = dead_reckoning(data)
         solved = Estimate(poses, np.zeros((0, 2)))
     sightings = sightings_of(data, problem, solved, moveable_ids.tolist())
-    for index in np.flatnonzero(moveable):
-        latest = sightings[int(built.landmark_ids[index])]
-        positions[index] = latest.positions[0]
-        covariances[index] = latest.covariances[0]
+    at_latest_sightings(sightings, built.landmark_ids, moveable, positions, covariances)
     return _Final(
         poses, built.landmark_ids, positions, covariances, sightings, num_pieces, noise_scale
     )

@@ -39,7 +39,7 @@ from em_sam_node.core.em_weights import chi2_quantile, with_noise_scales
 from em_sam_node.core.marginals import joint_landmark_covariance, marginal_landmark_covariances
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray
 from em_sam_node.core.robust_kernels import RobustKernel
-from em_sam_node.core.sightings import sightings_of
+from em_sam_node.core.sightings import at_latest_sightings, sightings_of
 from slam_core.geometry.se2 import compose, wrap_angle
 
 SESSION_PRIOR_COV = np.diag([1e-6, 1e-6, 1e-6])
@@ -344,10 +344,7 @@ def localize(
     else:
         solved = Estimate(poses0, np.zeros((0, 2)))
     sightings = sightings_of(data, problem, solved, moveable_ids.tolist())
-    for index in np.flatnonzero(moveable):
-        latest = sightings[int(session.landmark_ids[index])]
-        positions[index] = latest.positions[0]
-        covariances[index] = latest.covariances[0]
+    at_latest_sightings(sightings, session.landmark_ids, moveable, positions, covariances)
     timings['total'] = time.perf_counter() - started
     unseen = ~np.isin(saved.landmark_ids, session.landmark_ids)
     extra = int(unseen.sum())

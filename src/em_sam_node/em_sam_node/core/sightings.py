@@ -91,3 +91,18 @@ def _sighting_covariances(
     cov = j_pose @ pose_cov @ np.swapaxes(j_pose, 1, 2) + j_z @ z_cov @ np.swapaxes(j_z, 1, 2)
     result: FloatArray = 0.5 * (cov + np.swapaxes(cov, 1, 2))
     return result
+
+
+def at_latest_sightings(
+    sightings: dict[int, Sightings],
+    landmark_ids: IntArray,
+    moveable: np.ndarray,
+    positions: FloatArray,
+    covariances: FloatArray,
+) -> None:
+    """Put each moveable landmark (L,) where it was last seen: its row of ``positions``
+    (L, 2) and ``covariances`` (L, 2, 2) become its most recent sighting's, in place."""
+    for index in np.flatnonzero(moveable):
+        latest = sightings[int(landmark_ids[index])]
+        positions[index] = latest.positions[0]
+        covariances[index] = latest.covariances[0]

@@ -116,16 +116,17 @@ class DashboardState:
             },
         )
 
-    def on_path(self, message: Any) -> None:
+    def _path(self, message: Any, second: str) -> dict[str, Any]:
+        """A nav_msgs/Path as its frame and [[x, ``second``], ...] points, thinned."""
         points = [
-            (p.pose.position.x, p.pose.position.y)
+            (p.pose.position.x, getattr(p.pose.position, second))
             for p in message.poses
-            if _finite(p.pose.position.x, p.pose.position.y)
+            if _finite(p.pose.position.x, getattr(p.pose.position, second))
         ]
-        self._set(
-            'path',
-            {'frame': str(message.header.frame_id), 'points': _thin(points, self.path_points)},
-        )
+        return {'frame': str(message.header.frame_id), 'points': _thin(points, self.path_points)}
+
+    def on_path(self, message: Any) -> None:
+        self._set('path', self._path(message, 'y'))
 
     def on_moveable(self, message: Any) -> None:
         items = []
@@ -145,15 +146,7 @@ class DashboardState:
         self._set('moveable', sorted(items, key=lambda item: item['id']))
 
     def on_monoslam_path(self, message: Any) -> None:
-        points = [
-            (p.pose.position.x, p.pose.position.z)
-            for p in message.poses
-            if _finite(p.pose.position.x, p.pose.position.z)
-        ]
-        self._set(
-            'monoslam',
-            {'frame': str(message.header.frame_id), 'points': _thin(points, self.path_points)},
-        )
+        self._set('monoslam', self._path(message, 'z'))  # seen from above: x right, z forward
 
     def on_shadow_tracks(self, message: Any) -> None:
         with self._lock:
