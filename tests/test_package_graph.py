@@ -70,6 +70,7 @@ ROS_PACKAGES = {
     'apriltag_msgs',
     'rosgraph_msgs',
     'diagnostic_msgs',
+    'lifecycle_msgs',
     'ament_index_python',
     'launch',
     'launch_ros',
