@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Callable
+from typing import Any
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -56,6 +58,42 @@ def spin_node(
         print(f'{prog}: shutting down: ignored {type(err).__name__}: {err}', file=sys.stderr)  # noqa: T201
     finally:
         if node is not None:
+            if not rclpy.ok():
+                # Ctrl-C shut the context down, and /rosout with it: what the node says on
+                # the way out (report and checkpoint written) goes to the console alone.
+                node.get_logger = ConsoleLogger(node.get_logger().name).itself  # type: ignore[method-assign]
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+class ConsoleLogger:
+    """A node's logger once its context is shut down: rclpy's console format on stderr,
+    INFO and above, no /rosout (its publisher died with the context)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def itself(self) -> ConsoleLogger:
+        return self
+
+    def _say(self, level: str, message: str) -> bool:
+        print(f'[{level}] [{time.time():.9f}] [{self.name}]: {message}', file=sys.stderr)  # noqa: T201
+        return True
+
+    def debug(self, message: str, **_: Any) -> bool:
+        return False
+
+    def info(self, message: str, **_: Any) -> bool:
+        return self._say('INFO', message)
+
+    def warning(self, message: str, **_: Any) -> bool:
+        return self._say('WARN', message)
+
+    warn = warning
+
+    def error(self, message: str, **_: Any) -> bool:
+        return self._say('ERROR', message)
+
+    def fatal(self, message: str, **_: Any) -> bool:
+        return self._say('FATAL', message)
