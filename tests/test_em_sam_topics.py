@@ -333,6 +333,11 @@ def test_save_map_writes_a_map_readable_without_numpy(
     assert np.array_equal(saved.positions, result.positions)  # repr() round-trips floats
     assert np.array_equal(saved.poses, result.poses[: len(saved.poses)])
     assert saved.stamps_ns.tolist() == mapper.mapper.stamps_ns[: len(saved.stamps_ns)]
+    # the static landmarks' joint covariance, which localization on this map tests against
+    static = saved.ids[~saved.moveable]
+    assert saved.joint_ids is not None and saved.joint_ids.tolist() == sorted(static.tolist())
+    assert saved.joint is not None and saved.joint.shape == (2 * len(static), 2 * len(static))
+    assert np.all(np.linalg.eigvalsh(saved.joint) > 0)
     with (mapper.checkpoint_file.parent / 'em_sam_landmarks.csv').open() as rows:
         header = next(csv.reader(rows))
     assert header[:3] == ['id', 'x_m', 'y_m']
