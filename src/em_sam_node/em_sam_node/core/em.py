@@ -258,10 +258,7 @@ def _final_solve(
     if static.problem.num_landmarks:
         gated_rows = np.isin(static.observation_rows, built.observation_rows[gated])
         scale = np.where(gated_rows, ROW_SCALE_FLOOR, 1.0)
-        kernel = None
-        if config.mode == 'robust' and config.final_kernel != 'none':
-            # Heavy tails of real sensors: the kept static sightings get the seed's kernel.
-            kernel = SEED_KERNELS[config.final_kernel](config.final_kernel_scale)
+        kernel = final_kernel(config)
         solved = _solve(config, problem, start, obs_row_scale=scale, robust_kernel=kernel)
         poses = solved.poses
         positions[keep] = solved.landmarks
@@ -274,6 +271,14 @@ def _final_solve(
     return _Final(
         poses, built.landmark_ids, positions, covariances, sightings, num_pieces, noise_scale
     )
+
+
+def final_kernel(config: EmConfig) -> RobustKernel | None:
+    """The final solve's kernel on the static sightings (robust mode, unless 'none'): real
+    sensors' heavy tails."""
+    if config.mode != 'robust' or config.final_kernel == 'none':
+        return None
+    return SEED_KERNELS[config.final_kernel](config.final_kernel_scale)
 
 
 def _gated_in_data(data: MappingData, built: BuiltProblem, gated: np.ndarray) -> np.ndarray:

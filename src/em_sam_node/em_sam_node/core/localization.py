@@ -6,18 +6,18 @@ The paper's robot that "returns several days later". Three steps:
    of its start pose. It flags what moved during the session; nothing from the saved map
    can pull its trajectory.
 2. **Between the sessions**: the session's static landmarks are registered to the saved
-   static map by a rigid transform, found by consensus over pairs of common landmarks
-   and refitted on the consistent ones. A common landmark is tested by the squared
-   Mahalanobis distance of its two positions under that transform (2 degrees of freedom;
-   both covariances plus the robust mode's model error), with the EM test's weight formula
-   at its level (``false_alarm_probability``): one that fails has moved since the map was
-   saved, and is moveable.
+   static map by a rigid transform, fitted on the consistent common landmarks. Each common
+   landmark is tested leave-one-out: its residual given the other consistent ones', under
+   both maps' joint covariances, the robust mode's model error and the transform as an
+   unknown (2 degrees of freedom), with the EM test's weight formula at its level
+   (``false_alarm_probability``). The least consistent is dropped in turn until the rest
+   pass; one that fails has moved since the map was saved, and is moveable.
 3. **On the saved map**: the session's trajectory is solved again with the consistent saved
    landmarks held fixed at their saved positions (``SlamProblem.fixed_landmarks``) and the
    session's new static landmarks estimated, from the registered first solution. Every
    sighting of a moveable landmark is placed through this trajectory.
 
-With fewer than two consistent common landmarks the registration is the start pose
+With fewer than two common landmarks the registration is the start pose
 (``data.prior_pose``): the session is placed where the user said it starts. The map returned
 holds the saved landmarks not seen in the session too, with their saved positions, weight 1
 and no sightings.
@@ -33,14 +33,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from em_sam_node.core.assembly import MappingData, build_problem
-from em_sam_node.core.em import _solve, anchored_problem, run_em
-from em_sam_node.core.em_types import SEED_KERNELS, EmConfig, EmResult
+from em_sam_node.core.em import _solve, anchored_problem, final_kernel, run_em
+from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.em_weights import chi2_quantile, with_noise_scales
 from em_sam_node.core.marginals import joint_landmark_covariance, marginal_landmark_covariances
 from em_sam_node.core.problem import Estimate, FloatArray, IntArray
-from em_sam_node.core.robust_kernels import RobustKernel
 from em_sam_node.core.sightings import at_latest_sightings, sightings_of
-from slam_core.geometry.se2 import compose, wrap_angle
+from slam_core.geometry.se2 import (
+    between,
+    compose,
+    rotation_matrices,
+    transform_points,
+    wrap_angle,
+)
 
 SESSION_PRIOR_COV = np.diag([1e-6, 1e-6, 1e-6])
 """The session's own frame is its first pose (mapping's default prior, 1 mm and 1 mrad)."""
@@ -88,39 +93,17 @@ class Registration:
     spreads: FloatArray
 
 
-def _kernel(config: EmConfig) -> RobustKernel | None:
-    if config.mode != 'robust' or config.final_kernel == 'none':
-        return None
-    return SEED_KERNELS[config.final_kernel](config.final_kernel_scale)
-
-
-def _rotation(angle: float) -> FloatArray:
-    cos, sin = np.cos(angle), np.sin(angle)
-    return np.array([[cos, -sin], [sin, cos]])
-
-
 def _fit(points: FloatArray, targets: FloatArray) -> FloatArray:
     """The rigid transform (x, y, theta) taking ``points`` (n, 2) onto ``targets``."""
     mean_p, mean_t = points.mean(axis=0), targets.mean(axis=0)
     a, b = points - mean_p, targets - mean_t
     angle = float(np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a * b)))
-    return np.array([*(mean_t - _rotation(angle) @ mean_p), angle])
-
-
-def _distances(
-    pose: FloatArray, points: FloatArray, cov_p: FloatArray, targets: FloatArray, cov_t: FloatArray
-) -> FloatArray:
-    rotation = _rotation(float(pose[2]))
-    residual = targets - (points @ rotation.T + pose[:2])
-    covariance = cov_t + rotation @ cov_p @ rotation.T
-    solved = np.linalg.solve(covariance, residual[..., None])[..., 0]
-    result: FloatArray = np.einsum('ki,ki->k', residual, solved)
-    return result
+    return np.array([*(mean_t - rotation_matrices(angle) @ mean_p), angle])
 
 
 def _jacobian(pose: FloatArray, points: FloatArray) -> FloatArray:
     """d(R p + t)/d(x, y, theta) (2m, 3) at each point, x then y of each in turn."""
-    rotated = points @ _rotation(float(pose[2])).T
+    rotated = points @ rotation_matrices(float(pose[2])).T
     jacobian = np.zeros((len(points), 2, 3))
     jacobian[:, 0, 0] = jacobian[:, 1, 1] = 1.0
     jacobian[:, 0, 2], jacobian[:, 1, 2] = -rotated[:, 1], rotated[:, 0]
@@ -183,7 +166,7 @@ def register(
     count = len(ids)
     gate = chi2_quantile(1.0 - config.false_alarm_probability, 2)
     if count < 2:
-        return _unregistered(start_pose, ids, config)
+        return _unregistered(start_pose, ids)
     rows = (2 * index[:, None] + np.arange(2)).ravel()
     if saved.joint is not None:
         saved_joint = saved.joint[np.ix_(rows, rows)]
@@ -192,28 +175,23 @@ def register(
         for k, j in enumerate(index.tolist()):
             saved_joint[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = saved.covariances[j]
     model = config.model_error_m**2 if config.mode == 'robust' else 0.0
-    pose = _consensus_pose(points, targets, joint, saved_joint, model, gate, start_pose)
     inliers = np.ones(count, dtype=bool)
     while True:
-        for _ in range(3):  # the transform's linearization point: the consistent ones' fit
-            turn = np.kron(np.eye(count), _rotation(float(pose[2]))).astype(np.float64)
-            jacobian = _jacobian(pose, points)
-            covariance = (
-                saved_joint
-                + turn @ joint @ turn.T
-                + model * np.eye(2 * count)
-                + jacobian @ GAUGE_COVARIANCE @ jacobian.T
-            )
-            if inliers.sum() >= 2:
-                pose = _fit(points[inliers], targets[inliers])
-        residual = (targets - (points @ _rotation(float(pose[2])).T + pose[:2])).ravel()
+        pose = _fit(points[inliers], targets[inliers])  # the consistent ones' transform
+        turn = np.kron(np.eye(count), rotation_matrices(float(pose[2]))).astype(np.float64)
+        jacobian = _jacobian(pose, points)
+        covariance = (
+            saved_joint
+            + turn @ joint @ turn.T
+            + model * np.eye(2 * count)
+            + jacobian @ GAUGE_COVARIANCE @ jacobian.T
+        )
+        residual = (targets - transform_points(pose, points)).ravel()
         distances, spreads = _leave_one_out(residual, covariance, inliers)
         worst = int(np.argmax(np.where(inliers, distances, -np.inf)))
         if distances[worst] < gate or inliers.sum() <= 2:
             break
         inliers[worst] = False
-    if inliers.sum() < 2:
-        return _unregistered(start_pose, ids, config)
     excess = np.maximum(distances - 2.0, 0.0)
     weights = np.clip(1.0 - excess / (2.0 * (gate - 2.0)), 0.0, 1.0)
     pose = np.array([pose[0], pose[1], wrap_angle(float(pose[2]))])
@@ -221,42 +199,7 @@ def register(
     return Registration(pose, ids, distances, weights, moved, int((~moved).sum()), spreads)
 
 
-def _consensus_pose(
-    points: FloatArray,
-    targets: FloatArray,
-    session_joint: FloatArray,
-    saved_joint: FloatArray,
-    model: float,
-    gate: float,
-    start_pose: FloatArray,
-) -> FloatArray:
-    """The transform of the pair of common landmarks that most others agree with, each on
-    its own marginal covariance (a seed for the fit, which moved landmarks must not bend)."""
-    count = len(points)
-
-    def blocks(matrix: FloatArray) -> FloatArray:
-        return np.stack([matrix[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] for k in range(count)])
-
-    session_blocks = blocks(session_joint)
-    saved_blocks = blocks(saved_joint) + model * np.eye(2)
-    best = (-1, np.inf, np.asarray(start_pose, dtype=float))
-    for i in range(count):
-        for j in range(i + 1, count):
-            pose = _fit(points[[i, j]], targets[[i, j]])
-            rotation = _rotation(float(pose[2]))
-            residual = targets - (points @ rotation.T + pose[:2])
-            spread = saved_blocks + rotation @ session_blocks @ rotation.T
-            distances = np.einsum(
-                'ki,ki->k', residual, np.linalg.solve(spread, residual[..., None])[..., 0]
-            )
-            agree = distances < gate
-            candidate = (int(agree.sum()), float(distances[agree].sum()), pose)
-            if candidate[0] > best[0] or (candidate[0] == best[0] and candidate[1] < best[1]):
-                best = candidate
-    return best[2]
-
-
-def _unregistered(start_pose: FloatArray, ids: IntArray, config: EmConfig) -> Registration:
+def _unregistered(start_pose: FloatArray, ids: IntArray) -> Registration:
     """Too few common landmarks to register: the session placed at its start pose, nothing
     found moved."""
     count = len(ids)
@@ -298,7 +241,7 @@ def localize(
     local = dataclasses.replace(data, prior_pose=np.zeros(3), prior_cov=SESSION_PRIOR_COV)
     warm = None
     if initial_poses is not None:
-        warm = compose(np.tile(_inverse(initial_poses[0]), (len(initial_poses), 1)), initial_poses)
+        warm = between(initial_poses[0], initial_poses)
     session = run_em(
         local, config, initial_poses=warm, record_snapshots=False, on_iteration=on_iteration
     )
@@ -316,7 +259,7 @@ def localize(
     moveable_ids = session.landmark_ids[moveable]
     if np.any(session.final_noise_scale > 1.0):  # the sensor model the session estimated
         data = with_noise_scales(data, session.final_noise_scale)
-    poses0 = compose(np.tile(registration.pose, (len(session.poses), 1)), session.poses)
+    poses0 = compose(registration.pose, session.poses)
     # the start's prior where the registration put it (the saved map anchors the rest)
     data = dataclasses.replace(data, prior_pose=poses0[0])
     static = build_problem(data, exclude_ids=moveable_ids.tolist())
@@ -324,18 +267,18 @@ def localize(
     fixed = np.isin(static.landmark_ids, fixed_ids)
     problem = dataclasses.replace(problem, fixed_landmarks=fixed)
     in_session = np.searchsorted(session.landmark_ids, static.landmark_ids)
-    landmarks = _transform(registration.pose, session.positions[in_session])
+    landmarks = transform_points(registration.pose, session.positions[in_session])
     saved_order = np.argsort(saved.landmark_ids)
     saved_at = saved_order[
         np.searchsorted(saved.landmark_ids[saved_order], static.landmark_ids[fixed])
     ]
     landmarks[fixed] = saved.positions[saved_at]
-    positions = _transform(registration.pose, session.positions)
-    rotation = _rotation(float(registration.pose[2]))
+    positions = transform_points(registration.pose, session.positions)
+    rotation = rotation_matrices(float(registration.pose[2]))
     covariances = rotation @ session.covariances @ rotation.T
     if problem.num_landmarks:
         solved = _solve(
-            config, problem, Estimate(poses0, landmarks), robust_kernel=_kernel(config)
+            config, problem, Estimate(poses0, landmarks), robust_kernel=final_kernel(config)
         )
         estimated = marginal_landmark_covariances(problem, solved)
         positions[in_session] = solved.landmarks
@@ -369,16 +312,6 @@ def localize(
         odometry_calibration=session.odometry_calibration,
     )
     return result, registration
-
-
-def _inverse(pose: FloatArray) -> FloatArray:
-    rotation = _rotation(float(pose[2]))
-    return np.array([*(-rotation.T @ pose[:2]), -pose[2]])
-
-
-def _transform(pose: FloatArray, points: FloatArray) -> FloatArray:
-    result: FloatArray = points @ _rotation(float(pose[2])).T + pose[:2]
-    return result
 
 
 def static_joint_covariance(
