@@ -117,6 +117,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Path as PathMessage
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.timer import Timer
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
@@ -137,6 +138,7 @@ from em_sam_node.mapper_outputs import (
 from em_sam_node.mapper_settings import PARAMETERS, config_from_parameters
 from em_sam_node.report import write_report
 from slam_core.cli import console_main
+from slam_core.errors import ParameterError
 from slam_core.files import keep_previous_run
 from slam_interfaces.msg import (
     LandmarkMap,
@@ -167,9 +169,9 @@ class MapperBehaviour(Node):
         )
         if values['mode'] == 'localization':
             if not values['map_file']:
-                raise ValueError(
-                    'em_sam_mapper: mode localization needs map_file (the em_sam_map.yaml '
-                    'that a mapping run wrote beside its checkpoint)'
+                raise ParameterError(
+                    "parameter em_sam_mapper.map_file='': mode localization needs it (the "
+                    'em_sam_map.yaml that a mapping run wrote beside its checkpoint)'
                 )
             self.get_logger().info(self.load_map(str(values['map_file'])))
         self.optimize_period_s = float(values['optimize_period_s'])
@@ -239,7 +241,7 @@ class MapperBehaviour(Node):
     def _deactivate(self) -> None:
         """Stop taking inputs and running the timers; what is held stays."""
         for entity in self._active:
-            if hasattr(entity, 'cancel'):
+            if isinstance(entity, Timer):
                 self.destroy_timer(entity)
             else:
                 self.destroy_subscription(entity)

@@ -321,7 +321,7 @@ class MapperProcessor:
 
     def _warm_start(self, data: MappingData) -> FloatArray | None:
         """Previous poses for old keyframes, odometry composed onto them for new ones."""
-        if self.result is None or len(self.result.poses) < 1:
+        if self.result is None:
             return None
         poses = dead_reckoning(data)
         known = min(self.result_keyframes, data.num_keyframes)

@@ -30,12 +30,13 @@ from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.em_weights import chi2_quantile
 from em_sam_node.core.localization import localize, static_joint_covariance
 from em_sam_node.map_files import known_map, read_map, write_map
+from em_sam_node.mapper_settings import PARAMETERS
 from em_sam_node.offline import read_ground_truth, replay_bag, seen_at_both_positions
 from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_evaluation.em_sam_metrics import align_se2, ate_rmse
 
-START_SIGMA = (0.5, 0.5, 0.2618)  # em_sam_mapper's map_start_sigma default
+START_SIGMA = np.array(PARAMETERS['map_start_sigma'].default)  # em_sam_mapper's default
 
 
 def evaluate_seed(seed: int, relocated: int, scratch: Path) -> dict[str, Any]:

@@ -61,7 +61,8 @@ def spin_node(
             if not rclpy.ok():
                 # Ctrl-C shut the context down, and /rosout with it: what the node says on
                 # the way out (report and checkpoint written) goes to the console alone.
-                node.get_logger = ConsoleLogger(node.get_logger().name).itself  # type: ignore[method-assign]
+                console = ConsoleLogger(node.get_logger().name)
+                node.get_logger = lambda: console  # type: ignore[method-assign]
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
@@ -73,9 +74,6 @@ class ConsoleLogger:
 
     def __init__(self, name: str) -> None:
         self.name = name
-
-    def itself(self) -> ConsoleLogger:
-        return self
 
     def _say(self, level: str, message: str) -> bool:
         print(f'[{level}] [{time.time():.9f}] [{self.name}]: {message}', file=sys.stderr)  # noqa: T201

@@ -40,6 +40,7 @@ from sensor_msgs.msg import CompressedImage, Image
 from slam_bringup.dashboard.server import DashboardServer, serve, stop
 from slam_bringup.dashboard.state import DashboardState
 from slam_core.cli import console_main
+from slam_core.errors import SlamError
 from slam_core.params import Param, ParamTable, Range
 from slam_interfaces.msg import (
     FeatureTrackArray,
@@ -143,9 +144,14 @@ class DashboardNode(Node):
         self.create_timer(
             1.0 / float(values['update_hz']), state.refresh_diagnostics, clock=steady
         )
-        self.server = DashboardServer(
-            (str(values['host']), int(values['port'])), self.state, float(values['update_hz'])
-        )
+        address = (str(values['host']), int(values['port']))
+        try:
+            self.server = DashboardServer(address, self.state, float(values['update_hz']))
+        except OSError as err:
+            raise SlamError(
+                f'cannot serve on {address[0]}:{address[1]}: {err.strerror} '
+                '(another program on that port? set -p port:=... or port:=0 for any free one)'
+            ) from None
         serve(self.server)
         host, port = self.server.server_address[:2]
         host = host.decode() if isinstance(host, bytes) else host
