@@ -169,10 +169,14 @@ fi
 # `chromium-browser` is a snap, which containers cannot run, so there the test is skipped
 # (tests/browser.py says so) unless SLAM_REQUIRE_BROWSER_TEST=1 makes it a failure.
 if ((WITH_TEST_TOOLS)) && ! command -v chromium >/dev/null 2>&1; then
+  if [[ $(id -u) == 0 ]] && command -v apt-get >/dev/null 2>&1; then
+    # a fresh machine may have no package lists yet: read them before asking for chromium
+    DEBIAN_FRONTEND=noninteractive apt-get update -qq ||
+      say "warning: apt-get update failed; the package lists may be old"
+  fi
   if [[ $(id -u) == 0 ]] && command -v apt-get >/dev/null 2>&1 &&
-     apt-cache show chromium 2>/dev/null | grep -q '^Version: [0-9]'; then
+     apt-cache show chromium 2>/dev/null | grep '^Version: [0-9]' >/dev/null; then
     say "installing the headless browser for the dashboard test (apt: chromium)"
-    DEBIAN_FRONTEND=noninteractive apt-get update -qq
     DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium >/dev/null ||
       say "warning: apt-get install chromium failed; the dashboard's browser test will be skipped"
   else
