@@ -244,6 +244,8 @@ def _joint(path: Path, rows: list[list[int | float]]) -> tuple[np.ndarray, np.nd
         raise MapFileError(f'{path}: some pairs of landmarks are missing')
     if np.max(np.abs(matrix - matrix.T), initial=0.0) > 1e-9 * np.max(np.abs(matrix)):
         raise MapFileError(f"{path}: a landmark's own block is not symmetric")
+    if np.linalg.eigvalsh(matrix).min() <= 0.0:
+        raise MapFileError(f'{path}: the joint covariance is not positive definite')
     return ids, matrix
 
 

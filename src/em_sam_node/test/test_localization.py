@@ -101,6 +101,11 @@ def test_the_joint_covariance_round_trips_through_the_map_files(tmp_path: Path) 
     assert saved.joint is not None and np.array_equal(saved.joint, joint)
     fixed = known_map(saved, tmp_path)
     assert fixed.landmark_ids.tolist() == [3, 7] and np.array_equal(fixed.joint, joint)
+    covariance_file = tmp_path / 'em_sam_static_covariance.csv'
+    text = covariance_file.read_text()
+    covariance_file.write_text(text.replace(repr(float(joint[0, 0])), '-1.0', 1))
+    with pytest.raises(MapFileError, match='joint covariance is not positive definite'):
+        read_map(tmp_path)
 
 
 def test_a_map_that_cannot_anchor_a_session_is_named(tmp_path: Path) -> None:
