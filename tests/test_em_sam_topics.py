@@ -1,121 +1,30 @@
-"""Topic-level: a simulated office bag through odometry_ingest and em_sam_mapper (real rclpy).
-
-The bag (bags/office_moveable.mcap, seed 7) has 29 static wall markers and 10 desk markers
-(ids 100-109) that move from office 1 to office 2 while the robot is in the corridor.
-"""
+"""Topic-level: odometry_ingest and em_sam_mapper on their own and on the office bag
+(``em_sam_office``) online, and their parameters refused by name (real rclpy); the offline
+map's outputs are read in test_em_sam_map_topics."""
 
 from __future__ import annotations
 
-import csv
 import math
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 import rclpy
 from bag_fixtures import invalid_parameter_error
+from em_sam_office import MOVED, play_office
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from std_msgs.msg import Empty
-from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from em_sam_node.em_sam_mapper_node import EmSamMapperNode
-from em_sam_node.map_files import read_map
 from em_sam_node.odometry_ingest_node import OdometryIngestNode
-from slam_bringup.bag_player import BagPlayerNode
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
-from slam_interfaces.msg import LandmarkMap, MoveableLandmarkArray
-from slam_interfaces.srv import FindLandmark
-from slam_ros.progress import END_QOS, END_TOPIC, PACED_ENV
+from slam_interfaces.msg import MoveableLandmarkArray
+from slam_ros.progress import END_QOS, END_TOPIC
 from slam_ros.qos import latched_qos, sensor_qos
 from slam_ros.testing.harness import RosHarness, wait_until
 
 pytestmark = pytest.mark.topic
-
-BAG = Path(__file__).resolve().parents[1] / 'bags' / 'office_moveable.mcap'
-MOVED = set(range(100, 110))
-
-
-def call(
-    harness: RosHarness, service_type: type, name: str, request: object, timeout_s: float = 60.0
-) -> object:
-    client = harness.node.create_client(service_type, name)
-    assert client.wait_for_service(timeout_sec=timeout_s), name
-    future = client.call_async(request)
-    wait_until(future.done, timeout_s=timeout_s, what=f'the reply of {name}')
-    return future.result()
-
-
-def play_office(
-    harness: RosHarness, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, *, online: bool = True
-) -> tuple[OdometryIngestNode, EmSamMapperNode]:
-    """Play the office bag paced (slam_ros.progress: each message once both nodes are done
-    with the last, whatever the machine's load) through odometry_ingest and em_sam_mapper."""
-    monkeypatch.setenv(PACED_ENV, '1')  # the nodes report their progress
-    ingest = harness.add_node(OdometryIngestNode())
-    mapper = harness.add_node(
-        EmSamMapperNode(
-            parameter_overrides=[
-                Parameter('optimize_period_s', value=0.0),
-                Parameter('report_dir', value=str(tmp_path / 'report')),
-                Parameter('online', value=online),
-            ]
-        )
-    )
-    player = harness.add_node(
-        BagPlayerNode(
-            parameter_overrides=[
-                Parameter('bag_path', value=str(BAG)),
-                Parameter('paced', value=True),
-                Parameter('paced_nodes', value=['/odometry_ingest', '/em_sam_mapper']),
-                Parameter('topics', value=['/odom', '/landmark_observations']),
-                Parameter(
-                    'remap', value=['/odom:=odom', '/landmark_observations:=landmark_observations']
-                ),
-                Parameter('wait_for_subscribers_s', value=20.0),
-            ]
-        )
-    )
-    assert player.finished.wait(240) and player.error is None
-    assert player.paced_timeouts == 0  # every message waited for the graph
-    wait_until(lambda: ingest.flushed, timeout_s=20, what='odometry_ingest to flush')
-    return ingest, mapper
-
-
-@pytest.fixture
-def mapped(
-    ros_harness: RosHarness, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> tuple[RosHarness, EmSamMapperNode]:
-    """Play the office bag paced through both nodes and solve once at the end."""
-    _, mapper = play_office(ros_harness, tmp_path, monkeypatch)
-    reply = call(ros_harness, Trigger, '/em_sam_mapper/optimize', Trigger.Request())
-    assert reply.success, reply.message  # type: ignore[attr-defined]
-    return ros_harness, mapper  # type: ignore[return-value]
-
-
-def test_moveable_landmarks_and_map(mapped: tuple[RosHarness, EmSamMapperNode]) -> None:
-    harness, _ = mapped
-    moveable = harness.collect('em_sam/moveable', MoveableLandmarkArray, latched_qos())
-    landmarks = harness.collect('em_sam/landmarks', LandmarkMap, latched_qos())
-    moveable_message = moveable.wait_for_count(1)[-1]
-    map_message = landmarks.wait_for_count(1)[-1]
-
-    assert {m.landmark_id for m in moveable_message.landmarks} == MOVED
-    for landmark in moveable_message.landmarks:
-        stamps = [s.stamp.sec * 10**9 + s.stamp.nanosec for s in landmark.sightings]
-        assert stamps == sorted(stamps, reverse=True)  # most recent first
-        assert len(stamps) > 20
-        assert landmark.weight < 0.5
-
-    by_id = {e.landmark_id: e for e in map_message.landmarks}
-    assert len(by_id) == 39
-    assert {i for i, e in by_id.items() if e.moveable} == MOVED
-    static = [e for i, e in by_id.items() if i not in MOVED]
-    assert all(e.weight > 0.5 and e.num_observations > 0 for e in static)
-    assert all(e.covariance[0] > 0 and e.covariance[3] > 0 for e in static)
-    assert map_message.header.frame_id == 'map'
 
 
 def test_online_the_moveable_set_is_published_as_it_changes(
@@ -153,33 +62,6 @@ def test_online_the_moveable_set_is_published_as_it_changes(
         stamps = [s.stamp.sec * 10**9 + s.stamp.nanosec for s in landmark.sightings]
         assert stamps == sorted(stamps, reverse=True) and len(stamps) > 20
         assert landmark.weight < 0.5
-
-
-def test_find_landmark(mapped: tuple[RosHarness, EmSamMapperNode]) -> None:
-    harness, mapper = mapped
-    request = FindLandmark.Request(landmark_id=104)
-    reply = call(harness, FindLandmark, '/em_sam_mapper/find_landmark', request)
-    assert reply.found and reply.moveable  # type: ignore[attr-defined]
-    stamps = [s.stamp.sec * 10**9 + s.stamp.nanosec for s in reply.sightings]  # type: ignore[attr-defined]
-    assert stamps == sorted(stamps, reverse=True) and len(stamps) > 20
-    # The most recent sightings are in office 2, the oldest in office 1 (about 12 m apart).
-    newest, oldest = reply.sightings[0].position, reply.sightings[-1].position  # type: ignore[attr-defined]
-    assert ((newest.x - oldest.x) ** 2 + (newest.y - oldest.y) ** 2) ** 0.5 > 8.0
-
-    static = call(
-        harness, FindLandmark, '/em_sam_mapper/find_landmark', FindLandmark.Request(landmark_id=3)
-    )
-    assert static.found and not static.moveable  # type: ignore[attr-defined]
-    missing = call(
-        harness,
-        FindLandmark,
-        '/em_sam_mapper/find_landmark',
-        FindLandmark.Request(landmark_id=999),
-    )
-    assert not missing.found and '999' in missing.message  # type: ignore[attr-defined]
-
-    report = mapper.write_report()
-    assert {p.name for p in report} >= {'em_sam_report.json', 'em_sam_map.png'}
 
 
 @pytest.mark.parametrize(
@@ -313,31 +195,3 @@ def test_odometry_ingest_waits_for_a_running_players_end_of_input(ros_context: N
     finally:
         player.destroy_node()
         ingest.destroy_node()
-
-
-def test_save_map_writes_a_map_readable_without_numpy(
-    mapped: tuple[RosHarness, EmSamMapperNode],
-) -> None:
-    """~/save_map writes the checkpoint and, beside it, the YAML + CSV map: the same
-    landmarks, moveable flags and trajectory as the mapper's result, and plain CSV text."""
-    harness, mapper = mapped
-    reply = call(harness, Trigger, '/em_sam_mapper/save_map', Trigger.Request())
-    assert reply.success and 'em_sam_map.yaml' in reply.message  # type: ignore[attr-defined]
-    assert mapper.checkpoint_file is not None
-    saved = read_map(mapper.checkpoint_file.parent)
-    result = mapper.mapper.result
-    assert result is not None
-    assert saved.ids.tolist() == result.landmark_ids.tolist()
-    assert saved.moveable.tolist() == result.moveable.tolist()
-    assert set(saved.ids[saved.moveable].tolist()) == set(range(100, 110))
-    assert np.array_equal(saved.positions, result.positions)  # repr() round-trips floats
-    assert np.array_equal(saved.poses, result.poses[: len(saved.poses)])
-    assert saved.stamps_ns.tolist() == mapper.mapper.stamps_ns[: len(saved.stamps_ns)]
-    # the static landmarks' joint covariance, which localization on this map tests against
-    static = saved.ids[~saved.moveable]
-    assert saved.joint_ids is not None and saved.joint_ids.tolist() == sorted(static.tolist())
-    assert saved.joint is not None and saved.joint.shape == (2 * len(static), 2 * len(static))
-    assert np.all(np.linalg.eigvalsh(saved.joint) > 0)
-    with (mapper.checkpoint_file.parent / 'em_sam_landmarks.csv').open() as rows:
-        header = next(csv.reader(rows))
-    assert header[:3] == ['id', 'x_m', 'y_m']
