@@ -42,7 +42,8 @@ import cv2
 import numpy as np
 from bench_common import best_of, source_revision
 
-from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
+from marker_detector.core.detection import detect_markers, make_detector
+from marker_detector.core.detector_config import DetectorConfig
 from marker_detector.core.rendering import MarkerPlacement, render_markers
 from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import rotation_from_vector

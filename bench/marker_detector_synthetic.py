@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 from bench_common import source_revision
 
-from marker_detector.core.detection import DetectorConfig
+from marker_detector.core.detector_config import DetectorConfig
 from marker_detector.processor import ExtrinsicsConfig, MarkerProcessor
 from slam_core.geometry.se3 import OPTICAL_IN_LINK
 from slam_sim.core.camera_effects import encode_jpeg

@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from em_sam_node.core.problem import FloatArray
 from em_sam_node.ingest import Increment
 from em_sam_node.mapper import Observation
+from slam_core.arrays import FloatArray
 from slam_core.geometry.quaternion import quaternion_from_yaw, yaw_from_quaternion
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 

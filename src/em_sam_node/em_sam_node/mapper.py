@@ -46,9 +46,10 @@ from em_sam_node.core.localization import (
     static_joint_covariance,
 )
 from em_sam_node.core.marginals import marginal_pose_covariance
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray
+from em_sam_node.core.problem import Estimate
 from em_sam_node.core.sightings import Sightings, sightings_of
 from em_sam_node.ingest import Increment
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.geometry.se2 import apply_increment, compose, inverse
 
 

@@ -19,8 +19,8 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from em_sam_node.conversions import fill_yaw_quaternion
 from em_sam_node.core.em_types import EmResult
-from em_sam_node.core.problem import FloatArray
 from em_sam_node.core.sightings import Sightings
+from slam_core.arrays import FloatArray
 from slam_core.stamps import ns_to_stamp
 from slam_interfaces.msg import (
     LandmarkEstimate,

@@ -31,9 +31,9 @@ from em_sam_node.conversions import (
 )
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.core.problem import FloatArray, IntArray
 from em_sam_node.ingest import IngestConfig, OdometryIngest
 from em_sam_node.mapper import MapperConfig, MapperProcessor
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.errors import BagError
 from slam_core.geometry.se2 import wrap_angle
 from slam_core.stamps import stamp_to_ns

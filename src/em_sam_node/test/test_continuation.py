@@ -10,9 +10,10 @@ from synthetic_room import SECOND_NS, chained_data
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
 from em_sam_node.core.continuation import incremental_least_squares, step_ends
 from em_sam_node.core.factors import range_bearing_predict
-from em_sam_node.core.problem import Estimate, FloatArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
 from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import with_weak_priors
+from slam_core.arrays import FloatArray
 from slam_core.geometry.se2 import increment_between
 
 OBSERVATION_SIGMA = np.array([0.05, 0.01])  # m, rad

@@ -12,9 +12,9 @@ from test_continuation import corridor_loop
 from em_sam_node.core.assembly import MappingData, build_problem, dead_reckoning, initial_estimate
 from em_sam_node.core.em import _solve, run_em, seed_solver
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.core.problem import FloatArray
 from em_sam_node.core.seeding import Seed, incremental_seed
 from em_sam_node.core.structure import with_weak_priors
+from slam_core.arrays import FloatArray
 
 UNCALIBRATED = EmConfig(mode='robust', calibrate_odometry=False)
 

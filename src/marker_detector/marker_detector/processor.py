@@ -23,12 +23,12 @@ import numpy as np
 from marker_detector.core.base_frame import RangeBearing, to_range_bearing
 from marker_detector.core.detection import (
     DetectionResult,
-    DetectorConfig,
     MarkerDetection,
     Rejection,
     detect_markers,
     make_detector,
 )
+from marker_detector.core.detector_config import DetectorConfig
 from marker_detector.core.roi import SearchPlan
 from slam_core.camera import CameraModel
 from slam_core.geometry.se3 import optical_from_link, transform_from_xyz_rpy

@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from marker_detector.core.detection import CORNER_REFINEMENTS, DetectorConfig
+from marker_detector.core.detector_config import CORNER_REFINEMENTS, DetectorConfig
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
 from marker_detector.core.images import DEFAULT_MAX_IMAGE_PIXELS
 from marker_detector.core.roi import SearchPlan

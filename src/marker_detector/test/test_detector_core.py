@@ -15,11 +15,11 @@ from marker_detector.core.candidates import locate_markers
 from marker_detector.core.decoding import decode_quad
 from marker_detector.core.detection import (
     DetectionResult,
-    DetectorConfig,
     MarkerDetection,
     detect_markers,
     make_detector,
 )
+from marker_detector.core.detector_config import DetectorConfig
 from marker_detector.core.dictionaries import DICTIONARIES, get_dictionary
 from marker_detector.core.pose import (
     corner_jacobian,

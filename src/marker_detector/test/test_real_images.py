@@ -27,7 +27,8 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from marker_detector.core.candidates import MarkerCorners, locate_markers
-from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
+from marker_detector.core.detection import detect_markers, make_detector
+from marker_detector.core.detector_config import DetectorConfig
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import log_rotation
 from slam_core.testing.datasets import dataset_or_skip

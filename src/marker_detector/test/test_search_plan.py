@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from marker_detector.core.detection import DetectorConfig
+from marker_detector.core.detector_config import DetectorConfig
 from marker_detector.core.rendering import MarkerPlacement, render_markers
 from marker_detector.core.roi import SearchPlan, merge_boxes
 from marker_detector.processor import ExtrinsicsConfig, MarkerProcessor

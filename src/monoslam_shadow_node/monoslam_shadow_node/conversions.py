@@ -35,16 +35,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.shadow_filter import FrameInput, Handover, TrackReport
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_core.geometry import quaternion
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 UNKNOWN_COVARIANCE = (-1.0, *([0.0] * 8))
 """A 3x3 covariance with no estimate: element 0 is -1 (sensor_msgs convention)."""
 NO_TEST_STATISTIC = -1.0

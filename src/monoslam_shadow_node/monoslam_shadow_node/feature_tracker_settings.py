@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from marker_detector.core.images import DEFAULT_MAX_IMAGE_PIXELS
-from monoslam_shadow_node.core.feature_tracker import TrackerConfig
+from monoslam_shadow_node.core.feature_config import TrackerConfig
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
 
 NODE_NAME = 'feature_tracker'

@@ -38,16 +38,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from monoslam_shadow_node.conversions import FEATURE_TRACK_CDR, feature_array_cdr
-from monoslam_shadow_node.core.feature_tracker import (
-    FeatureTracker,
-    FloatArray,
-    GrayImage,
-    IntArray,
-    TrackerConfig,
-    as_gray_image,
-)
+from monoslam_shadow_node.core.feature_config import GrayImage, TrackerConfig
+from monoslam_shadow_node.core.feature_tracker import FeatureTracker, as_gray_image
 from monoslam_shadow_node.core.feature_types import DROP_REASONS, Predictions, TrackedFeatures
 from monoslam_shadow_node.notices import Notice
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 
 PREDICTIONS_KEPT = 10

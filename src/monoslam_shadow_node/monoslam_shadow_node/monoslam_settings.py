@@ -25,8 +25,8 @@ from scipy.spatial.transform import Rotation
 
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
-from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.known_points_input import KnownPointRows, read_known_points
+from slam_core.arrays import FloatArray
 from slam_core.params import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Param, ParamTable
 
 NODE_NAME = 'monoslam'

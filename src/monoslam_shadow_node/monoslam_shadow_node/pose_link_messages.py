@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from monoslam_shadow_node.conversions import CameraPose
-from monoslam_shadow_node.core.projective import FloatArray
+from slam_core.arrays import FloatArray
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
 LINK_SUFFIX = '/link'

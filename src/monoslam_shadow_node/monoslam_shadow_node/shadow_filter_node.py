@@ -68,9 +68,7 @@ dropped. A frame still waiting when no input came for sync_horizon_s of wall tim
 dropped, as is a pose no features frame paired with within the horizon; each drop is logged
 once with its stamp. Each queue holds at most queue_size entries (the oldest goes first).
 While no camera_info or no pose at all has come yet, the drops are summarized in a line
-every few seconds instead. (Until issue 22 a frame also went once the newest features stamp
-was sync_horizon_s past it: when SLAM lagged by more than that, every frame was dropped and
-then its late pose too.)
+every few seconds instead.
 
 Bad input is logged with its culprit and the node goes on: features before any camera_info
 (held and processed once it arrives), a pose or features frame without partner (dropped as

@@ -9,8 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
+from monoslam_shadow_node.core.feature_config import TrackerConfig
 from monoslam_shadow_node.core.feature_detection import SUBPIXEL_HALF_WINDOW_PX
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
+from monoslam_shadow_node.core.feature_tracker import FeatureTracker
 from monoslam_shadow_node.core.feature_types import DROP_REASONS, Predictions, TrackedFeatures
 
 WIDTH, HEIGHT = 640, 480

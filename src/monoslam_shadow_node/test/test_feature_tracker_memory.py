@@ -14,7 +14,8 @@ from test_feature_tracker_core import (
     warped,
 )
 
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
+from monoslam_shadow_node.core.feature_config import TrackerConfig
+from monoslam_shadow_node.core.feature_tracker import FeatureTracker
 from monoslam_shadow_node.core.feature_types import Predictions, TrackedFeatures
 
 

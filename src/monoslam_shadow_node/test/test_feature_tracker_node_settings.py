@@ -16,7 +16,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from monoslam_shadow_node import feature_tracker_node
 from monoslam_shadow_node import feature_tracker_settings as settings
-from monoslam_shadow_node.core.feature_tracker import TrackerConfig
+from monoslam_shadow_node.core.feature_config import TrackerConfig
 from monoslam_shadow_node.feature_tracker_node import KindThrottle
 from monoslam_shadow_node.feature_tracking import (
     FeatureFrame,
@@ -275,7 +275,7 @@ def test_camera_info_checks_the_size_names_the_frame_and_restarts_on_change() ->
         ({'width': 0}, 'camera_info width=0: must be an integer > 0'),
         ({'k': [math.nan] * 9}, 'must be 9 finite numbers'),
         ({'k': [1.0] * 4}, 'camera_info k has 4 values; expected 9'),
-        # The fault table: fx = 0 was taken and every track dropped.
+        # fx = 0 was once taken and every track dropped.
         ({'k': [0.0, 0.0, 160.0, 0.0, 300.0, 120.0, 0.0, 0.0, 1.0]}, 'fx=0, fy=300'),
         ({'d': [0.0, math.inf, 0.0, 0.0, 0.0]}, 'plumb_bob needs 5 finite coefficients'),
         ({'distortion_model': 'fisheye'}, "distortion_model='fisheye': not supported"),

@@ -1,4 +1,4 @@
-"""The Shadow filter's stacked computations (issue 22: every frame at 30 Hz) against the
+"""The Shadow filter's stacked computations (every frame at 30 Hz) against the
 one-feature forms they replace: the score test over views kept as rows, the three-ray tests
 of many triples, the ray precisions, and the tracks' buffers."""
 

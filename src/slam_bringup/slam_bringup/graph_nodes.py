@@ -18,13 +18,7 @@ from typing import Any
 import yaml
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
-from slam_bringup.graph import (
-    Graph,
-    ParameterSource,
-    PlayerSpec,
-    RecorderSpec,
-    Remapping,
-)
+from slam_bringup.graph_types import Graph, ParameterSource, PlayerSpec, RecorderSpec, Remapping
 from slam_core.errors import GraphError
 
 PLAYER_PLUGIN = 'slam_bringup.bag_player:BagPlayerNode'

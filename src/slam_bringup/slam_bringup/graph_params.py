@@ -21,15 +21,13 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import yaml
 
+from slam_bringup.graph_types import Graph, NodeSpec
 from slam_core.errors import ParameterError
 from slam_core.params import ParamTable
-
-if TYPE_CHECKING:  # graph.py calls check_graph_parameters from load_graph
-    from slam_bringup.graph import Graph, NodeSpec
 
 
 def node_module_name(package: str, executable: str, plugin: str | None) -> str | None:

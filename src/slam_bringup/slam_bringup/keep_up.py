@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
-from slam_bringup.graph import PlayerSpec
+from slam_bringup.graph_types import PlayerSpec
 
 LOSS_WORDS = ('lost', 'dropping inputs')
 

@@ -25,7 +25,8 @@ from typing import Any
 import yaml
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
-from slam_bringup.graph import Graph, load_graph, read_yaml
+from slam_bringup.graph import load_graph, read_yaml
+from slam_bringup.graph_types import Graph
 from slam_core.cli import PlainDescriptionHelpFormatter, console_main
 from slam_core.errors import GraphError
 from slam_core.files import write_atomically

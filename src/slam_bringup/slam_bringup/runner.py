@@ -70,7 +70,7 @@ from rclpy.utilities import try_shutdown
 from slam_bringup.bag_player import BagPlayerNode
 from slam_bringup.bag_recorder import DRAIN_TIMEOUT_S, BagRecorderNode
 from slam_bringup.drain import DrainWatch, listen
-from slam_bringup.graph import Graph, load_graph
+from slam_bringup.graph import load_graph
 from slam_bringup.graph_nodes import (
     NodeDescription,
     bundled_graphs_help,
@@ -79,6 +79,7 @@ from slam_bringup.graph_nodes import (
     ros_arguments,
     with_overrides,
 )
+from slam_bringup.graph_types import Graph
 from slam_bringup.keep_up import KeepUpHint, keep_up_options, start_note
 from slam_bringup.supervise import Respawner, failing_node, warn_if_respawn_ignored
 from slam_core.blas import single_threaded_blas

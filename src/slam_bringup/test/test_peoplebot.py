@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from slam_bringup import peoplebot
-from slam_bringup.graph import NodeSpec, load_graph
+from slam_bringup.graph import load_graph
+from slam_bringup.graph_types import NodeSpec
 from slam_bringup.peoplebot import CAMERAS, PIPELINES, ROBOTS, compose, main, write_graph
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]

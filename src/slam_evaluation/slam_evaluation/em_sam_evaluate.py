@@ -37,9 +37,9 @@ import numpy as np
 from em_sam_node.core.assembly import MappingData, dead_reckoning
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
-from em_sam_node.core.problem import FloatArray
 from em_sam_node.offline import GroundTruth, read_ground_truth, replay_bag, seen_at_both_positions
 from em_sam_node.report import write_figures
+from slam_core.arrays import FloatArray
 from slam_core.cli import PlainDescriptionHelpFormatter, console_main
 from slam_core.files import write_atomically, write_json
 from slam_core.progress import ProgressReporter

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from em_sam_node.core.problem import FloatArray
+from slam_core.arrays import FloatArray
 
 
 @dataclass(frozen=True)

@@ -23,9 +23,10 @@ from em_sam_node.core.continuation import incremental_least_squares
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.odometry_calibration import OdometryCalibration, estimate_calibration
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
 from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
+from slam_core.arrays import FloatArray, IntArray
 
 T = TypeVar('T')
 

@@ -139,7 +139,7 @@ def _arguments(argv: list[str] | None) -> Settings:
         default=1,
         choices=(0, 1, 2),
         help="the Shadow filter's STATIC rule: directions of motion left unchecked "
-        '(0: strict, no moving feature handed over in the issue-6 runs; default 1)',
+        '(0: strict, no moving feature handed over in the strict runs; default 1)',
     )
     parser.add_argument(
         '--static-test',

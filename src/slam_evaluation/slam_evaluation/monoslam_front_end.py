@@ -14,8 +14,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from marker_detector.core.detection import DetectorConfig, detect_markers, make_detector
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
+from marker_detector.core.detection import detect_markers, make_detector
+from marker_detector.core.detector_config import DetectorConfig
+from monoslam_shadow_node.core.feature_config import TrackerConfig
+from monoslam_shadow_node.core.feature_tracker import FeatureTracker
 from monoslam_shadow_node.core.feature_types import Predictions
 from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
 from monoslam_shadow_node.core.tracking_noise import drift_bounded_offset_px

@@ -1,6 +1,6 @@
 """monoslam_image_evaluate: paper 001's Fig. 5 from rendered images, against the measurement
-level (issue 7: the full pipeline from images reaches (c) within 1.5x of its
-measurement-level ATE).
+level (the full pipeline from images reaches (c) within 1.5x of its measurement-level
+ATE).
 
     monoslam_image_evaluate --out out/monoslam_image_eval [--seeds 0-9] [--duration-s 20]
                             [--target-every-n-frames 1]
@@ -169,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
 
     for source in settings.sources:
         results.append(evaluate_source(source, settings, advance))
-        print(seed_line(results[-1]), file=sys.stderr)  # noqa: T201
+        print(f'{PROG}: {seed_line(results[-1])}', file=sys.stderr)  # noqa: T201
     progress.finish()
     content = report(settings, results, time.perf_counter() - started)
     figures = write_figures(settings.out, results, content['curves']['rate_hz'])

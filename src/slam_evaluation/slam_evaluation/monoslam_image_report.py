@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from monoslam_shadow_node.core.feature_tracker import TrackerConfig
+from monoslam_shadow_node.core.feature_config import TrackerConfig
+from slam_core.arrays import FloatArray
 from slam_evaluation import monoslam_runs
 from slam_evaluation.monoslam_front_end import MOVING_RADIUS_PX, FrontEndStats
 from slam_evaluation.monoslam_image_runs import RUNS, SeedResult, Settings
-from slam_evaluation.monoslam_image_sources import FloatArray
 from slam_evaluation.monoslam_report import (
     TRACKED_SHARE_MIN,
     acceptance_point,

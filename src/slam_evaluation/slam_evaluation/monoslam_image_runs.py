@@ -14,10 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from slam_core.arrays import FloatArray
 from slam_evaluation import monoslam_runs
 from slam_evaluation.monoslam_front_end import FrontEnd, FrontEndStats
-from slam_evaluation.monoslam_image_evaluate import PROG
-from slam_evaluation.monoslam_image_sources import FloatArray, FrameSource
+from slam_evaluation.monoslam_image_sources import FrameSource
 from slam_evaluation.monoslam_metrics import pose_errors, shadow_numbers, trajectory_metrics
 from slam_evaluation.monoslam_pipeline import (
     VARIANTS,
@@ -144,7 +144,7 @@ def seed_line(result: SeedResult) -> str:
     }
     front = entry['front_end']
     return (
-        f'{PROG}: seed {entry["seed"]} ({entry["source"]}): ATE image a {ate["a"]:.3f}, '
+        f'seed {entry["seed"]} ({entry["source"]}): ATE image a {ate["a"]:.3f}, '
         f'b {ate["b"]:.3f}, c {ate["c"]:.3f} m; measurement c {ate["meas"]:.3f} m; ratio '
         f'{entry["ratio_c"]["ate_m"]:.2f}; {front["features_per_frame"]:.0f} features/frame, '
         f'target detected in {100 * front["detection_rate"]:.0f} % of its frames'

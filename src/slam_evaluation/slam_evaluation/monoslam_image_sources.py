@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from marker_detector.conversions import camera_info_fields, image_from_message
 from marker_detector.core.images import ImageError
 from monoslam_shadow_node.conversions import rotation_from_quaternion
+from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 from slam_core.errors import BagError
 from slam_core.stamps import stamp_to_ns
@@ -34,7 +35,6 @@ from slam_sim.dynamic_camera_bag import (
 )
 from slam_sim.office_camera_bag import CAMERA_INFO_TOPIC, IMAGE_TOPIC, TRUE_FIDUCIALS_TOPIC
 
-FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 

@@ -1,4 +1,4 @@
-"""The loop scene at the measurement level (issue 21, paper 001's Fig. 6): one seed's run of a
+"""The loop scene at the measurement level (paper 001's Fig. 6): one seed's run of a
 variant, and what it says about the map MonoSLAM keeps.
 
 The scene is ``monoslam_runs.Settings``'s Fig. 5 scene (with its 8 moving objects, or none)
@@ -47,7 +47,7 @@ REMATCH_FRAMES = 5
 CLOSED_FRACTION = 0.5
 """The last second's error must be at most this share of the far side's largest."""
 LOOP_AWAY_S = 6.0
-"""How long the camera stays turned away (the issue asks for at least 5 s)."""
+"""How long the camera stays turned away (at least 5 s)."""
 LOOP_DURATION_S = 20.0
 
 

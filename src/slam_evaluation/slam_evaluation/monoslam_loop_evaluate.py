@@ -1,5 +1,5 @@
 """monoslam_loop_evaluate: MonoSLAM's persistent map on a loop, at the measurement level or
-from rendered images (issue 21; paper 001: "when the camera perceives again the checkerboard,
+from rendered images (paper 001: "when the camera perceives again the checkerboard,
 the features are re-matched correctly, closing the loop").
 
     monoslam_loop_evaluate --out out/monoslam_loop [--seeds 0-9] [--variants a,c]

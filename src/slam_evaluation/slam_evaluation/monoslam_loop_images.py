@@ -1,4 +1,4 @@
-"""The loop scene from rendered images, closed loop (issue 21): the feature tracker tracks each
+"""The loop scene from rendered images, closed loop: the feature tracker tracks each
 image with SLAM's predictions for it, as the node graph wires ``features/predicted``, so a
 map feature that comes back into view is searched for with its predicted pixel, search
 region and template warp (``feature_tracker``'s re-identification), and SLAM measures it

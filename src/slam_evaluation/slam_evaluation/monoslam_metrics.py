@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from slam_core.arrays import FloatArray
 from slam_core.geometry.quaternion import log_rotation
 from slam_evaluation.monoslam_pipeline import (
     MeasurementFrame,
@@ -24,14 +24,13 @@ from slam_evaluation.monoslam_pipeline import (
 from slam_evaluation.shadow_consistency import average_nees_band
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 
-FloatArray = NDArray[np.float64]
 POSE_DOF = 6
 BAND_PROBABILITY = 0.95
 DIVERGED_ATE_M = 1.0
 REVOCATION_SPEED_M_S = 0.3
 """A mover in SLAM's map must be revoked once it moves across the line of sight this fast."""
 REVOCATION_FRAMES = 15
-"""... within this many frames (issue 20's acceptance)."""
+"""... within this many frames (the acceptance)."""
 
 
 @dataclass(frozen=True)
@@ -167,7 +166,7 @@ def mover_revocations(
     A stay runs from the entry to the feature's removal (or the end). It is judged from the
     first frame of the stay in which the point moves at ``REVOCATION_SPEED_M_S`` or more:
 
-    - ``'across'`` (issue 20's acceptance): across the camera's line of sight (true velocity
+    - ``'across'`` (the acceptance's): across the camera's line of sight (true velocity
       minus its component along the ray from the true camera centre);
     - ``'observable'``: out of the epipolar plane, the plane of the ray and the camera's
       velocity (the component along their cross product; across the line of sight when the

@@ -64,12 +64,11 @@ from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
 from monoslam_shadow_node.monoslam_conversions import HandoverInput
 from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor
 from monoslam_shadow_node.shadow_processor import ShadowProcessor, ShadowStep
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 from slam_sim.core.init_target import InitTarget, target_pixels
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 VARIANTS = ('a', 'b', 'c')
 VARIANT_TITLES = {

@@ -31,7 +31,7 @@ from slam_evaluation.monoslam_pipeline import (
 from slam_evaluation.monoslam_runs import TARGET_NOISE_SEED_OFFSET, Collected, Settings
 
 C_OVER_A_MAX = 1.5
-"""ATE(c)/ATE(a), the ratio of the means over seeds (issue 20; the goal is 1.2) ..."""
+"""ATE(c)/ATE(a), the ratio of the means over seeds (the goal is 1.2) ..."""
 C_OVER_A_SEED_MAX = 2.0
 """... and on every seed."""
 C_OVER_A_GOAL = 1.2

@@ -49,10 +49,10 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
 from monoslam_shadow_node.core.shadow_ekf import EkfConfig
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_core.files import write_atomically
 from slam_evaluation.monoslam_pipeline import MeasurementFrame, PipelineConfig
@@ -60,8 +60,6 @@ from slam_sim.core.dynamic_config import DynamicSceneConfig
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 from slam_sim.core.init_target import InitTarget, target_pixels
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 FILES = (
     'camera.yaml', 'poses.txt', 'tracks.csv', 'labels.csv', 'known_points.csv', 'depths.csv',
     'tracker.yaml',

@@ -20,11 +20,10 @@ from monoslam_shadow_node.core.rays import ray_angle
 from monoslam_shadow_node.core.shadow_classifier import Decision
 from monoslam_shadow_node.core.shadow_filter import Handover, InputError, ShadowConfig
 from monoslam_shadow_node.shadow_processor import ShadowProcessor, ShadowStep
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
 

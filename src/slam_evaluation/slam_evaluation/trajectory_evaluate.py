@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from slam_core.arrays import FloatArray
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.geometry.quaternion import log_rotation
@@ -52,7 +53,6 @@ from slam_evaluation.monoslam_metrics import DIVERGED_ATE_M, rms, umeyama_alignm
 from slam_evaluation.sequence_files import read_poses
 from slam_sim.core.reference_error import ReferencePoseError
 
-FloatArray = NDArray[np.float64]
 MIN_SCALE = 0.5
 """A Sim(3) alignment that must scale the estimate by less than this (or more than its
 inverse) says the estimate lost its scale: the run diverged, whatever its aligned ATE."""

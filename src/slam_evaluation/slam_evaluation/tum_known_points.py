@@ -19,14 +19,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_sim.core.depth_labels import STATIC, DepthSightings, TrackLabels
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 @dataclass(frozen=True, eq=False)

@@ -13,10 +13,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from slam_core.arrays import FloatArray, IntArray
 from slam_sim.core.depth_labels import LABEL_NAMES, MOVING, STATIC, UNKNOWN
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 COLOURS_BGR = {MOVING: (0, 0, 255), STATIC: (0, 200, 0), UNKNOWN: (170, 170, 170)}
 RADIUS_PX = 5
 

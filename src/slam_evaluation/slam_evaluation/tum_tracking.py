@@ -18,7 +18,8 @@ import numpy as np
 
 from marker_detector.core.images import ImageError, decode_compressed
 from monoslam_shadow_node.conversions import features_from_message
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker, TrackerConfig
+from monoslam_shadow_node.core.feature_config import TrackerConfig
+from monoslam_shadow_node.core.feature_tracker import FeatureTracker
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.errors import DatasetError
 from slam_evaluation.classification_figure import FEATURES_TOPIC, read_messages

@@ -1,4 +1,4 @@
-"""monoslam_evaluate's options for issue 43: --undeclared (the simulated tracking noise is
+"""monoslam_evaluate's options: --undeclared (the simulated tracking noise is
 not told to the filters), --undecided-probation (fills wait on probation) and --first-order
 (MonoSLAM without its second-order inverse-depth term) and --new-probation ((a)'s new
 features wait on probation until linear; (b) stays classic)."""

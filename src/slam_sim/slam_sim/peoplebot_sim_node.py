@@ -50,6 +50,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tf2_msgs.msg import TFMessage
 
 from slam_core.cli import console_main
+from slam_core.geometry.se2 import wrap_angle
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, Range
 from slam_interfaces.msg import LandmarkEstimate, LandmarkMap
 from slam_ros.diagnostics import Diagnostics
@@ -241,7 +242,7 @@ class PeoplebotSimNode(Node):
         delta = base.odom_pose - last_pose
         heading = last_pose[2]
         forward = float(np.cos(heading) * delta[0] + np.sin(heading) * delta[1]) / period_s
-        turn = float(np.arctan2(np.sin(delta[2]), np.cos(delta[2]))) / period_s
+        turn = wrap_angle(float(delta[2])) / period_s
         self._last_odom = (stamp_ns, base.odom_pose.copy())
         odom = odometry_message(
             stamp_ns,

@@ -12,8 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
-from slam_core.geometry.se2 import range_bearing_to_point
+from em_sam_node.core.problem import Estimate, SlamProblem
+from slam_core.arrays import FloatArray, IntArray
+from slam_core.geometry.se2 import range_bearing_to_point, wrap_angle
 
 
 @dataclass(frozen=True)
@@ -157,7 +158,7 @@ def dead_reckoning(data: MappingData) -> FloatArray:
     poses = np.column_stack(
         [data.prior_pose[0] + np.cumsum(dx), data.prior_pose[1] + np.cumsum(dy), headings]
     )
-    poses[:, 2] = np.arctan2(np.sin(poses[:, 2]), np.cos(poses[:, 2]))
+    poses[:, 2] = wrap_angle(poses[:, 2])
     return poses
 
 

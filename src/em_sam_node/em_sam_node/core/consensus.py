@@ -16,7 +16,8 @@ from itertools import combinations
 
 import numpy as np
 
-from em_sam_node.core.problem import FloatArray
+from slam_core.arrays import FloatArray
+from slam_core.geometry.se2 import wrap_angle
 from slam_core.lazy_stats import chi2
 
 MIN_CONSENSUS = 3  # a pair defines a correction; a third landmark is the first to confirm it
@@ -38,9 +39,7 @@ class Correction:
     def apply_poses(self, poses: FloatArray) -> FloatArray:
         """Return the corrected poses (n,3), headings wrapped."""
         heading = poses[:, 2] + self.angle
-        return np.column_stack(
-            [self.apply_points(poses[:, :2]), np.arctan2(np.sin(heading), np.cos(heading))]
-        )
+        return np.column_stack([self.apply_points(poses[:, :2]), wrap_angle(heading)])
 
 
 IDENTITY = Correction(0.0, np.zeros(2))

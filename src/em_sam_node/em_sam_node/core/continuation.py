@@ -26,8 +26,9 @@ from em_sam_node.core.assembly import (
     dead_reckoning,
     initial_landmarks,
 )
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.geometry.se2 import apply_increment
 
 CHUNK_S = 20.0  # the first steps: the robust seed's chunk

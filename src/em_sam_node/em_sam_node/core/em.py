@@ -64,12 +64,13 @@ from em_sam_node.core.em_weights import (
 from em_sam_node.core.factors import observation_innovations, observation_mahalanobis
 from em_sam_node.core.marginals import marginal_landmark_covariances
 from em_sam_node.core.odometry_calibration import OdometryCalibration, estimate_calibration
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
 from em_sam_node.core.robust_kernels import RobustKernel
 from em_sam_node.core.seeding import Solver, incremental_seed
 from em_sam_node.core.sightings import Sightings, at_latest_sightings, sightings_of
 from em_sam_node.core.solver import solve
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
+from slam_core.arrays import FloatArray, IntArray
 
 
 def anchored_problem(built: BuiltProblem, poses: FloatArray) -> tuple[SlamProblem, int]:

@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from em_sam_node.core.problem import FloatArray, IntArray
 from em_sam_node.core.robust_kernels import RobustKernel, cauchy_weights, huber_weights
 from em_sam_node.core.sightings import Sightings
+from slam_core.arrays import FloatArray, IntArray
 
 MODES = ('paper', 'robust')
 SEED_KERNELS: dict[str, Callable[[float], RobustKernel]] = {

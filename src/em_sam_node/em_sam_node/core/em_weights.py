@@ -15,7 +15,8 @@ import numpy as np
 from em_sam_node.core.assembly import BuiltProblem, MappingData
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.factors import observation_innovations
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.lazy_stats import chi2
 
 ROW_SCALE_FLOOR = 1e-3

@@ -22,7 +22,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
 from em_sam_node.core.linear_system import SystemLayout
-from em_sam_node.core.problem import FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import SlamProblem
+from slam_core.arrays import FloatArray, IntArray
 
 # An LDL^T pivot below this fraction of its diagonal entry means the variable is (to
 # rounding) a combination of earlier ones: the system is rank-deficient. Weak priors of

@@ -45,7 +45,8 @@ from typing import Literal, overload
 import numpy as np
 from numpy.typing import NDArray
 
-from em_sam_node.core.problem import Estimate, FloatArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
+from slam_core.arrays import FloatArray
 from slam_core.geometry.se2 import wrap_angle
 
 ODOMETRY_MODELS = ('differential_drive', 'se2_between')

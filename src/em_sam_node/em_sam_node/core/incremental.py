@@ -68,8 +68,8 @@ from em_sam_node.core.incremental_types import (
     NewSighting,
     UpdateStats,
 )
-from em_sam_node.core.problem import FloatArray
 from em_sam_node.core.sightings import sighting_jacobians
+from slam_core.arrays import FloatArray
 from slam_core.geometry.se2 import range_bearing_to_point
 
 

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from em_sam_node.core.factors import range_bearing_error_with_jacobians
-from em_sam_node.core.problem import FloatArray
+from slam_core.arrays import FloatArray
 
 POINT_ITERATIONS = 10  # Gauss-Newton steps placing a landmark from its sightings alone
 

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from em_sam_node.core.em_weights import ROW_SCALE_FLOOR
-from em_sam_node.core.problem import FloatArray
+from slam_core.arrays import FloatArray
 
 
 @dataclass(frozen=True)

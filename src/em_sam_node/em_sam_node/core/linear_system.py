@@ -27,7 +27,8 @@ from em_sam_node.core.factors import (
     linearize_prior,
     validate_problem,
 )
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
+from slam_core.arrays import FloatArray, IntArray
 
 
 class SystemLayout:

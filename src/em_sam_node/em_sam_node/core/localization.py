@@ -37,8 +37,9 @@ from em_sam_node.core.em import _solve, anchored_problem, final_kernel, run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.em_weights import chi2_quantile, with_noise_scales
 from em_sam_node.core.marginals import joint_landmark_covariance, marginal_landmark_covariances
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray
+from em_sam_node.core.problem import Estimate
 from em_sam_node.core.sightings import at_latest_sightings, sightings_of
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.geometry.se2 import (
     between,
     compose,

@@ -23,7 +23,8 @@ from em_sam_node.core.linear_system import (
     normal_equations,
     system_layout,
 )
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
+from slam_core.arrays import FloatArray, IntArray
 
 _MARGINAL_CHUNK_ENTRIES = 4_000_000  # dense right-hand-side entries per marginal solve
 

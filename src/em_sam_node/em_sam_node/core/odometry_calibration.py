@@ -35,7 +35,7 @@ import numpy as np
 
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.factors import odometry_error
-from em_sam_node.core.problem import FloatArray
+from slam_core.arrays import FloatArray
 
 NOMINAL = np.array([1.0, 1.0])  # translation scale, rotation scale
 # Wheel radius and track width known to 10 % (MRCLAM's odometry is 3-12 % off).

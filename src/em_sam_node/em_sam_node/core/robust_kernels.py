@@ -13,7 +13,8 @@ from typing import Protocol
 import numpy as np
 
 from em_sam_node.core.factors import observation_residuals
-from em_sam_node.core.problem import Estimate, FloatArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
+from slam_core.arrays import FloatArray
 
 
 class RobustKernel(Protocol):

@@ -29,9 +29,10 @@ from em_sam_node.core.factors import (
     range_bearing_error_jacobians,
 )
 from em_sam_node.core.linear_system import linearize_factors, normal_equations, system_layout
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
 from em_sam_node.core.sightings import sighting_jacobians
-from slam_core.geometry.se2 import between, range_bearing_to_point
+from slam_core.arrays import FloatArray, IntArray
+from slam_core.geometry.se2 import between, range_bearing_to_point, wrap_angle
 from slam_core.lazy_stats import chi2
 
 # Stretches of the step's length the solved prefix must hold before the drift it shows can
@@ -268,7 +269,7 @@ def associate(
             mapped,
         )
     shift = correction.apply_poses(poses[end - 1 :])[0] - poses[end - 1]
-    shift[2] = np.arctan2(np.sin(shift[2]), np.cos(shift[2]))
+    shift[2] = wrap_angle(float(shift[2]))
     plausible = chi2.ppf(1.0 - config.false_alarm_probability, 3)
     if prediction.known_drift and shift @ np.linalg.solve(covs[end - 1], shift) > plausible:
         agreed = set()  # the odometry, as far as it drifted before, is not that far off
@@ -361,7 +362,7 @@ def _drift_covariance_per_keyframe(
     reported = between(odometry[starts], odometry[ends])
     solved_motion = between(solved[starts], solved[ends])
     difference = reported - solved_motion
-    difference[:, 2] = np.arctan2(np.sin(difference[:, 2]), np.cos(difference[:, 2]))
+    difference[:, 2] = wrap_angle(difference[:, 2])
     result: FloatArray = difference.T @ difference / (len(starts) * length)
     return result
 

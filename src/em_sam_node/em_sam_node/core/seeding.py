@@ -79,7 +79,7 @@ from em_sam_node.core.factors import (
     observation_mahalanobis,
 )
 from em_sam_node.core.odometry_calibration import OdometryCalibration, estimate_calibration
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
 from em_sam_node.core.robust_kernels import RobustKernel
 from em_sam_node.core.seed_association import (
     SolvedStep,
@@ -89,6 +89,7 @@ from em_sam_node.core.seed_association import (
     predict_step,
 )
 from em_sam_node.core.structure import anchor_pieces, with_weak_priors
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.geometry.se2 import range_bearing_to_point
 
 # solve(problem, start, observation row scales (K,), robust kernel or None, at most this many

@@ -9,7 +9,8 @@ import numpy as np
 
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.marginals import marginal_pose_covariance
-from em_sam_node.core.problem import Estimate, FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import Estimate, SlamProblem
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.geometry.se2 import range_bearing_to_point, wrap_angle
 
 MARGINAL_SAMPLES = 64

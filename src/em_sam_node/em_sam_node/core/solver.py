@@ -61,8 +61,9 @@ from em_sam_node.core.linear_system import (
     normal_equations,
     system_layout,
 )
-from em_sam_node.core.problem import Estimate, FloatArray, SlamProblem, SolveResult
+from em_sam_node.core.problem import Estimate, SlamProblem, SolveResult
 from em_sam_node.core.robust_kernels import RobustKernel, kernel_loss, robust_row_scale
+from slam_core.arrays import FloatArray
 from slam_core.geometry.se2 import wrap_angle
 
 Method = Literal['gauss_newton', 'levenberg_marquardt']

@@ -14,7 +14,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from em_sam_node.core.problem import FloatArray, IntArray, SlamProblem
+from em_sam_node.core.problem import SlamProblem
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.geometry.se2 import between, increment_between
 
 # A weak anchor: effectively free in position and heading, but not singular.

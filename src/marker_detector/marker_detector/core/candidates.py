@@ -5,43 +5,21 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from marker_detector.core.decoding import decode_quad, may_be_marker
+from marker_detector.core.detector_config import DETECTOR_PROFILES, DetectorConfig
 from marker_detector.core.edges import EdgeSettings, refine_corners_batch, side_lengths
 from marker_detector.core.roi import Box
 from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 
-if TYPE_CHECKING:
-    from marker_detector.core.detection import DetectorConfig
-
 REDECODE_SIDE_SLACK_PX = 2.0  # rough contour corners sit up to ~1 px inside at each end
 OPENCV_MIN_PERIMETER_RATE = 0.03  # cv2.aruco's default minMarkerPerimeterRate
-
-
-@dataclass(frozen=True)
-class DetectorProfile:
-    """Speed against recall and accuracy: cv2.aruco's adaptive-threshold window sizes
-    (min, max, step px) and the number of edge-fit passes."""
-
-    threshold_windows_px: tuple[int, int, int]
-    edge_iterations: int
-
-
-DETECTOR_PROFILES = {
-    'accurate': DetectorProfile((3, 23, 10), 2),
-    'fast': DetectorProfile((5, 25, 20), 1),
-}
-"""``accurate``: thresholds with 3, 13 and 23 px windows (OpenCV's default set), edges fitted
-twice (106 frames/s on bench/marker_detector_speed.py). ``fast``: 5 and 25 px windows (one
-pass fewer), edges fitted once: about 1.2x the frame rate, slightly lower recall of small
-low-contrast markers (the AprilTag photos: 9 of 10 tags instead of 10 on one), the same
-corner accuracy on the benchmark's renders."""
 
 
 @dataclass(frozen=True, eq=False)

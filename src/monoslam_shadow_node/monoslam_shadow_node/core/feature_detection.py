@@ -16,14 +16,12 @@ Pixels are in the raw (distorted) image, OpenCV's convention (as in ``feature_tr
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-if TYPE_CHECKING:  # feature_tracker imports this module; its config is only annotated here
-    from monoslam_shadow_node.core.feature_tracker import TrackerConfig
+from monoslam_shadow_node.core.feature_config import TrackerConfig
 
 SHI_TOMASI_BLOCK_PX = 3
 """Neighbourhood of the Shi-Tomasi structure tensor (cv2.goodFeaturesToTrack's blockSize)."""

@@ -5,11 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-from numpy.typing import NDArray
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from slam_core.arrays import FloatArray, IntArray
 
 DROP_REASONS = ('lost', 'error', 'border', 'forward_backward', 'drift', 'crowded', 'reset')
 

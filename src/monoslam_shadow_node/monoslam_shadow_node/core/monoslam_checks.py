@@ -10,16 +10,16 @@ from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.monoslam_ekf import Match
 from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS
-from monoslam_shadow_node.core.monoslam_model import R_SLICE, FloatArray, feature_directions
+from monoslam_shadow_node.core.monoslam_model import R_SLICE, feature_directions
 from monoslam_shadow_node.core.monoslam_ransac import predicted_pixels
 from monoslam_shadow_node.core.monoslam_state import FilterState
 from monoslam_shadow_node.core.monoslam_types import (
-    IntArray,
     MonoSlamConfig,
     MonoSlamFrame,
     MonoSlamInputError,
 )
 from monoslam_shadow_node.core.projective import chi2_quantile
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 
 MIN_POSE_EIGENVALUE_RATIO = 1e-12

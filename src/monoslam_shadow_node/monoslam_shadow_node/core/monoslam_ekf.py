@@ -36,12 +36,12 @@ from monoslam_shadow_node.core.monoslam_model import (
     INVERSE_DEPTH_SIZE,
     Q_SLICE,
     R_SLICE,
-    FloatArray,
     predict_camera,
     project_features,
 )
 from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
-from monoslam_shadow_node.core.monoslam_types import IntArray, MonoSlamConfig, UpdateCounts
+from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig, UpdateCounts
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 
 

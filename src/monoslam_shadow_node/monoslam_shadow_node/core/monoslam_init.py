@@ -28,9 +28,9 @@ from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     Q_SLICE,
     R_SLICE,
-    FloatArray,
     project_known_point,
 )
+from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import (
     exp_quaternion,

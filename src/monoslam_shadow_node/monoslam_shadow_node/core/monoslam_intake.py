@@ -9,8 +9,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from monoslam_shadow_node.core.monoslam_model import FloatArray
 from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
+from slam_core.arrays import FloatArray
 
 
 def wanted(

@@ -55,6 +55,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import (
     exp_quaternion,
@@ -65,8 +66,6 @@ from slam_core.geometry.quaternion import (
     rotate_transposed_jacobian,
     rotation_from_quaternion,
 )
-
-FloatArray = NDArray[np.float64]
 
 CAMERA_SIZE = 13
 INVERSE_DEPTH_SIZE = 6

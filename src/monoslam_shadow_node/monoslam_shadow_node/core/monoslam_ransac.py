@@ -73,12 +73,12 @@ from monoslam_shadow_node.core.monoslam_model import (
     CAMERA_SIZE,
     Q_SLICE,
     R_SLICE,
-    FloatArray,
     beyond_fold,
     feature_directions,
 )
 from monoslam_shadow_node.core.monoslam_state import FilterState
-from monoslam_shadow_node.core.monoslam_types import IntArray, MonoSlamConfig, UpdateCounts
+from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig, UpdateCounts
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import rotation_from_quaternion
 

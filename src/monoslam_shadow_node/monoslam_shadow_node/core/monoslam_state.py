@@ -23,13 +23,13 @@ from monoslam_shadow_node.core.monoslam_model import (
     R_SLICE,
     V_SLICE,
     W_SLICE,
-    FloatArray,
     euclidean_point,
     linearity_indices,
     new_inverse_depth_feature,
     ray_from_angles,
 )
 from monoslam_shadow_node.core.monoslam_types import MapPoint
+from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import world_angle_jacobian
 

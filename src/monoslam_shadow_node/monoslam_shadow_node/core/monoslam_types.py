@@ -7,14 +7,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.monoslam_model import FloatArray
 from monoslam_shadow_node.core.projective import chi2_quantile
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.depth import DEPTH_NOISE_COEFFICIENT
 
-IntArray = NDArray[np.int64]
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
 INITIALIZE_MODES = ('all', 'handover')
 KNOWN_POINT_SOURCES = ('marker', 'depth', 'file')

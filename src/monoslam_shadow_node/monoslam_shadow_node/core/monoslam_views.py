@@ -33,12 +33,11 @@ from monoslam_shadow_node.core.monoslam_model import (
     INVERSE_DEPTH_SIZE,
     Q_SLICE,
     R_SLICE,
-    FloatArray,
     beyond_fold,
     ray_from_angles,
 )
 from monoslam_shadow_node.core.monoslam_state import FilterState
-from monoslam_shadow_node.core.monoslam_types import IntArray
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import rotation_from_quaternion
 

@@ -11,8 +11,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.core.rays import View
+from slam_core.arrays import FloatArray
 from slam_core.lazy_stats import norm
 
 WAIT_WARNING = 'nearer than the depth prior allows'

@@ -37,7 +37,7 @@ from typing import Protocol, TypeVar
 
 import numpy as np
 
-from monoslam_shadow_node.core.projective import FloatArray
+from slam_core.arrays import FloatArray
 
 POSE_DOF = 6
 CENTRE = slice(0, 3)

@@ -32,12 +32,11 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from slam_core.arrays import FloatArray
 from slam_core.geometry.so3 import skew
 from slam_core.lazy_stats import chi2
-
-FloatArray = NDArray[np.float64]
 
 RANK_TOLERANCE = 1e-12
 """Eigenvalues below this fraction of the largest count as zero when checking a rank."""

@@ -37,7 +37,6 @@ import numpy as np
 
 from monoslam_shadow_node.core.projective import (
     RANK_TOLERANCE,
-    FloatArray,
     RelationTest,
     chi2_quantile,
     join_point_line,
@@ -51,6 +50,7 @@ from monoslam_shadow_node.core.projective import (
     relation_test,
 )
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
+from slam_core.arrays import FloatArray
 from slam_core.geometry.so3 import skew
 
 THREE_RAY_DOF = 3

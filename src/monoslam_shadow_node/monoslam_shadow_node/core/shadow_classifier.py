@@ -51,7 +51,7 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
+from monoslam_shadow_node.core.projective import chi2_quantile
 from monoslam_shadow_node.core.rays import (
     View,
 )
@@ -69,6 +69,7 @@ from monoslam_shadow_node.core.static_fit import (
     motion_score_tests,
 )
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
+from slam_core.arrays import FloatArray
 from slam_core.lazy_stats import ncx2
 
 STATIC_TESTS = ('both', 'three_ray', 'all_view')

@@ -15,7 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from monoslam_shadow_node.core.near_static import WAIT_WARNING, implausibly_near
-from monoslam_shadow_node.core.projective import FloatArray, RelationTest
+from monoslam_shadow_node.core.projective import RelationTest
 from monoslam_shadow_node.core.rays import (
     UncertainLine,
     conditioning,
@@ -32,6 +32,7 @@ from monoslam_shadow_node.core.shadow_classifier import (
 from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC, Track
 from monoslam_shadow_node.core.static_fit import MotionScoreTest
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
+from slam_core.arrays import FloatArray
 
 UNFIT_TESTS = 3
 """Evidence of motion: DYNAMIC after this many scheduled tests in a row, past a parallax

@@ -11,7 +11,7 @@ State of one feature (eq. 1), 7 values: x = (X0, w, u)
   (X0, w, u) alike. Reports give v in m/s.
 
 Why homogeneous with w as inverse distance rather than a Euclidean point with a large depth
-variance (issue 6 lets us choose): a new feature's depth is unknown between a few decimetres
+variance: a new feature's depth is unknown between a few decimetres
 and infinity. A Gaussian in depth cannot describe that (it puts mass behind the camera and
 none at infinity); a Gaussian in w can (w = 0 is infinity), and the projection is nearly
 linear in w (Montiel, Civera and Davison's inverse depth, here in the paper's homogeneous
@@ -59,8 +59,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.core.projective import FloatArray, chi2_quantile
+from monoslam_shadow_node.core.projective import chi2_quantile
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
+from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import skew
 

@@ -37,10 +37,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.pose_links import cross_table
-from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.core.rays import THREE_RAY_DOF, View, pixel_ray_directions, ray_angle
 from monoslam_shadow_node.core.shadow_classifier import (
     ClassifierConfig,
@@ -61,13 +59,13 @@ from monoslam_shadow_node.core.shadow_ekf import (
 )
 from monoslam_shadow_node.core.shadow_track import PENDING, STATIC, Track
 from monoslam_shadow_node.core.static_fit import ROW_PRECISION, ROW_SIZE, view_rows
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 
 RESTART_AFTER_GATED = 3
 """A feature whose measurements fall outside the innovation gate this many frames in a row
 has lost its track (it moved faster or turned harder than the process noise allows): its EKF
 restarts from the latest ray, keeping its id, status and views."""
-IntArray = NDArray[np.int64]
 _EYE = np.eye(3)
 
 

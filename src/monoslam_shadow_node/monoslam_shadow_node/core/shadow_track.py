@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.core.rays import View
 from monoslam_shadow_node.core.static_fit import (
     ROW_CENTRE,
@@ -18,6 +17,7 @@ from monoslam_shadow_node.core.static_fit import (
     ROW_TAU,
     view_rows,
 )
+from slam_core.arrays import FloatArray
 
 PENDING, STATIC, DYNAMIC = 0, 1, 2
 STATUS_NAMES = {PENDING: 'PENDING', STATIC: 'STATIC', DYNAMIC: 'DYNAMIC'}

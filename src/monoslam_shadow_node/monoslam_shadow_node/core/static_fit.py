@@ -50,10 +50,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monoslam_shadow_node.core.pose_links import covered_views
-from monoslam_shadow_node.core.projective import FloatArray, RelationTest, chi2_quantile
+from monoslam_shadow_node.core.projective import RelationTest, chi2_quantile
 from monoslam_shadow_node.core.rays import View
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
 from monoslam_shadow_node.core.view_fit import CONDITION_LIMIT, CONVERGED_SIGMAS, bases, fit
+from slam_core.arrays import FloatArray
 from slam_core.geometry.so3 import skew
 
 MOTION_DOF = 3

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from monoslam_shadow_node.core.projective import FloatArray
+from slam_core.arrays import FloatArray
 
 
 @dataclass(frozen=True)

@@ -19,9 +19,9 @@ from monoslam_shadow_node.core.pose_links import (
     cross_blocks,
     pose_covariances_between,
 )
-from monoslam_shadow_node.core.projective import FloatArray
 from monoslam_shadow_node.core.rays import View
 from monoslam_shadow_node.core.tracking_noise import TrackingNoise
+from slam_core.arrays import FloatArray
 from slam_core.geometry.so3 import skew
 
 CONDITION_LIMIT = 1e12

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
+import slam_core.camera.lens as lens
 from slam_core.arrays import BoolArray, FloatArray
-from slam_core.camera import lens
 from slam_core.camera.info import CameraInfoFields
 
 DISTORTION_MODELS = {'plumb_bob': 5, 'rational_polynomial': 8}
