@@ -13,81 +13,27 @@ predictions are remapped by the arguments below.
 
 from __future__ import annotations
 
-from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
-from launch_ros.actions import Node
-from launch_ros.parameter_descriptions import ParameterValue
-from launch_ros.substitutions import FindPackageShare
-
-PACKAGE = 'monoslam_shadow_node'
+from slam_ros.node_launch import Remap, node_launch
 
 
-def generate_launch_description() -> LaunchDescription:
+def generate_launch_description():
     """Declare the arguments and the monoslam node."""
-    default_params = PathJoinSubstitution([FindPackageShare(PACKAGE), 'config', 'monoslam.yaml'])
-    return LaunchDescription(
+    return node_launch(
+        'monoslam_shadow_node',
+        'monoslam',
+        'monoslam.yaml',
         [
-            DeclareLaunchArgument(
-                'params_file',
-                default_value=default_params,
-                description='YAML file with the monoslam parameters',
+            Remap('features', 'input slam_interfaces/FeatureTrackArray topic'),
+            Remap('fiducials', 'input slam_interfaces/FiducialArray topic (the target)'),
+            Remap('camera/camera_info', 'input sensor_msgs/CameraInfo topic'),
+            Remap(
+                'shadow/static_features',
+                'input handovers (ShadowTrackArray) from the Shadow filter',
             ),
-            DeclareLaunchArgument(
-                'namespace', default_value='', description='namespace of the node and its topics'
+            Remap(
+                'features/predicted',
+                'output predicted pixels (FeatureTrackArray), if enabled',
+                argument='predictions',
             ),
-            DeclareLaunchArgument(
-                'features',
-                default_value='features',
-                description='input slam_interfaces/FeatureTrackArray topic',
-            ),
-            DeclareLaunchArgument(
-                'fiducials',
-                default_value='fiducials',
-                description='input slam_interfaces/FiducialArray topic (the target)',
-            ),
-            DeclareLaunchArgument(
-                'camera_info',
-                default_value='camera/camera_info',
-                description='input sensor_msgs/CameraInfo topic',
-            ),
-            DeclareLaunchArgument(
-                'static_features',
-                default_value='shadow/static_features',
-                description='input handovers (ShadowTrackArray) from the Shadow filter',
-            ),
-            DeclareLaunchArgument(
-                'predictions',
-                default_value='features/predicted',
-                description='output predicted pixels (FeatureTrackArray), if enabled',
-            ),
-            DeclareLaunchArgument(
-                'use_sim_time',
-                default_value='false',
-                choices=['true', 'false'],
-                description='use /clock (true when replaying a bag with its clock)',
-            ),
-            Node(
-                package=PACKAGE,
-                executable='monoslam',
-                name='monoslam',
-                namespace=LaunchConfiguration('namespace'),
-                parameters=[
-                    LaunchConfiguration('params_file'),
-                    {
-                        'use_sim_time': ParameterValue(
-                            LaunchConfiguration('use_sim_time'), value_type=bool
-                        )
-                    },
-                ],
-                remappings=[
-                    ('features', LaunchConfiguration('features')),
-                    ('fiducials', LaunchConfiguration('fiducials')),
-                    ('camera/camera_info', LaunchConfiguration('camera_info')),
-                    ('shadow/static_features', LaunchConfiguration('static_features')),
-                    ('features/predicted', LaunchConfiguration('predictions')),
-                ],
-                output='screen',
-            ),
-        ]
+        ],
     )
