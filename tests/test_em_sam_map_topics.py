@@ -1,11 +1,12 @@
 """Topic-level: the office bag played paced through odometry_ingest and em_sam_mapper once,
-solved, and read as users read it (real rclpy): the latched moveable set and map, the
-find_landmark service, and ~/save_map's files."""
+and read as users read it (real rclpy): the online moveable set as it changed, then, solved,
+the latched moveable set and map, the find_landmark service, and ~/save_map's files."""
 
 from __future__ import annotations
 
 import csv
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -14,30 +15,80 @@ from std_srvs.srv import Trigger
 
 from em_sam_node.em_sam_mapper_node import EmSamMapperNode
 from em_sam_node.map_files import read_map
+from em_sam_node.odometry_ingest_node import OdometryIngestNode
 from slam_interfaces.msg import LandmarkMap, MoveableLandmarkArray
 from slam_interfaces.srv import FindLandmark
 from slam_ros.qos import latched_qos
-from slam_ros.testing.harness import RosHarness
+from slam_ros.testing.harness import Collector, RosHarness, wait_until
 
 pytestmark = pytest.mark.topic
 
 
+@dataclass
+class OfficeRun:
+    """The shared run: its harness, the two nodes, and em_sam/moveable_online as it came."""
+
+    harness: RosHarness
+    ingest: OdometryIngestNode
+    mapper: EmSamMapperNode
+    online: Collector
+
+
 @pytest.fixture(scope='module')
-def mapped(
-    ros_context: None, tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[tuple[RosHarness, EmSamMapperNode]]:
-    """Play the office bag paced through both nodes and solve once at the end; the module's
-    tests that only read the result (topics, services, files) share this one run."""
-    directory = tmp_path_factory.mktemp('mapped')
+def office(ros_context: None, tmp_path_factory: pytest.TempPathFactory) -> Iterator[OfficeRun]:
+    """Play the office bag paced through both nodes (``online`` on, as by default) and solve
+    once at the end; the module's tests only read the result (topics, services, files)."""
+    directory = tmp_path_factory.mktemp('office')
     harness = RosHarness(directory)
     try:
+        online = harness.collect('em_sam/moveable_online', MoveableLandmarkArray, latched_qos())
         with pytest.MonkeyPatch.context() as monkeypatch:  # the nodes read it when built
-            _, mapper = play_office(harness, directory, monkeypatch)
-        reply = call(harness, Trigger, '/em_sam_mapper/optimize', Trigger.Request())
-        assert reply.success, reply.message  # type: ignore[attr-defined]
-        yield harness, mapper
+            ingest, mapper = play_office(harness, directory, monkeypatch, online=True)
+        yield OfficeRun(harness, ingest, mapper, online)
     finally:
         harness.close()
+
+
+@pytest.fixture(scope='module')
+def mapped(office: OfficeRun) -> tuple[RosHarness, EmSamMapperNode]:
+    """The shared run, solved once at the end (``~/optimize``)."""
+    reply = call(office.harness, Trigger, '/em_sam_mapper/optimize', Trigger.Request())
+    assert reply.success, reply.message  # type: ignore[attr-defined]
+    return office.harness, office.mapper
+
+
+def test_online_the_moveable_set_is_published_as_it_changes(office: OfficeRun) -> None:
+    """With ``online``, em_sam/moveable_online carries the smoother's set each time it
+    changes; once every keyframe is in, it is the moved markers, each placed where it was
+    seen, most recent first."""
+    ingest, mapper, online = office.ingest, office.mapper, office.online
+    wait_until(
+        lambda: mapper.mapper.num_keyframes == ingest.published + 1,
+        timeout_s=120,
+        what='em_sam_mapper to take every keyframe',
+    )
+    smoothed = mapper.mapper.num_keyframes - 1  # the last waits for the next one
+    wait_until(
+        lambda: (
+            mapper.mapper.online is not None and mapper.mapper.online.num_keyframes == smoothed
+        ),
+        timeout_s=120,
+        what='the smoother to take every keyframe but the last',
+    )
+    assert mapper.mapper.online_moveable == MOVED
+    wait_until(
+        lambda: (
+            bool(online.messages)
+            and {m.landmark_id for m in online.messages[-1].landmarks} == MOVED
+        ),
+        timeout_s=30,
+        what='the online set to be published',
+    )
+    assert len(online.messages) >= 2  # it changed on the way
+    for landmark in online.messages[-1].landmarks:
+        stamps = [s.stamp.sec * 10**9 + s.stamp.nanosec for s in landmark.sightings]
+        assert stamps == sorted(stamps, reverse=True) and len(stamps) > 20
+        assert landmark.weight < 0.5
 
 
 def test_moveable_landmarks_and_map(mapped: tuple[RosHarness, EmSamMapperNode]) -> None:

@@ -6,12 +6,10 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 
 import pytest
 import rclpy
 from bag_fixtures import invalid_parameter_error
-from em_sam_office import MOVED, play_office
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from std_msgs.msg import Empty
@@ -19,49 +17,11 @@ from tf2_msgs.msg import TFMessage
 
 from em_sam_node.odometry_ingest_node import OdometryIngestNode
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
-from slam_interfaces.msg import MoveableLandmarkArray
 from slam_ros.progress import END_QOS, END_TOPIC
-from slam_ros.qos import latched_qos, sensor_qos
+from slam_ros.qos import sensor_qos
 from slam_ros.testing.harness import RosHarness, wait_until
 
 pytestmark = pytest.mark.topic
-
-
-def test_online_the_moveable_set_is_published_as_it_changes(
-    ros_harness: RosHarness, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """With ``online``, em_sam/moveable_online carries the smoother's set each time it
-    changes; once every keyframe is in, it is the moved markers, each placed where it was
-    seen, most recent first."""
-    online = ros_harness.collect('em_sam/moveable_online', MoveableLandmarkArray, latched_qos())
-    ingest, mapper = play_office(ros_harness, tmp_path, monkeypatch, online=True)
-    wait_until(
-        lambda: mapper.mapper.num_keyframes == ingest.published + 1,
-        timeout_s=120,
-        what='em_sam_mapper to take every keyframe',
-    )
-    smoothed = mapper.mapper.num_keyframes - 1  # the last waits for the next one
-    wait_until(
-        lambda: (
-            mapper.mapper.online is not None and mapper.mapper.online.num_keyframes == smoothed
-        ),
-        timeout_s=120,
-        what='the smoother to take every keyframe but the last',
-    )
-    assert mapper.mapper.online_moveable == MOVED
-    wait_until(
-        lambda: (
-            bool(online.messages)
-            and {m.landmark_id for m in online.messages[-1].landmarks} == MOVED
-        ),
-        timeout_s=30,
-        what='the online set to be published',
-    )
-    assert len(online.messages) >= 2  # it changed on the way
-    for landmark in online.messages[-1].landmarks:
-        stamps = [s.stamp.sec * 10**9 + s.stamp.nanosec for s in landmark.sightings]
-        assert stamps == sorted(stamps, reverse=True) and len(stamps) > 20
-        assert landmark.weight < 0.5
 
 
 @pytest.mark.parametrize(

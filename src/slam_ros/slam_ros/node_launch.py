@@ -37,7 +37,7 @@ def node_launch(package: str, executable: str, config: str, remaps: Sequence[Rem
     executable) with ``config/<config>`` of the package's share directory (or
     ``params_file:=``), its ``remaps`` from their arguments, in ``namespace:=``, on /clock
     with ``use_sim_time:=true``."""
-    from launch import LaunchDescription
+    from launch import LaunchDescription  # type: ignore[attr-defined]  # (mypy: a launch/ folder)
     from launch.actions import DeclareLaunchArgument
     from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
     from launch_ros.actions import Node
