@@ -32,15 +32,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-if TYPE_CHECKING:
-    from monoslam_shadow_node.core.feature_tracker import FloatArray, GrayImage, TrackerConfig
+from monoslam_shadow_node.core.feature_config import GrayImage, TrackerConfig
+from slam_core.arrays import FloatArray
 
 SEARCH_SIGMAS = 3.0
 """Re-identification searches the prediction's 3-sigma ellipse."""

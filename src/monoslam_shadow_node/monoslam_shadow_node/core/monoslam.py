@@ -69,7 +69,6 @@ from monoslam_shadow_node.core.monoslam_model import (
     R_SLICE,
     V_SLICE,
     W_SLICE,
-    FloatArray,
 )
 from monoslam_shadow_node.core.monoslam_ransac import ransac_update
 from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
@@ -77,7 +76,6 @@ from monoslam_shadow_node.core.monoslam_types import (
     LOST,
     TRACKING,
     WAITING,
-    IntArray,
     MapPoint,
     MonoSlamConfig,
     MonoSlamFrame,
@@ -85,6 +83,7 @@ from monoslam_shadow_node.core.monoslam_types import (
     UpdateCounts,
 )
 from monoslam_shadow_node.core.monoslam_views import TemplateViews, prediction_warps
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import rotation_from_quaternion as rotation
 
