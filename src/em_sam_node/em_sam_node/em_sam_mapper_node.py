@@ -1,108 +1,22 @@
-"""em_sam_mapper: EM-SAM batch mapping with moveable-landmark detection.
+"""em_sam_mapper: EM-SAM batch mapping with moveable-landmark detection (paper 000).
 
-Collects odometry increments and landmark observations, and re-solves EM-SAM on a timer
-(warm-started from the previous solution) and on request. Publishes the trajectory, the
-landmark map with EM weights, the moveable landmarks with every sighting (most recent
-first), a MarkerArray like the paper's Fig. 5, and TF map->odom. Writes a report (JSON and
-PNG figures, atomically) on request and on shutdown.
+Collects odometry increments and landmark observations and re-solves EM-SAM on a timer
+(warm-started) and on request; publishes the trajectory, the landmark map with EM weights,
+the moveable landmarks with every sighting (most recent first), the paper's Fig. 5 markers
+and TF map->odom; writes a report (JSON and PNG, atomically) on request and on shutdown.
+With ``mode: localization`` it holds the static landmarks of a saved map fixed.
 
 Topics:
-  subscribes  odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000,
-              transient-local unless increments_transient_local is false: a restarted mapper
-              gets what odometry_ingest published while it was down, and skips what it holds)
-              landmark_observations (slam_interfaces/LandmarkObservationArray, reliable,
-              depth 1000: deep, so that inputs queued during a solve (or another node's
-              long callback in the same executor) are not overwritten: 1.2 s of solving at
-              20x replay is 180 of them; transient-local when observations_transient_local
-              is true, for graphs whose detectors publish them so; bags replay them volatile)
-  publishes   em_sam/path (nav_msgs/Path), em_sam/landmarks (slam_interfaces/LandmarkMap),
-              em_sam/moveable (slam_interfaces/MoveableLandmarkArray),
-              em_sam/moveable_online (the same type, with ``online``: the smoother's set
-              each time it changes, sightings placed through its poses),
-              em_sam/markers (visualization_msgs/MarkerArray): reliable, transient-local, 1
-              em_sam/pose (geometry_msgs/PoseWithCovarianceStamped, reliable, depth 10): after
-              every solve, the latest solved keyframe in map_frame with its marginal
-              covariance (ROS order; z, roll and pitch 0), as slam_toolbox's pose
-              /tf (tf2_msgs/TFMessage): map->odom, every tf_period_s
-              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
-              and dropped, keyframes, observations (and those from before the first
-              keyframe, apart), inputs already held (a restart's replayed history),
-              solves, processing time (the solves' too), lag
-              (slam_ros.diagnostics)
-Services:
-  ~/optimize (std_srvs/Trigger)          solve now and publish.
-  ~/find_landmark (slam_interfaces/FindLandmark)  sightings of a landmark, most recent first.
-  ~/write_report (std_srvs/Trigger)      write the report now.
-  ~/save_map (std_srvs/Trigger)          write a checkpoint to checkpoint_file now, and the
-                                         solved map beside it, readable without numpy:
-                                         em_sam_map.yaml, em_sam_landmarks.csv and
-                                         em_sam_trajectory.csv (em_sam_node.map_files).
-  ~/load_map (slam_interfaces/LoadMap)   localize on that saved map from now on.
-
-Parameters:
-  mode ('mapping')                'mapping', or 'localization' on the saved map map_file: its
-                                  static landmarks held fixed, the trajectory estimated on
-                                  them, landmarks that moved since flagged (core.localization;
-                                  the full pass only, no online smoother).
-  map_file ('')                   the saved map (em_sam_map.yaml) for localization.
-  map_start_at_dock (true), map_start_pose ([0, 0, 0]), map_start_sigma ([0.5, 0.5, 0.2618])
-                                  localization's start: the map's first pose, or
-                                  map_start_pose (x m, y m, theta rad), with that std. dev.
-  em_mode ('robust')              EM weight model: 'paper' (as published) or 'robust'.
-  lagrange_lambda (50.0)          lambda of the paper's eq. 14 ('paper' mode), > 0.
-  moveable_threshold (0.5)        weights below this are moveable, in (0, 1).
-  max_em_iterations (20), weight_tolerance (0.001)  EM stopping rule.
-  false_alarm_probability (0.001) 'robust': per-landmark test level.
-  gate_probability (0.0001), max_gated_fraction (0.1)  'robust': outlier gate per sighting.
-  seed_kernel ('cauchy'), seed_kernel_scale (2.3849)  'robust': kernel of the first E-step
-                                  ('cauchy' or 'huber'), its scale in sigmas.
-  seed_chunk_s (20.0), seed_growth (0.1)  'robust': the first E-step solves growing time
-                                  prefixes of the run; each step adds max(seed_chunk_s,
-                                  seed_growth x the time solved so far); landmarks first
-                                  seen in a long step are tested chunk by chunk.
-  calibrate_odometry (true)       'robust': estimate a translation and a rotation scale of
-                                  the odometry with the trajectory (wheel radius or track
-                                  width a few percent off); reported, and applied to every
-                                  increment of the EM loop and the final solve.
-  estimate_noise_scale (true)     'robust': inflate the range and the bearing variances
-                                  by their a-posteriori variance factors when the data are
-                                  noisier (estimated for the test from the first E-step,
-                                  again for the final solve from the static sightings).
-  max_noise_scale (10.0)          'robust': cap of those factors (>= 1).
-  model_error_m (0.15)            'robust': position error the moveable test tolerates
-                                  (sensor biases no noise model carries), m (>= 0).
-  final_kernel ('cauchy'), final_kernel_scale (2.3849)  'robust': kernel on the static
-                                  sightings of the final solve ('none' for least squares).
-  solver_method ('levenberg_marquardt')  or 'gauss_newton'.
-  online (true)                   also smooth incrementally (GTSAM iSAM2) with the EM
-                                  weights of the landmarks each keyframe sees; moveable
-                                  landmarks are published (em_sam/moveable_online) and
-                                  logged as they change, the per-keyframe latency is on
-                                  /diagnostics. The full pass (run_em) stays the published
-                                  map (docs/design/em_sam_online.md).
-  optimize_period_s (2.0)         re-solve period when new data came; 0 = only on request.
-  stamp_tolerance_s (0.005)       how close an observation's stamp must be to a keyframe's.
-  prior_sigma ([0.001, 0.001, 0.001])  std. dev. of the prior on the first keyframe.
-  map_frame ('map'), odom_frame ('odom')  frame ids.
-  tf_period_s (0.1)               period of the map->odom broadcast, > 0.
-  report_dir ('')                 where to write em_sam_report.json and figures; '' = none.
-  checkpoint_period_s (10.0)      save a checkpoint this often when the state changed (and on
-                                  shutdown); 0 = only on ~/save_map. 10 s bounds the work a
-                                  crash loses to one period; a save of the office run (1800
-                                  keyframes) takes a few ms.
-  checkpoint_file ('')            the checkpoint (em_sam_node.checkpoint, .npz, written
-                                  atomically); '' = report_dir/em_sam_checkpoint.npz, and
-                                  no checkpoints when report_dir is '' too.
-  resume_from ('')                start from this checkpoint instead of empty; 'auto' = from
-                                  checkpoint_file when it exists (what a GRAPH entry with
-                                  respawn: true gives a restart in respawn_parameters). A
-                                  bad checkpoint stops the node with an error naming it.
-  increments_transient_local (true), observations_transient_local (false)  durability of
-                                  the two subscriptions (a transient-local one only hears
-                                  transient-local publishers).
-
-Frames: the map frame is the odometry frame at the first keyframe; in localization, the
-saved map's frame.
+  subscribes  odometry_increments (OdometryIncrement, reliable, 1000, transient-local),
+              landmark_observations (LandmarkObservationArray, reliable, 1000)
+  publishes   em_sam/path, em_sam/landmarks, em_sam/moveable, em_sam/moveable_online,
+              em_sam/markers (reliable, transient-local, 1); em_sam/pose (PoseWithCovariance-
+              Stamped); /tf (map->odom); /diagnostics (inputs, solves, lag)
+Services: ~/optimize, ~/write_report, ~/save_map (std_srvs/Trigger), ~/find_landmark
+(slam_interfaces/FindLandmark: sightings, most recent first), ~/load_map
+(slam_interfaces/LoadMap: localize on a saved map).
+Frames: the map frame is the odometry frame at the first keyframe (in localization, the saved
+map's). Parameters: ``em_sam_mapper --help``. In full: docs/design/em_sam_nodes.md.
 """
 
 from __future__ import annotations

@@ -2,63 +2,18 @@
 
 Makes a keyframe at every observation stamp (odometry interpolated there) and at motion
 thresholds; each increment carries the paper's eq. 2 motion (forward, side, angular) and a
-covariance that grows with the motion (see em_sam_node.ingest). Copes with odometry resets,
-out-of-order stamps and NaN poses (dropped with a throttled warning). The keyframes still
-held back are emitted when a bag_player says on /slam/end_of_input that its bag has ended
-(slam_ros.progress); with no such player running (live), when odometry stops for
-``idle_flush_s``. A flush followed by more odometry is warned about and counted.
+covariance that grows with the motion (``em_sam_node.ingest``). Odometry resets,
+out-of-order stamps and NaN poses are dropped with a throttled warning. Held-back keyframes
+are emitted when a bag_player says its bag ended (/slam/end_of_input), or live when odometry
+stops for ``idle_flush_s``.
 
 Topics:
-  subscribes  odom (nav_msgs/Odometry, best effort, depth 1000: deep, so a long callback of
-              another node in the same executor loses no samples)
-              landmark_observations (slam_interfaces/LandmarkObservationArray, reliable,
-              depth 1000, as deep for the same reason; only the stamps are used)
-              /slam/end_of_input (std_msgs/Empty, reliable, transient-local): flush
-  publishes   odometry_increments (slam_interfaces/OdometryIncrement, reliable, depth 1000,
-              transient-local: a restarted em_sam_mapper gets the last 1000 again and skips
-              those it holds. 1000 is 100 s of keyframes at 10 Hz observations live, 10 s
-              at 10x replay, a few hundred KB)
-              /tf (tf2_msgs/TFMessage, reliable, depth 100), when publish_tf is true:
-              odom_frame -> base_frame, the odometry's pose at its stamp (what the base
-              driver publishes on a robot; for replaying a bag that has no /tf). Samples with
-              a pose that is not finite or a stamp not after the last one are not published.
-              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): samples received
-              and dropped, increments, resets, TF, idle flushes, processing time, lag
-              (slam_ros.diagnostics)
-
-Parameters:
-  keyframe_distance_m (0.5), keyframe_angle_rad (0.35), keyframe_interval_s (5.0)
-      a keyframe when the robot moved, turned or waited this much since the last one.
-  observation_delay_s (0.5)   keyframes are emitted this long after the odometry passed
-                              them, so late observations still get one.
-  noise_alphas ([0.05, 0.001, 0.01, 0.001])  a1..a4 of the motion noise model.
-  min_sigma_xy_m (0.002), min_sigma_theta_rad (0.002)  noise floor of an increment.
-  reset_jump_m (1.0), reset_speed_mps (5.0), reset_backwards_s (1.0)  what counts as an
-                              odometry reset: a jump this large at this speed, or time going back.
-  reset_sigma ([1.0, 1.0, 0.5])  std. dev. of the zero-motion increment bridging a reset.
-  max_buffer_s (30.0)         odometry kept for interpolation.
-  startup_hold_s (5.0)        at the start, hold keyframes until an observation comes no
-                              more than observation_delay_s behind the odometry, for at most
-                              this long of odometry (0: no hold; < max_buffer_s). Live, the
-                              detector's earlier sightings reach this node only once the two
-                              have discovered each other; a participant that missed the first
-                              announcements is found at the next, 3 s later with Fast DDS's
-                              defaults. Logged when it ends. In replay it changes nothing
-                              but when the first keyframes come out.
-  idle_flush_s (1.0)          emit held-back keyframes after this long without odometry
-                              (seen on two timer ticks in a row, half this apart) when no
-                              player publishes /slam/end_of_input.
-  base_frame ('base_link'), odom_frame ('odom')  frame ids written into the increments.
-  publish_tf (false)          publish odom_frame -> base_frame (above). Off on a robot: its
-                              base driver owns that transform (REP 105: one parent a frame).
-  observations_transient_local (false)  subscribe to landmark_observations transient-local
-                              (a transient-local subscription only hears transient-local
-                              publishers, as marker_detector's). Live graphs set it: the
-                              detector may publish before this node has discovered it, and
-                              the sightings it missed (and the mapper took) get their keyframes
-                              from the detector's history when it matches.
-
+  subscribes  odom (nav_msgs/Odometry, best effort, 1000), landmark_observations (stamps
+              only, reliable, 1000), /slam/end_of_input (std_msgs/Empty, transient-local)
+  publishes   odometry_increments (OdometryIncrement, reliable, 1000, transient-local),
+              /tf (odom_frame -> base_frame, with publish_tf), /diagnostics
 Frames: increments are motion of base_frame, expressed in odom_frame poses.
+Parameters: ``odometry_ingest --help``. In full: docs/design/em_sam_nodes.md.
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ from typing import Any
 
 import yaml
 
+from slam_core.cli import node_help
 from slam_core.errors import ParameterError
 from slam_core.params import Param, ParamTable, ParamType
 
@@ -40,6 +41,24 @@ def declared(module: ModuleType) -> ParamTable:
     if not isinstance(table, ParamTable):
         raise TypeError(f'{module.__name__}.PARAMETERS is not a ParamTable')
     return table
+
+
+NODE_DOCSTRING_MAX_LINES = 30
+"""A node module's docstring says what the node does in a screen; the rest is in docs/."""
+
+
+def help_without_parameters(module: ModuleType, prog: str) -> list[str]:
+    """Return declared parameter names that the node's ``--help`` (``node_help``: the
+    docstring and the declared table) does not list with their type and default."""
+    text = node_help(prog, module.__doc__, declared(module))
+    return sorted(
+        p.name for p in declared(module) if not re.search(rf'^  {p.name} \(', text, re.M)
+    )
+
+
+def docstring_lines(module: ModuleType) -> int:
+    """Return the number of lines of the module's docstring."""
+    return len((module.__doc__ or '').strip('\n').splitlines())
 
 
 def undocumented_parameters(module: ModuleType) -> list[str]:
