@@ -1,62 +1,19 @@
 """apriltag_bridge: apriltag_ros detections in, marker_detector's landmark observations out.
 
-For a robot that already runs apriltag_ros (github.com/christianrauch/apriltag_ros, the ROS 2
-AprilTag node): each AprilTagDetectionArray it publishes, with the tag poses it sends on /tf
-(camera frame -> ``<family>:<id>``, stamped with the image) and the camera mount on
-/tf_static, becomes a LandmarkObservationArray exactly as marker_detector publishes it:
-range and bearing of each tag's centre in the base frame, the covariance from the same
-sensor model (corner noise pixel_noise_px through the corner Jacobian at the tag's pose,
-then into range and bearing), the same quality gates, the image's stamp. odometry_ingest
-and em_sam_mapper take it unchanged. The conversion is marker_detector.apriltag_bridge.
-
-apriltag_ros publishes the detections first and the transforms right after, from the same
-image callback, so a detection waits for its tags' transforms: up to tf_wait_s of wall time
-(0.5 s: the two arrive milliseconds apart, and a longer wait only delays every observation
-behind a missing one, since they leave in order), given up only at the second 0.1 s check
-after that, so that transforms queued while the node was busy are taken first. A tag whose
-transform did not come (apriltag_ros without pose estimation, a renamed frame), or without a
-camera_info or camera mount by then, is dropped, counted and logged with the reason; a tag
-of another family is counted and logged; an id outside allowed_ids is counted.
+For a robot that already runs apriltag_ros: each AprilTagDetectionArray, with the tag poses on
+/tf and the camera mount on /tf_static, becomes a LandmarkObservationArray exactly as
+marker_detector publishes it (range and bearing of each tag's centre in the base frame, the
+same sensor model, quality gates and stamp; ``marker_detector.apriltag_bridge``). A
+detection waits up to ``tf_wait_s`` for its tags' transforms; a tag without one, another
+family or an id outside allowed_ids is dropped, counted and logged.
 
 Topics:
-  subscribes  detections (apriltag_msgs/AprilTagDetectionArray, reliable, depth 100;
-              apriltag_ros publishes reliable)
-              /tf (tf2_msgs/TFMessage, reliable, depth 100): the tag poses (other frames
-              are ignored)
-              /tf_static (tf2_msgs/TFMessage, transient local): the camera mount
-              camera/camera_info (sensor_msgs/CameraInfo, best effort): the camera model
-  publishes   landmark_observations (slam_interfaces/LandmarkObservationArray, base frame,
-              only for detections with at least one accepted tag; reliable, transient-local
-              (a restarted mapper gets them again), depth 1000)
-              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): detections
-              received and lost, processed, tags dropped by reason, other family, id not
-              allowed, rejected by the gates, observations, pending (slam_ros.diagnostics)
-
-Parameters (all read-only):
-  tag_family ('tag36h11')     the family in the detections: tag16h5, tag25h9, tag36h11,
-                              tagCircle21h7, tagCircle49h12, tagCustom48h12,
-                              tagStandard41h12, tagStandard52h13 (apriltag_ros's family
-                              parameter with 'tag' in front).
-  marker_size_m (0.16)        side of every tag's black square, m (apriltag_ros's size).
-  marker_sizes_m ([])         per-id sizes, entries 'id:size_m' (its tag.ids + tag.sizes).
-  allowed_ids ([])            only these ids, entries 'id' or 'first-last'; empty: all.
-  tag_frames ([])             tag frame names, entries 'id:frame' (its tag.ids + tag.frames);
-                              others are '<tag_family>:<id>'.
-  camera_model ('rectified')  'rectified': apriltag_ros detects in image_rect, the pinhole
-                              camera_info P (as it does); 'raw': in the raw image, K and D.
-  min_side_px (12.0), max_reprojection_error_px (2.0), max_range_m (8.0),
-  max_viewing_angle_rad (1.22)  marker_detector's gates; the reprojection error is that of
-                              the tag's corners at its pose from /tf (a tag size or camera
-                              model that differs from apriltag_ros's shows there).
-  pixel_noise_px (0.5)        corner noise sigma behind the covariance, px.
-  base_frame ('base_link')    frame of the observations; the mount comes from /tf_static.
-  tf_wait_s (0.5)             how long a detection waits for its transforms, s (wall time).
-
-Run next to apriltag_ros:
-  ros2 run apriltag_ros apriltag_node --ros-args -r image_rect:=/camera/image_rect \\
-      -r camera_info:=/camera/camera_info -p family:=36h11 -p size:=0.16
-  ros2 run marker_detector apriltag_bridge --ros-args \\
-      --params-file config/apriltag_bridge.yaml -p marker_size_m:=0.16
+  subscribes  detections (apriltag_msgs/AprilTagDetectionArray, reliable, 100), /tf (the tag
+              poses), /tf_static (the camera mount), camera/camera_info
+  publishes   landmark_observations (LandmarkObservationArray, base frame, reliable,
+              transient-local, 1000), /diagnostics
+Parameters (read-only): ``apriltag_bridge --help``. Running it next to apriltag_ros, in full:
+docs/design/marker_nodes.md.
 """
 
 from __future__ import annotations

@@ -1,82 +1,22 @@
 """marker_detector: camera images in, fiducial poses and range-bearing observations out.
 
 Detects square fiducials (cv2.aruco; AprilTag 36h11 by default) in each image, refines the
-corners to subpixel accuracy, solves each marker's pose (IPPE square) with a covariance from
-the reprojection Jacobian and the pixel noise, applies the quality gates and converts the
-marker centres into range and bearing in the robot base frame. The lens (plumb-bob or
-rational polynomial from camera_info) is undistorted inside the pose solution. Bad inputs
-(an unsupported encoding, an empty or corrupt image, no camera mount) are logged with the
-reason, and the node goes on with the next image. Images that come before the first usable
-camera_info, or (extrinsics_source 'tf_static') before the camera mount of their frame on
-/tf_static (drivers and the mount's publisher start together, and discovery between
-processes takes a second or two, longer on a loaded machine), are held, those of the last
-5 s of stamps (at most 64 MiB of images), and detected in order once both are there; older
-ones are dropped and counted, with the reason in the log.
+corners to subpixel accuracy, solves each marker's pose (IPPE square, lens undistorted inside
+it) with a covariance from the reprojection Jacobian, applies the quality gates and converts
+the marker centres into range and bearing in the robot base frame. Bad inputs are logged with
+the reason and skipped. Images before the first usable camera_info or camera mount are held,
+those of the last 5 s of stamps (at most 64 MiB of images), and detected in order once both
+are there; older ones are dropped and counted.
 
 Topics:
-  subscribes  camera/image_raw (sensor_msgs/Image: mono8, bgr8, rgb8, bgra8, rgba8) when
-              image_transport is 'raw', or camera/image_raw/compressed
-              (sensor_msgs/CompressedImage) when it is 'compressed'; best effort
-              camera/camera_info (sensor_msgs/CameraInfo, best effort)
-              /tf_static (tf2_msgs/TFMessage, transient local) when extrinsics_source is
-              'tf_static'
-  publishes   fiducials (slam_interfaces/FiducialArray, camera optical frame, every image;
-              empty, header only, for an image not searched: detect_every_n_frames)
-              landmark_observations (slam_interfaces/LandmarkObservationArray, base frame,
-              only for images with at least one accepted marker; reliable, depth 1000, so
-              that a mapper busy solving does not lose them from this side; transient-local,
-              so a restarted mapper gets the last 1000 again: 100 s of 10 Hz images)
-              ~/debug_image (sensor_msgs/Image bgr8, when publish_debug_image is true)
-              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): images
-              received, processed, dropped and held, markers, whole-image and box
-              searches, processing time, lag (slam_ros.diagnostics)
-
-Parameters:
-  dictionary ('DICT_APRILTAG_36h11')  cv2.aruco dictionary: AprilTag 16h5/25h9/36h10/36h11,
-                              ArUco DICT_4X4_50 ... DICT_7X7_1000, DICT_ARUCO_ORIGINAL.
-  marker_size_m (0.16)        side of the black square of every marker, m (> 0).
-  marker_sizes_m ([])         per-id sizes overriding it, entries 'id:size_m' (e.g. '7:0.14').
-  corner_refinement ('subpix')  'subpix', 'contour', 'apriltag' or 'none'.
-  min_side_px (12.0)          reject markers whose shortest side is shorter, px.
-  max_reprojection_error_px (2.0)  reject poses whose RMS corner reprojection error is larger.
-  max_range_m (8.0)           reject markers farther from the camera, m.
-  max_viewing_angle_rad (1.22)  reject markers seen more obliquely (normal vs line of sight).
-  allowed_ids ([])            only these ids, entries 'id' or 'first-last' (e.g. '0-28');
-                              empty: all.
-  pixel_noise_px (0.5)        corner noise sigma behind the pose covariance, px.
-  image_transport ('raw')     'raw' (Image) or 'compressed' (CompressedImage).
-  max_image_pixels (16777216)  larger images (4096 x 4096) are refused before they are
-                              decoded or copied (a PNG's or JPEG's size from its header);
-                              counted as 'refused too large'. 0: no limit.
-  base_frame ('base_link')    frame of the range-bearing observations.
-  extrinsics_source ('tf_static')  'tf_static' (chain base_frame -> image frame on
-                              /tf_static) or 'parameters' (camera_xyz_m, camera_rpy_rad).
-  camera_xyz_m ([0, 0, 0]), camera_rpy_rad ([0, 0, 0])  camera_link in base_frame; the
-                              optical frame follows REP 103 (z forward, x right, y down).
-  search_period_frames (1)    search the whole image every this many frames; in the frames
-                              between, only a box about each marker of the frame before
-                              (its corners grown by search_margin_px plus half its side),
-                              and the whole image again when a box misses it. A few markers
-                              followed at a camera's rate then cost a fraction of a frame's
-                              time; a marker newly in view is found at most
-                              search_period_frames - 1 frames late. 1: every frame. With
-                              allowed_ids set, no whole-image search while every allowed id
-                              is followed (nothing else could be found).
-  search_margin_px (32.0)     how far a followed marker may move between frames and still be
-                              found in its box, px (32: a turn of 1.8 rad/s at fx 525 px and
-                              30 Hz); a marker that moves farther is found by the whole-image
-                              search that follows in the same frame (time, not detections).
-  detect_every_n_frames (1)   detect in every this many images (the first, then every n-th);
-                              an image between is not decoded, and its fiducials message is
-                              empty (header only), so that a node pairing fiducials with the
-                              image's other data (monoslam) does not wait for them; counted
-                              as 'not searched'. A marker newly in view is found at most
-                              n - 1 images late. 1: every image.
-  publish_debug_image (false)  publish the image with the detections drawn.
-
-The detector settings (dictionary to pixel_noise_px) can be changed at run time with
-`ros2 param set`; an invalid value (e.g. a marker size <= 0) is refused with the reason and
-the node keeps its previous settings.
+  subscribes  camera/image_raw (Image) or camera/image_raw/compressed (CompressedImage), per
+              image_transport; camera/camera_info; /tf_static (the camera mount), best effort
+  publishes   fiducials (FiducialArray, camera optical frame, every image), landmark_
+              observations (LandmarkObservationArray, base frame, reliable, transient-local,
+              1000), ~/debug_image (with publish_debug_image), /diagnostics
+The detector settings can be changed at run time (``ros2 param set``); an invalid value is
+refused with the reason. Parameters: ``marker_detector --help``. In full:
+docs/design/marker_nodes.md.
 """
 
 from __future__ import annotations

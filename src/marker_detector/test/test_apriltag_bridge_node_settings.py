@@ -11,16 +11,19 @@ from marker_detector import apriltag_bridge_node
 from marker_detector.apriltag_settings import PARAMETERS, bridge_config, parse_tag_frames
 from slam_core.errors import ParameterError
 from slam_ros.testing.node_contract import (
+    NODE_DOCSTRING_MAX_LINES,
     config_mismatches,
+    docstring_lines,
     docstring_mismatches,
-    undocumented_parameters,
+    help_without_parameters,
 )
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config' / 'apriltag_bridge.yaml'
 
 
-def test_docstring_lists_every_parameter() -> None:
-    assert undocumented_parameters(apriltag_bridge_node) == []
+def test_help_lists_every_parameter_and_the_docstring_stays_short() -> None:
+    assert help_without_parameters(apriltag_bridge_node, 'apriltag_bridge') == []
+    assert docstring_lines(apriltag_bridge_node) <= NODE_DOCSTRING_MAX_LINES
 
 
 def test_config_yaml_matches_declared_parameters() -> None:
