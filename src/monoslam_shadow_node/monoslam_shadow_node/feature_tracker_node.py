@@ -1,118 +1,23 @@
 """feature_tracker: camera images in, tracked image features with persistent ids out.
 
-The front end of the monocular SLAM pipeline (paper 001): corners are detected where the
-image lacks features (Shi-Tomasi or FAST, spread over a grid, refined to subpixel
-accuracy) and followed image to image by pyramidal Lucas-Kanade with a forward-backward
-check; each keeps its id for as long as it is tracked. The algorithm is
-``core.feature_tracker.FeatureTracker``; ``feature_tracking.FeatureTrackingProcessor`` adds
-stamp order, camera_info and predictions; this node decodes, feeds and publishes.
+The front end of the monocular pipeline (paper 001): corners are detected where the image
+lacks features (Shi-Tomasi or FAST on a grid, subpixel) and followed image to image by
+pyramidal Lucas-Kanade with a forward-backward check; each keeps its id while tracked
+(``core.feature_tracker``). With predictions (``use_predictions``), LK starts from SLAM's
+predicted pixels, and a prediction with a covariance for a dropped track searches for it
+(re-identification). An image waits up to ``prediction_timeout_s`` for its prediction.
+camera_info is optional: once it comes it checks the image size and notices camera changes
+(the tracks restart, ids go on). Bad input is logged with its culprit and skipped.
 
 Topics:
-  subscribes  camera/image_raw (sensor_msgs/Image: mono8, 8UC1, bgr8, rgb8, bgra8, rgba8;
-              decoded by marker_detector.conversions.image_from_message) when
-              image_transport is 'raw', or camera/image_raw/compressed
-              (sensor_msgs/CompressedImage) when it is 'compressed'; best effort, depth 15
-              (slam_ros.qos.SENSOR_DEPTH: 0.5 s at 30 Hz, to ride out a stall).
-              camera/camera_info (sensor_msgs/CameraInfo, best effort): optional, see below.
-              features/predicted (slam_interfaces/FeatureTrackArray, reliable, depth 15, taken
-              serialized and read from its bytes), when use_predictions is true: predicted raw
-              pixels of some track ids (e.g. the SLAM filter's projection of its map) for the image
-              whose stamp is header.stamp; LK starts from them. Used only for the image with
-              exactly that stamp; an image waits up to prediction_timeout_s (wall time) for its
-              prediction, then is tracked without one. Ids neither tracked nor remembered and
-              predictions for images already tracked are ignored. A prediction with a covariance
-              (FeatureTrack covariance, px^2) for a dropped track is an active search for it
-              (re-identification, core.feature_tracker).
-  publishes   features (slam_interfaces/FeatureTrackArray, reliable, depth 10), one per image
-              tracked (also when it holds no feature): header.stamp = the image stamp,
-              header.frame_id = the image's frame id (the camera optical frame; the
-              camera_info's when the image has none); per feature its int64 id (from 1, never
-              reused, also not after a restart) and raw (distorted) pixel u right, v down,
-              pixel centres at integer coordinates (OpenCV). Never NaN.
-              ~/debug_image (sensor_msgs/Image bgr8, reliable, depth 2), when
-              publish_debug_image is true and someone subscribes: each tracked image with
-              its features drawn in the colour of their latest Shadow filter status
-              (feature_overlay: pending and unknown red, static blue, dynamic green), same
-              header as the image.
-              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): images
-              received, tracked and dropped, features, tracks, images tracked with and
-              without their prediction and predictions come late, debug images,
-              processing time, lag (slam_ros.diagnostics)
-  subscribes, when publish_debug_image is true, the statuses it draws:
-              shadow/tracks, shadow/static_features, monoslam/revoked
-              (slam_interfaces/ShadowTrackArray, reliable, depth 100).
-
-camera_info is not needed for tracking, so the node tracks without it (and says so once).
-Once one has come it is used to check the image size (an image of another size is dropped
-with an error naming both sizes), to fill an empty image frame id, and to notice a camera
-change (size, intrinsics or distortion): the tracks then restart, ids go on, logged once.
-
-Bad input is logged with its culprit (per kind at most every 2 s, with a count of the lines
-left out) and the node goes on: an image it cannot decode (unsupported encoding, empty,
-corrupt), an image of the wrong size, an image whose stamp is not after the one before
-(dropped, naming both stamps) unless it is restart_backstep_s or more older (the source
-restarted: tracks restart, ids go on), an unusable camera_info (ignored).
-
-Every 10 s the node logs images tracked per second, features per image, tracks started and
-dropped by reason, images dropped and the time spent per image.
-
-Parameters (tracker): the fields of the core's TrackerConfig, one to one; their defaults are
-the core's, written out in config/feature_tracker.yaml (a test keeps the two equal).
-  max_features (150)              most features tracked at once.
-  detector ('shi_tomasi')         'shi_tomasi' (cv2.goodFeaturesToTrack) or 'fast'.
-  quality_level (0.01)            Shi-Tomasi: weakest corner kept, share of the strongest.
-  fast_threshold (20)             FAST: intensity difference, gray levels.
-  min_distance_px (10.0)          smallest distance of a new feature to any other, px; tracks
-                                  closer than half of it to an older one are dropped.
-  grid_rows, grid_cols (4, 4)     grid of cells that each get up to max_features / cells new
-                                  features first, so that they spread over the image.
-  detect_every_n_frames (3)       look for new features every n-th image (and whenever none
-                                  is left); 3 detects at 10 Hz on a 30 Hz camera.
-  subpixel_refinement (true)      refine new corners with cv2.cornerSubPix.
-  lk_window_px (21)               side of the Lucas-Kanade patch, px.
-  lk_pyramid_levels (3)           pyramid levels above the image.
-  lk_max_iterations (30), lk_epsilon_px (0.01)  LK stopping rule per level (px).
-  max_lk_error (30.0)             largest mean absolute patch difference, gray levels
-                                  (0: no check).
-  fb_threshold_px (1.0)           largest forward-backward distance, px (0: no check).
-  max_drift_px (3.0)              largest distance of a track from its template (its look
-                                  when detected, registered by LK), px (0: no check).
-  border_margin_px (10.0)         tracks closer to the image edge are dropped, px (LK patches
-                                  reaching past the edge are biased: about lk_window_px / 2).
-  reid_min_ncc (0.9)              a dropped track predicted back in view (features/predicted
-                                  with a covariance) comes back with its id where its
-                                  template, aligned by an affine map, correlates at least
-                                  this well inside the 3-sigma ellipse (0: no
-                                  re-identification). Aligned, a true match reaches
-                                  0.95-1.0; at 0.8 the alignment fits other places of a
-                                  smooth texture.
-  reid_max_search_px (80.0)       wider ellipses (half-axis, px) are not searched.
-  reid_max_alignments (6)         affine alignments of search candidates per image (about 3
-                                  ms each), the oldest predictions' first; candidates left
-                                  over are counted. A speed setting that moves results on
-                                  real footage (docs/design/monoslam.md, "Keeping up at 30
-                                  Hz").
-  max_dormant (1000)              dropped tracks remembered for re-identification (the
-                                  SLAM map's, the ids of predictions, forgotten last).
-Parameters (node):
-  image_transport ('raw')         'raw' (Image) or 'compressed' (CompressedImage).
-  max_image_pixels (16777216)     larger images (4096 x 4096) are refused before they are
-                                  decoded or copied (a PNG's or JPEG's size from its
-                                  header); counted as 'refused too large'. 0: no limit.
-  use_predictions (false)         subscribe to features/predicted and use it.
-  prediction_timeout_s (0.1)      longest an image waits for its prediction, s (0: never
-                                  waits; predictions that came first are still used). The
-                                  next image ends the wait anyway, so a frame period of a
-                                  10 Hz camera bounds it; SLAM's prediction for an image
-                                  comes when it has processed the one before, which on a
-                                  shared thread (the graph's one process) takes longer
-                                  than 20 ms.
-  publish_debug_image (false)     publish ~/debug_image (above).
-  restart_backstep_s (1.0)        a stamp at least this far before the previous one restarts
-                                  tracking; a smaller step back drops the image, s.
-All are read-only; a bad value stops the node with an error naming the parameter.
-
-Frames: features are in the camera optical frame of the images (REP 103).
+  subscribes  camera/image_raw (Image) or camera/image_raw/compressed (CompressedImage), per
+              image_transport, best effort, 15; camera/camera_info; features/predicted
+              (FeatureTrackArray, with use_predictions); with publish_debug_image the
+              Shadow filter's statuses (shadow/tracks, shadow/static_features,
+              monoslam/revoked)
+  publishes   features (FeatureTrackArray, reliable, 10: ids from 1, never reused, raw
+              pixels, never NaN), ~/debug_image, /diagnostics
+Parameters: ``feature_tracker --help``. In full: docs/design/monoslam_nodes.md.
 """
 
 from __future__ import annotations

@@ -1,187 +1,24 @@
 """monoslam: tracked features and the initialization target in, camera pose and map out.
 
-The MonoSLAM filter of paper 001 (sec. II, ``core.monoslam.MonoSlam``; the pairing, state and
+The MonoSLAM filter of paper 001 (sec. II, ``core.monoslam.MonoSlam``; pairing, state and
 counts: ``monoslam_processor``): one EKF over the camera and a map of static point features.
 It starts from known points (a marker of known size and pose, a depth image or a file: a
-monocular camera cannot observe scale), and with the Shadow filter (``initialize``
-'handover') the features it hands over as static fix the camera.
+monocular camera cannot observe scale); with the Shadow filter (``initialize`` 'handover')
+the features it hands over as static fix the camera. Features and fiducials pair by stamp
+(``frame_sync``); nothing published is ever NaN; bad input is logged and skipped.
 
 Topics:
-  subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100): track ids and
-              raw (distorted) pixels of one image, header.stamp = the image stamp.
-              fiducials (slam_interfaces/FiducialArray, reliable, depth 100): marker_detector's
-              detections in the same image (one message per image, empty when nothing was
-              found); the target's corners (TL, TR, BR, BL raw pixels) are the known points
-              0-3 of the frame.
-              camera/camera_info (sensor_msgs/CameraInfo, best effort, depth 100 as it is taken
-              in step with features): intrinsics and plumb_bob/rational_polynomial distortion;
-              a change is applied from the next frame on and logged. With publish_predictions
-              it also triggers the predictions for the image of its stamp (once per image,
-              before the tracker tracks that image).
-              shadow/static_features (slam_interfaces/ShadowTrackArray, reliable, depth 100),
-              when initialize is 'handover': features the Shadow filter handed over as STATIC
-              (world position and covariance in map_frame); each enters the map when next
-              observed. A handover that is not STATIC, not finite, not positive
-              semi-definite or in another frame is refused and logged with its id.
-              camera/depth/image_raw (sensor_msgs/Image 16UC1 mm or 32FC1 m, best effort,
-              depth 100), with known_points_source 'depth': held until the start.
-              shadow/tracks (slam_interfaces/ShadowTrackArray, reliable, depth 100), when
-              initialize is 'handover' and fill_undecided: the features the Shadow filter
-              found DYNAMIC never fill the map undecided, and leave it if they had.
-  publishes   monoslam/pose (geometry_msgs/PoseWithCovarianceStamped, reliable, depth 10),
-              every frame with a pose (tracking): the pose of the camera OPTICAL frame (x right,
-              y down, z forward) in map_frame, R_world_camera and the optical centre, covariance
-              in ROS order (x, y, z, rotation about the map's X, Y, Z axes) -- what
-              shadow_filter's pose_topic expects. Just before it, monoslam/pose/link
-              (slam_interfaces/PoseLink): the pose error's covariances with the errors of
-              the earlier poses the filter remembers (core/monoslam_state.POSE_HISTORY).
-              monoslam/path (nav_msgs/Path, reliable, depth 1), every frame with a pose while
-              someone subscribes: the latest path_length poses.
-              monoslam/map (sensor_msgs/PointCloud2, reliable, transient local), at most every
-              map_period_s when it changed: every map point with a defined position (active
-              and retired), fields x, y, z (float32, m), sigma_m (float32, the largest
-              standard deviation, m), id (float64, the track id), active (uint8: 1 in the
-              filter, 0 retired), handover (uint8: 1 handed over by the Shadow filter).
-              /tf (tf2_msgs/TFMessage, reliable, depth 100), when publish_tf is true: map_frame
-              -> tf_camera_frame (the optical frame as MonoSLAM places it) at the image
-              stamp, under MonoSLAM's own frame names: the camera's real optical frame keeps
-              its one parent in the robot's tree (REP 105), and the robot's map belongs to
-              the SLAM that publishes map -> odom. Off by default: use monoslam/pose.
-              features/predicted (slam_interfaces/FeatureTrackArray, reliable, depth 10), when
-              publish_predictions is true: per camera_info stamp after the last processed
-              frame, the predicted raw pixels of the features the filter owns (for
-              feature_tracker's use_predictions); empty while it has none, is not tracking
-              or is behind (the image before is not processed: it would come late; counted).
-              monoslam/revoked (slam_interfaces/ShadowTrackArray, reliable, depth 100), when
-              initialize is 'handover', in frames that revoke: handed-over features that
-              failed the persistent-outlier test (they moved after all), status DYNAMIC, no
-              position (position_covariance[0] = -1), header.stamp = the image stamp; the
-              Shadow filter takes them back as suspects. Each is also logged.
-              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
-              and dropped, frames processed and skipped, handovers, losses, resumes that
-              predicted over the gap and that re-localised, 'resumed' (what the last resume
-              did, 'no' for a fresh start), processing time, lag (slam_ros.diagnostics)
-  Nothing published is ever NaN: a pose that is not finite is not published (an error is
-  logged), and map points or predictions that are not finite are left out.
-Services:
-  ~/save_map (std_srvs/Trigger)   write the map's checkpoint to checkpoint_file now.
-
-Synchronization (frame_sync): features and fiducials pair when their stamps differ by at most
-stamp_tolerance_s, and are processed in stamp order. A features frame whose fiducials have
-not come once the newest stamp seen is sync_horizon_s past it (or no input came for
-sync_horizon_s of wall time) is processed without them once the filter has started (said in
-a throttled warning), and dropped before (the filter needs the target to start). Features
-before any camera_info are held until it comes.
-
-Logs: waiting for the target (throttled), the start, tracking lost (why), a resume, a
-camera_info change, every bad input with its culprit (the node goes on), and every 10 s a
-status line (rate, state, map, the update's counts, handovers, losses, skips and drops).
-
-Parameters (filter): the fields of the core's MonoSlamConfig, one to one (four renamed with
-their unit); their defaults are the core's, written out in config/monoslam.yaml (a test
-keeps the two equal).
-  pixel_sigma_px                  feature and target corner pixel noise, px.
-  tracking_offset_px, tracking_offset_time_s  tracked features' offsets that persist
-                                  between images, px, and their correlation time, s (the
-                                  shadow_filter's parameters); with offsets, each feature
-                                  keeps its own in the state (2 states, Gauss-Markov).
-  estimate_noise (true)           the tracker's noise estimated from the measured tracks
-                                  (core.noise_monitor) and taken once a second: white at
-                                  least pixel_sigma_px, offsets when they matter; the
-                                  status line says which is in force.
-  linear_acceleration_sigma_m_s2, angular_acceleration_sigma_rad_s2  constant velocity
-                                  model noise, m/s^2 and rad/s^2 per sqrt(Hz).
-  initial_velocity_sigma_m_s, initial_angular_velocity_sigma_rad_s  camera velocity
-                                  uncertainty at the start, m/s and rad/s.
-  initial_inverse_depth_per_m, initial_inverse_depth_sigma_per_m  a new feature's inverse
-                                  depth and its sigma (initialize 'all'), 1/m.
-  second_order                    add the inverse depth x baseline term to an
-                                  inverse-depth feature's innovation covariance (true).
-  gate_probability                chi-square gate of each measurement.
-  linearity_threshold             inverse depth -> Euclidean below this linearity index.
-  max_features                    most features in the filter.
-  target_measured, max_new_per_frame, min_new_spacing_px  initialize 'all': add features
-                                  while fewer are measured, at most this many per frame,
-                                  at least this far apart (px).
-  max_view_angle_deg (45), view_margin_px (11)  a map feature is searched for only within
-                                  this angle of its first ray and this far inside the image
-                                  (the tracker's border margin and half its window).
-  failure_window, min_success_ratio, max_consecutive_failures  deleting failing features.
-  lost_after_frames, max_position_sigma_m  tracking is lost after this many frames measuring
-                                  nothing, or when the position sigma exceeds this (m).
-  lost_after_known_rejected_frames (3)  ... or after this many frames in a row in which the
-                                  gate rejected more than half of the target's corners in
-                                  view: the estimate has diverged from the known points.
-                                  (It is also lost when its pose covariance is no longer
-                                  positive definite: such a covariance is never published.)
-  max_gap_s                       a longer gap between frames is logged, s.
-  initialize ('handover')         'handover' (with the Shadow filter) or 'all' (classic
-                                  MonoSLAM alone, from every new track).
-  handover_probation (true)       a handed-over feature corrects only its own estimate (a
-                                  Schmidt consider update), not the camera, until its
-                                  inverse depth becomes Euclidean (SLAM's own views fix it),
-                                  or while fewer than 5 others are measured in a frame.
-  fill_undecided (true)           with initialize 'handover', features the Shadow filter
-                                  has not decided on fill the map; found DYNAMIC or
-                                  failing: revoked.
-  undecided_probation (false)     such a feature corrects only itself (a consider update:
-                                  never the camera) until the Shadow filter clears it.
-  new_probation (false)           initialize 'all': a new feature corrects only itself until
-                                  its inverse depth becomes Euclidean, as a handover does
-                                  (the oracle graph monoslam_labelled_rgbd.yaml sets it).
-  known_points_source ('marker')  what fixes the world and its scale at the start: 'marker'
-                                  (the target below), 'depth' (the features with a depth in
-                                  the first camera/depth/image_raw paired with a features
-                                  frame; map_frame is then that camera's optical frame) or
-                                  'file' (known_points_file).
-  depth_noise_per_m (1.425e-3), depth_start_points (50)  'depth': the sensor's noise,
-                                  sigma_z = c z^2, and most features the start maps.
-  update ('ransac'), ransac_seed (0)  'ransac': the 1-point RANSAC update (Civera et al.
-                                  2010), its draws seeded for reproducible runs; 'gated':
-                                  every measurement inside the chi-square gate.
-Parameters (initialization target): its four corners are the known points.
-  target_id (0), target_dictionary ('DICT_APRILTAG_36h11')  the marker, as marker_detector
-                                  reports it.
-  target_size_m (0.16)            side of its black square, m (marker_detector's default
-                                  marker size; set it to the printed marker's).
-  target_xyz_m ([0, 0, 0]), target_rpy_rad ([0, 0, 0])  the pose of the marker frame (x right,
-                                  y up, z out of the printed face) in map_frame: centre, m,
-                                  and roll, pitch, yaw about the fixed X, Y, Z axes, rad. The
-                                  default puts the marker at the map origin: it defines the
-                                  map.
-Parameters (node):
-  map_frame ('monoslam_map')      frame of the pose, path, map and TF (the target's world,
-                                  not the robot's map).
-  publish_tf (false)              publish the TF above.
-  tf_camera_frame ('monoslam_camera')  its child frame; must differ from map_frame.
-  publish_predictions (false)     publish features/predicted.
-  path_length (3000)              poses kept in monoslam/path.
-  map_period_s (1.0)              shortest period of monoslam/map, s.
-  stamp_tolerance_s (0.0)         largest features-to-fiducials stamp difference, s.
-  sync_horizon_s (0.5)            how long a features frame waits for its fiducials, s.
-  queue_size (100)                waiting feature frames and fiducial arrays, each.
-  trajectory_file ('')            on shutdown (Ctrl-C too) write the trajectory there as
-                                  TUM text ('stamp_s x y z qx qy qz qw' per pose, the
-                                  optical frame in map_frame), atomically; '' for none.
-  checkpoint_period_s (10.0)      save the checkpoint this often when the map changed (and on
-                                  shutdown); 0 = only on ~/save_map.
-  checkpoint_file ('')            the checkpoint (monoslam_checkpoint: .npz, atomic): camera
-                                  state, every feature's parameters and track id, the full
-                                  covariance, template views and counters, the target
-                                  initialization state, the last stamp; '' = none.
-  known_points_file (''), known_points_match_px (3.0)  'file': CSV id,x,y,z,u,v (position
-                                  in map_frame, m; raw pixel in the first image): the track
-                                  nearest each pixel, within the match distance, is that point.
-  depth_stamp_tolerance_s (0.02)  'depth': largest features-to-depth stamp difference, s.
-  resume_from ('')                start from this checkpoint; 'auto' = checkpoint_file when it
-                                  exists (a GRAPH's respawn_parameters); a bad one stops the
-                                  node naming it. The first frame after it predicts over the
-                                  gap, or, if too long (core.monoslam_snapshot), re-localises
-                                  from the target; the log and /diagnostics say which.
-All are read-only; a bad value stops the node with an error naming the parameter.
-
-Frames: map_frame is defined by the target's pose; features and fiducials are in the camera
-optical frame of the camera_info.
+  subscribes  features (FeatureTrackArray), fiducials (FiducialArray: the target's corners
+              are the known points 0-3), camera/camera_info, shadow/static_features and
+              shadow/tracks (ShadowTrackArray, with 'handover'), camera/depth/image_raw
+              (with known_points_source 'depth')
+  publishes   monoslam/pose (PoseWithCovarianceStamped: the camera optical frame in
+              map_frame) and monoslam/pose/link (PoseLink), monoslam/path, monoslam/map
+              (PointCloud2, transient local), features/predicted (with publish_predictions),
+              monoslam/revoked (ShadowTrackArray), /tf (with publish_tf), /diagnostics
+Services: ~/save_map (std_srvs/Trigger): write the map's checkpoint now.
+Frames: map_frame is defined by the target's pose. Parameters (all read-only; a bad value
+stops the node naming it): ``monoslam --help``. In full: docs/design/monoslam_nodes.md.
 """
 
 from __future__ import annotations

@@ -2,122 +2,20 @@
 
 The Shadow filter of paper 001 (sec. II-III): every new feature is held back and tracked by
 its own EKF, given the camera pose from outside (MonoSLAM, or ground truth), until a
-chi-square test on its viewing rays calls it STATIC (handed over to SLAM on
-shadow/static_features and forgotten here) or DYNAMIC (kept and tracked as it moves). The
-algorithm is ``core.shadow_filter.ShadowFilter``; the stamp pairing, the pose covariance
-check and the counts are ``shadow_processor.ShadowProcessor``'s; this node converts the
-messages, hands them to it, publishes the processed frames and logs what it reports.
+chi-square test on its viewing rays calls it STATIC (handed over to SLAM and forgotten here)
+or DYNAMIC (kept and tracked as it moves). The algorithm is ``core.shadow_filter``; the
+stamp pairing and the counts are ``shadow_processor``'s. Features and poses pair by stamp
+and are processed in stamp order; nothing published is ever NaN; bad input is logged with
+its culprit and skipped.
 
 Topics:
-  subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100): track ids
-              and raw (distorted) pixels of one image, header.stamp = the image stamp
-              (taken serialized and read from the CDR bytes: conversions.features_from_cdr).
-              <pose_topic> (default monoslam/pose; geometry_msgs/PoseWithCovarianceStamped,
-              reliable, depth 100): the pose of the camera OPTICAL frame (x right, y down,
-              z forward) in the world frame header.frame_id, i.e. R_world_camera and the
-              optical centre, at the image stamp. Covariance in ROS order (x, y, z, rotation
-              about the world X, Y, Z axes), passed to the core unchanged (see conversions);
-              all zero = a known pose. Every frame with a pose is processed, however
-              uncertain the pose: its covariance widens the rays, so decisions come later.
-              A frame whose pose covariance is not finite is skipped (a warning, counted).
-              <pose_topic>/link (slam_interfaces/PoseLink, reliable, depth 100), optional:
-              the pose error's covariances with the source's earlier poses; with them the
-              all-view test models the drift the poses share (pose_link_messages).
-              camera/camera_info (sensor_msgs/CameraInfo, best effort, depth 100 as it is taken
-              in step with features): intrinsics and plumb_bob/rational_polynomial distortion;
-              a change is applied from the next frame on and logged.
-              monoslam/revoked (slam_interfaces/ShadowTrackArray, reliable, depth 100):
-              features handed over earlier that SLAM then found moving. Each comes back as a
-              suspect: tracked again from its next sighting, PENDING, with fresh views only,
-              and handed over again only if STATIC with every direction of motion checked.
-  publishes   shadow/tracks (slam_interfaces/ShadowTrackArray, reliable, depth 10), every
-              processed frame: every feature the filter holds that was seen in it, PENDING
-              or DYNAMIC, and STATIC in the frame it is handed over; world position and
-              velocity with covariances (row-major 3x3).
-              shadow/static_features (slam_interfaces/ShadowTrackArray, reliable, depth 100),
-              only for frames with handovers: status STATIC, the position triangulated from
-              all views as a static point with its covariance, zero velocity with zero
-              covariance, the deciding test's statistic. Each feature appears once.
-              shadow/markers (visualization_msgs/MarkerArray, reliable, depth 5), when
-              publish_markers is true and someone subscribes: pending features red, dynamic
-              green, handed-over static features blue (the latest 5000), trajectories of
-              dynamic features as green line strips (as the paper's Fig. 4).
-              /diagnostics (diagnostic_msgs/DiagnosticArray, every second): inputs received
-              and dropped, frames processed, refused and skipped, classifications,
-              processing time, lag (slam_ros.diagnostics)
-  Every other output has header.stamp = the image stamp and header.frame_id = the pose's
-  frame.
-
-No NaN is ever published (details in conversions):
-  - position not yet defined (depth unknown: inverse depth not 3 sigma above zero): position
-    is a point on the viewing ray 1000 m away, position_covariance = [-1, 0, ..., 0]
-    (sensor_msgs "no estimate" convention);
-  - no test yet: test_statistic = -1.0 and test_dof = 0 (T >= 0 otherwise);
-  - any other non-finite number (a core fault) is replaced by "no estimate", or the track is
-    left out, with an error in the log.
-
-Synchronization: features and poses pair when their stamps differ by at most
-stamp_tolerance_s (default 0: equal stamps), nearest first. Frames are processed in stamp
-order as soon as paired; a frame that still waits for its pose holds back the later ones.
-The poses come in stamp order, after the features by SLAM's processing time, which can be
-longer than the horizon while SLAM lags: a features frame waits for its pose until a pose
-with a later stamp has come (SLAM skipped the frame: it is dropped then), however late, up
-to queue_size frames. Before the first pose, and for a frame that came after a later pose,
-a frame whose pose has not come once the newest stamp seen is sync_horizon_s past it is
-dropped. A frame still waiting when no input came for sync_horizon_s of wall time is
-dropped, as is a pose no features frame paired with within the horizon; each drop is logged
-once with its stamp. Each queue holds at most queue_size entries (the oldest goes first).
-While no camera_info or no pose at all has come yet, the drops are summarized in a line
-every few seconds instead.
-
-Bad input is logged with its culprit and the node goes on: features before any camera_info
-(held and processed once it arrives), a pose or features frame without partner (dropped as
-above), a frame out of stamp order, a pose with NaN or a non-rotation, NaN pixels (those
-features are ignored), repeated ids, an unusable camera_info.
-
-Parameters (Shadow filter): the fields of the core's ClassifierConfig, EkfConfig and
-ShadowConfig, one to one; their defaults are the core's, written out in
-config/shadow_filter.yaml (a test keeps the two equal).
-  alpha                           probability of calling a static feature dynamic.
-  min_parallax_deg, parallax_growth  test j waits for a parallax of
-                                  min_parallax_deg * parallax_growth**j, deg.
-  max_tests                       tests per feature; after them it stays PENDING.
-  min_baseline_m                  camera travel since first sight before any test, m.
-  middle_min_fraction             the middle view lies at least this share of the baseline
-                                  from both ends.
-  min_detectable_speed_m_s, detection_power, unchecked_directions  STATIC only once this
-                                  speed (m/s) would have been seen with this power in all but
-                                  the unchecked_directions least visible directions of motion
-                                  (0 m/s: any accepted test decides).
-  static_test                     the test of the static hypothesis: both (either rejecting
-                                  is DYNAMIC), three_ray (the paper's) or all_view.
-  pixel_sigma_px                  pixel noise per coordinate, px.
-  tracking_offset_px, tracking_offset_time_s  the tracker's offsets that persist between
-                                  images (px per coordinate; 0: white noise) and their
-                                  correlation time (s), modelled in the static tests
-                                  and kept per feature in its EKF state.
-  initial_inverse_depth_per_m, initial_inverse_depth_sigma_per_m  the inverse depth (1/m) a
-                                  new feature starts at, and its standard deviation.
-  velocity_sigma_m_s              prior velocity standard deviation of a new feature, m/s.
-  acceleration_psd_m2_s3          white acceleration noise density, m^2/s^3.
-  camera_translation_sigma_m, camera_rotation_sigma_rad  camera motion noise per frame added
-                                  in the prediction, m and rad.
-  innovation_gate_probability     chi-square gate of the measurement updates.
-  max_missed_frames               a feature unseen this many frames is forgotten.
-  trajectory_length               positions kept per feature for its trajectory (0: none).
-  classify                        false: a tracker only; every feature stays PENDING.
-Parameters (node):
-  pose_topic ('monoslam/pose')    camera pose topic.
-  stamp_tolerance_s (0.0)         largest features-to-pose stamp difference, s.
-  sync_horizon_s (1.0)            how long a pose waits for its frame, and a frame for its
-                                  pose before the first pose, s (stamp time; see above).
-  queue_size (300)                waiting feature frames and poses, each (10 s at 30 Hz:
-                                  how far SLAM's poses may lag before frames are dropped).
-  publish_markers (true)          publish shadow/markers.
-All are read-only; a bad value stops the node with an error naming the parameter.
-
-Frames: the world frame is the pose's header.frame_id (e.g. map); features are in the
-camera optical frame of the camera_info.
+  subscribes  features (FeatureTrackArray), <pose_topic> (PoseWithCovarianceStamped, default
+              monoslam/pose) and <pose_topic>/link (PoseLink, optional), camera/camera_info,
+              monoslam/revoked (ShadowTrackArray: handovers SLAM found moving)
+  publishes   shadow/tracks, shadow/static_features (ShadowTrackArray), shadow/markers
+              (MarkerArray, with publish_markers), /diagnostics
+Frames: the world is the pose's header.frame_id. Parameters (all read-only):
+``shadow_filter --help``. In full: docs/design/monoslam_nodes.md.
 """
 
 from __future__ import annotations

@@ -30,9 +30,11 @@ from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
 from slam_ros.testing.node_contract import (
+    NODE_DOCSTRING_MAX_LINES,
     config_mismatches,
+    docstring_lines,
     docstring_mismatches,
-    undocumented_parameters,
+    help_without_parameters,
 )
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
@@ -45,8 +47,9 @@ S = 1_000_000_000
 # --- parameters ----------------------------------------------------------------------------
 
 
-def test_docstring_lists_every_parameter() -> None:
-    assert undocumented_parameters(feature_tracker_node) == []
+def test_help_lists_every_parameter_and_the_docstring_stays_short() -> None:
+    assert help_without_parameters(feature_tracker_node, 'feature_tracker') == []
+    assert docstring_lines(feature_tracker_node) <= NODE_DOCSTRING_MAX_LINES
 
 
 def test_docstring_types_and_defaults_match_the_declaration() -> None:

@@ -39,9 +39,11 @@ from slam_core.errors import ParameterError
 from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
 from slam_ros.testing.node_contract import (
+    NODE_DOCSTRING_MAX_LINES,
     config_mismatches,
+    docstring_lines,
     docstring_mismatches,
-    undocumented_parameters,
+    help_without_parameters,
 )
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
@@ -54,8 +56,9 @@ DEFAULTS = monoslam_settings.PARAMETERS.defaults()
 # --- parameters ----------------------------------------------------------------------------
 
 
-def test_docstring_lists_every_parameter() -> None:
-    assert undocumented_parameters(monoslam_node) == []
+def test_help_lists_every_parameter_and_the_docstring_stays_short() -> None:
+    assert help_without_parameters(monoslam_node, 'monoslam') == []
+    assert docstring_lines(monoslam_node) <= NODE_DOCSTRING_MAX_LINES
 
 
 def test_docstring_types_and_defaults_match_the_declaration() -> None:

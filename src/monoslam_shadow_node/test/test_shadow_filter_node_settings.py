@@ -44,9 +44,11 @@ from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
 from slam_ros.testing.node_contract import (
+    NODE_DOCSTRING_MAX_LINES,
     config_mismatches,
+    docstring_lines,
     docstring_mismatches,
-    undocumented_parameters,
+    help_without_parameters,
 )
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
@@ -58,8 +60,9 @@ MS = 1_000_000
 # --- parameters ----------------------------------------------------------------------------
 
 
-def test_docstring_lists_every_parameter() -> None:
-    assert undocumented_parameters(shadow_filter_node) == []
+def test_help_lists_every_parameter_and_the_docstring_stays_short() -> None:
+    assert help_without_parameters(shadow_filter_node, 'shadow_filter') == []
+    assert docstring_lines(shadow_filter_node) <= NODE_DOCSTRING_MAX_LINES
 
 
 def test_docstring_types_and_defaults_match_the_declaration() -> None:

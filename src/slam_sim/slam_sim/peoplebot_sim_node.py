@@ -2,38 +2,21 @@
 
 It stands in for a robot's base driver and camera driver together, with the same topics,
 frames and QoS as the real ones, so the live graphs run unchanged against it or the robot:
-
-- the base (``slam_sim.core.live_base``): ``cmd_vel`` in, limited by speed and acceleration,
-  stopped by a watchdog after ``cmd_vel_timeout_s`` without a command; wheel odometry with the
-  office bags' noise model out on ``odom`` and on /tf (odom -> base_link, like p2os and
-  RosAria);
-- the camera: the office world (``office_sim``'s world, markers and moves for ``seed`` and
-  ``variant``) rendered from the robot's true pose at ``camera_rate_hz`` with the camera
-  effects of the office camera bags, on ``camera/image_raw`` (mono8) and, when asked,
-  ``camera/image_raw/compressed`` (JPEG), with ``camera/camera_info``, sensor-data QoS. The
-  camera mount is not published here: a robot's drivers do not either (``camera_mount``
-  publishes it on /tf_static from parameters);
-- the moves of paper 000 section IV: when the robot first crosses the middle of the corridor
-  (office 1's desks out of view), the moveable markers go to their ``variant`` positions;
-- ground truth on its own topics, never read by the SLAM nodes.
-
-The robot starts at rest at the start of the paper's office route (``route_driver`` drives
-it); any ``cmd_vel`` source (teleop) works instead. Time is the node clock: wall time live.
-A long stall of the process (over ``live_base.MAX_CATCH_UP_S``) is skipped and reported, not
-simulated in one burst.
+the base (``slam_sim.core.live_base``: ``cmd_vel`` in, limited, stopped by a watchdog; noisy
+wheel odometry out), the camera (the office world rendered from the true pose with the office
+bags' camera effects), the moves of paper 000 section IV (when the robot first crosses the
+corridor's middle), and ground truth on its own topics, never read by the SLAM nodes. The
+camera mount is not published here (``camera_mount`` does, as on a robot). The robot starts
+at rest at the start of the office route (``route_driver`` drives it). Time is the node
+clock: wall time live; a long stall of the process is skipped and reported.
 
 Topics:
-  subscribes  cmd_vel (geometry_msgs/Twist, reliable, depth 10, as teleop and nav2 send it)
-  publishes   odom (nav_msgs/Odometry, odom -> base_link, reliable, at odom_rate_hz)
-              /tf (tf2_msgs/TFMessage): odom -> base_link with every odom, when publish_tf
-              camera/image_raw (sensor_msgs/Image mono8, camera_optical_frame, best effort)
-              camera/image_raw/compressed (sensor_msgs/CompressedImage, when
-              publish_compressed), camera/camera_info (sensor_msgs/CameraInfo, best effort)
-              ground_truth/pose (nav_msgs/Odometry, map -> base_link, with every odom)
-              ground_truth/landmarks (slam_interfaces/LandmarkMap, map, transient local):
-              every marker where it is now, again after the move
-              /diagnostics: commands received and rejected, watchdog stops, odometry and
-              frames published, frames late, seconds skipped
+  subscribes  cmd_vel (geometry_msgs/Twist, reliable, 10)
+  publishes   odom (nav_msgs/Odometry) and /tf (odom -> base_link, with publish_tf);
+              camera/image_raw (mono8), camera/image_raw/compressed (with
+              publish_compressed), camera/camera_info: best effort; ground_truth/pose,
+              ground_truth/landmarks (transient local); /diagnostics
+In full: docs/design/simulation_nodes.md. Parameters: ``peoplebot_sim --help``.
 """
 
 from __future__ import annotations
