@@ -167,3 +167,23 @@ def test_alignments_per_image_are_bounded_in_the_predictions_order(
     assert search.unaligned >= 20 - config.reid_max_alignments  # counted, not silent
     first = pixels[0]
     assert np.hypot(calls[0][0] - first[0], calls[0][1] - first[1]) <= 3 * 5.0 + 1
+
+
+def test_a_prediction_that_can_be_searched_is_moved_but_keeps_its_covariance() -> None:
+    """Narrowed only where too wide to search: with the tracker's 80 px (3-sigma half-axis),
+    a remembered track predicted with a 20 px sigma (a returning map feature whose error is
+    the old map's drift, not the image's motion) moves with the carried tracks and keeps its
+    20 px; one with 30 px is narrowed to their spread as before."""
+    motion = _affine(2.0, (25.0, -18.0))
+    pixels, covariances = _predictions(32, 30.0, seed=5)
+    covariances[31] = 20.0**2 * np.eye(2)
+    ids = np.arange(32, dtype=np.int64)
+    tracked = _apply(motion, pixels[:30]) + np.random.default_rng(6).normal(0.0, 0.5, (30, 2))
+    rows = {k: k for k in range(30)}
+    out_pixels, out_covariances = aligned_predictions(
+        pixels, covariances, ids, rows, tracked.astype(np.float32), 80.0
+    )
+    truth = _apply(motion, pixels[30:])
+    assert np.max(np.linalg.norm(out_pixels[30:] - truth, axis=1)) < 1.0
+    np.testing.assert_array_equal(out_covariances[31], covariances[31])
+    assert np.all(np.sqrt(np.diagonal(out_covariances[30])) < 2.0)

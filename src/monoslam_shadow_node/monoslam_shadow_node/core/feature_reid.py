@@ -26,7 +26,10 @@ ones (at least ``MOTION_MIN_TRACKS``, one reweighting that drops those beyond
 ``SEARCH_SIGMAS`` robust sigma), moves each remembered track's prediction through it, and
 takes as its covariance the spread of the carried tracks about the fit (at least
 ``TRACKING_SIGMA_PX``) plus the part of its own covariance above the carried tracks'
-median one (its own error: an uncertain depth), when that is smaller than the prediction's."""
+median one (its own error: an uncertain depth), when that is smaller than the prediction's
+and the prediction is too wide to search as it is; one that can be searched keeps its own
+covariance (a returning map feature's error is its old map's drift, which SLAM's covariance
+may not hold and the carried tracks do not show)."""
 
 from __future__ import annotations
 
@@ -309,11 +312,15 @@ def aligned_predictions(
     ids: NDArray[np.int64],
     rows: dict[int, int],
     tracked: NDArray[np.float32],
+    narrow_beyond_px: float = 0.0,
 ) -> tuple[FloatArray, FloatArray]:
     """Return the predictions' pixels (K, 2) and covariances (K, 2, 2) of ``ids`` (K,) moved
     by the image's motion (module docstring); ``rows`` maps each track carried into this
-    image to its row of ``tracked`` (N, 2), its pixel now. Unchanged with fewer than
-    ``MOTION_MIN_TRACKS`` usable carried tracks."""
+    image to its row of ``tracked`` (N, 2), its pixel now. A covariance is narrowed only
+    where its ``SEARCH_SIGMAS`` half-axis exceeds ``narrow_beyond_px`` (the tracker's
+    reid_max_search_px: too wide to search as it is); one that can be searched keeps it, as
+    a returning map feature's error is its old map's drift, which the carried tracks do not
+    show. Unchanged with fewer than ``MOTION_MIN_TRACKS`` usable carried tracks."""
     pixels = np.asarray(pixels, np.float64)
     covariances = np.asarray(covariances, np.float64)
     carried = np.array([i in rows for i in ids.tolist()], dtype=bool).reshape(-1)
@@ -342,7 +349,9 @@ def aligned_predictions(
         narrowed = spread + (vectors * np.clip(values, 0.0, None)) @ vectors.T
         if np.trace(narrowed) < np.trace(covariances[k]):
             out_pixels[k] = affine[:, :2] @ pixels[k] + affine[:, 2]
-            out_covariances[k] = narrowed
+            half_axis = SEARCH_SIGMAS * math.sqrt(np.max(np.diag(covariances[k])))
+            if half_axis > narrow_beyond_px:
+                out_covariances[k] = narrowed
     return out_pixels, out_covariances
 
 

@@ -367,7 +367,9 @@ class FeatureTracker:
         anchors = [k for k, i in enumerate(ids.tolist()) if i in self._returned]
         anchors = [k for k in anchors if np.all(np.isfinite(pixels[k]))]
         held = pixels[anchors], self._pixels[[rows[int(ids[k])] for k in anchors]].astype(float)
-        pixels, covariances = aligned_predictions(pixels, covariances, ids, rows, self._pixels)
+        pixels, covariances = aligned_predictions(
+            pixels, covariances, ids, rows, self._pixels, config.reid_max_search_px
+        )
         found, search = search_predicted(
             config, gray, templates, (ids, pixels, covariances, np.asarray(warps, float)), held
         )
