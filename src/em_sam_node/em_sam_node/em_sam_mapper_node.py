@@ -38,6 +38,7 @@ from visualization_msgs.msg import MarkerArray
 
 from em_sam_node.checkpoint import load_checkpoint, save_checkpoint
 from em_sam_node.conversions import increment_from_message, observations_from_message
+from em_sam_node.core.factorization import SingularSystemError
 from em_sam_node.map_files import MAP_FILE, MapFileError, known_map, read_map, write_map
 from em_sam_node.mapper import MapperProcessor
 from em_sam_node.mapper_outputs import (
@@ -98,6 +99,7 @@ class MapperBehaviour(Node):
         self.checkpoint_period_s = float(values['checkpoint_period_s'])
         self._saved_state: tuple[int, ...] | None = None
         self.solves = 0
+        self.poses_undetermined = 0  # solves whose latest pose had no marginal (em_sam/pose)
         self._online_moveable: frozenset[int] = frozenset()
         self._resume(str(values['resume_from']))
 
@@ -164,7 +166,7 @@ class MapperBehaviour(Node):
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: keyframes, observations on them and waiting for one,
         increments and observations dropped (bad or out of order), observations from before
-        the first keyframe, solves."""
+        the first keyframe, solves, solves whose latest pose was not determined."""
         mapper = self.mapper
         last = mapper.online_last
         return {
@@ -175,6 +177,7 @@ class MapperBehaviour(Node):
             'before first keyframe': mapper.before_start_observations,
             'already held': mapper.duplicate_increments + mapper.duplicate_observations,
             'solves': self.solves,
+            'poses not determined': self.poses_undetermined,
             'online keyframes': mapper.online.num_keyframes if mapper.online else 0,
             # beyond the smoother's horizon: marginalized, their late sightings not smoothed
             'online keyframes marginalized': mapper.online.kept_from if mapper.online else 0,
@@ -361,7 +364,12 @@ class MapperBehaviour(Node):
         self.map_publisher.publish(landmark_map_message(result, self.map_frame, stamp))
         self.moveable_publisher.publish(moveable_message(result, self.map_frame, stamp))
         self.marker_publisher.publish(markers_message(result, self.map_frame, stamp))
-        latest = self.mapper.latest_pose()
+        try:
+            latest = self.mapper.latest_pose()
+        except SingularSystemError as error:  # the solve's latest keyframe is not determined
+            latest = None
+            self.poses_undetermined += 1
+            self.get_logger().warning(f'em_sam/pose not published for this solve: {error}')
         if latest is not None:
             self.pose_publisher.publish(pose_message(*latest, self.map_frame))
         self._publish_tf()
