@@ -100,6 +100,7 @@ class MapperBehaviour(Node):
         self._saved_state: tuple[int, ...] | None = None
         self.solves = 0
         self.poses_undetermined = 0  # solves whose latest pose had no marginal (em_sam/pose)
+        self.unsolved = 0  # solves refused: the system was not determined
         self._online_moveable: frozenset[int] = frozenset()
         self._resume(str(values['resume_from']))
 
@@ -166,7 +167,8 @@ class MapperBehaviour(Node):
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics: keyframes, observations on them and waiting for one,
         increments and observations dropped (bad or out of order), observations from before
-        the first keyframe, solves, solves whose latest pose was not determined."""
+        the first keyframe, solves, solves refused and poses left out for a system that was not
+        determined."""
         mapper = self.mapper
         last = mapper.online_last
         return {
@@ -177,6 +179,7 @@ class MapperBehaviour(Node):
             'before first keyframe': mapper.before_start_observations,
             'already held': mapper.duplicate_increments + mapper.duplicate_observations,
             'solves': self.solves,
+            'solves not determined': self.unsolved,
             'poses not determined': self.poses_undetermined,
             'online keyframes': mapper.online.num_keyframes if mapper.online else 0,
             # beyond the smoother's horizon: marginalized, their late sightings not smoothed
@@ -352,7 +355,13 @@ class MapperBehaviour(Node):
     def optimize(self) -> str:
         """Solve EM-SAM now and publish the results; return a one-line summary."""
         started = time.perf_counter()
-        result = self.mapper.optimize()
+        try:
+            result = self.mapper.optimize()
+        except SingularSystemError as error:  # e.g. an increment whose covariance is so wide
+            self._dirty = False  # that it fixes nothing: solved again once new data come
+            self.unsolved += 1
+            self.get_logger().warning(f'EM-SAM not solved: {error}')
+            return f'not solved: {error}'
         # only once solved: a solve cut short (Ctrl-C) leaves the report to solve again
         self._dirty = False
         if result is None:
