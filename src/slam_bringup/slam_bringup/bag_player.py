@@ -18,34 +18,8 @@ Topics:
              messages published since the last report (``lateness ms median``, ``lateness
              ms max``: publish time minus scheduled time; slam_ros.diagnostics).
 
-Parameters:
-  bag_path (string)                 bag directory, .mcap, .db3 or ROS 1 .bag. Required.
-  rate (double, 1.0)                playback speed factor, > 0.
-  start_offset_s (double, 0.0)      skip this many seconds from the bag start, >= 0.
-  topics (string[], all)            play only these recorded topic names.
-  remap (string[], none)            'recorded:=published' topic renames.
-  replayable_topics (string[], none) played topics published reliable and transient-local,
-                                    keeping their last REPLAYABLE_DEPTH messages: a node
-                                    restarted mid-run (respawn: true) gets what it missed.
-  loop (bool, false)                start over at the end.
-  clock_hz (double, 100.0)          /clock publish rate; 0 disables /clock.
-  wait_for_subscribers_s (double, 0) wait up to this long for every topic to have a
-                                    subscriber before starting (0: start at once), then 1 s
-                                    more: the subscriber's side of DDS discovery comes up to
-                                    an exchange later, and drops or delays what comes before.
-  progress_period_s (double, 5.0)   period of progress log lines when not on a terminal.
-  paced (bool, false)               paced replay (``slam_bringup.pacing``): no timing; each
-                                    message is published once every node reporting its
-                                    progress on /slam/progress has finished with what came
-                                    before, so the result does not depend on the machine's
-                                    load. /clock follows the messages' stamps.
-  paced_nodes (string[], none)      paced: wait for these nodes' first report before playing.
-  paced_timeout_s (double, 60.0)    paced: play on after waiting this long for the graph,
-                                    with a warning naming what it waited for, counted as
-                                    ``paced timeouts`` (longer than any one callback: the
-                                    mapper's solves take seconds).
-
 Frames: none (messages keep their recorded frame ids).
+Parameters: ``bag_player --help``. In full: docs/design/bringup_nodes.md.
 """
 
 from __future__ import annotations

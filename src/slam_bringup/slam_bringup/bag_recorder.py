@@ -20,16 +20,8 @@ Topics:
               With every topic recorded, /diagnostics is recorded too, the recorder's own
               reports included (slam_run's drain ignores the recorder's reports).
 
-Parameters:
-  output (string, rosbag2_<date>_<time>)  bag directory to create; must not exist.
-  topics (string[], all)                  topics to record; empty records all.
-  exclude (string[], [/rosout, /parameter_events])  topics skipped when recording all.
-  discovery_period_s (double, 0.5)        how often to look for new topics, > 0.
-  queue_depth (int, 1000)                 subscription history depth, >= 1.
-  flush_period_s (double, 1.0)            longest time a received message waits in memory
-                                          before it is on disk, s, > 0.
-
 Frames: none (messages are stored as received).
+Parameters: ``bag_recorder --help``. In full: docs/design/bringup_nodes.md.
 """
 
 from __future__ import annotations
