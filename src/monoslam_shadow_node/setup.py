@@ -22,9 +22,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'shadow_filter = monoslam_shadow_node.shadow_filter_node:main',
-            'monoslam = monoslam_shadow_node.monoslam_node:main',
-            'feature_tracker = monoslam_shadow_node.feature_tracker_node:main',
+            'shadow_filter = monoslam_shadow_node.shadow_filter.node:main',
+            'monoslam = monoslam_shadow_node.monoslam.node:main',
+            'feature_tracker = monoslam_shadow_node.feature_tracker.node:main',
         ],
     },
 )

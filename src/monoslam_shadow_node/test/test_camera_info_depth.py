@@ -11,8 +11,8 @@ import pytest
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
 
-from monoslam_shadow_node.monoslam_node import MonoSlamNode
-from monoslam_shadow_node.shadow_filter_node import ShadowFilterNode
+from monoslam_shadow_node.monoslam.node import MonoSlamNode
+from monoslam_shadow_node.shadow_filter.node import ShadowFilterNode
 from slam_ros.qos import SENSOR_DEPTH
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from sensor_msgs.msg import CameraInfo
 
-from monoslam_shadow_node.conversions import CameraInfoWatch
+from monoslam_shadow_node.common.conversions import CameraInfoWatch
 
 
 def info(fx: float) -> CameraInfo:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
-from monoslam_shadow_node.feature_overlay import UNKNOWN, StatusBook, draw_features
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
+from monoslam_shadow_node.feature_tracker.overlay import UNKNOWN, StatusBook, draw_features
 
 
 def test_the_book_keeps_the_latest_status_of_the_ids_named_most_recently() -> None:

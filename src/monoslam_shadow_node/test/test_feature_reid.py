@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monoslam_shadow_node.core.feature_reid import (
+from monoslam_shadow_node.feature_tracker.core.feature_reid import (
     TEMPLATE_MARGIN_PX,
     Peak,
     find_peaks,
@@ -19,7 +19,7 @@ from monoslam_shadow_node.core.feature_reid import (
     search_predicted,
     search_region,
 )
-from monoslam_shadow_node.core.feature_tracker import TrackerConfig
+from monoslam_shadow_node.feature_tracker.core.feature_tracker import TrackerConfig
 
 WIDTH, HEIGHT = 640, 480
 

@@ -15,8 +15,8 @@ from test_feature_tracker_core import (
     warped,
 )
 
-from monoslam_shadow_node.core.feature_config import TrackerConfig
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker
+from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
+from monoslam_shadow_node.feature_tracker.core.feature_tracker import FeatureTracker
 
 
 def test_detection_runs_every_third_image_by_default_and_whenever_no_track_is_left() -> None:

@@ -14,9 +14,9 @@ from test_feature_tracker_core import (
     warped,
 )
 
-from monoslam_shadow_node.core.feature_config import TrackerConfig
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker
-from monoslam_shadow_node.core.feature_types import Predictions, TrackedFeatures
+from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
+from monoslam_shadow_node.feature_tracker.core.feature_tracker import FeatureTracker
+from monoslam_shadow_node.feature_tracker.core.feature_types import Predictions, TrackedFeatures
 
 
 def test_a_map_feature_is_remembered_longer_than_tracks_no_map_holds() -> None:

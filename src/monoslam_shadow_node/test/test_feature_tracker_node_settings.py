@@ -14,18 +14,18 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 
-from monoslam_shadow_node import feature_tracker_node
-from monoslam_shadow_node import feature_tracker_settings as settings
-from monoslam_shadow_node.core.feature_config import TrackerConfig
-from monoslam_shadow_node.feature_tracker_node import KindThrottle
-from monoslam_shadow_node.feature_tracking import (
+from monoslam_shadow_node.feature_tracker import node as feature_tracker_node
+from monoslam_shadow_node.feature_tracker import settings
+from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
+from monoslam_shadow_node.feature_tracker.node import KindThrottle
+from monoslam_shadow_node.feature_tracker.processor import (
     FeatureFrame,
     FeatureTrackingProcessor,
     Outcome,
     feature_frame_cdr,
     status_line,
 )
-from monoslam_shadow_node.notices import Notice
+from monoslam_shadow_node.common.notices import Notice
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
@@ -452,7 +452,7 @@ def test_launch_file_starts_the_installed_executable_with_its_config(
     check_launched_node(
         launched,
         package_dir=PACKAGE_DIR,
-        entry_point='monoslam_shadow_node.feature_tracker_node:main',
+        entry_point='monoslam_shadow_node.feature_tracker.node:main',
         config=CONFIG,
     )
     node, arguments = launched.node, launched.arguments

@@ -12,14 +12,13 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 
-from monoslam_shadow_node.conversions import (
-    features_from_cdr,
-    features_from_message,
+from monoslam_shadow_node.common.conversions import features_from_cdr, features_from_message
+from monoslam_shadow_node.feature_tracker.conversions import (
     prediction_covariances,
     prediction_warps,
     predictions_from_cdr,
 )
-from monoslam_shadow_node.monoslam_conversions import (
+from monoslam_shadow_node.monoslam.conversions import (
     dynamic_ids,
     dynamic_ids_from_cdr,
     fill_predictions,

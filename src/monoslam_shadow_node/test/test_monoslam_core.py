@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.monoslam_model import (
+from monoslam_shadow_node.monoslam.core.monoslam_model import (
     angles_from_ray,
     euclidean_point,
     new_inverse_depth_feature,
@@ -15,7 +15,7 @@ from monoslam_shadow_node.core.monoslam_model import (
     project_feature,
     project_features,
 )
-from monoslam_shadow_node.core.monoslam_types import (
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
     MonoSlamConfig,
 )
 from slam_core.camera import CameraModel

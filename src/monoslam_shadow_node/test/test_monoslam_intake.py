@@ -8,12 +8,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.monoslam_intake import (
+from monoslam_shadow_node.monoslam.core.monoslam_intake import (
     farthest_first,
     handover_inverse_depth,
     wanted,
 )
-from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
+from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig
 
 
 def test_classic_mapping_fills_up_to_the_target_at_most_max_new_per_frame() -> None:

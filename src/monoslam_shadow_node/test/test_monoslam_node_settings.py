@@ -16,11 +16,17 @@ import pytest
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2, PointField
 
-from monoslam_shadow_node import monoslam_node, monoslam_processor, monoslam_settings, settings
-from monoslam_shadow_node.conversions import Features, revoked_from_message
-from monoslam_shadow_node.core.monoslam_types import MapPoint, MonoSlamConfig, MonoSlamResult
-from monoslam_shadow_node.frame_sync import StampSync
-from monoslam_shadow_node.monoslam_conversions import (
+from monoslam_shadow_node.monoslam import (
+    node as monoslam_node,
+    processor as monoslam_processor,
+    settings as monoslam_settings,
+)
+from monoslam_shadow_node.shadow_filter import settings
+from monoslam_shadow_node.common.core.inputs import Features
+from monoslam_shadow_node.shadow_filter.conversions import revoked_from_message
+from monoslam_shadow_node.monoslam.core.monoslam_types import MapPoint, MonoSlamConfig, MonoSlamResult
+from monoslam_shadow_node.common.frame_sync import StampSync
+from monoslam_shadow_node.monoslam.conversions import (
     POINT_DTYPE,
     PoseFields,
     TargetSighting,
@@ -34,7 +40,7 @@ from monoslam_shadow_node.monoslam_conversions import (
     target_from_fiducials,
     tum_text,
 )
-from monoslam_shadow_node.monoslam_processor import monoslam_frame
+from monoslam_shadow_node.monoslam.processor import monoslam_frame
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
@@ -487,7 +493,7 @@ def test_launch_file_starts_the_installed_executable_with_its_config(
     check_launched_node(
         launched,
         package_dir=PACKAGE_DIR,
-        entry_point='monoslam_shadow_node.monoslam_node:main',
+        entry_point='monoslam_shadow_node.monoslam.node:main',
         config=CONFIG,
     )
     node, arguments = launched.node, launched.arguments

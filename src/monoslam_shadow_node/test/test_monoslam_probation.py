@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from monoslam_shadow_node.core.monoslam_ekf import (
+from monoslam_shadow_node.monoslam.core.monoslam_ekf import (
     MIN_TRUSTED_POINTS,
     consider_update,
     gated_update,
@@ -19,7 +19,7 @@ from monoslam_shadow_node.core.monoslam_ekf import (
     matches,
     measurement_variance,
 )
-from monoslam_shadow_node.core.monoslam_model import (
+from monoslam_shadow_node.monoslam.core.monoslam_model import (
     CAMERA_SIZE,
     EUCLIDEAN_SIZE,
     Q_SLICE,
@@ -28,9 +28,9 @@ from monoslam_shadow_node.core.monoslam_model import (
     W_SLICE,
     project_feature,
 )
-from monoslam_shadow_node.core.monoslam_ransac import ransac_update
-from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
-from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
+from monoslam_shadow_node.monoslam.core.monoslam_ransac import ransac_update
+from monoslam_shadow_node.monoslam.core.monoslam_state import FeatureBlock, FilterState
+from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig
 from slam_core.camera import CameraModel
 
 CAMERA = CameraModel(
@@ -165,8 +165,8 @@ def _walk(config: MonoSlamConfig, handover: bool) -> list[tuple[int, bool] | Non
     """Run MonoSLAM with CORNERS known while the camera walks sideways at 0.6 m/s (POINT's
     parallax grows), POINT tracked as feature 7 from frame 2 (handed over at frame 1 when
     ``handover``); return per frame (size, probation) of the first feature in the state."""
-    from monoslam_shadow_node.core.monoslam import MonoSlam
-    from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
+    from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
+    from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamFrame
 
     known = {k: tuple(point) for k, point in enumerate(CORNERS)}
     slam = MonoSlam(CAMERA, dataclasses.replace(config, known_points=known))

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.monoslam_ekf import (
+from monoslam_shadow_node.monoslam.core.monoslam_ekf import (
     apply_update,
     gate_all,
     gated_update,
@@ -18,7 +18,7 @@ from monoslam_shadow_node.core.monoslam_ekf import (
     matches,
     measurement_variance,
 )
-from monoslam_shadow_node.core.monoslam_model import (
+from monoslam_shadow_node.monoslam.core.monoslam_model import (
     CAMERA_SIZE,
     EUCLIDEAN_SIZE,
     Q_SLICE,
@@ -27,9 +27,9 @@ from monoslam_shadow_node.core.monoslam_model import (
     W_SLICE,
     project_feature,
 )
-from monoslam_shadow_node.core.monoslam_ransac import hypotheses_needed, previewed, ransac_update
-from monoslam_shadow_node.core.monoslam_state import FeatureBlock, FilterState
-from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
+from monoslam_shadow_node.monoslam.core.monoslam_ransac import hypotheses_needed, previewed, ransac_update
+from monoslam_shadow_node.monoslam.core.monoslam_state import FeatureBlock, FilterState
+from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig
 from slam_core.camera import CameraModel
 
 CAMERA = CameraModel(
@@ -195,7 +195,7 @@ def test_a_rigid_group_against_the_known_points_loses_to_them() -> None:
 
 
 def test_gated_mode_keeps_the_gated_update() -> None:
-    from monoslam_shadow_node.core.monoslam import MonoSlam
+    from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
 
     slam = MonoSlam(CAMERA, MonoSlamConfig(update='gated'))
     rng = np.random.default_rng(8)

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from test_monoslam_probation import CAMERA, CONFIG, GROUP, _observed, _on_probation, _state
 
-from monoslam_shadow_node.core.monoslam import MonoSlam
-from monoslam_shadow_node.core.monoslam_ekf import MIN_TRUSTED_POINTS, gated_update
-from monoslam_shadow_node.core.monoslam_init import depth_start_features
-from monoslam_shadow_node.core.monoslam_model import R_SLICE
-from monoslam_shadow_node.core.monoslam_ransac import ransac_update
-from monoslam_shadow_node.core.monoslam_snapshot import filter_state, restore_filter
-from monoslam_shadow_node.core.monoslam_types import (
+from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
+from monoslam_shadow_node.monoslam.core.monoslam_ekf import MIN_TRUSTED_POINTS, gated_update
+from monoslam_shadow_node.monoslam.core.monoslam_init import depth_start_features
+from monoslam_shadow_node.monoslam.core.monoslam_model import R_SLICE
+from monoslam_shadow_node.monoslam.core.monoslam_ransac import ransac_update
+from monoslam_shadow_node.monoslam.core.monoslam_snapshot import filter_state, restore_filter
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
     TRACKING,
     WAITING,
     MonoSlamConfig,

@@ -6,13 +6,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from monoslam_shadow_node.core.monoslam_model import (
+from monoslam_shadow_node.monoslam.core.monoslam_model import (
     CAMERA_SIZE,
     beyond_fold,
     project_feature,
     project_features,
 )
-from monoslam_shadow_node.core.monoslam_views import TemplateViews, affine_warps
+from monoslam_shadow_node.monoslam.core.monoslam_views import TemplateViews, affine_warps
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import quaternion_from_rotation
 from slam_core.testing.jacobians import assert_jacobian_close

@@ -12,15 +12,15 @@ from typing import cast
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.monoslam import MonoSlam
-from monoslam_shadow_node.core.monoslam_types import (
+from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
     WAITING,
     MonoSlamConfig,
     MonoSlamFrame,
     MonoSlamResult,
 )
-from monoslam_shadow_node.core.noise_estimate import NoiseEstimate
-from monoslam_shadow_node.core.noise_monitor import (
+from monoslam_shadow_node.monoslam.core.noise_estimate import NoiseEstimate
+from monoslam_shadow_node.monoslam.core.noise_monitor import (
     SWEEP_PERIOD_NS,
     NoiseAdaptation,
     NoiseMonitor,

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.conversions import CameraPose
-from monoslam_shadow_node.pose_link_messages import (
+from monoslam_shadow_node.common.core.inputs import CameraPose
+from monoslam_shadow_node.common.pose_link_messages import (
     PoseLinkInput,
     PoseLinks,
     fill_pose_link,

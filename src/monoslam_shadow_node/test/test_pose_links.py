@@ -8,14 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.pose_links import (
+from monoslam_shadow_node.common.core.pose_links import (
     covered_views,
     cross_table,
     pose_covariances_between,
 )
-from monoslam_shadow_node.core.rays import View
-from monoslam_shadow_node.core.static_fit import motion_score_test
-from monoslam_shadow_node.core.view_fit import bases
+from monoslam_shadow_node.shadow_filter.core.rays import View
+from monoslam_shadow_node.shadow_filter.core.static_fit import motion_score_test
+from monoslam_shadow_node.shadow_filter.core.view_fit import bases
 from slam_core.geometry.so3 import rotation_from_vector
 
 FOCAL_PX = 300.0

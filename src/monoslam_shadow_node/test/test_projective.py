@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from monoslam_shadow_node.core.projective import (
+from monoslam_shadow_node.common.core.projective import (
     gamma_matrix,
     join_point_line,
     join_points,
@@ -19,7 +19,7 @@ from monoslam_shadow_node.core.projective import (
     pseudo_inverse_at_rank,
     relation_test,
 )
-from monoslam_shadow_node.core.rays import View, pixel_ray_directions, three_ray_test
+from monoslam_shadow_node.shadow_filter.core.rays import View, pixel_ray_directions, three_ray_test
 from slam_core.camera import CameraModel
 from slam_core.testing.jacobians import assert_jacobian_close
 

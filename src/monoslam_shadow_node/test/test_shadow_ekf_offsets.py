@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 
-from monoslam_shadow_node.core.rays import pixel_ray_directions
-from monoslam_shadow_node.core.shadow_ekf import (
+from monoslam_shadow_node.shadow_filter.core.rays import pixel_ray_directions
+from monoslam_shadow_node.shadow_filter.core.shadow_ekf import (
     OFFSET,
     STATE_SIZE,
     EkfConfig,

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core import shadow_filter as shadow_filter_module
-from monoslam_shadow_node.core.rays import View
-from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig, due_test
-from monoslam_shadow_node.core.shadow_decision import UNFIT_TESTS, classify, decide
-from monoslam_shadow_node.core.shadow_ekf import (
+from monoslam_shadow_node.shadow_filter.core import shadow_filter as shadow_filter_module
+from monoslam_shadow_node.shadow_filter.core.rays import View
+from monoslam_shadow_node.shadow_filter.core.shadow_classifier import ClassifierConfig, due_test
+from monoslam_shadow_node.shadow_filter.core.shadow_decision import UNFIT_TESTS, classify, decide
+from monoslam_shadow_node.shadow_filter.core.shadow_ekf import (
     EkfConfig,
     initial_states,
     predict,
@@ -18,14 +18,15 @@ from monoslam_shadow_node.core.shadow_ekf import (
     update,
     world_estimates,
 )
-from monoslam_shadow_node.core.shadow_filter import (
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import (
     FrameInput,
     InputError,
     ShadowConfig,
     ShadowFilter,
 )
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC, Track
-from monoslam_shadow_node.core.static_fit import motion_score_test
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
+from monoslam_shadow_node.shadow_filter.core.shadow_track import Track
+from monoslam_shadow_node.shadow_filter.core.static_fit import motion_score_test
 from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import rotation_from_vector
 from slam_core.testing.jacobians import assert_jacobian_close

@@ -17,29 +17,31 @@ from scipy.spatial.transform import Rotation
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from monoslam_shadow_node import settings, shadow_filter_node
-from monoslam_shadow_node.conversions import (
+from monoslam_shadow_node.shadow_filter import settings, node as shadow_filter_node
+from monoslam_shadow_node.shadow_filter.conversions import (
     NO_TEST_STATISTIC,
     UNKNOWN_COVARIANCE,
-    CameraPose,
     MarkerTypes,
-    camera_from_info,
-    camera_info_key,
-    features_from_cdr,
-    features_from_message,
     fill_markers,
     fill_track_array,
     frame_input,
     handover_fields,
-    pose_from_message,
-    rotation_from_quaternion,
     track_array_cdr,
     track_fields,
 )
-from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
-from monoslam_shadow_node.core.shadow_ekf import EkfConfig
-from monoslam_shadow_node.core.shadow_filter import Handover, ShadowConfig, TrackReport
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
+from monoslam_shadow_node.common.core.inputs import CameraPose
+from monoslam_shadow_node.common.conversions import (
+    camera_from_info,
+    camera_info_key,
+    features_from_cdr,
+    features_from_message,
+    pose_from_message,
+    rotation_from_quaternion,
+)
+from monoslam_shadow_node.shadow_filter.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_ekf import EkfConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import Handover, ShadowConfig, TrackReport
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
@@ -466,7 +468,7 @@ def test_launch_file_starts_the_installed_executable_with_its_config(
     check_launched_node(
         launched,
         package_dir=PACKAGE_DIR,
-        entry_point='monoslam_shadow_node.shadow_filter_node:main',
+        entry_point='monoslam_shadow_node.shadow_filter.node:main',
         config=CONFIG,
     )
     node, arguments = launched.node, launched.arguments

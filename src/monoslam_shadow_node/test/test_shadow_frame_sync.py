@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from monoslam_shadow_node.conversions import CameraPose, Features
-from monoslam_shadow_node.frame_sync import FrameSynchronizer
+from monoslam_shadow_node.common.core.inputs import CameraPose, Features
+from monoslam_shadow_node.common.frame_sync import FrameSynchronizer
 
 MS = 1_000_000
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.rays import (
+from monoslam_shadow_node.shadow_filter.core.rays import (
     View,
     conditioning,
     three_ray_relations,
@@ -15,9 +15,10 @@ from monoslam_shadow_node.core.rays import (
     viewing_line,
     viewing_lines,
 )
-from monoslam_shadow_node.core.shadow_filter import _ray_precisions
-from monoslam_shadow_node.core.shadow_track import PENDING, Track, Trajectory
-from monoslam_shadow_node.core.static_fit import (
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import _ray_precisions
+from monoslam_shadow_node.common.core.feature_status import PENDING
+from monoslam_shadow_node.shadow_filter.core.shadow_track import Track, Trajectory
+from monoslam_shadow_node.shadow_filter.core.static_fit import (
     ROW_CENTRE,
     ROW_FRAME,
     ROW_NOISE,
@@ -28,7 +29,7 @@ from monoslam_shadow_node.core.static_fit import (
     motion_score_test,
     motion_score_tests,
 )
-from monoslam_shadow_node.core.view_fit import fit
+from monoslam_shadow_node.shadow_filter.core.view_fit import fit
 
 
 def _views(

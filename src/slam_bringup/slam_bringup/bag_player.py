@@ -1,26 +1,7 @@
 """bag_player: replay a ROS 2 (mcap, sqlite3) or ROS 1 bag onto live topics.
 
-Publishes every selected topic's raw CDR with the topic's recorded QoS (ROS 1 topics:
-reliable, transient-local if latched), at the recorded timing scaled by ``rate``, and
-publishes ``/clock`` with the bag time. Shows a progress bar with rate and ETA on a
-terminal, periodic log lines otherwise.
-
-Topics:
-  publishes  every recorded topic (or those in ``topics``), renamed by ``remap``;
-             ``/clock`` (rosgraph_msgs/Clock, best effort, depth 1) when clock_hz > 0;
-             /slam/end_of_input (std_msgs/Empty, reliable, transient-local) once a pass
-             that does not loop has played (paced: once the graph is done with it), for the
-             nodes that hold work back until their inputs end (slam_ros.progress);
-             /diagnostics (diagnostic_msgs/DiagnosticArray, every second, and once more
-             when the bag has played): ``published <topic>`` per played topic (its
-             published name), ``skipped`` (messages of the played topics that a finished
-             pass did not publish: before ``start_offset_s``), and the lateness of the
-             messages published since the last report (``lateness ms median``, ``lateness
-             ms max``: publish time minus scheduled time; slam_ros.diagnostics).
-
-Frames: none (messages keep their recorded frame ids).
-Parameters: ``bag_player --help``. In full: docs/design/bringup_nodes.md.
-"""
+Topics: publishes the played topics (recorded QoS), /clock, /slam/end_of_input, /diagnostics.
+Frames: none. In full: docs/design/bringup_nodes.md."""
 
 from __future__ import annotations
 
@@ -359,8 +340,7 @@ class BagPlayerNode(Node):
         self.skipped += max(in_bag - (self.published - published_before), 0)
 
     def _wait_for_graph(self, played: dict[str, int], *, first: bool = False) -> None:
-        """Wait until the graph is done with ``played`` (and, ``first``, every expected node
-        has reported), at most paced_timeout_s; then warn and play on."""
+        """Wait up to paced_timeout_s (then warn) for the graph to be done with ``played``."""
         deadline = time.monotonic() + self.paced_timeout_s
         while not self._stop.is_set():
             waiting: list[object] = []

@@ -1,28 +1,7 @@
 """bag_recorder: record live topics into an mcap bag (rosbag2 format, readable by ros2 bag).
 
-Subscribes to the selected topics (or to every topic it discovers) and writes each raw CDR
-message with its receive time (the node clock, so ``use_sim_time`` records bag time). The
-QoS of each subscription adapts to the publishers (reliable only if all publishers are,
-transient-local only if all are), and their offered profiles go into the bag's metadata.
-The bag is written in a hidden staging directory and moved to ``output`` when finalized.
-On Ctrl-C (SIGINT) or SIGTERM, messages already received are drained and the bag finalized.
-Every ``flush_period_s`` the messages received so far go to disk as a complete mcap chunk,
-so a recorder killed with SIGKILL loses at most that last period: ``bag_recover`` rebuilds
-the bag from the staging directory it leaves (``.NAME.recording-PID``).
-
-Topics:
-  subscribes  ``topics`` (or all discovered topics except ``exclude``), raw CDR.
-  publishes   /diagnostics (diagnostic_msgs/DiagnosticArray, every second, and once more
-              when the bag is finalized): per recorded topic ``received <topic>``, ``lost
-              <topic>`` (gaps in the publisher's sequence numbers: messages that never
-              reached the recorder; 'unknown' with several publishers) and ``written
-              <topic>``; ``dropped``: received after the bag was closed (slam_ros.diagnostics).
-              With every topic recorded, /diagnostics is recorded too, the recorder's own
-              reports included (slam_run's drain ignores the recorder's reports).
-
-Frames: none (messages are stored as received).
-Parameters: ``bag_recorder --help``. In full: docs/design/bringup_nodes.md.
-"""
+Topics: subscribes ``topics`` (or all but ``exclude``), raw CDR; publishes /diagnostics.
+Ctrl-C or SIGTERM finalizes the bag. In full: docs/design/bringup_nodes.md."""
 
 from __future__ import annotations
 

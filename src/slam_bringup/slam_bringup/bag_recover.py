@@ -1,14 +1,6 @@
 """bag_recover: rebuild a readable rosbag2 bag from a killed recorder or a damaged mcap.
 
-INPUT is the staging directory a killed bag_recorder left (``.NAME.recording-PID``), a
-rosbag2 directory whose mcap lacks its summary, or a truncated or footer-less ``.mcap``
-file. Every complete mcap chunk (and message record) before the damage is kept and written
-to a new bag (mcap + metadata.yaml) that appears at OUTPUT only when complete; what had to
-be dropped is reported. The input is never modified.
-
-OUTPUT defaults to NAME next to a staging directory (the bag the recorder meant to write),
-else to INPUT_recovered next to the input. It must not exist.
-"""
+OUTPUT defaults to NAME beside a staging directory .NAME.recording-PID, else INPUT_recovered."""
 
 from __future__ import annotations
 

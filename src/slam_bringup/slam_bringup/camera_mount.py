@@ -1,16 +1,4 @@
-"""camera_mount: publish where the camera sits on the robot, from parameters, on /tf_static.
-
-What ``static_transform_publisher`` (tf2_ros) does for a camera, as one node with the camera
-mount as parameters: ``base_frame`` -> ``camera_frame`` at ``xyz_m`` (m) with ``rpy_rad``
-(roll, pitch, yaw; R = Rz(yaw) Ry(pitch) Rx(roll), the URDF convention), and
-``camera_frame`` -> ``optical_frame`` rotated to REP 103's optical convention (z forward,
-x right, y down). Both in one transient-local message, so a node that starts later (the
-marker detector, RViz) still gets them. The defaults are the office robot's camera: 0.1 m
-ahead of base_link, 1.0 m up, looking along base x (``office_camera_bag``).
-
-Topics:
-  publishes   /tf_static (tf2_msgs/TFMessage, transient local, depth 1)
-"""
+"""camera_mount: publishes base_frame -> camera_frame -> optical_frame on /tf_static, latched."""
 
 from __future__ import annotations
 
@@ -81,7 +69,7 @@ def mount_transforms(values: dict[str, Any], stamp: Any) -> list[TransformStampe
 
 
 class CameraMountNode(Node):
-    """Publishes the camera mount once, latched (module docstring)."""
+    """Publishes the camera mount once, latched."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('camera_mount', **kwargs)

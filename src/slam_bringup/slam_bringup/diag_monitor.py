@@ -1,15 +1,7 @@
 """slam_diag: a live table of /diagnostics in the terminal, like rqt_robot_monitor.
 
-    slam_diag                 # redraw every second until Ctrl-C
-    slam_diag --once          # listen --wait seconds, print the table once, exit
-    slam_diag -v --filter em_sam   # with every key and value, only matching names
-
-One row per status name: level (OK, WARN, ERROR, or STALE when no update came for --stale
-seconds), name, message and the age of its last update; the worst first. In a terminal WARN
-is yellow and ERROR and STALE red. Exit status with --once: 0 when every status is OK,
-1 when one is WARN, 3 when one is ERROR or STALE, 4 when no diagnostics came at all
-(2 is a usage error).
-"""
+Example: slam_diag --once -v --filter em_sam (listen --wait s, print once with every value).
+Exit status with --once: 0 all OK, 1 a WARN, 3 an ERROR or STALE, 4 no diagnostics at all."""
 
 from __future__ import annotations
 
@@ -105,7 +97,7 @@ class DiagnosticsTable:
 
 
 def exit_code(worst: str | None) -> int:
-    """--once's exit status for the worst level (see the module doc)."""
+    """--once's exit status for the worst level."""
     if worst is None:
         return EXIT_NOTHING
     return {'OK': 0, 'WARN': 1}.get(worst, EXIT_BAD)

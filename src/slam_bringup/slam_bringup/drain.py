@@ -1,29 +1,4 @@
-"""When the nodes of a graph have worked off their inputs, from what they report on
-/diagnostics (``slam_ros.diagnostics``): the rule slam_run follows, in one process and with
-``--processes``, before it stops a graph whose player has finished.
-
-Every processing node publishes its status once a second (``Diagnostics``, one timer in the
-node's executor), with ``idle s``: the seconds since an input callback last ended. A node is
-*quiet* when its last two reports both say it took no input for ``quiet_s`` and they came at
-most ``max_gap_s`` apart, the last at most ``max_gap_s`` ago:
-
-- a report is a timer callback of the node's executor, which takes a queued message right
-  after it; a message queued at the first report therefore shows in the second (idle < gap),
-  so two quiet reports mean its queues were empty;
-- a gap longer than ``max_gap_s`` means a callback held the executor in between (a long
-  solve), and messages may have queued meanwhile: wait for the next pair;
-- ``quiet_s`` must cover the outputs a node makes from a timer once its inputs stop
-  (odometry_ingest publishes its held-back keyframes after ``idle_flush_s``): the node that
-  takes them is not quiet until it has had them for ``quiet_s``.
-
-Only the graph's own nodes count (their fully qualified names), and only those that report
-``idle s``: the player's and the recorder's reports are ignored (a recorder that records
-/diagnostics takes an input every second, from the nodes' reports and its own), and so are
-those of other graphs on the same DDS domain. A node of the graph that has not reported yet
-is busy for ``silent_s`` from when the wait began (its first report comes a period after it
-started, and a short bag can end before), then it is not waited for (a driver without
-``slam_ros.diagnostics``).
-"""
+"""When a graph's nodes have worked off their inputs, by /diagnostics (docs/design/bringup.md)."""
 
 from __future__ import annotations
 
@@ -101,7 +76,7 @@ class DrainWatch:
             return sorted(self.names - set(self._reports))
 
     def quiet(self, name: str, now_s: float) -> bool:
-        """Whether node ``name`` has been quiet (module docstring) at ``now_s``."""
+        """Whether node ``name`` is quiet at ``now_s`` (the rule: docs/design/bringup.md)."""
         with self._lock:
             previous, last = self._reports[name]
         return (
@@ -113,9 +88,7 @@ class DrainWatch:
         )
 
     def busy(self, since_s: float, now_s: float | None = None) -> list[str]:
-        """Return the nodes not quiet at ``now_s`` when the wait began at ``since_s``: those
-        that reported and are not quiet, and until ``since_s + silent_s`` those that have not
-        reported; sorted."""
+        """The nodes not quiet at ``now_s`` (silent ones until ``since_s + silent_s``), sorted."""
         now_s = time.monotonic() if now_s is None else now_s
         with self._lock:
             names = sorted(self._reports)
@@ -126,8 +99,7 @@ class DrainWatch:
 
 
 def listen(context: Context, watch: DrainWatch, *also: Callable[[DiagnosticArray], None]) -> Node:
-    """Return a node (``slam_run``) that feeds every /diagnostics message into ``watch`` (and
-    into each of ``also``); spin it with the executor of ``context``."""
+    """A node (``slam_run``) feeding each /diagnostics message to ``watch`` and to ``also``."""
     node = Node(
         'slam_run',
         context=context,

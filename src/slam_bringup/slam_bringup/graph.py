@@ -1,40 +1,4 @@
-"""GRAPH files: the YAML description of a node graph, read by slam_run and graph.launch.py.
-
-A GRAPH file holds one ``graph`` mapping (only ``name``, ``package`` and ``executable`` of
-each node are required)::
-
-    graph:
-      description: Replay a bag and record it
-      use_sim_time: true            # set on every node when given
-      exit_when_player_done: true   # stop the graph once the player has played the bag
-      nodes:                        # may be empty or absent
-        - name: odometry_ingest     # node name, unique (with its namespace) in the graph
-          package: em_sam_node      # ROS package of the executable
-          executable: odometry_ingest   # console script in lib/<package>/
-          plugin: em_sam_node.odometry_ingest.node:OdometryIngestNode  # in-process class
-          namespace: ''
-          parameters: [../config/odometry_ingest.yaml, {keyframe_distance_m: 0.25}]  # later wins
-          remappings: {odom: /wheel/odom}   # or ['odom:=/wheel/odom']
-          respawn: true             # slam_run --processes restarts it when it dies
-          respawn_delay_s: 1.0      # first restart's delay, doubled each time up to 30 s
-          respawn_parameters: {resume_from: auto}   # given to restarts only, after the rest
-      player:                       # a bag_player node named bag_player
-        bag: ../../../bags/sample   # or --bag; parameters as bag_player's (rate, topics, ...)
-        paced: true                 # or --paced: paced replay (slam_bringup.pacing)
-      recorder:                     # a bag_recorder node named bag_recorder
-        output: out/run             # or --record; topics: [...] (empty: all topics)
-
-Parameter files and ``player.bag`` are relative to the GRAPH file's directory, or written
-``package://<package>/<path>`` for a file in an installed package's share directory;
-``recorder.output`` is relative to the current directory, like ``ros2 bag record -o``.
-
-``load_graph`` validates a file into frozen dataclasses and raises ``GraphError`` naming the
-file and the key path. It also checks every parameter a node entry sets (inline or in its
-parameter files) against the node's declaration table, found through the entry's ``plugin``
-or its package's console script ``executable`` (``slam_bringup.graph_params``): a misspelled
-name is an error naming the file, node and key, with the closest valid name.
-``slam_bringup.graph_nodes`` turns a graph into node descriptions.
-"""
+"""GRAPH files: read and validate the YAML node graph of slam_run (docs/design/bringup.md)."""
 
 from __future__ import annotations
 
@@ -205,8 +169,7 @@ class _Checker:
         return name
 
     def path_relative(self, value: object, key: str) -> Path:
-        """Resolve a path: ``package://<pkg>/<path>`` in the package's share directory
-        (found through the ament index), else relative to the GRAPH file."""
+        """Resolve ``package://<pkg>/<path>`` in that package's share, else from the GRAPH."""
         text = self.string(value, key)
         if not text:
             raise self.error(key, 'must not be empty')

@@ -1,9 +1,4 @@
-"""Find a topic or service on the live ROS graph by name, for the command-line tools.
-
-A name matches exactly (with or without the leading ``/``), or by its last segments when
-exactly one entity ends with them: ``optimize`` finds ``/em_sam_mapper/optimize`` as long
-as no other node offers an ``optimize``. Not found, the error lists the closest names.
-"""
+"""Find a topic or service on the live ROS graph by its name or a unique tail of it."""
 
 from __future__ import annotations
 
@@ -35,7 +30,7 @@ class Found:
 
 
 def match_name(wanted: str, available: Sequence[str]) -> str | None:
-    """The one name in ``available`` that ``wanted`` denotes, or None (see the module doc)."""
+    """The one name in ``available`` that ``wanted`` denotes (exact or unique tail), or None."""
     absolute = '/' + wanted.lstrip('/')
     if absolute in available:
         return absolute
@@ -68,12 +63,7 @@ def wait_for(
     list_entities: Callable[[], list[tuple[str, list[str]]]],
     timeout_s: float,
 ) -> Found:
-    """Poll ``list_entities()`` ((name, [types]) pairs) until ``wanted`` resolves.
-
-    Raises:
-        DiscoveryError: not found within ``timeout_s`` (or several types on one name).
-
-    """
+    """Poll ``list_entities()`` until ``wanted`` resolves; DiscoveryError: not found, 2+ types."""
     started = time.monotonic()
     while True:
         entities = dict(list_entities())
@@ -111,10 +101,7 @@ def find_service(node: Node, service: str, timeout_s: float) -> Found:
 
 
 class RosSession(AbstractContextManager['RosSession']):
-    """rclpy initialized with one quiet node (no rosout) for a command-line tool.
-
-    ``spin_once`` returns False once Ctrl-C has shut the context down.
-    """
+    """rclpy initialized with one quiet node for a CLI; ``spin_once`` is False after Ctrl-C."""
 
     def __init__(self, prog: str) -> None:
         import os

@@ -1,9 +1,4 @@
-"""From a validated GRAPH to the nodes to start: overrides, node descriptions, ROS arguments.
-
-``node_descriptions`` turns a ``Graph`` into plain ``NodeDescription``s (package, executable,
-plugin, name, namespace, parameters, remappings), which ``graph.launch.py`` maps onto
-launch_ros ``Node`` actions and slam_run onto in-process nodes or processes.
-"""
+"""A GRAPH's nodes to start: overrides, descriptions, ROS arguments (docs/design/bringup.md)."""
 
 from __future__ import annotations
 
@@ -27,12 +22,7 @@ RECORDER_PLUGIN = 'slam_bringup.bag_recorder:BagRecorderNode'
 
 @dataclass(frozen=True)
 class NodeDescription:
-    """A node to start: what launch_ros ``Node`` takes, plus the in-process class.
-
-    ``parameters`` are files and inline dicts in order (later wins); ``arguments`` go on the
-    executable's command line before ``--ros-args`` (process mode and launch only);
-    ``role`` is ``node``, ``player`` or ``recorder``; ``key`` is the GRAPH key it came from.
-    """
+    """A node to start: what launch_ros ``Node`` takes, plus the in-process class (``plugin``)."""
 
     key: str
     role: str
@@ -64,12 +54,7 @@ def with_overrides(
     exit_when_player_done: bool = False,
     paced: bool = False,
 ) -> Graph:
-    """Return ``graph`` with command-line overrides applied.
-
-    ``bag`` replaces ``player.bag`` (and adds a player if there is none); ``record`` replaces
-    ``recorder.output`` (and adds a recorder of every topic if there is none); ``paced``
-    makes the player's replay paced (``slam_bringup.pacing``).
-    """
+    """Return ``graph`` with command-line overrides (``bag``, ``record`` add what is missing)."""
     player = graph.player
     if bag is not None:
         player = dataclasses.replace(player or PlayerSpec(), bag=bag)
@@ -160,13 +145,7 @@ def _recorder_description(graph: Graph, recorder: RecorderSpec) -> NodeDescripti
 
 
 def node_descriptions(graph: Graph) -> tuple[NodeDescription, ...]:
-    """Return the nodes to start, in start order: graph nodes, player, then recorder.
-
-    The recorder starts last so that its first topic discovery, at construction, already
-    sees the publishers of the player and of the nodes; the player holds the bag back until
-    every played topic has a subscriber (``wait_for_subscribers_s``). Raises GraphError when
-    the player has no bag, or an exit on the player is asked for without a player.
-    """
+    """Return the nodes to start, in order (nodes, player, recorder); raises GraphError."""
     if graph.exit_when_player_done and graph.player is None:
         raise graph.error('graph.exit_when_player_done', 'is set but the graph has no player')
     descriptions = [
@@ -209,11 +188,7 @@ def write_parameter_file(values: Mapping[str, Any], path: Path) -> Path:
 
 
 def ros_arguments(description: NodeDescription, scratch_dir: Path) -> list[str]:
-    """Return ``--ros-args`` for a node: name, namespace, parameter files, remaps.
-
-    Inline parameter dicts are written to files in ``scratch_dir`` (which must exist and
-    outlive the node's start) so that every parameter source keeps its order.
-    """
+    """Return a node's ``--ros-args``; inline parameters become files in ``scratch_dir``."""
     arguments = ['--ros-args', '-r', f'__node:={description.name}']
     if description.namespace:
         arguments += ['-r', f'__ns:={description.namespace}']
@@ -256,10 +231,7 @@ def bundled_graphs_help() -> str:
 
 
 def find_graph(text: str) -> Path:
-    """Return the GRAPH file ``text``: a path, or a name in slam_bringup's installed graphs/.
-
-    Raises GraphError when neither exists, with the closest bundled names.
-    """
+    """Return the GRAPH file ``text`` (a path or a bundled name); GraphError names close ones."""
     path = Path(text).expanduser()
     if path.exists() or os.sep in text:
         return path

@@ -1,20 +1,4 @@
-"""GRAPH parameter checks: every parameter a GRAPH gives a node must be one the node declares.
-
-How a GRAPH entry's declaration table is found: the node module is the module part of the
-entry's ``plugin`` (``em_sam_node.odometry_ingest_node:OdometryIngestNode`` ->
-``em_sam_node.odometry_ingest_node``) or, without a plugin, the module of the console script
-``executable`` in the Python distribution ``package`` (its ``entry_points``, as colcon
-installs it). That module's ``PARAMETERS`` (a ``slam_core.params.ParamTable``) is the table.
-Nodes from packages that are not Python, not installed, or declare no table (a camera driver,
-``coreutils``) are not checked; their parameters are the driver's business.
-
-For each checked entry, the keys of its inline mappings and of the sections of its parameter
-files that apply to the node (``/**``, ``<name>``, ``/<name>``, ``/<namespace>/<name>``) must
-be declared parameters (or ``use_sim_time``); an unknown key is a ``GraphError`` naming the
-GRAPH file, the entry, the parameter file, the node and the key, with the closest valid
-name. Values of known keys are validated with the table too, including the ROS type a node
-will see (rclpy refuses an integer for a double).
-"""
+"""GRAPH parameter checks: a node's GRAPH parameters must be declared (docs/design/bringup.md)."""
 
 from __future__ import annotations
 
@@ -58,8 +42,7 @@ def parameter_table(package: str, executable: str, plugin: str | None) -> ParamT
 
 
 def check_graph_parameters(graph: Graph) -> None:
-    """Raise GraphError for a parameter a GRAPH entry sets that its node does not declare,
-    or a value its declaration rejects."""
+    """Raise GraphError for a parameter of a GRAPH entry that its node does not accept."""
     for node in graph.nodes:
         table = parameter_table(node.package, node.executable, node.plugin)
         if table is None:

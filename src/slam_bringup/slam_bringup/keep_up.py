@@ -1,12 +1,4 @@
-"""Whether a graph keeps up with its input, said once per node from what it reports.
-
-A free-running graph (a player not paced, or live drivers) loses what a node cannot take in
-time: DDS drops it from the node's queue, and the node counts it on /diagnostics
-(``slam_ros.diagnostics``: 'lost N messages before taking them', 'dropping inputs').
-slam_run says at start which options keep every message (``start_note``) and, the first
-time a node of the graph reports such a loss, names the node and the options again
-(``KeepUpHint``). A paced replay in one process per node has nothing to suggest.
-"""
+"""Whether a graph keeps up with its input, said once per node (docs/design/bringup.md)."""
 
 from __future__ import annotations
 

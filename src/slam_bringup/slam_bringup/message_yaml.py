@@ -1,10 +1,4 @@
-"""rclpy messages to and from plain data (YAML), for the command-line tools.
-
-``message_to_data`` turns a message into dicts, lists and scalars in field order, as
-``ros2 topic echo`` prints it; arrays and strings longer than ``truncate`` are cut and end
-with ``'...'``. ``fill_message`` sets a message's fields from a mapping (a service request
-typed on the command line) and names the field at fault when a key or a value does not fit.
-"""
+"""rclpy messages to and from plain data (YAML), for the command-line tools."""
 
 from __future__ import annotations
 
@@ -42,10 +36,7 @@ def is_message(value: object) -> bool:
 
 
 def message_to_data(message: Any, *, truncate: int | None = 128, arrays: bool = True) -> Any:
-    """Return ``message`` as plain data: dicts in field order, lists and scalars.
-
-    ``arrays=False`` writes every array as ``'<sequence of N>'``.
-    """
+    """``message`` as plain data (longer than ``truncate``: cut, '...'; see ``arrays``)."""
     if is_message(message):
         data: dict[str, Any] = {}
         for name, field_type in message.get_fields_and_field_types().items():
@@ -129,13 +120,7 @@ def _value(field: str, field_type: str, value: object, current: object) -> objec
 
 
 def fill_message(message: Any, values: object, *, where: str = '') -> Any:
-    """Set ``message``'s fields from the mapping ``values``; return ``message``.
-
-    Raises:
-        MessageFieldError: a key is not a field (with the closest field name), or a value
-            does not fit its field.
-
-    """
+    """Set ``message``'s fields from the mapping ``values``; MessageFieldError names a misfit."""
     if values is None:
         return message
     prefix = f'{where}.' if where else ''

@@ -1,17 +1,4 @@
-"""Paced replay, the player's side: is the graph done with everything published so far?
-
-The nodes report their progress on ``slam_ros.progress.PROGRESS_TOPIC`` after every callback
-(taken and published messages per topic). ``PacedGate`` keeps the latest report of each
-node. The graph is done when every reporting node has taken, of every topic it subscribes,
-at least as many messages as the player and the reporting nodes have published on it: a
-report goes out only once a callback has returned, so a node still busy with a message, or
-one with a message waiting in its queue, reports fewer taken than were published. Topics
-that only other publishers feed (a static TF publisher, a driver) are counted by no one
-and never hold the player up. Before the first message, every expected node (the graph's)
-must have reported (``missing``) and every publisher of the graph must be matched with
-every node of the graph that takes its topic (``unmatched``): a message published before
-DDS has matched a subscriber never reaches it.
-"""
+"""Paced replay, the player's side: is the graph done with everything published so far?"""
 
 from __future__ import annotations
 
@@ -23,8 +10,7 @@ from slam_ros.progress import PUBLISHED, SUBSCRIBERS, TAKEN
 
 @dataclass(frozen=True)
 class Shortfall:
-    """A node that has not yet taken every message published on a topic (or a publisher not
-    yet matched with every node that takes its topic: ``verb`` 'is matched with')."""
+    """A node short of the messages published on a topic (or a publisher short of matches)."""
 
     node: str
     topic: str
@@ -37,7 +23,7 @@ class Shortfall:
 
 
 class PacedGate:
-    """The latest progress report of each node (module docstring)."""
+    """The latest progress report of each node (the rule: docs/design/bringup.md)."""
 
     def __init__(self, expected: Iterable[str] = ()) -> None:
         self.expected = tuple(expected)
@@ -46,8 +32,7 @@ class PacedGate:
         self._subscribers: dict[str, dict[str, int]] = {}
 
     def update(self, node: str, values: Iterable[tuple[str, str]]) -> None:
-        """Take a node's report: its (key, value) pairs ('taken <topic>', 'published
-        <topic>'); other keys and values that are not counts are ignored."""
+        """Take a node's report, (key, value) pairs; keys other than the counts are ignored."""
         taken: dict[str, int] = {}
         published: dict[str, int] = {}
         subscribers: dict[str, int] = {}
@@ -70,9 +55,7 @@ class PacedGate:
         return [node for node in self.expected if node not in self._taken]
 
     def unmatched(self, player_subscribers: Mapping[str, int]) -> list[Shortfall]:
-        """The publishers (the player's: ``player_subscribers``, its subscription count per
-        topic; the nodes') not yet matched with every reporting node that takes their topic
-        (``Shortfall.taken`` the matched count, ``published`` the count needed)."""
+        """Publishers (player's, nodes') not yet matched with every node that takes their topic."""
         takers: dict[str, int] = {}
         for counts in list(self._taken.values()):
             for topic in counts:
@@ -87,8 +70,7 @@ class PacedGate:
         return short
 
     def shortfalls(self, player_published: Mapping[str, int]) -> list[Shortfall]:
-        """What keeps the graph from being done with all that ``player_published`` (per
-        resolved topic) and the nodes published (empty: done)."""
+        """What keeps the graph from being done with all published so far (empty: done)."""
         published = dict(player_published)
         for counts in list(self._published.values()):
             for topic, count in counts.items():

@@ -1,19 +1,6 @@
 """peoplebot_graph: the live GRAPH of a Peoplebot, from a robot, a camera and a pipeline.
 
-    peoplebot_graph --robot rosaria --camera usb_cam --pipeline em_sam -o robot.yaml
-    slam_run robot.yaml --processes
-    peoplebot_graph --robot rosaria --camera usb_cam --part drivers -o robot_side.yaml
-    ros2 launch slam_bringup peoplebot.launch.py robot:=rosaria camera:=usb_cam   # the same
-
-The parts are the entries of ``config/peoplebot.yaml`` (GRAPH node entries): a base driver
-(``sim``: ``peoplebot_sim`` with ``route_driver``; ``p2os``; ``rosaria``), a camera driver
-(``sim``: the simulated robot's own camera; ``usb_cam``; ``v4l2_camera``), the camera mount
-(``camera_mount``, on /tf_static) and a pipeline (``em_sam``, ``monoslam`` or ``both``).
-The driver entries remap the drivers' topic names onto ours, so the pipelines are the same
-on every robot. The GRAPH runs on the wall clock (live). A choice that does not exist is
-refused with the ones that do, and the GRAPH written is checked like any other: every
-parameter of our nodes against what the node declares.
-"""
+Example: peoplebot_graph --robot rosaria --camera usb_cam -o g.yaml; slam_run g.yaml --processes"""
 
 from __future__ import annotations
 
@@ -55,12 +42,7 @@ def compose(
     *,
     part: str = 'all',
 ) -> dict[str, Any]:
-    """Return the GRAPH mapping of ``robot``, ``camera`` and ``pipeline``: all of it, or
-    one ``part`` (``drivers``: base, camera and mount, the robot's side of a robot + laptop
-    setup; ``pipeline``: the laptop's).
-
-    ValueError names a wrong choice, or the simulated camera without the simulated robot.
-    """
+    """Return the GRAPH mapping of the choices, or of one ``part``; ValueError: a wrong choice."""
     for label, value, choices in (
         ('robot', robot, ROBOTS),
         ('camera', camera, CAMERAS),

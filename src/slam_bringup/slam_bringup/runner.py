@@ -1,43 +1,4 @@
-"""slam_run: start the nodes of a GRAPH file, in one process or one process per node.
-
-In one process (the default), each node class (the GRAPH's ``plugin``) is constructed with
-its own ``--ros-args`` and ``use_global_arguments=False`` in a private rclpy context, and
-all are spun by one SingleThreadedExecutor in a background thread. Not multi-threaded: in
-rclpy 7.1 (Jazzy) the MultiThreadedExecutor's spin loop re-submits callbacks that have not
-started yet and returns at once while any is queued (ros2/rclpy#1452, fixed by #1547 after
-Jazzy), so it holds the GIL and starved the player's publishing thread (lateness of 0.1 to
-1 s against 0.2 ms here). Callbacks of all nodes therefore run one at a time; a node with
-long callbacks (a batch optimization) is better run with ``--processes``.
-
-With ``--processes``, each node is ``lib/<package>/<executable> --ros-args ...`` in its own
-process group, so a terminal's Ctrl-C reaches only slam_run, which stops the children in
-order.
-
-The graph stops on Ctrl-C or SIGTERM, or when the player has played the bag if
-``exit_when_player_done``. The player stops first and the recorder finalizes its bag last.
-When the player has played the bag, the nodes first work off the inputs queued for them, in
-both modes by one rule (``slam_bringup.drain``): slam_run listens to /diagnostics, where
-every node with ``slam_ros.diagnostics`` reports once a second how long ago it last took an
-input (``idle s``), and waits until each node of the graph has reported twice in a row, a
-period apart, that it took none for NODES_QUIET_S (twice odometry_ingest's idle flush, so
-that the keyframes it holds back reach em_sam_mapper). A node in a long callback (a solve)
-does not report meanwhile and counts as busy. The player's and the recorder's own reports do
-not count (a recorder of every topic takes /diagnostics every second), nor do nodes that
-never report (after ``drain.SILENT_S``). After NODES_DRAIN_TIMEOUT_S a warning names the
-nodes still busy and the graph stops with their queues as they are; Ctrl-C stops it at once.
-So a graph that lags behind the player still processes the whole bag.
-
-Then, in one process, each node publishes a final /diagnostics report (the whole run's
-counts), the recorder drains what is in flight while the other nodes still run, finalizes
-and reports, and the nodes are destroyed. With processes, the player has exited (after its
-final report); the nodes, then the recorder (which drains, finalizes and reports on SIGINT)
-get SIGINT, then SIGTERM, then SIGKILL. A node's last report before SIGINT is its final one
-(rclpy shuts its context down on SIGINT): by the rule above it came after its last input.
-
-Exit status: 0 done; 1 a node failed (an exception in a callback, a process that exited
-with an error); 2 a user error (an invalid GRAPH, a node that rejects its parameters, a bad
-bag); 130 interrupted before the player finished, when the graph was to end with it.
-"""
+"""slam_run: run a GRAPH's nodes, in one process or one per node (docs/design/bringup.md)."""
 
 from __future__ import annotations
 
@@ -220,11 +181,7 @@ def processing_nodes(descriptions: Sequence[NodeDescription]) -> list[str]:
 def wait_until_quiet(
     watch: DrainWatch, stop: threading.Event, failed: Callable[[], bool] = lambda: False
 ) -> None:
-    """Wait until every node of the graph that reports on /diagnostics is quiet (by the rule
-    of ``slam_bringup.drain``; at most NODES_DRAIN_TIMEOUT_S, then a warning names the nodes
-    still busy), a stop request, or ``failed()``: the messages queued for the nodes when the
-    player finished are processed, not cut off by the graph's end, and so is what nodes
-    emit once their inputs stop (odometry_ingest's held-back keyframes)."""
+    """Wait until the nodes are quiet (``drain``), a stop, ``failed()`` or the drain timeout."""
     since = time.monotonic()
     while not stop.wait(POLL_S):
         now = time.monotonic()
@@ -247,8 +204,7 @@ def wait_until_quiet(
 
 
 def publish_final_reports(nodes: Sequence[Node]) -> None:
-    """Have each node with ``slam_ros.diagnostics`` publish its report now (the whole run's
-    counts) and give the reports time to go out (reliable) before the graph ends."""
+    """Have each node's ``Diagnostics`` publish its whole-run report; give it QUIET_S to go out."""
     reports = [getattr(node, 'diagnostics', None) for node in nodes]
     published = [report for report in reports if isinstance(report, Diagnostics)]
     for diagnostics in published:
@@ -314,10 +270,7 @@ def run_in_process(
 def finish_playback_and_recording(
     player: BagPlayerNode | None, recorder: BagRecorderNode | None
 ) -> list[str]:
-    """Stop the player, drain and finalize the recorder (executor still spinning).
-
-    Returns the summary lines of both.
-    """
+    """Stop the player, drain and finalize the recorder (executor spinning); return summaries."""
     summary = []
     if player is not None:
         player.stop()
@@ -361,10 +314,7 @@ def executable(graph: Graph, description: NodeDescription) -> str:
 
 
 def _die_with_parent() -> Callable[[], None] | None:
-    """Return a pre-exec hook that makes a child get SIGTERM when slam_run dies (Linux).
-
-    Resolved in the parent, so the child only makes one call between fork and exec.
-    """
+    """A pre-exec hook that gives the child SIGTERM when slam_run dies (Linux; else None)."""
     if sys.platform != 'linux':
         return None
     prctl = ctypes.CDLL(None, use_errno=True).prctl
@@ -407,10 +357,7 @@ def exited(children: Sequence[Child]) -> Iterator[tuple[Child, int]]:
 def watch_children(
     graph: Graph, children: list[Child], stop: threading.Event, respawner: Respawner
 ) -> tuple[bool, Child | None]:
-    """Wait for a stop request, the player's end or a failed child.
-
-    Returns (the player ended the graph, the child that failed if any).
-    """
+    """Wait for a stop, the player's end or a failed child: (player ended it, failed child)."""
     while not stop.wait(POLL_S):
         respawner.poll(children)  # type: ignore[arg-type]
         for child, code in exited(children):
@@ -429,8 +376,7 @@ def watch_children(
 def drain_children(
     children: list[Child], watch: DrainWatch, stop: threading.Event, respawner: Respawner
 ) -> Child | None:
-    """Wait until the nodes are quiet (``wait_until_quiet``); return a child that failed
-    meanwhile, if any. A node that exits cleanly is no longer waited for."""
+    """Wait until the nodes are quiet; return a child that failed meanwhile, if any."""
     failure: list[Child] = []
 
     def failed() -> bool:
@@ -464,8 +410,7 @@ def wait_for(children: Sequence[Child], timeout_s: float) -> None:
 
 
 def stop_children(children: Sequence[Child]) -> list[Child]:
-    """Stop the player, then the nodes, then the recorder; return those that stopped badly.
-    Each group gets SIGINT, then SIGTERM, then SIGKILL, each after a timeout."""
+    """Stop the player, nodes, recorder in turn (SIGINT, TERM, KILL); return those that failed."""
     failed: list[Child] = []
     for rank in sorted(set(STOP_ORDER.values())):
         group = [c for c in children if STOP_ORDER[c.description.role] == rank]
@@ -568,7 +513,7 @@ def build_arg_parser() -> argparse.ArgumentParser:
 
 @console_main('slam_run')
 def main(argv: list[str] | None = None) -> int:
-    """Run a GRAPH until it ends (see the module docstring for the exit status)."""
+    """Run a GRAPH until it ends; exit 0 done, 1 a node failed, 2 a user error, 130 interrupted."""
     args = build_arg_parser().parse_args(sys.argv[1:] if argv is None else argv)
     graph = with_overrides(
         load_graph(find_graph(args.graph)),

@@ -1,19 +1,4 @@
-"""What an RViz 2 configuration (.rviz, as rviz2 saves it) needs from the ROS graph it shows,
-and whether a running graph gives it.
-
-``read_rviz`` returns the fixed frame and, per display (also inside display groups), its
-class, the topic and the QoS it subscribes with, the message type its class takes, and
-whether it draws in the fixed frame (every display here but Image, which shows the picture
-in a panel without a transform). A display class not in ``DISPLAY_TYPES`` or
-``NO_TOPIC_CLASSES`` is an error: its needs are not known.
-
-``check_rviz`` compares those needs with what a graph was seen doing (``GraphObservation``:
-the publishers of each topic and their message types, the header frame ids of the messages
-a subscription with the display's QoS received, the TF tree) and returns one line per
-problem: a topic nobody publishes, or with another message type; a display whose
-subscription (its QoS) received nothing; a fixed frame not in the TF tree; a message frame
-that no chain of transforms joins to the fixed frame.
-"""
+"""What an .rviz file needs from a graph; does a running graph give it (docs/design/bringup.md)."""
 
 from __future__ import annotations
 
@@ -55,8 +40,7 @@ class RvizConfigError(ValueError):
 
 @dataclass(frozen=True)
 class TopicQos:
-    """The QoS a display subscribes with: depth, 'reliable' or 'best_effort', 'volatile' or
-    'transient_local'."""
+    """A display's QoS: depth, 'reliable' or 'best_effort', 'volatile' or 'transient_local'."""
 
     depth: int
     reliability: str
@@ -79,8 +63,7 @@ class TopicQos:
 
 @dataclass(frozen=True)
 class DisplayNeeds:
-    """One display: its name and class; for a display with a topic, the topic, QoS, message
-    type and whether its messages are transformed into the fixed frame."""
+    """One display: name, class and, with a topic, its QoS, message type and frame need."""
 
     name: str
     display_class: str
@@ -105,10 +88,7 @@ class RvizNeeds:
 
 @dataclass
 class GraphObservation:
-    """What a running graph was seen doing: per topic the message types its publishers
-    offer, the header frame ids of the messages a subscription with the display's QoS
-    received (per message; a MarkerArray's per marker), and the TF tree on /tf and
-    /tf_static."""
+    """What a running graph was seen doing: publisher types, frame ids received, the TF tree."""
 
     publishers: dict[str, set[str]] = field(default_factory=dict)
     frame_ids: dict[str, set[str]] = field(default_factory=dict)

@@ -1,15 +1,8 @@
 """slam_call: call a service and print the response as YAML, like `ros2 service call`.
 
-    slam_call /em_sam_mapper/optimize                   # std_srvs/Trigger: no request fields
-    slam_call save_map                                  # a unique tail of the name works
-    slam_call find_landmark '{landmark_id: 7}'          # the request as YAML
-
-The service's type is read from the graph (--type when it is not up yet, with --wait). The
-request is a YAML mapping of field names to values; a misspelled field is named with the
-closest one. The response is printed whole. Exit status: 0; 1 when the response has a
-`success` or `found` field that is false; 2 on a usage error, an unknown service or a
-request that does not fit; 3 when no response came within --timeout.
-"""
+Example: slam_call find_landmark '{landmark_id: 7}' (a unique tail of the name works).
+Exit status: 0; 1 a false `success` or `found`; 2 a usage error, an unknown service or a
+request that does not fit; 3 no response within --timeout."""
 
 from __future__ import annotations
 
@@ -53,12 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def parse_request(text: str) -> object:
-    """The request YAML as data.
-
-    Raises:
-        SlamError: not YAML.
-
-    """
+    """The request YAML as data; SlamError when it is not YAML."""
     import yaml
 
     try:

@@ -1,18 +1,4 @@
-"""Respawn of GRAPH nodes that set ``respawn: true`` (``slam_run --processes``), and naming
-the node whose callback raised in one process (``failing_node``).
-
-When such a node's process dies (any exit code but 0, which only a requested stop gives),
-the runner starts it again after a back-off: ``respawn_delay_s`` (default 1 s) for the
-first restart, doubled for each further one up to MAX_DELAY_S; a process that ran for
-RESET_AFTER_S or longer before it died starts the count again. The restart gets the entry's
-``respawn_parameters`` after its other parameters: ``{resume_from: auto}`` makes a node
-with checkpoints (em_sam_mapper, monoslam) load its checkpoint (``checkpoint_file``) when
-there is one, so the restarted node continues where its last checkpoint left off. Each
-restart is logged as ``slam_run: NODE exited with code X; respawning in Y s (attempt N)``.
-
-In one process a single node cannot be restarted (a crash takes the whole process):
-``respawn`` is ignored there, with a warning naming the entries.
-"""
+"""Respawn of GRAPH nodes (slam_run --processes), and ``failing_node`` (docs/design/bringup.md)."""
 
 from __future__ import annotations
 
@@ -67,10 +53,7 @@ def warn_if_respawn_ignored(
 
 @dataclass
 class Respawner:
-    """Restarts the children whose description asks for it, with a back-off.
-
-    ``start`` starts a description's process and returns the new child.
-    """
+    """Restarts the children whose description asks for it, with a back-off, through ``start``."""
 
     start: Callable[[NodeDescription], Supervised]
     say: Callable[[str], None]
@@ -117,8 +100,7 @@ class Respawner:
 def failing_node(
     error: BaseException, nodes: Sequence[tuple[NodeDescription, Node]]
 ) -> str | None:
-    """The graph's name of the node whose method raised ``error`` (the innermost on its
-    traceback), or None when no node's code is on it."""
+    """The name of the node whose method raised ``error`` (innermost on its traceback), or None."""
     found = None
     for frame, _ in traceback.walk_tb(error.__traceback__):
         owner = frame.f_locals.get('self')

@@ -1,16 +1,6 @@
-"""slam_echo: print the messages of a topic as YAML, like `ros2 topic echo`, without a ROS install.
+"""slam_echo: print a topic's messages as YAML, like `ros2 topic echo`, without a ROS install.
 
-    slam_echo /em_sam/moveable --once           # one message, then exit
-    slam_echo em_sam/path --rate 1 --field poses  # at most one message a second, one field
-    slam_echo /diagnostics --count 3
-
-The type is read from the graph (give --type when nothing publishes yet); the subscription
-takes the publishers' QoS (reliable and transient-local when they all are, so a latched map
-arrives at once). Messages are YAML documents separated by '---'. Arrays and strings longer
-than 128 items are cut with '...' (--full-length prints them whole, --no-arr leaves them out).
-On exit a summary goes to stderr: messages received, printed and skipped by --rate.
-Exit status: 0, or 1 when --timeout passes without a message, 2 on a usage or graph error.
-"""
+Example: slam_echo em_sam/path --rate 1 --field poses (YAML documents separated by '---')."""
 
 from __future__ import annotations
 
@@ -50,12 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def select_field(message: Any, path: str | None) -> Any:
-    """The part of ``message`` at the dotted ``path`` (fields by name, list items by index).
-
-    Raises:
-        SlamError: a segment of ``path`` is not in the message.
-
-    """
+    """The part of ``message`` at the dotted ``path``; SlamError when a segment is not there."""
     from slam_bringup.message_yaml import is_message
 
     if not path:

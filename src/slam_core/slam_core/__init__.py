@@ -1,2 +1,1 @@
-"""Ground floor of the suite, ROS-free: errors, stamps, console plumbing, report files,
-progress, geometry, camera models and the parameter-declaration mechanism."""
+"""ROS-free ground floor: errors, stamps, files, progress, geometry, camera, parameters."""

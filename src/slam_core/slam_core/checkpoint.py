@@ -1,14 +1,4 @@
-"""Checkpoint files of the mappers (em_sam_mapper, monoslam): named numpy arrays in one .npz,
-with a JSON ``meta`` array that carries the file's format name, its version and the state
-that is not an array.
-
-``save_arrays`` writes atomically and durably (``files.write_atomically``: a temporary file
-in the same directory, fsync, rename, fsync of the directory), so a reader finds the
-previous checkpoint or the new one, never half of one. ``load_checkpoint_arrays`` reads one
-back, checks its format and version and hands the arrays and the meta to a restore function,
-which checks each array with ``shaped`` (shape; floats finite). Every problem becomes a
-CheckpointError that names the file and what is wrong.
-"""
+"""Mapper checkpoints: numpy arrays and JSON meta in one .npz (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -30,8 +20,7 @@ class CheckpointError(SlamError):
 
 
 def save_arrays(path: Path, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> None:
-    """Write ``arrays`` and ``meta`` (JSON types, with 'format' and 'version') to ``path`` as
-    one .npz, atomically and durably."""
+    """Write ``arrays`` and ``meta`` (with 'format', 'version') as one .npz, durably."""
     if 'meta' in arrays:
         raise ValueError("'meta' is the name of the meta array; name the array otherwise")
     content = {**arrays, 'meta': np.array(json.dumps(dict(meta)))}
@@ -45,8 +34,7 @@ def save_arrays(path: Path, arrays: Mapping[str, np.ndarray], meta: Mapping[str,
 def shaped(
     arrays: Mapping[str, np.ndarray], name: str, shape: tuple[int | None, ...]
 ) -> np.ndarray:
-    """Return the array ``name`` after checking its shape (None: any length) and, for floats,
-    that every value is finite; ValueError naming the array otherwise."""
+    """Array ``name`` after checking its shape (None: any length) and finite floats."""
     if name not in arrays:
         raise ValueError(f'array {name!r} is missing')
     array = arrays[name]
@@ -78,10 +66,7 @@ def load_checkpoint_arrays(
     reader: str,
     restore: Callable[[dict[str, np.ndarray], dict[str, Any]], T],
 ) -> T:
-    """Read the .npz at ``path``, check its meta's format and version (``reader`` names what
-    reads it: 'version 2; this mapper reads version 1') and return ``restore(arrays, meta)``.
-    Raises CheckpointError naming the file when it is missing or unreadable, or when that
-    check or ``restore`` raises ValueError, KeyError or TypeError (a malformed file)."""
+    """Return ``restore(arrays, meta)`` of a checked .npz; CheckpointError if bad."""
     try:
         with np.load(path, allow_pickle=False) as loaded:
             arrays = {name: loaded[name] for name in loaded.files}

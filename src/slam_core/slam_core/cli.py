@@ -50,8 +50,7 @@ _ROLE = re.compile(r':(?:mod|func|class|meth|attr|data|ref):`~?([^`]+)`')
 
 
 def plain_text(text: str) -> str:
-    """``text`` (a docstring) for a terminal: reStructuredText code marks and roles taken off
-    (``name`` and :func:`name` read name)."""
+    """``text`` (a docstring) with reStructuredText code marks and roles taken off."""
     return _DOUBLE_BACKTICKS.sub(r'\1', _ROLE.sub(r'\1', text))
 
 
@@ -83,8 +82,7 @@ def help_requested(argv: list[str]) -> bool:
 
 
 def node_help(prog: str, doc: str | None, parameters: ParamTable) -> str:
-    """Return a node executable's --help: usage, the module docstring (what the node does,
-    its topics, QoS and frames) and the parameter table from the declaration."""
+    """A node's --help: usage, module docstring and the declared parameter table."""
     usage = (
         f'usage: {prog} [-h] [--ros-args [-p NAME:=VALUE] [--params-file FILE] [-r FROM:=TO] ...]'
     )
@@ -96,9 +94,7 @@ _PARAMETER_HEADING = re.compile(r'^Parameters\b[^:]*:')
 
 
 def without_parameter_section(doc: str) -> str:
-    """``doc`` without its parameter sections (an unindented line starting 'Parameters...:',
-    up to the next blank line followed by an unindented line that is not one): the declared
-    table is printed instead, so each parameter shows once."""
+    """``doc`` without its 'Parameters...:' sections (docs/design/ros_and_core.md)."""
     lines = doc.splitlines()
     kept: list[str] = []
     skipping = False

@@ -1,19 +1,4 @@
-"""Depth images of an RGB-D camera registered to its colour image: the structured-light depth
-noise model and robust sampling at pixels (ROS-free), one rule for every user (the monoslam
-node's depth start, the dataset importers' labels and depths).
-
-Depth noise: sigma_z(z) = ``DEPTH_NOISE_COEFFICIENT`` z^2 m (1.425e-3 z^2; Khoshelham and
-Elberink, "Accuracy and resolution of Kinect depth data", Sensors 12(2), 2012), along the
-optical axis.
-
-Robust sampling (``sample_depth``): the depth at a pixel is the median of the valid
-(finite, > 0) depths in the (2 r + 1)^2 window around the rounded pixel,
-``DepthSampling.radius_px`` r = 2. A pixel gets no depth (NaN) when it is outside the image,
-its own depth is missing, fewer than ``min_valid_fraction`` of the window is valid, or the
-window spans a depth discontinuity: its valid depths spread (max - min) over more than
-``max_relative_spread`` of the median (a corner on an object's outline, in front of a far
-background, gets no depth rather than the wrong surface's).
-"""
+"""RGB-D depth: noise model and robust sampling at pixels (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -29,15 +14,13 @@ DEPTH_NOISE_COEFFICIENT = 1.425e-3
 
 @dataclass(frozen=True)
 class DepthSampling:
-    """Robust depth sampling (module docstring): window radius (px), least valid share of
-    the window, largest spread of its valid depths relative to their median."""
+    """Robust depth sampling: window radius (px), least valid share, largest spread."""
 
     radius_px: int = 2
     min_valid_fraction: float = 0.5
     max_relative_spread: float = 0.1
 
     def __post_init__(self) -> None:
-        """Reject settings that sample nothing."""
         if not 0 <= self.radius_px <= 10:
             raise ValueError(f'radius_px={self.radius_px}: must be in [0, 10]')
         if not 0.0 < self.min_valid_fraction <= 1.0:
@@ -47,15 +30,14 @@ class DepthSampling:
 
 
 def depth_sigma_m(depth_m: FloatArray | float) -> FloatArray:
-    """Return the depth noise sigma_z (m) at depths z (m), same shape (module docstring)."""
+    """Return the depth noise sigma_z (m) at depths z (m), same shape."""
     return np.asarray(DEPTH_NOISE_COEFFICIENT * np.square(depth_m), dtype=np.float64)
 
 
 def sample_depth(
     depth_m: FloatArray, pixels: FloatArray, sampling: DepthSampling | None = None
 ) -> FloatArray:
-    """Return the robust depth (N,) m at raw pixels (N, 2) of a depth map (H, W) m (NaN = no
-    depth), NaN where rejected (module docstring)."""
+    """Robust depth (N,) m at raw pixels (N, 2) of a depth map (H, W) m; NaN if rejected."""
     sampling = sampling if sampling is not None else DepthSampling()
     pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     height, width = depth_m.shape

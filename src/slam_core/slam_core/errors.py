@@ -1,8 +1,4 @@
-"""User-facing errors of the bring-up tools.
-
-Every error names its culprit (a file, topic, parameter or GRAPH key) and says what to do,
-so that command-line tools can print it on one line without a traceback.
-"""
+"""User-facing errors: each names its culprit and says what to do, in one line."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Report files: written atomically (through a temporary file in the same directory, then
-renamed), so a reader or a Ctrl-C never leaves a half-written report; JSON is strict."""
+"""Report files written atomically; strict JSON (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -18,11 +17,7 @@ import numpy as np
 def write_atomically(
     path: Path, data: bytes | str | Callable[[BinaryIO], None], *, durable: bool = False
 ) -> Path:
-    """Write ``data`` (text as UTF-8; a callable writes to the stream it is given) to
-    ``path`` through a temporary file in the same directory, with the permissions a new file
-    gets under the umask (mkstemp's are 0600). ``durable``: the file is fsynced before the
-    rename and the directory after it, so that a crash of the machine leaves the old file or
-    the new one (checkpoints)."""
+    """Write ``data`` (text, bytes or a writer) to ``path`` atomically; fsync if ``durable``."""
     if isinstance(data, str):
         data = data.encode('utf-8')
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -57,8 +52,7 @@ def _umask() -> int:
 
 
 def jsonable(value: Any) -> Any:
-    """Return ``value`` with numpy values, tuples and paths made JSON types and non-finite
-    floats made None (strict JSON has no NaN)."""
+    """``value`` as JSON types; non-finite floats become None."""
     if isinstance(value, Mapping):
         return {str(key): jsonable(item) for key, item in value.items()}
     if isinstance(value, list | tuple | np.ndarray):
@@ -79,14 +73,7 @@ def write_json(path: Path, content: Mapping[str, Any]) -> Path:
 
 
 def keep_previous_run(directory: Path, prefix: str) -> Path | None:
-    """Move a previous run's outputs out of the way of a new run.
-
-    When every file under ``directory`` is a run's output (its name starts with ``prefix``),
-    the directory is renamed to ``<directory>.<stamp>`` (the newest modification time inside,
-    local time, ``YYYYmmdd-HHMMSS``, with ``-2``, ``-3`` ... if taken) and the new name
-    returned; nothing is deleted. An absent or empty directory, or one that also holds other
-    files (then the caller says that the run's files will be replaced), gives None.
-    """
+    """Rename a previous run's ``directory`` to ``<directory>.<stamp>``; return it or None."""
     files = [path for path in directory.rglob('*') if path.is_file()] if directory.is_dir() else []
     if not files or not all(path.name.startswith(prefix) for path in files):
         return None

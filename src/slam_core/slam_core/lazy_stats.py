@@ -1,9 +1,4 @@
-"""scipy.stats distributions imported on first use.
-
-``scipy.stats`` takes 0.4-0.6 s to import, which every executable paid before it could print
-its ``--help``; ``chi2``, ``ncx2``, ``norm`` and ``t`` here stand for the scipy.stats objects
-of the same names and import scipy.stats the first time one of their methods is looked up.
-"""
+"""scipy.stats chi2, ncx2, norm and t, imported on first use (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 

@@ -1,20 +1,4 @@
-"""Node parameters, declared once: the table every node, GRAPH check, YAML reader and --help use.
-
-A node module declares its parameters as one ``ParamTable`` of ``Param``s (name with its unit
-suffix, default, meaning, the rule a value must follow, read-only or dynamic, and, for
-parameters that set a field of a core config dataclass, the field and unit conversion). From
-that one table:
-
-- ``slam_ros.params.declare_parameters`` declares them on an rclpy node with descriptors;
-- ``ParamTable.validate`` turns a ``{name: value}`` mapping into checked, typed values;
-- ``ParamTable.read_yaml`` reads a node YAML file (``/**: ros__parameters:`` or
-  ``<node>: ros__parameters:``) and rejects keys that are not parameters of the node, with the
-  closest valid name;
-- ``ParamTable.render`` prints the table for ``--help`` and the docs.
-
-Every rejection is a ``ParameterError`` worded ``parameter <node>.<name>=<value>: <rule>``.
-This module is ROS-free.
-"""
+"""Node parameters declared once in a ``ParamTable``; ROS-free (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -127,17 +111,7 @@ def _number(value: float) -> str:
 
 @dataclass(frozen=True)
 class Param:
-    """One node parameter.
-
-    ``name`` carries the unit suffix (``_m``, ``_rad``, ``_s``, ``_hz``...) where the value
-    has a unit; ``type`` is taken from ``default`` unless given (an empty list needs it).
-    A value must have the type (an integer is accepted for a double), be finite unless
-    ``allow_inf`` (``.inf`` then allowed; NaN never), lie in ``range`` (numbers, or each item
-    of a numeric array), be one of ``choices`` (strings and integers), have ``length`` items
-    (arrays) and pass ``validator``. ``read_only``: False for parameters a node accepts at run
-    time. ``field`` names the core config field the value sets (``'section.field'`` for a
-    nested config), ``to_field`` converts the parameter's unit into the field's.
-    """
+    """One node parameter: name with unit suffix, default, meaning and rules."""
 
     name: str
     default: ParamValue
@@ -225,8 +199,7 @@ class ParamTable:
         return ParameterError(f'parameter {self.node}.{name}={value!r}: {rule}')
 
     def check_names(self, names: Iterable[object], *, where: str) -> None:
-        """Raise ParameterError for a name that is not a parameter of this node, naming
-        ``where`` (e.g. the file), the node, the key and the closest valid name."""
+        """Raise ParameterError for a name that is not a parameter (with the closest)."""
         for name in names:
             if self.accepts(name):
                 continue
@@ -248,10 +221,7 @@ class ParamTable:
 
     # -- validation --------------------------------------------------------------------
     def validate(self, values: Mapping[str, object]) -> dict[str, Any]:
-        """Return every parameter's value checked and typed (ints become floats for doubles,
-        arrays become lists, ``''`` items of string arrays are dropped: a YAML file cannot
-        hold an empty list for a ROS node). Raises ParameterError for a missing or
-        invalid value; keys that are not parameters are ignored here (see check_names)."""
+        """Return every parameter checked and typed; ParameterError if missing or invalid."""
         checked: dict[str, Any] = {}
         for param in self:
             if param.name not in values:
@@ -286,8 +256,7 @@ class ParamTable:
         return typed
 
     def check_ros_type(self, name: str, value: object) -> None:
-        """Raise ParameterError when a file's value would not have the declared ROS type:
-        rclpy does not read an integer as a double (``validate`` accepts it, rclpy not)."""
+        """Raise ParameterError when a file's value is not of the declared ROS type."""
         param = self._params[name]
         if param.param_type.element is not ParamType.DOUBLE:
             return
@@ -325,8 +294,7 @@ class ParamTable:
 
     # -- core configs ------------------------------------------------------------------
     def fields(self, values: Mapping[str, Any], section: str = '') -> dict[str, Any]:
-        """Return ``{field: value}`` of the parameters whose ``field`` is in ``section``
-        (``'section.field'``; '' takes the fields without a section), unit converted."""
+        """``{field: value}`` of the parameters setting fields of ``section``, unit converted."""
         result: dict[str, Any] = {}
         for param in self:
             if not param.field:
@@ -339,9 +307,7 @@ class ParamTable:
         return result
 
     def build(self, build: Callable[[], ConfigT]) -> ConfigT:
-        """Return ``build()``; a ValueError from a core config that names its field
-        (``'[parameter ]<field>=<value>: <rule>'``) becomes a ParameterError naming the
-        parameter that sets the field."""
+        """Return ``build()``; a config field's ValueError names the parameter (ParameterError)."""
         try:
             return build()
         except ValueError as err:
@@ -359,13 +325,7 @@ class ParamTable:
     def read_yaml(
         self, path: Path | str, base: Mapping[str, object] | None = None
     ) -> dict[str, Any]:
-        """Return ``base`` (default: the defaults) updated with the node's section of a YAML
-        parameter file: ``/**: ros__parameters:`` or ``<node>: ros__parameters:``.
-
-        Raises ParameterError naming the file when it cannot be read, has no such section,
-        or sets a key that is not a parameter of the node (with the closest valid name).
-        Values are not validated here; pass the result to ``validate``.
-        """
+        """``base`` (default: the defaults) updated from the node's section of a YAML file."""
         where = f'parameter file {str(path)!r}'
         sections = node_sections(_read_document(path, where), self.node)
         if not sections:
@@ -381,10 +341,7 @@ class ParamTable:
         return values
 
     def check_file(self, path: Path | str, *, node_name: str | None = None) -> None:
-        """Raise ParameterError naming the file, node and key when a section of a parameter
-        file that applies to the node (``/**``, ``<node>`` or ``/<node>``; ``node_name``
-        when the node runs under another name) sets a key that is not a parameter of it.
-        Files without such a section pass: they configure other nodes."""
+        """Raise ParameterError when a parameter file sets an unknown key for the node."""
         where = f'parameter file {str(path)!r}'
         document = _read_document(path, where)
         for key, parameters in node_sections(document, node_name or self.node):
@@ -412,7 +369,6 @@ class ParamTable:
 
 
 def _read_document(path: Path | str, where: str) -> object:
-    """Return a YAML file's content; ParameterError naming ``where`` when it cannot be read."""
     try:
         document: object = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
@@ -421,8 +377,7 @@ def _read_document(path: Path | str, where: str) -> object:
 
 
 def node_sections(document: object, node: str) -> list[tuple[str, object]]:
-    """Return ``[(key, ros__parameters)]`` of the sections of a parameter file that apply to
-    ``node``: ``/**`` and the node's name (plain, or with a leading slash), in file order."""
+    """``[(key, ros__parameters)]`` of the sections of a parameter file for ``node``."""
     if not isinstance(document, dict):
         return []
     keys = ('/**', node, f'/{node}')

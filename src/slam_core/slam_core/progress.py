@@ -1,8 +1,4 @@
-"""Progress for long work: a bar on a terminal, periodic log lines otherwise.
-
-Both show done/total, rate and ETA. ``ProgressReporter`` is ROS-free; nodes pass their
-logger's ``info`` as ``log`` so that non-terminal output lands in the ROS log.
-"""
+"""Progress for long work: a terminal bar, or periodic log lines (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -101,10 +97,7 @@ class ProgressReporter:
 
 
 class StepProgress:
-    """Progress through named steps of unequal cost that is not known beforehand (a data
-    import, then a solver): each step is said as it starts, with the time so far and what
-    the previous step took. No percentage or ETA: from a count of steps they would be wrong
-    by the steps' ratio of costs (75 % and an ETA of 9 s, then five more minutes)."""
+    """Progress through named steps of unknown, unequal cost: said as each starts."""
 
     def __init__(
         self,

@@ -1,42 +1,4 @@
-"""What a node received, processed and dropped, how long it took and how far behind it is,
-on ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, reliable, depth 10) every
-``period_s`` (steady clock), as robot stacks expect (rqt_robot_monitor, aggregators).
-
-A node wraps each input callback with ``Diagnostics.timed(callback, input)``: every call
-counts as received on that input and adds its duration to the node's processing time, and
-the stamp of a message with a header is the latest input stamp once the callback returns;
-timer callbacks that process queued inputs are wrapped without an input (timed only).
-Messages *lost* on an input never reached the callback: DDS dropped them from the
-subscription's queue (KEEP_LAST depth) while the node was busy, or never delivered them
-(best effort). rmw reports neither (its message-lost event stays 0 for both), so they are
-counted from the gaps in the publisher's sequence numbers (rmw's message info) after the
-first one the node took (reported: a node that joins late did not lose what came before);
-with several publishers on the input the numbers interleave, and its losses are 'unknown'.
-Which of the two it was shows in how long the message after a gap had waited in the queue
-(taken minus received, rmw's message info), logged with the loss: about the queue's depth
-times the input's period when the queue overflowed, near zero when DDS never delivered them.
-The node's own counters (what it processed, what it dropped and why) come from the
-``counts`` callable it passes, other figures (text) from the optional ``values`` callable.
-One DiagnosticStatus per publish, named after the node (its fully qualified name):
-
-- values: ``received <input>``, ``lost <input>`` and ``first sequence <input>`` per
-  input, then the node's counts and values, then ``processing s`` (time in callbacks since
-  the node started), ``processing ms mean`` (per received message), ``processing ms max``
-  and ``queue wait ms max`` (the longest a message had waited in its subscription's queue
-  when taken; both since the last publish), ``busy %`` (processing time over wall time since
-  the last publish), ``lag s`` (the node clock's now minus the latest input stamp: bag time
-  on /clock in replay, wall time live) and ``idle s`` (IDLE_KEY: steady seconds since an
-  input callback last ended, or since the node started; ``slam_run`` stops a graph when its
-  nodes have been idle for a while, ``slam_bringup.drain``);
-- level: WARN while the count named ``dropped`` or the messages lost grew since the last
-  publish or the node was busy more than ``BUSY_WARN`` of the time ("falling behind"; not
-  in a paced replay, where the player waits for the nodes by design), else OK.
-
-The node's log says what /diagnostics says, once per change: a warning when a kind of
-problem starts (with the losses by input), and one line when the node has been OK again for
-``OK_AGAIN_REPORTS`` reports in a row (a problem that comes back within them is not logged
-again), so a console shows what ``slam_diag`` shows without a line per report.
-"""
+"""Per-node /diagnostics: losses, processing time, lag (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -56,13 +18,13 @@ from slam_ros.qos import output_qos
 BUSY_WARN = 0.9
 """Busy above this share of the wall time, a node cannot keep up with a higher input rate."""
 IDLE_KEY = 'idle s'
+"""The value with the seconds since the node last took an input."""
 OK_AGAIN_REPORTS = 5
 """Reports in a row without a problem before the log says the node is OK again."""
-"""The value with the seconds since the node last took an input (module docstring)."""
 
 
 class Diagnostics:
-    """A node's /diagnostics publisher (module docstring)."""
+    """A node's /diagnostics publisher; ``log(level, text)`` gets its state changes."""
 
     def __init__(
         self,
@@ -73,7 +35,6 @@ class Diagnostics:
         values: Callable[[], Mapping[str, str]] | None = None,
         log: Callable[[str, str], None] | None = None,
     ) -> None:
-        """``log(level, text)`` receives the state changes (default: the node's logger)."""
         self.node, self.counts, self.values = node, counts, values
         self._log = log or self._node_log
         self._warned: set[str] = set()  # kinds of problem logged and not yet OK again
@@ -103,10 +64,7 @@ class Diagnostics:
     def timed(
         self, callback: Callable[..., None], input: str | None = None
     ) -> Callable[..., None]:
-        """Return ``callback`` timed; with ``input``, a subscription callback that also counts
-        each message as received on that input, its header stamp (if any) as the latest
-        input stamp once it returns, and the messages lost before it (module docstring).
-        Timer callbacks that do the processing are timed without an input."""
+        """Return ``callback`` timed; with ``input``, a subscription callback counted on it."""
         if input is None:
 
             def timer_wrapper() -> None:
@@ -173,11 +131,7 @@ class Diagnostics:
         self._window_max_s = max(self._window_max_s, spent)
 
     def _count_lost(self, input: str, sequence: int | None, wait_ms: float) -> None:
-        """Count the gap in the publisher's sequence numbers before ``sequence`` as lost,
-        from the first number taken on (what the publisher sent before is not lost: the
-        node may have joined later), and keep ``wait_ms``, the queue wait of the message
-        after it; a number that does not increase (several publishers, or one restarted)
-        makes the input's losses unknown from then on."""
+        """Count the gap in the publisher's sequence numbers before ``sequence`` as lost."""
         if sequence is None or input in self.unknown_lost:
             return
         last = self._sequence.get(input)
@@ -193,7 +147,7 @@ class Diagnostics:
         self._sequence[input] = sequence
 
     def status(self) -> DiagnosticStatus:
-        """Return the node's status now and start a new window (module docstring)."""
+        """Return the node's status now and start a new window."""
         counts = dict(self.counts())
         now = time.perf_counter()
         busy = self._window_s / max(now - self._window_start, 1e-9)
@@ -254,7 +208,7 @@ class Diagnostics:
             self.node.get_logger().info(text)
 
     def _log_change(self, problems: Mapping[str, str], lost: int, dropped: int) -> None:
-        """Log the kinds of problem that start, and the return to OK (module docstring)."""
+        """Log the kinds of problem that start, and the return to OK."""
         new = [kind for kind in problems if kind not in self._warned]
         if new:
             text = '; '.join(problems[kind] for kind in new)

@@ -1,22 +1,4 @@
-"""Lifecycle (managed) versions of our nodes, on rclpy's lifecycle API.
-
-A node's behaviour class splits its start into ``_configure(values)`` (state, publishers,
-services), ``_activate(values)`` (subscriptions and timers: the inputs) and
-``_deactivate()``, and may define ``_finalize()`` (write what a run leaves: reports,
-checkpoints). ``managed(behaviour, name, parameters)`` builds the lifecycle node class:
-
-- unconfigured: the parameters are declared (and may be set); nothing else exists;
-- configure: the parameters are validated again and ``_configure`` runs; an error (a bad
-  value, a map file that cannot be read) fails the transition with the reason logged;
-- activate / deactivate: ``_activate`` / ``_deactivate``: inputs are taken or not, what is
-  held stays;
-- cleanup: ``_finalize``, then every publisher, service, timer and subscription made since
-  configure is destroyed: back to unconfigured;
-- shutdown: deactivated if active, then ``_finalize``.
-
-A launch file (launch_ros ``LifecycleNode``) or any client of ``<node>/change_state``
-(lifecycle_msgs/srv/ChangeState) drives the transitions, as Nav2's lifecycle manager does.
-"""
+"""Lifecycle (managed) versions of our nodes on rclpy's API (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -37,7 +19,7 @@ ENTITY_KINDS = (
 
 
 def managed(behaviour: type, name: str, parameters: ParamTable) -> type:
-    """The lifecycle node class of ``behaviour`` (module docstring)."""
+    """Lifecycle class of ``behaviour`` (its ``_configure``, ``_activate``, ``_deactivate``)."""
 
     class Managed(behaviour, LifecycleNode):
         __doc__ = f'{name} as a lifecycle node (slam_ros.lifecycle).'

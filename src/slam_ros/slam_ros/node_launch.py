@@ -1,11 +1,4 @@
-"""One node's launch description from its topics: the ``params_file``, ``namespace`` and
-``use_sim_time`` arguments every node takes, and one argument per remappable topic.
-
-    def generate_launch_description():
-        return node_launch('monoslam_shadow_node', 'monoslam', 'monoslam.yaml', [
-            Remap('features', 'input slam_interfaces/FeatureTrackArray topic'),
-        ])
-"""
+"""One node's launch description: standard and remap arguments (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -16,10 +9,7 @@ from typing import Any
 
 @dataclass(frozen=True)
 class Remap:
-    """A topic of the node (relative, as it names it) that an argument of the same name
-    remaps, unless ``argument`` names it otherwise; ``followers`` are topics that follow it
-    with a suffix (``('camera/image_raw/compressed', '/compressed')``: image_transport's
-    compressed topic beside the raw one)."""
+    """A topic of the node remapped by a launch argument; ``followers`` follow with a suffix."""
 
     topic: str
     description: str
@@ -33,10 +23,7 @@ class Remap:
 
 
 def node_launch(package: str, executable: str, config: str, remaps: Sequence[Remap]) -> Any:
-    """Return the LaunchDescription that starts ``executable`` of ``package`` (named as the
-    executable) with ``config/<config>`` of the package's share directory (or
-    ``params_file:=``), its ``remaps`` from their arguments, in ``namespace:=``, on /clock
-    with ``use_sim_time:=true``."""
+    """Return the LaunchDescription that starts ``executable`` of ``package``."""
     from launch import LaunchDescription  # type: ignore[attr-defined]  # (mypy: a launch/ folder)
     from launch.actions import DeclareLaunchArgument
     from launch.substitutions import LaunchConfiguration, PathJoinSubstitution

@@ -1,11 +1,4 @@
-"""Declaring a node's parameter table on an rclpy node, and remap lists.
-
-A node module declares its parameters once, as a ``slam_core.params.ParamTable``;
-``declare_parameters`` declares that table on the node with descriptors (description, rules,
-read-only, ranges) and returns the values validated by the table. ``updated_values``
-validates run-time changes of dynamic parameters the same way. Nothing here falls back to a
-default when a value is invalid.
-"""
+"""Declaring a ``ParamTable`` on an rclpy node, and remap lists (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -40,11 +33,7 @@ _INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 
 
 def declare_parameters(node: Node, table: ParamTable) -> dict[str, Any]:
-    """Declare every parameter of ``table`` on ``node``; return the validated values.
-
-    Each parameter gets a descriptor (description, rules, read-only, the range where rclpy
-    has one). Raises ParameterError ``parameter <node>.<name>=<value>: <rule>``.
-    """
+    """Declare ``table`` on ``node`` with descriptors; return the validated values."""
     overrides = getattr(node, '_parameter_overrides', {})
     table.check_names(
         overrides,
@@ -68,8 +57,7 @@ def declare_parameters(node: Node, table: ParamTable) -> dict[str, Any]:
 
 
 def current_values(node: Node, table: ParamTable) -> dict[str, Any]:
-    """The validated values of ``table``'s parameters as declared on ``node`` now (an empty
-    array declared without a value: its default). Raises ParameterError."""
+    """The validated values of ``table``'s parameters as declared on ``node`` now."""
     values: dict[str, Any] = {}
     for param in table:
         try:
@@ -158,9 +146,7 @@ def remap_rule(entries: Sequence[str]) -> str | None:
 
 
 def check_parameter_files(args: Sequence[str], table: ParamTable) -> None:
-    """Check the ``--params-file`` files among a node's ROS arguments against its table
-    (under the name ``-r __node:=<name>`` gives it); raise ParameterError naming the file,
-    node and an unknown key. rclpy itself ignores keys a node does not declare."""
+    """ParameterError for an unknown key in the ``--params-file`` files of a node's ROS args."""
     node_name = table.node
     files: list[str] = []
     in_ros_args = False

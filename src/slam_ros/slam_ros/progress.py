@@ -1,28 +1,4 @@
-"""Progress reports for paced replay: what a node has taken and published, per topic.
-
-In paced replay (``bag_player`` with ``paced``, ``slam_run`` sets PACED_ENV for every node of
-the graph) the player publishes the next message only once every node has finished with
-what came before. For that, each node with ``slam_ros.diagnostics.Diagnostics`` publishes a
-DiagnosticStatus on PROGRESS_TOPIC after every input or timer callback has returned (and
-with every /diagnostics report): its fully qualified name, then ``taken <topic>`` (messages
-taken from each subscribed topic, by the resolved topic name) and ``published <topic>``
-(messages published on each topic) and ``subscribers <topic>`` (the subscriptions DDS has
-matched to the node's publisher: a message published before a subscriber is matched never
-reaches it, so the player starts only once the graph's own topics are all connected). The
-player's rule (``slam_bringup.pacing``): the graph
-is done with everything when every node has taken as many messages of each topic as the
-player and the nodes have published on it.
-
-A node that holds work back until its inputs stop (odometry_ingest's last keyframes) does
-not decide that on the wall clock while a player runs (paced, the player pauses for as long
-as the slowest node needs, seconds during a solve; timed, a busy machine can pause it): it
-waits for END_TOPIC (std_msgs/Empty, END_QOS), which the player publishes once it has played
-the bag (paced: once the graph is done with the whole bag).
-
-Publishes are counted by wrapping the ``publish`` of each of the node's publishers, those
-made before and after (``create_publisher`` is wrapped on the node). The reports, the
-/diagnostics, /rosout, /parameter_events and /clock publishers are not counted.
-"""
+"""A node's progress reports for paced replay, per topic (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -37,7 +13,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 PROGRESS_TOPIC = '/slam/progress'
 PACED_ENV = 'SLAM_PACED'
-"""Set to 1 in a node's environment: the node reports its progress (module docstring)."""
+"""Set to 1 in a node's environment: the node reports its progress."""
 PROGRESS_QOS = QoSProfile(
     depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE
 )

@@ -48,8 +48,7 @@ _LIVELINESS = {
 
 
 def matching_qos(offered: Sequence[QoSProfile], depth: int) -> QoSProfile:
-    """A subscription's QoS that receives from every publisher in ``offered``: reliable and
-    transient-local only when all of them are (what ``ros2 topic echo`` and rosbag2 do)."""
+    """A subscription QoS that receives from all ``offered``: reliable, latched only if all are."""
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
         depth=depth,
@@ -63,8 +62,7 @@ def matching_qos(offered: Sequence[QoSProfile], depth: int) -> QoSProfile:
 
 
 def sensor_qos(depth: int = SENSOR_DEPTH) -> QoSProfile:
-    """Sensor inputs: best effort, volatile, keep last ``depth`` (rclpy's sensor-data profile,
-    deeper: SENSOR_DEPTH)."""
+    """Sensor inputs: best effort, volatile, keep last ``depth`` (default SENSOR_DEPTH)."""
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
         depth=depth,
@@ -90,12 +88,7 @@ def latched_qos(depth: int = 1) -> QoSProfile:
 
 
 def replayed_qos(depth: int) -> QoSProfile:
-    """Inputs a restarted node must not miss: reliable, transient-local, keep last ``depth``.
-
-    The publisher keeps its last ``depth`` messages for late joiners (a node respawned after
-    a crash gets what it missed); a transient-local subscription only matches transient-local
-    publishers, a volatile one matches both.
-    """
+    """Inputs a restarted node must not miss: reliable, transient-local, keep last ``depth``."""
     return QoSProfile(
         depth=depth,
         reliability=ReliabilityPolicy.RELIABLE,
@@ -110,13 +103,7 @@ def _duration(value: QosTime) -> Duration | None:
 
 
 def profile_from_recorded(offered: Sequence[Qos], *, latched: bool = False) -> QoSProfile:
-    """Return the publisher QoS to replay a topic with, from its recorded offered profiles.
-
-    As rosbag2's player: profiles that all agree replay as recorded. Publishers that
-    disagreed replay reliable (a reliable publisher matches every subscriber) and
-    transient-local only if all were. ROS 1 topics (no profiles) replay reliable, and
-    transient-local when they were latched.
-    """
+    """Return the publisher QoS to replay a topic with, from its recorded profiles."""
     if not offered:
         return QoSProfile(
             depth=DEFAULT_DEPTH,

@@ -27,11 +27,7 @@ def spin_node(
 ) -> int:
     """Run the node ``factory()`` builds until Ctrl-C or shutdown; return exit code 0.
 
-    ``-h``/``--help`` (before any ``--ros-args``) prints the node's help (``doc``, its module
-    docstring, and the ``parameters`` table) and returns 0 without initializing rclpy.
-    ``destroy_node`` always runs, so nodes that finalize (write reports) do it there. Errors
-    raised by the constructor or a callback propagate (wrap main with cli.console_main to
-    print them), except those raised once the context has been shut down (Ctrl-C).
+    ``-h``/``--help`` prints ``doc`` and the ``parameters`` table without starting rclpy.
     """
     args = sys.argv[1:] if argv is None else argv
     if help_requested(args):
@@ -69,8 +65,7 @@ def spin_node(
 
 
 class ConsoleLogger:
-    """A node's logger once its context is shut down: rclpy's console format on stderr,
-    INFO and above, no /rosout (its publisher died with the context)."""
+    """A node's logger once its context is shut down: stderr, INFO and above."""
 
     def __init__(self, name: str) -> None:
         self.name = name

@@ -1,14 +1,4 @@
-"""The TF tree as a listener sees it on /tf and /tf_static: each frame's parent, every frame
-that was given a second parent (REP 105 and tf2 allow one parent per frame; a second one
-makes lookups flip between two trees), and whether a chain of transforms joins two frames
-at a time.
-
-``TfTree.add`` takes tf2_msgs/TFMessage messages (rclpy's or rosbags'; fields are read by
-name). ``lookup_chain`` returns the frames between two frames (through their nearest common
-ancestor); ``resolves`` also asks that every transform on it that came on /tf (not static)
-was published at or before the time and at or after it, as tf2 interpolates between two
-stamps and does not extrapolate.
-"""
+"""The TF tree on /tf and /tf_static: parents, conflicts, chains (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -21,8 +11,7 @@ from slam_core.stamps import stamp_to_ns
 
 @dataclass
 class TfEdge:
-    """One frame's link to its parent: static (from /tf_static) or the sorted stamps (int ns)
-    at which it was published on /tf."""
+    """One frame's link to its parent: static, or its sorted /tf stamps (int ns)."""
 
     parent: str
     static: bool
@@ -30,7 +19,7 @@ class TfEdge:
 
 
 class TfTree:
-    """Frames and their parents, as received (module docstring)."""
+    """Frames and their parents, as received; second parents go to ``conflicts``."""
 
     def __init__(self) -> None:
         self.edges: dict[str, TfEdge] = {}
@@ -65,8 +54,7 @@ class TfTree:
         return chain
 
     def lookup_chain(self, target: str, source: str) -> list[str] | None:
-        """Return the frames from ``source`` up to the common ancestor and down to
-        ``target``, or None when they are not in one tree."""
+        """Frames from ``source`` up to the common ancestor and down to ``target``, or None."""
         up = self.ancestors(source)
         down = self.ancestors(target)
         common = next((frame for frame in up if frame in down), None)
@@ -75,9 +63,7 @@ class TfTree:
         return up[: up.index(common) + 1] + down[: down.index(common)][::-1]
 
     def resolves(self, target: str, source: str, stamp_ns: int) -> bool:
-        """Whether tf2 could look up ``source`` in ``target`` at ``stamp_ns``: one chain joins
-        them, and each non-static transform on it has a stamp at or before and one at or
-        after ``stamp_ns``."""
+        """Whether tf2 could look up ``source`` in ``target`` at ``stamp_ns``."""
         chain = self.lookup_chain(target, source)
         if chain is None:
             return False

@@ -1,10 +1,4 @@
-"""Message types: rosbags definitions for (de)serialization and rclpy classes for publishing.
-
-``TypeRegistry`` starts from rosbags' Jazzy type store and learns every other type (ours in
-``slam_interfaces``, a vendored ``tf2_msgs``, anything on ``AMENT_PREFIX_PATH``) from the
-``share/<pkg>/msg/<Name>.msg`` files that ROS packages install. ``message_class`` imports the
-rclpy class of a type name such as ``sensor_msgs/msg/Image``.
-"""
+"""Message types: rosbags definitions and rclpy classes (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -53,12 +47,7 @@ class TypeRegistry:
         self.typestore = typestore if typestore is not None else get_typestore(Stores.ROS2_JAZZY)
 
     def ensure(self, msgtype: str, *, context: str = '') -> None:
-        """Make ``msgtype`` and everything it contains known to the type store.
-
-        Raises:
-            TypeDefinitionError: no definition of it (or of a field type) can be found.
-
-        """
+        """Make ``msgtype`` and its field types known (TypeDefinitionError if undefined)."""
         pending = [msgtype]
         while pending:
             current = pending.pop()
@@ -86,8 +75,7 @@ class TypeRegistry:
     def add_connection(
         self, writer: Writer, topic: str, msgtype: str, qos: Sequence[Qos]
     ) -> Connection:
-        """Register ``topic`` of ``msgtype`` on a rosbag2 writer, with this registry's message
-        definition and RIHS01 hash and the offered QoS profiles ``qos``; return its connection."""
+        """Register ``topic`` on ``writer`` with this registry's definition; return it."""
         msgdef, rihs01 = self.msgdef_and_hash(msgtype)
         return writer.add_connection(
             topic, msgtype, msgdef=msgdef, rihs01=rihs01, offered_qos_profiles=list(qos)
@@ -108,12 +96,7 @@ def _referenced_types(fields: object) -> list[str]:
 
 
 def message_class(msgtype: str, *, topic: str | None = None) -> type:
-    """Import and return the rclpy message class of ``msgtype`` (e.g. ``nav_msgs/msg/Odometry``).
-
-    Raises:
-        TypeDefinitionError: the interface package is not built or not on the Python path.
-
-    """
+    """Import the rclpy class of ``msgtype`` (``nav_msgs/msg/Odometry``); TypeDefinitionError."""
     package, kind, name = split_type_name(msgtype)
     where = f'topic {topic!r} has type {msgtype!r}' if topic else f'type {msgtype!r}'
     try:

@@ -1,29 +1,7 @@
-"""slam_dashboard: a live web page of a running graph, served by this node.
+"""slam_dashboard: a live web page of a running graph, at http://<this machine>:8080/.
 
-    slam_dashboard                              # then open http://<this machine>:8080/
-    slam_dashboard --ros-args -p port:=8090 -p image:=none
-
-The page shows the EM-SAM map (landmarks with their ids and weights, moveable ones and where
-they were seen, the robot path), the MonoSLAM camera path from above, the camera image with
-the tracked features coloured by the Shadow filter's class, and the /diagnostics table with
-WARN and ERROR highlighted. It updates over a WebSocket ``update_hz`` times a second. The
-page and its script come with this package: a browser needs nothing else, and nothing is
-fetched from the internet. ``/state.json`` gives the same state as one JSON document.
-
-Topics (remap to other names as for any node):
-  subscribes  em_sam/landmarks (slam_interfaces/LandmarkMap, transient local)
-              em_sam/path (nav_msgs/Path, transient local)
-              em_sam/moveable (slam_interfaces/MoveableLandmarkArray, transient local)
-              monoslam/path (nav_msgs/Path)
-              features (slam_interfaces/FeatureTrackArray)
-              shadow/tracks (slam_interfaces/ShadowTrackArray)
-              camera/image_raw (sensor_msgs/Image, best effort) and
-              camera/image_raw/compressed (sensor_msgs/CompressedImage, best effort): both
-              with image 'auto', one with 'raw' or 'compressed', none with 'none'
-              /diagnostics (diagnostic_msgs/DiagnosticArray)
-  publishes   /diagnostics: messages received per topic, images shown, images skipped
-              (more than image_hz), images that could not be decoded, page clients.
-"""
+Topics: subscribes em_sam/landmarks, em_sam/path, em_sam/moveable, monoslam/path, features,
+shadow/tracks, camera/image_raw(/compressed), /diagnostics; publishes /diagnostics."""
 
 from __future__ import annotations
 
@@ -104,7 +82,7 @@ def _decode_image(message: Any) -> Any:
 
 
 class DashboardNode(Node):
-    """Subscribes to the graph's outputs and serves them as a web page (module docstring)."""
+    """Subscribes to the graph's outputs and serves them as a web page."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('slam_dashboard', **kwargs)

@@ -1,10 +1,4 @@
-"""The dashboard's web server: the page's files, ``/state.json`` and the ``/ws`` WebSocket.
-
-One thread per connection (``ThreadingHTTPServer``). A WebSocket client gets the whole state
-at once, then every ``1 / update_hz`` s the sections that changed, as one JSON text message
-``{"version": N, "sections": {...}}``. Everything the page needs is in ``web/``: nothing is
-fetched from elsewhere.
-"""
+"""The dashboard's web server: the page's files, ``/state.json`` and the ``/ws`` WebSocket."""
 
 from __future__ import annotations
 

@@ -1,21 +1,4 @@
-"""What the dashboard shows, built from ROS messages into JSON-ready sections.
-
-Each ``on_*`` method takes one message of its topic (any object with the message's fields)
-and replaces its section. ``snapshot(since)`` returns the sections changed after version
-``since`` and the current version; the web page merges them. Thread-safe: ROS callbacks
-write, the web server's threads read.
-
-Sections (m for the maps, pixels for the image):
-  ``map``         EM-SAM landmarks: id, x, y, weight, moveable, sightings; counts.
-  ``path``        the EM-SAM robot path, [[x, y], ...], at most PATH_POINTS points.
-  ``moveable``    per moveable landmark: id, weight, where it was seen [[x, y], ...].
-  ``monoslam``    the MonoSLAM camera path seen from above, [[x, z], ...] (optical frame:
-                  x right, z forward), at most PATH_POINTS points.
-  ``features``    the newest tracked features [[id, u, v, class], ...] with class from the
-                  Shadow filter ('pending', 'static', 'dynamic', or 'unknown' before it says).
-  ``image``       the newest camera image as a JPEG (base64), at most image_width pixels wide.
-  ``diagnostics`` one row per status: level (OK, WARN, ERROR, STALE), name, message, age s.
-"""
+"""What the dashboard shows, from ROS messages into versioned JSON-ready sections."""
 
 from __future__ import annotations
 
@@ -56,7 +39,7 @@ def _stamp_s(header: Any) -> float:
 
 
 class DashboardState:
-    """The dashboard's sections, versioned (module docstring)."""
+    """The dashboard's sections, versioned; thread-safe (sections: docs/design/bringup.md)."""
 
     def __init__(
         self,

@@ -1,9 +1,4 @@
-"""The WebSocket protocol (RFC 6455) on a plain socket: the handshake key and frames.
-
-Enough for the dashboard's server (unmasked frames out, masked frames in) and for a client
-(masked frames out), text and binary messages, ping/pong and close. Messages of several
-frames (continuations) are joined.
-"""
+"""The WebSocket protocol (RFC 6455) on a plain socket: the handshake key and frames."""
 
 from __future__ import annotations
 

@@ -1,6 +1,4 @@
-"""The suite's one camera model: pinhole with plumb_bob or rational_polynomial distortion
-(``model.CameraModel``), its CameraInfo fields (``info.CameraInfoFields``) and the lens
-functions behind it (``lens``)."""
+"""The suite's camera model (``CameraModel``), its CameraInfo fields, ``lens``."""
 
 from slam_core.camera.info import CameraInfoFields
 from slam_core.camera.model import DISTORTION_MODELS, CameraModel

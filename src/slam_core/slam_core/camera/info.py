@@ -9,8 +9,7 @@ from slam_core.arrays import FloatArray
 
 @dataclass(frozen=True, eq=False)
 class CameraInfoFields:
-    """sensor_msgs/CameraInfo content: image size (px), distortion model, D (5,), (8,) or (0,),
-    and K (9,), R (9,), P (12,) row-major, px. A message writer copies them field by field."""
+    """CameraInfo content: size px, model, D (5,)/(8,)/(0,), K, R (9,), P (12,)."""
 
     width: int
     height: int

@@ -1,11 +1,4 @@
-"""OpenCV's lens distortion in normalized coordinates, with its Jacobian, its fold radius and
-its iterative inverse.
-
-Normalized coordinates (x, y) = (X/Z, Y/Z) of a point in the camera optical frame are moved
-by the radial factor (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6) and the
-tangential terms p1, p2 (r^2 = x^2 + y^2). ``coefficients`` are always the eight
-(k1, k2, p1, p2, k3, k4, k5, k6), zero-padded: plumb_bob is the first five.
-"""
+"""OpenCV's lens distortion: Jacobian, fold radius and inverse (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -26,8 +19,7 @@ UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10
 def distort(
     coefficients: tuple[float, ...], x: FloatArray, y: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Return the distorted normalized coordinates x_d (N,), y_d (N,) of (x, y) (N,) and
-    d(x_d, y_d)/d(x, y) (N, 2, 2)."""
+    """Distorted x_d, y_d (N,) of normalized (x, y) (N,), and d(x_d, y_d)/d(x, y) (N, 2, 2)."""
     k1, k2, p1, p2, k3, k4, k5, k6 = coefficients
     r2 = x * x + y * y
     numerator = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
@@ -49,10 +41,7 @@ def distort(
 
 @functools.lru_cache(maxsize=64)
 def fold_radius(coefficients: tuple[float, ...]) -> float:
-    """Return the undistorted radius (x/z units) where the radial part r * factor(r^2) stops
-    rising, inf if it never does; beyond it a distorted image point has two or no preimages.
-    The tangential terms are ignored. Cached per coefficients: the filters check every
-    projection against it, and a polynomial's roots cost more than the projection."""
+    """Undistorted radius (x/z units) where the radial part stops rising; inf if never."""
     k1, k2, _, _, k3, k4, k5, k6 = coefficients
     if k4 == 0.0 and k5 == 0.0 and k6 == 0.0:
         # d/dr [r (1 + k1 s + k2 s^2 + k3 s^3)] = 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3, s = r^2
@@ -80,9 +69,7 @@ def fold_radius(coefficients: tuple[float, ...]) -> float:
 
 
 def undistort_iteratively(points: FloatArray, k: FloatArray, d: FloatArray) -> FloatArray:
-    """Return cv2's iterative undistortion of raw pixels (N, 1, 2) to ideal pixels (N, 1, 2),
-    to UNDISTORT_CRITERIA: undistortPointsIter on OpenCV 4.x, undistortPoints with a
-    ``criteria`` argument on 5.x (which dropped undistortPointsIter)."""
+    """cv2's iterative undistortion of raw pixels (N, 1, 2) to ideal pixels (N, 1, 2)."""
     if hasattr(cv2, 'undistortPointsIter'):
         return np.asarray(cv2.undistortPointsIter(points, k, d, np.eye(3), k, UNDISTORT_CRITERIA))
     undistort: Any = cv2.undistortPoints  # OpenCV 4.x's stubs lack the 5.x criteria argument

@@ -1,14 +1,4 @@
-"""The pinhole camera with lens distortion, as sensor_msgs/CameraInfo describes it.
-
-Pixel coordinates follow OpenCV: the centre of the top-left pixel is (0, 0), u to the right and
-v down. Normalized coordinates are (x/z, y/z) of a point in the camera optical frame (x right,
-y down, z forward). ``D`` holds OpenCV's distortion coefficients in ROS order:
-(k1, k2, p1, p2, k3) for ``plumb_bob``, (k1, k2, p1, p2, k3, k4, k5, k6) for
-``rational_polynomial``; an empty ``D`` means no distortion. Paper 001 (eq. 3-5) calls K the
-calibration matrix M.
-
-Two models are equal (and hash equal) when their size, K, D and distortion model are.
-"""
+"""Pinhole camera with OpenCV lens distortion, from CameraInfo (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -42,7 +32,6 @@ class CameraModel:
     _coefficients: tuple[float, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        """Check and freeze the fields; ValueError naming the camera_info field at fault."""
         for name, value in (('width', self.width), ('height', self.height)):
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0:
                 raise ValueError(f'camera_info {name}={value!r}: must be an integer > 0')
@@ -89,7 +78,6 @@ class CameraModel:
         return isinstance(other, CameraModel) and self._key() == other._key()
 
     def __hash__(self) -> int:
-        """A hash consistent with ``__eq__`` (models are immutable)."""
         return hash(self._key())
 
     @classmethod
@@ -129,8 +117,7 @@ class CameraModel:
         return cls(width, height, k, np.asarray(distortion, dtype=np.float64), distortion_model)
 
     def camera_info(self) -> CameraInfoFields:
-        """Return the CameraInfo fields; R is the identity and P is K with a zero fourth
-        column (a monocular camera)."""
+        """Return the CameraInfo fields; R is the identity and P is K with a zero 4th column."""
         return CameraInfoFields(
             width=self.width,
             height=self.height,
@@ -142,9 +129,7 @@ class CameraModel:
         )
 
     def scaled(self, width: int, height: int) -> CameraModel:
-        """Return the same lens on a ``width`` x ``height`` px sensor: the horizontal field of
-        view and the distortion stay; focal lengths and the principal point's offset from the
-        image centre scale by width / self.width (as resizing an image does)."""
+        """Return the same lens on a ``width`` x ``height`` px sensor (as resizing does)."""
         scale = width / self.width
         cx = 0.5 * (width - 1) + (self.cx - 0.5 * (self.width - 1)) * scale
         cy = 0.5 * (height - 1) + (self.cy - 0.5 * (self.height - 1)) * scale
@@ -193,8 +178,7 @@ class CameraModel:
         return self.D if self.D.size else np.zeros(5)
 
     def fold_radius(self) -> float:
-        """Return the undistorted radius (x/z units) beyond which the radial distortion folds
-        back (``lens.fold_radius``); inf when it never does."""
+        """Undistorted radius (x/z units) where the radial distortion folds; inf if never."""
         return lens.fold_radius(self._coefficients)
 
     def project(self, points: ArrayLike) -> FloatArray:
@@ -202,11 +186,7 @@ class CameraModel:
         return self.project_with_jacobian(points)[0]
 
     def project_with_jacobian(self, points: ArrayLike) -> tuple[FloatArray, FloatArray]:
-        """Return pixels (N, 2) of camera-frame points (N, 3) and d(pixel)/d(point) (N, 2, 3).
-
-        The lens model is OpenCV's (radial k1..k6 as a rational function of r^2, tangential
-        p1, p2), evaluated in numpy: much cheaper than cv2.projectPoints for a few points.
-        """
+        """Return pixels (N, 2) of camera-frame points (N, 3) and d(pixel)/d(point) (N, 2, 3)."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         inverse_z = 1.0 / p[:, 2]
         x, y = p[:, 0] * inverse_z, p[:, 1] * inverse_z
@@ -223,9 +203,7 @@ class CameraModel:
         return pixels, focal @ d_distorted @ d_normalized
 
     def homogeneous_projection(self, points: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Return the raw-image pixels (N, 2) of homogeneous camera-frame points (N, 4) and
-        d(pixel)/d(x, y, z, w) (N, 2, 4) (paper 001 eq. 3-5 with distortion; w does not enter:
-        an image measures the ray, never the depth). Needs z > 0 (in front of the camera)."""
+        """Pixels (N, 2) of homogeneous points (N, 4), z > 0, and d(pixel)/d(x,y,z,w) (N, 2, 4)."""
         pixels, jacobian = self.project_with_jacobian(points[:, :3])
         out = np.zeros((len(points), 2, 4))
         out[:, :, :3] = jacobian
@@ -259,9 +237,7 @@ class CameraModel:
         return out
 
     def unproject(self, pixels: ArrayLike) -> tuple[FloatArray, BoolArray]:
-        """Return the normalized coordinates (..., 2) of raw pixels (..., 2) and whether each
-        is a true preimage (...,): inside the fold radius and projecting back within
-        ``UNPROJECT_TOLERANCE_PX`` (a pixel beyond the lens's fold has no ray)."""
+        """Normalized coordinates (..., 2) of raw pixels (..., 2), and whether each has a ray."""
         array = np.asarray(pixels, dtype=np.float64)
         if array.shape[-1:] != (2,):
             raise ValueError(f'pixels must have shape (..., 2), got {array.shape}')
@@ -277,8 +253,7 @@ class CameraModel:
         )
 
     def pixel_rays(self, pixels: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Return the camera-frame rays r = (x_n, y_n, 1) (N, 3) of raw pixels (N, 2) and
-        dr/d(pixel) (N, 3, 2), the inverse of the lens's Jacobian at the ray."""
+        """Rays (x_n, y_n, 1) (N, 3) of raw pixels (N, 2) and d(ray)/d(pixel) (N, 3, 2)."""
         normalized = self.undistort_points(np.asarray(pixels, dtype=np.float64), normalized=True)
         rays = np.column_stack([normalized, np.ones(len(normalized))])
         _, jacobian = self.project_with_jacobian(rays)  # at z = 1: columns 0, 1 are d/d(x_n, y_n)

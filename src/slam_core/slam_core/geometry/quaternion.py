@@ -1,10 +1,4 @@
-"""Unit quaternions q = (w, x, y, z) (scalar first) with the Hamilton product, as rotations.
-
-``rotation_from_quaternion`` is the quadratic form of q: exactly a rotation for |q| = 1.
-ROS messages order quaternions (x, y, z, w); convert at the message boundary, e.g.
-``w, x, y, z = quaternion_from_rotation(R)``. The planar helpers ``yaw_from_quaternion`` and
-``quaternion_from_yaw`` take and give that message order.
-"""
+"""Unit quaternions q = (w, x, y, z) (scalar first) with the Hamilton product, as rotations."""
 
 from __future__ import annotations
 
@@ -59,10 +53,7 @@ def rotation_from_quaternion(q: ArrayLike) -> FloatArray:
 
 
 def quaternion_from_rotation(matrix: ArrayLike) -> FloatArray:
-    """Return the unit quaternion (w, x, y, z) (4,) with w >= 0 of a rotation matrix (3, 3).
-
-    Shepperd's method: the largest of the trace and the diagonal picks the stable formula.
-    """
+    """Return the unit quaternion (w, x, y, z) (4,), w >= 0, of a rotation (3, 3)."""
     m = np.asarray(matrix, dtype=np.float64)
     if m.shape != (3, 3):
         raise ValueError(f'a rotation matrix must be 3 x 3, got shape {m.shape}')
@@ -131,14 +122,12 @@ def rotate_jacobian(q: ArrayLike, a: ArrayLike) -> FloatArray:
 
 
 def world_angle_jacobian(q: ArrayLike) -> FloatArray:
-    """Return d(theta)/dq (3, 4) at q: theta the small rotation about the world axes with
-    R = exp([theta]x) R(q_hat), i.e. theta = 2 vec(q (x) conj(q_hat)) to first order."""
+    """d(theta)/dq (3, 4): theta the small world-axes rotation, R = exp([theta]x) R(q)."""
     return 2.0 * right_matrix(conjugate(q))[1:, :]
 
 
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
-    """Return the heading (rad) of a quaternion in message order (x, y, z, w): its rotation
-    about z (exact for a planar rotation)."""
+    """Return the heading (rad) of a quaternion in message order (x, y, z, w)."""
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 

@@ -1,13 +1,4 @@
-"""Planar (SE(2)) pose helpers and the EM-SAM motion and measurement models.
-
-A pose is (x m, y m, theta rad) of the body in the map frame; arrays of poses are (N, 3)
-(any leading shape ``(..., 3)`` broadcasts). Angles are wrapped to (-pi, pi] by
-``wrap_angle``, the one wrapping helper of the suite.
-
-The odometry model is the paper's eq. 2 (a midpoint-heading model, not SE(2) composition):
-x_to = x_from + [u0 cos(t~) - u1 sin(t~), u0 sin(t~) + u1 cos(t~), u2], t~ = theta_from + u2/2,
-with u = (u0 forward m, u1 side m, u2 rad).
-"""
+"""Planar poses (x m, y m, theta rad) and the EM-SAM motion model (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -30,10 +21,7 @@ def wrap_angle(angle_rad: FloatArray) -> FloatArray: ...
 
 
 def wrap_angle(angle_rad: float | FloatArray) -> float | FloatArray:
-    """Return angle_rad wrapped to (-pi, pi] rad, same shape (a float for a float input).
-
-    Values already inside the interval are returned bit-for-bit unchanged.
-    """
+    """Return angle_rad wrapped to (-pi, pi] rad, same shape (a float for a float input)."""
     angle = np.asarray(angle_rad, dtype=np.float64)
     outside = (angle > np.pi) | (angle <= -np.pi)
     if np.any(outside):
@@ -65,11 +53,7 @@ def apply_increment(poses: FloatArray, u: FloatArray) -> FloatArray:
 
 
 def increment_between(pose_from: FloatArray, pose_to: FloatArray) -> FloatArray:
-    """Return the eq. 2 increments u (N, 3) = (forward m, side m, turn rad) from -> to.
-
-    The exact inverse of ``apply_increment`` for turns u2 in (-pi, pi]: u2 is the wrapped
-    heading change and (u0, u1) = R(theta_from + u2/2)^T (dx, dy).
-    """
+    """Return the eq. 2 increments u (N, 3) = (forward m, side m, turn rad) from -> to."""
     pose_from, pose_to = _as_poses(pose_from, 'pose_from'), _as_poses(pose_to, 'pose_to')
     turn = wrap_angle(pose_to[..., 2] - pose_from[..., 2])
     heading = pose_from[..., 2] + 0.5 * turn
@@ -124,10 +108,7 @@ def transform_points(poses: FloatArray, points_in_body: FloatArray) -> FloatArra
 
 
 def range_bearing_to_point(poses: FloatArray, z: FloatArray) -> FloatArray:
-    """Return landmark positions (N, 2) m, map frame, seen at z = (range m, bearing rad).
-
-    The inverse of the measurement model (eq. 3) for the pose.
-    """
+    """Landmark positions (N, 2) m, map frame, seen at z = (range m, bearing rad)."""
     poses = _as_poses(poses)
     z = np.asarray(z, dtype=np.float64)
     if z.shape[-1:] != (2,):

@@ -1,8 +1,4 @@
-"""Rigid transforms in 3D as 4 x 4 homogeneous matrices, and the camera frames of REP 103.
-
-T_a_b is the pose of frame b in frame a: it maps b-coordinates to a-coordinates,
-p_a = T_a_b p_b (the tf transform from parent a to child b).
-"""
+"""Rigid 3D transforms T_a_b (4, 4), p_a = T_a_b p_b, and the camera frames of REP 103."""
 
 from __future__ import annotations
 
@@ -21,12 +17,7 @@ OPTICAL_IN_LINK.setflags(write=False)
 
 
 def optical_from_link() -> FloatArray:
-    """Return T_link_optical (4, 4): the camera_optical_frame in camera_link (REP 103).
-
-    The tf from parent camera_link to child camera_optical_frame: optical z (forward) =
-    link x, optical x (right) = -link y, optical y (down) = -link z. Chain it as
-    T_base_optical = T_base_link @ optical_from_link().
-    """
+    """Return T_link_optical (4, 4): the camera_optical_frame in camera_link (REP 103)."""
     transform = np.eye(4)
     transform[:3, :3] = OPTICAL_IN_LINK
     return transform
@@ -35,8 +26,7 @@ def optical_from_link() -> FloatArray:
 def transform_from_xyz_rpy(
     xyz_m: Sequence[float] | ArrayLike, rpy_rad: Sequence[float] | ArrayLike
 ) -> FloatArray:
-    """Return T_parent_child (4, 4) of a child at xyz (m) with roll, pitch, yaw (rad), the
-    URDF and tf convention R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    """Return T_parent_child (4, 4) of a child at xyz (m), roll, pitch, yaw (rad)."""
     x, y, z = (float(v) for v in np.asarray(xyz_m, dtype=np.float64).reshape(3))
     roll, pitch, yaw = (float(v) for v in np.asarray(rpy_rad, dtype=np.float64).reshape(3))
     transform = np.eye(4)

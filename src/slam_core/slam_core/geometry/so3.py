@@ -1,10 +1,4 @@
-"""Rotation matrices in 3D: the cross-product matrix, the exponential map and roll-pitch-yaw
-angles.
-
-A rotation vector v (3,) rad is the rotation by |v| rad about v / |v|; exp([v]x) is its
-matrix. Functions documented with a batch ``(..., 3)`` accept any leading shape. The
-logarithm goes through the quaternion: ``quaternion.log_rotation``.
-"""
+"""3D rotations: the cross-product matrix, the exponential map and roll-pitch-yaw angles."""
 
 from __future__ import annotations
 
@@ -44,8 +38,7 @@ def rotation_from_vector(vectors: ArrayLike) -> FloatArray:
 
 
 def rotation_from_rpy(roll_rad: float, pitch_rad: float, yaw_rad: float) -> FloatArray:
-    """Return R (3, 3) = Rz(yaw) Ry(pitch) Rx(roll), the URDF and tf convention (fixed axes
-    x, y, z)."""
+    """Return R (3, 3) = Rz(yaw) Ry(pitch) Rx(roll), the URDF and tf convention."""
     cr, sr = math.cos(roll_rad), math.sin(roll_rad)
     cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
     cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)

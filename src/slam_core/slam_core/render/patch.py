@@ -1,19 +1,4 @@
-"""Textured planar patches (a printed marker on its square of paper) drawn by exact per-pixel
-ray casting.
-
-A patch has its centre and axes in the camera optical frame (x right, y down, z forward):
-axes (3, 3) with columns x right and y up along the printed face and z its normal, out of
-the printed face towards a viewer; corners are in OpenCV order (top-left, top-right,
-bottom-right, bottom-left). A ray from the optical centre along (x_u, y_u, 1) meets the
-patch's plane at depth z = t; ``plane_hits`` gives t and the hit's coordinates in the patch.
-
-Drawing (``render_patch``) samples the texture (premultiplied grey and alpha, see
-``texture.with_alpha``) bilinearly there and blends it over the image where the hit is in
-front of the near plane and of what the depth buffer holds; hits with alpha above 1/2 write
-their depth and the patch's label. Paper edges are therefore antialiased by the texture's
-alpha, and a texture resized to about one texel per pixel (``draw_patch``) antialiases the
-print. Draw patches far to near.
-"""
+"""Textured planar patches drawn by per-pixel ray casting (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -44,10 +29,7 @@ Directions = tuple[NDArray[np.floating], NDArray[np.floating], NDArray[np.floati
 
 @dataclass(frozen=True, eq=False)
 class PlaneHits:
-    """Where rays meet a patch's plane: ray parameter ``depth`` (-1 where a ray is parallel
-    to the plane), the hit's patch coordinates ``local_x`` and ``local_y`` (m, from the
-    centre) and ``normal_rate`` (the direction's component along the normal: < 0 when the
-    ray sees the printed face); all the rays' shape."""
+    """Rays' hits on a plane: ``depth`` (-1: parallel), ``local_x``/``y`` m, ``normal_rate``."""
 
     depth: NDArray[np.floating]
     local_x: NDArray[np.floating]
@@ -62,10 +44,7 @@ def plane_hits(
     *,
     dtype: type[np.float32] | type[np.float64],
 ) -> PlaneHits:
-    """Return where rays origin + t (d0, d1, d2) meet the plane through a patch's centre with
-    ``axes`` (3, 3) (columns: x, y, normal), ``offset_m`` (3,) = origin - centre, all in one
-    frame. Axes and offsets are cast to ``dtype`` (float32 for float32 rays keeps the
-    arithmetic single precision; float64 promotes them)."""
+    """Where rays origin + t d meet a plane (``axes`` (3, 3), ``offset_m`` = origin - centre)."""
     scalar = dtype
     a = np.asarray(axes, dtype=dtype)
     d0, d1, d2 = directions
@@ -84,8 +63,7 @@ def plane_hits(
 
 @dataclass(frozen=True, eq=False)
 class TexturedPatch:
-    """A square patch ``side_m`` wide showing ``texture`` (N, N, 2) float32 (premultiplied
-    grey, alpha), its centre ``centre_m`` (3,) and ``axes`` (3, 3) in the optical frame."""
+    """A square patch ``side_m`` wide: texture (N, N, 2), ``centre_m`` (3,), ``axes`` (3, 3)."""
 
     texture: Float32Array
     side_m: float
@@ -101,8 +79,7 @@ class TexturedPatch:
         return float(self.centre_m @ self.axes[:, 2]) < 0.0
 
     def hits(self, x_u: NDArray[np.floating], y_u: NDArray[np.floating]) -> PlaneHits:
-        """Return where the rays (x_u, y_u, 1) from the optical centre meet the plane; double
-        precision even for float32 rays."""
+        """Where the rays (x_u, y_u, 1) from the optical centre meet the plane (float64)."""
         return plane_hits((x_u, y_u, 1.0), -self.centre_m, self.axes, dtype=np.float64)
 
     def texel_coordinates(
@@ -121,8 +98,7 @@ def render_patch(
     patch: TexturedPatch,
     index: int,
 ) -> PlaneHits:
-    """Blend ``patch`` into ``image``, ``depth`` (z, m) and ``label`` (all the rays' shape,
-    written in place) along rays (x_u, y_u) (see the module docstring); return the hits."""
+    """Blend ``patch`` into ``image``, ``depth`` (z, m) and ``label`` in place; return hits."""
     hits = patch.hits(*rays)
     col, row = patch.texel_coordinates(hits)
     sampled = sample_bilinear(patch.texture, col, row, border='transparent')
@@ -137,8 +113,7 @@ def render_patch(
 
 @dataclass(frozen=True, eq=False)
 class DrawnPatch:
-    """A patch drawn by ``draw_patch``: the pixel rows and columns it was tested on and the
-    hits there (shape of that box)."""
+    """A patch drawn by ``draw_patch``: the pixel rows and columns tested, hits there."""
 
     rows: slice
     cols: slice
@@ -165,9 +140,7 @@ def draw_patch(
     patch: TexturedPatch,
     index: int,
 ) -> DrawnPatch | None:
-    """Draw ``patch`` into a camera's image (H, W), depth buffer and labels: only the pixels
-    near its outline, with its texture resized (area filter) to about one texel per pixel.
-    None, drawing nothing, if its back faces the camera or it lies behind what is drawn."""
+    """Draw ``patch`` into image (H, W), depth and labels near its outline; None if not."""
     if not patch.faces():
         return None
     polygon = clip_near(patch.corners())

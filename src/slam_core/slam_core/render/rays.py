@@ -1,9 +1,4 @@
-"""The undistorted rays through every pixel centre of a camera, for renderers.
-
-A pixel's ray in the optical frame (x right, y down, z forward) is (x_u, y_u, 1), (x_u, y_u)
-its undistorted normalized coordinates. Per-column and per-row ranges of x_u and y_u let a
-renderer find the pixels that can see a convex polygon without testing every pixel.
-"""
+"""The undistorted rays through the pixel centres of a camera (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -21,9 +16,7 @@ INVERTIBLE_PX = 1e-3
 
 @dataclass(frozen=True, eq=False)
 class RayGrid:
-    """The rays of a camera's pixels: ``normalized`` (H, W, 2) float64 (x_u, y_u), the same
-    as float32 ``x_u`` and ``y_u`` (H, W), and the ranges (x_u min, max) of each column (W, 2)
-    and (y_u min, max) of each row (H, 2), float64."""
+    """A camera's pixel rays: (x_u, y_u) (H, W, 2), float32 x_u, y_u (H, W), ranges."""
 
     normalized: FloatArray
     x_u: Float32Array
@@ -34,8 +27,7 @@ class RayGrid:
 
 @cache
 def ray_grid(camera: CameraModel) -> RayGrid:
-    """Return the camera's pixel rays (cached per camera); ValueError if the distortion is not
-    invertible over the image (a pixel's ray does not project back onto it)."""
+    """Return the camera's pixel rays (cached); ValueError if the lens is not invertible."""
     v, u = np.mgrid[0 : camera.height, 0 : camera.width]
     pixels = np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64)
     normalized = camera.undistort_points(pixels, normalized=True)
@@ -56,9 +48,7 @@ def ray_grid(camera: CameraModel) -> RayGrid:
 def pixel_box(
     grid: RayGrid, polygon: FloatArray, margin: tuple[float, float]
 ) -> tuple[slice, slice] | None:
-    """Return the pixel rows and columns (slices) whose rays can meet a convex polygon (P, 3)
-    in the optical frame (all z > 0), its normalized bounds widened by ``margin`` (x, y)
-    normalized units; None if no pixel can (or the polygon has fewer than 3 corners)."""
+    """Pixel (rows, cols) whose rays can meet a convex polygon (P, 3), z > 0; or None."""
     if len(polygon) < 3:
         return None
     normalized = polygon[:, :2] / polygon[:, 2:]

@@ -1,8 +1,4 @@
-"""Textures of printed fiducial markers, and bilinear texture sampling.
-
-Texture coordinates follow OpenCV's remap: texel (col, row) has its centre at integer
-coordinates, so a texture of N texels spans [-0.5, N - 0.5] in both.
-"""
+"""Textures of printed markers, and bilinear sampling (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -34,11 +30,7 @@ def marker_texture(
     ink: float = 0.0,
     paper: float = 255.0,
 ) -> Float32Array:
-    """Return the grey texture (N, N) float32 of marker ``marker_id`` of the cv2.aruco
-    dictionary named ``dictionary`` printed on paper: the marker's cells (black border one
-    cell wide) ``texels_per_cell`` texels each, in a white quiet zone ``quiet_zone_texels``
-    wide, black printed as ``ink`` and white as ``paper`` (grey levels).
-    N = (marker size + 2) texels_per_cell + 2 quiet_zone_texels."""
+    """Grey texture (N, N) float32 of a cv2.aruco marker printed on paper."""
     table = _predefined(dictionary)
     if not 0 <= marker_id < table.bytesList.shape[0]:
         raise ValueError(f'marker id {marker_id} is not in {dictionary}')
@@ -58,17 +50,14 @@ def marker_texture(
 
 
 def with_alpha(grey: Float32Array) -> Float32Array:
-    """Return an opaque texture (N, M, 2) float32: premultiplied grey and alpha 1, the form
-    ``patch.composite`` blends (outside it the sampler reads grey 0, alpha 0)."""
+    """Return an opaque texture (N, M, 2) float32: premultiplied grey and alpha 1."""
     return np.dstack([grey, np.ones_like(grey)]).astype(np.float32)
 
 
 def sample_bilinear(
     texture: Float32Array, col: Float32Array, row: Float32Array, *, border: str = 'replicate'
 ) -> Float32Array:
-    """Return ``texture`` (H, W) or (H, W, C) sampled bilinearly at texture coordinates
-    (col, row) (any equal shapes S): (*S) or (*S, C) float32. Outside the texture
-    ``border='replicate'`` repeats the edge texels and ``'transparent'`` reads zeros."""
+    """``texture`` (H, W[, C]) sampled at (col, row), shape S: (*S[, C]) float32."""
     if border not in ('replicate', 'transparent'):
         raise ValueError(f"border {border!r} must be 'replicate' or 'transparent'")
     if border == 'replicate':

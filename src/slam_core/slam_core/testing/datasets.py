@@ -10,8 +10,7 @@ from slam_core.datasets import DATA_ENV, data_root, dataset
 
 
 def dataset_or_skip(relative: str, name: str) -> Path:
-    """Return ``data_root()/relative``; skip the calling test, naming ``name``, the path and
-    the environment variable, when it does not exist."""
+    """Return ``data_root()/relative``, or skip the test saying where it looked."""
     path = dataset(relative)
     if path is None:
         pytest.skip(f'{name} not found at {data_root() / relative} (set {DATA_ENV})')

@@ -1,33 +1,4 @@
-"""Finite-difference Jacobians for checking analytic ones: the one shared helper of the suite.
-
-Central differences, ``(f(x + eps e_c) - f(x - eps e_c)) / (2 eps)`` for each input
-coordinate c. Outputs that are angles can have their differences wrapped to (-pi, pi] so that
-a residual crossing +-pi does not produce a 2 pi jump.
-
-Two ways to use it:
-
-* **One function, one point.** ``f`` maps x (n,) to (m,); the Jacobian is (m, n)::
-
-      analytic = my_jacobian(x)  # (m, n)
-      assert_jacobian_close(analytic, my_function, x, atol=1e-7)
-
-* **A batch of independent factors** (``batched=True``). ``f`` maps x (B, n) to (B, m),
-  and output row b depends only on input row b (true of vectorized factor residuals). Each
-  coordinate c is perturbed in all B rows at once, so 2 n calls of ``f`` give all B Jacobians,
-  (B, m, n). For a factor with several variables, check one variable at a time and hold the
-  others fixed, e.g. for an odometry factor r(x_from, x_to) with Jacobians (M, 3, 3) each::
-
-      assert_jacobian_close(
-          jac_from, lambda x: residual(x, x_to), x_from, batched=True, wrap=[2], atol=1e-6
-      )
-      assert_jacobian_close(
-          jac_to, lambda x: residual(x_from, x), x_to, batched=True, wrap=[2], atol=1e-6
-      )
-
-``wrap`` lists the output indices (within one factor's m outputs) that are angles. Wrap only
-outputs that are plain angles; after whitening by a non-diagonal matrix an output mixes
-units, so check the unwhitened error there (or make sure no difference crosses +-pi).
-"""
+"""Finite-difference Jacobians for checking analytic ones (usage: docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 

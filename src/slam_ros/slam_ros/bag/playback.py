@@ -1,8 +1,4 @@
-"""ROS-free playback logic: bag-time to wall-time mapping, prefetching, lateness statistics.
-
-The player node owns publishers; everything about *when* to publish lives here so that the
-benchmark and tests can use it directly.
-"""
+"""ROS-free playback: bag-to-wall time, prefetching, lateness (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -83,13 +79,7 @@ DEFAULT_PREFETCH_BYTES = 64 * 2**20
 
 
 class Prefetcher:
-    """Reads a bag in a background thread into a buffer bounded in bytes, so that I/O and
-    decoding never delay a publish.
-
-    Iterating yields ``BagMessage``; an error in the reader (a corrupt bag) is re-raised in
-    the consumer at the point of the stream where it happened. ``wait_primed`` blocks until
-    the buffer is full or the bag is read, so playback can start from a warm buffer.
-    """
+    """Reads a bag in a background thread into a buffer of at most ``max_bytes``."""
 
     def __init__(
         self,

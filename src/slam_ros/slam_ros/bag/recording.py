@@ -1,16 +1,4 @@
-"""ROS-free recording: an mcap rosbag2 writer that appears at its final path only when closed.
-
-The bag is written inside a hidden staging directory next to the target and renamed into
-place by ``close()``, so a reader never sees a half-written bag under the target name.
-
-So that a writer killed without ``close()`` (SIGKILL, power to the process cut) loses at most
-the last ``flush_period_s`` of messages, the pending mcap chunk is closed and the file flushed
-at least that often: every chunk on disk is a complete record (its schema and channel records
-inside the first chunk that follows their registration), followed by its message indexes.
-``bag_recover`` rebuilds a readable bag from such a file; only the summary, written by
-``close()``, is missing. (A process kill leaves the page cache to the kernel, so a flush is
-enough; no fsync.)
-"""
+"""An mcap writer whose bag appears at its path only when closed (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 

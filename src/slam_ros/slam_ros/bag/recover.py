@@ -1,12 +1,4 @@
-"""Rebuild a readable rosbag2 bag from a damaged mcap: no summary, truncated, or a staging dir.
-
-The mcap is read front to back, record by record (header, schema, channel, message, chunk,
-message index, ...). Every complete chunk, and every complete message record outside chunks,
-before the first damaged or missing byte is kept; what follows the damage is dropped and
-reported. Schemas and channels are taken wherever they appear (inside chunks, as rosbags and
-our recorder write them, or at top level). The result is written through AtomicBagWriter,
-so nothing appears at the output path unless the bag is complete. The input is only read.
-"""
+"""Rebuild a readable rosbag2 bag from a damaged mcap (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -83,8 +75,7 @@ def find_mcap(path: Path) -> Path:
 
 
 def default_output(path: Path) -> Path:
-    """The staging dir ``.NAME.recording-PID`` recovers to ``NAME``; anything else to
-    ``STEM_recovered`` next to it."""
+    """The output for ``path``: ``NAME`` for a staging dir, else ``STEM_recovered``."""
     path = Path(path).expanduser().absolute()
     match = STAGING_NAME.match(path.name)
     if match and path.is_dir():

@@ -1,10 +1,4 @@
-"""A read-only view of one bag, yielding CDR bytes whatever the bag's format.
-
-ROS 2 bags (a rosbag2 directory, a bare ``.mcap`` or ``.db3`` file) pass their CDR through
-untouched. ROS 1 ``.bag`` files are converted message by message to ROS 2 CDR, with the
-ROS 1 header's ``seq`` dropped, as ``rosbags-convert`` does. Every failure becomes a
-``BagError`` that names the bag.
-"""
+"""A read-only view of one bag as ROS 2 CDR, any format (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -171,12 +165,7 @@ class BagSource:
         start_ns: int | None = None,
         validate: bool = False,
     ) -> Iterator[BagMessage]:
-        """Yield messages in stamp order, as ROS 2 CDR, optionally from ``start_ns`` on.
-
-        With ``validate`` every message is decoded once, so a damaged payload raises a
-        BagError naming its topic and stamp (mcap chunks written without CRC carry no other
-        integrity check).
-        """
+        """Yield ROS 2 CDR messages in stamp order; ``validate`` decodes each once."""
         connections = [c for c in self._reader.connections if topics is None or c.topic in topics]
         if not connections:
             return

@@ -1,5 +1,3 @@
-"""Topic-level test harness: isolated DDS domain, nodes in-process or as subprocesses,
-publishers and collectors with deadline-based waits, and synthetic messages and bags.
+"""Topic-level test harness: isolated DDS domain, nodes, probes, synthetic messages, bags.
 
-Enable it in a conftest.py with ``pytest_plugins = ['slam_ros.testing.pytest_plugin']``.
-"""
+Enable it in a conftest.py with ``pytest_plugins = ['slam_ros.testing.pytest_plugin']``."""

@@ -1,9 +1,4 @@
-"""Run nodes, publish inputs and collect outputs over real DDS, waiting with deadlines.
-
-``RosHarness`` owns a background executor for in-process nodes and the harness's own probe
-node, plus any node subprocesses; ``close()`` tears everything down. Waiting is always on a
-condition with a deadline (``wait_until``), never a fixed sleep.
-"""
+"""Nodes, probes and waits with deadlines over real DDS (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -45,8 +40,7 @@ did: nothing spins any more, so ``wait_until`` fails at once instead of at its d
 def wait_until(
     predicate: Callable[[], bool], *, timeout_s: float = DEFAULT_TIMEOUT_S, what: str = 'condition'
 ) -> None:
-    """Poll ``predicate`` until it is true; raise TimeoutError naming ``what`` at the deadline,
-    or RuntimeError as soon as the harness's executor has stopped on an exception."""
+    """Poll ``predicate`` until true (TimeoutError at the deadline, RuntimeError if stopped)."""
     deadline = time.monotonic() + timeout_s
     while not predicate():
         if _STOPPED:
@@ -123,8 +117,7 @@ class NodeProcess:
         return self.log_path.read_text(encoding='utf-8', errors='replace')
 
     def wait_for_line(self, timeout_s: float, *parts: str) -> str:
-        """Wait up to ``timeout_s`` for a printed line holding every one of ``parts``; return
-        the first such line."""
+        """Wait up to ``timeout_s`` for a printed line holding all ``parts``; return it."""
 
         def line() -> str | None:
             return next((x for x in self.log().splitlines() if all(p in x for p in parts)), None)
@@ -196,8 +189,7 @@ class RosHarness:
         env: dict[str, str] | None = None,
         cwd: Path | None = None,
     ) -> NodeProcess:
-        """Start ``command`` (e.g. ``['bag_player', bag]``) as a subprocess with this domain,
-        in ``cwd`` (None: this process's directory)."""
+        """Start ``command`` as a subprocess in this domain, in ``cwd`` (None: here)."""
         log_path = self.log_dir / f'{name}.log'
         log_file = log_path.open('wb')
         process = subprocess.Popen(

@@ -1,11 +1,4 @@
-"""Run a one-node launch file without the launch packages (not installed with the wheels).
-
-``launched_node`` imports the file with stand-ins for ``launch`` and ``launch_ros`` that
-record their constructor arguments, calls ``generate_launch_description`` and returns the
-declared arguments and the Node action; ``check_launched_node`` asserts what every node's
-launch file of the suite promises: documented arguments, the package's installed
-executable and its config file as the default parameters file.
-"""
+"""Run a one-node launch file against recording stand-ins (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -50,8 +43,7 @@ class LaunchedNode:
 
 
 def launched_node(path: Path, monkeypatch: pytest.MonkeyPatch) -> LaunchedNode:
-    """Run the launch file at ``path`` against recording stand-ins; it must declare one
-    Node."""
+    """Run the launch file at ``path`` against recording stand-ins (one Node)."""
     for name, classes in STAND_INS.items():
         module = ModuleType(name)
         for class_name in classes:
@@ -72,9 +64,7 @@ def launched_node(path: Path, monkeypatch: pytest.MonkeyPatch) -> LaunchedNode:
 def check_launched_node(
     launched: LaunchedNode, *, package_dir: Path, entry_point: str, config: Path
 ) -> None:
-    """Assert: every argument has a description; the Node runs an executable of the package
-    in ``package_dir`` whose setup.py entry point is ``entry_point`` (module:function); and
-    the default params_file is ``config`` in the installed share directory."""
+    """Assert what every node's launch file promises (arguments, executable, config)."""
     package = package_dir.name
     assert all(kwargs.get('description') for kwargs in launched.arguments.values())
     executable = launched.node.kwargs['executable']

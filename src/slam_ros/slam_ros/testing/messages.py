@@ -1,8 +1,4 @@
-"""Synthetic messages of any type, filled with seeded non-default values, and bags of them.
-
-Built on rosbags' type definitions, so every message type known to a ``TypeRegistry`` (the
-Jazzy store plus installed ``.msg`` files such as ``slam_interfaces``) can be generated.
-"""
+"""Seeded synthetic messages of any known type, and bags (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -129,12 +125,7 @@ def write_bag(
     qos: Qos = RELIABLE_QOS,
     message_factory: Callable[[np.random.Generator], object] | None = None,
 ) -> list[WrittenMessage]:
-    """Write a rosbag2 bag of random messages; return them in stamp order.
-
-    Each topic gets messages at its rate from ``start_ns`` for ``duration_s``, with header
-    stamps equal to the bag stamps. ``storage`` is 'mcap' or 'sqlite3'. A
-    ``message_factory`` replaces the random message of every topic (e.g. realistic images).
-    """
+    """Write a rosbag2 bag ('mcap' or 'sqlite3') of random messages; return them by stamp."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     registry = registry if registry is not None else TypeRegistry()
@@ -166,11 +157,7 @@ def write_bag(
 
 
 def plain(message: object) -> object:
-    """Return a rosbags message as nested dicts and lists, for equality checks.
-
-    CDR bytes are not comparable across serializers (padding bytes are unspecified), so
-    tests compare decoded content instead.
-    """
+    """Return a rosbags message as nested dicts and lists, for equality checks."""
     if isinstance(message, np.ndarray):
         return message.tolist()
     if isinstance(message, (list, tuple)):

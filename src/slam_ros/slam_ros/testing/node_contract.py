@@ -1,11 +1,4 @@
-"""Checks that keep a node's documentation and config file honest against its declaration.
-
-A node module declares its parameters as ``PARAMETERS`` (a ``slam_core.params.ParamTable``).
-Its module docstring must mention each one, and where it writes ``name (type, default)``,
-``name (default)`` or ``name (type)`` the type and default must be the declared ones; its
-``config/<node>.yaml`` must set exactly those keys under ``/**: ros__parameters:`` to values
-of the declared types that equal the declared defaults (an empty list is written ``['']``).
-"""
+"""A node's docstring and config checked against PARAMETERS (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 
@@ -48,8 +41,7 @@ NODE_DOCSTRING_MAX_LINES = 30
 
 
 def help_without_parameters(module: ModuleType, prog: str) -> list[str]:
-    """Return declared parameter names that the node's ``--help`` (``node_help``: the
-    docstring and the declared table) does not list with their type and default."""
+    """Declared parameter names that the node's ``--help`` does not list with type and default."""
     text = node_help(prog, module.__doc__, declared(module))
     return sorted(
         p.name for p in declared(module) if not re.search(rf'^  {p.name} \(', text, re.M)
@@ -68,9 +60,7 @@ def undocumented_parameters(module: ModuleType) -> list[str]:
 
 
 def docstring_mismatches(module: ModuleType) -> list[str]:
-    """Return the places where the docstring's ``name (type, default)`` disagrees with the
-    declaration (a default is compared when it is a number, a bool, a list or a quoted
-    string; words like 'all' or 'required' are left alone)."""
+    """Where the docstring's ``name (type, default)`` disagrees with the declaration."""
     text = module.__doc__ or ''
     problems = []
     for param in declared(module):
@@ -114,8 +104,7 @@ def _same(written: object, default: object) -> bool:
 
 
 def config_mismatches(module: ModuleType, config_path: Path) -> list[str]:
-    """Return the differences between a node's config YAML and its declaration: keys, types
-    (as the node would read them) and values (the declared defaults)."""
+    """Differences between a node's config YAML and its declaration."""
     document: Any = yaml.safe_load(config_path.read_text(encoding='utf-8'))
     try:
         values: dict[str, Any] = document['/**']['ros__parameters']

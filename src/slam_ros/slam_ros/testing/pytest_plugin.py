@@ -1,10 +1,4 @@
-"""pytest fixtures for topic-level tests.
-
-- The whole session runs in its own ``ROS_DOMAIN_ID`` (``SLAM_TEST_DOMAIN_ID`` or one derived
-  from the pytest process id), set before any ROS context exists so subprocesses inherit it.
-  DDS stays on loopback (scripts/env.sh sets the Fast DDS profile and discovery range).
-- ``ros_harness`` gives each test a ``RosHarness`` and tears it down afterwards.
-"""
+"""pytest fixtures: isolated ROS_DOMAIN_ID, ``ros_harness`` (docs/design/ros_and_core.md)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,1 @@
+"""What the three nodes share: the message layer, frame pairing and log notices."""

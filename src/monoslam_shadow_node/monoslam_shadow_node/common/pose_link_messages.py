@@ -1,0 +1,124 @@
+"""slam_interfaces/PoseLink <-> the pose links of ``core.pose_links`` (ROS-free: the messages
+are passed in).
+
+A pose source whose errors drift (monoslam) publishes, on ``<pose topic>/link`` just before
+each pose, the covariances of that pose's error with the errors of its recent earlier poses.
+The shadow_filter pairs each pose with the link of its stamp (``PoseLinks``); a pose whose
+link did not come (not published, or lost) goes on without one, and the Shadow filter takes
+its error as independent, which is what it did before links existed. Counted, never
+silent.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from monoslam_shadow_node.common.core.inputs import CameraPose
+from slam_core.arrays import FloatArray
+from slam_core.stamps import ns_to_stamp, stamp_to_ns
+
+LINK_SUFFIX = '/link'
+"""A pose topic's links are on the pose topic with this suffix."""
+MAX_LINKS = 256
+"""Links kept while waiting for their pose (about 8 s of a 30 Hz camera)."""
+
+
+@dataclass(frozen=True, eq=False)
+class PoseLinkInput:
+    """One PoseLink: the pose's stamp (int ns), the earlier poses' stamps (K,) and the
+    covariances (K, 6, 6) of the pose's error with theirs, PoseWithCovariance order."""
+
+    stamp_ns: int
+    earlier_stamps: tuple[int, ...]
+    cross_covariances: FloatArray
+
+
+def link_from_message(message: Any) -> PoseLinkInput:
+    """Return what a slam_interfaces/PoseLink carries; ValueError naming the culprit when
+    its covariances are not 36 finite numbers per earlier stamp or a stamp is not earlier."""
+    stamp_ns = stamp_to_ns(message.header.stamp)
+    earlier = tuple(stamp_to_ns(stamp) for stamp in message.earlier_stamps)
+    cross = np.asarray(message.cross_covariances, dtype=np.float64)
+    if cross.size != 36 * len(earlier) or not np.all(np.isfinite(cross)):
+        raise ValueError(
+            f'pose link at {stamp_ns} ns: cross_covariances holds {cross.size} values for '
+            f'{len(earlier)} earlier stamps (36 finite numbers each)'
+        )
+    if any(stamp >= stamp_ns for stamp in earlier):
+        raise ValueError(f'pose link at {stamp_ns} ns: an earlier_stamps entry is not earlier')
+    return PoseLinkInput(stamp_ns, earlier, cross.reshape(-1, 6, 6))
+
+
+def fill_pose_link(
+    stamp_ns: int, earlier_stamps: tuple[int, ...], cross_covariances: ArrayLike,
+    frame_id: str, message: Any, time_type: Callable[[], Any],
+) -> Any:  # fmt: skip
+    """Fill a slam_interfaces/PoseLink (its stamps made by ``time_type``, the
+    builtin_interfaces/Time class) and return it."""
+    ns_to_stamp(stamp_ns, message.header.stamp)
+    message.header.frame_id = frame_id
+    message.earlier_stamps = [ns_to_stamp(stamp, time_type()) for stamp in earlier_stamps]
+    message.cross_covariances = np.asarray(cross_covariances, dtype=np.float64).ravel().tolist()
+    return message
+
+
+class PoseLinks:
+    """Pairs the poses with their links, whichever comes first (one executor may hand a node
+    the pose before the link published just ahead of it). Once links have come, a pose
+    without its link waits for it until the next pose or ``flush``; before any link, poses
+    pass at once (a source without links is not delayed). Counts the links that came
+    (``received``), the poses that went with one (``linked``) and without (``unlinked``),
+    the links no pose took (``unused``) and those that could not be read (``rejected``)."""
+
+    def __init__(self, capacity: int = MAX_LINKS) -> None:
+        self._links: OrderedDict[int, PoseLinkInput] = OrderedDict()
+        self._capacity = capacity
+        self._waiting: CameraPose | None = None
+        self.received = self.linked = self.unlinked = self.unused = 0
+        self.rejected = 0  # counted by the caller, which reads the messages
+
+    def on_pose(self, pose: CameraPose) -> list[CameraPose]:
+        """Take a pose; return the poses ready to use, in order."""
+        ready = self.flush()
+        while self._links and next(iter(self._links)) < pose.stamp_ns:
+            self._links.popitem(last=False)  # their poses have passed
+            self.unused += 1
+        link = self._links.pop(pose.stamp_ns, None)
+        if link is not None or pose.covariance is None or not self.received:
+            ready.append(self._with(pose, link))
+        else:
+            self._waiting = pose
+        return ready
+
+    def on_link(self, link: PoseLinkInput) -> list[CameraPose]:
+        """Take a link; return the waiting pose it completes (or nothing)."""
+        self.received += 1
+        waiting = self._waiting
+        if waiting is not None and waiting.stamp_ns == link.stamp_ns:
+            self._waiting = None
+            return [self._with(waiting, link)]
+        self._links[link.stamp_ns] = link
+        while len(self._links) > self._capacity:
+            self._links.popitem(last=False)
+            self.unused += 1
+        return []
+
+    def flush(self) -> list[CameraPose]:
+        """Release the pose waiting for its link, without it (the inputs went quiet)."""
+        waiting, self._waiting = self._waiting, None
+        return [] if waiting is None else [self._with(waiting, None)]
+
+    def _with(self, pose: CameraPose, link: PoseLinkInput | None) -> CameraPose:
+        if link is None or pose.covariance is None:
+            self.unlinked += 1
+            return pose
+        self.linked += 1
+        return replace(
+            pose, cross_stamps=link.earlier_stamps, cross_covariances=link.cross_covariances
+        )

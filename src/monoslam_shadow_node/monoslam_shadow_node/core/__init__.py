@@ -1,1 +1,0 @@
-"""ROS-free cores: uncertain projective geometry, the Shadow filter and its classifier."""

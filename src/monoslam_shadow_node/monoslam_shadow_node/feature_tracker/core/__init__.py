@@ -1,0 +1,1 @@
+"""ROS-free feature tracking: detection, KLT tracking and re-identification."""

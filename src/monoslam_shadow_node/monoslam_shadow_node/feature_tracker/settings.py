@@ -1,0 +1,121 @@
+"""feature_tracker parameter values -> a validated TrackerConfig and node settings (ROS-free).
+
+``PARAMETERS`` declares every parameter of the node: its name (with a unit suffix), default,
+meaning and rule. The tracker's parameters map one to one onto the fields of the core's
+``TrackerConfig`` (same names, ``Param.field``, the core's defaults); the rest configure the
+node (image transport, predictions, restarts). The node declares the table
+(``feature_tracker_node.PARAMETERS``); offline tools read the node's YAML file with
+``PARAMETERS.read_yaml`` and validate it the same way, so both accept exactly the same
+settings. Every rejection raises ParameterError
+``parameter feature_tracker.<name>=<value>: <rule>``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from marker_detector.core.images import DEFAULT_MAX_IMAGE_PIXELS
+from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
+from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
+
+NODE_NAME = 'feature_tracker'
+IMAGE_TRANSPORTS = ('raw', 'compressed')
+_CORE = TrackerConfig()
+_CORE_DESCRIPTIONS = {
+    'max_features': 'most features tracked at once (>= 1)',
+    'detector': "corner detector: 'shi_tomasi' (cv2.goodFeaturesToTrack) or 'fast'",
+    'quality_level': 'Shi-Tomasi: weakest corner kept, share of the strongest, in (0, 1)',
+    'fast_threshold': 'FAST: intensity difference, gray levels, in [1, 254]',
+    'min_distance_px': 'smallest distance of a new feature to any other, px (>= 1)',
+    'grid_rows': 'rows of the grid that spreads the features, in [1, 64]',
+    'grid_cols': 'columns of that grid, in [1, 64]',
+    'detect_every_n_frames': 'look for new features every n-th image (>= 1)',
+    'subpixel_refinement': 'refine new corners with cv2.cornerSubPix',
+    'lk_window_px': 'side of the Lucas-Kanade patch, px, in [5, 101]',
+    'lk_pyramid_levels': 'Lucas-Kanade pyramid levels above the image, in [0, 8]',
+    'lk_max_iterations': 'Lucas-Kanade iterations per level (>= 1)',
+    'lk_epsilon_px': 'Lucas-Kanade stops when a step is shorter, px (> 0)',
+    'max_lk_error': 'largest mean absolute patch difference, gray levels (0: no check)',
+    'fb_threshold_px': 'largest forward-backward distance, px (0: no check)',
+    'max_drift_px': 'largest distance of a track from its template, px (0: no check)',
+    'border_margin_px': 'tracks this close to the image edge are dropped, px (>= 0)',
+    'reid_min_ncc': 'correlation a dropped track must reach, aligned (affine), to be '
+    're-identified where a prediction with a covariance expects it, in [0, 1] (0: none)',
+    'reid_max_search_px': 'largest half-axis of a searched 3-sigma ellipse, px (> 0)',
+    'reid_max_alignments': 'affine alignments of search candidates per image, the oldest '
+    "predictions' first (>= 0)",
+    'max_dormant': 'dropped tracks remembered for re-identification (>= 0)',
+}
+CORE_PARAMETERS = tuple(
+    Param(item.name, getattr(_CORE, item.name), _CORE_DESCRIPTIONS[item.name], field=item.name)
+    for item in dataclasses.fields(TrackerConfig)
+)
+NODE_PARAMETERS = (
+    Param(
+        'image_transport',
+        'raw',
+        "'raw' (camera/image_raw) or 'compressed' (.../compressed)",
+        choices=IMAGE_TRANSPORTS,
+    ),
+    Param(
+        'max_image_pixels',
+        DEFAULT_MAX_IMAGE_PIXELS,
+        'larger images are refused before decoding, pixels (0: no limit)',
+        range=NON_NEGATIVE,
+    ),
+    Param('use_predictions', False, 'use predicted pixels from features/predicted'),
+    Param(
+        'prediction_timeout_s',
+        0.1,
+        'longest an image waits for its prediction (wall time), s (0: never waits)',
+        range=NON_NEGATIVE,
+    ),
+    Param(
+        'publish_debug_image',
+        False,
+        'publish ~/debug_image: the features drawn in their Shadow filter status colours',
+    ),
+    Param(
+        'restart_backstep_s',
+        1.0,
+        'a stamp this far back restarts tracking; a smaller step back drops the image, s',
+        range=POSITIVE,
+    ),
+)
+PARAMETERS = ParamTable(NODE_NAME, (*CORE_PARAMETERS, *NODE_PARAMETERS))
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    """The node's own settings: image transport, whether predictions are used and how long
+    (s) an image waits for one, the backward stamp step (int ns) that restarts tracking, and
+    whether the debug image is published."""
+
+    image_transport: str
+    use_predictions: bool
+    prediction_timeout_s: float
+    restart_backstep_ns: int
+    publish_debug_image: bool = False
+    max_image_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
+
+
+def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
+    """Validate the tracker's parameters into a TrackerConfig (raises ParameterError)."""
+    checked = PARAMETERS.validate(values)
+    return PARAMETERS.build(lambda: TrackerConfig(**PARAMETERS.fields(checked)))
+
+
+def node_settings(values: Mapping[str, Any]) -> NodeSettings:
+    """Validate the node's own parameters (raises ParameterError)."""
+    checked = PARAMETERS.validate(values)
+    return NodeSettings(
+        image_transport=checked['image_transport'],
+        use_predictions=checked['use_predictions'],
+        prediction_timeout_s=checked['prediction_timeout_s'],
+        restart_backstep_ns=round(checked['restart_backstep_s'] * 1e9),
+        publish_debug_image=checked['publish_debug_image'],
+        max_image_pixels=checked['max_image_pixels'],
+    )

@@ -1,0 +1,1 @@
+"""The monoslam node: monocular EKF SLAM on the static features."""

@@ -1,0 +1,1 @@
+"""The shadow_filter node: bearing-only tracking and static/dynamic classification per feature."""

@@ -1,0 +1,1 @@
+"""ROS-free Shadow filter: Pluecker-line rays, the static fit and the chi-square classifier."""
