@@ -22,9 +22,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'odometry_ingest = em_sam_node.odometry_ingest_node:main',
-            'em_sam_mapper = em_sam_node.em_sam_mapper_node:main',
-            'em_sam_mapper_lifecycle = em_sam_node.em_sam_mapper_lifecycle:main',
+            'odometry_ingest = em_sam_node.odometry_ingest.node:main',
+            'em_sam_mapper = em_sam_node.mapper.node:main',
+            'em_sam_mapper_lifecycle = em_sam_node.mapper.lifecycle:main',
         ],
     },
 )

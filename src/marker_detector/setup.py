@@ -25,10 +25,10 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'marker_detector = marker_detector.marker_detector_node:main',
-            'marker_detector_lifecycle = marker_detector.marker_detector_lifecycle:main',
-            'marker_detect_bag = marker_detector.offline:main',
-            'apriltag_bridge = marker_detector.apriltag_bridge_node:main',
+            'marker_detector = marker_detector.detector.node:main',
+            'marker_detector_lifecycle = marker_detector.detector.lifecycle:main',
+            'marker_detect_bag = marker_detector.detector.offline:main',
+            'apriltag_bridge = marker_detector.apriltag_bridge.node:main',
         ],
     },
 )

@@ -11,14 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.ingest import (
-    Increment,
-    IngestConfig,
-    OdometryIngest,
-    interpolate_pose,
-    motion_covariance,
-)
-from em_sam_node.mapper import MapperConfig, MapperProcessor
+from em_sam_node.core.inputs import Increment
+from em_sam_node.odometry_ingest.processor import IngestConfig, OdometryIngest, interpolate_pose, motion_covariance
+from em_sam_node.mapper.processor import MapperConfig, MapperProcessor
 from slam_core.geometry.se2 import apply_increment, wrap_angle
 
 PI = math.pi

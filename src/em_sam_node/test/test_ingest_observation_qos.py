@@ -9,7 +9,7 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy
 
-from em_sam_node.odometry_ingest_node import OdometryIngestNode
+from em_sam_node.odometry_ingest.node import OdometryIngestNode
 
 
 @pytest.mark.parametrize(

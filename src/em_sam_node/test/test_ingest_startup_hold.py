@@ -16,7 +16,8 @@ from test_ingest import (
     straight_line,
 )
 
-from em_sam_node.ingest import Increment, IngestConfig, OdometryIngest
+from em_sam_node.core.inputs import Increment
+from em_sam_node.odometry_ingest.processor import IngestConfig, OdometryIngest
 
 SECOND_NS = 1_000_000_000
 

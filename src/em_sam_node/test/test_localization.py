@@ -13,7 +13,7 @@ from test_map_files import small_result
 
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.localization import KnownMap, register
-from em_sam_node.map_files import MapFileError, known_map, read_map, write_map
+from em_sam_node.mapper.map_files import MapFileError, known_map, read_map, write_map
 
 
 def rotate(points: np.ndarray, pose: np.ndarray) -> np.ndarray:

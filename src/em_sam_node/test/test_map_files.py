@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from em_sam_node.core.em_types import EmResult
-from em_sam_node.map_files import MapFileError, read_map, write_map
+from em_sam_node.mapper.map_files import MapFileError, read_map, write_map
 
 
 def small_result() -> EmResult:

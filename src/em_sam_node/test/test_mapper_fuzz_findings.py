@@ -11,8 +11,9 @@ import pytest
 
 from em_sam_node.core.assembly import is_covariance
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.ingest import Increment
-from em_sam_node.mapper import MapperConfig, MapperProcessor, Observation
+from em_sam_node.core.inputs import Increment
+from em_sam_node.mapper.processor import MapperConfig, MapperProcessor
+from em_sam_node.core.inputs import Observation
 
 S = 1_000_000_000
 

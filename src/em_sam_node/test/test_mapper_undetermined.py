@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from test_mapper import SECOND_NS, increment, observation
 
-from em_sam_node.em_sam_mapper_node import EmSamMapperNode
+from em_sam_node.mapper.node import EmSamMapperNode
 
 
 def _solve(ros_context: None, covariance_scale: float) -> tuple[str, EmSamMapperNode]:

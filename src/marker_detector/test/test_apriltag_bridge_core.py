@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from marker_detector.apriltag_bridge import (
+from marker_detector.apriltag_bridge.processor import (
     LOST_NO_CAMERA_INFO,
     LOST_NO_MOUNT,
     LOST_NO_TF,

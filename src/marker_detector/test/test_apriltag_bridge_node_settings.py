@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from marker_detector import apriltag_bridge_node
-from marker_detector.apriltag_settings import PARAMETERS, bridge_config, parse_tag_frames
+from marker_detector.apriltag_bridge import node as apriltag_bridge_node
+from marker_detector.apriltag_bridge.settings import PARAMETERS, bridge_config, parse_tag_frames
 from slam_core.errors import ParameterError
 from slam_ros.testing.node_contract import (
     NODE_DOCSTRING_MAX_LINES,

@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from marker_detector.conversions import check_message_size, image_from_message
-from marker_detector.core.images import (
+from marker_detector.detector.conversions import check_message_size, image_from_message
+from slam_core.images import (
     DEFAULT_MAX_IMAGE_PIXELS,
     ImageError,
     ImageTooLargeError,

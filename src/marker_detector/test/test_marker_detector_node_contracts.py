@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from marker_detector import marker_detector_node
+from marker_detector.detector import node as marker_detector_node
 from slam_ros.testing.node_contract import (
     NODE_DOCSTRING_MAX_LINES,
     config_mismatches,
@@ -31,7 +31,7 @@ def test_docstring_types_and_defaults_match_the_declaration() -> None:
 
 
 def test_the_help_states_the_hold_limits_the_node_uses() -> None:
-    from marker_detector import marker_detector_node
+    from marker_detector.detector import node as marker_detector_node
 
     doc = ' '.join((marker_detector_node.__doc__ or '').split())
     assert f'{marker_detector_node.HOLD_S:g} s of stamps' in doc

@@ -10,14 +10,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from marker_detector.core.images import ImageError, decode_compressed, decode_raw
-from marker_detector.processor import (
-    ExtrinsicsConfig,
-    InputError,
-    MarkerProcessor,
-    StaticTransforms,
-)
-from marker_detector.settings import (
+from slam_core.images import ImageError, decode_compressed, decode_raw
+from marker_detector.core.frame_types import ExtrinsicsConfig, InputError, StaticTransforms
+from marker_detector.detector.processor import MarkerProcessor
+from marker_detector.detector.settings import (
     PARAMETERS,
     detector_config,
     parse_id_ranges,

@@ -10,8 +10,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from marker_detector.conversions import transform_matrix
-from marker_detector.processor import InputError, StaticTransforms
+from marker_detector.common.conversions import transform_matrix
+from marker_detector.core.frame_types import InputError, StaticTransforms
 
 
 def transform(xyz: tuple[float, ...], xyzw: tuple[float, ...]) -> SimpleNamespace:

@@ -1,10 +1,4 @@
-"""Shared by every bag slam_sim writes: an atomic mcap bag writer and a message factory.
-
-``write_bag`` writes messages (already in stamp order) into a zstd chunk-compressed mcap
-rosbag2 bag under a hidden staging name next to the output and renames it into place only
-when complete, so that an error or an interrupt leaves nothing at the output path.
-``MessageFactory`` builds rosbags message objects of the planar types the EM-SAM nodes read.
-"""
+"""The atomic mcap bag writer and message factory; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -50,13 +44,7 @@ class TopicSpec:
 
 
 def check_output(path: Path | str, *, single_file: bool) -> Path:
-    """Return ``path`` made absolute if a bag can be created there.
-
-    Raises:
-        BagError: it exists, its directory is missing, or its suffix does not match
-            ``single_file`` (a single-file bag ends in ``.mcap``, a bag directory does not).
-
-    """
+    """Return ``path`` made absolute; BagError if it exists, has no directory or a wrong suffix."""
     target = Path(path).expanduser().absolute()
     if target.exists():
         raise BagError(f'output {str(target)!r} exists already; remove it or choose another')
@@ -79,17 +67,7 @@ def write_bag(
     single_file: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> WrittenBag:
-    """Write (topic, bag stamp int ns, rosbags message) items as a bag at ``path``.
-
-    ``progress(bag stamp ns, messages written)`` is called every ``PROGRESS_EVERY`` messages.
-    Whatever goes wrong (including an exception raised by ``messages``), nothing is left at
-    ``path`` and the staging directory is removed.
-
-    Raises:
-        BagError: ``path`` is not a valid new output (see ``check_output``) or cannot be
-            written.
-
-    """
+    """Write (topic, bag stamp ns, message) items as a bag at ``path`` atomically; BagError."""
     target = check_output(path, single_file=single_file)
     staging_root = target.parent / f'.{target.name}.writing-{os.getpid()}'
     staging = staging_root / (target.stem if single_file else target.name)
@@ -192,9 +170,7 @@ class MessageFactory:
         twist: np.ndarray,
         covariances: tuple[np.ndarray, np.ndarray],
     ) -> Any:
-        """Return an Odometry: ``frames`` (frame_id, child_frame_id), a planar pose
-        (x m, y m, theta rad), twist (v m/s, w rad/s) in the child frame, and the 6x6 pose and
-        twist covariances as 36-vectors."""
+        """Return an Odometry: pose (x m, y m, theta rad), twist (m/s, rad/s), 36-vectors."""
         geometry = 'geometry_msgs/msg/'
         point = self._type(geometry + 'Point')(x=float(pose[0]), y=float(pose[1]), z=0.0)
         x, y, z, w = quaternion_from_yaw(float(pose[2]))
@@ -223,8 +199,7 @@ class MessageFactory:
         range_bearing: np.ndarray,
         covariances: np.ndarray,
     ) -> Any:
-        """Return a LandmarkObservationArray in base_link: ids (n,), (range m, bearing rad)
-        (n, 2) and covariances (n, 2, 2)."""
+        """Return a LandmarkObservationArray: ids (n,), (m, rad) (n, 2), covariances (n, 2, 2)."""
         item = self._type('slam_interfaces/msg/LandmarkObservation')
         return self._type(OBSERVATIONS_TYPE)(
             header=self.header(stamp_ns, 'base_link'),
@@ -250,8 +225,7 @@ class MessageFactory:
         moveable: np.ndarray,
         num_observations: np.ndarray,
     ) -> Any:
-        """Return a LandmarkMap in ``map``: ids (L,), positions (L, 2) m, covariances
-        (L, 2, 2) m^2, moveable flags (L,), observation counts (L,); weights 1.0."""
+        """Return a LandmarkMap: ids (L,), positions (L, 2) m, covariances (L, 2, 2) m^2."""
         point = self._type('geometry_msgs/msg/Point')
         estimate = self._type('slam_interfaces/msg/LandmarkEstimate')
         return self._type(LANDMARK_MAP_TYPE)(
@@ -276,8 +250,7 @@ class MessageFactory:
         covariance: np.ndarray,
         odom_poses: tuple[np.ndarray, np.ndarray],
     ) -> Any:
-        """Return an OdometryIncrement in base_link from ``stamps_ns`` (from, to): eq. 2
-        increment u (3,), its (3, 3) covariance, and the (from, to) poses in ``odom``."""
+        """Return an OdometryIncrement: eq. 2 u (3,), covariance (3, 3), poses in ``odom``."""
         return self._type(INCREMENT_TYPE)(
             header=self.header(stamps_ns[1], 'base_link'),
             stamp_from=self.stamp(stamps_ns[0]),

@@ -1,40 +1,11 @@
 """dynamic_camera_sim: the dynamic scene seen by its hand-held camera, as a rosbag2 mcap bag.
 
-The world is ``dynamic_features_sim``'s (``slam_sim.core.dynamic_scene``: the same seed and
-options give the same room, camera path and objects); instead of ideal tracked features the
-bag holds the grey images ``slam_sim.core.dynamic_render`` draws of it, textured surfaces and
-moving textured spheres, for an image-level run of paper 001's Fig. 5 experiment (a feature
-tracker, the marker detector on the initialization target, MonoSLAM and the Shadow filter).
-
-Frame k is stamped ``--start-ns`` + round(k 1e9 / rate); the bag receive stamp equals the
-header stamp, and at one stamp the messages come in the order listed. All topics are offered
-reliable and volatile, except the scene (transient-local).
-
-- ``/ground_truth/scene`` (std_msgs/msg/String, once at the first stamp): JSON with the
-  generator, ``seed``, ``start_ns``, ``config`` (every ``DynamicSceneConfig`` field),
-  ``render`` (``RenderOptions``) and ``target`` (``InitTarget``); ``scene_from_json`` turns
-  it back into (seed, config), and ``DynamicRenderer(config, seed)`` re-renders the run.
-- ``/camera/camera_info`` (sensor_msgs/msg/CameraInfo, ``camera_optical_frame``): 640 x 480,
-  fx = fy = ``--focal-px``, plumb_bob with d = (k1, k2, 0, 0, 0), k1 = -0.05.
-- ``/camera/image_raw/compressed`` (sensor_msgs/msg/CompressedImage,
-  ``camera_optical_frame``): format ``mono8; jpeg compressed mono8`` at ``--quality``; with
-  ``--raw`` instead ``/camera/image_raw`` (sensor_msgs/msg/Image, mono8).
-- ``/ground_truth/camera_pose`` (geometry_msgs/msg/PoseStamped, ``map``): the true pose of
-  ``camera_optical_frame`` (x right, y down, z forward) in ``map`` (z up), metres.
-- ``/ground_truth/labels`` (sensor_msgs/msg/CompressedImage, ``camera_optical_frame``):
-  format ``mono8; png compressed mono8``; per pixel 0 = nothing, 1 = static (room, cabinets,
-  target), 2 + i = moving object i (``RenderedFrame.labels`` + 2).
-- ``/ground_truth/fiducials`` (slam_interfaces/msg/FiducialArray, ``camera_optical_frame``):
-  the initialization target (``DICT_APRILTAG_36h11``, id 0) with its true corners (raw
-  pixels) and pose in the optical frame, zero covariance and reprojection error, when it is
-  fully visible (all corners 2 px inside the image, facing the camera, unoccluded); else
-  empty.
-
-Regenerate the sample: ``dynamic_camera_sim --seed 0 --duration-s 10 --quality 65 --output
-bags/dynamic_camera.mcap --single-file`` (or ``python -m slam_sim.dynamic_camera_bag ...``).
-An existing output is never overwritten; a bag is written under a hidden name and renamed
-into place only when complete.
-"""
+dynamic_features_sim's world as grey images (docs/design/simulation.md). Topics:
+  /ground_truth/scene (std_msgs/String, once, transient-local): JSON of seed and settings
+  /camera/camera_info, /camera/image_raw/compressed (JPEG; --raw: /camera/image_raw mono8)
+  /ground_truth/camera_pose (geometry_msgs/PoseStamped, map): the optical frame's pose
+  /ground_truth/labels (PNG mono8): 0 nothing, 1 static, 2 + i moving object i
+  /ground_truth/fiducials (slam_interfaces/FiducialArray): the target when fully visible"""
 
 from __future__ import annotations
 
@@ -91,9 +62,7 @@ MAX_OBJECTS = 255 + LABEL_NOTHING  # labels + 2 must fit in a byte
 
 @dataclass(frozen=True)
 class DynamicCameraBag:
-    """A written dynamic camera bag: the bag (path, counts, size), seed and config, frames,
-    frames with the target fully visible, frames showing each object (K,), and the seconds
-    spent rendering and writing."""
+    """A written dynamic camera bag: bag, seed, config, frame and visibility counts, times."""
 
     written: WrittenBag
     seed: int
@@ -105,7 +74,7 @@ class DynamicCameraBag:
 
 
 def scene_json(renderer: DynamicRenderer, start_ns: int) -> str:
-    """Return the JSON of ``/ground_truth/scene`` (module doc) of a renderer's run."""
+    """Return the JSON of ``/ground_truth/scene`` of a renderer's run."""
     target = renderer.target
     content = {
         'generator': GENERATOR,
@@ -125,12 +94,7 @@ def scene_json(renderer: DynamicRenderer, start_ns: int) -> str:
 
 
 def scene_from_json(text: str) -> tuple[int, DynamicSceneConfig]:
-    """Return the seed and scene config stored in a ``/ground_truth/scene`` message.
-
-    Raises:
-        ValueError: the text is not this generator's JSON or holds an invalid config.
-
-    """
+    """Return the seed and scene config of ``/ground_truth/scene``; ValueError if not one."""
     try:
         content = json.loads(text)
         fields: dict[str, Any] = {
@@ -143,8 +107,7 @@ def scene_from_json(text: str) -> tuple[int, DynamicSceneConfig]:
 
 
 class _Messages:
-    """Builds one frame's messages; camera_info, JPEG images, poses and fiducials come from
-    office_camera_sim's builder."""
+    """Builds one frame's messages (most by office_camera_sim's builder)."""
 
     def __init__(self, registry: TypeRegistry, renderer: DynamicRenderer, quality: int) -> None:
         target = renderer.target
@@ -236,10 +199,7 @@ def dynamic_camera_messages(
     tally: _Tally | None = None,
     progress: Callable[[float, int], None] | None = None,
 ) -> Iterator[tuple[str, int, Any]]:
-    """Yield (topic, bag stamp int ns, rosbags message) of every frame, in stamp order.
-
-    ``progress(run seconds written, frames written)`` is called after every frame.
-    """
+    """Yield (topic, bag stamp ns, message) of every frame in stamp order; progress per frame."""
     build = _Messages(registry, renderer, quality)
     config = renderer.config
     tally = tally if tally is not None else _Tally()
@@ -264,7 +224,7 @@ def dynamic_camera_messages(
 
 
 def topics(*, raw: bool = False) -> list[TopicSpec]:
-    """Return the bag's topics in message order at one stamp (module doc)."""
+    """Return the bag's topics in message order at one stamp."""
     image = (RAW_IMAGE_TOPIC, RAW_IMAGE_TYPE) if raw else (IMAGE_TOPIC, IMAGE_TYPE)
     return [
         TopicSpec(SCENE_TOPIC, SCENE_TYPE, latched_qos()),
@@ -304,18 +264,7 @@ def write_dynamic_camera_bag(
     registry: TypeRegistry | None = None,
     progress: Callable[[float, int], None] | None = None,
 ) -> DynamicCameraBag:
-    """Render the run of ``seed`` and ``config`` and write it as a bag at ``path``.
-
-    ``single_file``: ``path`` is one bare ``.mcap`` file, else a bag directory; an existing
-    ``path`` is never replaced. ``progress(run seconds, frames)`` after every frame.
-
-    Raises:
-        ValueError: ``quality`` is not in [1, 100], the config has more than 253 objects or
-            a rate above 60 Hz.
-        BagError: ``path`` exists, its directory is missing, its suffix does not match
-            ``single_file``, or it cannot be written.
-
-    """
+    """Render the run of ``seed`` and ``config`` as a bag at ``path``; ValueError, BagError."""
     config = config if config is not None else DynamicSceneConfig()
     _check_recordable(config, quality)
     registry = registry if registry is not None else TypeRegistry()

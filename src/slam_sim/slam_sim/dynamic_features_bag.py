@@ -1,34 +1,10 @@
 """dynamic_features_sim: tracked image features of a hand-held camera among moving objects.
 
-The run is ``slam_sim.core.dynamic_scene``'s: a camera walking through a 10 x 8 x 3 m room
-with static points on walls, floor, ceiling and cabinets, and objects (rigid point clusters)
-moving at constant velocity, on circles, stop-and-go, or by the Shadow filter's own
-constant-velocity model. Data association is perfect (ground-truth track ids), as in the
-paper's simulations (001, sec. IV). Each frame k is stamped ``--start-ns`` + k / rate; every
-topic has one message per frame, all with that header stamp, and the bag receive stamp
-equals the header stamp. At one stamp the messages come in the order listed. All topics are
-offered reliable and volatile.
-
-- ``/camera/camera_info`` (sensor_msgs/msg/CameraInfo, ``camera_optical_frame``): 640 x 480,
-  fx = fy = ``--focal-px``, plumb_bob with d = (k1, k2, 0, 0, 0), k1 = -0.05, k2 = 0.
-- ``/camera/pose`` (geometry_msgs/msg/PoseWithCovarianceStamped, ``map``): the TRUE pose of
-  ``camera_optical_frame`` (x right, y down, z forward) in ``map`` (z up), metres; zero
-  covariance. The Shadow filter's pose input in the paper's Fig. 3 setting.
-- ``/features`` (slam_interfaces/msg/FeatureTrackArray, ``camera_optical_frame``): every
-  observed point: track id and raw (distorted) pixel (u, v) with Gaussian noise of
-  ``--pixel-noise-px`` per coordinate, pixel centres at integer coordinates. A track id lasts
-  while its point stays in view in consecutive frames; ids start at 1 and are never reused.
-- ``/ground_truth/features`` (slam_interfaces/msg/ShadowTrackArray, ``map``): the same tracks
-  with status STATIC (1) for static points and DYNAMIC (2) for points of moving objects (also
-  while a stop-and-go object pauses), true position (m) and velocity (m/s) in ``map``, zero
-  covariances, test_statistic NaN and test_dof 0.
-
-Regenerate the default run (20 s at 30 Hz, 4 objects, seed 0):
-``dynamic_features_sim --seed 0 --output dynamic_features.mcap`` (or
-``python -m slam_sim.dynamic_features_bag ...``). An output ending in ``.mcap`` is one bare
-mcap file; any other path is a rosbag2 bag directory. ``--force`` replaces an existing bag
-only once the new one is complete.
-"""
+Ideal tracks (true ids) of the dynamic scene (docs/design/simulation.md). Topics:
+  /camera/camera_info (sensor_msgs/CameraInfo), /camera/pose (true, zero covariance)
+  /features (slam_interfaces/FeatureTrackArray): noisy raw pixels by track id
+  /ground_truth/features (slam_interfaces/ShadowTrackArray, map): status, position, velocity
+An output ending in .mcap is one file, any other path a bag directory."""
 
 from __future__ import annotations
 
@@ -77,7 +53,7 @@ TOPICS = (
 
 
 class _Messages:
-    """Builds one frame's messages (see the module docstring)."""
+    """Builds one frame's messages."""
 
     def __init__(self, registry: TypeRegistry, run: DynamicSceneRun) -> None:
         self.build = MessageFactory(registry, [msgtype for _, msgtype in TOPICS])
@@ -148,10 +124,7 @@ def dynamic_features_messages(
     *,
     progress: Callable[[float, int], None] | None = None,
 ) -> Iterator[tuple[str, int, Any]]:
-    """Yield (topic, bag stamp int ns, rosbags message) of every frame, in stamp order.
-
-    ``progress(run seconds written, frames written)`` is called after every frame.
-    """
+    """Yield (topic, bag stamp ns, message) of every frame in stamp order; progress per frame."""
     build = _Messages(registry, run)
     start_ns = run.frames[0].stamp_ns
     for index, frame in enumerate(run.frames):
@@ -184,15 +157,7 @@ def write_dynamic_features_bag(
     registry: TypeRegistry | None = None,
     progress: Callable[[float, int], None] | None = None,
 ) -> WrittenBag:
-    """Write ``run`` as a bag at ``path`` (``.mcap``: one file, else a bag directory).
-
-    With ``force`` an existing bag at ``path`` is replaced once the new one is complete.
-
-    Raises:
-        BagError: ``path`` exists (without ``force``), is not a bag (with ``force``), or
-            cannot be written.
-
-    """
+    """Write ``run`` as a bag at ``path``; ``force`` replaces a bag once complete; BagError."""
     registry = registry if registry is not None else TypeRegistry()
     target = Path(path).expanduser().absolute()
     single_file = target.suffix == '.mcap'
@@ -244,8 +209,7 @@ def summary(run: DynamicSceneRun, written: WrittenBag, elapsed_s: float) -> str:
 
 
 def add_loop_argument(parser: argparse.ArgumentParser) -> None:
-    """Add ``--loop-away-s`` (``DynamicSceneConfig.loop_away_s``), which both simulators of
-    the dynamic scene take."""
+    """Add ``--loop-away-s`` (``DynamicSceneConfig.loop_away_s``) to ``parser``."""
     defaults = DynamicSceneConfig()
     parser.add_argument(
         '--loop-away-s',

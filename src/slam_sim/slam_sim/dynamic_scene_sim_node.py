@@ -1,26 +1,13 @@
 """dynamic_scene_sim: the dynamic scene's hand-held camera as a live camera driver.
 
-The scene is ``dynamic_camera_sim``'s (``slam_sim.core.dynamic_render``: a room, the
-initialization target and moving textured spheres; ``seed`` and ``duration_s`` give the same
-run as the bag of those options, e.g. bags/dynamic_camera.mcap is seed 0, 10 s). Frame k is
-published at start + k / ``rate_hz`` on the node's clock (wall time live), with sensor-data
-QoS, as a camera driver publishes: ``camera/image_raw`` (mono8) and ``camera/camera_info``,
-and the ground truth on its own topics (never read by the SLAM nodes).
-
-Rendering one 640 x 480 frame of this scene takes about 0.1 s of one core, three times a
-30 Hz frame period, so the frames are rendered when the node starts (with a progress log and
-ETA) and the camera starts once all are ready: the stream the pipeline gets is live and
-unpaced, as from a real camera; only the drawing was done ahead (and held in memory:
-``duration_s`` is at most MAX_DURATION_S). After the last frame the node stops publishing and
-says so (``loops`` > 1 replays the run, stamped anew).
-
+dynamic_camera_sim's scene (same seed, duration_s): all frames are rendered at the start
+(about 0.1 s each), then published live at rate_hz; loops > 1 replays it.
 Topics:
   publishes   camera/image_raw (sensor_msgs/Image mono8, camera_optical_frame, best effort)
               camera/camera_info (sensor_msgs/CameraInfo, best effort)
               ground_truth/camera_pose (geometry_msgs/PoseStamped, map: the optical frame)
-              /diagnostics: frames published, frames skipped (their time passed while the
-              process did not run)
-"""
+              /diagnostics: frames published, frames skipped
+Details: docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -72,7 +59,7 @@ PARAMETERS = ParamTable(
 
 
 class DynamicSceneSimNode(Node):
-    """The live camera of the dynamic scene (module docstring)."""
+    """The live camera of the dynamic scene."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('dynamic_scene_sim', **kwargs)
@@ -121,8 +108,7 @@ class DynamicSceneSimNode(Node):
         return {'frames published': self.published, 'frames skipped': self.skipped}
 
     def _tick(self) -> None:
-        """Publish the frame that is due; frames whose time passed while the process did not
-        run (a busy machine) are skipped and counted, as a camera driver drops them."""
+        """Publish the frame that is due; skip and count frames whose time passed."""
         total = len(self.frames) * self.loops
         if self.next_index >= total:
             if not self.timer.is_canceled():

@@ -1,21 +1,11 @@
 """label_gate: pass on the tracked features labelled static (paper 001's variant (a)).
 
-An evaluation oracle, not a part of the SLAM pipeline: with it a graph runs MonoSLAM on the
-features labelled static only (``monoslam_labelled_rgbd.yaml``), the bound the Shadow
-filter's graph is compared with on the same images. The labels come from the depth maps'
-motion masks of an imported sequence and the tracks' own motion (``tum_rgbd_sequence``
-writes ``label_masks.npz``); the rule and its limits: ``slam_sim.core.label_gate``.
-
+An evaluation oracle, not part of the SLAM pipeline: labels from an imported sequence's
+label_masks.npz (slam_sim.core.label_gate; docs/design/simulation.md).
 Topics:
-  subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100): the
-              feature tracker's tracks.
-  publishes   features/labelled (slam_interfaces/FeatureTrackArray, reliable, depth 100): the
-              same message with only the tracks labelled static so far (one message per
-              message in, also when none is left).
-              /diagnostics: frames in, frames with masks, features in and passed, tracks
-              labelled moving.
-Logs the codes file at the start and, every 10 s and at shutdown, the counts.
-"""
+  subscribes  features (slam_interfaces/FeatureTrackArray, reliable, depth 100)
+  publishes   features/labelled (same type and QoS): the tracks labelled static so far;
+              /diagnostics: frames, frames with masks, features in and passed, moving"""
 
 from __future__ import annotations
 
@@ -59,7 +49,7 @@ PARAMETERS = ParamTable(
 
 
 class LabelGateNode(Node):
-    """Passes the features labelled static (module docstring)."""
+    """Passes the features labelled static."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('label_gate', **kwargs)

@@ -25,8 +25,7 @@ def odometry_message(
     twist: tuple[float, float],
     covariances: tuple[np.ndarray, np.ndarray],
 ) -> Odometry:
-    """Return a planar Odometry: ``frames`` (frame_id, child_frame_id), pose (x m, y m,
-    theta rad), twist (v m/s, w rad/s) in the child frame, 6x6 covariances as 36-vectors."""
+    """Return a planar Odometry: pose (x m, y m, theta rad), twist (m/s, rad/s), 36-vectors."""
     message = Odometry(child_frame_id=frames[1])
     set_stamp(message.header, stamp_ns, frames[0])
     position = message.pose.pose.position

@@ -1,47 +1,11 @@
 """mrclam_import: UTIAS MRCLAM robots as rosbag2 mcap bags, with what ground truth exists.
 
-One bag per robot of a data set (``--dataset DIR``; default ``mrclam/MRCLAM_Dataset6`` under
-the datasets directory: ``$SLAM_DATA_DIR``, else ``../shared/data`` next to the repository).
-Bag stamps are the data set's times (int ns since the epoch, July 2009); every header stamp
-equals its bag stamp. Topics (all offered reliable; volatile unless stated):
-
-- ``/odom`` (nav_msgs/msg/Odometry, ``odom`` -> ``base_link``, every odometry sample,
-  ~67 Hz): the wheel velocities integrated from (0, 0, 0) (midpoint heading) and the twist
-  (v, w) as measured. The covariances are nominal (the data give none): the pose diagonal
-  of ``office_sim`` and ``ODOM_TWIST_COVARIANCE_DIAGONAL``; odometry_ingest models its own.
-- ``/landmark_observations`` (slam_interfaces/msg/LandmarkObservationArray, ``base_link``):
-  one message per distinct measurement time; landmark_id is the MRCLAM subject (6-20 static
-  landmarks, 1-5 the other robots, which move), covariance diag(``--range-sigma``^2,
-  ``--bearing-sigma``^2). Sightings of unknown barcodes and of the robot itself are dropped
-  (counted in the summary).
-- ``/ground_truth/pose`` (nav_msgs/msg/Odometry, ``map`` -> ``base_link``): the robot's
-  Vicon poses, zero twist and covariance. Only when ``RobotN_Groundtruth.dat`` exists (data
-  sets 1-3 have none): without it the bag has no such topic.
-- ``/ground_truth/robots`` (nav_msgs/msg/Odometry, ``map`` -> ``robotK``): the Vicon poses
-  of the other robots that have a track, thinned to at most 10 Hz each; no such topic when
-  none has.
-- ``/ground_truth/landmarks`` (slam_interfaces/msg/LandmarkMap, ``map``, transient-local,
-  once at the bag start), always: the 15 static landmarks (moveable false, covariance from
-  the Vicon standard deviations), then the 4 other robots (moveable true), each at its first
-  Vicon position in the bag with covariance 0, or, **without a Vicon track, at position NaN
-  with covariance NaN**: a subject known to move whose whereabouts the data do not give. So
-  an evaluator knows every other robot as a moveable subject (a positive) in every data
-  set, and must not use a NaN position. num_observations is the number of kept sightings of
-  each.
-
-``--window-s S`` keeps the first S seconds from the robot's first odometry stamp (after
-the rows out of time order are sorted; ``MrclamRun.first_seconds``). ``--all`` writes every
-robot that has an odometry file (data set 3 has no ``Robot4_Odometry.dat``: robot 4 is
-skipped with a note; for ``--robot 4`` it is an error naming the file).
-
-The default observation sigmas are the robust spread (1.4826 x median absolute deviation)
-of robot 1's measured minus Vicon-implied range and bearing to the static landmarks of data
-set 6: 0.079 m and 0.011 rad (the median range residual is +0.038 m: a bias the model
-ignores). Bags are written under a hidden staging name and moved into place when complete;
-on any error (a malformed line included) nothing is left at the output path. ``--all``
-writes ``robotN`` (``.mcap`` with ``--single-file``) into a new directory, staged as a
-whole.
-"""
+One bag per robot at the data set's times (docs/design/simulation.md). Topics:
+  /odom (nav_msgs/Odometry, odom -> base_link); /landmark_observations (base_link)
+  /ground_truth/pose (map): the robot's Vicon poses, where the data set has them
+  /ground_truth/robots (map -> robotK): the other robots' Vicon poses, <= 10 Hz
+  /ground_truth/landmarks (transient-local): static landmarks, then the other robots
+  (moveable; position NaN without a Vicon track)"""
 
 from __future__ import annotations
 
@@ -116,8 +80,7 @@ def bag_topics(run: MrclamRun) -> tuple[TopicSpec, ...]:
 
 
 def thin_stamps(stamps_ns: IntArray, min_period_ns: int) -> IntArray:
-    """Return indices of increasing ``stamps_ns`` (n,) kept at least ``min_period_ns`` apart
-    (greedy from the first)."""
+    """Return indices of increasing ``stamps_ns`` (n,) kept at least ``min_period_ns`` apart."""
     kept: list[int] = []
     next_ns: int | None = None
     for index, stamp in enumerate(np.asarray(stamps_ns).tolist()):
@@ -128,8 +91,7 @@ def thin_stamps(stamps_ns: IntArray, min_period_ns: int) -> IntArray:
 
 
 def observation_frames(sightings: Sightings) -> tuple[IntArray, IntArray]:
-    """Return the distinct sighting stamps (F,) and row bounds (F + 1,): frame f is rows
-    ``bounds[f]:bounds[f + 1]`` (sightings are in time order)."""
+    """Return the distinct sighting stamps (F,) and row bounds (F + 1,)."""
     stamps, starts = np.unique(sightings.stamps_ns, return_index=True)
     return stamps, np.append(starts, len(sightings)).astype(np.int64)
 
@@ -144,9 +106,7 @@ def robot_truth_rows(run: MrclamRun) -> dict[int, IntArray]:
 
 
 def landmark_table(run: MrclamRun) -> tuple[IntArray, FloatArray, FloatArray, np.ndarray]:
-    """Return the ground-truth map: subjects (L,), positions (L, 2) m, covariances
-    (L, 2, 2) m^2 and moveable flags (L,): static landmarks, then the other robots (their
-    first Vicon position, covariance 0; NaN position and covariance without a track)."""
+    """Return the truth map: subjects (L,), positions (L, 2) m, covariances, moveable."""
     others = run.other_robots
     subjects = np.concatenate([run.landmarks.subjects, np.array(others, dtype=np.int64)])
     first = [
@@ -193,10 +153,7 @@ def _schedule(run: MrclamRun, frame_stamps: IntArray) -> np.ndarray:
 def mrclam_messages(
     run: MrclamRun, registry: TypeRegistry, *, observation_sigmas: tuple[float, float]
 ) -> Iterator[tuple[str, int, Any]]:
-    """Yield (topic, bag stamp int ns, rosbags message) of a robot's run, in stamp order.
-
-    ``observation_sigmas`` = (range m, bearing rad) standard deviations of the sightings.
-    """
+    """Yield (topic, bag stamp ns, message) of a robot's run in stamp order; sigmas m, rad."""
     build = MessageFactory(registry, [topic.msgtype for topic in TOPICS])
     truth = run.truth
     sightings = run.sightings
@@ -249,15 +206,7 @@ def write_mrclam_bag(
     registry: TypeRegistry | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> WrittenBag:
-    """Write one robot's run as an mcap bag at ``path``; return where and what was written.
-
-    ``progress(bag stamp ns, messages written)`` is called now and then.
-
-    Raises:
-        BagError: ``path`` exists, its directory does not, or it cannot be written.
-        ValueError: a sigma is not a finite number > 0.
-
-    """
+    """Write one robot's run as an mcap bag at ``path``; BagError, ValueError (sigma)."""
     for name, sigma in (
         ('range_sigma_m', range_sigma_m),
         ('bearing_sigma_rad', bearing_sigma_rad),
@@ -367,8 +316,7 @@ def _validate(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None
 
 
 def load_run(dataset: Path, robot: int, window_s: float | None = None) -> MrclamRun:
-    """Return robot ``robot`` of ``dataset``, cropped to its first ``window_s`` seconds
-    (None: the whole run); warn on stderr about odometry rows out of time order."""
+    """Return robot ``robot`` of ``dataset`` cut to ``window_s`` s; warn of unordered rows."""
     run = parse_mrclam(dataset, robot)
     if run.misplaced_odometry_rows:
         print(  # noqa: T201

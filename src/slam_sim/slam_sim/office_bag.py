@@ -1,24 +1,10 @@
 """office_sim: simulate the EM-SAM office experiment and write it as a rosbag2 mcap bag.
 
-Topics (bag receive stamp = header stamp, ``start_ns`` + run time; all offered reliable):
-
-- ``/odom`` (nav_msgs/msg/Odometry, ``odom`` -> ``base_link``, at ``--odom-hz``, volatile):
-  wheel odometry pose and twist; covariances as a diff-drive controller fills them (a fixed
-  pose diagonal, a twist diagonal from the noise model at full speed).
-- ``/landmark_observations`` (slam_interfaces/msg/LandmarkObservationArray, ``base_link``,
-  volatile): one message per camera frame with at least one detection, stamped with the
-  frame time.
-- ``/ground_truth/pose`` (nav_msgs/msg/Odometry, ``map`` -> ``base_link``, at the odometry
-  stamps, volatile): the true pose and body velocity, zero covariance.
-- ``/ground_truth/landmarks`` (slam_interfaces/msg/LandmarkMap, ``map``, transient-local):
-  every marker's true position at the start and again at the move time; weight 1.0,
-  ``moveable`` the ground-truth flag (a desk marker, moved or not), ``num_observations`` the
-  non-outlier observations of the marker while it stays at that position.
-
-Bags are written zstd chunk-compressed under a hidden staging name and moved into place
-when complete; ``--single-file`` keeps only the ``.mcap`` (which carries its own rosbag2
-metadata, so rosbags, ``bag_info`` and ``ros2 bag`` read it without ``metadata.yaml``).
-"""
+Topics (stamps --start-ns + run time; reliable; docs/design/simulation.md):
+  /odom (nav_msgs/Odometry, odom -> base_link, at --odom-hz): noisy wheel odometry
+  /landmark_observations (slam_interfaces/LandmarkObservationArray, base_link): per frame
+  /ground_truth/pose (nav_msgs/Odometry, map -> base_link): true pose and velocity
+  /ground_truth/landmarks (slam_interfaces/LandmarkMap, transient-local): at start and move"""
 
 from __future__ import annotations
 
@@ -64,11 +50,7 @@ _UNUSED_TWIST_VARIANCE = 1e-3
 
 
 def odom_twist_covariance_diagonal(config: OfficeConfig) -> tuple[float, ...]:
-    """Return the /odom twist variance diagonal (vx, vy, vz, wx, wy, wz) at full speed.
-
-    The twist is the measured motion over one odometry period T, so by the odometry noise
-    model var(v) = sd^2 v_max / T and var(w) = (sr^2 w_max + sq^2 v_max) / T.
-    """
+    """Return the /odom twist variance diagonal (vx, vy, vz, wx, wy, wz) at full speed."""
     noise, motion = config.odometry_noise, config.motion
     v_var = noise.distance_sigma_per_sqrt_m**2 * motion.max_speed_mps * config.odom_rate_hz
     w_var = (
@@ -90,10 +72,7 @@ def _observation_counts(run: OfficeRun, after: bool) -> dict[int, int]:
 
 
 def _schedule(run: OfficeRun) -> tuple[list[tuple[int, int, int]], list[int]]:
-    """Return every message as (run stamp ns, TOPICS index, item index), sorted, and bounds.
-
-    Camera frame i's observations are rows ``bounds[i]:bounds[i + 1]`` of run.observations.
-    """
+    """Return every message as (run stamp ns, TOPICS index, item index), sorted, and bounds."""
     rank = {topic: index for index, (topic, _, _) in enumerate(TOPICS)}
     schedule = [(0, rank[TRUE_LANDMARKS_TOPIC], 0)]
     if run.landmarks.move_time_ns is not None:
@@ -167,16 +146,7 @@ def write_office_bag(
     registry: TypeRegistry | None = None,
     progress: Callable[[float, int], None] | None = None,
 ) -> WrittenBag:
-    """Write ``run`` as an mcap rosbag2 bag at ``path``; return where and what was written.
-
-    ``single_file`` writes one bare ``.mcap`` file (``path`` must end in ``.mcap``) instead
-    of a bag directory. ``progress(run seconds written, messages written)`` is called
-    every ``dataset_bag.PROGRESS_EVERY`` messages.
-
-    Raises:
-        BagError: ``path`` exists, its directory does not, or it cannot be written.
-
-    """
+    """Write ``run`` as an mcap bag at ``path`` (.mcap with ``single_file``); BagError."""
     registry = registry if registry is not None else TypeRegistry()
     topics = [
         TopicSpec(topic, msgtype, latched_qos() if latched else output_qos())

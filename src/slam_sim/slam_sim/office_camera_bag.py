@@ -1,33 +1,10 @@
 """office_camera_sim: the EM-SAM office run seen by a camera, written as a rosbag2 mcap bag.
 
-The run (world, path, odometry, markers, moves, variants, seeds) is ``office_sim``'s; instead
-of range-bearing observations the bag holds the grey images of a camera on the robot, which
-``marker_detector`` turns into observations. Topics (bag receive stamp = header stamp,
-``start_ns`` + run time; all offered reliable):
-
-- ``/camera/image_raw/compressed`` (sensor_msgs/msg/CompressedImage, ``camera_optical_frame``,
-  at ``--rate-hz``, volatile): format ``mono8; jpeg compressed mono8``. Frame k is at
-  ``DetectorConfig.phase_s`` + k / rate, on the simulation's 5 ms grid (at 10 Hz the frames
-  of office_sim's range-bearing detector).
-- ``/camera/camera_info`` (sensor_msgs/msg/CameraInfo, ``camera_optical_frame``, with every
-  image): plumb_bob intrinsics of the rendered camera (by default 640 x 480, fx = fy = 457 px,
-  a 70 deg horizontal field of view, k1 = -0.1; ``--width``/``--height`` scale it).
-- ``/tf_static`` (tf2_msgs/msg/TFMessage, transient-local, once at the start):
-  ``base_link`` -> ``camera_link`` (``CAMERA_FORWARD_M`` ahead, ``CAMERA_HEIGHT_M`` up,
-  looking along base x) -> ``camera_optical_frame`` (z forward, x right, y down).
-- ``/odom``, ``/ground_truth/pose``, ``/ground_truth/landmarks``: exactly as office_sim
-  (``num_observations`` counts office_sim's range-bearing detections of the same run).
-- ``/ground_truth/fiducials`` (slam_interfaces/msg/FiducialArray, ``camera_optical_frame``,
-  with every image): the markers fully in the image, facing the camera and unoccluded, with
-  their true corners (distorted pixels) and pose; zero covariance and reprojection error.
-
-Markers are AprilTag 36h11 (OpenCV ``DICT_APRILTAG_36h11``, id = landmark id) with a black
-square of ``SceneStyle.side_m`` = 0.30 m on white paper (one-cell quiet zone): 137 px / range m
-wide at fx = 457 px, so at least 30 px up to 4.5 m. Wall markers are centred
-``WALL_MARKER_HEIGHT_M`` up, 1 cm in front of the wall; desk markers (on a frame standing on
-the desk) ``DESK_MARKER_HEIGHT_M`` up. In variant ``all_moveable`` only the desk markers are
-drawn (the camera equivalent of suppressing the static markers' observations).
-"""
+office_sim's run with grey images instead of observations (docs/design/simulation.md). Topics:
+  /camera/image_raw/compressed (JPEG mono8, camera_optical_frame), /camera/camera_info
+  /tf_static: base_link -> camera_link -> camera_optical_frame
+  /odom, /ground_truth/pose, /ground_truth/landmarks: as office_sim
+  /ground_truth/fiducials (slam_interfaces/FiducialArray): the markers fully visible"""
 
 from __future__ import annotations
 
@@ -159,11 +136,7 @@ def camera_pose(base_pose: FloatArray) -> LevelPose:
 def render_frames(
     run: OfficeRun, rig: CameraRig | None = None, *, end_ns: int | None = None
 ) -> Iterator[CameraFrame]:
-    """Yield the run's camera frames up to ``end_ns`` (run time; None: all), in order.
-
-    Frame k's effects draw from the run seed's fifth spawned stream at key k (office_sim
-    uses the first four), so any frame renders the same alone or within the run.
-    """
+    """Yield the run's camera frames up to ``end_ns`` (run time; None: all), in order."""
     rig = rig if rig is not None else CameraRig()
     renderer = Renderer(rig.camera, run.world.walls_m, rig.style)
     effects = CameraEffects(rig.effects, rig.camera, np.random.SeedSequence(run.seed).spawn(5)[4])
@@ -181,7 +154,7 @@ def render_frames(
 
 
 class _CameraMessages:
-    """Builds the camera topics' messages (see the module docstring)."""
+    """Builds the camera topics' messages."""
 
     def __init__(self, registry: TypeRegistry, rig: CameraRig) -> None:
         self.build = MessageFactory(registry, {msgtype for _, msgtype, _ in CAMERA_TOPICS})
@@ -264,10 +237,7 @@ def office_camera_messages(
     end_ns: int | None = None,
     progress: Callable[[float, int], None] | None = None,
 ) -> Iterator[tuple[str, int, Any]]:
-    """Yield (topic, bag stamp int ns, rosbags message) up to run time ``end_ns``, in order.
-
-    ``progress(run seconds rendered, frames rendered)`` is called after every frame.
-    """
+    """Yield (topic, bag stamp ns, message) up to run time ``end_ns``; progress per frame."""
     build = _CameraMessages(registry, rig)
 
     def camera() -> Iterator[tuple[str, int, Any]]:
@@ -301,11 +271,7 @@ def write_office_camera_bag(
     registry: TypeRegistry | None = None,
     progress: Callable[[float, int], None] | None = None,
 ) -> WrittenBag:
-    """Write ``run`` seen by ``rig`` as an mcap bag at ``path``; return what was written.
-
-    ``end_s`` (run seconds) cuts the run short; ``single_file`` and errors as
-    ``office_bag.write_office_bag``; ``progress(run seconds, frames)`` after every frame.
-    """
+    """Write ``run`` seen by ``rig`` as an mcap bag at ``path``, up to ``end_s``."""
     rig = rig if rig is not None else CameraRig()
     registry = registry if registry is not None else TypeRegistry()
     specs = [

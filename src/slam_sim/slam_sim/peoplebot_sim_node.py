@@ -1,23 +1,14 @@
 """peoplebot_sim: a live, wall-clock simulated Peoplebot in the EM-SAM paper's office.
 
-It stands in for a robot's base driver and camera driver together, with the same topics,
-frames and QoS as the real ones, so the live graphs run unchanged against it or the robot:
-the base (``slam_sim.core.live_base``: ``cmd_vel`` in, limited, stopped by a watchdog; noisy
-wheel odometry out), the camera (the office world rendered from the true pose with the office
-bags' camera effects), the moves of paper 000 section IV (when the robot first crosses the
-corridor's middle), and ground truth on its own topics, never read by the SLAM nodes. The
-camera mount is not published here (``camera_mount`` does, as on a robot). The robot starts
-at rest at the start of the office route (``route_driver`` drives it). Time is the node
-clock: wall time live; a long stall of the process is skipped and reported.
-
+Stands in for a robot's base and camera drivers (same topics, frames and QoS; the camera
+mount is camera_mount's), with the paper's marker moves and ground truth on its own topics;
+route_driver drives it.
 Topics:
   subscribes  cmd_vel (geometry_msgs/Twist, reliable, 10)
-  publishes   odom (nav_msgs/Odometry) and /tf (odom -> base_link, with publish_tf);
-              camera/image_raw (mono8), camera/image_raw/compressed (with
-              publish_compressed), camera/camera_info: best effort; ground_truth/pose,
-              ground_truth/landmarks (transient local); /diagnostics
-In full: docs/design/simulation_nodes.md. Parameters: ``peoplebot_sim --help``.
-"""
+  publishes   odom (nav_msgs/Odometry), /tf (odom -> base_link, with publish_tf);
+              camera/image_raw (mono8), camera/image_raw/compressed, camera/camera_info:
+              best effort; ground_truth/pose, ground_truth/landmarks (transient local);
+              /diagnostics. In full: docs/design/simulation_nodes.md."""
 
 from __future__ import annotations
 
@@ -103,7 +94,7 @@ PARAMETERS = ParamTable(
 
 
 class PeoplebotSimNode(Node):
-    """The live simulated robot (module docstring)."""
+    """The live simulated robot."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('peoplebot_sim', **kwargs)

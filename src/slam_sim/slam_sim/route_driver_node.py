@@ -1,21 +1,11 @@
 """route_driver: drive the EM-SAM paper's office route by publishing cmd_vel.
 
-It follows the office route (``office_path``: loops in office 1, the corridor, loops in
-office 2, back, loops in office 1, ending at the start) by pure pursuit, piece by piece, as
-the office bags' robot does offline (``trajectory.RouteFollower``), with the robot's speed
-limits. It steers from a pose in the route's frame: with ``peoplebot_sim`` that is the
-simulator's ground truth (remap ``pose`` to ``/ground_truth/pose``; the SLAM nodes never see
-it: the driver plays the person who drives the robot); on a robot, any localization in the
-same frame. It commands at the rate the poses come in; without a pose for ``pose_timeout_s``
-it commands a stop, counted. Once the route is done it commands a stop, says so and keeps
-publishing zero velocity (a base's watchdog then holds it). Any other ``cmd_vel`` source
-(a teleop) can drive the robot instead of this node.
-
+Pure pursuit along the route from poses in its frame (with peoplebot_sim: remap pose to
+/ground_truth/pose); a stop without a pose for pose_timeout_s and once the route is done.
 Topics:
   subscribes  pose (nav_msgs/Odometry: the pose, and the twist to know the robot is at rest)
-  publishes   cmd_vel (geometry_msgs/Twist, reliable)
-              /diagnostics: poses received, commands published, pose timeouts, route percent
-"""
+  publishes   cmd_vel (geometry_msgs/Twist, reliable); /diagnostics: poses, commands,
+              pose timeouts, route percent. Details: docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -58,7 +48,7 @@ PARAMETERS = ParamTable(
 
 
 class RouteDriverNode(Node):
-    """Publishes cmd_vel along the office route (module docstring)."""
+    """Publishes cmd_vel along the office route."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('route_driver', **kwargs)

@@ -1,34 +1,11 @@
-"""tum_rgbd_import: an RGB-D sequence in the TUM layout (TUM RGB-D benchmark, Bonn RGB-D
-Dynamic) as a rosbag2 mcap bag.
+"""tum_rgbd_import: a TUM-layout RGB-D sequence (TUM RGB-D, Bonn) as a rosbag2 mcap bag.
 
-The sequence directory holds rgb.txt, depth.txt and groundtruth.txt (``slam_sim.core.
-tum_rgbd``). Every message is stamped with the dataset's stamp (int ns, exactly as
-written in the lists); the bag receive stamp equals the header stamp. All topics are
-offered reliable and volatile; at one stamp the messages come in the order listed.
-
-- ``/camera/camera_info`` (sensor_msgs/msg/CameraInfo, ``camera_optical_frame``, one per
-  colour image): the intrinsics (``--intrinsics`` preset or ``--fx --fy --cx --cy``),
-  plumb_bob with the preset's distortion (zeros for 'bonn' and 'tum_fr3').
-- ``/camera/image_raw/compressed`` (sensor_msgs/msg/CompressedImage,
-  ``camera_optical_frame``): the colour image's file bytes as stored, format ``jpeg`` or
-  ``png`` (by the file's signature); with ``--raw`` also ``/camera/image_raw``
-  (sensor_msgs/msg/Image, bgr8, decoded).
-- ``/camera/depth/image_raw`` (sensor_msgs/msg/Image, ``camera_optical_frame``, at the
-  depth maps' own stamps): 16UC1 in millimetres (REP 118; 0 = no depth), converted from
-  ``--depth-units-per-m`` (5000) and rounded; the maps are registered to the colour camera,
-  as the TUM and Bonn ones are. ``--no-depth`` leaves them out.
-- ``/ground_truth/camera_pose`` (geometry_msgs/msg/PoseStamped, ``map``, at each colour
-  image with a pose): the colour camera's optical frame (x right, y down, z forward) in
-  the ground truth's world, m, interpolated at the image stamp, as ``dynamic_camera_sim``
-  publishes it. ``--convention camera`` (TUM) takes the ground-truth rows as camera poses;
-  ``--convention bonn`` converts the motion-capture marker's poses with the Bonn dataset's
-  T_m made rigid (``tum_rgbd``). Images outside the ground truth get no pose; the summary
-  counts them.
-
-Example: ``tum_rgbd_import --dataset ../shared/data/bonn_crowd --convention bonn --output
-out/bonn_crowd/bonn_crowd.mcap --single-file``. An existing output is never overwritten; the
-bag is written under a hidden name and renamed into place only when complete.
-"""
+Topics at the dataset's stamps (docs/design/simulation.md):
+  /camera/camera_info; /camera/image_raw/compressed: the colour files' bytes (--raw: bgr8)
+  /camera/depth/image_raw (sensor_msgs/Image 16UC1 mm, at the depth stamps; --no-depth)
+  /ground_truth/camera_pose (geometry_msgs/PoseStamped, map): optical frame, interpolated
+Example: tum_rgbd_import --dataset ../shared/data/bonn_crowd --convention bonn
+  --output out/bonn_crowd/bonn_crowd.mcap --single-file"""
 
 from __future__ import annotations
 
@@ -91,8 +68,7 @@ class TumRgbdBag:
 
 
 def depth_millimetres(raw: np.ndarray, units_per_m: float) -> np.ndarray:
-    """Return a 16-bit depth map (H, W) in ``units_per_m`` as uint16 millimetres (H, W),
-    rounded and clipped to 65535; 0 stays 0 (no depth)."""
+    """Return a 16-bit depth map (H, W) as uint16 mm, rounded, clipped; 0 stays 0."""
     millimetres = np.rint(raw.astype(np.float64) * (1000.0 / units_per_m))
     return np.clip(millimetres, 0, np.iinfo(np.uint16).max).astype(np.uint16)
 
@@ -103,7 +79,7 @@ def image_format(data: bytes) -> str:
 
 
 class _Messages:
-    """Builds the bag's messages (module docstring)."""
+    """Builds the bag's messages."""
 
     def __init__(self, registry: TypeRegistry, sequence: TumRgbd) -> None:
         self.build = MessageFactory(
@@ -170,10 +146,7 @@ def tum_rgbd_messages(
     depth: bool = True,
     progress: Callable[[int, int], None] | None = None,
 ) -> Iterator[tuple[str, int, Any]]:
-    """Yield (topic, bag stamp int ns, rosbags message) in stamp order (module docstring).
-
-    ``progress(stamp ns, messages yielded)`` is called after every colour image.
-    """
+    """Yield (topic, bag stamp ns, message) in stamp order; progress per colour image."""
     build = _Messages(registry, sequence)
     events = [(int(s), 0, k) for k, s in enumerate(sequence.rgb.stamps_ns)]
     if depth:
@@ -206,7 +179,7 @@ def tum_rgbd_messages(
 
 
 def topics(*, raw: bool = False, depth: bool = True) -> list[TopicSpec]:
-    """Return the bag's topics (module docstring)."""
+    """Return the bag's topics."""
     listed = [(CAMERA_INFO_TOPIC, CAMERA_INFO_TYPE), (IMAGE_TOPIC, IMAGE_TYPE)]
     if raw:
         listed.append((RAW_IMAGE_TOPIC, RAW_IMAGE_TYPE))
@@ -226,15 +199,7 @@ def write_tum_rgbd_bag(
     registry: TypeRegistry | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> TumRgbdBag:
-    """Write ``sequence`` as a bag at ``path`` (module docstring); ``single_file``: one bare
-    ``.mcap`` file, else a bag directory. ``progress(stamp ns, messages)`` per image.
-
-    Raises:
-        BagError: ``path`` exists, its directory is missing, its suffix does not match
-            ``single_file``, or it cannot be written.
-        DatasetError: an image or depth map cannot be read.
-
-    """
+    """Write ``sequence`` as a bag at ``path``; BagError (``path``), DatasetError (image)."""
     started = time.monotonic()
     registry = registry if registry is not None else TypeRegistry()
     messages = tum_rgbd_messages(sequence, registry, raw=raw, depth=depth, progress=progress)
@@ -311,8 +276,7 @@ def add_dataset_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def read_dataset(parser: argparse.ArgumentParser, args: argparse.Namespace) -> TumRgbd:
-    """Return the sequence the options of ``add_dataset_arguments`` name; a bad option exits
-    naming it, a bad file raises DatasetError."""
+    """Return the sequence the options name; a bad option exits, a bad file: DatasetError."""
     explicit = [getattr(args, name) for name in ('fx', 'fy', 'cx', 'cy')]
     intrinsics: Intrinsics | str
     if any(value is not None for value in explicit):

@@ -1,31 +1,10 @@
 """victoria_park_import: the Victoria Park data set (GTSAM text format) as a rosbag2 mcap bag.
 
-The file holds an odometry chain of SE(2) relative poses and tree sightings; it has no time
-and no ground truth. Pose i (numbered 0..N-1 along the chain) gets the nominal stamp
-``--start-ns`` + i * ``--period-s`` (default 0.1 s; the real sampling of the run is not in
-the file). Topics (bag receive stamp = header stamp; offered reliable, volatile, depth 1000
-as em_sam_mapper subscribes):
-
-- ``/odometry_increments`` (slam_interfaces/msg/OdometryIncrement, ``base_link``): one per
-  ODOMETRY line, stamped at its end pose. The relative pose (dx, dy, dtheta) in the frame of
-  the start pose becomes the EM-SAM paper's differential-drive increment (eq. 2):
-  u2 = dtheta, (u0, u1) = R(-dtheta / 2) (dx, dy). This is exact for the mean (eq. 2 maps
-  u back to the same relative pose) and first order for the covariance (J cov J^T with the
-  Jacobian of the map at the measurement). ``odom_pose_from``/``odom_pose_to`` are the
-  composed odometry (pose 0 at the origin of ``odom``). The benchmark does not go through
-  this conversion: it uses the parsed between-factors directly (GTSAM's exact factors).
-- ``/landmark_observations`` (slam_interfaces/msg/LandmarkObservationArray, ``base_link``):
-  one message per pose with sightings, at that pose's stamp (written after the increment
-  that reaches the pose); landmark_id is the file's id; range hypot(x, y), bearing
-  atan2(y, x), covariance diag(sigma_r^2, sigma_b^2) with GTSAM load2D's sigma_r =
-  sqrt(cxx) m and sigma_b = sqrt(cxx / 10) rad.
-
-The input defaults to ``victoria_park/victoria_park.txt`` under the datasets directory
-(``$SLAM_DATA_DIR``, else ``../shared/data`` next to the repository). The bag is written
-under a hidden staging name and moved into place when complete; on any error (a malformed
-line included) nothing is left at the output path. ``--single-file`` keeps only the
-``.mcap``.
-"""
+Pose i is stamped --start-ns + i * --period-s (docs/design/simulation.md). Topics:
+  /odometry_increments (slam_interfaces/OdometryIncrement, base_link): EM-SAM eq. 2,
+    one per ODOMETRY line
+  /landmark_observations (slam_interfaces/LandmarkObservationArray, base_link): range and
+    bearing per pose with sightings, GTSAM load2D's sigmas"""
 
 from __future__ import annotations
 
@@ -127,15 +106,7 @@ def write_victoria_park_bag(
     registry: TypeRegistry | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> WrittenBag:
-    """Write ``data`` as an mcap bag at ``path``; return where and what was written.
-
-    ``progress(bag stamp ns, messages written)`` is called now and then.
-
-    Raises:
-        BagError: ``path`` exists, its directory does not, or it cannot be written.
-        ValueError: ``period_s`` is not a positive number of nanoseconds.
-
-    """
+    """Write ``data`` as an mcap bag at ``path``; BagError, ValueError (``period_s``)."""
     period_ns = round(period_s * 1e9) if np.isfinite(period_s) else 0
     if period_ns <= 0:
         raise ValueError(f'period_s must be >= 1 ns, got {period_s}')

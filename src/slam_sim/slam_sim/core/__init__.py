@@ -1,2 +1,1 @@
-"""ROS-free simulation cores (numpy, scipy, OpenCV); randomness comes in as
-``np.random.Generator``."""
+"""ROS-free simulation cores; randomness comes in as ``np.random.Generator``."""

@@ -1,9 +1,4 @@
-"""Image effects of the simulated camera: lighting drift, vignetting, blur, noise, JPEG.
-
-``CameraEffects`` turns a rendered float image into the 8-bit frame a camera would deliver.
-Every frame draws from its own seeded stream (the frame index is the spawn key), so a frame
-looks the same whether rendered alone or within a whole run.
-"""
+"""Image effects of the simulated camera: lighting drift, vignetting, blur, noise, JPEG."""
 
 from __future__ import annotations
 
@@ -23,15 +18,7 @@ _PHASE_KEY = 2**32 - 1  # spawn key of the lighting drift phases (frames use the
 
 @dataclass(frozen=True)
 class ImageEffects:
-    """Per-image camera effects (grey levels on a 0-255 scale, s, px).
-
-    Gain drifts as 1 + sum of sines with amplitudes ``gain_drift`` and periods
-    ``drift_periods_s`` (seeded phases) plus per-frame jitter ``gain_jitter``; the offset
-    drifts by ``offset_drift`` over a 37 s period. Vignetting darkens by ``vignetting`` at the
-    image corners (cos^4-like). Defocus is a Gaussian of sigma uniform in ``defocus_sigma_px``;
-    rotation blurs horizontally over fx * |yaw rate| * ``exposure_s`` px. Noise is Gaussian,
-    sigma^2 = ``read_noise``^2 + ``shot_noise``^2 * grey.
-    """
+    """Per-image camera effects: grey levels on a 0-255 scale, periods in s, blur in px."""
 
     gain_drift: tuple[float, float] = (0.12, 0.05)
     drift_periods_s: tuple[float, float] = (61.0, 17.0)

@@ -1,5 +1,4 @@
-"""The hand-held camera of the dynamic scene: a smooth closed walk near the back wall looking
-across the room, with hand shake and sweep, as sums of sinusoids evaluable at any time."""
+"""The dynamic scene's hand-held camera: a closed walk with shake, as sums of sinusoids."""
 
 from __future__ import annotations
 
@@ -37,10 +36,7 @@ class Sinusoids:
 
 @dataclass(frozen=True)
 class LoopTurn:
-    """The camera turns away from the room's far wall and back (a loop): its viewing
-    direction yaws about the map's vertical by ``angle_rad`` (positive: towards +y), ramping
-    smoothly (half a cosine) over ``turn_s`` from ``start_s``, stays turned for ``away_s``,
-    and ramps back over ``turn_s``."""
+    """The viewing direction's yaw away from the far wall and back (rad, s)."""
 
     start_s: float
     turn_s: float
@@ -63,10 +59,7 @@ class LoopTurn:
 
 @dataclass(frozen=True)
 class CameraPath:
-    """Hand-held camera: optical centre = center_m + sway, looking at look_m + look_sway,
-    level (x axis horizontal) up to a small shake rotation (rotation vector in the optical
-    frame, rad); all in ``map``, m. With a ``loop``, the viewing direction also yaws away
-    and back (``LoopTurn``)."""
+    """Hand-held camera in ``map`` (m): optical centre, look-at point, shake, optional loop."""
 
     center_m: FloatArray
     sway_m: Sinusoids
@@ -107,14 +100,7 @@ class CameraPath:
 def sample_camera_path(
     rng: np.random.Generator, hand_motion_m: float = 0.0, loop: LoopTurn | None = None
 ) -> CameraPath:
-    """Return a random hand-held path: an elliptic loop (x 0.7-1 m, y 1.3-1.7 m radii, 12-18 s
-    period) with slow drift and a walking bob, panning over the room, shaking 0.1-0.35 deg,
-    plus the hand's own sweep: ``hand_motion_m`` amplitude along each map axis at 0.4-0.9 Hz
-    (0.1 m gives up to ~1.7 m/s^2, the acceleration a person waving a camera reaches).
-
-    The sweep is drawn last from ``rng``, so the rest of the path does not depend on it; a
-    ``loop`` draws nothing, so a loop scene shares its path with the same seed's plain one.
-    """
+    """Return a random hand-held path; ``hand_motion_m`` is the sweep per map axis, m."""
     period_s, phase = rng.uniform(12.0, 18.0), rng.uniform(0.0, 2.0 * np.pi)
     radius_x, radius_y = rng.uniform(0.7, 1.0), rng.choice([-1.0, 1.0]) * rng.uniform(1.3, 1.7)
     drift_heading = rng.uniform(0.0, 2.0 * np.pi)

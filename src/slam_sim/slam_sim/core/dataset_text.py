@@ -1,10 +1,4 @@
-"""Whitespace-separated dataset text files, read with errors that name ``file:line``.
-
-Every problem becomes a ``DatasetError`` whose message starts with ``<path>:<line>:`` (line
-numbers 1-based, as editors show them) or ``<path>:`` for the file as a whole, so that a
-command-line tool can print it on one line. Numbers must be finite; stamps given as decimal
-seconds are converted to int nanoseconds exactly (no float rounding).
-"""
+"""Whitespace-separated dataset text files, read with errors that name ``file:line``."""
 
 from __future__ import annotations
 
@@ -27,12 +21,7 @@ def line_error(path: Path, line_no: int, message: str) -> DatasetError:
 
 
 def read_lines(path: Path) -> list[str]:
-    """Return the lines of a UTF-8 text file (without line ends).
-
-    Raises:
-        DatasetError: the file is missing, unreadable or not text.
-
-    """
+    """Return the lines of a UTF-8 text file; DatasetError if missing, unreadable or not text."""
     if not path.is_file():
         raise DatasetError(f'{path}: no such file; check the dataset directory')
     try:
@@ -92,10 +81,7 @@ _PARSERS = {Kind.STAMP: parse_stamp_ns, Kind.INT: parse_int, Kind.FLOAT: parse_f
 
 @dataclass(frozen=True)
 class Table:
-    """Columns of a numeric text table: ``columns[name]`` (R,) int64 (STAMP, INT) or float64.
-
-    ``line_numbers`` (R,) are the rows' 1-based line numbers in ``path``.
-    """
+    """Columns of a numeric text table, each (R,) int64 or float64; 1-based ``line_numbers``."""
 
     path: Path
     line_numbers: IntArray
@@ -122,13 +108,7 @@ class Table:
 
 
 def read_table(path: Path, columns: Sequence[tuple[str, Kind]], *, comment: str = '#') -> Table:
-    """Return the table in ``path``: one row per data line, ``columns`` in order.
-
-    Raises:
-        DatasetError: the file is missing, or a line has the wrong number of columns or a
-            value that is not a finite number (not an integer for INT columns).
-
-    """
+    """Return ``path``'s data lines as ``columns``; DatasetError names a bad file:line."""
     names = [name for name, _ in columns]
     parsers = [_PARSERS[kind] for _, kind in columns]
     values: list[list[int | float]] = [[] for _ in columns]

@@ -1,36 +1,4 @@
-"""Moving or static labels of image tracks from depth maps and known camera poses (ROS-free).
-
-A track is an id with a raw pixel in some frames. Where a frame has a depth map and a
-camera pose (T_world_camera), the track's pixel is given the robust depth of
-``rgbd_depth.sample_depth`` (median of a 5 x 5 window; none on zero depth or at a depth
-discontinuity) and back-projected into the world: a *depth sighting*, a world point P (3,)
-with the covariance of its measurement noise
-
-    Sigma = R (sigma_z(z)^2 r r^T + (z sigma_px / fx)^2 e_x e_x^T
-               + (z sigma_px / fy)^2 e_y e_y^T) R^T,
-
-where r = (x_n, y_n, 1) is the pixel's ray, z its depth (m), sigma_z(z) = 1.425e-3 z^2 m
-the structured-light depth noise (Khoshelham and Elberink 2012), sigma_px the tracker's
-pixel noise and R the camera rotation.
-
-The rule (``label_tracks``): a track with fewer than two depth sightings is UNKNOWN (it has
-no position difference to test; ``TrackLabels.counts`` gives those never seen with depth
-and those seen once apart). Otherwise its sightings, in frame order, give two positions:
-the component-wise median of its first k and of its last k sightings (k = min(``ends``,
-n // 2), so that one bad depth read at either end does not decide), each with the mean
-covariance of its k sightings (not divided by k), at the median stamp of its k sightings.
-The ground truth's pose error adds sigma_pose(dt)^2 I to each of the two positions, dt the
-time between them (``PoseError``: the error of two poses grows with their separation; a
-table of sigma_pose per separation, e.g. ``tum_consistency.pose_error``'s, measured on a
-static stretch). The track is MOVING when the difference d of the two positions is outside
-the chi-square bound of its covariance,
-
-    d^T (Sigma_first + Sigma_last + 2 sigma_pose(dt)^2 I)^-1 d > chi2_3(``probability``)
-
-(0.9973, the 3-sigma probability: 14.16), and STATIC otherwise. A track on a person who
-walks and comes back to where it was seen first is called static; a track that slides from
-a static surface onto a moving one is called moving.
-"""
+"""Moving/static labels of tracks from depth maps and poses; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -50,9 +18,7 @@ LABEL_NAMES = {MOVING: 'moving', STATIC: 'static', UNKNOWN: 'unknown'}
 
 @dataclass(frozen=True)
 class PoseError:
-    """The ground truth's per-axis position error sigma_pose(dt) (m) at a back-projected
-    point, for two poses dt s apart: linear interpolation in a table of separations (K,) s
-    (increasing) and sigmas (K,) m, the end values beyond it."""
+    """The ground truth's per-axis position error sigma_pose (m) per pose separation (s)."""
 
     separations_s: tuple[float, ...] = (0.0,)
     sigmas_m: tuple[float, ...] = (0.07,)
@@ -80,10 +46,7 @@ class PoseError:
 
 @dataclass(frozen=True)
 class LabelRule:
-    """The label rule's settings (module docstring): the tracker's pixel noise (px per axis),
-    the ground truth's position error (by default 7 cm at every separation, the median depth
-    error the Bonn dataset's README gives for its conversion), the test's probability, the
-    sightings taken at each end, and the depth sampling."""
+    """The depth label rule's settings (pixel noise px, pose error, probability, ends)."""
 
     pixel_sigma_px: float = 1.0
     pose_error: PoseError = field(default_factory=PoseError)
@@ -108,8 +71,7 @@ class LabelRule:
 
 @dataclass(frozen=True, eq=False)
 class DepthSightings:
-    """Depth sightings (S): track ids, frames, stamps int ns, world points (S, 3) m and
-    their measurement covariances (S, 3, 3) m^2."""
+    """Depth sightings (S): ids, frames, stamps ns, points (S, 3) m, covariances (S, 3, 3)."""
 
     ids: IntArray
     frames: IntArray
@@ -156,9 +118,7 @@ def frame_sightings(
     pose: FloatArray,
     rule: LabelRule,
 ) -> DepthSightings:
-    """Return the depth sightings of one frame's tracks: ``frame`` (index, stamp int ns),
-    ids (N,) at raw pixels (N, 2), the frame's depth map (H, W) m (NaN = none) and
-    T_world_camera (4, 4); tracks without a usable depth are left out."""
+    """Return one frame's depth sightings of ids (N,) at raw pixels (N, 2), depth (H, W) m."""
     depth = sample_depth(depth_m, pixels, rule.sampling)
     local = camera_points(camera, pixels, depth)
     keep = np.all(np.isfinite(local), axis=1)
@@ -181,10 +141,7 @@ def frame_sightings(
 
 @dataclass(frozen=True, eq=False)
 class TrackLabels:
-    """Labels of tracks (T): ids ascending, label codes (MOVING 1, STATIC 0, UNKNOWN -1),
-    the rule's statistic (NaN for unknown) and the evidence per track: by ``label_tracks``
-    the chi-square statistics and the depth sightings; by ``mask_labels.label_by_masks`` the
-    moving shares and the decided mask sightings."""
+    """Labels of tracks (T): ids, codes (MOVING 1, STATIC 0, UNKNOWN -1), statistics."""
 
     ids: IntArray
     labels: IntArray
@@ -192,9 +149,7 @@ class TrackLabels:
     depth_sightings: IntArray
 
     def counts(self) -> dict[str, int]:
-        """Return the tracks: moving, static, unknown, and of the unknown those with no
-        evidence (never seen with depth; no decided mask sighting) and with one (seen with
-        depth once)."""
+        """Return the counts: moving, static, unknown, and unknown with no or one sighting."""
         unknown = self.labels == UNKNOWN
         return {
             'tracks': len(self.ids),
@@ -206,8 +161,7 @@ class TrackLabels:
         }
 
     def moving_share(self) -> float:
-        """Return the share of labelled (moving or static) tracks labelled moving (NaN for
-        none)."""
+        """Return the share of labelled tracks labelled moving (NaN for none)."""
         labelled = np.count_nonzero(self.labels != UNKNOWN)
         if not labelled:
             return float('nan')
@@ -232,8 +186,7 @@ class TrackLabels:
 
 
 def label_tracks(track_ids: IntArray, sightings: DepthSightings, rule: LabelRule) -> TrackLabels:
-    """Return the labels of ``track_ids`` (any order, repeats allowed) from their depth
-    sightings (module docstring)."""
+    """Return the labels of ``track_ids`` (any order, repeats allowed) from their sightings."""
     ids = np.unique(np.asarray(track_ids, dtype=np.int64))
     labels = np.full(len(ids), UNKNOWN, dtype=np.int64)
     statistics = np.full(len(ids), np.nan)

@@ -1,18 +1,4 @@
-"""A camera-like fiducial detector giving range-bearing observations in base_link.
-
-The camera sits at the base_link origin looking along +x. In a frame, a marker is visible
-when it is within the horizontal field of view, between the minimum and maximum range,
-seen from its front (the angle between its face normal and the direction to the camera is
-at most ``max_incidence_rad``; ARToolKit loses markers at grazing angles) and no wall
-crosses the line of sight. A visible marker is detected with ``detection_probability``.
-
-Noise: range + N(0, (range_sigma_m + range_sigma_per_m * r)^2) with r the true range,
-bearing + N(0, bearing_sigma_rad^2); the reported covariance is exactly that diagonal.
-With ``outlier_probability`` a detection is instead a gross outlier: range uniform in the
-detection range and bearing uniform in the field of view, with the nominal covariance.
-Random numbers are drawn for every (frame, marker) pair, visible or not, so a pair's noise
-does not depend on which other markers exist or are visible.
-"""
+"""A camera-like fiducial detector: range-bearing observations; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -73,12 +59,7 @@ class DetectorConfig:
 
 @dataclass(frozen=True)
 class Observations:
-    """Range-bearing observations in base_link, in stamp order (ties by landmark id).
-
-    ``stamps_ns`` (K,) int ns from the run start (the camera frame time); ``landmark_ids``
-    (K,); ``range_m`` (K,); ``bearing_rad`` (K,) in (-pi, pi]; ``covariance`` (K, 2, 2) of
-    (range m, bearing rad); ``is_outlier`` (K,) True for gross outliers.
-    """
+    """Range-bearing observations (K) in base_link, by stamp; covariance (K, 2, 2)."""
 
     stamps_ns: IntArray
     landmark_ids: IntArray
@@ -110,11 +91,7 @@ def visible(
     walls_m: FloatArray,
     config: DetectorConfig,
 ) -> BoolArray:
-    """Return (F, L) True where marker l is visible in frame f.
-
-    ``camera_poses`` (F, 3) map frame; ``positions_m`` and ``normals`` (F, L, 2) are the
-    markers' map positions and face normals at each frame; ``walls_m`` (W, 2, 2).
-    """
+    """Return (F, L) True where marker l is visible in frame f; positions (F, L, 2) m."""
     offset = positions_m - camera_poses[:, None, :2]  # camera -> marker, (F, L, 2)
     range_m = np.linalg.norm(offset, axis=-1)
     bearing = wrap_angle(np.arctan2(offset[..., 1], offset[..., 0]) - camera_poses[:, None, 2])
@@ -143,10 +120,7 @@ def detect(
     config: DetectorConfig,
     rng: np.random.Generator,
 ) -> Observations:
-    """Return the noisy observations in frames at ``stamps_ns`` (F,) from poses (F, 3).
-
-    ``landmark_ids`` (L,); positions and normals (F, L, 2) as for ``visible``.
-    """
+    """Return the noisy observations at ``stamps_ns`` (F,) from poses (F, 3)."""
     frame_count, marker_count = positions_m.shape[:2]
     detected_draw = rng.random((frame_count, marker_count))
     noise_draw = rng.standard_normal((frame_count, marker_count, 2))

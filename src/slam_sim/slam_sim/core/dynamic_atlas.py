@@ -1,11 +1,4 @@
-"""The texture atlas of the dynamic scene's renderer: every surface's texture as a chart in
-mip levels (module ``dynamic_render`` describes the textures).
-
-Planar charts (room and cabinet faces, the target's paper and the back of its board) map a
-point p in map to atlas texels (col, row) = coeff (2, 4) @ (p, 1); each moving object has six
-cube-map charts of its sphere. Every chart carries ``GUTTER`` texels of continued texture, so
-bilinear and mip lookups near its edge stay on it.
-"""
+"""The dynamic scene renderer's texture atlas: every surface's texture as a mip chart."""
 
 from __future__ import annotations
 
@@ -33,10 +26,7 @@ _ATLAS_WIDTH = 2048
 
 @dataclass(frozen=True)
 class Charts:
-    """The texture atlas: mip levels (finest first, each half the last) of all charts, and
-    per planar chart c the map texel (col, row) = coeff[c] (2, 4) @ (p, 1) of a point p in
-    map (OpenCV remap coordinates, level 0), unit normal (3,) and texels per metre. Sphere
-    charts (6 cube faces per object) are located by ``sphere_offset`` (K, 6, 2) (col, row)."""
+    """The texture atlas: mip levels, planar charts (coeff (C, 2, 4)) and sphere charts."""
 
     levels: tuple[Float32Array, ...]
     coeff: NDArray[np.float32]
@@ -87,8 +77,7 @@ def _face_chart(
     base: float,
     options: RenderOptions,
 ) -> tuple[Float32Array, FloatArray, FloatArray]:
-    """Return the texture, coeff (2, 4) and normal (3,) of a box face normal to ``axis``:
-    columns run along the next axis, rows along the one after, from ``low``."""
+    """Return the texture, coeff (2, 4) and normal (3,) of a box face normal to ``axis``."""
     along, across = (axis + 1) % 3, (axis + 2) % 3
     scale = options.texels_per_m
     shape = (
@@ -128,8 +117,7 @@ def _target_chart(target: InitTarget) -> tuple[Float32Array, FloatArray, FloatAr
 
 
 def _cube_directions(face: int, texels: int, gutter: int) -> FloatArray:
-    """Return the unit directions (N, N, 3) of the texel centres of cube face ``face``
-    (axis face // 2, sign + for even faces), N = texels + 2 gutter."""
+    """Return the unit directions (N, N, 3) of the texel centres of cube face ``face``."""
     axis, sign = face // 2, 1.0 - 2.0 * (face % 2)
     size = texels + 2 * gutter
     coords = (np.arange(size) + 0.5 - gutter) / (0.5 * texels) - 1.0
@@ -144,8 +132,7 @@ def _cube_directions(face: int, texels: int, gutter: int) -> FloatArray:
 def _object_faces(
     rng: np.random.Generator, radius_m: float, options: RenderOptions
 ) -> list[Float32Array]:
-    """Return the 6 cube-face textures of a spherical Voronoi pattern of dark and light
-    cells (2 x 2 supersampled)."""
+    """Return the 6 cube-face textures of a spherical Voronoi pattern."""
     count = max(8, round(4.0 * np.pi * radius_m**2 / options.object_cell_m**2))
     seeds = rng.standard_normal((count, 3))
     tree = cKDTree(seeds / np.linalg.norm(seeds, axis=1, keepdims=True))
@@ -174,8 +161,7 @@ def _pack(shapes: list[tuple[int, int]]) -> tuple[FloatArray, int]:
 
 
 def _atlas(textures: list[Float32Array], levels: int) -> tuple[list[Float32Array], FloatArray]:
-    """Return the mip levels of the packed charts (each chart filtered on its own) and the
-    charts' (col, row) offsets (C, 2) at level 0."""
+    """Return the packed charts' mip levels and their (col, row) offsets (C, 2) at level 0."""
     offsets, rows = _pack([(texture.shape[0], texture.shape[1]) for texture in textures])
     pyramid = [np.zeros((rows >> level, _ATLAS_WIDTH >> level), np.float32) for level in
                range(levels)]  # fmt: skip

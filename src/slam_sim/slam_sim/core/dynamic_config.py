@@ -1,5 +1,4 @@
-"""Settings of the dynamic scene (``dynamic_scene``): run length and rate, camera, noise,
-scene sizes and object motions, validated on construction."""
+"""Settings of the dynamic scene (``dynamic_scene``), validated on construction."""
 
 from __future__ import annotations
 
@@ -27,7 +26,7 @@ def _check(name: str, ok: bool, value: object, allowed: str) -> None:
 
 @dataclass(frozen=True)
 class DynamicSceneConfig:
-    """Run length, camera, noise, scene sizes and object motion parameters (module doc)."""
+    """Run length, camera, noise, scene sizes and object motion parameters."""
 
     duration_s: float = 20.0
     rate_hz: float = 30.0
@@ -59,10 +58,7 @@ class DynamicSceneConfig:
 
     @property
     def tracking_correlation_time_s(self) -> float:
-        """The offsets' effective correlation time, s: a jump draws a fresh offset, so two
-        sightings k frames apart correlate as exp(-k / (rate tau)) (1 - p)^k =
-        exp(-dt / tau_eff) with 1 / tau_eff = 1 / tau - rate ln(1 - p). This is what a
-        tracker declares to the filters (``tracking_noise``)."""
+        """The tracking offsets' effective correlation time (jumps included), s."""
         jumps_per_s = -self.rate_hz * math.log1p(-self.tracking_jump_probability)
         return 1.0 / (1.0 / self.tracking_offset_time_s + jumps_per_s)
 
@@ -133,8 +129,7 @@ class DynamicSceneConfig:
         return round(self.duration_s * self.rate_hz)
 
     def camera(self) -> CameraModel:
-        """Return the 640 x 480 camera with fx = fy = focal_px, principal point (320.7, 238.9)
-        px and radial distortion k1 = -0.05 (plumb_bob, the other coefficients 0)."""
+        """Return the 640 x 480 camera: fx = fy = focal_px, k1 = -0.05."""
         return CameraModel.from_intrinsics(
             640, 480, (self.focal_px, self.focal_px), _PRINCIPAL_POINT_PX, _DISTORTION
         )

@@ -1,5 +1,4 @@
-"""Texture, antialiasing and sensor settings of the dynamic scene's renderer
-(``dynamic_render``)."""
+"""Texture, antialiasing and sensor settings of the dynamic scene's renderer."""
 
 from __future__ import annotations
 
@@ -20,15 +19,7 @@ def _mild_effects() -> ImageEffects:
 
 @dataclass(frozen=True)
 class RenderOptions:
-    """Texture, antialiasing and sensor settings of the renderer (module doc).
-
-    Room and cabinet textures have ``texels_per_m`` texels per metre and
-    ``patches_per_m2`` random patches per m^2 of sides in ``patch_size_m`` (m); objects have
-    Voronoi cells of ``object_cell_m`` (m) in cube maps of ``object_face_texels`` per face.
-    Outline pixels take ``supersample`` x ``supersample`` rays; textures have ``mip_levels``
-    levels, looked up at ``lod_bias`` levels from the footprint's. ``effects`` None gives
-    the noise-free image, rounded.
-    """
+    """Texture, antialiasing and sensor settings of the renderer (sizes in m, texels)."""
 
     texels_per_m: float = 100.0
     patches_per_m2: float = 20.0

@@ -1,10 +1,4 @@
-"""Ray bundles of the dynamic scene's renderer and their nearest hits: the room box from
-inside, boxes and spheres from outside, and the pixels on a surface's outline.
-
-A bundle holds rays (A, B) through pixel (or sub-pixel) positions as undistorted x/z and y/z
-in the optical frame; in map the rays are the float32 directions R_world_camera (x/z, y/z, 1)
-from the optical centre, so a ray's parameter at a hit is its depth along the optical axis.
-"""
+"""The dynamic scene renderer's ray bundles and hits; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -27,9 +21,7 @@ Direction = tuple[Float32Array, Float32Array, Float32Array]
 
 @dataclass(frozen=True)
 class RayBundle:
-    """Rays (A, B) in the optical frame: undistorted x/z and y/z, |(x, y, 1)|^2, the angular
-    size of their pixel (rad), validity, and bounds (x_min, x_max, y_min, y_max) of x/z and
-    y/z over each row (A, 4) and column (B, 4), for culling."""
+    """Rays (A, B) in the optical frame (undistorted x/z, y/z) with per-row/column bounds."""
 
     x: Float32Array
     y: Float32Array
@@ -62,8 +54,7 @@ class RayBundle:
         )
 
     def region(self, corners_camera: FloatArray) -> Region | None:
-        """Return the rays that may meet a convex body with corners (K, 3) in the optical
-        frame (all rays if one is not in front of the camera), or None if none can."""
+        """Return the rays that may meet a convex body, corners (K, 3), or None."""
         if float(corners_camera[:, 2].min()) <= NEAR_M:
             return slice(None), slice(None)
         normalized = corners_camera[:, :2] / corners_camera[:, 2:3]
@@ -95,9 +86,7 @@ def grid_rays(camera: CameraModel) -> RayBundle:
 
 
 def subpixel_rays(camera: CameraModel, n: int) -> tuple[Float32Array, BoolArray]:
-    """Return the undistorted x/z, y/z (H, W, n * n, 2) of the n x n sub-pixel grid of every
-    pixel (row-major offsets (i + 0.5) / n - 0.5; 0 where invalid, float32 as ``RayBundle``
-    keeps them) and their validity (H, W, n * n): what supersampling needs, found once."""
+    """Return the x/z, y/z (H, W, n * n, 2) of every pixel's sub-pixel grid and validity."""
     offsets = (np.arange(n) + 0.5) / n - 0.5
     dv, du = (grid.ravel() for grid in np.meshgrid(offsets, offsets, indexing='ij'))
     normalized = np.zeros((camera.height, camera.width, n * n, 2), np.float32)
@@ -113,8 +102,7 @@ def subpixel_rays(camera: CameraModel, n: int) -> tuple[Float32Array, BoolArray]
 
 @dataclass
 class Hits:
-    """Nearest hits of rays (A, B): depth along the optical axis (inf: none), chart id
-    (-1: none) and the rays' directions in map (x/z-scaled, 3 arrays (A, B))."""
+    """Nearest hits of rays (A, B): depth (inf: none), chart id (-1: none), directions."""
 
     depth: Float32Array
     chart: Int32Array
@@ -153,8 +141,7 @@ def room_exit(
 def box_entry(
     origin: FloatArray, direction: Direction, low: FloatArray, high: FloatArray
 ) -> tuple[Float32Array, Int32Array]:
-    """Return where rays from outside a box enter it (depth, inf if they miss) and through
-    which face (2 axis + 1 at the high side)."""
+    """Return where rays from outside a box enter it (depth, inf: miss) and the face."""
     near = np.full(direction[0].shape, -np.inf, dtype=np.float32)
     far = np.full(direction[0].shape, np.inf, dtype=np.float32)
     face = np.zeros(direction[0].shape, dtype=np.int32)

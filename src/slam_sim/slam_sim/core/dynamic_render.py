@@ -1,43 +1,4 @@
-"""Grey camera images of the dynamic scene, by exact per-pixel ray casting.
-
-The world is ``dynamic_scene``'s, rebuilt from its config and seed: the inner faces of the
-10 x 8 x 3 m room, the cabinets (boxes), the initialization target of ``init_target`` (its
-marker as ``slam_core.render`` prints it, with a one-cell white quiet zone, on a board of that
-size whose back is plain grey) and every moving object as a sphere of radius
-``object_radius_m`` (``DEFAULT_OBJECT_RADIUS_M`` if that is 0) about its centre, translating
-without rotating, drawn only once ``DynamicScene.points_exist_at`` says it exists and never
-from inside. The nearest hit along a ray wins, so objects occlude the room and each other;
-the target's board also wins over surfaces up to ``TARGET_STANDOFF_M`` in front of it, so a
-target hung on a wall is drawn on it (1 mm proud) while its corners stay exactly where
-``init_target`` puts them.
-
-Camera: ``DynamicSceneConfig.camera()`` (plumb_bob k1). Each pixel's undistorted ray (x/z, y/z,
-1) in the optical frame (x right, y down, z forward; pixel centres at integer coordinates) is
-found once by ``CameraModel.unproject``; a pixel beyond the lens's fold sees nothing.
-Per frame the rays are rotated by R_world_camera (``CameraPath.rotations_at``); the ray
-parameter of a hit is its depth along the optical z axis. Boxes, spheres and the target are
-only tested on the rays inside their projected bounding rectangle.
-
-Textures are deterministic for the seed: random rectangles (a third rotated) and ellipses of
-grey levels 15-240, 5-25 cm across, on every room and cabinet face, and on each object a
-spherical Voronoi pattern of dark and light cells ~8 cm across, fixed in the object's frame
-(a cube map of the direction from its centre). Antialiasing is twofold. Every texture lookup
-is trilinear in a mip pyramid (``cv2.pyrDown`` per chart, so charts do not bleed), at level
-log2(footprint in texels) + ``lod_bias``; the footprint is range x pixel angle / cos
-incidence (the long axis), and the default bias of -1 matches the pyramid's Gaussian
-(sigma ~0.57 2^L texels) to a box filter over the pixel. Pixels whose 8-neighbourhood holds
-another surface (silhouettes, room and box edges, the board's border) are supersampled on an
-n x n grid. Sensor effects are ``camera_effects.CameraEffects`` with mild settings (Gaussian
-noise of ~1.3 grey levels, 10 % vignetting, no blur, no lighting drift).
-
-Randomness: ``SeedSequence(seed, spawn_key=(5,))`` drives the image effects (frame k draws
-from its key k, so a frame renders the same alone or in a run) and ``spawn_key=(6,)`` the
-textures; ``dynamic_scene`` uses keys 0-4.
-
-Modules: ``dynamic_options`` (the settings), ``dynamic_rays`` (ray bundles and their hits on
-boxes and spheres), ``dynamic_atlas`` (the textures), ``slam_core.render`` (the target's print,
-its board's intersection and the texture sampler); this one casts, shades and supersamples.
-"""
+"""Grey images of the dynamic scene by exact ray casting; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -84,11 +45,7 @@ EFFECTS_SPAWN_KEY = 5
 
 @dataclass(frozen=True)
 class RenderedFrame:
-    """One frame: index, run time s, camera pose (R_world_camera (3, 3), optical centre (3,)
-    m in map), the 8-bit image (H, W), labels (H, W) int16 (``LABEL_NOTHING``,
-    ``LABEL_STATIC`` or the object index), depth along the optical axis (H, W) float32 m (inf
-    where nothing is hit), and the target's true raw pixel corners (4, 2) if it is fully
-    visible (in the image and unoccluded), else None."""
+    """One frame: pose, image (H, W) uint8, labels (H, W), depth (H, W) m, target corners."""
 
     index: int
     time_s: float
@@ -101,10 +58,7 @@ class RenderedFrame:
 
 
 class DynamicRenderer:
-    """Renders the frames of the dynamic scene of ``config`` and ``seed`` (module doc).
-
-    Frame k shows run time k / ``config.rate_hz`` s, as in ``simulate_dynamic_scene``.
-    """
+    """Renders the dynamic scene of ``config`` and ``seed``; frame k is at k / rate_hz s."""
 
     def __init__(
         self,
@@ -184,9 +138,7 @@ class DynamicRenderer:
         )
 
     def render_all(self, indices: Iterable[int], *, threads: int = 2) -> Iterator[RenderedFrame]:
-        """Yield ``render(k)`` for each k of ``indices``, in order, ``threads`` frames at a
-        time (numpy and OpenCV release the GIL for most of a frame's work; a frame depends
-        on nothing but its index, so the frames are those rendered one by one)."""
+        """Yield ``render(k)`` for each k of ``indices``, in order, ``threads`` at a time."""
         if threads < 1:
             raise ValueError(f'threads = {threads} must be >= 1')
         if self.options.supersample > 1 and self._subpixels is None:  # once, not per thread
@@ -203,8 +155,7 @@ class DynamicRenderer:
     def probe(
         self, frame_index: int, pixels: FloatArray
     ) -> tuple[Float32Array, NDArray[np.int16]]:
-        """Return the depth (N,) m along the optical axis and label (N,) of what the rays
-        through raw pixels (N, 2) hit at a frame (exact, at sub-pixel positions)."""
+        """Return the depth (N,) m and label (N,) of what raw pixels (N, 2) see at a frame."""
         if np.size(pixels) == 0:
             return np.zeros(0, np.float32), np.zeros(0, np.int16)
         rotation, position = self.pose(frame_index)
@@ -251,8 +202,7 @@ class DynamicRenderer:
         centres: FloatArray,
         exists: BoolArray,
     ) -> tuple[Hits, bool]:
-        """Return the nearest hits of ``rays`` and whether the target's black square is
-        wholly unoccluded (where the rays see it)."""
+        """Return the nearest hits of ``rays`` and whether the target square is unoccluded."""
         room = self.scene.room
         if not np.all((position > 0.0) & (position < room.size_m)):
             raise ValueError(f'camera centre {position.tolist()} m is outside the room')
@@ -286,8 +236,7 @@ class DynamicRenderer:
     def _cast_target(
         self, hits: Hits, rays: RayBundle, rotation: FloatArray, position: FloatArray
     ) -> bool:
-        """Draw the target's board (last: it knows its occluders); return whether its black
-        square is seen wherever the rays meet it (False if they never do)."""
+        """Draw the target's board; return whether its square is seen wherever the rays meet it."""
         target = self.target
         axes = np.asarray(target.rotation, dtype=np.float64)
         paper_half = 0.5 * SceneStyle(side_m=target.side_m).paper_m
@@ -351,8 +300,7 @@ class DynamicRenderer:
         hits: Hits,
         out: tuple[Float32Array, Float32Array, Float32Array, Float32Array],
     ) -> None:
-        """Write the cube-map texel, normal rate and texel density of the sphere hits
-        ``flat`` (indices into the raveled arrays) into ``out`` (col, row, rate, density)."""
+        """Write the sphere hits' texel, normal rate and density into ``out``."""
         radius = self.object_radius_m
         obj = chart.ravel()[flat] - self._planar
         unit = np.stack([p.ravel()[flat] for p in point], axis=1) - centres[obj]

@@ -1,5 +1,4 @@
-"""The room of the dynamic scene: a 10 x 8 x 3 m box with cabinets along its walls, and the
-static points on its surfaces."""
+"""The dynamic scene's 10 x 8 x 3 m room with cabinets, and the static points on it."""
 
 from __future__ import annotations
 
@@ -19,8 +18,7 @@ _CABINETS = 5
 
 @dataclass(frozen=True)
 class RoomLayout:
-    """The room [0, size_m] in map (m), cabinets as boxes (B, 3) min/max corners, and the
-    free space of object centres (min, max corners)."""
+    """The room [0, size_m] in map (m), cabinets (B, 3) min/max, object free space."""
 
     size_m: FloatArray
     cabinets_min_m: FloatArray
@@ -66,8 +64,7 @@ def _points_on_boxes(
 
 
 def sample_static_points(rng: np.random.Generator, room: RoomLayout, n: int) -> FloatArray:
-    """Return n static points (n, 3) m in map on the far wall, side walls, floor, ceiling and
-    cabinets (in that order)."""
+    """Return n static points (n, 3) m on the walls, floor, ceiling and cabinets."""
     sx, sy, sz = room.size_m
     counts = [int(f * n) for f in _SURFACE_FRACTIONS]
     fixed = ((0, sx), (1, 0.0), (1, sy), (2, 0.0), (2, sz))
@@ -83,11 +80,7 @@ def sample_static_points(rng: np.random.Generator, room: RoomLayout, n: int) -> 
 def sample_loop_wall(
     rng: np.random.Generator, room: RoomLayout, origin_m: FloatArray, yaw_rad: float, n: int
 ) -> FloatArray:
-    """Return n points (n, 3) m on the wall a camera at ``origin_m`` faces after turning its
-    horizontal viewing direction to ``yaw_rad`` (about the map's vertical, from +x): uniform
-    over the full height and within ``_LOOP_PATCH_HALF_WIDTH_M`` of where that direction meets
-    the wall, clipped to the room. The loop scene gives the view it turns to as much texture as
-    the far wall, as the rendered room has texture on every face."""
+    """Return n points (n, 3) m on the wall a camera at ``origin_m`` faces at ``yaw_rad``."""
     size = room.size_m
     direction = np.array([np.cos(yaw_rad), np.sin(yaw_rad)])
     best_t, best_axis = np.inf, 0

@@ -1,59 +1,4 @@
-"""A hand-held camera in a room with static points and moving objects, as tracked features.
-
-The world frame is ``map`` (x, y on the floor, z up, metres). The room spans [0, 10] x [0, 8]
-x [0, 3] m: static points lie on its far wall (x = 10), side walls, floor and ceiling and on
-the faces of a few cabinets along the walls. The camera walks a smooth closed loop near the
-back wall (x ~ 1-3 m, 1.5 m high, ~0.3-0.8 m/s) and looks at a slowly wandering point across
-the room, with a small hand shake and the hand's sweep (``hand_motion_m``, ±0.1 m at 0.4-0.9
-Hz per axis by default; 0 gives a camera carried steadily along the loop); its optical frame
-is x right, y down, z forward.
-
-Moving objects live in the free space in front of the camera (x in [4.8, 9.2] m, 2-8 m away).
-An object is a rigid cluster of points within ``object_radius_m`` of its centre that
-translates without rotating, so every point has its object's velocity. Motion kinds:
-
-- ``constant_velocity``: a straight line at constant horizontal velocity, reflected
-  (bounced) where it meets the free space's boundary; constant between bounces.
-- ``turning``: constant speed on one circle (constant turn rate, sign random) inside it.
-- ``stop_and_go``: straight moving stretches at constant velocity, separated by complete
-  stops (velocity exactly zero).
-- ``model``: the Shadow filter's own process model on the frame grid (dt = 1 / rate_hz),
-  for a consistency test: the object appears at a birth frame b, drawn uniformly from the
-  run's first half, with v_b ~ N(0, sigma^2 I3) (the filter's prior for a new feature), then
-  v_{k+1} = v_k + a_k with a_k ~ N(0, q dt I3), p_{k+1} = p_k + v_{k+1} dt, in 3D; for the
-  state x = (p, v): x_{k+1} = F x_k + G a_k, F = [[I, dt I], [0, I]], G = [dt I; I],
-  Q = q dt G G^T. Before its birth it is not observed (an object born at frame 0 exists
-  throughout). A birth frame rather than one walk from t = 0 matters: a walk from t = 0 has
-  the velocity variance sigma^2 + q t at time t, so a feature first seen late would start
-  with a wider spread than the prior says. Such an object is one point (a cluster would give
-  features that share one process-noise draw, so their NEES samples would not be
-  independent). The start is picked after the increments, putting the mean of the walk after
-  birth at a random point of the free space; this leaves the velocities and increments
-  exactly as the model says, but nothing keeps the object in the room or in view.
-
-All object motion is stored as segments (``ObjectMotion``) evaluable at any time, and the
-camera path as sums of sinusoids, so a renderer can reproduce this world at any instant.
-A point is observed when it is more than 0.2 m in front of the camera, within
-``max_range_m``, inside the radial model's monotonic zone, and its distorted projection lies
-at least ``image_margin_px`` inside the image. There is no occlusion. Track ids start at 1,
-last while a point stays observed in consecutive frames and are never reused.
-
-Tracking noise: every sighting gets white N(0, ``pixel_noise_px``) noise per axis. With
-``tracking_offset_px`` > 0 it also gets its track's offset, the error a real tracker makes
-that does not average out over frames: per track and axis a first-order Gauss-Markov process
-with standard deviation ``tracking_offset_px`` and correlation time ``tracking_offset_time_s``
-(o_k = a o_(k-1) + sqrt(1 - a^2) sigma n_k, a = exp(-dt / tau); a new track starts from the
-stationary distribution), and in each frame, with probability ``tracking_jump_probability``,
-a jump: the offset is drawn anew (as KLT re-anchoring to a slightly different patch does).
-
-Randomness: ``SeedSequence(seed).spawn(5)`` gives the streams of the room and static points,
-the camera path, the objects, the pixel noise and the track drops, in that order; a sixth
-child (``spawn(6)[5]``) gives the tracking offsets, so runs without them are unchanged.
-
-Modules: ``dynamic_config`` (the settings), ``dynamic_room`` (room and static points),
-``camera_path`` (the camera), ``object_motion`` (the objects); this one builds the scene and
-simulates its features.
-"""
+"""A hand-held camera among moving objects as features; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -86,9 +31,7 @@ _LENS_MARGIN = 0.95  # observed only inside this fraction of the radial model's 
 
 @dataclass(frozen=True)
 class DynamicScene:
-    """The world of a run: room, camera path, static points (S, 3) m in map, object motions
-    and each object's point offsets (n_i, 3) m from its centre. Points are indexed static
-    first, then object by object."""
+    """The world of a run: room, camera path, static points (S, 3) m, object motions."""
 
     room: RoomLayout
     camera_path: CameraPath
@@ -124,13 +67,12 @@ class DynamicScene:
 
 
 def _streams(seed: int) -> list[np.random.Generator]:
-    """Return the run's five random streams (see the module docstring)."""
+    """Return the run's five random streams."""
     return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(5)]
 
 
 class TrackingOffsets:
-    """The slowly varying tracking offsets (module docstring) of every point's current track,
-    px; all zero when ``tracking_offset_px`` is 0."""
+    """The slowly varying tracking offsets of every point's current track, px."""
 
     def __init__(self, config: DynamicSceneConfig, points: int, seed: int) -> None:
         self.sigma = config.tracking_offset_px
@@ -140,8 +82,7 @@ class TrackingOffsets:
         self.offsets = np.zeros((points, 2))
 
     def step(self, observed: IntArray, started: IntArray) -> FloatArray:
-        """Advance the offsets of the ``observed`` points by one frame (``started``: points
-        whose track began in this frame draw a fresh offset); return theirs (N, 2) px."""
+        """Advance the ``observed`` points' offsets one frame; return theirs (N, 2) px."""
         if self.sigma == 0.0:
             return np.zeros((len(observed), 2))
         fresh = self.sigma * self.rng.standard_normal((len(observed), 2))
@@ -183,9 +124,7 @@ def build_scene(config: DynamicSceneConfig, seed: int) -> DynamicScene:
 
 @dataclass(frozen=True)
 class FeatureFrame:
-    """One frame's features, sorted by track id: stamp int ns, true camera pose
-    (R_world_camera (3, 3), optical centre (3,) m in map), track ids (N,), noisy and true raw
-    pixels (N, 2), point indices (N,)."""
+    """One frame's features by track id: stamp, true pose, ids (N,), noisy/true pixels (N, 2)."""
 
     stamp_ns: int
     camera_rotation: FloatArray
@@ -198,9 +137,7 @@ class FeatureFrame:
 
 @dataclass(frozen=True)
 class DynamicSceneRun:
-    """A simulated run: frames (K), per point (P) moving flag and object (-1: static), true
-    positions (K, P, 3) m and velocities (K, P, 3) m/s in map, each object's motion kind, and
-    the point index of every track id."""
+    """A simulated run: frames (K), per-point truth (K, P, 3) m and m/s, motion kinds."""
 
     config: DynamicSceneConfig
     seed: int
@@ -216,8 +153,7 @@ class DynamicSceneRun:
 
     @property
     def point_birth_frame(self) -> IntArray:
-        """(P,) the first frame at which each point exists (0 for static points and for
-        objects present from the start)."""
+        """(P,) the first frame at which each point exists."""
         times = np.arange(len(self.frames)) / self.config.rate_hz
         exists = self.scene.points_exist_at(times)
         return np.asarray(np.argmax(exists, axis=0), dtype=np.int64)
@@ -226,8 +162,7 @@ class DynamicSceneRun:
 def observe(
     camera: CameraModel, points_camera: FloatArray, config: DynamicSceneConfig
 ) -> tuple[BoolArray, FloatArray]:
-    """Return which points (P, 3) in the optical frame are observed (P,) and their raw
-    pixels (P, 2) (NaN where not observed)."""
+    """Return which optical-frame points (P, 3) are observed (P,) and their pixels (P, 2)."""
     depth = points_camera[:, 2]
     candidate = (depth > MIN_DEPTH_M) & (
         np.linalg.norm(points_camera, axis=1) <= config.max_range_m

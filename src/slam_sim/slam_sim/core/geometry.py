@@ -1,9 +1,4 @@
-"""Planar geometry of the simulator: unit vectors, rotations and wall crossings.
-
-Points are (x m, y m) in the map frame; arrays of points are (..., 2). A segment array is
-(W, 2, 2): segment w runs from ``segments[w, 0]`` to ``segments[w, 1]``. Angles are wrapped by
-``slam_core.geometry.se2.wrap_angle``, the suite's one wrapping helper.
-"""
+"""Planar geometry of the simulator: unit vectors, rotations and wall crossings (m, rad)."""
 
 from __future__ import annotations
 
@@ -35,11 +30,7 @@ def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
 
 
 def crosses_any(start: FloatArray, end: FloatArray, segments: FloatArray) -> BoolArray:
-    """Return (N,) True where segment start[n] -> end[n] meets any of ``segments`` (W, 2, 2).
-
-    Touching a wall segment at its end point counts as a crossing (a door jamb blocks the
-    view); parallel segments never cross.
-    """
+    """Return (N,) True where start[n] -> end[n] meets any segment (W, 2, 2), ends included."""
     if start.shape != end.shape or start.shape[-1] != 2:
         raise ValueError(f'start {start.shape} and end {end.shape} must both be (N, 2)')
     if start.shape[0] == 0 or segments.shape[0] == 0:

@@ -1,22 +1,4 @@
-"""The initialization target of the dynamic scene: a fiducial marker of known size and pose on
-a stand in the middle of the room.
-
-Monocular SLAM cannot observe scale. Paper 001 starts its filter from a checkerboard of known
-size; here the known object is an AprilTag 36h11 marker (``DICT_APRILTAG_36h11``, id 0) with a
-0.6 m black square on a thin board standing at x = 4.3 m, centred at (4.3, 4.0, 0.9) m in
-``map`` and facing the camera (-x): between the camera's loop (x ~ 1-3 m) and the space of the
-moving objects (x >= 4.8 m). From 1.3-3.4 m the square spans about 50-140 px at fx = 300 px,
-so the pose it gives has a few centimetres of uncertainty; on the far wall, 7-9 m away, a
-1 m marker gave up to 1 m (four coplanar points at 35 px) and a first pose that could be
-the wrong one of the planar pose ambiguity. It stays in view over the whole loop of every
-seed tried (0-9).
-
-Its four corners are the known static points a SLAM filter starts from: at the measurement
-level they are observed directly (``target_pixels``); at the image level the marker detector
-measures them. Corner order and the marker frame follow OpenCV and ``FiducialDetection``: the
-marker frame has x right and y up as seen by a viewer facing the marker, z out of the printed
-face towards the viewer; corners are top-left, top-right, bottom-right, bottom-left.
-"""
+"""The dynamic scene's initialization marker; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -36,8 +18,7 @@ z out = -x_map."""
 
 @dataclass(frozen=True)
 class InitTarget:
-    """A square fiducial marker of known pose: id, black-square side (m), centre (3,) m in
-    map and R_map_marker (3, 3) (columns: the marker's x, y, z axes in map)."""
+    """A square fiducial of known pose: id, side (m), centre (3,) m, R_map_marker (3, 3)."""
 
     marker_id: int = 0
     side_m: float = 0.6
@@ -77,10 +58,7 @@ def target_pixels(
     *,
     margin_px: float = 2.0,
 ) -> FloatArray | None:
-    """Return the true raw pixels (4, 2) of the target's corners seen from a camera with
-    R_world_camera ``rotation`` (3, 3) at ``centre_m`` (3,), or None unless all four are in
-    front of the camera, the camera faces the printed side and every corner lies at least
-    ``margin_px`` inside the image (a detector needs the whole square)."""
+    """Return the target corners' true raw pixels (4, 2) from a camera, None unless all seen."""
     if not target.facing(np.asarray(centre_m, dtype=np.float64)[None])[0]:
         return None
     points = (target.corners_m - centre_m) @ np.asarray(rotation)
@@ -99,11 +77,7 @@ def target_pixels(
 def marker_board(
     target: InitTarget, rows: int, columns: int, side_m: float, gap_m: float
 ) -> tuple[InitTarget, ...]:
-    """Return a board of ``rows`` x ``columns`` markers in ``target``'s plane, centred on its
-    centre and facing as it does: each ``side_m`` wide, ``gap_m`` apart, ids ``marker_id``,
-    ``marker_id`` + 1, ... row by row from the top left (as seen facing the board). Paper 001
-    starts from a checkerboard; a board is the known point set with more, spread points than
-    one marker (1 x 1 with side_m = target.side_m is the target itself)."""
+    """Return a ``rows`` x ``columns`` board of markers in ``target``'s plane, ids row-major."""
     if isinstance(rows, bool) or isinstance(columns, bool) or rows < 1 or columns < 1:
         raise ValueError(f'board {rows!r} x {columns!r}: rows and columns must be >= 1')
     if not gap_m >= 0.0:

@@ -1,45 +1,4 @@
-"""The labelled-static gate of paper 001's variant (a) on a real sequence (ROS-free).
-
-Variant (a) is MonoSLAM on the features labelled static only: an oracle, the bound the
-Shadow filter's variant (c) is compared with. On a sequence imported by ``tum_rgbd_sequence``
-the labels come from per-pixel motion masks of the depth maps and the tracks' own motion
-(``motion_masks``, ``mask_labels``). Tracks from another run of the tracker (a node graph
-whose tracker follows SLAM's predictions) have other ids, so the gate labels them as they
-come, with the same two tests, from what the import wrote per colour image with a mask
-(``label_masks.npz``, ``LabelMasks``): the code a track's sighting gets at each pixel
-(``mask_labels.pixel_codes``), the depth map and the ground-truth pose.
-
-At each features frame whose stamp has a mask (within ``tolerance_ns``), every track in it
-gets one sighting code:
-
-- the mask's code at its pixel (``mask_labels.codes_at``);
-- its own motion from the previous mask, where it was seen with a depth there
-  (``mask_labels.motion_codes``: the chi-square test of its pixel against where the point
-  would be, were it static); a MOVING motion code stands only when the track's motion code
-  at the previous mask was MOVING too (two successive pairs agree: a tracker's slip is one
-  jump), else it is UNKNOWN;
-- MOVING when either is MOVING, STATIC when either is STATIC, UNKNOWN otherwise.
-
-A track passes once it is labelled static: it has a decided (MOVING or STATIC) code and none
-of its codes so far is MOVING. Before its first decided code it is unknown and withheld (a
-mask comes with every third image at Bonn's 10 Hz depth; where the depth has no answer, too
-near or at an outline, it stays unknown), and from its first MOVING code on it is withheld
-for good: a person who stood and then walks is never measured walking.
-
-So the gate is stricter than the labels (``mask_labels.label_by_masks``: moving when most of
-a track's decided codes over its whole life are MOVING; unknown tracks have no row in
-labels.csv, and the sequence-level evaluators count them static), and its motion test looks
-back one mask where the labels also look ahead. A mask looks 0.5 s ahead (the depth frames
-around it): the gate is an oracle, for evaluation only.
-
-File (``write_label_masks``, ``read_label_masks``): a NumPy .npz with ``stamps_ns`` (K,)
-int64, the colour images' stamps, increasing; ``codes`` (K, H, W) int8 (``depth_labels``'
-MOVING, STATIC, UNKNOWN); ``depth_mm`` (K, H, W) uint16 (0: no depth; millimetres, half a
-millimetre at most from the sensor's value, far below its noise); ``poses`` (K, 4, 4)
-T_world_camera; ``camera`` (fx, fy, cx, cy, width, height) and ``distortion`` (plumb_bob
-coefficients or none); ``pose_error`` (2, M): the ground truth's error table, separations (s)
-and sigmas (m), as the labels took it.
-"""
+"""Paper 001's variant (a) labelled-static gate (ROS-free); see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -63,8 +22,7 @@ DepthMm = NDArray[np.uint16]
 
 @dataclass(frozen=True, eq=False)
 class LabelMasks:
-    """Per colour image with a mask (module docstring): stamps (K,) ns, codes (K, H, W),
-    depths (K, H, W) mm, poses (K, 4, 4); the camera and the ground truth's error."""
+    """Per colour image with a mask: stamps (K,) ns, codes, depths mm, poses (K, 4, 4)."""
 
     stamps_ns: IntArray
     codes: CodeArray
@@ -96,8 +54,7 @@ class LabelMasks:
         return best if abs(int(self.stamps_ns[best]) - stamp_ns) <= tolerance_ns else None
 
     def frame(self, index: int) -> MaskedFrame:
-        """Return mask ``index`` as a MaskedFrame: its depth in m (NaN where none), its pose
-        and stamp, and in place of the motion mask its pixel codes."""
+        """Return mask ``index`` as a MaskedFrame (depth in m, its pixel codes as the mask)."""
         depth = self.depth_mm[index].astype(np.float64) / 1000.0
         depth[self.depth_mm[index] == 0] = np.nan
         stamp = int(self.stamps_ns[index])
@@ -111,7 +68,7 @@ def depth_to_mm(depth_m: FloatArray) -> DepthMm:
 
 
 def write_label_masks(masks: LabelMasks) -> bytes:
-    """Return the .npz file's bytes (module docstring), compressed."""
+    """Return the compressed ``label_masks.npz`` bytes of ``masks``."""
     camera, buffer = masks.camera, io.BytesIO()
     np.savez_compressed(
         buffer,
@@ -127,8 +84,7 @@ def write_label_masks(masks: LabelMasks) -> bytes:
 
 
 def read_label_masks(path: Path) -> LabelMasks:
-    """Return the masks of a .npz file (module docstring); ValueError names the file when it
-    cannot be read or does not hold them."""
+    """Return the masks of a ``label_masks.npz``; ValueError names a file that holds none."""
     try:
         with np.load(Path(path)) as data:
             fx, fy, cx, cy, width, height = (float(v) for v in data['camera'])
@@ -151,8 +107,7 @@ def read_label_masks(path: Path) -> LabelMasks:
 
 @dataclass
 class _Seen:
-    """A track's last sighting at a mask: the mask, its pixel and depth (m, NaN: none), and
-    its motion code there."""
+    """A track's last sighting at a mask: mask, pixel, depth (m, NaN: none), motion code."""
 
     mask: int
     pixel: FloatArray
@@ -162,7 +117,7 @@ class _Seen:
 
 @dataclass
 class LabelGate:
-    """Passes the tracks labelled static so far (module docstring) and counts."""
+    """Passes the tracks labelled static so far and counts."""
 
     masks: LabelMasks
     tolerance_ns: int = 1_000_000
@@ -176,8 +131,7 @@ class LabelGate:
     passed: int = 0
 
     def __post_init__(self) -> None:
-        """Take the labels' rule with the file's ground-truth error; reject a negative
-        tolerance."""
+        """Take the labels' rule with the file's pose error; reject a negative tolerance."""
         if self.tolerance_ns < 0:
             raise ValueError(f'tolerance_ns={self.tolerance_ns!r}: must be >= 0')
         self.rule = MaskLabelRule(pose_error=self.masks.pose_error)
@@ -239,8 +193,7 @@ class LabelGate:
         return self._frames[index]
 
     def withheld(self, track: int) -> bool:
-        """Whether ``track`` is not labelled static on its sightings so far (unknown or
-        moving)."""
+        """Whether ``track`` is not labelled static so far (unknown or moving)."""
         return track not in self.decided or track in self.moving
 
     def tracks_moving(self) -> int:

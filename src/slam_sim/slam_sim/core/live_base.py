@@ -1,19 +1,4 @@
-"""A live differential-drive base: velocity commands in, true motion and wheel odometry out.
-
-This is the motion half of ``peoplebot_sim``: what a Peoplebot's base driver (p2os, RosAria)
-does between ``cmd_vel`` and ``odom``. The true pose (x m, y m, theta rad, map frame) is
-integrated at ``MotionConfig.sim_rate_hz`` with the midpoint heading, as in
-``trajectory.follow_path``; the body velocity moves towards the latest command within the
-acceleration limits and is clipped to the speed limits. A command older than
-``command_timeout_s`` is replaced by a stop (the drivers' watchdog: a teleop or route
-driver that dies must not leave the robot driving). The wheel odometry measures every step's
-motion with ``odometry.measured_increments`` (the same noise model as the office bags) and
-integrates it in the odom frame, which starts at identity at the start pose.
-
-Time is whatever the caller passes (int ns, wall clock live): ``advance(now_ns)`` integrates
-whole steps up to ``now_ns`` and keeps the remainder for the next call, so the motion does
-not depend on how often or how regularly it is called.
-"""
+"""A live differential-drive base and its odometry; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -34,7 +19,7 @@ stopped) is skipped, counted in ``skipped_s``, not simulated in one burst."""
 
 @dataclass
 class LiveBase:
-    """The base's true state and its odometry (module docstring)."""
+    """The base's true state and its odometry; times are int ns."""
 
     start_pose: FloatArray
     start_ns: int
@@ -65,11 +50,7 @@ class LiveBase:
         return self.motion.step_ns
 
     def command(self, speed_mps: float, turn_radps: float, now_ns: int) -> None:
-        """Take a velocity command (forward m/s, counter-clockwise rad/s) given at ``now_ns``.
-
-        ValueError for a non-finite value (the caller counts and reports it); the previous
-        command stays in force until it times out.
-        """
+        """Take a command (m/s, rad/s ccw) at ``now_ns``; ValueError for a non-finite value."""
         if not (math.isfinite(speed_mps) and math.isfinite(turn_radps)):
             raise ValueError(f'velocity command ({speed_mps}, {turn_radps}) is not finite')
         self._command = (speed_mps, turn_radps)

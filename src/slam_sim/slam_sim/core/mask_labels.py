@@ -1,48 +1,4 @@
-"""Moving/static labels of image tracks from per-pixel motion masks and the tracks' own
-motion (ROS-free).
-
-A track is an id with a raw pixel in some colour images (``TrackSightings``). Each motion
-mask (``motion_masks.MaskedFrame``: a colour image with a depth map and a pose) takes, from
-every track seen within ``max_gap_images`` images of it, one *mask sighting*:
-
-- the track's pixel at the mask's image: its own pixel there, or else its pixel in the
-  nearest image within the gap moved on by its own velocity (its displacement to the
-  adjacent image of the same track, px per image) times the images between; a track seen in
-  one image only, not one with a mask, gets none;
-- the mask's code there (``sighting_codes``): the mask's code where it is decided (MOVING
-  or STATIC); where it is UNKNOWN (no depth, a depth edge: where a tracker puts its corners),
-  the code of the *nearest surface* within ``radius_px`` (4: the depth-edge window's radius
-  (2) plus the mask's grid stride (2)): MOVING when the nearest-depth moving pixel in that
-  disc is at most as far as the nearest-depth static one, STATIC when only static pixels or
-  nearer static ones are there, UNKNOWN when the disc holds no decided pixel. A corner on an
-  object's outline moves with the occluding, nearer side, not with the background it is seen
-  against;
-- the track's own motion to the next mask (``motion_codes``): where the track has a robust
-  depth z (``rgbd_depth.sample_depth``) at its pixel p_k in mask k and a mask sighting at the
-  next mask j, the point it back-projects to, were it static, projects into j at p_hat; the
-  track's pixel there is p_j. The residual e = p_j - p_hat has the covariance
-
-      S = 2 sigma_px^2 I + 2 sigma_pose(dt)^2 diag(fx^2, fy^2) / z_j^2 + d d^T,
-
-  the tracker's pixel noise in both images, the two poses' position error (one lateral axis
-  each, ``depth_labels.PoseError``) at the point's depth z_j in j, and d the shift of p_hat
-  when z grows by its structured-light noise sigma_z(z). It is MOVING when e^T S^-1 e >
-  chi2_2(``probability``) (0.9973: 11.83), STATIC otherwise. A MOVING code stands only when
-  the track's motion code at its previous or next mask is MOVING too (two successive pairs,
-  0.2 s, agree: a moving surface keeps moving, while a tracker's slip in a blurred image or
-  along an outline is one jump); otherwise it becomes UNKNOWN. A surface that slides along
-  itself (a torso moving sideways, a board in front of a wall) keeps its depth, so the masks
-  see it only at its outline; its texture, which the tracker follows, does move.
-
-A mask sighting is MOVING when its mask code or its motion code is MOVING, STATIC when
-either is STATIC (and none MOVING), UNKNOWN otherwise.
-
-The rule (``label_by_masks``): a track with at least one decided mask sighting is MOVING
-when at least ``share`` (0.5) of its decided mask sightings are MOVING (most of the time
-it was seen it was on something moving), STATIC otherwise; a track without one is UNKNOWN.
-``TrackLabels.statistics`` holds the moving share, ``depth_sightings`` the decided mask
-sightings.
-"""
+"""Moving/static labels of tracks from motion masks; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -63,10 +19,7 @@ from slam_sim.core.rgbd_depth import camera_points, in_camera, world_points
 
 @dataclass(frozen=True)
 class MaskLabelRule:
-    """The mask label rule's settings (module docstring): the least moving share, the
-    nearest-surface disc's radius (px), the largest gap (colour images) between a track's
-    sighting and a mask, and the motion test's pixel noise (px per axis), ground-truth
-    position error, probability and depth sampling."""
+    """The mask label rule's settings: moving share, disc radius px, gap, motion test."""
 
     share: float = 0.5
     radius_px: int = 4
@@ -97,9 +50,7 @@ class MaskLabelRule:
 
 @dataclass(frozen=True, eq=False)
 class TrackSightings:
-    """A tracker's output (N): colour image index, track id and raw pixel (N, 2) per
-    sighting, any order; ``velocities`` (N, 2) px per image from the same track's sighting in
-    the adjacent image (the previous one, else the next; NaN for a track seen once)."""
+    """A tracker's sightings (N): image, id, raw pixel (N, 2), velocity (N, 2) px/image."""
 
     images: IntArray
     ids: IntArray
@@ -108,7 +59,7 @@ class TrackSightings:
 
     @classmethod
     def of(cls, images: IntArray, ids: IntArray, pixels: FloatArray) -> TrackSightings:
-        """Return the sightings with their velocities (class docstring)."""
+        """Return the sightings with their velocities (N, 2) px per image."""
         images = np.asarray(images, dtype=np.int64)
         ids = np.asarray(ids, dtype=np.int64)
         pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
@@ -123,8 +74,7 @@ class TrackSightings:
         return cls(images, ids, pixels, step)
 
     def at_image(self, image: int, max_gap_images: int) -> tuple[IntArray, FloatArray]:
-        """Return the tracks (K,) seen within ``max_gap_images`` of ``image`` and their
-        pixels there (K, 2) (module docstring)."""
+        """Return the tracks (K,) seen within ``max_gap_images`` of ``image``, pixels (K, 2)."""
         gap = np.abs(self.images - image)
         near = np.flatnonzero(gap <= max_gap_images)
         near = near[np.lexsort((gap[near], self.ids[near]))]
@@ -139,9 +89,7 @@ class TrackSightings:
 
 
 def pixel_codes(frame: MaskedFrame, radius_px: int) -> CodeArray:
-    """Return the code (H, W) a track's sighting gets at each pixel of the mask's image: the
-    mask's code where it is decided, else the nearest surface's within ``radius_px``
-    (module docstring)."""
+    """Return the code (H, W) a sighting gets at each pixel of a mask's image."""
     mask, depth = frame.mask, frame.depth_m
     nearest_moving = _nearest_depth(mask, depth, MOVING, radius_px)
     nearest_static = _nearest_depth(mask, depth, STATIC, radius_px)
@@ -153,8 +101,7 @@ def pixel_codes(frame: MaskedFrame, radius_px: int) -> CodeArray:
 
 
 def codes_at(codes: CodeArray, pixels: FloatArray) -> IntArray:
-    """Return ``pixel_codes``' codes (N,) at raw pixels (N, 2), rounded to the nearest
-    pixel; UNKNOWN outside the image or where a pixel is not finite."""
+    """Return ``pixel_codes``' codes (N,) at raw pixels (N, 2); UNKNOWN outside."""
     height, width = codes.shape
     pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     found = np.full(len(pixels), UNKNOWN, dtype=np.int64)
@@ -168,14 +115,12 @@ def codes_at(codes: CodeArray, pixels: FloatArray) -> IntArray:
 
 
 def sighting_codes(frame: MaskedFrame, pixels: FloatArray, radius_px: int) -> IntArray:
-    """Return the mask's code (N,) at raw pixels (N, 2), UNKNOWN ones taken from the nearest
-    surface within ``radius_px`` (module docstring); UNKNOWN outside the image."""
+    """Return the mask's codes (N,) at raw pixels (N, 2), UNKNOWN ones from the nearest surface."""
     return codes_at(pixel_codes(frame, radius_px), pixels)
 
 
 def _nearest_depth(mask: CodeArray, depth_m: FloatArray, code: int, radius_px: int) -> FloatArray:
-    """Return the nearest depth (H, W) m of the pixels with ``code`` in the disc of
-    ``radius_px`` around each pixel, inf where there is none."""
+    """Return the nearest depth (H, W) m of ``code`` pixels within ``radius_px``, else inf."""
     source = np.where((mask == code) & np.isfinite(depth_m), depth_m, np.inf).astype(np.float32)
     if radius_px == 0:
         return source.astype(np.float64)
@@ -186,8 +131,7 @@ def _nearest_depth(mask: CodeArray, depth_m: FloatArray, code: int, radius_px: i
 
 @dataclass(frozen=True, eq=False)
 class MaskSightings:
-    """Mask sightings (S): track ids, the masks' colour images, the combined codes and the
-    two they combine, the mask's and the motion's (module docstring)."""
+    """Mask sightings (S): ids, images, combined codes, mask codes and motion codes."""
 
     ids: IntArray
     images: IntArray
@@ -227,9 +171,7 @@ def motion_codes(
     second: tuple[MaskedFrame, FloatArray],
     rule: MaskLabelRule,
 ) -> IntArray:
-    """Return the motion codes (K,) of K tracks from mask k to mask j (module docstring):
-    ``first`` = (mask k, pixels (K, 2), robust depths (K,) m, NaN = none), ``second`` =
-    (mask j, the same tracks' pixels (K, 2)); UNKNOWN without depth or in front of j."""
+    """Return the motion codes (K,) of K tracks from mask k to mask j."""
     (frame_k, pixels_k, depth_k), (frame_j, pixels_j) = first, second
     codes = np.full(len(pixels_k), UNKNOWN, dtype=np.int64)
     local = camera_points(camera, pixels_k, depth_k)
@@ -262,8 +204,7 @@ def mask_sightings(
     rule: MaskLabelRule,
     coded: Callable[[MaskedFrame, CodeArray], None] | None = None,
 ) -> MaskSightings:
-    """Return every track's mask sighting at every mask, in mask order (module
-    docstring); ``coded(frame, pixel codes)`` gets each mask's ``pixel_codes``."""
+    """Return every track's mask sighting at every mask, in mask order."""
     parts: list[tuple[IntArray, IntArray, IntArray, IntArray]] = []
     previous: _FrameSightings | None = None
     for frame in frames:
@@ -298,8 +239,7 @@ def mask_sightings(
 
 
 def _agreeing(ids: IntArray, motion: IntArray) -> IntArray:
-    """Return the motion codes (S,) of sightings in mask order with each MOVING one that no
-    MOVING code of the same track at the previous or next mask joins made UNKNOWN."""
+    """Return the motion codes (S,) with each unconfirmed MOVING made UNKNOWN."""
     order = np.argsort(ids, kind='stable')  # per track, in mask order
     moving = motion[order] == MOVING
     same = ids[order][1:] == ids[order][:-1]
@@ -314,8 +254,7 @@ def _agreeing(ids: IntArray, motion: IntArray) -> IntArray:
 def _motion_to(
     camera: CameraModel, first: _FrameSightings, second: _FrameSightings, rule: MaskLabelRule
 ) -> IntArray:
-    """Return the motion codes of ``first``'s sightings (K,) to ``second`` (UNKNOWN for a
-    track not in ``second``)."""
+    """Return the motion codes (K,) of ``first``'s tracks to ``second`` (UNKNOWN if not in it)."""
     codes = np.full(len(first.ids), UNKNOWN, dtype=np.int64)
     _, in_first, in_second = np.intersect1d(
         first.ids, second.ids, assume_unique=True, return_indices=True
@@ -332,8 +271,7 @@ def _motion_to(
 def label_by_masks(
     track_ids: IntArray, sightings: MaskSightings, rule: MaskLabelRule
 ) -> TrackLabels:
-    """Return the labels of ``track_ids`` (any order, repeats allowed) from their mask
-    sightings (module docstring)."""
+    """Return the labels of ``track_ids`` (any order, repeats allowed) from mask sightings."""
     ids = np.unique(np.asarray(track_ids, dtype=np.int64))
     decided = sightings.codes != UNKNOWN
     listed = np.isin(sightings.ids, ids) & decided

@@ -1,59 +1,4 @@
-"""Per-pixel motion masks of an RGB-D sequence's depth maps from known camera poses (ROS-free).
-
-Evidence (``pair_votes``): a usable pixel of depth frame k (valid depth, not at a depth edge:
-``depth_edges``, the pixels ``rgbd_depth.sample_depth`` refuses) is back-projected to its
-point X with frame k's pose and projected into another depth frame j (pixel p_j, predicted
-depth z_pred). A static X seen from j is either measured there (depth ~ z_pred) or hidden
-behind something nearer; j cannot measure *farther* than z_pred along that ray, because X
-would be in the way. So, with D_min the nearest depth j measured within a window around
-p_j:
-
-- **violation** (X lies in free space j saw through: X was not there at j's time, so it
-  moved): D_min - z_pred > ``n_sigma`` sigma (3: one-sided, 0.13 % of a static surface's
-  pixels per pair with Gaussian noise);
-- **support** (j measured X where k did): no violation and j's own depth at p_j is not
-  nearer than z_pred - ``n_sigma`` sigma;
-- otherwise (j's pixel is nearer: X hidden in j, or j's pixel moved in front; p_j outside
-  j's image or without depth) j says nothing about X.
-
-A pixel in front of its surface in j is therefore never taken as evidence that k's pixel
-moved (disocclusions and occlusions are not motion), and a surface that moves along itself
-(a torso sliding sideways) shows only at its outline and where it uncovers what was behind.
-
-The bound: sigma^2 = sigma_z(z_pred)^2 + sigma_z(D_min)^2 + 2 sigma_pose(dt)^2, sigma_z(z) =
-1.425e-3 z^2 m the structured-light depth noise (``rgbd_depth``) of the two depths, and
-sigma_pose(dt) the ground truth's per-axis position error of one of the two poses dt apart
-(``depth_labels.PoseError``, measured on a static stretch by ``tum_consistency.pose_error``;
-one axis of each pose's error lies along the ray). The window absorbs the pixel error of
-p_j: its radius is ``n_sigma`` sqrt(sigma_px^2 + 2 (f sigma_pose(dt) / z_pred)^2) px,
-rounded up to the next of ``WINDOW_RADII_PX`` (at most 16 px), sigma_px the pixel noise (1
-px: rounding to the pixel grid and the depth-to-colour registration). Taking the nearest
-depth of the window, a thin static structure (a chair leg) that p_j misses by a few pixels
-still stands in front of the background behind it and gives no violation. (At 0.5 s and
-nearer than about 1.5 m the 3-sigma pixel error passes 16 px; there the frames 0.1-0.3 s
-away, with small windows, decide.) Points nearer than ``MIN_DEPTH_M`` to j are skipped.
-
-Votes (``motion_mask``): the other frames are the depth frames at ``neighbours`` (offsets in
-depth frames: -5, -3, -2, -1, 1, 2, 3, 5, i.e. 0.1-0.5 s at Bonn's 10 Hz depth; nearer
-frames have the smaller pose error, farther ones see a slow mover displaced by more than the
-bound), those more than ``max_separation_s`` (0.75 s: a missing depth map may widen the
-gaps, not much more) away left out. A pixel is MOVING when at least
-``min_votes`` (2) frames see a violation (one frame's depth dropout or speckle is not enough;
-a mover that walks towards the camera is seen through by the earlier frames only), STATIC when
-at least ``min_votes`` support it, UNKNOWN otherwise (no depth, a depth edge, seen by fewer
-frames). Then a morphological opening of the MOVING pixels with an ellipse of radius
-``opening_px`` grid pixels (1: 3 x 3 grid pixels, about 6 x 6 image pixels) removes specks
-of one or two grid pixels: structured light computes each depth from a correlation window
-several pixels wide, so its errors come in such specks, while a mover a tracker can follow
-covers far more; removed pixels become UNKNOWN. The mask is computed on every
-``stride_px``-th row and column (2: a quarter of the work) and repeated to full size.
-
-Frames (``sequence_masks``): a depth map takes the pose and stamp of the colour image it is
-associated with (it is registered to that image); on bonn_crowd's static opening those poses
-explain the depth maps slightly better than the poses at the depth maps' own stamps, which
-differ from the colour stamps by up to 17 ms (median depth error 12.7 against 12.9 mm at
-0.1 s).
-"""
+"""Per-pixel motion masks of RGB-D depth maps from known poses; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -80,10 +25,7 @@ MIN_DEPTH_M = 0.1
 
 @dataclass(frozen=True)
 class MaskRule:
-    """The motion mask's settings (module docstring): neighbouring depth frames (offsets),
-    largest separation (s), the bound in sigmas, the least agreeing frames, the pixel noise
-    (px), the ground truth's position error, the opening's radius and the grid stride (grid
-    px), and the depth-edge test."""
+    """The motion mask's settings: neighbour offsets, separation s, sigmas, votes, grid."""
 
     neighbours: tuple[int, ...] = (-5, -3, -2, -1, 1, 2, 3, 5)
     max_separation_s: float = 0.75
@@ -112,9 +54,7 @@ class MaskRule:
 
 
 def depth_edges(depth_m: FloatArray, sampling: DepthSampling) -> BoolArray:
-    """Return the pixels (H, W) ``rgbd_depth.sample_depth`` refuses: no own depth, fewer than
-    ``min_valid_fraction`` valid depths in the window, or a window whose valid depths spread
-    over more than ``max_relative_spread`` of the pixel's depth."""
+    """Return the pixels (H, W) ``rgbd_depth.sample_depth`` refuses."""
     valid = np.isfinite(depth_m)
     size = 2 * sampling.radius_px + 1
     kernel = np.ones((size, size), np.uint8)
@@ -130,8 +70,7 @@ def depth_edges(depth_m: FloatArray, sampling: DepthSampling) -> BoolArray:
 
 
 def window_minima(depth_m: FloatArray) -> Float32Array:
-    """Return the nearest valid depth (m) within each radius of ``WINDOW_RADII_PX`` (square
-    windows) of every pixel (R, H, W) float32, inf where a window holds none."""
+    """Return the nearest valid depth (R, H, W) float32 m per window radius, inf if none."""
     source = np.where(np.isfinite(depth_m), depth_m, np.inf).astype(np.float32)
     out = np.empty((len(WINDOW_RADII_PX), *depth_m.shape), np.float32)
     for level, radius in enumerate(WINDOW_RADII_PX):
@@ -141,8 +80,7 @@ def window_minima(depth_m: FloatArray) -> Float32Array:
 
 
 def pixel_rays(camera: CameraModel) -> FloatArray:
-    """Return the camera-frame ray (x_n, y_n, 1) of every pixel (H, W, 3), NaN where the
-    pixel has none."""
+    """Return the camera-frame ray (x_n, y_n, 1) of every pixel (H, W, 3), NaN if none."""
     us, vs = np.meshgrid(np.arange(camera.width, dtype=np.float64), np.arange(camera.height))
     normalized, valid = camera.unproject(np.stack([us, vs], axis=-1))
     rays = np.concatenate([normalized, np.ones((*us.shape, 1))], axis=-1)
@@ -152,10 +90,7 @@ def pixel_rays(camera: CameraModel) -> FloatArray:
 
 @dataclass(frozen=True, eq=False)
 class DepthFrame:
-    """One depth map (H, W) m (NaN = none), its T_world_camera (4, 4) and stamp int ns, and
-    what the mask needs of it: the camera-frame points (M, 3) m of its usable grid pixels
-    (every ``stride_px``-th row and column, valid and not at a depth edge), where they are
-    on the grid (h, w) bool, and the window minima of the whole map (``window_minima``)."""
+    """A depth map (H, W) m, its T_world_camera (4, 4), stamp ns and its usable grid points."""
 
     depth_m: FloatArray
     pose: FloatArray
@@ -177,8 +112,7 @@ class DepthFrame:
 
 @dataclass(frozen=True, eq=False)
 class PairVotes:
-    """What another frame says about a frame's usable grid pixels (M,): violation (the
-    point lies in free space the other frame saw through) and support (measured there)."""
+    """Another frame's violation and support votes (M,) on a frame's usable grid pixels."""
 
     violation: BoolArray
     support: BoolArray
@@ -187,7 +121,7 @@ class PairVotes:
 def pair_votes(
     camera: CameraModel, frame: DepthFrame, other: DepthFrame, rule: MaskRule
 ) -> PairVotes:
-    """Return the evidence of ``other`` (j) about ``frame`` (k) (module docstring)."""
+    """Return the violation and support votes of ``other`` (j) on ``frame`` (k)."""
     relative = np.linalg.solve(other.pose, frame.pose)
     rotation = np.ascontiguousarray(relative[:3, :3].T)  # a transposed view is 10x slower
     seen = frame.points @ rotation + relative[:3, 3]
@@ -221,8 +155,7 @@ def pair_votes(
 def motion_mask(
     camera: CameraModel, frame: DepthFrame, others: Sequence[DepthFrame], rule: MaskRule
 ) -> CodeArray:
-    """Return the motion mask of ``frame`` seen from ``others`` (H, W) int8: MOVING,
-    STATIC or UNKNOWN per pixel (module docstring)."""
+    """Return the motion mask (H, W) int8 (MOVING, STATIC, UNKNOWN) of ``frame``."""
     violations = np.zeros(len(frame.points), np.int64)
     supports = np.zeros(len(frame.points), np.int64)
     for other in others:
@@ -247,9 +180,7 @@ def motion_mask(
 
 @dataclass(frozen=True, eq=False)
 class MaskedFrame:
-    """A depth frame's motion mask: the colour image it goes with (index into rgb.txt), that
-    image's stamp int ns and T_world_camera (4, 4), the depth map (H, W) m and the mask (H,
-    W) int8."""
+    """A motion mask (H, W) int8 with its colour image index, stamp, pose and depth (H, W) m."""
 
     image: int
     stamp_ns: int
@@ -259,14 +190,7 @@ class MaskedFrame:
 
 
 def sequence_masks(sequence: TumRgbd, rule: MaskRule) -> Iterator[MaskedFrame]:
-    """Yield the motion mask of every colour image with a depth map and a pose, in order:
-    depth frame n is seen from the frames n + ``rule.neighbours`` (module docstring), each
-    with the pose and stamp of its colour image (the depth maps are registered to it).
-
-    Raises:
-        DatasetError: a depth map cannot be read.
-
-    """
+    """Yield the motion mask of every colour image with depth and pose; DatasetError."""
     images = np.flatnonzero((sequence.depth_index >= 0) & sequence.has_pose)
     rays = pixel_rays(sequence.camera)
     frames: dict[int, DepthFrame] = {}
@@ -297,9 +221,7 @@ def sequence_masks(sequence: TumRgbd, rule: MaskRule) -> Iterator[MaskedFrame]:
 
 
 def _project(camera: CameraModel, points: FloatArray) -> FloatArray:
-    """Return the raw pixels (N, 2) of camera-frame points (N, 3), z > 0 (the pinhole
-    directly when the camera has no distortion: ``CameraModel.project`` also forms the
-    Jacobians)."""
+    """Return the raw pixels (N, 2) of camera-frame points (N, 3), z > 0."""
     if camera.has_distortion:
         return camera.project(points)
     inverse_z = 1.0 / points[:, 2]

@@ -1,50 +1,4 @@
-"""UTIAS Multi-Robot Cooperative Localization and Mapping (MRCLAM) runs, parsed without ROS.
-
-One data set directory holds, for robots N = 1..5 (Leung, Halpern, Barfoot and Liu, IJRR
-30(8), 2011):
-
-- ``Barcodes.dat``: subject -> barcode; subjects 1-5 are the robots, 6-20 the landmarks.
-- ``RobotN_Odometry.dat``: time s, forward velocity v m/s, angular velocity w rad/s.
-- ``RobotN_Measurement.dat``: time s, BARCODE (the header says "Subject #", but the numbers
-  are barcodes), range m, bearing rad. ``RobotN_Measurement_x.dat`` (a subject-mapped copy
-  made by someone else) is not read.
-- ``RobotN_Groundtruth.dat``: time s, x m, y m, theta rad (Vicon, ``map`` frame); optional:
-  data sets 1-3 have none.
-- ``Landmark_Groundtruth.dat``: subject, x m, y m, x std-dev m, y std-dev m.
-
-Lines starting with ``#`` are comments; columns are separated by blanks or tabs. Times are
-converted to int nanoseconds exactly.
-
-What the parser does with the data:
-
-- Sightings are mapped from barcodes to subjects. Sightings of an unknown barcode and of the
-  robot's own subject are dropped (kept in ``dropped_unknown``/``dropped_own`` for the
-  counts); sightings of the other robots (subjects 1-5) are kept: they are real moving
-  landmarks. ``robot_truth`` holds where each other robot truly was, for those whose
-  ``RobotN_Groundtruth.dat`` exists; ``truth`` is the robot's own track, or None without
-  its file. ``other_robots`` are the four other robot subjects, with or without a track.
-  A missing odometry, measurement, barcode or landmark file is a ``DatasetError``.
-- Odometry is integrated into poses in an ``odom`` frame that starts at (0, 0, 0):
-  pose k+1 = pose k moved by v_k dt along the midpoint heading theta_k + w_k dt / 2,
-  dt = t_{k+1} - t_k. A sample whose time equals the previous sample's is dropped, keeping
-  the last sample of each repeated time (it is the reading in effect for the next interval;
-  the integrated poses are the same as with the repeats kept, since their dt is 0). The
-  count is ``duplicate_odometry_stamps``. A time going backwards is an error.
-- Measurement times must not decrease (several sightings share a time); ground-truth times
-  must increase.
-- ``MrclamRun.first_seconds(S)`` keeps the first S seconds from the run's first odometry
-  stamp (after sorting), the window every tool uses; ``until`` crops at any stamp.
-
-Every problem raises ``DatasetError`` naming ``file:line``.
-
-Data set 6 as found: no odometry time goes backwards, but robots 2-5 repeat 1, 8, 10 and 4
-odometry times (6 of the 23 repeats with different readings); robots 1, 3 and 4 see unknown
-barcodes 43 (once), 34 (twice) and 50 (3 times); no robot sees its own barcode. Robot 1's
-Vicon track ends about 128 s before its odometry does, so the last sightings of robot 1 by
-the others have no ground truth (``true_targets`` marks them). Data sets 1-3 have no
-``RobotN_Groundtruth.dat``, and data set 3 has no ``Robot4_Odometry.dat`` (robot 4 of it
-cannot be parsed; the others can, and their sightings of robot 4 are kept).
-"""
+"""UTIAS MRCLAM runs, parsed without ROS; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -99,8 +53,7 @@ class Trajectory:
         return np.stack([x, y, wrap_angle(theta)], axis=-1)
 
     def within(self, start_ns: int | None, end_ns: int) -> Trajectory | None:
-        """Return the samples in [``start_ns``, ``end_ns``] (None: from the first), or None
-        if there are fewer than 2."""
+        """Return the samples in [start_ns, end_ns] (None: from the first), None if < 2."""
         keep = _inside(self.stamps_ns, start_ns, end_ns)
         if np.count_nonzero(keep) < 2:
             return None
@@ -109,25 +62,21 @@ class Trajectory:
 
 @dataclass(frozen=True)
 class Odometry:
-    """Wheel odometry: ``stamps_ns`` (N,), ``twists`` (N, 2) (v m/s, w rad/s) as measured,
-    ``poses`` (N, 3) integrated in ``odom`` (x m, y m, theta rad), pose 0 at the origin."""
+    """Wheel odometry: stamps (N,), twists (N, 2) (m/s, rad/s), poses (N, 3) in ``odom``."""
 
     stamps_ns: IntArray
     twists: FloatArray
     poses: FloatArray
 
     def within(self, start_ns: int | None, end_ns: int) -> Odometry:
-        """Return the samples in [``start_ns``, ``end_ns``] (None: from the first; poses
-        unchanged)."""
+        """Return the samples in [start_ns, end_ns] (None: from the first)."""
         keep = _inside(self.stamps_ns, start_ns, end_ns)
         return Odometry(self.stamps_ns[keep], self.twists[keep], self.poses[keep])
 
 
 @dataclass(frozen=True)
 class Sightings:
-    """Range-bearing sightings: ``stamps_ns``, ``barcodes``, ``subjects`` (0 = unknown
-    barcode), ``range_m``, ``bearing_rad``, and their 1-based ``line_numbers`` in the
-    measurement file; all (K,)."""
+    """Range-bearing sightings (K): stamps, barcodes, subjects (0: unknown), m, rad, lines."""
 
     stamps_ns: IntArray
     barcodes: IntArray
@@ -154,8 +103,7 @@ class Sightings:
 
 @dataclass(frozen=True)
 class LandmarkTruth:
-    """Static landmarks: ``subjects`` (L,), ``positions`` (L, 2) m and ``std_m`` (L, 2) m
-    (Vicon standard deviations of x and y) in ``map``."""
+    """Static landmarks: subjects (L,), positions (L, 2) m, Vicon std (L, 2) m in ``map``."""
 
     subjects: IntArray
     positions: FloatArray
@@ -199,14 +147,7 @@ class MrclamRun:
         return self.within(None, end_ns)
 
     def within(self, start_ns: int | None, end_ns: int) -> MrclamRun:
-        """Return the run with every stamped item outside [``start_ns``, ``end_ns``] removed
-        (None: no lower bound); a Vicon track left with fewer than 2 samples is dropped
-        (``truth`` None, or not in ``robot_truth``).
-
-        Raises:
-            DatasetError: fewer than 2 odometry samples are left.
-
-        """
+        """Return the run within [start_ns, end_ns]; DatasetError if < 2 odometry samples."""
 
         def crop(sightings: Sightings) -> Sightings:
             return sightings.select(_inside(sightings.stamps_ns, start_ns, end_ns))
@@ -229,15 +170,7 @@ class MrclamRun:
         )
 
     def first_seconds(self, duration_s: float) -> MrclamRun:
-        """Return the first ``duration_s`` seconds of the run: the items stamped in
-        [``start_ns``, ``start_ns`` + ``duration_s``] (Vicon samples and sightings before the
-        first odometry stamp are dropped too).
-
-        Raises:
-            ValueError: ``duration_s`` is not a finite number > 0.
-            DatasetError: fewer than 2 odometry samples are left.
-
-        """
+        """Return the first ``duration_s`` s of the run; ValueError, DatasetError."""
         if not (math.isfinite(duration_s) and duration_s > 0.0):
             raise ValueError(
                 f'a time window must be a finite number of seconds > 0, got {duration_s}'
@@ -295,9 +228,7 @@ def _check_time_order(table: Table, stamps_ns: IntArray, *, strict: bool, what: 
 
 
 def misplaced_rows(stamps_ns: IntArray) -> int:
-    """Return the fewest rows that must move to put ``stamps_ns`` (N,) in non-decreasing order:
-    N minus the longest non-decreasing subsequence (one row stamped late counts once, not
-    once for every row it is ahead of)."""
+    """Return the fewest rows that must move to sort ``stamps_ns`` (N,)."""
     tails: list[int] = []
     for stamp in stamps_ns.tolist():
         index = bisect.bisect_right(tails, stamp)
@@ -309,9 +240,7 @@ def misplaced_rows(stamps_ns: IntArray) -> int:
 
 
 def _read_odometry(path: Path) -> tuple[Odometry, int, int]:
-    """Return the odometry of ``path``, the number of rows that were out of time order (put
-    in order by a stable sort: some MRCLAM runs have a first row stamped after the second)
-    and the number of repeated stamps dropped (of equal times the last row is kept)."""
+    """Return the odometry of ``path``, the rows out of order and repeats dropped."""
     columns = [('time', Kind.STAMP), ('v', Kind.FLOAT), ('w', Kind.FLOAT)]
     table = read_table(path, columns)
     stamps = table.ints('time')
@@ -368,12 +297,7 @@ def _read_groundtruth(path: Path) -> Trajectory | None:
 
 
 def robots_with_odometry(dataset_dir: Path | str) -> tuple[int, ...]:
-    """Return the robot subjects (ascending) whose ``RobotN_Odometry.dat`` exists.
-
-    Raises:
-        DatasetError: ``dataset_dir`` is not a directory, or no robot has an odometry file.
-
-    """
+    """Return the robots (ascending) with ``RobotN_Odometry.dat``; DatasetError if none."""
     directory = Path(dataset_dir)
     if not directory.is_dir():
         raise DatasetError(f'{directory}: no such data set directory')
@@ -386,18 +310,7 @@ def robots_with_odometry(dataset_dir: Path | str) -> tuple[int, ...]:
 
 
 def parse_mrclam(dataset_dir: Path | str, robot: int) -> MrclamRun:
-    """Return robot ``robot`` (1-5) of the MRCLAM data set in ``dataset_dir``.
-
-    The Vicon tracks (``RobotN_Groundtruth.dat``) are optional: ``truth`` is None and
-    ``robot_truth`` lacks a robot whose file is absent.
-
-    Raises:
-        ValueError: ``robot`` is not 1-5.
-        DatasetError: a file other than a Vicon track is missing, or a file is malformed
-            (wrong column count, a value that is not a finite number, times out of order,
-            ...); the message names file:line.
-
-    """
+    """Return robot ``robot`` (1-5) of ``dataset_dir``; ValueError, DatasetError (file:line)."""
     if robot not in ROBOT_SUBJECTS:
         raise ValueError(f'robot must be one of {ROBOT_SUBJECTS}, got {robot}')
     directory = Path(dataset_dir)
@@ -428,8 +341,7 @@ def parse_mrclam(dataset_dir: Path | str, robot: int) -> MrclamRun:
 
 
 def true_targets(run: MrclamRun, sightings: Sightings) -> tuple[FloatArray, BoolArray]:
-    """Return the true target positions (K, 2) m in ``map`` of sightings, and a mask (K,) of
-    those with ground truth (a static landmark, or a robot inside its Vicon span)."""
+    """Return the true positions (K, 2) m of sightings in ``map`` and which have one (K,)."""
     positions = np.full((len(sightings), 2), np.nan)
     known = np.zeros(len(sightings), dtype=bool)
     landmark_rows = {int(s): k for k, s in enumerate(run.landmarks.subjects.tolist())}
@@ -446,14 +358,7 @@ def true_targets(run: MrclamRun, sightings: Sightings) -> tuple[FloatArray, Bool
 
 
 def sighting_residuals(run: MrclamRun) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Return measured minus true range m (K,) and bearing rad (K,) of the kept sightings,
-    from the Vicon poses of the robot and its targets, and a mask (K,) of the sightings that
-    have ground truth (elsewhere the residuals are NaN).
-
-    Raises:
-        DatasetError: the robot has no Vicon track (no ``RobotN_Groundtruth.dat``).
-
-    """
+    """Return measured minus true range (K,) m and bearing (K,) rad, and a truth mask."""
     if run.truth is None:
         raise DatasetError(
             f'{run.dataset_dir / f"Robot{run.robot}_Groundtruth.dat"}: no such file; the '

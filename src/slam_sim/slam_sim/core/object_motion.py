@@ -1,5 +1,4 @@
-"""Motions of the dynamic scene's moving objects (``dynamic_scene`` describes the kinds), as
-segments evaluable at any time."""
+"""Motions of the dynamic scene's moving objects, as segments evaluable at any time."""
 
 from __future__ import annotations
 
@@ -16,11 +15,7 @@ from slam_sim.core.dynamic_room import RoomLayout
 
 @dataclass(frozen=True)
 class ObjectMotion:
-    """An object centre's motion as segments: segment s starts at ``start_s[s]`` (run s) at
-    ``start_m[s]`` (3,) m with velocity ``velocity_m_s[s]`` (3,) m/s whose horizontal part
-    turns at ``turn_rate_radps[s]``. A time on a boundary belongs to the earlier segment, so
-    velocities there are left limits; times before the first start extrapolate it. The
-    object exists (can be observed) from ``appears_s`` on."""
+    """An object centre's motion as segments (start s, position m, velocity m/s, turn rate)."""
 
     kind: str
     start_s: FloatArray

@@ -1,18 +1,4 @@
-"""Wheel odometry: noisy, biased per-step increments integrated into an odom-frame pose.
-
-Each integration step's true forward distance ds (m) and rotation dtheta (rad) are measured
-as
-
-    ds_meas     = (1 + distance_scale_error) ds     + n_d,  n_d ~ N(0, sd^2 |ds|)
-    dtheta_meas = (1 + rotation_scale_error) dtheta + n_r,  n_r ~ N(0, sr^2 |dtheta| + sq^2 |ds|)
-
-with sd = ``distance_sigma_per_sqrt_m``, sr = ``rotation_sigma_per_sqrt_rad`` and
-sq = ``rotation_sigma_per_sqrt_m``. The noise is multiplicative in the sense of the usual
-wheel-odometry model (it scales with the motion, and vanishes when the robot stands still);
-its variance grows linearly with the distance or angle, so the accumulated error does not
-depend on the integration rate. The scale errors are systematic: a wrong wheel radius
-(distance) and a wrong wheelbase (rotation). The odom frame starts at the identity.
-"""
+"""Wheel odometry: noisy, biased increments integrated; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -26,7 +12,7 @@ from slam_core.geometry.se2 import wrap_angle
 
 @dataclass(frozen=True)
 class OdometryNoise:
-    """Wheel odometry error model (see the module docstring)."""
+    """Wheel odometry error model: sigmas per sqrt(m or rad) and scale errors."""
 
     distance_sigma_per_sqrt_m: float = 0.02
     rotation_sigma_per_sqrt_rad: float = 0.04
@@ -52,12 +38,7 @@ class OdometryNoise:
 
 @dataclass(frozen=True)
 class OdometrySamples:
-    """Odometry as a robot driver publishes it.
-
-    ``stamps_ns`` (M,) int ns from the run start; ``poses`` (M, 3) base_link in the odom
-    frame (x m, y m, theta rad in (-pi, pi]); ``twists`` (M, 2) (v m/s, w rad/s) in
-    base_link, the measured motion over the preceding sample period (zero for the first).
-    """
+    """Odometry as a driver publishes it: stamps (M,) ns, poses (M, 3), twists (M, 2)."""
 
     stamps_ns: IntArray
     poses: FloatArray
@@ -89,10 +70,7 @@ def measured_increments(
 
 
 def integrate_increments(distance_m: FloatArray, rotation_rad: FloatArray) -> FloatArray:
-    """Return the poses (N + 1, 3) from the identity through increments (N,), midpoint heading.
-
-    As the paper's eq. 2 with no side motion: x += ds cos(theta + dtheta / 2), and so on.
-    """
+    """Return the poses (N + 1, 3) from the identity through increments (N,), midpoint heading."""
     heading = np.concatenate([[0.0], np.cumsum(rotation_rad)])
     midpoint = heading[:-1] + 0.5 * rotation_rad
     x = np.concatenate([[0.0], np.cumsum(distance_m * np.cos(midpoint))])
@@ -111,10 +89,7 @@ def sample_indices(num_steps: int, sim_rate_hz: float, rate_hz: float) -> IntArr
 def odometry_samples(
     times_ns: IntArray, distance_m: FloatArray, rotation_rad: FloatArray, indices: IntArray
 ) -> OdometrySamples:
-    """Return odometry at step ``indices`` from measured per-step increments (N - 1,).
-
-    ``times_ns`` (N,) are the step times; increment i moves from step i to step i + 1.
-    """
+    """Return odometry at step ``indices`` from measured per-step increments (N - 1,)."""
     poses = integrate_increments(distance_m, rotation_rad)
     traveled = np.concatenate([[0.0], np.cumsum(distance_m)])
     turned = np.concatenate([[0.0], np.cumsum(rotation_rad)])

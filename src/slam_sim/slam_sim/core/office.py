@@ -1,30 +1,4 @@
-"""The EM-SAM paper's office experiment (section IV), simulated from a seed.
-
-Two 4.5 m offices joined by a 12 m corridor; 12 wall markers in office 1, 8 in the corridor
-and 9 in office 2 (ids 0-28, static), and 10 moveable markers on desks in office 1 (ids
-100-109). The robot loops in office 1, drives down the corridor, loops in office 2, drives
-back and loops in office 1 again, ending at its start. While it first crosses the middle of
-the corridor (``move_time_ns``) the moveable markers are moved, depending on the variant:
-
-- ``standard``: to random desk spots in office 2, facing into the room;
-- ``static``: nothing moves;
-- ``all_moveable``: as ``standard``, with every static marker's observations suppressed
-  (the paper's last test: the same run, only moveable landmarks observed);
-- ``coherent``: all together by one rigid transform (a rotation of
-  ``coherent_rotation_rad`` about office 1's centre, about 1 m along the desks): the
-  paper's Discussion case;
-- ``one_position``: as ``standard``, but ``one_position_count`` of them are put down in
-  office 2 facing the wall, so the robot sees them at their first position only.
-
-``relocated_static_count`` wall markers are somewhere else than ``static_markers`` puts
-them for the whole run: moved along their wall by 0.8-1.5 m before it started, as between
-two sessions (the paper's robot that returns days later, on a map saved before the move).
-
-Every variant of a seed has the same world, path, odometry noise and static-marker
-observations: separate random streams feed the desk layout, the moves, the odometry and
-the detector. Times are int ns from the run start; the map frame is the world frame and
-the odom frame starts at the robot's start pose.
-"""
+"""The EM-SAM paper's office experiment from a seed; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -59,7 +33,7 @@ _FACE_OFFSET_M = 0.05
 
 
 class Variant(StrEnum):
-    """What happens to the moveable markers (see the module docstring)."""
+    """What happens to the moveable markers."""
 
     STANDARD = 'standard'
     STATIC = 'static'
@@ -111,13 +85,7 @@ class OfficeConfig:
 
 @dataclass(frozen=True)
 class LandmarkTruth:
-    """Ground truth of every marker, map frame.
-
-    ``ids`` (L,); ``moveable`` (L,) True for desk markers (moved or not); positions (L, 2) m
-    and unit face normals (L, 2) before and after ``move_time_ns`` (None: nothing moves,
-    after == before); ``rooms_before`` / ``rooms_after`` the names of the rooms the markers face
-    into.
-    """
+    """Ground truth of every marker in map: ids, moveable, positions/normals before and after."""
 
     ids: IntArray
     moveable: BoolArray
@@ -153,13 +121,7 @@ class LandmarkTruth:
 
 @dataclass(frozen=True)
 class OfficeRun:
-    """One simulated office run: world, truth, odometry and observations (see module doc).
-
-    ``seen_at_both_positions`` (S,) the ids of moved markers observed (non-outlier) both
-    before and after the move: the ones a moveable-landmark detector can find.
-    ``relocated_ids`` (R,) the wall markers moved before the run and ``relocated_from_m``
-    (R, 2) where ``static_markers`` puts them (where an earlier session saw them).
-    """
+    """One simulated office run: world, truth, odometry and observations."""
 
     seed: int
     variant: Variant
@@ -231,11 +193,7 @@ def _face_some_to_walls(
     config: OfficeConfig,
     rng: np.random.Generator,
 ) -> FloatArray:
-    """Return ``normals`` with ``one_position_count`` office 2 markers turned to face the wall.
-
-    Markers are tried in a random order; one is turned only if the robot can then never
-    see it from any camera frame of the run.
-    """
+    """Return ``normals`` with ``one_position_count`` office 2 markers facing the wall."""
     turned, hidden = normals.copy(), 0
     for index in rng.permutation(len(positions)):
         if hidden == config.one_position_count:
@@ -288,8 +246,7 @@ def _moved_desks(
 def relocate_walls(
     world: OfficeWorld, walls: MarkerSet, count: int, rng: np.random.Generator
 ) -> tuple[MarkerSet, IntArray]:
-    """Move ``count`` wall markers along their wall by 0.8-1.5 m, each staying on a wall of
-    its room and at least 0.5 m from every other marker; the new set and the moved ids."""
+    """Move ``count`` wall markers 0.8-1.5 m along their wall; return the set and ids."""
     positions = walls.positions_m.copy()
     moved: list[int] = []
     for index in rng.permutation(len(walls.ids)).tolist():

@@ -1,18 +1,4 @@
-"""A cheap, exact renderer of the office camera's images: AprilTag markers on vertical walls.
-
-Walls are vertical planes over 2D segments from the floor (z = 0) to ``wall_height_m``; the
-camera is level (no roll or pitch), so a pixel's wall hit depends only on its undistorted x,
-looked up in a table of azimuths. Floor and ceiling are flat. Markers are textured quads
-drawn by ``slam_core.render.patch.draw_patch`` (frames and print: ``office_view``).
-
-Rendering is exact in perspective and lens distortion: every pixel's undistorted ray is
-precomputed once per camera; a marker's texture coordinates are the ray-plane intersection of
-the pixels in its bounding box (a homography of undistorted coordinates), sampled bilinearly
-from the texture resized (area filter) to about one texel per pixel, so edges are antialiased
-and unbiased. Occlusion is by depth; markers are drawn far to near with alpha-blended paper
-edges. ``CameraEffects`` then applies lighting drift, vignetting, defocus and motion blur and
-sensor noise, all deterministic for a seed sequence and frame index.
-"""
+"""An exact renderer of the office camera's images; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -37,8 +23,7 @@ _NO_WALL_M = 1e4  # the depth of a ray that meets no wall
 
 @dataclass(frozen=True)
 class _WallRays:
-    """The pixel rays' azimuth table for wall casting: ``table_x`` (T,) x_u values and the
-    table index of each pixel's x_u (H, W)."""
+    """The pixel rays' azimuth table: x_u values (T,) and each pixel's table index (H, W)."""
 
     table_x: FloatArray
     table_index: NDArray[np.intp]
@@ -64,7 +49,7 @@ class _Drawn:
 
 
 class Renderer:
-    """Renders grey images of a walled world with markers for one camera (see module doc)."""
+    """Renders grey images of a walled world with markers for one camera."""
 
     def __init__(self, camera: CameraModel, walls_m: FloatArray, style: SceneStyle) -> None:
         self.camera, self.style = camera, style
@@ -134,10 +119,7 @@ class Renderer:
         center: FloatArray,
         rotation: FloatArray,
     ) -> _Drawn | None:
-        """Draw one marker's paper into ``image`` by depth; None if it cannot be seen.
-
-        Back faces are not drawn; neither are markers that lie behind everything drawn.
-        """
+        """Draw one marker's paper into ``image`` by depth; None if it cannot be seen."""
         patch = TexturedPatch(self._texture(marker_id), self.style.paper_m, center, rotation)
         drawn = draw_patch(image, depth, label, self.rays, self.camera, patch, index)
         if drawn is None:
@@ -203,8 +185,7 @@ def _inside(
 def _cast(
     pose: LevelPose, table_x: FloatArray, walls_m: FloatArray
 ) -> tuple[FloatArray, FloatArray, IntArray]:
-    """Return per table ray (K,): optical depth z of the nearest wall hit m (``_NO_WALL_M`` if
-    none), the distance along that wall from its start m, and the wall index."""
+    """Return per table ray (K,) the nearest wall hit: depth z m, distance along it m, index."""
     forward = np.array([math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)])
     right = np.array([forward[1], -forward[0]])
     direction = forward + table_x[:, None] * right  # (K, 2), optical z = 1 per unit

@@ -1,15 +1,4 @@
-"""What the office robot's camera sees: the camera, its level pose, the wall and desk markers,
-how they are printed (``SceneStyle``) and the ground truth a rendered frame comes with.
-
-Frames: the camera optical frame is x right, y down, z forward (REP 103); pixels are (u right,
-v down) with pixel centres at integer coordinates, as in OpenCV. A marker's frame is x right,
-y up, z out of its printed face towards the viewer; its corners are listed in OpenCV order
-(top-left, top-right, bottom-right, bottom-left of the black square).
-
-Markers are the AprilTag 36h11 images of OpenCV's aruco dictionary (8 x 8 cells: 6 x 6 data
-bits and one black border cell) on white paper with a quiet zone of ``quiet_zone_cells``
-cells. The black square of side ``side_m`` is what a detector measures.
-"""
+"""What the office robot's camera sees, and its truth; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -36,8 +25,7 @@ like a calibrated webcam."""
 
 
 def office_camera(width: int = 640, height: int = 480) -> CameraModel:
-    """Return ``OFFICE_CAMERA``'s lens on a ``width`` x ``height`` px sensor (same horizontal
-    field of view, ``CameraModel.scaled``); ValueError unless both are in [16, 8192] px."""
+    """Return the office lens on a ``width`` x ``height`` px sensor; ValueError outside 16-8192."""
     if not (16 <= width <= 8192 and 16 <= height <= 8192):
         raise ValueError(f'camera size {width}x{height} px not in [16, 8192]')
     return OFFICE_CAMERA.scaled(width, height)
@@ -110,14 +98,7 @@ class SceneStyle:
 
 @dataclass(frozen=True)
 class MarkerTruth:
-    """Ground truth of the M markers whose black square is in front of the camera.
-
-    ``ids`` (M,); ``corners_px`` (M, 4, 2) true distorted pixel corners in OpenCV order;
-    ``rotation`` (M, 3, 3) and ``translation_m`` (M, 3) the marker pose in the optical frame;
-    ``in_image`` (M,) all corners inside the image; ``visible_fraction`` (M,) of the black
-    square's pixels not hidden; ``visible`` (M,) in the image, facing the camera, unoccluded;
-    ``side_px`` (M,) the shortest edge of the corner quad, px (a detector needs about 30).
-    """
+    """Ground truth of the M markers in front of the camera: corners px, pose, visibility."""
 
     ids: IntArray
     corners_px: FloatArray

@@ -1,26 +1,4 @@
-"""The reference trajectory's own pose error, measured against the images of a static
-stretch (ROS-free).
-
-For two images ``separation`` apart, the first with a depth map: SIFT matches between them
-(Lowe's ratio test), each match's point back-projected with the first image's depth, and the
-relative pose the second image sees them from (PnP: RANSAC, then Levenberg-Marquardt on the
-inliers, started from the reference's relative pose). Against the reference's relative pose
-this gives, per pair (``pair_error``):
-
-* the rotation error log(R_images R_reference^T) (3,) rad, in the second camera's axes;
-* the centre error (3,) m: the second camera's centre in the first camera's axes, the
-  images' against the reference's;
-* the PnP's own variances of both (from its reprojection residuals and Jacobian).
-
-``reference_pose_error`` gathers the pairs of a static stretch per band of separations
-(``tum_consistency.SEPARATION_BANDS_S``) into ``ReferencePoseError``: per band, the per-axis
-sigma of the rotation and of the centre error, the mean square over the pairs and the axes
-less the PnP's own mean variance. It is the reference's error between two poses that far
-apart, as an evaluator adds it to an estimate's covariance (``trajectory_evaluate
---reference-error``). The images measure rotation and translation separately, which the
-depth maps alone do not: on walls and floors a rotation and a translation slide the depth
-into the same place.
-"""
+"""The reference trajectory's own pose error from images; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -46,9 +24,7 @@ INLIER_CHI2_2DOF = 9.21
 
 @dataclass(frozen=True)
 class ReferencePoseError:
-    """The reference's per-axis rotation sigma (rad) and centre sigma (m) between two poses
-    ``separation`` s apart: linear interpolation in a table of separations (K,) s (increasing),
-    the end values beyond it."""
+    """The reference's per-axis rotation sigma (rad) and centre sigma (m) per separation (s)."""
 
     separations_s: tuple[float, ...]
     rotation_sigmas_rad: tuple[float, ...]
@@ -91,8 +67,7 @@ class ReferencePoseError:
 
     @classmethod
     def from_json(cls, table: dict[str, Any]) -> ReferencePoseError:
-        """Return the table of a JSON object (``to_json``); KeyError, TypeError or ValueError
-        when it holds none."""
+        """Return the table of a JSON object; KeyError, TypeError or ValueError."""
         return cls(
             tuple(float(v) for v in table['separations_s']),
             tuple(float(v) for v in table['rotation_sigmas_rad']),
@@ -102,8 +77,7 @@ class ReferencePoseError:
 
 @dataclass(frozen=True)
 class PairError:
-    """One pair's errors (module docstring): rotation (3,) rad, centre (3,) m, the PnP's own
-    variances of both (6,) (rad^2 then m^2), and its inliers."""
+    """One pair's rotation (3,) rad and centre (3,) m errors, PnP variances (6,), inliers."""
 
     rotation_rad: FloatArray
     centre_m: FloatArray
@@ -130,8 +104,7 @@ class ImageFeatures:
 
 
 def matches(first: ImageFeatures, second: ImageFeatures) -> tuple[np.ndarray, np.ndarray]:
-    """Return the indices (M,), (M,) of the matches between two images' features that pass
-    the ratio test (``RATIO_TEST``)."""
+    """Return the indices (M,), (M,) of the matches that pass the ratio test."""
     if len(first.pixels) < 2 or len(second.pixels) < 2:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(first.descriptors, second.descriptors, k=2)
@@ -151,10 +124,7 @@ def pair_error(
     min_inliers: int = 20,
     sampling: DepthSampling | None = None,
 ) -> PairError | None:
-    """Return the reference's relative pose error between two images (module docstring), or
-    None when fewer than ``min_inliers`` matches agree; ``first`` = (features, depth map
-    (H, W) m, reference T_world_camera (4, 4)), ``second`` = (features, T_world_camera); raw
-    pixels (the camera's distortion applies)."""
+    """Return the reference's relative pose error between two images, None if too few inliers."""
     (features_a, depth_a, pose_a), (features_b, pose_b) = first, second
     index_a, index_b = matches(features_a, features_b)
     depth = sample_depth(depth_a, features_a.pixels[index_a], sampling)
@@ -196,8 +166,7 @@ def pair_error(
 
 @dataclass(frozen=True)
 class BandErrors:
-    """One band's pairs: their separations (P,) s, errors (P, 6) (rotation rad, centre m),
-    the PnP's own variances (P, 6) and inliers (P,)."""
+    """One band's pairs: separations (P,) s, errors (P, 6), PnP variances (P, 6), inliers."""
 
     separations_s: FloatArray
     errors: FloatArray
@@ -205,8 +174,7 @@ class BandErrors:
     inliers: np.ndarray
 
     def sigmas(self) -> tuple[float, float]:
-        """Return the per-axis (rotation rad, centre m) sigma: the mean square over pairs and
-        axes, less the PnP's own mean variance (at least 0)."""
+        """Return the per-axis (rotation rad, centre m) sigma, less the PnP's own variance."""
         excess = np.mean(self.errors**2, axis=0) - np.mean(self.own_variances, axis=0)
         return (
             float(np.sqrt(max(float(np.mean(excess[:3])), 0.0))),
@@ -238,10 +206,7 @@ def reference_pose_error(
     *,
     pixel_sigma_px: float = 1.0,
 ) -> tuple[ReferencePoseError, list[BandErrors]]:
-    """Return the reference's pose error table of a static stretch (module docstring) and the
-    bands with pairs. ``frames`` maps an image index to (a loader of its image, its depth map
-    (H, W) m or None, its reference T_world_camera (4, 4)); pairs run from an image with
-    depth to a later one with depth. Raises ValueError when no band has a measured pair."""
+    """Return a static stretch's reference pose error table and bands; ValueError."""
     with_depth = sorted(k for k, (_, depth, _) in frames.items() if depth is not None)
     features = {k: ImageFeatures.of(frames[k][0]()) for k in with_depth}
     gathered: list[list[tuple[float, PairError]]] = [[] for _ in bands_s]

@@ -1,15 +1,4 @@
-"""Depth maps of a structured-light RGB-D camera: reading, robust sampling at pixels, back-
-projection into the world, the depth noise model, and the depth consistency of a static
-scene between two frames (ROS-free).
-
-The depth noise model and the robust sampling at pixels are ``slam_core.depth``'s (one rule
-for the node and the importers).
-
-Static consistency (``consistency_residuals``): pixels of one frame with depth are back-
-projected with that frame's pose and projected into a second frame; the residual is the
-depth measured there minus the depth predicted. In a static scene with exact poses it is
-depth noise only; pose errors (ground truth, hand-eye calibration) add to it.
-"""
+"""Depth maps of a structured-light RGB-D camera; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -26,12 +15,7 @@ from slam_core.errors import DatasetError
 
 
 def read_depth_m(path: Path, units_per_m: float) -> FloatArray:
-    """Return a 16-bit depth PNG as metres (H, W) float64, NaN where the map holds 0.
-
-    Raises:
-        DatasetError: the file is missing, unreadable or not a one-channel 16-bit image.
-
-    """
+    """Return a 16-bit depth PNG as metres (H, W), NaN for 0; DatasetError if unreadable."""
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise DatasetError(f'{path}: cannot be read as an image')
@@ -43,9 +27,7 @@ def read_depth_m(path: Path, units_per_m: float) -> FloatArray:
 
 
 def camera_points(camera: CameraModel, pixels: FloatArray, depth_m: FloatArray) -> FloatArray:
-    """Return the camera-frame points (N, 3) m of raw pixels (N, 2) at depths z (N,) m (the
-    optical-axis depth, as a depth map stores it); NaN where z is NaN or the pixel has no
-    ray."""
+    """Return camera-frame points (N, 3) m of raw pixels (N, 2) at depths (N,) m, or NaN."""
     normalized, valid = camera.unproject(np.asarray(pixels, dtype=np.float64).reshape(-1, 2))
     z = np.where(valid, np.asarray(depth_m, dtype=np.float64), np.nan)
     return np.column_stack([normalized * z[:, None], z])
@@ -71,9 +53,7 @@ def grid_pixels(width: int, height: int, step_px: int, margin_px: int = 8) -> Fl
 
 @dataclass(frozen=True, eq=False)
 class Residuals:
-    """Static consistency of frame a seen from frame b: the depth measured in b minus the
-    depth predicted from a (M,) m and the predicted depth (M,) m, for the M pixels of a's
-    grid with depth that land in b with depth."""
+    """Depth measured in frame b minus predicted from a (M,) m, and the predicted depth (M,) m."""
 
     residual_m: FloatArray
     predicted_m: FloatArray
@@ -86,8 +66,7 @@ def consistency_residuals(
     step_px: int = 8,
     sampling: DepthSampling | None = None,
 ) -> Residuals:
-    """Return the depth residuals of frame a's grid pixels (``grid_pixels``, ``step_px``)
-    in frame b; ``frames`` = ((depth map a (H, W) m, T_world_camera a (4, 4)), (same for b))."""
+    """Return the depth residuals of frame a's grid pixels in frame b."""
     (depth_a, pose_a), (depth_b, pose_b) = frames
     pixels = grid_pixels(camera.width, camera.height, step_px)
     points = camera_points(camera, pixels, sample_depth(depth_a, pixels, sampling))
@@ -101,8 +80,7 @@ def consistency_residuals(
 
 
 def robust_sigma(values: FloatArray) -> float:
-    """Return 1.4826 times the median absolute deviation from the median (a Gaussian's
-    sigma), NaN for no values."""
+    """Return 1.4826 times the median absolute deviation, NaN for no values."""
     values = np.asarray(values, dtype=np.float64)
     if not len(values):
         return float('nan')
@@ -110,10 +88,7 @@ def robust_sigma(values: FloatArray) -> float:
 
 
 def pose_sigma_from_residuals(residuals: Residuals) -> float:
-    """Return the per-axis position error sigma (m) a pose adds to a back-projected point,
-    from static consistency residuals: their robust variance minus the two depth noises,
-    over 2 (the residual along a ray holds one axis of each frame's pose error); 0 when the
-    depth noise explains it all, NaN for no residuals."""
+    """Return the per-axis pose position sigma (m) the residuals show."""
     if not len(residuals.residual_m):
         return float('nan')
     variance = robust_sigma(residuals.residual_m) ** 2

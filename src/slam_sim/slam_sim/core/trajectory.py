@@ -1,10 +1,4 @@
-"""The robot's true motion: a path through the office world, followed by pure pursuit.
-
-The robot is a differential drive (Peoplebot-like speeds) whose controller runs at
-``control_rate_hz`` and whose unicycle kinematics are integrated at ``sim_rate_hz`` with
-the midpoint heading, under speed, turn-rate and acceleration limits. Poses are
-(x m, y m, theta rad) of base_link in the map frame; times are int ns from the run start.
-"""
+"""The robot's true motion: a path followed by pure pursuit; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -76,12 +70,7 @@ class MotionConfig:
 
 @dataclass(frozen=True)
 class TrueTrajectory:
-    """True motion at the simulation rate.
-
-    ``times_ns`` (N,) int ns from the run start, uniform steps; ``poses`` (N, 3) base_link in
-    the map frame (x m, y m, theta rad in (-pi, pi]); ``twists`` (N, 2) the body velocity
-    (v m/s, w rad/s) held from ``times_ns[i]`` to ``times_ns[i + 1]`` (zero at the end).
-    """
+    """True motion at the sim rate: times (N,) ns, poses (N, 3), twists (N, 2)."""
 
     times_ns: IntArray
     poses: FloatArray
@@ -149,13 +138,7 @@ def office_path(
     loops: tuple[tuple[int, int], tuple[int, int], tuple[int, int]],
     spacing_m: float,
 ) -> tuple[FloatArray, FloatArray]:
-    """Return the path (P, 2) in m and the start pose (3,) of the paper's office run.
-
-    Each room visit loops around the room centre: ``loops[v] = (counter-clockwise turns,
-    clockwise turns)`` for visit v (office 1, office 2, office 1 again), the robot turning on
-    the spot between the two directions. Between visits it drives down the corridor's centre
-    line. The start and the end are the same pose: east of office 1's centre, facing north.
-    """
+    """Return the path (P, 2) m and start pose (3,) of the paper's office run."""
     if loop_radius_m <= 0.0 or loop_radius_m > world.door_y_m - 0.6:
         raise ValueError(f'loop radius {loop_radius_m} m must be in (0, office size / 2 - 0.6]')
     if len(loops) != 3 or any(len(v) != 2 or min(v) < 0 for v in loops):
@@ -193,10 +176,7 @@ def office_path(
 
 
 def split_at_cusps(path_m: FloatArray) -> list[FloatArray]:
-    """Return the pieces (P_k, 2) of a path, cut where it reverses (turns by over 90 deg).
-
-    Consecutive pieces share their cut point; repeated points are dropped first.
-    """
+    """Return the pieces (P_k, 2) of a path, cut where it turns by over 90 deg."""
     keep = np.concatenate([[True], np.any(np.diff(path_m, axis=0) != 0.0, axis=1)])
     points = path_m[keep]
     steps = np.diff(points, axis=0)
@@ -251,11 +231,7 @@ class _Pursuit:
 def follow_path(
     path_m: FloatArray, start_pose: FloatArray, config: MotionConfig
 ) -> TrueTrajectory:
-    """Return the true trajectory of the robot driving ``path_m`` (P, 2) from ``start_pose``.
-
-    The path is driven piece by piece (``split_at_cusps``): the robot stops at each cusp and
-    turns on the spot. It stands still for ``settle_s`` before starting and at the end.
-    """
+    """Return the true trajectory of the robot driving ``path_m`` (P, 2) from ``start_pose``."""
     if path_m.ndim != 2 or path_m.shape[0] < 2 or path_m.shape[1] != 2:
         raise ValueError(f'path must be (P >= 2, 2), got {path_m.shape}')
     dt_s = config.step_ns / 1e9
@@ -294,14 +270,7 @@ def follow_path(
 
 
 class RouteFollower:
-    """Drive a whole path live: pure pursuit piece by piece (``split_at_cusps``), as
-    ``follow_path`` does offline, from poses that arrive whenever the caller has them.
-
-    ``command(pose, at_rest)`` returns the (v m/s, w rad/s) to command; a piece is done when
-    its end is reached and the robot is at rest (``at_rest``: its measured speeds are ~0),
-    and the next one starts. ``done`` once the last piece is done; ``progress`` is the share
-    of the path length behind the robot.
-    """
+    """Drives a whole path live by pure pursuit, piece by piece, from poses as they come."""
 
     def __init__(self, path_m: FloatArray, config: MotionConfig) -> None:
         path = np.asarray(path_m, dtype=np.float64)

@@ -1,23 +1,4 @@
-"""How well the ground-truth camera poses of a TUM-layout sequence explain its depth maps on
-a static stretch (ROS-free).
-
-``static_consistency``: every image of the stretch with a depth map and a pose is paired
-with every later one ``min_separation_s`` to ``max_separation_s`` after it (by default
-2-5 s: the camera has moved, so a pose error shows); for each pair
-``rgbd_depth.consistency_residuals`` gives the depth residuals of a regular pixel grid
-(``step_px``). With exact poses and a static scene they are depth noise; the median
-absolute residual measures the poses (and the hand-eye transform behind them), and
-``rgbd_depth.pose_sigma_from_residuals`` turns the residuals into the per-axis position
-error of a back-projected point.
-
-``pose_error``: that error per band of separations (``SEPARATION_BANDS_S``), as the table
-the label rule interpolates (``depth_labels.PoseError``): poses close in time err alike,
-so their error grows with the separation.
-
-``reference_error``: the reference's rotation and centre error per band of separations,
-from the stretch's images (``reference_error.reference_pose_error``): what an evaluator adds
-to an estimate's covariance.
-"""
+"""How well a TUM sequence's poses explain its depth; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -49,8 +30,7 @@ the first holds the pairs one depth map apart."""
 
 @dataclass(frozen=True, eq=False)
 class Consistency:
-    """The static stretch's depth consistency: images with depth and pose used, pairs, all
-    residuals (M,) m with their predicted depths (M,) m, and their summary figures."""
+    """A static stretch's depth consistency: images, pairs, residuals (M,) m and figures."""
 
     images: int
     pairs: int
@@ -95,9 +75,7 @@ def static_consistency(
     step_px: int = 16,
     sampling: DepthSampling | None = None,
 ) -> Consistency:
-    """Return the depth consistency of the colour images ``images`` (indices into rgb.txt)
-    that have a depth map and a pose (module docstring); ``poses`` (N, 4, 4) replaces the
-    sequence's T_world_camera (e.g. another hand-eye transform)."""
+    """Return the depth consistency of ``images``; ``poses`` (N, 4, 4) may replace the truth."""
     poses = sequence.poses if poses is None else poses
     used = [
         k
@@ -141,9 +119,7 @@ def pose_error(
     bands_s: tuple[tuple[float, float], ...] = SEPARATION_BANDS_S,
     step_px: int = 16,
 ) -> tuple[PoseError, list[Consistency]]:
-    """Return the pose error table of the static stretch ``images`` (module docstring): per
-    band with pairs, its median separation (s) and sigma_pose (m); and every band's
-    consistency. Raises ValueError when no band has pairs."""
+    """Return the pose error table of ``images`` and every band; ValueError if none has pairs."""
     bands = [
         static_consistency(
             sequence, images, min_separation_s=low, max_separation_s=high, step_px=step_px
@@ -174,8 +150,7 @@ def reference_error(
     bands_s: tuple[tuple[float, float], ...] = SEPARATION_BANDS_S,
     pixel_sigma_px: float = 1.0,
 ) -> tuple[ReferencePoseError, list[BandErrors]]:
-    """Return the reference's rotation and centre error table of the static stretch
-    ``images`` (module docstring) and its bands; ValueError when no pair matched."""
+    """Return the reference's rotation and centre error table and bands; ValueError."""
     frames = {
         k: (
             partial(_grey, sequence.rgb.files[k]),

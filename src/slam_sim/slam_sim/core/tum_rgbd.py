@@ -1,42 +1,4 @@
-"""RGB-D sequences in the TUM layout (TUM RGB-D benchmark, Bonn RGB-D Dynamic), read without
-ROS: the image lists, the ground truth, which depth map goes with which colour image, and
-the camera pose at every colour image.
-
-A sequence directory holds (lines starting with ``#`` are comments, columns are separated
-by blanks; stamps are decimal seconds, converted to int nanoseconds exactly):
-
-- ``rgb.txt``, ``depth.txt``: ``stamp_s file`` per line, the file relative to the
-  directory; stamps increase. Depth maps are 16-bit PNG, ``DEPTH_UNITS_PER_M`` (5000)
-  units per metre, 0 = no depth.
-- ``groundtruth.txt``: ``stamp_s tx ty tz qx qy qz qw`` (m; unit quaternion, scalar last);
-  stamps increase. What a row is depends on the pose convention (``POSE_CONVENTIONS``):
-
-  - ``'camera'`` (TUM): the pose of the colour camera's optical frame in the world,
-    T_world_camera.
-  - ``'bonn'`` (Bonn RGB-D Dynamic): the pose T_marker of the motion-capture marker; the
-    dataset's conversion is T_world_camera = T_ros T_marker T_ros T_m (``BONN_T_ROS``,
-    ``BONN_T_M``). The 3x3 block of the published T_m is not a rotation: it is 1.059 times
-    one (singular values 1.0592-1.0593, determinant 1.19). ``camera_in_marker`` replaces
-    it by its polar factor, the nearest rotation (U V^T of its SVD, Frobenius norm), and
-    keeps its translation, so every pose is a rigid transform (``read_tum_rgbd`` takes
-    another rigid camera-in-marker transform if given).
-
-Association (``associate``): TUM's associate.py rule. Every pair of a colour and a depth
-stamp closer than the tolerance (strictly; 20 ms by default) is a candidate; candidates are
-taken in order of increasing stamp difference, each colour image and depth map at most once.
-
-Pose at a colour image (``Trajectory.transforms_at``): the ground-truth rows on either side
-of its stamp are interpolated, the position linearly and the rotation by slerp along the
-shorter arc (so the sign of a quaternion does not matter). An image before the first row,
-after the last, or between two rows more than ``max_gap_ns`` (0.2 s) apart gets no pose; the
-counts are in ``TumRgbd.counts``. In the 'bonn' convention the marker poses are
-interpolated and then converted.
-
-Intrinsics (``INTRINSICS_PRESETS``): 'bonn' (the dataset's published values, no distortion)
-and the TUM benchmark's published 'tum_fr1', 'tum_fr2' (with their plumb_bob distortion)
-and 'tum_fr3'; an explicit ``Intrinsics`` overrides them. Every problem raises
-``DatasetError`` naming the file and 1-based line.
-"""
+"""RGB-D sequences in the TUM layout, read without ROS; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -81,8 +43,7 @@ BONN_T_M = np.array(
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """Pinhole intrinsics: focal lengths and principal point (px), plumb_bob distortion
-    (k1, k2, p1, p2, k3) or () for none (the camera then gets five zeros)."""
+    """Pinhole intrinsics (px) and plumb_bob distortion (k1, k2, p1, p2, k3) or ()."""
 
     fx: float
     fy: float
@@ -106,8 +67,7 @@ INTRINSICS_PRESETS = {
 
 
 def polar_rotation(matrix: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """Return the rotation (3, 3) nearest a 3x3 matrix (its polar factor U V^T, determinant
-    +1) and the matrix's singular values (3,)."""
+    """Return the rotation (3, 3) nearest a 3x3 matrix and its singular values (3,)."""
     u, singular, vt = np.linalg.svd(np.asarray(matrix, dtype=np.float64))
     if np.linalg.det(u @ vt) < 0:
         u[:, -1] *= -1.0
@@ -115,8 +75,7 @@ def polar_rotation(matrix: ArrayLike) -> tuple[FloatArray, FloatArray]:
 
 
 def camera_in_marker(t_m: ArrayLike = BONN_T_M) -> FloatArray:
-    """Return the rigid camera-in-marker transform (4, 4): ``t_m`` (4, 4) with its 3x3 block
-    replaced by the nearest rotation (module docstring)."""
+    """Return ``t_m`` (4, 4) with its 3x3 block replaced by the nearest rotation."""
     out = np.array(t_m, dtype=np.float64)
     out[:3, :3] = polar_rotation(out[:3, :3])[0]
     out[3] = (0.0, 0.0, 0.0, 1.0)
@@ -124,15 +83,13 @@ def camera_in_marker(t_m: ArrayLike = BONN_T_M) -> FloatArray:
 
 
 def bonn_camera_poses(marker_poses: FloatArray, camera_from_marker: FloatArray) -> FloatArray:
-    """Return T_world_camera (N, 4, 4) = T_ros T_marker T_ros T_m of marker poses (N, 4, 4)
-    and the camera-in-marker transform T_m (4, 4)."""
+    """Return T_world_camera (N, 4, 4) of marker poses (N, 4, 4) and T_m (4, 4)."""
     return np.asarray(BONN_T_ROS @ marker_poses @ BONN_T_ROS @ camera_from_marker)
 
 
 @dataclass(frozen=True, eq=False)
 class StampedFiles:
-    """An image list (rgb.txt or depth.txt): stamps (N,) int ns, the files (N,) as paths
-    in the sequence directory, and each row's 1-based line number (N,)."""
+    """An image list: stamps (N,) ns, files (N,) and 1-based line numbers (N,)."""
 
     path: Path
     stamps_ns: IntArray
@@ -145,13 +102,7 @@ class StampedFiles:
 
 
 def read_file_list(path: Path, *, check_files: bool = True) -> StampedFiles:
-    """Return the image list in ``path`` (``stamp_s file`` rows, increasing stamps).
-
-    Raises:
-        DatasetError: the list is missing or empty, a line is malformed, a stamp does not
-            increase, or (``check_files``) a listed file does not exist.
-
-    """
+    """Return the image list in ``path``; DatasetError for a bad line or missing file."""
     stamps: list[int] = []
     files: list[Path] = []
     numbers: list[int] = []
@@ -179,9 +130,7 @@ def read_file_list(path: Path, *, check_files: bool = True) -> StampedFiles:
 
 @dataclass(frozen=True, eq=False)
 class Trajectory:
-    """A ground-truth file: stamps (M,) int ns, positions (M, 3) m, unit quaternions (M, 4)
-    (x, y, z, w, normalized) and line numbers (M,). What a row means depends on the pose
-    convention (module docstring)."""
+    """A ground-truth file: stamps (M,) ns, positions (M, 3) m, quaternions (M, 4) xyzw."""
 
     path: Path
     stamps_ns: IntArray
@@ -199,9 +148,7 @@ class Trajectory:
     def transforms_at(
         self, stamps_ns: ArrayLike, max_gap_ns: int = DEFAULT_MAX_GAP_NS
     ) -> tuple[FloatArray, BoolArray]:
-        """Return the rows interpolated at ``stamps_ns`` (K,) as transforms (K, 4, 4) (NaN
-        where there is none) and whether each has one (K,): linear position, shorter-arc
-        slerp; none outside the rows' span or between rows more than ``max_gap_ns`` apart."""
+        """Return the poses (K, 4, 4) interpolated at ``stamps_ns`` (K,) and which exist."""
         stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
         rows = self.stamps_ns
         after = np.clip(np.searchsorted(rows, stamps, side='left'), 1, max(len(rows) - 1, 1))
@@ -229,13 +176,7 @@ class Trajectory:
 
 
 def read_trajectory(path: Path) -> Trajectory:
-    """Return the ground truth in ``path`` (``stamp_s tx ty tz qx qy qz qw``).
-
-    Raises:
-        DatasetError: the file is missing or empty, a line is malformed, a stamp does not
-            increase, or a quaternion's norm is more than 1 % from 1.
-
-    """
+    """Return the ground truth in ``path``; DatasetError for a bad line or quaternion."""
     names = ('stamp', 'tx', 'ty', 'tz', 'qx', 'qy', 'qz', 'qw')
     table = read_table(path, [(names[0], Kind.STAMP), *((n, Kind.FLOAT) for n in names[1:])])
     if not len(table):
@@ -254,9 +195,7 @@ def read_trajectory(path: Path) -> Trajectory:
 
 
 def associate(first_ns: ArrayLike, second_ns: ArrayLike, tolerance_ns: int) -> IntArray:
-    """Return for each stamp of ``first_ns`` (N,) the index of its partner in ``second_ns``
-    (M,), or -1 (N,): TUM's associate.py rule (module docstring), |difference| <
-    ``tolerance_ns``, ties broken by the lower indices."""
+    """Return each ``first_ns`` stamp's partner index in ``second_ns``, or -1 (N,)."""
     first = np.asarray(first_ns, dtype=np.int64).reshape(-1)
     second = np.asarray(second_ns, dtype=np.int64).reshape(-1)
     order = np.argsort(second, kind='stable')
@@ -281,9 +220,7 @@ def associate(first_ns: ArrayLike, second_ns: ArrayLike, tolerance_ns: int) -> I
 
 @dataclass(frozen=True, eq=False)
 class TumRgbd:
-    """A TUM-layout sequence: the lists, the ground truth, the pose convention, the camera
-    and depth scale (units per metre), and per colour image (N) its depth map's index in
-    ``depth`` (-1: none), its T_world_camera (N, 4, 4) (NaN: none) and whether it has one."""
+    """A TUM-layout sequence: lists, truth, camera, and per colour image depth index and pose."""
 
     directory: Path
     rgb: StampedFiles
@@ -302,8 +239,7 @@ class TumRgbd:
         return self.rgb.stamps_ns
 
     def counts(self) -> dict[str, int]:
-        """Return the images, depth maps, associated pairs, ground-truth rows, images with a
-        pose, and those without: before the ground truth, after it, in a gap."""
+        """Return the counts of images, depth maps, pairs, truth rows and images with(out) pose."""
         stamps, rows = self.rgb.stamps_ns, self.trajectory.stamps_ns
         before = int(np.count_nonzero(stamps < rows[0]))
         after = int(np.count_nonzero(stamps > rows[-1]))
@@ -320,12 +256,7 @@ class TumRgbd:
 
 
 def camera_of(intrinsics: Intrinsics | str, first_image: Path) -> CameraModel:
-    """Return the camera of a preset name or explicit intrinsics, sized as ``first_image``.
-
-    Raises:
-        DatasetError: the preset is unknown or the image cannot be read.
-
-    """
+    """Return the camera of a preset or intrinsics, sized as ``first_image``; DatasetError."""
     if isinstance(intrinsics, str):
         if intrinsics not in INTRINSICS_PRESETS:
             names = ', '.join(INTRINSICS_PRESETS)
@@ -347,14 +278,7 @@ def read_tum_rgbd(
     camera_from_marker: FloatArray | None = None,
     depth_units_per_m: float = DEPTH_UNITS_PER_M,
 ) -> TumRgbd:
-    """Read a TUM-layout sequence (module docstring). ``camera_from_marker`` (4, 4) is the
-    'bonn' convention's T_m (default: ``camera_in_marker()``, the published one made rigid).
-
-    Raises:
-        DatasetError: the directory or a file is missing or malformed (naming file and
-            line), or an option is invalid.
-
-    """
+    """Read a TUM-layout sequence; DatasetError names a missing or malformed file."""
     directory = Path(directory)
     if not directory.is_dir():
         raise DatasetError(f'{directory}: no such sequence directory')

@@ -1,15 +1,4 @@
-"""A small synthetic RGB-D sequence in the TUM layout, for the importers' tests (ROS-free).
-
-The world: a textured wall (the plane z = ``wall_z_m``) and a textured board (a square of
-``board_side_m`` in the plane z = ``board_z_m``) that slides along +x at ``board_speed_mps``;
-a camera with R_world_camera = I (optical frame = world frame) moves along +x at
-``camera_speed_mps`` from the origin. Each image is rendered exactly by plane mapping
-(``cv2.remap`` of the textures), written as a colour JPEG; every ``depth_every``-th image
-also gets a 16-bit depth PNG (5000 units per metre) stamped ``depth_offset_ns`` later; the
-ground truth (camera convention) is written at ``truth_rate_hz`` from just after the first
-image to past the last, so that the first image has no pose. Stamps start at
-``START_NS``.
-"""
+"""A small synthetic TUM-layout RGB-D sequence for tests; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -29,7 +18,7 @@ WALL_CORNER_M = 2.0
 
 @dataclass(frozen=True)
 class SyntheticTum:
-    """The synthetic sequence's settings (module docstring); sizes in px, m, s."""
+    """The synthetic sequence's settings; sizes in px, m, s."""
 
     images: int = 45
     rate_hz: float = 30.0
@@ -142,9 +131,7 @@ def _seconds(stamp_ns: int) -> str:
 
 
 def write_tum_excerpt(source: Path, target: Path, rgb: int, depth: int, truth: int) -> Path:
-    """Write into ``target`` (created) the lists of a TUM-layout directory ``source`` cut to
-    their first ``rgb``, ``depth`` and ``truth`` rows; the images stay where they are (the
-    lists name them by absolute path). Return ``target``."""
+    """Write ``source``'s lists cut to their first rows into ``target``; return it."""
     target.mkdir(parents=True)
     for name, rows in (('rgb.txt', rgb), ('depth.txt', depth), ('groundtruth.txt', truth)):
         lines = (source / name).read_text(encoding='utf-8').splitlines()

@@ -1,23 +1,4 @@
-"""The Victoria Park data set in GTSAM's text format, parsed without ROS.
-
-Lines (whitespace separated; blank lines are skipped, nothing else is):
-
-- ``ODOMETRY i j dx dy dtheta xx xy xt yy yt tt``: the pose of ``j`` in the frame of pose
-  ``i`` (an SE(2) relative pose, as GTSAM's ``BetweenFactor<Pose2>``: m, m, rad), with the
-  covariance [[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]] (GTSAM reads these as covariances:
-  ``0.0001 0 0 4e-06 0 4e-06`` are sigmas 0.01 m, 0.002 m, 0.002 rad).
-- ``LANDMARK i j x y cxx cxy cyy``: landmark ``j`` seen from pose ``i`` at (x, y) m in the
-  robot frame, with an x-y covariance. Like GTSAM's ``load2D`` we turn it into range
-  hypot(x, y) and bearing atan2(y, x) with sigmas sqrt(cxx) m and sqrt(cxx / 10) rad (GTSAM
-  assumes the x-y covariance describes the uncertainty at a range of 10 m).
-
-Pose and landmark ids share one number space in the file, so the pose ids have gaps where
-landmark ids were handed out (Victoria Park: 6969 pose ids from 0 to 7119). The parser
-numbers the poses 0..N-1 along the odometry chain (``pose_ids`` keeps each pose's file id)
-and keeps the file's landmark ids. The ODOMETRY lines must form one chain in file order
-(each starts where the previous one ended and reaches a new pose); a LANDMARK line may
-refer to a pose defined later in the file.
-"""
+"""The Victoria Park data set (GTSAM text), parsed; see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -41,16 +22,7 @@ GTSAM_LANDMARK_REFERENCE_RANGE_M = 10.0
 
 @dataclass(frozen=True)
 class VictoriaPark:
-    """A parsed GTSAM 2D data set; poses are numbered 0..num_poses-1 along the odometry chain.
-
-    Odometry (M edges): ``odometry_from``/``odometry_to`` (M,) pose indices,
-    ``odometry_between`` (M, 3) the pose ``to`` in the frame of pose ``from`` (dx m, dy m,
-    dtheta rad), ``odometry_cov`` (M, 3, 3) its covariance. Sightings (K): ``obs_pose`` (K,)
-    pose index, ``obs_landmark`` (K,) the file's landmark id, ``obs_xy`` (K, 2) m in the
-    robot frame, ``obs_range`` (K,) m, ``obs_bearing`` (K,) rad in (-pi, pi],
-    ``obs_sigma_range`` (K,) m, ``obs_sigma_bearing`` (K,) rad. ``pose_ids`` (N,) is each
-    pose's id in the file.
-    """
+    """A parsed GTSAM 2D data set: odometry edges (M) and sightings (K), poses 0..N-1."""
 
     path: Path
     num_poses: int
@@ -223,15 +195,7 @@ def _check_sightings(collected: _Lines, index_of: dict[int, int]) -> None:
 
 
 def parse_victoria_park(path: Path | str) -> VictoriaPark:
-    """Return the odometry chain and landmark sightings of a GTSAM 2D text file.
-
-    Raises:
-        DatasetError: the file is missing or a line is malformed (wrong number of numbers,
-            unknown tag, a non-numeric or non-finite number, a covariance that is not
-            positive definite, a sighting at range 0 or from a pose no odometry reaches, an
-            odometry line that does not continue the chain); the message names file:line.
-
-    """
+    """Return the odometry chain and sightings of a GTSAM 2D file; DatasetError."""
     path = Path(path)
     collected = _read(path)
     index_of = {pose_id: index for index, pose_id in enumerate(collected.chain)}
@@ -259,10 +223,7 @@ def parse_victoria_park(path: Path | str) -> VictoriaPark:
 
 
 def chain_poses(between: FloatArray) -> FloatArray:
-    """Return the poses (M + 1, 3) (x m, y m, theta rad) of an odometry chain from the origin.
-
-    ``between`` (M, 3): pose k + 1 in the frame of pose k (SE(2) composition).
-    """
+    """Return the poses (M + 1, 3) of an odometry chain ``between`` (M, 3) from the origin."""
     between = np.asarray(between, dtype=np.float64).reshape(-1, 3)
     heading = np.concatenate([[0.0], np.cumsum(between[:, 2])])
     cos_h, sin_h = np.cos(heading[:-1]), np.sin(heading[:-1])
@@ -276,14 +237,7 @@ def chain_poses(between: FloatArray) -> FloatArray:
 def differential_drive_increments(
     between: FloatArray, covariance: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """Return the EM-SAM eq. 2 increments u (M, 3) and their covariances (M, 3, 3).
-
-    ``between`` (M, 3) = (dx m, dy m, dtheta rad) in the frame of the start pose, with
-    covariances (M, 3, 3). u2 = dtheta and (u0, u1) = R(-dtheta / 2) (dx, dy): exact for the
-    mean (eq. 2 maps u back to the same relative pose). The covariance is propagated to
-    first order, J cov J^T with J the Jacobian of that map at the measurement:
-    [[c, s, u1 / 2], [-s, c, -u0 / 2], [0, 0, 1]], c = cos(dtheta / 2), s = sin(dtheta / 2).
-    """
+    """Return EM-SAM eq. 2 increments u (M, 3) and covariances (M, 3, 3)."""
     between = np.asarray(between, dtype=np.float64).reshape(-1, 3)
     covariance = np.asarray(covariance, dtype=np.float64).reshape(-1, 3, 3)
     half = 0.5 * between[:, 2]

@@ -1,13 +1,4 @@
-"""The office world of the EM-SAM paper (section IV): two offices joined by a corridor.
-
-Map frame: x east, y north, metres. Office 1 spans x in [0, s], the corridor x in [s, s + L]
-and office 2 x in [s + L, 2 s + L], with s the office side and L the corridor length. The
-offices span y in [0, s]; the corridor is centred on y = s / 2 and each office has a door of
-``door_width_m`` where the corridor meets it. Walls are line segments that block the view.
-
-Markers are planar fiducials: a position on (or in front of) a surface and the unit normal
-of their printed face, pointing into the room. A camera sees a marker only from its front.
-"""
+"""The EM-SAM paper's office world (section IV); see docs/design/simulation.md."""
 
 from __future__ import annotations
 
@@ -136,11 +127,7 @@ def _wall_markers(room: Room, side: str, fractions: tuple[float, ...]) -> list[_
 
 
 def static_markers(world: OfficeWorld) -> MarkerSet:
-    """Return the 29 wall markers: 12 in office 1 (ids 0-11), 8 corridor (12-19), 9 office 2.
-
-    Office 1 has none on its door (east) wall section beside the corridor; the corridor has
-    three on each side wall and one on each end wall beside a door, facing along it.
-    """
+    """Return the 29 wall markers: office 1 (ids 0-11), corridor (12-19), office 2."""
     office_1, corridor, office_2 = world.rooms
     markers = (
         _wall_markers(office_1, 'west', (0.25, 0.5, 0.75))
@@ -182,12 +169,7 @@ def desk_spots(
     facing_spread_rad: float = 0.8,
     min_separation_m: float = 0.35,
 ) -> tuple[FloatArray, FloatArray]:
-    """Return ``count`` desk marker positions (count, 2) m and face normals (count, 2).
-
-    Spots lie on a ring around the room centre (radius a fraction of the room side), away
-    from the door direction; each marker faces the centre, turned by up to
-    ``facing_spread_rad`` either way.
-    """
+    """Return ``count`` desk marker positions (count, 2) m and face normals (count, 2)."""
     center = room.center_m
     side = room.max_m[0] - room.min_m[0]
     positions: list[FloatArray] = []

@@ -10,7 +10,7 @@ whose keyframe never came is dropped with a warning that names it.
 
 Inputs already held are skipped and counted apart, not as dropped: an increment between two
 keyframes the chain has, an observation whose (stamp, landmark) was taken before. A mapper
-resumed from a checkpoint (em_sam_node.checkpoint) gets its inputs' history again from the
+resumed from a checkpoint (em_sam_node.mapper.checkpoint) gets its inputs' history again from the
 transient-local publishers and continues at its last keyframe.
 
 Online (``MapperConfig.online``): each keyframe goes into the incremental smoother
@@ -48,19 +48,9 @@ from em_sam_node.core.localization import (
 from em_sam_node.core.marginals import marginal_pose_covariance
 from em_sam_node.core.problem import Estimate
 from em_sam_node.core.sightings import Sightings, sightings_of
-from em_sam_node.ingest import Increment
+from em_sam_node.core.inputs import Increment
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.geometry.se2 import apply_increment, compose, inverse
-
-
-@dataclass(frozen=True)
-class Observation:
-    """One range-bearing sighting: stamp int ns, landmark id, (range m, bearing rad), (2,2)."""
-
-    stamp_ns: int
-    landmark_id: int
-    z: FloatArray
-    covariance: FloatArray
 
 
 @dataclass(frozen=True)

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import sys
 
-from marker_detector.marker_detector_node import DetectorBehaviour
-from marker_detector.settings import PARAMETERS
+from marker_detector.detector.node import DetectorBehaviour
+from marker_detector.detector.settings import PARAMETERS
 from slam_core.cli import console_main
 from slam_ros.lifecycle import managed
 from slam_ros.spin import spin_node

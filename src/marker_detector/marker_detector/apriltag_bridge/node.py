@@ -3,7 +3,7 @@
 For a robot that already runs apriltag_ros: each AprilTagDetectionArray, with the tag poses on
 /tf and the camera mount on /tf_static, becomes a LandmarkObservationArray exactly as
 marker_detector publishes it (range and bearing of each tag's centre in the base frame, the
-same sensor model, quality gates and stamp; ``marker_detector.apriltag_bridge``). A
+same sensor model, quality gates and stamp; ``marker_detector.apriltag_bridge.processor``). A
 detection waits up to ``tf_wait_s`` for its tags' transforms; a tag without one, another
 family or an id outside allowed_ids is dropped, counted and logged.
 
@@ -29,10 +29,14 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo
 from tf2_msgs.msg import TFMessage
 
-from marker_detector.apriltag_bridge import AprilTagBridge, BridgeOutput, Tag
-from marker_detector.apriltag_settings import PARAMETERS, bridge_config
-from marker_detector.conversions import camera_info_fields, fill_observations, transform_matrix
-from marker_detector.processor import InputError
+from marker_detector.apriltag_bridge.processor import AprilTagBridge, BridgeOutput, Tag
+from marker_detector.apriltag_bridge.settings import PARAMETERS, bridge_config
+from marker_detector.common.conversions import (
+    camera_info_fields,
+    fill_observations,
+    transform_matrix,
+)
+from marker_detector.core.frame_types import InputError
 from slam_core.cli import console_main
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import LandmarkObservation, LandmarkObservationArray

@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 from em_sam_node.core.em_types import MODES, SEED_KERNELS, EmConfig
-from em_sam_node.mapper import MapperConfig
+from em_sam_node.mapper.processor import MapperConfig
 from slam_core.params import (
     AT_LEAST_ONE,
     NON_NEGATIVE,

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import sys
 
-from em_sam_node.em_sam_mapper_node import MapperBehaviour
-from em_sam_node.mapper_settings import PARAMETERS
+from em_sam_node.mapper.node import MapperBehaviour
+from em_sam_node.mapper.settings import PARAMETERS
 from slam_core.cli import console_main
 from slam_ros.lifecycle import managed
 from slam_ros.spin import spin_node

@@ -10,9 +10,9 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from marker_detector.apriltag_bridge import CAMERA_MODELS, FAMILIES, BridgeConfig
+from marker_detector.apriltag_bridge.processor import CAMERA_MODELS, FAMILIES, BridgeConfig
 from marker_detector.core.tag_pose import TagGates
-from marker_detector.settings import (
+from marker_detector.detector.settings import (
     DETECTOR_PARAMETERS,
     _rule_of,
     parse_id_ranges,

@@ -26,16 +26,16 @@ from typing import Any
 
 from rclpy.serialization import serialize_message
 
-from marker_detector.conversions import (
+from marker_detector.common.conversions import (
     camera_info_fields,
-    fill_fiducials,
     fill_observations,
-    image_from_message,
     transform_matrix,
 )
-from marker_detector.core.images import ImageError
-from marker_detector.processor import InputError, MarkerProcessor
-from marker_detector.settings import (
+from marker_detector.detector.conversions import fill_fiducials, image_from_message
+from slam_core.images import ImageError
+from marker_detector.core.frame_types import InputError
+from marker_detector.detector.processor import MarkerProcessor
+from marker_detector.detector.settings import (
     PARAMETERS,
     apply_overrides,
     detector_config,

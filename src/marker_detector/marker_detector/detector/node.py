@@ -34,17 +34,20 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tf2_msgs.msg import TFMessage
 
-from marker_detector.conversions import (
+from marker_detector.common.conversions import (
     camera_info_fields,
-    check_message_size,
-    fill_fiducials,
     fill_observations,
-    image_from_message,
     transform_matrix,
 )
-from marker_detector.core.images import ImageError, ImageTooLargeError
-from marker_detector.processor import FrameOutput, InputError, MarkerProcessor
-from marker_detector.settings import (
+from marker_detector.detector.conversions import (
+    check_message_size,
+    fill_fiducials,
+    image_from_message,
+)
+from slam_core.images import ImageError, ImageTooLargeError
+from marker_detector.core.frame_types import FrameOutput, InputError
+from marker_detector.detector.processor import MarkerProcessor
+from marker_detector.detector.settings import (
     PARAMETERS,
     detector_config,
     extrinsics_config,

@@ -2,7 +2,7 @@
 
 Makes a keyframe at every observation stamp (odometry interpolated there) and at motion
 thresholds; each increment carries the paper's eq. 2 motion (forward, side, angular) and a
-covariance that grows with the motion (``em_sam_node.ingest``). Odometry resets,
+covariance that grows with the motion (``em_sam_node.odometry_ingest.processor``). Odometry resets,
 out-of-order stamps and NaN poses are dropped with a throttled warning. Held-back keyframes
 are emitted when a bag_player says its bag ended (/slam/end_of_input), or live when odometry
 stops for ``idle_flush_s``.
@@ -30,8 +30,9 @@ from rclpy.node import Node
 from std_msgs.msg import Empty
 from tf2_msgs.msg import TFMessage
 
-from em_sam_node.conversions import increment_to_message, odometry_pose
-from em_sam_node.ingest import Increment, IngestConfig, OdometryIngest
+from em_sam_node.odometry_ingest.conversions import increment_to_message, odometry_pose
+from em_sam_node.core.inputs import Increment
+from em_sam_node.odometry_ingest.processor import IngestConfig, OdometryIngest
 from slam_core.cli import console_main
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
 from slam_core.stamps import stamp_to_ns

@@ -105,23 +105,6 @@ class IngestConfig:
             )
 
 
-@dataclass(frozen=True)
-class Increment:
-    """Motion between two keyframes (eq. 2): u = (u0 m, u1 m, u2 rad), covariance (3,3).
-
-    ``odom_pose_from``/``odom_pose_to`` are the keyframes' poses in the odometry frame
-    (x m, y m, theta rad); ``reset`` marks a zero-motion bridge over an odometry reset.
-    """
-
-    stamp_from_ns: int
-    stamp_to_ns: int
-    u: FloatArray
-    covariance: FloatArray
-    odom_pose_from: FloatArray
-    odom_pose_to: FloatArray
-    reset: bool = False
-
-
 def motion_covariance(config: IngestConfig, u: FloatArray) -> FloatArray:
     """Return the (3,3) covariance of increment ``u`` under the odometry noise model."""
     a1, a2, a3, a4 = config.noise_alphas

@@ -1,0 +1,1 @@
+"""The apriltag_bridge node: apriltag_ros detections to range-bearing sightings."""

@@ -1,0 +1,1 @@
+"""The marker_detector node: fiducial markers in camera images to range-bearing sightings."""
