@@ -56,10 +56,10 @@ import cv2
 import numpy as np
 from bench_common import best_of, pin_to_one_core, source_revision
 
-from marker_detector.conversions import image_from_message
-from monoslam_shadow_node.core.feature_config import TrackerConfig
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker
-from monoslam_shadow_node.feature_tracking import (
+from marker_detector.detector.conversions import image_from_message
+from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
+from monoslam_shadow_node.feature_tracker.core.feature_tracker import FeatureTracker
+from monoslam_shadow_node.feature_tracker.processor import (
     FeatureFrame,
     FeatureTrackingProcessor,
     feature_frame_cdr,

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
 from slam_core.stamps import stamp_to_ns
 from slam_evaluation.classification_figure import FEATURES_TOPIC, STATUS_TOPICS, read_messages
 from slam_evaluation.tum_labels import label_sequence

@@ -35,7 +35,8 @@ import numpy as np
 from bench_common import source_revision
 
 from marker_detector.core.detector_config import DetectorConfig
-from marker_detector.processor import ExtrinsicsConfig, MarkerProcessor
+from marker_detector.core.frame_types import ExtrinsicsConfig
+from marker_detector.detector.processor import MarkerProcessor
 from slam_core.geometry.se3 import OPTICAL_IN_LINK
 from slam_sim.core.camera_effects import encode_jpeg
 from slam_sim.core.office import simulate_office

@@ -64,20 +64,20 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 from bench_common import BENCH_DIR, pin_to_one_core, run_meta  # noqa: E402
 
-from monoslam_shadow_node.core.feature_config import TrackerConfig  # noqa: E402
-from monoslam_shadow_node.core.monoslam import MonoSlam  # noqa: E402
-from monoslam_shadow_node.core.monoslam_model import CAMERA_SIZE  # noqa: E402
-from monoslam_shadow_node.core.monoslam_types import (  # noqa: E402
+from monoslam_shadow_node.common.core.tracking_noise import drift_bounded_offset_px  # noqa: E402
+from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig  # noqa: E402
+from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam  # noqa: E402
+from monoslam_shadow_node.monoslam.core.monoslam_model import CAMERA_SIZE  # noqa: E402
+from monoslam_shadow_node.monoslam.core.monoslam_types import (  # noqa: E402
     TRACKING,
     MonoSlamConfig,
     MonoSlamResult,
 )
-from monoslam_shadow_node.core.shadow_filter import (  # noqa: E402
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import (  # noqa: E402
     FrameInput,
     ShadowConfig,
     ShadowFilter,
 )
-from monoslam_shadow_node.core.tracking_noise import drift_bounded_offset_px  # noqa: E402
 from slam_core.arrays import FloatArray  # noqa: E402
 from slam_core.camera import CameraModel  # noqa: E402
 from slam_core.files import write_atomically  # noqa: E402

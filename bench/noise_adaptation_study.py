@@ -39,9 +39,16 @@ import weakref
 import numpy as np
 from noise_estimate_study import TrackedFrame, feed_fixed_points
 
-from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
-from monoslam_shadow_node.core.noise_estimate import OFFSET_RELEVANCE, TrackingNoiseEstimator
-from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
+    TRACKING,
+    MonoSlamConfig,
+    MonoSlamFrame,
+)
+from monoslam_shadow_node.monoslam.core.noise_estimate import (
+    OFFSET_RELEVANCE,
+    TrackingNoiseEstimator,
+)
+from monoslam_shadow_node.monoslam.processor import MonoSlamProcessor, MonoSlamStep
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_evaluation import monoslam_evaluate

@@ -54,10 +54,14 @@ from pathlib import Path
 
 import numpy as np
 
-from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
-from monoslam_shadow_node.core.noise_estimate import NoiseEstimate, TrackingNoiseEstimator
-from monoslam_shadow_node.core.noise_monitor import batch_residuals
-from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
+    TRACKING,
+    MonoSlamConfig,
+    MonoSlamFrame,
+)
+from monoslam_shadow_node.monoslam.core.noise_estimate import NoiseEstimate, TrackingNoiseEstimator
+from monoslam_shadow_node.monoslam.core.noise_monitor import batch_residuals
+from monoslam_shadow_node.monoslam.processor import MonoSlamProcessor, MonoSlamStep
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_evaluation.monoslam_pipeline import (

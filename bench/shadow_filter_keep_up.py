@@ -43,7 +43,7 @@ REPLAY_GRAPH = """graph:
     - name: shadow_filter
       package: monoslam_shadow_node
       executable: shadow_filter
-      plugin: monoslam_shadow_node.shadow_filter_node:ShadowFilterNode
+      plugin: monoslam_shadow_node.shadow_filter.node:ShadowFilterNode
       parameters: [package://monoslam_shadow_node/config/shadow_filter.yaml]
   player:
     rate: 1.0

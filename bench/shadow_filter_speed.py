@@ -53,15 +53,25 @@ import cv2
 import numpy as np
 from bench_common import best_of, pin_to_one_core, run_meta
 
-from monoslam_shadow_node.core import shadow_decision as shadow_decision_module
-from monoslam_shadow_node.core import shadow_filter as shadow_filter_module
-from monoslam_shadow_node.core.projective import chi2_quantile
-from monoslam_shadow_node.core.rays import View, pixel_ray_directions, ray_angle, three_ray_test
-from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
-from monoslam_shadow_node.core.shadow_ekf import EkfConfig, initial_states, predict, update
-from monoslam_shadow_node.core.shadow_filter import FrameInput, ShadowFilter
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
-from monoslam_shadow_node.core.static_fit import motion_score_test
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, STATIC
+from monoslam_shadow_node.common.core.projective import chi2_quantile
+from monoslam_shadow_node.shadow_filter.core import shadow_decision as shadow_decision_module
+from monoslam_shadow_node.shadow_filter.core import shadow_filter as shadow_filter_module
+from monoslam_shadow_node.shadow_filter.core.rays import (
+    View,
+    pixel_ray_directions,
+    ray_angle,
+    three_ray_test,
+)
+from monoslam_shadow_node.shadow_filter.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_ekf import (
+    EkfConfig,
+    initial_states,
+    predict,
+    update,
+)
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import FrameInput, ShadowFilter
+from monoslam_shadow_node.shadow_filter.core.static_fit import motion_score_test
 from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 from slam_core.files import write_atomically

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from rclpy.parameter import Parameter
 
-from em_sam_node.em_sam_mapper_node import EmSamMapperNode
-from em_sam_node.odometry_ingest_node import OdometryIngestNode
+from em_sam_node.mapper.node import EmSamMapperNode
+from em_sam_node.odometry_ingest.node import OdometryIngestNode
 from slam_bringup.bag_player import BagPlayerNode
 from slam_ros.progress import PACED_ENV
 from slam_ros.testing.harness import RosHarness, wait_until

@@ -448,9 +448,9 @@ def _node(module: str, name: str, **parameters: Any) -> Callable[[], Node]:
     return make
 
 
-MARKERS = 'marker_detector.marker_detector_node'
-BRIDGE = 'marker_detector.apriltag_bridge_node'
-TRACKER = 'monoslam_shadow_node.feature_tracker_node'
+MARKERS = 'marker_detector.detector.node'
+BRIDGE = 'marker_detector.apriltag_bridge.node'
+TRACKER = 'monoslam_shadow_node.feature_tracker.node'
 NODES: dict[str, Callable[[], Node]] = {
     'marker_detector': _node(MARKERS, 'MarkerDetectorNode'),
     'marker_detector (compressed)': _node(
@@ -463,10 +463,10 @@ NODES: dict[str, Callable[[], Node]] = {
     'feature_tracker (compressed)': _node(
         TRACKER, 'FeatureTrackerNode', image_transport='compressed'
     ),
-    'monoslam': _node('monoslam_shadow_node.monoslam_node', 'MonoSlamNode'),
-    'shadow_filter': _node('monoslam_shadow_node.shadow_filter_node', 'ShadowFilterNode'),
-    'odometry_ingest': _node('em_sam_node.odometry_ingest_node', 'OdometryIngestNode'),
-    'em_sam_mapper': _node('em_sam_node.em_sam_mapper_node', 'EmSamMapperNode'),
+    'monoslam': _node('monoslam_shadow_node.monoslam.node', 'MonoSlamNode'),
+    'shadow_filter': _node('monoslam_shadow_node.shadow_filter.node', 'ShadowFilterNode'),
+    'odometry_ingest': _node('em_sam_node.odometry_ingest.node', 'OdometryIngestNode'),
+    'em_sam_mapper': _node('em_sam_node.mapper.node', 'EmSamMapperNode'),
 }
 INPUTS: dict[str, tuple[str, ...]] = {
     'marker_detector': ('/camera/image_raw', '/camera/camera_info', '/tf_static'),

@@ -13,8 +13,8 @@ from typing import Any
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message
 
-from em_sam_node.conversions import odometry_pose
-from em_sam_node.ingest import IngestConfig, OdometryIngest
+from em_sam_node.odometry_ingest.conversions import odometry_pose
+from em_sam_node.odometry_ingest.processor import IngestConfig, OdometryIngest
 from slam_bringup.graph import load_graph
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import LandmarkObservationArray

@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 from graph_checks import graph_node_parameters
 
-from em_sam_node import mapper_settings, odometry_ingest_node
 from em_sam_node.core.em import run_em
+from em_sam_node.mapper import settings as mapper_settings
+from em_sam_node.odometry_ingest import settings as odometry_ingest_settings
 from em_sam_node.offline import replay_bag
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -152,8 +153,8 @@ def offline_reference() -> MapperRun:
     An uninterrupted run's report equals it exactly: the same 1802 keyframes and moveable
     set, every landmark 0.0 m apart (measured on the runs the topic test made before it
     used this)."""
-    ingest = odometry_ingest_node.config_from_parameters(
-        graph_node_parameters(GRAPH_FILE, 'odometry_ingest', odometry_ingest_node.PARAMETERS)
+    ingest = odometry_ingest_settings.config_from_parameters(
+        graph_node_parameters(GRAPH_FILE, 'odometry_ingest', odometry_ingest_settings.PARAMETERS)
     )
     mapper = mapper_settings.config_from_parameters(
         graph_node_parameters(GRAPH_FILE, 'em_sam_mapper', mapper_settings.PARAMETERS)

@@ -7,9 +7,9 @@ from typing import Any
 
 from graph_checks import graph_node_parameters
 
-from monoslam_shadow_node.feature_tracker_settings import PARAMETERS as TRACKER_PARAMETERS
-from monoslam_shadow_node.monoslam_settings import PARAMETERS as MONOSLAM_PARAMETERS
-from monoslam_shadow_node.settings import PARAMETERS as SHADOW_PARAMETERS
+from monoslam_shadow_node.feature_tracker.settings import PARAMETERS as TRACKER_PARAMETERS
+from monoslam_shadow_node.monoslam.settings import PARAMETERS as MONOSLAM_PARAMETERS
+from monoslam_shadow_node.shadow_filter.settings import PARAMETERS as SHADOW_PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / 'src' / 'slam_bringup' / 'graphs' / 'monoslam_shadow.yaml'

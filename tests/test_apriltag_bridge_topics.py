@@ -30,10 +30,11 @@ from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo
 from tf2_msgs.msg import TFMessage
 
-from marker_detector.apriltag_bridge_node import AprilTagBridgeNode
-from marker_detector.conversions import camera_info_fields, image_from_message, transform_matrix
-from marker_detector.processor import MarkerProcessor
-from marker_detector.settings import PARAMETERS, detector_config, extrinsics_config
+from marker_detector.apriltag_bridge.node import AprilTagBridgeNode
+from marker_detector.common.conversions import camera_info_fields, transform_matrix
+from marker_detector.detector.conversions import image_from_message
+from marker_detector.detector.processor import MarkerProcessor
+from marker_detector.detector.settings import PARAMETERS, detector_config, extrinsics_config
 from slam_core.geometry.se3 import OPTICAL_IN_LINK
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import LandmarkObservationArray

@@ -60,12 +60,12 @@ graph:
     - name: odometry_ingest
       package: em_sam_node
       executable: odometry_ingest
-      plugin: em_sam_node.odometry_ingest_node:OdometryIngestNode
+      plugin: em_sam_node.odometry_ingest.node:OdometryIngestNode
       parameters: [package://em_sam_node/config/odometry_ingest.yaml]
     - name: em_sam_mapper
       package: em_sam_node
       executable: em_sam_mapper
-      plugin: em_sam_node.em_sam_mapper_node:EmSamMapperNode
+      plugin: em_sam_node.mapper.node:EmSamMapperNode
       parameters:
         - package://em_sam_node/config/em_sam_mapper.yaml
         - {optimize_period_s: 2.0}

@@ -22,7 +22,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.localization import localize, static_joint_covariance
-from em_sam_node.map_files import known_map, read_map, write_map
+from em_sam_node.mapper.map_files import known_map, read_map, write_map
 from em_sam_node.offline import read_ground_truth, replay_bag, seen_at_both_positions
 from slam_evaluation.em_sam_metrics import ate_rmse
 from slam_interfaces.msg import MoveableLandmarkArray

@@ -13,9 +13,9 @@ import pytest
 from em_sam_office import MOVED, call, play_office
 from std_srvs.srv import Trigger
 
-from em_sam_node.em_sam_mapper_node import EmSamMapperNode
-from em_sam_node.map_files import read_map
-from em_sam_node.odometry_ingest_node import OdometryIngestNode
+from em_sam_node.mapper.map_files import read_map
+from em_sam_node.mapper.node import EmSamMapperNode
+from em_sam_node.odometry_ingest.node import OdometryIngestNode
 from slam_interfaces.msg import LandmarkMap, MoveableLandmarkArray
 from slam_interfaces.srv import FindLandmark
 from slam_ros.qos import latched_qos

@@ -15,7 +15,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Empty
 from tf2_msgs.msg import TFMessage
 
-from em_sam_node.odometry_ingest_node import OdometryIngestNode
+from em_sam_node.odometry_ingest.node import OdometryIngestNode
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_ros.progress import END_QOS, END_TOPIC
 from slam_ros.qos import sensor_qos

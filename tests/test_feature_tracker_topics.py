@@ -9,7 +9,7 @@ a little, repeating, and a lot), predictions on features/predicted, and a node s
 process (its log is read back, and it must stop cleanly on SIGINT). Nothing published is
 ever NaN.
 
-The node process runs as ``python -m monoslam_shadow_node.feature_tracker_node`` (the same
+The node process runs as ``python -m monoslam_shadow_node.feature_tracker.node`` (the same
 main() as the installed ``feature_tracker`` executable).
 """
 
@@ -27,8 +27,8 @@ from bag_fixtures import invalid_parameter_error, tool_env
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
-from monoslam_shadow_node.feature_tracker_node import FeatureTrackerNode
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, STATIC
+from monoslam_shadow_node.feature_tracker.node import FeatureTrackerNode
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.testing.harness import Collector, NodeProcess, RosHarness, wait_until
@@ -42,7 +42,7 @@ PERIOD_NS = 33_333_333
 FRAMES = 12
 ACCURACY_PX = 0.3
 LOG_TIMEOUT_S = 15.0
-MODULE = 'monoslam_shadow_node.feature_tracker_node'
+MODULE = 'monoslam_shadow_node.feature_tracker.node'
 
 
 def texture(seed: int) -> np.ndarray:

@@ -23,7 +23,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tf2_msgs.msg import TFMessage
 
-from marker_detector.marker_detector_node import HOLD_S, MarkerDetectorNode
+from marker_detector.detector.node import HOLD_S, MarkerDetectorNode
 from slam_core.geometry.se3 import OPTICAL_IN_LINK
 from slam_core.stamps import ns_to_stamp
 from slam_interfaces.msg import FiducialArray, LandmarkObservationArray

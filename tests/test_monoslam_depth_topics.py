@@ -23,7 +23,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 
-from monoslam_shadow_node.monoslam_node import MonoSlamNode
+from monoslam_shadow_node.monoslam.node import MonoSlamNode
 from slam_core.blas import single_threaded_blas
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray

@@ -45,13 +45,13 @@ from monoslam_graph import graph_parameters, tracker_noise
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
 
-from marker_detector.marker_detector_node import MarkerDetectorNode
-from monoslam_shadow_node.core.tracking_noise import drift_bounded_offset_px
-from monoslam_shadow_node.feature_tracker_node import FeatureTrackerNode
-from monoslam_shadow_node.monoslam_conversions import POINT_DTYPE
-from monoslam_shadow_node.monoslam_node import MonoSlamNode
-from monoslam_shadow_node.monoslam_settings import PARAMETERS as MONOSLAM_PARAMETERS
-from monoslam_shadow_node.shadow_filter_node import ShadowFilterNode
+from marker_detector.detector.node import MarkerDetectorNode
+from monoslam_shadow_node.common.core.tracking_noise import drift_bounded_offset_px
+from monoslam_shadow_node.feature_tracker.node import FeatureTrackerNode
+from monoslam_shadow_node.monoslam.conversions import POINT_DTYPE
+from monoslam_shadow_node.monoslam.node import MonoSlamNode
+from monoslam_shadow_node.monoslam.settings import PARAMETERS as MONOSLAM_PARAMETERS
+from monoslam_shadow_node.shadow_filter.node import ShadowFilterNode
 from slam_core.blas import single_threaded_blas
 from slam_core.stamps import stamp_to_ns
 from slam_evaluation.monoslam_loop import REMATCH_FRAMES, loop_frames, loop_scene, run_loop

@@ -24,11 +24,15 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo
 from std_srvs.srv import Trigger
 
-from monoslam_shadow_node.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
-from monoslam_shadow_node.monoslam_checkpoint import load_checkpoint, save_checkpoint
-from monoslam_shadow_node.monoslam_node import MonoSlamNode
-from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor, MonoSlamStep
-from monoslam_shadow_node.monoslam_settings import PARAMETERS as MONOSLAM_PARAMETERS
+from monoslam_shadow_node.monoslam.checkpoint import load_checkpoint, save_checkpoint
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
+    TRACKING,
+    MonoSlamConfig,
+    MonoSlamFrame,
+)
+from monoslam_shadow_node.monoslam.node import MonoSlamNode
+from monoslam_shadow_node.monoslam.processor import MonoSlamProcessor, MonoSlamStep
+from monoslam_shadow_node.monoslam.settings import PARAMETERS as MONOSLAM_PARAMETERS
 from slam_core.camera import CameraModel
 from slam_core.stamps import ns_to_stamp
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, FiducialArray, FiducialDetection
@@ -238,7 +242,7 @@ def test_save_map_writes_a_checkpoint_that_a_new_node_resumes_from(
 def test_a_bad_checkpoint_stops_the_node_with_one_line_naming_it(tmp_path: Path) -> None:
     garbage = tmp_path / 'garbage.npz'
     garbage.write_bytes(b'not a checkpoint')
-    command = [sys.executable, '-m', 'monoslam_shadow_node.monoslam_node']
+    command = [sys.executable, '-m', 'monoslam_shadow_node.monoslam.node']
     error = invalid_parameter_error(command, 'resume_from', str(garbage))
     assert error.startswith('monoslam: error: ')
     assert f"checkpoint '{garbage}': not a readable .npz file" in error

@@ -46,12 +46,12 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
 from tf2_msgs.msg import TFMessage
 
-from marker_detector.marker_detector_node import MarkerDetectorNode
-from monoslam_shadow_node.feature_tracker_node import FeatureTrackerNode
-from monoslam_shadow_node.monoslam_conversions import POINT_DTYPE
-from monoslam_shadow_node.monoslam_node import MonoSlamNode
-from monoslam_shadow_node.monoslam_settings import PARAMETERS as MONOSLAM_PARAMETERS
-from monoslam_shadow_node.shadow_filter_node import ShadowFilterNode
+from marker_detector.detector.node import MarkerDetectorNode
+from monoslam_shadow_node.feature_tracker.node import FeatureTrackerNode
+from monoslam_shadow_node.monoslam.conversions import POINT_DTYPE
+from monoslam_shadow_node.monoslam.node import MonoSlamNode
+from monoslam_shadow_node.monoslam.settings import PARAMETERS as MONOSLAM_PARAMETERS
+from monoslam_shadow_node.shadow_filter.node import ShadowFilterNode
 from slam_core.blas import single_threaded_blas
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import (
@@ -74,7 +74,7 @@ pytestmark = pytest.mark.topic
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'dynamic_camera.mcap'
 TARGET_CONFIG = ROOT / 'src' / 'monoslam_shadow_node' / 'config' / 'monoslam_dynamic_camera.yaml'
-MODULE = 'monoslam_shadow_node.monoslam_node'
+MODULE = 'monoslam_shadow_node.monoslam.node'
 IMAGE_TOPIC = '/camera/image_raw/compressed'
 INFO_TOPIC = '/camera/camera_info'
 PACE_TIMEOUT_S = 10.0  # per image; the four nodes share one executor thread

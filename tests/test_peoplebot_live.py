@@ -37,7 +37,7 @@ from graph_checks import EM_SAM_CAMERA_TREE, last_reports, parents, tf_tree
 from sensor_msgs.msg import CameraInfo
 from tf2_msgs.msg import TFMessage
 
-from marker_detector.marker_detector_node import HOLD_S
+from marker_detector.detector.node import HOLD_S
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import LandmarkMap, LandmarkObservationArray
 from slam_ros.qos import latched_qos, output_qos, sensor_qos

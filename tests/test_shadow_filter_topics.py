@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo
 from visualization_msgs.msg import MarkerArray
 
-from monoslam_shadow_node.shadow_filter_node import ShadowFilterNode
+from monoslam_shadow_node.shadow_filter.node import ShadowFilterNode
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.testing.harness import Collector, NodeProcess, RosHarness, wait_until

@@ -24,12 +24,15 @@ from typing import Any
 
 import numpy as np
 
-from em_sam_node.mapper.processor.conversions import increment_from_message, observations_from_message
-from em_sam_node.odometry_ingest.conversions import odometry_pose
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.odometry_ingest.processor import IngestConfig, OdometryIngest
+from em_sam_node.mapper.conversions import (
+    increment_from_message,
+    observations_from_message,
+)
 from em_sam_node.mapper.processor import MapperConfig, MapperProcessor
+from em_sam_node.odometry_ingest.conversions import odometry_pose
+from em_sam_node.odometry_ingest.processor import IngestConfig, OdometryIngest
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.errors import BagError
 from slam_core.geometry.se2 import wrap_angle

@@ -18,8 +18,7 @@ import numpy as np
 
 from em_sam_node.core.assembly import MappingData, dead_reckoning
 from em_sam_node.core.factors import range_bearing_predict
-from em_sam_node.core.inputs import Increment
-from em_sam_node.core.inputs import Observation
+from em_sam_node.core.inputs import Increment, Observation
 from slam_core.geometry.se2 import increment_between, wrap_angle
 
 SECOND_NS = 1_000_000_000

@@ -10,12 +10,16 @@ import numpy as np
 import pytest
 from synthetic_room import MOVEABLE_IDS, make_room, mapper_inputs
 
-from em_sam_node.mapper.processor import checkpoint as checkpoint_module
-from em_sam_node.mapper.checkpoint import CheckpointError, load_checkpoint, save_checkpoint, state_arrays
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.core.inputs import Increment
+from em_sam_node.core.inputs import Increment, Observation
+from em_sam_node.mapper import checkpoint as checkpoint_module
+from em_sam_node.mapper.checkpoint import (
+    CheckpointError,
+    load_checkpoint,
+    save_checkpoint,
+    state_arrays,
+)
 from em_sam_node.mapper.processor import MapperConfig, MapperProcessor
-from em_sam_node.core.inputs import Observation
 
 Inputs = list[tuple[int, Increment | Observation]]
 

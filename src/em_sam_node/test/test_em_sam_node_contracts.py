@@ -8,7 +8,7 @@ from types import ModuleType
 
 import pytest
 
-from em_sam_node.mapper.processor import node as em_sam_mapper_node
+from em_sam_node.mapper import node as em_sam_mapper_node
 from em_sam_node.odometry_ingest import node as odometry_ingest_node
 from slam_ros.testing.node_contract import (
     NODE_DOCSTRING_MAX_LINES,

@@ -19,9 +19,8 @@ from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.incremental import IncrementalEmSam
 from em_sam_node.core.incremental_parts import between_of_increment
 from em_sam_node.core.incremental_types import IncrementalConfig, UpdateStats
-from em_sam_node.core.inputs import Increment
+from em_sam_node.core.inputs import Increment, Observation
 from em_sam_node.mapper.processor import MapperConfig, MapperProcessor
-from em_sam_node.core.inputs import Observation
 
 
 def _replay(data: MappingData, config: EmConfig) -> tuple[IncrementalEmSam, list[UpdateStats]]:

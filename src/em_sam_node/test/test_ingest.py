@@ -12,8 +12,13 @@ from hypothesis import strategies as st
 
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.inputs import Increment
-from em_sam_node.odometry_ingest.processor import IngestConfig, OdometryIngest, interpolate_pose, motion_covariance
 from em_sam_node.mapper.processor import MapperConfig, MapperProcessor
+from em_sam_node.odometry_ingest.processor import (
+    IngestConfig,
+    OdometryIngest,
+    interpolate_pose,
+    motion_covariance,
+)
 from slam_core.geometry.se2 import apply_increment, wrap_angle
 
 PI = math.pi

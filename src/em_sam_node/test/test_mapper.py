@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 from synthetic_room import MOVEABLE_IDS, SECOND_NS, make_room, mapper_inputs
 
-from em_sam_node.mapper.processor import processor as mapper_module
 from em_sam_node.core.assembly import MappingData
 from em_sam_node.core.em_types import EmConfig, EmResult
-from em_sam_node.core.inputs import Increment
+from em_sam_node.core.inputs import Increment, Observation
+from em_sam_node.mapper import processor as mapper_module
 from em_sam_node.mapper.processor import MapperConfig, MapperProcessor
-from em_sam_node.core.inputs import Observation
 from slam_core.geometry.se2 import apply_increment, compose, increment_between, wrap_angle
 
 MS_NS = 1_000_000

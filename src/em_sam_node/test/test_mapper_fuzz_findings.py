@@ -11,9 +11,8 @@ import pytest
 
 from em_sam_node.core.assembly import is_covariance
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.core.inputs import Increment
+from em_sam_node.core.inputs import Increment, Observation
 from em_sam_node.mapper.processor import MapperConfig, MapperProcessor
-from em_sam_node.core.inputs import Observation
 
 S = 1_000_000_000
 

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from slam_core.images import ImageError, decode_compressed, decode_raw
 from marker_detector.core.frame_types import ExtrinsicsConfig, InputError, StaticTransforms
 from marker_detector.detector.processor import MarkerProcessor
 from marker_detector.detector.settings import (
@@ -20,6 +19,7 @@ from marker_detector.detector.settings import (
     parse_marker_sizes,
 )
 from slam_core.errors import ParameterError
+from slam_core.images import ImageError, decode_compressed, decode_raw
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config' / 'marker_detector.yaml'
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from marker_detector.core.detector_config import DetectorConfig
+from marker_detector.core.frame_types import ExtrinsicsConfig
 from marker_detector.core.rendering import MarkerPlacement, render_markers
 from marker_detector.core.roi import SearchPlan, merge_boxes
-from marker_detector.core.frame_types import ExtrinsicsConfig
 from marker_detector.detector.processor import MarkerProcessor
 from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import rotation_from_vector

@@ -12,7 +12,10 @@ import pytest
 import monoslam_shadow_node.feature_tracker.core.feature_reid as feature_reid
 import monoslam_shadow_node.feature_tracker.core.feature_tracker as feature_tracker
 from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
-from monoslam_shadow_node.feature_tracker.core.feature_reid import MOTION_MIN_TRACKS, aligned_predictions
+from monoslam_shadow_node.feature_tracker.core.feature_reid import (
+    MOTION_MIN_TRACKS,
+    aligned_predictions,
+)
 from monoslam_shadow_node.feature_tracker.core.feature_tracker import FeatureTracker
 from monoslam_shadow_node.feature_tracker.core.feature_types import Predictions, TrackedFeatures
 

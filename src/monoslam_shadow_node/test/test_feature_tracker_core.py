@@ -12,7 +12,11 @@ import pytest
 from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
 from monoslam_shadow_node.feature_tracker.core.feature_detection import SUBPIXEL_HALF_WINDOW_PX
 from monoslam_shadow_node.feature_tracker.core.feature_tracker import FeatureTracker
-from monoslam_shadow_node.feature_tracker.core.feature_types import DROP_REASONS, Predictions, TrackedFeatures
+from monoslam_shadow_node.feature_tracker.core.feature_types import (
+    DROP_REASONS,
+    Predictions,
+    TrackedFeatures,
+)
 
 WIDTH, HEIGHT = 640, 480
 ACCURACY_PX = 0.3

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 
+from monoslam_shadow_node.common.notices import Notice
 from monoslam_shadow_node.feature_tracker import node as feature_tracker_node
 from monoslam_shadow_node.feature_tracker import settings
 from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
@@ -25,7 +26,6 @@ from monoslam_shadow_node.feature_tracker.processor import (
     feature_frame_cdr,
     status_line,
 )
-from monoslam_shadow_node.common.notices import Notice
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node

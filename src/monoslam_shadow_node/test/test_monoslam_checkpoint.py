@@ -12,17 +12,17 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.common.core.inputs import Features
-from monoslam_shadow_node.monoslam.core.monoslam_model import CAMERA_SIZE
-from monoslam_shadow_node.monoslam.core.monoslam_snapshot import gap_verdict, rotation_limit_rad
-from monoslam_shadow_node.monoslam.core.monoslam_types import TRACKING, WAITING, MonoSlamConfig
+from monoslam_shadow_node.common.notices import Notice
 from monoslam_shadow_node.monoslam.checkpoint import (
     CheckpointError,
     load_checkpoint,
     save_checkpoint,
 )
 from monoslam_shadow_node.monoslam.conversions import PoseFields, TargetSighting
+from monoslam_shadow_node.monoslam.core.monoslam_model import CAMERA_SIZE
+from monoslam_shadow_node.monoslam.core.monoslam_snapshot import gap_verdict, rotation_limit_rad
+from monoslam_shadow_node.monoslam.core.monoslam_types import TRACKING, WAITING, MonoSlamConfig
 from monoslam_shadow_node.monoslam.processor import MonoSlamProcessor, MonoSlamStep
-from monoslam_shadow_node.common.notices import Notice
 from slam_core.camera import CameraModel
 
 CAMERA = CameraModel(

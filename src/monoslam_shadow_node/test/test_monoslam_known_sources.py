@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.common.core.inputs import Features
+from monoslam_shadow_node.monoslam.conversions import depth_from_image
 from monoslam_shadow_node.monoslam.core.monoslam_types import TRACKING, WAITING, MonoSlamConfig
 from monoslam_shadow_node.monoslam.known_points_input import (
     DepthImage,
     assign_known_points,
     read_known_points,
 )
-from monoslam_shadow_node.monoslam.conversions import depth_from_image
 from monoslam_shadow_node.monoslam.processor import MonoSlamProcessor, MonoSlamStep
 from slam_core.camera import CameraModel
 from slam_core.depth import sample_depth

@@ -16,16 +16,17 @@ import pytest
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2, PointField
 
+from monoslam_shadow_node.common.core.inputs import Features
+from monoslam_shadow_node.common.frame_sync import StampSync
 from monoslam_shadow_node.monoslam import (
     node as monoslam_node,
+)
+from monoslam_shadow_node.monoslam import (
     processor as monoslam_processor,
+)
+from monoslam_shadow_node.monoslam import (
     settings as monoslam_settings,
 )
-from monoslam_shadow_node.shadow_filter import settings
-from monoslam_shadow_node.common.core.inputs import Features
-from monoslam_shadow_node.shadow_filter.conversions import revoked_from_message
-from monoslam_shadow_node.monoslam.core.monoslam_types import MapPoint, MonoSlamConfig, MonoSlamResult
-from monoslam_shadow_node.common.frame_sync import StampSync
 from monoslam_shadow_node.monoslam.conversions import (
     POINT_DTYPE,
     PoseFields,
@@ -40,7 +41,14 @@ from monoslam_shadow_node.monoslam.conversions import (
     target_from_fiducials,
     tum_text,
 )
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
+    MapPoint,
+    MonoSlamConfig,
+    MonoSlamResult,
+)
 from monoslam_shadow_node.monoslam.processor import monoslam_frame
+from monoslam_shadow_node.shadow_filter import settings
+from monoslam_shadow_node.shadow_filter.conversions import revoked_from_message
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node

@@ -10,7 +10,11 @@ import math
 import numpy as np
 
 from monoslam_shadow_node.monoslam.core.monoslam_ekf import predict, predicted_measurements
-from monoslam_shadow_node.monoslam.core.monoslam_model import CAMERA_SIZE, INVERSE_DEPTH_SIZE, Q_SLICE
+from monoslam_shadow_node.monoslam.core.monoslam_model import (
+    CAMERA_SIZE,
+    INVERSE_DEPTH_SIZE,
+    Q_SLICE,
+)
 from monoslam_shadow_node.monoslam.core.monoslam_state import FilterState
 from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig
 from slam_core.camera import CameraModel

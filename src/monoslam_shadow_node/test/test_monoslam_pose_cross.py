@@ -10,7 +10,11 @@ from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
 from monoslam_shadow_node.monoslam.core.monoslam_ekf import joseph_update, pose_cross, predict
 from monoslam_shadow_node.monoslam.core.monoslam_model import CAMERA_SIZE, Q_SLICE, predict_camera
 from monoslam_shadow_node.monoslam.core.monoslam_state import FilterState, keeps_pose
-from monoslam_shadow_node.monoslam.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
+    TRACKING,
+    MonoSlamConfig,
+    MonoSlamFrame,
+)
 from slam_core.camera import CameraModel
 from slam_core.geometry.quaternion import world_angle_jacobian
 

@@ -9,17 +9,17 @@ import math
 import numpy as np
 import pytest
 
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, STATIC
 from monoslam_shadow_node.common.core.inputs import Features
+from monoslam_shadow_node.common.notices import Notice
+from monoslam_shadow_node.monoslam.conversions import HandoverInput, TargetSighting
 from monoslam_shadow_node.monoslam.core.monoslam_types import (
     TRACKING,
     WAITING,
     MonoSlamConfig,
     MonoSlamFrame,
 )
-from monoslam_shadow_node.common.core.feature_status import DYNAMIC, STATIC
-from monoslam_shadow_node.monoslam.conversions import HandoverInput, TargetSighting
 from monoslam_shadow_node.monoslam.processor import MonoSlamProcessor, MonoSlamStep
-from monoslam_shadow_node.common.notices import Notice
 from slam_core.camera import CameraModel
 
 CAMERA = CameraModel(

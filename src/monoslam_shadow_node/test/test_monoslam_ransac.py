@@ -27,7 +27,11 @@ from monoslam_shadow_node.monoslam.core.monoslam_model import (
     W_SLICE,
     project_feature,
 )
-from monoslam_shadow_node.monoslam.core.monoslam_ransac import hypotheses_needed, previewed, ransac_update
+from monoslam_shadow_node.monoslam.core.monoslam_ransac import (
+    hypotheses_needed,
+    previewed,
+    ransac_update,
+)
 from monoslam_shadow_node.monoslam.core.monoslam_state import FeatureBlock, FilterState
 from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig
 from slam_core.camera import CameraModel

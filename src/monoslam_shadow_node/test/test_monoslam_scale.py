@@ -12,7 +12,11 @@ from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
 from monoslam_shadow_node.monoslam.core.monoslam_ekf import Match, linearize_all
 from monoslam_shadow_node.monoslam.core.monoslam_model import CAMERA_SIZE, project_features
 from monoslam_shadow_node.monoslam.core.monoslam_state import FilterState
-from monoslam_shadow_node.monoslam.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
+    TRACKING,
+    MonoSlamConfig,
+    MonoSlamFrame,
+)
 from slam_core.camera import CameraModel
 
 CAMERA = CameraModel.from_intrinsics(640, 480, (500.0, 500.0), (319.5, 239.5))

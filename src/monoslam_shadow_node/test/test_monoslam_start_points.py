@@ -7,7 +7,11 @@ from __future__ import annotations
 import numpy as np
 
 from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
-from monoslam_shadow_node.monoslam.core.monoslam_types import TRACKING, MonoSlamConfig, MonoSlamFrame
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
+    TRACKING,
+    MonoSlamConfig,
+    MonoSlamFrame,
+)
 from slam_core.camera import CameraModel
 
 CAMERA = CameraModel(

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from monoslam_shadow_node.common.core.feature_status import PENDING, STATIC
 from monoslam_shadow_node.shadow_filter.core.near_static import implausibly_near
 from monoslam_shadow_node.shadow_filter.core.rays import View
 from monoslam_shadow_node.shadow_filter.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.shadow_filter.core.shadow_decision import classify
-from monoslam_shadow_node.common.core.feature_status import PENDING, STATIC
 from monoslam_shadow_node.shadow_filter.core.shadow_track import Track
 
 PRIOR = (0.25, 0.25)

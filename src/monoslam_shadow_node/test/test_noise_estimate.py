@@ -16,8 +16,8 @@ import pytest
 from hypothesis import Phase, given, settings
 from hypothesis import strategies as st
 
-from monoslam_shadow_node.monoslam.core.noise_estimate import NoiseEstimate, TrackingNoiseEstimator
 from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
+from monoslam_shadow_node.monoslam.core.noise_estimate import NoiseEstimate, TrackingNoiseEstimator
 
 Frame = tuple[int, np.ndarray, np.ndarray]
 START_NS = 1_700_000_000 * 10**9

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
 from monoslam_shadow_node.shadow_filter.core import shadow_filter as shadow_filter_module
 from monoslam_shadow_node.shadow_filter.core.rays import View
 from monoslam_shadow_node.shadow_filter.core.shadow_classifier import ClassifierConfig, due_test
@@ -24,7 +25,6 @@ from monoslam_shadow_node.shadow_filter.core.shadow_filter import (
     ShadowConfig,
     ShadowFilter,
 )
-from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
 from monoslam_shadow_node.shadow_filter.core.shadow_track import Track
 from monoslam_shadow_node.shadow_filter.core.static_fit import motion_score_test
 from slam_core.camera import CameraModel

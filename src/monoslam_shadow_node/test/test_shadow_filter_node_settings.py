@@ -17,7 +17,18 @@ from scipy.spatial.transform import Rotation
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from monoslam_shadow_node.shadow_filter import settings, node as shadow_filter_node
+from monoslam_shadow_node.common.conversions import (
+    camera_from_info,
+    camera_info_key,
+    features_from_cdr,
+    features_from_message,
+    pose_from_message,
+    rotation_from_quaternion,
+)
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
+from monoslam_shadow_node.common.core.inputs import CameraPose
+from monoslam_shadow_node.shadow_filter import node as shadow_filter_node
+from monoslam_shadow_node.shadow_filter import settings
 from monoslam_shadow_node.shadow_filter.conversions import (
     NO_TEST_STATISTIC,
     UNKNOWN_COVARIANCE,
@@ -29,19 +40,13 @@ from monoslam_shadow_node.shadow_filter.conversions import (
     track_array_cdr,
     track_fields,
 )
-from monoslam_shadow_node.common.core.inputs import CameraPose
-from monoslam_shadow_node.common.conversions import (
-    camera_from_info,
-    camera_info_key,
-    features_from_cdr,
-    features_from_message,
-    pose_from_message,
-    rotation_from_quaternion,
-)
 from monoslam_shadow_node.shadow_filter.core.shadow_classifier import ClassifierConfig
 from monoslam_shadow_node.shadow_filter.core.shadow_ekf import EkfConfig
-from monoslam_shadow_node.shadow_filter.core.shadow_filter import Handover, ShadowConfig, TrackReport
-from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import (
+    Handover,
+    ShadowConfig,
+    TrackReport,
+)
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node

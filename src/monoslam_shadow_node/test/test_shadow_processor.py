@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from monoslam_shadow_node.common.core.inputs import CameraPose, Features
+from monoslam_shadow_node.common.notices import LogThrottle, Notice, log_notice
 from monoslam_shadow_node.shadow_filter.core.near_static import WAIT_WARNING
 from monoslam_shadow_node.shadow_filter.core.shadow_decision import UNFIT_WARNING
 from monoslam_shadow_node.shadow_filter.core.shadow_filter import ShadowConfig
-from monoslam_shadow_node.common.notices import LogThrottle, Notice, log_notice
 from monoslam_shadow_node.shadow_filter.processor import (
     GATE_WARNING,
     ShadowProcessor,

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from monoslam_shadow_node.common.core.feature_status import PENDING
 from monoslam_shadow_node.shadow_filter.core.rays import (
     View,
     conditioning,
@@ -16,7 +17,6 @@ from monoslam_shadow_node.shadow_filter.core.rays import (
     viewing_lines,
 )
 from monoslam_shadow_node.shadow_filter.core.shadow_filter import _ray_precisions
-from monoslam_shadow_node.common.core.feature_status import PENDING
 from monoslam_shadow_node.shadow_filter.core.shadow_track import Track, Trajectory
 from monoslam_shadow_node.shadow_filter.core.static_fit import (
     ROW_CENTRE,

@@ -13,12 +13,12 @@ import math
 import numpy as np
 import pytest
 
+from monoslam_shadow_node.common.core.feature_status import PENDING
+from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise, drift_bounded_offset_px
 from monoslam_shadow_node.shadow_filter.core.rays import View, pixel_ray_directions, three_ray_test
 from monoslam_shadow_node.shadow_filter.core.shadow_classifier import trigger_delay_frames
-from monoslam_shadow_node.common.core.feature_status import PENDING
 from monoslam_shadow_node.shadow_filter.core.shadow_track import Track
 from monoslam_shadow_node.shadow_filter.core.static_fit import motion_score_test
-from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise, drift_bounded_offset_px
 from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import rotation_from_vector
 

@@ -20,7 +20,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from sensor_msgs.msg import CompressedImage, Image
 
-from marker_detector.conversions import image_from_message
+from marker_detector.detector.conversions import image_from_message
 from slam_bringup.dashboard.server import DashboardServer, serve, stop
 from slam_bringup.dashboard.state import DashboardState
 from slam_bringup.dashboard.websocket import (

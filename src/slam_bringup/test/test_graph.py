@@ -375,7 +375,7 @@ INGEST_ENTRY = """graph:
       executable: odometry_ingest
 {plugin}      parameters: [{parameters}]
 """
-PLUGIN = '      plugin: em_sam_node.odometry_ingest_node:OdometryIngestNode\n'
+PLUGIN = '      plugin: em_sam_node.odometry_ingest.node:OdometryIngestNode\n'
 
 
 @pytest.mark.parametrize('plugin', [PLUGIN, ''], ids=['plugin', 'executable'])

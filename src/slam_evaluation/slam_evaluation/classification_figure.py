@@ -1,17 +1,6 @@
-"""classification_figure: the Shadow filter's classification over time, drawn on the images
-(the paper's Fig. 4: pending red, static blue, dynamic green; ids never judged hollow red).
+"""classification_figure: the Shadow filter's statuses over time drawn on the images.
 
-    classification_figure --bag INPUT.mcap --record RECORDED.mcap --times 3,9,15,21 \\
-                          --out out/classification.png
-
-``--bag`` holds the images (``/camera/image_raw/compressed``, JPEG or PNG) and ``--record``
-what a graph recorded from them (``slam_run GRAPH --record``): ``/features`` and the
-Shadow filter's statuses on ``/shadow/tracks``, ``/shadow/static_features`` and
-``/monoslam/revoked``. Each panel is the image nearest each time (s after the first image):
-its features, each in the status it had as of that image's stamp (the status messages with a
-header stamp up to it, in stamp order), with the count of each kind on top
-(``monoslam_shadow_node.feature_overlay``, as the tracker's debug image draws them live).
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -25,8 +14,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from monoslam_shadow_node.core.shadow_track import DYNAMIC
-from monoslam_shadow_node.feature_overlay import StatusBook, draw_features
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC
+from monoslam_shadow_node.feature_tracker.overlay import StatusBook, draw_features
 from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_core.stamps import stamp_to_ns
@@ -47,8 +36,8 @@ class StatusEvent:
 
 
 def statuses_as_of(events: Sequence[StatusEvent], stamp_ns: int) -> StatusBook:
-    """Return each id's latest status among ``events`` with a stamp up to ``stamp_ns``
-    (events in any order; at one stamp, in the order given)."""
+    """Return each id's latest status among ``events`` stamped up to ``stamp_ns`` (events in any
+    order; at one stamp, in the order given)."""
     book = StatusBook()
     for event in sorted(
         (e for e in events if e.stamp_ns <= stamp_ns), key=lambda e: e.stamp_ns
@@ -80,7 +69,7 @@ def read_messages(path: Path, topics: Sequence[str], required: str) -> list[tupl
 
 
 def panels(bag: Path, record: Path, times_s: Sequence[float]) -> list[np.ndarray]:
-    """Return the drawn images (BGR) of the module docstring."""
+    """Return one drawn image (BGR) per time: the nearest image, its features in their status."""
     images = {
         stamp_to_ns(m.header.stamp): m for _, m in read_messages(bag, [IMAGE_TOPIC], IMAGE_TOPIC)
     }

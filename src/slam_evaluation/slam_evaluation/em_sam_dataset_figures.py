@@ -1,5 +1,4 @@
-"""Figures of em_sam_evaluate on real data sets: an MRCLAM run's static map against the
-Vicon landmarks, and the Victoria Park trees EM-SAM flagged, with their sightings."""
+"""Figures of em_sam_evaluate on real data sets (MRCLAM map, Victoria Park flags)."""
 
 from __future__ import annotations
 
@@ -16,9 +15,8 @@ MRCLAM_SIZE_IN = (12.0, 7.0)
 
 
 def draw_mrclam_run(figure: Any, result: MrclamRunResult) -> None:
-    """Left: EM-SAM robust's static map and trajectory, aligned onto the Vicon landmarks
-    (each barcode named; those further off than MAP_OUTLIER_M in red), and the sightings of
-    the robots it flagged. Right: every landmark's weight."""
+    """Left: EM-SAM robust's static map, trajectory and flagged robots' sightings on the
+    Vicon landmarks (further off than MAP_OUTLIER_M red). Right: every landmark's weight."""
     robust, truth, error = result.robust, result.truth, result.robust_map
     ax_map, ax_weights = figure.subplots(1, 2, width_ratios=(1.2, 1.0))
 

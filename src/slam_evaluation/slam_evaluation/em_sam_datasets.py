@@ -1,6 +1,4 @@
-"""em_sam_evaluate's real data sets: the --mrclam and --victoria-park options, the runs,
-and the results written to --output (results.md, results.json and PNG figures, each
-atomically)."""
+"""em_sam_evaluate's real data sets: --mrclam and --victoria-park, runs and results."""
 
 from __future__ import annotations
 

@@ -5,21 +5,11 @@
     em_sam_evaluate --mrclam DIR [--robots 1 2 ...] [--window-s full 600 300] [--output DIR]
     em_sam_evaluate --victoria-park FILE_OR_BAG [--output DIR]
 
-Simulated bags (or seeds): the odometry and observations are replayed through the nodes'
-processors and five methods are compared: odometry only, plain SAM (every landmark
-static), EM-SAM 'paper', EM-SAM 'robust', and an oracle with the truly moveable landmarks
-removed (robust mode's estimator given the answer: it calibrates the odometry's scales as
-robust mode does). Columns: ATE RMSE (m, after SE(2) alignment), static landmark map error (m, same
-alignment), moveable precision and recall (positives: moved landmarks seen at both
-positions), runtime. Writes results.md, results.json and figures (the paper's Figs. 2-5 and
-weights per EM iteration) into the output directory.
+Simulated runs compare odometry only, plain SAM, EM-SAM 'paper' and 'robust' and an oracle
+(movers removed) on ATE and map error (m, SE(2)-aligned), moveable precision/recall and
+runtime. Writes results.md, results.json and PNG figures into the output directory.
 
---mrclam: every robot of an MRCLAM data set (or --robots) in every time window (--window-s:
-seconds from the robot's first odometry stamp; 'full' or 0 is the whole run), imported with
-mrclam_import's writer and replayed the same way; scored on moveable flags, ATE where a
-Vicon track exists and the static map (see em_sam_mrclam). --victoria-park: the trees'
-weights, the flagged trees and why, and the all-static cost (see em_sam_victoria_park).
-Both write results.md, results.json and PNG figures into --output, and log progress.
+Design notes: docs/design/evaluation.md
 """
 
 from __future__ import annotations
@@ -37,8 +27,8 @@ import numpy as np
 from em_sam_node.core.assembly import MappingData, dead_reckoning
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
+from em_sam_node.mapper.report import write_figures
 from em_sam_node.offline import GroundTruth, read_ground_truth, replay_bag, seen_at_both_positions
-from em_sam_node.report import write_figures
 from slam_core.arrays import FloatArray
 from slam_core.cli import PlainDescriptionHelpFormatter, console_main
 from slam_core.files import write_atomically, write_json
@@ -190,8 +180,7 @@ def evaluate_bag(
 
 
 def live_output(report_path: Path) -> MethodOutput:
-    """Return the em_sam_mapper node's own result (its report JSON) as a MethodOutput,
-    scored at the node's own keyframe stamps."""
+    """Return the em_sam_mapper node's own result (report JSON) at its keyframe stamps."""
     report = json.loads(report_path.read_text(encoding='utf-8'))
     static = [lm for lm in report['landmarks'] if not lm['moveable']]
     return MethodOutput(

@@ -86,9 +86,7 @@ def classify(flagged: set[int], positives: set[int], negatives: set[int]) -> Cla
 
 @dataclass(frozen=True)
 class MapError:
-    """A static map against its ground truth after a robust SE(2) alignment: per-landmark
-    errors (L,) m (aligned with ``landmark_ids``), the alignment, and the landmarks that
-    were left out of the final fit (more than ``outlier_m`` off)."""
+    """A static map after a robust SE(2) fit: errors (L,) m, the fit, the left-out landmarks."""
 
     landmark_ids: np.ndarray
     errors_m: FloatArray
@@ -120,15 +118,8 @@ def robust_map_error(
     outlier_m: float,
     max_rounds: int = 10,
 ) -> MapError:
-    """Return the errors of landmarks (L,2) against the truth (L,2) after an SE(2) alignment
-    fitted on the landmarks within ``outlier_m`` of the truth (refitted until that set stops
-    changing, at most ``max_rounds`` times), so that a few wrong landmarks (a swapped
-    identity) are named instead of skewing every error.
-
-    Raises:
-        ValueError: fewer than 2 landmarks, or shapes that differ.
-
-    """
+    """Return the MapError of landmarks (L,2) against the truth (L,2) after an SE(2) fit on
+    those within ``outlier_m``; ValueError for fewer than 2 or shapes that differ."""
     if estimate_xy.shape != truth_xy.shape or len(estimate_xy) < 2:
         raise ValueError('a map error needs two equally long point sets of at least 2 points')
     inliers = np.ones(len(estimate_xy), dtype=bool)

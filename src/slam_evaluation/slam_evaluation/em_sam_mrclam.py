@@ -1,23 +1,6 @@
-"""em_sam_evaluate --mrclam: EM-SAM on UTIAS MRCLAM robots, scored on what a data set has
-truth for.
+"""em_sam_evaluate --mrclam: EM-SAM on UTIAS MRCLAM robots, scored where there is truth.
 
-Each robot (default: every robot with an odometry file) and time window (default: the whole
-run; a window keeps the first S seconds from the robot's first odometry stamp) is imported
-with mrclam_import's writer (``slam_sim.mrclam_bag``) into a temporary directory and replayed
-through the nodes' processors (``offline.replay_bag``). Methods: plain SAM (every landmark
-static), EM-SAM 'paper' and 'robust'. Scores:
-
-- moveable flags, always: the positives are the other robots the Vicon tracks put at two
-  places, or without tracks those a whole run sighted often (``mrclam_positives``), the
-  negatives the static barcodes (subjects 6-20, ``Landmark_Groundtruth.dat``). Reported:
-  robots flagged, robots missed and static barcodes flagged (false positives), by subject;
-- ATE (RMSE after SE(2) alignment, over the keyframes the Vicon track covers) only where
-  ``RobotN_Groundtruth.dat`` exists (data set 6); elsewhere 'n/a', and the report says why;
-- the static map against ``Landmark_Groundtruth.dat`` after an SE(2) alignment fitted on
-  the landmarks within ``MAP_OUTLIER_M`` (``em_sam_metrics.robust_map_error``): median and
-  largest error, and the landmarks further off named, so a swapped identity (data set 1's
-  subjects 11 and 17) shows by name instead of inflating every error.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -126,8 +109,7 @@ def score_run(
     truth: GroundTruth,
     positives: list[int],
 ) -> MrclamRunResult:
-    """Run the methods on one replayed robot and score them (``positives``: the other
-    robots that count as moved, ``mrclam_positives``)."""
+    """Run the methods on one replayed robot and score them against ``positives``."""
     others = [int(i) for i in truth.landmark_ids[truth.moveable].tolist()]
     negatives = set(truth.landmark_ids[~truth.moveable].tolist())
     static = solve_all_static(data)

@@ -1,5 +1,4 @@
-"""What every EM-SAM evaluation runs on replayed data: the all-static solve, EM-SAM in both
-modes, and the window and time helpers the dataset evaluators share."""
+"""What the EM-SAM evaluations run on replayed data, and their window and time helpers."""
 
 from __future__ import annotations
 
@@ -60,18 +59,8 @@ def solve_all_static(
     incremental: bool = False,
     calibrate: bool = False,
 ) -> AllStatic:
-    """Return plain SAM (Levenberg-Marquardt from dead reckoning) without ``exclude``.
-
-    ``incremental``: reach it by continuation in time (``core.continuation``: the run solved
-    prefix by prefix from dead reckoning) before the final solve; one solve from dead
-    reckoning stops in the basin the drift put it in on long runs (Victoria Park: about 70
-    times the cost).
-
-    ``calibrate``: estimate the odometry's translation and rotation scales with the
-    trajectory (``core.odometry_calibration``, the robust mode's M-step), alternated with
-    the solve; the oracle that robust mode is compared with is then the same estimator with
-    the moved landmarks known.
-    """
+    """Return plain SAM (Levenberg-Marquardt from dead reckoning) without ``exclude``;
+    ``incremental``: by continuation in time; ``calibrate``: with the odometry scales."""
     started = time.perf_counter()
     solved = _solve_all_static(data, exclude, incremental)
     calibration = OdometryCalibration()
@@ -145,12 +134,7 @@ def flagged_ids(result: EmResult) -> set[int]:
 
 
 def parse_window(text: str) -> float | None:
-    """Return a ``--window-s`` value in seconds, None for the whole run ('full' or 0).
-
-    Raises:
-        ValueError: neither 'full' nor a finite number >= 0.
-
-    """
+    """Return ``--window-s`` in s (None: 'full' or 0); ValueError unless a finite number >= 0."""
     if text.strip().lower() == FULL_RUN:
         return None
     try:

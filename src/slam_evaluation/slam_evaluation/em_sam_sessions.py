@@ -2,15 +2,8 @@
 
     em_sam_sessions_evaluate [--seeds 0-9] [--relocated 3] [--output DIR]
 
-Per seed: session 1 is the office run of that seed (desk markers 100-109 move during it),
-mapped by EM-SAM and saved as em_sam_node's map files. Between the sessions ``--relocated``
-wall markers are moved along their wall by 0.8-1.5 m. Session 2 is the office run of seed +
-1000 (other desk layout and moves, other noise) with them moved; it starts where session 1
-did. Both sessions go through bags and the nodes' processors. Session 2 is solved twice:
-localization on the saved map (em_sam_mapper's ``mode: localization``) and a fresh mapping.
-Scored: the flagged set against the expected one (the relocated wall markers and the desk
-markers seen at both positions in session 2), and the ATE (m, after SE(2) alignment) of both.
-Writes results.md and results.json.
+Scores the flags of session 2 (localized on the saved map, and mapped afresh) against the
+relocated and moved markers, and their ATE (m); writes results.md and results.json.
 """
 
 from __future__ import annotations
@@ -29,8 +22,8 @@ from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.em_weights import chi2_quantile
 from em_sam_node.core.localization import localize, static_joint_covariance
-from em_sam_node.map_files import known_map, read_map, write_map
-from em_sam_node.mapper_settings import PARAMETERS
+from em_sam_node.mapper.map_files import known_map, read_map, write_map
+from em_sam_node.mapper.settings import PARAMETERS
 from em_sam_node.offline import read_ground_truth, replay_bag, seen_at_both_positions
 from slam_core.cli import console_main
 from slam_core.files import write_atomically

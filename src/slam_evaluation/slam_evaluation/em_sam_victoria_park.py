@@ -1,26 +1,6 @@
-"""em_sam_evaluate --victoria-park: EM-SAM on the Victoria Park trees, which have no ground
-truth.
+"""em_sam_evaluate --victoria-park: what EM-SAM decided on the Victoria Park trees and why.
 
-The input is the GTSAM text file (imported with victoria_park_import's writer,
-``slam_sim.victoria_park_bag``, into a temporary directory) or a bag that importer made
-(a directory or an ``.mcap``); either way the bag is replayed through the mapper's processor
-(``offline.replay_bag``, odometry from /odometry_increments). Without truth there is nothing
-to score against, so the report says what EM-SAM decided and why:
-
-- every tree's weight in both modes and its number of sightings;
-- for each tree 'robust' flags: its sightings placed in the map through the all-static
-  trajectory against the tree's all-static position (median and largest distance: how
-  badly the static hypothesis fits them), and their spread (RMS about their mean) when
-  placed through EM-SAM's final trajectory instead: sightings in two clusters point to a
-  moved tree or a wrong association, one wide cloud to noisy ranges; a PNG shows the
-  flagged trees with their sightings;
-- the all-static (plain SAM) solve's final cost: 0.5 x the squared whitened residuals of
-  the prior, the odometry increments and every sighting (the factors of the bag: eq. 2
-  increments, not the SE(2) between factors of bench/victoria_park_gtsam.py). That solve
-  is reached by continuation in time from dead reckoning (``solve_all_static(...,
-  incremental=True)``): one batch solve from dead reckoning stops at about 70 times the
-  cost, where the flagged trees' sightings would be judged against a wrong trajectory.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -67,8 +47,7 @@ class FlaggedTree:
 
 @dataclass(frozen=True)
 class VictoriaParkResult:
-    """The replayed data, the all-static solve, EM-SAM per mode (runtime s, result) and
-    the trees 'robust' flagged, worst (largest distance) first."""
+    """The data, the all-static solve, EM-SAM per mode (runtime s, result), 'robust' flags."""
 
     source: Path
     data: MappingData
@@ -88,8 +67,7 @@ def _bag_of(source: Path, scratch: Path) -> Path:
 
 
 def explain_flags(data: MappingData, result: EmResult, static: AllStatic) -> list[FlaggedTree]:
-    """Return the trees ``result`` flagged, with their sightings against their all-static
-    position, largest distance first."""
+    """Return the trees ``result`` flagged, largest all-static distance first."""
     fitted = dict(zip(static.landmark_ids.tolist(), static.positions, strict=True))
     trees = []
     for index in np.flatnonzero(result.moveable).tolist():

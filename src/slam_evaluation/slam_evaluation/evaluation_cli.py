@@ -6,8 +6,7 @@ import argparse
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:
-    """Return seeds from '0-9', '1,4' or '0-3,7'; ValueError if malformed or a range is
-    reversed ('5-2' would give no seeds)."""
+    """Return seeds from '0-9', '1,4' or '0-3,7'; ValueError if malformed or reversed."""
     seeds: list[int] = []
     for part in text.split(','):
         low, _, high = part.strip().partition('-')
@@ -20,8 +19,7 @@ def parse_seeds(text: str) -> tuple[int, ...]:
 
 
 def add_tracking_noise_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add --tracking-offset-px and --tracking-jump-probability: the simulated tracking noise
-    that is not white, which the evaluators also declare to the filters."""
+    """Add --tracking-offset-px and --tracking-jump-probability (non-white noise)."""
     parser.add_argument(
         '--tracking-offset-px',
         type=float,

@@ -1,64 +1,6 @@
-"""monoslam_evaluate: paper 001's Fig. 5 at the measurement level, MonoSLAM with and without
-the Shadow filter in a scene with moving objects.
+"""monoslam_evaluate: paper 001's Fig. 5, MonoSLAM with and without the Shadow filter.
 
-    monoslam_evaluate --out out/monoslam_eval [--seeds 0-9] [--duration-s 20]
-                      [--variants a,b,c] [--unchecked-directions 1] [--known-board 3x3]
-                      [--static-test both|three_ray|all_view]
-                      [--shadow-poses slam|truth] [--oracle-handovers] [--first-order]
-                      [--sequence DIR]
-
-``--sequence DIR`` runs an on-disk sequence (``sequence_files``: intrinsics, camera poses,
-feature tracks, optional labels and known points) instead of simulated seeds: one run, scored
-against the sequence's poses (no map error or mover figures: it has no point truth; variant
-(a) needs its labels).
-
-Every seed simulates one run (``slam_sim.core.dynamic_scene``: 200 static points, 8 moving
-objects of 8 points, 1 px pixel noise, the initialization target's corners as known points;
-``monoslam_pipeline.simulation_frames``, target noise from ``default_rng(1000 + seed)``) and
-feeds the same frames to each variant (``monoslam_pipeline``): (a) static features only,
-(b) all features, (c) MonoSLAM + Shadow filter (every frame SLAM tracks, with SLAM's pose
-and its covariance; the defaults of the shadow_filter node, as the graph).
-
-``--known-board RxC`` replaces the single 0.6 m target by a board of R x C markers of
-``BOARD_MARKER_SIDE_M`` with ``BOARD_GAP_M`` gaps around the same centre (the paper starts
-from a checkerboard: more known points, spread wider). ``--shadow-poses truth`` and
-``--oracle-handovers`` are the diagnostic bounds of ``monoslam_pipeline`` (the Shadow filter
-given the true camera poses; handovers of moving features dropped by ground truth); the
-summary names them, and they answer what the Shadow filter's classifier, and its poses,
-cost against (a).
-
-Metrics per variant and seed (frames with a pose estimate; all in ``map``, m):
-
-- ATE: RMS of the camera centre error, raw (the target fixes the scale) and after the
-  sim(3) alignment to the truth that minimizes it (Umeyama), with that alignment's scale;
-- diverged: raw ATE above ``DIVERGED_ATE_M``, tracking lost, a non-finite estimate, or no
-  estimate at all (reasons listed);
-- map: RMS (and median) distance of the SLAM map points with a defined covariance (active and
-  retired) to their true static points; map points of moving features are counted apart
-  (``dynamic_in_map``), as are moving features that ever entered the map;
-- pose NEES (6 dof): e = (centre error, log(R_est R_true^T) about the world axes) against
-  the pose covariance, per frame; averaged per frame over the n seeds with an estimate there,
-  with the 95 % band chi2(6n) quantiles / n; the share of frames whose average is inside it
-  and the mean and median over all samples.
-
-Paper 001's claims, checked (``monoslam_report.acceptance``): mean ATE(c) / mean ATE(a) <=
-1.5 (raw ATE, means over seeds) and <= 2 on every seed (the goal, 1.2, is printed), with (c)
-keeping tracking on every seed; (c) keeps tracking on a seed when it never loses it and
-tracks at least 95 % of the frames (a) tracks there (``tracked (c)/(a)``, a point of its
-own: (c) fails whatever its ATE over the frames it kept); and mean ATE(b) / mean ATE(a) >= 3
-or (b) diverges on every seed; and every moving feature that entered (c)'s map revoked
-within 15 frames of moving at 0.3 m/s across the line of sight
-(``monoslam_metrics.mover_revocations``, which also judges motion out of the epipolar
-plane). Per-seed figures (frames tracked and ATE per variant, (c) against (a), the Shadow
-filter's frames and handovers) are printed.
-
-Writes ``monoslam_eval.json`` and the PNG figures (Fig. 5-like top views of one seed, ATE and
-NEES over time) into ``--out``, prints a summary with each claim met or NOT met, and
-logs progress (rate, ETA) on stderr. A run a filter raises on is listed under
-``failures``, left out of the statistics and makes the exit status 1.
-
-Modules: ``monoslam_metrics``, ``monoslam_runs`` (settings, one seed), ``monoslam_report``
-(totals, ratios, acceptance, the summary), ``monoslam_figures``; this one is the command line.
+Design notes: docs/design/evaluation.md
 """
 
 from __future__ import annotations
@@ -68,7 +10,10 @@ import sys
 import time
 from pathlib import Path
 
-from monoslam_shadow_node.core.shadow_classifier import STATIC_TESTS, ClassifierConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_classifier import (
+    STATIC_TESTS,
+    ClassifierConfig,
+)
 from slam_core.blas import single_threaded_blas
 from slam_core.cli import console_main
 from slam_core.files import write_json
@@ -238,8 +183,7 @@ def _arguments(argv: list[str] | None) -> Settings:
 
 @console_main('monoslam_evaluate')
 def main(argv: list[str] | None = None) -> int:
-    """Run the evaluation; print the summary; write the JSON report and figures to --out.
-    Exit status 1 if a filter raised on a run (listed in the report, left out of it)."""
+    """Run the evaluation, print the summary, write report and figures; 1 if a filter raised."""
     settings = _arguments(argv)
     single_threaded_blas()
     started = time.perf_counter()

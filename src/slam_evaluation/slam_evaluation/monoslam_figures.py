@@ -1,6 +1,4 @@
-"""monoslam_evaluate's figures (PNG): Fig. 5-like top views of one seed, ATE and pose NEES over
-time.
-"""
+"""monoslam_evaluate's figures (PNG): top views of one seed, ATE and pose NEES over time."""
 
 from __future__ import annotations
 

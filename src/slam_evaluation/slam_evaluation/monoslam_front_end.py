@@ -1,8 +1,6 @@
-"""monoslam_image_evaluate's front end: the feature tracker and the marker detector on each image
-give a ``MeasurementFrame`` (track ids with raw pixels, the target's corners as the known
-points 0-3) with its truth (features on moving objects, by the labels), and the front end's
-counts.
-"""
+"""monoslam_image_evaluate's front end: images to ``MeasurementFrame``s with their truth.
+
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -16,11 +14,11 @@ from numpy.typing import NDArray
 
 from marker_detector.core.detection import detect_markers, make_detector
 from marker_detector.core.detector_config import DetectorConfig
-from monoslam_shadow_node.core.feature_config import TrackerConfig
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker
-from monoslam_shadow_node.core.feature_types import Predictions
-from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
-from monoslam_shadow_node.core.tracking_noise import drift_bounded_offset_px
+from monoslam_shadow_node.common.core.tracking_noise import drift_bounded_offset_px
+from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
+from monoslam_shadow_node.feature_tracker.core.feature_tracker import FeatureTracker
+from monoslam_shadow_node.feature_tracker.core.feature_types import Predictions
+from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamFrame
 from slam_core.camera import CameraModel
 from slam_evaluation.monoslam_image_sources import BoolArray, FloatArray, ImageFrame
 from slam_evaluation.monoslam_pipeline import MeasurementFrame, PipelineConfig
@@ -45,10 +43,8 @@ def moving_near(labels: NDArray[np.int16], pixels: FloatArray, radius_px: int) -
 
 @dataclass
 class FrontEndStats:
-    """Running counts of the front end: frames, features, features flagged moving, on a
-    moving object's label at their own pixel, on 'nothing'; tracks started and flagged
-    moving; frames with the target fully visible (truth), detected, both; and the detected
-    corners' errors against the truth (px, 4 per frame with both)."""
+    """Running counts of the front end (frames, features, moving flags, tracks, target
+    detections) and the detected corners' errors (px)."""
 
     frames: int = 0
     features: int = 0
@@ -79,8 +75,7 @@ class FrontEndStats:
 
 
 class FrontEnd:
-    """Turns images into SLAM frames with their truth (module docstring): the feature tracker,
-    the marker detector on the target, and the moving flags from the labels."""
+    """Images to SLAM frames with truth: tracker, marker detector, moving flags by labels."""
 
     def __init__(
         self, camera: CameraModel, target: InitTarget, target_every_n_frames: int = 1
@@ -98,14 +93,7 @@ class FrontEnd:
         self.stats = FrontEndStats()
 
     def declared(self, pipeline: PipelineConfig) -> PipelineConfig:
-        """Return ``pipeline`` with SLAM told that the feature tracker's offsets persist (a
-        track slides by LK until its drift check drops it: ``drift_bounded_offset_px`` of
-        ``max_drift_px``, with SLAM's correlation time), as the node graph tells monoslam.
-        SLAM averages a map feature over hundreds of images, where an offset that persists
-        does not average out; the Shadow filter judges a track over its first images, where
-        an offset is nearly constant and shifts the fitted point instead, so it keeps white
-        noise (told the offsets, it called fewer movers: ``tests/test_monoslam_topics.py``,
-        537 of 1825 sightings on objects held dynamic against the 30 % it asks)."""
+        """Return ``pipeline`` with SLAM (only) told that the tracker's offsets persist."""
         offset_px = drift_bounded_offset_px(self.tracker.config.max_drift_px)
         slam = dataclasses.replace(pipeline.slam, tracking_offset_px=offset_px)
         return dataclasses.replace(pipeline, slam=slam)
@@ -113,9 +101,8 @@ class FrontEnd:
     def frame(
         self, image_frame: ImageFrame, predictions: Predictions | None = None
     ) -> MeasurementFrame:
-        """Return the measurements of one image (tracks, with SLAM's ``predictions`` for it
-        if given; the target's corners as known points 0-3 if detected) and its truth
-        (moving flags, camera pose)."""
+        """Return one image's measurements (tracks, with ``predictions`` if given; the
+        target's corners as known points 0-3) and its truth."""
         features = self.tracker.track(image_frame.image, predictions)
         ids, pixels = features.ids, features.pixels
         moving = self._moving(image_frame.labels, ids, pixels)
@@ -150,10 +137,8 @@ class FrontEnd:
         return np.asarray(moving, dtype=bool)
 
     def _detect(self, image_frame: ImageFrame) -> FloatArray | None:
-        """Return the target's detected raw corners (4, 2) px (None if not detected) and
-        count the detection against the truth. Only every ``target_every_n_frames``-th image
-        is searched (marker_detector's detect_every_n_frames); the others give None and are
-        not counted."""
+        """Return the target's detected raw corners (4, 2) px or None, counted against
+        the truth; only every ``target_every_n_frames``-th image is searched."""
         if self.stats.frames % self.target_every_n_frames:
             return None
         result = detect_markers(

@@ -1,56 +1,6 @@
-"""monoslam_image_evaluate: paper 001's Fig. 5 from rendered images, against the measurement
-level (the full pipeline from images reaches (c) within 1.5x of its measurement-level
-ATE).
+"""monoslam_image_evaluate: Fig. 5 from rendered images or bags, against the measurement level.
 
-    monoslam_image_evaluate --out out/monoslam_image_eval [--seeds 0-9] [--duration-s 20]
-                            [--target-every-n-frames 1]
-    monoslam_image_evaluate --out out/bag_eval --bag bags/dynamic_camera.mcap [more bags]
-                            [--unchecked-directions 1]
-
-Sources. Without ``--bag`` every seed renders monoslam_evaluate's Fig. 5 scene (its
-``Settings.scene()``: 8 moving objects, drawn as textured spheres by
-``slam_sim.core.dynamic_render``) frame by frame. Each ``--bag`` is one run written by
-``dynamic_camera_sim``: its images, camera_info, true camera pose, labels, true target
-corners and scene JSON (seed, scene config and target); every bag's topics, scene and first
-camera_info are read before the work starts.
-
-Front end (``FrontEnd``, the same for every variant): the feature tracker
-(``core.feature_tracker``, the node's defaults, no predictions: one set of tracks feeds all
-variants) and the marker detector (``marker_detector.core.detection``, the node's defaults,
-only the target's id and side; with ``--target-every-n-frames`` n only on every n-th
-image, as the node's detect_every_n_frames) on each image give ``MonoSlamFrame``: track ids
-with raw pixels, and the known points 0-3 (the detected corners, TL TR BR BL as
-``target_known_points``) when the target is detected. Truth: the camera pose of the image,
-and per feature whether it is on a moving object: a feature is moving if a label within
-``MOVING_RADIUS_PX`` pixels (a square window about its rounded pixel) is a moving object, so
-that features on object silhouettes (corners made by an object and what lies behind it)
-count as moving; once moving, a track stays moving (a static track that an object passes over
-is dragged along or lost). Pixels labelled 'nothing' (no surface: only beyond the lens
-model's fold, never inside the closed room in practice) count as not moving; how many
-features sit on one is reported.
-
-Runs per seed: variants a, b and c (``monoslam_pipeline.run_variant``) on the image-level
-frames, and variant c on the measurement-level frames of the same seed, scene config and
-target (``simulation_frames``, target noise from ``default_rng(1000 + seed)`` as
-monoslam_evaluate). Metrics are monoslam_evaluate's (ATE raw and sim(3)-aligned, divergence);
-the ratio is image c / measurement c per seed, and the acceptance is the ratio of the means
-over seeds (raw ATE) <= ``IMAGE_OVER_MEASUREMENT_MAX`` with image c keeping tracking on every
-seed: never lost, and at least 95 % of the frames image a tracks (``tracked image (c)/(a)``,
-also a point of its own; per seed in the table's ``c/a frames``). Front-end figures: features per
-frame, the share of features (and of tracks) on moving objects, the target detection rate
-(frames detected among those in which the target is fully visible and unoccluded) and the
-detected corners' error against the true ones (px).
-
-Writes ``monoslam_image_eval.json``, the table as ``monoslam_image_eval.md`` and PNG figures
-(top views of the trajectories, image and measurement level; position error over time) into
-``--out`` (atomically), prints the table, and logs progress on stderr (images through the
-front end, with rate and ETA: rendering, tracking and detection take most of the time; the
-four filter runs follow each seed's images) and a line per seed. A run a filter raises on is
-listed under ``failures`` and makes the exit status 1.
-
-Modules: ``monoslam_image_sources``, ``monoslam_front_end``, ``monoslam_image_runs``,
-``monoslam_image_report`` (with the table), ``monoslam_image_figures``; this one is the
-command line.
+Design notes: docs/design/evaluation.md
 """
 
 from __future__ import annotations
@@ -149,8 +99,7 @@ def _arguments(argv: list[str] | None) -> Settings:
 
 @console_main(PROG)
 def main(argv: list[str] | None = None) -> int:
-    """Run the evaluation; print the table; write the JSON report, the table and the figures
-    to --out. Exit status 1 if a filter raised on a run (listed in the report)."""
+    """Run the evaluation, print the table, write report, table, figures; 1 if a filter raised."""
     settings = _arguments(argv)
     from slam_evaluation.monoslam_image_figures import write_figures
     from slam_evaluation.monoslam_image_report import report, table_text

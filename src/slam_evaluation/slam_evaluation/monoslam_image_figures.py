@@ -1,6 +1,4 @@
-"""monoslam_image_evaluate's figures (PNG): top views of the trajectories (image and measurement
-level) and the position error over time.
-"""
+"""monoslam_image_evaluate's figures (PNG): trajectory top views, position error over time."""
 
 from __future__ import annotations
 
@@ -30,8 +28,7 @@ TOPVIEW_MARGIN_M = 0.75
 
 
 def write_figures(directory: Path, results: Sequence[SeedResult], rate_hz: float) -> list[Path]:
-    """Draw the top views (one per seed) and the position error over time; return the PNG
-    paths."""
+    """Draw the top views (one per seed) and the position error; return the PNG paths."""
     import matplotlib
 
     matplotlib.use('Agg')

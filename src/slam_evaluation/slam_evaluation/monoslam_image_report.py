@@ -1,12 +1,6 @@
-"""monoslam_image_evaluate's report: totals, the image / measurement ratio, the frames image
-(c) tracks against image (a), the acceptance, the error curves (the content of
-``monoslam_image_eval.json``), and the Markdown table.
+"""monoslam_image_evaluate's report (``monoslam_image_eval.json``) and Markdown table.
 
-Acceptance is honest about tracking (as ``monoslam_report``'s): a seed on which image (c) lost
-tracking, tracked fewer than ``TRACKED_SHARE_MIN`` of the frames image (a) tracked, or did not
-run, does not meet the ATE ratio whatever its ATE, and the ratio fails unless every seed kept
-tracking; the tracking rule is also a point of its own.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -17,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from monoslam_shadow_node.core.feature_config import TrackerConfig
+from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
 from slam_core.arrays import FloatArray
 from slam_evaluation import monoslam_runs
 from slam_evaluation.monoslam_front_end import MOVING_RADIUS_PX, FrontEndStats
@@ -57,23 +51,19 @@ def _runs(per_seed: Sequence[Mapping[str, Any]], level: str, variant: str) -> li
 
 
 def level_ratio(per_seed: Sequence[Mapping[str, Any]], key: str) -> dict[str, Any] | None:
-    """Return mean ``key`` of image c / mean of measurement c over the seeds both ran, and
-    per seed."""
+    """Return mean ``key`` of image c / measurement c over the seeds both ran, and per seed."""
     return ratio_summary(_runs(per_seed, 'image', 'c'), _runs(per_seed, 'measurement', 'c'), key)
 
 
 def image_tracking(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """Return the frames image c tracked against those image a tracked, per seed
-    (``monoslam_report.tracking_summary``; a seed without image a is left out)."""
+    """Return the frames image c tracked against image a, per seed (``tracking_summary``)."""
     return tracking_summary(_runs(per_seed, 'image', 'c'), _runs(per_seed, 'image', 'a'))
 
 
 def acceptance(
     ratio: Mapping[str, Any] | None, tracking: Mapping[str, Any]
 ) -> list[dict[str, Any]]:
-    """Return the acceptance points (module docstring): mean ATE(c) images / mean ATE(c)
-    measurements with image c keeping tracking, and the frames image c tracks against image
-    a."""
+    """Return the acceptance points: the ATE ratio with image c tracking, and the tracking."""
     seeds = ratio['per_seed'] if ratio is not None else []
     value = ratio['ratio_of_means'] if ratio is not None else math.nan
     kept = {r['seed']: r['kept'] for r in tracking['per_seed']}
@@ -106,8 +96,7 @@ def _pooled(results: Sequence[SeedResult]) -> FrontEndStats:
 
 
 def error_curves(results: Sequence[SeedResult]) -> dict[str, FloatArray]:
-    """Return per filter run the position errors (S, K) m over seeds, NaN-padded to the
-    longest run (NaN: no estimate)."""
+    """Return per filter run the position errors (S, K) m, NaN-padded (NaN: no estimate)."""
     length = max((len(r.truth) for r in results), default=0)
     curves = {}
     for level, variant in RUNS:
@@ -129,8 +118,7 @@ def rms_over_seeds(values: FloatArray) -> FloatArray:
 
 
 def report(settings: Settings, results: Sequence[SeedResult], wall_s: float) -> dict[str, Any]:
-    """Return the JSON report: configuration, per seed entries, totals, ratios, acceptance,
-    RMS error curves, failures and run time."""
+    """Return the JSON report: configuration, seeds, totals, ratios, acceptance, curves."""
     per_seed = [result.entry for result in results]
     target = settings.sources[0].target if settings.sources else InitTarget()
     totals: dict[str, Any] = {
@@ -234,7 +222,7 @@ def _mean_cells(content: Mapping[str, Any]) -> list[str]:
 
 def table_text(content: Mapping[str, Any]) -> str:
     """Return the markdown table of a report (a row per seed and the means) with the
-    acceptance verdict, the Shadow numbers of image c and the failed runs."""
+    acceptance, the Shadow numbers of image c and the failed runs."""
     rows = [list(TABLE_HEADER), ['---'] * len(TABLE_HEADER)]
     tracking = {r['seed']: r for r in content['tracking_c']['per_seed']}
     rows += [_seed_cells(entry, tracking.get(entry['seed'])) for entry in content['per_seed']]

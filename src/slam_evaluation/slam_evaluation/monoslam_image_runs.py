@@ -1,6 +1,4 @@
-"""monoslam_image_evaluate's runs: the settings, and per source the image-level variants a, b,
-c and the measurement-level variant c (``monoslam_pipeline.run_variant``) with their metrics.
-"""
+"""monoslam_image_evaluate's runs: settings, and per source the variants with their metrics."""
 
 from __future__ import annotations
 
@@ -40,8 +38,7 @@ RUNS = (*(('image', v) for v in VARIANTS), ('measurement', 'c'))
 
 @dataclass(frozen=True, eq=False)
 class Settings:
-    """The command line: the runs (sources), monoslam_evaluate's settings (the filters'
-    settings ``pipeline``; ``scene`` is the rendered Fig. 5 scene) and the output directory."""
+    """The command line: the sources, monoslam_evaluate's settings, the output directory."""
 
     sources: tuple[FrameSource, ...]
     evaluation: monoslam_runs.Settings
@@ -55,10 +52,8 @@ class Settings:
 
 @dataclass(eq=False)
 class SeedResult:
-    """One run's report entry, its front-end counts, and per filter run ('image a', ...,
-    'measurement c') the position error (K,) m and estimated centres (K, 3) m; the true
-    centres (K, 3) m, and per filter run its map points with a known position (M, 3) m at the
-    end, for the figures."""
+    """One run's report entry and front-end counts; per filter run the position error (K,) m,
+    centres (K, 3) m and final map points (M, 3) m; the true centres (K, 3) m."""
 
     entry: dict[str, Any]
     front_end: FrontEndStats
@@ -69,17 +64,14 @@ class SeedResult:
 
 
 def measurement_frames(source: FrameSource) -> list[MeasurementFrame]:
-    """Return the measurement-level frames of the source's seed, scene config and target
-    (target noise from default_rng(1000 + seed), as monoslam_evaluate)."""
+    """Return the measurement-level frames of the source's seed, scene and target."""
     run = simulate_dynamic_scene(source.seed, source.config)
     rng = np.random.default_rng(monoslam_runs.TARGET_NOISE_SEED_OFFSET + source.seed)
     return simulation_frames(run, source.target, rng=rng)
 
 
 def run_metrics(record: VariantRecord, errors: FloatArray) -> dict[str, Any]:
-    """Return a filter run's metrics from its pose errors (K, 6) (``pose_errors``):
-    monoslam_evaluate's trajectory metrics, map size, moving features that entered the map,
-    filter time; the Shadow numbers of variant c."""
+    """Return a filter run's metrics from its pose errors (K, 6), Shadow numbers for c."""
     metrics = {
         **trajectory_metrics(record, errors),
         'map_points': len(record.map_points),
@@ -94,8 +86,7 @@ def run_metrics(record: VariantRecord, errors: FloatArray) -> dict[str, Any]:
 def evaluate_source(
     source: FrameSource, settings: Settings, advance: Callable[[], None]
 ) -> SeedResult:
-    """Build the image-level frames of a source, run every filter (``RUNS``) and return the
-    result; ``advance()`` after each image."""
+    """Run every filter (``RUNS``) on a source's frames; ``advance()`` after each image."""
     front_end = FrontEnd(source.camera, source.target, settings.target_every_n_frames)
     frames = []
     for image_frame in source.frames():

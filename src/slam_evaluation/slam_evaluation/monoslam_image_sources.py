@@ -1,7 +1,4 @@
-"""monoslam_image_evaluate's sources of images: a rendered seed of monoslam_evaluate's Fig. 5
-scene, or a bag written by ``dynamic_camera_sim``; each yields ``ImageFrame``s (the raw image, its
-labels, the true camera pose and the target's true corners).
-"""
+"""monoslam_image_evaluate's images: a rendered Fig. 5 seed, or a ``dynamic_camera_sim`` bag."""
 
 from __future__ import annotations
 
@@ -14,12 +11,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from marker_detector.conversions import camera_info_fields, image_from_message
-from marker_detector.core.images import ImageError
-from monoslam_shadow_node.conversions import rotation_from_quaternion
+from marker_detector.common.conversions import camera_info_fields
+from marker_detector.detector.conversions import image_from_message
+from monoslam_shadow_node.common.conversions import rotation_from_quaternion
 from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 from slam_core.errors import BagError
+from slam_core.images import ImageError
 from slam_core.stamps import stamp_to_ns
 from slam_ros.bag.source import BagSource
 from slam_sim.core.dynamic_config import DynamicSceneConfig
@@ -40,10 +38,8 @@ BoolArray = NDArray[np.bool_]
 
 @dataclass(frozen=True, eq=False)
 class ImageFrame:
-    """One camera image with its truth: stamp int ns, the raw grey image (H, W) uint8, labels
-    (H, W) int16 (``dynamic_render``'s: -2 nothing, -1 static, i >= 0 moving object i),
-    R_world_camera (3, 3), optical centre (3,) m in map, and the target's true raw corners
-    (4, 2) px when it is fully visible and unoccluded (else None)."""
+    """One image with its truth: stamp int ns, grey image (H, W) uint8, labels (H, W) int16,
+    R_world_camera (3, 3), centre (3,) m, the target's raw corners (4, 2) px or None."""
 
     stamp_ns: int
     image: NDArray[np.uint8]
@@ -55,8 +51,7 @@ class ImageFrame:
 
 @dataclass(frozen=True, eq=False)
 class FrameSource:
-    """One run to evaluate: seed, scene config, target and camera (CameraInfo model), the
-    bag it is read from (None: rendered) and its number of images."""
+    """One run: seed, scene config, target, camera, bag (None: rendered), image count."""
 
     seed: int
     config: DynamicSceneConfig
@@ -130,9 +125,8 @@ def _target(path: Path, text: str) -> InitTarget:
 
 
 def bag_source(path: Path) -> FrameSource:
-    """Return the source of a dynamic_camera_sim bag (seed, config and target from its scene
-    JSON, camera from its first camera_info). Raises BagError naming the bag if it is
-    missing, corrupt or lacks a topic."""
+    """Return the source of a dynamic_camera_sim bag; BagError naming it if missing,
+    corrupt or lacking a topic."""
     with BagSource(path) as bag:
         topics = bag.topics()
         image_topic = _image_topic(path, topics)
@@ -158,8 +152,7 @@ def bag_source(path: Path) -> FrameSource:
 
 
 def bag_frames(path: Path, target: InitTarget) -> Iterator[ImageFrame]:
-    """Yield a dynamic_camera_sim bag's images with their truth, in stamp order. Raises
-    BagError naming the bag, topic and stamp of a message that is missing or undecodable."""
+    """Yield a bag's images with truth in stamp order; BagError names bag, topic, stamp."""
     with BagSource(path) as bag:
         image_topic = _image_topic(path, bag.topics())
         wanted = (image_topic, CAMERA_POSE_TOPIC, LABELS_TOPIC, TRUE_FIDUCIALS_TOPIC)

@@ -1,24 +1,6 @@
-"""The loop scene at the measurement level (paper 001's Fig. 6): one seed's run of a
-variant, and what it says about the map MonoSLAM keeps.
+"""The loop scene at the measurement level (paper 001's Fig. 6) and its map metrics.
 
-The scene is ``monoslam_runs.Settings``'s Fig. 5 scene (with its 8 moving objects, or none)
-with a loop (``DynamicSceneConfig.loop``): from ``loop_start_s`` the camera turns its view
-``loop_angle_deg`` away from the start area (the target and the far wall) over
-``loop_turn_s``, stays turned ``away_s``, and turns back; the wall it turns to has as many
-points as the far wall. Data association is known (``keep_track_ids``): a point back in view
-keeps its track id, as a tracker that re-identifies it would give it.
-
-Metrics of one run (``loop_metrics``; frames at ``rate_hz``):
-
-- the map features measured in the last second before the turn that leave the view while
-  the camera is away and come back into it after the turn back; of those, the share
-  *re-matched*: measured by SLAM within ``REMATCH_FRAMES`` frames of coming back into view;
-- *duplicates*: map points (active and retired) beyond the first of each true world point;
-- the camera position error over the last second (RMS) against the largest error on the far
-  side of the loop (from the end of the turn away to the start of the turn back): the loop
-  has closed when the first is at most ``CLOSED_FRACTION`` of the second;
-- lost: tracking lost, or a frame without a pose after the first one with a pose.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -84,8 +66,7 @@ def run_loop(
 
 
 def loop_frames(scene: DynamicSceneConfig) -> dict[str, int]:
-    """Return the loop's frame indices: 'start' (turn away begins), 'away' (turned away),
-    'return' (turn back begins) and 'back' (facing the start area again)."""
+    """Return the loop's frame indices 'start', 'away', 'return' and 'back'."""
     loop = scene.loop
     if loop is None:
         raise ValueError('the scene has no loop (loop_away_s = 0)')
@@ -106,7 +87,7 @@ def position_errors(record: VariantRecord, frames: Sequence[MeasurementFrame]) -
 def loop_metrics(
     run: DynamicSceneRun, frames: Sequence[MeasurementFrame], record: VariantRecord
 ) -> dict[str, Any]:
-    """Return the metrics of one loop run (module docstring)."""
+    """Return the metrics of one loop run (re-matched, duplicates, closed, lost)."""
     marks = loop_frames(run.config)
     rate = round(run.config.rate_hz)
     visible = [set(frame.point_ids.tolist()) for frame in run.frames]
@@ -143,9 +124,7 @@ def loop_metrics(
 def rematch_metrics(
     mapped: int, returned: int, entries: list[int], map_points: int, duplicates: int
 ) -> dict[str, Any]:
-    """Return the map's loop metrics (module docstring) from the counts: the features mapped
-    before the turn, those that came back into view, the frames each re-matched one was
-    measured in, the map's points and its duplicates."""
+    """Return the map's loop metrics from the counts of features, comebacks and points."""
     return {
         'mapped_before_turn': mapped,
         'returned': returned,
@@ -161,8 +140,7 @@ def rematch_metrics(
 def trajectory_metrics(
     record: VariantRecord, frames: Sequence[MeasurementFrame], marks: dict[str, int], rate: int
 ) -> dict[str, Any]:
-    """Return the loop's trajectory metrics (module docstring): the far side's largest
-    position error, the last second's RMS, closed, lost (with the frames), ATE, the marks."""
+    """Return the loop's trajectory metrics: far side, last second, closed, lost, ATE."""
     errors = position_errors(record, frames)
     far = errors[marks['away'] : marks['return']]
     far_max = float(np.nanmax(far)) if np.any(np.isfinite(far)) else math.nan
@@ -184,9 +162,8 @@ def trajectory_metrics(
 
 
 def map_history(record: VariantRecord, rate_hz: float) -> dict[str, np.ndarray]:
-    """Return per frame (K,): features in the state, measured, searched for in vain,
-    re-matched (cumulative: measured after at least one second unmeasured) and the cumulative
-    deletions ('failed', 'revoked') and evictions: the map's life over the run."""
+    """Return per frame (K,) the map's counts: in the state, measured, searched in vain,
+    re-matched, deleted, evicted."""
     count = len(record.measured_ids)
     last_seen: dict[int, int] = {}
     rematched = np.zeros(count, dtype=np.int64)

@@ -1,31 +1,6 @@
-"""monoslam_loop_evaluate: MonoSLAM's persistent map on a loop, at the measurement level or
-from rendered images (paper 001: "when the camera perceives again the checkerboard,
-the features are re-matched correctly, closing the loop").
+"""monoslam_loop_evaluate: MonoSLAM's persistent map on a loop (measurement level or images).
 
-    monoslam_loop_evaluate --out out/monoslam_loop [--seeds 0-9] [--variants a,c]
-                           [--movers with,without] [--away-s 6] [--duration-s 20] [--images]
-
-With ``--images`` each seed's loop scene is rendered (``dynamic_render``, about 0.15 s per
-image) and run closed loop through the front end: the tracker gets SLAM's predictions for
-each image and re-identifies the returning map features (``monoslam_loop_images``; the truth
-of each re-identification from the renderer); the re-matched target is then
-``MIN_REMATCHED_IMAGES``.
-
-Per seed, scene (with the Fig. 5 scene's 8 moving objects, and without) and variant
-(``monoslam_pipeline``: (a) MonoSLAM on the static features, (c) MonoSLAM + Shadow filter,
-the product's defaults), the loop scene of ``monoslam_loop``: the camera turns 90 deg away
-from the start area for ``--away-s`` and comes back; data association known.
-
-Acceptance per variant and scene, on every seed (``monoslam_loop.loop_metrics``):
-at least ``MIN_REMATCHED`` of the map features that come back into view re-matched within
-5 frames (over all seeds); fewer than ``MAX_DUPLICATES`` of the map's points duplicates of
-another; the last second's position error at most half the far side's largest; never lost.
-
-Writes ``monoslam_loop.json`` and, for the first seed, ``loop_map_<variant>_<scene>.png``
-(the map's features over time: in the state, measured, searched for in vain, re-matched,
-deleted, evicted) and ``loop_error_<variant>_<scene>.png`` (the position error over time
-with the turns and the first re-match marked) into ``--out``; prints the per-seed table and
-met or NOT met per point; logs progress (rate, ETA). Exit status 1 if a filter raised.
+Design notes: docs/design/evaluation.md
 """
 
 from __future__ import annotations
@@ -102,8 +77,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
 
 
 def acceptance(runs: list[dict[str, Any]], target: float = MIN_REMATCHED) -> dict[str, Any]:
-    """Return the acceptance of one variant and scene over its seeds (module docstring),
-    with ``target`` the least re-matched share."""
+    """Return the acceptance of one variant and scene over its seeds (``target``: re-matched)."""
     returned = sum(run['returned'] for run in runs)
     rematched = sum(run['rematched'] for run in runs)
     share = rematched / returned if returned else math.nan

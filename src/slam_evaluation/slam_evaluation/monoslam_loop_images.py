@@ -1,30 +1,6 @@
-"""The loop scene from rendered images, closed loop: the feature tracker tracks each
-image with SLAM's predictions for it, as the node graph wires ``features/predicted``, so a
-map feature that comes back into view is searched for with its predicted pixel, search
-region and template warp (``feature_tracker``'s re-identification), and SLAM measures it
-again only if the tracker finds it under its old id. SLAM is told the feature tracker's
-noise (``FrontEnd.declared``: its tracks' offsets persist up to its drift bound), as the
-node graph tells monoslam, not the measurement simulator's white noise.
+"""The loop scene from rendered images, closed loop, with truth from the renderer.
 
-Data association is not known here; the truth comes from the renderer. A track's world point
-is where the ray through its first pixel hits the scene in its first image
-(``DynamicRenderer.probe``: exact depth; tracks first seen on a moving object have none). A
-point is in view in an image when it projects inside the image, past the tracker's border
-reach, in front of the camera and short of the lens's fold, and the scene along that pixel's
-ray is not nearer than the point (not occluded; ``OCCLUSION_TOLERANCE``).
-
-Metrics of one run (``image_loop_metrics``; the measurement level's, ``monoslam_loop``):
-
-- of the map features measured in the last second before the turn whose world point leaves
-  the view while the camera is away and comes back into it after the turn back, the share
-  *re-matched*: measured by SLAM within ``REMATCH_FRAMES`` frames of coming back into view
-  at a pixel within ``REID_TOLERANCE_PX`` of where the point projects; measured farther
-  from it is a *wrong* re-identification (another point under the feature's id);
-- *duplicates*: map points (active and retired) whose tracks' world points lie within
-  ``DUPLICATE_RADIUS_M`` of an earlier one's (the same surface point tracked twice);
-- the trajectory metrics of ``monoslam_loop.trajectory_metrics`` (far side, last second,
-  closed, lost).
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -34,9 +10,9 @@ from typing import Any, overload
 
 import numpy as np
 
-from monoslam_shadow_node.core.feature_types import Predictions
-from monoslam_shadow_node.core.monoslam_model import beyond_fold
-from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor
+from monoslam_shadow_node.feature_tracker.core.feature_types import Predictions
+from monoslam_shadow_node.monoslam.core.monoslam_model import beyond_fold
+from monoslam_shadow_node.monoslam.processor import MonoSlamProcessor
 from slam_evaluation.monoslam_front_end import FrontEnd
 from slam_evaluation.monoslam_image_sources import FloatArray, FrameSource, ImageFrame
 from slam_evaluation.monoslam_loop import (
@@ -62,9 +38,8 @@ keeps tracks min_distance_px (10 px, 10 cm at 3 m) apart, so distinct ones are f
 
 
 class ClosedLoopFrames(Sequence[MeasurementFrame]):
-    """The run's images through the front end, each tracked with the attached SLAM
-    processor's predictions for it (``attach``, before the first image). Iterating a second
-    time yields the frames built the first time."""
+    """The run's images through the front end, each tracked with the SLAM processor's
+    predictions (``attach`` before the first image)."""
 
     def __init__(
         self, images: Sequence[ImageFrame], front_end: FrontEnd, advance: Callable[[], None]
@@ -134,9 +109,7 @@ def world_points(
     first_seen: Mapping[int, tuple[int, FloatArray]],
     ids: Iterable[int],
 ) -> dict[int, FloatArray]:
-    """Return the world points (3,) m of the tracks ``ids`` that began on the static scene,
-    from where each was first seen (``first_seen``: id -> (image index, raw pixel); module
-    docstring)."""
+    """Return the world points (3,) m of the static tracks ``ids``, from their first sight."""
     camera = renderer.camera
     by_image: dict[int, list[int]] = {}
     for track_id in ids:
@@ -157,9 +130,8 @@ def world_points(
 def projections(
     renderer: DynamicRenderer, count: int, points: FloatArray, reach_px: float
 ) -> tuple[np.ndarray, FloatArray]:
-    """Return per image (the first ``count``) and point whether it is in view (K, N) and its
-    true raw pixel (K, N, 2) (NaN behind the camera or beyond the lens's fold) (module
-    docstring)."""
+    """Return per image (first ``count``) and point whether in view (K, N) and the true raw
+    pixel (K, N, 2) (NaN behind the camera or past the fold)."""
     camera = renderer.camera
     visible = np.zeros((count, len(points)), dtype=bool)
     pixels = np.full((count, len(points), 2), np.nan)
@@ -184,10 +156,8 @@ def projections(
 
 
 def comebacks(visible: np.ndarray, marks: dict[str, int]) -> Iterator[tuple[int, int]]:
-    """Yield (column, entry image) of the points (columns of ``visible``, (K, N)) that left
-    the view while the camera was away (``loop_frames`` marks) and came back into it after
-    the turn back: the first image from 'return' on in which it is in view and was not in
-    the one before."""
+    """Yield (column, entry image) of the points of ``visible`` (K, N) that left the view
+    while away and came back after the turn back."""
     for column in range(visible.shape[1]):
         seen = visible[:, column]
         if seen[marks['away'] : marks['return']].all():

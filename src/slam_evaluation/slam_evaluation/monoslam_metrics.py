@@ -1,10 +1,6 @@
-"""monoslam_evaluate's metrics of one variant's run: the sim(3) alignment (Umeyama), ATE raw and
-aligned, divergence, the map error against the true static points, the Shadow filter's
-numbers, how fast SLAM revokes the moving features that entered its map, and the pose NEES
-(6 dof) with its chi-square band.
+"""monoslam_evaluate's metrics of one run (map frame, m; rotations R_world_camera).
 
-All positions in the simulation's world frame (map), m; rotations as R_world_camera.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -86,8 +82,7 @@ def pose_errors(record: VariantRecord, frames: Sequence[MeasurementFrame]) -> Fl
 
 
 def map_error(record: VariantRecord, run: DynamicSceneRun) -> dict[str, Any]:
-    """Return the map's error against the truth: RMS and median distance (m) of the static
-    map points with a covariance, and the counts of map points of moving features."""
+    """Return RMS and median distance (m) of the static map points to the truth; mover counts."""
     distances, dynamic, undefined = [], 0, 0
     for point in record.map_points:
         index = run.track_point[point.id]
@@ -160,29 +155,9 @@ def shadow_numbers(record: VariantRecord) -> dict[str, int]:
 def mover_revocations(
     record: VariantRecord, run: DynamicSceneRun, frames: Sequence[MeasurementFrame]
 ) -> dict[str, Any]:
-    """Return, for the moving features that entered SLAM's map, how each stay ended, judged
-    by two rules of when a mover must be gone (``'across'`` and ``'observable'``).
-
-    A stay runs from the entry to the feature's removal (or the end). It is judged from the
-    first frame of the stay in which the point moves at ``REVOCATION_SPEED_M_S`` or more:
-
-    - ``'across'`` (the acceptance's): across the camera's line of sight (true velocity
-      minus its component along the ray from the true camera centre);
-    - ``'observable'``: out of the epipolar plane, the plane of the ray and the camera's
-      velocity (the component along their cross product; across the line of sight when the
-      camera does not translate). Motion inside that plane moves the image point along its
-      epipolar line, as a static point at another depth would: to first order one camera
-      cannot tell it from a depth error, so the filter absorbs it into the feature's inverse
-      depth instead of rejecting it.
-
-    Per rule: 'in_time' if revoked or deleted within ``REVOCATION_FRAMES`` frames of it, 'late'
-    if later, 'missed' if still in the map then and never revoked (it stayed to the end, or
-    went out of view later), 'left_view' if it was retired out of view ('evicted', or
-    'unseen' before the map kept features out of view) before the limit, 'lost_with_map' if
-    tracking was lost first (the whole map is retired); a stay without such a frame (only
-    frames with the point in view count) is 'radial' (it never moved that way while in the
-    map) when it lasted to the end or was retired out of view, and 'removed_early' when SLAM
-    removed it first; with the latency (frames) of each judged revocation."""
+    """Return how each stay of a mover in SLAM's map ended, by the rules ``'across'`` and
+    ``'observable'``: 'in_time', 'late', 'missed', 'left_view', 'lost_with_map', 'radial' or
+    'removed_early', with each revocation's latency (frames)."""
     removals: dict[int, list[tuple[int, str]]] = {}
     for frame, feature_id, why in record.removals:
         removals.setdefault(feature_id, []).append((frame, why))
@@ -256,8 +231,7 @@ def nees_by_frame(values: FloatArray) -> dict[str, FloatArray]:
 
 
 def nees_summary(values: FloatArray) -> dict[str, Any]:
-    """Return the NEES figures of values (S, K): mean and median over all samples, and the
-    share of frames whose average over seeds lies in its 95 % band."""
+    """Return mean and median NEES of values (S, K) and the share of frames in the band."""
     curve = nees_by_frame(values)
     scored = curve['count'] > 0
     inside = (curve['mean'] >= curve['low']) & (curve['mean'] <= curve['high'])

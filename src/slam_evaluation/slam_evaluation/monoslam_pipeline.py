@@ -1,43 +1,6 @@
-"""The measurement-level MonoSLAM pipeline of paper 001's Fig. 5, ROS-free.
+"""The measurement-level MonoSLAM pipeline of paper 001's Fig. 5: variants a, b, c (ROS-free).
 
-Three variants run over the same frames (``run_variant``):
-
-- ``a``: MonoSLAM (``initialize='all'``) fed only static features: the features on moving
-  objects are removed by ground truth (``MeasurementFrame.moving``); with
-  ``MonoSlamConfig.new_probation`` each waits on probation until linear, as (c)'s handovers;
-- ``b``: MonoSLAM (``initialize='all'``) fed every feature, moving ones included, with the
-  classic per-feature gated update (``update='gated'``): paper 001's baseline, the MonoSLAM
-  its Shadow filter is compared with (the product's default, the 1-point RANSAC update,
-  rejects many movers by itself and would hide what the Shadow filter adds);
-- ``c``: MonoSLAM (``initialize='handover'``) with the Shadow filter: SLAM gets every feature
-  and adds those the Shadow filter hands over as STATIC, and (``fill_undecided``) undecided
-  ones while its map is short. Per frame the Shadow filter gets SLAM's pose (R_world_camera,
-  centre, 6 x 6 pose covariance) and, as the shadow_filter node, the features SLAM did not
-  take by handover (not in ``owned_ids``, or in ``MonoSlam.undecided_ids``); its handovers
-  go to SLAM's handover intake and enter the map when next observed, and its DYNAMIC
-  decisions to ``mark_moving``. The Shadow filter processes every frame in which SLAM tracks,
-  however uncertain its pose (the covariance enters its tests); frames without a pose
-  (waiting) or in which tracking was lost are not given to it, and a frame whose pose
-  covariance is not finite is refused by it (counted).
-
-The filters run inside the nodes' processors (``MonoSlamProcessor``, ``ShadowProcessor``), so
-the pose covariance check (``shadow_processor.pose_covariance_refusal``) and the handover
-refusal are the nodes' own. The frames come with their data
-association known, so they are given to the processors one by one, without stamp pairing.
-
-Two diagnostic settings of variant ``c`` bound what the Shadow filter costs (they are not
-the system: the filters would need the truth): ``PipelineConfig.shadow_poses = 'truth'``
-gives the Shadow filter the true camera pose as a known pose (no covariance; SLAM's pose
-still decides whether a frame has one), and ``oracle_handovers`` drops every handover of a
-truly moving feature before SLAM sees it (recorded as refused) and keeps them from filling
-SLAM's map undecided (``MonoSlamConfig.fill_undecided``).
-
-Frames come from the dynamic-scene simulation (``simulation_frames``: its features, and the
-corners of the known markers as known points, key 4 j + corner for marker j (a single
-target: 0-3), with N(0, pixel_noise_px) noise),
-or from anything else that can fill ``MeasurementFrame`` (a tracker and a marker detector,
-with truth from an association to the simulation). Truth travels with the frames; the
-filters never see it except through the ``moving`` selection of variant ``a``.
+Design notes: docs/design/evaluation.md
 """
 
 from __future__ import annotations
@@ -50,8 +13,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.conversions import CameraPose, Features
-from monoslam_shadow_node.core.monoslam_types import (
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, STATIC
+from monoslam_shadow_node.common.core.inputs import CameraPose, Features
+from monoslam_shadow_node.monoslam.conversions import HandoverInput
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
     LOST,
     TRACKING,
     MapPoint,
@@ -59,11 +24,9 @@ from monoslam_shadow_node.core.monoslam_types import (
     MonoSlamFrame,
     MonoSlamResult,
 )
-from monoslam_shadow_node.core.shadow_filter import ShadowConfig
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
-from monoslam_shadow_node.monoslam_conversions import HandoverInput
-from monoslam_shadow_node.monoslam_processor import MonoSlamProcessor
-from monoslam_shadow_node.shadow_processor import ShadowProcessor, ShadowStep
+from monoslam_shadow_node.monoslam.processor import MonoSlamProcessor
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import ShadowConfig
+from monoslam_shadow_node.shadow_filter.processor import ShadowProcessor, ShadowStep
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_sim.core.dynamic_scene import DynamicSceneRun
@@ -98,9 +61,7 @@ class MeasurementFrame:
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    """The filters' settings. ``slam.initialize`` is set by the variant; ``slam.known_points``
-    must hold the known points the frames measure (``target_known_points``). ``shadow_poses``
-    and ``oracle_handovers`` are the diagnostic settings of the module docstring."""
+    """The filters' settings and the diagnostic ``shadow_poses`` and ``oracle_handovers``."""
 
     slam: MonoSlamConfig = field(default_factory=MonoSlamConfig)
     shadow: ShadowConfig = field(default_factory=ShadowConfig)
@@ -117,8 +78,7 @@ class PipelineConfig:
 
 @dataclass(frozen=True)
 class HandoverEvent:
-    """A Shadow handover passed to SLAM: the frame index, the feature, whether it is truly on
-    a moving object, and why SLAM refused it (None: queued)."""
+    """A Shadow handover to SLAM: frame, feature, truly moving, why SLAM refused it (None)."""
 
     frame: int
     feature_id: int
@@ -128,17 +88,10 @@ class HandoverEvent:
 
 @dataclass(frozen=True, eq=False)
 class VariantRecord:
-    """What one variant produced over K frames: stamps (K,) int ns, SLAM status (K,), camera
-    centre (K, 3) m, R_world_camera (K, 3, 3) and pose covariance (K, 6, 6) (position, rotation
-    about the world axes; NaN while waiting), features measured (K,), the final map, the
-    moving features that entered the map (ids), frames at which tracking was lost, and for
-    variant ``c`` the handovers, the Shadow decisions and how many frames the Shadow filter
-    processed or skipped (pose covariance not finite; no pose: waiting or lost); filter wall
-    time (s); and the features SLAM removed from its state: (frame, id, reason), reason
-    'revoked' (a handed-over feature failing the persistent-outlier test: the Shadow filter
-    takes it back as a suspect), 'failed' or 'evicted'; the moving features' entries into the map
-    (frame, id); per frame the features measured, those searched for in vain (predicted in
-    view, not observed) and the features in the state."""
+    """One variant over K frames: stamps (K,) int ns, status (K,), centre (K, 3) m,
+    R_world_camera (K, 3, 3), pose covariance (K, 6, 6), features measured (K,), the final map;
+    movers in the map, lost frames, Shadow handovers and decisions (c), wall time (s),
+    removals (frame, id, reason), movers' entries and per-frame feature lists."""
 
     variant: str
     stamps_ns: IntArray
@@ -191,10 +144,8 @@ def simulation_frames(
     *,
     rng: np.random.Generator,
 ) -> list[MeasurementFrame]:
-    """Return the run's frames for SLAM: its tracked features (noisy pixels), the 4 corners
-    of every marker in ``targets`` whose corners are all in view (keys as in
-    ``target_known_points``), with N(0, pixel_noise_px) noise from ``rng``, and the truth
-    (moving flags, true pose). With one target, the noise draws are those of earlier runs."""
+    """Return the run's frames: noisy features, visible markers' corners (N(0, pixel_noise_px)
+    from ``rng``) as known points, and the truth."""
     sigma_px = run.config.pixel_noise_px
     markers = _markers(targets)
     frames = []
@@ -245,12 +196,9 @@ def run_variant(
     config: PipelineConfig | None = None,
     attach: Callable[[MonoSlamProcessor], None] | None = None,
 ) -> VariantRecord:
-    """Run ``variant`` ('a', 'b' or 'c', module docstring) over ``frames``; return its record.
-    ``attach`` gets the SLAM processor before the first frame is drawn (frames that track
-    with SLAM's predictions, ``monoslam_loop_images``).
-    Raises PipelineError (naming the variant and frame) if a filter rejects a frame
-    (MonoSlamInputError, InputError) or fails on it (e.g. LinAlgError), or a frame's moving
-    flags do not match its features."""
+    """Run ``variant`` ('a', 'b' or 'c') over ``frames``; return its record (``attach``: SLAM).
+    PipelineError (naming variant and frame) if a filter rejects a frame (MonoSlamInputError,
+    InputError) or fails on it (e.g. LinAlgError), or a frame's moving flags do not match."""
     if variant not in VARIANTS:
         raise ValueError(f'variant {variant!r}: must be one of {", ".join(VARIANTS)}')
     config = config or PipelineConfig()
@@ -343,8 +291,7 @@ def run_variant(
 
 
 def _pose(result: MonoSlamResult) -> tuple[FloatArray, FloatArray, FloatArray] | None:
-    """Return a result's centre (3,), R_world_camera (3, 3) and pose covariance (6, 6), or
-    None while it has none."""
+    """Return a result's centre (3,), R_world_camera (3, 3), covariance (6, 6), or None."""
     if result.centre is None or result.rotation is None or result.pose_covariance is None:
         return None
     return result.centre, result.rotation, result.pose_covariance
@@ -359,9 +306,7 @@ def _shadow_step(
     config: PipelineConfig,
     books: _Bookkeeping,
 ) -> None:
-    """Give the Shadow filter SLAM's pose with its covariance and the features SLAM did not
-    take by handover, and pass its handovers and DYNAMIC decisions to SLAM (the diagnostic
-    settings: the true pose as a known pose; no handovers of moving features)."""
+    """Give the Shadow filter SLAM's pose and the features SLAM did not take; relay its output."""
     pose = _pose(result)
     if result.status != TRACKING or pose is None:
         books.no_pose += 1

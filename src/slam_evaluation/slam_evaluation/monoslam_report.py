@@ -1,12 +1,6 @@
-"""monoslam_evaluate's report: totals per variant, the ATE ratios between variants, the frames
-(c) tracks against (a), the acceptance points (the content of ``monoslam_eval.json``), and the
-printed summary.
+"""monoslam_evaluate's report (``monoslam_eval.json``), acceptance and printed summary.
 
-Acceptance is honest about tracking: (c) is compared with (a) only over the frames it kept,
-so a seed on which (c) lost tracking, or tracked fewer than ``TRACKED_SHARE_MIN`` of the
-frames (a) tracked, or failed to run, does not meet ATE(c)/ATE(a) whatever its ATE, and the
-point fails unless every seed kept tracking; the tracking rule is also a point of its own.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -79,9 +73,8 @@ def ratio_summary(
     denominator: Sequence[Mapping[str, Any]] | None,
     key: str,
 ) -> dict[str, Any] | None:
-    """Return mean ``key`` of the numerator runs / mean of the denominator runs over the seeds
-    both ran, and per seed (runs: per seed dicts with 'seed', ``key`` and 'diverged'); None
-    if either is missing."""
+    """Return mean ``key`` of numerator / denominator runs over the seeds both ran, and per
+    seed; None if either is missing."""
     if numerator is None or denominator is None:
         return None
     base = {s['seed']: s for s in denominator}
@@ -106,10 +99,8 @@ def ratio_summary(
 def tracking_summary(
     variant: Sequence[Mapping[str, Any]], base: Sequence[Mapping[str, Any]]
 ) -> dict[str, Any]:
-    """Return, per seed of the base runs (a), the frames the variant tracked and those (a)
-    tracked, their share, whether the variant lost tracking or did not run, and whether it
-    kept tracking (ran, never lost, share >= TRACKED_SHARE_MIN); and the smallest share.
-    Runs: per seed dicts with 'seed', 'frames_tracked' and 'lost_frames'."""
+    """Return per seed of (a) the frames the variant tracked against (a)'s, and whether it kept
+    tracking (ran, never lost, share >= TRACKED_SHARE_MIN); and the smallest share."""
     runs = {s['seed']: s for s in variant}
     seeds = []
     for b in base:
@@ -134,8 +125,7 @@ def tracking_summary(
 
 
 def mover_summary(per_seed: Sequence[Mapping[str, Any]]) -> dict[str, Any] | None:
-    """Return (c)'s moving features in SLAM's map over seeds (``mover_revocations``): the
-    sums of each outcome, the latencies, and per seed; None without (c) runs."""
+    """Return (c)'s movers in SLAM's map over seeds (outcome sums, latencies); None without (c)."""
     runs = [s for s in per_seed if 'movers' in s]
     if not runs:
         return None
@@ -160,10 +150,8 @@ def acceptance(
     tracking: Mapping[str, Any] | None = None,
     movers: Mapping[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
-    """Return the acceptance points (module docstring) with value, target, seeds meeting the
-    target on their own, and the verdict. ``tracking`` is (c)'s ``tracking_summary``: without
-    it, ATE(c)/ATE(a) fails (nothing shows that (c) kept tracking). ``movers`` is (c)'s
-    ``mover_summary``."""
+    """Return the acceptance points (value, target, seeds meeting it, verdict); ``tracking``
+    and ``movers``: (c)'s summaries."""
     points = []
     kept = {r['seed']: r['kept'] for r in tracking['per_seed']} if tracking is not None else {}
     if (c_over_a := ratios.get('c_over_a')) is not None:
@@ -195,8 +183,7 @@ def acceptance(
 def acceptance_point(
     name: str, target: str, value: float, meeting: Sequence[bool], passed: bool
 ) -> dict[str, Any]:
-    """Return one acceptance point: name, target, value, seeds meeting the target on their own
-    ('n/N') and the verdict."""
+    """Return one point: name, target, value, seeds meeting it ('n/N'), verdict."""
     return {
         'name': name,
         'target': target,
@@ -207,8 +194,7 @@ def acceptance_point(
 
 
 def rms_over_runs(errors: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Per frame, the RMS of ``errors`` (runs, frames) over the runs with an estimate there;
-    NaN where no run has one (before a depth start), without numpy's empty-slice warning."""
+    """Return per frame the RMS of ``errors`` (runs, frames) over runs with an estimate."""
     finite = np.isfinite(errors)
     counts = np.count_nonzero(finite, axis=0)
     sums = np.sum(np.where(finite, errors, 0.0) ** 2, axis=0)
@@ -216,8 +202,7 @@ def rms_over_runs(errors: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str, Any]:
-    """Return the JSON report: configuration, per variant totals and seeds, curves,
-    ratios, acceptance, failures and run time."""
+    """Return the JSON report: configuration, variants, curves, ratios, acceptance, failures."""
     variants, curves = {}, {}
     for variant, per_seed in collected.per_seed.items():
         values = np.array(collected.nees[variant])
@@ -284,8 +269,7 @@ def report(settings: Settings, collected: Collected, wall_s: float) -> dict[str,
 
 
 def number_text(value: float | None, digits: int = 3) -> str:
-    """A table cell: the value with ``digits`` decimals (exponent form from 1e5), '--' if
-    it is missing or not finite."""
+    """A table cell: the value with ``digits`` decimals, '--' if missing or not finite."""
     if value is None or not math.isfinite(value):
         return '--'
     return f'{value:.{digits}f}' if abs(value) < 1e5 else f'{value:.1e}'
@@ -307,8 +291,7 @@ SUMMARY_COLUMNS = (
 
 
 def summary_text(content: Mapping[str, Any]) -> str:
-    """Return the printed summary of a report: one row per variant, Shadow numbers, ratios
-    and PASS/FAIL per acceptance point."""
+    """Return the printed summary: variants, Shadow numbers, ratios, PASS/FAIL per point."""
     config = content['config']
     pipeline = config['pipeline']
     classifier = pipeline['shadow']['classifier']
@@ -409,8 +392,7 @@ def summary_text(content: Mapping[str, Any]) -> str:
 
 
 def seed_lines(content: Mapping[str, Any]) -> list[str]:
-    """Return the per seed table of the summary: frames tracked and ATE (m) per variant, (c)
-    against (a), whether (c) lost tracking, and (c)'s Shadow frames and handovers."""
+    """Return the per seed table: frames tracked and ATE (m) per variant, (c) against (a)."""
     runs = {
         variant: {run['seed']: run for run in data['per_seed']}
         for variant, data in content['variants'].items()

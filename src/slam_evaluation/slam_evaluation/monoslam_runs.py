@@ -1,7 +1,6 @@
-"""monoslam_evaluate's runs: the settings, one seed's simulation fed to each variant of
-``monoslam_pipeline`` (target noise from ``default_rng(TARGET_NOISE_SEED_OFFSET + seed)``), and
-what the seeds collect for the report and the figures.
-"""
+"""monoslam_evaluate's runs: the settings, one seed fed to each variant, what seeds collect.
+
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -16,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
-from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
-from monoslam_shadow_node.core.shadow_filter import ShadowConfig
+from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import ShadowConfig
 from slam_core.camera import CameraModel
 from slam_evaluation.monoslam_metrics import (
     FloatArray,
@@ -61,12 +60,8 @@ NO_MAP_TRUTH: dict[str, Any] = {
 
 @dataclass(frozen=True)
 class Settings:
-    """The command line: seeds, run length (s), variants, the output directory, the Shadow
-    filter's STATIC rule, the known board, the diagnostic settings, a sequence directory
-    to run instead of the simulator (``sequence_files``), and the simulated tracking noise
-    that is not white (offsets with jumps, ``dynamic_scene``; the filters are told of it as
-    a tracker declares its noise, unless ``declare_noise`` is False), and whether undecided
-    features (c) and new ones (a) wait on probation."""
+    """The command line: seeds, duration, variants, output, STATIC rule, board, diagnostics,
+    sequence, simulated tracking noise and whether it is declared, probation."""
 
     seeds: tuple[int, ...]
     duration_s: float
@@ -108,9 +103,7 @@ class Settings:
         markers: InitTarget | Sequence[InitTarget],
         known_points: dict[int, tuple[float, float, float]] | None = None,
     ) -> PipelineConfig:
-        """Return the filters' settings: defaults, the known points (the markers' corners
-        unless given), the STATIC rule, the tracker's declared noise and the diagnostic
-        settings."""
+        """Return the filters' settings: known points, STATIC rule, declared noise, diagnostics."""
         known = target_known_points(markers) if known_points is None else known_points
         slam = MonoSlamConfig(
             known_points=known,
@@ -135,9 +128,8 @@ class Settings:
 
 @dataclass
 class Collected:
-    """Per variant: per-seed metrics, position errors (K,) and NEES (K,) per seed; the top
-    view data of the first seed; failures; filter time and frames; and what MonoSLAM started
-    from ('known_points', or 'depth' for a sequence with depths and no known points)."""
+    """Per variant: per-seed metrics, position errors and NEES (K,) per seed; top view data,
+    failures, filter time and frames, and what MonoSLAM started from."""
 
     per_seed: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
     position_error: dict[str, list[FloatArray]] = field(default_factory=dict)
@@ -155,8 +147,7 @@ def evaluate_seed(
     collected: Collected,
     done: Callable[[int], None] | None = None,
 ) -> None:
-    """Run every variant on ``seed``'s run and collect its metrics; ``done(frames)`` after
-    each variant."""
+    """Run every variant on ``seed``'s run; ``done(frames)`` after each."""
     run = simulate_dynamic_scene(seed, settings.scene())
     markers = settings.markers()
     rng = np.random.default_rng(TARGET_NOISE_SEED_OFFSET + seed)
@@ -180,9 +171,7 @@ def evaluate_sequence(
     collected: Collected,
     done: Callable[[int], None] | None = None,
 ) -> None:
-    """Run every variant over an on-disk sequence (seed label 0) and collect its metrics:
-    trajectory and NEES against the sequence's poses; no map error, mover revocation or top
-    view (a sequence has no point truth)."""
+    """Run every variant over an on-disk sequence (seed label 0) and collect its metrics."""
     frames = measurement_frames(sequence)
     known = {k: (float(p[0]), float(p[1]), float(p[2]))
              for k, p in (sequence.known_points or {}).items()}  # fmt: skip
@@ -217,8 +206,7 @@ def _evaluate(
     done: Callable[[int], None] | None,
     truth_metrics: Callable[[str, VariantRecord], dict[str, Any]],
 ) -> None:
-    """Run every variant over ``frames`` and collect the trajectory, NEES, Shadow and
-    ``truth_metrics`` (variant, record) figures; a run a filter raised on is a failure."""
+    """Run every variant over ``frames`` and collect its figures; a raising run is a failure."""
     for variant in settings.variants:
         try:
             record = run_variant(variant, frames, camera, config)

@@ -1,13 +1,6 @@
 """Which other robots an MRCLAM window scores as positives (moved landmarks).
 
-With the seen robot's Vicon track (data set 6), a robot is a positive when the track puts it
-at two places more than ``MIN_SEPARATION_M`` apart at the times it was sighted, each place
-holding at least ``MIN_PLACE_SIGHTINGS`` sightings. A place is a sighting with at least that
-many sightings (itself included) within ``PLACE_RADIUS_M`` of where the track puts it.
-Without a track (data sets 1-3), only whole runs are scored on positives: the robots sighted
-at least ``MIN_SIGHTINGS`` times; a window without tracks has none, and is scored on static
-false positives only.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -36,8 +29,7 @@ def seen_at_two_places(positions: np.ndarray) -> bool:
 
 
 def mrclam_positives(run: MrclamRun, data: MappingData, *, whole_run: bool) -> list[int]:
-    """The other robots (subjects) that ``run``'s window scores as positives (module
-    docstring); ``data`` is the window as the mapper collected it."""
+    """The other robots (subjects) ``run``'s window scores as positives; ``data``: the window."""
     positives = []
     for subject in run.other_robots:
         rows = data.obs_landmark_id == subject

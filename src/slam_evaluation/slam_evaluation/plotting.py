@@ -8,8 +8,7 @@ from typing import Any
 
 
 def render_png(draw: Callable[[Any, Any], None], data: Any, size: tuple[float, float]) -> bytes:
-    """Return the PNG bytes of a new figure of ``size`` (inches) that ``draw(figure, data)``
-    fills."""
+    """Return the PNG bytes of a figure of ``size`` (inches) that ``draw(figure, data)`` fills."""
     import matplotlib.pyplot as plt
 
     figure = plt.figure(figsize=size, layout='constrained')

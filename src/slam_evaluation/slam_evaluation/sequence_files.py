@@ -1,40 +1,6 @@
-"""Monocular sequences on disk, for the evaluators and the ROS-free pipeline: feature tracks
-seen by a camera whose pose is known per frame, from any source (another simulator, a real
-camera with motion capture, a tracker run offline).
+"""Monocular sequences on disk: camera, known poses, feature tracks, optional labels and depths.
 
-A sequence is a directory:
-
-- ``camera.yaml``: the intrinsics, as the fields of a sensor_msgs/CameraInfo: ``width``,
-  ``height`` (px), ``distortion_model`` (plumb_bob, rational_polynomial or equidistant), ``d``
-  (its coefficients) and ``k`` (9 values, row-major, px);
-- ``poses.txt``: one camera pose per frame in the TUM format, ``stamp_s x y z qx qy qz qw``:
-  the optical frame (x right, y down, z forward) in the world, i.e. the optical centre (m) and
-  the unit quaternion of R_world_camera. Frame k is the k-th pose line (lines starting with
-  '#' are comments); stamps increase. It is the truth the evaluators score against, and the
-  known poses of "known pose" runs;
-- ``tracks.csv``: header ``frame,id,u,v``, then one row per sighting: track ``id`` (an integer)
-  seen in ``frame`` (0-based index into poses.txt) at the raw (distorted) pixel ``u, v``. An
-  id is seen at most once per frame; it may disappear and reappear (the filters treat it as
-  the same point);
-- ``labels.csv`` (optional): header ``id,moving``, ``moving`` 1 if the track lies on a moving
-  object, 0 if static (tracks without a row count as static);
-- ``known_points.csv`` (optional): header ``id,x,y,z``, tracks whose world position (m) is
-  known (an initialization target's corners): their sightings in tracks.csv are SLAM's known
-  points, not features;
-- ``depths.csv`` (optional): header ``frame,id,depth_m``, a track's measured depth (m along
-  the optical axis, > 0) in a frame (an RGB-D camera's registered depth): with it and without
-  ``known_points.csv``, MonoSLAM starts from the first frame with depths
-  (``known_points_source='depth'``: that camera's frame is its world, and the evaluators
-  express the truth in it through that frame's pose);
-- ``tracker.yaml`` (optional): the tracker's noise as it declares it, any of
-  ``pixel_sigma_px`` (white noise per axis, default 1), ``tracking_offset_px`` (offsets that
-  persist between images, default 0) and ``tracking_offset_time_s`` (their correlation
-  time, default 1 s); the evaluators configure both filters with it (``declared``).
-
-``read_sequence`` checks every file and names the file and line of a problem;
-``write_sequence`` writes one atomically (file by file); ``simulated_sequence`` turns a run
-of the dynamic-scene simulator and its target into one (the test fixture).
-"""
+Format: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -50,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from monoslam_shadow_node.core.monoslam_types import MonoSlamFrame
-from monoslam_shadow_node.core.shadow_ekf import EkfConfig
+from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamFrame
+from monoslam_shadow_node.shadow_filter.core.shadow_ekf import EkfConfig
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_core.files import write_atomically
@@ -74,8 +40,7 @@ class SequenceError(ValueError):
 
 @dataclass(frozen=True)
 class Tracker:
-    """The tracker's declared noise (``tracker.yaml``): white pixel noise per axis, px, and
-    offsets that persist between images (``tracking_noise``), px and s."""
+    """The tracker's declared noise (``tracker.yaml``): white sigma px, offsets px, time s."""
 
     pixel_sigma_px: float = 1.0
     tracking_offset_px: float = 0.0
@@ -90,8 +55,7 @@ class Tracker:
 
     @classmethod
     def of_scene(cls, scene: DynamicSceneConfig) -> Tracker:
-        """Return the noise the simulator's tracker declares: its white noise, its offsets
-        and their effective correlation time (jumps included)."""
+        """Return the noise the simulator's tracker declares."""
         return cls(
             scene.pixel_noise_px, scene.tracking_offset_px, scene.tracking_correlation_time_s
         )
@@ -119,10 +83,8 @@ class Tracker:
 
 @dataclass(frozen=True, eq=False)
 class Sequence:
-    """A sequence in memory: the camera, per frame (K) the stamp (int ns), the optical centre
-    (K, 3) m and R_world_camera (K, 3, 3), the sightings (frame (N,), id (N,), pixel (N, 2)),
-    and the optional labels (id -> moving), known points (id -> world point (3,) m), the
-    tracker's declared noise and measured depths ((frame, id) -> m)."""
+    """A sequence: camera; per frame (K) stamp int ns, centre (K, 3) m, R_world_camera (K, 3, 3);
+    sightings (frame (N,), id (N,), pixel (N, 2)); labels, known points (3,) m, noise, depths m."""
 
     camera: CameraModel
     stamps_ns: IntArray
@@ -137,8 +99,7 @@ class Sequence:
     depths: dict[tuple[int, int], float] | None = None  # (frame, id) -> depth, m
 
     def by_frame(self) -> list[tuple[IntArray, FloatArray]]:
-        """Return per frame the ids (M,) and raw pixels (M, 2) seen in it (one stable sort
-        of the sightings, not a scan per frame)."""
+        """Return per frame the ids (M,) and raw pixels (M, 2) seen in it."""
         order = np.argsort(self.frame, kind='stable')
         bounds = np.searchsorted(self.frame[order], np.arange(len(self.stamps_ns) + 1))
         return [
@@ -196,9 +157,7 @@ def read_sequence(directory: Path) -> Sequence:
 
 
 def measurement_frames(sequence: Sequence) -> list[MeasurementFrame]:
-    """Return the sequence's frames for ``monoslam_pipeline``: the features (every track
-    that is not a known point), the known points seen (keys: their ids, as in
-    ``known_points``), the moving flags from the labels (unlabelled: static) and the truth."""
+    """Return the sequence's frames for ``monoslam_pipeline`` (labels give moving flags)."""
     known = np.array(sorted(sequence.known_points or {}), dtype=np.int64)
     labels = sequence.labels or {}
     frames = []
@@ -284,9 +243,8 @@ def write_sequence(directory: Path, sequence: Sequence) -> None:
 def simulated_sequence(
     run: DynamicSceneRun, target: InitTarget, rng: np.random.Generator
 ) -> Sequence:
-    """Return a dynamic-scene run as a sequence: its tracked features (their noisy pixels),
-    the target's corners (ids ``KNOWN_ID_BASE`` + corner, N(0, pixel_noise_px) noise from
-    ``rng``) in the frames that see all four, labels and known points from the truth."""
+    """Return a dynamic-scene run and its target as a sequence (labels and known points
+    from the truth)."""
     frames, ids, pixels = [], [], []
     known_ids = KNOWN_ID_BASE + np.arange(4, dtype=np.int64)
     sigma_px = run.config.pixel_noise_px
@@ -395,8 +353,7 @@ def read_poses(path: Path) -> tuple[IntArray, FloatArray, FloatArray]:
 def _read_csv(
     path: Path, header: tuple[str, ...], *, integers: int = 1, required: bool = False
 ) -> list[tuple[int, list[float]]]:
-    """Return (line number, numbers) per data row of a CSV with exactly ``header``, whose first
-    ``integers`` columns are integers."""
+    """Return (line number, numbers) per row of a CSV with exactly ``header``."""
     try:
         text = path.read_text(encoding='utf-8')
     except FileNotFoundError:

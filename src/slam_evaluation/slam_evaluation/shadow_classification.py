@@ -1,7 +1,4 @@
-"""shadow_evaluate's classification scores (paper 001's Fig. 4): each track's outcome against
-its truth, confusion counts and rates, decision latency, the moving features called static,
-and status timelines.
-"""
+"""shadow_evaluate's classification scores (paper 001's Fig. 4)."""
 
 from __future__ import annotations
 
@@ -12,18 +9,16 @@ from typing import Any
 
 import numpy as np
 
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC, STATUS_NAMES
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC, STATUS_NAMES
 from slam_evaluation.shadow_runs import FilterRecord, IntArray, track_truths, view_parallax_rad
 from slam_sim.core.dynamic_scene import DynamicSceneRun
 
 
 @dataclass(frozen=True)
 class Outcome:
-    """One track's classification: truth, final status, frames from first sight to decision
-    (-1: undecided), parallax (rad) and baseline (m) of the deciding test (NaN: undecided),
-    the true window parallax (rad, NaN if the track ended earlier), its baseline (m),
-    whether parallax allows a decision within the window, and whether it was called DYNAMIC
-    because its views fix no static point (evidence of motion: no test statistic)."""
+    """One track's classification: truth, status, frames to decide (-1: undecided), the deciding
+    test's parallax (rad) and baseline (m), the window's, whether parallax allows, and
+    whether DYNAMIC because its views fix no static point."""
 
     track_id: int
     moving: bool
@@ -41,7 +36,7 @@ class Outcome:
 def track_outcomes(
     run: DynamicSceneRun, record: FilterRecord, *, window_frames: int, min_parallax_rad: float
 ) -> list[Outcome]:
-    """Return every track's Outcome (module docstring: 'parallax allows')."""
+    """Return every track's Outcome."""
     centres = np.array([frame.camera_position for frame in run.frames])
     outcomes = []
     for track_id, truth in sorted(track_truths(run).items()):
@@ -86,8 +81,7 @@ def status_name(status: int) -> str:
 def confusion_counts(
     outcomes: Iterable[Outcome], *, by_motion: bool = False
 ) -> dict[str, dict[str, int]]:
-    """Return counts {truth: {status name: n}}, truth 'static'/'moving' (or the motion kind
-    when ``by_motion``); every row has STATIC, DYNAMIC and PENDING, zeros included."""
+    """Return {truth: {status name: n}} (truth by motion kind if ``by_motion``), zeros kept."""
     table: dict[str, dict[str, int]] = {}
     if not by_motion:
         table = {'static': {}, 'moving': {}}
@@ -130,8 +124,7 @@ def classification_rates(table: Mapping[str, Mapping[str, int]]) -> dict[str, fl
 
 
 def latency_summary(outcomes: Sequence[Outcome], *, window_frames: int) -> dict[str, Any]:
-    """Return frames from first sight to decision over the decided outcomes (median, p90) and
-    the fraction decided within ``window_frames``, of the decided and of all outcomes."""
+    """Return frames to decide (median, p90) and the share decided within ``window_frames``."""
     frames = np.array([o.frames_to_decide for o in outcomes if o.frames_to_decide >= 0])
     within = int(np.count_nonzero(frames <= window_frames))
     return {
@@ -147,8 +140,7 @@ def latency_summary(outcomes: Sequence[Outcome], *, window_frames: int) -> dict[
 def classification_summary(
     outcomes: Sequence[Outcome], *, window_frames: int, min_baseline_m: float
 ) -> dict[str, Any]:
-    """Return confusion tables, rates and decision latencies of a set of outcomes, and how
-    many tracks parallax allows although their window baseline is below ``min_baseline_m``."""
+    """Return confusion tables, rates and latencies of ``outcomes``."""
     allowed = [o for o in outcomes if o.parallax_allows]
     table = confusion_counts(outcomes)
     latency = {}
@@ -184,8 +176,7 @@ def classification_summary(
 def moving_called_static_details(
     run: DynamicSceneRun, record: FilterRecord, outcomes: Sequence[Outcome]
 ) -> list[dict[str, Any]]:
-    """Return, for every moving track decided STATIC, how it moved between first sight and
-    the decision: true displacement (m), mean and largest speed (m/s)."""
+    """Return per moving track called STATIC its displacement (m) and speeds (m/s)."""
     truths = track_truths(run)
     details = []
     for outcome in outcomes:
@@ -216,8 +207,7 @@ def moving_called_static_details(
 
 
 def status_at(decided: Mapping[int, tuple[int, int]], track_id: int, frame: int) -> int:
-    """Return a track's status as of ``frame``; ``decided`` maps track id to (decision frame,
-    status)."""
+    """Return a track's status as of ``frame`` (``decided``: id -> (frame, status))."""
     decided_frame, status = decided.get(track_id, (-1, PENDING))
     return status if 0 <= decided_frame <= frame else PENDING
 
@@ -225,8 +215,7 @@ def status_at(decided: Mapping[int, tuple[int, int]], track_id: int, frame: int)
 def status_timeline(
     track_ids_per_frame: Sequence[IntArray], decided: Mapping[int, tuple[int, int]]
 ) -> IntArray:
-    """Return counts (K, 3) of the features visible in each frame that are PENDING, STATIC,
-    DYNAMIC as of that frame (other status codes count as PENDING)."""
+    """Return (K, 3) counts of visible PENDING, STATIC, DYNAMIC features per frame."""
     counts = np.zeros((len(track_ids_per_frame), 3), dtype=np.int64)
     column = {PENDING: 0, STATIC: 1, DYNAMIC: 2}
     for index, ids in enumerate(track_ids_per_frame):

@@ -1,7 +1,6 @@
-"""shadow_evaluate's consistency scores (paper 001's Figs. 2-3): NEES of the 3-D position
-estimates (3 dof) and its chi-square band, 3-sigma coverage, error samples of the tracks and
-of the handovers, and the average NEES by age (frames since first sight).
-"""
+"""shadow_evaluate's consistency scores (paper 001's Figs. 2-3): NEES, 3-sigma, by age.
+
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -12,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from monoslam_shadow_node.core.shadow_track import STATIC
+from monoslam_shadow_node.common.core.feature_status import STATIC
 from slam_core.lazy_stats import chi2
 from slam_core.lazy_stats import t as t_dist
 from slam_evaluation.shadow_classification import count_ratio
@@ -25,8 +24,7 @@ ONE_AXIS_3SIGMA = 0.9973002039367398  # P(|N(0, 1)| <= 3)
 
 
 def nees(errors: FloatArray, covariances: FloatArray) -> FloatArray:
-    """Return e' P^-1 e (N,) of errors (N, d) and covariances (N, d, d), by solving; NaN
-    where P is singular or not finite."""
+    """Return e' P^-1 e (N,) of errors (N, d), covariances (N, d, d); NaN where P is singular."""
     values = np.full(len(errors), np.nan)
     finite = np.all(np.isfinite(errors), axis=1) & np.all(np.isfinite(covariances), axis=(1, 2))
     for index in np.flatnonzero(finite):
@@ -39,8 +37,7 @@ def nees(errors: FloatArray, covariances: FloatArray) -> FloatArray:
 
 
 def within_sigma(errors: FloatArray, covariances: FloatArray, sigmas: float = 3.0) -> BoolArray:
-    """Return (N, d): whether each error component lies within ``sigmas`` standard
-    deviations (sqrt of the covariance diagonal)."""
+    """Return (N, d) whether each error component is within ``sigmas`` standard deviations."""
     deviation = np.sqrt(np.maximum(np.diagonal(covariances, axis1=1, axis2=2), 0.0))
     return np.asarray(np.abs(errors) <= sigmas * deviation)
 
@@ -48,8 +45,7 @@ def within_sigma(errors: FloatArray, covariances: FloatArray, sigmas: float = 3.
 def average_nees_band(
     counts: IntArray, *, dof: int = NEES_DOF, probability: float = BAND_PROBABILITY
 ) -> tuple[FloatArray, FloatArray]:
-    """Return the two-sided ``probability`` band (low, high) (A,) of the mean of n (A,)
-    independent chi2(dof) samples: chi2(dof n) quantiles / n; NaN where n = 0."""
+    """Return the ``probability`` band (low, high) (A,) of the mean of n (A,) chi2(dof)."""
     n = np.asarray(counts, dtype=np.float64)
     safe = np.maximum(n, 1.0)
     tail = 0.5 * (1.0 - probability)
@@ -59,8 +55,7 @@ def average_nees_band(
 
 
 def nees_by_age(ages: IntArray, values: FloatArray) -> tuple[IntArray, FloatArray, IntArray]:
-    """Return the distinct ages (A,), the mean NEES at each (A,) and the sample counts (A,),
-    over finite values only."""
+    """Return the ages (A,), mean NEES (A,) and sample counts (A,), finite values only."""
     finite = np.isfinite(values)
     unique, inverse = np.unique(ages[finite], return_inverse=True)
     counts = np.bincount(inverse, minlength=len(unique))
@@ -112,9 +107,7 @@ def error_samples(
     moving: bool,
     at_birth: bool = False,
 ) -> ErrorSamples:
-    """Return the EKF position errors of the run's moving (or static) tracks (module
-    docstring: which samples enter); ``at_birth``: only tracks first seen in the frame their
-    point came into existence."""
+    """Return the EKF position errors of the run's moving (or static) tracks."""
     truths = track_truths(run)
     first = np.array([truths[i].first_frame for i in record.track_id.tolist()], dtype=np.int64)
     points = np.array([truths[i].point for i in record.track_id.tolist()], dtype=np.int64)
@@ -135,8 +128,7 @@ def error_samples(
 
 
 def handover_samples(run: DynamicSceneRun, record: FilterRecord, *, moving: bool) -> ErrorSamples:
-    """Return the errors of the handovers (triangulated static positions) of moving or
-    static tracks against the truth in the handover frame."""
+    """Return the handovers' position errors of moving or static tracks."""
     truths = track_truths(run)
     rows = [(frame, h) for frame, h in record.handovers if truths[h.id].moving == moving]
     if not rows:
@@ -154,12 +146,7 @@ def handover_samples(run: DynamicSceneRun, record: FilterRecord, *, moving: bool
 
 
 def track_mean_nees(samples: ErrorSamples, values: FloatArray) -> dict[str, Any]:
-    """Return the mean NEES of each track averaged over tracks, with its 95 % t-interval.
-
-    Successive samples of one track are correlated, so the band of the overall mean that
-    assumes independent samples is far too narrow; tracks are independent, so a test over
-    per-track means is sound: a consistent filter has E[mean] = 3, and ``consistent`` says
-    whether 3 lies inside the interval."""
+    """Return the mean over tracks of per-track mean NEES, with its 95 % t-interval."""
     finite = np.isfinite(values)
     _, inverse = np.unique(samples.track_keys()[finite], return_inverse=True)
     counts = np.bincount(inverse)
@@ -180,8 +167,7 @@ def track_mean_nees(samples: ErrorSamples, values: FloatArray) -> dict[str, Any]
 def consistency_summary(
     samples: ErrorSamples, *, min_samples_per_age: int = 5
 ) -> tuple[dict[str, Any], dict[str, list[float]]]:
-    """Return NEES and 3-sigma statistics of the samples, and the average NEES per age
-    (ages with at least ``min_samples_per_age`` samples) with its 95 % band, for plotting."""
+    """Return NEES and 3-sigma statistics and the average NEES per age with its band."""
     values = nees(samples.errors, samples.covariances)
     finite = np.isfinite(values)
     inside = within_sigma(samples.errors[finite], samples.covariances[finite])

@@ -1,69 +1,6 @@
 """shadow_evaluate: the Shadow filter on simulated runs, scored like paper 001's Figs. 2-4.
 
-    shadow_evaluate [--seeds 0-9] [--out out/shadow_eval] [--alpha 0.05] [--quick]
-                    [--unchecked-directions 1] [--static-test both|three_ray|all_view]
-    shadow_evaluate --sequence DIR [--out out/shadow_eval] [--alpha 0.05]
-
-``--sequence DIR`` runs the filter over an on-disk sequence instead (``sequence_files``; its
-poses as known poses): decisions, handovers and, with labels, the classification against
-them, into ``shadow_eval_sequence.json`` (``shadow_sequence``).
-
-Every run comes from ``slam_sim.core.dynamic_scene`` (true camera poses, 1 px pixel noise)
-and is fed frame by frame to the shadow_filter node's processor (``ShadowProcessor``, known
-poses: no pose covariance). Two run sets:
-
-- Classification (Fig. 4): the default scene (static points, objects with constant-velocity,
-  turning and stop-and-go motion) at ``--alpha`` and at every ``--alphas`` value. A track's
-  truth is its point's ``point_moving`` flag (a stop-and-go object is "moving" even while it
-  stands still); its status is that of its last Decision, PENDING if it never got one.
-  Frames to decide is Decision.frames_since_first.
-- Consistency (Figs. 2-3): scenes whose objects follow the filter's own process model
-  (``motions=('model',)``, one point per object), at ``--alpha``. Static features are
-  scored in these runs and, separately, in the classification runs at ``--alpha``.
-
-Writes ``shadow_eval.json`` (configuration, totals, per seed, alpha sweep, failures) and the
-PNG figures of ``shadow_report`` into ``--out``; prints a summary; logs progress with
-rate and ETA on stderr.
-
-Parallax allows (window W = ``--window-frames``): the track was observed W frames after its
-first sight (tracks are contiguous in the simulation), and the angle at the point between
-the directions to the camera centres of first sight and of W frames later reached the
-classifier's ``min_parallax_rad``. Everything is true: the point's position at first sight
-and the true centres. For a moving point the position at first sight is held fixed, so the
-angle is the parallax the camera's own motion offers; the object's motion is left out
-because the static-hypothesis triangulation cannot use it (it turns into a wrong depth), and
-counting it would call a fast, far, barely-triangulable object "allowed". The camera's
-baseline rule (``min_baseline_m``) is not part of the criterion; it is reported beside it.
-
-Consistency runs (the paper's Fig. 3 experiment): the simulation's ``model`` objects, which
-move exactly as the filter's process model says, and the filter as a tracker alone
-(``classify`` off), so every feature stays in its EKF for as long as it is tracked. With the
-classifier on, handing features over would choose which estimates remain: the static
-features still pending late are the ones the tests could not decide or wrongly rejected, a
-sample biased towards large errors (it is still reported, as ``static_classification_runs``).
-A model object is born at a random frame of the run's first half with v ~ N(0, sigma^2 I3),
-the filter's prior; a track first seen at its point's birth starts from exactly that prior
-(``moving_first_seen_at_birth``, the consistency test proper). A model object can also leave
-view and come back, and a later track of it starts from the prior while the truth has walked
-on (velocity variance sigma^2 + q t): ``moving`` holds all tracks. Static points have zero
-velocity, a value at the prior's mean, so their NEES is expected below 3 (conservative).
-
-Samples: one per TrackReport with ``defined`` true (inverse depth more than 3 sigma above
-zero: skipped before that, since the reported position then sits at 1000 m along the ray)
-and status PENDING or DYNAMIC. A STATIC report (the handover frame) carries the handover
-triangulation, not the EKF; handovers are scored separately from the classification runs,
-with the Handover's own position and covariance. Error e = position - true position in that
-frame (map, m); NEES e' P^-1 e (3 dof). The average NEES at age a (frames since first sight)
-is the mean over the n samples of that age, with the 95 % band chi2(3n) quantiles / n. Note
-that the ``defined`` selection depends on the estimate itself, and samples of one track at
-successive ages are correlated.
-
-A run the filter raises on is left out of every statistic, listed under ``failures`` in the
-report and in the summary (with its traceback on stderr), and makes the exit status 1.
-
-Modules: ``shadow_runs`` (running the filter, the truth), ``shadow_classification``,
-``shadow_consistency``, ``shadow_experiments`` (per-seed runs, the report); this one is the
-command line.
+Design notes: docs/design/evaluation.md
 """
 
 from __future__ import annotations
@@ -74,7 +11,10 @@ import sys
 import time
 from pathlib import Path
 
-from monoslam_shadow_node.core.shadow_classifier import STATIC_TESTS, ClassifierConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_classifier import (
+    STATIC_TESTS,
+    ClassifierConfig,
+)
 from slam_core.cli import console_main
 from slam_core.files import write_json
 from slam_core.progress import ProgressReporter
@@ -215,8 +155,7 @@ def _arguments(argv: list[str] | None) -> Settings:
 
 @console_main('shadow_evaluate')
 def main(argv: list[str] | None = None) -> int:
-    """Run the evaluation; print the summary; write the JSON report and figures to --out.
-    Exit status 1 if the filter raised on a run (listed in the report, left out of it)."""
+    """Run the evaluation, print the summary, write report and figures; 1 if the filter raised."""
     settings = _arguments(argv)
     if settings.sequence is not None:
         return _run_sequence(settings)

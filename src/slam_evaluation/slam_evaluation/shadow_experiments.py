@@ -1,7 +1,4 @@
-"""shadow_evaluate's experiments: the settings, the classification and consistency runs of one
-seed, what they collect, and the report (the content of ``shadow_eval.json``) with the
-inputs of ``shadow_report``'s figures.
-"""
+"""shadow_evaluate's experiments: settings, one seed's runs, the report and figure inputs."""
 
 from __future__ import annotations
 
@@ -16,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from monoslam_shadow_node.core.shadow_classifier import ClassifierConfig
-from monoslam_shadow_node.core.shadow_ekf import EkfConfig
-from monoslam_shadow_node.core.shadow_filter import ShadowConfig
-from monoslam_shadow_node.core.shadow_track import PENDING
+from monoslam_shadow_node.common.core.feature_status import PENDING
+from monoslam_shadow_node.shadow_filter.core.shadow_classifier import ClassifierConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_ekf import EkfConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import ShadowConfig
 from slam_evaluation.sequence_files import Tracker
 from slam_evaluation.shadow_classification import (
     Outcome,
@@ -45,11 +42,8 @@ from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 
 @dataclass(frozen=True)
 class Settings:
-    """What to evaluate: seeds, the main alpha and the alpha sweep (it includes the main one),
-    run length (s), focal length (px), the decision window (frames), model objects per
-    consistency run, the output directory, the STATIC rule (unchecked directions, tests), a
-    sequence directory to run instead (``shadow_sequence``), and the simulated tracking noise
-    that is not white (slowly varying offsets with jumps, ``dynamic_scene``)."""
+    """What to evaluate: seeds, alphas, duration, focal length, window, model objects, output,
+    STATIC rule, sequence, and the simulated tracking noise."""
 
     seeds: tuple[int, ...]
     consistency_seeds: tuple[int, ...]
@@ -87,9 +81,7 @@ class Settings:
         )
 
     def shadow(self, alpha: float) -> ShadowConfig:
-        """Return the filter's configuration: the defaults with ``alpha``, the rule's
-        ``unchecked_directions`` and ``static_test``, and the tracker's noise as the tracker
-        declares it (its persistent offsets and their correlation time, ``tracking_noise``)."""
+        """Return the filter's configuration: ``alpha``, the STATIC rule, the tracker's noise."""
         classifier = ClassifierConfig(
             alpha=alpha,
             unchecked_directions=self.unchecked_directions,
@@ -171,8 +163,7 @@ def classify_seed(settings: Settings, seed: int, collected: Collected) -> int:
 
 
 def timeline_data(run: DynamicSceneRun, record: FilterRecord) -> dict[str, Any]:
-    """Return the per-frame status counts and the image-plane snapshot of one run; the
-    snapshot frame is the one (after the first third) showing the most moving features."""
+    """Return one run's per-frame status counts and image-plane snapshot."""
     decided = {i: (frame, d.status) for i, (frame, d) in record.decisions.items()}
     ids_per_frame = [frame.track_ids for frame in run.frames]
     moving = [run.point_moving[frame.point_ids] for frame in run.frames]

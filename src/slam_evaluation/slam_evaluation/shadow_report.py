@@ -1,18 +1,6 @@
-"""shadow_evaluate's outputs: the JSON report, the printed summary and the PNG figures, each
-file written atomically.
+"""shadow_evaluate's outputs: JSON report, printed summary, PNG figures (atomically).
 
-Figures (paper 001's Figs. 2-4 and what they claim):
-
-- ``shadow_classification.png``: truth (static, each motion kind) x final status, row shares;
-- ``shadow_alpha_sweep.png``: static features called DYNAMIC against alpha;
-- ``shadow_decision_time.png``: frames to decide against the parallax of the deciding test,
-  the share decided within the window against the true window parallax, and its CDF;
-- ``shadow_timeline.png`` and ``shadow_snapshot.png``: PENDING (red), STATIC (blue) and
-  DYNAMIC (green) features per frame of one run, and one frame's image plane (Fig. 4);
-- ``shadow_fig2_trajectory.png``: camera (green), feature truth (red) and estimate (blue);
-- ``shadow_fig3_errors.png``: that feature's x, y, z errors with +-3 sigma (Fig. 3);
-- ``shadow_nees.png``: average NEES per frames since first sight with its 95 % band.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -129,8 +117,7 @@ def _seed_text(seeds: Sequence[int]) -> str:
 
 
 def write_figures(directory: Path, inputs: Mapping[str, Any]) -> list[Path]:
-    """Draw every figure whose inputs are present (``evaluate.figure_inputs``); write the PNGs
-    into ``directory`` and return their paths."""
+    """Draw every figure whose inputs are present into ``directory``; return the paths."""
     import matplotlib
 
     matplotlib.use('Agg')

@@ -1,9 +1,6 @@
-"""shadow_evaluate's runs: the Shadow filter fed a simulated run through the node's processor
-(true, known poses), what it reported per frame (``FilterRecord``), and each track's truth.
+"""shadow_evaluate's runs: the Shadow filter on a simulated run, its record, the truth.
 
-Arrays: positions in the simulation's world frame (map), m; covariances m^2; frame indices
-count the run's frames from 0.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -15,11 +12,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.conversions import CameraPose, Features
-from monoslam_shadow_node.core.rays import ray_angle
-from monoslam_shadow_node.core.shadow_classifier import Decision
-from monoslam_shadow_node.core.shadow_filter import Handover, InputError, ShadowConfig
-from monoslam_shadow_node.shadow_processor import ShadowProcessor, ShadowStep
+from monoslam_shadow_node.common.core.inputs import CameraPose, Features
+from monoslam_shadow_node.shadow_filter.core.rays import ray_angle
+from monoslam_shadow_node.shadow_filter.core.shadow_classifier import Decision
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import (
+    Handover,
+    InputError,
+    ShadowConfig,
+)
+from monoslam_shadow_node.shadow_filter.processor import ShadowProcessor, ShadowStep
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_sim.core.dynamic_scene import DynamicSceneRun
@@ -33,10 +34,8 @@ class FilterRunError(RuntimeError):
 
 @dataclass(frozen=True, eq=False)
 class FilterRecord:
-    """What the filter said on one run. Track reports as flat arrays over samples S: track id,
-    frame, status, defined, position (S, 3) m and covariance (S, 3, 3) m^2 in map; decisions
-    by track id as (frame, Decision) (the last one if a track got several: ``redecided``
-    counts those); handovers as (frame, Handover); filter wall time (s)."""
+    """One run's filter output: track reports over samples S (id, frame, status, defined,
+    position (S, 3) m, covariance (S, 3, 3) m^2), last decisions, handovers, wall time (s)."""
 
     track_id: IntArray
     frame: IntArray
@@ -64,9 +63,7 @@ R_world_camera (3, 3) and the optical centre (3,) m."""
 
 
 def run_filter(run: DynamicSceneRun, config: ShadowConfig) -> FilterRecord:
-    """Feed every frame (true pose, noisy pixels) to a new ShadowProcessor (the node's; a true
-    pose is a known one: no covariance); return its record. Raises FilterRunError if the filter
-    raises."""
+    """Feed every frame to a new ShadowProcessor (true poses as known); FilterRunError on error."""
     inputs = [
         (f.stamp_ns, f.track_ids, f.pixels, f.camera_rotation, f.camera_position)
         for f in run.frames
@@ -134,8 +131,7 @@ def run_frames(
 
 @dataclass(frozen=True)
 class TrackTruth:
-    """A track's point, whether it moves, its motion kind ('static' for static points) and
-    the frames of its first and last sighting."""
+    """A track's point, whether it moves, motion kind, first and last sighting frame."""
 
     point: int
     moving: bool

@@ -1,13 +1,6 @@
-"""``shadow_evaluate --sequence DIR``: the Shadow filter over an on-disk sequence
-(``sequence_files``), given the sequence's camera poses as known poses, as paper 001's Fig. 3
-and 4 experiments give it the true poses.
+"""``shadow_evaluate --sequence DIR``: the Shadow filter over an on-disk sequence.
 
-Every track that is not a known point is a feature. Reported: frames processed, decisions
-(STATIC, DYNAMIC, and DYNAMIC because the views fix no static point), handovers, and, with
-labels.csv, the classification against the labels (truth x final status, static called
-DYNAMIC of decided, moving called STATIC) and frames to decide. A sequence has no point
-positions, so the handover consistency (NEES) of the simulated runs is not scored.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -17,14 +10,14 @@ from typing import Any
 
 import numpy as np
 
-from monoslam_shadow_node.core.shadow_filter import ShadowConfig
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC, STATUS_NAMES
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC, STATUS_NAMES
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import ShadowConfig
 from slam_evaluation.sequence_files import Sequence
 from slam_evaluation.shadow_runs import FilterInput, run_frames
 
 
 def evaluate_sequence(sequence: Sequence, config: ShadowConfig, name: str) -> dict[str, Any]:
-    """Run the Shadow filter over the sequence (module docstring); return the report."""
+    """Run the Shadow filter over the sequence (known poses); return the report."""
     known = np.array(sorted(sequence.known_points or {}), dtype=np.int64)
     inputs: list[FilterInput] = []
     for index, (ids, pixels) in enumerate(sequence.by_frame()):

@@ -1,34 +1,6 @@
-"""trajectory_evaluate: a camera trajectory written by a node (TUM text) or recorded from its
-pose topic (a bag: geometry_msgs/PoseWithCovarianceStamped) against a reference (TUM text,
-e.g. a sequence's poses.txt or a motion-capture file).
+"""trajectory_evaluate: a camera trajectory (TUM file or pose topic) against a reference.
 
-    trajectory_evaluate --trajectory out/monoslam_shadow_rgbd/trajectory.tum \\
-                        --truth out/bonn_crowd/sequence/poses.txt [--out DIR] [--anchor]
-    trajectory_evaluate --record out/monoslam_shadow_rgbd_record [--pose-topic /monoslam/pose] \\
-                        --truth out/bonn_crowd/sequence/poses.txt --anchor
-
-Poses pair by stamp (within ``--tolerance-ms``, 1 ms by default: the node stamps each pose
-with its image's stamp, and a file may round it). Reported: poses estimated and reference
-poses, the share of reference poses with an estimate, the ATE (RMS of the camera centre
-error, m) after the Sim(3) alignment that minimizes it (Umeyama) with its scale, and with
-``--anchor`` the raw ATE after expressing the estimate in the reference's world by the
-rigid transform that puts its first paired pose on the reference's (the world of a depth
-start is that camera's frame: a known transform, not a fit). From a recording with
-``--anchor``, also the pose NEES (6 degrees of freedom: the centre error and log(R_est
-R_ref^T), in the estimate's world axes, against the message's covariance, position then
-rotation about the world axes as monoslam publishes it) and the position and rotation NEES
-(3 each), over the poses with a positive definite covariance (the others are counted).
-The reference errs too; with ``--reference-error FILE`` the NEES is reported a second time
-(``reference_*`` figures) against the estimate's covariance plus the reference's own error
-between the anchor and each pose, per axis: sigma_rot(t - t0)^2 on the rotation and
-sigma_centre(t - t0)^2 on the position, t0 the anchor's stamp, from the table of a JSON file
-(``separations_s``, ``rotation_sigmas_rad``, ``translation_sigmas_m``; or a sequence's
-import.json, whose ``reference_pose_error`` ``tum_rgbd_sequence`` measures on the static
-opening against its images: ``slam_sim.core.reference_error``; linear in between, the end
-values beyond). A run diverged when the alignment's scale is off by more
-than a factor 2 (``MIN_SCALE``) or the anchored ATE exceeds ``DIVERGED_ATE_M`` (exit status
-1). Writes ``trajectory_eval.json`` and ``trajectory_topview.png`` (estimate, aligned,
-against the reference; x-y and x-z) into ``--out`` and prints a summary.
+Design notes: docs/design/evaluation.md
 """
 
 from __future__ import annotations
@@ -70,10 +42,8 @@ POSE_TOPIC = '/monoslam/pose'
 def read_record(
     path: Path, topic: str
 ) -> tuple[NDArray[np.int64], FloatArray, FloatArray, FloatArray]:
-    """Return stamps (K,) int ns, centres (K, 3) m, rotations (K, 3, 3) and covariances
-    (K, 6, 6) of the PoseWithCovarianceStamped messages on ``topic`` in a bag, in stamp
-    order; ValueError for a bag without the topic or a quaternion that is not finite and
-    nonzero (named by stamp)."""
+    """Return stamps (K,) int ns, centres (K, 3) m, rotations (K, 3, 3), covariances
+    (K, 6, 6) on ``topic``; ValueError: no topic, or a bad quaternion."""
     stamps, centres, quaternions, covariances = [], [], [], []
     for _, message in read_messages(path, [topic], topic):
         pose = message.pose.pose
@@ -95,9 +65,8 @@ def read_record(
 
 
 def pose_nees(errors: FloatArray, covariances: FloatArray) -> tuple[dict[str, Any], FloatArray]:
-    """Return the NEES figures of pose errors (K, 6) against covariances (K, 6, 6) (module
-    docstring) and the pose NEES per pose (NaN where the covariance is not positive
-    definite)."""
+    """Return the NEES figures of errors (K, 6) against covariances (K, 6, 6), and per pose
+    (NaN where the covariance is not positive definite)."""
     values = np.full(len(errors), np.nan)
     position = np.full(len(errors), np.nan)
     rotation = np.full(len(errors), np.nan)
@@ -132,9 +101,7 @@ def evaluate(
     covariances: FloatArray | None = None,
     reference_error: ReferencePoseError | None = None,
 ) -> dict[str, Any]:
-    """Return the figures of the module docstring (and the paired centres for the plot);
-    ``covariances`` (K, 6, 6), the estimate's, give the NEES when ``anchor``, and with
-    ``reference_error`` also the ``reference_*`` NEES figures."""
+    """Return ATE, scale, anchored ATE and NEES figures, and the paired centres for the plot."""
     e_stamps, e_centres, e_rotations = estimate
     t_stamps, t_centres, t_rotations = truth
     index = np.searchsorted(t_stamps, e_stamps)
@@ -188,8 +155,7 @@ def evaluate(
 
 
 def read_reference_error(path: Path) -> ReferencePoseError:
-    """Return the reference's pose error table of a JSON file (module docstring); ValueError
-    names the file when it holds no usable table (and says why an import measured none)."""
+    """Return the reference's pose error table of a JSON file; ValueError if unusable."""
     try:
         content = json.loads(Path(path).read_text())
         measured = content.get('reference_pose_error')

@@ -1,17 +1,6 @@
-"""Known points of an imported RGB-D sequence (``tum_rgbd_sequence``): tracks whose world
-position the first depth map gives, for MonoSLAM's start and scale (its known points are
-zero-uncertainty landmarks, ``monoslam_init``), and how long they stay in view.
+"""Known points of an imported RGB-D sequence from its first depth map, and their visibility.
 
-Choice (``choose_known_points``): the first image that has a pose, a depth map, and at least
-``MIN_KNOWN_POINTS`` (4) candidates: tracks with a usable depth there
-(``rgbd_depth.sample_depth``: no zero depth, not at a depth discontinuity) whose depth label
-is static (seen with depth at least twice, consistently: ``depth_labels``). Each candidate's
-world position is its back-projection at that image. To spread them, the image is cut into
-a ``grid`` (4 x 4) and each cell keeps its candidate seen in the most images; of those, the
-``cap`` (16) seen longest are the known points. Their ids stay the tracks' ids: the
-sequence format makes a track whose id is in known_points.csv a known point in every frame
-that sees it (``sequence_files``).
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -20,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from monoslam_shadow_node.core.monoslam_init import MIN_KNOWN_POINTS
+from monoslam_shadow_node.monoslam.core.monoslam_init import MIN_KNOWN_POINTS
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_sim.core.depth_labels import STATIC, DepthSightings, TrackLabels
@@ -28,8 +17,7 @@ from slam_sim.core.depth_labels import STATIC, DepthSightings, TrackLabels
 
 @dataclass(frozen=True, eq=False)
 class KnownPoints:
-    """The chosen known points: the image they come from (index into the images given,
-    -1: none), the candidates there, and id -> world point (3,) m."""
+    """The chosen known points: image index (-1: none), candidates, id -> world point (3,) m."""
 
     image: int
     candidates: int
@@ -46,9 +34,8 @@ def choose_known_points(
     cap: int = 16,
     grid: tuple[int, int] = (4, 4),
 ) -> KnownPoints:
-    """Return the known points (module docstring) of depth sightings whose ``frames`` are
-    image indices; ``pixels[(image, id)]`` is a track's raw pixel in an image and
-    ``lifetimes[id]`` the number of images that see it."""
+    """Return the known points of depth sightings (``frames``: image indices), with
+    ``pixels[(image, id)]`` raw pixels and ``lifetimes[id]`` images."""
     if cap < 1:
         return KnownPoints(-1, 0, {})
     static = labels.label_of(sightings.ids) == STATIC
@@ -84,9 +71,7 @@ def _longer(track: int, other: int, lifetimes: Mapping[int, int]) -> bool:
 def visibility(
     frames: IntArray, ids: IntArray, known_ids: list[int], rate_hz: float
 ) -> dict[str, object]:
-    """Return how long known points stay in view, from sightings (frame (N,), id (N,)):
-    images seeing each (min, median, max, and in seconds at ``rate_hz``), its first and last
-    frame, and the frames seeing at least ``MIN_KNOWN_POINTS`` of them (count and last)."""
+    """Return how long known points stay in view, from sightings (frame (N,), id (N,))."""
     if not known_ids:
         return {'count': 0}
     known = np.isin(ids, known_ids)

@@ -1,8 +1,4 @@
-"""The figures of ``tum_rgbd_sequence`` (OpenCV), a few colour images tiled two per row with a
-caption each: labels.png, the tracks drawn in their label's colour (moving red, static green,
-unknown grey) with the counts; masks.png, the motion mask of a depth map over its colour
-image (moving translucent red, unknown (no depth, depth edges, too little evidence)
-translucent grey) with the shares of the image."""
+"""``tum_rgbd_sequence``'s figures (OpenCV): labels.png and masks.png."""
 
 from __future__ import annotations
 
@@ -32,8 +28,7 @@ class LabelledImage:
 
 
 def draw_labels(item: LabelledImage) -> NDArray[np.uint8]:
-    """Return a copy of the image (H, W, 3) with its tracks drawn (filled discs in the label
-    colours, black rims) and a caption with the image index and the counts."""
+    """Return a copy of the image (H, W, 3) with its tracks and a caption drawn."""
     canvas = np.ascontiguousarray(item.image.copy())
     for label in (UNKNOWN, STATIC, MOVING):  # movers on top
         for u, v in np.rint(item.pixels[item.labels == label]).astype(int).tolist():
@@ -49,9 +44,8 @@ def draw_labels(item: LabelledImage) -> NDArray[np.uint8]:
 
 @dataclass(frozen=True, eq=False)
 class MaskedImage:
-    """One motion mask to draw: the index in rgb.txt of the image it is drawn for and of the
-    image with the depth map it belongs to, that image (H, W, 3) uint8 BGR and the mask (H,
-    W) int8 (MOVING, STATIC, UNKNOWN)."""
+    """One mask to draw: rgb.txt indices of the image and of the depth map, the image
+    (H, W, 3) uint8 BGR and the mask (H, W) int8."""
 
     index: int
     mask_index: int
@@ -60,8 +54,7 @@ class MaskedImage:
 
 
 def draw_mask(item: MaskedImage) -> NDArray[np.uint8]:
-    """Return a copy of the image (H, W, 3) with the mask blended in (moving half red,
-    unknown a third grey) and a caption with the images and the shares of the pixels."""
+    """Return a copy of the image (H, W, 3) with the mask blended in and a caption."""
     canvas = item.image.astype(np.float64)
     for code, colour, alpha in ((MOVING, (0, 0, 255), 0.5), (UNKNOWN, (128, 128, 128), 0.35)):
         where = item.mask == code
@@ -88,35 +81,22 @@ def _caption(canvas: NDArray[np.uint8], text: str) -> None:
 
 
 def labels_png(items: Sequence[LabelledImage], columns: int = 2) -> bytes:
-    """Return the PNG bytes of the drawn images (``draw_labels``) tiled ``columns`` per row
-    (images of one size; an empty tile is white).
-
-    Raises:
-        ValueError: no image, images of different sizes, or OpenCV cannot encode the PNG.
-
-    """
+    """Return the PNG of the drawn images tiled ``columns`` per row; ValueError: see tiled_png."""
     if not items:
         raise ValueError('no image to draw')
     return tiled_png([draw_labels(item) for item in items], columns)
 
 
 def masks_png(items: Sequence[MaskedImage], columns: int = 2) -> bytes:
-    """Return the PNG bytes of the drawn masks (``draw_mask``) tiled ``columns`` per row
-    (images of one size; an empty tile is white).
-
-    Raises:
-        ValueError: no image, images of different sizes, or OpenCV cannot encode the PNG.
-
-    """
+    """Return the PNG of the drawn masks tiled ``columns`` per row; ValueError: see tiled_png."""
     if not items:
         raise ValueError('no mask to draw')
     return tiled_png([draw_mask(item) for item in items], columns)
 
 
 def tiled_png(images: Sequence[NDArray[np.uint8]], columns: int = 2) -> bytes:
-    """Return the PNG bytes of ``images`` (one size, at least one) tiled ``columns`` per row
-    (an empty tile is white); ValueError for no image, sizes that differ or a failed
-    encoding."""
+    """Return the PNG bytes of ``images`` tiled ``columns`` per row; ValueError for no image,
+    sizes that differ or a failed encoding."""
     if not images:
         raise ValueError('no image to draw')
     shape = images[0].shape

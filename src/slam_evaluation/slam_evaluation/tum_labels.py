@@ -1,21 +1,6 @@
-"""Moving/static labels of the tracks of a TUM-layout sequence, for ``tum_rgbd_sequence``,
-by one of two rules (``LABEL_RULES``):
+"""Moving/static labels of the tracks of a TUM-layout sequence (``LABEL_RULES``).
 
-- ``'masks'`` (default): per-pixel motion masks of every depth map seen from the depth maps
-  0.1-0.5 s around it (``slam_sim.core.motion_masks``), and each track labelled by the masks
-  at its pixels (``slam_sim.core.mask_labels``: moving when most of its decided mask
-  sightings are moving);
-- ``'endpoints'``: the chi-square test on the median of a track's first and last three depth
-  back-projections (``slam_sim.core.depth_labels``).
-
-Either way the whole sequence and the static opening alone (the sightings in its images;
-every track there is static, so a moving label is a false alarm) are labelled. The
-endpoint rule is cheap and is always computed, and with the mask rule so is the mask rule
-without the tracks' own motion (``'masks_depth_only'``: the masks' codes alone), so that the
-report can set their figures beside the chosen rule's. The masks of the depth maps nearest
-the figure images are kept for masks.png; ``label_figures`` draws labels.png and masks.png,
-``rule_report`` gives the rules' settings for import.json.
-"""
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -60,9 +45,7 @@ class RuleLabels:
 
 @dataclass(frozen=True, eq=False)
 class SequenceLabels:
-    """The labels by rule name (the chosen one and the endpoint rule), the chosen rule's
-    name, the motion masks kept for the figure (colour image index -> mask (H, W)) and what
-    the label gate needs of every mask."""
+    """The labels by rule name, the chosen rule, the kept masks (image -> (H, W)), gate masks."""
 
     rule: str
     by_rule: dict[str, RuleLabels]
@@ -77,8 +60,7 @@ class SequenceLabels:
 
 
 def mask_images(sequence: TumRgbd, images: tuple[int, ...]) -> dict[int, int]:
-    """Return figure image -> the nearest colour image with a depth map and a pose (the
-    figure images without one are left out)."""
+    """Return figure image -> the nearest colour image with a depth map and a pose."""
     masked = np.flatnonzero((sequence.depth_index >= 0) & sequence.has_pose)
     if not len(masked):
         return {}
@@ -86,8 +68,7 @@ def mask_images(sequence: TumRgbd, images: tuple[int, ...]) -> dict[int, int]:
 
 
 def mask_rules(endpoint_rule: LabelRule) -> tuple[MaskRule, MaskLabelRule]:
-    """Return the mask rule's settings: the defaults with the endpoint rule's pose error and
-    pixel noise."""
+    """Return the mask rule's settings."""
     error, sigma_px = endpoint_rule.pose_error, endpoint_rule.pixel_sigma_px
     return (
         MaskRule(pose_error=error, pixel_sigma_px=sigma_px),
@@ -105,13 +86,7 @@ def label_sequence(
     keep_masks: tuple[int, ...] = (),
     progress: Callable[[int], None] | None = None,
 ) -> SequenceLabels:
-    """Return the labels of the tracks of the posed images (module docstring);
-    ``keep_masks``: colour images whose masks are kept; ``progress(masks done)``.
-
-    Raises:
-        ValueError: ``rule`` is not one of ``LABEL_RULES``.
-
-    """
+    """Return the labels of the posed images' tracks; ValueError for an unknown ``rule``."""
     if rule not in LABEL_RULES:
         raise ValueError(f'label rule {rule!r}: use one of {", ".join(LABEL_RULES)}')
     posed = sequence.has_pose[tracked.images]
@@ -154,8 +129,7 @@ def _keeping(
     kept: dict[int, CodeArray],
     progress: Callable[[int], None] | None,
 ) -> Iterator[MaskedFrame]:
-    """Yield ``frames``, storing the masks of the images in ``keep`` into ``kept`` and
-    calling ``progress(frames done)`` after each."""
+    """Yield ``frames``, keeping the masks of ``keep``; ``progress(frames done)``."""
     for done, frame in enumerate(frames, start=1):
         if frame.image in keep:
             kept[frame.image] = frame.mask
@@ -175,8 +149,7 @@ class GateMask:
 
 
 def rule_report(name: str, endpoint_rule: LabelRule) -> dict[str, Any]:
-    """Return the label rules' settings for the report: the chosen rule's name, the pose
-    error they share, the endpoint rule's settings and (when chosen) the mask rule's."""
+    """Return the label rules' settings for the report."""
     report: dict[str, Any] = {
         'name': name,
         'pose_error': asdict(endpoint_rule.pose_error),
@@ -195,8 +168,7 @@ def rule_report(name: str, endpoint_rule: LabelRule) -> dict[str, Any]:
 def label_figures(
     sequence: TumRgbd, tracked: TrackedImages, labelled: SequenceLabels, images: tuple[int, ...]
 ) -> dict[str, bytes]:
-    """Return labels.png and masks.png (file name -> PNG bytes) of the figure images with a
-    pose; masks.png only with the mask rule."""
+    """Return labels.png and masks.png (name -> PNG bytes) of the figure images."""
     labels = labelled.chosen.labels
     drawn = [i for i in images if i in tracked.kept and sequence.has_pose[i]]
     items = []

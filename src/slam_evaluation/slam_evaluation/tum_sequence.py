@@ -1,56 +1,13 @@
-"""tum_rgbd_sequence: an RGB-D sequence in the TUM layout (TUM RGB-D benchmark, Bonn RGB-D
-Dynamic) as a monocular sequence directory (``sequence_files``) for the evaluators, with
-tracks from our feature tracker and moving/static labels from the depth maps.
+"""tum_rgbd_sequence: a TUM-layout RGB-D sequence as a monocular sequence directory.
 
-Steps:
-
-1. Read the sequence (``slam_sim.core.tum_rgbd``; the options are ``tum_rgbd_import``'s).
-2. The ground truth's position error: the depth consistency of the static opening (the
-   first ``--static-images`` colour images, 180 by default: no person in bonn_crowd;
-   ``slam_sim.core.tum_consistency.pose_error``) gives the per-axis error sigma_pose(dt)
-   the label rule adds to each of two back-projected points dt apart, unless
-   ``--pose-sigma-m`` gives one sigma for every dt.
-3. Tracks (``tum_tracking``): ``FeatureTracker(TrackerConfig())``, the feature tracker
-   node's defaults as ``monoslam_front_end.FrontEnd`` builds it, over every colour image
-   decoded to grey as the node decodes a CompressedImage. Images without a ground-truth
-   pose are tracked too (the tracks go on through them) but left out of the sequence:
-   frame k of poses.txt and tracks.csv is the k-th image with a pose. With ``--tracks
-   RECORDING`` instead: the tracks a graph recorded on ``/features`` (e.g. slam_run
-   monoslam_shadow_rgbd.yaml's recorder: our tracker with the re-identifications SLAM's
-   predictions brought), matched to the images by stamp; then the evaluators' variants run
-   on the graph's own tracks.
-4. Labels (``tum_labels``, ``--label-rule``): ``masks`` (default) labels a track moving (1)
-   or static (0) by the per-pixel motion masks of the depth maps at its pixels
-   (``slam_sim.core.motion_masks``, ``mask_labels``); ``endpoints`` by the chi-square rule on
-   its first and last depth sightings (``slam_sim.core.depth_labels``). An unknown track
-   (no decided mask sighting; fewer than two depth sightings) has no row in labels.csv, so
-   the evaluators count it static; import.json counts them. The false-alarm rate is the
-   share of the tracks labelled from the static opening alone (their sightings in it) that
-   are called moving: every one is static. The endpoint rule's figures are reported beside
-   the mask rule's.
-5. Depths: every track's depth (m along the optical axis) in every image with a depth map,
-   as the depth sampling read it (depths.csv): MonoSLAM starts from the first frame's
-   (``known_points_source='depth'``, the graph's start). With ``--known-points N`` (default
-   0) instead: up to N static tracks of the first image with reliable depth as known points
-   at their back-projection there (``tum_known_points``, a known-point start); import.json
-   says how long they stay in view.
-
-Output directory (``--output``, new; written under a hidden name and renamed into place when
-complete): camera.yaml, poses.txt, tracks.csv, labels.csv, depths.csv or known_points.csv (the
-sequence format), ``labels.png`` (the tracks of ``--figure-images`` drawn in their label's
-colour: moving red, static green, unknown grey), ``masks.png`` (with the mask rule: the motion
-mask of the depth map nearest each figure image over its colour image, moving translucent red),
-``label_masks.npz`` (with the mask rule: per colour image with a mask, the code a track's
-sighting gets at each pixel, the depth map and the pose; the ``label_gate`` node's oracle for
-variant (a) through a graph, ``slam_sim.core.label_gate``) and ``import.json`` (the counts,
-the label rules' settings, the static opening's pose error per separation and false-alarm
-rate, the reference's rotation and centre error per separation (``reference_pose_error``:
-``slam_sim.core.reference_error``, from the opening's images; ``trajectory_evaluate
---reference-error`` adds it to an estimate's covariance), the known points and their
-visibility).
+Tracks from our feature tracker (or ``--tracks RECORDING``'s ``/features``), moving/static
+labels from the depth maps (``--label-rule``), and depths or ``--known-points N``. Writes the
+new ``--output``: the sequence files, labels.png, masks.png, label_masks.npz and import.json.
 
 Example: ``tum_rgbd_sequence --dataset ../shared/data/bonn_crowd --convention bonn --output
 out/bonn_crowd/sequence``.
+
+Design notes: docs/design/evaluation.md
 """
 
 from __future__ import annotations
@@ -94,11 +51,9 @@ FIGURE_IMAGES = (100, 300, 500, 700)
 
 @dataclass(frozen=True)
 class ImportSettings:
-    """The import's settings (module docstring): images of the static opening, largest
-    number of known points, the ground truth's position error (None: estimated), the
-    tracker's pixel noise (px), the images drawn in labels.png and masks.png, and the label
-    rule (``tum_labels.LABEL_RULES``); the graph recording whose ``/features`` are the
-    tracks (None: run the tracker)."""
+    """The import's settings: static opening (images), known points (at most), pose error (m,
+    None: measured), pixel noise (px), figure images, label rule, tracks recording (None: run
+    the tracker)."""
 
     static_images: int = 180
     known_points: int = 0
@@ -110,9 +65,7 @@ class ImportSettings:
 
 
 def pose_rule(sequence: TumRgbd, settings: ImportSettings) -> tuple[LabelRule, list[Consistency]]:
-    """Return the label rule, with sigma_pose from ``settings`` or else measured on the
-    static opening (``tum_consistency.pose_error``; its bands are returned too, none when
-    given)."""
+    """Return the label rule with sigma_pose given or measured, and its bands."""
     if settings.pose_sigma_m is not None:
         error = PoseError.constant(settings.pose_sigma_m)
         return LabelRule(settings.pixel_sigma_px, error), []
@@ -129,8 +82,7 @@ def pose_rule(sequence: TumRgbd, settings: ImportSettings) -> tuple[LabelRule, l
 def reference_rule(
     sequence: TumRgbd, settings: ImportSettings
 ) -> tuple[ReferencePoseError, list[BandErrors]] | str:
-    """Return the reference's rotation and centre error table of the static opening with its
-    bands (``tum_consistency.reference_error``), or why there is none."""
+    """Return the static opening's reference error table and bands, or why there is none."""
     try:
         return reference_error(
             sequence, range(settings.static_images), pixel_sigma_px=settings.pixel_sigma_px
@@ -141,9 +93,8 @@ def reference_rule(
 
 @dataclass(frozen=True, eq=False)
 class ImportResult:
-    """What an import made: the sequence, the labels (all tracks and the static opening's,
-    by the chosen rule), the known points, the report (import.json's content) and the
-    figures (file name -> PNG bytes)."""
+    """What an import made: the sequence, labels (all tracks and the static opening's), known
+    points, report (import.json's content) and figures (file name -> PNG bytes)."""
 
     sequence: Sequence
     labels: TrackLabels
@@ -165,11 +116,9 @@ def import_sequence(
     recorded: Mapping[int, ImageTracks] | None = None,
     reference: tuple[ReferencePoseError, list[BandErrors]] | str | None = None,
 ) -> ImportResult:
-    """Return the sequence of a TUM-layout sequence (module docstring) with its report and
-    figures (none when no figure image has a pose); ``rule``: ``pose_rule``'s result if
-    known; ``progress(images tracked)``, ``mask_progress(masks done)``; ``recorded``:
-    ``settings.tracks_from``'s features if read already; ``reference``: ``reference_rule``'s
-    result if known."""
+    """Return the sequence of a TUM-layout sequence with its report and figures;
+    ``progress(images tracked)``, ``mask_progress(masks done)``; ``rule``, ``recorded`` and
+    ``reference``: precomputed results, used if given."""
     started = time.monotonic()
     label_rule, bands = rule if rule is not None else pose_rule(sequence, settings)
     if reference is None:
@@ -292,13 +241,8 @@ def _rate_hz(sequence: TumRgbd) -> float:
 
 
 def write_import(output: Path, result: ImportResult) -> Path:
-    """Write the sequence, the figures and import.json into the new directory ``output``,
-    under a hidden name renamed into place when complete.
-
-    Raises:
-        DatasetError: ``output`` exists, its directory is missing, or it cannot be written.
-
-    """
+    """Write the import into the new directory ``output`` atomically; DatasetError if it exists,
+    its parent is missing, or it cannot be written."""
     target = Path(output).expanduser().absolute()
     if target.exists():
         raise DatasetError(f'output {str(target)!r} exists already; remove it or choose another')
@@ -432,8 +376,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _stage(total: int, label: str, unit: str) -> Callable[[int], None]:
-    """Return a progress callback (units done) for one stage: a ``ProgressReporter`` started
-    at its first call and finished at ``total``."""
+    """Return a progress callback for one stage, finished at ``total``."""
     reporters: list[ProgressReporter] = []
 
     def update(done: int) -> None:

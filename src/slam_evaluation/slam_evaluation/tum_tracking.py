@@ -1,11 +1,6 @@
-"""Our feature tracker over the colour images of a TUM-layout sequence, for
-``tum_rgbd_sequence``: ``FeatureTracker(TrackerConfig())``, the feature tracker node's
-defaults as ``monoslam_front_end.FrontEnd`` builds it, on every colour image decoded to grey
-as the node decodes a CompressedImage (``marker_detector.core.images.decode_compressed``),
-and each image's tracks back-projected with its depth map and pose
-(``slam_sim.core.depth_labels.frame_sightings``) where it has both. Instead of running the
-tracker, the tracks may be those a graph recorded (``recorded_features``: its ``/features``,
-with the re-identifications SLAM's predictions brought), matched to the images by stamp."""
+"""Our feature tracker (or a recording's tracks) over a TUM-layout sequence's images.
+
+Design notes: docs/design/evaluation.md"""
 
 from __future__ import annotations
 
@@ -16,12 +11,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from marker_detector.core.images import ImageError, decode_compressed
-from monoslam_shadow_node.conversions import features_from_message
-from monoslam_shadow_node.core.feature_config import TrackerConfig
-from monoslam_shadow_node.core.feature_tracker import FeatureTracker
+from monoslam_shadow_node.common.conversions import features_from_message
+from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
+from monoslam_shadow_node.feature_tracker.core.feature_tracker import FeatureTracker
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.errors import DatasetError
+from slam_core.images import ImageError, decode_compressed
 from slam_evaluation.classification_figure import FEATURES_TOPIC, read_messages
 from slam_sim.core.depth_labels import DepthSightings, LabelRule, frame_sightings
 from slam_sim.core.rgbd_depth import read_depth_m
@@ -31,9 +26,8 @@ from slam_sim.tum_rgbd_bag import image_format
 
 @dataclass(frozen=True, eq=False)
 class TrackedImages:
-    """The tracker's output over all colour images: per sighting (N) the image index, track
-    id and raw pixel (N, 2); the depth sightings (frames = image indices); and the colour
-    images kept for the figure (index -> (H, W, 3) BGR)."""
+    """The tracks: image index, id and raw pixel (N, 2) per sighting; depth sightings; the
+    figure's colour images (index -> (H, W, 3) BGR)."""
 
     images: IntArray
     ids: IntArray
@@ -47,9 +41,7 @@ ImageTracks = tuple[IntArray, FloatArray]
 
 
 def recorded_features(record: Path) -> dict[int, ImageTracks]:
-    """Return a graph recording's ``/features`` (slam_interfaces/FeatureTrackArray) by stamp,
-    ns, without pixels that are not finite. Raises DatasetError naming the recording when it
-    lacks that topic."""
+    """Return a recording's ``/features`` by stamp ns; DatasetError if it lacks the topic."""
     out: dict[int, ImageTracks] = {}
     try:
         messages = read_messages(record, [FEATURES_TOPIC], FEATURES_TOPIC)
@@ -70,16 +62,8 @@ def track_images(
     progress: Callable[[int], None] | None = None,
     recorded: Mapping[int, ImageTracks] | None = None,
 ) -> TrackedImages:
-    """Run the feature tracker over every colour image (module docstring), or take each
-    image's tracks from ``recorded`` (stamp ns -> features; an image without an entry has
-    none), and back-project them where the image has a pose and a depth map;
-    ``progress(images done)`` after each image.
-
-    Raises:
-        DatasetError: an image or depth map cannot be read or decoded, or no image's stamp
-            is in ``recorded``.
-
-    """
+    """Track every colour image (or take ``recorded``'s tracks) and back-project them;
+    DatasetError for an unreadable image or no stamp in ``recorded``."""
     tracker = FeatureTracker(TrackerConfig())
     images, ids, pixels, depth, kept = [], [], [], [], {}
     nothing: ImageTracks = (np.zeros(0, np.int64), np.zeros((0, 2)))

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
-from monoslam_shadow_node.feature_overlay import UNKNOWN
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
+from monoslam_shadow_node.feature_tracker.overlay import UNKNOWN
 from slam_evaluation.classification_figure import (
     StatusEvent,
     nearest_stamps,

@@ -16,6 +16,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 from em_sam_node.core.em import run_em
 from em_sam_node.core.em_types import EmConfig
+from em_sam_node.mapper.report import write_report
 from em_sam_node.offline import (
     OBSERVATION_TOPIC,
     ODOM_TOPIC,
@@ -24,7 +25,6 @@ from em_sam_node.offline import (
     replay_bag,
     seen_at_both_positions,
 )
-from em_sam_node.report import write_report
 from slam_core.errors import BagError
 from slam_evaluation import em_sam_evaluate as evaluate
 from slam_ros.typesys import TypeRegistry

@@ -13,8 +13,8 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from marker_detector.offline import detect_bag, main
-from marker_detector.settings import PARAMETERS
+from marker_detector.detector.offline import detect_bag, main
+from marker_detector.detector.settings import PARAMETERS
 from slam_core.errors import BagError
 from slam_ros.bag.source import BagSource
 from slam_ros.typesys import TypeRegistry

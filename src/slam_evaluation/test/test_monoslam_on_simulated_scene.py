@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.monoslam import MonoSlam
-from monoslam_shadow_node.core.monoslam_init import camera_from_known_points
-from monoslam_shadow_node.core.monoslam_model import CAMERA_SIZE
-from monoslam_shadow_node.core.monoslam_types import (
+from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
+from monoslam_shadow_node.monoslam.core.monoslam_init import camera_from_known_points
+from monoslam_shadow_node.monoslam.core.monoslam_model import CAMERA_SIZE
+from monoslam_shadow_node.monoslam.core.monoslam_types import (
     LOST,
     TRACKING,
     WAITING,

@@ -15,7 +15,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig, MonoSlamFrame
+from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig, MonoSlamFrame
 from slam_core.blas import single_threaded_blas
 from slam_evaluation import monoslam_runs
 from slam_evaluation.monoslam_evaluate import main

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from monoslam_shadow_node.core.monoslam_types import MonoSlamConfig
-from monoslam_shadow_node.core.shadow_filter import ShadowConfig
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, STATIC
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, STATIC
+from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import ShadowConfig
 from slam_evaluation import monoslam_evaluate, shadow_evaluate
 from slam_evaluation.monoslam_pipeline import (
     PipelineConfig,

@@ -12,9 +12,13 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from monoslam_shadow_node import shadow_processor
-from monoslam_shadow_node.core.shadow_filter import FrameInput, FrameResult, ShadowFilter
-from monoslam_shadow_node.core.shadow_track import DYNAMIC, PENDING, STATIC
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
+from monoslam_shadow_node.shadow_filter import processor as shadow_processor
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import (
+    FrameInput,
+    FrameResult,
+    ShadowFilter,
+)
 from slam_core.files import jsonable
 from slam_evaluation.evaluation_cli import parse_seeds
 from slam_evaluation.shadow_classification import (

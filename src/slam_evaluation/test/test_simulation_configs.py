@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from ament_index_python.packages import get_package_share_directory
 
-from monoslam_shadow_node import monoslam_settings
+from monoslam_shadow_node.monoslam import settings as monoslam_settings
 from slam_sim.core.init_target import InitTarget
 
 SIMULATION_CONFIG = (

@@ -9,7 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from monoslam_shadow_node.core.shadow_classifier import STATIC_TESTS, ClassifierConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_classifier import (
+    STATIC_TESTS,
+    ClassifierConfig,
+)
 from slam_evaluation import monoslam_evaluate, monoslam_runs, shadow_evaluate, shadow_experiments
 
 

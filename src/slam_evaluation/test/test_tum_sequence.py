@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from monoslam_shadow_node.conversions import FEATURE_TRACK_CDR, feature_array_cdr
+from monoslam_shadow_node.common.conversions import FEATURE_TRACK_CDR, feature_array_cdr
 from slam_core.testing.datasets import dataset_or_skip
 from slam_evaluation.sequence_files import measurement_frames, read_sequence
 from slam_evaluation.tum_sequence import main

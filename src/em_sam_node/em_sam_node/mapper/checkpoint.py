@@ -18,9 +18,8 @@ from typing import Any
 import numpy as np
 
 from em_sam_node.core.em_types import EmResult
-from em_sam_node.core.inputs import Increment
+from em_sam_node.core.inputs import Increment, Observation
 from em_sam_node.mapper.processor import MapperProcessor
-from em_sam_node.core.inputs import Observation
 from slam_core.checkpoint import CheckpointError, load_checkpoint_arrays, save_arrays
 from slam_core.checkpoint import shaped as _shape
 

@@ -36,11 +36,13 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
-from em_sam_node.mapper.checkpoint import load_checkpoint, save_checkpoint
-from em_sam_node.mapper.processor.conversions import increment_from_message, observations_from_message
 from em_sam_node.core.factorization import SingularSystemError
+from em_sam_node.mapper.checkpoint import load_checkpoint, save_checkpoint
+from em_sam_node.mapper.conversions import (
+    increment_from_message,
+    observations_from_message,
+)
 from em_sam_node.mapper.map_files import MAP_FILE, MapFileError, known_map, read_map, write_map
-from em_sam_node.mapper.processor import MapperProcessor
 from em_sam_node.mapper.outputs import (
     landmark_map_message,
     map_to_odom_tf,
@@ -50,8 +52,9 @@ from em_sam_node.mapper.outputs import (
     pose_message,
     sighting_messages,
 )
-from em_sam_node.mapper.settings import PARAMETERS, config_from_parameters
+from em_sam_node.mapper.processor import MapperProcessor
 from em_sam_node.mapper.report import write_report
+from em_sam_node.mapper.settings import PARAMETERS, config_from_parameters
 from slam_core.cli import console_main
 from slam_core.errors import ParameterError
 from slam_core.files import keep_previous_run

@@ -17,9 +17,9 @@ from std_msgs.msg import ColorRGBA
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
-from em_sam_node.mapper.processor.conversions import fill_yaw_quaternion
 from em_sam_node.core.em_types import EmResult
 from em_sam_node.core.sightings import Sightings
+from em_sam_node.mapper.conversions import fill_yaw_quaternion
 from slam_core.arrays import FloatArray
 from slam_core.stamps import ns_to_stamp
 from slam_interfaces.msg import (

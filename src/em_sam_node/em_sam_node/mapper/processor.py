@@ -40,6 +40,7 @@ from em_sam_node.core.em import anchored_problem, run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
 from em_sam_node.core.incremental import IncrementalEmSam
 from em_sam_node.core.incremental_types import UpdateStats
+from em_sam_node.core.inputs import Increment, Observation
 from em_sam_node.core.localization import (
     KnownMap,
     run_localization,
@@ -48,7 +49,6 @@ from em_sam_node.core.localization import (
 from em_sam_node.core.marginals import marginal_pose_covariance
 from em_sam_node.core.problem import Estimate
 from em_sam_node.core.sightings import Sightings, sightings_of
-from em_sam_node.core.inputs import Increment
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.geometry.se2 import apply_increment, compose, inverse
 

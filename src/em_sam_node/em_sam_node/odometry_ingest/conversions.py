@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from em_sam_node.core.inputs import Increment, Observation
+from em_sam_node.core.inputs import Increment
 from slam_core.arrays import FloatArray
-from slam_core.geometry.quaternion import quaternion_from_yaw, yaw_from_quaternion
+from slam_core.geometry.quaternion import yaw_from_quaternion
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
 

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from em_sam_node.core.inputs import Increment
 from slam_core.arrays import FloatArray
 from slam_core.geometry.se2 import increment_between, wrap_angle
 

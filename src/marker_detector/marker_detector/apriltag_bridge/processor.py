@@ -36,8 +36,8 @@ from numpy.typing import ArrayLike
 
 from marker_detector.core.base_frame import RangeBearing, to_range_bearing
 from marker_detector.core.detection import MarkerDetection, Rejection
-from marker_detector.core.tag_pose import TagGates, tag_detection
 from marker_detector.core.frame_types import FrameOutput, InputError, StaticTransforms
+from marker_detector.core.tag_pose import TagGates, tag_detection
 from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 

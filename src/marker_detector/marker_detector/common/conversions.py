@@ -9,16 +9,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from slam_core.images import (
-    DEFAULT_MAX_IMAGE_PIXELS,
-    check_image_size,
-    compressed_size,
-    decode_compressed,
-    decode_raw,
-)
 from marker_detector.core.frame_types import FrameOutput, InputError
 from slam_core.stamps import ns_to_stamp
-
 
 
 def camera_info_fields(message: Any) -> dict[str, Any]:

@@ -7,11 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from marker_detector.core.base_frame import RangeBearing, to_range_bearing
-from marker_detector.core.detection import DetectionResult, MarkerDetection, Rejection
-from slam_core.camera import CameraModel
-from slam_core.geometry.se3 import optical_from_link, transform_from_xyz_rpy
-
+from marker_detector.core.base_frame import RangeBearing
+from marker_detector.core.detection import MarkerDetection, Rejection
 
 EXTRINSICS_SOURCES = ('tf_static', 'parameters')
 

@@ -3,12 +3,12 @@ rosbags-deserialized messages both work."""
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from marker_detector.core.frame_types import FrameOutput
 from slam_core.images import (
     DEFAULT_MAX_IMAGE_PIXELS,
     check_image_size,
@@ -16,7 +16,6 @@ from slam_core.images import (
     decode_compressed,
     decode_raw,
 )
-from marker_detector.core.frame_types import FrameOutput, InputError
 from slam_core.stamps import ns_to_stamp
 
 
@@ -82,5 +81,3 @@ def fill_fiducials(output: FrameOutput, message: Any, make_detection: Any) -> An
         detections.append(item)
     message.detections = detections
     return message
-
-

@@ -39,13 +39,12 @@ from marker_detector.common.conversions import (
     fill_observations,
     transform_matrix,
 )
+from marker_detector.core.frame_types import FrameOutput, InputError
 from marker_detector.detector.conversions import (
     check_message_size,
     fill_fiducials,
     image_from_message,
 )
-from slam_core.images import ImageError, ImageTooLargeError
-from marker_detector.core.frame_types import FrameOutput, InputError
 from marker_detector.detector.processor import MarkerProcessor
 from marker_detector.detector.settings import (
     PARAMETERS,
@@ -55,6 +54,7 @@ from marker_detector.detector.settings import (
 )
 from slam_core.cli import console_main
 from slam_core.errors import ParameterError
+from slam_core.images import ImageError, ImageTooLargeError
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import (
     FiducialArray,

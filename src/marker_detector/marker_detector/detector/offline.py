@@ -31,9 +31,8 @@ from marker_detector.common.conversions import (
     fill_observations,
     transform_matrix,
 )
-from marker_detector.detector.conversions import fill_fiducials, image_from_message
-from slam_core.images import ImageError
 from marker_detector.core.frame_types import InputError
+from marker_detector.detector.conversions import fill_fiducials, image_from_message
 from marker_detector.detector.processor import MarkerProcessor
 from marker_detector.detector.settings import (
     PARAMETERS,
@@ -44,6 +43,7 @@ from marker_detector.detector.settings import (
 )
 from slam_core.cli import console_main
 from slam_core.errors import BagError, ParameterError
+from slam_core.images import ImageError
 from slam_core.progress import ProgressReporter
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import (

@@ -16,22 +16,25 @@ Extrinsics come from one of two sources:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
-from marker_detector.core.base_frame import RangeBearing, to_range_bearing
+from marker_detector.core.base_frame import to_range_bearing
 from marker_detector.core.detection import (
     DetectionResult,
-    MarkerDetection,
-    Rejection,
     detect_markers,
     make_detector,
 )
 from marker_detector.core.detector_config import DetectorConfig
+from marker_detector.core.frame_types import (
+    ExtrinsicsConfig,
+    FrameOutput,
+    InputError,
+    StaticTransforms,
+)
 from marker_detector.core.roi import SearchPlan
 from slam_core.camera import CameraModel
 from slam_core.geometry.se3 import optical_from_link, transform_from_xyz_rpy
+
 
 class MarkerProcessor:
     """Camera model, extrinsics and detector settings; turns images into FrameOutputs."""

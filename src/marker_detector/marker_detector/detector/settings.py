@@ -15,10 +15,10 @@ import yaml
 
 from marker_detector.core.detector_config import CORNER_REFINEMENTS, DetectorConfig
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
-from slam_core.images import DEFAULT_MAX_IMAGE_PIXELS
-from marker_detector.core.roi import SearchPlan
 from marker_detector.core.frame_types import EXTRINSICS_SOURCES, ExtrinsicsConfig
+from marker_detector.core.roi import SearchPlan
 from slam_core.errors import ParameterError
+from slam_core.images import DEFAULT_MAX_IMAGE_PIXELS
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamType, Range
 
 NODE_NAME = 'marker_detector'

@@ -1,27 +1,24 @@
-"""Messages <-> the types the three nodes share: feature arrays (from message objects or
-straight from CDR bytes), camera poses and camera_info. Fields are read by name, so rclpy
-and rosbags messages both work.
+"""Messages <-> the types the three nodes share: feature arrays, camera poses, camera_info.
 
-Design notes (pose covariance order): docs/design/monoslam_nodes.md
+Design notes: docs/design/monoslam_core.md and monoslam_nodes.md ("The message layer").
 """
 
 from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from slam_core.arrays import FloatArray, IntArray
-from slam_core.camera import CameraModel
-from slam_core.geometry import quaternion
-from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
 from monoslam_shadow_node.common.core.inputs import CameraPose, Features
-
+from slam_core.arrays import FloatArray
+from slam_core.camera import CameraModel
+from slam_core.geometry import quaternion
+from slam_core.stamps import stamp_to_ns
 
 QUATERNION_NORM_TOLERANCE = 1e-3
 """Quaternions within this of unit norm are normalized; others go on as they are, and the
@@ -62,11 +59,8 @@ FEATURE_TRACK_CDR = np.dtype(
 def tracks_cdr(
     data: bytes, record: np.dtype = FEATURE_TRACK_CDR, stride: int | None = None
 ) -> tuple[int, str, np.ndarray]:
-    """Return the stamp (ns), frame id and tracks (``record`` records ``stride`` bytes apart,
-    default its size: a read-only view of ``data``) of a serialized message of a header and
-    a sequence of 8-aligned tracks (FeatureTrackArray, ShadowTrackArray); ValueError (or
-    IndexError, struct.error, UnicodeDecodeError) when the bytes are not plain little-endian
-    CDR of one."""
+    """Return stamp (ns), frame id and ``record`` tracks (a read-only view, ``stride`` apart)
+    of a header + 8-aligned tracks message; CDR_ERRORS when not plain little-endian CDR."""
     if data[:4] != CDR_LITTLE_ENDIAN:
         raise ValueError('not plain little-endian CDR')
     sec, nanosec, length = struct.unpack_from('<iII', data, 4)
@@ -93,8 +87,7 @@ def cdr_features(stamp_ns: int, frame_id: str, tracks: np.ndarray) -> Features:
 
 
 def deserialized(data: bytes, deserialize: Callable[[bytes], Any], kind: str = 'features') -> Any:
-    """Return ``deserialize(data)``; ValueError naming the bytes' size when they are no
-    message of the ``kind``'s type at all."""
+    """Return ``deserialize(data)``; ValueError naming the size when not a ``kind`` message."""
     try:
         return deserialize(data)
     except Exception as err:  # rclpy raises its RMWError (not exported) for bad bytes
@@ -113,12 +106,8 @@ CDR_ERRORS = (ValueError, IndexError, struct.error, UnicodeDecodeError)
 
 
 def features_from_cdr(data: bytes, deserialize: Callable[[bytes], Any]) -> Features:
-    """Return ``features_from_message`` of a serialized slam_interfaces/FeatureTrackArray,
-    read straight from its CDR bytes (plain CDR, little endian, as every ROS 2 middleware
-    on this machine sends it): deserializing 150 tracks into message objects takes longer
-    than reading them. Anything else (another encapsulation, bytes that do not fit) goes
-    through ``deserialize`` (bytes -> message) and ``features_from_message``; ValueError
-    naming their size and the reason when the bytes are no such message at all."""
+    """Return the Features of a serialized FeatureTrackArray (CDR read directly, else through
+    ``deserialize``); ValueError naming the size and reason when it is none."""
     try:
         stamp_ns, frame_id, tracks = tracks_cdr(data)
     except CDR_ERRORS:
@@ -127,10 +116,7 @@ def features_from_cdr(data: bytes, deserialize: Callable[[bytes], Any]) -> Featu
 
 
 def feature_array_cdr(tracks: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:
-    """Return a slam_interfaces/FeatureTrackArray serialized (little-endian CDR, the layout
-    ``features_from_cdr`` reads; the bytes rclpy makes of that message): header = stamp and
-    frame id, ``tracks`` FEATURE_TRACK_CDR records. Built in one numpy array instead of a
-    Python object per track."""
+    """Return a FeatureTrackArray of FEATURE_TRACK_CDR ``tracks`` as little-endian CDR bytes."""
     tracks = np.ascontiguousarray(tracks, dtype=FEATURE_TRACK_CDR)
     name = frame_id.encode('utf-8') + b'\x00'
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
@@ -142,12 +128,7 @@ def feature_array_cdr(tracks: np.ndarray, stamp_ns: int, frame_id: str) -> bytes
 
 
 def rotation_from_quaternion(x: float, y: float, z: float, w: float) -> FloatArray:
-    """Return the rotation matrix (3, 3) of a quaternion (x, y, z, w).
-
-    A quaternion within ``QUATERNION_NORM_TOLERANCE`` of unit norm is normalized first;
-    otherwise (zero, NaN, far from unit) the matrix is returned unnormalized or non-finite,
-    for the core to reject with its reason.
-    """
+    """Return the rotation (3, 3) of a quaternion (x, y, z, w), normalized when nearly unit."""
     q = np.array([x, y, z, w], dtype=np.float64)
     norm = float(np.linalg.norm(q))
     if math.isfinite(norm) and abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
@@ -156,9 +137,7 @@ def rotation_from_quaternion(x: float, y: float, z: float, w: float) -> FloatArr
 
 
 def pose_from_message(message: Any) -> CameraPose:
-    """Return the camera pose of a geometry_msgs/PoseWithCovarianceStamped (the pose of the
-    camera optical frame in header.frame_id). The covariance is passed on in ROS order (see
-    the module docstring); non-finite values are kept for the core to reject."""
+    """Return the CameraPose of a PoseWithCovarianceStamped (ROS covariance order, NaN kept)."""
     pose = message.pose.pose
     q = pose.orientation
     position = pose.position
@@ -200,9 +179,7 @@ def describe_camera(camera: CameraModel) -> str:
 
 @dataclass(frozen=True, eq=False)
 class CameraUpdate:
-    """What one camera_info brought: a usable camera (``camera``; ``first``: none was
-    accepted before, else it changed) or a rejection (``camera`` None); ``text`` is the
-    line to log."""
+    """One camera_info's outcome: ``camera`` (None: rejected), ``first`` and the log ``text``."""
 
     camera: CameraModel | None
     first: bool
@@ -210,8 +187,7 @@ class CameraUpdate:
 
 
 class CameraInfoWatch:
-    """Follows a camera_info topic for a node whose filter needs the camera: one place for
-    the change detection, the parsing and the log lines of every such node."""
+    """Follows a camera_info topic: change detection, parsing and log lines."""
 
     def __init__(self, topic: str) -> None:
         self.topic = topic
@@ -219,9 +195,7 @@ class CameraInfoWatch:
         self._key: tuple[object, ...] | None = None
 
     def update(self, message: Any) -> CameraUpdate | None:
-        """Return the update a sensor_msgs/CameraInfo brings, or None if nothing the filter
-        uses changed. A rejected one leaves the accepted camera as it was (and is counted in
-        ``rejected``)."""
+        """Return the update a CameraInfo brings, None if nothing used changed."""
         key = camera_info_key(message)
         if key == self._key:
             return None

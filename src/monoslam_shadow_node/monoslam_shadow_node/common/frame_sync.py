@@ -1,25 +1,6 @@
 """Pairing two input streams by stamp, handed out in stamp order (ROS-free).
 
-A node that needs two messages per image (the shadow_filter: features and the camera pose;
-monoslam: features and the fiducials) queues both streams in a ``StampSync``. The primary
-stream (features) drives the processing; each primary item pairs with the partner item whose
-stamp is nearest within ``tolerance_ns``. Pairs come out in primary stamp order as soon as
-they are complete; a primary still waiting for its partner holds back the later ones.
-
-A primary whose partner has not come once the newest stamp seen is ``horizon_ns`` past it (or
-when the caller flushes because the inputs stopped) is dropped, or released alone (partner
-None) when the caller asks for that (``pop(alone=True)``). With ``in_order_partners`` (the
-partners come in stamp order from one publisher, which may lag behind the primaries by more
-than the horizon) a primary waits for its partner until the partners have passed it instead:
-it is dropped once a partner with a later stamp (beyond the tolerance) has come after it,
-since its own will not come any more. A primary that came after such a partner (the two
-streams' arrival order is not guaranteed), and every primary before the first partner,
-waits by the horizon rule. A partner no primary paired with
-within the horizon is dropped. A primary that is not after the last one handed out, a
-repeated stamp and an overflowing queue (``max_entries`` per stream, the oldest goes first)
-are dropped too. Every input let go comes back once as a ``Drop`` whose text names it.
-
-``FrameSynchronizer`` is the shadow_filter's instance: feature frames and camera poses.
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -46,8 +27,7 @@ Q = TypeVar('Q', bound=Stamped)
 
 @dataclass(frozen=True)
 class Drop:
-    """An input the synchronizer let go: its kind ('repeated', 'overflow', 'out_of_order' or
-    one of ``SyncNames``' missing kinds), stamp (int ns) and the log line naming it."""
+    """An input let go: ``kind``, ``stamp_ns`` (int ns) and the log ``text`` naming it."""
 
     kind: str
     stamp_ns: int
@@ -59,10 +39,7 @@ class Drop:
 
 @dataclass(frozen=True)
 class SyncNames:
-    """How log lines name the two streams: the primary item ('features frame'), its plural
-    ('frames') and short name ('features'); the partner item ('camera pose'), its plural
-    ('poses') and topic; the drop kinds of a primary without partner and of a partner without
-    primary."""
+    """How log lines name the two streams and the drop kinds of an unpaired item."""
 
     primary: str
     primary_plural: str
@@ -172,10 +149,7 @@ class StampSync(Generic[P, Q]):
     def pop(
         self, *, hold: bool = False, flush: bool = False, alone: bool = False
     ) -> tuple[list[tuple[P, Q | None]], list[Drop]]:
-        """Return the pairs ready in stamp order and the drops. ``hold``: hand out nothing
-        yet, only drop what expired; ``flush``: the inputs stopped, so primaries still
-        without a partner go now; ``alone``: a primary whose partner did not come goes out
-        with partner None instead of being dropped."""
+        """Return the pairs ready in stamp order and the drops (``hold``, ``flush``, ``alone``)."""
         pairs: list[tuple[P, Q | None]] = []
         drops: list[Drop] = []
         while self._primaries:
@@ -301,12 +275,7 @@ def features_and_poses(pose_topic: str) -> SyncNames:
 
 
 class FrameSynchronizer:
-    """Pairs feature frames with camera poses by stamp, and hands pairs out in stamp order
-    (module docstring; a frame whose pose never comes is dropped). The poses come in stamp
-    order from the SLAM filter, later than the frames by its processing time (which can
-    exceed the horizon when it lags): a frame waits for its pose until a later pose has come
-    (``in_order_partners``), not for a fixed time. Every input that is let go comes back once
-    as a ``Drop``."""
+    """Pairs feature frames with camera poses by stamp (``in_order_partners``)."""
 
     def __init__(
         self, *, tolerance_ns: int, horizon_ns: int, max_entries: int, pose_topic: str
@@ -345,8 +314,6 @@ class FrameSynchronizer:
     def pop(
         self, *, hold: bool = False, flush: bool = False
     ) -> tuple[list[tuple[Features, CameraPose]], list[Drop]]:
-        """Return the pairs ready in stamp order and the drops. ``hold``: pair nothing yet
-        (no camera), only drop what expired; ``flush``: the inputs stopped, so frames still
-        without a pose are dropped now."""
+        """Return the pairs ready in stamp order and the drops (``hold``, ``flush``)."""
         pairs, drops = self._sync.pop(hold=hold, flush=flush)
         return [(f, p) for f, p in pairs if p is not None], drops

@@ -1,11 +1,6 @@
-"""What the processors of monoslam, shadow_filter and feature_tracker tell their node to log
-(ROS-free).
+"""What the processors tell their node to log, and the log throttle (ROS-free).
 
-A processor returns ``Notice`` outcomes next to its results; the node logs each at its level
-and does nothing else with it. A notice of a steady state (waiting for the camera, for the
-target, for a pose that never comes) is marked ``throttle``: the node logs at most one per
-kind every ``LogThrottle.period_s`` seconds, so that a kind does not silence another.
-``log_notice`` does that with a node's logger.
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -18,9 +13,7 @@ LEVELS = ('debug', 'info', 'warning', 'error')
 
 @dataclass(frozen=True)
 class Notice:
-    """Something to log: its kind (e.g. 'dropped', 'pose_covariance', 'skipped', 'started'), its
-    level (one of LEVELS), the line to log, the image stamp it concerns (int ns, None for
-    none) and whether it repeats a steady state (log it throttled, per kind)."""
+    """Something to log: kind, level (LEVELS), text, image stamp (int ns or None), throttle."""
 
     kind: str
     level: str
@@ -38,8 +31,7 @@ class Notice:
 
 @dataclass
 class LogThrottle:
-    """Decides whether a throttled notice is logged now: at most one per kind every
-    ``period_s`` seconds of the caller's monotonic clock (``now_s``)."""
+    """Lets at most one throttled notice per kind through every ``period_s`` s."""
 
     period_s: float
     _last_s: dict[str, float] = field(default_factory=dict)
@@ -56,9 +48,7 @@ class LogThrottle:
 
 
 def log_notice(logger: Any, notice: Notice, throttle: LogThrottle, now_s: float) -> None:
-    """Log ``notice`` with a node's logger (rclpy's ``RcutilsLogger``) at its level, unless
-    ``throttle`` holds it back at ``now_s`` (monotonic s). One call site per level: rclpy
-    refuses a call site whose severity changes between calls."""
+    """Log ``notice`` with an rclpy logger at its level, unless ``throttle`` holds it back."""
     if not throttle.allows(notice, now_s):
         return
     if notice.level == 'error':

@@ -1,12 +1,6 @@
-"""slam_interfaces/PoseLink <-> the pose links of ``core.pose_links`` (ROS-free: the messages
-are passed in).
+"""slam_interfaces/PoseLink <-> the pose links of ``core.pose_links`` (ROS-free).
 
-A pose source whose errors drift (monoslam) publishes, on ``<pose topic>/link`` just before
-each pose, the covariances of that pose's error with the errors of its recent earlier poses.
-The shadow_filter pairs each pose with the link of its stamp (``PoseLinks``); a pose whose
-link did not come (not published, or lost) goes on without one, and the Shadow filter takes
-its error as independent, which is what it did before links existed. Counted, never
-silent.
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -31,8 +25,7 @@ MAX_LINKS = 256
 
 @dataclass(frozen=True, eq=False)
 class PoseLinkInput:
-    """One PoseLink: the pose's stamp (int ns), the earlier poses' stamps (K,) and the
-    covariances (K, 6, 6) of the pose's error with theirs, PoseWithCovariance order."""
+    """One PoseLink: stamp (int ns), earlier stamps (K,), cross-covariances (K, 6, 6)."""
 
     stamp_ns: int
     earlier_stamps: tuple[int, ...]
@@ -40,8 +33,7 @@ class PoseLinkInput:
 
 
 def link_from_message(message: Any) -> PoseLinkInput:
-    """Return what a slam_interfaces/PoseLink carries; ValueError naming the culprit when
-    its covariances are not 36 finite numbers per earlier stamp or a stamp is not earlier."""
+    """Return what a PoseLink carries; ValueError naming the culprit."""
     stamp_ns = stamp_to_ns(message.header.stamp)
     earlier = tuple(stamp_to_ns(stamp) for stamp in message.earlier_stamps)
     cross = np.asarray(message.cross_covariances, dtype=np.float64)
@@ -59,8 +51,7 @@ def fill_pose_link(
     stamp_ns: int, earlier_stamps: tuple[int, ...], cross_covariances: ArrayLike,
     frame_id: str, message: Any, time_type: Callable[[], Any],
 ) -> Any:  # fmt: skip
-    """Fill a slam_interfaces/PoseLink (its stamps made by ``time_type``, the
-    builtin_interfaces/Time class) and return it."""
+    """Fill a slam_interfaces/PoseLink (stamps made by ``time_type``) and return it."""
     ns_to_stamp(stamp_ns, message.header.stamp)
     message.header.frame_id = frame_id
     message.earlier_stamps = [ns_to_stamp(stamp, time_type()) for stamp in earlier_stamps]
@@ -69,12 +60,7 @@ def fill_pose_link(
 
 
 class PoseLinks:
-    """Pairs the poses with their links, whichever comes first (one executor may hand a node
-    the pose before the link published just ahead of it). Once links have come, a pose
-    without its link waits for it until the next pose or ``flush``; before any link, poses
-    pass at once (a source without links is not delayed). Counts the links that came
-    (``received``), the poses that went with one (``linked``) and without (``unlinked``),
-    the links no pose took (``unused``) and those that could not be read (``rejected``)."""
+    """Pairs poses with their links, whichever comes first; counts links and poses by fate."""
 
     def __init__(self, capacity: int = MAX_LINKS) -> None:
         self._links: OrderedDict[int, PoseLinkInput] = OrderedDict()

@@ -1,13 +1,11 @@
 """feature_tracker: camera images in, tracked image features with persistent ids out.
 
-The front end of the monocular pipeline (paper 001): corners are detected where the image
-lacks features (Shi-Tomasi or FAST on a grid, subpixel) and followed image to image by
-pyramidal Lucas-Kanade with a forward-backward check; each keeps its id while tracked
-(``core.feature_tracker``). With predictions (``use_predictions``), LK starts from SLAM's
-predicted pixels, and a prediction with a covariance for a dropped track searches for it
-(re-identification). An image waits up to ``prediction_timeout_s`` for its prediction.
-camera_info is optional: once it comes it checks the image size and notices camera changes
-(the tracks restart, ids go on). Bad input is logged with its culprit and skipped.
+Corners are detected where the image lacks features (Shi-Tomasi or FAST on a grid, subpixel)
+and followed by pyramidal Lucas-Kanade with a forward-backward check; each keeps its id while
+tracked. With ``use_predictions``, LK starts from SLAM's predicted pixels, and a prediction
+with a covariance for a dropped track searches for it (re-identification); an image waits up
+to ``prediction_timeout_s`` for its prediction. camera_info is optional (it checks the image
+size; a camera change restarts the tracks, ids go on). Bad input is logged and skipped.
 
 Topics:
   subscribes  camera/image_raw (Image) or camera/image_raw/compressed (CompressedImage), per
@@ -32,20 +30,11 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-from marker_detector.conversions import (
-    camera_info_fields,
-    check_message_size,
-    image_from_message,
-)
-from marker_detector.core.images import ImageError, ImageTooLargeError
+from marker_detector.common.conversions import camera_info_fields
+from marker_detector.detector.conversions import check_message_size, image_from_message
+from monoslam_shadow_node.common.notices import Notice
 from monoslam_shadow_node.feature_tracker.conversions import predictions_from_cdr
 from monoslam_shadow_node.feature_tracker.overlay import StatusBook, draw_features
-from monoslam_shadow_node.feature_tracker.settings import (
-    NODE_NAME,
-    PARAMETERS,
-    node_settings,
-    tracker_config,
-)
 from monoslam_shadow_node.feature_tracker.processor import (
     FeatureFrame,
     FeatureTrackingProcessor,
@@ -53,8 +42,14 @@ from monoslam_shadow_node.feature_tracker.processor import (
     feature_frame_cdr,
     status_line,
 )
-from monoslam_shadow_node.common.notices import Notice
+from monoslam_shadow_node.feature_tracker.settings import (
+    NODE_NAME,
+    PARAMETERS,
+    node_settings,
+    tracker_config,
+)
 from slam_core.cli import console_main
+from slam_core.images import ImageError, ImageTooLargeError
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import FeatureTrackArray, ShadowTrackArray
 from slam_ros.diagnostics import Diagnostics
@@ -76,8 +71,7 @@ MIN_POLL_PERIOD_S = 0.001
 
 
 class KindThrottle:
-    """Lets a log line of each kind through at most every ``period_s`` (monotonic clock), and
-    counts the lines held back, to be told with the next one of that kind."""
+    """Lets a log line of each kind through at most every ``period_s``, counting those held."""
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
@@ -288,12 +282,7 @@ class FeatureTrackerNode(Node):
         return self._counts()
 
     def _counts(self) -> dict[str, int]:
-        """The counts on /diagnostics: images tracked, dropped (by the processor, undecodable
-        and refused too large), features in the latest, tracks started and re-identified
-        (searches made, predictions too uncertain to search, candidates left unaligned),
-        images tracked with and without their prediction (used, missing) and predictions
-        that came after their image (late), camera_info messages rejected, restarts (tracks
-        dropped for a stamp jump back or a camera change), debug images published."""
+        """The counts on /diagnostics, by name."""
         stats = self.processor.stats
         return {
             'processed': stats.frames,

@@ -1,14 +1,7 @@
-"""feature_tracker's debug image: the tracked features drawn on their image, each in the
-colour of its latest Shadow filter status (for RViz's Image display).
+"""feature_tracker's debug image: the tracked features drawn in the colour of their latest
+Shadow filter status (pending and unknown red, static blue, dynamic green; unknown hollow).
 
-The statuses come after the features: the Shadow filter judges a frame once SLAM has its
-pose, so the image shows each id's status as last heard of, on shadow/tracks (PENDING,
-DYNAMIC, STATIC in the frame of its handover), shadow/static_features (STATIC) and
-monoslam/revoked (DYNAMIC: SLAM found a handed-over feature moving; the Shadow filter then
-reports it PENDING again). An id never heard of is drawn as unknown. Colours as
-shadow/markers draws the features in 3D (the paper's Fig. 4): pending and unknown red,
-static blue, dynamic green; unknown ones hollow. A line at the top counts each kind.
-"""
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -35,8 +28,7 @@ def _bgr(status: int) -> tuple[int, int, int]:
 
 
 class StatusBook:
-    """The latest status of each track id heard of, for at most ``capacity`` ids (the ids
-    named longest ago are forgotten first)."""
+    """The latest status of each track id heard of, for at most ``capacity`` ids."""
 
     def __init__(self, capacity: int = STATUSES_KEPT) -> None:
         if capacity <= 0:
@@ -48,8 +40,7 @@ class StatusBook:
         return len(self._status)
 
     def update(self, entries: Iterable[tuple[int, int]]) -> int:
-        """Record (id, status) pairs; return how many were recorded. A status other than
-        PENDING, STATIC or DYNAMIC is ignored."""
+        """Record (id, status) pairs (other statuses ignored); return how many."""
         recorded = 0
         for track_id, status in entries:
             if status not in (PENDING, STATIC, DYNAMIC):
@@ -69,9 +60,8 @@ class StatusBook:
 def draw_features(
     image: np.ndarray, ids: np.ndarray, pixels: np.ndarray, book: StatusBook
 ) -> tuple[np.ndarray, dict[str, int]]:
-    """Return a BGR copy of ``image`` (gray (H, W) or BGR (H, W, 3) uint8) with each feature
-    (ids (N,), raw pixels (N, 2)) drawn as a circle in its status colour, and the count of
-    features per status name."""
+    """Return a BGR copy of ``image`` ((H, W) or (H, W, 3) uint8) with features ``ids`` (N,)
+    at ``pixels`` (N, 2) drawn in status colours, and the count per status name."""
     canvas = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
     counts = dict.fromkeys(STATUS_LABELS.values(), 0)
     for track_id, (u, v) in zip(ids.tolist(), np.asarray(pixels).reshape(-1, 2), strict=True):

@@ -1,33 +1,7 @@
 """The feature_tracker's ROS-free processor: image order, camera_info, predictions and
 bookkeeping around ``core.feature_tracker.FeatureTracker``.
 
-The node hands it decoded gray images with their stamps (int ns) and frame ids, camera_info
-fields and predicted pixels; offline tools do the same from bags. It returns, per call, a
-list of outcomes: ``FeatureFrame`` (the features of one image, to publish) and ``Notice``
-(something to log: a dropped image, a restart, a camera change), in the order they happened.
-
-Rules:
-
-- Stamp order. An image whose stamp is not after the last image taken is dropped (a warning
-  naming both stamps), unless it lies ``restart_backstep_ns`` or more before it: then the
-  source restarted (a bag played again, a simulator reset), the tracks are dropped, the ids go
-  on and the image is tracked.
-- camera_info is optional: tracking needs only the image. Until one comes, images are
-  tracked anyway (said once, naming the topic) and published with the image's frame id.
-  Once one has come, an image of another size than it says is dropped (an error naming both
-  sizes), an image without frame id gets the camera_info's, and a camera_info that differs in
-  size, intrinsics or distortion restarts the tracks (ids go on; said once per change). A
-  camera_info that CameraModel refuses (a size of 0, fx or fy <= 0, non-finite numbers, an
-  unsupported distortion model) is refused, counted, and the previous one kept.
-  Without camera_info an image size change restarts the tracks too (the core does it).
-- Predictions (``use_predictions``): predicted pixels of some track ids for the image with
-  the same stamp; ids not tracked are ignored, as are predictions for images already
-  tracked. An image whose prediction has not come yet waits at most
-  ``prediction_timeout_s`` (of the caller's monotonic clock, ``now_s``; the node polls) and
-  is tracked without one after that, or as soon as the next image or a prediction for a
-  later stamp comes. At most one image waits. Predictions given before their image are
-  used without waiting; at most ``PREDICTIONS_KEPT`` are kept.
-"""
+Rules: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -38,23 +12,25 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from monoslam_shadow_node.common.conversions import FEATURE_TRACK_CDR, feature_array_cdr
+from monoslam_shadow_node.common.notices import Notice
 from monoslam_shadow_node.feature_tracker.core.feature_config import GrayImage, TrackerConfig
 from monoslam_shadow_node.feature_tracker.core.feature_tracker import FeatureTracker, as_gray_image
-from monoslam_shadow_node.feature_tracker.core.feature_types import DROP_REASONS, Predictions, TrackedFeatures
-from monoslam_shadow_node.common.notices import Notice
+from monoslam_shadow_node.feature_tracker.core.feature_types import (
+    DROP_REASONS,
+    Predictions,
+    TrackedFeatures,
+)
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 
 PREDICTIONS_KEPT = 10
 DROP_KINDS = ('out_of_order', 'repeated_stamp', 'size_mismatch', 'bad_image')
-"""Why an image was dropped (``Notice.kind``); the node adds 'undecodable' for images it
-could not decode."""
+"""Why an image was dropped (``Notice.kind``; the node adds 'undecodable')."""
 
 
 @dataclass(frozen=True, eq=False)
 class FeatureFrame:
-    """The features of one image: its stamp (int ns), camera frame id, the tracker's result
-    (ids, raw pixels, ages, counts) and whether a prediction for its stamp was used."""
+    """The features of one image, and whether a prediction for its stamp was used."""
 
     stamp_ns: int
     frame_id: str
@@ -67,8 +43,7 @@ Outcome = FeatureFrame | Notice
 
 @dataclass(frozen=True)
 class CameraInfoKey:
-    """What the processor keeps of a camera_info: frame id, size (px), K (9), D and the
-    distortion model. Two describe the same camera when all but the frame id agree."""
+    """What the processor keeps of a camera_info: frame id, size px, K (9), D, model."""
 
     frame_id: str
     width: int
@@ -99,12 +74,8 @@ class CameraInfoKey:
 
 @dataclass
 class TrackingStats:
-    """Running totals: images tracked and dropped (by kind), features published (in all and
-    in the latest image), tracks started, started from a prediction and dropped (by reason),
-    predictions used, missed (an image tracked without its prediction) and late (a
-    prediction for an image already tracked), dropped tracks searched for, not searched (too
-    uncertain) and re-identified (``revived``), candidates left without an alignment, and
-    restarts."""
+    """Running totals of images, features, tracks (dropped by reason), predictions (used,
+    missed, late), re-identification and restarts."""
 
     frames: int = 0
     features: int = 0
@@ -152,7 +123,7 @@ class _Waiting:
 
 
 class FeatureTrackingProcessor:
-    """Feeds images to a FeatureTracker in stamp order (see the module docstring)."""
+    """Feeds images to a FeatureTracker in stamp order."""
 
     def __init__(
         self,
@@ -235,10 +206,8 @@ class FeatureTrackingProcessor:
         covariances: FloatArray | None = None,
         warps: FloatArray | None = None,
     ) -> list[Outcome]:
-        """Take the predicted pixels (and their covariances (K, 2, 2), px^2, for an active
-        search of dropped tracks, and the warps (K, 2, 2) of their templates to the predicted
-        view) of some tracks for the image at ``stamp_ns``; return the outcomes (the waiting
-        image, tracked now, if it was waiting for these)."""
+        """Take predicted pixels (K, 2), covariances (K, 2, 2) px^2 and warps (K, 2, 2) for the
+        image at ``stamp_ns``; return the outcomes."""
         if not self.use_predictions:
             return []
         if self._tracked_ns is not None and stamp_ns <= self._tracked_ns:
@@ -269,9 +238,7 @@ class FeatureTrackingProcessor:
     def add_image(
         self, stamp_ns: int, frame_id: str, image: object, *, now_s: float
     ) -> list[Outcome]:
-        """Take a decoded gray image (H, W) uint8 taken at ``stamp_ns``; return the outcomes
-        (notices; the previously waiting image's features; this image's, unless it is dropped
-        or waits for its prediction)."""
+        """Take a decoded gray image (H, W) uint8 taken at ``stamp_ns``; return the outcomes."""
         outcomes: list[Outcome] = []
         if self.camera is None and not self._said_no_camera:
             self._said_no_camera = True
@@ -411,10 +378,7 @@ def status_line(stats: TrackingStats, rate_hz: float | None = None) -> str:
 
 
 def feature_frame_cdr(frame: FeatureFrame) -> bytes:
-    """Return the slam_interfaces/FeatureTrackArray of ``frame`` serialized (the bytes
-    rclpy makes of that message; ``conversions.feature_array_cdr``): header = image stamp
-    and camera frame id, one track per feature (id, u, v; covariance and warp zero).
-    Features with non-finite pixels are left out (the core never returns any)."""
+    """Return ``frame`` as a serialized FeatureTrackArray (id, u, v per finite feature)."""
     ids, pixels = frame.features.ids, frame.features.pixels
     finite = np.all(np.isfinite(pixels), axis=1)
     tracks = np.zeros(int(np.count_nonzero(finite)), FEATURE_TRACK_CDR)

@@ -1,14 +1,6 @@
 """feature_tracker parameter values -> a validated TrackerConfig and node settings (ROS-free).
 
-``PARAMETERS`` declares every parameter of the node: its name (with a unit suffix), default,
-meaning and rule. The tracker's parameters map one to one onto the fields of the core's
-``TrackerConfig`` (same names, ``Param.field``, the core's defaults); the rest configure the
-node (image transport, predictions, restarts). The node declares the table
-(``feature_tracker_node.PARAMETERS``); offline tools read the node's YAML file with
-``PARAMETERS.read_yaml`` and validate it the same way, so both accept exactly the same
-settings. Every rejection raises ParameterError
-``parameter feature_tracker.<name>=<value>: <rule>``.
-"""
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -17,8 +9,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from marker_detector.core.images import DEFAULT_MAX_IMAGE_PIXELS
 from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
+from slam_core.images import DEFAULT_MAX_IMAGE_PIXELS
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
 
 NODE_NAME = 'feature_tracker'
@@ -90,9 +82,7 @@ PARAMETERS = ParamTable(NODE_NAME, (*CORE_PARAMETERS, *NODE_PARAMETERS))
 
 @dataclass(frozen=True)
 class NodeSettings:
-    """The node's own settings: image transport, whether predictions are used and how long
-    (s) an image waits for one, the backward stamp step (int ns) that restarts tracking, and
-    whether the debug image is published."""
+    """The node's own settings (the restarting backward stamp step in int ns)."""
 
     image_transport: str
     use_predictions: bool

@@ -1,14 +1,6 @@
 """monoslam's checkpoint: the processor's map and tracking state in one versioned .npz file.
 
-Written atomically by ``slam_core.checkpoint`` (a temporary file in the same directory, fsync,
-rename), so a reader finds the previous checkpoint or the new one, never half of one. Holds
-the filter (``core.monoslam_snapshot``: the camera, x and P with every feature's block and
-track id, the retired map, handovers, owned and moving ids, the template views, the counters,
-the tracking state and the RANSAC generator), the processor's counts and its last processed
-stamp, and the trajectory published so far (so that the trajectory file of a resumed node
-holds the whole run). Loading checks the format, the version, every array's shape and the
-consistency between them, and that the checkpoint's target and tracker offsets are this
-node's; CheckpointError names the file and what is wrong.
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -20,10 +12,14 @@ from typing import Any
 
 import numpy as np
 
-from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
-from monoslam_shadow_node.monoslam.core.monoslam_snapshot import filter_state, restore_filter, saved_camera
-from monoslam_shadow_node.monoslam.core.monoslam_types import UpdateCounts
 from monoslam_shadow_node.monoslam.conversions import PoseFields
+from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
+from monoslam_shadow_node.monoslam.core.monoslam_snapshot import (
+    filter_state,
+    restore_filter,
+    saved_camera,
+)
+from monoslam_shadow_node.monoslam.core.monoslam_types import UpdateCounts
 from monoslam_shadow_node.monoslam.processor import MonoSlamCounts, MonoSlamProcessor
 from slam_core.checkpoint import CheckpointError, load_checkpoint_arrays, save_arrays, shaped
 
@@ -44,8 +40,7 @@ def _trajectory_arrays(trajectory: Sequence[PoseFields]) -> dict[str, np.ndarray
 def save_checkpoint(
     processor: MonoSlamProcessor, path: Path, trajectory: Sequence[PoseFields] = ()
 ) -> None:
-    """Write the processor's state (and ``trajectory``) to ``path`` atomically; ValueError
-    before the camera (there is no filter yet)."""
+    """Write the processor's state and ``trajectory`` atomically; ValueError before the camera."""
     if processor.slam is None:
         raise ValueError('no map yet: no camera_info has come')
     arrays, filter_meta = filter_state(processor.slam)
@@ -101,8 +96,7 @@ def _restore(
 
 
 def load_checkpoint(processor: MonoSlamProcessor, path: Path) -> list[PoseFields]:
-    """Restore the processor's state from ``path`` and return the trajectory saved with it;
-    CheckpointError names what is wrong (the processor is unchanged then)."""
+    """Restore the processor from ``path``; return its trajectory. Raises CheckpointError."""
     return load_checkpoint_arrays(
         path, FORMAT, VERSION, 'monoslam', lambda arrays, meta: _restore(processor, arrays, meta)
     )

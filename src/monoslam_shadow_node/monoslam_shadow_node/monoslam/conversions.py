@@ -1,19 +1,6 @@
-"""Messages <-> MonoSLAM core types. Fields are read by name, so rclpy messages and
-rosbags-deserialized messages both work; output messages are filled from factories (the
-message classes) passed in, as ``conversions`` does for the Shadow filter.
+"""Messages <-> MonoSLAM core types (fiducials, handovers, depth, poses, map, predictions).
 
-Inputs: a slam_interfaces/FiducialArray is reduced to the initialization target's corner
-pixels (``TargetSighting``), which the processor turns into the known points 0-3 of a
-``MonoSlamFrame`` beside the features of the same image (``monoslam_processor``); a
-ShadowTrackArray of handovers becomes ``HandoverInput``s.
-
-Outputs never hold NaN: a pose that is not finite gives no ``PoseFields`` (nothing is
-published), map points without a defined position (inverse depth within 3 sigma of zero) or
-with a non-finite one are left out of the cloud, as are non-finite predictions.
-
-Pose covariance: ``MonoSlamResult.pose_covariance`` is over (position, rotation about the
-world axes), which is geometry_msgs/PoseWithCovariance's order and convention (see
-``conversions``), so it is published unchanged, row-major.
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -33,10 +20,10 @@ from monoslam_shadow_node.common.conversions import (
     feature_array_cdr,
     tracks_cdr,
 )
-from slam_core.arrays import FloatArray, IntArray
 from monoslam_shadow_node.monoslam.core.monoslam_types import MapPoint, MonoSlamResult
 from monoslam_shadow_node.monoslam.known_points_input import DepthImage
 from monoslam_shadow_node.monoslam.settings import TARGET_CORNERS
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.stamps import ns_to_stamp, stamp_to_ns
 
 FLOAT32, FLOAT64, UINT8 = 7, 8, 2
@@ -66,10 +53,7 @@ POINT_DTYPE = np.dtype(
 
 @dataclass(frozen=True, eq=False)
 class TargetSighting:
-    """One FiducialArray reduced to the target: image stamp (int ns), camera frame, the
-    target's raw corner pixels (4, 2) in OpenCV order (None: not detected, or unusable), what
-    was detected as (dictionary, id) pairs, and why a detection of the target was not used
-    (None: nothing wrong)."""
+    """A FiducialArray reduced to the target: stamp (int ns), frame, corners (4, 2) px or None."""
 
     stamp_ns: int
     frame_id: str
@@ -86,8 +70,7 @@ class TargetSighting:
 
 @dataclass(frozen=True, eq=False)
 class HandoverInput:
-    """One handed-over feature: track id, status (ShadowTrack constant), world position (3,) m
-    and covariance (3, 3) m^2 as received (may hold NaN: the filter refuses those)."""
+    """One handover: id, status, position (3,) m, covariance (3, 3) m^2 (may hold NaN)."""
 
     id: int
     status: int
@@ -97,11 +80,8 @@ class HandoverInput:
 
 @dataclass(frozen=True)
 class PoseFields:
-    """The finite numbers of one camera pose: image stamp (int ns), optical centre (3) m,
-    orientation quaternion (x, y, z, w) of R_world_camera and covariance (36, row-major,
-    position then rotation about the world axes); and the covariances of its error with the
-    errors of the earlier poses stamped ``cross_stamps`` (36 each, the same order;
-    ``pose_link_messages``)."""
+    """One pose's finite numbers: stamp (int ns), centre (3) m, quaternion (x, y, z, w), covariance
+    (36) and cross-covariances (36 each) with the poses stamped ``cross_stamps``."""
 
     stamp_ns: int
     position: tuple[float, float, float]
@@ -128,8 +108,7 @@ class PoseFields:
 
 
 def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> TargetSighting:
-    """Return the target's corners in a slam_interfaces/FiducialArray (the detection of
-    ``marker_id`` in ``dictionary`` with the smallest reprojection error)."""
+    """Return the target's corners in a FiducialArray (its best detection, or why none is used)."""
     detections = list(message.detections)
     detected = tuple((str(d.dictionary), int(d.id)) for d in detections)
     stamp_ns, frame_id = stamp_to_ns(message.header.stamp), str(message.header.frame_id)
@@ -145,8 +124,7 @@ def target_from_fiducials(message: Any, marker_id: int, dictionary: str) -> Targ
 
 
 def depth_from_image(message: Any) -> DepthImage:
-    """Return a sensor_msgs/Image depth image (REP 118: 16UC1 in mm, 0 = none, or 32FC1 in
-    m, NaN = none) in metres; raise ValueError naming the encoding or size problem."""
+    """Return a REP 118 depth Image (16UC1 mm or 32FC1 m) in m; ValueError naming the problem."""
     encoding = str(message.encoding)
     kinds: dict[str, np.dtype[Any]] = {
         '16UC1': np.dtype('<u2'), 'mono16': np.dtype('<u2'), '32FC1': np.dtype('<f4')
@@ -185,9 +163,7 @@ next id)."""
 
 
 def dynamic_ids_from_cdr(data: bytes, deserialize: Callable[[bytes], Any]) -> list[int]:
-    """Return ``dynamic_ids`` of a serialized slam_interfaces/ShadowTrackArray, read from its
-    bytes (``tracks_cdr``; ``deserialize`` for bytes in another encoding). Raises ValueError
-    for bytes of no such message."""
+    """Return ``dynamic_ids`` of a serialized ShadowTrackArray; ValueError when it is none."""
     try:
         _, _, tracks = tracks_cdr(data, SHADOW_TRACK_CDR, SHADOW_TRACK_STRIDE)
     except CDR_ERRORS:
@@ -209,8 +185,7 @@ def handovers_from_message(message: Any) -> list[HandoverInput]:
 
 
 def pose_fields(result: MonoSlamResult) -> PoseFields | None:
-    """Return the pose of a result as finite numbers, None while it has none or when any of
-    it is not finite."""
+    """Return a result's pose as finite numbers, None while none or when not finite."""
     if result.rotation is None or result.centre is None or result.pose_covariance is None:
         return None
     arrays = (result.rotation, result.centre, result.pose_covariance)
@@ -253,8 +228,7 @@ def fill_pose_stamped(fields: PoseFields, frame_id: str, message: Any) -> Any:
 
 
 def fill_transform(fields: PoseFields, parent: str, child: str, message: Any) -> Any:
-    """Fill a geometry_msgs/TransformStamped parent -> child (the camera optical frame's pose
-    in the map) and return it."""
+    """Fill a geometry_msgs/TransformStamped parent -> child and return it."""
     ns_to_stamp(fields.stamp_ns, message.header.stamp)
     message.header.frame_id = parent
     message.child_frame_id = child
@@ -283,8 +257,7 @@ def cloud_points(points: Iterable[MapPoint]) -> np.ndarray:
 def fill_cloud(
     points: np.ndarray, stamp_ns: int, frame_id: str, message: Any, make_field: Callable[..., Any]
 ) -> Any:
-    """Fill a sensor_msgs/PointCloud2 (unordered, little-endian) with ``POINT_DTYPE`` points
-    and return it; ``make_field`` constructs a sensor_msgs/PointField (the message class)."""
+    """Fill a PointCloud2 with ``POINT_DTYPE`` points (``make_field``: PointField); return it."""
     ns_to_stamp(stamp_ns, message.header.stamp)
     message.header.frame_id = frame_id
     message.height, message.width = 1, len(points)
@@ -303,9 +276,7 @@ def fill_cloud(
 def prediction_rows(
     pixels: FloatArray, covariances: FloatArray | None, warps: FloatArray | None
 ) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
-    """Return the predictions' pixels (M, 2), FeatureTrack.covariance rows (M, 3) [uu, uv,
-    vv] and FeatureTrack.warp rows (M, 4) (zeros where not given or not finite) and which
-    predictions are finite (M,) (``fill_predictions``)."""
+    """Return pixels (M, 2), covariance rows (M, 3), warp rows (M, 4) and finite mask (M,)."""
     pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     if covariances is None:
         upper = np.zeros((len(pixels), 3))
@@ -330,11 +301,7 @@ def fill_predictions(
     covariances: FloatArray | None = None,
     warps: FloatArray | None = None,
 ) -> Any:
-    """Fill a slam_interfaces/FeatureTrackArray with predicted raw pixels (M, 2) of track ids
-    (M,), with their covariances (M, 2, 2) px^2 when given (FeatureTrack.covariance
-    [uu, uv, vv]; zeros for one that is not finite) and their template warps (M, 2, 2) when
-    given (FeatureTrack.warp, row-major; zeros for one that is not finite), and return it;
-    non-finite predictions are left out."""
+    """Fill a FeatureTrackArray with predicted pixels (M, 2), covariances, warps (M, 2, 2)."""
     ns_to_stamp(stamp_ns, message.header.stamp)
     message.header.frame_id = frame_id
     pixels, upper, flat, finite = prediction_rows(pixels, covariances, warps)
@@ -358,9 +325,7 @@ def predictions_cdr(
     covariances: FloatArray | None = None,
     warps: FloatArray | None = None,
 ) -> bytes:
-    """Return the slam_interfaces/FeatureTrackArray of ``fill_predictions`` serialized
-    (little-endian CDR, the layout ``conversions.features_from_cdr`` reads), built in one
-    numpy array instead of a Python object per track: the bytes rclpy makes of that message."""
+    """Return ``fill_predictions``'s FeatureTrackArray as little-endian CDR bytes."""
     pixels, upper, flat, finite = prediction_rows(pixels, covariances, warps)
     tracks = np.zeros(int(np.count_nonzero(finite)), FEATURE_TRACK_CDR)
     tracks['id'] = np.asarray(ids, dtype=np.int64)[finite]
@@ -381,8 +346,7 @@ def revoked_ids(result: MonoSlamResult) -> list[int]:
 def fill_revoked(
     ids: Sequence[int], stamp_ns: int, frame_id: str, message: Any, make_track: Callable[..., Any]
 ) -> Any:
-    """Fill a slam_interfaces/ShadowTrackArray with revoked features and return it: status
-    DYNAMIC, no position (covariance[0] = -1, as the message defines), no test (-1)."""
+    """Fill a ShadowTrackArray with revoked features (DYNAMIC, no position) and return it."""
     ns_to_stamp(stamp_ns, message.header.stamp)
     message.header.frame_id = frame_id
     unknown = [-1.0] + [0.0] * 8

@@ -1,18 +1,6 @@
-"""Where monoslam's known points come from besides a marker (``known_points_source``), ROS-free.
+"""Where monoslam's known points come from besides a marker: 'depth' or 'file' (ROS-free).
 
-- 'depth': a depth image registered to the colour camera (same pixel grid, REP 118) at start.
-  ``DepthStart`` holds feature frames until one pairs with a depth image within the stamp
-  tolerance; that frame carries each feature's depth (``sample_depth``) and the filter
-  starts from it (``MonoSlamConfig.known_points_source``, ``core.monoslam_init``). Frames that
-  cannot pair any more (a newer depth image came, or they waited longer than the horizon) are
-  dropped, counted by the processor. Once the filter tracks, depth is not needed.
-- 'file': ``read_known_points`` reads rows ``id,x,y,z,u,v``: a point's world position (m) and
-  where it is seen in the first image (raw px). ``assign_known_points`` gives each row the
-  track nearest its pixel (within ``match_px``, one track per row) in the first features frame
-  that matches at least ``MIN_KNOWN_POINTS`` rows; their sightings are then the known points
-  (key = the row's id), whatever ids the tracker gives.
-
-A feature's depth is ``slam_core.depth.sample_depth``'s (the rule the importers use too).
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -26,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from monoslam_shadow_node.common.core.inputs import Features
-from slam_core.arrays import FloatArray
 from monoslam_shadow_node.monoslam.core.monoslam_init import MIN_KNOWN_POINTS
+from slam_core.arrays import FloatArray
 
 DEPTH_IMAGES_KEPT = 30
 """Depth images held for pairing while the filter waits (about 1 s at 30 Hz)."""
@@ -35,8 +23,7 @@ DEPTH_IMAGES_KEPT = 30
 
 @dataclass(frozen=True, eq=False)
 class DepthImage:
-    """A depth image on the colour camera's pixel grid: stamp (ns), frame and depth (H, W) in
-    m along the optical axis (NaN or 0 where there is none)."""
+    """Depth on the colour camera's grid: stamp (ns), frame, depth (H, W) m (NaN, 0: none)."""
 
     stamp_ns: int
     frame_id: str
@@ -60,9 +47,7 @@ class DepthStart:
         return True
 
     def next(self, flush: bool = False) -> tuple[Features, DepthImage | None] | None:
-        """Return the oldest held frame with the depth image it pairs with, or with None when
-        no depth image can pair with it any more (a newer one came, it waited longer than the
-        horizon, or ``flush``); None while it may still pair."""
+        """Return the oldest held frame with its depth image (None: none can pair), or None yet."""
         if not self.frames:
             return None
         frame = self.frames[0]
@@ -98,9 +83,7 @@ class KnownPointRows:
 
 
 def read_known_points(path: Path) -> KnownPointRows:
-    """Read ``id,x,y,z,u,v`` rows (a header line first); raise ValueError naming the file
-    and line of a problem (a missing column, a non-number, a repeated id, fewer than
-    ``MIN_KNOWN_POINTS`` rows)."""
+    """Read ``id,x,y,z,u,v`` rows after a header; ValueError naming the file and line."""
     try:
         text = Path(path).read_text(encoding='utf-8')
     except OSError as error:
@@ -136,8 +119,7 @@ def read_known_points(path: Path) -> KnownPointRows:
 def assign_known_points(
     rows: KnownPointRows, features: Features, match_px: float
 ) -> dict[int, int]:
-    """Return track id -> known key for the rows whose pixel has a track within ``match_px``
-    (nearest first, one track per row and one row per track)."""
+    """Return track id -> known key for rows with a track within ``match_px`` (one to one)."""
     if not len(features.ids):
         return {}
     distances = np.linalg.norm(rows.pixels[:, None, :] - features.pixels[None, :, :], axis=2)

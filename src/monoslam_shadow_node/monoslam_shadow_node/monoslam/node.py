@@ -1,11 +1,8 @@
 """monoslam: tracked features and the initialization target in, camera pose and map out.
 
-The MonoSLAM filter of paper 001 (sec. II, ``core.monoslam.MonoSlam``; pairing, state and
-counts: ``monoslam_processor``): one EKF over the camera and a map of static point features.
-It starts from known points (a marker of known size and pose, a depth image or a file: a
-monocular camera cannot observe scale); with the Shadow filter (``initialize`` 'handover')
-the features it hands over as static fix the camera. Features and fiducials pair by stamp
-(``frame_sync``); nothing published is ever NaN; bad input is logged and skipped.
+The MonoSLAM filter of paper 001 (sec. II, ``core.monoslam.MonoSlam``; ``processor``): one EKF
+over the camera and a map of static point features, started from known points (a marker of
+known size and pose, a depth image or a file) or fixed by the Shadow filter's handovers.
 
 Topics:
   subscribes  features (FeatureTrackArray), fiducials (FiducialArray: the target's corners
@@ -41,9 +38,9 @@ from tf2_msgs.msg import TFMessage
 
 from monoslam_shadow_node.common.conversions import CameraInfoWatch, features_from_cdr
 from monoslam_shadow_node.common.core.inputs import Features
-from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
-from monoslam_shadow_node.monoslam.core.monoslam_types import TRACKING, MonoSlamResult
 from monoslam_shadow_node.common.frame_sync import StampSync
+from monoslam_shadow_node.common.notices import LogThrottle, Notice, log_notice
+from monoslam_shadow_node.common.pose_link_messages import LINK_SUFFIX, fill_pose_link
 from monoslam_shadow_node.monoslam.conversions import (
     PoseFields,
     TargetSighting,
@@ -61,6 +58,8 @@ from monoslam_shadow_node.monoslam.conversions import (
     target_from_fiducials,
     tum_text,
 )
+from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
+from monoslam_shadow_node.monoslam.core.monoslam_types import TRACKING, MonoSlamResult
 from monoslam_shadow_node.monoslam.node_checkpoints import CheckpointsMixin
 from monoslam_shadow_node.monoslam.processor import MonoSlamProcessor, MonoSlamStep, Outcome
 from monoslam_shadow_node.monoslam.settings import (
@@ -71,8 +70,6 @@ from monoslam_shadow_node.monoslam.settings import (
     node_settings,
     target_settings,
 )
-from monoslam_shadow_node.common.notices import LogThrottle, Notice, log_notice
-from monoslam_shadow_node.common.pose_link_messages import LINK_SUFFIX, fill_pose_link
 from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_core.stamps import stamp_to_ns
@@ -106,8 +103,7 @@ DEFAULT_CAMERA_FRAME = 'camera_optical_frame'
 
 
 class MonoSlamNode(CheckpointsMixin, Node):
-    """Thin adapter around MonoSlamProcessor: features, fiducials and handovers in, pose and
-    map published."""
+    """Thin adapter around MonoSlamProcessor: inputs in, pose and map published."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)

@@ -1,5 +1,4 @@
-"""The monoslam node's checkpoints: resume at start, save periodically, on ~/save_map and on
-shutdown (``monoslam_checkpoint`` writes and reads the file)."""
+"""The monoslam node's checkpoints: resume at start; save periodically, on ~/save_map, at exit."""
 
 from __future__ import annotations
 
@@ -52,8 +51,7 @@ class CheckpointsMixin:
                 counts.accepted, counts.refused, counts.dropped_total)  # fmt: skip
 
     def save_checkpoint(self) -> str:
-        """Write the map's checkpoint to checkpoint_file; return a one-line summary. Raises
-        ValueError before the camera (no map yet) and OSError when it cannot be written."""
+        """Write checkpoint_file; return a summary. Raises ValueError (no camera yet), OSError."""
         path = self.settings.checkpoint_file
         if path is None:
             return 'no checkpoint_file is set'

@@ -1,34 +1,6 @@
-"""The monoslam node's ROS-free processor: stamp pairing, the tracking state, handover intake
-and bookkeeping around ``core.monoslam.MonoSlam``.
-
-The node (or an offline tool) hands it the camera, feature frames (``Features``), target
-sightings (``TargetSighting``), depth images and handovers (``HandoverInput``), or calls
-``process_frame`` with an associated ``MonoSlamFrame``. Every call returns outcomes in order:
-``MonoSlamStep`` (a processed frame, to publish) and ``Notice`` (a line to log).
-
-Rules:
-
-- Pairing (``frame_sync.StampSync``): a features frame pairs with the sighting whose stamp is
-  nearest within ``stamp_tolerance_ns``, in stamp order. A frame whose sighting has not come
-  within ``sync_horizon_ns`` (or when the caller flushes because the inputs stopped) is
-  processed without it once the filter tracks (``alone``), and dropped before: the filter
-  needs the target to start. Frames are held until the camera is set.
-- The target's corners (TL, TR, BR, BL raw pixels) are the known points 0-3 of the frame
-  (``monoslam_frame``). With ``known_points_source`` 'depth' or 'file' there is no pairing:
-  frames wait for a depth image to start from, or carry the file's points
-  (``known_points_input``).
-- The state: 'waiting' for the target, 'tracking'; when the core reports 'lost' the map is
-  retired and the state is 'waiting' again until the target re-initializes it. Each step
-  says its ``transition``: 'started', 're-initialized', 'lost' or None.
-- Handovers (``refusal``) are refused, with the reason: no camera yet, another frame than
-  ``map_frame``, status not STATIC, or refused by the core. Accepted ones enter the map
-  when next observed.
-- A frame the core refuses (MonoSlamInputError: stamps out of order, malformed arrays) or
-  fails on (LinAlgError) is skipped with the reason; the filter is unchanged.
-- Resumed from a checkpoint (``resume``), the first frame after the last saved one decides
-  (``core.monoslam_snapshot.gap_verdict``): predict over the gap, or, when it is too long
-  for the motion model, keep the map and re-localise from the target ('re-localised'); the
-  step carries the verdict, and a notice says which.
+"""The monoslam node's ROS-free processor: stamp pairing, tracking state, handover intake and
+bookkeeping around ``core.monoslam.MonoSlam``; each call returns ``MonoSlamStep``s and
+``Notice``s in order. Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -39,11 +11,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from monoslam_shadow_node.common.core.feature_status import STATIC
 from monoslam_shadow_node.common.core.inputs import Features
-from slam_core.arrays import FloatArray, IntArray
+from monoslam_shadow_node.common.frame_sync import Drop, StampSync, SyncNames
+from monoslam_shadow_node.common.notices import Notice
+from monoslam_shadow_node.monoslam.conversions import (
+    HandoverInput,
+    PoseFields,
+    TargetSighting,
+    pose_fields,
+)
 from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
 from monoslam_shadow_node.monoslam.core.monoslam_init import MIN_KNOWN_POINTS
-from monoslam_shadow_node.monoslam.core.monoslam_snapshot import GapVerdict, gap_verdict, relocalise
+from monoslam_shadow_node.monoslam.core.monoslam_snapshot import (
+    GapVerdict,
+    gap_verdict,
+    relocalise,
+)
 from monoslam_shadow_node.monoslam.core.monoslam_types import (
     LOST,
     TRACKING,
@@ -57,22 +41,14 @@ from monoslam_shadow_node.monoslam.core.monoslam_types import (
     update_text,
 )
 from monoslam_shadow_node.monoslam.core.noise_monitor import NoiseAdaptation
-from monoslam_shadow_node.common.core.feature_status import STATIC
-from monoslam_shadow_node.common.frame_sync import Drop, StampSync, SyncNames
 from monoslam_shadow_node.monoslam.known_points_input import (
     DepthImage,
     DepthStart,
     KnownPointRows,
     assign_known_points,
 )
-from monoslam_shadow_node.monoslam.conversions import (
-    HandoverInput,
-    PoseFields,
-    TargetSighting,
-    pose_fields,
-)
 from monoslam_shadow_node.monoslam.settings import TARGET_CORNERS
-from monoslam_shadow_node.common.notices import Notice
+from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 from slam_core.depth import sample_depth
 
@@ -91,8 +67,7 @@ STATUS_WARNINGS = ('waiting for the initialization target', 'started from', 'tra
 
 
 def monoslam_frame(features: Features, sighting: TargetSighting | None) -> MonoSlamFrame:
-    """Return the filter's input for one image: its features, and the target's corners as
-    the known points 0-3 when they were seen."""
+    """Return the filter's input for one image: features, and the target's corners as keys 0-3."""
     if sighting is None or sighting.corners_px is None:
         return MonoSlamFrame(features.stamp_ns, features.ids, features.pixels)
     keys: IntArray = np.arange(TARGET_CORNERS, dtype=np.int64)
@@ -103,10 +78,7 @@ def monoslam_frame(features: Features, sighting: TargetSighting | None) -> MonoS
 
 @dataclass(frozen=True, eq=False)
 class MonoSlamStep:
-    """One processed frame: the core's result, the camera frame id of its features ('' when
-    unknown), its pose as finite numbers (None while waiting or when not finite), the state
-    transition it made ('started', 're-initialized', 're-localised', 'lost' or None) and, in
-    the first frame after a resume, what the filter did over the gap."""
+    """One processed frame: result, frame id, finite pose (or None), transition, gap verdict."""
 
     result: MonoSlamResult
     frame_id: str
@@ -120,14 +92,7 @@ Outcome = MonoSlamStep | Notice
 
 @dataclass
 class MonoSlamCounts:
-    """Running totals: inputs received (feature frames, fiducial arrays), frames processed,
-    processed without fiducials and skipped (refused by the core), inputs dropped by the
-    pairing (by ``Drop.kind``), handovers accepted and refused, handed-over features revoked
-    (``MonoSlam``'s persistent-outlier test), times tracking was lost, resumes from a
-    checkpoint that predicted over the gap and that re-localised, the features measured
-    and the update's counts in the latest frame, and predictions made and not made because
-    the filter was behind (``MonoSlamProcessor.predictions``), depth images received and
-    those not needed (the filter tracked already)."""
+    """The processor's running totals (inputs, drops by kind, handovers, losses, predictions)."""
 
     features_received: int = 0
     fiducials_received: int = 0
@@ -155,9 +120,7 @@ class MonoSlamCounts:
 
 
 class MonoSlamProcessor:
-    """Feeds paired frames to a MonoSlam filter (see the module docstring). ``target_text``
-    names the initialization target in log lines; ``config.known_points`` must hold its
-    corners (keys 0-3) for the streaming path."""
+    """Feeds paired frames to a MonoSlam filter; ``target_text`` names the target in log lines."""
 
     def __init__(
         self,
@@ -209,15 +172,13 @@ class MonoSlamProcessor:
 
     @property
     def owned_ids(self) -> frozenset[int]:
-        """Track ids the filter owns (in its map now or before), empty before the camera: the
-        Shadow filter leaves them alone."""
+        """Track ids the filter owns (in its map now or before); empty before the camera."""
         return self.slam.owned_ids if self.slam is not None else frozenset()
 
     # --- streaming inputs -------------------------------------------------------------------
 
     def set_camera(self, camera: CameraModel) -> list[Outcome]:
-        """Use ``camera`` from the next frame on (the first one creates the filter); process
-        what was waiting for it."""
+        """Use ``camera`` from the next frame on (the first creates the filter); drain waiting."""
         if self.slam is None:
             if self.config.estimate_noise:
                 self.noise = NoiseAdaptation(self.config, camera)
@@ -250,10 +211,7 @@ class MonoSlamProcessor:
         return outcomes + self._drain()
 
     def add_depth(self, image: DepthImage | Callable[[], DepthImage]) -> list[Outcome]:
-        """Take a depth image (``known_points_source`` 'depth'), or a callable that decodes it
-        only when it is needed: held for the start while the filter waits, counted as not
-        needed while it tracks; one that does not decode (ValueError) or is not newer than
-        the last is dropped, said."""
+        """Take a depth image (or a callable decoding it) for the depth start; return outcomes."""
         self.counts.depth_received += 1
         if self.known_source != 'depth' or self.status == TRACKING:
             self.counts.depth_unused += 1
@@ -320,13 +278,11 @@ class MonoSlamProcessor:
         return self._drops(self.sync.add_partner(sighting)) + self._drain()
 
     def flush(self) -> list[Outcome]:
-        """The inputs stopped: frames still without fiducials (or depth) go now (alone or
-        dropped)."""
+        """The inputs stopped: frames without fiducials (or depth) go now, alone or dropped."""
         return self._drain(flush=True) + self._drain_direct(flush=True)
 
     def mark_moving(self, ids: Sequence[int]) -> None:
-        """Note features the Shadow filter found DYNAMIC (``MonoSlam.mark_moving``); before
-        the camera there is no filter and nothing to fill."""
+        """Note features the Shadow filter found DYNAMIC (``MonoSlam.mark_moving``)."""
         if self.slam is not None and len(ids):
             self.slam.mark_moving(ids)
 
@@ -359,8 +315,7 @@ class MonoSlamProcessor:
         return self.slam.add_handover(handover.id, handover.position, handover.covariance)
 
     def resume(self, slam: MonoSlam, counts: MonoSlamCounts, last_ns: int | None) -> None:
-        """Continue from a checkpoint's filter, counts and last processed stamp (frames up to
-        it are refused as out of order); the next frame judges the gap."""
+        """Continue from a checkpoint's filter, counts and last stamp (the next frame judges)."""
         self.slam, self.counts, self.status = slam, counts, slam.status
         if self.config.estimate_noise:
             self.noise = NoiseAdaptation(self.config, slam.camera)
@@ -392,9 +347,8 @@ class MonoSlamProcessor:
     # --- one frame --------------------------------------------------------------------------
 
     def process_frame(self, frame: MonoSlamFrame, frame_id: str = '') -> MonoSlamStep:
-        """Run one frame whose known points are associated already; return the step. Raises
-        the core's MonoSlamInputError or LinAlgError (filter unchanged), and ValueError before
-        the camera is set."""
+        """Run one frame with associated known points; return the step. Raises the core's
+        MonoSlamInputError or LinAlgError (filter unchanged), ValueError before the camera."""
         if self.slam is None:
             raise ValueError(f'no camera yet: set it (from {self.camera_info_topic}) first')
         resumed = self._judge_gap(frame.stamp_ns)
@@ -424,9 +378,7 @@ class MonoSlamProcessor:
         sighting: TargetSighting | None,
         prepared: MonoSlamFrame | None = None,
     ) -> list[Outcome]:
-        """Run one features frame with its target sighting (None: processed without
-        fiducials), or as ``prepared`` (the other known-point sources); return the step and
-        what to log. A frame the core refuses or fails on is skipped (an error notice)."""
+        """Run a features frame with its sighting (None: none) or ``prepared``; return outcomes."""
         stamp_ns = features.stamp_ns
         notices: list[Outcome] = []
         if prepared is None and sighting is None:
@@ -478,8 +430,7 @@ class MonoSlamProcessor:
         return Notice('resumed', 'warning', text, stamp_ns)
 
     def _state_notice(self, step: MonoSlamStep, sighting: TargetSighting | None) -> Notice | None:
-        """Say the start, the loss of tracking, or (throttled) waiting for the target; None
-        while tracking goes on."""
+        """Say the start, the loss, or (throttled) waiting for the target; None while tracking."""
         result = step.result
         stamp = f'at stamp {result.stamp_ns} ns'
         if step.transition == 'lost':
@@ -525,8 +476,7 @@ class MonoSlamProcessor:
         return self._drops([Drop(kind, 0, text)])
 
     def _drops(self, drops: Sequence[Drop]) -> list[Outcome]:
-        """Count every drop and say it once; frames without fiducials before the start (every
-        frame when no marker_detector runs) are said in a throttled line instead."""
+        """Count every drop and say it once (throttled before the start)."""
         notices: list[Outcome] = []
         for drop in drops:
             self.counts.dropped[drop.kind] = self.counts.dropped.get(drop.kind, 0) + 1
@@ -554,14 +504,8 @@ class MonoSlamProcessor:
     def predictions(
         self, stamp_ns: int
     ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray] | None:
-        """Return the owned features' ids (P,), predicted raw pixels (P, 2), their
-        covariances (P, 2, 2) px^2 (zero where no search is due) and template warps (P, 2, 2)
-        (``MonoSlam.predictions``) for the image at ``stamp_ns`` (int ns), or None when not
-        due: no camera yet, already predicted for this stamp, not after the last processed
-        frame. When the filter is behind (the image asked for before this one, the one
-        before it, is not processed yet) the prediction would come late: it is empty instead,
-        so that a tracker waiting for it goes on at once, and the filter catches up (counted,
-        ``predictions_behind``)."""
+        """Return ids (P,), pixels (P, 2), covariances (P, 2, 2) px^2 and warps (P, 2, 2) for the
+        image at ``stamp_ns``, empty when the filter is behind; None when not due."""
         last_ns = self.sync.last_ns
         if self.slam is None or stamp_ns == self._predicted_ns:
             return None

@@ -1,16 +1,6 @@
 """monoslam parameter values -> a validated MonoSlamConfig, target and node settings (ROS-free).
 
-``PARAMETERS`` declares every parameter of the node: its name (with a unit suffix), default,
-meaning and rule. The filter's parameters map one to one onto the fields of the core's
-``MonoSlamConfig`` (``Param.field``; their defaults are the core's; four are renamed to carry
-their unit, and
-``initialize`` defaults to 'handover', the pipeline with the Shadow filter). The known points
-the filter starts from (``MonoSlamConfig.known_points``) are the four corners of the
-initialization target, a square fiducial marker whose pose in the map is given by the
-``target_*`` parameters (``TargetSettings``). The rest configure the node (frames, outputs,
-stamp synchronization). The node declares the table (``monoslam_node.PARAMETERS``); offline
-tools read the node's YAML file with ``PARAMETERS.read_yaml`` and validate it the same way.
-Every rejection raises ParameterError ``parameter monoslam.<name>=<value>: <rule>``.
+Every rejection raises ParameterError. Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -305,8 +295,7 @@ PARAMETERS = ParamTable(NODE_NAME, (*CORE_PARAMETERS, *TARGET_PARAMETERS, *NODE_
 
 @dataclass(frozen=True, eq=False)
 class TargetSettings:
-    """The initialization target: marker id and dictionary, black-square side (m), and the
-    pose of its marker frame in the map: centre (3,) m and R_map_marker (3, 3)."""
+    """The target: marker id, dictionary, side (m), centre (3,) m and R_map_marker (3, 3)."""
 
     marker_id: int
     dictionary: str
@@ -316,8 +305,7 @@ class TargetSettings:
 
     @property
     def corners_m(self) -> FloatArray:
-        """The black square's corners (4, 3) m in map, OpenCV order TL, TR, BR, BL (the
-        marker frame has x right, y up, z out of the printed face)."""
+        """The black square's corners (4, 3) m in map, OpenCV order TL, TR, BR, BL."""
         half = 0.5 * self.size_m
         local = np.array(
             [[-half, half, 0.0], [half, half, 0.0], [half, -half, 0.0], [-half, -half, 0.0]]
@@ -339,12 +327,7 @@ class TargetSettings:
 
 @dataclass(frozen=True)
 class NodeSettings:
-    """The node's own settings: map frame, which outputs (TF and its camera frame,
-    predictions), path length
-    (poses), map period (s), stamp tolerance and waiting horizon (int ns), queue bound, the
-    trajectory file (None: none), the checkpoint period (s), file (None: none), where to
-    resume from ('', 'auto' or a path), how far a known point file's pixel may be from its
-    track (px) and the depth images' stamp tolerance (int ns)."""
+    """The node's own settings (frames, outputs, stamp sync, files); times in int ns or s."""
 
     map_frame: str
     publish_tf: bool
@@ -378,8 +361,7 @@ def target_settings(values: Mapping[str, Any]) -> TargetSettings:
 
 
 def known_point_rows(values: Mapping[str, Any]) -> KnownPointRows | None:
-    """Read known_points_file when known_points_source is 'file' (None otherwise; raises
-    ParameterError naming the file's problem)."""
+    """Read known_points_file for the 'file' source (else None); ParameterError on a problem."""
     checked = PARAMETERS.validate(values)
     path = checked['known_points_file'].strip()
     if checked['known_points_source'] != 'file':
@@ -395,8 +377,7 @@ def known_point_rows(values: Mapping[str, Any]) -> KnownPointRows | None:
 def monoslam_config(
     values: Mapping[str, Any], target: TargetSettings, rows: KnownPointRows | None = None
 ) -> MonoSlamConfig:
-    """Validate the filter's parameters into a MonoSlamConfig whose known points are the
-    target's corners, or the file's ``rows`` (raises ParameterError)."""
+    """Validate the filter's parameters into a MonoSlamConfig; raises ParameterError."""
     fields = PARAMETERS.fields(PARAMETERS.validate(values))
     known = rows.known_points() if rows is not None else target.known_points()
     return PARAMETERS.build(lambda: MonoSlamConfig(known_points=known, **fields))

@@ -1,6 +1,5 @@
-"""Messages <-> Shadow filter core types: the filter's input per image, ShadowTrackArray
-(message objects or CDR bytes) and the RViz markers. No NaN leaves this module: see
-docs/design/shadow_filter.md, "Published numbers".
+"""Messages <-> Shadow filter core types: the filter's input, ShadowTrackArray (messages or
+CDR bytes) and RViz markers. No NaN leaves this module. Notes: docs/design/monoslam_nodes.md.
 """
 
 from __future__ import annotations
@@ -13,15 +12,12 @@ from typing import Any
 
 import numpy as np
 
-from slam_core.arrays import FloatArray, IntArray
-from slam_core.camera import CameraModel
-from slam_core.geometry import quaternion
-from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from monoslam_shadow_node.common.conversions import CDR_LITTLE_ENDIAN, MARKER_COLOURS
 from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
 from monoslam_shadow_node.common.core.inputs import CameraPose, Features
 from monoslam_shadow_node.shadow_filter.core.shadow_filter import FrameInput, Handover, TrackReport
-
+from slam_core.arrays import FloatArray
+from slam_core.stamps import ns_to_stamp
 
 UNKNOWN_COVARIANCE = (-1.0, *([0.0] * 8))
 """A 3x3 covariance with no estimate: element 0 is -1 (sensor_msgs convention)."""
@@ -49,8 +45,7 @@ TRAJECTORY_NAMESPACE = 'dynamic_trajectories'
 
 @dataclass(frozen=True)
 class TrackFields:
-    """The finite numbers of one ShadowTrack: id, status, position (3) m and covariance (9),
-    velocity (3) m/s and covariance (9), test statistic and its degrees of freedom."""
+    """The finite fields of one ShadowTrack: position (3) m, velocity (3) m/s, covariances (9)."""
 
     id: int
     status: int
@@ -63,8 +58,7 @@ class TrackFields:
 
 
 def frame_input(features: Features, pose: CameraPose) -> FrameInput:
-    """Return the core's input for one image: the features at their own stamp, with the
-    pose paired with them."""
+    """Return the core's input for one image and its paired pose."""
     return FrameInput(
         features.stamp_ns, pose.rotation, pose.centre, features.ids, features.pixels,
         pose.covariance, pose.cross_stamps, pose.cross_covariances,
@@ -86,8 +80,7 @@ def _finite_covariance(values: FloatArray) -> tuple[float, ...] | None:
 
 
 def track_fields(report: TrackReport) -> TrackFields | None:
-    """Return a track's message fields with no NaN (module docstring), None when its
-    position is not finite."""
+    """Return a track's message fields with no NaN; None when its position is not finite."""
     position = _finite_vector(report.position)
     if position is None:
         return None
@@ -111,8 +104,7 @@ def track_fields(report: TrackReport) -> TrackFields | None:
 
 
 def handover_fields(handover: Handover, statistic: float, dof: int) -> TrackFields | None:
-    """Return a handover's message fields (STATIC, zero velocity with zero covariance, the
-    deciding test's statistic), None when its position or covariance is not finite."""
+    """Return a handover's message fields (STATIC, zero velocity); None when not finite."""
     position = _finite_vector(handover.position)
     covariance = _finite_covariance(handover.position_covariance)
     if position is None or covariance is None:
@@ -150,8 +142,7 @@ def fill_track_array(
     message: Any,
     make_track: Callable[[], Any],
 ) -> Any:
-    """Fill a slam_interfaces/ShadowTrackArray and return it; ``make_track`` constructs an
-    empty ShadowTrack (the message class)."""
+    """Fill a ShadowTrackArray and return it; ``make_track`` makes an empty ShadowTrack."""
     ns_to_stamp(stamp_ns, message.header.stamp)
     message.header.frame_id = frame_id
     message.tracks = [fill_track(item, make_track()) for item in fields]
@@ -176,12 +167,8 @@ fields and 4 of padding before the next one (none after the last)."""
 def track_array_cdr(
     reports: Sequence[TrackReport], stamp_ns: int, frame_id: str
 ) -> tuple[bytes, list[int]]:
-    """Return a slam_interfaces/ShadowTrackArray of a frame's tracks, serialized (CDR, what
-    rclpy's publish of the message filled by ``track_fields`` and ``fill_track_array``
-    sends), and the ids of the tracks left out (their position is not finite:
-    ``track_fields`` returns None for them). The rules of ``track_fields`` are evaluated for
-    all tracks at once and the bytes written from one structured array: a Python message
-    object per track cost more than the Shadow filter's own work per frame."""
+    """Return a frame's ShadowTrackArray as CDR bytes (``track_fields``' rules) and the ids
+    left out (position not finite)."""
     count = len(reports)
     status = np.array([r.status for r in reports], dtype=np.int64).reshape(count)
     position = np.array([r.position for r in reports], dtype=np.float64).reshape(count, 3)
@@ -192,7 +179,7 @@ def track_array_cdr(
     velocity_covariance = velocity_covariance.reshape(count, 9)
     statistic = np.array([r.test_statistic for r in reports], dtype=np.float64).reshape(count)
     defined = np.array([r.defined for r in reports], dtype=bool).reshape(count)
-    # the rules of track_fields (module docstring)
+    # the rules of track_fields
     known = defined | (status == STATIC)
     covariance[~(known & np.all(np.isfinite(covariance), axis=1))] = UNKNOWN_COVARIANCE
     moving = np.all(np.isfinite(velocity), axis=1) & np.all(
@@ -226,8 +213,7 @@ def track_array_cdr(
 
 @dataclass(frozen=True)
 class MarkerTypes:
-    """The message classes the markers are built from (visualization_msgs/Marker,
-    geometry_msgs/Point, std_msgs/ColorRGBA)."""
+    """The message classes of the markers: Marker, Point, ColorRGBA."""
 
     marker: Callable[[], Any]
     point: Callable[..., Any]
@@ -264,11 +250,8 @@ def fill_markers(
     message: Any,
     types: MarkerTypes,
 ) -> Any:
-    """Fill a visualization_msgs/MarkerArray and return it: a DELETEALL, then the held
-    features with a known depth as spheres (pending red, dynamic green), the handed-over
-    ``static_positions`` (blue spheres), and the recent trajectory of every dynamic feature
-    as a green line strip (namespace ``dynamic_trajectories``, marker id = track id mod
-    2^31). Non-finite points are left out; empty markers are not sent."""
+    """Fill a MarkerArray and return it: DELETEALL, spheres (pending red, dynamic green,
+    ``static_positions`` blue) and dynamic trajectories as green line strips."""
     clear = types.marker()
     clear.action = clear.DELETEALL
     markers = [clear]
@@ -306,6 +289,5 @@ def fill_markers(
 
 
 def revoked_from_message(message: Any) -> list[int]:
-    """Return the track ids of a slam_interfaces/ShadowTrackArray of features SLAM revoked
-    (monoslam/revoked)."""
+    """Return the track ids of a revoked ShadowTrackArray (monoslam/revoked)."""
     return [int(track.id) for track in message.tracks]

@@ -1,12 +1,9 @@
 """shadow_filter: tracked features and camera poses in, static/dynamic feature tracks out.
 
-The Shadow filter of paper 001 (sec. II-III): every new feature is held back and tracked by
-its own EKF, given the camera pose from outside (MonoSLAM, or ground truth), until a
-chi-square test on its viewing rays calls it STATIC (handed over to SLAM and forgotten here)
-or DYNAMIC (kept and tracked as it moves). The algorithm is ``core.shadow_filter``; the
-stamp pairing and the counts are ``shadow_processor``'s. Features and poses pair by stamp
-and are processed in stamp order; nothing published is ever NaN; bad input is logged with
-its culprit and skipped.
+The Shadow filter of paper 001: every new feature is tracked by its own EKF, given the camera
+pose from outside, until a chi-square test calls it STATIC (handed over to SLAM) or DYNAMIC
+(kept and tracked). Features and poses pair by stamp and are processed in stamp order;
+nothing published is ever NaN; bad input is logged with its culprit and skipped.
 
 Topics:
   subscribes  features (FeatureTrackArray), <pose_topic> (PoseWithCovarianceStamped, default
@@ -33,6 +30,19 @@ from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from monoslam_shadow_node.common.conversions import (
+    CameraInfoWatch,
+    features_from_cdr,
+    features_from_message,
+    pose_from_message,
+)
+from monoslam_shadow_node.common.frame_sync import FrameSynchronizer
+from monoslam_shadow_node.common.notices import LogThrottle, Notice, log_notice
+from monoslam_shadow_node.common.pose_link_messages import (
+    LINK_SUFFIX,
+    PoseLinks,
+    link_from_message,
+)
 from monoslam_shadow_node.shadow_filter.conversions import (
     STATIC_MARKER_LIMIT,
     MarkerTypes,
@@ -43,19 +53,15 @@ from monoslam_shadow_node.shadow_filter.conversions import (
     revoked_from_message,
     track_array_cdr,
 )
-from monoslam_shadow_node.common.conversions import (
-    CameraInfoWatch,
-    features_from_cdr,
-    features_from_message,
-    pose_from_message,
+from monoslam_shadow_node.shadow_filter.core.shadow_filter import FrameResult, ShadowFilter
+from monoslam_shadow_node.shadow_filter.processor import Outcome, ShadowProcessor, ShadowStep
+from monoslam_shadow_node.shadow_filter.settings import (
+    NODE_NAME,
+    PARAMETERS,
+    node_settings,
+    shadow_config,
 )
 from slam_core.arrays import FloatArray
-from monoslam_shadow_node.shadow_filter.core.shadow_filter import FrameResult, ShadowFilter
-from monoslam_shadow_node.common.frame_sync import FrameSynchronizer
-from monoslam_shadow_node.common.notices import LogThrottle, Notice, log_notice
-from monoslam_shadow_node.common.pose_link_messages import LINK_SUFFIX, PoseLinks, link_from_message
-from monoslam_shadow_node.shadow_filter.settings import NODE_NAME, PARAMETERS, node_settings, shadow_config
-from monoslam_shadow_node.shadow_filter.processor import Outcome, ShadowProcessor, ShadowStep
 from slam_core.cli import console_main
 from slam_interfaces.msg import FeatureTrackArray, PoseLink, ShadowTrack, ShadowTrackArray
 from slam_ros.diagnostics import Diagnostics
@@ -148,11 +154,7 @@ class ShadowFilterNode(Node):
         return self._counts()
 
     def _counts(self) -> dict[str, int]:
-        """The counts on /diagnostics: frames processed, refused (pose covariance not
-        finite) and skipped, inputs dropped by the pairing, features handed over as static
-        and called dynamic, held pending, camera_info messages rejected, the poses that came
-        with and without their link to earlier poses, and the links rejected (unreadable) or
-        unused (no pose of their stamp came) (``pose_link_messages``)."""
+        """The counts on /diagnostics, by name."""
         counts = self.processor.counts
         return {
             'processed': counts.processed,

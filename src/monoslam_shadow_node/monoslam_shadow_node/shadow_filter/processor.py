@@ -1,34 +1,7 @@
 """The shadow_filter's ROS-free processor: stamp pairing, the pose covariance check and
 bookkeeping around ``core.shadow_filter.ShadowFilter``.
 
-The node hands it the camera (from camera_info), feature frames and camera poses (the
-conversions' ``Features`` and ``CameraPose``); offline tools do the same, or call
-``ShadowProcessor.process`` with a frame and its pose when they know the pairing. Every call
-returns outcomes in the order they happened: ``ShadowStep`` (a processed frame, to publish),
-and ``Notice`` (a line to log: a dropped input, a frame refused for its pose covariance or by
-the core, bad pixels, filter life).
-
-Rules:
-
-- Pairing (``frame_sync.FrameSynchronizer``): a features frame pairs with the pose whose
-  stamp is nearest within ``stamp_tolerance_ns``; pairs are processed in stamp order; a frame
-  whose pose will not come (a later pose came after it; before the first pose: not within
-  ``sync_horizon_ns``), or is still missing when the caller flushes because the inputs
-  stopped, is dropped, as is a pose that matched no frame within ``sync_horizon_ns``. Until
-  the camera is set, frames are held (the oldest dropped beyond ``queue_size``).
-- Every frame with a pose is given to the filter, however uncertain the pose: the core
-  adds the pose covariance to each view's ray, so an uncertain pose weakens the tests and
-  delays the decisions (a feature whose ``max_tests`` tests all come before they could see
-  motion stays PENDING: ``core.shadow_classifier``). There is no gate on the pose's standard
-  deviations (one made SLAM and the filter lock each other out: no handover, an uncertain
-  pose, no frame processed, no handover).
-- The pose covariance check (``pose_covariance_refusal``): a frame whose pose covariance has
-  an entry that is not finite is refused with that reason and counted (``pose_refused``), as
-  a warning; the core would refuse it too, with a less specific reason. A known pose (no
-  covariance) passes.
-- A frame the core refuses (``InputError``: NaN pose, not a rotation, repeated ids, stamps out
-  of order) is skipped with the core's reason; the filter is unchanged.
-"""
+Rules: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -37,8 +10,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING
 from monoslam_shadow_node.common.core.inputs import CameraPose, Features
-from slam_core.arrays import FloatArray
+from monoslam_shadow_node.common.frame_sync import Drop, FrameSynchronizer
+from monoslam_shadow_node.common.notices import Notice
 from monoslam_shadow_node.shadow_filter.conversions import frame_input
 from monoslam_shadow_node.shadow_filter.core.near_static import WAIT_WARNING
 from monoslam_shadow_node.shadow_filter.core.shadow_decision import UNFIT_WARNING
@@ -48,22 +23,16 @@ from monoslam_shadow_node.shadow_filter.core.shadow_filter import (
     ShadowConfig,
     ShadowFilter,
 )
-from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING
-from monoslam_shadow_node.common.frame_sync import Drop, FrameSynchronizer
-from monoslam_shadow_node.common.notices import Notice
+from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 
 INPUT_WARNING = 'non-finite'
-"""A core warning holding this is about bad input (NaN pixels): logged as a warning. The
-rest (gated measurements, filter restarts, tests put off) is filter life, logged at debug
-level."""
+"""A core warning holding this is about bad input (logged as a warning, the rest at debug)."""
 GATE_WARNING = 'outside the innovation gate'
 
 
 def pose_covariance_refusal(covariance: FloatArray | None) -> str | None:
-    """Return why a pose covariance (6, 6) (position m, rotation rad about the world axes)
-    cannot be used, or None when it can: a known pose (None) can; a covariance with an entry
-    that is not finite cannot. Its size is not limited."""
+    """Return why a pose covariance (6, 6) cannot be used (an entry not finite), or None."""
     if covariance is None:
         return None
     if not np.all(np.isfinite(np.asarray(covariance, dtype=np.float64))):
@@ -73,8 +42,7 @@ def pose_covariance_refusal(covariance: FloatArray | None) -> str | None:
 
 @dataclass(frozen=True, eq=False)
 class ShadowStep:
-    """One processed frame: the core's result and the world frame of its pose (the outputs'
-    frame id)."""
+    """One processed frame: the core's result and its pose's world frame id."""
 
     result: FrameResult
     frame_id: str
@@ -85,13 +53,8 @@ Outcome = ShadowStep | Notice
 
 @dataclass
 class ShadowCounts:
-    """Running totals: inputs received (feature frames, poses), frames processed, frames
-    refused for a pose covariance that is not finite or by the core, inputs dropped by the
-    pairing (by ``Drop.kind``), measurements outside the innovation gate, static fits put off
-    for lying too near a camera (``near_static``), due tests whose views fixed no static
-    point (``UNFIT_WARNING``), features handed over as static and called dynamic, the pending
-    and dynamic features held after the latest frame, and the features SLAM revoked that came
-    back here as suspects."""
+    """Running totals of inputs, frames, drops (by ``Drop.kind``), core warnings by kind and
+    classifications; ``held_*`` after the latest frame."""
 
     features_received: int = 0
     poses_received: int = 0
@@ -123,7 +86,7 @@ class ShadowCounts:
 
 
 class ShadowProcessor:
-    """Feeds paired frames to a ShadowFilter (see the module docstring)."""
+    """Feeds paired frames to a ShadowFilter."""
 
     def __init__(
         self,
@@ -156,8 +119,7 @@ class ShadowProcessor:
     # --- streaming inputs -------------------------------------------------------------------
 
     def set_camera(self, camera: CameraModel) -> list[Outcome]:
-        """Use ``camera`` from the next frame on (the first one creates the filter); process
-        what was waiting for it."""
+        """Use ``camera`` from the next frame on (the first creates the filter)."""
         if self.shadow is None:
             self.shadow = ShadowFilter(camera, self.config)
         else:
@@ -187,8 +149,7 @@ class ShadowProcessor:
         return self._drain(flush=True)
 
     def revoke(self, ids: list[int]) -> list[int]:
-        """SLAM revoked these features: take back those this filter handed over (as suspects,
-        ``ShadowFilter.revoke``); return them."""
+        """Take back revoked features this filter handed over, as suspects; return them."""
         if self.shadow is None:
             return []
         taken = self.shadow.revoke(ids)
@@ -198,9 +159,8 @@ class ShadowProcessor:
     # --- one frame --------------------------------------------------------------------------
 
     def process(self, features: Features, pose: CameraPose) -> Outcome:
-        """Process one frame with its pose; return the step, or the notice of a pose covariance
-        that is not finite (the frame is refused). Raises the core's InputError (filter
-        unchanged) for a frame it refuses, and ValueError before the camera is set."""
+        """Process one frame with its pose; return the step, or the notice of a refused pose
+        covariance. Raises InputError (filter unchanged), or ValueError before a camera."""
         if self.shadow is None:
             raise ValueError(f'no camera yet: set it (from {self.camera_info_topic}) first')
         refusal = pose_covariance_refusal(pose.covariance)
@@ -250,8 +210,7 @@ class ShadowProcessor:
         return self._drops([Drop(kind, 0, text)])
 
     def _drops(self, drops: Sequence[Drop]) -> list[Outcome]:
-        """Count every drop and say it once; a steady state (no camera or no pose at all yet,
-        which drops every frame) is said in throttled lines instead."""
+        """Count every drop and say it (steady states in throttled lines)."""
         notices: list[Outcome] = []
         for drop in drops:
             self.counts.dropped[drop.kind] = self.counts.dropped.get(drop.kind, 0) + 1

@@ -1,15 +1,6 @@
 """shadow_filter's parameters -> a validated ShadowConfig and node settings (ROS-free).
 
-``PARAMETERS`` declares every parameter of the node: its name (with a unit suffix), default,
-meaning and rule. The Shadow filter's parameters map one to one onto the fields of the core's
-``EkfConfig``, ``ClassifierConfig`` and ``ShadowConfig`` (``Param.field`` names the
-``section.field``; their defaults are the core's; ``min_parallax_deg`` is converted to the
-core's radians), the rest configure the node (pose topic, stamp synchronization, markers).
-The node declares the table (``shadow_filter_node.PARAMETERS``); offline tools read the
-node's YAML file with ``PARAMETERS.read_yaml`` and validate it the same way, so both accept
-exactly the same settings. Every rejection raises ParameterError
-``parameter shadow_filter.<name>=<value>: <rule>``.
-"""
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -18,7 +9,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from monoslam_shadow_node.shadow_filter.core.shadow_classifier import STATIC_TESTS, ClassifierConfig
+from monoslam_shadow_node.shadow_filter.core.shadow_classifier import (
+    STATIC_TESTS,
+    ClassifierConfig,
+)
 from monoslam_shadow_node.shadow_filter.core.shadow_ekf import EkfConfig
 from monoslam_shadow_node.shadow_filter.core.shadow_filter import ShadowConfig
 from slam_core.params import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Param, ParamTable, Range
@@ -147,8 +141,7 @@ PARAMETERS = ParamTable(NODE_NAME, (*CORE_PARAMETERS, *NODE_PARAMETERS))
 
 @dataclass(frozen=True)
 class NodeSettings:
-    """The node's own settings: pose topic, stamp tolerance and waiting horizon (int ns),
-    queue bound (frames per stream) and whether to publish markers."""
+    """The node's own settings (stamp tolerance and horizon in int ns)."""
 
     pose_topic: str
     stamp_tolerance_ns: int

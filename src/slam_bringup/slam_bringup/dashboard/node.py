@@ -76,7 +76,7 @@ PARAMETERS = ParamTable(
 
 
 def _decode_image(message: Any) -> Any:
-    from marker_detector.conversions import image_from_message
+    from marker_detector.detector.conversions import image_from_message
 
     return image_from_message(message)
 

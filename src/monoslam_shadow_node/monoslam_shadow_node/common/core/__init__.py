@@ -1,2 +1,1 @@
-"""ROS-free pieces the three cores share: uncertain projective geometry, tracking noise,
-pose links, the input types and the feature status codes."""
+"""ROS-free pieces the cores share: projective geometry, tracking noise, pose links, inputs."""

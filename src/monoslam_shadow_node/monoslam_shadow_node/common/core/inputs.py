@@ -9,8 +9,7 @@ from slam_core.arrays import FloatArray, IntArray
 
 @dataclass(frozen=True, eq=False)
 class Features:
-    """One FeatureTrackArray: image stamp (int ns), camera frame, track ids (M,) and raw
-    pixels (M, 2) (u right, v down; may hold NaN, the core drops those)."""
+    """One FeatureTrackArray: stamp (int ns), frame, ids (M,), raw pixels (M, 2) (may hold NaN)."""
 
     stamp_ns: int
     frame_id: str
@@ -20,11 +19,8 @@ class Features:
 
 @dataclass(frozen=True, eq=False)
 class CameraPose:
-    """One PoseWithCovarianceStamped of the camera optical frame: stamp (int ns), world frame
-    (header.frame_id), R_world_camera (3, 3), optical centre (3,) m, and the covariance
-    (6, 6) over (position, rotation about the world axes), None when all zero; and when the
-    source gives them (``pose_links``), the covariances (K, 6, 6) of the pose's error with
-    those of its earlier poses stamped ``cross_stamps``."""
+    """One camera pose: stamp (int ns), world frame, R_world_camera (3, 3), centre (3,) m,
+    covariance (6, 6) or None, and cross-covariances (K, 6, 6) with ``cross_stamps``."""
 
     stamp_ns: int
     frame_id: str

@@ -1,29 +1,7 @@
 """Uncertain projective geometry (Heuel 2004) as paper 001 (section III-A) writes it.
 
-Entities are homogeneous vectors with covariance matrices:
-
-- 3D points X = (X0, W) = (X, Y, Z, W): W = 0 is a point at infinity (a direction);
-- 3D lines in Pluecker coordinates L = (Lh, L0) = (L1, ..., L6): Lh is the direction and L0
-  the moment; the line through a finite point p with direction d is (d, p x d). Every line
-  satisfies the Pluecker constraint Lh . L0 = 0;
-- 3D planes A = (Ah, A0): the points X with A . X = 0.
-
-Constructions are bilinear, z = U(x) y = V(y) x, so U and V are at once the construction
-matrices and the Jacobians used for first-order covariance propagation (eq. 10-12):
-
-- ``join_points``: L = X ^ Y = Pi(X) Y = -Pi(Y) X, Pi (6, 4) of eq. 7;
-- ``join_point_line``: A = X ^ L = O(L) X = Obar(X) L, O (4, 4) of eq. 9;
-- ``meet_line_plane``: X = L n A = Gamma(L) A = Gammabar(A) L;
-- ``line_coplanarity``: the scalar L1 . Dual(L2) (zero when two lines meet or are parallel).
-
-Relations are tested with ``relation_test`` (eq. 13-14): a distance vector d that is zero
-when the relation holds, its covariance by propagation, and T = d' Sigma_dd^+ d against the
-chi-square quantile at the relation's degrees of freedom r. Sigma_dd is singular in general
-(n > r); its pseudo-inverse is taken at rank r, as the paper (after Heuel) prescribes.
-
-All functions take float64 arrays and return new arrays; no function normalizes silently.
-``normalized`` gives the spherical normalization with its Jacobian (Heuel's recommendation
-before testing, together with conditioning the coordinates to unit scale).
+Points X = (X0, W) (4,), Pluecker lines L = (Lh, L0) (6,), planes A = (Ah, A0) (4,); each
+construction returns its value and its Jacobians. Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -87,10 +65,7 @@ def o_bar_matrix(point: ArrayLike) -> FloatArray:
 
 
 def gamma_matrix(line: ArrayLike) -> FloatArray:
-    """Return Gamma(L) (4, 4): L n A = Gamma(L) A, the point where L meets plane A.
-
-    With L = (d, m) and A = (n, a4): X0 = n x m - a4 d, W = d . n.
-    """
+    """Return Gamma(L) (4, 4): L n A = Gamma(L) A, the point where L meets plane A."""
     values = np.asarray(line, dtype=np.float64)
     d, m = values[:3], values[3:]
     out = np.zeros((4, 4))
@@ -132,11 +107,7 @@ def meet_line_plane(
 
 
 def line_coplanarity(first: ArrayLike, second: ArrayLike) -> tuple[float, FloatArray, FloatArray]:
-    """Return L1 . Dual(L2) and its Jacobians (6,) with respect to L1 and L2.
-
-    Zero when the two lines are coplanar (they meet, possibly at infinity): the relation
-    has one degree of freedom.
-    """
+    """Return L1 . Dual(L2) (zero when coplanar, 1 dof) and its Jacobians (6,) w.r.t. L1 and L2."""
     l1 = np.asarray(first, dtype=np.float64)
     l2 = np.asarray(second, dtype=np.float64)
     return float(l1 @ _DUAL @ l2), _DUAL @ l2, _DUAL @ l1
@@ -159,10 +130,7 @@ def normalized(vector: ArrayLike) -> tuple[FloatArray, FloatArray]:
 
 
 def propagate(jacobians: list[FloatArray], covariances: list[FloatArray]) -> FloatArray:
-    """Return sum_i J_i Sigma_i J_i' (eq. 12: independent inputs).
-
-    For correlated inputs stack them into one input with its joint covariance (eq. 11).
-    """
+    """Return sum_i J_i Sigma_i J_i' (eq. 12: independent inputs; stack correlated ones)."""
     out = sum(
         (j @ c @ j.T for j, c in zip(jacobians, covariances, strict=True)),
         start=np.zeros((jacobians[0].shape[0],) * 2),
@@ -172,12 +140,7 @@ def propagate(jacobians: list[FloatArray], covariances: list[FloatArray]) -> Flo
 
 @dataclass(frozen=True)
 class RelationTest:
-    """The outcome of testing H0: d = 0 at significance level alpha (eq. 13-14).
-
-    ``statistic`` T = d' Sigma_dd^+ d with the pseudo-inverse at rank ``dof``;
-    ``threshold`` the (1 - alpha) quantile of chi-square with ``dof`` degrees of freedom;
-    ``rejected`` T > threshold (H0 rejected: the relation does not hold).
-    """
+    """Outcome of testing H0: d = 0 (eq. 13-14): T, dof, chi-square threshold, ``rejected``."""
 
     statistic: float
     dof: int
@@ -186,8 +149,7 @@ class RelationTest:
 
 
 def pseudo_inverse_at_rank(covariance: FloatArray, rank: int) -> FloatArray:
-    """Return the pseudo-inverse of a symmetric PSD matrix keeping its ``rank`` largest
-    eigenvalues (the others are the directions the relation cannot vary in)."""
+    """Return the pseudo-inverse of a symmetric PSD matrix at ``rank``; ValueError below rank."""
     values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
     order = np.argsort(values)[::-1][:rank]
     kept = values[order]

@@ -1,5 +1,4 @@
-"""The feature tracker's settings (``TrackerConfig``) and its image types; ``feature_tracker``
-has the algorithm they set."""
+"""The feature tracker's settings (``TrackerConfig``) and its image types."""
 
 from __future__ import annotations
 
@@ -17,24 +16,8 @@ DETECTORS = ('shi_tomasi', 'fast')
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Detection and tracking settings (units in the names; see the module docstring).
-
-    ``detector`` is 'shi_tomasi' (``quality_level``: corners weaker than this share of the
-    strongest minimum eigenvalue where features are missing are ignored) or 'fast'
-    (``fast_threshold``: intensity difference, gray levels). ``lk_window_px`` is the side of
-    the LK patch, ``lk_pyramid_levels`` the number of levels above the image,
-    ``lk_max_iterations`` and ``lk_epsilon_px`` its stopping rule per level.
-    ``max_lk_error`` is the largest mean absolute patch difference (gray levels) and
-    ``fb_threshold_px`` the largest forward-backward distance and ``max_drift_px`` the
-    largest distance of the template from the tracked pixel; 0 switches each check off.
-    ``reid_min_ncc`` is the correlation a re-identified track's template must reach once
-    aligned (affine; 0: no re-identification), ``reid_max_search_px`` the largest half-axis
-    of a searched ellipse, ``reid_max_alignments`` the most affine alignments an image
-    (``feature_reid.refine_match``, about 3 ms each), ``max_dormant`` how many dropped
-    tracks are remembered for it (SLAM's map features, the ids of the latest predictions,
-    forgotten last).
-    Invalid values raise ValueError naming the field.
-    """
+    """Detection and tracking settings (units in the names; the node's parameter table
+    describes each). Invalid values raise ValueError naming the field."""
 
     max_features: int = 150
     detector: str = 'shi_tomasi'

@@ -1,17 +1,5 @@
 """Where the feature tracker starts new tracks: corners away from the held tracks, spread
-over a grid and refined to subpixel accuracy (``FeatureTracker``'s step 2).
-
-The tracker detects every ``detect_every_n_frames`` images (and whenever no track is left),
-only where tracks are missing: Shi-Tomasi corners (cv2.goodFeaturesToTrack) or FAST
-corners, at least ``min_distance_px`` from every track and from each other, outside the
-border margin, then refined to subpixel accuracy (cv2.cornerSubPix, which moves a corner by
-at most ``SUBPIXEL_HALF_WINDOW_PX``). The image is split into ``grid_rows`` x ``grid_cols``
-cells that each take up to ceil(max_features / cells) features first, the strongest corners
-first; what textureless cells leave unused goes to the strongest remaining corners
-anywhere, up to ``max_features`` in all.
-
-Pixels are in the raw (distorted) image, OpenCV's convention (as in ``feature_tracker``).
-"""
+over a grid and refined to subpixel accuracy. Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -26,8 +14,7 @@ from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConf
 SHI_TOMASI_BLOCK_PX = 3
 """Neighbourhood of the Shi-Tomasi structure tensor (cv2.goodFeaturesToTrack's blockSize)."""
 SUBPIXEL_HALF_WINDOW_PX = 4
-"""cv2.cornerSubPix looks at (2 * this + 1)^2 pixels; a corner it moves farther than this
-keeps its detected pixel."""
+"""cv2.cornerSubPix's half window, and the farthest it may move a corner, px."""
 SUBPIXEL_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 15, 0.01)
 
 
@@ -45,9 +32,7 @@ class CornerDetector:
     def detect(
         self, gray: NDArray[np.uint8], held_pixels: NDArray[np.float32]
     ) -> NDArray[np.float32]:
-        """Return the corners (M, 2) where new tracks start in ``gray``, given the pixels
-        (N, 2) of the tracks held: at most max_features - N, in strength order (module
-        docstring); empty where no corner qualifies."""
+        """Return the corners (M, 2) px where new tracks start, given the held pixels (N, 2)."""
         corners = self._candidates(gray, self._free_mask(gray.shape, held_pixels))
         if not len(corners):
             return corners
@@ -59,8 +44,7 @@ class CornerDetector:
     def _free_mask(
         self, shape: tuple[int, ...], held_pixels: NDArray[np.float32]
     ) -> NDArray[np.uint8]:
-        """Return 255 where a new feature may go: outside the border margin and at least
-        min_distance_px from every held track; 0 elsewhere."""
+        """Return 255 where a new feature may go, 0 elsewhere (H, W) uint8."""
         height, width = shape
         mask = np.zeros((height, width), np.uint8)
         margin = math.ceil(self.config.border_margin_px)
@@ -72,8 +56,7 @@ class CornerDetector:
         return mask
 
     def _candidates(self, gray: NDArray[np.uint8], mask: NDArray[np.uint8]) -> NDArray[np.float32]:
-        """Return corners (M, 2) where ``mask`` allows, strongest first, at least
-        min_distance_px apart."""
+        """Return corners (M, 2) where ``mask`` allows, strongest first, spaced apart."""
         config = self.config
         if self._fast is None:
             corners = cv2.goodFeaturesToTrack(
@@ -100,9 +83,7 @@ class CornerDetector:
         shape: tuple[int, ...],
         held_pixels: NDArray[np.float32],
     ) -> NDArray[np.int64]:
-        """Return the rows of ``corners`` (strongest first) that become tracks: per grid cell
-        up to the cell quota minus the tracks there, then the strongest of the rest, up to
-        max_features in all; in strength order."""
+        """Return the rows of ``corners`` (strongest first) that become tracks, per grid cell."""
         config = self.config
         room = config.max_features - len(held_pixels)
         cells = _cells(corners, shape, config.grid_rows, config.grid_cols)
@@ -135,8 +116,7 @@ def _cells(
 def _spaced(
     points: NDArray[np.float32], distance_px: float, shape: tuple[int, ...]
 ) -> NDArray[np.float32]:
-    """Return ``points`` (M, 2, strongest first) greedily thinned to at least ``distance_px``
-    apart (the stronger point stays)."""
+    """Return ``points`` (M, 2), strongest first, thinned to ``distance_px`` apart."""
     taken = np.zeros(shape, np.uint8)
     radius = math.ceil(distance_px)
     kept = []
@@ -150,8 +130,7 @@ def _spaced(
 def _refined(
     gray: NDArray[np.uint8], corners: NDArray[np.float32], margin_px: float
 ) -> NDArray[np.float32]:
-    """Return ``corners`` (M, 2) refined by cv2.cornerSubPix; a corner that moves more than
-    SUBPIXEL_HALF_WINDOW_PX, or into the border margin, keeps its detected pixel."""
+    """Return ``corners`` (M, 2) refined by cv2.cornerSubPix where that stays plausible."""
     window = (SUBPIXEL_HALF_WINDOW_PX, SUBPIXEL_HALF_WINDOW_PX)
     refined = cv2.cornerSubPix(
         gray, corners.reshape(-1, 1, 2).copy(), window, (-1, -1), SUBPIXEL_CRITERIA
@@ -174,9 +153,8 @@ def crowded_tracks(
     ages: NDArray[np.int64],
     distance_px: float,
 ) -> NDArray[np.bool_]:
-    """Return which of the tracks (pixels (N, 2), ids (N,), ages (N,) in images) lie within
-    half of ``distance_px`` (min_distance_px) of an older one (older: more images; equal
-    age: smaller id): both follow the same image structure, the younger goes."""
+    """Return which tracks (pixels (N, 2), ids (N,), ages (N,)) lie within half of
+    ``distance_px`` of an older one."""
     count = len(ids)
     result = np.zeros(count, bool)
     if count < 2:

@@ -1,35 +1,7 @@
-"""Re-identification of dropped tracks (``feature_tracker``'s active search): where a
-prediction with a covariance expects a remembered track, its template, warped to the
-predicted view when the prediction brings a warp, is searched for inside the 3-sigma ellipse
-by normalized cross-correlation, and its best places are aligned by an affine map and
-checked (``feature_tracker``'s docstring).
+"""Re-identification of dropped tracks: a remembered template searched for inside its
+prediction's 3-sigma ellipse by correlation, aligned by an affine map and checked.
 
-Look-alikes. A 3-sigma ellipse after the camera was away is wide (20-30 px sigma), and
-several places in it may look like the template (corners of rectangles of one grey). Much of
-a returning feature's prediction error is the drift the camera gathered while away (the old
-map seen from a pose that drifted), which the old map's features share: the tracks that came
-back earlier (held now, with their predictions) and this image's unique matches show it as a
-common shift of found against predicted pixels. (The far side's features, from which the
-camera's pose was estimated, do not show it: they drifted with the camera.) Where at least
-``SHIFT_MIN_MATCHES`` agree, a search with several places takes the one place within 3 sigma
-of its prediction moved by their median shift, sigma being their spread about it (at least a
-match's own ``TRACKING_SIGMA_PX``), if only one lies there. Each map point has its own error
-too (its depth), so this shift only decides between look-alikes and never narrows a search:
-a few matches' spread says little of another point's.
-
-The image's motion. A prediction made before the image is seen carries the camera's motion
-noise over one frame (a hand-held camera's turn: 25-35 px sigma at 30 Hz), the same for
-every point, and a 3-sigma ellipse that wide is not searched (``reid_max_search_px``). The
-tracks carried into the image with a prediction show how the image actually moved:
-``aligned_predictions`` fits an affine map of their predicted pixels onto their tracked
-ones (at least ``MOTION_MIN_TRACKS``, one reweighting that drops those beyond
-``SEARCH_SIGMAS`` robust sigma), moves each remembered track's prediction through it, and
-takes as its covariance the spread of the carried tracks about the fit (at least
-``TRACKING_SIGMA_PX``) plus the part of its own covariance above the carried tracks'
-median one (its own error: an uncertain depth), when that is smaller than the prediction's
-and the prediction is too wide to search as it is; one that can be searched keeps its own
-covariance (a returning map feature's error is its old map's drift, which SLAM's covariance
-may not hold and the carried tracks do not show)."""
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -50,30 +22,23 @@ SEARCH_SIGMAS = 3.0
 TEMPLATE_MARGIN_PX = 4
 """A template is the LK window plus this much on each side (LK reads a pixel past it)."""
 MIN_CORE_PX = 9
-"""The smallest searched core: a warp that shrinks the template more than this leaves (the
-feature is seen from much farther than where its template was captured) is not searched."""
+"""The smallest searched core, px: a warp that shrinks the template below it is not searched."""
 MAX_WARP_STRETCH = 4.0
-"""A warp stretching one direction more than this relative to the other (a patch seen nearly
-edge-on) is not searched."""
+"""A warp stretching one direction more than this times the other is not searched."""
 CANDIDATES = 5
-"""The highest local maxima of a search's correlation that are aligned and checked
-(``find_peaks``); more look-alikes than this in one ellipse leave it undecided anyway."""
+"""The highest local maxima of a search's correlation that are checked (``find_peaks``)."""
 SAME_PLACE_PX = 2.0
 """Candidates aligned to within this of each other are one place (two maxima of one blob)."""
 REFINE_MARGIN_PX = 3
-"""How far the affine alignment may move a candidate's centre (its local maximum lies
-within a pixel of the true centre; the rest is the foreshortening's shift of the peak)."""
+"""How far the affine alignment may move a candidate's centre, px."""
 MAX_REFINE_SCALE = 2.0
-"""The most the alignment may scale the warped template along any direction (beyond,
-it is no longer the same view of the patch)."""
+"""The most the alignment may scale the warped template along any direction."""
 REFINE_ITERATIONS = 50
 """Iterations of the affine alignment (it converges in a few from a pixel off)."""
 SHIFT_MIN_MATCHES = 3
-"""Unique matches in an image needed to decide look-alikes by their shared shift
-(``resolve_by_shift``): their median tolerates one wrong match."""
+"""Unique matches in an image needed to decide look-alikes by their shared shift."""
 TRACKING_SIGMA_PX = 1.0
-"""The smallest spread assumed about the shared shift: a match's own error (subpixel
-correlation peak, the tracker's 1 px)."""
+"""The smallest spread assumed about the shared shift: a match's own error, px."""
 RAYLEIGH_MEDIAN = math.sqrt(2.0 * math.log(2.0))
 """The median of the length of a 2-D offset with independent unit-sigma axes: divides the
 median residual into a per-axis sigma."""
@@ -81,11 +46,7 @@ median residual into a per-axis sigma."""
 
 @dataclass(frozen=True)
 class Search:
-    """One image's re-identification: tracks brought back (of them ``resolved``: among
-    look-alikes, decided by the image's shared shift), searches made, predictions not
-    searched (too uncertain, or a template warped past recognition: ``search_core``),
-    held tracks a revived one displaced (crowded), and candidates left without an alignment
-    (``Alignments``)."""
+    """One image's re-identification counts (as ``feature_types.TrackCounts``)."""
 
     revived: int = 0
     searched: int = 0
@@ -97,14 +58,7 @@ class Search:
 
 @dataclass
 class Alignments:
-    """One image's budget of ``refine_match`` alignments (the tracker's
-    ``reid_max_alignments``): those still allowed, and the candidates refused one. They go
-    in the predictions' order (SLAM sends its features oldest first: a depth start's points
-    before all). One costs about 3 ms (up to ``REFINE_ITERATIONS`` of enhanced correlation
-    on the core, profiled on Bonn crowd), and the tracker's other work 10-15 ms of a 30 Hz
-    image's 33 (bench/README.md): unbounded, searching every remembered track in view took
-    110 ms an image there. A peak that matches as it is needs no alignment and is always
-    taken."""
+    """One image's budget of ``refine_match`` alignments: those left, candidates refused."""
 
     left: int
     refused: int = 0
@@ -119,8 +73,7 @@ class Alignments:
 
 
 def parabola_peak(values: NDArray[Any]) -> float:
-    """Return the offset (-0.5 .. 0.5) of the peak of the parabola through three values
-    around a maximum in the middle; 0 if they do not bend (or one is not finite)."""
+    """Return the peak offset (-0.5 .. 0.5) of the parabola through three values; 0 if flat."""
     left, middle, right = (float(value) for value in values)
     bend = left - 2.0 * middle + right
     if not (math.isfinite(bend) and bend < 0.0):
@@ -131,10 +84,8 @@ def parabola_peak(values: NDArray[Any]) -> float:
 def search_region(
     config: TrackerConfig, shape: tuple[int, ...], pixel: FloatArray, covariance: FloatArray
 ) -> tuple[int, int, int, int] | str | None:
-    """Return the integer centres (x0, y0, x1, y1) to try for a prediction: its 3-sigma
-    box inside the image (past the border margin and the template's half-width);
-    'too_wide' beyond reid_max_search_px; None for a prediction that is not finite,
-    not positive definite or outside the image."""
+    """Return the centres (x0, y0, x1, y1) px to try for a prediction, 'too_wide', or None
+    (not finite, not positive definite, or outside the image)."""
     if not (np.all(np.isfinite(pixel)) and np.all(np.isfinite(covariance))):
         return None
     symmetric = 0.5 * (covariance + covariance.T)
@@ -155,12 +106,8 @@ def search_region(
 
 
 def search_core(template: GrayImage, window: int, warp: FloatArray | None) -> GrayImage | None:
-    """Return the patch to search for: the template's central ``window`` x ``window`` core,
-    or, for a warp A (2, 2) = d(pixel now)/d(pixel in the template) that is finite and
-    orientation-preserving, the template resampled through A (bilinear) onto the largest
-    odd-sided square up to ``window`` that it still covers; None for a warp that shrinks it
-    below ``MIN_CORE_PX`` or stretches it beyond ``MAX_WARP_STRETCH`` (no search). A zero or
-    absent warp means none is known: the core as it is."""
+    """Return the square patch to search for, the template's core warped by ``warp`` (2, 2)
+    (zero or None: unwarped); None for a warp past recognition."""
     if warp is None or not np.any(warp):
         return template[TEMPLATE_MARGIN_PX : TEMPLATE_MARGIN_PX + window,
                         TEMPLATE_MARGIN_PX : TEMPLATE_MARGIN_PX + window]  # fmt: skip
@@ -183,8 +130,7 @@ def search_core(template: GrayImage, window: int, warp: FloatArray | None) -> Gr
 
 @dataclass(frozen=True)
 class Peak:
-    """A place where the template matches: its centre (u, v) px, subpixel, and the
-    correlation of the template aligned there (``refine_match``)."""
+    """A place where the template matches: centre (u, v) px and its correlation."""
 
     u: float
     v: float
@@ -200,16 +146,8 @@ def find_peaks(
     region: tuple[int, int, int, int],
     alignments: Alignments | None = None,
 ) -> list[Peak]:
-    """Return the places inside the 3-sigma ellipse where ``core`` (a square patch,
-    ``search_core``) matches ``gray``, best first: the ``CANDIDATES`` highest local maxima of
-    the normalized correlation over the centres of ``region`` inside the ellipse (not on the
-    search's border or the ellipse's rim, where the true peak may lie beyond) that reach
-    reid_min_ncc as they are (refined to subpixel by a parabola through the peak) or aligned
-    by ``refine_match``; candidates within ``SAME_PLACE_PX`` of a better one are the same
-    place. (The alignment is only for those below: on a patch with little texture it may
-    slide to a shrunken fit elsewhere, which it refuses, losing a match that was there.)
-    ``alignments`` (None: no limit) is spent one per alignment; once it is spent the
-    candidates below reid_min_ncc are left, and counted."""
+    """Return the places in the 3-sigma ellipse of ``pixel`` (2,), ``covariance`` (2, 2) px^2
+    where ``core`` matches ``gray``, best first (``alignments`` None: no limit)."""
     x0, y0, x1, y1 = region
     window = core.shape[0]
     before = (window - 1) // 2  # the core's pixels left of (above) its centre
@@ -250,14 +188,8 @@ def find_peaks(
 
 
 def refine_match(gray: GrayImage, core: GrayImage, x: int, y: int) -> Peak | None:
-    """Return the match of ``core`` centred near pixel (x, y) of ``gray`` after aligning it
-    by an affine map (enhanced correlation, cv2.findTransformECC, starting from a pure shift):
-    its subpixel centre and the correlation it reaches. The template's warp is SLAM's
-    first-order guess for a plane facing the camera that first saw the point; the surface's
-    true slant foreshortens it further, which the affine alignment takes up, as Shi and
-    Tomasi monitor features under an affine model. None where the alignment does not
-    converge, moves the centre more than ``REFINE_MARGIN_PX`` or scales the core by more than
-    ``MAX_REFINE_SCALE`` either way."""
+    """Return the match of ``core`` near pixel (x, y) of ``gray`` after an affine alignment;
+    None where it fails or goes beyond ``REFINE_MARGIN_PX`` or ``MAX_REFINE_SCALE``."""
     window = core.shape[0]
     half = (window - 1) / 2.0
     side = window + 2 * REFINE_MARGIN_PX
@@ -283,10 +215,8 @@ def refine_match(gray: GrayImage, core: GrayImage, x: int, y: int) -> Peak | Non
 
 
 def shared_shift(predicted: FloatArray, matched: FloatArray) -> tuple[FloatArray, float] | None:
-    """Return the shift (2,) px that found pixels (N, 2) share against their predictions
-    (N, 2), their median, and the radius that holds a match about it: ``SEARCH_SIGMAS``
-    sigma of their spread (at least ``TRACKING_SIGMA_PX``); None with fewer than
-    ``SHIFT_MIN_MATCHES`` (module docstring)."""
+    """Return the median shift (2,) px of ``matched`` (N, 2) against ``predicted`` (N, 2) and
+    the radius px that holds a match about it; None with too few matches."""
     if len(matched) < SHIFT_MIN_MATCHES:
         return None
     offsets = np.asarray(matched, np.float64) - np.asarray(predicted, np.float64)
@@ -314,13 +244,8 @@ def aligned_predictions(
     tracked: NDArray[np.float32],
     narrow_beyond_px: float = 0.0,
 ) -> tuple[FloatArray, FloatArray]:
-    """Return the predictions' pixels (K, 2) and covariances (K, 2, 2) of ``ids`` (K,) moved
-    by the image's motion (module docstring); ``rows`` maps each track carried into this
-    image to its row of ``tracked`` (N, 2), its pixel now. A covariance is narrowed only
-    where its ``SEARCH_SIGMAS`` half-axis exceeds ``narrow_beyond_px`` (the tracker's
-    reid_max_search_px: too wide to search as it is); one that can be searched keeps it, as
-    a returning map feature's error is its old map's drift, which the carried tracks do not
-    show. Unchanged with fewer than ``MOTION_MIN_TRACKS`` usable carried tracks."""
+    """Return the pixels (K, 2) and covariances (K, 2, 2) of predictions ``ids`` (K,) moved by
+    the image's motion; ``rows``: carried track id -> row of ``tracked`` (N, 2)."""
     pixels = np.asarray(pixels, np.float64)
     covariances = np.asarray(covariances, np.float64)
     carried = np.array([i in rows for i in ids.tolist()], dtype=bool).reshape(-1)
@@ -358,10 +283,8 @@ def aligned_predictions(
 def resolve_by_shift(
     predicted: FloatArray, matched: FloatArray, pending: list[tuple[FloatArray, list[Peak]]]
 ) -> list[Peak | None]:
-    """Decide look-alikes by the shift the image's matches share (their predicted (N, 2) and
-    found (N, 2) pixels, ``shared_shift``): each ``pending`` search (its predicted pixel and
-    peaks) takes the one peak within the radius of its prediction moved by the shift, if
-    exactly one lies there; else None (as for all without a shift)."""
+    """Return per ``pending`` search the one peak near its prediction moved by the shift the
+    matches share (``shared_shift``), or None."""
     shared = shared_shift(predicted, matched)
     if shared is None:
         return [None] * len(pending)
@@ -381,12 +304,9 @@ def search_predicted(
     predictions: tuple[NDArray[np.int64], FloatArray, FloatArray, FloatArray],
     held: tuple[FloatArray, FloatArray],
 ) -> tuple[list[tuple[int, float, float, float]], Search]:
-    """Search ``gray`` for the remembered ``templates`` (id -> template) that the
-    ``predictions`` (ids (K,), pixels (K, 2), covariances (K, 2, 2), warps (K, 2, 2)) expect
-    in view; return what was found, (id, u, v, correlation) each, and the counts (revived:
-    all found): the unique matches (one place: ``find_peaks``), then the look-alikes decided by the
-    shift that they and the ``held`` tracks that came back earlier (their predicted and
-    tracked pixels, (H, 2) each) share (``resolve_by_shift``)."""
+    """Search ``gray`` for ``templates`` where ``predictions`` (ids (K,), pixels (K, 2),
+    covariances and warps (K, 2, 2)) expect them, ``held``: predicted and tracked pixels
+    (H, 2) of tracks back earlier; return (id, u, v, ncc) found, and the counts."""
     found: list[tuple[int, float, float, float]] = []
     expected: list[FloatArray] = []
     pending: list[tuple[int, FloatArray, list[Peak]]] = []
@@ -433,11 +353,8 @@ def make_room(
     scores: FloatArray,
     excess: int,
 ) -> tuple[NDArray[np.bool_], int]:
-    """Return which of the tracks (N,) leave so that ``excess`` fewer remain (max_features),
-    and how many of those are held tracks: first the youngest held tracks that are not map
-    features (ids not in ``mapped``, the predicted ones: a map feature found again is worth
-    more than a track no filter has mapped), then the ``revived`` with the lowest
-    correlation ``scores`` (back to sleep)."""
+    """Return which tracks (N,) leave so that ``excess`` fewer remain, and how many of them
+    are held (not ``revived``) tracks."""
     out = np.zeros(len(track_ids), dtype=bool)
     spare = np.flatnonzero(~revived & ~np.isin(track_ids, mapped))
     spare = spare[np.argsort(ages[spare], kind='stable')][:excess]

@@ -1,65 +1,8 @@
-"""Image feature tracking for the monocular SLAM front end (ROS-free; OpenCV and numpy).
+"""Image feature tracking for the monocular SLAM front end (ROS-free): LK tracking with
+checks, re-identification of dropped tracks, detection where tracks are missing.
 
-Per image (``FeatureTracker.track``):
-
-1. Tracking. Every track of the previous image is followed by pyramidal Lucas-Kanade
-   (cv2.calcOpticalFlowPyrLK), starting from a predicted pixel where one is given for its id
-   (e.g. the SLAM filter's projection of its map point; cv2.OPTFLOW_USE_INITIAL_FLOW) and from
-   its previous pixel otherwise (a non-finite prediction is ignored). A track is dropped, for
-   the first reason that applies, when LK loses it (status 0, or a non-finite result:
-   ``lost``), its patch error is above ``max_lk_error`` (``error``), it ends within
-   ``border_margin_px`` of the image edge or was predicted outside the image (``border``),
-   tracking it back into the previous image (on the pyramid levels the forward pass's
-   correction of its starting pixel needs) lands more than ``fb_threshold_px`` from where
-   it started (``forward_backward``), it drifted from what it looked like when it was
-   detected (``drift``, below), or it came closer than half of ``min_distance_px`` to an
-   older track (``crowded``: both follow the same image structure now; the younger goes).
-
-   Drift. Image-to-image LK lets a track slide slowly: where a near edge crosses a far one
-   (a T-junction), or where an object passes in front of a static corner, each step is small
-   and passes the checks above, and the track ends up on another 3-D point. Shi and Tomasi
-   ("Good features to track", 1994) monitor the feature against its first appearance. Here
-   each track keeps the patch around its detected pixel (its template), and every image the
-   template is registered into the image by LK (translation only, no pyramid, starting at
-   the tracked pixel); a track whose template lands more than ``max_drift_px`` away from
-   the tracked pixel, or does not converge, is dropped. A slow scale change moves the
-   template's centre little, so tracks survive the camera's approach within limits.
-2. Re-identification (active search, Davison's MonoSLAM). A dropped track is remembered (its
-   template and age; the ``max_dormant`` most recently dropped, those in SLAM's map, the
-   ids of the latest predictions, kept before all others). When a prediction with a
-   covariance comes for a remembered id (e.g. the SLAM filter expects its map point back in
-   view), the track's template is searched for inside the prediction's 3-sigma ellipse, moved
-   by the motion the carried tracks show (``feature_reid``), by correlation (cv2.matchTemplate,
-   TM_CCOEFF_NORMED, on the LK window's core of the template); its highest local maxima are
-   aligned by an affine map (``feature_reid.refine_match``), and where exactly one place
-   correlates, aligned, at least ``reid_min_ncc``, the track comes back there with its id
-   and age (``revived``) and its template is captured anew. Several such places
-   (look-alikes) are decided by the shift that the image's other matches and the tracks that
-   came back earlier share against their predictions (where the old map lies now;
-   ``feature_reid.resolve_by_shift``, counted ``resolved``), or not at all. A prediction may
-   bring a warp, the 2x2 affine map of the template to the predicted view (SLAM's,
-   ``monoslam_views``: a returning feature is seen from elsewhere, larger or smaller,
-   rolled); the template is resampled through it before the search
-   (``feature_reid.search_core``), as MonoSLAM warps its patches. Normalized correlation
-   ignores gain and offset. An ellipse wider than ``reid_max_search_px`` on either axis is
-   not searched (the prediction is too uncertain to say where: counted as ``unsearched``,
-   like a warp past recognition). A revived track and a younger one on the same structure
-   meet the ``crowded`` rule: the younger goes, so the map point keeps its id and no
-   duplicate stays. At ``max_features``, a revived track takes the place of the youngest
-   track no filter has mapped (not among the predicted ids), also counted ``crowded``.
-3. Detection (``feature_detection``), every ``detect_every_n_frames`` images (and whenever
-   no track is left), only where tracks are missing: Shi-Tomasi or FAST corners, spread
-   over a grid and refined to subpixel accuracy, up to ``max_features`` tracks in all.
-   By default every third image: a detection costs as much as tracking all the features
-   (a corner measure over the whole image), while a 30 Hz camera loses about two of the 150
-   tracks per image, so detecting at 10 Hz leaves on average about four places empty for at
-   most two images; Lucas-Kanade needs no detection in between.
-
-Ids are int64, start at 1 and are never reused in a tracker's life: a restart (``reset``, or
-an image of another size) drops the tracks but the numbering goes on. Pixels are in the raw
-(distorted) image, OpenCV's convention: u right, v down, pixel centres at integer
-coordinates. Nothing returned is ever NaN.
-"""
+Ids are int64 from 1, never reused; pixels are raw (distorted), OpenCV's convention; nothing
+returned is NaN. Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -67,8 +10,15 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from monoslam_shadow_node.feature_tracker.core.feature_config import GrayImage, GrayStack, TrackerConfig
-from monoslam_shadow_node.feature_tracker.core.feature_detection import CornerDetector, crowded_tracks
+from monoslam_shadow_node.feature_tracker.core.feature_config import (
+    GrayImage,
+    GrayStack,
+    TrackerConfig,
+)
+from monoslam_shadow_node.feature_tracker.core.feature_detection import (
+    CornerDetector,
+    crowded_tracks,
+)
 from monoslam_shadow_node.feature_tracker.core.feature_reid import (
     TEMPLATE_MARGIN_PX,
     Search,
@@ -86,8 +36,7 @@ from slam_core.arrays import FloatArray, IntArray
 
 
 def as_gray_image(image: object) -> GrayImage:
-    """Return ``image`` as a C-contiguous (H, W) uint8 array; raise ValueError if it is not a
-    non-empty 2-D uint8 array."""
+    """Return ``image`` as C-contiguous (H, W) uint8; ValueError unless non-empty 2-D uint8."""
     if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
         what = f'{image.ndim}-D {image.dtype}' if isinstance(image, np.ndarray) else type(image)
         raise ValueError(f'the tracker takes 2-D uint8 (gray) images, got {what}')
@@ -97,7 +46,7 @@ def as_gray_image(image: object) -> GrayImage:
 
 
 class FeatureTracker:
-    """Detects and tracks features image after image (see the module docstring)."""
+    """Detects and tracks features image after image."""
 
     def __init__(self, config: TrackerConfig | None = None) -> None:
         self.config = config if config is not None else TrackerConfig()
@@ -126,8 +75,7 @@ class FeatureTracker:
         return len(self._ids)
 
     def reset(self) -> int:
-        """Drop every track (the next image starts over; ids go on); return how many were
-        dropped. The next ``track`` counts them as ``reset``."""
+        """Drop every track (ids go on); return how many (counted as ``reset`` next image)."""
         dropped = len(self._ids)
         self._pending_reset += dropped
         self._clear()
@@ -136,10 +84,8 @@ class FeatureTracker:
         return dropped
 
     def track(self, image: object, predictions: Predictions | None = None) -> TrackedFeatures:
-        """Return the features of ``image`` (2-D uint8, raw): the tracks of the previous image
-        followed into it, then new ones where features are missing. ``predictions`` give LK's
-        starting pixels for some ids. Raises ValueError for an image that is not 2-D uint8 or
-        is empty (the tracker is then unchanged)."""
+        """Return the features of ``image`` (H, W) uint8. Raises ValueError for another image
+        (the tracker unchanged)."""
         gray = as_gray_image(image)
         drops = dict.fromkeys(DROP_REASONS, 0)
         if self._previous is not None and self._previous.shape != gray.shape:
@@ -187,9 +133,7 @@ class FeatureTracker:
         guess: NDArray[np.float32],
         levels: int | None = None,
     ) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.float32]]:
-        """Return LK's end pixels (M, 2), status (M,) and patch errors (M,) of ``start`` (M, 2)
-        from ``before`` into ``after``, iterations starting at ``guess``, on ``levels``
-        pyramid levels above the image (default: lk_pyramid_levels)."""
+        """Return LK's end pixels (M, 2), status (M,) and errors (M,) of ``start`` (M, 2)."""
         config = self.config
         end, status, error = cv2.calcOpticalFlowPyrLK(
             before,
@@ -214,8 +158,7 @@ class FeatureTracker:
     def _guesses(
         self, predictions: Predictions | None, shape: tuple[int, ...]
     ) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.bool_]]:
-        """Return LK's starting pixels (N, 2) for the held tracks, which start from a
-        prediction (N,) and which are predicted outside the image (N,)."""
+        """Return LK's start pixels (N, 2), which are predicted (N,) and which leave (N,)."""
         guess = self._pixels.copy()
         used = np.zeros(len(self._ids), bool)
         leaving = np.zeros(len(self._ids), bool)
@@ -250,8 +193,7 @@ class FeatureTracker:
         predictions: Predictions | None,
         drops: dict[str, int],
     ) -> int:
-        """Track the held features from ``previous`` into ``gray`` and drop the failures
-        (counted in ``drops``); return how many kept tracks started from a prediction."""
+        """Track into ``gray``, dropping failures; return how many kept tracks were predicted."""
         config = self.config
         start = self._pixels
         guess, used, leaving = self._guesses(predictions, gray.shape)
@@ -300,10 +242,7 @@ class FeatureTracker:
         return predicted
 
     def _levels_for(self, shifts: FloatArray) -> int:
-        """Return the pyramid levels LK needs to cover ``shifts`` (M,) px from its starting
-        pixels: the fewest levels L at which the largest shift, 2^L times smaller, is within
-        a quarter of the window (LK's linearization holds over about half of it), at most
-        lk_pyramid_levels."""
+        """Return the pyramid levels LK needs to cover ``shifts`` (M,) px."""
         reach = self.config.lk_window_px / 4.0
         largest = float(np.max(shifts, initial=0.0))
         levels = 0
@@ -312,8 +251,7 @@ class FeatureTracker:
         return levels
 
     def _keep(self, keep: NDArray[np.bool_]) -> None:
-        """Keep the held tracks ``keep`` (N,); remember the others' templates and ages for
-        re-identification (``_forget``)."""
+        """Keep the held tracks ``keep`` (N,); remember the others for re-identification."""
         if self.config.reid_min_ncc > 0 and self.config.max_dormant > 0:
             for row in np.flatnonzero(~keep):
                 track_id = int(self._ids[row])
@@ -327,9 +265,7 @@ class FeatureTracker:
         self._returned.intersection_update(self._ids.tolist())
 
     def _forget(self, excess: int) -> None:
-        """Forget ``excess`` remembered tracks: the earliest dropped of those not in SLAM's map
-        (the ids of the latest predictions), then, if that is not enough, the earliest of the
-        rest. A map feature is what a prediction will come for, however long it is away."""
+        """Forget ``excess`` remembered tracks, those not in SLAM's map first."""
         if excess <= 0:
             return
         unmapped = [i for i in self._dormant if i not in self._mapped][:excess]
@@ -340,8 +276,7 @@ class FeatureTracker:
     # --- re-identification ------------------------------------------------------------------
 
     def _revive(self, gray: GrayImage, predictions: Predictions | None) -> Search:
-        """Search for remembered tracks predicted (with a covariance) in ``gray`` and bring
-        back those found (module docstring); return the counts."""
+        """Bring back remembered tracks found where predicted; return the counts."""
         config = self.config
         if (
             predictions is None
@@ -415,9 +350,7 @@ class FeatureTracker:
     def _drifted(
         self, gray: GrayImage, rows: IntArray, pixels: NDArray[np.float32]
     ) -> NDArray[np.bool_]:
-        """Return which tracks ``rows`` (M,), now at ``pixels`` (M, 2), drifted from their
-        templates (module docstring). The templates are laid out side by side on a canvas of
-        the image's size (LK wants two images of one size), as many at a time as fit."""
+        """Return which tracks ``rows`` (M,), now at ``pixels`` (M, 2), left their templates."""
         side = self._side
         height, width = gray.shape
         per_row, per_column = width // side, height // side

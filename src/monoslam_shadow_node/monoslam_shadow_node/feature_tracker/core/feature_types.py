@@ -1,5 +1,4 @@
-"""The feature tracker's output types: the counts of one image, the predictions it takes
-and the features it returns (``feature_tracker``)."""
+"""The feature tracker's types: one image's counts, its predictions and its features."""
 
 from __future__ import annotations
 
@@ -12,13 +11,8 @@ DROP_REASONS = ('lost', 'error', 'border', 'forward_backward', 'drift', 'crowded
 
 @dataclass(frozen=True)
 class TrackCounts:
-    """What happened in one image: tracks carried over from the previous image
-    (``tracked``, of them ``predicted`` from a predicted pixel), dropped tracks searched for
-    (``searched``; ``unsearched``: predicted too uncertainly; ``unaligned``: candidates
-    left without an alignment, ``TrackerConfig.reid_max_alignments``) and found again (``revived``;
-    ``resolved``: look-alikes decided by the image's shared shift, ``feature_reid``),
-    tracks started (``new``) and tracks dropped, by reason (``DROP_REASONS``; ``reset``: by a
-    restart)."""
+    """What happened in one image: tracks carried, searched, revived and started, and tracks
+    dropped by reason (``DROP_REASONS``)."""
 
     tracked: int = 0
     predicted: int = 0
@@ -48,12 +42,8 @@ class TrackCounts:
 
 @dataclass(frozen=True, eq=False)
 class Predictions:
-    """Predicted pixels of some tracks in the image about to be tracked: ids (K,) int64 and
-    raw-image pixels (K, 2) float64, with their covariances (K, 2, 2) px^2 when known (the
-    search regions of re-identification). Ids neither tracked nor remembered and non-finite
-    pixels are ignored; a track predicted outside the image is dropped (it is expected to
-    have left the view). ``warps`` (K, 2, 2), when known, map each template to the predicted
-    view (zero: no warp known)."""
+    """Predicted raw pixels (K, 2) of track ``ids`` (K,) in the next image, with covariances
+    (K, 2, 2) px^2 and template ``warps`` (K, 2, 2) when known."""
 
     ids: IntArray
     pixels: FloatArray
@@ -63,8 +53,7 @@ class Predictions:
 
 @dataclass(frozen=True, eq=False)
 class TrackedFeatures:
-    """The features of one image: ids (N,) int64 ascending, raw-image pixels (N, 2) float64
-    (finite), ages (N,) int64 (images each track has been seen in; 1 = new), and the counts."""
+    """One image's features: ids (N,) ascending, raw pixels (N, 2), ages (N,) in images."""
 
     ids: IntArray
     pixels: FloatArray

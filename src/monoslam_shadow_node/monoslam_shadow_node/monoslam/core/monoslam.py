@@ -1,33 +1,7 @@
-"""The MonoSLAM filter: one EKF over the camera and its map of static point features
-(``monoslam_model`` has the state, the models and their Jacobians).
+"""The MonoSLAM filter: one EKF over the camera and its map of static point features.
 
-Per frame (``MonoSlam.process``; each step in full: docs/design/monoslam.md):
-
-1. until started: the camera pose from the known points in view (``monoslam_init``), or,
-   with ``known_points_source='depth'``, the world from the first frame with feature depths;
-2. predict with the constant velocity model (tracker offsets as states when declared:
-   ``MonoSlamConfig.offset_states``);
-3. predict every owned feature and known point in view with its innovation covariance (the
-   active search regions, ``MonoSlam.predictions``), gated by chi-square;
-4. update (``MonoSlamConfig.update``): 'ransac' (1-point RANSAC, ``monoslam_ransac``) or
-   'gated', in Joseph form; features on probation get consider updates only
-   (``monoslam_ekf``);
-5. map management: linear inverse-depth features become Euclidean; persistent outliers and
-   features not found where predicted are deleted (a handed-over or undecided one is
-   'revoked'; a depth start's point, known, is never deleted for not being found nor
-   evicted: it holds the scale); out-of-view features stay (the map is persistent) and are
-   evicted into the frozen map when the state is full; new features come from every new track
-   (``initialize='all'``, on probation until linear with ``new_probation``), or from handovers
-   of the Shadow filter (``'handover'``) and, with ``fill_undecided``, from undecided tracks
-   (with ``undecided_probation`` on probation until the Shadow filter clears them,
-   ``add_handover``) until it finds them DYNAMIC (``mark_moving``); at most ``max_features``;
-6. tracking is lost when nothing was accepted for ``lost_after_frames`` frames, the position
-   uncertainty exceeds ``max_position_sigma_m``, the known points in view disagree with the
-   estimate for ``lost_after_known_rejected_frames`` frames, or the pose covariance
-   collapsed; the map is retired and the filter starts again.
-
-Elsewhere: types, state, EKF steps, 1-point RANSAC, checks (``monoslam_types``, ``_state``,
-``_ekf``, ``_ransac``, ``_checks``). Here: frames, map, start, loss.
+Frames, map management, start and loss; the per-frame steps and the modules they use:
+docs/design/monoslam_core.md (reasons: docs/design/monoslam.md).
 """
 
 from __future__ import annotations
@@ -132,22 +106,19 @@ class MonoSlam:
 
     @property
     def owned_ids(self) -> frozenset[int]:
-        """Track ids SLAM owns (in its map now or before); the Shadow filter ignores them,
-        except the undecided ones (``undecided_ids``)."""
+        """Track ids SLAM owns (in its map now or before); the Shadow filter ignores them."""
         return frozenset(self._owned_ids)
 
     @property
     def undecided_ids(self) -> frozenset[int]:
-        """Features in the state that filled the map undecided (``fill_undecided``): the
-        Shadow filter goes on judging them, and a DYNAMIC verdict revokes them."""
+        """Features in the state that filled the map undecided (``fill_undecided``)."""
         if self.config.initialize != 'handover':
             return frozenset()
         return frozenset(f.id for f in self._state.features if not f.cleared)
 
     @property
     def state_size(self) -> int:
-        """Length of the state vector (13 + 6 per inverse-depth + 3 per Euclidean feature, + 2
-        per feature for its tracker offset when ``MonoSlamConfig.offset_states``)."""
+        """Length of the state vector (13 + 6 or 3 per feature, + 2 per tracker offset)."""
         return len(self._state.x)
 
     def set_camera(self, camera: CameraModel) -> None:
@@ -155,8 +126,7 @@ class MonoSlam:
         self.camera = camera
 
     def set_noise(self, config: MonoSlamConfig) -> None:
-        """Measure with ``config`` (another tracking noise) from now on; with offsets as
-        states, the features mapped without one get one (``FilterState.add_offset``)."""
+        """Measure with ``config`` (another tracking noise) from now on."""
         self.config = config
         for feature in self._state.features if config.offset_states else []:
             self._state.add_offset(feature, config.tracking_offset_px)
@@ -164,8 +134,7 @@ class MonoSlam:
     def add_handover(
         self, feature_id: int, position_m: FloatArray, covariance_m2: FloatArray
     ) -> str | None:
-        """Queue a feature handed over as STATIC (world position (3,) m, covariance (3, 3));
-        it enters the map when next observed. Return why it was refused, or None."""
+        """Queue a handover: position (3,) m, covariance (3, 3); return why refused, or None."""
         position = np.asarray(position_m, dtype=np.float64).reshape(-1)
         covariance = np.asarray(covariance_m2, dtype=np.float64)
         problem = handover_problem(feature_id, position, covariance)
@@ -192,9 +161,7 @@ class MonoSlam:
                 self._moving_ids.pop(feature_id, None)
 
     def mark_moving(self, ids: Iterable[int]) -> None:
-        """Note features the Shadow filter found DYNAMIC (or SLAM revoked): they never fill
-        the map undecided until handed over as STATIC, and one that filled it already leaves
-        the state ('revoked' in the next frame's result); the newest MAX_MOVING_IDS kept."""
+        """Note features found DYNAMIC (or revoked); those in the state are revoked."""
         for feature_id in ids:
             self._moving_ids.pop(int(feature_id), None)
             self._moving_ids[int(feature_id)] = None
@@ -219,12 +186,8 @@ class MonoSlam:
     def predictions(
         self, stamp_ns: int, ids: list[int] | None = None
     ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray]:
-        """Return the owned features' predicted raw pixels at ``stamp_ns``: ids (M,), pixels
-        (M, 2), innovation covariances (M, 2, 2) px^2 (the active search regions; zero for a
-        feature not predicted in view, ``_in_view``, where no search is due) and the warps
-        (M, 2, 2) of their templates to the predicted view (``monoslam_views``; zero: none,
-        and for a feature not predicted in view: a tracker searches with a warp only where a
-        search is due)."""
+        """Return ids (M,), pixels (M, 2), covariances (M, 2, 2) px^2 and warps (M, 2, 2) at
+        ``stamp_ns``; zeros for features not predicted in view."""
         if self._status != TRACKING or self._last_stamp_ns is None:
             nothing = np.zeros((0, 2, 2))
             return np.zeros(0, np.int64), np.zeros((0, 2)), nothing, nothing.copy()
@@ -243,8 +206,7 @@ class MonoSlam:
     # --- the frame loop --------------------------------------------------------------------
 
     def process(self, frame: MonoSlamFrame) -> MonoSlamResult:
-        """Run one frame (module docstring). Raises MonoSlamInputError (filter unchanged) for
-        a stamp that does not advance or malformed arrays."""
+        """Run one frame; MonoSlamInputError (filter unchanged) for a stale stamp or bad arrays."""
         ids, pixels, known_keys, known_pixels, warnings = validated_frame(
             frame, self._last_stamp_ns, self._known_keys
         )
@@ -342,8 +304,7 @@ class MonoSlam:
         return self._result(stamp_ns, TRACKING, [], [], [], {}, fix.points, warnings)
 
     def _try_depth_start(self, frame: MonoSlamFrame, warnings: list[str]) -> MonoSlamResult:
-        """Start from the features with a measured depth (``monoslam_init``), or report
-        waiting for them."""
+        """Start from the features with a measured depth, or report waiting for them."""
         config, stamp_ns = self.config, frame.stamp_ns
         self._last_stamp_ns = stamp_ns
         start = None
@@ -377,9 +338,7 @@ class MonoSlam:
     def _update(
         self, observed: dict[int, FloatArray], keys: IntArray, known_pixels: FloatArray
     ) -> UpdateOutcome:
-        """Update with the measurements of owned features and known points (``update``
-        mode); return the measured and rejected feature ids, the known points used and the
-        counts."""
+        """Update with owned features and known points; return measured, rejected, known used."""
         known = [
             (self._known[key], pixel)
             for key, pixel in zip(keys.tolist(), known_pixels, strict=True)
@@ -391,13 +350,7 @@ class MonoSlam:
     def _manage_map(
         self, observed: dict[int, FloatArray], rejected: list[int], in_view: set[int]
     ) -> dict[int, str]:
-        """Count the searches of the features predicted in view (``in_view``: those not
-        observed) and whether each was found; forget the tracker offset of each rejected
-        feature (``reset_offset``); delete the features failing the persistent-outlier test
-        (a handed-over one is revoked; failures in a row: in consecutive frames) or found in
-        fewer than ``min_success_ratio`` of at least ``failure_window`` searches (Davison's
-        rule); convert linear-enough features to Euclidean; return removed ids with the
-        reason. Features out of view stay in the state."""
+        """Count searches, drop failing features, convert linear ones; return removed ids, why."""
         config = self.config
         removed: dict[int, str] = {}
         state = self._state
@@ -434,9 +387,7 @@ class MonoSlam:
         return removed
 
     def _in_view(self, features: list[FeatureBlock]) -> IntArray:
-        """Return the ids (M,) of those of ``features`` predicted in view: in front of the
-        camera, inside the image, and seen within ``max_view_angle_deg`` of the ray they were
-        first seen along (a patch looks too different beyond it)."""
+        """Return the ids (M,) of ``features`` predicted in view (``in_view_mask``)."""
         if not features:
             return np.zeros(0, np.int64)
         ids, pixels, _, _ = predicted_measurements(
@@ -452,9 +403,7 @@ class MonoSlam:
         trusted: list[int],
         in_view: set[int],
     ) -> dict[int, str]:
-        """Evict features out of view (neither observed nor in ``in_view``), the fewest
-        successful measurements first (then the longest unseen), into the frozen map while the
-        state is too full for the features this frame would add; return them ('evicted')."""
+        """Evict out-of-view features into the frozen map while the state is too full."""
         config = self.config
         excess = len(self._state.features) + sum(self._wanted(observed, measured, trusted))
         excess -= config.max_features
@@ -509,8 +458,7 @@ class MonoSlam:
         return added + [candidates[k] for k in new]
 
     def _insert(self, feature_id: int, pixel: FloatArray, handover: _Handover | None) -> bool:
-        """Append an inverse-depth feature seen at ``pixel`` (its inverse depth from the
-        handover, else the prior); True if it went in."""
+        """Append an inverse-depth feature seen at ``pixel``; True if it went in."""
         rho = self.config.initial_inverse_depth
         rho_variance = self.config.initial_inverse_depth_sigma**2
         if handover is not None:

@@ -1,5 +1,4 @@
-"""MonoSLAM's checks (``monoslam``): a frame's and a handover's input, the known points
-against the updated state, and the reasons tracking is lost."""
+"""MonoSLAM's checks: frame and handover input, known points after the update, tracking loss."""
 
 from __future__ import annotations
 
@@ -8,6 +7,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from monoslam_shadow_node.common.core.projective import chi2_quantile
 from monoslam_shadow_node.monoslam.core.monoslam_ekf import Match
 from monoslam_shadow_node.monoslam.core.monoslam_init import MIN_KNOWN_POINTS
 from monoslam_shadow_node.monoslam.core.monoslam_model import R_SLICE, feature_directions
@@ -18,7 +18,6 @@ from monoslam_shadow_node.monoslam.core.monoslam_types import (
     MonoSlamFrame,
     MonoSlamInputError,
 )
-from monoslam_shadow_node.common.core.projective import chi2_quantile
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 
@@ -41,9 +40,8 @@ def handover_problem(feature_id: int, position: FloatArray, covariance: FloatArr
 def validated_frame(
     frame: MonoSlamFrame, last_stamp_ns: int | None, known_keys: IntArray
 ) -> tuple[IntArray, FloatArray, IntArray, FloatArray, list[str]]:
-    """Check the stamp (after ``last_stamp_ns``) and shapes; return the features' ids and
-    pixels and the known points' keys and pixels, without non-finite pixels (and without keys
-    not in ``known_keys``), with a warning naming dropped features. Raises MonoSlamInputError."""
+    """Check stamp and shapes; return feature ids, pixels, known keys and pixels without the
+    non-finite, and a warning naming dropped features. Raises MonoSlamInputError."""
     if last_stamp_ns is not None and frame.stamp_ns <= last_stamp_ns:
         raise MonoSlamInputError(
             f'frame stamp {frame.stamp_ns} ns does not advance past {last_stamp_ns} ns'
@@ -74,13 +72,7 @@ def known_disagreement(
     pixels: FloatArray,
     config: MonoSlamConfig,
 ) -> bool:
-    """True when the known points in view (world points (3,) m seen at ``pixels`` (N, 2); at
-    least ``MIN_KNOWN_POINTS``), predicted from the updated state, miss their measurements by
-    more than pixel noise allows: the sum of squared misses over sigma^2 exceeds the
-    chi-square quantile (2 per point, at ``gate_probability``). Their positions are certain,
-    so after an update the state must reproject them within the noise; when it does not, the
-    estimate has left them (a gate on the prior's innovation covariance misses this once the
-    covariance has grown with the error)."""
+    """True when known points in view (N, 3) m miss their ``pixels`` (N, 2) beyond chi-square."""
     if len(points) < MIN_KNOWN_POINTS:
         return False
     matches = [Match(pixel, point) for point, pixel in zip(points, pixels, strict=True)]
@@ -97,10 +89,7 @@ def tracking_lost_reason(
     known_rejected_frames: int,
     known_rejected: tuple[int, int],
 ) -> str | None:
-    """Return why tracking is lost (``monoslam``'s docstring, step 6), or None: frames without
-    a measurement, frames in a row in which the known points disagreed (with the latest
-    (rejected, in view)), the position uncertainty, a state that is not finite, a collapsed
-    pose covariance."""
+    """Return why tracking is lost, or None."""
     if idle_frames >= config.lost_after_frames:
         return f'no feature or known point measured for {idle_frames} frames'
     if known_rejected_frames >= config.lost_after_known_rejected_frames:
@@ -131,10 +120,7 @@ def in_view_mask(
     ids: IntArray,
     pixels: FloatArray,
 ) -> NDArray[np.bool_]:
-    """Return which of the state's features ``ids`` (M,), predicted at raw ``pixels`` (M, 2),
-    are in view: inside the image by ``view_margin_px``, and seen within
-    ``max_view_angle_deg`` of the ray they were first seen along (a patch looks too
-    different beyond it)."""
+    """Return which of ``ids`` (M,) at ``pixels`` (M, 2) are in view (margin and view angle)."""
     by_id = {feature.id: feature for feature in state.features}
     margin = config.view_margin_px
     u, v = pixels[:, 0], pixels[:, 1]

@@ -1,27 +1,7 @@
-"""The MonoSLAM EKF steps on a FilterState: constant velocity prediction, the predicted
-measurements with their innovation covariances (the active search regions), and the gated
-update of all accepted measurements at once in Joseph form.
+"""The MonoSLAM EKF steps on a FilterState: constant velocity prediction, predicted measurements
+with their innovation covariances, gated and consider updates in Joseph form.
 
-A measurement i is predicted with S_i = H_i P H_i^T + R, R = pixel_sigma_px^2 I (with
-``MonoSlamConfig.second_order``, plus an inverse-depth feature's second-order term,
-``second_order_covariance``), and rejected
-when its Mahalanobis distance exceeds the chi-square gate (``MonoSlamConfig.gate``). The
-update is P = (I - K H) P (I - K H)^T + K R K^T, then the quaternion is renormalized (with
-its Jacobian).
-
-Features on probation (``FeatureBlock.probation``: handed over by the Shadow filter and not
-yet fixed by SLAM's own views, ``monoslam``'s docstring) take no part in the camera's update.
-After it, each one inside the gate from the updated state is a Schmidt ('consider') update
-(``consider_update``): the gain is zero outside the feature's own block, so the camera and
-the other features are not corrected by it, while their uncertainty is in its S. A moving
-feature on probation therefore cannot drag the camera; its innovations are judged against
-a camera the rest of the map fixed. When the rest of the map offers fewer than
-``MIN_TRUSTED_POINTS`` measurements in a frame (too few to find a wrong one among them: the
-camera turned away from most of what SLAM trusts) and not a target's ``MIN_KNOWN_POINTS``
-known points, the features on probation that the Shadow filter cleared as static (handovers,
-``FeatureBlock.cleared``) leave probation and update the camera as the others do
-(``split_probation``); features it has not cleared (undecided, ``fill_undecided``) never do:
-they stay consider-only until a handover clears them.
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -46,8 +26,7 @@ from slam_core.camera import CameraModel
 
 
 def predict(state: FilterState, dt_s: float, config: MonoSlamConfig) -> None:
-    """Constant velocity prediction of the camera over ``dt_s`` s; features are static, and
-    their tracker offsets (if states) decay towards 0 (``MonoSlamConfig.offset_states``)."""
+    """Constant velocity prediction over ``dt_s`` s; tracker offset states decay towards 0."""
     sigmas = config.linear_acceleration_sigma, config.angular_acceleration_sigma
     camera, f, q = predict_camera(state.x[:CAMERA_SIZE], dt_s, *sigmas)
     state.x[:CAMERA_SIZE] = camera
@@ -78,8 +57,7 @@ def offset_indices(state: FilterState) -> IntArray:
 
 
 def feature_jacobian(feature: FeatureBlock, d_point: FloatArray) -> FloatArray:
-    """Return d(pixel)/d(feature's states) (2, extent): the point's Jacobian, then the
-    identity for its offset when it has one."""
+    """Return d(pixel)/d(feature's states) (2, extent): the point's, then I for its offset."""
     if not feature.offset_size:
         return d_point
     return np.hstack([d_point, np.eye(2)])
@@ -94,11 +72,8 @@ def predicted_measurements(
     *,
     covariances: bool = True,
 ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray]:
-    """Return the features' (those in ``ids``, or all) predicted raw pixels ``dt_s`` s ahead:
-    ids (M,), pixels (M, 2) and innovation covariances (M, 2, 2) px^2 (zeros when
-    ``covariances`` is False: only the pixels are wanted), and the predicted camera state
-    (13,); the state is unchanged. Features behind the camera (or beyond the lens's fold) are
-    left out. The covariances are built in one batch per kind of feature block."""
+    """Return ids (M,), pixels (M, 2) and innovation covariances (M, 2, 2) px^2 (zeros without
+    ``covariances``) ``dt_s`` s ahead, and the predicted camera (13,); state unchanged."""
     sigmas = config.linear_acceleration_sigma, config.angular_acceleration_sigma
     camera, f, q = predict_camera(state.x[:CAMERA_SIZE], dt_s, *sigmas)
     wanted = None if ids is None else set(ids)
@@ -150,8 +125,7 @@ def predicted_measurements(
 
 @dataclass(frozen=True, eq=False)
 class Match:
-    """A measurement: its raw pixel (2,) px, of a known world point (3,) m or of a feature of
-    the state."""
+    """A measurement: raw pixel (2,) of a known world point (3,) m or of a state feature."""
 
     pixel: FloatArray
     point: FloatArray | None = None
@@ -160,9 +134,7 @@ class Match:
 
 @dataclass(frozen=True, eq=False)
 class Linearized:
-    """A match's prediction at the current state: pixel (2,) px, H_c = d(pixel)/d(camera)
-    (2, 13), H_f = d(pixel)/d(feature) (2, k) and the feature's block in x (None for a known
-    point)."""
+    """A match's prediction: pixel (2,), H_c (2, 13), H_f (2, k), the feature's block (or None)."""
 
     predicted: FloatArray
     h_c: FloatArray
@@ -171,8 +143,7 @@ class Linearized:
     second_order: FloatArray = field(default_factory=lambda: np.zeros((2, 2)))
 
     def innovation_covariance(self, p: FloatArray, sigma2: float) -> FloatArray:
-        """Return S = H P H^T + sigma2 I + the second-order term (2, 2) px^2 for the state
-        covariance ``p`` (``second_order_covariance``)."""
+        """Return S = H P H^T + sigma2 I + the second-order term (2, 2) px^2."""
         c = slice(0, CAMERA_SIZE)
         s = self.h_c @ p[c, c] @ self.h_c.T + sigma2 * np.eye(2) + self.second_order
         if self.block is not None:
@@ -198,8 +169,7 @@ class Linearized:
 
 @dataclass(frozen=True, eq=False)
 class UpdateOutcome:
-    """What an update did: the measured and rejected feature ids (state order), the number of
-    known points used and the counts."""
+    """What an update did: measured and rejected feature ids, known points used, counts."""
 
     measured: list[int]
     rejected: list[int]
@@ -212,8 +182,7 @@ def matches(
     observed: dict[int, FloatArray],
     known: list[tuple[FloatArray, FloatArray]],
 ) -> list[Match]:
-    """Return the measurements of known points (``known``: world point (3,) m, raw pixel (2,))
-    then of the state's features (``observed``: track id -> raw pixel (2,)), in state order."""
+    """Return the known points' matches, then the observed state features', in state order."""
     out = [Match(pixel, point=point) for point, pixel in known]
     return out + [Match(observed[f.id], feature=f) for f in state.features if f.id in observed]
 
@@ -224,9 +193,7 @@ def linearize_all(
     all_matches: list[Match],
     second_order: bool = False,
 ) -> list[Linearized | None]:
-    """Return every match's prediction at the current state (one batched projection), None
-    for those behind the camera; with ``second_order`` (``MonoSlamConfig.second_order``)
-    each with its second-order covariance term (``second_order_covariance``)."""
+    """Return every match's prediction at the current state (None behind the camera)."""
     if not all_matches:
         return []
     camera = state.x[:CAMERA_SIZE]
@@ -264,13 +231,7 @@ def linearize_all(
 def second_order_covariance(
     state: FilterState, feature: FeatureBlock, d_point: FloatArray
 ) -> FloatArray:
-    """Return the second-order term of an inverse-depth feature's measurement covariance
-    (2, 2) px^2 (zero for a Euclidean one). Its camera-frame ray is R^T (rho d + m) with
-    d = anchor - centre: rho d is the product of two uncertain states, whose variance
-    rho^2 Sigma_d + d d^T sigma_rho^2 the linearization keeps, while the product of their
-    deviations, sigma_rho^2 Sigma_d + c c^T (c = Cov(d, rho); Gaussian, Isserlis), it drops:
-    the scale a monocular camera does not observe (docs/design/monoslam.md). It is
-    G (sigma_rho^2 Sigma_d + c c^T) G^T with G = d(pixel)/d(anchor) / rho."""
+    """Return an inverse-depth feature's second-order measurement covariance (2, 2) px^2."""
     if feature.size != INVERSE_DEPTH_SIZE or state.x[feature.start + 5] <= 1e-9:
         return np.zeros((2, 2))
     start = feature.start
@@ -291,9 +252,7 @@ def gate_all(
     p: FloatArray,
     config: MonoSlamConfig,
 ) -> list[bool]:
-    """Return per match whether it is in front of the camera and its innovation's Mahalanobis
-    distance (S = H P H^T + R from the covariance ``p``) is inside the chi-square gate. The
-    S (2, 2) are built in one batch per feature size."""
+    """Return per match whether it is in front and inside the chi-square gate of S from ``p``."""
     rows = [k for k, lin in enumerate(linearized) if lin is not None]
     used = [lin for lin in linearized if lin is not None]
     passed = [False] * len(all_matches)
@@ -334,11 +293,7 @@ found by its code), and fix the camera on their own."""
 
 
 def split_probation(all_matches: list[Match]) -> tuple[list[Match], list[Match]]:
-    """Return the matches that update the camera (known points, features not on probation)
-    and those of features on probation, each in their order. With fewer than
-    ``MIN_TRUSTED_POINTS`` of the former, of them fewer than ``MIN_KNOWN_POINTS`` known
-    points, the cleared features on probation leave it (module docstring) and update the
-    camera too; uncleared ones stay on probation."""
+    """Return the matches that update the camera and those of features on probation."""
     on_probation = [m for m in all_matches if m.feature is not None and m.feature.probation]
     rest = [m for m in all_matches if m.feature is None or not m.feature.probation]
     known = sum(1 for m in rest if m.feature is None)
@@ -357,10 +312,7 @@ def probation_update(
     on_probation: list[Match],
     config: MonoSlamConfig,
 ) -> set[int]:
-    """Measure the features on probation from the current (updated) state: each one inside
-    the gate corrects its own block only (``consider_update``); return the indices (into
-    ``on_probation``) used. One feature's consider update changes only its own rows and
-    columns of P, so the others' gates, computed together first, are unchanged by it."""
+    """Consider-update each feature on probation inside the gate; return the indices used."""
     linearized = linearize_all(state, camera_model, on_probation, config.second_order)
     gates = gate_all(on_probation, linearized, state.p, config)
     used: set[int] = set()
@@ -374,11 +326,7 @@ def probation_update(
 def consider_update(
     state: FilterState, match: Match, linearized: Linearized, sigma2: float
 ) -> None:
-    """Schmidt ('consider') update of one feature with its own measurement: the gain is
-    K_f = B_f S^-1 on the feature's block (B = P H^T, S = H B + sigma2 I) and zero elsewhere,
-    so nothing else in the state moves. P - K B^T - B K^T + K S K^T (the Joseph form, right
-    for any gain) then changes only the feature's rows and columns: its block becomes
-    P_ff - B_f S^-1 B_f^T and its cross-covariances P_xf - B_x S^-1 B_f^T."""
+    """Schmidt ('consider') update of one feature: only its own block moves."""
     block = linearized.block
     if block is None:
         raise ValueError('a consider update needs a feature of the state')
@@ -398,26 +346,21 @@ def consider_update(
 
 
 def measurement_variance(match: Match, config: MonoSlamConfig) -> float:
-    """Return a match's pixel variance per coordinate in the update, px^2 (R): a known
-    point's corner ``pixel_sigma_px``; a tracked feature's ``measurement_variance_of``."""
+    """Return a match's R per coordinate, px^2: known point or ``measurement_variance_of``."""
     if match.feature is None:
         return config.pixel_sigma_px**2
     return measurement_variance_of(match.feature, config)
 
 
 def measurement_variance_of(feature: FeatureBlock, config: MonoSlamConfig) -> float:
-    """Return a tracked feature's R per coordinate, px^2: the white noise alone when its
-    offset is a state (the offset is in H P H^T), else the white noise and the offset's
-    variance together (``feature_sigma_px``)."""
+    """Return a tracked feature's R per coordinate, px^2 (white alone if its offset is a state)."""
     if feature.offset_size:
         return config.pixel_sigma_px**2
     return config.feature_sigma_px**2
 
 
 def marginal_variance(match: Match, config: MonoSlamConfig) -> float:
-    """Return a match's pixel variance per coordinate about its point's projection, px^2:
-    a corner's ``pixel_sigma_px``, a tracked feature's ``feature_sigma_px`` (offset
-    included, whether or not it is a state)."""
+    """Return a match's pixel variance about its point's projection, px^2 (offset included)."""
     sigma = config.pixel_sigma_px if match.feature is None else config.feature_sigma_px
     return sigma * sigma
 
@@ -433,9 +376,7 @@ def apply_update(
 def stacked(
     used: list[tuple[Match, Linearized]], config: MonoSlamConfig
 ) -> tuple[FloatArray, FloatArray, FloatArray, IntArray, FloatArray]:
-    """Return the update's H (2m, k), residual (2m,), R's diagonal (2m,), the state columns
-    H covers (k,) and the second-order blocks (m, 2, 2) of ``used`` (m > 0). H is built
-    over the states the measurements touch only: the camera and the features' blocks."""
+    """Return H (2m, k), residual (2m,), R diagonal (2m,), columns (k,), blocks (m, 2, 2)."""
     blocks = sorted(
         {(lin.block.start, lin.block.stop) for _, lin in used if lin.block is not None}
     )
@@ -457,8 +398,7 @@ def stacked(
 
 
 def record_attempts(all_matches: list[Match], accepted: set[int]) -> UpdateOutcome:
-    """Count each feature's attempt (accepted: indices into ``all_matches``) and return the
-    measured and rejected feature ids and the known points used (counts: rejected only)."""
+    """Count each feature's attempt; return measured, rejected ids and known points used."""
     measured: list[int] = []
     rejected: list[int] = []
     known_used = 0
@@ -483,10 +423,7 @@ def gated_update(
     known: list[tuple[FloatArray, FloatArray]],
     config: MonoSlamConfig,
 ) -> UpdateOutcome:
-    """Gate and apply all measurements of the state's features (``observed``: track id ->
-    raw pixel (2,)) and of known points (``known``: world point (3,) m, raw pixel (2,)),
-    then those of features on probation (module docstring), counting each feature's attempt;
-    return what was measured and rejected."""
+    """Gate and apply all measurements, then those on probation; return what was measured."""
     all_matches, on_probation = split_probation(matches(state, observed, known))
     used: list[tuple[Match, Linearized]] = []
     accepted: set[int] = set()
@@ -514,15 +451,9 @@ def joseph_update(
     columns: IntArray | None = None,
     second_order: FloatArray | None = None,
 ) -> None:
-    """x += K nu; P = (I - K H) P (I - K H)^T + K R K^T, R = diag(``variances``) (one per
-    row of H) plus the (m / 2, 2, 2) blocks ``second_order`` on its diagonal (one per
-    measurement, ``second_order_covariance``); renormalize q. ``h`` (m, k) holds H's
-    ``columns`` (k,) of the state (None: all of them); H is zero elsewhere.
+    """x += K nu, P in Joseph form, R = diag(``variances``) + ``second_order``; renormalize q.
 
-    The Joseph form is evaluated expanded and symmetric, P + M + M^T with M = K (S K^T / 2
-    - B^T), B = P H^T and S = H B + R: that is P - K B^T - B K^T + K S K^T, the same matrix
-    for any gain K, in one n x n product (about 2 n^2 m operations instead of the 2 n^3 +
-    2 n^2 m of the n x n products of I - K H), exactly symmetric."""
+    ``h`` (m, k) holds H's ``columns`` (k,) of the state (None: all); H is zero elsewhere."""
     if columns is None:
         columns = np.arange(len(state.x))
     ph_t = state.p[:, columns] @ h.T
@@ -549,8 +480,7 @@ def joseph_update(
 def innovation_matrix(
     h: FloatArray, h_p: FloatArray, variances: FloatArray, second_order: FloatArray | None
 ) -> FloatArray:
-    """Return S = H P H^T + R (m, m) from H (m, k) and P H^T over H's columns ``h_p`` (k, m),
-    R = diag(``variances``) plus the (m / 2, 2, 2) ``second_order`` blocks on its diagonal."""
+    """Return S = H P H^T + R (m, m) from H (m, k) and ``h_p`` = P H^T over H's columns (k, m)."""
     s = h @ h_p + np.diag(variances)
     for k, block in enumerate(() if second_order is None else second_order):
         s[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += block
@@ -558,8 +488,7 @@ def innovation_matrix(
 
 
 def renormalize_quaternion(x: FloatArray) -> FloatArray:
-    """Make the camera quaternion of the state mean ``x`` (n,) a unit one, in place; return
-    the Jacobian (4, 4) of the normalization, (I - q q^T) / |q|, for the covariance."""
+    """Make the camera quaternion in ``x`` (n,) unit, in place; return its Jacobian (4, 4)."""
     norm = float(np.linalg.norm(x[Q_SLICE]))
     q = x[Q_SLICE] / norm
     x[Q_SLICE] = q
@@ -567,12 +496,7 @@ def renormalize_quaternion(x: FloatArray) -> FloatArray:
 
 
 def pose_cross(state: FilterState) -> tuple[list[int], FloatArray]:
-    """Return the stamps of the remembered earlier pose estimates (``FilterState.history``)
-    and Cov(e_now, e_then) (K, 6, 6) of the current pose error with each of theirs, over
-    (position, rotation about the world axes) as ``FilterState.pose_covariance``. The EKF
-    carries them exactly through every prediction, update and change of the map (the
-    errors' linear propagation: F, then I - K H, at each step); the Shadow filter's static
-    test takes the drift its views share from them (``pose_links``)."""
+    """Return the remembered poses' stamps and Cov(e_now, e_then) (K, 6, 6)."""
     history = state.carried_history()
     if history is None or not state.history_stamps:
         return [], np.zeros((0, 6, 6))

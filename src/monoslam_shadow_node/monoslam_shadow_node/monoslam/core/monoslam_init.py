@@ -1,19 +1,6 @@
-"""Starting the MonoSLAM filter from known static points (paper 001 starts from a checkerboard).
+"""Starting the MonoSLAM filter from known static points, or from feature depths.
 
-A monocular camera cannot observe scale; a set of points whose world positions are known (the
-four corners of a fiducial marker of known size and pose, or any known point set) fixes it.
-``camera_from_known_points`` solves the perspective-n-point problem for the camera pose and
-returns it with its first-order covariance, which the filter takes as its initial camera
-state; the known points stay in the filter as measurements of zero-uncertainty landmarks
-(Davison et al. 2007 start the same way), so the scale stays anchored while they are in view.
-
-Or from depth (``MonoSlamConfig.known_points_source='depth'``, an RGB-D or stereo camera at start):
-the first frame that carries per-feature depths (``MonoSlamFrame.depths_m``) defines the
-world (the camera's optical frame then), and ``depth_start_features`` picks the features
-that enter the map as points of known position: their depth is measured, so they enter with
-the inverse depth it gives and its variance from the sensor's noise, sigma_z = c z^2 (c =
-``depth_noise_per_m``: 1.425e-3 /m for structured light, Khoshelham and Elberink 2012); the
-scale is then the depth sensor's, held by these features while the tracker keeps them.
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -49,8 +36,7 @@ pose is exact by definition; a tiny positive value keeps the covariance well con
 
 @dataclass(frozen=True, eq=False)
 class DepthStart:
-    """Features a depth start puts in the map: track ids (M,), raw pixels (M, 2), inverse
-    depths along each ray (M,) 1/m and their variances (M,) 1/m^2."""
+    """A depth start's features: ids (M,), pixels (M, 2), rho (M,) 1/m, variances (M,) 1/m^2."""
 
     ids: NDArray[np.int64]
     pixels: FloatArray
@@ -67,10 +53,7 @@ def depth_start_features(
     max_points: int,
     min_spacing_px: float,
 ) -> DepthStart:
-    """Pick the features with a measured depth (finite, > 0; z along the optical axis, m) for
-    a depth start, spread over the image (farthest first from those already taken, at least
-    ``min_spacing_px`` apart, at most ``max_points``), with the inverse depth along the ray
-    rho = 1 / (z |r|), r = (x_n, y_n, 1), and var(rho) = (c z^2 |r|)^2 rho^4."""
+    """Pick spread features with a measured depth (z (N,) m) for a depth start."""
     track_ids = np.asarray(ids, dtype=np.int64).reshape(-1)
     pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     depths = np.asarray(depths_m, dtype=np.float64).reshape(-1)
@@ -97,9 +80,7 @@ def depth_start_features(
 
 
 def depth_start_pose(last: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
-    """Return the camera's (r, q) state (7,) and covariance (7, 7) of a depth start: the
-    camera's optical frame is the world (``START_POSE_SIGMA``), or, after tracking was lost,
-    the last pose (r, q) (7,) the filter had, so that the world stays where it was."""
+    """Return the camera's (r, q) state (7,) and covariance (7, 7) of a depth start."""
     state = np.zeros(7)
     state[3] = 1.0  # q = (1, 0, 0, 0)
     if last is not None and np.all(np.isfinite(last)) and np.linalg.norm(last[3:7]) > 0.0:
@@ -109,9 +90,7 @@ def depth_start_pose(last: FloatArray | None = None) -> tuple[FloatArray, FloatA
 
 @dataclass(frozen=True, eq=False)
 class PoseFix:
-    """A camera pose from known points: R_world_camera (3, 3), optical centre (3,) m, the
-    state's (r, q) part (7,) and its covariance (7, 7), the RMS reprojection error (px) and the
-    number of points used."""
+    """A pose from known points: R (3, 3), centre (3,) m, (r, q) (7,), cov (7, 7), RMS px, N."""
 
     rotation: FloatArray
     centre: FloatArray
@@ -124,9 +103,7 @@ class PoseFix:
 def camera_from_known_points(
     camera: CameraModel, points_m: FloatArray, pixels: FloatArray, pixel_sigma_px: float
 ) -> PoseFix | None:
-    """Return the camera pose that sees known world points (N, 3) m at raw pixels (N, 2), with
-    its covariance for pixel noise sigma (px), or None when fewer than ``MIN_KNOWN_POINTS``
-    are given or the points do not determine a pose (degenerate, behind the camera)."""
+    """Return the pose seeing world points (N, 3) m at pixels (N, 2), or None if undetermined."""
     points = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
     observed = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     if len(points) < MIN_KNOWN_POINTS or len(points) != len(observed):
@@ -173,8 +150,7 @@ def camera_from_known_points(
 def _refine(
     camera: CameraModel, state: FloatArray, points: FloatArray, observed: FloatArray
 ) -> tuple[FloatArray | None, FloatArray | None, FloatArray]:
-    """Gauss-Newton on the raw-pixel reprojection error in (r, theta); return the state, the
-    Jacobian (2N, 6) of the pixels with respect to (r, theta) and the residuals (2N,)."""
+    """Gauss-Newton on the reprojection error in (r, theta): state, Jacobian (2N, 6), residuals."""
     for iteration in range(_REFINE_ITERATIONS + 1):
         linearized = _linearize(camera, state, points, observed)
         if linearized is None:
@@ -192,8 +168,7 @@ def _refine(
 def _linearize(
     camera: CameraModel, state: FloatArray, points: FloatArray, observed: FloatArray
 ) -> tuple[FloatArray, FloatArray] | None:
-    """Return the residuals (2N,) px and their Jacobian (2N, 6) with respect to (r, theta),
-    or None when a point is behind the camera."""
+    """Return residuals (2N,) px and Jacobian (2N, 6), or None when a point is behind."""
     residuals = np.zeros(2 * len(points))
     jacobian = np.zeros((2 * len(points), 6))
     d_q_d_theta = 0.5 * right_matrix(state[Q_SLICE])[:, 1:]  # q = dq(theta) (x) q_hat

@@ -1,53 +1,7 @@
-"""The models of the MonoSLAM filter with their analytic Jacobians (Davison et al. 2007;
-Civera, Davison and Montiel 2008).
+"""The MonoSLAM filter's models with analytic Jacobians (Davison et al. 2007; Civera et al. 2008).
 
-Camera state x_c (13,) = (r, q, v, w):
-
-- r (3,) m: the optical centre in the world (``map``) frame;
-- q (4,) = (qw, qx, qy, qz): the unit quaternion of R_world_camera (the optical frame: x
-  right, y down, z forward). ``slam_core.geometry.quaternion.rotation_from_quaternion`` is
-  the quadratic form of q, exactly a rotation for |q| = 1; the filter renormalizes after
-  every update;
-- v (3,) m/s: linear velocity in the world frame; w (3,) rad/s: angular velocity in the camera
-  frame.
-
-Constant velocity model over dt (``predict_camera``): unknown linear and angular
-accelerations a, alpha of spectral densities ``sigma_a^2`` (m^2/s^3) and ``sigma_alpha^2``
-(rad^2/s^3) give velocity impulses V = a dt, Omega = alpha dt with covariance diag(sigma_a^2
-dt, sigma_alpha^2 dt) and
-
-    r' = r + (v + V) dt,   q' = q (x) exp((w + Omega) dt),   v' = v + V,   w' = w + Omega,
-
-F = dx'/dx and G = dx'/d(V, Omega), Q = G diag(.) G^T.
-
-Point features, two parametrizations:
-
-- inverse depth (Civera et al.), y (6,) = (x0, y0, z0, theta, phi, rho): the point is
-  p = p0 + m(theta, phi) / rho, p0 the optical centre when the feature was first seen,
-  m = R_ref (cos phi sin theta, -sin phi, cos phi cos theta) a unit ray and rho > 0 the inverse
-  depth along it (1/m). R_ref is a constant per feature: the camera's orientation estimate
-  when the feature was added, so the angles are small and far from the parametrization's
-  singularity (phi = +-90 deg) for any ray the camera could see. The measurement is linear in
-  y near infinite depth (rho -> 0), which makes undelayed initialization possible;
-- Euclidean, y (3,) = p. A feature moves to it once its linearity index (``linearity_indices``,
-  Civera et al. eq. 16) says the Euclidean measurement model is close to linear over its depth
-  uncertainty: 3 states instead of 6.
-
-Why inverse depth and not the inverse scaling of paper 001's reference [11] (Marzorati et
-al., a homogeneous point (x, y, z, w) with w = 1/s): both give measurement equations that are
-nearly linear for distant and newly seen points, and [11] reports the same accuracy; inverse
-depth has an established test for when a point may be converted to 3 Euclidean states, and
-its anchor ties each feature to the camera that first saw it, which keeps the covariance of a
-newly added feature exactly the first-order propagation of that camera's and that ray's
-uncertainty. The Shadow filter keeps the homogeneous form (its per-feature EKF needs w = 0 for
-points at infinity); the two meet only in the handover, a Euclidean point with covariance.
-
-Measurement (``project_feature``): h_c = R^T (rho (p0 - r) + m) for inverse depth, R^T (p - r)
-for Euclidean (a direction in the camera frame; scaling by rho > 0 does not change the pixel),
-then the lens model of ``CameraModel`` (pinhole + plumb_bob / rational distortion). A
-direction beyond the lens's fold radius (``CameraModel.fold_radius``: far off the axis, where
-the distortion polynomial bends back and would map it into the image, for example a point
-beside the camera) is not visible, like one behind it.
+Camera x_c (13,) = (r m, q = (qw, qx, qy, qz) of R_world_camera, v m/s world, w rad/s camera);
+features: inverse depth (6,) or Euclidean (3,). Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -79,8 +33,7 @@ R_SLICE, Q_SLICE, V_SLICE, W_SLICE = slice(0, 3), slice(3, 7), slice(7, 10), sli
 def predict_camera(
     camera: ArrayLike, dt_s: float, sigma_a: float, sigma_alpha: float
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Return the predicted camera state (13,), F = dx'/dx (13, 13) and Q (13, 13) after dt_s
-    seconds of the constant velocity model (module docstring)."""
+    """Return the camera (13,), F (13, 13) and Q (13, 13) after ``dt_s`` s of constant velocity."""
     x = np.asarray(camera, dtype=np.float64)
     r, q, v, w = x[R_SLICE], x[Q_SLICE], x[V_SLICE], x[W_SLICE]
     dq, d_dq = exp_quaternion(w * dt_s)
@@ -105,8 +58,7 @@ def predict_camera(
 def ray_from_angles(
     reference: FloatArray, theta: float, phi: float
 ) -> tuple[FloatArray, FloatArray]:
-    """Return the unit ray m (3,) in the world of angles (theta, phi) rad about R_ref (3, 3)
-    and dm/d(theta, phi) (3, 2)."""
+    """Return the unit ray m (3,) of (theta, phi) rad about R_ref (3, 3), dm/d(angles) (3, 2)."""
     st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)
     local = np.array([cp * st, -sp, cp * ct])
     d_local = np.array([[cp * ct, -sp * st], [0.0, -cp], [-cp * st, -sp * ct]])
@@ -114,8 +66,7 @@ def ray_from_angles(
 
 
 def angles_from_ray(reference: FloatArray, ray: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """Return (theta, phi) (2,) rad of a world direction (3,) (any length) about R_ref and
-    their Jacobian (2, 3) with respect to the direction."""
+    """Return (theta, phi) (2,) rad of a direction (3,) about R_ref and their Jacobian (2, 3)."""
     d = np.asarray(reference, dtype=np.float64).T @ np.asarray(ray, dtype=np.float64)
     x, y, z = d
     horizontal2 = x * x + z * z
@@ -134,9 +85,7 @@ def angles_from_ray(reference: FloatArray, ray: ArrayLike) -> tuple[FloatArray, 
 def feature_direction(
     kind_size: int, feature: FloatArray, reference: FloatArray | None, centre: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Return a feature's world direction d (3,) from the optical centre (any positive scale),
-    dd/d(feature) (3, n) and dd/dr (3, 3), for a Euclidean (n = 3) or inverse-depth (n = 6)
-    feature."""
+    """Return a feature's direction d (3,) from the centre, dd/d(feature) (3, n), dd/dr (3, 3)."""
     if kind_size == EUCLIDEAN_SIZE:
         return feature - centre, np.eye(3), -np.eye(3)
     if reference is None:
@@ -154,9 +103,7 @@ def feature_direction(
 def feature_directions(
     features: list[tuple[FloatArray, FloatArray | None]], centre: FloatArray
 ) -> FloatArray:
-    """``feature_direction`` (the direction alone) for many points at once: (value (3,) or
-    (6,), reference or None) per point, a Euclidean (or known) point or an inverse-depth
-    feature; returns (M, 3), the same numbers as one by one."""
+    """``feature_direction``'s directions (M, 3) for many (value, reference or None) points."""
     directions = np.empty((len(features), 3))
     inverse = [k for k, (value, _) in enumerate(features) if len(value) == INVERSE_DEPTH_SIZE]
     euclidean = [k for k, (value, _) in enumerate(features) if len(value) == EUCLIDEAN_SIZE]
@@ -183,9 +130,7 @@ def project_feature(
     feature: FloatArray,
     reference: FloatArray | None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
-    """Return the predicted raw pixel (2,) of a feature, d(pixel)/d(camera state) (2, 13),
-    d(pixel)/d(feature) (2, n) and the visibility check value: h_c[2] (> 0: in front), 0 for a
-    direction beyond the lens's fold (module docstring; NaN pixel and zero Jacobians then)."""
+    """Return pixel (2,), d/d(camera) (2, 13), d/d(feature) (2, n) and h_c[2] (0: beyond fold)."""
     r, q = camera[R_SLICE], camera[Q_SLICE]
     direction, d_feature, d_centre = feature_direction(len(feature), feature, reference, r)
     rot_t = rotation_from_quaternion(q).T
@@ -203,8 +148,7 @@ def project_feature(
 
 
 def beyond_fold(camera_model: CameraModel, h_c: FloatArray) -> NDArray[np.bool_]:
-    """Return which camera-frame directions (N, 3) in front of the camera lie beyond the lens's
-    fold radius (module docstring); False for the others."""
+    """Return which camera-frame directions (N, 3) in front lie beyond the lens's fold radius."""
     with np.errstate(divide='ignore', invalid='ignore'):
         radius = np.hypot(h_c[:, 0], h_c[:, 1]) / h_c[:, 2]
     return np.asarray((h_c[:, 2] > 0.0) & (radius >= camera_model.fold_radius()))
@@ -217,12 +161,7 @@ def project_features(
     *,
     jacobians: bool = True,
 ) -> tuple[FloatArray, FloatArray, list[FloatArray], FloatArray]:
-    """``project_feature`` for many points at once: (value (3,) or (6,), reference or None)
-    per point (a known point, a Euclidean or an inverse-depth feature). Returns the pixels
-    (M, 2), d(pixel)/d(camera state) (M, 2, 13), d(pixel)/d(feature) per point (2, n) and the
-    depth check values h_c[2] (M,); points behind the camera get NaN pixels and zero
-    Jacobians, as there; so do points beyond the lens's fold, with check value 0. Without
-    ``jacobians`` the Jacobians are all zero (only the pixels are wanted)."""
+    """``project_feature`` for M points: pixels (M, 2), (M, 2, 13), per point (2, n), h_c[2]."""
     count = len(features)
     r, q = camera[R_SLICE], camera[Q_SLICE]
     rot_t = rotation_from_quaternion(q).T
@@ -311,8 +250,7 @@ def _rotate_transposed_jacobians(q: FloatArray, vectors: FloatArray) -> FloatArr
 def project_known_point(
     camera_model: CameraModel, camera: FloatArray, point: FloatArray
 ) -> tuple[FloatArray, FloatArray, float]:
-    """Return the raw pixel (2,) of a point of known world position (3,) m, d(pixel)/d(camera
-    state) (2, 13) and h_c[2]."""
+    """Return the pixel (2,) of a world point (3,) m, d(pixel)/d(camera) (2, 13) and h_c[2]."""
     pixel, d_camera, _, depth = project_feature(camera_model, camera, point, None)
     return pixel, d_camera, depth
 
@@ -323,9 +261,8 @@ def new_inverse_depth_feature(
     pixel: ArrayLike,
     rho: float,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Return a new inverse-depth feature (6,) seen at a raw pixel (2,) with inverse depth rho
-    (1/m), its reference rotation R_ref (3, 3), dy/d(camera state) (6, 13) and dy/d(pixel)
-    (6, 2). The caller adds rho's own variance on the last entry."""
+    """Return a feature (6,) at a raw pixel (2,) with ``rho`` (1/m), R_ref (3, 3), dy/d(camera)
+    (6, 13) and dy/d(pixel) (6, 2); the caller adds rho's own variance."""
     r, q = camera[R_SLICE], camera[Q_SLICE]
     normalized = camera_model.undistort_points(np.asarray(pixel, dtype=np.float64)[None],
                                                normalized=True)[0]  # fmt: skip
@@ -359,12 +296,7 @@ def euclidean_point(feature: FloatArray, reference: FloatArray) -> tuple[FloatAr
 def linearity_indices(
     features: FloatArray, references: FloatArray, rho_variances: FloatArray, centre: FloatArray
 ) -> FloatArray:
-    """Return Civera et al.'s linearity index L_d (N,) of inverse-depth features (N, 6) with
-    their reference rotations (N, 3, 3) and rho variances (N,), seen from the optical centre
-    (3,): 4 sigma_d / d_1 |cos alpha|, sigma_d = sigma_rho / rho^2 the depth uncertainty, d_1
-    the distance from the centre, alpha the angle between the feature's ray and the current
-    one (inf for rho <= 0 or a zero distance). Below ~0.1 the Euclidean model is linear
-    enough to switch."""
+    """Return Civera et al.'s linearity index L_d (N,) of inverse-depth features (N, 6)."""
     features = np.asarray(features, dtype=np.float64).reshape(-1, INVERSE_DEPTH_SIZE)
     theta, phi, rho = features[:, 3], features[:, 4], features[:, 5]
     st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)

@@ -1,48 +1,6 @@
-"""The 1-point RANSAC EKF update of the MonoSLAM filter (Civera, Grasa, Davison and Montiel,
-"1-Point RANSAC for EKF Filtering", J. Field Robotics 27(5), 2010, Algorithm 1).
+"""The 1-point RANSAC EKF update of the MonoSLAM filter (Civera et al., J. Field Robotics 2010).
 
-Per frame, after the prediction:
-
-1. individually compatible matches: the measurements inside the chi-square gate of their
-   innovation covariance S_i = H_i P H_i^T + R (``monoslam_ekf.gate_all``);
-2. hypotheses: the EKF prior fixes all but a few degrees of freedom, so one match is a
-   minimal sample. A hypothesis updates the state mean alone with one compatible match,
-   x_i = x + K_i nu_i, predicts every compatible match from x_i and counts as its support the
-   low-innovation inliers, those within ``MonoSlamConfig.low_innovation_threshold_px`` of
-   their prediction. The most supported hypothesis is kept. Known points are certain (their
-   world positions are the target's geometry), so while at least ``MIN_KNOWN_POINTS`` of them
-   are compatible, a hypothesis that does not keep more than half of them as low-innovation
-   inliers is not admissible, however many features agree with it: a group of features that
-   agree with each other against the known points is a rigid mover (handed over while it
-   stood still, or along the direction the Shadow filter leaves unchecked), not the world.
-   When no one-match hypothesis is admissible, the hypothesis is the camera pose the known
-   points give on their own (``monoslam_init.camera_from_known_points``), the rest of the
-   state unchanged. The number of hypotheses adapts to the best support found so far, the
-   inlier ratio epsilon:
-   n_hyp = log(1 - p) / log(1 - epsilon), p = ``RANSAC_PROBABILITY``. The matches are drawn
-   without replacement (``rng.permutation``), so no more hypotheses are tried than there are
-   compatible matches: beyond that every distinct one has been tried;
-3. low-innovation update, as a preview: the EKF update's mean with the best hypothesis's
-   low-innovation inliers, linearized at the prior, and its covariance where step 4 reads it;
-4. high-innovation rescue: each remaining compatible match is predicted again from the
-   updated mean, with S from the updated covariance; those inside the chi-square gate now are
-   inliers the low-innovation test was too strict for (e.g. features whose depth is still
-   uncertain);
-5. the update: steps 3-4 (``previewed``) decide which matches are inliers; the state then
-   takes all of them in one update from the prior (the paper updates twice, low-innovation
-   inliers first: the first update then sees only the innovations closest to one match's
-   hypothesis, a truncated sample, and the filter grows sure of an error; on measurements
-   that agree exactly with the truth but whose features keep being replaced its position
-   NEES was 2-4x the gated update's, docs/design/monoslam.md).
-
-Features on probation (handed over and not yet fixed by SLAM's own views) take no part in
-steps 1-4; after them, each is measured alone from the updated state without correcting the
-camera (``monoslam_ekf.probation_update``).
-
-Every other measurement is rejected, and a feature's rejection counts against it as the gate's
-did (map management deletes features that fail too often). The random draws come from the
-caller's ``np.random.Generator`` (seeded from ``MonoSlamConfig.ransac_seed``), so a run is
-reproducible.
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -68,7 +26,10 @@ from monoslam_shadow_node.monoslam.core.monoslam_ekf import (
     split_probation,
     stacked,
 )
-from monoslam_shadow_node.monoslam.core.monoslam_init import MIN_KNOWN_POINTS, camera_from_known_points
+from monoslam_shadow_node.monoslam.core.monoslam_init import (
+    MIN_KNOWN_POINTS,
+    camera_from_known_points,
+)
 from monoslam_shadow_node.monoslam.core.monoslam_model import (
     CAMERA_SIZE,
     Q_SLICE,
@@ -94,10 +55,7 @@ def ransac_update(
     config: MonoSlamConfig,
     rng: np.random.Generator,
 ) -> UpdateOutcome:
-    """Apply the 1-point RANSAC update (module docstring) with the measurements of the state's
-    features (``observed``: track id -> raw pixel (2,)) and of known points (``known``: world
-    point (3,) m, raw pixel (2,)), counting each feature's attempt; return what was measured
-    and rejected, with the counts."""
+    """Apply the 1-point RANSAC update; return what was measured and rejected, with the counts."""
     all_matches, on_probation = split_probation(matches(state, observed, known))
     compatible: list[tuple[int, Linearized]] = []
     linearized_all = linearize_all(state, camera_model, all_matches, config.second_order)
@@ -141,10 +99,7 @@ def previewed(
     judged: list[Match],
     config: MonoSlamConfig,
 ) -> FilterState:
-    """Return the state as the update with ``used`` would leave it, to judge the matches
-    ``judged`` by (step 4): its mean in full, its covariance only over the camera and the
-    judged features' blocks (zero elsewhere; those are all that predicting and gating them
-    reads), so that the rest of the n x n update is not computed. ``state`` is unchanged."""
+    """Return the state the update with ``used`` would leave, only where ``judged`` reads it."""
     out = FilterState()
     out.features, out.x, out.p = state.features, state.x.copy(), state.p
     if not used:
@@ -173,11 +128,7 @@ def best_hypothesis(
     config: MonoSlamConfig,
     rng: np.random.Generator,
 ) -> tuple[IntArray, int]:
-    """Return the low-innovation inliers (indices into ``compatible``, (K,)) of the most
-    supported admissible hypothesis and the number of hypotheses tried; the state is
-    unchanged. While enough known points are compatible, a one-match hypothesis must agree
-    with them, and when none does, the hypothesis is the camera pose the known points give
-    on their own (module docstring)."""
+    """Return the best admissible hypothesis's low-innovation inliers (K,) and hypotheses tried."""
     best: IntArray = np.zeros(0, dtype=np.int64)
     count = len(compatible)
     if count == 0:
@@ -222,8 +173,7 @@ def best_hypothesis(
 
 
 def hypotheses_needed(inlier_ratio: float, probability: float = RANSAC_PROBABILITY) -> int:
-    """Return n_hyp = log(1 - p) / log(1 - epsilon), rounded up (at least 1), the hypotheses
-    that draw an inlier with probability ``p`` when the inlier ratio is ``epsilon``."""
+    """Return n_hyp = ceil(log(1 - p) / log(1 - epsilon)), at least 1."""
     if inlier_ratio >= 1.0:
         return 1
     if inlier_ratio <= 0.0:
@@ -234,8 +184,7 @@ def hypotheses_needed(inlier_ratio: float, probability: float = RANSAC_PROBABILI
 def hypothesis_mean(
     state: FilterState, match: Match, linearized: Linearized, sigma2: float
 ) -> FloatArray:
-    """Return the state mean (n,) updated with one measurement alone, x + K nu with
-    K = P H^T S^-1 (its quaternion renormalized); the state is unchanged."""
+    """Return the mean (n,) updated with one measurement alone (quaternion renormalized)."""
     p_h_t = linearized.p_h_t(state.p)
     s = linearized.innovation_covariance(state.p, sigma2)
     x = state.x + p_h_t @ np.linalg.solve(s, match.pixel - linearized.predicted)
@@ -244,9 +193,7 @@ def hypothesis_mean(
 
 
 def predicted_pixels(camera_model: CameraModel, x: FloatArray, wanted: list[Match]) -> FloatArray:
-    """Return the raw pixels (M, 2) of the matches' points seen from the state mean ``x``,
-    plus a feature's tracker offset when it is a state (NaN for those behind the camera or
-    beyond the lens's fold)."""
+    """Return the matches' pixels (M, 2) from the mean ``x`` (NaN where not visible)."""
     centre = x[R_SLICE]
     rotation_t = rotation_from_quaternion(x[Q_SLICE]).T
     points: list[tuple[FloatArray, FloatArray | None]] = []

@@ -1,32 +1,5 @@
-"""A MonoSlam filter's whole state as named arrays and JSON values (what a checkpoint holds),
-its restoration, and what a restored filter does over the gap to its next frame. These read
-and set the filter's private state, as its own save and load would (``monoslam`` holds the
-frame loop).
-
-The state: the camera (size, K, D), the EKF's x and P with each feature's block (track id,
-parametrization and anchor rotation, first ray, how it entered, its measurement record,
-probation and tracker offset), the retired map, the handovers waiting to enter, the track ids
-owned and known to move, where each track's template was captured (``TemplateViews``: the
-tracker's patch of each track is matched again by its id), the frame counter, the last
-stamp, the tracking state and its loss counters, and the RANSAC generator's state (a resumed
-filter draws what the uninterrupted one would).
-
-The gap (``gap_verdict``): the node was down, and the camera went on moving. Over a gap dt
-the constant velocity model predicts the camera with the noise of an unknown acceleration,
-white with ``linear_acceleration_sigma`` (m/s^2/sqrt(Hz)) and ``angular_acceleration_sigma``
-(rad/s^2/sqrt(Hz)): the predicted orientation's standard deviation grows as
-sqrt(sigma_w^2 dt^2 + sigma_alpha^2 dt^3 / 3) (sigma_w: the angular velocity's own), the
-position's likewise. The filter predicts over the gap, and measures the tracker's features by
-their ids, while that prediction still says where in the image its features are: while the
-gate's search region of the rotation, sqrt(chi2(gate_probability, 2)) sigma_theta, is within
-half the camera's narrower field of view, and the position's standard deviation within
-``max_position_sigma_m`` (beyond which the filter declares itself lost). Past either, the
-update would be linearized about a pose the data may be anywhere from, so the filter keeps its
-map but takes its pose again from the target, as at the start (``relocalise``): the map is in
-the target's frame, so a pose from the target puts the camera back in it. With the defaults
-(sigma_alpha = 8 rad/s^2/sqrt(Hz), a 0.999 gate, a 640x480 camera with f = 300 px: half field
-of view 38.7 deg) the bound is about 0.1 s, three frames at 30 Hz: a resume within a frame or
-two predicts; a restarted node (at least its respawn delay, a second) re-localises.
+"""A MonoSlam filter's whole state as named arrays and JSON values, its restoration, and what a
+restored filter does over the gap to its next frame. Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -163,9 +136,7 @@ def saved_camera(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> CameraM
 def _blocks(
     meta: dict[str, Any], arrays: dict[str, np.ndarray], offset: int, mixed: bool = False
 ) -> list[FeatureBlock]:
-    """The feature blocks laid out from x[13] on, checked (ValueError names the culprit);
-    ``mixed``: features with and without offset states may sit side by side (the noise in
-    force changed while they were added, ``estimate_noise``)."""
+    """The feature blocks laid out from x[13] on, checked (ValueError names the culprit)."""
     items = meta['features']
     count = len(items)
     references = shaped(arrays, 'feature_reference', (count, 3, 3))
@@ -227,8 +198,7 @@ def _retired(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> dict[int, M
 
 
 def restore_filter(slam: MonoSlam, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-    """Put a saved state (``filter_state``) into ``slam``, a filter made with the saved
-    camera and this node's config; ValueError naming what does not fit."""
+    """Put a saved state into ``slam``; ValueError naming what does not fit."""
     known = sorted([k, *map(float, p)] for k, p in slam._known.items())
     if [[int(k), *map(float, p)] for k, *p in meta['known_points']] != known:
         raise ValueError(
@@ -297,8 +267,7 @@ def restore_filter(slam: MonoSlam, arrays: dict[str, np.ndarray], meta: dict[str
 
 @dataclass(frozen=True)
 class GapVerdict:
-    """Whether a resumed filter predicts over the gap (``predict``) or re-localises, with the
-    predicted standard deviations (m, rad) and their limits that decided it."""
+    """Whether a resumed filter predicts over the gap, with the predicted sigmas and limits."""
 
     gap_s: float
     predict: bool
@@ -317,17 +286,14 @@ class GapVerdict:
 
 
 def rotation_limit_rad(slam: MonoSlam) -> float:
-    """The largest orientation standard deviation a prediction over a gap may have (rad):
-    its gate region within half the narrower field of view (module docstring)."""
+    """The largest orientation sigma a prediction over a gap may have (rad)."""
     camera = slam.camera
     half_view = math.atan(0.5 * min(camera.width / camera.fx, camera.height / camera.fy))
     return half_view / math.sqrt(slam.config.gate)
 
 
 def gap_verdict(slam: MonoSlam, stamp_ns: int) -> GapVerdict | None:
-    """Decide whether a tracking filter predicts over the gap to a frame at ``stamp_ns`` or
-    re-localises (module docstring); None when that frame is not after its last one (the
-    filter refuses it). The filter is unchanged."""
+    """Judge the gap to a frame at ``stamp_ns``; None when not after the last frame."""
     last_ns = slam._last_stamp_ns
     if last_ns is None or stamp_ns <= last_ns:
         return None
@@ -350,8 +316,7 @@ def gap_verdict(slam: MonoSlam, stamp_ns: int) -> GapVerdict | None:
 
 
 def relocalise(slam: MonoSlam) -> None:
-    """Keep the map, and take the camera's pose from the target again when next in view (as
-    at the start, ``FilterState.start`` keeps the features); until then the filter waits."""
+    """Keep the map, and take the camera's pose from the target again when next in view."""
     slam._status = WAITING
     slam._idle_frames = 0
     slam._known_rejected_frames = 0

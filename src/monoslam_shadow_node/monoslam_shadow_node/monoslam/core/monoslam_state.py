@@ -1,11 +1,6 @@
-"""The MonoSLAM state: the camera then one block per map feature in x and P, and the edits
-that keep them consistent (start, add, convert to Euclidean, remove) and read them out.
+"""The MonoSLAM state: the camera then one block per map feature in x and P, and its edits.
 
-x (n,) = [camera (13): r, q, v, w | feature blocks], P (n, n) its covariance. A feature block
-is 6 states (inverse depth: anchor (3), azimuth, elevation, rho) or 3 (Euclidean point), in
-the order of ``FilterState.features``, followed by the tracker's offset (2 states, px) when
-the tracker declares offsets that persist (``MonoSlamConfig.offset_states``);
-``monoslam_model`` has the models and Jacobians.
+x (n,) = [camera (13): r, q, v, w | feature blocks (6 or 3, + 2 offset states)], P (n, n).
 """
 
 from __future__ import annotations
@@ -49,8 +44,7 @@ columns each in every update (docs/design/shadow_filter.md)."""
 
 
 def keeps_pose(current: int, earlier: int) -> bool:
-    """Whether the estimate of image ``earlier`` stays remembered at image ``current``
-    (``POSE_HISTORY``)."""
+    """Whether image ``earlier``'s estimate stays remembered at image ``current``."""
     recent, stride, span = POSE_HISTORY
     back = current - earlier
     return back < recent or (back < span and earlier % stride == 0)
@@ -58,14 +52,7 @@ def keeps_pose(current: int, earlier: int) -> bool:
 
 @dataclass
 class FeatureBlock:
-    """A feature in the state: its track id, its block x[start:start + size] (6: inverse
-    depth with its anchor ray ``reference``; 3: Euclidean, no reference), how it entered
-    ('start': a depth start's point, 'new' or 'handover'), the frames it was added and last
-    seen in, its measurement record (attempts, successes, consecutive failures), whether it
-    is on probation (its measurements correct only its own block:
-    ``monoslam_ekf.consider_update``), whether the Shadow filter cleared it as static
-    (False: an undecided feature, on probation until it is cleared), and the size of the
-    tracker's offset right after the point (0, or 2: u, v in px)."""
+    """A feature in the state: its track id, block in x, origin, record, probation and offset."""
 
     id: int
     start: int
@@ -98,8 +85,7 @@ class FeatureBlock:
 
 
 class FilterState:
-    """The EKF's state ``x`` (n,) and covariance ``p`` (n, n) with the ``features`` laid out
-    in it (empty while the filter waits for the known points)."""
+    """The EKF's ``x`` (n,) and ``p`` (n, n) with the ``features`` laid out in it."""
 
     def __init__(self) -> None:
         self.x = np.zeros(0)
@@ -119,10 +105,7 @@ class FilterState:
         velocity_sigma_m_s: float,
         angular_velocity_sigma_rad_s: float,
     ) -> None:
-        """Set the camera: pose (7,) (r, q) with covariance (7, 7), velocities zero with the
-        given standard deviations. The features kept in the state (a filter re-localised
-        after a resume, ``monoslam_snapshot``) keep their estimates and covariances, now
-        uncorrelated with the camera: its new pose comes from the known points alone."""
+        """Set the camera: pose (7,) (r, q), covariance (7, 7), zero velocities of given sigmas."""
         n = len(self.x) if self.features else CAMERA_SIZE
         x, p = np.zeros(n), np.zeros((n, n))
         x[CAMERA_SIZE:] = self.x[CAMERA_SIZE:n]
@@ -146,14 +129,7 @@ class FilterState:
         frame: int,
         offset_sigma_px: float = 0.0,
     ) -> bool:
-        """Append an inverse-depth feature seen at ``pixel`` (raw px) with inverse depth
-        ``rho`` (1/m) and its variance; True if it went in (False: a non-finite feature).
-
-        With ``offset_sigma_px`` > 0 the tracker's offset follows it in the state, estimated
-        0 with that standard deviation. The ray goes through the pixel as measured, offset
-        included, so its error is -(d ray / d pixel)(offset + white noise): the ray takes both
-        variances, and its covariance with the offset is -(d ray / d pixel) sigma_o^2. A later
-        sighting with the same offset then predicts the same pixel, as it should."""
+        """Append an inverse-depth feature at ``pixel`` with ``rho`` (1/m); True if it went in."""
         feature, reference, d_camera, d_pixel = new_inverse_depth_feature(
             camera_model, self.x[:CAMERA_SIZE], pixel, rho
         )
@@ -194,8 +170,7 @@ class FilterState:
         return True
 
     def to_euclidean(self, feature: FeatureBlock) -> None:
-        """Replace an inverse-depth feature's 6 states by its 3 Euclidean ones (its offset, if
-        any, stays right after them)."""
+        """Replace an inverse-depth feature's 6 states by its 3 Euclidean ones."""
         assert feature.reference is not None
         start = feature.start
         block = slice(start, start + INVERSE_DEPTH_SIZE)
@@ -224,11 +199,7 @@ class FilterState:
                 other.start -= 3
 
     def convert_linear(self, threshold: float) -> list[FeatureBlock]:
-        """Convert to Euclidean every inverse-depth feature whose linearity index
-        (``linearity_indices``, from the current optical centre) is below ``threshold`` and
-        whose inverse depth is positive; return them. Converting one leaves the others'
-        numbers as they are (only its own rows and columns change), so the indices are
-        computed once for the pass."""
+        """Convert the inverse-depth features below the linearity ``threshold``; return them."""
         inverse = [
             f for f in self.features if f.size == INVERSE_DEPTH_SIZE and f.reference is not None
         ]
@@ -249,8 +220,7 @@ class FilterState:
         return converted
 
     def reset_offset(self, feature: FeatureBlock, sigma_px: float) -> None:
-        """Forget a feature's tracker offset: estimate 0, standard deviation ``sigma_px``,
-        uncorrelated with the rest (a fresh draw, as after a re-anchoring jump)."""
+        """Forget a feature's tracker offset: 0, sigma ``sigma_px``, uncorrelated with the rest."""
         offset = feature.offset
         if offset is None:
             return
@@ -261,8 +231,7 @@ class FilterState:
         self._history_rows()[offset] = 0.0
 
     def add_offset(self, feature: FeatureBlock, sigma_px: float) -> None:
-        """Give a feature without one a tracker offset: 2 states right after its point,
-        estimated 0 with standard deviation ``sigma_px``, uncorrelated with the rest."""
+        """Give a feature a tracker offset: 2 states, 0 with sigma ``sigma_px``, uncorrelated."""
         if feature.offset_size:
             return
         at, n = feature.start + feature.size, len(self.x)
@@ -280,8 +249,7 @@ class FilterState:
         feature.offset_size = 2
 
     def remove(self, feature: FeatureBlock) -> None:
-        """Take a feature out of the state (its rows and columns are one block: the four
-        blocks around it are copied as slices, ten times faster than fancy indexing)."""
+        """Take a feature out of the state."""
         start, end = feature.start, feature.start + feature.extent
         self.history = np.delete(self._history_rows(), np.s_[start:end], axis=0)
         self.x = np.concatenate([self.x[:start], self.x[end:]])
@@ -308,9 +276,7 @@ class FilterState:
         return MapPoint(feature.id, point, covariance, 'inverse_depth', active, feature.source)
 
     def remember_pose(self, stamp_ns: int, frame: int, current: int) -> None:
-        """Remember the current pose estimate's error (of image ``frame``, stamped
-        ``stamp_ns``) for ``history``, keeping the earlier ones ``keeps_pose`` keeps at image
-        ``current``."""
+        """Remember the current pose error (image ``frame`` at ``stamp_ns``) for ``history``."""
         self._history_rows()
         kept = [k for k, earlier in enumerate(self.history_frames) if keeps_pose(current, earlier)]
         columns = (6 * np.array(kept, dtype=np.intp)[:, None] + np.arange(6)).ravel()
@@ -320,8 +286,7 @@ class FilterState:
         self.history_frames = [self.history_frames[k] for k in kept] + [frame]
 
     def carried_history(self) -> FloatArray | None:
-        """The history when it covers x (an update carries it then), else None (a state set
-        from outside, such as the RANSAC preview's)."""
+        """The history when it covers x, else None."""
         return self.history if self.history.shape[0] == len(self.x) else None
 
     def _history_rows(self) -> FloatArray:

@@ -1,5 +1,4 @@
-"""The MonoSLAM filter's interface: its settings, a frame's input, a map point, a frame's
-result, the tracking states and the input error (the filter is in ``monoslam``)."""
+"""The MonoSLAM filter's interface: settings, frame input, map point, result, states, error."""
 
 from __future__ import annotations
 
@@ -25,12 +24,9 @@ class MonoSlamInputError(ValueError):
 
 @dataclass(frozen=True)
 class MonoSlamConfig:
-    """Noise, gating, map management and initialization settings (``monoslam``'s docstring).
+    """Noise, gating, map management and initialization settings.
 
-    ``known_points`` maps a key (e.g. 4 marker id + corner index) to a world point (3,) m:
-    the start with ``known_points_source`` 'marker' or 'file' (the same to the filter: only
-    where the node takes them from differs); 'depth' starts from a frame's feature depths.
-    """
+    ``known_points``: key -> world point (3,) m, for ``known_points_source`` 'marker' or 'file'."""
 
     known_points: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     known_points_source: str = 'marker'  # 'marker', 'file': known_points; 'depth': monoslam_init
@@ -144,39 +140,23 @@ class MonoSlamConfig:
 
     @property
     def offset_states(self) -> bool:
-        """Whether each feature's tracker offset is a state of the filter: when the tracker
-        declares offsets that persist (``tracking_offset_px`` > 0). They are Gauss-Markov:
-        o' = a o + w, a = exp(-dt / ``tracking_offset_time_s``), var(w) = sigma_o^2 (1 - a^2),
-        and a sighting is the point's projection plus its offset plus white noise
-        (``pixel_sigma_px``). An EKF that only added the offset's variance to each sighting
-        would treat its errors as independent between frames and grow overconfident."""
+        """Whether each feature's tracker offset is a state (``tracking_offset_px`` > 0)."""
         return self.tracking_offset_px > 0.0
 
     @property
     def feature_sigma_px(self) -> float:
-        """A tracked feature's pixel standard deviation about its point's projection: the
-        white noise and the tracker's persistent offset together (the known points' corners
-        are detected afresh in every image and keep ``pixel_sigma_px``)."""
+        """A tracked feature's pixel sigma about its projection: white and offset together."""
         return math.sqrt(self.pixel_sigma_px**2 + self.tracking_offset_px**2)
 
     @property
     def low_innovation_threshold_px(self) -> float:
-        """1-point RANSAC's inlier threshold on a feature's pixel distance from its
-        prediction by a hypothesis, px: a correct match differs from the true projection by
-        its noise alone, |nu|^2 / sigma^2 ~ chi-square (2 dof), so the gate's probability
-        keeps that share of them (sigma sqrt(chi2(gate_probability, 2)), 3.7 px at 1 px; a
-        known point's threshold is the same with ``pixel_sigma_px``)."""
+        """1-point RANSAC's inlier threshold, px: sigma sqrt(chi2(gate_probability, 2))."""
         return self.feature_sigma_px * math.sqrt(self.gate)
 
 
 @dataclass(frozen=True)
 class UpdateCounts:
-    """How one frame's update went, over feature and known-point measurements: individually
-    compatible (inside the chi-square gate), 1-point RANSAC hypotheses tried, low-innovation
-    inliers of the best one, high-innovation inliers rescued, features on probation measured
-    (inside the gate; they corrected only themselves) and rejected (all measurements not
-    used). With ``update='gated'`` the compatible ones are the update's and the RANSAC counts
-    are 0; features on probation are counted in ``probation`` only."""
+    """One frame's update counts: compatible, hypotheses, inliers, rescued, probation, rejected."""
 
     compatible: int = 0
     hypotheses: int = 0
@@ -188,9 +168,7 @@ class UpdateCounts:
 
 @dataclass(frozen=True, eq=False)
 class MonoSlamFrame:
-    """One image's measurements: track ids (N,) and raw pixels (N, 2) of tracked features,
-    known-point keys (T,) with their raw pixels (T, 2), and optionally each feature's measured
-    depth (N,) m along the optical axis (NaN: none), which a depth start uses."""
+    """One image: ids (N,), pixels (N, 2), known keys (T,) and pixels (T, 2), depths (N,) m."""
 
     stamp_ns: int
     ids: IntArray
@@ -202,10 +180,7 @@ class MonoSlamFrame:
 
 @dataclass(frozen=True, eq=False)
 class MapPoint:
-    """A map feature in the world frame: id, position (3,) m and covariance (3, 3) m^2
-    (None while an inverse-depth feature's depth is not known: rho within 3 sigma of 0),
-    its parametrization ('inverse_depth' or 'euclidean'), whether it is in the filter (or
-    retired) and how it entered ('start': from a depth start, 'new' or 'handover')."""
+    """A map feature: id, position (3,) m, covariance (3, 3) m^2 or None, kind, active, source."""
 
     id: int
     position: FloatArray
@@ -217,20 +192,10 @@ class MapPoint:
 
 @dataclass(frozen=True, eq=False)
 class MonoSlamResult:
-    """What one frame produced. ``rotation`` (3, 3) R_world_camera and ``centre`` (3,) m are
-    None while waiting; ``pose_covariance`` (6, 6) is over (position, rotation about the world
-    axes), the convention of geometry_msgs/PoseWithCovariance; velocities in the world
-    (linear, m/s) and camera (angular, rad/s) frames. ``removed`` maps each feature taken out
-    of the state in this frame to why: 'failed' (the persistent-outlier test, or not found
-    where predicted too often), 'revoked' (the persistent-outlier test, for a handed-over
-    feature: back to the Shadow filter), 'evicted' (out of view when the state was full:
-    retired to the frozen map) or 'lost' (tracking was lost: the map is retired).
-    ``searched_ids`` are the features predicted in view but not observed (searched for in
-    vain), ``state_features`` the features in the filter after the frame.
-    ``pose_cross_covariances`` (K, 6, 6) are Cov(this pose's error, the error of the pose
-    stamped ``pose_cross_stamps[k]``) for the K latest earlier poses, over the coordinates
-    of ``pose_covariance``: the drift the Shadow filter's tests need
-    (``monoslam_ekf.pose_cross``; None and empty when not tracking)."""
+    """What one frame produced: pose (None while waiting), covariances, map changes.
+
+    ``pose_covariance`` (6, 6): (position, rotation about the world axes); ``removed``: id ->
+    'failed', 'revoked', 'evicted' or 'lost'; ``pose_cross_covariances`` (K, 6, 6)."""
 
     stamp_ns: int
     frame: int
@@ -254,9 +219,7 @@ class MonoSlamResult:
 
 
 def update_text(counts: UpdateCounts) -> str:
-    """Return the update's counts for the log: '12 compatible, 2 hypotheses, 10
-    low-innovation inliers, 1 rescued, 4 on probation, 3 rejected' (no RANSAC counts for the
-    gated update, no probation count when none was measured)."""
+    """Return the update's counts for the log, e.g. '12 compatible, 2 hypotheses, ...'."""
     text = f'{counts.compatible} compatible'
     if counts.hypotheses:
         text += (

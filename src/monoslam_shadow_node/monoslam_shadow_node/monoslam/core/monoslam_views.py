@@ -1,28 +1,6 @@
 """Where each track's appearance template was captured, and how it looks from the camera now.
 
-The feature tracker keeps, per track, the patch around the pixel where the track (re)appeared:
-its detection, or its re-identification (``feature_tracker``). A map feature that comes back
-into view after a turn or a loop is seen from elsewhere: closer or farther (scale), rolled
-(rotation), obliquely (shear). MonoSLAM (Davison et al. 2007, sec. 3.5) warps the feature's
-initial patch to the predicted view before searching for it, assuming the patch is a small
-plane facing the camera that first saw it. Here SLAM, which knows the geometry, computes that
-warp as a 2x2 affine map A = d(pixel now) / d(pixel in the template's view) at the feature,
-and publishes it with the prediction; the tracker, which has the images, applies it to the
-template before its search.
-
-``TemplateViews`` records for each track the camera pose (SLAM's estimate) and the pixel of
-the frame in which the track appeared: the first frame it is in after a frame without it,
-which is the frame the tracker captured its template in (detection or re-identification);
-tracks already in view when SLAM starts get the starting pose. Records of tracks neither in
-the latest frame nor in the state are forgotten (a dropped track that is not a map feature is
-never searched for, so its template view is not needed): the records stay bounded by the
-state and one image's tracks.
-
-The warp (``affine_warps``): the plane through the feature's estimated world point X with
-normal n towards the first camera centre c0; the template pixel p0's ray m = R0 r(p0) meets it
-at Y = c0 + s m, s = n.(X - c0) / n.m; then p = project(R^T (Y - c)). A = dp/dY dY/dm dm/dp0
-with dY/dm = s (I - m n^T / n.m). For a feature at infinity (no depth yet), the plane is at
-infinity and A is the rotation's homography, J R^T R0 dr/dp0.
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -43,8 +21,7 @@ from slam_core.geometry.quaternion import rotation_from_quaternion
 
 
 class TemplateViews:
-    """Per track, the camera centre (3,), rotation R_world_camera (3, 3) and raw pixel (2,)
-    of the frame its template was captured in (module docstring)."""
+    """Per track, the centre (3,), R_world_camera (3, 3) and pixel (2,) of its template's frame."""
 
     def __init__(self) -> None:
         self._views: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = {}
@@ -58,9 +35,7 @@ class TemplateViews:
         return self._views.get(track_id)
 
     def observe(self, observed: dict[int, FloatArray], camera: FloatArray, keep: set[int]) -> None:
-        """Record the frame's tracks that (re)appeared in it (or have no record yet) with the
-        camera state ``camera`` (13,) (its mean after the update); forget the records of
-        tracks neither observed nor in ``keep`` (the state's features)."""
+        """Record tracks that (re)appeared with ``camera`` (13,); forget those not in ``keep``."""
         centre = camera[R_SLICE].copy()
         rotation = rotation_from_quaternion(camera[Q_SLICE])
         for track_id, pixel in observed.items():
@@ -85,12 +60,7 @@ def affine_warps(
     centre: FloatArray,
     rotation: FloatArray,
 ) -> FloatArray:
-    """Return per feature A (2, 2) = d(pixel from the camera at ``centre``, ``rotation``)/
-    d(pixel in its template's view) (module docstring), for N features: their template
-    views' centres (N, 3), rotations R_world_camera (N, 3, 3) and pixels (N, 2), and their
-    world points (N, 3) m (a NaN row: at infinity, the rotation alone). Returns (N, 2, 2),
-    NaN where there is no warp: the template's ray misses the plane, or lands behind the
-    camera or beyond the lens's fold."""
+    """Return A (N, 2, 2) = d(pixel now)/d(template pixel) per feature; NaN where no warp."""
     count = len(pixels)
     out = np.full((count, 2, 2), np.nan)
     if count == 0:
@@ -133,10 +103,7 @@ def prediction_warps(
     camera: FloatArray,
     ids: IntArray,
 ) -> FloatArray:
-    """Return the template warps (M, 2, 2) of the state's features ``ids`` (M,) seen from the
-    (predicted) camera state ``camera`` (13,): ``affine_warps`` from each track's recorded
-    view; zeros where there is no record or no warp (the tracker then searches with the
-    template as it is)."""
+    """Return the template warps (M, 2, 2) of ``ids`` (M,) from ``camera`` (13,); zeros if none."""
     out = np.zeros((len(ids), 2, 2))
     by_id = {feature.id: feature for feature in state.features}
     rows, centres, rotations, pixels, points = [], [], [], [], []

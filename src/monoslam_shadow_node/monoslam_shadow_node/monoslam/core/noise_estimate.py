@@ -1,37 +1,7 @@
 """The feature tracker's noise, estimated online from the residuals of features SLAM trusts.
 
-Model (``tracking_noise``): per track and image axis, a residual e(t) = w(t) + o(t) + b + c(t)
-with w white (``white_px``), o a stationary offset with correlation exp(-dt / tau)
-(``offset_px``, ``offset_time_s``; re-anchoring jumps only shorten tau), b a constant the map
-point absorbed and c(t) a term common to every feature of a frame (the filter's pose error).
-The estimate is the residuals' variogram (structure function) over the time lag dt,
-
-    gamma(dt) = E[(e(t + dt) - e(t))^2] / 2 = white^2 + offset^2 (1 - exp(-dt / tau)),  dt > 0,
-
-pooled over features and both axes: a difference of one track's residuals cancels b (which
-a track's own residuals cannot separate from the point), so the nugget (dt -> 0+) is the
-white variance, the sill minus the nugget the offset variance, and the range tau.
-
-Biases and how they are handled:
-
-- the common term c(t), gross outliers and re-anchoring jumps: in the variogram
-  (``residual_variogram``: differences less the other tracks' median, trimmed means);
-- correlated pairs: the fit's weights divide each bin's count by the inflation that a
-  track's persisting offset causes (``_effective_counts``);
-- little data: the fit needs ``MIN_FIT_BINS`` bins of ``MIN_BIN_VALUES`` values and
-  ``MIN_FEATURES`` tracks, else the estimate is the prior, white noise at a conservative
-  ``prior_white_px``; a fit whose standard errors exceed ``MAX_RELATIVE_SE``, or whose
-  offset is not seen over ``MIN_SPAN_TAUS`` correlation times, gives white noise with the
-  fitted marginal variance if that is larger (``confident`` False, ``reason`` says why;
-  white errors of that size are conservative: the static tests compare a track's sightings,
-  and errors that persist partly cancel in that comparison);
-- hours-long runs: the variogram forgets with time constant ``memory_s`` and keeps frames
-  within ``max_lag_s`` only: memory is bounded.
-
-Not handled here: a filter that estimates the points moves each one towards its track's
-errors, so the slow part of a young track's offset is absorbed into its point and its
-residuals under-report it; and a gate that rejects large residuals keeps the tracks with
-small offsets. Both bias the offset low (bench/noise_estimate_study.py measures it).
+A variogram of each track's residuals over time lag, fitted per image axis with the white
+noise as nugget and the offset as sill. Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -43,12 +13,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
+from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
 from monoslam_shadow_node.monoslam.core.residual_variogram import (
     DEFAULT_MAX_LAG_S,
     DEFAULT_MEMORY_S,
     ResidualVariogram,
 )
-from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
 from slam_core.arrays import FloatArray
 
 ESTIMATOR_VARIANCE = 2.0
@@ -82,10 +52,7 @@ conservative (slow rather than false) until the data speak."""
 
 @dataclass(frozen=True)
 class NoiseEstimate:
-    """The tracker's noise per image axis: white sigma px, offset sigma px and correlation
-    time s, with the values and tracks behind it and the lag bins fitted (decayed counts).
-    When not ``confident`` (``reason`` says why): white noise, the prior's or the fitted
-    marginal sigma if larger, and no offset."""
+    """The tracker's noise per axis: white px, offset px, time s, its data, ``confident``."""
 
     white_px: float
     offset_px: float
@@ -102,8 +69,7 @@ class NoiseEstimate:
 
 
 class TrackingNoiseEstimator:
-    """Streaming variogram estimate of the tracking noise (module docstring). Feed each
-    frame's residuals of trusted features with ``add``; read ``estimate`` at any time."""
+    """Streaming variogram estimate of the tracking noise: ``add`` frames, read ``estimate``."""
 
     def __init__(
         self,
@@ -121,14 +87,11 @@ class TrackingNoiseEstimator:
         )
 
     def add(self, stamp_ns: int, ids: ArrayLike, residuals_px: ArrayLike) -> None:
-        """Take one frame's residuals z - h(x) (N, 2) px of trusted features ``ids`` (N,) at
-        ``stamp_ns`` (int ns, increasing). Raises ValueError naming the bad input; the
-        estimator is then unchanged."""
+        """Take residuals (N, 2) px of ``ids`` (N,) at ``stamp_ns``; ValueError changes nothing."""
         self.variogram.add(stamp_ns, ids, residuals_px)
 
     def estimate(self) -> NoiseEstimate:
-        """Return the noise fitted to the variogram (weighted least squares of the exponential
-        model), or the prior with the reason when the data do not suffice."""
+        """Return the noise fitted to the variogram, or the prior with the reason."""
         lags, gammas, counts = self.variogram.bins()
         keep = counts >= MIN_BIN_VALUES
         lags, gammas, counts = lags[keep], gammas[keep], counts[keep]
@@ -155,12 +118,7 @@ def _model(params: FloatArray, lags_s: FloatArray) -> FloatArray:
 def _fit(
     lags_s: FloatArray, gammas: FloatArray, counts: FloatArray, span_s: float
 ) -> tuple[FloatArray, str]:
-    """Return (nugget px^2, partial sill px^2, tau s) of the exponential variogram fitted by
-    Cressie's weighted least squares, sum n_b (gamma_b / model_b - 1)^2, with n_b the bins'
-    effective counts (``_effective_counts``), and '' or why it is not confident: an offset
-    that matters seen over less than ``MIN_SPAN_TAUS`` tau, or a relative standard error
-    above 2 ``MAX_RELATIVE_SE`` of gamma at the shortest, middle and longest lag fitted, of
-    the nugget or of the sill (the offset and tau held fixed when at a bound)."""
+    """Return (nugget px^2, partial sill px^2, tau s) by Cressie's WLS, and why not confident."""
     tau_low, tau_high = TAU_RANGE_FACTORS[0] * lags_s[0], TAU_RANGE_FACTORS[1] * lags_s[-1]
     floor = NUGGET_FLOOR_PX**2
     low, high = np.array([floor, 0.0, tau_low]), np.array([np.inf, np.inf, tau_high])
@@ -206,10 +164,7 @@ def _fit(
 
 
 def _effective_counts(params: FloatArray, lags_s: FloatArray, counts: FloatArray) -> FloatArray:
-    """Return the bins' counts (B,) divided by their variance inflation: a track's squared
-    differences in consecutive sightings share its offset, correlated over tau, so with a
-    share f of gamma from the offset they count 1 + f^2 tau / dt times too much, dt the
-    shortest lag, between sightings (corr(d1^2, d2^2) = corr(d1, d2)^2 for Gaussian d)."""
+    """Return the bins' counts (B,) divided by their variance inflation from persisting offsets."""
     _, partial_sill, tau_s = params
     frame_period_s = lags_s[0]
     share = partial_sill * -np.expm1(-lags_s / tau_s) / _model(params, lags_s)

@@ -1,30 +1,5 @@
 """The tracker's noise estimated online from the tracks SLAM trusts, each sighting against its
-track's point fixed over the track (ROS-free).
-
-SLAM's own residuals z - h(x+) under-report a tracker's persistent offsets: the filter moves
-each point towards its track's errors, and its gate keeps the tracks whose offsets are small
-(``noise_estimate``; ``bench/noise_estimate_study.py``). ``NoiseMonitor`` keeps the frames SLAM
-tracked (its pose and every feature's pixel) and the ids it measured. Each frame, the frame
-``delay_s`` old is fed to a ``TrackingNoiseEstimator``: the residuals of its measured tracks
-with at least ``min_views`` sightings, each against the track's point triangulated over all of
-its sightings held (``batch_residuals``: the rays' midpoint, then Gauss-Newton in the image,
-with SLAM's poses). A point fixed over a track absorbs only the track's mean offset, which the
-estimator's variogram cancels; so the estimate sees the offset's size and correlation time
-where SLAM's residuals see about half (the study's ``batch`` column). A track is fitted again
-only when a sighting to be fed is newer than its last fit (about once per ``delay_s`` while it
-is seen). Memory and work are bounded: the frames of the last ``delay_s``, and each track's
-sightings of the last ``track_memory_s`` (swept once a second, ``SWEEP_PERIOD_NS``).
-
-``adopted``: the configuration SLAM takes from the estimate (``MonoSlamConfig.estimate_noise``):
-the declared noise until the estimate is confident, and the last confident one while a later
-estimate is not (``NoiseAdaptation``); otherwise white noise at the larger of the declared and
-the estimated sigma, and the estimated offsets (size and correlation time) when they matter
-(``OFFSET_RELEVANCE`` of the white variance), else the declared ones. When the offsets are
-taken, every feature gets an offset state (``MonoSlam.set_noise``): those mapped before carry
-it from then on, 0 with the offset's standard deviation and uncorrelated with their points
-(what their points took in of earlier offsets is not modelled). Tried and not kept: the
-estimator's 2 px prior until it is confident (bench/README.md, "The tracker's noise from its
-own tracks").
+track's point fixed over the track (ROS-free). Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -59,10 +34,7 @@ SWEEP_PERIOD_NS = 1_000_000_000  # how often the tracks out of memory are droppe
 def batch_residuals(
     camera: CameraModel, centres: FloatArray, rotations: FloatArray, pixels: FloatArray
 ) -> FloatArray:
-    """Return the pixel residuals (N, 2) of one track's sightings (N, 2) px seen from cameras
-    at ``centres`` (N, 3) with T_world_camera rotations (N, 3, 3), against its point
-    triangulated over all of them (module docstring); NaN rows where a sighting has no ray or
-    the point is behind its camera."""
+    """Return residuals (N, 2) of a track's sightings (N, 2) px against its triangulated point."""
     normalized, valid = camera.unproject(np.asarray(pixels, dtype=np.float64))
     residuals = np.full((len(pixels), 2), np.nan)
     if np.count_nonzero(valid) < 2:
@@ -94,8 +66,7 @@ def batch_residuals(
 
 @dataclass
 class _Track:
-    """One track's sightings: frame numbers (K,) and stamps, the cameras' centres and
-    rotations, pixels; the fitted residuals (K, 2) and how many sightings they cover."""
+    """One track's sightings (frames, stamps, cameras, pixels) and its fitted residuals (K, 2)."""
 
     frames: list[int] = field(default_factory=list)
     stamps: list[int] = field(default_factory=list)
@@ -107,8 +78,7 @@ class _Track:
 
 
 class NoiseMonitor:
-    """The online estimate of the module docstring: ``add`` each frame SLAM tracked, read
-    ``estimate``."""
+    """The online estimate: ``add`` each frame SLAM tracked, read ``estimate``."""
 
     def __init__(
         self,
@@ -143,9 +113,7 @@ class NoiseMonitor:
         pixels: FloatArray,
         measured: IntArray,
     ) -> None:
-        """Take a frame SLAM tracked: its camera (centre (3,) m, T_world_camera rotation
-        (3, 3)), every feature's id (N,) and pixel (N, 2), and the ids SLAM measured (M,);
-        then feed the estimator the frames now ``delay_s`` old."""
+        """Take a tracked frame: centre (3,) m, R (3, 3), ids (N,), pixels (N, 2), measured ids."""
         number = self._number
         self._number += 1
         centre = np.asarray(centre, dtype=np.float64)
@@ -190,8 +158,7 @@ class NoiseMonitor:
             self.estimator.add(stamp_ns, np.array(ids, dtype=np.int64), np.array(residuals))
 
     def _forget(self, stamp_ns: int) -> None:
-        """Once a ``SWEEP_PERIOD_NS``, drop the tracks not seen within ``track_memory_s``, and
-        older sightings of the others (the next fit goes without them)."""
+        """Once a ``SWEEP_PERIOD_NS``, forget what is older than ``track_memory_s``."""
         if self._next_sweep_ns is not None and stamp_ns < self._next_sweep_ns:
             return
         self._next_sweep_ns = stamp_ns + SWEEP_PERIOD_NS
@@ -223,9 +190,7 @@ def adopted(declared: MonoSlamConfig, estimate: NoiseEstimate) -> MonoSlamConfig
 
 
 class NoiseAdaptation:
-    """SLAM's tracking noise taken from a ``NoiseMonitor`` once a ``period_s`` (``adopted``),
-    the last confident one held while a later estimate is not; ``config`` is the
-    configuration in force, ``adoptions`` counts its changes."""
+    """SLAM's tracking noise taken from a ``NoiseMonitor`` once a ``period_s`` (``adopted``)."""
 
     def __init__(self, declared: MonoSlamConfig, camera: CameraModel, period_s: float = 1.0):
         self.declared = declared
@@ -237,8 +202,7 @@ class NoiseAdaptation:
         self.adoptions = 0
 
     def set_camera(self, camera: CameraModel) -> None:
-        """Measure with another camera: the sightings held were taken with the old one, so
-        the monitor starts over (the noise in force is held until it is confident again)."""
+        """Measure with another camera: the monitor starts over."""
         if camera != self.monitor.camera:
             self.monitor = NoiseMonitor(camera)
             self.held = self.config
@@ -259,8 +223,7 @@ class NoiseAdaptation:
         self.held = self.config = config
 
     def observe(self, slam: MonoSlam, frame: MonoSlamFrame, result: MonoSlamResult) -> None:
-        """Feed a processed frame to the monitor; once a period, give ``slam`` the adopted
-        configuration."""
+        """Feed a processed frame; once a period, give ``slam`` the adopted configuration."""
         if (
             result.status == TRACKING
             and result.centre is not None

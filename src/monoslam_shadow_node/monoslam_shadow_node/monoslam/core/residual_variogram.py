@@ -1,20 +1,5 @@
-"""The variogram of tracking residuals over time lag, streamed with bounded memory and made
-robust to a common term, outliers and re-anchoring jumps (``noise_estimate`` fits it).
-
-Per track and image axis, residuals e(t) of trusted features give, for a lag dt,
-gamma(dt) = E[(e(t + dt) - e(t))^2] / 2, pooled over tracks and both axes:
-
-- pairs: each new frame's residuals are paired with one kept frame per lag bin (geometric
-  bins from the stamps, the frame nearest the bin's centre), so a bin counts about one value
-  per residual; only frames within the longest lag are kept;
-- common term (the filter's pose error, shared by the features of a frame): from a track's
-  difference the median of the other shared tracks' differences (per axis) is taken out;
-  leaving the track out keeps the two independent, so the variance this adds is known and
-  divided out (``MEDIAN_VARIANCE_FACTOR``); frames sharing fewer than ``MIN_SHARED`` tracks
-  are not paired;
-- outliers: per bin, a histogram of d^2 / 2; gamma is the mean of its values within
-  ``TRIM_SIGMA`` of their median's scale, made consistent for Gaussian d;
-- forgetting: the histograms decay with time constant ``memory_s``.
+"""The variogram of tracking residuals over time lag, streamed with bounded memory and robust to a
+common term, outliers and re-anchoring jumps. Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
@@ -123,8 +108,7 @@ class ResidualVariogram:
         return len(self._frames), len(self._last_seen)
 
     def add(self, stamp_ns: int, ids: ArrayLike, residuals_px: ArrayLike) -> None:
-        """Take one frame's residuals (N, 2) px of tracks ``ids`` (N,) at ``stamp_ns`` (int ns,
-        increasing). Raises ValueError naming the bad input; nothing changes then."""
+        """Take residuals (N, 2) px of ``ids`` (N,) at ``stamp_ns``; ValueError changes nothing."""
         frame = _validated(stamp_ns, ids, residuals_px, self._frames)
         if not self._frames:
             self._first_ns = frame.stamp_ns
@@ -140,16 +124,14 @@ class ResidualVariogram:
             self._frames.popleft()
 
     def bins(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Return the populated lag bins' mean lag (B,) s, gamma (B,) px^2 (robust, common term
-        removed) and (decayed) number of values (B,)."""
+        """Return the bins' mean lag (B,) s, gamma (B,) px^2 and decayed value counts (B,)."""
         counts = self._hist.sum(axis=1)
         filled = np.flatnonzero(counts > 0.0)
         lags = self._lag_sum_s[filled] / counts[filled]
         return lags, _trimmed_gamma(self._hist[filled]), counts[filled]
 
     def _partners(self, stamp_ns: int) -> tuple[list[_Frame], IntArray, FloatArray]:
-        """Return, per lag bin, the kept frame whose lag is nearest the bin's geometric centre:
-        the frames, their bins (P,) and lags (P,) s."""
+        """Return per lag bin the kept frame nearest its centre: frames, bins (P,), lags (P,) s."""
         if not self._frames:
             return [], np.zeros(0, np.int64), np.zeros(0)
         lags_s = (stamp_ns - np.fromiter((f.stamp_ns for f in self._frames), np.int64)) * 1e-9
@@ -163,8 +145,7 @@ class ResidualVariogram:
         return [self._frames[k] for k in chosen.tolist()], bins[chosen], lags_s[chosen]
 
     def _pair(self, frame: _Frame, partners: tuple[list[_Frame], IntArray, FloatArray]) -> None:
-        """Add the residual differences of the features the frame shares with each partner to
-        the partner's lag bin (common term removed per partner)."""
+        """Add the differences shared with each partner to its lag bin (common term removed)."""
         pasts, bins, lags_s = partners
         if not pasts or not len(frame.ids):
             return
@@ -193,8 +174,7 @@ class ResidualVariogram:
         self._lag_sum_s += np.bincount(bins, 2.0 * lags_s * sizes, len(self._lag_sum_s))
 
     def _note_tracks(self, frame: _Frame) -> None:
-        """Count each track once when it is seen again within ``max_lag_s`` (it pairs);
-        forget tracks not seen for longer."""
+        """Count each track once when seen again within ``max_lag_s``; forget the others."""
         oldest_ns = frame.stamp_ns - round(self.max_lag_s * 1e9)
         self._last_seen = {i: seen for i, seen in self._last_seen.items() if seen[0] >= oldest_ns}
         for feature_id in frame.ids.tolist():
@@ -231,8 +211,7 @@ def _validated(
 
 
 def _others_medians(group: IntArray, values: FloatArray, sizes: IntArray) -> FloatArray:
-    """Return for each row of ``values`` (M, 2) the median, per column, of the other rows of
-    its group (``group`` (M,) in 0 .. G-1, ``sizes`` (G,) members, each at least 2)."""
+    """Return per row of ``values`` (M, 2) the median of the other rows of its ``group`` (M,)."""
     result = np.empty_like(values)
     starts = (np.cumsum(sizes) - sizes)[group]  # first sorted position of each row's group
     others = sizes[group] - 1
@@ -248,8 +227,7 @@ def _others_medians(group: IntArray, values: FloatArray, sizes: IntArray) -> Flo
 
 
 def _median_gamma(histograms: FloatArray) -> FloatArray:
-    """Return per lag bin (B,) the median of its histogram (B, buckets) of d^2 / 2 over
-    ``CHI2_1_MEDIAN``: gamma, px^2, robust to anything in the tails."""
+    """Return per lag bin (B,) its histogram's median over ``CHI2_1_MEDIAN``, px^2."""
     cumulative = np.cumsum(histograms, axis=1)
     half = 0.5 * cumulative[:, -1:]
     k = np.minimum(np.sum(cumulative < half, axis=1), histograms.shape[1] - 1)
@@ -260,8 +238,7 @@ def _median_gamma(histograms: FloatArray) -> FloatArray:
 
 
 def _trimmed_gamma(histograms: FloatArray) -> FloatArray:
-    """Return per lag bin (B,) gamma, px^2: the mean of its values d^2 / 2 within
-    ``TRIM_SIGMA`` standard deviations of its median's scale, made consistent for Gaussian d."""
+    """Return per lag bin (B,) the trimmed mean gamma (``TRIM_SIGMA``), px^2."""
     bound = TRIM_SIGMA**2 * _median_gamma(histograms)[:, None]
     centres = VALUE_RANGE_PX2[0] * VALUE_BUCKET_RATIO ** (np.arange(histograms.shape[1]) + 0.5)
     kept = np.where(centres <= bound, histograms, 0.0)

@@ -1,9 +1,6 @@
-"""The depth a static fit may have: a feature's all-view static fit is handed over only where
-its inverse depth is plausible under the prior every feature starts with in the Shadow
-filter's EKF (``EkfConfig.initial_inverse_depth_per_m`` and its sigma, the inverse distance
-along the viewing ray); nearer, it waits for more views. Why (a mover against a camera that
-moves straight has rays that meet near the lens) and the figures: docs/design/shadow_filter.md,
-section 5."""
+"""Whether a static fit lies nearer than the EKF's inverse-depth prior allows (then it waits).
+
+Why and the figures: docs/design/shadow_filter.md, section 5."""
 
 from __future__ import annotations
 
@@ -16,17 +13,14 @@ from slam_core.arrays import FloatArray
 from slam_core.lazy_stats import norm
 
 WAIT_WARNING = 'nearer than the depth prior allows'
-"""In the warning of a static fit that waits (``shadow_decision.decide``; counted by the
-shadow_filter node)."""
+"""In the warning of a static fit that waits (counted by the processor)."""
 
 
 def implausibly_near(
     point: FloatArray, views: Sequence[View], prior: tuple[float, float], alpha: float
 ) -> float | None:
-    """Return the distance (m) along the viewing ray of ``point`` (3,) from the nearer of the
-    first and the latest of ``views`` when that is not in front of the camera or its inverse
-    is beyond the ``prior`` (mean, sigma; per m) at level ``alpha`` (one-sided: mean plus the
-    normal quantile times sigma); None when it is plausible (or there are no views)."""
+    """Return the distance (m) of ``point`` (3,) along the nearer of the first and last
+    views' rays when implausible under ``prior`` (mean, sigma; 1/m) at ``alpha``, else None."""
     if not views:
         return None
     distance = min(

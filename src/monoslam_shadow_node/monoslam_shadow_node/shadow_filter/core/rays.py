@@ -1,31 +1,6 @@
 """Viewing rays as uncertain Pluecker lines, and the three-ray test of paper 001 (III-A).
 
-A feature seen from camera centre C (world frame) along the unit direction d is the line
-L = X ^ D = Pi(X) D through the finite point X = (C, 1) and the point at infinity D = (d, 0)
-(eq. 6-7). Its covariance comes from the pixel noise (through the undistorted ray) and, when
-the camera pose is uncertain, from the pose covariance (position and rotation jointly, eq. 11).
-
-Three rays of one static feature meet in one point. ``three_ray_test`` tests that relation,
-which has three degrees of freedom (two lines meeting: 1; the third passing through their
-meeting point: 2), with one distance vector d (5,):
-
-1. d_a = L1 . Dual(L3), zero when rays 1 and 3 are coplanar (they meet);
-2. X13 = L1 n A, where A = N ^ L3 is the plane through ray 3 and N = (d1 x d3, 0), the
-   direction of the common perpendicular: X13 is the point of ray 1 nearest to ray 3;
-3. d_b = O(L2) X13 (the plane through X13 and ray 2), zero when ray 2 passes through X13.
-
-Every step is bilinear, so the Jacobians of d with respect to the three lines are products of
-construction matrices; Sigma_dd = sum_i J_i Sigma_Li J_i' (the rays of different images are
-independent given the camera poses, unless the tracker's offsets persist between them:
-``tracking_noise``, whose cross terms J_i Sigma_LiLj J_j' are then added) and
-T = d' Sigma_dd^+ d with the pseudo-inverse at rank 3 is compared with chi-square(3)
-(``projective.relation_test``).
-
-Coordinates are conditioned first (Heuel): centred on the middle camera and scaled by the
-baseline between the first and last camera, so the homogeneous entities are of unit size; the
-lines are spherically normalized. T does not depend on this to first order; it only keeps
-the arithmetic well conditioned.
-"""
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -58,19 +33,10 @@ THREE_RAY_DOF = 3
 
 @dataclass(eq=False)
 class View:
-    """One sighting of a feature, everything in the world frame (a record the Shadow filter
-    makes for every feature in every frame: not frozen, which costs a fifth to build).
-
-    ``centre`` (3,) m is the camera centre, ``direction`` (3,) the unit viewing ray,
-    ``direction_covariance`` (3, 3) its covariance from the pixel noise alone (rank 2),
-    ``pose_covariance`` (6, 6) the camera pose covariance over (position m, rotation rad about
-    the world axes) as in geometry_msgs/PoseWithCovariance, or None for a known pose.
-    ``frame`` is the index of the image the feature was seen in. ``pixel_jacobian`` (3, 2)
-    is d(direction)/d(pixel), which the correlated tracking offsets need (None: not known,
-    the view's errors are taken as independent of every other view's). ``pose_cross`` maps
-    the stamps of earlier poses to the covariance (6, 6) of this pose's error with theirs
-    (``pose_links``; None or missing stamps: independent).
-    """
+    """One sighting of a feature, world frame: ``centre`` (3,) m, unit ``direction`` (3,) with
+    its pixel-noise covariance (3, 3), ``pose_covariance`` (6, 6) or None (known pose),
+    ``pixel_jacobian`` (3, 2) d(direction)/d(pixel) or None, ``pose_cross`` earlier stamp ->
+    (6, 6) cross-covariance or None (independent)."""
 
     frame: int
     stamp_ns: int
@@ -84,8 +50,7 @@ class View:
 
 @dataclass(frozen=True, eq=False)
 class UncertainLine:
-    """A line L (6,) in Pluecker coordinates with its covariance (6, 6) and its Jacobian
-    (6, 3) with respect to the viewing direction it was built from."""
+    """A Pluecker line (6,), its covariance (6, 6) and d(line)/d(direction) (6, 3)."""
 
     line: FloatArray
     covariance: FloatArray
@@ -94,16 +59,8 @@ class UncertainLine:
 
 @dataclass(frozen=True, eq=False)
 class ThreeRayTest:
-    """The outcome of one three-ray test.
-
-    ``result`` is the relation test; ``frames`` the three views' image indices;
-    ``parallax_rad`` the angle between the outer rays; ``baseline_m`` the distance between the
-    outer camera centres; ``point`` (3,) the world point where ray 1 passes nearest to ray 3
-    (NaN if the rays are parallel). ``motion_noncentrality`` (3,) is what a feature moving at
-    1 m/s would add to T's expectation (its noncentrality, scaling with speed squared) along
-    the three principal directions of motion, least visible first (None when no position was
-    given): how well this geometry could see motion at all (see ``three_ray_test``).
-    """
+    """One three-ray test: ``point`` (3,) m is ray 1's point nearest ray 3 (NaN: parallel);
+    ``motion_noncentrality`` (3,) per (m/s)^2, ascending, or None without a position."""
 
     result: RelationTest
     frames: tuple[int, int, int]
@@ -114,7 +71,7 @@ class ThreeRayTest:
 
 
 def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
-    """a x b for two 3-vectors (np.cross costs ~10 us per call on 3-vectors; this ~1 us)."""
+    """a x b for two 3-vectors, faster than np.cross."""
     a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
     b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
@@ -126,14 +83,8 @@ def ray_angle(first: FloatArray, second: FloatArray) -> float:
 
 
 def viewing_line(view: View, origin: FloatArray, scale: float) -> UncertainLine:
-    """Return the view's ray as an uncertain line in conditioned coordinates
-    ((x - origin) * scale), spherically normalized.
-
-    L = Pi(X) D with X = (C', 1) and D = (d, 0). The joint covariance of (X, D) (8, 8) holds
-    the centre's covariance (scaled), the direction's from the pixel noise and from the
-    camera rotation (d = exp([dtheta]x) R r: dd = -[d]x dtheta) and their cross terms from
-    the pose covariance; eq. 11 propagates it with [dL/dX, dL/dD] = [-Pi(D), Pi(X)].
-    """
+    """Return the view's ray as an uncertain line in coordinates (x - origin) * scale,
+    spherically normalized."""
     centre = (view.centre - origin) * scale
     point = np.append(centre, 1.0)
     infinity = np.append(view.direction, 0.0)
@@ -157,8 +108,7 @@ def viewing_line(view: View, origin: FloatArray, scale: float) -> UncertainLine:
 def viewing_lines(
     views: list[View], origins: FloatArray, scales: FloatArray
 ) -> list[UncertainLine]:
-    """Return ``viewing_line`` of every view (N) at once, view i conditioned with
-    ``origins[i]`` (3,) and ``scales[i]``: the same algebra on stacked arrays."""
+    """Return ``viewing_line`` of N views at once (``origins`` (N, 3), ``scales`` (N,))."""
     count = len(views)
     directions = np.array([view.direction for view in views])
     centres = (np.array([view.centre for view in views]) - origins) * scales[:, None]
@@ -199,8 +149,7 @@ def viewing_lines(
 
 
 def conditioning(first: View, middle: View, last: View) -> tuple[FloatArray, float]:
-    """Return the three-ray test's conditioning (module docstring): the origin (the middle
-    camera centre) and the scale (1 / the outer baseline; inf for a zero baseline)."""
+    """Return the test's origin (3,) m and scale (1 / outer baseline, 1/m; inf for zero)."""
     baseline = float(np.linalg.norm(last.centre - first.centre))
     return middle.centre, 1.0 / baseline if baseline > 0.0 else math.inf
 
@@ -214,27 +163,11 @@ def three_ray_test(
     noise: TrackingNoise | None = None,
     lines: list[UncertainLine] | None = None,
 ) -> ThreeRayTest:
-    """Test whether the rays of three views meet in one point (H0: the feature is static).
+    """Test whether three views' rays meet in one point (H0: static) at level ``alpha``.
 
-    ``alpha`` is the significance level: a static feature is rejected (called moving) with
-    probability alpha when the noise model holds. Raises ValueError when the geometry is
-    degenerate (coincident centres, parallel outer rays, or Sigma_dd below rank 3).
-
-    With ``point`` (3,), the feature's estimated world position, the test also reports how
-    visible motion is in this geometry: a feature moving with velocity v turns ray i by
-    (I - d_i d_i') v (t_i - t_middle) / |P - C_i|, which moves d by G v to first order, so
-    T's noncentrality is v' G' Sigma_dd^+ G v; ``motion_noncentrality`` are its values over
-    unit v along its principal directions (ascending). Some motions are invisible to any three
-    rays: an object moving parallel to a camera that moves in a straight line looks static at
-    another depth, and motion within the plane of the camera path and the ray only shows at
-    third order in the time span.
-
-    With ``noise`` (correlated tracking offsets) the covariance between the three rays is
-    added: the views' ``direction_covariance`` must then already hold the offset variance,
-    and their ``pixel_jacobian`` be set.
-
-    ``lines``: the three views' ``viewing_line`` at this test's ``conditioning``, if
-    computed already (``viewing_lines`` of many tests at once).
+    ``point`` (3,) m: the estimated position, for ``motion_noncentrality``; ``noise``: offsets
+    persisting between the rays; ``lines``: the views' lines at ``conditioning``, if known.
+    Raises ValueError for coincident centres, parallel outer rays or Sigma_dd below rank 3.
     """
     baseline = float(np.linalg.norm(last.centre - first.centre))
     parallax = ray_angle(first.direction, last.direction)
@@ -281,12 +214,8 @@ def three_ray_relations(
     alphas: list[float],
     noise: TrackingNoise | None = None,
 ) -> list[RelationTest | ValueError]:
-    """Return ``three_ray_test(first, middle, last, alpha, noise=noise).result`` of many
-    triples at once, or the ValueError it raises: the same relation and test on stacked
-    arrays (``lines``: each triple's ``viewing_lines`` at its ``conditioning``, None where
-    its baseline is zero). Triples the stacked path cannot take (persistent tracker offsets,
-    zero baseline or parallax, a degenerate Sigma_dd) go through ``three_ray_test`` itself,
-    which gives the result or the error."""
+    """Return ``three_ray_test(...).result`` of many triples, or the ValueError it raises
+    (``lines``: each triple's lines at its ``conditioning``, None for a zero baseline)."""
     out: list[RelationTest | ValueError | None] = [None] * len(triples)
     white = noise is None or noise.white
     stacked: list[list[UncertainLine]] = []
@@ -313,9 +242,7 @@ def three_ray_relations(
 
 
 def _stacked_relations(lines: list[list[UncertainLine]]) -> list[float | None]:
-    """T of ``three_ray_test`` (known lines, independent rays) for K triples of lines at
-    once (``_concurrency``, ``relation_test`` stacked); None where the meeting point or
-    Sigma_dd is degenerate."""
+    """T of K triples of lines at once (independent rays); None where degenerate."""
     count = len(lines)
     l1, l2, l3 = (np.array([triple[k].line for triple in lines]) for k in range(3))
     c1, c2, c3 = (np.array([triple[k].covariance for triple in lines]) for k in range(3))
@@ -413,8 +340,7 @@ def _offset_terms(
     jacobians: list[FloatArray],
     noise: TrackingNoise,
 ) -> FloatArray:
-    """Return the covariance (5, 5) the tracking offsets shared between the three rays add
-    to Sigma_dd: sum over pairs i != j of J_i (dL_i/dd_i) Sigma_didj (dL_j/dd_j)' J_j'."""
+    """Return the covariance (5, 5) the offsets shared between the three rays add to d."""
     missing = [view.frame for view in views if view.pixel_jacobian is None]
     if missing:
         raise ValueError(f'views of frames {missing} carry no pixel Jacobian for the offsets')
@@ -434,9 +360,7 @@ def _offset_terms(
 def _concurrency(
     l1: FloatArray, l2: FloatArray, l3: FloatArray
 ) -> tuple[FloatArray, list[FloatArray], FloatArray]:
-    """Return the distance vector d (5,) of the three-ray relation, its Jacobians (5, 6)
-    with respect to the three lines (see the module docstring) and X13 (4,), the point of
-    ray 1 nearest to ray 3 (unnormalized)."""
+    """Return d (5,), its Jacobians (5, 6) by the three lines, and X13 (4,) unnormalized."""
     d1, d3 = l1[:3], l3[:3]
     # d_a: rays 1 and 3 coplanar
     coplanar, da_l1, da_l3 = line_coplanarity(l1, l3)
@@ -468,10 +392,8 @@ def _concurrency(
 def pixel_ray_directions(
     rays_camera: FloatArray, ray_jacobians: FloatArray, rotation: FloatArray, pixel_sigma: float
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Return world unit directions (N, 3), their covariances (N, 3, 3) and their Jacobians
-    with respect to the pixel (N, 3, 2) from camera-frame rays r = (x_n, y_n, 1) (N, 3),
-    dr/dpixel (N, 3, 2) and R_world_camera (3, 3), for an isotropic pixel noise of
-    ``pixel_sigma`` px."""
+    """Return world unit directions (N, 3), covariances (N, 3, 3) and d/dpixel (N, 3, 2) of
+    camera rays (x_n, y_n, 1) (N, 3) with dr/dpixel (N, 3, 2), R_world_camera, noise px."""
     norms = np.linalg.norm(rays_camera, axis=1)
     units = rays_camera / norms[:, None]
     # d(r / |r|) / dr = (I - u u') / |r|

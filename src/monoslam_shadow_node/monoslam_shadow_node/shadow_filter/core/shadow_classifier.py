@@ -1,46 +1,7 @@
-"""The Shadow filter's static/dynamic classifier: when a PENDING feature is tested, the two
-tests of the static hypothesis, and the decision.
+"""The Shadow filter's static/dynamic classifier: the rule, when a PENDING feature is tested,
+and its score tests (``shadow_decision`` tests and decides).
 
-Once the feature has been seen with enough parallax, two tests of the static hypothesis
-decide (``ClassifierConfig``): the paper's three-ray test (``rays.three_ray_test``) and the
-score test over all views (``static_fit``):
-
-- either rejects: DYNAMIC. The feature stays in the Shadow filter and is tracked as it moves;
-- both accept where the geometry could have seen motion: STATIC, handed over with the world
-  position and covariance triangulated from all its views (unless implausibly near: waits).
-
-The tests sit behind one seam (``shadow_decision.StaticTest``), chosen by
-``ClassifierConfig.static_test``: ``both`` (the default), the paper's ``three_ray`` test
-alone, or the ``all_view`` score test alone. Whatever the test, the all-view fit gives the
-handover's point and says whether motion could have been seen. This module schedules the
-tests and runs the score tests (``due_test``, ``score_tests``); ``shadow_decision`` tests
-and decides.
-
-Why two tests: three rays see motion that keeps them concurrent to first order (along the
-viewing ray of a distant point, or parallel to a camera moving straight) only weakly, and in
-the simulated room those are common; the all-view test sees it as soon as the camera path
-bends or the depth changes. The three-ray test stays as the paper's classifier; the second
-test only adds rejections, and both share alpha.
-
-Evidence of motion: the all-view fit of a static point can fail, its point landing behind
-a camera or its normal matrix singular. Before there is parallax that is only "not yet"; once
-a parallax milestone is due (the first and current rays at least ``min_parallax_rad`` apart,
-the camera moved ``min_baseline_m``, a middle view exists), a static point's rays meet in front
-of every camera: with 1 px noise at 300 px focal (0.2 degrees per ray) and 2 degrees of
-parallax, noise alone puts the fit behind a camera only about 7 standard deviations out, so
-a failure there says the rays do not meet where a static point's would.
-``shadow_decision.UNFIT_TESTS`` failures in a row (tests are retried every other frame while
-the milestone stays due, so within about 6 frames, with new views each time) make the
-feature DYNAMIC, without a test statistic. Its false-alarm rate is measured by
-``shadow_evaluate`` (static features called DYNAMIC, by cause).
-
-Minimum-parallax rule: test j waits until the first and the current ray are at least
-``min_parallax_rad * parallax_growth**j`` apart as seen from the feature's position
-estimated as if it were static (the EKF conditioned on zero velocity; its depth must be
-known: w above 3 sigma), the camera has moved ``min_baseline_m``, and some earlier camera
-centre lies between the first and the current one (at least ``middle_min_fraction`` of their
-distance from both); until then nothing is decided.
-"""
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -51,11 +12,12 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
+from monoslam_shadow_node.common.core.feature_status import PENDING
 from monoslam_shadow_node.common.core.projective import chi2_quantile
+from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
 from monoslam_shadow_node.shadow_filter.core.rays import (
     View,
 )
-from monoslam_shadow_node.common.core.feature_status import PENDING
 from monoslam_shadow_node.shadow_filter.core.shadow_track import Track
 from monoslam_shadow_node.shadow_filter.core.static_fit import (
     MOTION_DOF,
@@ -69,46 +31,20 @@ from monoslam_shadow_node.shadow_filter.core.static_fit import (
     motion_score_test,
     motion_score_tests,
 )
-from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
 from slam_core.arrays import FloatArray
 from slam_core.lazy_stats import ncx2
 
 STATIC_TESTS = ('both', 'three_ray', 'all_view')
-"""The choices of ``ClassifierConfig.static_test``: both tests (either rejecting is DYNAMIC),
-the paper's three-ray test alone, or the all-view score test alone."""
+"""The choices of ``ClassifierConfig.static_test``."""
 TEST_DELAY_FRAMES = 1
-"""A test triggered in frame k uses the view of frame k + 1 as its last ray, whose noise did
-not take part in the trigger (the EKF estimate just updated with frame k's ray). With
-tracker offsets that persist (``tracking_noise``) the next frame's error is still the
-trigger's: the last ray is then the first view at least ``DECORRELATED`` correlation times
-later (``trigger_delay_frames``)."""
+"""A test triggered in frame k takes its last ray from frame k + this (white tracking noise)."""
 DECORRELATED = math.log(2.0)
-"""Correlation times, in units of the offsets' own, after which the offset of the test's last
-ray correlates with the trigger frame's by one half at most. Measured on seeds 0-9 with 2 px
-offsets: without this delay 6.0 % of the decided static features were called DYNAMIC and the
-handovers' NEES was 3.28; with it 3.6 % and 3.20, decisions 6 frames later at the median."""
+"""Offset correlation times between the trigger and a test's last ray (persistent offsets)."""
 
 
 @dataclass(frozen=True)
 class ClassifierConfig:
-    """The static/dynamic decision (units in the names).
-
-    Test j waits for a parallax of ``min_parallax_rad * parallax_growth**j``, and runs two
-    tests of the static hypothesis, each at ``test_alpha`` = alpha / (2 max_tests)
-    (Bonferroni over everything a feature may get, so a static feature is called dynamic with
-    probability at most ``alpha``): the paper's three-ray test and the score test over all
-    views (``static_fit``). Either rejecting makes the feature DYNAMIC. Both accepting makes
-    it STATIC once the geometry could have seen motion: a feature moving at
-    ``min_detectable_speed_m_s`` along any principal direction of motion except the
-    ``unchecked_directions`` least visible ones would have been rejected by the score test with
-    probability ``detection_power``; otherwise it waits for the next test. With
-    ``unchecked_directions`` = 0 that holds for every direction (a guarantee that can take
-    long: motion along the viewing ray of a distant point, or parallel to a camera moving
-    straight, shows only at second order in time); 1 (the default) leaves the least visible
-    direction unchecked. After ``max_tests`` tests without a decision the feature stays
-    PENDING. ``static_test`` chooses the tests (``STATIC_TESTS``): with one alone, each test
-    is at alpha / max_tests.
-    """
+    """The static/dynamic rule (units in the names); raises ValueError for a bad value."""
 
     alpha: float = 0.05
     min_parallax_rad: float = math.radians(2.0)
@@ -160,8 +96,7 @@ class ClassifierConfig:
 
     @property
     def required_noncentrality(self) -> float:
-        """The noncentrality at which the score test at ``test_alpha`` rejects with
-        probability ``detection_power``."""
+        """The noncentrality at which the score test rejects with ``detection_power``."""
         return _required_noncentrality(self.test_alpha, self.detection_power)
 
 
@@ -179,8 +114,7 @@ def _required_noncentrality(alpha: float, power: float) -> float:
 
 @dataclass(frozen=True, eq=False)
 class Decision:
-    """A classification made in a frame (for evaluation): the feature, its new status, the
-    frames since first sight and the parallax (rad) and baseline (m) of the deciding test."""
+    """A classification made in a frame (for evaluation), with its deciding test's geometry."""
 
     id: int
     status: int
@@ -195,18 +129,8 @@ def predicted_visibility(
     positions: FloatArray,
     defined: NDArray[np.bool_],
 ) -> FloatArray:
-    """Return, per track, the score test's noncentrality per (m/s)^2 along each principal
-    direction of motion, ascending (N, 3) (0 where not computed): column
-    ``unchecked_directions`` is the direction a rule with that many unchecked directions
-    needs to see.
-
-    This is ``static_fit``'s S evaluated at the feature's static EKF estimate instead of
-    the fitted point, without the pose covariance and the small r d' term of the
-    Jacobian: J_i' W_i J_i = M_i / rho_i^2 with M_i the direction's precision and
-    rho_i = d_i' (P - C_i) its depth. It only says when to test (the decision uses the
-    exact S). Only features past the minimum parallax are evaluated; the per-view
-    depths matter (with one depth for all views, motion parallel to the camera path
-    would look visible when it is not)."""
+    """Return per track the predicted noncentrality per (m/s)^2 along each principal direction
+    of motion, ascending (N, 3) (0 where not computed), at ``positions`` (N, 3) m."""
     result = np.zeros((len(tracks), 3))
     rows = [
         row
@@ -255,9 +179,7 @@ def predicted_visibility(
 
 @dataclass(frozen=True, eq=False)
 class DueTest:
-    """A track whose pair of tests runs in this frame (``due_test``): its static position
-    estimate, the rule, the parallax (rad) and baseline (m) of its first and last views and
-    the middle view of the three-ray test."""
+    """A track whose tests run in this frame, with its static position (3,) m and middle view."""
 
     track: Track
     position: FloatArray
@@ -275,9 +197,7 @@ def due_test(
     settings: ClassifierConfig,
     noise: TrackingNoise | None = None,
 ) -> DueTest | None:
-    """The scheduling half of ``shadow_decision.classify``: schedule the track's next test
-    when the geometry allows it, and return the test when it is due in this frame (None
-    otherwise)."""
+    """Schedule the track's next test; return it when due in this frame, else None."""
     if track.tests_run >= settings.max_tests:
         return None
     first_centre, last_centre = track.first_centre, track.last_centre
@@ -312,10 +232,7 @@ def due_test(
 def score_tests(
     dues: list[DueTest], noise: TrackingNoise | None = None
 ) -> list[MotionScoreTest | None]:
-    """The score tests (``static_fit``) of due tests over all their views, each at its
-    rule's level and from its static position estimate: all at once with white tracking
-    noise and independent pose errors, one by one with persistent offsets or linked poses
-    (``pose_links``)."""
+    """Return the score tests (``static_fit``) of due tests (None: no static point)."""
     white = noise is None or noise.white
     alone = [k for k, due in enumerate(dues) if not white or linked(due.track.views)]
     together = sorted(set(range(len(dues))) - set(alone))
@@ -336,9 +253,7 @@ def score_tests(
 
 
 def trigger_delay_frames(track: Track, noise: TrackingNoise | None) -> int:
-    """Return how many frames after the trigger a test runs: ``TEST_DELAY_FRAMES``, or with
-    persistent tracker offsets enough frames (at the track's own frame interval) for its
-    last ray's offset to be decorrelated from the trigger's (``DECORRELATED``)."""
+    """Return how many frames after the trigger a test runs."""
     if noise is None or noise.white or len(track.views) < 2:
         return TEST_DELAY_FRAMES
     first, last = track.views[0], track.views[-1]
@@ -350,8 +265,7 @@ def trigger_delay_frames(track: Track, noise: TrackingNoise | None) -> int:
 
 
 def _middle_view(views: list[View], centres: FloatArray, min_distance_m: float) -> View | None:
-    """Return the view between the first and the last whose camera centre (``centres``
-    (N, 3), those of ``views``) is farthest from both ends' centres, if at least
+    """Return the inner view farthest from both ends' ``centres`` (N, 3), if at least
     ``min_distance_m`` from each; else None."""
     if len(views) < 3:
         return None
@@ -365,9 +279,7 @@ def _middle_view(views: list[View], centres: FloatArray, min_distance_m: float) 
 
 
 def _parallax(point: list[float], first: list[float], last: list[float]) -> float:
-    """Return the angle (rad) at ``point`` between the directions to the camera centres
-    ``first`` and ``last`` (3 floats each; ``rays.ray_angle`` of the unit vectors, in
-    scalar arithmetic: this runs for every pending feature in every frame)."""
+    """Return the angle (rad) at ``point`` between the camera centres ``first`` and ``last``."""
     a = [point[0] - first[0], point[1] - first[1], point[2] - first[2]]
     b = [point[0] - last[0], point[1] - last[1], point[2] - last[2]]
     norm_a, norm_b = math.hypot(*a), math.hypot(*b)

@@ -1,11 +1,7 @@
-"""The Shadow filter's decision on a due test (``shadow_classifier`` schedules the tests and
-holds the rule, ``ClassifierConfig``): the static hypothesis's tests behind one seam
-(``StaticTest``: the paper's ``ThreeRayTest``, the ``AllViewTest`` score test, or
-``BothTests``, chosen by ``ClassifierConfig.static_test``), and ``decide``: DYNAMIC when the
-test rejects or the views keep refusing a static point (``UNFIT_TESTS``), STATIC when it
-accepts where motion would have been visible and the fit is not implausibly near a camera
-(``near_static``), else wait. The reasons are in ``shadow_classifier``'s docstring.
-"""
+"""The Shadow filter's decision on a due test: the static tests behind one seam
+(``StaticTest``) and ``decide`` (DYNAMIC, STATIC or wait).
+
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -14,8 +10,10 @@ from typing import Protocol
 
 import numpy as np
 
-from monoslam_shadow_node.shadow_filter.core.near_static import WAIT_WARNING, implausibly_near
+from monoslam_shadow_node.common.core.feature_status import DYNAMIC, STATIC
 from monoslam_shadow_node.common.core.projective import RelationTest
+from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
+from monoslam_shadow_node.shadow_filter.core.near_static import WAIT_WARNING, implausibly_near
 from monoslam_shadow_node.shadow_filter.core.rays import (
     UncertainLine,
     conditioning,
@@ -29,15 +27,13 @@ from monoslam_shadow_node.shadow_filter.core.shadow_classifier import (
     due_test,
     score_tests,
 )
-from monoslam_shadow_node.common.core.feature_status import DYNAMIC, STATIC
 from monoslam_shadow_node.shadow_filter.core.shadow_track import Track
 from monoslam_shadow_node.shadow_filter.core.static_fit import MotionScoreTest
-from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
 from slam_core.arrays import FloatArray
 
 UNFIT_TESTS = 3
-"""Evidence of motion: DYNAMIC after this many scheduled tests in a row, past a parallax
-milestone, at which the views fix no static point in front of every camera (module doc)."""
+"""Evidence of motion: DYNAMIC after this many due tests in a row, past a parallax milestone,
+whose views fix no static point in front of every camera."""
 UNFIT_WARNING = 'its views do not fix a static point yet'  # a due test without a fit (counted)
 
 
@@ -51,24 +47,8 @@ def classify(
     noise: TrackingNoise | None = None,
     depth_prior: tuple[float, float] | None = None,
 ) -> Decision | None:
-    """Run the next pair of tests once the geometry allows it: at the next parallax
-    milestone, or as soon as the predicted visibility of motion suffices for a decision.
-
-    When to test and which middle view to use are decided from the camera centres and the
-    EKF's position estimate, never from the three measured rays themselves: choosing the
-    rays by their own noisy directions (the first frame whose ray is far enough from the
-    first, the view farthest from both ends) biases T upwards (measured: 7 % rejections
-    of static features at a 2.5 % level).
-
-    ``frame`` is the current frame index; ``visibility`` the track's
-    ``predicted_visibility``; ``noise`` the tracker's persistent offsets, if any (both tests
-    then take the covariance between views into account); ``depth_prior`` as ``decide``'s.
-    Updates the track's schedule, status and statistic; returns the decision made in this
-    frame, or None.
-
-    This is ``due_test``, ``score_tests`` and ``decide`` for one track; the Shadow filter
-    calls them for all its tracks at once, so that the score tests of a frame run together.
-    """
+    """Schedule, test and decide one track (``position`` (3,) m its static estimate); return
+    the decision made in this frame, or None."""
     due = due_test(track, position, visibility, frame, settings, noise)
     if due is None:
         return None
@@ -77,22 +57,18 @@ def classify(
 
 
 def needs_test(due: DueTest, motion: MotionScoreTest | None) -> bool:
-    """Whether ``decide`` tests ``due``'s static hypothesis given its score test: when the
-    views fixed a static point and either motion would have been visible or a parallax
-    milestone is due."""
+    """Whether ``decide`` tests ``due``'s static hypothesis given its score test."""
     if motion is None:
         return False
     return due.track.milestone_due or _decisive(due.settings, motion)
 
 
 Verdict = RelationTest | ValueError | None
-"""A ``StaticTest``'s outcome for one due test: the test (rejected: DYNAMIC), the ValueError
-of a geometry too degenerate to test, or None where nothing was tested (``needs_test``)."""
+"""A ``StaticTest``'s outcome: the test, the ValueError of a degenerate geometry, or None."""
 
 
 class StaticTest(Protocol):
-    """The static/dynamic decision's seam: test the static hypothesis of due tests, given
-    their score tests (``score_tests``; None where the views fix no static point)."""
+    """The seam of the static/dynamic decision: tests due tests given their score tests."""
 
     def verdicts(
         self, dues: list[DueTest], motions: list[MotionScoreTest | None],
@@ -140,8 +116,7 @@ class BothTests:
         self, dues: list[DueTest], motions: list[MotionScoreTest | None],
         noise: TrackingNoise | None,
     ) -> list[Verdict]:  # fmt: skip
-        """``StaticTest.verdicts``: the three-ray verdict, rejected also when the score
-        test rejects."""
+        """``StaticTest.verdicts``: the three-ray verdict, also rejected by the score test."""
         out = ThreeRayTest().verdicts(dues, motions, noise)
         for k, (verdict, motion) in enumerate(zip(out, motions, strict=True)):
             if isinstance(verdict, RelationTest) and motion is not None:
@@ -156,8 +131,7 @@ _TESTS: dict[str, StaticTest] = {
 
 
 def static_test(name: str) -> StaticTest:
-    """Return the ``StaticTest`` that ``ClassifierConfig.static_test`` names (one of
-    ``STATIC_TESTS``, which the config validates)."""
+    """Return the ``StaticTest`` that ``ClassifierConfig.static_test`` names."""
     return _TESTS[name]
 
 
@@ -173,9 +147,7 @@ def _decisive(settings: ClassifierConfig, motion: MotionScoreTest) -> bool:
 def three_ray_tests(
     dues: list[DueTest], noise: TrackingNoise | None = None
 ) -> list[RelationTest | ValueError]:
-    """The three-ray tests (``rays.three_ray_test``'s result, or the ValueError it raises for
-    a degenerate geometry) of due tests, each at its rule's level, all at once
-    (``rays.viewing_lines``, ``rays.three_ray_relations``)."""
+    """Return the three-ray tests of due tests at once (a ValueError where degenerate)."""
     triples = [(due.track.views[0], due.middle, due.track.views[-1]) for due in dues]
     conditions = [conditioning(*triple) for triple in triples]
     kept = [k for k, (_, scale) in enumerate(conditions) if math.isfinite(scale)]
@@ -201,10 +173,8 @@ def decide(
     verdict: Verdict = None,
     depth_prior: tuple[float, float] | None = None,
 ) -> Decision | None:
-    """The deciding half of ``classify``: given the score test of a due test, run the rule's
-    ``StaticTest`` and decide (module docstring). ``verdict``: that test's outcome, if
-    computed already; ``depth_prior`` (inverse depth mean, sigma; per m): a static fit
-    implausibly near a camera waits (``near_static``)."""
+    """Decide a due test given its score test (``verdict``: if computed already;
+    ``depth_prior``: inverse depth mean and sigma, 1/m); return the decision or None."""
     track, settings = due.track, due.settings
     parallax, baseline = due.parallax, due.baseline
     if motion is None:

@@ -1,56 +1,7 @@
-"""The Shadow filter's EKF (paper 001, eq. 1-5), for N features at once.
+"""The Shadow filter's EKF (paper 001, eq. 1-5) for N features at once; state (X0, w, u):
+unit direction, inverse depth (1/m), u = w v (v in m/s), in the current camera frame.
 
-State of one feature (eq. 1), 7 values: x = (X0, w, u)
-
-- (X0, w) = (x_f, y_f, z_f, w_f): the feature's homogeneous position in the current camera
-  frame C_k (optical: x right, y down, z forward). The filter keeps |X0| = 1, so X0 is the unit
-  viewing direction and w the inverse distance along it (1/m): the Euclidean point is X0 / w;
-- u = (u_x, u_y, u_z) = w v: the velocity v (m/s) in the feature frame F_k (the camera frame
-  C_k's axes translated to the feature), held homogeneously, like the position: u is the rate
-  of change of X0 at fixed w, so v = u / w, and the scale that normalizes |X0| = 1 applies to
-  (X0, w, u) alike. Reports give v in m/s.
-
-Why homogeneous with w as inverse distance rather than a Euclidean point with a large depth
-variance: a new feature's depth is unknown between a few decimetres
-and infinity. A Gaussian in depth cannot describe that (it puts mass behind the camera and
-none at infinity); a Gaussian in w can (w = 0 is infinity), and the projection is nearly
-linear in w (Montiel, Civera and Davison's inverse depth, here in the paper's homogeneous
-form). A feature starts at w0 with sigma_w0 along its first viewing ray; the direction's
-covariance comes from the pixel noise.
-
-Why the velocity homogeneously (u = w v) rather than v itself: with v in the state, the
-motion step moves X0 by w v dt, a product of two uncertain states. An EKF linearizes that
-product, which drops var(w) var(v) and makes the filter overconfident: measured, a
-model-consistent simulation gave an average NEES of 9 (3 expected) on static features 10-40
-frames old and about 30 % too much on moving ones. With u the motion step is linear in the
-state, X0' = R (X0 + u dt) + w t (the classical fix for bearing-only tracking: Aidala and
-Hammel's modified polar coordinates keep range rate over range for the same reason).
-
-Motion (eq. 2), from camera frame C_k to C_k+1 with R, t (X_k+1 = R X_k + t for points):
-constant velocity with white acceleration noise, velocity first, as the simulation integrates
-it: v' = R (v + a), i.e. u' = R (u + w a), X0' = R (X0 + (u + w a) dt) + w t, w' = w, with
-a ~ N(0, q dt I3) (q in m^2/s^3). The noise enters scaled by w, with E[w^2] = w^2 + var(w)
-(exact for a independent of w). The camera motion itself can be uncertain:
-``camera_translation_sigma_m`` and ``camera_rotation_sigma_rad`` per frame (zero for known
-poses, as in the paper's Fig. 3).
-
-Measurement (eq. 3-5): the raw pixel of X0 through M and the lens (``camera``); w and u do
-not enter it.
-
-Tracker offsets that persist (``EkfConfig.offset_states``: ``tracking_offset_px`` > 0): the
-state gains o = (o_u, o_v) px after u, 9 values, and the measurement is the pixel of X0 plus
-o plus white noise (``pixel_sigma_px``). o is Gauss-Markov with the tracker's correlation
-time: o' = a o + n, a = exp(-dt / ``tracking_offset_time_s``), var(n) = sigma_o^2 (1 - a^2).
-A new feature's direction goes through the pixel as measured, offset included, so its error
-is -(d X0 / d pixel)(o + white noise): X0 takes both variances and cov(X0, o) =
--(d X0 / d pixel) sigma_o^2. (An EKF that added the offset's variance to each sighting would
-treat the errors as independent between frames: on the simulated tracker with 2 px offsets
-its NEES was 8-9 instead of 3.)
-
-Updates use the Joseph form and a chi-square gate on the innovation. After every step the
-state is renormalized to |X0| = 1 (with the normalization's Jacobian), which removes the
-homogeneous scale from the covariance.
-"""
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -76,10 +27,7 @@ MIN_FRONT_Z = 1e-3  # a direction with z below this is not in front of the camer
 
 @dataclass(frozen=True)
 class EkfConfig:
-    """Noise model of the Shadow filter's EKF (units in the names). ``tracking_offset_px``
-    and ``tracking_offset_time_s`` declare the tracker's offsets that persist between images
-    (``tracking_noise``; 0 px: white tracking noise of ``pixel_sigma_px`` alone); with them,
-    each feature keeps its offset in its state (module docstring)."""
+    """Noise model of the EKF (units in the names; ``tracking_offset_px`` 0: white noise)."""
 
     pixel_sigma_px: float = 1.0
     tracking_offset_px: float = 0.0
@@ -128,7 +76,7 @@ class EkfConfig:
 
     @property
     def offset_states(self) -> bool:
-        """Whether each feature's tracker offset is a state (module docstring)."""
+        """Whether each feature's tracker offset is a state."""
         return self.tracking_offset_px > 0.0
 
     @property
@@ -138,8 +86,7 @@ class EkfConfig:
 
     @property
     def update_sigma_px(self) -> float:
-        """The update's pixel noise: the white noise when the offset is a state, else the
-        whole per-sighting noise (``measurement_sigma_px``)."""
+        """The update's pixel noise, px (white only when the offset is a state)."""
         return self.pixel_sigma_px if self.offset_states else self.measurement_sigma_px
 
 
@@ -149,11 +96,8 @@ def initial_states(
     config: EkfConfig,
     pixel_jacobians: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """Return the states (N, S) and covariances (N, S, S) (S = ``config.state_size``) of new
-    features seen along unit camera-frame directions (N, 3) with covariances (N, 3, 3) (from
-    the whole per-sighting pixel noise). With offset states, ``pixel_jacobians`` (N, 3, 2)
-    d(direction)/d(pixel) give the direction's covariance with the offset (module
-    docstring)."""
+    """Return states (N, S) and covariances (N, S, S) of new features along unit camera-frame
+    directions (N, 3) with covariances (N, 3, 3); ``pixel_jacobians`` (N, 3, 2) with offsets."""
     count = len(directions)
     size = config.state_size
     states = np.zeros((count, size))
@@ -186,11 +130,8 @@ def predict(
     dt: float,
     config: EkfConfig,
 ) -> tuple[FloatArray, FloatArray]:
-    """Return states and covariances moved to the next camera frame (eq. 2).
-
-    ``rotation`` (3, 3) and ``translation`` (3,) map points of the previous camera frame into
-    the new one (R = R_wc'^T R_wc, t = R_wc'^T (C - C')); ``dt`` s since the previous frame.
-    """
+    """Return states and covariances moved to the next camera frame (eq. 2): ``rotation``
+    (3, 3) and ``translation`` (3,) m map previous-frame points into it; ``dt`` in s."""
     count, size = states.shape
     direction, w, rate = states[:, :3], states[:, 3], states[:, 4:7]
     new = np.empty_like(states)
@@ -222,8 +163,7 @@ def predict(
 
 
 def _camera_motion_noise(states: FloatArray, config: EkfConfig) -> FloatArray:
-    """Return the covariance (N, S, S) the camera motion's own uncertainty adds: a translation
-    error dt moves X0 by w dt, a rotation error dtheta turns X0 and u by -[.]x dtheta."""
+    """Return the covariance (N, S, S) the camera motion's own uncertainty adds."""
     count, size = states.shape
     jac_t = np.zeros((count, size, 3))
     jac_t[:, :3, :] = states[:, 3, None, None] * np.eye(3)
@@ -238,9 +178,7 @@ def _camera_motion_noise(states: FloatArray, config: EkfConfig) -> FloatArray:
 
 @dataclass(frozen=True, eq=False)
 class UpdateResult:
-    """States and covariances after an update, with per feature: the innovation (N, 2) px,
-    its normalized squared size (N,), and whether the measurement was used (N,) (False: the
-    gate rejected it, or the feature was not in front of the camera)."""
+    """An update's states and covariances, innovations (N, 2) px, NIS (N,) and ``used`` (N,)."""
 
     states: FloatArray
     covariances: FloatArray
@@ -305,9 +243,8 @@ def update(
 
 
 def renormalize(states: FloatArray, covariances: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Return states scaled to |X0| = 1 (the whole homogeneous state (X0, w, u) divided by
-    |X0|; a tracker offset is not homogeneous and stays) and covariances through the scaling's
-    Jacobian, symmetrized."""
+    """Return states scaled to |X0| = 1 and covariances through the scaling's Jacobian
+    (I7 - x' [e, 0, 0]') / |X0|, symmetrized; a tracker offset stays."""
     count, size = states.shape
     norms = np.linalg.norm(states[:, :3], axis=1)
     scaled = states.copy()
@@ -327,9 +264,7 @@ def renormalize(states: FloatArray, covariances: FloatArray) -> tuple[FloatArray
 
 @dataclass(frozen=True, eq=False)
 class EuclideanEstimate:
-    """World-frame estimates of features: positions (N, 3) m with covariances (N, 3, 3),
-    velocities (N, 3) m/s with covariances (N, 3, 3), and whether the position is defined
-    (w more than ``min_inverse_depth_sigmas`` standard deviations above zero)."""
+    """World positions (N, 3) m, velocities (N, 3) m/s, their covariances, ``defined`` (N,)."""
 
     position: FloatArray
     position_covariance: FloatArray
@@ -347,14 +282,8 @@ def world_estimates(
     max_distance_m: float = 1000.0,
     min_inverse_depth_sigmas: float = 3.0,
 ) -> EuclideanEstimate:
-    """Return world-frame position and velocity estimates of features in the camera frame
-    with pose R_world_camera ``rotation`` (3, 3) and ``centre`` (3,).
-
-    p = R X0 / w + C and v = R u / w, by first-order propagation. Where w is not clearly
-    positive the position is put at ``max_distance_m`` along the ray (never NaN) and flagged
-    undefined; its covariance is still the propagated one (huge), so it says how little is
-    known (the velocity likewise uses w no smaller than 1 / ``max_distance_m``).
-    """
+    """Return world estimates of the features for the camera pose R_world_camera ``rotation``
+    (3, 3) and ``centre`` (3,) m; never NaN."""
     direction, w = states[:, :3], states[:, 3]
     w_safe = np.maximum(w, 1.0 / max_distance_m)
     sigma_w = np.sqrt(np.maximum(covariances[:, 3, 3], 0.0))
@@ -385,10 +314,7 @@ def world_estimates(
 def static_hypothesis(
     states: FloatArray, covariances: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """Return the states (N, S) and covariances (N, S, S) conditioned on zero velocity (the
-    feature is static; v = 0 exactly when u = w v = 0): x_r - P_ru P_uu^-1 u and
-    P_rr - P_ru P_uu^-1 P_ur for the rest r (position, and the tracker offset if a state),
-    u = 0 with zero covariance. Features with a singular P_uu use its pseudo-inverse."""
+    """Return states (N, S) and covariances (N, S, S) conditioned on zero velocity."""
     size = states.shape[1]
     rest = np.r_[0:4, STATE_SIZE:size]
     p_xv, p_vv = covariances[:, rest, 4:7], covariances[:, 4:7, 4:7]

@@ -1,34 +1,7 @@
-"""The Shadow filter (paper 001, section III): one EKF per feature and the static/dynamic
-classifier, with the feature lifecycle of the paper's Fig. 1.
+"""The Shadow filter (paper 001, section III): one EKF per feature, the static/dynamic
+classifier and the feature lifecycle (PENDING, then STATIC handed over or DYNAMIC).
 
-Every new feature starts PENDING: the Shadow filter tracks it (``shadow_ekf``) and keeps its
-views. Once the feature has been seen with enough parallax, two tests of the static
-hypothesis decide (``ClassifierConfig``): the paper's three-ray test
-(``rays.three_ray_test``) and the score test over all views (``static_fit``):
-
-- either rejects: DYNAMIC. The feature stays in the Shadow filter and is tracked as it moves;
-- both accept where the geometry could have seen motion: STATIC. It is handed over
-  (``Handover``: the world position and covariance triangulated from all its views as a
-  static point) and released; the SLAM filter owns it from then on, and its later sightings
-  are ignored here.
-
-Revocation (``ShadowFilter.revoke``): a feature handed over whose measurements SLAM then
-found persistently inconsistent (it moved after all: it stood still while tested, or moved
-along the direction the STATIC rule leaves unchecked) comes back as a suspect. It is tracked
-again from its next sighting as a PENDING feature with fresh views only (nothing seen before
-the revocation counts), and decided under the strict rule (``unchecked_directions`` = 0: motion
-in every direction checked), so a revoked mover is not handed over again on the evidence that
-let it through.
-
-The classifier (when to test, the two tests, the decision) is in ``shadow_classifier``; a
-feature's record is a ``shadow_track.Track``.
-
-Camera poses come from outside (the SLAM filter, or ground truth in the paper's Fig. 3
-experiment) with their covariance. Their errors are independent between frames unless the
-source gives each pose's error covariance with its recent earlier poses'
-(``FrameInput.pose_cross_covariances``, ``pose_links``); the all-view test then models the
-drift they share.
-"""
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -38,8 +11,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from monoslam_shadow_node.common.core.feature_status import PENDING, STATIC
 from monoslam_shadow_node.common.core.pose_links import cross_table
-from monoslam_shadow_node.shadow_filter.core.rays import THREE_RAY_DOF, View, pixel_ray_directions, ray_angle
+from monoslam_shadow_node.shadow_filter.core.rays import (
+    THREE_RAY_DOF,
+    View,
+    pixel_ray_directions,
+    ray_angle,
+)
 from monoslam_shadow_node.shadow_filter.core.shadow_classifier import (
     ClassifierConfig,
     Decision,
@@ -57,23 +36,19 @@ from monoslam_shadow_node.shadow_filter.core.shadow_ekf import (
     update,
     world_estimates,
 )
-from monoslam_shadow_node.common.core.feature_status import PENDING, STATIC
 from monoslam_shadow_node.shadow_filter.core.shadow_track import Track
 from monoslam_shadow_node.shadow_filter.core.static_fit import ROW_PRECISION, ROW_SIZE, view_rows
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
 
 RESTART_AFTER_GATED = 3
-"""A feature whose measurements fall outside the innovation gate this many frames in a row
-has lost its track (it moved faster or turned harder than the process noise allows): its EKF
-restarts from the latest ray, keeping its id, status and views."""
+"""Gated measurements in a row after which a feature's EKF restarts from its latest ray."""
 _EYE = np.eye(3)
 
 
 def _ray_precisions(to_pixel: FloatArray, pixel_sigma: float) -> FloatArray:
-    """Return the pseudo-inverses (N, 3, 3) of the ray direction covariances
-    sigma^2 A A' (rank 2) with A = d(direction)/d(pixel) (N, 3, 2) of full column rank:
-    A (A'A)^-2 A' / sigma^2 (what np.linalg.pinv gives, in closed form)."""
+    """Return the pseudo-inverses (N, 3, 3) of sigma^2 A A' for A = d(direction)/d(pixel)
+    (N, 3, 2) of full column rank."""
     gram = np.swapaxes(to_pixel, 1, 2) @ to_pixel  # (N, 2, 2)
     g00, g01, g11 = gram[:, 0, 0], gram[:, 0, 1], gram[:, 1, 1]
     determinant = g00 * g11 - g01 * g01
@@ -86,11 +61,8 @@ def _ray_precisions(to_pixel: FloatArray, pixel_sigma: float) -> FloatArray:
 
 @dataclass(frozen=True, eq=False)
 class _FrameViews:
-    """One frame's rays: world directions (N, 3), their covariances (N, 3, 3) and Jacobians
-    with respect to the pixel (N, 3, 2), and their ``static_fit.view_rows`` (N, ROW_SIZE),
-    whose precision is the pseudo-inverse of each direction's covariance (rank 2, tracking
-    noise only: white and offset). ``view`` makes a ray's ``View`` (only the rays a track
-    keeps need one)."""
+    """One frame's rays: world directions (N, 3), covariances (N, 3, 3), d/dpixel (N, 3, 2)
+    and ``static_fit.view_rows`` (N, ROW_SIZE)."""
 
     index: int
     frame: FrameInput
@@ -119,10 +91,7 @@ class InputError(ValueError):
 
 @dataclass(frozen=True)
 class ShadowConfig:
-    """Everything the Shadow filter needs besides the camera. ``classify`` False makes it a
-    bearing-only tracker alone: every feature stays PENDING in its EKF for as long as it is
-    tracked (the paper's Fig. 3 experiment; the consistency evaluation uses it, because
-    handing features over would select which estimates remain)."""
+    """Everything the Shadow filter needs besides the camera (``classify`` False: track only)."""
 
     ekf: EkfConfig = field(default_factory=EkfConfig)
     classifier: ClassifierConfig = field(default_factory=ClassifierConfig)
@@ -141,14 +110,9 @@ class ShadowConfig:
 
 @dataclass(frozen=True, eq=False)
 class FrameInput:
-    """One image's features with the camera pose at its stamp.
-
-    ``rotation`` (3, 3) is R_world_camera of the optical frame, ``centre`` (3,) m its
-    position, ``pose_covariance`` (6, 6) over (position, rotation about the world axes) or
-    None (known pose); ``ids`` (M,) track ids and ``pixels`` (M, 2) raw-image pixels.
-    ``pose_cross_covariances`` (K, 6, 6) are Cov(this pose's error, the error of the pose
-    stamped ``pose_cross_stamps[k]``), in the same coordinates, for earlier poses the source
-    remembers (None: independent errors; ``pose_links``).
+    """One image's features, ``ids`` (M,) and raw ``pixels`` (M, 2), with the optical frame's
+    pose: R_world_camera (3, 3), ``centre`` (3,) m, ``pose_covariance`` (6, 6) or None, and
+    cross-covariances (K, 6, 6) with the poses at ``pose_cross_stamps`` (None: independent).
     """
 
     stamp_ns: int
@@ -163,11 +127,9 @@ class FrameInput:
 
 @dataclass(eq=False)
 class TrackReport:
-    """One feature after a frame (made for every feature in every frame: not frozen, which
-    costs a fifth to build), world frame: status, position (3,) m and covariance (3, 3),
-    velocity (3,) m/s and covariance (3, 3), the latest test statistic (NaN before any test)
-    with its degrees of freedom, whether the position is defined (depth known), the frame of
-    first sight and of the decision (-1: undecided), and recent positions (K, 3)."""
+    """One feature after a frame, world frame: position (3,) m, velocity (3,) m/s, their
+    covariances (3, 3), test statistic (NaN: untested), decided_frame (-1: undecided),
+    trajectory (K, 3) m."""
 
     id: int
     status: int
@@ -185,9 +147,7 @@ class TrackReport:
 
 @dataclass(frozen=True, eq=False)
 class Handover:
-    """A feature decided STATIC: its world position (3,) m and covariance (3, 3), conditioned
-    on zero velocity, the camera frame it was decided in and the parallax (rad) of the last
-    test."""
+    """A feature decided STATIC: world position (3,) m and covariance (3, 3)."""
 
     id: int
     stamp_ns: int
@@ -199,8 +159,7 @@ class Handover:
 
 @dataclass(frozen=True, eq=False)
 class FrameResult:
-    """What one frame produced: the tracks held (PENDING and DYNAMIC, and STATIC ones in the
-    frame they were handed over), the handovers, the decisions and warnings."""
+    """What one frame produced: tracks seen, handovers, decisions and warnings."""
 
     stamp_ns: int
     frame: int
@@ -242,12 +201,11 @@ class ShadowFilter:
 
     @property
     def suspect_ids(self) -> frozenset[int]:
-        """Ids SLAM revoked that have not been handed over again (module docstring)."""
+        """Ids SLAM revoked that have not been handed over again."""
         return frozenset(self._suspects)
 
     def revoke(self, ids: list[int]) -> list[int]:
-        """Take back features SLAM revoked (module docstring); return those that were handed
-        over by this filter (others are ignored)."""
+        """Take back features SLAM revoked as suspects; return those this filter handed over."""
         taken = [int(i) for i in ids if int(i) in self._released]
         for feature_id in taken:
             self._released.discard(feature_id)
@@ -333,8 +291,7 @@ class ShadowFilter:
     # --- steps ------------------------------------------------------------------------------
 
     def _classify_pending(self, frame: FrameInput, warnings: list[str]) -> list[Decision]:
-        """Classify every PENDING feature observed in this frame whose static estimate is
-        defined (``shadow_decision.classify``); return the decisions."""
+        """Classify the PENDING features seen in this frame; return the decisions."""
         # the static estimate of the features that can be classified in this frame
         candidates = [
             row

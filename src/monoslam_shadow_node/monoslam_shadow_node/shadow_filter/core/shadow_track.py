@@ -1,5 +1,4 @@
-"""One feature held by the Shadow filter: its status (PENDING, STATIC or DYNAMIC), its views
-and the bookkeeping of its classification."""
+"""One feature held by the Shadow filter: status, views and classification bookkeeping."""
 
 from __future__ import annotations
 
@@ -17,14 +16,11 @@ from monoslam_shadow_node.shadow_filter.core.static_fit import (
     ROW_TAU,
     view_rows,
 )
-from monoslam_shadow_node.common.core.feature_status import DYNAMIC, PENDING, STATIC
 from slam_core.arrays import FloatArray
 
 
-
 class Trajectory:
-    """A feature's recent positions (the latest ``limit`` kept), in a buffer of twice that
-    length that is shifted back once full (amortized O(1) per position)."""
+    """A feature's latest ``limit`` positions, amortized O(1) per position."""
 
     def __init__(self) -> None:
         self._points = np.zeros((0, 3))
@@ -53,11 +49,8 @@ class Trajectory:
 
 @dataclass
 class Track:
-    """A feature's record: id, status, first frame and stamp (int ns), its views (cleared
-    once DYNAMIC), the classifier's schedule and latest statistic, missed and gated frame
-    counts, the handover (point (3,) m, covariance (3, 3)) once STATIC, recent positions, and
-    whether it is a suspect (SLAM revoked it after an earlier handover), and how many
-    scheduled tests in a row found no static point to test (``shadow_classifier``)."""
+    """A feature's record: views, classifier schedule, counts, and once STATIC the handover
+    (point (3,) m, covariance (3, 3))."""
 
     id: int
     status: int
@@ -89,8 +82,7 @@ class Track:
     unfit: int = 0
 
     def add_view(self, view: View, precision: FloatArray, row: FloatArray | None = None) -> None:
-        """Keep a view with its ray precision (3, 3) (the pseudo-inverse of its direction
-        covariance) and its ``static_fit.view_rows`` row (computed here when not given)."""
+        """Keep a view with its ray precision (3, 3) and ``view_rows`` row (None: computed)."""
         if row is None:
             pose = None if view.pose_covariance is None else view.pose_covariance[None]
             row = view_rows(
@@ -118,8 +110,7 @@ class Track:
 
     @property
     def rows(self) -> FloatArray:
-        """The views' ``static_fit.view_rows`` (N, ROW_SIZE), tau (s since first sight)
-        filled."""
+        """The views' ``static_fit.view_rows`` (N, ROW_SIZE), tau filled."""
         return self._rows[: self._count]
 
     @property

@@ -1,46 +1,7 @@
-"""All views of one feature at once: the static point that best explains them, and the score
-test of that static hypothesis against a point moving at constant velocity.
+"""All views of one feature at once: its static point, and the score test of that static
+hypothesis against constant velocity (stacked over many features with white noise).
 
-The three-ray test (``rays``) looks at three rays. Motion that keeps three rays concurrent to
-first order (along the viewing ray, or parallel to a camera moving straight) shows only at
-second order in time, where three rays carry little of the information that all the views
-seen so far hold. This module uses every view, against the motion the Shadow filter itself
-assumes (eq. 2: constant velocity):
-
-- ``triangulate``: Gauss-Newton for the point P minimizing sum_i r_i' W_i r_i, with the
-  angular residual r_i = B_i' (P - C_i) / rho_i across ray i (B_i an orthonormal basis across
-  the measured direction d_i, rho_i = d_i' (P - C_i) the depth along it) and W_i the inverse
-  of the residual's covariance (pixel noise through the ray, plus the camera pose covariance
-  when given).
-- ``motion_score_test``: Rao's score test at that point of H0: v = 0 in the model
-  P(t) = P + v (t - t_0). With the Jacobians J_P,i = (B_i' - r_i d_i') / rho_i and
-  J_v,i = tau_i J_P,i,
-  the score g = sum_i J_v,i' W_i r_i and the velocity information with P eliminated,
-  S = I_vv - I_vP I_PP^-1 I_Pv, T = g' S^-1 g is chi-square(3) under H0. The score taken is
-  the efficient one, g = g_v - I_vP I_PP^-1 g_P (Neyman's C(alpha) form): at the fit P's own
-  score g_P is zero and it is Rao's; where Gauss-Newton stopped short of the fit (a few
-  percent of the Shadow filter's fits on SLAM's linked poses still move by more than a
-  standard deviation after the last iteration) it removes the first-order effect of P's
-  error on g. Under a true velocity v, T is noncentral with noncentrality v' S v, so
-  the eigenvalues of S say how visible motion in each direction has been so far (per
-  (m/s)^2): the test's power against a given speed, independent of the noise in the rays.
-
-The views' pose errors are independent between images unless the pose source links them
-(``pose_links``: a SLAM filter's errors drift), and so are the tracker's unless its offsets
-persist (``tracking_noise``). Either way r's covariance Sigma then holds the covariance
-between views, and every sum above is the generalized least squares one, with J and r
-premultiplied by L^-1 (Sigma = L L'; ``view_fit``).
-
-With independent errors (white tracking noise, the Shadow filter's default) each view's
-residual has its own 2 x 2 covariance Sigma_i, so every sum above is a sum over views of
-J_i' W_i J_i and J_i' W_i r_i with W_i = Sigma_i^-1: ``motion_score_tests`` evaluates them
-so, for the views of many features at once (one flat array of views, summed per feature),
-from per-view constants kept as the views come (``view_rows``: the basis across the ray,
-B_i' Sigma_d,i B_i and the pose covariance's blocks seen through B_i). It is the same fit
-and the same test as the generalized least squares path (the same start, iterations and
-stopping rule; the numbers agree to rounding). The pose part of Sigma_i depends on the point
-(through P - C_i and rho_i), so the weights are evaluated anew at every iterate, as before.
-"""
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -51,9 +12,14 @@ from numpy.typing import NDArray
 
 from monoslam_shadow_node.common.core.pose_links import covered_views
 from monoslam_shadow_node.common.core.projective import RelationTest, chi2_quantile
-from monoslam_shadow_node.shadow_filter.core.rays import View
 from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
-from monoslam_shadow_node.shadow_filter.core.view_fit import CONDITION_LIMIT, CONVERGED_SIGMAS, bases, fit
+from monoslam_shadow_node.shadow_filter.core.rays import View
+from monoslam_shadow_node.shadow_filter.core.view_fit import (
+    CONDITION_LIMIT,
+    CONVERGED_SIGMAS,
+    bases,
+    fit,
+)
 from slam_core.arrays import FloatArray
 from slam_core.geometry.so3 import skew
 
@@ -62,10 +28,8 @@ MOTION_DOF = 3
 
 @dataclass(frozen=True, eq=False)
 class MotionScoreTest:
-    """The score test of v = 0 over ``views`` views: ``result`` (T against chi-square(3)), the
-    static ``point`` (3,) m with its ``covariance`` (3, 3), and ``visibility`` (3,): the
-    ascending eigenvalues of S, the noncentrality per (m/s)^2 of motion along each of its
-    principal directions."""
+    """The score test of v = 0: static ``point`` (3,) m, ``covariance`` (3, 3), ``visibility``
+    (3,) noncentrality per (m/s)^2 along S's principal directions, ascending."""
 
     result: RelationTest
     point: FloatArray
@@ -100,16 +64,9 @@ def view_rows(
     precisions: FloatArray,
     pose_covariances: FloatArray | None,
 ) -> FloatArray:
-    """Return the packed per-view constants (M, ``ROW_SIZE``) of M views: centres (M, 3),
-    unit directions (M, 3), their covariances (M, 3, 3) and precisions (M, 3, 3), and the
-    pose covariances (M, 6, 6), or one (6, 6) for all (None, or all zero: known poses). The
-    tau column is 0.
-
-    The pose part of view i's residual covariance is G P G' with G = B'[-I, [o]x] / rho
-    (``geometry``), so rho^2 G P G' = B'P_pp B - U Q' - Q U' + Q P_rr Q' with U = B'P_pr
-    and Q = B'[o]x, whose row k is (b_k x o)' = ([b_k]x o)': entry (k, l) is
-    A_kl - c_kl . o + o' R_kl o with A = B'P_pp B, c_kl = u_k x b_l + u_l x b_k and
-    R_kl = [b_k]x' P_rr [b_l]x (symmetrized)."""
+    """Return the packed constants (M, ``ROW_SIZE``) of M views, tau 0: centres (M, 3) m, unit
+    directions (M, 3), their covariances and precisions (M, 3, 3), pose covariances (M, 6, 6),
+    one (6, 6) for all, or None."""
     count = len(directions)
     rows = np.zeros((count, ROW_SIZE))
     if not count:
@@ -167,10 +124,7 @@ def _views_as_rows(views: list[View]) -> FloatArray:
 
 @dataclass(frozen=True, eq=False)
 class _Normal:
-    """The sums of one evaluation of all features' views at their points: per feature
-    (K) the normal matrix J' W J (3, 3), the gradient J' W r (3,) and whether a view has the
-    point behind its camera; per whitened residual row (2M) the products (x, y)(x, y)'
-    (4, 4) of the whitened Jacobian row x and residual y, whose sums those are."""
+    """Per feature (K): J' W J (3, 3), J' W r (3,), ``behind``; per whitened row (2M): (4, 4)."""
 
     normal: FloatArray
     gradient: FloatArray
@@ -182,12 +136,8 @@ def _normal_equations(
     points: FloatArray, segment: NDArray[np.intp], starts: NDArray[np.intp], rows: FloatArray,
     posed: bool,
 ) -> _Normal:  # fmt: skip
-    """Evaluate r_i, J_i and Sigma_i of every view (rows) at its feature's point (points
-    (K, 3), ``segment`` (M,) the feature of each view, ``starts`` (K,) each feature's first
-    row) and sum J' W J and J' W r per feature, W = Sigma^-1 (the white-noise path of
-    ``geometry``): [J_i | r_i] (2, 4) is whitened by Sigma_i = L_i L_i' (Cholesky, written
-    out for 2 x 2), so that J' W J and J' W r are blocks of the sum of the whitened rows'
-    outer products."""
+    """Return the normal equations of K features at ``points`` (K, 3) m over their view rows
+    (``segment`` (M,): each view's feature; ``starts`` (K,): each feature's first row)."""
     count = len(rows)
     frame = rows[:, ROW_FRAME].reshape(count, 3, 3)
     offset = points[segment] - rows[:, ROW_CENTRE]
@@ -221,9 +171,7 @@ def _normal_equations(
 
 
 def _unusable(normal: FloatArray) -> NDArray[np.bool_]:
-    """Normal matrices (K, 3, 3) that are not finite or worse conditioned than
-    ``CONDITION_LIMIT`` (np.linalg.cond's 2-norm condition number: for these symmetric
-    matrices the ratio of the largest to the smallest eigenvalue magnitude)."""
+    """Which normal matrices (K, 3, 3) are not finite or beyond ``CONDITION_LIMIT``."""
     finite = np.all(np.isfinite(normal), axis=(1, 2))
     values = np.abs(np.linalg.eigvalsh(np.where(finite[:, None, None], normal, np.eye(3))))
     with np.errstate(divide='ignore', invalid='ignore'):
@@ -237,11 +185,8 @@ def motion_score_tests(
     starts: list[FloatArray],
     iterations: int = 6,
 ) -> list[MotionScoreTest | None]:
-    """``motion_score_test`` of many features at once, white tracking noise: ``groups`` are
-    each feature's ``view_rows`` (tau filled, from its first view), ``alphas`` the levels and
-    ``starts`` the points (3,) the fits start from. Each feature is fitted and tested as
-    ``motion_score_test`` does it alone (its own iterations and stopping rule); the result
-    is None where its views do not fix a static point."""
+    """``motion_score_test`` of many features with white noise, from each one's ``view_rows``
+    (tau filled), level and start point (3,) m; None where no static point is fixed."""
     results: list[MotionScoreTest | None] = [None] * len(groups)
     for alpha in alphas:
         if not 0.0 < alpha < 1.0:
@@ -307,9 +252,7 @@ def _score_tests(
     alphas: list[float],
     views: list[int],
 ) -> list[MotionScoreTest | None]:
-    """The score tests of K features (stacked (K, ...) arguments): T = g' S^-1 g with S =
-    I_vv - I_vP I_PP^-1 I_Pv and the efficient score g = g_v - I_vP I_PP^-1 g_P (``score``
-    g_v, ``gradient`` g_P), at S's numerical rank (module docstring); None where S vanishes or
+    """The score tests of K features from stacked (K, ...) sums; None where S vanishes or
     I_PP is singular."""
     try:
         eliminated = np.linalg.solve(information_pp, information_pv)
@@ -356,9 +299,7 @@ def _score_tests(
 
 
 def linked(views: list[View]) -> bool:
-    """True when the latest view carries its pose error's covariance with earlier poses'
-    (``pose_links``): the fit and the test then take the generalized least squares path,
-    over the views that table covers."""
+    """True when the latest view carries cross-covariances with earlier poses (``pose_links``)."""
     return len(views) > 1 and bool(views[-1].pose_cross)
 
 
@@ -368,9 +309,8 @@ def triangulate(
     iterations: int = 6,
     noise: TrackingNoise | None = None,
 ) -> tuple[FloatArray, FloatArray] | None:
-    """Return the static point (3,) that best explains all views' rays and its covariance
-    (3, 3) (the inverse normal matrix), or None if the rays do not fix it (e.g. no
-    baseline). ``noise``: correlated tracking offsets between the views, if any."""
+    """Return the static point (3,) m of all views and its covariance (3, 3), or None if the
+    rays do not fix it."""
     fitted = fit(covered_views(views), start, iterations, noise)
     if fitted is None:
         return None
@@ -386,9 +326,8 @@ def motion_score_test(
     iterations: int = 6,
     noise: TrackingNoise | None = None,
 ) -> MotionScoreTest | None:
-    """Test the static hypothesis of one feature over all its views (module docstring) at
-    level ``alpha``; None if the views do not fix a static point. ``noise``: correlated
-    tracking offsets between the views, if any (generalized least squares with them)."""
+    """Test one feature's static hypothesis over all its views at level ``alpha``; None if
+    they fix no static point. Raises ValueError for alpha outside (0, 1)."""
     if not 0.0 < alpha < 1.0:
         raise ValueError(f'alpha={alpha!r}: the significance level must be in (0, 1)')
     views = covered_views(views)

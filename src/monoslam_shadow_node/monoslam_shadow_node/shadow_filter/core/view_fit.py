@@ -1,10 +1,7 @@
-"""The all-view fit of one feature's static point over its ``View`` list, by generalized
-least squares (``static_fit`` has the model, the score test and the stacked white-noise path
-for many features at once): the residuals' covariance between views holds the tracker's
-persistent offsets (``tracking_noise``) and the pose errors the views share
-(``pose_links``), and is whitened by its Cholesky factor; with independent errors the
-whitening is per view.
-"""
+"""The all-view fit of one feature's static point over its views, by generalized least
+squares (offsets and pose errors shared between views whitened by a Cholesky factor).
+
+Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
@@ -19,8 +16,8 @@ from monoslam_shadow_node.common.core.pose_links import (
     cross_blocks,
     pose_covariances_between,
 )
-from monoslam_shadow_node.shadow_filter.core.rays import View
 from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
+from monoslam_shadow_node.shadow_filter.core.rays import View
 from slam_core.arrays import FloatArray
 from slam_core.geometry.so3 import skew
 
@@ -35,10 +32,8 @@ test's statistic by about its square, far below anything the test resolves."""
 
 @dataclass(frozen=True, eq=False)
 class Geometry:
-    """All views at a point, whitened: the residuals (2N,) and their Jacobian with respect to
-    the point (2N, 3) premultiplied by a root of the residuals' inverse covariance, and that
-    root (``whiten``), so that r' Sigma^-1 r = |whitened residual|^2; ``raw_jacobian``
-    (N, 2, 3) is the Jacobian per view before whitening."""
+    """All views at a point: whitened residuals (2N,) and Jacobian (2N, 3), the Jacobian per
+    view before whitening (N, 2, 3), and the root ``whiten``."""
 
     residual: FloatArray
     jacobian: FloatArray
@@ -48,10 +43,8 @@ class Geometry:
 
 @dataclass(frozen=True, eq=False)
 class Whitening:
-    """A root of the inverse of the residuals' covariance: per view (N, 2, 2) blocks U_i with
-    U_i' U_i = W_i when the views' errors are independent, else L^-1 (2N, 2N), applied by
-    triangular solves with ``factor``, L, the lower Cholesky factor of the whole covariance
-    Sigma."""
+    """A root of the residuals' inverse covariance: per-view ``blocks`` (N, 2, 2), or L^-1
+    by its lower Cholesky ``factor`` L (2N, 2N)."""
 
     blocks: FloatArray | None
     factor: FloatArray | None
@@ -91,10 +84,8 @@ def view_geometry(
     between: FloatArray | None,
     whiten: Whitening | None = None,
 ) -> Geometry | None:
-    """Whitened residuals of all views at ``point``; None if it is behind a camera or the
-    residuals' covariance is not positive definite. ``between``: the views' pose errors
-    shared between them (``pose_links``; None: independent). ``whiten``: reuse this root of
-    the inverse covariance instead of computing it at ``point``."""
+    """Return the whitened geometry of all views at ``point`` (3,) m; None if it is behind a
+    camera or the covariance is not positive definite."""
     centres = np.array([view.centre for view in views])
     directions = np.array([view.direction for view in views])
     offset = point - centres
@@ -142,10 +133,8 @@ def whitening(
     between: FloatArray | None = None,
     pose_jacobian: FloatArray | None = None,
 ) -> Whitening | None:
-    """Return a root of the residuals' inverse covariance: the views' own covariances
-    (N, 2, 2) and, with correlated tracking offsets, the offsets' covariance between views
-    (B_i' Sigma_didj B_j), and with shared pose errors theirs (``pose_links``); None if that
-    is not positive definite."""
+    """Return a root of the residuals' inverse covariance (own (N, 2, 2), offsets and shared
+    pose errors between views); None if not positive definite."""
     regular = covariance + 1e-18 * np.eye(2)
     white = noise is None or noise.white
     if white and between is None:
@@ -174,8 +163,7 @@ def whitening(
 
 
 def shared_pose_errors(views: list[View]) -> FloatArray | None:
-    """The views' pose errors shared between them (``pose_links.pose_covariances_between``),
-    None when no view's table holds another's."""
+    """The views' pose errors shared between them, or None (``pose_links``)."""
     return pose_covariances_between(
         [view.stamp_ns for view in views],
         [view.pose_covariance for view in views],

@@ -1,0 +1,109 @@
+"""odometry_ingest's parameters and their validation into an IngestConfig (ROS-free)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from em_sam_node.odometry_ingest.processor import IngestConfig
+from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
+
+PARAMETERS = ParamTable(
+    'odometry_ingest',
+    (
+        Param('keyframe_distance_m', 0.5, 'keyframe after this much travel, m', range=POSITIVE),
+        Param('keyframe_angle_rad', 0.35, 'keyframe after this much turning, rad', range=POSITIVE),
+        Param('keyframe_interval_s', 5.0, 'keyframe after this long, s', range=POSITIVE),
+        Param(
+            'observation_delay_s',
+            0.5,
+            'hold keyframes back this long for late observations, s (< max_buffer_s)',
+            range=NON_NEGATIVE,
+        ),
+        Param(
+            'noise_alphas',
+            [0.05, 0.001, 0.01, 0.001],
+            'motion noise alphas a1..a4',
+            length=4,
+            range=NON_NEGATIVE,
+            to_field=tuple,
+        ),
+        Param(
+            'min_sigma_xy_m', 0.002, 'noise floor of an increment in x and y, m', range=POSITIVE
+        ),
+        Param(
+            'min_sigma_theta_rad',
+            0.002,
+            'noise floor of an increment in heading, rad',
+            range=POSITIVE,
+        ),
+        Param(
+            'reset_jump_m',
+            1.0,
+            'a jump larger than this between samples is a reset, m',
+            range=POSITIVE,
+        ),
+        Param(
+            'reset_speed_mps', 5.0, 'a jump is a reset only above this speed, m/s', range=POSITIVE
+        ),
+        Param(
+            'reset_backwards_s',
+            1.0,
+            'a stamp going back more than this is a reset, s',
+            range=POSITIVE,
+        ),
+        Param(
+            'reset_sigma',
+            [1.0, 1.0, 0.5],
+            'std. dev. of the increment bridging a reset (x m, y m, theta rad)',
+            length=3,
+            range=POSITIVE,
+            to_field=tuple,
+        ),
+        Param('max_buffer_s', 30.0, 'odometry kept for interpolation, s', range=POSITIVE),
+        Param(
+            'startup_hold_s',
+            5.0,
+            'hold the first keyframes until an observation is on time, at most this long, s '
+            '(< max_buffer_s)',
+            range=NON_NEGATIVE,
+        ),
+        Param(
+            'idle_flush_s',
+            1.0,
+            'emit held-back keyframes after this long without odometry, s',
+            range=POSITIVE,
+        ),
+        Param('base_frame', 'base_link', 'robot base frame id'),
+        Param('odom_frame', 'odom', 'odometry frame id'),
+        Param(
+            'publish_tf',
+            False,
+            'publish odom_frame -> base_frame on /tf from the odometry (replay without the '
+            "driver's TF)",
+        ),
+        Param(
+            'observations_transient_local',
+            False,
+            'subscribe to landmark_observations transient-local (their publishers must be too)',
+        ),
+    ),
+)
+
+
+_NODE_ONLY = (
+    'idle_flush_s',
+    'base_frame',
+    'odom_frame',
+    'publish_tf',
+    'observations_transient_local',
+)
+
+
+def config_from_parameters(values: dict[str, Any]) -> IngestConfig:
+    """Validate parameter values into an IngestConfig (raises ParameterError)."""
+    fields = {
+        param.name: param.to_field(values[param.name]) if param.to_field else values[param.name]
+        for param in PARAMETERS
+        if param.name not in _NODE_ONLY
+    }
+    return PARAMETERS.build(lambda: IngestConfig(**fields))
