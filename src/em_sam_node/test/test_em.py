@@ -13,8 +13,8 @@ from synthetic_room import MOVEABLE_IDS, STATIC_IDS, STATIC_POSITIONS, Room, mak
 
 from em_sam_node.core.assembly import dead_reckoning, select_observations
 from em_sam_node.core.em import run_em
-from em_sam_node.core.em_types import EmConfig, EmResult
-from em_sam_node.core.em_weights import gate_outliers, m_step
+from em_sam_node.core.em_types import MODES, EmConfig, EmResult
+from em_sam_node.core.em_weights import WEIGHT_MODELS, gate_outliers, weight_model
 from slam_core.geometry.se2 import between
 
 SETTINGS = settings(derandomize=True, max_examples=200, deadline=None)
@@ -124,7 +124,7 @@ def test_m_step_weights_are_always_in_zero_one(
     landmarks = np.array([r[0] for r in rows], dtype=np.int64)
     mahalanobis = np.array([r[1] for r in rows], dtype=float)
     included = np.array([r[2] for r in rows], dtype=bool)
-    weights = m_step(config, mahalanobis, landmarks, 6, included)
+    weights = weight_model(config).m_step(mahalanobis, landmarks, 6, included)
     assert weights.shape == (6,)
     assert np.all((weights >= 0.0) & (weights <= 1.0))
 
@@ -132,7 +132,9 @@ def test_m_step_weights_are_always_in_zero_one(
 def test_m_step_paper_mode_is_eq_14() -> None:
     config = EmConfig(mode='paper', lagrange_lambda=10.0)
     mahalanobis = np.array([1.0, 3.0, 8.0, 30.0])
-    weights = m_step(config, mahalanobis, np.array([0, 0, 1, 2]), 3, np.ones(4, dtype=bool))
+    weights = weight_model(config).m_step(
+        mahalanobis, np.array([0, 0, 1, 2]), 3, np.ones(4, dtype=bool)
+    )
     np.testing.assert_allclose(weights, [1.0 - 4.0 / 20.0, 1.0 - 8.0 / 20.0, 0.0])
 
 
@@ -143,22 +145,23 @@ def test_m_step_robust_mode_keeps_a_consistent_landmark_and_drops_a_moved_one() 
     static = np.full(count, 1.5)
     moved = static + 25.0
     landmarks = np.repeat([0, 1], count)
-    weights = m_step(
-        config, np.concatenate([static, moved]), landmarks, 2, np.ones(2 * count, dtype=bool)
+    weights = weight_model(config).m_step(
+        np.concatenate([static, moved]), landmarks, 2, np.ones(2 * count, dtype=bool)
     )
     assert weights[0] == 1.0 and weights[1] == 0.0
 
 
 def test_a_landmark_seen_once_keeps_weight_one_in_robust_mode() -> None:
-    weights = m_step(
-        EmConfig(mode='robust'),
+    weights = weight_model(EmConfig(mode='robust')).m_step(
         np.array([1e6, 0.5, 0.7]),
         np.array([0, 1, 1]),
         2,
         np.ones(3, dtype=bool),
     )
     assert weights[0] == 1.0
-    paper = m_step(EmConfig(mode='paper'), np.array([1e6]), np.array([0]), 1, np.ones(1, bool))
+    paper = weight_model(EmConfig(mode='paper')).m_step(
+        np.array([1e6]), np.array([0]), 1, np.ones(1, bool)
+    )
     assert paper[0] == 0.0  # the paper's eq. 14 has no such rule
 
 
@@ -189,7 +192,7 @@ def test_gate_outliers_gates_an_isolated_outlier_but_not_a_disagreeing_landmark(
     assert np.flatnonzero(gated[:count]).tolist() == [3]
     # Landmark 1: only floor(0.1 * 20) = 2 of its 12 large sightings, the largest ones.
     assert np.flatnonzero(gated[count:]).tolist() == [10, 11]
-    weights = m_step(config, mahalanobis, landmarks, 2, ~gated)
+    weights = weight_model(config).m_step(mahalanobis, landmarks, 2, ~gated)
     assert weights[0] == 1.0 and weights[1] == 0.0
 
 
@@ -335,13 +338,21 @@ def test_robust_mode_estimates_a_range_noise_wider_than_modelled(room: Room) -> 
 
 
 def test_model_error_widens_the_test_covariance_by_a_position_error() -> None:
-    from em_sam_node.core.em_weights import covariances_for_test
 
     cov = np.repeat(np.diag([0.01, 0.0001])[None], 2, axis=0)
     z = np.array([[2.0, 0.1], [4.0, -0.3]])
-    widened = covariances_for_test(EmConfig(mode='robust', model_error_m=0.2), cov, z)
+    widened = weight_model(EmConfig(mode='robust', model_error_m=0.2)).test_covariances(cov, z)
     assert widened is not None
     np.testing.assert_allclose(widened[:, 0, 0], 0.01 + 0.04)
     np.testing.assert_allclose(widened[:, 1, 1], 0.0001 + (0.2 / z[:, 0]) ** 2)
-    assert covariances_for_test(EmConfig(mode='paper'), cov, z) is None
-    assert covariances_for_test(EmConfig(mode='robust', model_error_m=0.0), cov, z) is None
+    assert weight_model(EmConfig(mode='paper')).test_covariances(cov, z) is None
+    assert (
+        weight_model(EmConfig(mode='robust', model_error_m=0.0)).test_covariances(cov, z) is None
+    )
+
+
+def test_every_mode_names_one_weight_model() -> None:
+    """EmConfig's modes and the weight models are the same set, each chosen by its name."""
+    assert set(WEIGHT_MODELS) == set(MODES)
+    for mode in MODES:
+        assert type(weight_model(EmConfig(mode=mode))) is WEIGHT_MODELS[mode]

@@ -50,15 +50,12 @@ from em_sam_node.core.assembly import (
     dead_reckoning,
     initial_estimate,
 )
-from em_sam_node.core.em_types import SEED_KERNELS, EmConfig, EmResult, Snapshot
+from em_sam_node.core.em_types import EmConfig, EmResult, Snapshot
 from em_sam_node.core.em_weights import (
     ROW_SCALE_FLOOR,
-    capped_noise_scales,
-    covariances_for_test,
-    gate_outliers,
-    m_step,
-    row_scales,
+    WeightModel,
     squared_mahalanobis,
+    weight_model,
     with_noise_scales,
 )
 from em_sam_node.core.factors import observation_innovations, observation_mahalanobis
@@ -125,12 +122,13 @@ def run_em(
     if record_snapshots:
         snapshots['initial'] = _snapshot(estimate, built.landmark_ids)
 
-    if config.mode == 'paper' or record_snapshots:
+    model = weight_model(config)
+    if model.seeds_from_all_static or record_snapshots:
         all_static = _solve(config, problem, estimate)
         if record_snapshots:
             snapshots['all_static'] = _snapshot(all_static, built.landmark_ids)
     calibration = OdometryCalibration()
-    if config.mode == 'paper':
+    if model.seeds_from_all_static:
         estimate = all_static
     else:
         estimate, calibration = _robust_seed(config, data, built, estimate)
@@ -140,7 +138,7 @@ def run_em(
             problem, num_pieces = anchored_problem(built, poses0)
     timings['first_e_step'] = time.perf_counter() - started
     sensor_data = data
-    noise_scale = capped_noise_scales(config, data, built, problem, estimate)
+    noise_scale = model.noise_scales(data, built, problem, estimate)
     if np.any(noise_scale > 1.0):
         data = with_noise_scales(sensor_data, noise_scale)
         built = build_problem(data)
@@ -152,20 +150,19 @@ def run_em(
     gated = np.zeros(problem.num_observations, dtype=bool)
     converged = False
     iterations = 0
-    test_cov = covariances_for_test(config, data.obs_cov[built.observation_rows], problem.obs_z)
+    test_cov = model.test_covariances(data.obs_cov[built.observation_rows], problem.obs_z)
     for iteration in range(config.max_iterations):
         if test_cov is None:
             mahalanobis = observation_mahalanobis(problem, estimate)
         else:
             mahalanobis = squared_mahalanobis(observation_innovations(problem, estimate), test_cov)
-        if config.mode == 'robust':
-            gated = gate_outliers(config, mahalanobis, problem.obs_landmark, num_landmarks)
-        new_weights = m_step(config, mahalanobis, problem.obs_landmark, num_landmarks, ~gated)
+        gated = model.gate(mahalanobis, problem.obs_landmark, num_landmarks)
+        new_weights = model.m_step(mahalanobis, problem.obs_landmark, num_landmarks, ~gated)
         estimate = _solve(
             config,
             problem,
             estimate,
-            obs_row_scale=row_scales(config, new_weights, problem.obs_landmark, gated),
+            obs_row_scale=model.row_scales(new_weights, problem.obs_landmark, gated),
         )
         history.append(new_weights)
         iterations = iteration + 1
@@ -190,7 +187,7 @@ def run_em(
             else estimate_calibration(raw_data, estimate.poses)
         )
         sensor_data = calibration.apply(raw_data)
-    final = _final_solve(config, sensor_data, built, estimate, moveable, gated)
+    final = _final_solve(config, model, sensor_data, built, estimate, moveable, gated)
     timings['total'] = time.perf_counter() - started
     if record_snapshots:
         snapshots['final'] = Snapshot(final.poses, final.landmark_ids, final.positions)
@@ -230,6 +227,7 @@ class _Final:
 
 def _final_solve(
     config: EmConfig,
+    model: WeightModel,
     data: MappingData,
     built: BuiltProblem,
     estimate: Estimate,
@@ -251,7 +249,7 @@ def _final_solve(
     keep = np.isin(built.landmark_ids, static.landmark_ids)
     start = Estimate(estimate.poses.copy(), estimate.landmarks[keep].copy())
     if static.problem.num_landmarks:
-        noise_scale = capped_noise_scales(config, data, static, static.problem, start)
+        noise_scale = model.noise_scales(data, static, static.problem, start)
         if np.any(noise_scale > 1.0):
             data = with_noise_scales(data, noise_scale)
             static = build_problem(data, exclude_ids=moveable_ids.tolist())
@@ -259,7 +257,7 @@ def _final_solve(
     if static.problem.num_landmarks:
         gated_rows = np.isin(static.observation_rows, built.observation_rows[gated])
         scale = np.where(gated_rows, ROW_SCALE_FLOOR, 1.0)
-        kernel = final_kernel(config)
+        kernel = model.final_kernel()
         solved = _solve(config, problem, start, obs_row_scale=scale, robust_kernel=kernel)
         poses = solved.poses
         positions[keep] = solved.landmarks
@@ -272,14 +270,6 @@ def _final_solve(
     return _Final(
         poses, built.landmark_ids, positions, covariances, sightings, num_pieces, noise_scale
     )
-
-
-def final_kernel(config: EmConfig) -> RobustKernel | None:
-    """The final solve's kernel on the static sightings (robust mode, unless 'none'): real
-    sensors' heavy tails."""
-    if config.mode != 'robust' or config.final_kernel == 'none':
-        return None
-    return SEED_KERNELS[config.final_kernel](config.final_kernel_scale)
 
 
 def _gated_in_data(data: MappingData, built: BuiltProblem, gated: np.ndarray) -> np.ndarray:

@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from em_sam_node.core.assembly import BuiltProblem, MappingData
-from em_sam_node.core.em_types import EmConfig
+from em_sam_node.core.em_types import SEED_KERNELS, EmConfig
 from em_sam_node.core.factors import observation_innovations
 from em_sam_node.core.problem import Estimate, SlamProblem
+from em_sam_node.core.robust_kernels import RobustKernel
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.lazy_stats import chi2
 
@@ -27,26 +30,6 @@ def chi2_quantile(probability: float, dof: int) -> float:
     """The chi-square quantile, remembered: the online smoother tests one landmark at a
     time, and scipy's ppf costs more than the rest of such a test."""
     return float(chi2.ppf(probability, dof))
-
-
-def covariances_for_test(
-    config: EmConfig, obs_cov: FloatArray, obs_z: FloatArray
-) -> FloatArray | None:
-    """Sighting covariances (K,2,2) for the robust mode's test, or None to use the model's.
-
-    Real sensors have per-landmark biases (MRCLAM: 0.1-0.2 m in range for some barcodes,
-    2 sigma of the noise) that no noise model carries; the test would call such a static
-    landmark moveable. ``model_error_m`` adds an isotropic position error of that size
-    (range variance + m^2, bearing variance + (m / range)^2) to the test only: moves much
-    smaller than it go undetected, moves of metres do not.
-    """
-    if config.mode != 'robust' or config.model_error_m == 0 or len(obs_cov) == 0:
-        return None
-    extra = np.zeros_like(obs_cov)
-    extra[:, 0, 0] = config.model_error_m**2
-    extra[:, 1, 1] = (config.model_error_m / np.maximum(obs_z[:, 0], 1e-3)) ** 2
-    result: FloatArray = obs_cov + extra
-    return result
 
 
 def squared_mahalanobis(innovations: FloatArray, covariances: FloatArray) -> FloatArray:
@@ -87,49 +70,6 @@ def with_noise_scales(data: MappingData, factors: FloatArray) -> MappingData:
     )
 
 
-def capped_noise_scales(
-    config: EmConfig,
-    data: MappingData,
-    built: BuiltProblem,
-    problem: SlamProblem,
-    estimate: Estimate,
-) -> FloatArray:
-    """The capped variance factors of ``problem``'s sightings at ``estimate``."""
-    if config.mode != 'robust' or not config.estimate_noise_scale:
-        return np.ones(2)
-    factors = observation_noise_scales(
-        observation_innovations(problem, estimate), data.obs_cov[built.observation_rows]
-    )
-    result: FloatArray = np.minimum(factors, config.max_noise_scale)
-    return result
-
-
-def m_step(
-    config: EmConfig,
-    mahalanobis: FloatArray,
-    obs_landmark: IntArray,
-    num_landmarks: int,
-    included: np.ndarray,
-) -> FloatArray:
-    """Return new landmark weights (L,) in [0, 1] from squared Mahalanobis innovations (K,).
-
-    Only ``included`` sightings count (the robust mode's gate excludes some).
-    """
-    counts = np.bincount(obs_landmark[included], minlength=num_landmarks)
-    sums = np.bincount(
-        obs_landmark[included], weights=mahalanobis[included], minlength=num_landmarks
-    )
-    if config.mode == 'paper':
-        return np.clip(1.0 - sums / (2.0 * config.lagrange_lambda), 0.0, 1.0)
-    dof = np.maximum(2 * counts - 2, 1)
-    level = 1.0 - config.false_alarm_probability
-    quantile = np.array([chi2_quantile(level, int(n)) for n in dof.tolist()])
-    excess = np.maximum(sums - dof, 0.0)
-    weights: FloatArray = np.clip(1.0 - excess / (2.0 * (quantile - dof)), 0.0, 1.0)
-    weights[counts <= 1] = 1.0  # a single sighting carries no evidence of motion
-    return weights
-
-
 def gate_outliers(
     config: EmConfig, mahalanobis: FloatArray, obs_landmark: IntArray, num_landmarks: int
 ) -> np.ndarray:
@@ -154,11 +94,198 @@ def gate_outliers(
     return gated
 
 
-def row_scales(
-    config: EmConfig, weights: FloatArray, obs_landmark: IntArray, gated: np.ndarray
-) -> FloatArray:
-    """Return the E-step row scale of every sighting (K,): w (paper) or sqrt(w) (robust)."""
-    scale = weights if config.mode == 'paper' else np.sqrt(weights)
+class WeightModel(Protocol):
+    """How EM-SAM weighs landmarks ('paper' or 'robust', chosen once by ``weight_model``):
+    the test's covariances, the sensor's variance factors, the outlier gate, the M-step, the
+    E-step row scales and the final solve's kernel."""
+
+    @property
+    def config(self) -> EmConfig: ...
+
+    @property
+    def gates(self) -> bool:
+        """Whether the model gates isolated outlier sightings."""
+        ...
+
+    @property
+    def seeds_from_all_static(self) -> bool:
+        """The first E-step: the all-static solve (True) or the incremental robust seed."""
+        ...
+
+    def test_covariances(self, obs_cov: FloatArray, obs_z: FloatArray) -> FloatArray | None:
+        """Sighting covariances (K, 2, 2) for the test, or None to use the model's."""
+        ...
+
+    def model_variance_m2(self) -> float:
+        """The isotropic model error added to a position test, m^2."""
+        ...
+
+    def noise_scales(
+        self, data: MappingData, built: BuiltProblem, problem: SlamProblem, estimate: Estimate
+    ) -> FloatArray:
+        """The capped variance factors (2,) of range and bearing at ``estimate``."""
+        ...
+
+    def gate(
+        self, mahalanobis: FloatArray, obs_landmark: IntArray, num_landmarks: int
+    ) -> np.ndarray:
+        """A (K,) mask of the sightings left out of the M-step."""
+        ...
+
+    def m_step(
+        self,
+        mahalanobis: FloatArray,
+        obs_landmark: IntArray,
+        num_landmarks: int,
+        included: np.ndarray,
+    ) -> FloatArray:
+        """New landmark weights (L,) in [0, 1] from squared Mahalanobis innovations (K,) of
+        the ``included`` sightings."""
+        ...
+
+    def row_scales(
+        self, weights: FloatArray, obs_landmark: IntArray, gated: np.ndarray
+    ) -> FloatArray:
+        """The E-step row scale of every sighting (K,); gated rows at ROW_SCALE_FLOOR."""
+        ...
+
+    def final_kernel(self) -> RobustKernel | None:
+        """The final solve's kernel on the static sightings, or None."""
+        ...
+
+
+def _counts_and_sums(
+    mahalanobis: FloatArray, obs_landmark: IntArray, num_landmarks: int, included: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    counts = np.bincount(obs_landmark[included], minlength=num_landmarks)
+    sums = np.bincount(
+        obs_landmark[included], weights=mahalanobis[included], minlength=num_landmarks
+    )
+    return counts, sums
+
+
+def _rows(scale: FloatArray, obs_landmark: IntArray, gated: np.ndarray) -> FloatArray:
     rows = np.maximum(scale[obs_landmark], ROW_SCALE_FLOOR)
     rows[gated] = ROW_SCALE_FLOOR
     return rows
+
+
+@dataclass(frozen=True)
+class PaperWeights:
+    """The paper's model: eq. 14's weights, rows scaled by w, no gate, the model's own
+    covariances, the all-static first E-step."""
+
+    config: EmConfig
+    gates: bool = False
+    seeds_from_all_static: bool = True
+
+    def test_covariances(self, obs_cov: FloatArray, obs_z: FloatArray) -> FloatArray | None:
+        return None
+
+    def model_variance_m2(self) -> float:
+        return 0.0
+
+    def noise_scales(
+        self, data: MappingData, built: BuiltProblem, problem: SlamProblem, estimate: Estimate
+    ) -> FloatArray:
+        return np.ones(2)
+
+    def gate(
+        self, mahalanobis: FloatArray, obs_landmark: IntArray, num_landmarks: int
+    ) -> np.ndarray:
+        return np.zeros(mahalanobis.shape, dtype=bool)
+
+    def m_step(
+        self,
+        mahalanobis: FloatArray,
+        obs_landmark: IntArray,
+        num_landmarks: int,
+        included: np.ndarray,
+    ) -> FloatArray:
+        _, sums = _counts_and_sums(mahalanobis, obs_landmark, num_landmarks, included)
+        return np.clip(1.0 - sums / (2.0 * self.config.lagrange_lambda), 0.0, 1.0)
+
+    def row_scales(
+        self, weights: FloatArray, obs_landmark: IntArray, gated: np.ndarray
+    ) -> FloatArray:
+        return _rows(weights, obs_landmark, gated)
+
+    def final_kernel(self) -> RobustKernel | None:
+        return None
+
+
+@dataclass(frozen=True)
+class RobustWeights:
+    """The robust model: a chi-square test per landmark at the false-alarm probability,
+    rows scaled by sqrt(w), the outlier gate, the model error and the estimated variance
+    factors in the test, the incremental first E-step and a final kernel."""
+
+    config: EmConfig
+    gates: bool = True
+    seeds_from_all_static: bool = False
+
+    def test_covariances(self, obs_cov: FloatArray, obs_z: FloatArray) -> FloatArray | None:
+        model_error = self.config.model_error_m
+        if model_error == 0 or len(obs_cov) == 0:
+            return None
+        extra = np.zeros_like(obs_cov)
+        extra[:, 0, 0] = model_error**2
+        extra[:, 1, 1] = (model_error / np.maximum(obs_z[:, 0], 1e-3)) ** 2
+        result: FloatArray = obs_cov + extra
+        return result
+
+    def model_variance_m2(self) -> float:
+        return float(self.config.model_error_m**2)
+
+    def noise_scales(
+        self, data: MappingData, built: BuiltProblem, problem: SlamProblem, estimate: Estimate
+    ) -> FloatArray:
+        if not self.config.estimate_noise_scale:
+            return np.ones(2)
+        factors = observation_noise_scales(
+            observation_innovations(problem, estimate), data.obs_cov[built.observation_rows]
+        )
+        result: FloatArray = np.minimum(factors, self.config.max_noise_scale)
+        return result
+
+    def gate(
+        self, mahalanobis: FloatArray, obs_landmark: IntArray, num_landmarks: int
+    ) -> np.ndarray:
+        return gate_outliers(self.config, mahalanobis, obs_landmark, num_landmarks)
+
+    def m_step(
+        self,
+        mahalanobis: FloatArray,
+        obs_landmark: IntArray,
+        num_landmarks: int,
+        included: np.ndarray,
+    ) -> FloatArray:
+        counts, sums = _counts_and_sums(mahalanobis, obs_landmark, num_landmarks, included)
+        dof = np.maximum(2 * counts - 2, 1)
+        level = 1.0 - self.config.false_alarm_probability
+        quantile = np.array([chi2_quantile(level, int(n)) for n in dof.tolist()])
+        excess = np.maximum(sums - dof, 0.0)
+        weights: FloatArray = np.clip(1.0 - excess / (2.0 * (quantile - dof)), 0.0, 1.0)
+        weights[counts <= 1] = 1.0  # a single sighting carries no evidence of motion
+        return weights
+
+    def row_scales(
+        self, weights: FloatArray, obs_landmark: IntArray, gated: np.ndarray
+    ) -> FloatArray:
+        return _rows(np.sqrt(weights), obs_landmark, gated)
+
+    def final_kernel(self) -> RobustKernel | None:
+        if self.config.final_kernel == 'none':
+            return None
+        return SEED_KERNELS[self.config.final_kernel](self.config.final_kernel_scale)
+
+
+WEIGHT_MODELS: dict[str, type[PaperWeights] | type[RobustWeights]] = {
+    'paper': PaperWeights,
+    'robust': RobustWeights,
+}
+
+
+def weight_model(config: EmConfig) -> WeightModel:
+    """The weight model ``config.mode`` names."""
+    return WEIGHT_MODELS[config.mode](config)

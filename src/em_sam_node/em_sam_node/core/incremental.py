@@ -46,10 +46,8 @@ import numpy as np
 from em_sam_node.core.em_types import EmConfig
 from em_sam_node.core.em_weights import (
     chi2_quantile,
-    covariances_for_test,
-    gate_outliers,
-    m_step,
     squared_mahalanobis,
+    weight_model,
 )
 from em_sam_node.core.factors import range_bearing_error
 from em_sam_node.core.incremental_parts import (
@@ -85,6 +83,7 @@ class IncrementalEmSam:
     ) -> None:
         self.gtsam = load_gtsam()
         self.config = config
+        self.model = weight_model(config)
         self.incremental = incremental or IncrementalConfig()
         self.prior_pose = np.asarray(prior_pose, np.float64).reshape(3)
         self.prior_cov = np.asarray(prior_cov, np.float64).reshape(3, 3)
@@ -399,13 +398,11 @@ class IncrementalEmSam:
             return 1.0, [False] * count, held.tolist()
         mahalanobis = self._mahalanobis(innovation, z, cov)
         owner = np.zeros(count, dtype=np.int64)
-        if self.config.mode == 'paper':
-            gated = np.zeros(count, dtype=bool)
-        else:
-            gated = gate_outliers(self.config, mahalanobis, owner, 1)
+        gated = self.model.gate(mahalanobis, owner, 1)
+        if self.model.gates:
             beyond = mahalanobis > chi2_quantile(1.0 - self.config.gate_probability, 2)
             gated &= ~self._seen_elsewhere(poses, z, cov, beyond & ~np.array(landmark.explained))
-        weight = float(m_step(self.config, mahalanobis, owner, 1, ~gated)[0])
+        weight = float(self.model.m_step(mahalanobis, owner, 1, ~gated)[0])
         return weight, gated.tolist(), held.tolist()
 
     def _seen_elsewhere(
@@ -424,7 +421,7 @@ class IncrementalEmSam:
         if run < PLACE_SIGHTINGS:
             return result
         rows = slice(len(z) - run, None)
-        tested = covariances_for_test(config, cov[rows], z[rows])
+        tested = self.model.test_covariances(cov[rows], z[rows])
         test_cov = cov[rows] if tested is None else tested
         start = range_bearing_to_point(poses[rows][-1:], z[rows][-1:])[0]
         point = least_squares_point(poses[rows], z[rows], test_cov, start)
@@ -442,7 +439,7 @@ class IncrementalEmSam:
     def _mahalanobis(self, innovation: FloatArray, z: FloatArray, cov: FloatArray) -> FloatArray:
         """The test's squared Mahalanobis distances (K,) of ``innovation`` (K, 2): the
         sightings' covariances (K, 2, 2) with the model error."""
-        tested = covariances_for_test(self.config, cov, z)
+        tested = self.model.test_covariances(cov, z)
         return squared_mahalanobis(innovation, cov if tested is None else tested)
 
     def _enter(self, landmark_id: int, new: NewSighting) -> tuple[bool, bool, bool]:
@@ -460,11 +457,11 @@ class IncrementalEmSam:
         z_all, cov_all = np.array([*landmark.z, new.z]), np.array([*landmark.cov, new.cov])
         innovation = self._innovations(landmark_id, poses, z_all)
         held = bool(beyond_linearization(innovation[-1:])[0])
-        if self.config.mode == 'paper':
+        if not self.model.gates:
             return False, held, False
         mahalanobis = self._mahalanobis(innovation, z_all, cov_all)
         owner = np.zeros(len(mahalanobis), dtype=np.int64)
-        gated = bool(gate_outliers(self.config, mahalanobis, owner, 1)[-1])
+        gated = bool(self.model.gate(mahalanobis, owner, 1)[-1])
         beyond = mahalanobis[-1] > chi2_quantile(1.0 - self.config.gate_probability, 2)
         explained = bool(beyond and self._predicted_fit(landmark_id, new))
         # explained: the estimate, not the sighting, is what is off (drift)
@@ -479,7 +476,7 @@ class IncrementalEmSam:
         keyframe, z, cov = new.keyframe, new.z, new.cov
         landmark = self.landmarks[landmark_id]
         symbol = landmark.key
-        tested = covariances_for_test(self.config, cov[None], z[None])
+        tested = self.model.test_covariances(cov[None], z[None])
         # (bearing, range), as GTSAM orders them
         test_cov = np.ascontiguousarray((cov if tested is None else tested[0])[::-1, ::-1])
         factor = gtsam.BearingRangeFactor2D(

@@ -33,9 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from em_sam_node.core.assembly import MappingData, build_problem
-from em_sam_node.core.em import _solve, anchored_problem, final_kernel, run_em
+from em_sam_node.core.em import _solve, anchored_problem, run_em
 from em_sam_node.core.em_types import EmConfig, EmResult
-from em_sam_node.core.em_weights import chi2_quantile, with_noise_scales
+from em_sam_node.core.em_weights import chi2_quantile, weight_model, with_noise_scales
 from em_sam_node.core.marginals import joint_landmark_covariance, marginal_landmark_covariances
 from em_sam_node.core.problem import Estimate
 from em_sam_node.core.sightings import at_latest_sightings, sightings_of
@@ -175,7 +175,7 @@ def register(
         saved_joint = np.zeros((2 * count, 2 * count))
         for k, j in enumerate(index.tolist()):
             saved_joint[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = saved.covariances[j]
-    model = config.model_error_m**2 if config.mode == 'robust' else 0.0
+    model = weight_model(config).model_variance_m2()
     inliers = np.ones(count, dtype=bool)
     while True:
         pose = _fit(points[inliers], targets[inliers])  # the consistent ones' transform
@@ -279,7 +279,10 @@ def localize(
     covariances = rotation @ session.covariances @ rotation.T
     if problem.num_landmarks:
         solved = _solve(
-            config, problem, Estimate(poses0, landmarks), robust_kernel=final_kernel(config)
+            config,
+            problem,
+            Estimate(poses0, landmarks),
+            robust_kernel=weight_model(config).final_kernel(),
         )
         estimated = marginal_landmark_covariances(problem, solved)
         positions[in_session] = solved.landmarks

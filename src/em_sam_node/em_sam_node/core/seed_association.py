@@ -21,7 +21,7 @@ from em_sam_node.core.assembly import MappingData, dead_reckoning
 from em_sam_node.core.consensus import IDENTITY, Correction, consensus
 from em_sam_node.core.continuation import prefix
 from em_sam_node.core.em_types import EmConfig
-from em_sam_node.core.em_weights import covariances_for_test
+from em_sam_node.core.em_weights import weight_model
 from em_sam_node.core.factorization import factorize, hold_uninformed
 from em_sam_node.core.factors import (
     odometry_residuals,
@@ -247,7 +247,7 @@ def associate(
     keyframes = data.obs_keyframe[rows]
     landmark_ids = virtual_ids[rows]
     sighting_cov = data.obs_cov[rows]
-    test_cov = covariances_for_test(config, sighting_cov, data.obs_z[rows])
+    test_cov = weight_model(config).test_covariances(sighting_cov, data.obs_z[rows])
     if test_cov is not None:
         sighting_cov = test_cov
     # How far the odometry model lets each sighting's pose drift since the step began, as

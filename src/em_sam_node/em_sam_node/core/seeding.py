@@ -66,12 +66,9 @@ from em_sam_node.core.assembly import BuiltProblem, MappingData, build_problem, 
 from em_sam_node.core.continuation import extend_poses, prefix, step_ends
 from em_sam_node.core.em_types import SEED_KERNELS, EmConfig
 from em_sam_node.core.em_weights import (
-    capped_noise_scales,
-    covariances_for_test,
     gate_outliers,
-    m_step,
-    row_scales,
     squared_mahalanobis,
+    weight_model,
     with_noise_scales,
 )
 from em_sam_node.core.factors import (
@@ -139,16 +136,17 @@ def _reweight(
     estimate: Estimate,
 ) -> tuple[FloatArray, np.ndarray]:
     """The M-step weights (L,) and gated sightings (K,) of a prefix at ``estimate``."""
-    noise_scale = capped_noise_scales(config, data, built, built.problem, estimate)
+    model = weight_model(config)
+    noise_scale = model.noise_scales(data, built, built.problem, estimate)
     covariances = with_noise_scales(data, noise_scale).obs_cov[built.observation_rows]
-    test_cov = covariances_for_test(config, covariances, problem.obs_z)
+    test_cov = model.test_covariances(covariances, problem.obs_z)
     mahalanobis = squared_mahalanobis(
         observation_innovations(problem, estimate),
         covariances if test_cov is None else test_cov,
     )
     num_landmarks = problem.num_landmarks
     gated = gate_outliers(config, mahalanobis, problem.obs_landmark, num_landmarks)
-    weights = m_step(config, mahalanobis, problem.obs_landmark, num_landmarks, ~gated)
+    weights = model.m_step(mahalanobis, problem.obs_landmark, num_landmarks, ~gated)
     return weights, gated
 
 
@@ -274,7 +272,7 @@ def _solve_step(
     estimate = Estimate(poses, _initial_landmarks(problem, ids, poses, mapped))
     weights = np.array([weights_by_id.get(i, 1.0) for i in ids])
     gated = np.zeros(problem.num_observations, dtype=bool)
-    rows = row_scales(config, weights, problem.obs_landmark, gated)
+    rows = weight_model(config).row_scales(weights, problem.obs_landmark, gated)
     if graduated:
         estimate = _graduated_solve(config, problem, estimate, rows, solve)
     else:
@@ -287,6 +285,6 @@ def _solve_step(
         weights = new_weights
         if change < SEED_WEIGHT_TOLERANCE:
             break
-        rows = row_scales(config, weights, problem.obs_landmark, gated)
+        rows = weight_model(config).row_scales(weights, problem.obs_landmark, gated)
         estimate = solve(problem, estimate, rows, kernel, None)
     return estimate, weights, problem, rows
