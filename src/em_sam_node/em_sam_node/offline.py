@@ -1,20 +1,5 @@
-"""Offline replay: a bag through the nodes' processors, and its ground truth.
-
-``replay_bag`` feeds a bag's odometry and /landmark_observations through the same
-conversions and processors as the nodes, in bag order, and returns the collected
-MappingData. The odometry is either wheel odometry on /odom (nav_msgs/msg/Odometry, through
-OdometryIngest as odometry_ingest does, then MapperProcessor as em_sam_mapper does) or
-keyframe increments on /odometry_increments (slam_interfaces/msg/OdometryIncrement, what
-odometry_ingest publishes and victoria_park_import writes, straight to MapperProcessor as
-em_sam_mapper subscribes). A bag with both is replayed from /odom (the increments are
-recomputed as the nodes would).
-
-``read_ground_truth`` reads the /ground_truth topics of a simulated or imported bag:
-/ground_truth/landmarks is required; /ground_truth/pose is optional (MRCLAM data sets 1-3
-have no Vicon track of the robot): without it ``GroundTruth.has_poses`` is False and the
-robot poses are empty, so there is no ATE to compute. A landmark with a NaN position is a
-subject known to be moveable whose position the data do not give (see mrclam_import).
-"""
+"""Offline replay: a bag through the nodes' processors, and its ground truth; see
+docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -60,13 +45,10 @@ def replay_bag(
     path: Path, *, ingest: IngestConfig | None = None, mapper: MapperConfig | None = None
 ) -> Replay:
     """Run a bag's odometry (/odom or /odometry_increments) and observations through the
-    processors the nodes use (``ingest`` configures OdometryIngest, used for /odom only;
-    ``mapper`` MapperProcessor; the defaults are the nodes').
+    nodes' processors.
 
     Raises:
-        BagError: the bag has no /landmark_observations, or neither odometry topic, or too
-            little odometry for a trajectory; the message names the bag and the topics.
-
+        BagError: no /landmark_observations, no odometry topic, or too little odometry.
     """
     warnings: list[str] = []
     ingest_processor = OdometryIngest(ingest or IngestConfig(), warn=warnings.append)
@@ -117,10 +99,8 @@ def replay_bag(
 
 @dataclass(frozen=True)
 class GroundTruth:
-    """Simulated or recorded truth: robot poses (T,3) at stamps (T,) (T = 0 without
-    /ground_truth/pose), landmark positions before and after the move ((L,2) each, aligned
-    with ``landmark_ids``; NaN where a moveable subject's position is not known), moveable
-    flags and move stamp."""
+    """True poses (T, 3) at stamps (T,) (T = 0 without /ground_truth/pose), landmark positions
+    before and after the move ((L, 2) each, NaN if unknown), moveable flags, move stamp."""
 
     stamps_ns: IntArray
     poses: FloatArray
@@ -143,11 +123,10 @@ class GroundTruth:
         return (stamps >= self.stamps_ns[0]) & (stamps <= self.stamps_ns[-1])
 
     def poses_at(self, stamps_ns: IntArray) -> FloatArray:
-        """Return true poses (n,3) interpolated at ``stamps_ns``.
+        """Return true poses (n, 3) interpolated at ``stamps_ns``.
 
         Raises:
             ValueError: there are no true poses (``has_poses`` is False).
-
         """
         if not self.has_poses:
             raise ValueError('the ground truth has no robot poses (no /ground_truth/pose)')
@@ -162,7 +141,6 @@ def read_ground_truth(path: Path) -> GroundTruth:
 
     Raises:
         BagError: the bag has no /ground_truth/landmarks topic, or no message on it.
-
     """
     registry = TypeRegistry()
     stamps: list[int] = []
@@ -209,8 +187,7 @@ def read_ground_truth(path: Path) -> GroundTruth:
 
 
 def seen_at_both_positions(data: MappingData, truth: GroundTruth) -> set[int]:
-    """Return the moved landmarks observed both before and after the move (a landmark whose
-    positions are unknown, NaN, does not count as moved)."""
+    """Return the moved landmarks observed both before and after the move (NaN: not moved)."""
     if truth.move_stamp_ns is None:
         return set()
     shift = np.abs(truth.positions_before - truth.positions_after)

@@ -1,10 +1,6 @@
-"""Decoding camera images (sensor_msgs/Image and CompressedImage payloads) into numpy arrays.
-
-ROS-free: the caller passes the message fields (encoding, size, row step, bytes; or the
-compressed format string and bytes). Every failure raises ``ImageError`` with a message that
-names the problem (the encoding, the sizes that disagree, the codec that failed), so a node
-can log it and carry on with the next image.
-"""
+"""Decoding camera images (sensor_msgs/Image and CompressedImage payloads) into numpy arrays,
+ROS-free; every failure raises ``ImageError`` naming the problem.
+Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -23,10 +19,7 @@ RAW_ENCODINGS: dict[str, tuple[int, int | None]] = {
 
 
 DEFAULT_MAX_IMAGE_PIXELS = 4096 * 4096
-"""Largest image decoded by default, pixels (16.8 Mpx). The biggest camera of the suite is
-1280x720 (0.9 Mpx); 4096x4096 leaves room for any 4K or 12 Mpx sensor while a refused image
-is refused before its gray copy (16.8 MB) and the colour conversion (up to 4x that) exist.
-0 disables the check."""
+"""Largest image decoded by default, pixels (16.8 Mpx); 0 disables the check."""
 
 
 class ImageError(ValueError):
@@ -51,11 +44,7 @@ def _be16(data: bytes, at: int) -> int:
 
 
 def compressed_size(data: bytes | bytearray | memoryview) -> tuple[int, int] | None:
-    """Return (width, height) from a PNG or JPEG header, None for other or cut-off bytes.
-
-    Reads only the header (PNG: the IHDR chunk; JPEG: the segments up to the first start of
-    frame), so a huge image is known before anything is decoded.
-    """
+    """Return (width, height) from a PNG or JPEG header, None for other or cut-off bytes."""
     head = bytes(data[:24])
     if head[:8] == b'\x89PNG\r\n\x1a\n' and len(head) >= 24 and head[12:16] == b'IHDR':
         return int.from_bytes(head[16:20], 'big'), int.from_bytes(head[20:24], 'big')
@@ -133,10 +122,6 @@ def decode_compressed(
     max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS,
 ) -> np.ndarray:
     """Return the gray image (uint8) of a sensor_msgs/CompressedImage payload (JPEG, PNG...).
-
-    ``image_format`` is only used in messages: OpenCV recognizes the codec from the bytes.
-    A PNG or JPEG is checked against ``max_pixels`` from its header, before decoding; other
-    codecs right after decoding.
 
     Raises:
         ImageTooLargeError: more than ``max_pixels`` pixels (0: no limit).

@@ -109,7 +109,8 @@ def world_points(
     first_seen: Mapping[int, tuple[int, FloatArray]],
     ids: Iterable[int],
 ) -> dict[int, FloatArray]:
-    """Return the world points (3,) m of the static tracks ``ids``, from their first sight."""
+    """Return the world points (3,) m of the static tracks ``ids`` from their first sight
+    (``first_seen``: id -> (image index, raw pixel))."""
     camera = renderer.camera
     by_image: dict[int, list[int]] = {}
     for track_id in ids:

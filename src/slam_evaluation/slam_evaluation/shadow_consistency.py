@@ -107,7 +107,8 @@ def error_samples(
     moving: bool,
     at_birth: bool = False,
 ) -> ErrorSamples:
-    """Return the EKF position errors of the run's moving (or static) tracks."""
+    """Return the EKF position errors of the run's moving (or static) tracks (``at_birth``: only
+    tracks first seen at their point's birth)."""
     truths = track_truths(run)
     first = np.array([truths[i].first_frame for i in record.track_id.tolist()], dtype=np.int64)
     points = np.array([truths[i].point for i in record.track_id.tolist()], dtype=np.int64)

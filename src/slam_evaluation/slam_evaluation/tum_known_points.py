@@ -71,7 +71,9 @@ def _longer(track: int, other: int, lifetimes: Mapping[int, int]) -> bool:
 def visibility(
     frames: IntArray, ids: IntArray, known_ids: list[int], rate_hz: float
 ) -> dict[str, object]:
-    """Return how long known points stay in view, from sightings (frame (N,), id (N,))."""
+    """Return how long known points stay in view, from sightings (frame (N,), id (N,)): images
+    per point (min, median, max; s at ``rate_hz``), first and last frame, and the frames
+    seeing at least ``MIN_KNOWN_POINTS`` of them (count, last)."""
     if not known_ids:
         return {'count': 0}
     known = np.isin(ids, known_ids)

@@ -1,8 +1,5 @@
-"""From keyframed mapping data (stamps, odometry increments, observations) to a SlamProblem.
-
-Landmarks are known by id in the data and by a dense index in a problem; ``build_problem``
-keeps the mapping. Covariances become square-root information matrices here.
-"""
+"""From keyframed mapping data (stamps, increments, observations) to a SlamProblem; see
+docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -21,11 +18,9 @@ from slam_core.geometry.se2 import range_bearing_to_point, wrap_angle
 class MappingData:
     """Everything the mapper collected, with landmark ids (not indices).
 
-    Keyframes are ordered by stamp (int ns, (N,)). Odometry increment m goes from keyframe
-    ``odometry_from[m]`` to ``odometry_to[m]`` ((M,), (M,3) as (u0 m, u1 m, u2 rad), (M,3,3)).
-    Observation k is made at keyframe ``obs_keyframe[k]`` of landmark ``obs_landmark_id[k]``
-    with (range m, bearing rad) ``obs_z[k]`` and covariance ``obs_cov[k]`` ((K,), (K,2),
-    (K,2,2)). ``prior_pose`` (3,) and ``prior_cov`` (3,3) anchor keyframe 0.
+    keyframe_stamps_ns (N,); odometry_from, odometry_to (M,), odometry_u (M, 3) (m, m, rad),
+    odometry_cov (M, 3, 3); obs_keyframe, obs_landmark_id (K,), obs_z (K, 2) (m, rad),
+    obs_cov (K, 2, 2); prior_pose (3,), prior_cov (3, 3) anchor keyframe 0.
     """
 
     keyframe_stamps_ns: IntArray
@@ -52,8 +47,7 @@ class MappingData:
 
 
 def is_covariance(covariance: FloatArray) -> bool:
-    """True for a square matrix of finite numbers that sqrt_information takes: symmetric
-    (to 1e-9 of its largest entry) and positive definite, with a finite information."""
+    """True for a finite symmetric positive definite matrix that sqrt_information takes."""
     matrix = np.asarray(covariance, dtype=np.float64)
     if matrix.ndim != 2 or matrix.shape[0] != matrix.shape[1] or not np.all(np.isfinite(matrix)):
         return False
@@ -70,11 +64,10 @@ def is_covariance(covariance: FloatArray) -> bool:
 
 
 def sqrt_information(covariance: FloatArray) -> FloatArray:
-    """Return W (n,d,d) with W^T W = covariance^-1 for a batch of SPD covariances (n,d,d).
+    """Return W (n, d, d) with W^T W = covariance^-1 for SPD covariances (n, d, d).
 
     Raises:
         ValueError: a covariance is not symmetric positive definite.
-
     """
     symmetric = 0.5 * (covariance + np.swapaxes(covariance, -1, -2))
     try:
@@ -105,11 +98,7 @@ def landmark_ids(data: MappingData) -> IntArray:
 
 @dataclass(frozen=True)
 class BuiltProblem:
-    """A SlamProblem and how it maps back to the data.
-
-    ``landmark_ids[j]`` is the id of landmark index j; ``observation_rows[k]`` is the index
-    in ``MappingData`` of the problem's observation k.
-    """
+    """A SlamProblem and how it maps back to the data (landmark ids, observation rows)."""
 
     problem: SlamProblem
     landmark_ids: IntArray
@@ -141,11 +130,7 @@ def build_problem(data: MappingData, *, exclude_ids: Collection[int] = ()) -> Bu
 
 
 def dead_reckoning(data: MappingData) -> FloatArray:
-    """Return keyframe poses (N,3) composed from the prior and the odometry increments.
-
-    A keyframe with no incoming increment (after an odometry reset) starts where the
-    previous keyframe ended.
-    """
+    """Return keyframe poses (N, 3) composed from the prior and the odometry increments."""
     steps = np.zeros((data.num_keyframes, 3))  # increment into each keyframe, 0 if none
     chained = data.odometry_to == data.odometry_from + 1
     steps[data.odometry_to[chained]] = data.odometry_u[chained]

@@ -1,13 +1,5 @@
-"""Which mapped landmarks agree on one rigid correction of a stretch of trajectory.
-
-A stretch of new keyframes, placed by odometry, sees landmarks that are already mapped. If
-the odometry drifted, the static ones all appear shifted by one rigid SE(2) motion of the
-stretch; landmarks that moved each appear shifted their own way. ``consensus`` finds the
-largest set of landmarks that one rigid correction brings onto their mapped positions,
-jointly at the test's level (hypotheses from every pair, as in RANSAC with all samples),
-so the seed can tell "the trajectory drifted" (a consensus of at least ``MIN_CONSENSUS``
-landmarks) from "these landmarks moved" (outside the consensus).
-"""
+"""Which mapped landmarks agree on one rigid correction of a stretch of trajectory; see
+docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -57,27 +49,12 @@ def fit_rigid(source: FloatArray, target: FloatArray) -> Correction:
 def consensus(
     seen: FloatArray, mapped: FloatArray, sigma: FloatArray, false_alarm_probability: float
 ) -> tuple[Correction, np.ndarray]:
-    """Return the correction of the trajectory most landmarks agree on, and the mask (n,)
-    of those.
+    """Return the correction most landmarks agree on, and the mask (n,) of those.
 
-    ``seen`` (n,2): where each landmark appears through the uncorrected trajectory;
-    ``mapped`` (n,2): where it is mapped; ``sigma`` (n,): the standard deviation of one
-    coordinate of ``seen``. At the test's level (``false_alarm_probability``) a landmark
-    agrees with a correction when it lands within the chi-square(2) radius of ``sigma``,
-    and a set agrees when every member still does once the correction is fitted to the
-    set, and jointly: the sum of its squared normalized residuals is within the chi-square
-    quantile with 2 k degrees of freedom (2 k - 3 for a correction fitted to it);
-    otherwise its worst landmark leaves. Each landmark within its own
-    tolerance is not enough: two groups a metre apart (a desk carried with its markers,
-    and the walls) both land within half a metre of a compromise between them.
-
-    The odometry as it is (the identity) comes first: when most landmarks jointly agree
-    with it, it stands. Otherwise every pair of landmarks proposes a correction (as RANSAC
-    with all samples), fitted again to those it brings within tolerance; the largest
-    jointly consistent set wins, ties going to the smaller correction. Returns the identity
-    and an empty mask unless at least MIN_CONSENSUS landmarks, and more than half of them,
-    agree: when most landmarks disagree with the odometry in the same way, the trajectory
-    drifted; when a minority does, they moved.
+    ``seen`` (n, 2): where each landmark appears through the uncorrected trajectory, m;
+    ``mapped`` (n, 2): where it is mapped, m; ``sigma`` (n,): std. dev. of one coordinate
+    of ``seen``, m. The identity and an empty mask unless at least MIN_CONSENSUS, and more
+    than half, agree.
     """
     count = len(seen)
     none = np.zeros(count, dtype=bool)

@@ -1,17 +1,5 @@
-"""Least squares by continuation in time: the run solved prefix by prefix.
-
-One Gauss-Newton or Levenberg-Marquardt solve from dead reckoning lands in whatever basin
-the drift put it in: on Victoria Park (7,000 poses, 4 km of driving) it stops at about 70
-times the cost of the optimum that an incremental smoother such as iSAM2 reaches. Solving
-growing prefixes of the run instead, each warm-started from the one before with the new
-keyframes composed from the odometry and each new landmark placed from its first sighting,
-keeps every solve close to its optimum: the start is still dead reckoning, only the order
-in which the problem is presented changes (as in an incremental smoother).
-
-Steps are max(``chunk_s``, ``growth`` x the time solved so far): the prefix grows
-geometrically, so the solved sizes add up to at most (1 + 1 / growth) times the run's and
-the cost stays linear in the run length.
-"""
+"""Least squares by continuation in time: the run solved prefix by prefix; see
+docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -72,11 +60,7 @@ def extend_poses(data: MappingData, solved: FloatArray, count: int) -> FloatArra
 
 
 def step_ends(stamps_ns: IntArray, chunk_s: float, growth: float) -> list[int]:
-    """Return the prefix lengths (keyframe counts) solved in turn, ending at N.
-
-    Each step adds max(``chunk_s``, ``growth`` x the time already solved) of keyframes, and
-    at least one keyframe.
-    """
+    """Return the prefix lengths (keyframe counts) solved in turn, ending at N."""
     elapsed = (np.asarray(stamps_ns) - stamps_ns[0]) / 1e9
     ends: list[int] = []
     count = 1
@@ -97,7 +81,7 @@ def incremental_least_squares(
     growth: float = GROWTH,
 ) -> tuple[FloatArray, dict[int, FloatArray]]:
     """Every landmark static, the run solved prefix by prefix from dead reckoning; return
-    the poses (N,3) and the landmark positions by id."""
+    the poses (N, 3) and the landmark positions (2,) by id."""
     poses = dead_reckoning(data)
     mapped: dict[int, FloatArray] = {}
     solved = np.zeros((0, 3))

@@ -1,39 +1,5 @@
-"""EM-SAM: per-landmark weights by Expectation-Maximization around SAM (paper 000, III.B-C).
-
-M-step (eq. 14): w_l = clip(1 - S_l / (2 lambda), 0, 1), S_l = sum over the sightings k of
-landmark l of eta_k^T Sigma_k^-1 eta_k. E-step (eq. 15-16): SAM with the observation rows
-of landmark l scaled by its weight. After convergence, landmarks with w_l below the threshold
-are moveable: they are removed, the map is re-optimized without them, and every sighting of
-a moveable landmark is placed in the map through the final trajectory (III.C).
-
-Two modes:
-
-``paper``  exactly as published: one lambda for all landmarks, rows scaled by w_l, the first
-           E-step a plain least-squares solve with all weights 1.
-``robust`` three fixes for what real data shows:
-           1. the weight is normalized per landmark: a static landmark's S_l follows a
-              chi-square law with nu_l = 2 n_l - 2 degrees of freedom, so eq. 14 is applied to
-              the excess S_l - nu_l with lambda_l = q_l - nu_l, q_l its (1 -
-              false_alarm_probability) quantile. A static landmark gets w ~ 1 however often
-              it was seen, and w_l = 0.5 exactly at the quantile (the test's level);
-           2. the first E-step is EM-SAM continued in time and in robustness
-              (core.seeding): growing time prefixes of the run, each solved warm from the
-              one before with a graduated (GNC) Cauchy kernel and a few EM rounds, so a
-              drifted stretch is pulled onto the map instead of rejected, and moved
-              landmarks stop pulling the trajectory before the main loop starts; it
-              also estimates the odometry's translation and rotation scales
-              (core.odometry_calibration), which the EM loop and the final solve use;
-           3. single gross outliers are gated per sighting (at most max_gated_fraction of a
-              landmark's sightings, each above the gate quantile) instead of condemning the
-              landmark; rows are scaled by sqrt(w_l), consistent with the likelihood (eq. 7).
-
-Landmarks seen once (no redundancy, nothing to test) keep weight 1. Rows of zero-weight
-landmarks are kept at a tiny scale (ROW_SCALE_FLOOR) so their positions stay defined.
-
-This module is the loop: the first E-step, the EM iterations and the final solve. The
-settings and result types are in ``core.em_types``, the weights and the test in
-``core.em_weights``, the placed sightings in ``core.sightings``.
-"""
+"""EM-SAM's loop (paper 000, III.B-C): the first E-step, the EM iterations and the final
+solve; modes and reasons in docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -106,8 +72,7 @@ def run_em(
 ) -> EmResult:
     """Run EM-SAM on ``data``; return weights, moveable landmarks, map and trajectory.
 
-    ``initial_poses`` (N,3) warm-starts the solve (default: dead reckoning);
-    ``on_iteration(i, weights)`` is called after every M-step (progress reporting).
+    ``initial_poses`` (N, 3) warm-starts it; ``on_iteration(i, weights)`` follows each M-step.
     """
     timings: dict[str, float] = {}
     started = time.perf_counter()
@@ -234,12 +199,7 @@ def _final_solve(
     moveable: np.ndarray,
     gated: np.ndarray,
 ) -> _Final:
-    """Re-optimize without the moveable landmarks; place every moveable sighting in the map.
-
-    ``data`` carries the sensor model as given: in the robust mode the variance factors are
-    estimated again from the static sightings alone (the EM test's came from every sighting
-    of the seed, moved landmarks among them) and scale the sightings of this solve.
-    """
+    """Re-optimize without the moveable landmarks; place every moveable sighting in the map."""
     moveable_ids = built.landmark_ids[moveable]
     static = build_problem(data, exclude_ids=moveable_ids.tolist())
     noise_scale = np.ones(2)
@@ -279,8 +239,7 @@ def _gated_in_data(data: MappingData, built: BuiltProblem, gated: np.ndarray) ->
 
 
 def seed_solver(config: EmConfig) -> Solver:
-    """The solve the robust first E-step uses (core.seeding's Solver) with ``config``'s
-    solver settings."""
+    """The robust first E-step's solve (core.seeding's Solver) with ``config``'s settings."""
 
     def seed_solve(
         problem: SlamProblem,
@@ -299,8 +258,7 @@ def seed_solver(config: EmConfig) -> Solver:
 def _robust_seed(
     config: EmConfig, data: MappingData, built: BuiltProblem, fallback: Estimate
 ) -> tuple[Estimate, OdometryCalibration]:
-    """The robust mode's first E-step (see core.seeding) and the odometry calibration it
-    estimated."""
+    """The robust first E-step (core.seeding) and the odometry calibration it estimated."""
     seed = incremental_seed(data, config, seed_solver(config))
     landmarks = fallback.landmarks.copy()
     for index, landmark_id in enumerate(built.landmark_ids.tolist()):

@@ -1,8 +1,5 @@
-"""EM-SAM's settings (EmConfig) and what a run returns (EmResult, Snapshot).
-
-The modes and settings are explained in ``core.em``; ``Sightings`` (where a moveable
-landmark was seen) is in ``core.sightings``.
-"""
+"""EM-SAM's settings (EmConfig) and what a run returns (EmResult, Snapshot); see
+docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -149,16 +146,9 @@ class Snapshot:
 
 @dataclass(frozen=True)
 class EmResult:
-    """Outcome of EM-SAM over one batch of mapping data.
-
-    Per landmark (aligned with ``landmark_ids``, (L,)): final ``weights``, ``moveable``
-    flags, ``positions`` (static: final map; moveable: most recent sighting), their 2x2
-    ``covariances`` and ``num_observations``. ``weight_history`` is (T+1, L): the weights
-    before EM (all 1) and after each M-step. ``gated`` (K,) marks sightings gated as
-    outliers (robust mode). ``poses`` (N,3) is the final trajectory. ``noise_scale`` (2,)
-    holds the variance factors of range and bearing the EM test used, ``final_noise_scale``
-    (2,) those of the final solve (both 1 unless the robust mode estimated them).
-    """
+    """Outcome of EM-SAM over one batch: per landmark (L,) aligned with ``landmark_ids``,
+    positions (L, 2) m, covariances (L, 2, 2) m^2; weight_history (T+1, L); gated (K,);
+    poses (N, 3); noise_scale and final_noise_scale (2,) of range and bearing."""
 
     mode: str
     poses: FloatArray

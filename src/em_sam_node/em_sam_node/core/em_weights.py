@@ -1,9 +1,5 @@
-"""The EM test of each landmark: M-step weights (eq. 14), the per-sighting outlier gate,
-E-step row scales (eq. 16) and the sensor variance factors the robust mode's test uses.
-
-Rows of zero-weight landmarks are kept at a tiny scale (ROW_SCALE_FLOOR) so their positions
-stay defined.
-"""
+"""The EM test of each landmark: M-step weights (eq. 14), outlier gate, E-step row scales
+(eq. 16), variance factors, and the weight models; see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -27,8 +23,7 @@ ROW_SCALE_FLOOR = 1e-3
 
 @functools.lru_cache(maxsize=65536)
 def chi2_quantile(probability: float, dof: int) -> float:
-    """The chi-square quantile, remembered: the online smoother tests one landmark at a
-    time, and scipy's ppf costs more than the rest of such a test."""
+    """The chi-square quantile, cached (the online smoother tests landmarks one at a time)."""
     return float(chi2.ppf(probability, dof))
 
 
@@ -40,20 +35,7 @@ def squared_mahalanobis(innovations: FloatArray, covariances: FloatArray) -> Flo
 
 
 def observation_noise_scales(innovations: FloatArray, obs_cov: FloatArray) -> FloatArray:
-    """Return the a-posteriori variance factors (2,) of range and bearing, each at least 1.
-
-    A sensor model tighter than the data (heavy tails, a range bias, a calibration off)
-    raises every landmark's residual sum and, through the per-landmark test, flags static
-    landmarks. Range and bearing are estimated apart (variance components): real range
-    noise often grows with distance while bearing noise does not (MRCLAM: range 2x its
-    nominal sigma, bearing at it), and one shared factor would dilute the bearings. Each
-    factor is the median squared standardized innovation over its expectation for one
-    degree of freedom (chi2 median 0.455): robust to moved landmarks and outliers while
-    they are under half the sightings. Only ever inflates: a model looser than the data
-    only makes the test less sensitive. The caller caps it (``max_noise_scale``): when most
-    sightings are of moved landmarks (the all-moveable case) the median measures the moves,
-    not the noise.
-    """
+    """Return the a-posteriori variance factors (2,) of range and bearing, each at least 1."""
     if len(innovations) == 0:
         return np.ones(2)
     variances = np.stack([obs_cov[:, 0, 0], obs_cov[:, 1, 1]], axis=1)
@@ -73,12 +55,7 @@ def with_noise_scales(data: MappingData, factors: FloatArray) -> MappingData:
 def gate_outliers(
     config: EmConfig, mahalanobis: FloatArray, obs_landmark: IntArray, num_landmarks: int
 ) -> np.ndarray:
-    """Return a (K,) mask of isolated gross outlier sightings (robust mode).
-
-    Per landmark, at most floor(max_gated_fraction * n_l) sightings above the gate quantile
-    are gated, the largest first: a landmark that moved has many large innovations, of which
-    only a few are gated, so it still fails its test.
-    """
+    """Return a (K,) mask of isolated gross outlier sightings (robust mode)."""
     gate = chi2_quantile(1.0 - config.gate_probability, 2)
     gated = np.zeros(mahalanobis.shape, dtype=bool)
     counts = np.bincount(obs_landmark, minlength=num_landmarks)
@@ -95,9 +72,7 @@ def gate_outliers(
 
 
 class WeightModel(Protocol):
-    """How EM-SAM weighs landmarks ('paper' or 'robust', chosen once by ``weight_model``):
-    the test's covariances, the sensor's variance factors, the outlier gate, the M-step, the
-    E-step row scales and the final solve's kernel."""
+    """How EM-SAM weighs landmarks ('paper' or 'robust', chosen by ``weight_model``)."""
 
     @property
     def config(self) -> EmConfig: ...
@@ -139,8 +114,7 @@ class WeightModel(Protocol):
         num_landmarks: int,
         included: np.ndarray,
     ) -> FloatArray:
-        """New landmark weights (L,) in [0, 1] from squared Mahalanobis innovations (K,) of
-        the ``included`` sightings."""
+        """New landmark weights (L,) in [0, 1] from the ``included`` sightings' (K,) distances."""
         ...
 
     def row_scales(
@@ -172,8 +146,7 @@ def _rows(scale: FloatArray, obs_landmark: IntArray, gated: np.ndarray) -> Float
 
 @dataclass(frozen=True)
 class PaperWeights:
-    """The paper's model: eq. 14's weights, rows scaled by w, no gate, the model's own
-    covariances, the all-static first E-step."""
+    """The paper's model: eq. 14, rows scaled by w, no gate, the all-static first E-step."""
 
     config: EmConfig
     gates: bool = False
@@ -216,9 +189,7 @@ class PaperWeights:
 
 @dataclass(frozen=True)
 class RobustWeights:
-    """The robust model: a chi-square test per landmark at the false-alarm probability,
-    rows scaled by sqrt(w), the outlier gate, the model error and the estimated variance
-    factors in the test, the incremental first E-step and a final kernel."""
+    """The robust model: a chi-square test per landmark, rows scaled by sqrt(w), the gate."""
 
     config: EmConfig
     gates: bool = True

@@ -1,18 +1,5 @@
-"""Factoring the normal equations, and naming the variables they leave undetermined.
-
-SuperLU factors J^T J in symmetric mode with diagonal pivots (``diag_pivot_thresh=0``),
-which on an SPD matrix is a sparse LDL^T, i.e. Cholesky-type, factorization. The
-fill-reducing ordering is minimum degree on A^T + A, computed at the first factorization of
-a problem; later factorizations reuse it (``permc_spec='NATURAL'`` on the matrix gathered
-into that order, ``SystemLayout.set_factor_order``). Measured on the bench problems (3k
-poses): cached MMD 4.3 ms, MMD each time 6.4 ms, COLAMD LU 20 ms, RCM 11 ms; scipy has no
-sparse QR or sparse Cholesky.
-
-``SingularSystemError`` names what makes the system rank-deficient: a variable with no
-factor, a piece of the graph without an anchor, or (found from the pivots of the
-factorization) a variable the factors do not determine. A variable whose only factors are
-scaled to zero carries no information: it is held at its value (unit diagonal, zero step).
-"""
+"""Factoring the normal equations (SuperLU, LDL^T-type), and naming the variables they leave
+undetermined; see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 

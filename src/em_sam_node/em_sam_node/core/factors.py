@@ -1,41 +1,5 @@
-"""EM-SAM factors: errors, whitened residuals and analytic Jacobians, vectorized over factors.
-
-Conventions (GTSAM style): an *error* is the unwhitened ``measured - predicted`` with angles
-wrapped to (-pi, pi]; a *residual* is the whitened error r = W e, W the square-root
-information (W^T W = Sigma^-1), so 0.5 ||r||^2 is the factor's cost. Jacobians are of the
-error (``*_error_jacobians``) or of the whitened residual (``linearize_*``), with respect to
-the variables in their (x m, y m, theta rad) and (x m, y m) coordinates.
-
-* Odometry (eq. 1-2): e = u_measured - increment_between(x_from, x_to). The noise lives in
-  the robot's increment coordinates (forward m, side m, turn rad), the frame in which
-  odometry errors are independent of heading, and the factor is exactly zero when x_to =
-  apply_increment(x_from, u_measured). With dx = p_to - p_from, t~ the midpoint heading
-  theta_from + u2/2 and u = (u0, u1, u2) the predicted increment:
-
-      d u / d x_from = [[-c, -s,  u1/2], [ s, -c, -u0/2], [0, 0, -1]]
-      d u / d x_to   = [[ c,  s,  u1/2], [-s,  c, -u0/2], [0, 0,  1]],  c, s = cos t~, sin t~
-
-  (t~ moves by 1/2 for a unit change of either heading; d(u0, u1)/d t~ = (u1, -u0)).
-* SE(2) between (``odometry_model='se2_between'``, GTSAM's BetweenFactor<Pose2>): e =
-  Log(Z^-1 x_from^-1 x_to) for the measured relative pose Z. With E = Z^-1 x_from^-1 x_to =
-  (t_E, w), w wrapped, Log(E) = (M(w) t_E, w), M(w) = [[a, w/2], [-w/2, a]],
-  a = (w/2) cot(w/2) (the inverse of SE(2)'s V matrix). With A = R(-theta_Z - theta_from)
-  and d = p_to - p_from:
-
-      d e_xy / d p_to = M A,  d e_xy / d p_from = -M A,
-      d e_xy / d theta_to = M'(w) t_E,  d e_xy / d theta_from = -M'(w) t_E - M A J d,
-      d w / d theta_to = 1,  d w / d theta_from = -1,   J = [[0, -1], [1, 0]].
-
-  The sign is GTSAM's (predicted relative to measured); only the squares enter the cost.
-* Range-bearing (eq. 3): eta = z - h(x, l), h = (rho, atan2(dy, dx) - theta), (dx, dy) =
-  l - p, rho^2 = q = dx^2 + dy^2:
-
-      d h / d x = [[-dx/rho, -dy/rho, 0], [dy/q, -dx/q, -1]]
-      d h / d l = [[ dx/rho,  dy/rho],    [-dy/q, dx/q]]
-
-  q is clamped below at 1e-18 m^2 so that a landmark on top of its pose stays finite.
-* Prior on one pose: e = x - mean (angle wrapped), d e / d x = I.
-"""
+"""EM-SAM factors: errors, whitened residuals and analytic Jacobians, vectorized over
+factors; conventions and derivations in docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -369,7 +333,7 @@ def _odometry(
     error[..., 2] = wrap_angle(u_measured[..., 2] - turn)
     if not want_jacobian:
         return error, None
-    # d e/d x = -d u/d x (see the module docstring); columns 0-2 x_from, 3-5 x_to.
+    # d e/d x = -d u/d x (docs/design/em_sam_core.md); columns 0-2 x_from, 3-5 x_to.
     jacobian = np.zeros((*forward.shape, 3, 6))
     jacobian[..., 0, 0] = jacobian[..., 1, 1] = cos_h
     jacobian[..., 0, 1] = sin_h

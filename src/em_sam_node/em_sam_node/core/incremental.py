@@ -1,38 +1,5 @@
-"""EM-SAM online: an incremental smoother with the EM weights updated where a change lands.
-
-The smoother is GTSAM's iSAM2 (a Bayes tree: a new keyframe relinearizes and re-solves
-only the cliques its factors touch) inside GTSAM's fixed-lag smoother: keyframes more than
-``IncrementalConfig.horizon`` behind the newest are marginalized, with the landmarks seen
-only from them (their last estimates kept; a landmark seen again comes back anchored where
-it was), so an update's cost does not grow with the run. Poses are ``Pose2`` (key: the
-keyframe's index), landmarks ``Point2`` (key: symbol 'l' and the landmark id; 'r' and a
-count once it came back). A differential-drive increment
-(paper 000, eq. 2) enters as the SE(2) relative pose it gives, exact for the mean, with its
-first-order covariance (``between_of_increment``); a sighting as a bearing-range factor.
-
-The EM weights (``core.em_weights``, the robust mode's per-landmark test) are updated online
-for the landmarks a keyframe sees: their sightings' squared Mahalanobis innovations at the
-smoother's estimate (with the test's model error; the sensor model as given, without the
-batch's variance factors), the per-sighting gate, and the M-step. A landmark
-whose weight moved by more than ``weight_step`` has all its sightings' factors replaced with
-the new row scale (information times w, as the E-step's sqrt(w) row scale), one whose gate
-changed those sightings' factors; the test repeats within the keyframe until no weight
-moves. The gate takes out isolated misreads, not a run of sightings that agree on another
-place (a move). Landmarks below ``moveable_threshold`` are the moveable set.
-
-Rows the batch scales to the floor (gated sightings; every sighting of a landmark whose
-weight is at the floor) carry no factor here: their pull is nil, and GTSAM's factorization
-does not take rows a million times weaker than their neighbours reliably. A landmark left
-without factors is parked (a prior holds its variable) and placed by its own least squares
-while it is. A new sighting of a mapped landmark is gated before it enters, with the
-landmark's gate at the estimate with it added, and a sighting whose bearing innovation
-exceeds a right angle is held out until the estimate brings it within one (the bearing's
-linearization points no way toward it): a gross outlier never carries full weight into an
-update, because one step of the smoother with it cannot be taken back by removing it.
-
-The full pass (``core.em.run_em`` over everything collected) stays the batch answer; this
-smoother does not take its result.
-"""
+"""EM-SAM online: GTSAM's iSAM2 in a fixed-lag smoother, with the EM weights updated where a
+keyframe lands; see docs/design/em_sam_core.md and docs/design/em_sam_online.md."""
 
 from __future__ import annotations
 
@@ -72,7 +39,7 @@ from slam_core.geometry.se2 import range_bearing_to_point
 
 
 class IncrementalEmSam:
-    """The online smoother (module docstring). Keyframes come in order, one per call."""
+    """The online smoother. Keyframes come in order, one per call."""
 
     def __init__(
         self,
@@ -121,11 +88,8 @@ class IncrementalEmSam:
         sightings: Sequence[tuple[int, FloatArray, FloatArray]],
         late: Sequence[tuple[int, int, FloatArray, FloatArray]] = (),
     ) -> UpdateStats:
-        """Add the next keyframe: its increment from the one before ((u (3,), cov (3, 3)),
-        None for the first keyframe, which takes the prior) and its sightings (landmark id,
-        (range m, bearing rad), covariance (2, 2)), with ``late`` sightings of earlier
-        keyframes (keyframe index first); update the smoother and the weights of the
-        landmarks they saw."""
+        """Add the next keyframe: increment (u (3,), cov (3, 3)) or None for the first, sightings
+        (id, (range m, bearing rad), cov (2, 2)) and ``late`` ones (keyframe index first)."""
         started = time.perf_counter()
         gtsam = self.gtsam
         index = self.num_keyframes
@@ -219,8 +183,7 @@ class IncrementalEmSam:
     def _update(
         self, factors: Any, values: Any, timestamps: dict[int, float] | None = None
     ) -> None:
-        """One smoother update: ``factors`` and ``values`` (keys' ``timestamps``), and the
-        queued sighting factors (k >= 0), anchors, parking priors (k = -1) and removals."""
+        """One smoother update with ``factors``, ``values`` and the queued changes."""
         queued, self._pending = self._pending, []
         for landmark_id, k in queued:
             if k >= 0:
@@ -266,9 +229,7 @@ class IncrementalEmSam:
         )
 
     def _parking(self, landmark_id: int) -> Any:
-        """A prior that holds a landmark without sightings in the smoother where it is. It
-        pulls nothing (the landmark has no other factor); a weak one would put a pivot out
-        of the factorization's range (GTSAM reports such a clique as indeterminate)."""
+        """A prior that holds a landmark without sightings where it is."""
         gtsam = self.gtsam
         return gtsam.PriorFactorPoint2(
             self.landmarks[landmark_id].key,
@@ -277,9 +238,7 @@ class IncrementalEmSam:
         )
 
     def _anchor(self, landmark_id: int) -> Any:
-        """The prior that holds a landmark that came back where it was when it left, with
-        its covariance then (scaled by its weight, as its sightings are). Its correlation
-        with the poses is left out, which only widens what it allows."""
+        """The prior that holds a returning landmark where it was when it left."""
         gtsam = self.gtsam
         landmark = self.landmarks[landmark_id]
         assert landmark.anchor_prior is not None
@@ -293,10 +252,7 @@ class IncrementalEmSam:
     # --- the horizon --------------------------------------------------------------------
 
     def _freeze(self, end: int) -> None:
-        """Before the update that marginalizes them: keep the last estimates of the poses
-        before ``end`` and of the landmarks seen only from them (with the covariance), and
-        mark what the marginal takes over (their sightings' factors, the landmarks'
-        anchors and parking priors)."""
+        """Keep the last estimates of what leaves before ``end``; mark what the marginal takes."""
         poses = list(range(self._first_live, end))
         leaving = sorted(
             {
@@ -327,8 +283,7 @@ class IncrementalEmSam:
         self._first_live = end
 
     def _revive(self, landmark_id: int, values: Any) -> None:
-        """Bring a landmark that left the smoother back under a new key, where it was when
-        it left: anchored there while its weight is above the floor, else parked."""
+        """Bring a landmark that left back under a new key: anchored, or parked at the floor."""
         gtsam = self.gtsam
         landmark = self.landmarks[landmark_id]
         assert landmark.retired is not None
@@ -346,15 +301,12 @@ class IncrementalEmSam:
     # --- weights ------------------------------------------------------------------------
 
     def _update_weights(self, seen: tuple[int, ...]) -> tuple[int, ...]:
-        """The M-step and the gate for the landmarks ``seen``; queue the changes to their
-        factors: all of a landmark's when its weight moved past ``weight_step``, a
-        sighting's when its gate changed; park a landmark left without any; return the ids
-        of those changed."""
+        """The M-step and gate for the landmarks ``seen``; queue their factors' changes; return
+        the ids changed."""
         return tuple(i for i in seen if self._apply(i, *self._weight(i)))
 
     def _apply(self, landmark_id: int, weight: float, gated: list[bool], held: list[bool]) -> bool:
-        """Take a landmark's new weight, gate and held sightings; queue the changes to its
-        factors; return whether there were any."""
+        """Take a landmark's new weight, gate and held sightings; return whether any changed."""
         landmark = self.landmarks[landmark_id]
         carried = [landmark.carries(k) for k in range(len(landmark.poses))]
         landmark.weight, landmark.gated, landmark.held = weight, gated, held
@@ -386,8 +338,7 @@ class IncrementalEmSam:
         return len(self._pending) + len(self._pending_removals) > queued
 
     def _weight(self, landmark_id: int) -> tuple[float, list[bool], list[bool]]:
-        """The landmark's M-step weight, its gated sightings and those held out (beyond
-        linearization), at the smoother's estimate."""
+        """The landmark's M-step weight, its gated and its held-out sightings, at the estimate."""
         landmark = self.landmarks[landmark_id]
         count = len(landmark.poses)
         z, cov = np.array(landmark.z), np.array(landmark.cov)
@@ -408,12 +359,7 @@ class IncrementalEmSam:
     def _seen_elsewhere(
         self, poses: FloatArray, z: FloatArray, cov: FloatArray, beyond: np.ndarray
     ) -> np.ndarray:
-        """The landmark's latest sightings (mask, K) when at least PLACE_SIGHTINGS of them
-        in a row are ``beyond`` (the gate now, and not within their predicted innovation
-        when they entered: not drift) and agree with each other on one point (their test at that
-        point, 2m - 2 degrees of freedom, passes at the false-alarm probability): the
-        landmark seen at another place, which the gate, there for isolated misreads, does
-        not take out of the test."""
+        """The landmark's latest sightings (mask, K) that make another place, not misreads."""
         config = self.config
         within = np.flatnonzero(~beyond)
         run = len(beyond) - (int(within[-1]) + 1 if len(within) else 0)
@@ -431,24 +377,18 @@ class IncrementalEmSam:
         return result
 
     def _innovations(self, landmark_id: int, poses: FloatArray, z: FloatArray) -> FloatArray:
-        """The innovations (K, 2) of sightings z (K, 2) from ``poses`` (K, 3) of the
-        landmark where the smoother (or, parked, its own estimate) has it."""
+        """The innovations (K, 2) of sightings z (K, 2) from ``poses`` (K, 3) of the landmark."""
         point = self._position(landmark_id, poses)
         return range_bearing_error(poses, point, z)
 
     def _mahalanobis(self, innovation: FloatArray, z: FloatArray, cov: FloatArray) -> FloatArray:
-        """The test's squared Mahalanobis distances (K,) of ``innovation`` (K, 2): the
-        sightings' covariances (K, 2, 2) with the model error."""
+        """The test's squared Mahalanobis distances (K,) of ``innovation`` (K, 2)."""
         tested = self.model.test_covariances(cov, z)
         return squared_mahalanobis(innovation, cov if tested is None else tested)
 
     def _enter(self, landmark_id: int, new: NewSighting) -> tuple[bool, bool, bool]:
-        """Whether a new sighting of a mapped landmark enters gated (the
-        landmark's gate, at the smoother's estimate with the sighting added, gates it),
-        whether it is held out (beyond linearization), and whether, beyond the gate, it is
-        within its predicted innovation (drift explains it). Gated or held, it carries no
-        factor into the update: one step of the smoother with a gross outlier in it cannot
-        be taken back by removing the outlier."""
+        """Whether a new sighting of a mapped landmark enters gated, is held out, and is within
+        its predicted innovation."""
         landmark = self.landmarks[landmark_id]
         if landmark.parked >= 0:
             return False, False, False
@@ -468,10 +408,7 @@ class IncrementalEmSam:
         return gated and not explained, held, explained
 
     def _predicted_fit(self, landmark_id: int, new: NewSighting) -> bool:
-        """Whether a new sighting is within the gate of its predicted innovation covariance:
-        the pose's marginal (a new keyframe's propagated from the one before by its
-        increment) and the landmark's through the sighting's Jacobians, plus the test's
-        covariance (their correlation left out, which only widens it)."""
+        """Whether a new sighting is within the gate of its predicted innovation covariance."""
         gtsam = self.gtsam
         keyframe, z, cov = new.keyframe, new.z, new.cov
         landmark = self.landmarks[landmark_id]
@@ -511,8 +448,7 @@ class IncrementalEmSam:
         )
 
     def _poses_at(self, indices: list[int]) -> FloatArray:
-        """The estimates of the poses ``indices`` (K, 3), one lookup each (a copy of the
-        whole linearization point and delta would cost a pass over the run per call)."""
+        """The estimates of the poses ``indices`` (K, 3), one lookup each."""
         first, frozen, solver = self._first_live, self._frozen_poses, self.solver
         rows = []
         for i in indices:
@@ -524,18 +460,14 @@ class IncrementalEmSam:
         return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
     def _point(self, landmark_id: int) -> FloatArray:
-        """The smoother's estimate of a landmark; where it was when it left the smoother
-        while it is out (or on its way back in)."""
+        """The smoother's estimate of a landmark, or where it was while it is out."""
         landmark = self.landmarks[landmark_id]
         if landmark.retired is not None:
             return np.asarray(landmark.retired[0], np.float64)
         return np.asarray(self.solver.calculateEstimatePoint2(landmark.key), np.float64)
 
     def _position(self, landmark_id: int, poses: FloatArray) -> FloatArray:
-        """Where the landmark is: the smoother's estimate, or, parked, the least-squares
-        point of all its sightings from ``poses`` (the first len(landmark.poses) rows; as
-        the batch's E-step places a landmark whose rows all carry the floor), refined from
-        the last one."""
+        """Where the landmark is (2,): the smoother's estimate, or parked, its least squares."""
         landmark = self.landmarks[landmark_id]
         if landmark.parked < 0 or landmark.position is None:
             return self._point(landmark_id)
@@ -577,10 +509,8 @@ class IncrementalEmSam:
         return {i: self._position(i, self._poses_at(lm.poses)) for i, lm in self.landmarks.items()}
 
     def placed_sightings(self, landmark_id: int) -> tuple[list[int], FloatArray, FloatArray]:
-        """Where the landmark was seen, in the order it was: the keyframes, the sightings
-        placed in the map through the smoother's poses (S, 2) m, and their covariances
-        (S, 2, 2) m^2 from the sensor's alone (the poses' own uncertainty is left out: a
-        marginal per sighting would cost a solve each)."""
+        """Where the landmark was seen, in order: keyframes, points (S, 2) m and the sensor's
+        covariances (S, 2, 2) m^2, placed through the smoother's poses."""
         landmark = self.landmarks[landmark_id]
         poses = self._poses_at(landmark.poses)
         z, cov = np.array(landmark.z).reshape(-1, 2), np.array(landmark.cov).reshape(-1, 2, 2)

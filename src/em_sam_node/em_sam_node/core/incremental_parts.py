@@ -1,7 +1,5 @@
-"""Pieces of the online smoother (core.incremental) that hold no smoother state: GTSAM's
-import, the SE(2) relative pose of a differential-drive increment, the bearing test of
-where a linearization stops pointing toward a sighting, and a landmark's own least-squares
-point."""
+"""Pieces of the online smoother (core.incremental) that hold no smoother state; see
+docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -45,11 +43,7 @@ def load_gtsam() -> Any:
 
 
 def beyond_linearization(innovation: FloatArray) -> np.ndarray:
-    """Sightings (K,) whose bearing innovation (K, 2) exceeds a right angle: the smoother
-    has the landmark in the other half-plane from where it was seen, so the bearing's
-    linearization there points no way toward the measurement and a Gauss-Newton step with
-    the factor is no step toward it. They stay out of the smoother (the test still counts
-    them) until the estimate brings them within it."""
+    """Sightings (K,) whose bearing innovation (K, 2) exceeds a right angle."""
     result: np.ndarray = np.abs(innovation[:, 1]) > np.pi / 2
     return result
 

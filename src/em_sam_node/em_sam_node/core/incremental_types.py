@@ -14,11 +14,7 @@ from slam_core.arrays import FloatArray
 
 @dataclass(frozen=True)
 class IncrementalConfig:
-    """The smoother's settings: iSAM2's relinearization (a variable is relinearized when
-    its update exceeds ``relinearize_threshold``, checked every ``relinearize_skip``
-    updates; GTSAM's defaults), the weight change that replaces a landmark's factors, and
-    the horizon: how many of the latest keyframes the smoother keeps (older poses, and
-    landmarks seen only from them, are marginalized; 0 keeps every one)."""
+    """The smoother's settings: relinearization, the weight step and the horizon (keyframes)."""
 
     relinearize_threshold: float = 0.1
     relinearize_skip: int = 10
@@ -44,12 +40,7 @@ ANCHOR = -2  # in the queue of factors to add: a returning landmark's anchor
 
 @dataclass
 class LandmarkTrack:
-    """A landmark's sightings: keyframe index, (range, bearing), covariance, the index of
-    its factor in the smoother (-1 while it has none, FOLDED once marginalized with its
-    pose), its gate and whether its pose has left the smoother; the weight its factors
-    carry; while none does, the index of the prior that parks it and its own estimate.
-    Its key in the smoother; while it is out of the smoother (every sighting's pose left),
-    where it was and its covariance then; back in, the prior that anchors it there."""
+    """A landmark's sightings, factors, gate and weight in the smoother; parked or out of it."""
 
     key: int
     poses: list[int] = field(default_factory=list)
@@ -70,9 +61,7 @@ class LandmarkTrack:
     anchor: int = -1  # the anchor's factor, -1 while it has none
 
     def carries(self, k: int) -> bool:
-        """Whether sighting k belongs in the smoother: not gated, and the landmark's weight
-        above the floor (below it the E-step's row scale is the floor, whose pull on the
-        poses is nil; GTSAM's factorization does not take such rows reliably)."""
+        """Whether sighting k belongs in the smoother: not gated, weight above the floor."""
         return not (self.gated[k] or self.held[k] or self.frozen[k]) and self.above_floor()
 
     def above_floor(self) -> bool:
@@ -86,9 +75,8 @@ class LandmarkTrack:
 
 @dataclass(frozen=True)
 class NewSighting:
-    """A sighting about to enter: its keyframe, that keyframe's pose (a gtsam Pose2), the
-    increment (relative Pose2, covariance (3, 3)) that placed it if it is the new keyframe
-    (else None), (range m, bearing rad) and covariance (2, 2)."""
+    """A sighting about to enter: keyframe, its Pose2, the increment (Pose2, (3, 3)) if new
+    else None, (range m, bearing rad) and covariance (2, 2)."""
 
     keyframe: int
     pose: Any
@@ -99,8 +87,7 @@ class NewSighting:
 
 @dataclass(frozen=True)
 class UpdateStats:
-    """One keyframe's update: its wall time (s), the landmarks it saw, those whose factors
-    were replaced for a new weight, and the moveable set after it."""
+    """One keyframe's update: wall time (s), landmarks seen, reweighted, and the moveable set."""
 
     seconds: float
     seen: tuple[int, ...]

@@ -1,17 +1,5 @@
-"""The linear system of one Gauss-Newton step: variable layout, linearization, J^T J and J.
-
-Variables are stacked as 3N pose coordinates (x m, y m, theta rad per pose) then 2L landmark
-coordinates (x m, y m). The whitened residual vector stacks the prior (3 rows), the odometry
-factors (3M rows, factor-major) and the observations (2K rows). Observation k's two rows are
-multiplied by ``obs_row_scale[k]`` (the E-step weight of eq. 16, and a robust kernel's
-sqrt(w_k)).
-
-J^T J is assembled straight from the per-factor blocks, without any dense matrix: the
-batched products J_f^T J_f are summed with ``np.bincount`` into a CSC pattern whose slot
-indices are computed once per problem (``SystemLayout``, cached on the problem object). The
-layout also holds the fill-reducing variable order the factorization chose
-(``core.factorization``), so later factorizations reuse it.
-"""
+"""The linear system of one Gauss-Newton step: variable layout, linearization, J^T J and J;
+see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -32,12 +20,7 @@ from slam_core.arrays import FloatArray, IntArray
 
 
 class SystemLayout:
-    """Index arrays of one problem's linear system, built once and reused every iteration.
-
-    Columns: pose i -> 3i..3i+2, landmark j -> 3N+2j, 3N+2j+1. The normal matrix pattern
-    holds every J_f^T J_f block plus the full diagonal; ``*_slots`` say where each block
-    entry lands in its CSC data array.
-    """
+    """Index arrays of one problem's linear system (CSC slots), built once and reused."""
 
     def __init__(self, problem: SlamProblem) -> None:
         n_pose_vars = 3 * problem.num_poses
@@ -117,11 +100,7 @@ _LAYOUTS: dict[int, tuple[weakref.ref[SlamProblem], SystemLayout]] = {}
 
 
 def system_layout(problem: SlamProblem) -> SystemLayout:
-    """Return the (cached) SystemLayout of this problem object, validating it on first use.
-
-    The cache is keyed on the problem's identity and dropped with the problem, so treat a
-    SlamProblem's index arrays as immutable once it has been solved.
-    """
+    """Return the (cached) SystemLayout of this problem object, validating it on first use."""
     key = id(problem)
     cached = _LAYOUTS.get(key)
     if cached is not None and cached[0]() is problem:
@@ -203,12 +182,7 @@ def normal_equations(layout: SystemLayout, lin: Linearization) -> tuple[FloatArr
 def build_linear_system(
     problem: SlamProblem, estimate: Estimate, obs_row_scale: FloatArray | None = None
 ) -> tuple[FloatArray, sp.csr_array]:
-    """Return the whitened residual r (R,) and sparse Jacobian J (R, 3N + 2L) at the estimate.
-
-    Rows: prior (3), odometry (3M, factor-major), observations (2K, each scaled by
-    ``obs_row_scale[k]``); columns: poses (x, y, theta) then landmarks (x, y). The Gauss-
-    Newton step solves J dx = -r in the least-squares sense.
-    """
+    """Return the whitened residual r (R,) and sparse Jacobian J (R, 3N + 2L) at the estimate."""
     layout = system_layout(problem)
     scale = checked_row_scale(problem, obs_row_scale)
     lin = linearize_factors(problem, estimate, scale)

@@ -1,27 +1,5 @@
-"""EM-SAM on a saved map: the static landmarks of an earlier session held fixed.
-
-The paper's robot that "returns several days later". Three steps:
-
-1. **The session alone**: EM-SAM of the session's data (``core.em.run_em``), in the frame
-   of its start pose. It flags what moved during the session; nothing from the saved map
-   can pull its trajectory.
-2. **Between the sessions**: the session's static landmarks are registered to the saved
-   static map by a rigid transform, fitted on the consistent common landmarks. Each common
-   landmark is tested leave-one-out: its residual given the other consistent ones', under
-   both maps' joint covariances, the robust mode's model error and the transform as an
-   unknown (2 degrees of freedom), with the EM test's weight formula at its level
-   (``false_alarm_probability``). The least consistent is dropped in turn until the rest
-   pass; one that fails has moved since the map was saved, and is moveable.
-3. **On the saved map**: the session's trajectory is solved again with the consistent saved
-   landmarks held fixed at their saved positions (``SlamProblem.fixed_landmarks``) and the
-   session's new static landmarks estimated, from the registered first solution. Every
-   sighting of a moveable landmark is placed through this trajectory.
-
-With fewer than two common landmarks the registration is the start pose
-(``data.prior_pose``): the session is placed where the user said it starts. The map returned
-holds the saved landmarks not seen in the session too, with their saved positions, weight 1
-and no sightings.
-"""
+"""EM-SAM on a saved map: the static landmarks of an earlier session held fixed; see
+docs/design/em_sam_core.md and docs/design/em_sam_localization.md."""
 
 from __future__ import annotations
 
@@ -54,8 +32,7 @@ SESSION_PRIOR_COV = np.diag([1e-6, 1e-6, 1e-6])
 
 @dataclass(frozen=True)
 class KnownMap:
-    """The static landmarks of a saved map: ids (S,), positions (S, 2) m and covariances
-    (S, 2, 2) m^2, map frame."""
+    """A saved map's static landmarks: ids (S,), positions (S, 2) m, covariances (S, 2, 2) m^2."""
 
     landmark_ids: IntArray
     positions: FloatArray
@@ -81,9 +58,8 @@ class KnownMap:
 
 @dataclass(frozen=True)
 class Registration:
-    """The session frame in the map frame, (x m, y m, theta rad), and per common landmark
-    (aligned with ``ids``) its squared Mahalanobis distance, weight and whether it moved, and
-    the covariance (2, 2) m^2 of its residual that the distance uses (``spreads``)."""
+    """The session frame in the map frame (x m, y m, theta rad); per common landmark its
+    squared Mahalanobis distance, weight, moved flag and residual covariance (2, 2) m^2."""
 
     pose: FloatArray
     ids: IntArray
@@ -120,8 +96,8 @@ landmarks also fits the transform."""
 def _leave_one_out(
     residual: FloatArray, covariance: FloatArray, inliers: np.ndarray
 ) -> tuple[FloatArray, FloatArray]:
-    """Each landmark's squared Mahalanobis distance (m,) given the consistent ones (an
-    inlier: given the other inliers), and the covariance (m, 2, 2) it is measured with."""
+    """Each landmark's squared Mahalanobis distance (m,) given the consistent ones, and the
+    covariance (m, 2, 2) it is measured with."""
     count = len(inliers)
     rows = np.repeat(inliers, 2)
     held = np.flatnonzero(rows)
@@ -151,13 +127,9 @@ def register(
     saved: KnownMap,
     start_pose: FloatArray,
 ) -> Registration:
-    """Register the session's static landmarks to the saved map (step 2, module docstring).
+    """Register the session's static landmarks to the saved map, testing each leave-one-out.
 
-    ``joint`` (2S, 2S) is the joint covariance of the session's static landmarks that the
-    saved map holds, in ``session.landmark_ids`` order. Each landmark is tested given the
-    consistent others (leave one out) under both maps' joint covariances, the saved map's
-    block diagonal when it holds none; the least consistent is dropped in turn until the
-    rest pass.
+    ``joint`` (2S, 2S) m^2: the session's joint covariance of the common landmarks.
     """
     static = ~session.moveable & np.isin(session.landmark_ids, saved.landmark_ids)
     ids = session.landmark_ids[static]
@@ -201,8 +173,7 @@ def register(
 
 
 def _unregistered(start_pose: FloatArray, ids: IntArray) -> Registration:
-    """Too few common landmarks to register: the session placed at its start pose, nothing
-    found moved."""
+    """Too few common landmarks: the session at its start pose, nothing moved."""
     count = len(ids)
     return Registration(
         np.asarray(start_pose, dtype=float), ids, np.zeros(count), np.ones(count),
@@ -230,11 +201,9 @@ def localize(
     initial_poses: FloatArray | None = None,
     on_iteration: Callable[[int, FloatArray], None] | None = None,
 ) -> tuple[EmResult, Registration]:
-    """EM-SAM of ``data`` on the ``saved`` static map (module docstring), and how the
-    session was registered to it.
+    """EM-SAM of ``data`` on the ``saved`` static map, and how the session was registered.
 
-    ``data.prior_pose`` / ``prior_cov`` give the start pose in the map frame and how well it
-    is known; ``initial_poses`` (N, 3), in the map frame, warm-start the session's solve.
+    ``initial_poses`` (N, 3), map frame, warm-start the session's solve.
     """
     started = time.perf_counter()
     start_pose = np.asarray(data.prior_pose, dtype=float)
@@ -321,9 +290,8 @@ def localize(
 def static_joint_covariance(
     data: MappingData, result: EmResult, among: IntArray | None = None
 ) -> tuple[IntArray, FloatArray]:
-    """The ids (S,) and joint covariance (2S, 2S) m^2 of the static landmarks of a mapping
-    ``result`` solved from ``data`` (those in ``among`` only, when given), from its static
-    problem at its solution with the sensor model it estimated."""
+    """The ids (S,) and joint covariance (2S, 2S) m^2 of a mapping ``result``'s static
+    landmarks (those in ``among``, when given)."""
     if np.any(result.final_noise_scale > 1.0):
         data = with_noise_scales(data, result.final_noise_scale)
     static = build_problem(data, exclude_ids=result.landmark_ids[result.moveable].tolist())

@@ -1,10 +1,5 @@
-"""Marginal covariances of poses and landmarks from the factored information matrix.
-
-``marginal_*_covariances`` solve the factored J^T J for identity columns in chunks: their
-cost is that of one triangular solve pair per requested variable, with no dense inverse. A
-variable held fixed (its only factors are observations scaled to zero) has no information:
-its marginal covariance is reported as infinite.
-"""
+"""Marginal covariances of poses and landmarks from the factored information matrix; see
+docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -61,11 +56,7 @@ def _marginal_blocks(
 def marginal_landmark_covariances(
     problem: SlamProblem, estimate: Estimate, obs_row_scale: FloatArray | None = None
 ) -> FloatArray:
-    """Return every landmark's marginal covariance (L, 2, 2) in m^2, map frame, at the estimate.
-
-    From the sparse factorization of J^T J (no dense inverse). A landmark whose observations
-    are all scaled to zero gets infinite variances (and zero correlation).
-    """
+    """Return every landmark's marginal covariance (L, 2, 2) m^2 at the estimate (inf: held)."""
     layout, factor, held = _information_factor(problem, estimate, obs_row_scale)
     variables = 3 * problem.num_poses + np.arange(2 * problem.num_landmarks)
     blocks = _marginal_blocks(layout, factor, variables, 2)

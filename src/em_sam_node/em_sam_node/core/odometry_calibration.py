@@ -1,30 +1,5 @@
-"""Odometry scale calibration, estimated with the trajectory (an M-step parameter).
-
-Wheel odometry has systematic errors that no per-increment covariance carries: a wheel
-radius or a track width off by a few percent scales every translation or every turn by the
-same factor, so the dead-reckoned drift grows with the distance and the angle travelled
-instead of their square root. On the UTIAS MRCLAM runs the odometry reports 4-9 % more
-translation and 3-12 % more rotation than Vicon measured, robot by robot. Against such
-odometry a static landmark re-seen after a long stretch looks moved, and fitting it bends
-the trajectory against increments whose covariance has no room for the bend.
-
-The calibration is a translation scale and a rotation scale applied to every increment
-(Kummerle, Grisetti, Stachniss, Burgard, "Simultaneous calibration, localization, and
-mapping", IROS 2011, with the drive's kinematic parameters reduced to these two). Given
-the trajectory, the odometry error is linear in them, so their maximum a-posteriori values
-are a 2x2 weighted least-squares solve over the increments, each weighted by its
-information matrix, with a prior at the nominal odometry (scales known to
-``PRIOR_SCALE_SIGMA``). The prior matters while the robot has only driven straight: the
-rotation scale is then unobservable. Alternated with the trajectory solve (an M-step next
-to the landmark weights), every step lowers the same joint cost.
-
-A third parameter, a heading drift per metre (wheels of unequal radii), was tried and left
-out: on windows of a few minutes it traded off against the rotation scale and settled on
-the wrong sign (MRCLAM data set 6, robot 4, first 600 s), locking in a wrong trajectory.
-
-Without landmarks the trajectory follows the odometry it was given and the parameters stay
-where they are: a run that cannot observe its calibration keeps the identity.
-"""
+"""Odometry scale calibration (translation, rotation), estimated with the trajectory as an
+M-step parameter; see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -44,8 +19,7 @@ PRIOR_SCALE_SIGMA = 0.1
 
 @dataclass(frozen=True)
 class OdometryCalibration:
-    """Applied to every increment u: u0 and u1 times ``translation``, u2 times
-    ``rotation``; the covariance S C S with S = diag(translation, translation, rotation)."""
+    """Scales of every increment: u0, u1 times ``translation``, u2 times ``rotation``."""
 
     translation: float = 1.0
     rotation: float = 1.0
@@ -73,13 +47,7 @@ class OdometryCalibration:
 
 
 def estimate_calibration(data: MappingData, poses: FloatArray) -> OdometryCalibration:
-    """The parameters (from the raw odometry of ``data``) that best explain ``poses`` (N,3).
-
-    Minimizes sum_m (S u_m - g_m)^T C_m^-1 (S u_m - g_m) plus the prior over the two
-    scales, where g_m is the increment the trajectory shows between the keyframes of
-    increment m in the odometry's own terms (forward, sideways, turn) and C_m the
-    increment's covariance.
-    """
+    """The MAP scales (from the raw odometry of ``data``) that best explain ``poses`` (N, 3)."""
     prior_information = np.eye(2) / PRIOR_SCALE_SIGMA**2
     if len(data.odometry_u) == 0:
         return OdometryCalibration()

@@ -1,9 +1,5 @@
-"""Robust kernels for the observation factors: IRLS weights w(d) and losses rho(d).
-
-A kernel maps Mahalanobis distances d to weights in [0, 1] (GTSAM's robust noise model as a
-plug-in function). The solver scales observation k's rows by sqrt(w_k) at the current
-linearization point and minimizes sum_k s_k^2 rho(d_k), with rho'(d) = w(d) d.
-"""
+"""Robust kernels for the observation factors: IRLS weights w(d) and losses rho(d); see
+docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -18,11 +14,7 @@ from slam_core.arrays import FloatArray
 
 
 class RobustKernel(Protocol):
-    """Maps Mahalanobis distances d (K,) to IRLS weights (K,) in [0, 1].
-
-    A kernel may also have ``loss(d) -> rho (K,)`` with rho'(d) = w(d) d; without it the
-    solver integrates the weights numerically to get the cost it minimizes.
-    """
+    """Maps Mahalanobis distances d (K,) to IRLS weights (K,) in [0, 1]; ``loss`` optional."""
 
     def __call__(self, distance: FloatArray, /) -> FloatArray: ...
 

@@ -1,15 +1,5 @@
-"""The robust seed's association step (``core.seeding``, point 2): which mapped cluster
-the sightings of a new step belong to.
-
-The previous step's solution gives the predicted uncertainty of the extended trajectory
-(``predict_step``): the marginal of its last pose and of the mapped clusters, compounded
-along the extension with the odometry covariances and with the drift the odometry showed
-against the solved prefix. ``associate`` seeks the step's drift consensus
-(``core.consensus``) and tests each landmark's sightings against its clusters; a landmark
-that fits none moved and gets a new cluster from the first sighting that no longer fits.
-Clusters first seen inside a long step are placed chunk by chunk (``map_in_step``) and the
-step's later sightings are tested against them the same way.
-"""
+"""The robust seed's association: which mapped cluster a new step's sightings belong to;
+see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -51,9 +41,7 @@ class SolvedStep:
 
     @property
     def odometry_factor(self) -> float:
-        """The a-posteriori variance factor of the odometry (at least 1): the mean squared
-        whitened odometry residual of the solution. Odometry with errors its covariance
-        does not carry (a wheel-base or steering bias) drifts more than modelled."""
+        """The odometry's a-posteriori variance factor (>= 1): mean squared whitened residual."""
         residuals = odometry_residuals(self.problem, self.estimate)
         if residuals.size == 0:
             return 1.0
@@ -63,9 +51,8 @@ class SolvedStep:
 def _prefix_covariances(
     solved: SolvedStep, last: int, wanted_ids: list[int]
 ) -> tuple[FloatArray, dict[int, FloatArray], dict[int, FloatArray]]:
-    """Marginal covariance of pose ``last`` (3,3), and per landmark id of ``wanted_ids`` its
-    (2,2) marginal and (2,3) cross-covariance with that pose, from the previous step's
-    information matrix."""
+    """Marginal (3, 3) of pose ``last``; per id in ``wanted_ids`` its marginal (2, 2) and
+    cross-covariance (2, 3) with that pose."""
     problem, estimate = solved.problem, solved.estimate
     layout = system_layout(problem)
     data, _ = normal_equations(layout, linearize_factors(problem, estimate, solved.rows))
@@ -89,10 +76,7 @@ def _prefix_covariances(
 
 
 def chunks(stamps_ns: IntArray, done: int, count: int, chunk_s: float) -> list[tuple[int, int]]:
-    """Keyframes [done, count) cut into spans of at most ``chunk_s`` (at least one keyframe).
-
-    A step of the seed may be long (10 % of the time solved); the clusters first seen in it
-    are placed chunk by chunk and tested against the step's later sightings."""
+    """Keyframes [done, count) cut into spans of at most ``chunk_s`` (at least one keyframe)."""
     chunks = []
     begin = done
     while begin < count:
@@ -106,16 +90,8 @@ def chunks(stamps_ns: IntArray, done: int, count: int, chunk_s: float) -> list[t
 
 @dataclass
 class Prediction:
-    """A step's predicted uncertainty, and the clusters first seen in the step so far.
-
-    ``pose_cov`` (3,3) is the previous solution's marginal of its last pose. For each
-    keyframe k of the step: its pose covariance ``covs[k]`` compounded along the extension,
-    the odometry model's own growth within the step ``within[k]``, and d pose_k / d last
-    pose ``transfer[k]``. Per cluster id: its marginal (2,2), its cross-covariance (2,3)
-    with the pose of keyframe ``anchor`` (the prefix's last pose for mapped clusters, the
-    sighting it was placed from for clusters first seen in the step) and, for those,
-    ``placed`` positions (2,).
-    """
+    """A step's predicted uncertainty (poses (3, 3), clusters (2, 2) and (2, 3)), and the
+    clusters first seen in the step so far."""
 
     pose_cov: FloatArray
     marginal: dict[int, FloatArray]
@@ -138,11 +114,7 @@ def predict_step(
     solved: SolvedStep,
 ) -> Prediction:
     """The predicted uncertainty of keyframes [done, count) of ``span`` extended from the
-    solved prefix (first order): the previous solution's marginal of its last pose
-    compounded with the odometry covariances of the extension (times the odometry's
-    a-posteriori variance factor) and with the drift the odometry showed against the solved
-    prefix over stretches of the step's length, with the cross-covariance to each mapped
-    cluster carried along."""
+    solved prefix (first order)."""
     done, count = span
     rows = np.flatnonzero((data.obs_keyframe >= done) & (data.obs_keyframe < count))
     seen_origins = {origin[int(c)] for c in np.unique(virtual_ids[rows]).tolist()}
@@ -184,11 +156,8 @@ def map_in_step(
     mapped: dict[int, FloatArray],
     prediction: Prediction,
 ) -> None:
-    """Place the clusters first seen in ``chunk`` (new landmarks, and new clusters of moved
-    ones) at the median of their sightings through the extended poses, with the predicted
-    covariance of their first sighting (its pose's and the sensor's), so that the step's
-    later chunks test their sightings as they test mapped ones: a landmark first seen in a
-    long step that moves within it is split, not fitted at two places."""
+    """Place the clusters first seen in ``chunk`` at the median of their sightings, with the
+    predicted covariance of their first sighting."""
     begin, end = chunk
     rows = np.flatnonzero((data.obs_keyframe >= begin) & (data.obs_keyframe < end))
     for cluster in np.unique(virtual_ids[rows]).tolist():
@@ -219,20 +188,8 @@ def associate(
     prediction: Prediction,
     placed_only: bool,
 ) -> tuple[dict[int, tuple[int | None, int]], bool]:
-    """Which cluster the sightings in keyframes [begin, end) of ``span`` belong to, for the
-    clusters in ``mapped`` (the prefix's; with a drift consensus) or, ``placed_only``, for
-    those placed earlier in the step: by current cluster id, (the cluster of the same
-    landmark they are compatible with (itself when it agrees) or None when they fit none
-    (it moved), the first keyframe that decision applies from); and whether the step needs
-    the graduated solve (False only when most landmarks agreed with the odometry as it is:
-    there is no drift to pull onto the map).
-
-    Compatible: the median squared Mahalanobis distance of the sightings to the cluster,
-    with the innovation covariance H P H^T plus the test's sighting covariance, is within
-    the chi-square(2) quantile of the test's level; landmarks in the drift consensus agree
-    as they are. A landmark that fits elsewhere keeps the leading sightings that fit where
-    it was (it moved within the span, while out of view).
-    """
+    """Which cluster the sightings in keyframes [begin, end) belong to, by cluster id:
+    (compatible cluster or None when it moved, first keyframe); and whether to graduate."""
     begin, end = span
     rows = np.flatnonzero((data.obs_keyframe >= begin) & (data.obs_keyframe < end))
     known = {**mapped, **prediction.placed}
@@ -308,9 +265,8 @@ def _distances(
     sightings: tuple[FloatArray, IntArray, FloatArray],
     position: FloatArray,
 ) -> FloatArray:
-    """Squared Mahalanobis distances (n,) of sightings (z (n,2), keyframes (n,), sighting
-    covariances (n,2,2)) of a cluster mapped at ``position`` (2,), with the innovation
-    covariance H P H^T + R."""
+    """Squared Mahalanobis distances (n,) of sightings z (n, 2) to a cluster at ``position``
+    (2,), with the innovation covariance H P H^T + R."""
     z, keyframes, sighting_cov = sightings
     marginal, cross = prediction.marginal[cluster], prediction.cross[cluster]
     # cov(pose_k, l) = d pose_k / d pose_anchor cov(pose_anchor, l)
@@ -340,14 +296,7 @@ def _rotate(covariance: FloatArray, heading: float) -> FloatArray:
 def _drift_covariance_per_keyframe(
     data: MappingData, solved: FloatArray, length: int
 ) -> FloatArray:
-    """How far the odometry drifted from the solution, per keyframe (3,3), pose frame.
-
-    Over every stretch of ``length`` keyframes of the solved prefix (stride length / 2),
-    the relative motion the odometry reports is compared with the solved one; the mean
-    outer product of the differences (bias included: a wheel-base or steering bias is
-    drift that no per-increment covariance carries), divided by the stretch length, is the
-    drift a new stretch is predicted to have per keyframe.
-    """
+    """How far the odometry drifted from the solution, per keyframe (3, 3), pose frame."""
     count = len(solved)
     length = min(length, count - 1)
     if length < 1:
@@ -376,16 +325,7 @@ def _drift_consensus(
     landmark_ids: IntArray,
     mapped: dict[int, FloatArray],
 ) -> tuple[Correction, set[int]]:
-    """The rigid correction most mapped landmarks seen in a step agree on, and those ids.
-
-    Each landmark votes once, at the median of its sightings placed through ``poses`` (K,3);
-    its sigma is that median's spread (one sighting's range and cross-range variance at
-    its median range, times pi/2 over the number of sightings) with the model error the
-    test tolerates (a landmark's bias, which no averaging removes) and the median of
-    ``drift_variance`` (K,), how far each sighting's pose may have drifted within the step;
-    ``core.consensus`` decides at the test's level who agrees, one by one and jointly.
-    ``sighting_cov`` are the sensor model's covariances.
-    """
+    """The rigid correction most mapped landmarks seen in a step agree on, and those ids."""
     points = range_bearing_to_point(poses, z)
     ids = np.unique(landmark_ids).tolist()
     seen = np.array([np.median(points[landmark_ids == i], axis=0) for i in ids])

@@ -1,58 +1,5 @@
-"""The robust mode's first E-step: EM-SAM continued in time and in robustness.
-
-Why not one solve of the whole run: a least-squares solve from dead reckoning lands in
-whatever basin the drift puts it in (Victoria Park: Levenberg-Marquardt stops at a cost
-about 30 times the optimum), and a robust kernel started there is worse still: against a
-drifted trajectory most late sightings of early landmarks look like outliers, so the
-kernel rejects the static world and keeps the drift. When most landmarks look
-inconsistent, the trajectory is wrong, not the world.
-
-So the seed grows the problem in time, as an incremental smoother does, and solves every
-prefix of the run warm-started from the one before:
-
-1. **New keyframes** get odometry composed on the last solved pose; a landmark seen for
-   the first time is placed from its first sighting through them.
-2. **Association**: the sightings of a mapped landmark in the new keyframes are tested
-   against where it was mapped, with the predicted innovation covariance: the previous
-   solution's joint marginal of its last pose and the landmark, compounded along the
-   extension with the odometry covariances and with the drift the odometry showed against
-   the solved prefix over stretches of the same length (a wheel-base or steering bias that
-   no per-increment covariance carries). Landmarks in the step's drift consensus
-   (``core.consensus``: most mapped landmarks in view agree on one rigid correction that
-   the predicted uncertainty can explain) pass as they are. A landmark whose sightings fit
-   none of its mapped clusters moved: from this step on its sightings form a new cluster
-   (a virtual landmark), so its two positions never pull the trajectory against each
-   other; sightings that fit an earlier cluster again (a misread barcode, then the right
-   one) rejoin it. The seed reports each landmark's first cluster; the main EM loop tests
-   all of its sightings together.
-3. **Graduated non-convexity** (Yang, Antonante, Tzoumas, Carlone, RA-L 2020) on the
-   prefix: a Cauchy kernel whose scale starts at the largest whitened residual, so that
-   every sighting is in the kernel's near-quadratic zone and the loop-closing sightings of
-   a drifted stretch pull the trajectory into place as least squares would; the scale is
-   halved every solve down to the nominal ``seed_kernel_scale``. Sightings that agree
-   with one correction of the trajectory (a loop closure: many of them) stay inliers as
-   the kernel narrows; one that agrees with nothing (a misread barcode) loses its weight.
-4. **EM rounds** (at most ``SEED_EM_ROUNDS``): the landmark weights of the M-step
-   (``core.em_weights``, the test the main loop uses) scale each landmark's rows in the
-   next solve, so a landmark that moved stops pulling the trajectory as soon as its
-   sightings disagree, while the trajectory is still close to right.
-5. **Odometry calibration** (``core.odometry_calibration``, unless
-   ``calibrate_odometry`` is off): the translation and rotation scales that best explain
-   the solved prefix, applied to every increment of the
-   next step. Odometry that overstates its turns by 10 % drifts in proportion to the
-   angle turned; calibrated, the next stretch is predicted as well as its noise allows and
-   a static landmark re-seen after it is not mistaken for a moved one.
-
-Step lengths are max(``seed_chunk_s``, ``seed_growth`` x the time solved so far): the
-prefix grows geometrically, so the solved sizes sum to at most (1 + 1 / growth) times the
-run's, and the seed's cost stays linear in the run length. Early steps are short, where
-the map is small and the trajectory least constrained. A long step is associated in
-chunks of ``seed_chunk_s``: the clusters a chunk sees first (new landmarks, new clusters
-of moved ones) are placed with their predicted covariance, and the step's later sightings
-are tested against them as against mapped ones, so a landmark that appears and moves
-within one step is split, not fitted at two places; a landmark that moved within the step
-keeps its sightings from before the move.
-"""
+"""The robust mode's first E-step: EM-SAM continued in time and in robustness; see
+docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -100,9 +47,8 @@ SEED_WEIGHT_TOLERANCE = 0.05  # weights that change less end a step's EM rounds
 
 @dataclass(frozen=True)
 class Seed:
-    """The seed's trajectory (N,3), landmark positions and weights by landmark id (a split
-    landmark: its first cluster's), and how many clusters each split landmark was cut
-    into (landmarks not split are absent)."""
+    """The seed: poses (N, 3), landmark positions (2,) and weights by id (a split landmark's
+    first cluster), and the cluster count of each split landmark."""
 
     poses: FloatArray
     landmarks: dict[int, FloatArray]
@@ -165,7 +111,7 @@ def _graduated_solve(
 
 
 def incremental_seed(raw: MappingData, config: EmConfig, solve: Solver) -> Seed:
-    """Return the seed: the run solved prefix by prefix (see the module docstring)."""
+    """Return the seed: the run solved prefix by prefix, with association and EM rounds."""
     calibration = OdometryCalibration()
     data = raw
     solved_poses = np.zeros((0, 3))
@@ -236,9 +182,8 @@ def _apply(
     origin: dict[int, int],
     next_virtual: int,
 ) -> int:
-    """Move each decided cluster's sightings from its first keyframe on to its target (in
-    place in ``virtual_ids``); a target of None is a new cluster of the same landmark.
-    Return the next free virtual id."""
+    """Move each decided cluster's sightings, from its first keyframe on, to its target (None:
+    a new cluster) in ``virtual_ids``; return the next free virtual id."""
     for current, (target, first_keyframe) in decisions.items():
         if target == current:
             continue
@@ -261,9 +206,8 @@ def _solve_step(
     solve: Solver,
     graduated: bool,
 ) -> tuple[Estimate, FloatArray, SlamProblem, FloatArray]:
-    """One step: the solve of a prefix (``graduated``: with the kernel narrowed from the
-    largest residual; otherwise at the nominal scale), then EM rounds; the estimate,
-    weights, the anchored problem and its row scales."""
+    """One step: the prefix solved (``graduated`` or at the nominal kernel scale), then EM
+    rounds; return the estimate, weights, anchored problem and row scales (K,)."""
     ids = built.landmark_ids.tolist()
     anchored = anchor_pieces(built.problem, poses)
     problem = with_weak_priors(

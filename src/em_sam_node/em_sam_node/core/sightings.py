@@ -1,5 +1,5 @@
 """Where moveable landmarks were seen: every sighting placed in the map through the final
-trajectory, with its first-order covariance (paper 000, III.C)."""
+trajectory, with its covariance (III.C); see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -29,11 +29,7 @@ class Sightings:
 def sightings_of(
     data: MappingData, problem: SlamProblem, solved: Estimate, ids: list[int]
 ) -> dict[int, Sightings]:
-    """Return every sighting of the given landmark ids placed in the map, most recent first.
-
-    ``problem`` and ``solved`` give the trajectory and its marginal covariances (they may
-    leave the landmarks in ``ids`` out); the sightings come from ``data``.
-    """
+    """Return every sighting of the landmarks ``ids`` placed in the map, most recent first."""
     result: dict[int, Sightings] = {}
     rows = np.flatnonzero(np.isin(data.obs_landmark_id, np.array(ids, dtype=np.int64)))
     if len(rows) == 0:
@@ -55,9 +51,8 @@ def sightings_of(
 def _pose_covariances_near(
     problem: SlamProblem, solved: Estimate, keyframes: IntArray
 ) -> FloatArray:
-    """Return pose marginal covariances (n,3,3) for keyframes (n,), from at most
-    MARGINAL_SAMPLES evenly spread keyframes (the nearest one is used): exact marginals of
-    a thousand poses cost seconds, and they vary slowly along a trajectory."""
+    """Return pose marginal covariances (n, 3, 3) for keyframes (n,), from the nearest of
+    at most MARGINAL_SAMPLES keyframes."""
     unique = np.unique(keyframes)
     if len(unique) > MARGINAL_SAMPLES:
         unique = unique[np.linspace(0, len(unique) - 1, MARGINAL_SAMPLES).round().astype(int)]

@@ -1,41 +1,5 @@
-"""Sparse nonlinear least squares for EM-SAM (Square Root SAM, the paper's eq. 4 and 16):
-the Gauss-Newton and Levenberg-Marquardt iterations and their step control.
-
-Each iteration solves (J^T J + damping) dx = -J^T r without any dense matrix: the system is
-assembled by ``core.linear_system``, factored by ``core.factorization``, observations are
-reweighted by ``core.robust_kernels``, and ``core.marginals`` recovers covariances at the
-solution.
-
-Gauss-Newton takes the full step when it lowers the cost, else halves it up to
-``max_step_halvings`` times (backtracking line search); if no fraction lowers the cost while
-the model still predicts a decrease above the tolerance, it stops with status 'diverged'
-(keeping the last accepted estimate). It raises ``SingularSystemError`` when the system is
-rank-deficient: a variable with no factor, a piece of the graph without an anchor, or (found
-from the pivots of the first factorization) a variable the factors do not determine.
-
-Levenberg-Marquardt damps with lambda * clamp(diag(J^T J), 1e-6, 1e32): Marquardt's
-diagonal, because metres and radians carry information on scales that differ by orders of
-magnitude, so an additive lambda I damps some variables far more than others; the clamp (as
-in Ceres) keeps variables without information damped. Lambda follows Nielsen's rule from
-the gain ratio rho = actual / predicted decrease (times max(1/3, 1 - (2 rho - 1)^3) after a
-success, times nu with nu doubling after a failure), which adapts more smoothly than GTSAM's
-factor 10. It starts at 1e-10 (close to Gauss-Newton; about GTSAM's additive 1e-5 on these
-information scales) with a floor of 1e-12: long trajectories have soft modes whose
-eigenvalues are ~1e-9 of the diagonal, and a larger lambda makes them converge linearly.
-A step is accepted only if it lowers the cost; before a rejected step raises lambda, the
-step is halved up to ``max_step_halvings`` times (cost evaluations are cheaper than
-factorizations), and the gain ratio of the fraction taken drives the update. LM tolerates
-gauge freedom and uninformed variables (the damping regularizes them) and does not raise.
-
-Cost: 0.5 * (||r_prior||^2 + ||r_odometry||^2) + sum_k s_k^2 rho(d_k), d_k the Mahalanobis
-distance of observation k, s_k its row scale and rho(d) = d^2 / 2 without a kernel, the
-kernel's loss with one. ``SolveResult.cost_history`` holds this cost (so with a robust kernel
-it is the robust cost, not 0.5 ||whitened residual||^2 of the reweighted system); it never
-increases.
-
-A variable whose only factors are observations scaled to zero (``obs_row_scale`` or a zero
-robust weight) carries no information: it is held fixed at its current value.
-"""
+"""Sparse nonlinear least squares for EM-SAM (Square Root SAM, eq. 4 and 16): Gauss-Newton
+and Levenberg-Marquardt with step control; see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -143,32 +107,9 @@ def solve(
 ) -> SolveResult:
     """Return the estimate minimizing the (row-scaled, robust) cost, relinearized from initial.
 
-    Stops, converged, when an accepted step lowers the cost by at most
-    ``relative_cost_tolerance`` times the cost, when a step is shorter than
-    ``step_tolerance * (||x|| + step_tolerance)`` or when no gradient entry exceeds
-    ``gradient_tolerance``; else after ``max_iterations`` factorizations (Gauss-Newton
-    iterations or Levenberg-Marquardt trial steps), or as 'diverged' / 'damping_limit'.
-    ``initial_damping`` is LM's lambda relative to diag(J^T J). ``extra`` reports accepted
-    and rejected steps, step halvings, held (uninformed) variables, the final damping and
-    the time spent linearizing, factorizing and in total (s).
-
-    Levenberg-Marquardt variants (GTSAM's defaults are levenberg, factor_10, expmap):
-
-    - ``damping``: ``'marquardt'`` adds lambda diag(J^T J) (scale-invariant); ``'levenberg'``
-      adds lambda I (lambda absolute, in the units of the cost per unit step squared).
-    - ``damping_update``: ``'nielsen'`` lowers lambda by max(1/3, 1 - (2 rho - 1)^3) after
-      an accepted step of gain ratio rho and raises it by a doubling factor after a
-      rejected one; ``'factor_10'`` divides by 10 after an accepted step and multiplies
-      by 10 after a rejected one.
-    - ``retraction``: ``'additive'`` adds the step to (x, y, theta); ``'expmap'`` moves each
-      pose along the SE(2) exponential of its step expressed in the pose's frame (the
-      translation follows an arc when the heading changes). Both agree to first order, so
-      the linearization is valid for both; on large steps from a poor start (a long
-      trajectory composed from odometry) the arc keeps the chain's shape.
-    - ``gauss_newton_below`` (> 0: a hybrid): once an accepted LM step lowers the cost by
-      less than this fraction of it, the basin is found and the model fits; the solve goes
-      on as Gauss-Newton with up to 8 step halvings (no damping, no rejected factorizations)
-      and falls back to LM at the damping it had if a Gauss-Newton step fails.
+    Raises:
+        SingularSystemError: Gauss-Newton on a rank-deficient system.
+        ValueError: a setting out of range.
     """
     if not (math.isfinite(gauss_newton_below) and 0.0 <= gauss_newton_below < 1.0):
         raise ValueError(f'gauss_newton_below must be in [0, 1), got {gauss_newton_below!r}')
@@ -354,7 +295,7 @@ class _Optimizer:
         return None
 
     def cost(self, estimate: Estimate) -> float:
-        """Return the cost at the estimate (see the module docstring)."""
+        """Return the cost at the estimate: prior, odometry and row-scaled (robust) sightings."""
         return _cost(self.problem, estimate, self.base_scale, self.kernel)
 
     def linearize(self) -> tuple[FloatArray, FloatArray]:
@@ -432,9 +373,7 @@ def _retract(estimate: Estimate, step: FloatArray, num_poses: int, expmap: bool)
 
 
 def _arc(headings: FloatArray, delta: FloatArray) -> FloatArray:
-    """Return R(theta) V(dtheta) R(theta)^T (dx, dy) per pose (N,2): the SE(2) exponential's
-    translation for a step (N,3) in map coordinates, V = [[A, -B], [B, A]], A = sin w / w,
-    B = (1 - cos w) / w (series below 1e-6 rad)."""
+    """Return the SE(2) exponential's translation (N, 2) for a step (N, 3), map coordinates."""
     w = delta[:, 2]
     small = np.abs(w) < 1e-6
     safe = np.where(small, 1.0, w)

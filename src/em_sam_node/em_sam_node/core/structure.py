@@ -1,10 +1,5 @@
-"""Graph structure: which poses and landmarks hang together, and how to anchor every piece.
-
-A problem splits into pieces when odometry is missing between keyframes (an odometry reset)
-and no landmark ties the two sides together, or when removing moveable landmarks cuts the
-only link. Each piece without the prior gets a weak prior on its first pose, so the solve is
-well-posed and the piece keeps its initial placement.
-"""
+"""Graph structure: which poses and landmarks hang together, and weak priors anchoring
+every piece; see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -23,8 +18,7 @@ WEAK_PRIOR_SIGMA = np.array([1e3, 1e3, 1e2])
 
 
 def connected_pieces(problem: SlamProblem) -> IntArray:
-    """Return a piece label (N + L,) for every pose then landmark; labels are 0..P-1, in
-    the order of each piece's first variable (the piece holding pose 0 is 0)."""
+    """Return a piece label (N + L,) for every pose then landmark, 0..P-1."""
     count = problem.num_poses + problem.num_landmarks
     edges_a = np.concatenate([problem.odometry_from, problem.obs_pose])
     edges_b = np.concatenate([problem.odometry_to, problem.num_poses + problem.obs_landmark])
@@ -48,12 +42,7 @@ class AnchoredProblem:
 
 
 def anchor_pieces(problem: SlamProblem, initial_poses: FloatArray) -> AnchoredProblem:
-    """Return the pieces of ``problem`` and weak priors on the first pose of unanchored ones.
-
-    The priors are expressed as extra odometry-free factors by the caller (see
-    ``with_weak_priors``); landmarks observed by no pose are reported as their own pieces
-    and must be removed by the caller before solving.
-    """
+    """Return the pieces of ``problem`` and weak priors on the first pose of unanchored ones."""
     labels = connected_pieces(problem)
     pose_labels = labels[: problem.num_poses]
     anchored_label = pose_labels[problem.prior_pose_index]
@@ -74,12 +63,7 @@ def anchor_pieces(problem: SlamProblem, initial_poses: FloatArray) -> AnchoredPr
 def with_weak_priors(
     problem: SlamProblem, pose_indices: IntArray, means: FloatArray
 ) -> SlamProblem:
-    """Return ``problem`` with a weak prior on each given pose, as odometry-like factors.
-
-    A weak prior on pose p is written as an odometry factor from the anchored prior pose to
-    p whose increment reproduces ``means[p]`` from the prior's mean and whose information is
-    tiny (WEAK_PRIOR_SIGMA), so it fixes the gauge of p's piece without pulling on it.
-    """
+    """Return ``problem`` with a weak prior on each given pose, as odometry-like factors."""
     if len(pose_indices) == 0:
         return problem
     anchor = problem.prior_pose_index

@@ -1,13 +1,5 @@
-"""em_sam_mapper's checkpoint: the processor's whole state in one versioned .npz file.
-
-Saved atomically (``slam_core.checkpoint``: a temporary file in the same directory, fsync,
-rename, fsync of the directory), so a reader finds the previous checkpoint or the new one,
-never half of one.
-Holds the keyframes (stamps and odometry poses), the increments, the observations (attached
-and pending), the keys of every observation already taken, the current solution with its
-weights, and the counts. Loading checks the format, the version, every array's shape and the
-consistency between them, and raises CheckpointError naming the file and what is wrong.
-"""
+"""em_sam_mapper's checkpoint: the processor's whole state in one versioned .npz file,
+saved atomically; see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 

@@ -1,28 +1,5 @@
-"""The EM-SAM map as plain files anyone can read without numpy: a YAML header and two CSVs.
-
-``em_sam_map.yaml``::
-
-    format: em_sam_map 1
-    frame_id: map                # the frame of every position
-    mode: robust                 # EM-SAM mode that made it
-    keyframes: 1802
-    landmarks: 39                # rows of the landmarks CSV
-    moveable_ids: [100, 101]     # landmarks EM-SAM found moveable
-    landmarks_file: em_sam_landmarks.csv
-    trajectory_file: em_sam_trajectory.csv
-    static_covariance_file: em_sam_static_covariance.csv   # when written
-
-``em_sam_landmarks.csv``: ``id,x_m,y_m,cov_xx_m2,cov_xy_m2,cov_yy_m2,weight,moveable,
-sightings``; one row per landmark. A static landmark's position is its place in the map. A
-moveable one's is where it was last seen. ``em_sam_trajectory.csv``: ``stamp_ns,x_m,y_m,
-theta_rad``, one row per keyframe. ``em_sam_static_covariance.csv`` (when the map was solved
-here, not localized on another): ``id_a,id_b,xx_m2,xy_m2,yx_m2,yy_m2``, the joint covariance
-of the static landmarks, one row per pair (id_a <= id_b): the 2x2 block cov(a, b), x then y.
-Localization on the map tests a landmark against the others with it.
-
-``write_map`` writes the three files, each atomically. ``read_map`` reads them back, and a
-problem is reported with its file, line and field.
-"""
+"""The EM-SAM map as plain files: em_sam_map.yaml, em_sam_landmarks.csv,
+em_sam_trajectory.csv and em_sam_static_covariance.csv; format in docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -59,9 +36,8 @@ class MapFileError(SlamError):
 
 @dataclass(frozen=True)
 class SavedMap:
-    """A map read back: per landmark (L,) ids, positions (L,2) m, covariances (L,2,2) m^2,
-    weights, moveable flags and sighting counts; the trajectory's stamps (N,) ns and poses
-    (N,3); its frame and mode."""
+    """A map read back: per landmark (L,) ids, positions (L, 2) m, covariances (L, 2, 2) m^2,
+    weights, moveable flags, sighting counts; stamps (N,) ns, poses (N, 3); frame and mode."""
 
     frame_id: str
     mode: str
@@ -96,8 +72,7 @@ def write_map(
 ) -> list[Path]:
     """Write the YAML header and the CSVs into ``directory``; return their paths.
 
-    ``joint``: (ids (S,), covariance (2S, 2S)) of the static landmarks, written as
-    COVARIANCE_FILE (module docstring); without it, the map has no such file.
+    ``joint``: (ids (S,), covariance (2S, 2S) m^2) of the static landmarks, or None.
     """
     landmarks = [
         [
@@ -150,8 +125,7 @@ INTEGER_COLUMNS = frozenset({'id', 'moveable', 'sightings', 'stamp_ns', 'id_a', 
 
 
 def _rows(path: Path, columns: tuple[str, ...]) -> list[list[int | float]]:
-    """The CSV's rows as numbers (INTEGER_COLUMNS as int: a stamp in ns does not fit a
-    float), after checking its header."""
+    """The CSV's rows as numbers (INTEGER_COLUMNS as int), after checking its header."""
     try:
         lines = path.read_text(encoding='utf-8').splitlines()
     except OSError as err:
@@ -186,7 +160,6 @@ def read_map(path: Path) -> SavedMap:
 
     Raises:
         MapFileError: a file is missing, or a field does not fit (named with file and line).
-
     """
     header_path = path / MAP_FILE if path.is_dir() else path
     try:
@@ -253,8 +226,7 @@ def known_map(saved: SavedMap, source: Path) -> KnownMap:
     """The static landmarks of ``saved`` (read from ``source``) as localization's fixed map.
 
     Raises:
-        MapFileError: no static landmark, or one whose position is not finite or whose
-            covariance is not symmetric positive definite (named by id).
+        MapFileError: no static landmark, or one not finite or without an SPD covariance.
     """
     static = ~saved.moveable
     for index in np.flatnonzero(static):

@@ -73,9 +73,7 @@ from slam_ros.spin import spin_node
 
 
 class MapperBehaviour(Node):
-    """em_sam_mapper on an rclpy node, plain (EmSamMapperNode) or lifecycle
-    (em_sam_mapper_lifecycle): ``_configure`` builds the processor, publishers and services,
-    ``_activate`` the subscriptions and timers, ``_deactivate`` removes those again."""
+    """em_sam_mapper on an rclpy node, plain (EmSamMapperNode) or lifecycle."""
 
     def _configure(self, values: dict[str, Any]) -> None:
         self._active: list[Any] = []
@@ -168,10 +166,7 @@ class MapperBehaviour(Node):
         self._active = []
 
     def _counts(self) -> dict[str, int]:
-        """The counts on /diagnostics: keyframes, observations on them and waiting for one,
-        increments and observations dropped (bad or out of order), observations from before
-        the first keyframe, solves, solves refused and poses left out for a system that was not
-        determined."""
+        """The counts on /diagnostics (inputs, drops, solves)."""
         mapper = self.mapper
         last = mapper.online_last
         return {

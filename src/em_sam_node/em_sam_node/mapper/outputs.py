@@ -1,8 +1,5 @@
-"""Messages the mapper publishes, built from an EmResult (path, maps, markers, TF).
-
-The MarkerArray is drawn like the paper's Fig. 5: trajectory in red, static landmarks in
-green, moveable landmarks in blue with their sightings joined by a dotted blue line.
-"""
+"""Messages the mapper publishes, built from an EmResult (path, maps, markers like the
+paper's Fig. 5, TF); see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -196,8 +193,7 @@ def map_to_odom_tf(
 def pose_message(
     stamp_ns: int, pose: FloatArray, covariance: FloatArray, frame: str
 ) -> PoseWithCovarianceStamped:
-    """The robot's pose (x, y, theta) with its covariance (3, 3) in ROS order: x, y, z and the
-    rotations about X, Y, Z (6 x 6, row-major); z, roll and pitch are not estimated (0)."""
+    """The robot's pose (x, y, theta) and covariance (3, 3) as ROS's 6 x 6 (z, roll, pitch 0)."""
     message = PoseWithCovarianceStamped()
     message.header.frame_id = frame
     ns_to_stamp(int(stamp_ns), message.header.stamp)

@@ -1,29 +1,5 @@
-"""em_sam_mapper's processor: collects increments and observations, runs EM-SAM on demand.
-
-Keyframes come from the increments (each increment's stamp_to is a keyframe; the first
-increment's stamp_from is keyframe 0, anchored at its odometry pose: the map frame is the
-odometry frame at the start). An observation attaches to the keyframe with its stamp (within
-``stamp_tolerance_s``); one whose keyframe has not arrived yet waits for it. One seen before
-the first keyframe (before the odometry started, or live before it was connected) is counted
-as such (``before_start_observations``) with a warning: the map never had a pose for it. One
-whose keyframe never came is dropped with a warning that names it.
-
-Inputs already held are skipped and counted apart, not as dropped: an increment between two
-keyframes the chain has, an observation whose (stamp, landmark) was taken before. A mapper
-resumed from a checkpoint (em_sam_node.mapper.checkpoint) gets its inputs' history again from the
-transient-local publishers and continues at its last keyframe.
-
-Online (``MapperConfig.online``): each keyframe goes into the incremental smoother
-(``core.incremental``) once the next keyframe has come (its observations have had the time
-between two keyframes to arrive), with the observations attached since to keyframes already
-in it; the smoother's moveable set and its per-keyframe latency follow. The checkpoint does
-not hold the smoother: a resumed mapper builds a new one from everything it holds.
-``optimize`` stays the full EM pass over everything collected.
-
-Localization (``MapperConfig.known_map``, or ``use_map``): keyframe 0 is placed at
-``start_pose`` in the saved map's frame, and ``optimize`` solves on the saved static map
-(``core.localization``); there is no online smoother.
-"""
+"""em_sam_mapper's processor: collects increments and observations, runs EM-SAM on demand,
+feeds the online smoother; see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -84,8 +60,7 @@ class MapperConfig:
 
     @property
     def localizing(self) -> bool:
-        """True on a saved map (``known_map``): keyframe 0 is placed at ``start_pose`` in the
-        map's frame with ``start_sigma``, and the saved static landmarks stay fixed."""
+        """True on a saved map (``known_map``): keyframe 0 at ``start_pose``, landmarks fixed."""
         return self.known_map is not None
 
 
@@ -188,8 +163,7 @@ class MapperProcessor:
         return len(self._unfed)
 
     def online_sightings(self, landmark_id: int) -> Sightings | None:
-        """Every sighting of a landmark the smoother holds, placed through its poses, most
-        recent first (``IncrementalEmSam.placed_sightings``); None for one it does not."""
+        """Every sighting of a landmark the smoother holds, most recent first, or None."""
         if self.online is None or landmark_id not in self.online.landmarks:
             return None
         keyframes, positions, covariances = self.online.placed_sightings(landmark_id)
@@ -329,9 +303,7 @@ class MapperProcessor:
         start_pose: tuple[float, float, float],
         start_sigma: tuple[float, float, float],
     ) -> None:
-        """Localize on ``known_map`` from now on: everything collected is solved on it at the
-        next ``optimize`` (the result so far, in another frame, is dropped; so is the online
-        smoother, which maps only)."""
+        """Localize on ``known_map`` from now on (drops the result so far and the smoother)."""
         self.config = dataclasses.replace(
             self.config,
             known_map=known_map,
@@ -352,16 +324,15 @@ class MapperProcessor:
         return compose(self.result.poses[index][None], inverse(self.odom_poses[index][None]))[0]
 
     def static_joint_covariance(self) -> tuple[IntArray, FloatArray] | None:
-        """The static landmarks' ids and joint covariance of a mapping solution (what a later
-        localization tests against); None before a solve and on a saved map (its landmarks
-        are held, not estimated)."""
+        """The static landmarks' ids (S,) and joint covariance (2S, 2S) m^2 of a mapping
+        solution; None before a solve and on a saved map."""
         if self.result is None or self.result_data is None or self.config.localizing:
             return None
         return static_joint_covariance(self.result_data, self.result)
 
     def latest_pose(self) -> tuple[int, FloatArray, FloatArray] | None:
-        """The latest solved keyframe: stamp int ns, pose (x m, y m, theta rad) in the map
-        frame and its marginal covariance (3, 3), from the solution's static problem."""
+        """The latest solved keyframe: stamp int ns, pose (x m, y m, theta rad), map frame, and
+        its marginal covariance (3, 3)."""
         result, data = self.result, self.result_data
         if result is None or data is None or not len(result.poses):
             return None

@@ -1,9 +1,5 @@
-"""EM-SAM reports: a JSON summary and PNG figures, each written atomically.
-
-Figures follow the paper: the map with poses in red, static landmarks in green and moveable
-landmarks in blue with their sightings joined by a dotted line (Fig. 5), snapshots of the
-estimate at the paper's stages (Figs. 2-5), and the weight of every landmark per EM iteration.
-"""
+"""EM-SAM reports: a JSON summary and PNG figures (the paper's Figs. 2-5, weights per
+iteration), each written atomically; see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -97,9 +93,7 @@ def draw_map(
     sightings: Mapping[int, Any] | None,
     title: str,
 ) -> None:
-    """Draw poses (red), static landmarks (green), moveable ones (blue: every sighting placed
-    in the map, joined in time order by a dotted line, the latest a square), each landmark's
-    id, axes fitted to the data with equal scales, and the legend outside the map."""
+    """Draw poses (red), static landmarks (green), moveable ones (blue, sightings dotted)."""
     axes.plot(poses[:, 0], poses[:, 1], '-', color='tab:red', lw=0.8, label='trajectory')
     flags = np.zeros(len(ids), dtype=bool) if moveable is None else moveable
     static = ~flags
@@ -150,8 +144,7 @@ def map_figure_size(
 
 
 def draw_weights(axes: Any, result: EmResult) -> Any:
-    """Every landmark's weight per EM iteration as a table of colours (rows: landmarks by
-    id, the moveable ones first; columns: iterations); return the image for a colour bar."""
+    """Every landmark's weight per EM iteration as a table of colours; return the image."""
     history = result.weight_history
     order = np.lexsort((result.landmark_ids, ~result.moveable))
     image = axes.imshow(

@@ -45,8 +45,8 @@ from slam_ros.spin import spin_node
 
 
 def odometry_transform(message: Any, odom_frame: str, base_frame: str) -> Any:
-    """Return the geometry_msgs/TransformStamped odom_frame -> base_frame of a
-    nav_msgs/Odometry (its pose, at its stamp), or None when the pose is not finite."""
+    """Return the TransformStamped odom_frame -> base_frame of a nav_msgs/Odometry, or None
+    when its pose is not finite."""
     pose = message.pose.pose
     p, q = pose.position, pose.orientation
     values = [p.x, p.y, p.z, q.x, q.y, q.z, q.w]
@@ -112,8 +112,7 @@ class OdometryIngestNode(Node):
             )
 
     def _counts(self) -> dict[str, int]:
-        """The counts on /diagnostics: increments published, odometry samples dropped (not
-        finite, out of order, behind a rewound clock), resets, TF published and skipped."""
+        """The counts on /diagnostics (increments, drops, resets, TF)."""
         return {
             'increments': self.published,
             'dropped': self.ingest.dropped_samples,
@@ -158,10 +157,7 @@ class OdometryIngestNode(Node):
         self._publish(self.ingest.add_observation_stamp(stamp_to_ns(message.header.stamp)))
 
     def _flush_when_idle(self) -> None:
-        """Flush once the odometry has been idle on two ticks in a row. After a stall of the
-        process (a busy machine) the executor runs this timer before the odometry that queued
-        meanwhile: one idle tick only arms the flush, and the queued samples, taken before the
-        next tick, disarm it (else the flush would add a keyframe mid-run)."""
+        """Flush once the odometry has been idle on two ticks in a row (no bag player running)."""
         idle = time.monotonic() - self._last_odometry_wall > self.idle_flush_s
         # a player that says the end of its bag is running: a pause is not the end
         player = self.count_publishers(END_TOPIC) > 0

@@ -1,35 +1,5 @@
-"""odometry_ingest's processor: wheel odometry in, keyframe-to-keyframe increments out.
-
-Keyframes are made at every observation stamp (the odometry pose interpolated there) and
-whenever the robot has moved ``keyframe_distance_m`` or turned ``keyframe_angle_rad`` or
-``keyframe_interval_s`` has passed since the last keyframe. Keyframes are emitted once the
-odometry is ``observation_delay_s`` past them, so observations that arrive late (camera
-processing) still get their keyframe. At the start, keyframes are held (at most
-``startup_hold_s`` of odometry) until an observation arrives that is no more than
-``observation_delay_s`` behind the odometry: live, the detector's history of sightings
-(transient-local) reaches this node only when the two have discovered each other, and the
-sightings it holds must not be older than a keyframe already emitted. When observations come
-on time (a bag, or a detector discovered first) the hold changes nothing: the same keyframes
-come out, later. Each increment is the paper's eq. 2 parameterization
-(u0 forward, u1 side, u2 angular) with a covariance that grows with the motion:
-
-    var(u0) = var(u1) = a3 d^2 + a4 phi^2 + min_sigma_xy^2
-    var(u2)           = a1 phi^2 + a2 d^2 + min_sigma_theta^2    (d = distance, phi = |u2|)
-
-(Thrun's odometry motion model alphas, ``noise_alphas`` = [a1, a2, a3, a4]).
-
-Bad input: samples with a non-finite pose or stamp are dropped; samples older than the last
-one are dropped (out-of-order); a jump of more than ``reset_jump_m`` between consecutive
-samples at more than ``reset_speed_mps`` (a gap of lost messages is not a reset: it is
-interpolated) is an odometry reset: the chain continues across it with a zero-motion
-increment of covariance ``reset_sigma``. The stamp going back by more than
-``reset_backwards_s`` (a restarted base, a clock correction, a looped bag) rewinds the clock
-under keyframes already emitted, which the mapper cannot take back: everything the odometry
-covered is emitted, then samples are dropped until their stamps pass the last keyframe, and
-the chain resumes there with a zero-motion reset increment (the pose may have jumped too).
-Every drop, rewind and reset is reported through ``warn``; a looped bag or a new session
-needs a restarted mapper.
-"""
+"""odometry_ingest's processor: wheel odometry in, keyframe-to-keyframe increments (eq. 2)
+out; see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
@@ -139,7 +109,7 @@ class _State:
     rewound_dropped: int = 0
     # Samples up to this stamp were found not to have moved enough from the current keyframe.
     checked_ns: int | None = None
-    hold_ended: str = ''  # how the startup hold (module docstring) ended; '' while it holds
+    hold_ended: str = ''  # how the startup hold ended; '' while it holds
     first_ns: int | None = None  # the first odometry stamp
 
 
@@ -245,9 +215,7 @@ class OdometryIngest:
         return self._emit(horizon_ns=horizon)
 
     def _hold_before_odometry(self, stamp_ns: int) -> None:
-        """Keep an observation stamp that came before any odometry (live, the two streams
-        are discovered separately, and a detector may deliver first): it gets its keyframe if
-        the odometry, when it comes, covers it. Held for at most max_buffer_s of stamps."""
+        """Keep an observation stamp that came before any odometry (at most max_buffer_s)."""
         pending = self._state.pending_stamps
         if stamp_ns not in pending:
             bisect.insort(pending, stamp_ns)
@@ -261,8 +229,7 @@ class OdometryIngest:
             )
 
     def _release_before_odometry(self, first_ns: int) -> None:
-        """The first odometry came: held stamps before it get no keyframe; one at it gets the
-        first keyframe."""
+        """The first odometry came: a held stamp at it gets the first keyframe, earlier none."""
         pending = self._state.pending_stamps
         early = [s for s in pending if s < first_ns]
         pending[:] = [s for s in pending if s > first_ns]

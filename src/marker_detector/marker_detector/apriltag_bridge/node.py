@@ -1,19 +1,16 @@
 """apriltag_bridge: apriltag_ros detections in, marker_detector's landmark observations out.
 
 For a robot that already runs apriltag_ros: each AprilTagDetectionArray, with the tag poses on
-/tf and the camera mount on /tf_static, becomes a LandmarkObservationArray exactly as
-marker_detector publishes it (range and bearing of each tag's centre in the base frame, the
-same sensor model, quality gates and stamp; ``marker_detector.apriltag_bridge.processor``). A
-detection waits up to ``tf_wait_s`` for its tags' transforms; a tag without one, another
-family or an id outside allowed_ids is dropped, counted and logged.
+/tf and the camera mount on /tf_static, becomes a LandmarkObservationArray as marker_detector
+publishes it (same sensor model, gates and stamp). A detection waits up to tf_wait_s for its
+tags' transforms; a tag without one, or of another family or id, is dropped and counted.
 
 Topics:
   subscribes  detections (apriltag_msgs/AprilTagDetectionArray, reliable, 100), /tf (the tag
               poses), /tf_static (the camera mount), camera/camera_info
   publishes   landmark_observations (LandmarkObservationArray, base frame, reliable,
               transient-local, 1000), /diagnostics
-Parameters (read-only): ``apriltag_bridge --help``. Running it next to apriltag_ros, in full:
-docs/design/marker_nodes.md.
+All parameters are read-only. Next to apriltag_ros, in full: docs/design/marker_nodes.md
 """
 
 from __future__ import annotations
@@ -155,9 +152,7 @@ class AprilTagBridgeNode(Node):
                 self.observations_publisher.publish(message)
 
     def _counts(self) -> dict[str, int]:
-        """The counts on /diagnostics: detection arrays processed, tags dropped (and why),
-        of another family, with an id not allowed, rejected by the gates; observations
-        published; camera_info messages and transforms rejected; detection arrays waiting."""
+        """The counts on /diagnostics (the LOST_* reasons among them) and the arrays waiting."""
         counts = {
             key: 0
             for key in (

@@ -1,28 +1,8 @@
 """apriltag_bridge's ROS-free processor: apriltag_ros detections and tag transforms in,
-marker_detector's range-bearing observations out.
-
-apriltag_ros publishes, for each image, an AprilTagDetectionArray (header = the image's) and
-then, on /tf, one transform per tag from the image's frame to the tag's frame
-(``<family>:<id>``, e.g. ``tag36h11:3``, or a name from its ``tag.frames``), stamped with the
-image's stamp. The node hands this processor the detections (``add_detections``), the /tf
-transforms (``add_transform``; only tag frames are kept, the latest TRANSFORMS_PER_FRAME of
-each), the /tf_static camera mount (``static``, marker_detector's StaticTransforms) and the
-camera_info (``set_camera_info``). Tags of another family or an id outside ``allowed_ids``
-are counted and left out at once.
-
-A detection array waits in a first-in first-out queue until everything it needs is there:
-the camera model, and for every tag the transform at exactly the array's stamp and the mount
-from the base frame to that transform's parent frame. ``poll`` converts the arrays at the
-head of the queue that are complete (every tag through ``core.tag_pose``'s gates and
-covariance, then ``core.base_frame.to_range_bearing``: the same observation model as
-marker_detector). With ``expire``, an incomplete head array that has waited ``tf_wait_s``
-and was already overdue at the previous expiring poll is converted with what it has: each
-tag it lacks something for is dropped, counted by reason, and described in the output. (The
-second poll is for a node whose executor was busy: the transforms queued meanwhile are taken
-between the two polls instead of being declared missing.) The queue keeps the arrays'
-order, so observations leave in stamp order; at most MAX_PENDING arrays wait (the oldest is
-dropped beyond).
-"""
+marker_detector's range-bearing observations out. A detection array waits, in order, for the
+camera model, its tags' /tf transforms at its stamp and the camera mount; ``poll`` converts
+the complete ones (with ``expire`` also overdue ones, less the tags they lack).
+Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -54,7 +34,7 @@ FAMILIES = (
 """The family names apriltag_ros writes in AprilTagDetection.family (the library's)."""
 CAMERA_MODELS = ('rectified', 'raw')
 TRANSFORMS_PER_FRAME = 100
-"""Stamps kept per tag frame (at 30 Hz, over 3 s: far more than any tf_wait_s)."""
+"""Stamps kept per tag frame."""
 MAX_PENDING = 1000
 """Detection arrays waiting at most (the oldest is dropped beyond)."""
 
@@ -131,8 +111,7 @@ class Lost:
 
 @dataclass(frozen=True)
 class BridgeOutput:
-    """One converted detection array: its FrameOutput (stamp, frames, accepted tags as
-    detections, rejected ones, observations) and the tags lost."""
+    """One converted detection array: its FrameOutput and the tags lost."""
 
     frame: FrameOutput
     lost: list[Lost]
@@ -148,8 +127,7 @@ class _Pending:
 
 
 class TagTransforms:
-    """The latest TRANSFORMS_PER_FRAME stamps of each tag frame: child -> stamp -> (parent,
-    T_parent_child 4x4)."""
+    """The latest TRANSFORMS_PER_FRAME stamps per tag frame: child -> stamp -> (parent, 4x4)."""
 
     def __init__(self) -> None:
         self.frames: dict[str, OrderedDict[int, tuple[str, FloatArray]]] = {}
@@ -162,8 +140,7 @@ class TagTransforms:
             stamps.popitem(last=False)
 
     def at(self, child: str, stamp_ns: int) -> tuple[str, FloatArray] | None:
-        """The transform to ``child`` stamped exactly ``stamp_ns`` (tags are not
-        interpolated: a tag frame has a pose only at the images it was seen in)."""
+        """The transform to ``child`` stamped exactly ``stamp_ns`` (not interpolated), or None."""
         stamps = self.frames.get(child)
         return None if stamps is None else stamps.get(stamp_ns)
 
@@ -173,7 +150,7 @@ class TagTransforms:
 
 
 class AprilTagBridge:
-    """Detections and transforms in, observations out (module docstring)."""
+    """Detections and transforms in, observations out."""
 
     def __init__(self, config: BridgeConfig) -> None:
         self.config = config
@@ -194,8 +171,7 @@ class AprilTagBridge:
         distortion_model: str,
         p: Sequence[float],
     ) -> None:
-        """Take a camera_info: 'rectified' uses P (the rectified image apriltag_ros detects
-        in, as it does), 'raw' K and D; raise InputError naming the field when unusable."""
+        """Take a camera_info ('rectified': P, 'raw': K and D); InputError naming the field."""
         try:
             if self.config.camera_model == 'rectified':
                 if len(p) != 12 or not (p[0] > 0 and p[5] > 0):
@@ -254,7 +230,7 @@ class AprilTagBridge:
     # -- outputs ---------------------------------------------------------------------------
     def poll(self, now_s: float, *, expire: bool = False) -> list[BridgeOutput]:
         """Convert the complete arrays at the head of the queue; with ``expire`` also those
-        that waited too long (module docstring)."""
+        that waited ``tf_wait_s`` and were overdue at the previous expiring poll."""
         outputs = []
         while self.pending:
             head = self.pending[0]

@@ -1,9 +1,5 @@
-"""apriltag_bridge's parameters and their validation into a BridgeConfig (ROS-free).
-
-The tag size, the id filter, the gates and the corner noise are marker_detector's own
-parameters (``settings.DETECTOR_PARAMETERS``: the same names, defaults and rules), read-only
-here.
-"""
+"""apriltag_bridge's parameters (marker_detector's detector parameters, read-only, and its
+own) and their validation into a BridgeConfig (ROS-free)."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""Marker detections as planar range-bearing observations in the robot base frame.
-
-Transforms are 4x4 homogeneous matrices T_a_b: the pose of frame b in frame a, mapping
-b-coordinates to a-coordinates, p_a = T_a_b p_b (the tf transform from parent a to child b);
-``slam_core.geometry.se3`` builds them from xyz and roll, pitch, yaw.
-"""
+"""Marker detections as planar range-bearing observations in the robot base frame; T_a_b
+(4, 4) maps b- to a-coordinates. Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -29,12 +25,8 @@ class RangeBearing:
 
 
 def to_range_bearing(detection: MarkerDetection, T_base_camera: ArrayLike) -> RangeBearing:  # noqa: N803
-    """Return the marker centre as (range m, bearing rad) in the base x-y plane, with covariance.
-
-    ``T_base_camera`` (4, 4) is the camera optical frame in base_link. The position block of
-    the pose covariance is rotated into the base frame and propagated through the Jacobian of
-    (hypot(x, y), atan2(y, x)) with respect to (x, y).
-    """
+    """Return the marker centre as range (m) and bearing (rad) in the base x-y plane, with
+    covariance (2, 2); ``T_base_camera`` (4, 4) is the camera optical frame in base_link."""
     transform = np.asarray(T_base_camera, dtype=np.float64)
     if transform.shape != (4, 4) or not np.all(np.isfinite(transform)):
         raise ValueError(f'T_base_camera must be a finite 4x4 matrix, got shape {transform.shape}')

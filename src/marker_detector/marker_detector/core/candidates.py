@@ -24,11 +24,8 @@ OPENCV_MIN_PERIMETER_RATE = 0.03  # cv2.aruco's default minMarkerPerimeterRate
 
 @dataclass(frozen=True, eq=False)
 class MarkerCorners:
-    """One decoded marker before pose estimation: id and raw-image corners (4, 2) px.
-
-    ``source`` is 'aruco' (found by cv2.aruco) or 'redecoded' (a cv2.aruco reject decoded
-    from its refined corners); ``edge_refined`` says whether the edges moved the corners.
-    """
+    """One decoded marker before pose estimation: id, raw-image corners (4, 2) px, ``source``
+    'aruco' or 'redecoded', and whether the edges moved the corners."""
 
     id: int
     corners_px: FloatArray
@@ -43,14 +40,8 @@ def locate_markers(
     camera: CameraModel | None = None,
     box: Box | None = None,
 ) -> list[MarkerCorners]:
-    """Return the decoded markers of a gray image with their (edge-refined) corners.
-
-    No quality gate is applied; rejected candidates are only decoded again when their rough
-    sides (up to ~1 px short at each end) may reach ``min_side_px``. ``camera`` (optional)
-    lets the edge fit undistort; without it edges are fitted as straight lines. ``box``
-    (x0, y0, x1, y1 px): cv2.aruco looks only there (``core.roi``); the corners are image
-    pixels and are refined, and rejects decoded again, on the whole image as without it.
-    """
+    """Return the decoded markers of a gray image with their (edge-refined) corners, ungated;
+    ``box`` (x0, y0, x1, y1) px: search only there (corners stay image pixels)."""
     region = gray if box is None else np.ascontiguousarray(gray[box[1] : box[3], box[0] : box[2]])
     params = detector.getDetectorParameters()
     floor = candidate_perimeter_rate(config.min_side_px, region.shape)
@@ -85,11 +76,8 @@ def locate_markers(
 
 
 def candidate_perimeter_rate(min_side_px: float, shape: tuple[int, ...]) -> float:
-    """Return cv2.aruco's minMarkerPerimeterRate for an image of ``shape`` (H, W, ...): the
-    contours it drops (perimeter below rate * max(H, W)) are those whose rough sides could
-    not reach ``min_side_px`` anyway (REDECODE_SIDE_SLACK_PX short), so they are never
-    thresholded into candidates, decoded or refined (~0.6 ms of ~10 per 640x480 frame with
-    the default 12 px gate, bench/marker_detector_speed.py). Never below OpenCV's default."""
+    """Return cv2.aruco's minMarkerPerimeterRate for an image of ``shape`` (H, W, ...):
+    no contour whose sides cannot reach ``min_side_px``, never below OpenCV's default."""
     perimeter = 4.0 * max(min_side_px - REDECODE_SIDE_SLACK_PX, 0.0)
     return max(OPENCV_MIN_PERIMETER_RATE, perimeter / max(shape[0], shape[1]))
 
@@ -104,11 +92,7 @@ def _redecode(
     camera: CameraModel | None,
     edges: EdgeSettings,
 ) -> list[MarkerCorners]:
-    """Return the rejected candidates that decode from edge-refined corners.
-
-    A candidate is tried when its rough sides may reach ``min_side_px``, it does not overlap
-    a marker and passes the cheap ``may_be_marker`` screen with its rough corners.
-    """
+    """Return the rejected candidates that decode from edge-refined corners."""
     quads = []
     for quad in rejected:
         raw = _clockwise(np.asarray(quad, dtype=np.float64).reshape(4, 2))

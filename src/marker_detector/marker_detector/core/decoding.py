@@ -1,11 +1,5 @@
-"""Decoding a marker from a quad: the bits under its cells, looked up in the dictionary.
-
-A second chance for candidates that cv2.aruco rejected: it samples the cells through its
-rough contour corners, which on a small marker (cells of ~2 px) land off-centre; read through
-edge-refined corners (``core.edges``) the same candidate often decodes cleanly. The checks
-are cv2.aruco's: a black border (at most ``max_border_error_rate`` of its cells white) and a
-code within the dictionary's correction capability scaled by ``error_correction_rate``.
-"""
+"""Decoding a marker from a quad: the bits under its cells, looked up in the dictionary (a
+second chance for cv2.aruco's rejects). Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -20,10 +14,7 @@ from slam_core.arrays import FloatArray
 def read_cells(
     gray: NDArray[np.float32], corners_px: FloatArray, cells_per_side: int, samples: int = 4
 ) -> FloatArray:
-    """Return the mean intensity of each cell (n, n) of the quad, row 0 = top (corners 0-1).
-
-    Each cell is sampled on a samples x samples grid over its central half.
-    """
+    """Return the mean intensity of each cell (n, n) of the quad, row 0 = top (corners 0-1)."""
     n = cells_per_side
     square = np.array([[0.0, 0.0], [n, 0.0], [n, n], [0.0, n]], dtype=np.float32)
     homography = cv2.getPerspectiveTransform(square, np.asarray(corners_px, dtype=np.float32))
@@ -64,15 +55,8 @@ def may_be_marker(
     max_border_white: float = 0.5,
     max_cell_px: float = 4.0,
 ) -> bool:
-    """Return whether a quad cv2.aruco rejected may still be a marker: a cheap screen with its
-    rough corners before its corners are refined and it is decoded again.
-
-    cv2.aruco samples cells through the rough corners, up to ~1 px off; that only spoils
-    cells of at most ``max_cell_px`` (the quad's shortest side / cells_per_side). Then the
-    interior must hold a cell at least ``min_contrast`` brighter than the border's median
-    (the outer ring of cells), and at most ``max_border_white`` of the border cells may be
-    white.
-    """
+    """Return whether a quad cv2.aruco rejected may still be a marker (a cheap screen with its
+    rough corners, before they are refined and it is decoded again)."""
     if float(np.min(side_lengths(corners_px))) > max_cell_px * cells_per_side:
         return False
     cells = read_cells(gray, corners_px, cells_per_side, samples=2)
@@ -92,12 +76,8 @@ def decode_quad(
     max_border_error_rate: float = 0.35,
     min_contrast: float = 10.0,
 ) -> tuple[int, FloatArray] | None:
-    """Return (marker id, corners (4, 2) in OpenCV order) of a quad, or None if it is no marker.
-
-    The quad's corners may start anywhere but must run clockwise on screen (as cv2.aruco's);
-    the border must be black (at most ``max_border_error_rate`` of its cells white) and the
-    code within the dictionary's correction capability scaled by ``error_correction_rate``.
-    """
+    """Return (marker id, corners (4, 2) in OpenCV order) of a quad, or None if it is no marker;
+    the corners may start anywhere but must run clockwise on screen."""
     corners = np.asarray(corners_px, dtype=np.float64)
     size = dictionary.markerSize
     n = size + 2 * border_bits

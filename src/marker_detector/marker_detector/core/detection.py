@@ -1,20 +1,5 @@
 """Fiducial detection: cv2.aruco candidates, edge-refined corners, pose, covariance, gates.
-
-Pipeline of ``detect_markers`` on one image (raw, distorted, as the camera delivers it):
-
-1. cv2.aruco's ArucoDetector finds and decodes markers (``make_detector``: parameters tuned
-   for accuracy, AprilTag dictionaries with bit-error correction, see ``core.dictionaries``);
-2. every marker's corners are re-measured from its four outer edges (``core.edges``), and
-   candidates cv2.aruco rejected are decoded again from those refined corners;
-3. the pose comes from solvePnP IPPE_SQUARE with K and D (lens distortion is handled inside
-   PnP), the better of its two solutions refined by a Gauss-Newton step; the covariance from
-   the reprojection Jacobian (``core.pose``);
-4. quality gates drop markers that are not allowed, too small in the image, badly explained by
-   their pose, too far or seen too obliquely; each drop is a ``Rejection`` with the reason.
-
-Frames and conventions are those of ``core.pose`` (camera optical frame; marker x right, y up,
-z out of the face) and ``core.camera`` (pixel centres at integer coordinates).
-"""
+Pipeline and cv2.aruco settings: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -46,16 +31,10 @@ from slam_core.camera import CameraModel
 
 @dataclass(frozen=True, eq=False)
 class MarkerDetection:
-    """One accepted marker with its pose in the camera optical frame.
-
-    corners_px (4, 2) raw image px, OpenCV order (top-left, top-right, bottom-right,
-    bottom-left); rotation (3, 3) and translation_m (3,) map marker points into the camera
-    frame; covariance (6, 6) over (x, y, z, rot_x, rot_y, rot_z), see ``core.pose``;
-    reprojection_error_px is the RMS over the corners; side_px the shortest side; range_m
-    |translation_m|; viewing_angle_rad between marker normal and line of sight;
-    alternative_error_px the reprojection error of the other IPPE pose (near
-    reprojection_error_px: the orientation is ambiguous).
-    """
+    """One accepted marker with its pose in the camera optical frame: corners_px (4, 2) raw px,
+    OpenCV order; rotation (3, 3), translation_m (3,) m, marker to camera; covariance (6, 6)
+    (``core.pose``); errors and side_px (the shortest side) px, range_m m, viewing_angle_rad
+    between marker normal and line of sight."""
 
     id: int
     dictionary: str
@@ -73,9 +52,8 @@ class MarkerDetection:
 
 @dataclass(frozen=True, eq=False)
 class Rejection:
-    """A decoded marker dropped by a quality gate: ``gate`` is the setting that dropped it
-    (e.g. 'max_range_m'; 'no_pose' or 'degenerate_pose' when no usable pose exists),
-    ``reason`` the sentence with the measured value."""
+    """A decoded marker dropped by a gate: ``gate`` the setting (or 'no_pose',
+    'degenerate_pose'), ``reason`` the sentence with the measured value."""
 
     id: int
     gate: str
@@ -106,25 +84,7 @@ def _set_parameter(
 
 
 def make_detector(config: DetectorConfig) -> cv2.aruco.ArucoDetector:
-    """Return a cv2.aruco.ArucoDetector for ``config`` (works on OpenCV 4.7+ and 5.x).
-
-    Only the ArucoDetector object API is used. Against OpenCV's defaults (measured on the
-    three AprilTag photos and synthetic renders, see the tests):
-
-    - subpixel windows of half a cell (relativeCornerRefinmentWinSize 0.5, at most 5 px),
-      50 iterations to 0.01 px. cornerSubPix only seeds the edge fit (``core.edges``), which
-      removes the 0.2-0.3 px inward bias cornerSubPix leaves at any window size (ranges 1-2 %
-      long); windows of a whole cell pulled corners of small blurred markers in the photos
-      up to 4.7 px towards the marker's inner pattern;
-    - cells read over their central half (perspectiveRemoveIgnoredMarginPerCell 0.25 instead
-      of 0.13): small and blurred markers decode (recall 28 % -> 56 % on the photo with the
-      smallest tags, before the bit correction of ``core.dictionaries``);
-    - candidates whose contour comes within 3 px of the image border are kept
-      (minDistanceToBorder 0): the default also dropped fully visible markers whose black
-      border merges, in the thresholded image, with a dark (vignetted) image corner (slam_sim
-      office renders: recall within the gates 97.9 % -> 99.95 %);
-    - adaptive-threshold windows from ``config.detector_profile`` (``DETECTOR_PROFILES``).
-    """
+    """Return a cv2.aruco.ArucoDetector for ``config``; RuntimeError before OpenCV 4.7."""
     for name in (
         'ArucoDetector',
         'DetectorParameters',
@@ -187,13 +147,9 @@ def detect_markers(
     detector: cv2.aruco.ArucoDetector | None = None,
     boxes: list[Box] | None = None,
 ) -> DetectionResult:
-    """Return the markers in a raw camera image (H, W) gray or (H, W, 3) BGR uint8.
-
-    ``detector`` from ``make_detector(config)``; pass it when calling per frame (built here
-    if None). ``boxes``: look only in these regions (``core.roi``); None: the whole image.
-    Raises ValueError for an empty image, a wrong dtype or shape, or a size that differs
-    from the camera's.
-    """
+    """Return the markers in a raw camera image (H, W) gray or (H, W, 3) BGR uint8; ``detector``
+    from ``make_detector(config)`` (None: built here), ``boxes`` the regions to search (None: all,
+    ``core.roi``). ValueError for a bad image or size."""
     gray = as_gray(image, camera)
     detector = detector if detector is not None else make_detector(config)
     detections: list[MarkerDetection] = []

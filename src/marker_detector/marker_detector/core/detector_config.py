@@ -26,11 +26,8 @@ DETECTOR_PROFILES = {
     'accurate': DetectorProfile((3, 23, 10), 2),
     'fast': DetectorProfile((5, 25, 20), 1),
 }
-"""``accurate``: thresholds with 3, 13 and 23 px windows (OpenCV's default set), edges fitted
-twice (106 frames/s on bench/marker_detector_speed.py). ``fast``: 5 and 25 px windows (one
-pass fewer), edges fitted once: about 1.2x the frame rate, slightly lower recall of small
-low-contrast markers (the AprilTag photos: 9 of 10 tags instead of 10 on one), the same
-corner accuracy on the benchmark's renders."""
+"""``accurate`` (3, 13 and 23 px windows, edges fitted twice) and ``fast`` (5 and 25 px,
+once); their trade-off: docs/design/marker_core.md."""
 
 
 CORNER_REFINEMENTS = {
@@ -43,18 +40,8 @@ CORNER_REFINEMENTS = {
 
 @dataclass(frozen=True)
 class DetectorConfig:
-    """Detector settings; invalid values raise ValueError naming the setting.
-
-    ``marker_sizes_m`` maps marker id -> black-border side length (m) for markers that differ
-    from ``default_marker_size_m``. ``allowed_ids`` empty means every id. Limits may be inf
-    (no gate). ``max_viewing_angle_rad`` is the angle between the marker normal and the line
-    of sight. ``pixel_noise_px`` is the corner noise sigma behind the pose covariance.
-    ``edge_refinement`` re-measures corners from the marker edges (``core.edges``);
-    ``redecode_rejected`` decodes cv2.aruco's rejected candidates again from refined
-    corners; ``error_correction_rate`` is the fraction of the dictionary's bit-correction
-    capability used (cv2.aruco's errorCorrectionRate); ``detector_profile`` trades speed
-    for recall: the adaptive-threshold passes and edge-fit iterations (``DETECTOR_PROFILES``).
-    """
+    """Detector settings: sizes m, limits px, m, rad (inf: no gate), ``allowed_ids`` empty: all;
+    an invalid value raises ValueError naming the setting."""
 
     dictionary: str = DEFAULT_DICTIONARY
     default_marker_size_m: float = 0.16

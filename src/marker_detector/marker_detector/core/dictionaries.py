@@ -1,13 +1,5 @@
-"""Marker dictionaries by name: the AprilTag families and the ArUco dictionaries of cv2.aruco.
-
-OpenCV 4.x ships its AprilTag dictionaries with ``maxCorrectionBits = 0``, so ``cv2.aruco``
-corrects no bit errors on them at all, whatever ``errorCorrectionRate`` says (the AprilTag
-library itself corrects 2 bits by default; OpenCV 5.x ships the values below).
-``get_dictionary`` gives each AprilTag family the correction capability its minimum Hamming
-distance h allows, (h - 1) // 2 bits (the number in the family name: 36h11 -> 5), and the
-detector's ``errorCorrectionRate`` scales it as for every other dictionary (0.6 -> 3 bits for
-36h11). The ArUco dictionaries keep OpenCV's values.
-"""
+"""Marker dictionaries by name: the AprilTag families (with bit-error correction) and the
+ArUco dictionaries of cv2.aruco. Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -56,12 +48,7 @@ def apriltag_hamming_distance(name: str) -> int | None:
 
 
 def get_dictionary(name: str) -> cv2.aruco.Dictionary:
-    """Return the cv2.aruco.Dictionary called ``name`` (AprilTag families with bit correction).
-
-    Raises:
-        ValueError: ``name`` is not one of ``DICTIONARIES``; the message lists the valid names.
-
-    """
+    """Return the cv2.aruco.Dictionary ``name``; ValueError listing the valid names if unknown."""
     if name not in DICTIONARIES:
         raise ValueError(
             f'unknown marker dictionary {name!r}; valid names: {", ".join(DICTIONARIES)}'

@@ -1,26 +1,5 @@
-"""Subpixel marker corners from the markers' four outer edges.
-
-cv2.aruco's corners come from the thresholded contour and sit inside the black border (about
-0.6 px on real images; cornerSubPix leaves 0.2-0.3 px), which makes ranges come out 1-2 %
-long. ``refine_corners`` measures the outer edge of the border instead:
-
-1. along each side, normals are sampled at up to MAX_NORMALS_PER_SIDE places (bilinear,
-   steps of at most PROFILE_STEP_PX, out to +-1 cell);
-2. on each normal the edge is where the intensity rises through the side's mid level, halfway
-   between the border's black and the quiet zone's white (see ``_crossings``), interpolated
-   linearly. This is where a blurred step crosses whatever the blur; the gradient peak of a
-   thin border is pushed outwards by the border's inner edge. The inner edges cross the
-   level downwards and a brighter surface beyond the quiet zone does not cross it;
-3. a line is fitted to each side's edge points (slope-weighted total least squares, refitted
-   without outliers) and neighbouring lines are intersected; this repeats from the new
-   corners until they move less than CONVERGED_PX.
-
-Where the lens bows a marker's sides by more than MAX_BEND_PX, its lines are fitted to
-undistorted edge points and the intersections distorted back. All markers of an image are
-refined together (numpy over a leading marker axis). Corners are (4, 2) float64 raw-image
-pixels in OpenCV order (top-left, top-right, bottom-right, bottom-left), pixel centres at
-integer coordinates.
-"""
+"""Subpixel marker corners from the markers' four outer edges: (4, 2) raw-image px, OpenCV
+order, pixel centres at integer coordinates. Method: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -66,8 +45,7 @@ def refine_corners(
     camera: CameraModel | None = None,
     settings: EdgeSettings | None = None,
 ) -> FloatArray | None:
-    """Return one marker's corners (4, 2) px refined from its edges, or None when they could
-    not be measured (see ``refine_corners_batch``)."""
+    """Return one marker's corners (4, 2) px refined from its edges, or None if unmeasured."""
     refined, ok = refine_corners_batch(
         gray, np.asarray(corners_px, dtype=np.float64)[None], cells_per_side, camera, settings
     )
@@ -81,15 +59,8 @@ def refine_corners_batch(
     camera: CameraModel | None = None,
     settings: EdgeSettings | None = None,
 ) -> tuple[FloatArray, BoolArray]:
-    """Return the corners (M, 4, 2) px at the intersections of the fitted edges and (M,)
-    whether each marker's edges were measured.
-
-    ``gray`` is the float32 image, ``corners_px`` (M, 4, 2) the starting corners,
-    ``cells_per_side`` the markers' width in cells including the black border (8 for 36h11).
-    A marker fails (its input corners are returned) with too little contrast, fewer than
-    MIN_EDGE_POINTS edge points on a side or a side's line fitting less than
-    ``min_inlier_fraction`` of its normals, or a corner moving implausibly far.
-    """
+    """Return the corners (M, 4, 2) px where the fitted edges meet, and (M,) which worked
+    (failed ones keep their input); ``cells_per_side`` counts the border (8 for 36h11)."""
     settings = settings or EdgeSettings()
     start = np.asarray(corners_px, dtype=np.float64).reshape(-1, 4, 2)
     cell_px = side_lengths(start).mean(axis=1) / cells_per_side
@@ -118,8 +89,7 @@ def refine_corners_batch(
 
 
 def _bent(camera: CameraModel, corners: FloatArray) -> BoolArray:
-    """Return (M,) whether the lens bows a marker's sides more than MAX_BEND_PX off the
-    straight lines between its raw corners (at the sides' midpoints)."""
+    """Return (M,) whether the lens bows a marker's sides more than MAX_BEND_PX."""
     if not camera.has_distortion:
         return np.zeros(len(corners), dtype=bool)
     ideal = camera.undistort_points(corners.reshape(-1, 2)).reshape(corners.shape)
@@ -137,8 +107,8 @@ def _refine_once(
     lens: BoolArray,
     settings: EdgeSettings,
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Return one edge fit of markers (M, 4, 2): corners, the smallest fraction of a side's
-    normals on its line (M,), and whether the fit worked (M,)."""
+    """Return one edge fit of markers (M, 4, 2): corners, the smallest inlier fraction of a
+    side (M,), and whether the fit worked (M,)."""
     reach = np.clip(
         settings.search_cells * cell_px, settings.min_search_px, settings.max_search_px
     )
@@ -178,9 +148,8 @@ def _refine_once(
 def _normal_bases(
     corners: FloatArray, cell_px: FloatArray, reach: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """Return the feet of the normals (M, 4, K, 2) spread along each side, clear of the
-    corners, and the outward unit normals (M, 4, 2); K, the same for every side, spaces the
-    normals of the longest side ~1 px apart (at most MAX_NORMALS_PER_SIDE)."""
+    """Return the feet of the normals (M, 4, K, 2) along each side, clear of the corners, and
+    the outward unit normals (M, 4, 2)."""
     ends = corners[:, _NEXT]
     lengths = side_lengths(corners)
     directions = (ends - corners) / lengths[..., None]
@@ -198,17 +167,8 @@ def _normal_bases(
 def _crossings(
     profile: FloatArray, offsets: FloatArray, depth_px: FloatArray
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Return, per normal (M, 4, K): the offset (px) where the profile (M, 4, K, S) rises
-    through its side's mid level nearest the current edge, the slope there (gray/px) as a
-    weight, and whether there is such a crossing.
-
-    ``offsets`` (M, S) are the sample positions along each marker's normals, ``depth_px``
-    (M, 4) each side's cell size across the side. A side's black is the 10th percentile of
-    its samples more than a quarter cell inside the current edge (where a data cell next to
-    the border is black too, the border's true black shows); its white the median over the
-    normals of the brightest sample within one cell outside (the quiet zone, one cell wide
-    on an AprilTag).
-    """
+    """Return per normal (M, 4, K) the offset (px) where the profile (M, 4, K, S) rises through
+    its side's mid level, the slope there (gray/px), and whether there is one."""
     reach = offsets[:, -1][:, None]  # (M, 1)
     grid = offsets[:, None, :]  # (M, 1, S)
     inner = grid <= -np.minimum(0.25 * depth_px, 0.5 * reach)[..., None]  # (M, 4, S)
@@ -247,9 +207,8 @@ def _band_quantile(profile: FloatArray, band: BoolArray, quantile: float) -> Flo
 def _fit_lines(
     points: FloatArray, weights: FloatArray, found: BoolArray
 ) -> tuple[FloatArray, FloatArray, NDArray[np.int_]]:
-    """Return a point on (M, 4, 2), the unit direction of (M, 4, 2) and the inlier count of
-    (M, 4) each side's line through its found edge points (M, 4, K, 2): weighted total least
-    squares, refitted without points farther than max(OUTLIER_FLOOR_PX, 3 robust sigma)."""
+    """Return a point on (M, 4, 2), the direction of (M, 4, 2) and the inlier count (M, 4) of
+    each side's robust line through its edge points (M, 4, K, 2)."""
     keep = found
     means, directions = _weighted_lines(points, np.where(keep, weights, 0.0))
     for _ in range(2):
@@ -271,8 +230,7 @@ def _fit_lines(
 
 
 def _weighted_lines(points: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Return the weighted mean (..., 2) and principal direction (..., 2) of points
-    (..., K, 2); a line with no weight gets its points' plain mean (flagged elsewhere)."""
+    """Return the weighted mean (..., 2) and principal direction (..., 2) of points (..., K, 2)."""
     total = weights.sum(axis=-1)
     safe = np.where(total > 0, total, 1.0)
     means = np.einsum('...k,...kd->...d', weights, points) / safe[..., None]
@@ -285,8 +243,7 @@ def _weighted_lines(points: FloatArray, weights: FloatArray) -> tuple[FloatArray
 
 
 def _intersections(means: FloatArray, directions: FloatArray) -> tuple[FloatArray, BoolArray]:
-    """Return corner j (M, 4, 2) where the lines of sides j - 1 and j meet, and (M,) False
-    where two neighbouring sides are closer than ~0.06 deg to parallel."""
+    """Return corner j (M, 4, 2) where lines j - 1 and j meet; (M,) False if nearly parallel."""
     p1, d1 = means[:, _PREVIOUS], directions[:, _PREVIOUS]
     p2, d2 = means, directions
     determinant = d2[..., 0] * d1[..., 1] - d1[..., 0] * d2[..., 1]

@@ -19,7 +19,7 @@ class InputError(ValueError):
 
 @dataclass(frozen=True)
 class ExtrinsicsConfig:
-    """Where the camera sits on the robot (see the module docstring)."""
+    """Where the camera sits on the robot: /tf_static or parameters (``detector.processor``)."""
 
     source: str = 'tf_static'
     base_frame: str = 'base_link'
@@ -51,8 +51,8 @@ class StaticTransforms:
     parents: dict[str, tuple[str, np.ndarray]] = field(default_factory=dict)
 
     def add(self, parent: str, child: str, transform: np.ndarray) -> None:
-        """Add or replace the transform of ``child`` in ``parent``; InputError for one from a
-        frame to itself, one that would close a loop, or numbers that are not finite."""
+        """Add or replace ``child`` in ``parent``; InputError for a self or looping transform or
+        numbers that are not finite."""
         parent, child = parent.lstrip('/'), child.lstrip('/')
         if parent == child:
             raise InputError(f'static transform from {parent!r} to itself')

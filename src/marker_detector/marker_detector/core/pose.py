@@ -1,16 +1,5 @@
-"""Poses of square markers from their four corners, and the pose covariance.
-
-Frames: the camera optical frame (x right, y down, z forward) and the marker frame (origin at
-the marker centre, x right, y up as printed, z out of the marker face towards the camera). A
-pose (R, t) maps marker points into the camera frame, p_camera = R p_marker + t.
-
-Pose covariance (6, 6) is over (x, y, z, rot_x, rot_y, rot_z) in the camera frame, the
-geometry_msgs/PoseWithCovariance layout: the translation perturbation dt and a small rotation
-dtheta applied on the left, R = exp([dtheta]x) R0 (rotation about the camera's fixed axes).
-With corner noise sigma px on each image coordinate, cov = sigma^2 (J^T J)^-1, where J (8, 6)
-is the Jacobian of the four projected corners (u0, v0, ..., u3, v3) with respect to
-(dt, dtheta), lens distortion included.
-"""
+"""Poses of square markers (p_camera = R p_marker + t) from their four corners, and the pose
+covariance (6, 6). Frames, layout and method: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -26,8 +15,7 @@ from slam_core.geometry.so3 import rotation_from_vector, skew
 
 
 def marker_object_points(size_m: float) -> FloatArray:
-    """Return the corners (4, 3) m in the marker frame: top-left, top-right, bottom-right,
-    bottom-left (the order of cv2.aruco corners and of SOLVEPNP_IPPE_SQUARE)."""
+    """Return the corners (4, 3), m, in the marker frame, in cv2.aruco's order."""
     half = 0.5 * size_m
     return np.array(
         [[-half, half, 0.0], [half, half, 0.0], [half, -half, 0.0], [-half, -half, 0.0]]
@@ -36,13 +24,8 @@ def marker_object_points(size_m: float) -> FloatArray:
 
 @dataclass(frozen=True, eq=False)
 class MarkerPose:
-    """Marker pose in the camera frame and how well it explains the corners.
-
-    ``reprojection_error_px`` is the RMS over the 4 corners of the image distance between
-    measured and projected corner; ``alternative_error_px`` the same for the other IPPE
-    solution (the mirror-flipped pose; inf if there is none). Their ratio near 1 means the
-    two poses explain the corners equally well (a small or far marker seen nearly head-on).
-    """
+    """Marker pose (R (3, 3), t (3,) m) in the camera frame; the RMS corner error, px, of it
+    and of the other IPPE solution (inf: none)."""
 
     rotation: FloatArray
     translation_m: FloatArray
@@ -54,8 +37,7 @@ class MarkerPose:
 def solve_marker_pose(
     corners_px: FloatArray, size_m: float, camera: CameraModel, *, refine_iterations: int = 1
 ) -> MarkerPose | None:
-    """Return one marker's pose from raw-image corners (4, 2) px, or None (see
-    ``solve_marker_poses``)."""
+    """Return one marker's pose from raw-image corners (4, 2) px, or None."""
     corners = np.asarray(corners_px, dtype=np.float64).reshape(1, 4, 2)
     return solve_marker_poses(corners, [size_m], camera, refine_iterations=refine_iterations)[0]
 
@@ -67,13 +49,8 @@ def solve_marker_poses(
     *,
     refine_iterations: int = 1,
 ) -> list[MarkerPose | None]:
-    """Return the poses of markers from their raw-image corners (M, 4, 2) px and sizes (m).
-
-    SOLVEPNP_IPPE_SQUARE gives two poses per marker; the one with the lower reprojection
-    error is kept and refined by up to ``refine_iterations`` Gauss-Newton steps on the
-    reprojection error (IPPE is exact for noise-free corners, not the least-squares pose of
-    noisy ones), all markers at once. None: no solution in front of the camera.
-    """
+    """Return the poses of markers from raw-image corners (M, 4, 2) px and sizes (m); None
+    where no pose lies in front of the camera."""
     corners = np.asarray(corners_px, dtype=np.float64).reshape(-1, 4, 2)
     if not len(corners):
         return []
@@ -117,21 +94,7 @@ def _ippe_poses(
     corners: FloatArray, objects: FloatArray, camera: CameraModel
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Return both IPPE poses of each marker, R (M, 2, 3, 3) and t (M, 2, 3), and (M, 2) which
-    exist in front of the camera (the others are identity fillers, masked).
-
-    Infinitesimal Plane-based Pose Estimation (Collins and Bartoli 2014), the method of
-    cv2's SOLVEPNP_IPPE_SQUARE, evaluated for all markers at once in numpy (cv2's
-    solvePnPGeneric costs ~0.2 ms per marker, mostly Python-call and reprojection overhead):
-
-    1. H (M, 3, 3) maps the marker plane (x, y) to normalized image points (exact for four
-       corners: the null vector of the 8x9 DLT system, model scaled to a unit square);
-    2. at the marker centre, H's image point v and Jacobian J (2, 2) fix the pose up to a
-       two-fold ambiguity: with Rv turning the optical axis onto the ray through v and
-       B = ([I | -v] Rv)[:, :2], A = B^-1 J is the rotation's upper-left 2x2 block over the
-       depth, so R22 = A / sigma_max(A) and the third row of the first two columns is +-b
-       (the two solutions, mirror images about the line of sight);
-    3. t is the linear least-squares translation for each rotation.
-    """
+    exist in front of the camera (the others are identity fillers)."""
     count = len(corners)
     rays = camera.undistort_points(corners.reshape(-1, 2), normalized=True).reshape(count, 4, 2)
     half = np.abs(objects[:, 1, :2]).max(axis=1)  # (M,) half the marker side
@@ -182,8 +145,7 @@ def _plane_homographies(plane: FloatArray, image: FloatArray) -> FloatArray:
 
 
 def _rotations_onto_rays(points: FloatArray) -> FloatArray:
-    """Return Rv (M, 3, 3), the smallest rotations turning (0, 0, 1) onto the rays through
-    normalized image points (M, 2): I + [k]x + [k]x^2 / (1 + c), k = z x d, c = z . d."""
+    """Return Rv (M, 3, 3) turning (0, 0, 1) onto the rays through image points (M, 2)."""
     rays = np.column_stack([points, np.ones(len(points))])
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     axis = np.column_stack([-rays[:, 1], rays[:, 0], np.zeros(len(rays))])
@@ -214,8 +176,7 @@ def _plane_translations(
 def _gauss_newton_step(
     corners: FloatArray, objects: FloatArray, pose: _Poses, camera: CameraModel
 ) -> _Poses:
-    """Return the poses after one Gauss-Newton step on the corner residuals, each marker's
-    step kept only where it lowers the reprojection error and stays in front."""
+    """Return the poses after one Gauss-Newton step, kept where it lowers the error."""
     residual = (corners - pose.pixels).reshape(-1, 8, 1)
     transposed = np.swapaxes(pose.jacobian, 1, 2)
     normal = transposed @ pose.jacobian
@@ -267,11 +228,7 @@ def _rms(residual: FloatArray) -> FloatArray:
 def corner_jacobian(
     object_points: FloatArray, rotation: FloatArray, translation: FloatArray, camera: CameraModel
 ) -> FloatArray:
-    """Return d(u0, v0, ..., u3, v3) / d(dt, dtheta), (2N, 6), for R = exp([dtheta]x) R0.
-
-    A camera-frame point p = R X + t moves by dp = dt - [R X]x dtheta; d(pixel)/dp comes
-    from the camera model (distortion included).
-    """
+    """Return d(u0, v0, ..., u3, v3) / d(dt, dtheta), (2N, 6), for R = exp([dtheta]x) R0."""
     objects = np.asarray(object_points, dtype=np.float64)
     return _corners_and_jacobians(objects, np.asarray(rotation), np.asarray(translation), camera)[
         1

@@ -1,16 +1,5 @@
-"""Synthetic camera images of markers at known poses, for tests and benchmarks.
-
-Each output pixel near a marker is supersampled: the ray through every sub-pixel centre
-(lens distortion undone exactly with the camera model) is intersected with the marker's plane
-and the printed marker is looked up there (``slam_core.render``, the simulators' renderer);
-the sub-pixels are averaged (area sampling). The corners of a marker therefore land where
-``CameraModel.project`` puts them, to the accuracy of the supersampling, lens distortion
-included.
-
-Markers are printed as cv2.aruco draws them (black border) on white paper with a quiet zone
-``margin_cells`` cells wide. Poses are in the camera optical frame with the marker frame of
-``core.pose`` (x right, y up, z out of the face towards the camera).
-"""
+"""Synthetic camera images of markers at known poses (supersampled, lens distortion
+included), for tests and benchmarks. Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -54,11 +43,8 @@ def render_markers(
     *,
     supersample: int = 4,
 ) -> FloatArray:
-    """Return the camera's image (H, W) float64 gray levels of markers over ``background``.
-
-    ``background`` is a gray level or an (H, W) image. Nearer markers are drawn over farther
-    ones. Add blur and noise to taste, then round to uint8.
-    """
+    """Return the camera's image (H, W) float64 gray levels of markers over ``background``, a
+    gray level or an (H, W) image."""
     image = np.empty((camera.height, camera.width))
     image[...] = background
     for placement in sorted(placements, key=lambda p: -float(p.translation_m[2])):

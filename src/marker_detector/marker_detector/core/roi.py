@@ -1,25 +1,5 @@
-"""Where to look for markers in the next frame: the whole image, or only around the markers
-of the frame before (search regions), to spend a fraction of a frame's time when a few
-known markers are followed at a camera's frame rate.
-
-``SearchPlan`` with ``period`` 1 searches every whole image (the detector's default). With
-``period`` n > 1 it searches the whole image once every n frames; in the frames between, it
-searches only a box about each marker found in the frame before: the box round its corners,
-grown by ``margin_px`` plus half the marker's longest side (how far a marker moves and grows
-between two frames). When a box search misses a marker that was followed, the caller
-searches the whole image in the same frame (``needs_full_search``), so a marker that moved
-farther than the margin is not lost, only paid for; what a box search cannot see is a
-marker newly in view, found at the next whole-image search, at most n - 1 frames later.
-When the detector looks for given ids only (``wanted``, its allowed_ids) and follows every
-one of them, nothing new can come into view: the periodic whole-image search is skipped
-until one of them is lost (e.g. MonoSLAM's one initialization target, followed in a box
-of a few thousand pixels per frame instead of a whole-image search of the textured scene
-every period).
-
-A box search gives the corners a whole-image search gives: cv2.aruco thresholds the box as
-it would the image (the margin holds the threshold windows, at most 23 px), and the corners
-are then refined on the whole image (``candidates.locate_markers``).
-"""
+"""Where to look for markers in the next frame: the whole image, or boxes about the markers
+of the frame before. Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -38,7 +18,8 @@ Box = tuple[int, int, int, int]
 
 @dataclass
 class SearchPlan:
-    """Whole-image or box search per frame (module doc)."""
+    """The whole image every ``period`` frames; between them, boxes grown by ``margin_px`` (px)
+    about the markers followed."""
 
     period: int = 1
     margin_px: float = 32.0
@@ -56,9 +37,8 @@ class SearchPlan:
             raise ValueError(f'search margin {self.margin_px!r} must be a finite number >= 0 px')
 
     def boxes(self, stamp_ns: int, shape: tuple[int, ...]) -> list[Box] | None:
-        """Return the boxes to search in the frame at ``stamp_ns`` of ``shape`` (H, W, ...),
-        or None to search the whole image (period 1, nothing followed, the period is up,
-        or the stamps went back: a new run)."""
+        """Return the boxes to search in the frame at ``stamp_ns`` of ``shape`` (H, W, ...), or
+        None for the whole image."""
         if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
             self.reset()
         self.last_stamp_ns = stamp_ns
@@ -80,8 +60,7 @@ class SearchPlan:
         return not set(self.followed) <= found
 
     def searched(self, full: bool, markers: dict[int, FloatArray]) -> None:
-        """Record a frame's search: whole image or boxes, and the markers (id -> corners)
-        to follow into the next frame."""
+        """Record a frame's search (whole or boxes) and the markers (id -> corners) to follow."""
         if full:
             self.full_searches += 1
             self.since_full = 0
@@ -106,8 +85,7 @@ class SearchPlan:
 
 
 def merge_boxes(boxes: list[Box]) -> list[Box]:
-    """Return the boxes with every overlapping pair replaced by the box round both, until
-    none overlap (a marker is then searched once)."""
+    """Return the boxes with each overlapping pair replaced by the box round both."""
     merged = list(boxes)
     changed = True
     while changed:

@@ -1,23 +1,5 @@
-"""A tag whose pose another detector estimated (apriltag_ros), under marker_detector's model.
-
-apriltag_ros publishes each tag's corners in the image and its pose in the camera frame (a
-transform camera -> tag on /tf). ``tag_detection`` gives that tag the quality gates and the
-pose covariance of ``core.detection``, so that its range-bearing observation
-(``core.base_frame.to_range_bearing``) carries the same sensor model as the markers
-marker_detector finds itself:
-
-- covariance: sigma^2 (J^T J)^-1 with J the Jacobian of the four projected corners at the
-  given pose (``core.pose``), sigma the corner noise. The four corners are the same points
-  (+-s/2, +-s/2, 0) whichever way the tag frame's axes point in the tag plane (apriltag_ros's
-  PnP frame, y down and z into the tag, or OpenCV's, y up and z out), and J^T J sums over
-  them, so the covariance does not depend on that convention;
-- gates: the shortest side of the measured corners (``min_side_px``), the RMS distance from
-  each measured corner to the nearest corner projected at the given pose
-  (``max_reprojection_error_px``: it catches a tag size or camera model that differs from
-  the one the pose was estimated with; nearest, because detectors order corners
-  differently), the range (``max_range_m``) and the angle between the tag's normal, either
-  way, and the line of sight (``max_viewing_angle_rad``).
-"""
+"""A tag whose pose another detector estimated (apriltag_ros), given marker_detector's quality
+gates and pose covariance. Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -65,12 +47,9 @@ def tag_detection(
     camera: CameraModel,
     gates: TagGates,
 ) -> MarkerDetection | Rejection:
-    """Return the tag as a MarkerDetection with its pose covariance, or the gate it fails.
-
-    ``corners_px`` (4, 2) are the tag's corners in the image the camera model describes;
-    ``camera_from_tag`` (4, 4) the tag's pose in the camera optical frame; ``size_m`` the
-    side of the tag's black square.
-    """
+    """Return the tag as a MarkerDetection with its pose covariance, or the gate it fails:
+    ``corners_px`` (4, 2) px in the camera model's image, ``camera_from_tag`` (4, 4) the tag pose
+    in the camera optical frame, ``size_m`` the side of its black square, m."""
     corners = np.asarray(corners_px, dtype=np.float64).reshape(4, 2)
     transform = np.asarray(camera_from_tag, dtype=np.float64)
 

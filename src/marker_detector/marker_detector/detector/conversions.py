@@ -1,5 +1,4 @@
-"""Messages <-> marker_detector core types. Fields are read by name, so rclpy messages and
-rosbags-deserialized messages both work."""
+"""Image and FiducialArray messages <-> marker_detector core types (fields read by name)."""
 
 from __future__ import annotations
 
@@ -20,11 +19,8 @@ from slam_core.stamps import ns_to_stamp
 
 
 def image_from_message(message: Any, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> np.ndarray:
-    """Return the gray image of a sensor_msgs/Image or CompressedImage.
-
-    Raises ImageError; ImageTooLargeError, before the payload is copied, for an image of more than
-    ``max_pixels`` pixels (0: no limit).
-    """
+    """Return the gray image of a sensor_msgs/Image or CompressedImage; ImageError, and
+    ImageTooLargeError before any copy for more than ``max_pixels`` pixels (0: no limit)."""
     if hasattr(message, 'encoding'):
         width, height = int(message.width), int(message.height)
         encoding = str(message.encoding)
@@ -37,9 +33,8 @@ def image_from_message(message: Any, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS)
 
 
 def check_message_size(message: Any, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> None:
-    """Raise ImageTooLargeError when a sensor_msgs/Image's width x height, or a PNG/JPEG
-    CompressedImage's header, has more than ``max_pixels`` pixels (0: no limit); reads no
-    pixel and copies nothing."""
+    """Raise ImageTooLargeError when an Image, or a PNG/JPEG CompressedImage's header, has more
+    than ``max_pixels`` pixels (0: no limit); reads no pixel."""
     if hasattr(message, 'encoding'):
         width, height = int(message.width), int(message.height)
         what = f'image {message.encoding}'
@@ -53,10 +48,7 @@ def check_message_size(message: Any, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS)
 
 
 def fill_fiducials(output: FrameOutput, message: Any, make_detection: Any) -> Any:
-    """Fill a slam_interfaces/FiducialArray from ``output`` and return it.
-
-    ``make_detection`` constructs an empty FiducialDetection (the message class).
-    """
+    """Fill a FiducialArray from ``output`` (``make_detection``: FiducialDetection); return it."""
     ns_to_stamp(output.stamp_ns, message.header.stamp)
     message.header.frame_id = output.camera_frame
     detections = []

@@ -1,15 +1,9 @@
 """marker_detector_lifecycle: marker_detector as a lifecycle (managed) node.
 
 The same node (name marker_detector), topics and parameters as ``marker_detector``
-(``marker_detector --help``), started unconfigured:
-
-- configure: the parameters are validated, the detector is built, the publishers made;
-- activate: images, camera_info and the camera mount (/tf_static) are taken;
-- deactivate: inputs pause (camera_info and the mount already taken stay);
-- cleanup: everything is dropped (back to unconfigured).
-
-Transitions come from ``marker_detector/change_state`` (lifecycle_msgs/srv/ChangeState): a
-launch file (``em_sam_lifecycle.launch.py`` in slam_bringup), a lifecycle manager, or
+(``marker_detector --help``), started unconfigured: configure builds the detector and the
+publishers, activate takes images, camera_info and /tf_static, deactivate pauses them
+(camera_info and the mount already taken stay), cleanup drops everything. Transitions:
 ``slam_call marker_detector/change_state '{transition: {id: 1}}'`` (1 configure,
 3 activate, 4 deactivate, 2 cleanup).
 """

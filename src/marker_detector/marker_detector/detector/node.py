@@ -1,12 +1,10 @@
 """marker_detector: camera images in, fiducial poses and range-bearing observations out.
 
-Detects square fiducials (cv2.aruco; AprilTag 36h11 by default) in each image, refines the
-corners to subpixel accuracy, solves each marker's pose (IPPE square, lens undistorted inside
-it) with a covariance from the reprojection Jacobian, applies the quality gates and converts
-the marker centres into range and bearing in the robot base frame. Bad inputs are logged with
-the reason and skipped. Images before the first usable camera_info or camera mount are held,
-those of the last 5 s of stamps (at most 64 MiB of images), and detected in order once both
-are there; older ones are dropped and counted.
+Detects square fiducials (cv2.aruco; AprilTag 36h11 by default), solves each marker's pose
+and covariance, applies the quality gates and gives each marker centre's range and bearing in
+the base frame. Bad inputs are logged and skipped. Images before the first camera_info or
+camera mount are held, those of the last 5 s of stamps (at most 64 MiB of images), and
+detected in order once both are there; older ones are dropped and counted.
 
 Topics:
   subscribes  camera/image_raw (Image) or camera/image_raw/compressed (CompressedImage), per
@@ -14,9 +12,7 @@ Topics:
   publishes   fiducials (FiducialArray, camera optical frame, every image), landmark_
               observations (LandmarkObservationArray, base frame, reliable, transient-local,
               1000), ~/debug_image (with publish_debug_image), /diagnostics
-The detector settings can be changed at run time (``ros2 param set``); an invalid value is
-refused with the reason. Parameters: ``marker_detector --help``. In full:
-docs/design/marker_nodes.md.
+Detector settings change at run time (ros2 param set). In full: docs/design/marker_nodes.md
 """
 
 from __future__ import annotations
@@ -91,19 +87,14 @@ def draw_detections(image: np.ndarray, output: FrameOutput) -> np.ndarray:
 
 
 HOLD_S = 5.0
-"""Images held while no camera_info or camera mount has come yet span at most this much stamp
-time (the oldest is dropped first). DDS discovery sends its first announcements within a
-fraction of a second and then one every 3 s (Fast DDS's default period): 5 s covers a missed
-first burst and the next periodic announcement, on a loaded machine too."""
+"""Images held for a camera_info or camera mount span at most this much stamp time, s."""
 
 HOLD_MAX_BYTES = 64 * 2**20
-"""And at most this many image bytes (5 s of 640x480 mono8 at 30 Hz is 46 MB)."""
+"""And at most this many image bytes."""
 
 
 class DetectorBehaviour(Node):
-    """marker_detector on an rclpy node, plain (MarkerDetectorNode) or lifecycle
-    (marker_detector_lifecycle): ``_configure`` builds the processor and publishers,
-    ``_activate`` the subscriptions, ``_deactivate`` removes them again."""
+    """marker_detector's behaviour, shared by the plain and the lifecycle node."""
 
     def _configure(self, values: dict[str, Any]) -> None:
         self.processor = MarkerProcessor(
@@ -326,10 +317,7 @@ class DetectorBehaviour(Node):
         return debug
 
     def _counts(self) -> dict[str, int]:
-        """The counts on /diagnostics: images processed (those not searched among them),
-        dropped (bad, or no camera_info in time; of them refused too large) and held for a
-        camera_info, markers accepted, camera_info messages and /tf_static transforms
-        rejected."""
+        """The counts on /diagnostics."""
         return {
             'processed': self.images - self.dropped,
             'dropped': self.dropped,

@@ -1,18 +1,11 @@
 """marker_detect_bag: run the marker detector over a recorded camera bag, offline.
 
-Reads a bag with camera images (sensor_msgs/Image or CompressedImage), camera_info and,
-unless the camera mount is given as parameters, /tf_static; runs every image through the
-same conversions and processor as the marker_detector node; and writes a new bag with every
-other topic copied unchanged plus /fiducials and /landmark_observations at the images'
-receive stamps (the images themselves only with --keep-images). The node's YAML file
-(``--params``) configures it exactly as it would the node. The result is what the live node
-would have published, at any replay speed, and feeds ``em_sam_evaluate`` or the EM-SAM nodes.
+Writes a new bag: every other topic copied, plus /fiducials and /landmark_observations at the
+images' receive stamps, as the node would publish them with the same YAML (--params); the
+images too with --keep-images; nothing at --output unless complete.
 
     marker_detect_bag bags/office_camera.mcap --output out/office_detected
     em_sam_evaluate out/office_detected
-
-Images that cannot be used (corrupt, no camera_info yet...) are counted and reported with
-their reasons; the output is written atomically (nothing at --output unless complete).
 """
 
 from __future__ import annotations
@@ -106,12 +99,8 @@ def detect_bag(
     keep_images: bool = False,
     progress: bool = True,
 ) -> DetectStats:
-    """Run the detector over ``source_path``; write ``output``; return the statistics.
-
-    Raises:
-        BagError: the input has no image or camera_info topic, or cannot be read or written.
-        ParameterError: ``values`` hold an invalid setting.
-    """
+    """Run the detector over ``source_path``, write ``output``, return the statistics;
+    BagError for an unusable bag or no usable image, ParameterError for a bad setting."""
     try:
         processor = MarkerProcessor(
             detector_config(values), extrinsics_config(values), search_plan(values)

@@ -1,18 +1,7 @@
 """The marker_detector's ROS-free processor: camera model, extrinsics and per-image detection.
-
-The node hands it camera_info fields, static transforms and decoded images; it returns, per
-image, the detections in the camera optical frame, the rejected markers with their reasons,
-and range-bearing observations in the robot base frame. Inputs it cannot use raise
-``InputError`` with the reason (no camera_info yet, no transform from the camera to the base
-frame yet, an image the camera model does not fit); the node logs it and goes on.
-
-Extrinsics come from one of two sources:
-
-- ``tf_static``: the transforms received on /tf_static, chained from the base frame to the
-  image's frame id (the camera optical frame);
-- ``parameters``: camera_link in the base frame as x, y, z and roll, pitch, yaw; the optical
-  frame is camera_link rotated by REP 103's optical convention (z forward, x right, y down).
-"""
+Per image: detections (camera optical frame), rejections and range-bearing observations (base
+frame); an unusable input raises ``InputError`` with the reason. The camera mount comes from
+/tf_static or from parameters. Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -87,8 +76,7 @@ class MarkerProcessor:
         self.camera_frame = frame_id
 
     def no_camera_reason(self) -> str:
-        """Why there is no camera model (images wait or are dropped): the rejection of the
-        last camera_info, or that none came."""
+        """Why there is no camera model: the last camera_info's rejection, or that none came."""
         if self.camera_info_error is not None:
             return (
                 f'no usable camera_info: {self.camera_info_error}; fix the calibration the '
@@ -135,8 +123,7 @@ class MarkerProcessor:
         )
 
     def _detect(self, stamp_ns: int, image: np.ndarray, camera: CameraModel) -> DetectionResult:
-        """Detect in the search plan's boxes, or the whole image when it says so or a box
-        search missed a followed marker (``core.roi``)."""
+        """Detect in the search plan's boxes, or in the whole image (``core.roi``)."""
         boxes = self.search.boxes(stamp_ns, image.shape)
         result = detect_markers(image, camera, self.config, self.detector, boxes)
         full = boxes is None

@@ -47,7 +47,7 @@ class DepthStart:
         return True
 
     def next(self, flush: bool = False) -> tuple[Features, DepthImage | None] | None:
-        """Return the oldest held frame with its depth image (None: none can pair), or None yet."""
+        """Return the oldest held frame and its depth (None: cannot pair), or None while it may."""
         if not self.frames:
             return None
         frame = self.frames[0]

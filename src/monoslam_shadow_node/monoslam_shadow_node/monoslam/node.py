@@ -1,8 +1,9 @@
 """monoslam: tracked features and the initialization target in, camera pose and map out.
 
-The MonoSLAM filter of paper 001 (sec. II, ``core.monoslam.MonoSlam``; ``processor``): one EKF
-over the camera and a map of static point features, started from known points (a marker of
-known size and pose, a depth image or a file) or fixed by the Shadow filter's handovers.
+The MonoSLAM filter of paper 001 (sec. II, ``core.monoslam.MonoSlam``, run by ``processor``):
+one EKF over the camera and a map of static point features, started from known points (a
+marker of known size and pose, a depth image or a file); with the Shadow filter
+(``initialize`` 'handover') the features it hands over as static fix the camera.
 
 Topics:
   subscribes  features (FeatureTrackArray), fiducials (FiducialArray: the target's corners

@@ -1,6 +1,7 @@
-"""The monoslam node's ROS-free processor: stamp pairing, tracking state, handover intake and
-bookkeeping around ``core.monoslam.MonoSlam``; each call returns ``MonoSlamStep``s and
-``Notice``s in order. Design notes: docs/design/monoslam_core.md.
+"""The monoslam node's ROS-free processor around ``core.monoslam.MonoSlam``.
+
+Each call returns ``MonoSlamStep``s and ``Notice``s in order. Design notes:
+docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations

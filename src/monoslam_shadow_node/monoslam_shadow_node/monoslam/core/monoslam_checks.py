@@ -1,4 +1,7 @@
-"""MonoSLAM's checks: frame and handover input, known points after the update, tracking loss."""
+"""MonoSLAM's checks: frame and handover input, known points after the update, tracking loss.
+
+Design notes: docs/design/monoslam_core.md.
+"""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The MonoSLAM EKF steps on a FilterState: constant velocity prediction, predicted measurements
-with their innovation covariances, gated and consider updates in Joseph form.
+"""The MonoSLAM EKF steps: prediction, search regions, gated and consider updates (Joseph form).
 
 Design notes: docs/design/monoslam_core.md.
 """

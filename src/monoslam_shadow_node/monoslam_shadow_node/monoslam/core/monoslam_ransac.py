@@ -193,7 +193,7 @@ def hypothesis_mean(
 
 
 def predicted_pixels(camera_model: CameraModel, x: FloatArray, wanted: list[Match]) -> FloatArray:
-    """Return the matches' pixels (M, 2) from the mean ``x`` (NaN where not visible)."""
+    """Return the matches' pixels (M, 2) from the mean ``x``, offset states added (NaN: unseen)."""
     centre = x[R_SLICE]
     rotation_t = rotation_from_quaternion(x[Q_SLICE]).T
     points: list[tuple[FloatArray, FloatArray | None]] = []

@@ -1,5 +1,6 @@
-"""A MonoSlam filter's whole state as named arrays and JSON values, its restoration, and what a
-restored filter does over the gap to its next frame. Design notes: docs/design/monoslam_core.md.
+"""A MonoSlam filter's whole state as arrays and JSON, its restoration, and the resume gap.
+
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations

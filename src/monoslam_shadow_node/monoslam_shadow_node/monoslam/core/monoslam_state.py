@@ -1,6 +1,7 @@
 """The MonoSLAM state: the camera then one block per map feature in x and P, and its edits.
 
 x (n,) = [camera (13): r, q, v, w | feature blocks (6 or 3, + 2 offset states)], P (n, n).
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations

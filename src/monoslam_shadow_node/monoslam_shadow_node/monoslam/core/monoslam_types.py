@@ -1,4 +1,7 @@
-"""The MonoSLAM filter's interface: settings, frame input, map point, result, states, error."""
+"""The MonoSLAM filter's interface: settings, frame input, map point, result, states, error.
+
+Design notes: docs/design/monoslam_core.md.
+"""
 
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
-"""The tracker's noise estimated online from the tracks SLAM trusts, each sighting against its
-track's point fixed over the track (ROS-free). Design notes: docs/design/monoslam_core.md.
+"""The tracker's noise estimated online from sightings against their track's fixed point.
+
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
-"""The variogram of tracking residuals over time lag, streamed with bounded memory and robust to a
-common term, outliers and re-anchoring jumps. Design notes: docs/design/monoslam_core.md.
+"""The variogram of tracking residuals over time lag, streamed, bounded and robust.
+
+Design notes: docs/design/monoslam_core.md.
 """
 
 from __future__ import annotations
