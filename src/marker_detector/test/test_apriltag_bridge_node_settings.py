@@ -1,5 +1,5 @@
-"""The apriltag_bridge node's docstring and config YAML agree with its declared parameters,
-and bad parameter values are refused naming the parameter."""
+"""The apriltag_bridge parameters: its defaults make apriltag_ros's config, and bad values
+are refused naming the parameter."""
 
 from __future__ import annotations
 
@@ -7,31 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from marker_detector.apriltag_bridge import node as apriltag_bridge_node
 from marker_detector.apriltag_bridge.settings import PARAMETERS, bridge_config, parse_tag_frames
 from slam_core.errors import ParameterError
-from slam_ros.testing.node_contract import (
-    NODE_DOCSTRING_MAX_LINES,
-    config_mismatches,
-    docstring_lines,
-    docstring_mismatches,
-    help_without_parameters,
-)
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config' / 'apriltag_bridge.yaml'
-
-
-def test_help_lists_every_parameter_and_the_docstring_stays_short() -> None:
-    assert help_without_parameters(apriltag_bridge_node, 'apriltag_bridge') == []
-    assert docstring_lines(apriltag_bridge_node) <= NODE_DOCSTRING_MAX_LINES
-
-
-def test_config_yaml_matches_declared_parameters() -> None:
-    assert config_mismatches(apriltag_bridge_node, CONFIG) == []
-
-
-def test_docstring_types_and_defaults_match_the_declaration() -> None:
-    assert docstring_mismatches(apriltag_bridge_node) == []
 
 
 def test_the_defaults_make_a_config_like_apriltag_ros_names() -> None:

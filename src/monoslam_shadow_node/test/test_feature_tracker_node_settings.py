@@ -29,13 +29,6 @@ from monoslam_shadow_node.feature_tracker.processor import (
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
-from slam_ros.testing.node_contract import (
-    NODE_DOCSTRING_MAX_LINES,
-    config_mismatches,
-    docstring_lines,
-    docstring_mismatches,
-    help_without_parameters,
-)
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'feature_tracker.yaml'
@@ -45,19 +38,6 @@ S = 1_000_000_000
 
 
 # --- parameters ----------------------------------------------------------------------------
-
-
-def test_help_lists_every_parameter_and_the_docstring_stays_short() -> None:
-    assert help_without_parameters(feature_tracker_node, 'feature_tracker') == []
-    assert docstring_lines(feature_tracker_node) <= NODE_DOCSTRING_MAX_LINES
-
-
-def test_docstring_types_and_defaults_match_the_declaration() -> None:
-    assert docstring_mismatches(feature_tracker_node) == []
-
-
-def test_config_yaml_matches_declared_parameters() -> None:
-    assert config_mismatches(feature_tracker_node, CONFIG) == []
 
 
 def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None:
@@ -175,22 +155,6 @@ def test_a_missing_parameter_is_named() -> None:
         ParameterError, match=r'parameter feature_tracker\.max_features is missing'
     ):
         settings.tracker_config(values)
-
-
-def test_parameter_file_errors_name_the_file_and_key(tmp_path: Path) -> None:
-    stray = tmp_path / 'stray.yaml'
-    stray.write_text('/**:\n  ros__parameters:\n    max_features: 90\n    speed: 2.0\n')
-    with pytest.raises(
-        ParameterError, match=r"stray\.yaml.*'speed' is not a parameter of node feature_tracker"
-    ):
-        settings.PARAMETERS.read_yaml(stray)
-    empty = tmp_path / 'empty.yaml'
-    empty.write_text('feature_tracker: {}\n')
-    with pytest.raises(ParameterError, match='no "/\\*\\*: ros__parameters:"'):
-        settings.PARAMETERS.read_yaml(empty)
-    named = tmp_path / 'named.yaml'
-    named.write_text('feature_tracker:\n  ros__parameters:\n    max_features: 90\n')
-    assert settings.PARAMETERS.read_yaml(named)['max_features'] == 90
 
 
 # --- processor -----------------------------------------------------------------------------

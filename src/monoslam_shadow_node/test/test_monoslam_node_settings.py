@@ -52,13 +52,6 @@ from monoslam_shadow_node.shadow_filter.conversions import revoked_from_message
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
-from slam_ros.testing.node_contract import (
-    NODE_DOCSTRING_MAX_LINES,
-    config_mismatches,
-    docstring_lines,
-    docstring_mismatches,
-    help_without_parameters,
-)
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'monoslam.yaml'
@@ -68,19 +61,6 @@ DEFAULTS = monoslam_settings.PARAMETERS.defaults()
 
 
 # --- parameters ----------------------------------------------------------------------------
-
-
-def test_help_lists_every_parameter_and_the_docstring_stays_short() -> None:
-    assert help_without_parameters(monoslam_node, 'monoslam') == []
-    assert docstring_lines(monoslam_node) <= NODE_DOCSTRING_MAX_LINES
-
-
-def test_docstring_types_and_defaults_match_the_declaration() -> None:
-    assert docstring_mismatches(monoslam_node) == []
-
-
-def test_config_yaml_matches_declared_parameters() -> None:
-    assert config_mismatches(monoslam_node, CONFIG) == []
 
 
 def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None:
@@ -227,15 +207,6 @@ def test_trajectory_file_must_not_be_a_directory(tmp_path: Path) -> None:
         monoslam_settings.node_settings({**DEFAULTS, 'trajectory_file': str(tmp_path)})
     named = monoslam_settings.node_settings({**DEFAULTS, 'trajectory_file': '~/run.tum'})
     assert named.trajectory_file == Path('~/run.tum').expanduser()
-
-
-def test_parameter_file_errors_name_the_file_and_key(tmp_path: Path) -> None:
-    stray = tmp_path / 'stray.yaml'
-    stray.write_text('/**:\n  ros__parameters:\n    target_size_m: 0.3\n    speed: 2.0\n')
-    with pytest.raises(
-        ParameterError, match=r"stray\.yaml.*'speed' is not a parameter of node monoslam"
-    ):
-        monoslam_settings.PARAMETERS.read_yaml(stray)
 
 
 # --- conversions ---------------------------------------------------------------------------

@@ -50,13 +50,6 @@ from monoslam_shadow_node.shadow_filter.core.shadow_filter import (
 from slam_core.errors import ParameterError
 from slam_interfaces.msg import FeatureTrack, FeatureTrackArray, ShadowTrack, ShadowTrackArray
 from slam_ros.testing.launch_files import check_launched_node, launched_node
-from slam_ros.testing.node_contract import (
-    NODE_DOCSTRING_MAX_LINES,
-    config_mismatches,
-    docstring_lines,
-    docstring_mismatches,
-    help_without_parameters,
-)
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
 CONFIG = PACKAGE_DIR / 'config' / 'shadow_filter.yaml'
@@ -65,19 +58,6 @@ MS = 1_000_000
 
 
 # --- parameters ----------------------------------------------------------------------------
-
-
-def test_help_lists_every_parameter_and_the_docstring_stays_short() -> None:
-    assert help_without_parameters(shadow_filter_node, 'shadow_filter') == []
-    assert docstring_lines(shadow_filter_node) <= NODE_DOCSTRING_MAX_LINES
-
-
-def test_docstring_types_and_defaults_match_the_declaration() -> None:
-    assert docstring_mismatches(shadow_filter_node) == []
-
-
-def test_config_yaml_matches_declared_parameters() -> None:
-    assert config_mismatches(shadow_filter_node, CONFIG) == []
 
 
 def test_config_yaml_holds_the_defaults_and_they_are_the_core_defaults() -> None:
@@ -175,22 +155,6 @@ def test_horizon_must_exceed_the_tolerance() -> None:
         ParameterError, match=r'sync_horizon_s=0\.5: must exceed stamp_tolerance_s'
     ):
         settings.node_settings(values)
-
-
-def test_parameter_file_errors_name_the_file_and_key(tmp_path: Path) -> None:
-    stray = tmp_path / 'stray.yaml'
-    stray.write_text('/**:\n  ros__parameters:\n    alpha: 0.01\n    speed: 2.0\n')
-    with pytest.raises(
-        ParameterError, match=r"stray\.yaml.*'speed' is not a parameter of node shadow_filter"
-    ):
-        settings.PARAMETERS.read_yaml(stray)
-    empty = tmp_path / 'empty.yaml'
-    empty.write_text('shadow_filter: {}\n')
-    with pytest.raises(ParameterError, match='no "/\\*\\*: ros__parameters:"'):
-        settings.PARAMETERS.read_yaml(empty)
-    named = tmp_path / 'named.yaml'
-    named.write_text('shadow_filter:\n  ros__parameters:\n    alpha: 0.01\n')
-    assert settings.PARAMETERS.read_yaml(named)['alpha'] == 0.01
 
 
 # --- conversions ---------------------------------------------------------------------------

@@ -157,6 +157,24 @@ class Param:
         return self.default
 
 
+def config_param(
+    defaults: object, field: str, description: str, name: str = '', **rules: Any
+) -> Param:
+    """A parameter that sets ``field`` of a core config (dotted: ``section.field``), named
+    ``name`` (default: the field's name), its default read from ``defaults`` (the config,
+    or an object holding its sections): the core config is the value's one source.
+    ``rules`` are Param's keywords (range, choices, ...); a ``to_field`` conversion needs
+    an explicit Param."""
+    if 'to_field' in rules:
+        raise TypeError(f'config_param({field!r}): a converted field needs an explicit Param')
+    value: Any = defaults
+    for part in field.split('.'):
+        value = getattr(value, part)
+    if isinstance(value, tuple):
+        value = list(value)
+    return Param(name or field.rpartition('.')[2], value, description, field=field, **rules)
+
+
 class ParamTable:
     """The parameters of one node, in declaration order, by name."""
 

@@ -1,13 +1,9 @@
-"""em_sam_mapper's parameters and their validation into a MapperConfig (ROS-free).
-
-``PARAMETERS`` is the node's one declaration (``em_sam_mapper_node`` declares it and documents
-it in its docstring); the EM-SAM parameters set the fields of the core's ``EmConfig``
-(``Param.field`` ``em.<field>``; ``max_em_iterations`` is its ``max_iterations``), three set
-``MapperConfig``, the rest configure the node (periods, frames, report directory).
-"""
+"""em_sam_mapper's parameters (``PARAMETERS``) and their validation into a MapperConfig
+(ROS-free); see docs/design/em_sam_core.md."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import Any
 
 from em_sam_node.core.em_types import MODES, SEED_KERNELS, EmConfig
@@ -20,7 +16,10 @@ from slam_core.params import (
     Param,
     ParamTable,
     Range,
+    config_param,
 )
+
+_DEFAULTS = SimpleNamespace(em=EmConfig(), mapper=MapperConfig(em=EmConfig()))
 
 SOLVER_METHODS = ('levenberg_marquardt', 'gauss_newton')
 SLAM_MODES = ('mapping', 'localization')
@@ -71,132 +70,106 @@ PARAMETERS = ParamTable(
             length=3,
             range=POSITIVE,
         ),
-        Param(
-            'em_mode',
-            'robust',
+        config_param(
+            _DEFAULTS,
+            'em.mode',
             "EM-SAM weight model: 'paper' (as published) or 'robust'",
+            name='em_mode',
             choices=MODES,
-            field='em.mode',
         ),
-        Param(
-            'lagrange_lambda',
-            50.0,
-            'lambda of eq. 14 in paper mode',
-            range=POSITIVE,
-            field='em.lagrange_lambda',
+        config_param(
+            _DEFAULTS, 'em.lagrange_lambda', 'lambda of eq. 14 in paper mode', range=POSITIVE
         ),
-        Param(
-            'moveable_threshold',
-            0.5,
+        config_param(
+            _DEFAULTS,
+            'em.moveable_threshold',
             'weights below this are moveable',
             range=PROBABILITY,
-            field='em.moveable_threshold',
         ),
-        Param(
-            'max_em_iterations',
-            20,
+        config_param(
+            _DEFAULTS,
+            'em.max_iterations',
             'maximum EM iterations',
+            name='max_em_iterations',
             range=AT_LEAST_ONE,
-            field='em.max_iterations',
         ),
-        Param(
-            'weight_tolerance',
-            0.001,
-            'EM stops when no weight changes more than this',
-            field='em.weight_tolerance',
+        config_param(
+            _DEFAULTS, 'em.weight_tolerance', 'EM stops when no weight changes more than this'
         ),
-        Param(
-            'false_alarm_probability',
-            0.001,
+        config_param(
+            _DEFAULTS,
+            'em.false_alarm_probability',
             'robust: per-landmark test level',
-            field='em.false_alarm_probability',
+            range=PROBABILITY,
         ),
-        Param(
-            'gate_probability',
-            0.0001,
+        config_param(
+            _DEFAULTS,
+            'em.gate_probability',
             'robust: per-sighting outlier gate level',
-            field='em.gate_probability',
+            range=PROBABILITY,
         ),
-        Param(
-            'max_gated_fraction',
-            0.1,
+        config_param(
+            _DEFAULTS,
+            'em.max_gated_fraction',
             "robust: largest share of a landmark's sightings gated",
-            field='em.max_gated_fraction',
         ),
-        Param(
-            'seed_kernel',
-            'cauchy',
-            'robust: first E-step kernel',
-            choices=tuple(SEED_KERNELS),
-            field='em.seed_kernel',
+        config_param(
+            _DEFAULTS, 'em.seed_kernel', 'robust: first E-step kernel', choices=tuple(SEED_KERNELS)
         ),
-        Param(
-            'seed_kernel_scale',
-            2.3849,
+        config_param(
+            _DEFAULTS,
+            'em.seed_kernel_scale',
             'robust: first E-step kernel scale, sigmas',
             range=POSITIVE,
-            field='em.seed_kernel_scale',
         ),
-        Param(
-            'seed_chunk_s',
-            20.0,
+        config_param(
+            _DEFAULTS,
+            'em.seed_chunk_s',
             'robust: first E-step shortest prefix step, s',
             range=POSITIVE,
-            field='em.seed_chunk_s',
         ),
-        Param(
-            'seed_growth',
-            0.1,
+        config_param(
+            _DEFAULTS,
+            'em.seed_growth',
             'robust: first E-step prefix growth, fraction of the time solved',
             range=POSITIVE,
-            field='em.seed_growth',
         ),
-        Param(
-            'calibrate_odometry',
-            True,
+        config_param(
+            _DEFAULTS,
+            'em.calibrate_odometry',
             'robust: estimate the odometry translation and rotation scales with the trajectory',
-            field='em.calibrate_odometry',
         ),
-        Param(
-            'estimate_noise_scale',
-            True,
+        config_param(
+            _DEFAULTS,
+            'em.estimate_noise_scale',
             'robust: inflate range/bearing variances by their variance factors',
-            field='em.estimate_noise_scale',
         ),
-        Param(
-            'max_noise_scale',
-            10.0,
+        config_param(
+            _DEFAULTS,
+            'em.max_noise_scale',
             'robust: cap of the sighting variance factors',
             range=Range(1.0),
-            field='em.max_noise_scale',
         ),
-        Param(
-            'model_error_m',
-            0.15,
+        config_param(
+            _DEFAULTS,
+            'em.model_error_m',
             'robust: position error the moveable test tolerates, m',
             range=NON_NEGATIVE,
-            field='em.model_error_m',
         ),
-        Param(
-            'final_kernel',
-            'cauchy',
+        config_param(
+            _DEFAULTS,
+            'em.final_kernel',
             "robust: final solve kernel ('none': least squares)",
             choices=('none', *SEED_KERNELS),
-            field='em.final_kernel',
         ),
-        Param(
-            'final_kernel_scale',
-            2.3849,
+        config_param(
+            _DEFAULTS,
+            'em.final_kernel_scale',
             'robust: final solve kernel scale, sigmas',
             range=POSITIVE,
-            field='em.final_kernel_scale',
         ),
-        Param(
-            'solver_method',
-            'levenberg_marquardt',
-            'least-squares solver',
-            choices=SOLVER_METHODS,
-            field='em.solver_method',
+        config_param(
+            _DEFAULTS, 'em.solver_method', 'least-squares solver', choices=SOLVER_METHODS
         ),
         Param(
             'optimize_period_s',
@@ -204,20 +177,18 @@ PARAMETERS = ParamTable(
             're-solve period when new data came, s; 0 = on request',
             range=NON_NEGATIVE,
         ),
-        Param(
-            'online',
-            True,
+        config_param(
+            _DEFAULTS,
+            'mapper.online',
             'also smooth incrementally (iSAM2) with the EM weights per keyframe, publishing '
             'the moveable set as it changes (docs/design/em_sam_online.md); the full pass '
             'runs on optimize_period_s and ~/optimize',
-            field='mapper.online',
         ),
-        Param(
-            'stamp_tolerance_s',
-            0.005,
+        config_param(
+            _DEFAULTS,
+            'mapper.stamp_tolerance_s',
             'observation-to-keyframe stamp tolerance, s',
             range=NON_NEGATIVE,
-            field='mapper.stamp_tolerance_s',
         ),
         Param(
             'prior_sigma',
@@ -263,8 +234,7 @@ PARAMETERS = ParamTable(
 
 
 def config_from_parameters(values: dict[str, Any]) -> MapperConfig:
-    """Validate parameter values into a MapperConfig (raises ParameterError); the saved map
-    of localization is not read here (``em_sam_mapper_node`` loads it)."""
+    """Validate parameter values into a MapperConfig (raises ParameterError); no map read."""
     checked = PARAMETERS.validate(values)
     return PARAMETERS.build(
         lambda: MapperConfig(

@@ -5,17 +5,28 @@ from __future__ import annotations
 from typing import Any
 
 from em_sam_node.odometry_ingest.processor import IngestConfig
-from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
+from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, config_param
+
+_DEFAULTS = IngestConfig()
 
 PARAMETERS = ParamTable(
     'odometry_ingest',
     (
-        Param('keyframe_distance_m', 0.5, 'keyframe after this much travel, m', range=POSITIVE),
-        Param('keyframe_angle_rad', 0.35, 'keyframe after this much turning, rad', range=POSITIVE),
-        Param('keyframe_interval_s', 5.0, 'keyframe after this long, s', range=POSITIVE),
-        Param(
+        config_param(
+            _DEFAULTS, 'keyframe_distance_m', 'keyframe after this much travel, m', range=POSITIVE
+        ),
+        config_param(
+            _DEFAULTS,
+            'keyframe_angle_rad',
+            'keyframe after this much turning, rad',
+            range=POSITIVE,
+        ),
+        config_param(
+            _DEFAULTS, 'keyframe_interval_s', 'keyframe after this long, s', range=POSITIVE
+        ),
+        config_param(
+            _DEFAULTS,
             'observation_delay_s',
-            0.5,
             'hold keyframes back this long for late observations, s (< max_buffer_s)',
             range=NON_NEGATIVE,
         ),
@@ -27,27 +38,33 @@ PARAMETERS = ParamTable(
             range=NON_NEGATIVE,
             to_field=tuple,
         ),
-        Param(
-            'min_sigma_xy_m', 0.002, 'noise floor of an increment in x and y, m', range=POSITIVE
+        config_param(
+            _DEFAULTS,
+            'min_sigma_xy_m',
+            'noise floor of an increment in x and y, m',
+            range=POSITIVE,
         ),
-        Param(
+        config_param(
+            _DEFAULTS,
             'min_sigma_theta_rad',
-            0.002,
             'noise floor of an increment in heading, rad',
             range=POSITIVE,
         ),
-        Param(
+        config_param(
+            _DEFAULTS,
             'reset_jump_m',
-            1.0,
             'a jump larger than this between samples is a reset, m',
             range=POSITIVE,
         ),
-        Param(
-            'reset_speed_mps', 5.0, 'a jump is a reset only above this speed, m/s', range=POSITIVE
+        config_param(
+            _DEFAULTS,
+            'reset_speed_mps',
+            'a jump is a reset only above this speed, m/s',
+            range=POSITIVE,
         ),
-        Param(
+        config_param(
+            _DEFAULTS,
             'reset_backwards_s',
-            1.0,
             'a stamp going back more than this is a reset, s',
             range=POSITIVE,
         ),
@@ -59,10 +76,12 @@ PARAMETERS = ParamTable(
             range=POSITIVE,
             to_field=tuple,
         ),
-        Param('max_buffer_s', 30.0, 'odometry kept for interpolation, s', range=POSITIVE),
-        Param(
+        config_param(
+            _DEFAULTS, 'max_buffer_s', 'odometry kept for interpolation, s', range=POSITIVE
+        ),
+        config_param(
+            _DEFAULTS,
             'startup_hold_s',
-            5.0,
             'hold the first keyframes until an observation is on time, at most this long, s '
             '(< max_buffer_s)',
             range=NON_NEGATIVE,

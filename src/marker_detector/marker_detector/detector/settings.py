@@ -1,10 +1,5 @@
-"""marker_detector's parameters and their validation into configs (ROS-free).
-
-``PARAMETERS`` is the node's one declaration; the node declares it and the offline tool
-(``marker_detect_bag``) reads the node's YAML files with ``PARAMETERS.read_yaml``, so both
-accept exactly the same settings. The detector parameters (dictionary ... pixel_noise_px)
-are dynamic: the node accepts them at run time.
-"""
+"""marker_detector's parameters (``PARAMETERS``, read by the node and by marker_detect_bag)
+and their validation into configs (ROS-free). Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
@@ -19,7 +14,15 @@ from marker_detector.core.frame_types import EXTRINSICS_SOURCES, ExtrinsicsConfi
 from marker_detector.core.roi import SearchPlan
 from slam_core.errors import ParameterError
 from slam_core.images import DEFAULT_MAX_IMAGE_PIXELS
-from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamType, Range
+from slam_core.params import (
+    NON_NEGATIVE,
+    POSITIVE,
+    Param,
+    ParamTable,
+    ParamType,
+    Range,
+    config_param,
+)
 
 NODE_NAME = 'marker_detector'
 IMAGE_TRANSPORTS = ('raw', 'compressed')
@@ -87,13 +90,13 @@ DETECTOR_PARAMETERS = (
         choices=tuple(DICTIONARIES),
         read_only=False,
     ),
-    Param(
-        'marker_size_m',
-        0.16,
+    config_param(
+        DetectorConfig(),
+        'default_marker_size_m',
         'black square side of every marker, m',
+        name='marker_size_m',
         range=POSITIVE,
         read_only=False,
-        field='default_marker_size_m',
     ),
     Param(
         'marker_sizes_m',
@@ -173,12 +176,12 @@ PARAMETERS = ParamTable(
             range=NON_NEGATIVE,
         ),
         Param('base_frame', 'base_link', 'frame of the range-bearing observations'),
-        Param(
-            'extrinsics_source',
-            'tf_static',
+        config_param(
+            ExtrinsicsConfig(),
+            'source',
             'where the camera mount comes from',
+            name='extrinsics_source',
             choices=EXTRINSICS_SOURCES,
-            field='source',
         ),
         Param(
             'camera_xyz_m',
@@ -268,8 +271,7 @@ def extrinsics_config(values: dict[str, Any]) -> ExtrinsicsConfig:
 
 
 def apply_overrides(values: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
-    """Return ``values`` with 'name=value' overrides applied (values parsed as YAML);
-    raise ParameterError for an unknown name (with the closest one) or a bad value."""
+    """Return ``values`` with 'name=value' overrides (YAML values); ParameterError if bad."""
     result = dict(values)
     for override in overrides:
         name, sep, text = override.partition('=')

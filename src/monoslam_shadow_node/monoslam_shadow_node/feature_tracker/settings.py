@@ -11,7 +11,7 @@ from typing import Any
 
 from monoslam_shadow_node.feature_tracker.core.feature_config import TrackerConfig
 from slam_core.images import DEFAULT_MAX_IMAGE_PIXELS
-from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable
+from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, config_param
 
 NODE_NAME = 'feature_tracker'
 IMAGE_TRANSPORTS = ('raw', 'compressed')
@@ -42,7 +42,7 @@ _CORE_DESCRIPTIONS = {
     'max_dormant': 'dropped tracks remembered for re-identification (>= 0)',
 }
 CORE_PARAMETERS = tuple(
-    Param(item.name, getattr(_CORE, item.name), _CORE_DESCRIPTIONS[item.name], field=item.name)
+    config_param(_CORE, item.name, _CORE_DESCRIPTIONS[item.name])
     for item in dataclasses.fields(TrackerConfig)
 )
 NODE_PARAMETERS = (

@@ -17,7 +17,14 @@ from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
 from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig
 from monoslam_shadow_node.monoslam.known_points_input import KnownPointRows, read_known_points
 from slam_core.arrays import FloatArray
-from slam_core.params import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Param, ParamTable
+from slam_core.params import (
+    AT_LEAST_ONE,
+    NON_NEGATIVE,
+    POSITIVE,
+    Param,
+    ParamTable,
+    config_param,
+)
 
 NODE_NAME = 'monoslam'
 TARGET_CORNERS = 4
@@ -26,7 +33,7 @@ _CORE = MonoSlamConfig()
 
 
 def _core(field: str, description: str, name: str = '') -> Param:
-    return Param(name or field, getattr(_CORE, field), description, field=field)
+    return config_param(_CORE, field, description, name)
 
 
 CORE_PARAMETERS = (

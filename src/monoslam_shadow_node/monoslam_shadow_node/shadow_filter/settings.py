@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 from monoslam_shadow_node.shadow_filter.core.shadow_classifier import (
@@ -15,7 +16,15 @@ from monoslam_shadow_node.shadow_filter.core.shadow_classifier import (
 )
 from monoslam_shadow_node.shadow_filter.core.shadow_ekf import EkfConfig
 from monoslam_shadow_node.shadow_filter.core.shadow_filter import ShadowConfig
-from slam_core.params import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Param, ParamTable, Range
+from slam_core.params import (
+    AT_LEAST_ONE,
+    NON_NEGATIVE,
+    POSITIVE,
+    Param,
+    ParamTable,
+    Range,
+    config_param,
+)
 
 NODE_NAME = 'shadow_filter'
 
@@ -23,9 +32,11 @@ _EKF, _CLASSIFIER = EkfConfig(), ClassifierConfig()
 _SHADOW = ShadowConfig()
 
 
+_DEFAULTS = SimpleNamespace(ekf=_EKF, classifier=_CLASSIFIER, shadow=_SHADOW)
+
+
 def _core(section: str, field: str, description: str) -> Param:
-    default = getattr({'ekf': _EKF, 'classifier': _CLASSIFIER, 'shadow': _SHADOW}[section], field)
-    return Param(field, default, description, field=f'{section}.{field}')
+    return config_param(_DEFAULTS, f'{section}.{field}', description)
 
 
 CORE_PARAMETERS = (
