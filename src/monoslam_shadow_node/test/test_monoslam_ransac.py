@@ -278,3 +278,23 @@ def test_the_preview_is_the_update_where_the_rescue_reads_it() -> None:
     np.testing.assert_allclose(
         preview.p[np.ix_(rows, rows)], full.p[np.ix_(rows, rows)], atol=1e-12, rtol=1e-9
     )
+
+
+def test_every_update_mode_names_one_update_and_it_is_the_one_used() -> None:
+    """The SLAM update is chosen once from MonoSlamConfig.update: each mode has its update,
+    and the filter calls the one its config names."""
+    from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
+    from monoslam_shadow_node.monoslam.core.monoslam_types import UPDATE_MODES
+    from monoslam_shadow_node.monoslam.core.monoslam_update import (
+        SLAM_UPDATES,
+        GatedUpdate,
+        RansacUpdate,
+        slam_update,
+    )
+
+    assert set(SLAM_UPDATES) == set(UPDATE_MODES)
+    assert isinstance(slam_update('gated'), GatedUpdate)
+    assert isinstance(slam_update('ransac'), RansacUpdate)
+    for mode in UPDATE_MODES:
+        filter_ = MonoSlam(CAMERA, MonoSlamConfig(update=mode))
+        assert filter_._slam_update is SLAM_UPDATES[mode]

@@ -21,7 +21,6 @@ from monoslam_shadow_node.monoslam.core.monoslam_checks import (
 )
 from monoslam_shadow_node.monoslam.core.monoslam_ekf import (
     UpdateOutcome,
-    gated_update,
     pose_cross,
     predict,
     predicted_measurements,
@@ -44,7 +43,6 @@ from monoslam_shadow_node.monoslam.core.monoslam_model import (
     V_SLICE,
     W_SLICE,
 )
-from monoslam_shadow_node.monoslam.core.monoslam_ransac import ransac_update
 from monoslam_shadow_node.monoslam.core.monoslam_state import FeatureBlock, FilterState
 from monoslam_shadow_node.monoslam.core.monoslam_types import (
     LOST,
@@ -56,6 +54,7 @@ from monoslam_shadow_node.monoslam.core.monoslam_types import (
     MonoSlamResult,
     UpdateCounts,
 )
+from monoslam_shadow_node.monoslam.core.monoslam_update import slam_update
 from monoslam_shadow_node.monoslam.core.monoslam_views import TemplateViews, prediction_warps
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
@@ -97,6 +96,7 @@ class MonoSlam:
         self._known_rejected_frames = 0
         self._known_rejected = (0, 0)  # (rejected, in view) in the latest such frame
         self._rng = np.random.default_rng(self.config.ransac_seed)
+        self._slam_update = slam_update(self.config.update)
         self._lost_pose: FloatArray | None = None  # a depth re-start keeps the world
 
     @property
@@ -128,6 +128,7 @@ class MonoSlam:
     def set_noise(self, config: MonoSlamConfig) -> None:
         """Measure with ``config`` (another tracking noise) from now on."""
         self.config = config
+        self._slam_update = slam_update(config.update)
         for feature in self._state.features if config.offset_states else []:
             self._state.add_offset(feature, config.tracking_offset_px)
 
@@ -343,9 +344,7 @@ class MonoSlam:
             (self._known[key], pixel)
             for key, pixel in zip(keys.tolist(), known_pixels, strict=True)
         ]
-        if self.config.update == 'gated':
-            return gated_update(self._state, self.camera, observed, known, self.config)
-        return ransac_update(self._state, self.camera, observed, known, self.config, self._rng)
+        return self._slam_update(self._state, self.camera, observed, known, self.config, self._rng)
 
     def _manage_map(
         self, observed: dict[int, FloatArray], rejected: list[int], in_view: set[int]
