@@ -30,7 +30,7 @@ graph:
     - name: ingest
       package: em_sam_node
       executable: odometry_ingest
-      plugin: em_sam_node.odometry_ingest.node:OdometryIngestNode
+      plugin: graph_example.ingest:IngestNode
       namespace: robot1
       parameters: [config/ingest.yaml, {max_gap_s: 0.5, frames: {odom: odom}}]
       remappings: {odom: /wheel/odom}

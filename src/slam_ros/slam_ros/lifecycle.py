@@ -1,4 +1,5 @@
-"""Lifecycle (managed) versions of our nodes on rclpy's API (docs/design/ros_and_core.md)."""
+"""Lifecycle (managed) versions of our nodes on rclpy's API, driven through
+``~/change_state`` (lifecycle_msgs/srv/ChangeState). Design notes: docs/design/ros_and_core.md."""
 
 from __future__ import annotations
 
