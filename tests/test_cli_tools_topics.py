@@ -73,7 +73,9 @@ def test_echo_field_and_no_arr(ros_harness: RosHarness) -> None:
 
 def test_echo_names_a_topic_that_is_not_there(ros_harness: RosHarness) -> None:
     latched_path(ros_harness, 1)
-    result = run_tool('slam_echo', '/cli_test/pth', '--once', '--wait', '2')
+    # the tool's fresh DDS participant must discover the publisher before the wait ends: 2 s
+    # was not enough on a busy 2-core machine (it saw only /parameter_events)
+    result = run_tool('slam_echo', '/cli_test/pth', '--once', '--wait', '6')
     assert result.returncode == 2
     assert "no topic '/cli_test/pth' on the ROS graph" in result.stderr
     assert "did you mean '/cli_test/path'" in result.stderr
