@@ -225,3 +225,43 @@ def test_no_package_file_is_longer_than_the_limit() -> None:
         if lines > MAX_FILE_LINES:
             long_files.append(f'{path.relative_to(SRC)}: {lines} lines')
     assert not long_files, '\n'.join(long_files)
+
+
+NODE_PACKAGES = ('em_sam_node', 'marker_detector', 'monoslam_shadow_node')
+ROOM_FILES = ('processor.py', 'settings.py', 'conversions.py', 'node.py')
+"""Every node of a node package lives in a room of these files (and may have more)."""
+
+
+def node_rooms() -> list[Path]:
+    """The rooms of the node packages: the subpackages with a node.py."""
+    return sorted(
+        path.parent
+        for package in NODE_PACKAGES
+        for path in (SRC / package / package).glob('*/node.py')
+    )
+
+
+def test_every_node_has_the_same_room() -> None:
+    """core/ beside the rooms (ROS-free), and in each room a processor, its settings, its
+    conversions and the rclpy node; the rooms' core types are imported from a core/."""
+    rooms = node_rooms()
+    assert {room.name for room in rooms} == {
+        'mapper', 'odometry_ingest', 'detector', 'apriltag_bridge',
+        'feature_tracker', 'monoslam', 'shadow_filter',
+    }  # fmt: skip
+    missing = [f'{room.relative_to(SRC)}/{name}' for room in rooms for name in ROOM_FILES
+               if not (room / name).is_file()]  # fmt: skip
+    assert missing == []
+    for package in NODE_PACKAGES:
+        assert (SRC / package / package / 'core' / '__init__.py').is_file() or all(
+            (room / 'core' / '__init__.py').is_file()
+            for room in rooms
+            if room.parent.name == package
+        ), package
+    stray = [
+        str(path.relative_to(SRC))
+        for package in NODE_PACKAGES
+        for path in (SRC / package / package).glob('*.py')
+        if path.name.endswith('_node.py') or path.name in ('processor.py', 'settings.py')
+    ]
+    assert stray == [], 'node-level modules outside a room'

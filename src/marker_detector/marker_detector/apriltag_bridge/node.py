@@ -19,14 +19,14 @@ import sys
 import time
 from typing import Any
 
-import numpy as np
 from apriltag_msgs.msg import AprilTagDetectionArray
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo
 from tf2_msgs.msg import TFMessage
 
-from marker_detector.apriltag_bridge.processor import AprilTagBridge, BridgeOutput, Tag
+from marker_detector.apriltag_bridge.conversions import tags_from_message
+from marker_detector.apriltag_bridge.processor import AprilTagBridge, BridgeOutput
 from marker_detector.apriltag_bridge.settings import PARAMETERS, bridge_config
 from marker_detector.common.conversions import (
     camera_info_fields,
@@ -44,18 +44,6 @@ from slam_ros.spin import spin_node
 
 CHECK_PERIOD_S = 0.1
 """How often waiting detections are checked against tf_wait_s."""
-
-
-def tags_from_message(message: Any) -> list[Tag]:
-    """The tags of an AprilTagDetectionArray (fields read by name)."""
-    return [
-        Tag(
-            family=str(item.family),
-            id=int(item.id),
-            corners_px=np.array([[c.x, c.y] for c in item.corners], dtype=np.float64),
-        )
-        for item in message.detections
-    ]
 
 
 class AprilTagBridgeNode(Node):
