@@ -284,17 +284,14 @@ def test_every_update_mode_names_one_update_and_it_is_the_one_used() -> None:
     """The SLAM update is chosen once from MonoSlamConfig.update: each mode has its update,
     and the filter calls the one its config names."""
     from monoslam_shadow_node.monoslam.core.monoslam import MonoSlam
+    from monoslam_shadow_node.monoslam.core.monoslam_ekf import gated_update
+    from monoslam_shadow_node.monoslam.core.monoslam_ransac import ransac_update
     from monoslam_shadow_node.monoslam.core.monoslam_types import UPDATE_MODES
-    from monoslam_shadow_node.monoslam.core.monoslam_update import (
-        SLAM_UPDATES,
-        GatedUpdate,
-        RansacUpdate,
-        slam_update,
-    )
+    from monoslam_shadow_node.monoslam.core.monoslam_update import SLAM_UPDATES, slam_update
 
     assert set(SLAM_UPDATES) == set(UPDATE_MODES)
-    assert isinstance(slam_update('gated'), GatedUpdate)
-    assert isinstance(slam_update('ransac'), RansacUpdate)
+    assert slam_update('ransac') is ransac_update
+    assert slam_update('gated') is not ransac_update and slam_update('gated') is not gated_update
     for mode in UPDATE_MODES:
         filter_ = MonoSlam(CAMERA, MonoSlamConfig(update=mode))
         assert filter_._slam_update is SLAM_UPDATES[mode]

@@ -1,9 +1,9 @@
 """The SLAM update, one seam: the gated update and the 1-point RANSAC update behind one
-protocol, chosen once from ``MonoSlamConfig.update`` by ``slam_update``."""
+signature, chosen once from ``MonoSlamConfig.update`` by ``slam_update``."""
 
 from __future__ import annotations
 
-from typing import Protocol
+from collections.abc import Callable
 
 import numpy as np
 
@@ -14,53 +14,34 @@ from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig
 from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 
-
-class SlamUpdate(Protocol):
-    """Correct ``state`` with one frame's measurements: ``observed`` pixels (2,) by feature
-    id and ``known`` (point (3,) m, pixel (2,)) pairs; ``rng`` draws any hypotheses."""
-
-    def __call__(
-        self,
-        state: FilterState,
-        camera: CameraModel,
-        observed: dict[int, FloatArray],
-        known: list[tuple[FloatArray, FloatArray]],
-        config: MonoSlamConfig,
-        rng: np.random.Generator,
-    ) -> UpdateOutcome: ...
-
-
-class GatedUpdate:
-    """Every measurement inside the chi-square gate (``monoslam_ekf.gated_update``)."""
-
-    def __call__(
-        self,
-        state: FilterState,
-        camera: CameraModel,
-        observed: dict[int, FloatArray],
-        known: list[tuple[FloatArray, FloatArray]],
-        config: MonoSlamConfig,
-        rng: np.random.Generator,
-    ) -> UpdateOutcome:
-        return gated_update(state, camera, observed, known, config)
+SlamUpdate = Callable[
+    [
+        FilterState,
+        CameraModel,
+        dict[int, FloatArray],
+        list[tuple[FloatArray, FloatArray]],
+        MonoSlamConfig,
+        np.random.Generator,
+    ],
+    UpdateOutcome,
+]
+"""Correct the state with one frame's measurements: observed pixels (2,) by feature id and
+(known point (3,) m, pixel (2,)) pairs; the generator draws any hypotheses."""
 
 
-class RansacUpdate:
-    """The 1-point RANSAC update (``monoslam_ransac.ransac_update``)."""
-
-    def __call__(
-        self,
-        state: FilterState,
-        camera: CameraModel,
-        observed: dict[int, FloatArray],
-        known: list[tuple[FloatArray, FloatArray]],
-        config: MonoSlamConfig,
-        rng: np.random.Generator,
-    ) -> UpdateOutcome:
-        return ransac_update(state, camera, observed, known, config, rng)
+def _gated(
+    state: FilterState,
+    camera: CameraModel,
+    observed: dict[int, FloatArray],
+    known: list[tuple[FloatArray, FloatArray]],
+    config: MonoSlamConfig,
+    rng: np.random.Generator,
+) -> UpdateOutcome:
+    """Every measurement inside the chi-square gate (draws nothing)."""
+    return gated_update(state, camera, observed, known, config)
 
 
-SLAM_UPDATES: dict[str, SlamUpdate] = {'gated': GatedUpdate(), 'ransac': RansacUpdate()}
+SLAM_UPDATES: dict[str, SlamUpdate] = {'gated': _gated, 'ransac': ransac_update}
 
 
 def slam_update(name: str) -> SlamUpdate:
