@@ -127,11 +127,11 @@ def _literal(node: ast.expr) -> bool:
     return True
 
 
-def _second_sources(path: Path) -> list[str]:
+def _second_sources(path: Path, root: Path = SRC) -> list[str]:
     """``Param(...)`` calls in ``path`` that set a core field (``field=``) with a literal
     default of their own instead of the core's (no ``to_field`` conversion in between)."""
     tree = ast.parse(path.read_text(encoding='utf-8'))
-    allowed = NODE_OVERRIDES.get(str(path.relative_to(SRC)), set())
+    allowed = NODE_OVERRIDES.get(str(path.relative_to(root)), set())
     found = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
@@ -144,7 +144,7 @@ def _second_sources(path: Path) -> list[str]:
                 and _literal(node.args[1])
                 and ast.literal_eval(node.args[0]) not in allowed
             ):
-                found.append(f'{path.relative_to(SRC)}:{node.lineno}')
+                found.append(f'{path.relative_to(root)}:{node.lineno}')
     return found
 
 
@@ -170,9 +170,4 @@ def test_the_second_source_check_can_fail(tmp_path: Path) -> None:
         "C = config_param(DEFAULTS, 'classifier.beta', 'level')\n"
         "D = Param('gamma', CORE.gamma, 'level', field='classifier.gamma')\n"
     )
-    global SRC
-    saved, SRC = SRC, tmp_path
-    try:
-        assert _second_sources(module) == ['pkg/pkg/settings.py:1']
-    finally:
-        SRC = saved
+    assert _second_sources(module, tmp_path) == ['pkg/pkg/settings.py:1']
