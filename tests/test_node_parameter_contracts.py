@@ -1,8 +1,9 @@
 """Every node's parameter contract, one table for all: its --help lists every declared
 parameter with type and default, its docstring stays a screen long and agrees with the
-declaration, its config YAML holds exactly the declared parameters, a parameter file's
-errors name the file and the key, and a parameter that sets a core config field takes its
-default from that config (``slam_core.params.config_param``), not from a second literal."""
+declaration, its config YAML is the one ``--print-config`` writes from the declaration, a
+parameter file's errors name the file and the key, and a parameter that sets a core config
+field takes its default from that config (``slam_core.params.config_param``), not from a
+second literal."""
 
 from __future__ import annotations
 
@@ -86,6 +87,16 @@ def test_docstring_types_and_defaults_match_the_declaration(case: NodeCase) -> N
 def test_config_yaml_matches_declared_parameters(case: NodeCase) -> None:
     assert case.config_path.is_file(), case.config_path
     assert config_mismatches(case.node_module, case.config_path) == []
+
+
+@pytest.mark.parametrize('case', WITH_CONFIG, ids=_ids(WITH_CONFIG))
+def test_config_yaml_is_written_from_the_declaration(case: NodeCase) -> None:
+    """Its comments are the parameters' descriptions: `<node> --print-config` rewrites it."""
+    written = declared(case.node_module).to_yaml()
+    assert case.config_path.read_text(encoding='utf-8') == written, (
+        f'{case.config_path} is not what `{case.executable} --print-config` writes; '
+        f'regenerate it with `{case.executable} --print-config > {case.config_path}`'
+    )
 
 
 @pytest.mark.parametrize('case', NODES, ids=_ids(NODES))

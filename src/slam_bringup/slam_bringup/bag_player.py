@@ -26,7 +26,12 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Empty
 
 from slam_bringup.pacing import PacedGate
-from slam_core.cli import PlainDescriptionHelpFormatter, console_main, without_parameter_section
+from slam_core.cli import (
+    PlainDescriptionHelpFormatter,
+    add_print_config,
+    console_main,
+    without_parameter_section,
+)
 from slam_core.errors import ParameterError, SlamError
 from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, ParamType
 from slam_core.progress import ProgressReporter
@@ -426,6 +431,7 @@ def build_arg_parser() -> argparse.ArgumentParser:
         epilog=PARAMETERS.render() + '\n\nROS arguments (--ros-args ...) are accepted too.',
         formatter_class=PlainDescriptionHelpFormatter,
     )
+    add_print_config(parser, PARAMETERS)
     parser.add_argument('bag', nargs='?', help='bag directory, .mcap, .db3 or .bag file')
     parser.add_argument('-r', '--rate', type=float, help='speed factor (default 1.0)')
     parser.add_argument('-s', '--start-offset', type=float, help='seconds to skip')

@@ -21,7 +21,12 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from slam_core.cli import PlainDescriptionHelpFormatter, console_main, without_parameter_section
+from slam_core.cli import (
+    PlainDescriptionHelpFormatter,
+    add_print_config,
+    console_main,
+    without_parameter_section,
+)
 from slam_core.errors import SlamError
 from slam_core.params import AT_LEAST_ONE, POSITIVE, Param, ParamTable, ParamType
 from slam_ros.bag.recording import AtomicBagWriter
@@ -187,6 +192,7 @@ def build_arg_parser() -> argparse.ArgumentParser:
         epilog=PARAMETERS.render() + '\n\nROS arguments (--ros-args ...) are accepted too.',
         formatter_class=PlainDescriptionHelpFormatter,
     )
+    add_print_config(parser, PARAMETERS)
     parser.add_argument('topics', nargs='*', help='topics to record (with -a: all)')
     parser.add_argument('-a', '--all', action='store_true', help='record every topic')
     parser.add_argument('-o', '--output', help='bag directory to create')

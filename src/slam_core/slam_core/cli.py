@@ -69,25 +69,49 @@ class PlainTextHelpFormatter(argparse.RawTextHelpFormatter):
 
 
 HELP_FLAGS = ('-h', '--help')
+PRINT_CONFIG = '--print-config'
+PRINT_CONFIG_HELP = "print the node's parameter file of defaults, each parameter commented"
 
 
 def help_requested(argv: list[str]) -> bool:
     """Whether ``argv`` (without the program name) asks for help before any ``--ros-args``."""
+    return _flag_before_ros_args(argv, HELP_FLAGS)
+
+
+def config_requested(argv: list[str]) -> bool:
+    """Whether ``argv`` asks for ``--print-config`` before any ``--ros-args``."""
+    return _flag_before_ros_args(argv, (PRINT_CONFIG,))
+
+
+def _flag_before_ros_args(argv: list[str], flags: tuple[str, ...]) -> bool:
     for arg in argv:
         if arg == '--ros-args':
             return False
-        if arg in HELP_FLAGS:
+        if arg in flags:
             return True
     return False
+
+
+def add_print_config(parser: argparse.ArgumentParser, parameters: ParamTable) -> None:
+    """Give an argparse node ``--print-config``: print ``parameters.to_yaml()``, exit 0."""
+
+    class PrintConfig(argparse.Action):
+        def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+            print(parameters.to_yaml(), end='')  # noqa: T201
+            parser.exit()
+
+    parser.add_argument(PRINT_CONFIG, action=PrintConfig, nargs=0, help=PRINT_CONFIG_HELP)
 
 
 def node_help(prog: str, doc: str | None, parameters: ParamTable) -> str:
     """A node's --help: usage, module docstring and the declared parameter table."""
     usage = (
-        f'usage: {prog} [-h] [--ros-args [-p NAME:=VALUE] [--params-file FILE] [-r FROM:=TO] ...]'
+        f'usage: {prog} [-h] [{PRINT_CONFIG}] '
+        '[--ros-args [-p NAME:=VALUE] [--params-file FILE] [-r FROM:=TO] ...]'
     )
     text = plain_text(without_parameter_section((doc or '').strip()))
-    return '\n\n'.join(part for part in (usage, text, parameters.render()) if part)
+    options = f'options:\n  {PRINT_CONFIG}  {PRINT_CONFIG_HELP}'
+    return '\n\n'.join(part for part in (usage, text, options, parameters.render()) if part)
 
 
 _PARAMETER_HEADING = re.compile(r'^Parameters\b[^:]*:')

@@ -6,6 +6,7 @@ import difflib
 import enum
 import math
 import re
+import textwrap
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -385,6 +386,37 @@ class ParamTable:
             lines.append(f'      {param.description}')
         return '\n'.join(lines)
 
+    def to_yaml(self) -> str:
+        """Return the node's parameter file of defaults, each parameter under a comment
+        that is its description and rules (the text ``--help`` shows)."""
+        lines = [
+            f'# {self.node} parameters, their defaults; written by `{self.node} --print-config`.',
+            '/**:',
+            '  ros__parameters:',
+        ]
+        for param in self:
+            rules = param.rules() + ([] if param.read_only else ['dynamic'])
+            comment = param.description + (f' [{"; ".join(rules)}]' if rules else '')
+            lines += textwrap.wrap(
+                comment,
+                width=YAML_WIDTH,
+                initial_indent='    # ',
+                subsequent_indent='    # ',
+                break_on_hyphens=False,
+            )
+            value = _yaml_text(param.default)
+            if param.param_type is ParamType.STRING_ARRAY and not param.default:
+                # A ROS parameter file cannot type an empty list; [''] is read as [] here.
+                value = "['']"
+            elif param.param_type.is_array and not param.default:
+                raise ValueError(f'{self.node}.{param.name}: an empty {param.param_type.value}')
+            lines.append(f'    {param.name}: {value}')
+        return '\n'.join(lines) + '\n'
+
+
+YAML_WIDTH = 99
+"""The line width of a written parameter file (the project's line length)."""
+
 
 def _read_document(path: Path | str, where: str) -> object:
     try:
@@ -409,6 +441,10 @@ def node_sections(document: object, node: str) -> list[tuple[str, object]]:
 def _yaml_text(value: ParamValue) -> str:
     if isinstance(value, float) and math.isinf(value):
         return '.inf'
+    if isinstance(value, float):
+        mantissa, e, exponent = repr(value).partition('e')
+        # YAML reads '1e-06' as a string: a float's mantissa needs its point.
+        return mantissa + ('' if '.' in mantissa else '.0') + e + exponent
     if isinstance(value, str):
         return repr(value)
     if isinstance(value, bool):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from slam_core.cli import help_requested, node_help
+from slam_core.cli import config_requested, help_requested, node_help
 from slam_core.errors import ParameterError
 from slam_core.params import (
     NON_NEGATIVE,
@@ -155,3 +155,31 @@ def test_help_lists_every_parameter_and_stops_at_ros_args() -> None:
     assert help_requested(['-h', '--ros-args'])
     assert not help_requested(['--ros-args', '-p', 'x:=1', '-h'])
     assert not help_requested([])
+
+
+def test_print_config_writes_a_parameter_file_that_reads_back_as_the_defaults(
+    tmp_path: Path,
+) -> None:
+    table = ParamTable(
+        'n',
+        (
+            *TABLE,
+            Param('tolerance', 1e-6, 'a small number'),
+            Param('long', 1.0, 'word ' * 40, range=POSITIVE),
+        ),
+    )
+    text = table.to_yaml()
+    assert (
+        '# keyframe after this much travel, m [must be > 0]\n    keyframe_distance_m: 0.5' in text
+    )
+    assert 'tolerance: 1.0e-06' in text  # YAML reads 1e-06 as a string
+    assert "topics: ['']" in text  # a ROS parameter file cannot type an empty list
+    assert 'gate_m: .inf' in text
+    assert all(len(line) <= 99 for line in text.splitlines())
+    path = tmp_path / 'n.yaml'
+    path.write_text(text)
+    assert table.load([path]) == table.validate(table.defaults())
+    assert config_requested(['--print-config'])
+    assert not config_requested(['--ros-args', '--print-config'])
+    with pytest.raises(ValueError, match=r'n\.empty: an empty double\[\]'):
+        ParamTable('n', (Param('empty', [], '', type=ParamType.DOUBLE_ARRAY),)).to_yaml()

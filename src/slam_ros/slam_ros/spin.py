@@ -12,7 +12,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from slam_core.blas import single_threaded_libraries
-from slam_core.cli import help_requested, node_help
+from slam_core.cli import config_requested, help_requested, node_help
 from slam_core.params import ParamTable
 from slam_ros.params import check_parameter_files
 
@@ -27,7 +27,8 @@ def spin_node(
 ) -> int:
     """Run the node ``factory()`` builds until Ctrl-C or shutdown; return exit code 0.
 
-    ``-h``/``--help`` prints ``doc`` and the ``parameters`` table without starting rclpy.
+    ``-h``/``--help`` prints ``doc`` and the ``parameters`` table without starting rclpy;
+    ``--print-config`` prints the table as a parameter file (``ParamTable.to_yaml``).
     """
     args = sys.argv[1:] if argv is None else argv
     if help_requested(args):
@@ -35,6 +36,9 @@ def spin_node(
             print(f'usage: {prog} [-h] [--ros-args ...]\n\n{(doc or "").strip()}')  # noqa: T201
         else:
             print(node_help(prog, doc, parameters))  # noqa: T201
+        return 0
+    if parameters is not None and config_requested(args):
+        print(parameters.to_yaml(), end='')  # noqa: T201
         return 0
     if parameters is not None:
         check_parameter_files(args, parameters)
