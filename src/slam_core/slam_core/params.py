@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import enum
 import math
@@ -110,6 +111,88 @@ def _number(value: float) -> str:
     return f'{value:g}' if isinstance(value, float) else str(value)
 
 
+def number_problem(number: float, range_: Range | None, allow_inf: bool = False) -> str | None:
+    """The rule a number breaks (finite unless ``allow_inf``, never -inf, in ``range_``)."""
+    if math.isnan(number) or (math.isinf(number) and not allow_inf):
+        return 'must be a finite number' + (' or .inf' if allow_inf else '')
+    if math.isinf(number) and number < 0:
+        return 'must not be -.inf'
+    if range_ is not None and number not in range_:
+        return range_.rule()
+    return None
+
+
+RULE = 'slam_core.params.rule'
+"""The metadata key of a core config field's ``FieldRule``."""
+
+
+@dataclass(frozen=True)
+class FieldRule:
+    """The rule of a core config field: range (numbers, or each item), choices, .inf allowed,
+    number of items (tuples)."""
+
+    range: Range | None = None
+    choices: tuple[Any, ...] = ()
+    allow_inf: bool = False
+    length: int | None = None
+
+    def problem(self, value: object, annotation: object) -> str | None:
+        """The rule ``value`` breaks, or None; ``annotation`` is the field's type (its text)."""
+        if self.choices:
+            if value in self.choices:
+                return None
+            return 'must be one of ' + ', '.join(repr(choice) for choice in self.choices)
+        items = value if isinstance(value, tuple | list) else (value,)
+        if self.length is not None and len(items) != self.length:
+            return f'must have {self.length} items'
+        integer = str(annotation).startswith(('int', 'tuple[int'))
+        for item in items:
+            if isinstance(item, bool) or not isinstance(item, int | float):
+                return 'must be an integer' if integer else 'must be a number'
+            if integer and not isinstance(item, int):
+                return 'must be an integer'
+            problem = number_problem(float(item), self.range, self.allow_inf)
+            if problem is not None:
+                return problem
+        return None
+
+
+def ruled(
+    default: Any,
+    *,
+    range: Range | None = None,
+    choices: Iterable[Any] = (),
+    allow_inf: bool = False,
+    length: int | None = None,
+) -> Any:
+    """A core config dataclass field with its rule, written once: ``check_fields`` holds the
+    config to it, and ``config_param`` gives it to the node parameter that sets the field."""
+    rule = FieldRule(range, tuple(choices), allow_inf, length)
+    return dataclasses.field(default=default, metadata={RULE: rule})
+
+
+def field_rule(config: object, name: str) -> FieldRule | None:
+    """The rule of field ``name`` of a config dataclass (class or instance), if it has one."""
+    for item in dataclasses.fields(config):  # type: ignore[arg-type]
+        if item.name == name:
+            rule = item.metadata.get(RULE)
+            return rule if isinstance(rule, FieldRule) else None
+    raise AttributeError(f'{type(config).__name__} has no field {name!r}')
+
+
+def check_fields(config: object, prefix: str = '') -> None:
+    """Raise ValueError('<prefix><field>=<value>: <rule>') for the first field of a config
+    dataclass that breaks its rule (``ruled``)."""
+    for item in dataclasses.fields(config):  # type: ignore[arg-type]
+        rule = item.metadata.get(RULE)
+        if not isinstance(rule, FieldRule):
+            continue
+        value = getattr(config, item.name)
+        problem = rule.problem(value, item.type)
+        if problem is not None:
+            raise ValueError(f'{prefix}{item.name}={value!r}: {problem}')
+
+
 @dataclass(frozen=True)
 class Param:
     """One node parameter: name with unit suffix, default, meaning and rules."""
@@ -164,16 +247,27 @@ def config_param(
     """A parameter that sets ``field`` of a core config (dotted: ``section.field``), named
     ``name`` (default: the field's name), its default read from ``defaults`` (the config,
     or an object holding its sections): the core config is the value's one source.
-    ``rules`` are Param's keywords (range, choices, ...); a ``to_field`` conversion needs
-    an explicit Param."""
+    ``rules`` are Param's keywords (range, choices, ...), and a ruled field's rule
+    (``ruled``) is the parameter's; a tuple field takes the list back as a tuple, and any
+    other ``to_field`` conversion needs an explicit Param."""
     if 'to_field' in rules:
         raise TypeError(f'config_param({field!r}): a converted field needs an explicit Param')
-    value: Any = defaults
-    for part in field.split('.'):
-        value = getattr(value, part)
+    owner: Any = defaults
+    *sections, last = field.split('.')
+    for part in sections:
+        owner = getattr(owner, part)
+    value = getattr(owner, last)
     if isinstance(value, tuple):
         value = list(value)
-    return Param(name or field.rpartition('.')[2], value, description, field=field, **rules)
+        rules['to_field'] = tuple
+    rule = field_rule(owner, last) if dataclasses.is_dataclass(owner) else None
+    if rule is not None:
+        written = sorted(rules.keys() & {'range', 'choices', 'allow_inf', 'length'})
+        if written:
+            raise TypeError(f"config_param({field!r}): {written} is the config field's rule")
+        rules = {**rules, 'range': rule.range, 'choices': rule.choices}
+        rules.update(allow_inf=rule.allow_inf, length=rule.length)
+    return Param(name or last, value, description, field=field, **rules)
 
 
 class ParamTable:
@@ -302,13 +396,11 @@ class ParamTable:
             if isinstance(item, bool) or not isinstance(item, int | float):
                 raise self.fail(param.name, value, f'must be a number{of}')
             number = float(item)
-            if math.isnan(number) or (math.isinf(number) and not param.allow_inf):
-                rule = 'must be a finite number' + (' or .inf' if param.allow_inf else '')
-                raise self.fail(param.name, value, rule + of)
-            if math.isinf(number) and number < 0:
-                raise self.fail(param.name, value, 'must not be -.inf' + of)
-        if param.range is not None and number not in param.range:
-            raise self.fail(param.name, value, param.range.rule() + of)
+        problem = number_problem(number, param.range, allow_inf=True)
+        if element is ParamType.DOUBLE:
+            problem = number_problem(number, param.range, param.allow_inf)
+        if problem is not None:
+            raise self.fail(param.name, value, problem + of)
         return number
 
     # -- core configs ------------------------------------------------------------------

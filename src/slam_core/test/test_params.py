@@ -4,6 +4,7 @@ closest-name hints for unknown keys, maps core config fields and renders --help.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,9 @@ from slam_core.params import (
     ParamTable,
     ParamType,
     Range,
+    check_fields,
+    config_param,
+    ruled,
 )
 
 TABLE = ParamTable(
@@ -183,3 +187,54 @@ def test_print_config_writes_a_parameter_file_that_reads_back_as_the_defaults(
     assert not config_requested(['--ros-args', '--print-config'])
     with pytest.raises(ValueError, match=r'n\.empty: an empty double\[\]'):
         ParamTable('n', (Param('empty', [], '', type=ParamType.DOUBLE_ARRAY),)).to_yaml()
+
+
+@dataclass(frozen=True)
+class _Ruled:
+    gain: float = ruled(0.5, range=POSITIVE)
+    mode: str = ruled('a', choices=('a', 'b'))
+    count: int = ruled(2, range=Range(1))
+    sigma: tuple[float, float] = ruled((1.0, 2.0), range=POSITIVE, length=2)
+    name: str = 'free'
+
+    def __post_init__(self) -> None:
+        check_fields(self, prefix='setting ')
+
+
+@pytest.mark.parametrize(
+    ('field', 'value', 'rule'),
+    [
+        ('gain', 0.0, 'must be > 0'),
+        ('gain', math.nan, 'must be a finite number'),
+        ('gain', True, 'must be a number'),
+        ('mode', 'c', "must be one of 'a', 'b'"),
+        ('count', 1.5, 'must be an integer'),
+        ('count', 0, 'must be >= 1'),
+        ('sigma', (1.0,), 'must have 2 items'),
+        ('sigma', (1.0, -1.0), 'must be > 0'),
+    ],
+)
+def test_a_ruled_field_is_checked_by_its_config(field: str, value: object, rule: str) -> None:
+    with pytest.raises(ValueError, match=rf'^setting {field}=.*: {re.escape(rule)}$'):
+        _Ruled(**{field: value})  # type: ignore[arg-type]
+
+
+def test_a_config_param_takes_the_rule_of_its_ruled_field() -> None:
+    table = ParamTable(
+        'n',
+        (
+            config_param(_Ruled(), 'gain', 'gain'),
+            config_param(_Ruled(), 'mode', 'mode'),
+            config_param(_Ruled(), 'sigma', 'sigma'),
+            config_param(_Ruled(), 'name', 'name', choices=('free', 'bound')),
+        ),
+    )
+    assert table['gain'].range == POSITIVE
+    assert table['mode'].choices == ('a', 'b')
+    assert (table['sigma'].length, table['sigma'].to_field) == (2, tuple)
+    assert table['name'].choices == ('free', 'bound')  # a field without a rule keeps its own
+    with pytest.raises(ParameterError, match=r'parameter n\.gain=-1\.0: must be > 0'):
+        table.validate_one('gain', -1.0)
+    assert table.fields(table.validate(table.defaults()))['sigma'] == (1.0, 2.0)
+    with pytest.raises(TypeError, match=r"config_param\('gain'\): \['range'\] is the config"):
+        config_param(_Ruled(), 'gain', 'gain', range=NON_NEGATIVE)

@@ -11,8 +11,18 @@ import numpy as np
 from em_sam_node.core.robust_kernels import RobustKernel, cauchy_weights, huber_weights
 from em_sam_node.core.sightings import Sightings
 from slam_core.arrays import FloatArray, IntArray
+from slam_core.params import (
+    AT_LEAST_ONE,
+    NON_NEGATIVE,
+    POSITIVE,
+    PROBABILITY,
+    Range,
+    check_fields,
+    ruled,
+)
 
 MODES = ('paper', 'robust')
+SOLVER_METHODS = ('levenberg_marquardt', 'gauss_newton')
 SEED_KERNELS: dict[str, Callable[[float], RobustKernel]] = {
     'cauchy': cauchy_weights,
     'huber': huber_weights,
@@ -23,116 +33,30 @@ SEED_KERNELS: dict[str, Callable[[float], RobustKernel]] = {
 class EmConfig:
     """EM-SAM settings. Probabilities are per landmark (test) or per sighting (gate)."""
 
-    mode: str = 'robust'
-    lagrange_lambda: float = 50.0
-    moveable_threshold: float = 0.5
-    max_iterations: int = 20
-    weight_tolerance: float = 1e-3
-    false_alarm_probability: float = 1e-3
-    gate_probability: float = 1e-4
-    max_gated_fraction: float = 0.1
-    seed_kernel: str = 'cauchy'
-    seed_kernel_scale: float = 2.3849
-    seed_chunk_s: float = 20.0
-    seed_growth: float = 0.1
-    solver_method: str = 'levenberg_marquardt'
-    max_solver_iterations: int = 50
-    solver_tolerance: float = 1e-6
+    mode: str = ruled('robust', choices=MODES)
+    lagrange_lambda: float = ruled(50.0, range=POSITIVE)
+    moveable_threshold: float = ruled(0.5, range=PROBABILITY)
+    max_iterations: int = ruled(20, range=AT_LEAST_ONE)
+    weight_tolerance: float = ruled(1e-3, range=POSITIVE)
+    false_alarm_probability: float = ruled(1e-3, range=PROBABILITY)
+    gate_probability: float = ruled(1e-4, range=PROBABILITY)
+    max_gated_fraction: float = ruled(0.1, range=Range(0.0, 1.0, high_open=True))
+    seed_kernel: str = ruled('cauchy', choices=SEED_KERNELS)
+    seed_kernel_scale: float = ruled(2.3849, range=POSITIVE)
+    seed_chunk_s: float = ruled(20.0, range=POSITIVE)
+    seed_growth: float = ruled(0.1, range=POSITIVE)
+    solver_method: str = ruled('levenberg_marquardt', choices=SOLVER_METHODS)
+    max_solver_iterations: int = ruled(50, range=AT_LEAST_ONE)
+    solver_tolerance: float = ruled(1e-6, range=POSITIVE)
     estimate_noise_scale: bool = True
-    max_noise_scale: float = 10.0
-    model_error_m: float = 0.15
-    final_kernel: str = 'cauchy'
-    final_kernel_scale: float = 2.3849
+    max_noise_scale: float = ruled(10.0, range=Range(1.0))
+    model_error_m: float = ruled(0.15, range=NON_NEGATIVE)
+    final_kernel: str = ruled('cauchy', choices=('none', *SEED_KERNELS))
+    final_kernel_scale: float = ruled(2.3849, range=POSITIVE)
     calibrate_odometry: bool = True
 
     def __post_init__(self) -> None:
-        checks: list[tuple[bool, str, object, str]] = [
-            (self.mode in MODES, 'mode', self.mode, f'must be one of {MODES}'),
-            (
-                np.isfinite(self.lagrange_lambda) and self.lagrange_lambda > 0,
-                'lagrange_lambda',
-                self.lagrange_lambda,
-                'must be a finite number > 0',
-            ),
-            (
-                0 < self.moveable_threshold < 1,
-                'moveable_threshold',
-                self.moveable_threshold,
-                'must be in (0, 1)',
-            ),
-            (self.max_iterations >= 1, 'max_iterations', self.max_iterations, 'must be >= 1'),
-            (
-                np.isfinite(self.final_kernel_scale) and self.final_kernel_scale > 0,
-                'final_kernel_scale',
-                self.final_kernel_scale,
-                'must be a finite number > 0',
-            ),
-            (
-                self.final_kernel in ('none', *SEED_KERNELS),
-                'final_kernel',
-                self.final_kernel,
-                "must be 'none', 'cauchy' or 'huber'",
-            ),
-            (
-                np.isfinite(self.max_noise_scale) and self.max_noise_scale >= 1,
-                'max_noise_scale',
-                self.max_noise_scale,
-                'must be a finite number >= 1',
-            ),
-            (
-                np.isfinite(self.model_error_m) and self.model_error_m >= 0,
-                'model_error_m',
-                self.model_error_m,
-                'must be a finite number >= 0',
-            ),
-            (self.weight_tolerance > 0, 'weight_tolerance', self.weight_tolerance, 'must be > 0'),
-            (
-                0 < self.false_alarm_probability < 1,
-                'false_alarm_probability',
-                self.false_alarm_probability,
-                'must be in (0, 1)',
-            ),
-            (
-                0 < self.gate_probability < 1,
-                'gate_probability',
-                self.gate_probability,
-                'must be in (0, 1)',
-            ),
-            (
-                0 <= self.max_gated_fraction < 1,
-                'max_gated_fraction',
-                self.max_gated_fraction,
-                'must be in [0, 1)',
-            ),
-            (
-                self.seed_kernel in SEED_KERNELS,
-                'seed_kernel',
-                self.seed_kernel,
-                f'must be one of {tuple(SEED_KERNELS)}',
-            ),
-            (
-                self.seed_kernel_scale > 0,
-                'seed_kernel_scale',
-                self.seed_kernel_scale,
-                'must be > 0',
-            ),
-            (self.seed_chunk_s > 0, 'seed_chunk_s', self.seed_chunk_s, 'must be > 0'),
-            (
-                np.isfinite(self.seed_growth) and self.seed_growth > 0,
-                'seed_growth',
-                self.seed_growth,
-                'must be a finite number > 0',
-            ),
-            (
-                self.max_solver_iterations >= 1,
-                'max_solver_iterations',
-                self.max_solver_iterations,
-                'must be >= 1',
-            ),
-        ]
-        for ok, name, value, requirement in checks:
-            if not ok:
-                raise ValueError(f'EM-SAM setting {name}={value!r}: {requirement}')
+        check_fields(self, prefix='EM-SAM setting ')
 
 
 @dataclass(frozen=True)

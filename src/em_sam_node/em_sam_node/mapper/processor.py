@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -27,6 +26,7 @@ from em_sam_node.core.problem import Estimate
 from em_sam_node.core.sightings import Sightings, sightings_of
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.geometry.se2 import apply_increment, compose, inverse
+from slam_core.params import NON_NEGATIVE, POSITIVE, check_fields, ruled
 
 
 @dataclass(frozen=True)
@@ -34,27 +34,16 @@ class MapperConfig:
     """Validated em_sam_mapper settings."""
 
     em: EmConfig
-    stamp_tolerance_s: float = 0.005
-    prior_sigma: tuple[float, float, float] = (1e-3, 1e-3, 1e-3)
-    pending_timeout_s: float = 10.0
+    stamp_tolerance_s: float = ruled(0.005, range=NON_NEGATIVE)
+    prior_sigma: tuple[float, float, float] = ruled((1e-3, 1e-3, 1e-3), range=POSITIVE, length=3)
+    pending_timeout_s: float = ruled(10.0, range=POSITIVE)
     online: bool = True
     known_map: KnownMap | None = None
     start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
     start_sigma: tuple[float, float, float] = (0.5, 0.5, 0.2618)
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.stamp_tolerance_s) and self.stamp_tolerance_s >= 0):
-            raise ValueError(
-                f'parameter stamp_tolerance_s={self.stamp_tolerance_s!r}: must be >= 0'
-            )
-        if len(self.prior_sigma) != 3 or not all(s > 0 for s in self.prior_sigma):
-            raise ValueError(
-                f'parameter prior_sigma={list(self.prior_sigma)!r}: must be 3 numbers > 0'
-            )
-        if not (math.isfinite(self.pending_timeout_s) and self.pending_timeout_s > 0):
-            raise ValueError(
-                f'parameter pending_timeout_s={self.pending_timeout_s!r}: must be > 0'
-            )
+        check_fields(self, prefix='parameter ')
         if self.known_map is not None and self.online:
             raise ValueError('localization on a saved map runs the full pass only (online off)')
 

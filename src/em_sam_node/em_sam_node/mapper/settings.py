@@ -6,22 +6,18 @@ from __future__ import annotations
 from types import SimpleNamespace
 from typing import Any
 
-from em_sam_node.core.em_types import MODES, SEED_KERNELS, EmConfig
+from em_sam_node.core.em_types import MODES, EmConfig
 from em_sam_node.mapper.processor import MapperConfig
 from slam_core.params import (
-    AT_LEAST_ONE,
     NON_NEGATIVE,
     POSITIVE,
-    PROBABILITY,
     Param,
     ParamTable,
-    Range,
     config_param,
 )
 
 _DEFAULTS = SimpleNamespace(em=EmConfig(), mapper=MapperConfig(em=EmConfig()))
 
-SOLVER_METHODS = ('levenberg_marquardt', 'gauss_newton')
 SLAM_MODES = ('mapping', 'localization')
 
 
@@ -75,23 +71,18 @@ PARAMETERS = ParamTable(
             'em.mode',
             "EM-SAM weight model: 'paper' (as published) or 'robust'",
             name='em_mode',
-            choices=MODES,
         ),
-        config_param(
-            _DEFAULTS, 'em.lagrange_lambda', 'lambda of eq. 14 in paper mode', range=POSITIVE
-        ),
+        config_param(_DEFAULTS, 'em.lagrange_lambda', 'lambda of eq. 14 in paper mode'),
         config_param(
             _DEFAULTS,
             'em.moveable_threshold',
             'weights below this are moveable',
-            range=PROBABILITY,
         ),
         config_param(
             _DEFAULTS,
             'em.max_iterations',
             'maximum EM iterations',
             name='max_em_iterations',
-            range=AT_LEAST_ONE,
         ),
         config_param(
             _DEFAULTS, 'em.weight_tolerance', 'EM stops when no weight changes more than this'
@@ -100,39 +91,32 @@ PARAMETERS = ParamTable(
             _DEFAULTS,
             'em.false_alarm_probability',
             'robust: per-landmark test level',
-            range=PROBABILITY,
         ),
         config_param(
             _DEFAULTS,
             'em.gate_probability',
             'robust: per-sighting outlier gate level',
-            range=PROBABILITY,
         ),
         config_param(
             _DEFAULTS,
             'em.max_gated_fraction',
             "robust: largest share of a landmark's sightings gated",
         ),
-        config_param(
-            _DEFAULTS, 'em.seed_kernel', 'robust: first E-step kernel', choices=tuple(SEED_KERNELS)
-        ),
+        config_param(_DEFAULTS, 'em.seed_kernel', 'robust: first E-step kernel'),
         config_param(
             _DEFAULTS,
             'em.seed_kernel_scale',
             'robust: first E-step kernel scale, sigmas',
-            range=POSITIVE,
         ),
         config_param(
             _DEFAULTS,
             'em.seed_chunk_s',
             'robust: first E-step shortest prefix step, s',
-            range=POSITIVE,
         ),
         config_param(
             _DEFAULTS,
             'em.seed_growth',
             'robust: first E-step prefix growth, fraction of the time solved',
-            range=POSITIVE,
         ),
         config_param(
             _DEFAULTS,
@@ -148,29 +132,23 @@ PARAMETERS = ParamTable(
             _DEFAULTS,
             'em.max_noise_scale',
             'robust: cap of the sighting variance factors',
-            range=Range(1.0),
         ),
         config_param(
             _DEFAULTS,
             'em.model_error_m',
             'robust: position error the moveable test tolerates, m',
-            range=NON_NEGATIVE,
         ),
         config_param(
             _DEFAULTS,
             'em.final_kernel',
             "robust: final solve kernel ('none': least squares)",
-            choices=('none', *SEED_KERNELS),
         ),
         config_param(
             _DEFAULTS,
             'em.final_kernel_scale',
             'robust: final solve kernel scale, sigmas',
-            range=POSITIVE,
         ),
-        config_param(
-            _DEFAULTS, 'em.solver_method', 'least-squares solver', choices=SOLVER_METHODS
-        ),
+        config_param(_DEFAULTS, 'em.solver_method', 'least-squares solver'),
         Param(
             'optimize_period_s',
             2.0,
@@ -188,16 +166,11 @@ PARAMETERS = ParamTable(
             _DEFAULTS,
             'mapper.stamp_tolerance_s',
             'observation-to-keyframe stamp tolerance, s',
-            range=NON_NEGATIVE,
         ),
-        Param(
-            'prior_sigma',
-            [0.001, 0.001, 0.001],
+        config_param(
+            _DEFAULTS,
+            'mapper.prior_sigma',
             'std. dev. of the first keyframe prior (x m, y m, theta rad)',
-            length=3,
-            range=POSITIVE,
-            field='mapper.prior_sigma',
-            to_field=tuple,
         ),
         Param('map_frame', 'map', 'map frame id'),
         Param('odom_frame', 'odom', 'odometry frame id'),

@@ -13,66 +13,40 @@ import numpy as np
 from em_sam_node.core.inputs import Increment
 from slam_core.arrays import FloatArray
 from slam_core.geometry.se2 import increment_between, wrap_angle
+from slam_core.params import NON_NEGATIVE, POSITIVE, check_fields, ruled
 
 
 @dataclass(frozen=True)
 class IngestConfig:
     """Validated odometry_ingest settings (SI units)."""
 
-    keyframe_distance_m: float = 0.5
-    keyframe_angle_rad: float = 0.35
-    keyframe_interval_s: float = 5.0
-    observation_delay_s: float = 0.5
-    noise_alphas: tuple[float, float, float, float] = (0.05, 0.001, 0.01, 0.001)
-    min_sigma_xy_m: float = 0.002
-    min_sigma_theta_rad: float = 0.002
-    reset_jump_m: float = 1.0
-    reset_backwards_s: float = 1.0
-    reset_speed_mps: float = 5.0
-    reset_sigma: tuple[float, float, float] = (1.0, 1.0, 0.5)
-    max_buffer_s: float = 30.0
-    startup_hold_s: float = 5.0
+    keyframe_distance_m: float = ruled(0.5, range=POSITIVE)
+    keyframe_angle_rad: float = ruled(0.35, range=POSITIVE)
+    keyframe_interval_s: float = ruled(5.0, range=POSITIVE)
+    observation_delay_s: float = ruled(0.5, range=NON_NEGATIVE)
+    noise_alphas: tuple[float, float, float, float] = ruled(
+        (0.05, 0.001, 0.01, 0.001), range=NON_NEGATIVE, length=4
+    )
+    min_sigma_xy_m: float = ruled(0.002, range=POSITIVE)
+    min_sigma_theta_rad: float = ruled(0.002, range=POSITIVE)
+    reset_jump_m: float = ruled(1.0, range=POSITIVE)
+    reset_backwards_s: float = ruled(1.0, range=POSITIVE)
+    reset_speed_mps: float = ruled(5.0, range=POSITIVE)
+    reset_sigma: tuple[float, float, float] = ruled((1.0, 1.0, 0.5), range=POSITIVE, length=3)
+    max_buffer_s: float = ruled(30.0, range=POSITIVE)
+    startup_hold_s: float = ruled(5.0, range=NON_NEGATIVE)
 
     def __post_init__(self) -> None:
-        positive = {
-            'keyframe_distance_m': self.keyframe_distance_m,
-            'keyframe_angle_rad': self.keyframe_angle_rad,
-            'keyframe_interval_s': self.keyframe_interval_s,
-            'min_sigma_xy_m': self.min_sigma_xy_m,
-            'min_sigma_theta_rad': self.min_sigma_theta_rad,
-            'reset_jump_m': self.reset_jump_m,
-            'reset_backwards_s': self.reset_backwards_s,
-            'reset_speed_mps': self.reset_speed_mps,
-            'max_buffer_s': self.max_buffer_s,
-        }
-        for name, value in positive.items():
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f'parameter {name}={value!r}: must be a finite number > 0')
-        if not (math.isfinite(self.observation_delay_s) and self.observation_delay_s >= 0):
+        check_fields(self, prefix='parameter ')
+        if self.startup_hold_s >= self.max_buffer_s:
             raise ValueError(
-                f'parameter observation_delay_s={self.observation_delay_s!r}: must be >= 0'
-            )
-        if not (0 <= self.startup_hold_s < self.max_buffer_s):  # NaN fails too
-            raise ValueError(
-                f'parameter startup_hold_s={self.startup_hold_s!r}: must be >= 0 and less than '
+                f'parameter startup_hold_s={self.startup_hold_s!r}: must be less than '
                 f'max_buffer_s={self.max_buffer_s!r}, or held keyframes lose their odometry'
             )
         if self.observation_delay_s >= self.max_buffer_s:
             raise ValueError(
                 f'parameter observation_delay_s={self.observation_delay_s!r}: must be less than '
                 f'max_buffer_s={self.max_buffer_s!r}, or held-back keyframes lose their odometry'
-            )
-        if len(self.noise_alphas) != 4 or not all(
-            math.isfinite(a) and a >= 0 for a in self.noise_alphas
-        ):
-            raise ValueError(
-                f'parameter noise_alphas={list(self.noise_alphas)!r}: must be 4 numbers >= 0'
-            )
-        if len(self.reset_sigma) != 3 or not all(
-            math.isfinite(s) and s > 0 for s in self.reset_sigma
-        ):
-            raise ValueError(
-                f'parameter reset_sigma={list(self.reset_sigma)!r}: must be 3 numbers > 0'
             )
 
 

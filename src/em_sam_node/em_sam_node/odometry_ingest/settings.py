@@ -5,86 +5,62 @@ from __future__ import annotations
 from typing import Any
 
 from em_sam_node.odometry_ingest.processor import IngestConfig
-from slam_core.params import NON_NEGATIVE, POSITIVE, Param, ParamTable, config_param
+from slam_core.params import POSITIVE, Param, ParamTable, config_param
 
 _DEFAULTS = IngestConfig()
 
 PARAMETERS = ParamTable(
     'odometry_ingest',
     (
-        config_param(
-            _DEFAULTS, 'keyframe_distance_m', 'keyframe after this much travel, m', range=POSITIVE
-        ),
+        config_param(_DEFAULTS, 'keyframe_distance_m', 'keyframe after this much travel, m'),
         config_param(
             _DEFAULTS,
             'keyframe_angle_rad',
             'keyframe after this much turning, rad',
-            range=POSITIVE,
         ),
-        config_param(
-            _DEFAULTS, 'keyframe_interval_s', 'keyframe after this long, s', range=POSITIVE
-        ),
+        config_param(_DEFAULTS, 'keyframe_interval_s', 'keyframe after this long, s'),
         config_param(
             _DEFAULTS,
             'observation_delay_s',
             'hold keyframes back this long for late observations, s (< max_buffer_s)',
-            range=NON_NEGATIVE,
         ),
-        Param(
-            'noise_alphas',
-            [0.05, 0.001, 0.01, 0.001],
-            'motion noise alphas a1..a4',
-            length=4,
-            range=NON_NEGATIVE,
-            to_field=tuple,
-        ),
+        config_param(_DEFAULTS, 'noise_alphas', 'motion noise alphas a1..a4'),
         config_param(
             _DEFAULTS,
             'min_sigma_xy_m',
             'noise floor of an increment in x and y, m',
-            range=POSITIVE,
         ),
         config_param(
             _DEFAULTS,
             'min_sigma_theta_rad',
             'noise floor of an increment in heading, rad',
-            range=POSITIVE,
         ),
         config_param(
             _DEFAULTS,
             'reset_jump_m',
             'a jump larger than this between samples is a reset, m',
-            range=POSITIVE,
         ),
         config_param(
             _DEFAULTS,
             'reset_speed_mps',
             'a jump is a reset only above this speed, m/s',
-            range=POSITIVE,
         ),
         config_param(
             _DEFAULTS,
             'reset_backwards_s',
             'a stamp going back more than this is a reset, s',
-            range=POSITIVE,
-        ),
-        Param(
-            'reset_sigma',
-            [1.0, 1.0, 0.5],
-            'std. dev. of the increment bridging a reset (x m, y m, theta rad)',
-            length=3,
-            range=POSITIVE,
-            to_field=tuple,
         ),
         config_param(
-            _DEFAULTS, 'max_buffer_s', 'odometry kept for interpolation, s', range=POSITIVE
+            _DEFAULTS,
+            'reset_sigma',
+            'std. dev. of the increment bridging a reset (x m, y m, theta rad)',
         ),
+        config_param(_DEFAULTS, 'max_buffer_s', 'odometry kept for interpolation, s'),
         config_param(
             _DEFAULTS,
             'startup_hold_s',
             'hold the first keyframes until an observation is on time, at most this long, s '
             '(< max_buffer_s)',
-            range=NON_NEGATIVE,
         ),
         Param(
             'idle_flush_s',
@@ -109,20 +85,6 @@ PARAMETERS = ParamTable(
 )
 
 
-_NODE_ONLY = (
-    'idle_flush_s',
-    'base_frame',
-    'odom_frame',
-    'publish_tf',
-    'observations_transient_local',
-)
-
-
 def config_from_parameters(values: dict[str, Any]) -> IngestConfig:
     """Validate parameter values into an IngestConfig (raises ParameterError)."""
-    fields = {
-        param.name: param.to_field(values[param.name]) if param.to_field else values[param.name]
-        for param in PARAMETERS
-        if param.name not in _NODE_ONLY
-    }
-    return PARAMETERS.build(lambda: IngestConfig(**fields))
+    return PARAMETERS.build(lambda: IngestConfig(**PARAMETERS.fields(values)))
