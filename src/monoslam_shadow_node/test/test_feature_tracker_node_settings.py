@@ -78,7 +78,7 @@ def test_parameters_reach_the_core_config() -> None:
         (
             'detector',
             'orb',
-            r"parameter feature_tracker\.detector='orb': must be one of \('shi_tomasi', 'fast'\)",
+            r"parameter feature_tracker\.detector='orb': must be one of 'shi_tomasi', 'fast'",
         ),
         (
             'quality_level',
@@ -88,7 +88,7 @@ def test_parameters_reach_the_core_config() -> None:
         (
             'min_distance_px',
             0.5,
-            r'parameter feature_tracker\.min_distance_px=0\.5: must be >= 1 px',
+            r'parameter feature_tracker\.min_distance_px=0\.5: must be >= 1',
         ),
         (
             'fb_threshold_px',

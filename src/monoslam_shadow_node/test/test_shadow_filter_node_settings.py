@@ -107,10 +107,10 @@ def test_parameters_reach_the_core_config() -> None:
             r'parameter shadow_filter\.min_parallax_deg=0\.0: must be in \(0, 180\)',
         ),
         ('min_parallax_deg', 180.0, r'min_parallax_deg=180\.0'),
-        ('max_tests', 0, r'parameter shadow_filter\.max_tests=0: must be an integer >= 1'),
+        ('max_tests', 0, r'parameter shadow_filter\.max_tests=0: must be >= 1'),
         ('max_tests', 2.5, r'parameter shadow_filter\.max_tests=2\.5: must be an integer'),
         ('max_tests', True, r'parameter shadow_filter\.max_tests=True: must be an integer'),
-        ('pixel_sigma_px', 0.0, r'parameter shadow_filter\.pixel_sigma_px=0\.0 is out of range'),
+        ('pixel_sigma_px', 0.0, r'parameter shadow_filter\.pixel_sigma_px=0\.0: must be > 0'),
         (
             'velocity_sigma_m_s',
             math.nan,

@@ -6,6 +6,7 @@ import dataclasses
 import difflib
 import enum
 import math
+import numbers
 import re
 import textwrap
 from collections.abc import Callable, Iterable, Iterator, Mapping
@@ -138,8 +139,13 @@ class FieldRule:
 
     def problem(self, value: object, annotation: object) -> str | None:
         """The rule ``value`` breaks, or None; ``annotation`` is the field's type (its text)."""
+        if str(annotation) == 'bool':
+            return None if isinstance(value, bool) else 'must be true or false'
         if self.choices:
-            if value in self.choices:
+            boolean = isinstance(value, bool) and not any(
+                isinstance(choice, bool) for choice in self.choices
+            )
+            if value in self.choices and not boolean:
                 return None
             return 'must be one of ' + ', '.join(repr(choice) for choice in self.choices)
         items = value if isinstance(value, tuple | list) else (value,)
@@ -147,9 +153,9 @@ class FieldRule:
             return f'must have {self.length} items'
         integer = str(annotation).startswith(('int', 'tuple[int'))
         for item in items:
-            if isinstance(item, bool) or not isinstance(item, int | float):
+            if isinstance(item, bool) or not isinstance(item, numbers.Real):
                 return 'must be an integer' if integer else 'must be a number'
-            if integer and not isinstance(item, int):
+            if integer and not isinstance(item, numbers.Integral):
                 return 'must be an integer'
             problem = number_problem(float(item), self.range, self.allow_inf)
             if problem is not None:

@@ -11,6 +11,7 @@ from types import MappingProxyType
 import numpy as np
 
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
+from slam_core.params import NON_NEGATIVE, POSITIVE, Range, check_fields, ruled
 
 
 @dataclass(frozen=True)
@@ -43,54 +44,36 @@ class DetectorConfig:
     """Detector settings: sizes m, limits px, m, rad (inf: no gate), ``allowed_ids`` empty: all;
     an invalid value raises ValueError naming the setting."""
 
-    dictionary: str = DEFAULT_DICTIONARY
-    default_marker_size_m: float = 0.16
+    dictionary: str = ruled(DEFAULT_DICTIONARY, choices=DICTIONARIES)
+    default_marker_size_m: float = ruled(0.16, range=POSITIVE)
     marker_sizes_m: Mapping[int, float] = field(default_factory=dict)
-    corner_refinement: str = 'subpix'
-    min_side_px: float = 12.0
-    max_reprojection_error_px: float = 2.0
-    max_range_m: float = 8.0
-    max_viewing_angle_rad: float = math.radians(70.0)
+    corner_refinement: str = ruled('subpix', choices=CORNER_REFINEMENTS)
+    min_side_px: float = ruled(12.0, range=NON_NEGATIVE)
+    max_reprojection_error_px: float = ruled(2.0, range=POSITIVE, allow_inf=True)
+    max_range_m: float = ruled(8.0, range=POSITIVE, allow_inf=True)
+    max_viewing_angle_rad: float = ruled(1.22, range=Range(0.0, math.pi / 2, low_open=True))
     allowed_ids: tuple[int, ...] = ()
-    pixel_noise_px: float = 0.5
-    edge_refinement: bool = True
-    redecode_rejected: bool = True
-    error_correction_rate: float = 0.6
-    detector_profile: str = 'accurate'
+    pixel_noise_px: float = ruled(0.5, range=POSITIVE)
+    edge_refinement: bool = ruled(True)
+    redecode_rejected: bool = ruled(True)
+    error_correction_rate: float = ruled(0.6, range=Range(0.0, 1.0))
+    detector_profile: str = ruled('accurate', choices=DETECTOR_PROFILES)
 
     def __post_init__(self) -> None:
+        check_fields(self, prefix='marker_detector setting ')
         sizes = dict(self.marker_sizes_m)
         ids = tuple(self.allowed_ids)
         bad_size = [(k, v) for k, v in sizes.items() if not _is_id(k) or not _positive(v, True)]
+        if bad_size:
+            raise ValueError(
+                f'marker_detector setting marker_sizes_m={sizes!r}: entry {bad_size[:1]} needs '
+                'an id (int >= 0) and a finite size > 0 (m)'
+            )
         bad_ids = [marker_id for marker_id in ids if not _is_id(marker_id)]
-        checks: list[tuple[bool, str, object, str]] = [
-            (self.dictionary in DICTIONARIES, 'dictionary', self.dictionary,
-             f'must be one of {", ".join(DICTIONARIES)}'),
-            (_positive(self.default_marker_size_m, True), 'default_marker_size_m',
-             self.default_marker_size_m, 'must be a finite number > 0 (m)'),
-            (not bad_size, 'marker_sizes_m', sizes,
-             f'entry {bad_size[:1]} needs an id (int >= 0) and a finite size > 0 (m)'),
-            (self.corner_refinement in CORNER_REFINEMENTS, 'corner_refinement',
-             self.corner_refinement, f'must be one of {", ".join(CORNER_REFINEMENTS)}'),
-            (_number(self.min_side_px) and 0 <= self.min_side_px < math.inf, 'min_side_px',
-             self.min_side_px, 'must be a finite number >= 0 (px)'),
-            (_positive(self.max_reprojection_error_px), 'max_reprojection_error_px',
-             self.max_reprojection_error_px, 'must be a number > 0 (px; inf: no limit)'),
-            (_positive(self.max_range_m), 'max_range_m', self.max_range_m,
-             'must be a number > 0 (m; inf: no limit)'),
-            (_number(self.max_viewing_angle_rad) and 0 < self.max_viewing_angle_rad <= math.pi / 2,
-             'max_viewing_angle_rad', self.max_viewing_angle_rad, 'must be in (0, pi/2] rad'),
-            (not bad_ids, 'allowed_ids', ids, f'{bad_ids[:1]} is not an int >= 0'),
-            (_positive(self.pixel_noise_px, True), 'pixel_noise_px', self.pixel_noise_px,
-             'must be a finite number > 0 (px)'),
-            (_number(self.error_correction_rate) and 0 <= self.error_correction_rate <= 1,
-             'error_correction_rate', self.error_correction_rate, 'must be in [0, 1]'),
-            (self.detector_profile in DETECTOR_PROFILES, 'detector_profile',
-             self.detector_profile, f'must be one of {", ".join(DETECTOR_PROFILES)}'),
-        ]  # fmt: skip
-        for ok, name, value, reason in checks:
-            if not ok:
-                raise ValueError(f'marker_detector setting {name}={value!r}: {reason}')
+        if bad_ids:
+            raise ValueError(
+                f'marker_detector setting allowed_ids={ids!r}: {bad_ids[:1]} is not an int >= 0'
+            )
         object.__setattr__(self, 'marker_sizes_m', MappingProxyType(sizes))
         object.__setattr__(self, 'allowed_ids', ids)
 

@@ -3,6 +3,7 @@ gates and pose covariance. Design notes: docs/design/marker_core.md"""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -10,32 +11,32 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from marker_detector.core.detection import MarkerDetection, Rejection
+from marker_detector.core.detector_config import DetectorConfig
 from marker_detector.core.edges import side_lengths
 from marker_detector.core.pose import corner_jacobian, marker_object_points, pose_covariance
 from slam_core.camera import CameraModel
+from slam_core.params import field_rule
+
+_DETECTOR = DetectorConfig()
 
 
 @dataclass(frozen=True)
 class TagGates:
-    """The quality gates and the corner noise (the same meaning as in DetectorConfig)."""
+    """The quality gates and the corner noise: DetectorConfig's fields, defaults and rules."""
 
-    min_side_px: float = 12.0
-    max_reprojection_error_px: float = 2.0
-    max_range_m: float = 8.0
-    max_viewing_angle_rad: float = 1.22
-    pixel_noise_px: float = 0.5
+    min_side_px: float = _DETECTOR.min_side_px
+    max_reprojection_error_px: float = _DETECTOR.max_reprojection_error_px
+    max_range_m: float = _DETECTOR.max_range_m
+    max_viewing_angle_rad: float = _DETECTOR.max_viewing_angle_rad
+    pixel_noise_px: float = _DETECTOR.pixel_noise_px
 
     def __post_init__(self) -> None:
-        for name in ('max_reprojection_error_px', 'max_range_m', 'pixel_noise_px'):
-            value = getattr(self, name)
-            if math.isnan(value) or value <= 0:
-                raise ValueError(f'{name}={value}: must be > 0')
-        if not (self.min_side_px >= 0 and math.isfinite(self.min_side_px)):
-            raise ValueError(f'min_side_px={self.min_side_px}: must be >= 0')
-        if not 0 < self.max_viewing_angle_rad <= math.pi / 2:
-            raise ValueError(
-                f'max_viewing_angle_rad={self.max_viewing_angle_rad}: must be in (0, pi/2]'
-            )
+        for item in dataclasses.fields(self):
+            value = getattr(self, item.name)
+            rule = field_rule(DetectorConfig, item.name)
+            problem = rule.problem(value, item.type) if rule is not None else None
+            if problem is not None:
+                raise ValueError(f'{item.name}={value!r}: {problem}')
 
 
 def tag_detection(

@@ -3,20 +3,18 @@ and their validation into configs (ROS-free). Design notes: docs/design/marker_c
 
 from __future__ import annotations
 
-import math
+from types import SimpleNamespace
 from typing import Any
 
 import yaml
 
-from marker_detector.core.detector_config import CORNER_REFINEMENTS, DetectorConfig
-from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
+from marker_detector.core.detector_config import DetectorConfig
 from marker_detector.core.frame_types import EXTRINSICS_SOURCES, ExtrinsicsConfig
 from marker_detector.core.roi import SearchPlan
 from slam_core.errors import ParameterError
 from slam_core.images import DEFAULT_MAX_IMAGE_PIXELS
 from slam_core.params import (
     NON_NEGATIVE,
-    POSITIVE,
     Param,
     ParamTable,
     ParamType,
@@ -82,22 +80,16 @@ def parse_id_ranges(entries: list[str]) -> tuple[int, ...]:
     return tuple(sorted(ids))
 
 
+_DEFAULTS = SimpleNamespace(detector=DetectorConfig(), extrinsics=ExtrinsicsConfig())
+
+
+def _detector(field: str, description: str, name: str = '') -> Param:
+    return config_param(_DEFAULTS, f'detector.{field}', description, name, read_only=False)
+
+
 DETECTOR_PARAMETERS = (
-    Param(
-        'dictionary',
-        DEFAULT_DICTIONARY,
-        'cv2.aruco dictionary name',
-        choices=tuple(DICTIONARIES),
-        read_only=False,
-    ),
-    config_param(
-        DetectorConfig(),
-        'default_marker_size_m',
-        'black square side of every marker, m',
-        name='marker_size_m',
-        range=POSITIVE,
-        read_only=False,
-    ),
+    _detector('dictionary', 'cv2.aruco dictionary name'),
+    _detector('default_marker_size_m', 'black square side of every marker, m', 'marker_size_m'),
     Param(
         'marker_sizes_m',
         [],
@@ -105,44 +97,16 @@ DETECTOR_PARAMETERS = (
         type=ParamType.STRING_ARRAY,
         validator=_rule_of(parse_marker_sizes),
         read_only=False,
+        field='detector.marker_sizes_m',
+        to_field=parse_marker_sizes,
     ),
-    Param(
-        'corner_refinement',
-        'subpix',
-        'corner refinement',
-        choices=tuple(CORNER_REFINEMENTS),
-        read_only=False,
+    _detector('corner_refinement', 'corner refinement'),
+    _detector('min_side_px', 'shortest accepted marker side, px'),
+    _detector(
+        'max_reprojection_error_px', 'largest accepted RMS reprojection error, px (.inf: no limit)'
     ),
-    Param(
-        'min_side_px',
-        12.0,
-        'shortest accepted marker side, px',
-        range=NON_NEGATIVE,
-        read_only=False,
-    ),
-    Param(
-        'max_reprojection_error_px',
-        2.0,
-        'largest accepted RMS reprojection error, px (.inf: no limit)',
-        range=POSITIVE,
-        allow_inf=True,
-        read_only=False,
-    ),
-    Param(
-        'max_range_m',
-        8.0,
-        'farthest accepted marker, m (.inf: no limit)',
-        range=POSITIVE,
-        allow_inf=True,
-        read_only=False,
-    ),
-    Param(
-        'max_viewing_angle_rad',
-        1.22,
-        'most oblique accepted view of a marker, rad',
-        range=Range(0.0, math.pi / 2, low_open=True),
-        read_only=False,
-    ),
+    _detector('max_range_m', 'farthest accepted marker, m (.inf: no limit)'),
+    _detector('max_viewing_angle_rad', 'most oblique accepted view of a marker, rad'),
     Param(
         'allowed_ids',
         [],
@@ -150,14 +114,10 @@ DETECTOR_PARAMETERS = (
         type=ParamType.STRING_ARRAY,
         validator=_rule_of(parse_id_ranges),
         read_only=False,
+        field='detector.allowed_ids',
+        to_field=parse_id_ranges,
     ),
-    Param(
-        'pixel_noise_px',
-        0.5,
-        'corner noise sigma for the pose covariance, px',
-        range=POSITIVE,
-        read_only=False,
-    ),
+    _detector('pixel_noise_px', 'corner noise sigma for the pose covariance, px'),
 )
 PARAMETERS = ParamTable(
     NODE_NAME,
@@ -177,8 +137,8 @@ PARAMETERS = ParamTable(
         ),
         Param('base_frame', 'base_link', 'frame of the range-bearing observations'),
         config_param(
-            ExtrinsicsConfig(),
-            'source',
+            _DEFAULTS,
+            'extrinsics.source',
             'where the camera mount comes from',
             name='extrinsics_source',
             choices=EXTRINSICS_SOURCES,
@@ -240,20 +200,7 @@ def detector_config(values: dict[str, Any]) -> DetectorConfig:
     checked = {
         p.name: PARAMETERS.validate_one(p.name, values[p.name]) for p in DETECTOR_PARAMETERS
     }
-    return PARAMETERS.build(
-        lambda: DetectorConfig(
-            dictionary=checked['dictionary'],
-            default_marker_size_m=checked['marker_size_m'],
-            marker_sizes_m=parse_marker_sizes(checked['marker_sizes_m']),
-            corner_refinement=checked['corner_refinement'],
-            min_side_px=checked['min_side_px'],
-            max_reprojection_error_px=checked['max_reprojection_error_px'],
-            max_range_m=checked['max_range_m'],
-            max_viewing_angle_rad=checked['max_viewing_angle_rad'],
-            allowed_ids=parse_id_ranges(checked['allowed_ids']),
-            pixel_noise_px=checked['pixel_noise_px'],
-        )
-    )
+    return PARAMETERS.build(lambda: DetectorConfig(**PARAMETERS.fields(checked, 'detector')))
 
 
 def extrinsics_config(values: dict[str, Any]) -> ExtrinsicsConfig:

@@ -17,29 +17,29 @@ NODE_NAME = 'feature_tracker'
 IMAGE_TRANSPORTS = ('raw', 'compressed')
 _CORE = TrackerConfig()
 _CORE_DESCRIPTIONS = {
-    'max_features': 'most features tracked at once (>= 1)',
+    'max_features': 'most features tracked at once',
     'detector': "corner detector: 'shi_tomasi' (cv2.goodFeaturesToTrack) or 'fast'",
-    'quality_level': 'Shi-Tomasi: weakest corner kept, share of the strongest, in (0, 1)',
-    'fast_threshold': 'FAST: intensity difference, gray levels, in [1, 254]',
-    'min_distance_px': 'smallest distance of a new feature to any other, px (>= 1)',
-    'grid_rows': 'rows of the grid that spreads the features, in [1, 64]',
-    'grid_cols': 'columns of that grid, in [1, 64]',
-    'detect_every_n_frames': 'look for new features every n-th image (>= 1)',
+    'quality_level': 'Shi-Tomasi: weakest corner kept, share of the strongest',
+    'fast_threshold': 'FAST: intensity difference, gray levels',
+    'min_distance_px': 'smallest distance of a new feature to any other, px',
+    'grid_rows': 'rows of the grid that spreads the features',
+    'grid_cols': 'columns of that grid',
+    'detect_every_n_frames': 'look for new features every n-th image',
     'subpixel_refinement': 'refine new corners with cv2.cornerSubPix',
-    'lk_window_px': 'side of the Lucas-Kanade patch, px, in [5, 101]',
-    'lk_pyramid_levels': 'Lucas-Kanade pyramid levels above the image, in [0, 8]',
-    'lk_max_iterations': 'Lucas-Kanade iterations per level (>= 1)',
-    'lk_epsilon_px': 'Lucas-Kanade stops when a step is shorter, px (> 0)',
+    'lk_window_px': 'side of the Lucas-Kanade patch, px',
+    'lk_pyramid_levels': 'Lucas-Kanade pyramid levels above the image',
+    'lk_max_iterations': 'Lucas-Kanade iterations per level',
+    'lk_epsilon_px': 'Lucas-Kanade stops when a step is shorter, px',
     'max_lk_error': 'largest mean absolute patch difference, gray levels (0: no check)',
     'fb_threshold_px': 'largest forward-backward distance, px (0: no check)',
     'max_drift_px': 'largest distance of a track from its template, px (0: no check)',
-    'border_margin_px': 'tracks this close to the image edge are dropped, px (>= 0)',
+    'border_margin_px': 'tracks this close to the image edge are dropped, px',
     'reid_min_ncc': 'correlation a dropped track must reach, aligned (affine), to be '
-    're-identified where a prediction with a covariance expects it, in [0, 1] (0: none)',
-    'reid_max_search_px': 'largest half-axis of a searched 3-sigma ellipse, px (> 0)',
+    're-identified where a prediction with a covariance expects it (0: none)',
+    'reid_max_search_px': 'largest half-axis of a searched 3-sigma ellipse, px',
     'reid_max_alignments': 'affine alignments of search candidates per image, the oldest '
-    "predictions' first (>= 0)",
-    'max_dormant': 'dropped tracks remembered for re-identification (>= 0)',
+    "predictions' first",
+    'max_dormant': 'dropped tracks remembered for re-identification',
 }
 CORE_PARAMETERS = tuple(
     config_param(_CORE, item.name, _CORE_DESCRIPTIONS[item.name])

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from marker_detector.core.dictionaries import DEFAULT_DICTIONARY, DICTIONARIES
-from monoslam_shadow_node.monoslam.core.monoslam_types import MonoSlamConfig
+from monoslam_shadow_node.monoslam.core.monoslam_types import INITIALIZE_MODES, MonoSlamConfig
 from monoslam_shadow_node.monoslam.known_points_input import KnownPointRows, read_known_points
 from slam_core.arrays import FloatArray
 from slam_core.params import (
@@ -37,15 +37,12 @@ def _core(field: str, description: str, name: str = '') -> Param:
 
 
 CORE_PARAMETERS = (
-    Param(
+    _core(
         'known_points_source',
-        _CORE.known_points_source,
         "what fixes the world and its scale at the start: 'marker' (the target_* marker's "
         "corners, from fiducials), 'depth' (the features with a depth in the first depth "
         'image paired with a features frame: camera/depth/image_raw, registered to the colour '
         "image; the camera's optical frame then is map_frame) or 'file' (known_points_file)",
-        field='known_points_source',
-        choices=('marker', 'depth', 'file'),
     ),
     _core(
         'depth_noise_per_m',
@@ -56,36 +53,36 @@ CORE_PARAMETERS = (
         'depth_start_points',
         "known_points_source 'depth': most features the start puts in the map (>= 1)",
     ),
-    _core('pixel_sigma_px', 'feature and target corner pixel noise per coordinate, px (> 0)'),
+    _core('pixel_sigma_px', 'feature and target corner pixel noise per coordinate, px'),
     _core(
         'tracking_offset_px',
-        "tracked features' persistent offsets per coordinate, px (>= 0; 0: white noise; "
+        "tracked features' persistent offsets per coordinate, px (0: white noise; "
         'otherwise each feature keeps its offset in the state)',
     ),
-    _core('tracking_offset_time_s', 'their correlation time, s (> 0)'),
+    _core('tracking_offset_time_s', 'their correlation time, s'),
     _core(
         'linear_acceleration_sigma',
-        'constant velocity model: linear acceleration noise, m/s^2 per sqrt(Hz) (> 0)',
+        'constant velocity model: linear acceleration noise, m/s^2 per sqrt(Hz)',
         'linear_acceleration_sigma_m_s2',
     ),
     _core(
         'angular_acceleration_sigma',
-        'constant velocity model: angular acceleration noise, rad/s^2 per sqrt(Hz) (> 0)',
+        'constant velocity model: angular acceleration noise, rad/s^2 per sqrt(Hz)',
         'angular_acceleration_sigma_rad_s2',
     ),
-    _core('initial_velocity_sigma_m_s', 'camera velocity std. dev. at the start, m/s (> 0)'),
+    _core('initial_velocity_sigma_m_s', 'camera velocity std. dev. at the start, m/s'),
     _core(
         'initial_angular_velocity_sigma_rad_s',
-        'camera angular velocity std. dev. at the start, rad/s (> 0)',
+        'camera angular velocity std. dev. at the start, rad/s',
     ),
     _core(
         'initial_inverse_depth',
-        'inverse depth a new feature starts at (initialize=all), 1/m (> 0)',
+        'inverse depth a new feature starts at (initialize=all), 1/m',
         'initial_inverse_depth_per_m',
     ),
     _core(
         'initial_inverse_depth_sigma',
-        'its standard deviation, 1/m (> 0)',
+        'its standard deviation, 1/m',
         'initial_inverse_depth_sigma_per_m',
     ),
     _core(
@@ -94,22 +91,22 @@ CORE_PARAMETERS = (
         "depth's and its baseline's uncertainties, which the EKF's linearization drops "
         '(docs/design/monoslam.md)',
     ),
-    _core('gate_probability', 'chi-square gate of a measurement (2 dof), in (0, 1)'),
+    _core('gate_probability', 'chi-square gate of a measurement (2 dof)'),
     _core(
         'linearity_threshold',
-        'an inverse-depth feature whose linearity index is below this becomes Euclidean (> 0)',
+        'an inverse-depth feature whose linearity index is below this becomes Euclidean',
     ),
-    _core('max_features', 'most features in the filter (>= 1)'),
-    _core('target_measured', 'initialize=all: add features while fewer are measured (>= 1)'),
-    _core('max_new_per_frame', 'initialize=all: most features added per frame (>= 1)'),
+    _core('max_features', 'most features in the filter'),
+    _core('target_measured', 'initialize=all: add features while fewer are measured'),
+    _core('max_new_per_frame', 'initialize=all: most features added per frame'),
     _core('min_new_spacing_px', 'initialize=all: new features at least this far apart, px'),
     _core(
         'max_view_angle_deg',
         'a map feature is searched for only within this angle of its first viewing ray, deg',
     ),
     _core('view_margin_px', 'a map feature is searched for only this far inside the image, px'),
-    _core('failure_window', 'measurement attempts a feature is judged over (>= 1)'),
-    _core('min_success_ratio', 'a feature accepted less often over them is deleted, in (0, 1)'),
+    _core('failure_window', 'measurement attempts a feature is judged over'),
+    _core('min_success_ratio', 'a feature accepted less often over them is deleted'),
     _core('max_consecutive_failures', 'a feature rejected this often in a row is deleted'),
     _core('lost_after_frames', 'tracking is lost after this many frames measuring nothing'),
     _core(
@@ -118,12 +115,13 @@ CORE_PARAMETERS = (
         'known points in view',
     ),
     _core('max_position_sigma_m', 'tracking is lost when the position std. dev. exceeds it, m'),
-    _core('max_gap_s', 'a longer gap between frames is logged as a warning, s (> 0)'),
+    _core('max_gap_s', 'a longer gap between frames is logged as a warning, s'),
     Param(
         'initialize',
         'handover',
         "'handover': features enter only when the Shadow filter hands them over as static "
         "(shadow/static_features); 'all': classic MonoSLAM, from every new track",
+        choices=INITIALIZE_MODES,
         field='initialize',
     ),
     _core(
@@ -148,15 +146,13 @@ CORE_PARAMETERS = (
         "initialize 'all': a new feature corrects only itself (a consider update) until its "
         'inverse depth becomes Euclidean, as a handover does',
     ),
-    Param(
+    _core(
         'update',
-        _CORE.update,
         "'ransac': 1-point RANSAC update (Civera et al. 2010: the best one-match hypothesis "
         "picks the low-innovation inliers, gated high-innovation ones are rescued); 'gated': "
         'every measurement inside the chi-square gate',
-        field='update',
     ),
-    _core('ransac_seed', 'seed of the 1-point RANSAC draws: runs are reproducible (>= 0)'),
+    _core('ransac_seed', 'seed of the 1-point RANSAC draws: runs are reproducible'),
     _core(
         'estimate_noise',
         "the tracker's noise estimated online from the tracks SLAM measures (each against its "

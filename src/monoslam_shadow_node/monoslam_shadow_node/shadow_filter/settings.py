@@ -11,7 +11,6 @@ from types import SimpleNamespace
 from typing import Any
 
 from monoslam_shadow_node.shadow_filter.core.shadow_classifier import (
-    STATIC_TESTS,
     ClassifierConfig,
 )
 from monoslam_shadow_node.shadow_filter.core.shadow_ekf import EkfConfig
@@ -40,7 +39,7 @@ def _core(section: str, field: str, description: str) -> Param:
 
 
 CORE_PARAMETERS = (
-    _core('classifier', 'alpha', 'probability of calling a static feature dynamic, in (0, 1)'),
+    _core('classifier', 'alpha', 'probability of calling a static feature dynamic'),
     Param(
         'min_parallax_deg',
         round(math.degrees(_CLASSIFIER.min_parallax_rad), 9),
@@ -49,52 +48,50 @@ CORE_PARAMETERS = (
         field='classifier.min_parallax_rad',
         to_field=math.radians,
     ),
-    _core('classifier', 'parallax_growth', 'parallax factor between successive tests (>= 1)'),
-    _core('classifier', 'max_tests', 'tests per feature before it stays PENDING (>= 1)'),
-    _core('classifier', 'min_baseline_m', 'camera travel before the first test, m (> 0)'),
+    _core('classifier', 'parallax_growth', 'parallax factor between successive tests'),
+    _core('classifier', 'max_tests', 'tests per feature before it stays PENDING'),
+    _core('classifier', 'min_baseline_m', 'camera travel before the first test, m'),
     _core(
         'classifier',
         'middle_min_fraction',
-        'middle view at least this share of the baseline from both ends, in (0, 0.5]',
+        'middle view at least this share of the baseline from both ends',
     ),
     _core(
         'classifier',
         'min_detectable_speed_m_s',
         'speed that must have been visible before STATIC, m/s (0: any accepted test decides)',
     ),
-    _core('classifier', 'detection_power', 'power to see that speed, in (0, 1)'),
+    _core('classifier', 'detection_power', 'power to see that speed'),
     _core(
         'classifier',
         'unchecked_directions',
-        'least visible directions of motion not required to be visible (0, 1 or 2)',
+        'least visible directions of motion not required to be visible',
     ),
-    Param(
+    _core(
+        'classifier',
         'static_test',
-        _CLASSIFIER.static_test,
         "the static/dynamic test: both, the paper's three_ray alone, or all_view alone",
-        choices=STATIC_TESTS,
-        field='classifier.static_test',
     ),
-    _core('ekf', 'pixel_sigma_px', 'feature pixel noise per coordinate, px (> 0)'),
+    _core('ekf', 'pixel_sigma_px', 'feature pixel noise per coordinate, px'),
     _core(
         'ekf',
         'tracking_offset_px',
-        'tracker offsets that persist between images, px per coordinate (>= 0; 0: white)',
+        'tracker offsets that persist between images, px per coordinate (0: white)',
     ),
     _core(
         'ekf',
         'tracking_offset_time_s',
-        "the offsets' correlation time, re-anchoring included, s (> 0)",
+        "the offsets' correlation time, re-anchoring included, s",
     ),
     _core(
         'ekf',
         'initial_inverse_depth_per_m',
-        'inverse depth a new feature starts at, 1/m (>= 0)',
+        'inverse depth a new feature starts at, 1/m',
     ),
     _core(
         'ekf',
         'initial_inverse_depth_sigma_per_m',
-        'its standard deviation, 1/m (> 0)',
+        'its standard deviation, 1/m',
     ),
     _core('ekf', 'velocity_sigma_m_s', 'prior velocity std. dev. of a new feature, m/s'),
     _core('ekf', 'acceleration_psd_m2_s3', 'white acceleration noise density, m^2/s^3'),
@@ -111,7 +108,7 @@ CORE_PARAMETERS = (
     _core(
         'ekf',
         'innovation_gate_probability',
-        'chi-square gate of a measurement update, in (0, 1)',
+        'chi-square gate of a measurement update',
     ),
     _core('shadow', 'max_missed_frames', 'frames a feature may go unseen before it is dropped'),
     _core(

@@ -11,24 +11,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from slam_core.arrays import FloatArray
+from slam_core.params import NON_NEGATIVE, POSITIVE, check_fields, ruled
 
 
 @dataclass(frozen=True)
 class TrackingNoise:
     """Per-track offsets: sigma ``offset_px`` per axis (0: white), correlation time, s."""
 
-    offset_px: float = 0.0
-    offset_time_s: float = 1.0
+    offset_px: float = ruled(0.0, range=NON_NEGATIVE)
+    offset_time_s: float = ruled(1.0, range=POSITIVE)
 
     def __post_init__(self) -> None:
-        for name, value, ok, rule in (
-            ('offset_px', self.offset_px, self.offset_px >= 0, 'must be >= 0 px'),
-            ('offset_time_s', self.offset_time_s, self.offset_time_s > 0, 'must be > 0 s'),
-        ):
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f'tracking {name}={value!r}: must be a number')
-            if not math.isfinite(value) or not ok:
-                raise ValueError(f'tracking {name}={value!r}: {rule}')
+        check_fields(self, prefix='tracking ')
 
     @property
     def white(self) -> bool:

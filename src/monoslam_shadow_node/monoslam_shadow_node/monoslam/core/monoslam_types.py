@@ -14,6 +14,14 @@ from monoslam_shadow_node.common.core.projective import chi2_quantile
 from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.depth import DEPTH_NOISE_COEFFICIENT
+from slam_core.params import (
+    AT_LEAST_ONE,
+    NON_NEGATIVE,
+    POSITIVE,
+    PROBABILITY,
+    check_fields,
+    ruled,
+)
 
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
 INITIALIZE_MODES = ('all', 'handover')
@@ -32,101 +40,46 @@ class MonoSlamConfig:
     ``known_points``: key -> world point (3,) m, for ``known_points_source`` 'marker' or 'file'."""
 
     known_points: dict[int, tuple[float, float, float]] = field(default_factory=dict)
-    known_points_source: str = 'marker'  # 'marker', 'file': known_points; 'depth': monoslam_init
-    depth_noise_per_m: float = DEPTH_NOISE_COEFFICIENT  # sigma_z = c z^2, 1/m
-    depth_start_points: int = 50  # features a depth start puts in the map, at most
-    pixel_sigma_px: float = 1.0
-    tracking_offset_px: float = 0.0  # tracker offsets that persist (tracking_noise), px
-    tracking_offset_time_s: float = 1.0  # their correlation time, s
-    estimate_noise: bool = True  # take the tracker's noise from its tracks (noise_monitor)
-    linear_acceleration_sigma: float = 2.0  # m/s^2/sqrt(Hz)
-    angular_acceleration_sigma: float = 8.0  # rad/s^2/sqrt(Hz): hand tremor at 2-6 Hz
-    initial_velocity_sigma_m_s: float = 0.5
-    initial_angular_velocity_sigma_rad_s: float = 0.5
-    initial_inverse_depth: float = 0.2  # 1/m
-    initial_inverse_depth_sigma: float = 0.3  # 1/m
-    second_order: bool = True  # inverse depth x baseline term in S (monoslam_ekf)
-    gate_probability: float = 0.999
-    linearity_threshold: float = 0.1
-    max_features: int = 100
-    target_measured: int = 25
-    max_new_per_frame: int = 5
-    min_new_spacing_px: float = 20.0
-    max_view_angle_deg: float = 45.0
-    view_margin_px: float = 11.0  # the tracker's reach: border_margin_px, half its LK window
-    failure_window: int = 10
-    min_success_ratio: float = 0.5
-    max_consecutive_failures: int = 3
-    lost_after_frames: int = 15
-    lost_after_known_rejected_frames: int = 3
-    max_position_sigma_m: float = 2.0
-    max_gap_s: float = 1.0
-    initialize: str = 'all'
-    handover_probation: bool = True
-    fill_undecided: bool = True
-    undecided_probation: bool = False  # fills correct only themselves until cleared
-    new_probation: bool = False  # 'all': new features correct only themselves until linear
-    update: str = 'ransac'
-    ransac_seed: int = 0
+    known_points_source: str = ruled('marker', choices=KNOWN_POINT_SOURCES)  # monoslam_init
+    depth_noise_per_m: float = ruled(DEPTH_NOISE_COEFFICIENT, range=POSITIVE)  # sigma_z = c z^2
+    depth_start_points: int = ruled(50, range=AT_LEAST_ONE)  # features a depth start maps
+    pixel_sigma_px: float = ruled(1.0, range=POSITIVE)
+    tracking_offset_px: float = ruled(0.0, range=NON_NEGATIVE)  # persistent (tracking_noise)
+    tracking_offset_time_s: float = ruled(1.0, range=POSITIVE)  # their correlation time
+    estimate_noise: bool = ruled(True)  # take the tracker's noise from its tracks
+    linear_acceleration_sigma: float = ruled(2.0, range=POSITIVE)  # m/s^2/sqrt(Hz)
+    angular_acceleration_sigma: float = ruled(8.0, range=POSITIVE)  # rad/s^2/sqrt(Hz)
+    initial_velocity_sigma_m_s: float = ruled(0.5, range=POSITIVE)
+    initial_angular_velocity_sigma_rad_s: float = ruled(0.5, range=POSITIVE)
+    initial_inverse_depth: float = ruled(0.2, range=POSITIVE)  # 1/m
+    initial_inverse_depth_sigma: float = ruled(0.3, range=POSITIVE)  # 1/m
+    second_order: bool = ruled(True)  # inverse depth x baseline term in S (monoslam_ekf)
+    gate_probability: float = ruled(0.999, range=PROBABILITY)
+    linearity_threshold: float = ruled(0.1, range=POSITIVE)
+    max_features: int = ruled(100, range=AT_LEAST_ONE)
+    target_measured: int = ruled(25, range=AT_LEAST_ONE)
+    max_new_per_frame: int = ruled(5, range=AT_LEAST_ONE)
+    min_new_spacing_px: float = ruled(20.0, range=NON_NEGATIVE)
+    max_view_angle_deg: float = ruled(45.0, range=POSITIVE)
+    view_margin_px: float = ruled(11.0, range=NON_NEGATIVE)  # the tracker's reach
+    failure_window: int = ruled(10, range=AT_LEAST_ONE)
+    min_success_ratio: float = ruled(0.5, range=PROBABILITY)
+    max_consecutive_failures: int = ruled(3, range=AT_LEAST_ONE)
+    lost_after_frames: int = ruled(15, range=AT_LEAST_ONE)
+    lost_after_known_rejected_frames: int = ruled(3, range=AT_LEAST_ONE)
+    max_position_sigma_m: float = ruled(2.0, range=POSITIVE)
+    max_gap_s: float = ruled(1.0, range=POSITIVE)
+    initialize: str = ruled('all', choices=INITIALIZE_MODES)
+    handover_probation: bool = ruled(True)
+    fill_undecided: bool = ruled(True)
+    undecided_probation: bool = ruled(False)  # fills correct only themselves until cleared
+    new_probation: bool = ruled(False)  # 'all': new features correct only themselves until linear
+    update: str = ruled('ransac', choices=UPDATE_MODES)
+    ransac_seed: int = ruled(0, range=NON_NEGATIVE)
 
     def __post_init__(self) -> None:
         """Reject values the filter cannot honour; the message names the field."""
-        positive = (
-            'pixel_sigma_px', 'linear_acceleration_sigma', 'angular_acceleration_sigma',
-            'initial_velocity_sigma_m_s', 'initial_angular_velocity_sigma_rad_s',
-            'initial_inverse_depth', 'initial_inverse_depth_sigma', 'linearity_threshold',
-            'max_position_sigma_m', 'max_gap_s', 'tracking_offset_time_s', 'max_view_angle_deg',
-            'depth_noise_per_m',
-        )  # fmt: skip
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
-                raise ValueError(f'{name}={value!r}: must be a finite number > 0')
-        margin = self.view_margin_px
-        if not (isinstance(margin, int | float) and math.isfinite(margin) and margin >= 0.0):
-            raise ValueError(f'view_margin_px={margin!r}: must be a finite number >= 0')
-        for name in ('gate_probability', 'min_success_ratio'):
-            value = getattr(self, name)
-            if not 0.0 < value < 1.0:
-                raise ValueError(f'{name}={value!r}: must be in (0, 1)')
-        counts = (
-            'max_features', 'target_measured', 'max_new_per_frame',
-            'failure_window', 'max_consecutive_failures', 'lost_after_frames',
-            'lost_after_known_rejected_frames', 'depth_start_points',
-        )  # fmt: skip
-        for name in counts:
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f'{name}={value!r}: must be an integer >= 1')
-        offset = self.tracking_offset_px
-        if not (isinstance(offset, int | float) and math.isfinite(offset) and offset >= 0.0):
-            raise ValueError(f'tracking_offset_px={offset!r}: must be a finite number >= 0')
-        if self.min_new_spacing_px < 0.0:
-            raise ValueError(f'min_new_spacing_px={self.min_new_spacing_px!r}: must be >= 0')
-        if self.initialize not in INITIALIZE_MODES:
-            raise ValueError(
-                f'initialize={self.initialize!r}: must be one of {", ".join(INITIALIZE_MODES)}'
-            )
-        for name in (
-            'handover_probation',
-            'fill_undecided',
-            'undecided_probation',
-            'new_probation',
-            'second_order',
-            'estimate_noise',
-        ):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f'{name}={getattr(self, name)!r}: must be a bool')
-        if self.known_points_source not in KNOWN_POINT_SOURCES:
-            raise ValueError(
-                f'known_points_source={self.known_points_source!r}: must be one of '
-                f'{", ".join(KNOWN_POINT_SOURCES)}'
-            )
-        if self.update not in UPDATE_MODES:
-            raise ValueError(f'update={self.update!r}: must be one of {", ".join(UPDATE_MODES)}')
-        seed = self.ransac_seed
-        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise ValueError(f'ransac_seed={seed!r}: must be an integer >= 0')
+        check_fields(self)
         for key, point in self.known_points.items():
             if len(point) != 3 or not all(math.isfinite(float(c)) for c in point):
                 raise ValueError(f'known point {key}: {point!r} must be 3 finite coordinates (m)')

@@ -33,6 +33,15 @@ from monoslam_shadow_node.shadow_filter.core.static_fit import (
 )
 from slam_core.arrays import FloatArray
 from slam_core.lazy_stats import ncx2
+from slam_core.params import (
+    AT_LEAST_ONE,
+    NON_NEGATIVE,
+    POSITIVE,
+    PROBABILITY,
+    Range,
+    check_fields,
+    ruled,
+)
 
 STATIC_TESTS = ('both', 'three_ray', 'all_view')
 """The choices of ``ClassifierConfig.static_test``."""
@@ -46,44 +55,21 @@ DECORRELATED = math.log(2.0)
 class ClassifierConfig:
     """The static/dynamic rule (units in the names); raises ValueError for a bad value."""
 
-    alpha: float = 0.05
-    min_parallax_rad: float = math.radians(2.0)
-    parallax_growth: float = 1.5
-    max_tests: int = 6
-    min_baseline_m: float = 0.05
-    middle_min_fraction: float = 0.25
-    min_detectable_speed_m_s: float = 0.3
-    detection_power: float = 0.99
-    unchecked_directions: int = 1
-    static_test: str = 'both'
+    alpha: float = ruled(0.05, range=PROBABILITY)
+    min_parallax_rad: float = ruled(
+        math.radians(2.0), range=Range(0.0, math.pi, low_open=True, high_open=True)
+    )
+    parallax_growth: float = ruled(1.5, range=Range(1.0))
+    max_tests: int = ruled(6, range=AT_LEAST_ONE)
+    min_baseline_m: float = ruled(0.05, range=POSITIVE)
+    middle_min_fraction: float = ruled(0.25, range=Range(0.0, 0.5, low_open=True))
+    min_detectable_speed_m_s: float = ruled(0.3, range=NON_NEGATIVE)
+    detection_power: float = ruled(0.99, range=PROBABILITY)
+    unchecked_directions: int = ruled(1, choices=(0, 1, 2))
+    static_test: str = ruled('both', choices=STATIC_TESTS)
 
     def __post_init__(self) -> None:
-        if self.static_test not in STATIC_TESTS:
-            raise ValueError(
-                f'static_test={self.static_test!r}: must be one of {", ".join(STATIC_TESTS)}'
-            )
-        checks = (
-            ('alpha', self.alpha, 0 < self.alpha < 1, 'must be in (0, 1)'),
-            ('min_parallax_rad', self.min_parallax_rad, 0 < self.min_parallax_rad < math.pi,
-             'must be in (0, pi) rad'),
-            ('parallax_growth', self.parallax_growth, self.parallax_growth >= 1, 'must be >= 1'),
-            ('max_tests', self.max_tests,
-             isinstance(self.max_tests, int) and self.max_tests >= 1, 'must be an integer >= 1'),
-            ('min_baseline_m', self.min_baseline_m, self.min_baseline_m > 0, 'must be > 0 m'),
-            ('middle_min_fraction', self.middle_min_fraction,
-             0 < self.middle_min_fraction <= 0.5, 'must be in (0, 0.5]'),
-            ('min_detectable_speed_m_s', self.min_detectable_speed_m_s,
-             self.min_detectable_speed_m_s >= 0, 'must be >= 0 m/s'),
-            ('detection_power', self.detection_power, 0 < self.detection_power < 1,
-             'must be in (0, 1)'),
-            ('unchecked_directions', self.unchecked_directions,
-             self.unchecked_directions in (0, 1, 2), 'must be 0, 1 or 2'),
-        )  # fmt: skip
-        for name, value, ok, rule in checks:
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f'{name}={value!r}: must be a number')
-            if not math.isfinite(value) or not ok:
-                raise ValueError(f'{name}={value!r}: {rule}')
+        check_fields(self)
 
     @property
     def test_alpha(self) -> float:

@@ -15,6 +15,7 @@ from monoslam_shadow_node.common.core.tracking_noise import TrackingNoise
 from slam_core.arrays import FloatArray
 from slam_core.camera import CameraModel
 from slam_core.geometry.so3 import skew
+from slam_core.params import NON_NEGATIVE, POSITIVE, PROBABILITY, check_fields, ruled
 
 BoolArray = NDArray[np.bool_]
 STATE_SIZE = 7
@@ -29,40 +30,19 @@ MIN_FRONT_Z = 1e-3  # a direction with z below this is not in front of the camer
 class EkfConfig:
     """Noise model of the EKF (units in the names; ``tracking_offset_px`` 0: white noise)."""
 
-    pixel_sigma_px: float = 1.0
-    tracking_offset_px: float = 0.0
-    tracking_offset_time_s: float = 1.0
-    initial_inverse_depth_per_m: float = 0.25
-    initial_inverse_depth_sigma_per_m: float = 0.25
-    velocity_sigma_m_s: float = 0.5
-    acceleration_psd_m2_s3: float = 0.05
-    camera_translation_sigma_m: float = 0.0
-    camera_rotation_sigma_rad: float = 0.0
-    innovation_gate_probability: float = 0.9999
+    pixel_sigma_px: float = ruled(1.0, range=POSITIVE)
+    tracking_offset_px: float = ruled(0.0, range=NON_NEGATIVE)
+    tracking_offset_time_s: float = ruled(1.0, range=POSITIVE)
+    initial_inverse_depth_per_m: float = ruled(0.25, range=NON_NEGATIVE)
+    initial_inverse_depth_sigma_per_m: float = ruled(0.25, range=POSITIVE)
+    velocity_sigma_m_s: float = ruled(0.5, range=NON_NEGATIVE)
+    acceleration_psd_m2_s3: float = ruled(0.05, range=NON_NEGATIVE)
+    camera_translation_sigma_m: float = ruled(0.0, range=NON_NEGATIVE)
+    camera_rotation_sigma_rad: float = ruled(0.0, range=NON_NEGATIVE)
+    innovation_gate_probability: float = ruled(0.9999, range=PROBABILITY)
 
     def __post_init__(self) -> None:
-        checks = (
-            ('pixel_sigma_px', self.pixel_sigma_px, self.pixel_sigma_px > 0),
-            ('initial_inverse_depth_per_m', self.initial_inverse_depth_per_m,
-             self.initial_inverse_depth_per_m >= 0),
-            ('initial_inverse_depth_sigma_per_m', self.initial_inverse_depth_sigma_per_m,
-             self.initial_inverse_depth_sigma_per_m > 0),
-            ('velocity_sigma_m_s', self.velocity_sigma_m_s, self.velocity_sigma_m_s >= 0),
-            ('acceleration_psd_m2_s3', self.acceleration_psd_m2_s3,
-             self.acceleration_psd_m2_s3 >= 0),
-            ('camera_translation_sigma_m', self.camera_translation_sigma_m,
-             self.camera_translation_sigma_m >= 0),
-            ('camera_rotation_sigma_rad', self.camera_rotation_sigma_rad,
-             self.camera_rotation_sigma_rad >= 0),
-            ('innovation_gate_probability', self.innovation_gate_probability,
-             0 < self.innovation_gate_probability < 1),
-            ('tracking_offset_px', self.tracking_offset_px, self.tracking_offset_px >= 0),
-            ('tracking_offset_time_s', self.tracking_offset_time_s,
-             self.tracking_offset_time_s > 0),
-        )  # fmt: skip
-        for name, value, ok in checks:
-            if not (isinstance(value, int | float) and np.isfinite(value) and ok):
-                raise ValueError(f'{name}={value!r} is out of range')
+        check_fields(self)
 
     @property
     def tracking_noise(self) -> TrackingNoise:

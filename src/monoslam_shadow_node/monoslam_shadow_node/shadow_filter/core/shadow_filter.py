@@ -40,6 +40,7 @@ from monoslam_shadow_node.shadow_filter.core.shadow_track import Track
 from monoslam_shadow_node.shadow_filter.core.static_fit import ROW_PRECISION, ROW_SIZE, view_rows
 from slam_core.arrays import FloatArray, IntArray
 from slam_core.camera import CameraModel
+from slam_core.params import NON_NEGATIVE, check_fields, ruled
 
 RESTART_AFTER_GATED = 3
 """Gated measurements in a row after which a feature's EKF restarts from its latest ray."""
@@ -95,17 +96,14 @@ class ShadowConfig:
 
     ekf: EkfConfig = field(default_factory=EkfConfig)
     classifier: ClassifierConfig = field(default_factory=ClassifierConfig)
-    max_missed_frames: int = 5
-    trajectory_length: int = 100
+    max_missed_frames: int = ruled(5, range=NON_NEGATIVE)
+    trajectory_length: int = ruled(100, range=NON_NEGATIVE)
     classify: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.classify, bool):
             raise ValueError(f'classify={self.classify!r}: must be true or false')
-        for name in ('max_missed_frames', 'trajectory_length'):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f'{name}={value!r}: must be an integer >= 0')
+        check_fields(self)
 
 
 @dataclass(frozen=True, eq=False)
