@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray
 
 from slam_ros.testing.harness import RosHarness
 
@@ -20,11 +21,17 @@ def test_a_fresh_run_keeps_the_last_one_and_an_empty_run_leaves_nothing(
     report_dir.mkdir()
     (report_dir / 'em_sam_report.json').write_text('{"last": "run"}')
     (report_dir / 'em_sam_map.png').write_bytes(b'figure')
+    diagnostics = ros_harness.collect('/diagnostics', DiagnosticArray)
     mapper = ros_harness.start_process(
         'em_sam_mapper', ['em_sam_mapper', '--ros-args', '-p', f'report_dir:={report_dir}']
     )
     moved_line = mapper.wait_for_line(60.0, 'the previous run in', 'was moved to')
-    ros_harness.wait_for_publishers('/em_sam/path', timeout_s=60.0)  # up and spinning
+    # Spinning, not only constructing: its diagnostics come from a timer of its executor
+    # (a Ctrl-C during construction ends the process before there is a node to finalize).
+    diagnostics.wait_for(
+        lambda array: any('em_sam_mapper' in status.name for status in array.status),
+        timeout_s=60.0,
+    )
     assert mapper.stop() == 0, mapper.log()
     kept = [p for p in tmp_path.iterdir() if p.name.startswith('em_sam_live.')]
     assert len(kept) == 1 and str(kept[0]) in moved_line
