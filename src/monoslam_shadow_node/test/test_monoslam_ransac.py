@@ -219,7 +219,7 @@ def test_hypotheses_follow_the_papers_formula(ratio: float, expected: int) -> No
 
 
 def test_the_update_mode_is_validated() -> None:
-    with pytest.raises(ValueError, match=r"update='jcbb': must be one of ransac, gated"):
+    with pytest.raises(ValueError, match=r"update='jcbb': must be one of 'ransac', 'gated'"):
         MonoSlamConfig(update='jcbb')
     with pytest.raises(ValueError, match='ransac_seed'):
         MonoSlamConfig(ransac_seed=-1)
