@@ -31,7 +31,7 @@ from slam_core.stamps import stamp_to_ns
 from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.testing.harness import RosHarness, wait_until
 
-pytestmark = pytest.mark.topic
+pytestmark = [pytest.mark.topic, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'office_camera.mcap'

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.topic
+pytestmark = [pytest.mark.topic, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'office_moveable.mcap'

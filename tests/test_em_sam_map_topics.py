@@ -21,7 +21,7 @@ from slam_interfaces.srv import FindLandmark
 from slam_ros.qos import latched_qos
 from slam_ros.testing.harness import Collector, RosHarness, wait_until
 
-pytestmark = pytest.mark.topic
+pytestmark = [pytest.mark.topic, pytest.mark.slow]
 
 
 @dataclass

@@ -47,6 +47,7 @@ def _replay(data: MappingData, smoother: IncrementalEmSam) -> dict[int, int]:
     return wrongly
 
 
+@pytest.mark.slow
 def test_the_office_run_online_flags_no_static_marker_at_any_keyframe(office: MappingData) -> None:
     """Every keyframe's moveable set holds no static marker, and the run ends with the ten
     moved ones: a moved marker's new sightings never pull the path (before the smoother

@@ -22,7 +22,7 @@ from mapper_fault import (
     run,
 )
 
-pytestmark = pytest.mark.topic
+pytestmark = [pytest.mark.topic, pytest.mark.slow]
 
 # 5x: at 10x on two cores shared with other work, odometry_ingest lost odometry from its full
 # queue in one run and not the other (1792 against 1802 keyframes): the run must get every

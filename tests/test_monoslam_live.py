@@ -35,7 +35,7 @@ from slam_core.stamps import stamp_to_ns
 from slam_ros.qos import output_qos
 from slam_ros.testing.harness import RosHarness
 
-pytestmark = pytest.mark.topic
+pytestmark = [pytest.mark.topic, pytest.mark.slow]
 
 FRAMES = 300  # 10 s at 30 Hz (the graph's dynamic_scene_sim settings)
 PERIOD_NS = round(1e9 / 30.0)

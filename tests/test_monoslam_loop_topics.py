@@ -69,7 +69,7 @@ from slam_ros.testing.harness import RosHarness, wait_until
 from slam_sim.core.dynamic_render import DynamicRenderer
 from slam_sim.dynamic_camera_bag import write_dynamic_camera_bag
 
-pytestmark = pytest.mark.topic
+pytestmark = [pytest.mark.topic, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_CONFIG = ROOT / 'src' / 'monoslam_shadow_node' / 'config' / 'monoslam_dynamic_camera.yaml'

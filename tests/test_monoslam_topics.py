@@ -69,7 +69,7 @@ from slam_sim.core.dynamic_config import DynamicSceneConfig
 from slam_sim.core.dynamic_scene import DynamicSceneRun, simulate_dynamic_scene
 from slam_sim.core.init_target import InitTarget, target_pixels
 
-pytestmark = pytest.mark.topic
+pytestmark = [pytest.mark.topic, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'dynamic_camera.mcap'

@@ -23,7 +23,7 @@ from graph_checks import last_reports, offline_keyframes, run_graph
 from slam_ros.qos import output_qos
 from slam_ros.testing.harness import RosHarness
 
-pytestmark = pytest.mark.topic
+pytestmark = [pytest.mark.topic, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'office_moveable.mcap'

@@ -43,7 +43,7 @@ from slam_interfaces.msg import LandmarkMap, LandmarkObservationArray
 from slam_ros.qos import latched_qos, output_qos, sensor_qos
 from slam_ros.testing.harness import RosHarness, wait_until
 
-pytestmark = pytest.mark.topic
+pytestmark = [pytest.mark.topic, pytest.mark.slow]
 
 LIVE_S = 140.0  # the robot is in office 2 from about 90 s: most moved markers seen again
 START_TIMEOUT_S = 60.0

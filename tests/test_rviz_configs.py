@@ -287,6 +287,7 @@ def note_publishers(harness: Any, topics: list[str], seen: GraphObservation) -> 
             seen.publishers.setdefault(topic, set()).add(info.topic_type)
 
 
+@pytest.mark.slow
 @pytest.mark.topic
 @pytest.mark.parametrize('pair', PAIRS, ids=[f'{p.rviz}-{p.graph}' for p in PAIRS])
 def test_every_display_topic_and_frame_exists_in_its_graph(

@@ -153,10 +153,12 @@ class FieldRule:
             return f'must have {self.length} items'
         integer = str(annotation).startswith(('int', 'tuple[int'))
         for item in items:
-            if isinstance(item, bool) or not isinstance(item, numbers.Real):
-                return 'must be an integer' if integer else 'must be a number'
-            if integer and not isinstance(item, numbers.Integral):
-                return 'must be an integer'
+            kind = type(item)
+            if kind is not int and (kind is not float or integer):  # the common cases first
+                if isinstance(item, bool) or not isinstance(item, numbers.Real):
+                    return 'must be an integer' if integer else 'must be a number'
+                if integer and not isinstance(item, numbers.Integral):
+                    return 'must be an integer'
             problem = number_problem(float(item), self.range, self.allow_inf)
             if problem is not None:
                 return problem
@@ -189,14 +191,26 @@ def field_rule(config: object, name: str) -> FieldRule | None:
 def check_fields(config: object, prefix: str = '') -> None:
     """Raise ValueError('<prefix><field>=<value>: <rule>') for the first field of a config
     dataclass that breaks its rule (``ruled``)."""
-    for item in dataclasses.fields(config):  # type: ignore[arg-type]
-        rule = item.metadata.get(RULE)
-        if not isinstance(rule, FieldRule):
-            continue
-        value = getattr(config, item.name)
-        problem = rule.problem(value, item.type)
+    for name, rule, annotation in _ruled_fields(type(config)):
+        value = getattr(config, name)
+        problem = rule.problem(value, annotation)
         if problem is not None:
-            raise ValueError(f'{prefix}{item.name}={value!r}: {problem}')
+            raise ValueError(f'{prefix}{name}={value!r}: {problem}')
+
+
+_RULED_FIELDS: dict[type, tuple[tuple[str, FieldRule, str], ...]] = {}
+
+
+def _ruled_fields(config_type: type) -> tuple[tuple[str, FieldRule, str], ...]:
+    ruled_fields = _RULED_FIELDS.get(config_type)
+    if ruled_fields is None:
+        ruled_fields = tuple(
+            (item.name, item.metadata[RULE], str(item.type))
+            for item in dataclasses.fields(config_type)
+            if isinstance(item.metadata.get(RULE), FieldRule)
+        )
+        _RULED_FIELDS[config_type] = ruled_fields
+    return ruled_fields
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from slam_ros.typesys import TypeRegistry
 from slam_sim.core.office import OfficeConfig, simulate_office
 from slam_sim.office_bag import write_office_bag
 
-pytestmark = pytest.mark.replay
+pytestmark = [pytest.mark.replay, pytest.mark.slow]
 
 SEED = 3
 

@@ -156,6 +156,7 @@ def short_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, Path]:
     return status, out
 
 
+@pytest.mark.slow
 def test_short_run_writes_the_report_table_and_figures(short_run: tuple[int, Path]) -> None:
     status, out = short_run
     assert status == 0

@@ -451,6 +451,7 @@ def test_undecided_features_fill_the_map_but_never_those_found_moving() -> None:
     assert np.median(record.measured[30:]) >= 0.8 * MonoSlamConfig().target_measured
 
 
+@pytest.mark.slow
 def test_the_map_survives_a_turn_away_and_is_remeasured_on_return() -> None:
     """The loop scene (monoslam_loop): a 90 deg turn away for 6 s and back; (c) with the
     defaults never loses tracking and re-measures most of its map on return."""

@@ -206,6 +206,7 @@ def test_surfaces_look_the_same_after_their_true_motion_so_nothing_shimmers() ->
         assert np.sqrt(np.mean(residual**2)) < 6.5  # 8-10 without prefiltered textures
 
 
+@pytest.mark.slow
 def test_pixels_on_outlines_average_the_surfaces_they_cover() -> None:
     exact = DynamicRenderer(CONFIG, 0, options=RenderOptions(effects=None, supersample=8))
     reference = exact.render(140)

@@ -5,6 +5,7 @@ Design notes: docs/design/monoslam_core.md.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -89,7 +90,7 @@ class MonoSlamConfig:
         """The chi-square gate (2 degrees of freedom) on one feature's innovation."""
         return chi2_quantile(self.gate_probability, 2)
 
-    @property
+    @functools.cached_property
     def tracking_noise(self) -> TrackingNoise:
         """The tracker's persistent offsets (``tracking_noise``)."""
         return TrackingNoise(self.tracking_offset_px, self.tracking_offset_time_s)

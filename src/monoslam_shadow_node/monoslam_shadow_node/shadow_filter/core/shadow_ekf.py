@@ -5,6 +5,7 @@ Design notes: docs/design/shadow_filter_core.md."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,7 +45,7 @@ class EkfConfig:
     def __post_init__(self) -> None:
         check_fields(self)
 
-    @property
+    @functools.cached_property
     def tracking_noise(self) -> TrackingNoise:
         """The tracker's persistent offsets (``tracking_noise``)."""
         return TrackingNoise(self.tracking_offset_px, self.tracking_offset_time_s)
