@@ -49,7 +49,10 @@ def spin_node(
         node = factory()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        # rclpy's signal thread shuts the context down at a moment of its own: shut it down
+        # here, so that the wind-down below always takes the console path, never a /rosout
+        # that dies halfway through it.
+        rclpy.try_shutdown()
     except Exception as err:
         if rclpy.ok():
             raise

@@ -36,6 +36,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
+from em_sam_node.core.em_types import EmResult
 from em_sam_node.core.factorization import SingularSystemError
 from em_sam_node.mapper.checkpoint import load_checkpoint, save_checkpoint
 from em_sam_node.mapper.conversions import (
@@ -127,6 +128,7 @@ class MapperBehaviour(Node):
         self.create_service(LoadMap, '~/load_map', self._on_load_map)
         # a resumed solution has no sightings: the next solve (warm-started from it) makes them
         self._dirty = self.mapper.result is not None
+        self._next_solve = 0.0  # time.monotonic() before which the timer does not solve
 
     def _activate(self, values: dict[str, Any]) -> None:
         """Take inputs and run the timers."""
@@ -347,14 +349,15 @@ class MapperBehaviour(Node):
 
     # -- solving and publishing -----------------------------------------------------------
     def _on_timer(self) -> None:
-        if self._dirty:
+        if self._dirty and time.monotonic() >= self._next_solve:
             self.optimize()
 
     def optimize(self) -> str:
-        """Solve EM-SAM now and publish the results; return a one-line summary."""
+        """Solve EM-SAM now and publish the results; return a one-line summary. The timer's
+        next solve waits as long as this one took (docs/design/em_sam_nodes.md)."""
         started = time.perf_counter()
         try:
-            result = self.mapper.optimize()
+            result = self._solve()
         except SingularSystemError as error:  # e.g. an increment whose covariance is so wide
             self._dirty = False  # that it fixes nothing: solved again once new data come
             self.unsolved += 1
@@ -393,6 +396,14 @@ class MapperBehaviour(Node):
             )
         self.get_logger().info(summary)
         return summary
+
+    def _solve(self) -> EmResult | None:
+        started = time.monotonic()
+        try:
+            return self.mapper.optimize()
+        finally:
+            ended = time.monotonic()
+            self._next_solve = ended + (ended - started)
 
     def _publish_tf(self) -> None:
         transform = self.mapper.map_to_odom()
