@@ -11,7 +11,7 @@ the mapper writes its report (a final solve over everything it took). Checked:
   /landmark_observations, split at the move on /ground_truth/landmarks) is flagged moveable,
   and no marker that stayed where it was;
 - on /tf and /tf_static no frame ever has two parents, and from the first map -> odom on,
-  map -> camera_optical_frame resolves at the stamp of every camera image;
+  map -> camera_optical_frame resolves at the stamp of every camera image up to the last odometry;
 - the README's tools read the running graph as a user without the ROS CLI does:
   ``slam_echo em_sam/moveable --once``, ``slam_diag --once`` and ``slam_call find_landmark``
   for a moved marker, and their answers agree with the mapper's report;
@@ -144,8 +144,11 @@ def test_em_sam_live_on_the_simulated_peoplebot(ros_harness: RosHarness, tmp_pat
     tree = tf_tree(tf_static.messages, tf.messages)
     assert parents(tree) == EM_SAM_CAMERA_TREE
     map_odom = tree.edges['odom'].stamps
+    # Ctrl-C stops the simulator between an image and the odometry after it: an image past
+    # the last odom -> base_link is one tf2 would wait for in vain, not a gap in the tree.
+    end = min(map_odom[-1], tree.edges['base_link'].stamps[-1])
     stamps = sorted(stamp_to_ns(message.header.stamp) for message in infos.messages)
-    covered = [s for s in stamps if map_odom[0] <= s <= map_odom[-1]]
+    covered = [s for s in stamps if map_odom[0] <= s <= end]
     assert len(covered) >= 0.8 * len(stamps), f'{len(covered)} of {len(stamps)} images'
     unresolved = [s for s in covered if not tree.resolves('map', 'camera_optical_frame', s)]
     assert not unresolved, f'{len(unresolved)} of {len(covered)} images, first at {unresolved[0]}'
