@@ -76,7 +76,9 @@ def user_tools(moved_ids: list[int]) -> dict[str, subprocess.CompletedProcess[st
     """What the README's tools print about the running graph."""
     tools = {
         'echo': run_tool('slam_echo', 'em_sam/moveable', '--once', '--wait', '30'),
-        'diag': run_tool('slam_diag', '--once', '--wait', '8'),  # every node's 1 Hz report
+        # every node's 1 Hz report; the mapper's comes between its full passes, which take
+        # seconds on a busy machine
+        'diag': run_tool('slam_diag', '--once', '--wait', '30'),
     }
     if moved_ids:
         request = f'{{landmark_id: {moved_ids[0]}}}'

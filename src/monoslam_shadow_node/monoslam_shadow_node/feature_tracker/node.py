@@ -50,7 +50,7 @@ from monoslam_shadow_node.feature_tracker.settings import (
 )
 from slam_core.cli import console_main
 from slam_core.images import ImageError, ImageTooLargeError
-from slam_core.stamps import ns_to_stamp, stamp_to_ns
+from slam_core.stamps import ns_to_stamp, stamp_problem, stamp_to_ns
 from slam_interfaces.msg import FeatureTrackArray, ShadowTrackArray
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
@@ -104,6 +104,7 @@ class FeatureTrackerNode(Node):
             camera_info_topic=CAMERA_INFO_TOPIC,
         )
         self.undecodable = 0
+        self.bad_stamps = 0
         self.undecodable_predictions = 0
         self.too_large = 0
         self.busy_s = 0.0
@@ -173,6 +174,13 @@ class FeatureTrackerNode(Node):
 
     def _on_image(self, message: Image | CompressedImage) -> None:
         started = time.perf_counter()
+        problem = stamp_problem(message.header.stamp)
+        if problem is not None:  # no time: its features could not carry it on
+            self.bad_stamps += 1
+            self._log(
+                Notice('bad_stamp', 'error', f'image dropped: its stamp is not a time, {problem}')
+            )
+            return
         stamp_ns = stamp_to_ns(message.header.stamp)
         limit = self.settings.max_image_pixels
         try:
@@ -289,8 +297,10 @@ class FeatureTrackerNode(Node):
             'dropped': sum(stats.images_dropped.values())
             + self.undecodable
             + self.too_large
+            + self.bad_stamps
             + self.undecodable_predictions,
             'refused too large': self.too_large,
+            'stamps not a time': self.bad_stamps,
             'predictions undecodable': self.undecodable_predictions,
             'camera_info rejected': stats.camera_rejected,
             'restarts': stats.restarts,
@@ -308,7 +318,8 @@ class FeatureTrackerNode(Node):
 
     def _report_status(self) -> None:
         now, frames = time.monotonic(), self.processor.stats.frames
-        seen = (frames, sum(self.processor.stats.images_dropped.values()), self.undecodable)
+        dropped = sum(self.processor.stats.images_dropped.values())
+        seen = (frames, dropped, self.undecodable + self.bad_stamps)
         if seen == self._status_seen:
             return  # nothing came since the last line
         rate = (frames - self._status_seen[0]) / (now - self._status_time)
@@ -320,6 +331,7 @@ class FeatureTrackerNode(Node):
         stats = self.processor.stats
         busy = f', {1e3 * self.busy_s / stats.frames:.1f} ms per image' if stats.frames else ''
         undecodable = f', {self.undecodable} undecodable' if self.undecodable else ''
+        undecodable += f', {self.bad_stamps} without a time' if self.bad_stamps else ''
         return status_line(stats, rate_hz) + undecodable + busy
 
     def destroy_node(self) -> None:
