@@ -416,9 +416,7 @@ class ParamTable:
             if isinstance(item, bool) or not isinstance(item, int | float):
                 raise self.fail(param.name, value, f'must be a number{of}')
             number = float(item)
-        problem = number_problem(number, param.range, allow_inf=True)
-        if element is ParamType.DOUBLE:
-            problem = number_problem(number, param.range, param.allow_inf)
+        problem = number_problem(number, param.range, param.allow_inf)  # an int is finite
         if problem is not None:
             raise self.fail(param.name, value, problem + of)
         return number
