@@ -36,7 +36,6 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
-from em_sam_node.core.em_types import EmResult
 from em_sam_node.core.factorization import SingularSystemError
 from em_sam_node.mapper.checkpoint import load_checkpoint, save_checkpoint
 from em_sam_node.mapper.conversions import (
@@ -357,12 +356,14 @@ class MapperBehaviour(Node):
         next solve waits as long as this one took (docs/design/em_sam_nodes.md)."""
         started = time.perf_counter()
         try:
-            result = self._solve()
+            result = self.mapper.optimize()
         except SingularSystemError as error:  # e.g. an increment whose covariance is so wide
             self._dirty = False  # that it fixes nothing: solved again once new data come
             self.unsolved += 1
             self.get_logger().warning(f'EM-SAM not solved: {error}')
             return f'not solved: {error}'
+        finally:
+            self._next_solve = time.monotonic() + (time.perf_counter() - started)
         # only once solved: a solve cut short (Ctrl-C) leaves the report to solve again
         self._dirty = False
         if result is None:
@@ -396,14 +397,6 @@ class MapperBehaviour(Node):
             )
         self.get_logger().info(summary)
         return summary
-
-    def _solve(self) -> EmResult | None:
-        started = time.monotonic()
-        try:
-            return self.mapper.optimize()
-        finally:
-            ended = time.monotonic()
-            self._next_solve = ended + (ended - started)
 
     def _publish_tf(self) -> None:
         transform = self.mapper.map_to_odom()
