@@ -62,9 +62,14 @@ class StampSync(Generic[P, Q]):
         max_entries: int,
         names: SyncNames,
         in_order_partners: bool = False,
+        stall_ns: int | None = None,
     ) -> None:
         self.in_order_partners = in_order_partners
+        self.stall_ns = stall_ns
         self._newest_partner_ns: int | None = None
+        # the newest primary stamp when the latest partner came (or the first primary after it)
+        self._primary_at_partner_ns: int | None = None
+        self._newest_primary_ns: int | None = None
         # in_order_partners: the newest partner stamp when each waiting primary came
         self._partner_at_arrival: dict[int, int | None] = {}
         self.tolerance_ns = tolerance_ns
@@ -114,6 +119,10 @@ class StampSync(Generic[P, Q]):
             }
         self._seen_ns.append(stamp_ns)
         self._see(stamp_ns)
+        if self._newest_primary_ns is None or stamp_ns > self._newest_primary_ns:
+            self._newest_primary_ns = stamp_ns
+        if self._primary_at_partner_ns is None and self._newest_partner_ns is not None:
+            self._primary_at_partner_ns = stamp_ns
         drops = []
         while len(self._primaries) > self.max_entries:
             oldest = self._primaries.pop(0).stamp_ns
@@ -136,6 +145,7 @@ class StampSync(Generic[P, Q]):
         self._see(stamp_ns)
         if self._newest_partner_ns is None or stamp_ns > self._newest_partner_ns:
             self._newest_partner_ns = stamp_ns
+        self._primary_at_partner_ns = self._newest_primary_ns
         drops = []
         while len(self._partners) > self.max_entries:
             oldest = self._partners.pop(0).stamp_ns
@@ -179,15 +189,25 @@ class StampSync(Generic[P, Q]):
             self._primaries.pop(0)
         return pairs, drops + self._drop_stale_partners()
 
+    def missing_reason(self, stamp_ns: int) -> str:
+        """Why the primary at ``stamp_ns`` goes without its partner, as the end of a sentence."""
+        horizon = f'sync_horizon_s ({self.horizon_ns / 1e9:g} s)'
+        if self._passed(stamp_ns):
+            return f'before a later one (stamp {self._newest_partner_ns} ns)'
+        if self._stalled():
+            return (
+                f'while {self.names.primary_plural} came for {horizon} of stamps after the last '
+                f'(stamp {self._newest_partner_ns} ns)'
+            )
+        if self._expired(stamp_ns):
+            return f'within {horizon}'
+        return 'before the inputs stopped'
+
     def _missing_partner(self, stamp_ns: int) -> Drop:
         names = self.names
-        if self._passed(stamp_ns):
-            why = f'before a later one (stamp {self._newest_partner_ns} ns)'
-        else:
-            why = f'within sync_horizon_s ({self.horizon_ns / 1e9:g} s)'
         text = (
             f'{names.primary} at stamp {stamp_ns} ns dropped: no {names.partner} with its '
-            f'stamp came on {names.partner_topic} {why}'
+            f'stamp came on {names.partner_topic} {self.missing_reason(stamp_ns)}'
         )
         return Drop(names.missing_partner_kind, stamp_ns, text)
 
@@ -216,7 +236,14 @@ class StampSync(Generic[P, Q]):
             return self._expired(stamp_ns)
         if self._ahead(self._partner_at_arrival.get(stamp_ns), stamp_ns):
             return self._expired(stamp_ns)  # it came after a later partner
-        return self._passed(stamp_ns)
+        return self._passed(stamp_ns) or (self._stalled() and self._expired(stamp_ns))
+
+    def _stalled(self) -> bool:
+        """in_order_partners with stall_ns: the primaries went on that far with no partner."""
+        if not self.in_order_partners or self.stall_ns is None:
+            return False
+        mark, newest = self._primary_at_partner_ns, self._newest_primary_ns
+        return mark is not None and newest is not None and newest - mark > self.stall_ns
 
     def _expired(self, stamp_ns: int) -> bool:
         return self._newest_ns is not None and stamp_ns < self._newest_ns - self.horizon_ns
@@ -241,10 +268,12 @@ class StampSync(Generic[P, Q]):
             if self._near(partner.stamp_ns, waiting) or not self._expired(partner.stamp_ns):
                 kept.append(partner)
             elif not self._near(partner.stamp_ns, self._out_of_order_ns):  # else: said already
-                text = (
-                    f'{names.partner} at stamp {partner.stamp_ns} ns on {names.partner_topic} '
-                    f'matches no {names.primary}{self._nearest_hint(partner.stamp_ns)}; dropped'
-                )
+                where = f'{names.partner} at stamp {partner.stamp_ns} ns on {names.partner_topic}'
+                if self._near(partner.stamp_ns, self._seen_ns):
+                    text = f'{where} came after its {names.primary} had gone without it; dropped'
+                else:
+                    hint = self._nearest_hint(partner.stamp_ns)
+                    text = f'{where} matches no {names.primary}{hint}; dropped'
                 drops.append(Drop(names.missing_primary_kind, partner.stamp_ns, text))
         self._partners = kept
         return drops

@@ -72,6 +72,7 @@ from monoslam_shadow_node.monoslam.settings import (
     target_settings,
 )
 from slam_core.cli import console_main
+from slam_core.idle import IdleWatch
 from slam_core.files import write_atomically
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import (
@@ -144,7 +145,7 @@ class MonoSlamNode(CheckpointsMixin, Node):
         self._saved_state: tuple[int, ...] | None = None
         self._resume(self.settings.resume_from)
         self._map_changed = self.processor.slam is not None
-        self._last_input = time.monotonic()
+        self._idle = IdleWatch(self.settings.sync_horizon_ns / 1e9)  # inputs stopped
         self._status_time, self._status_seen = time.monotonic(), (0, 0, 0)
         self.pose_publisher = self.create_publisher(
             PoseWithCovarianceStamped, POSE_TOPIC, output_qos()
@@ -203,8 +204,7 @@ class MonoSlamNode(CheckpointsMixin, Node):
         period_s = self.settings.checkpoint_period_s
         if period_s > 0 and self.settings.checkpoint_file is not None:
             self.create_timer(period_s, timed(self._on_checkpoint), clock=steady)
-        horizon_s = self.settings.sync_horizon_ns / 1e9
-        self.create_timer(max(horizon_s / 2, 0.05), timed(self._flush_when_idle), clock=steady)
+        self.create_timer(self._idle.tick_s, timed(self._flush_when_idle), clock=steady)
         self.create_timer(self.settings.map_period_s, timed(self._publish_map), clock=steady)
         self.create_timer(STATUS_PERIOD_S, self._report_status, clock=steady)
         handovers = f' and {HANDOVER_TOPIC}' if self.config.initialize == 'handover' else ''
@@ -247,7 +247,7 @@ class MonoSlamNode(CheckpointsMixin, Node):
         self._handle(self.processor.set_camera(update.camera))
 
     def _on_features(self, data: bytes) -> None:  # taken serialized: ``features_from_cdr``
-        self._last_input = time.monotonic()
+        self._idle.note_input()
         try:
             features = features_from_cdr(data, self._deserialize_features)
         except ValueError as err:  # not what a publisher of the type sends: counted, dropped
@@ -258,12 +258,12 @@ class MonoSlamNode(CheckpointsMixin, Node):
         self.diagnostics.latest_stamp_ns = max(latest or features.stamp_ns, features.stamp_ns)
 
     def _on_fiducials(self, message: FiducialArray) -> None:
-        self._last_input = time.monotonic()
+        self._idle.note_input()
         sighting = target_from_fiducials(message, self.target.marker_id, self.target.dictionary)
         self._handle(self.processor.add_sighting(sighting))
 
     def _on_depth(self, message: Image) -> None:
-        self._last_input = time.monotonic()  # decoded only while the filter waits for one
+        self._idle.note_input()  # decoded only while the filter waits for one
         self._handle(self.processor.add_depth(partial(depth_from_image, message)))
 
     def _on_handovers(self, message: ShadowTrackArray) -> None:
@@ -280,8 +280,7 @@ class MonoSlamNode(CheckpointsMixin, Node):
         self.processor.mark_moving(ids)
 
     def _flush_when_idle(self) -> None:
-        idle_s = time.monotonic() - self._last_input
-        if self.processor.waiting_features and idle_s > self.settings.sync_horizon_ns / 1e9:
+        if self._idle.idle() and self.processor.waiting_features:
             self._handle(self.processor.flush())
 
     # --- outputs ----------------------------------------------------------------------------

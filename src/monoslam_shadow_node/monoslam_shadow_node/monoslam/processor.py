@@ -63,6 +63,27 @@ SYNC_NAMES = SyncNames(
     missing_partner_kind='no_fiducials',
     missing_primary_kind='no_features',
 )
+
+
+def fiducials_sync(
+    tolerance_ns: int, horizon_ns: int, queue_size: int, names: SyncNames = SYNC_NAMES
+) -> StampSync[Features, TargetSighting]:
+    """Return the pairing of features frames with the fiducials of their images.
+
+    One detector publishes the fiducials in stamp order (``in_order_partners``): a frame waits
+    for its own however far they lag, and goes without them once a later one came, or once
+    ``horizon_ns`` of frames came with no fiducials at all (``stall_ns``).
+    """
+    return StampSync(
+        tolerance_ns=tolerance_ns,
+        horizon_ns=horizon_ns,
+        max_entries=queue_size,
+        names=names,
+        in_order_partners=True,
+        stall_ns=horizon_ns,
+    )
+
+
 STATUS_WARNINGS = ('waiting for the initialization target', 'started from', 'tracking lost')
 """The core's warnings that the state transitions report instead."""
 
@@ -153,12 +174,7 @@ class MonoSlamProcessor:
         self.counts = MonoSlamCounts()
         names = dataclasses.replace(SYNC_NAMES, partner_topic=fiducials_topic)
         self.names = names
-        self.sync: StampSync[Features, TargetSighting] = StampSync(
-            tolerance_ns=stamp_tolerance_ns,
-            horizon_ns=sync_horizon_ns,
-            max_entries=queue_size,
-            names=names,
-        )
+        self.sync = fiducials_sync(stamp_tolerance_ns, sync_horizon_ns, queue_size, names)
         self._predicted_ns: int | None = None
         self._asked_ns: int | None = None  # the image predictions were last asked for
         self._processed_ns: int | None = None  # the last frame given to the filter
@@ -385,9 +401,9 @@ class MonoSlamProcessor:
         if prepared is None and sighting is None:
             self.counts.alone += 1
             text = (
-                f'features frame at stamp {stamp_ns} ns processed without fiducials (none '
-                f'came on {self.names.partner_topic} within sync_horizon_s); '
-                f'{self.counts.alone} so far'
+                f'features frame at stamp {stamp_ns} ns processed without fiducials (none with '
+                f'its stamp came on {self.names.partner_topic} '
+                f'{self.sync.missing_reason(stamp_ns)}); {self.counts.alone} so far'
             )
             notices.append(Notice('alone', 'warning', text, stamp_ns, True))
         elif sighting is not None and sighting.problem is not None:

@@ -238,7 +238,8 @@ NODE_PARAMETERS = (
     Param(
         'sync_horizon_s',
         0.5,
-        'how long (stamp time) a features frame waits for its fiducials, s (> stamp_tolerance_s)',
+        'a features frame waits for its fiducials until a later one comes, or until this much '
+        'stamp time of frames came with no fiducials at all, s (> stamp_tolerance_s)',
     ),
     Param(
         'known_points_file',

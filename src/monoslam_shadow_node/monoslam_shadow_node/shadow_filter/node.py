@@ -63,6 +63,7 @@ from monoslam_shadow_node.shadow_filter.settings import (
 )
 from slam_core.arrays import FloatArray
 from slam_core.cli import console_main
+from slam_core.idle import IdleWatch
 from slam_interfaces.msg import FeatureTrackArray, PoseLink, ShadowTrack, ShadowTrackArray
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import declare_parameters
@@ -105,7 +106,7 @@ class ShadowFilterNode(Node):
         self._throttle = LogThrottle(WAITING_LOG_PERIOD_S)
         self._static_positions: OrderedDict[int, FloatArray] = OrderedDict()
         self._marker_types = MarkerTypes(Marker, Point, ColorRGBA)
-        self._last_input = time.monotonic()
+        self._idle = IdleWatch(self.settings.sync_horizon_ns / 1e9)  # inputs stopped
         self._status_time, self._status_frames = time.monotonic(), 0
         self.tracks_publisher = self.create_publisher(ShadowTrackArray, TRACKS_TOPIC, output_qos())
         self.static_publisher = self.create_publisher(
@@ -141,7 +142,7 @@ class ShadowFilterNode(Node):
             ShadowTrackArray, REVOKED_TOPIC, timed(self._on_revoked, 'revoked'), inputs
         )
         self.create_timer(
-            max(self.settings.sync_horizon_ns / 2e9, 0.05),
+            self._idle.tick_s,
             timed(self._flush_when_idle),
             clock=Clock(clock_type=ClockType.STEADY_TIME),
         )
@@ -197,7 +198,7 @@ class ShadowFilterNode(Node):
         self._handle(self.processor.set_camera(update.camera))
 
     def _on_features(self, message: bytes | FeatureTrackArray) -> None:
-        self._last_input = time.monotonic()
+        self._idle.note_input()
         try:
             features = (
                 features_from_message(message)
@@ -210,12 +211,12 @@ class ShadowFilterNode(Node):
         self._handle(self.processor.add_features(features))
 
     def _on_pose(self, message: PoseWithCovarianceStamped) -> None:
-        self._last_input = time.monotonic()
+        self._idle.note_input()
         for pose in self._links.on_pose(pose_from_message(message)):
             self._handle(self.processor.add_pose(pose))
 
     def _on_link(self, message: PoseLink) -> None:
-        self._last_input = time.monotonic()
+        self._idle.note_input()
         try:
             ready = self._links.on_link(link_from_message(message))
         except ValueError as err:
@@ -238,8 +239,7 @@ class ShadowFilterNode(Node):
         )
 
     def _flush_when_idle(self) -> None:
-        idle_s = time.monotonic() - self._last_input
-        if idle_s > self.settings.sync_horizon_ns / 1e9:
+        if self._idle.idle():
             for pose in self._links.flush():  # its link did not come
                 self._handle(self.processor.add_pose(pose))
             if self.processor.waiting_features:
