@@ -8,7 +8,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-
 MIN_TICK_S = 0.05
 
 

@@ -72,8 +72,8 @@ from monoslam_shadow_node.monoslam.settings import (
     target_settings,
 )
 from slam_core.cli import console_main
-from slam_core.idle import IdleWatch
 from slam_core.files import write_atomically
+from slam_core.idle import IdleWatch
 from slam_core.stamps import stamp_to_ns
 from slam_interfaces.msg import (
     FeatureTrackArray,
