@@ -188,6 +188,7 @@ class MapperBehaviour(Node):
             'online update ms (last)': round(1e3 * last.seconds) if last else 0,
             'online update ms (max)': round(1e3 * mapper.online_max_s),
             'online moveable': len(mapper.online_moveable),
+            'online failures': len(mapper.online_failures),
         }
 
     def _keep_previous_run(self, report_dir: Path) -> None:
@@ -312,7 +313,10 @@ class MapperBehaviour(Node):
         self._online_changes()
 
     def _online_changes(self) -> None:
-        """Log and publish the online moveable set when it changes."""
+        """Log and publish the online moveable set when it changes (kept while the smoother
+        is rebuilt or stopped)."""
+        if self.mapper.online is None:
+            return
         moveable = self.mapper.online_moveable
         if moveable != self._online_moveable:
             added = sorted(moveable - self._online_moveable)

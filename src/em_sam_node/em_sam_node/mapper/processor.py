@@ -28,6 +28,8 @@ from slam_core.arrays import FloatArray, IntArray
 from slam_core.geometry.se2 import apply_increment, compose, inverse
 from slam_core.params import NON_NEGATIVE, POSITIVE, check_fields, ruled
 
+ONLINE_REBUILDS = 1  # a failed smoother is rebuilt this often before it is stopped
+
 
 @dataclass(frozen=True)
 class MapperConfig:
@@ -77,6 +79,8 @@ class MapperProcessor:
         self.online_last: UpdateStats | None = None  # the smoother's latest update
         self.online_max_s = 0.0  # its longest update, s
         self._unfed: list[int] = []  # rows of self.observations not in the smoother yet
+        self.online_failures: list[str] = []  # each failed smoother update: where and why
+        self.online_stopped = False  # it failed again after its rebuild
 
     # -- input ----------------------------------------------------------------------------
     def add_increment(self, increment: Increment) -> None:
@@ -123,7 +127,26 @@ class MapperProcessor:
 
     # -- online ---------------------------------------------------------------------------
     def _feed(self, count: int) -> None:
-        """Put the keyframes before ``count`` that are not in the smoother yet into it."""
+        """Put the keyframes before ``count`` that are not in the smoother yet into it; a
+        smoother whose update fails is rebuilt from keyframe 0 once, then stopped."""
+        if self.online_stopped:
+            return
+        try:
+            self._feed_smoother(count)
+        except RuntimeError as err:  # GTSAM: an ill-posed update (IndeterminateLinearSystem)
+            at = self.online.num_keyframes if self.online is not None else 0
+            reason = next((line for line in str(err).splitlines() if line.strip()), repr(err))
+            self.online_failures.append(f'keyframe {at}: {reason.strip()}')
+            self.online, self.online_last, self._unfed = None, None, []
+            self.online_stopped = len(self.online_failures) > ONLINE_REBUILDS
+            then = (
+                'stopped for this run (the full pass goes on)'
+                if self.online_stopped
+                else 'rebuilt from keyframe 0 with the next keyframe'
+            )
+            self.warn(f'online smoother failed at keyframe {at} ({reason.strip()}); {then}')
+
+    def _feed_smoother(self, count: int) -> None:
         if self.online is None:  # every observation held waits for it (a resumed mapper's too)
             sigma = np.array(self.config.prior_sigma)
             self.online = IncrementalEmSam(self.config.em, self.odom_poses[0], np.diag(sigma**2))
