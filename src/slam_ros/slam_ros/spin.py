@@ -52,7 +52,7 @@ def spin_node(
         # rclpy's signal thread shuts the context down at a moment of its own: shut it down
         # here, so that the wind-down below always takes the console path, never a /rosout
         # that dies halfway through it.
-        rclpy.try_shutdown()
+        _shut_down()
     except Exception as err:
         if rclpy.ok():
             raise
@@ -67,7 +67,7 @@ def spin_node(
                 console = ConsoleLogger(node.get_logger().name)
                 node.get_logger = lambda: console  # type: ignore[method-assign]
             node.destroy_node()
-        rclpy.try_shutdown()
+        _shut_down()
     return 0
 
 
@@ -97,3 +97,13 @@ class ConsoleLogger:
 
     def fatal(self, message: str, **_: Any) -> bool:
         return self._say('FATAL', message)
+
+
+def _shut_down() -> None:
+    """Shut the context down, unless rclpy's signal thread did it first (a race on Ctrl-C:
+    try_shutdown then raises that rcl_shutdown was called already)."""
+    try:
+        rclpy.try_shutdown()
+    except Exception:
+        if rclpy.ok():
+            raise
