@@ -57,6 +57,7 @@ NODES_QUIET_S = 2.0  # drained: no input for this long, twice odometry_ingest's 
 INTERRUPT_TIMEOUT_S = 60.0  # then SIGTERM; the mapper's last solve and report take this long
 WAIT_LOG_PERIOD_S = 10.0  # meanwhile the nodes still running are named this often
 TERMINATE_TIMEOUT_S = 5.0  # then SIGKILL
+SPIN_WAKE_S = 0.1  # the executor thread looks for a stop this often when idle
 CLEAN_STOP_CODES = frozenset({0, 130, 143, -signal.SIGINT, -signal.SIGTERM})
 STOP_ORDER = {'player': 0, 'node': 1, 'recorder': 2}
 
@@ -91,21 +92,25 @@ class Spinner:
     def __init__(self, executor: SingleThreadedExecutor) -> None:
         self.executor = executor
         self.error: BaseException | None = None
+        self._stopping = threading.Event()
         self._thread = threading.Thread(target=self._spin, name='slam_run-executor', daemon=True)
         self._thread.start()
 
     def _spin(self) -> None:
         try:
-            self.executor.spin()
+            while not self._stopping.is_set() and self.executor.context.ok():
+                self.executor.spin_once(timeout_sec=SPIN_WAKE_S)
         except ExternalShutdownException:
             pass
         except BaseException as err:  # a node callback raised; reported by the runner
             self.error = err
 
     def stop(self) -> None:
-        """Shut the executor down and wait for the thread."""
-        self.executor.shutdown(timeout_sec=TERMINATE_TIMEOUT_S)
+        """Stop spinning, wait for the thread, then shut the executor down (its shutdown
+        destroys the guard conditions a spinning thread waits on)."""
+        self._stopping.set()
         self._thread.join(timeout=TERMINATE_TIMEOUT_S)
+        self.executor.shutdown(timeout_sec=TERMINATE_TIMEOUT_S)
 
 
 def node_class(graph: Graph, description: NodeDescription) -> Callable[..., Node]:
