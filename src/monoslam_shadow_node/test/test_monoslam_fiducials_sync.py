@@ -85,3 +85,24 @@ def test_frames_go_alone_once_no_fiducials_come_for_the_horizon() -> None:
         f'fiducials at stamp {6 * PERIOD_NS} ns on fiducials came after its features frame had '
         'gone without it; dropped'
     ]
+
+
+def test_fiducials_ahead_of_their_frames_wait_for_them() -> None:
+    """The detector 1 s ahead of a tracker that skips every third image: each frame the tracker
+    made pairs with its fiducials, and those of the skipped images go once a later frame came."""
+    sync = fiducials_sync(0, HORIZON_NS, 100)
+    made = [k for k in range(90) if k % 3 != 1]
+    handed, drops = [], []
+    for step in range(120):
+        if step < 90:
+            sync.add_partner(_sighting(step))
+        if step >= 30 and made:
+            sync.add_primary(_features(made.pop(0)))
+        pairs, dropped = sync.pop(alone=True)
+        handed += [(f.stamp_ns // PERIOD_NS, s is not None) for f, s in pairs]
+        drops += dropped
+    assert handed == [(k, True) for k in range(90) if k % 3 != 1]
+    # those of the skipped images once a later frame came and the horizon passed them
+    assert sorted(d.stamp_ns // PERIOD_NS for d in drops) == [k for k in range(80) if k % 3 == 1]
+    assert sync.waiting_partners == 3
+    assert {d.kind for d in drops} == {'no_features'}

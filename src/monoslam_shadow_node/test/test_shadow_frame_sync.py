@@ -80,6 +80,15 @@ def test_unpaired_frames_and_poses_are_dropped() -> None:
         f'camera pose at stamp {105 * MS} ns on pose matches no features'
     )
     assert f'nearest features stamp {100 * MS} ns, -5.000 ms away' in drops[0].text
+    sync.add_pose(_pose(900 * MS))  # a pose ahead of its frame waits for it past the horizon
+    sync.add_features(_features(500 * MS))
+    pairs, drops = sync.pop()
+    assert pairs == [] and [(d.kind, d.stamp_ns) for d in drops] == [
+        ('no_pose', 450 * MS),
+        ('no_pose', 500 * MS),
+    ]
+    sync.add_features(_features(900 * MS))
+    assert _stamps(sync.pop()[0]) == [(900 * MS, 900 * MS)]
 
 
 def test_frames_wait_for_poses_later_than_the_horizon() -> None:

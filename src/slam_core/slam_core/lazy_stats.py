@@ -24,3 +24,9 @@ chi2: Any = _LazyDistribution('chi2')
 ncx2: Any = _LazyDistribution('ncx2')
 norm: Any = _LazyDistribution('norm')
 t: Any = _LazyDistribution('t')
+
+
+def load() -> None:
+    """Import scipy.stats and scipy.optimize now: a node calls it before it subscribes."""
+    importlib.import_module('scipy.stats')
+    importlib.import_module('scipy.optimize')

@@ -55,6 +55,7 @@ from em_sam_node.mapper.outputs import (
 from em_sam_node.mapper.processor import MapperProcessor
 from em_sam_node.mapper.report import write_report
 from em_sam_node.mapper.settings import PARAMETERS, config_from_parameters
+from slam_core import lazy_stats
 from slam_core.cli import console_main
 from slam_core.errors import ParameterError
 from slam_core.files import keep_previous_run
@@ -492,6 +493,7 @@ class EmSamMapperNode(MapperBehaviour):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('em_sam_mapper', **kwargs)
         values = declare_parameters(self, PARAMETERS)
+        lazy_stats.load()
         self._configure(values)
         self._activate(values)
 

@@ -238,6 +238,11 @@ class StampSync(Generic[P, Q]):
             return self._expired(stamp_ns)  # it came after a later partner
         return self._passed(stamp_ns) or (self._stalled() and self._expired(stamp_ns))
 
+    def _partner_stale(self, stamp_ns: int) -> bool:
+        """Whether a partner no waiting primary matches will not get one (module docstring)."""
+        later_primary = self._ahead(self._newest_primary_ns, stamp_ns)
+        return self._expired(stamp_ns) and (later_primary or not self.in_order_partners)
+
     def _stalled(self) -> bool:
         """in_order_partners with stall_ns: the primaries went on that far with no partner."""
         if not self.in_order_partners or self.stall_ns is None:
@@ -265,7 +270,7 @@ class StampSync(Generic[P, Q]):
         drops, kept = [], []
         waiting = [p.stamp_ns for p in self._primaries]
         for partner in self._partners:
-            if self._near(partner.stamp_ns, waiting) or not self._expired(partner.stamp_ns):
+            if self._near(partner.stamp_ns, waiting) or not self._partner_stale(partner.stamp_ns):
                 kept.append(partner)
             elif not self._near(partner.stamp_ns, self._out_of_order_ns):  # else: said already
                 where = f'{names.partner} at stamp {partner.stamp_ns} ns on {names.partner_topic}'

@@ -71,6 +71,7 @@ from monoslam_shadow_node.monoslam.settings import (
     node_settings,
     target_settings,
 )
+from slam_core import lazy_stats
 from slam_core.cli import console_main
 from slam_core.files import write_atomically
 from slam_core.idle import IdleWatch
@@ -110,6 +111,7 @@ class MonoSlamNode(CheckpointsMixin, Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         values = declare_parameters(self, PARAMETERS)
+        lazy_stats.load()
         self.target = target_settings(values)
         rows = known_point_rows(values)
         self.config = monoslam_config(values, self.target, rows)

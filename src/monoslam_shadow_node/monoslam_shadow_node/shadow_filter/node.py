@@ -61,6 +61,7 @@ from monoslam_shadow_node.shadow_filter.settings import (
     node_settings,
     shadow_config,
 )
+from slam_core import lazy_stats
 from slam_core.arrays import FloatArray
 from slam_core.cli import console_main
 from slam_core.idle import IdleWatch
@@ -91,6 +92,7 @@ class ShadowFilterNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         values = declare_parameters(self, PARAMETERS)
+        lazy_stats.load()
         self.config = shadow_config(values)
         self.settings = node_settings(values)
         self.processor = ShadowProcessor(
