@@ -27,6 +27,7 @@ from mapper_fault import (
     CHECKPOINT_PERIOD_S,
     MapperRun,
     landmark_difference_m,
+    lost_inputs,
     run,
 )
 
@@ -38,7 +39,7 @@ def verdict(killed: MapperRun, reference: MapperRun) -> tuple[bool, str]:
     """PASS/FAIL of one killed run against the uninterrupted one, with the reason."""
     checks = [
         (killed.status == 0, f'slam_run exit {killed.status}'),
-        ('lost before they were taken' not in killed.log, 'odometry_ingest lost inputs'),
+        (not lost_inputs(killed.log), 'a node lost inputs'),
         (killed.killed_at_s is not None, 'mapper not killed'),
         ('respawning in' in killed.log, 'no respawn'),
         ('resumed from' in killed.log, 'no resume'),
@@ -68,7 +69,7 @@ def main() -> int:
         reference = run(
             Path(scratch) / 'whole', rate=args.rate, kill_after_s=None, domain_id=domain
         )
-        if reference.status != 0 or 'lost before they were taken' in reference.log:
+        if reference.status != 0 or lost_inputs(reference.log):
             print(reference.log[-3000:], file=sys.stderr)
             return 1
         rows = []

@@ -137,6 +137,11 @@ def _holds_keyframes(checkpoint: Path) -> bool:
         return False  # not there yet
 
 
+def lost_inputs(log: str) -> list[str]:
+    """The log lines where a node said its queues lost messages (``slam_ros.diagnostics``)."""
+    return [line for line in log.splitlines() if 'messages before taking them' in line]
+
+
 def landmark_difference_m(a: MapperRun, b: MapperRun) -> float:
     """The largest distance between the two runs' positions of a landmark (inf when the
     landmark sets differ)."""
