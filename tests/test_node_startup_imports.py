@@ -4,11 +4,13 @@ third frame while its 30 Hz inputs overflowed their queues."""
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from test_node_parameter_contracts import NODES as EVERY_NODE
 
 SCRIPT = """
 import importlib, sys
@@ -55,3 +57,33 @@ def test_scipy_stats_is_imported_before_the_first_subscription(
     line = done.stdout.strip().splitlines()[-1]
     count = int(line.split()[1])
     assert count > 0 and line.endswith('loaded before each True'), done.stdout
+
+
+PROBE = (
+    'import importlib, sys; importlib.import_module(sys.argv[1]); '
+    "print('slam_core.lazy_stats' in sys.modules)"
+)
+
+
+def test_every_node_that_imports_lazy_stats_loads_it() -> None:
+    """The test above builds three nodes; label_gate needs a mask file, so its source is read."""
+    probes = {
+        case.module: subprocess.Popen(
+            [sys.executable, '-c', PROBE, case.module], stdout=subprocess.PIPE, text=True
+        )
+        for case in EVERY_NODE
+    }
+    using = {
+        module
+        for module, probe in probes.items()
+        if probe.communicate(timeout=120)[0].strip() == 'True'
+    }
+    assert {module for module, _ in NODES} <= using
+    calling = {module for module in using if 'lazy_stats.load()' in _source(module)}
+    assert using == calling, sorted(using - calling)
+
+
+def _source(module: str) -> str:
+    spec = importlib.util.find_spec(module)
+    assert spec is not None and spec.origin is not None, module
+    return Path(spec.origin).read_text()

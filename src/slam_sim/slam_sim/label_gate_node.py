@@ -18,6 +18,7 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
+from slam_core import lazy_stats
 from slam_core.cli import console_main
 from slam_core.params import NON_NEGATIVE, Param, ParamTable
 from slam_interfaces.msg import FeatureTrackArray
@@ -54,6 +55,7 @@ class LabelGateNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('label_gate', **kwargs)
         values = declare_parameters(self, PARAMETERS)
+        lazy_stats.load()
         path = str(values['label_masks_file'])
         if not path:
             raise ValueError('label_gate: parameter label_masks_file is required (a .npz)')
