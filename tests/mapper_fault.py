@@ -25,6 +25,7 @@ from em_sam_node.core.em import run_em
 from em_sam_node.mapper import settings as mapper_settings
 from em_sam_node.odometry_ingest import settings as odometry_ingest_settings
 from em_sam_node.offline import replay_bag
+from slam_ros.diagnostics import LOST_TEXT
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / 'bags' / 'office_moveable.mcap'
@@ -139,7 +140,7 @@ def _holds_keyframes(checkpoint: Path) -> bool:
 
 def lost_inputs(log: str) -> list[str]:
     """The log lines where a node said its queues lost messages (``slam_ros.diagnostics``)."""
-    return [line for line in log.splitlines() if 'messages before taking them' in line]
+    return [line for line in log.splitlines() if LOST_TEXT in line]
 
 
 def landmark_difference_m(a: MapperRun, b: MapperRun) -> float:

@@ -73,11 +73,10 @@ def test_every_node_that_imports_lazy_stats_loads_it() -> None:
         )
         for case in EVERY_NODE
     }
-    using = {
-        module
-        for module, probe in probes.items()
-        if probe.communicate(timeout=120)[0].strip() == 'True'
-    }
+    answers = {module: p.communicate(timeout=120)[0].strip() for module, p in probes.items()}
+    failed = {module: probe.returncode for module, probe in probes.items() if probe.returncode}
+    assert not failed, failed  # a module that cannot be imported must not pass unseen
+    using = {module for module, answer in answers.items() if answer == 'True'}
     assert {module for module, _ in NODES} <= using
     calling = {module for module in using if 'lazy_stats.load()' in _source(module)}
     assert using == calling, sorted(using - calling)

@@ -18,6 +18,7 @@ from slam_ros.qos import output_qos
 BUSY_WARN = 0.9
 """Busy above this share of the wall time, a node cannot keep up with a higher input rate."""
 IDLE_KEY = 'idle s'
+LOST_TEXT = 'messages before taking them'  # 'lost N <this>': a queue lost inputs
 """The value with the seconds since the node last took an input."""
 OK_AGAIN_REPORTS = 5
 """Reports in a row without a problem before the log says the node is OK again."""
@@ -181,7 +182,7 @@ class Diagnostics:
                 f'dropping inputs ({dropped - self._last_dropped} since the last)'
             )
         if lost > self._last_lost:
-            problems['lost'] = f'lost {lost - self._last_lost} messages before taking them'
+            problems['lost'] = f'lost {lost - self._last_lost} {LOST_TEXT}'
         self._last_lost = lost
         if busy > BUSY_WARN and self.progress is None:  # paced: the player waits for it
             problems['busy'] = f'falling behind (busy {100.0 * busy:.0f} %)'

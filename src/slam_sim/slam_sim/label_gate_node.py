@@ -55,10 +55,10 @@ class LabelGateNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('label_gate', **kwargs)
         values = declare_parameters(self, PARAMETERS)
-        lazy_stats.load()
         path = str(values['label_masks_file'])
         if not path:
             raise ValueError('label_gate: parameter label_masks_file is required (a .npz)')
+        lazy_stats.load()
         masks = read_label_masks(Path(path))
         self.gate = LabelGate(
             masks,
