@@ -99,6 +99,7 @@ def offline_keyframes(bag: Path, *, observations: bool = True) -> list[int]:
                 increments += ingest.add_odometry(stamp_ns, pose)
             else:
                 array = deserialize_message(message.data, LandmarkObservationArray)
-                increments += ingest.add_observation_stamp(stamp_to_ns(array.header.stamp))
+                stamp_ns = stamp_to_ns(array.header.stamp)
+                increments += ingest.add_observation_stamp(stamp_ns, seen=bool(array.observations))
     increments += ingest.flush()
     return [increments[0].stamp_from_ns, *(i.stamp_to_ns for i in increments)]

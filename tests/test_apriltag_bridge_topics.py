@@ -243,8 +243,11 @@ def test_the_bridge_matches_the_detector_and_reports_bad_detections(
     tags = [('tag36h11', d.id, d.corners_px) for d in truth.detections]
     detections.publish(detections_message(after_ns, tags))
     tf.publish(tag_transforms(after_ns, truth))
-    wait_until(lambda: len(observations) == len(FRAMES) + 1, what='the frame after the bad one')
-    assert stamp_to_ns(observations.messages[-1].header.stamp) == after_ns
+    wait_until(lambda: len(observations) == len(FRAMES) + 2, what='the frame after the bad one')
+    bad, after = observations.messages[-2:]
+    # the bad frame's array is empty: it says how far the bridge has got
+    assert stamp_to_ns(bad.header.stamp) == bad_ns and not bad.observations
+    assert stamp_to_ns(after.header.stamp) == after_ns and after.observations
     assert bridge.counts['dropped no tag tf'] == bridge.counts['dropped'] == 1
     assert bridge.counts['other family'] == 1
 

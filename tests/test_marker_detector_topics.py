@@ -25,7 +25,7 @@ from tf2_msgs.msg import TFMessage
 
 from marker_detector.detector.node import HOLD_S, MarkerDetectorNode
 from slam_core.geometry.se3 import OPTICAL_IN_LINK
-from slam_core.stamps import ns_to_stamp
+from slam_core.stamps import ns_to_stamp, stamp_to_ns
 from slam_interfaces.msg import FiducialArray, LandmarkObservationArray
 from slam_ros.qos import latched_qos
 from slam_ros.testing.harness import RosHarness, wait_until
@@ -327,7 +327,8 @@ def test_with_detect_every_n_frames_the_images_between_get_empty_fiducials(
 ) -> None:
     """detect_every_n_frames 3: the first image and every third are searched; the others
     are not decoded, get a header-only fiducials message (a node pairing per image does not
-    wait) and no observations, and are counted 'not searched'. The last three images carry
+    wait) and an empty observations array (odometry_ingest reads how far the detector got),
+    and are counted 'not searched'. The last three images carry
     no frame: searched or not, their fiducials are in the camera_info's frame."""
     node, fiducials, observations, images = compressed_node(
         ros_harness,
@@ -348,6 +349,9 @@ def test_with_detect_every_n_frames_the_images_between_get_empty_fiducials(
     assert [m.header.frame_id for m in fiducials.messages] == [OPTICAL] * 6
     found = [len(m.detections) > 0 for m in fiducials.messages]
     assert found == [True, False, False, True, False, False]
-    wait_until(lambda: len(observations) == 2, what='the observations of the searched images')
+    wait_until(lambda: len(observations) == 6, what='the observations of every image')
+    assert [stamp_to_ns(m.header.stamp) for m in observations.messages] == stamps
+    assert [len(m.observations) > 0 for m in observations.messages] == found
+    assert {m.header.frame_id for m in observations.messages} == {'base_link'}
     counts = node._counts()
     assert counts['not searched'] == 4 and counts['processed'] == 6 and counts['dropped'] == 0

@@ -78,7 +78,8 @@ def replay_bag(
             else:  # an observation: odometry_ingest keyframes at its stamp (for /odom)
                 increments = (
                     ingest_processor.add_observation_stamp(
-                        stamp_to_ns(decoded.header.stamp)  # type: ignore[attr-defined]
+                        stamp_to_ns(decoded.header.stamp),  # type: ignore[attr-defined]
+                        seen=bool(decoded.observations),  # type: ignore[attr-defined]
                     )
                     if odometry_topic == ODOM_TOPIC
                     else []

@@ -48,6 +48,7 @@ from slam_core.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, console_main, posit
 from slam_core.errors import SlamError
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.progress import PACED_ENV
+from slam_ros.spin import TakeSafeExecutor
 
 EXIT_NODE_FAILED = 1
 POLL_S = 0.05
@@ -226,7 +227,7 @@ def run_in_process(
     context = Context()
     single_threaded_blas()
     rclpy.init(args=['slam_run'], context=context, signal_handler_options=SignalHandlerOptions.NO)
-    executor = SingleThreadedExecutor(context=context)
+    executor = TakeSafeExecutor(context=context)
     watch = DrainWatch(processing_nodes(descriptions), NODES_QUIET_S)
     hint = KeepUpHint(watch.names, keep_up_options(graph.player, processes=False), say)
     listener = listen(context, watch, hint.add)

@@ -55,6 +55,8 @@ class Diagnostics:
         self._window_s = self._window_max_s = 0.0
         self._window_start = time.perf_counter()
         self._last_dropped = 0
+        self.failed_takes = 0  # messages rclpy failed to take (slam_ros.spin), lost
+        self._last_failed_takes = 0
         self.publisher = node.create_publisher(DiagnosticArray, '/diagnostics', output_qos())
         node.create_timer(period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._subscriptions_seen = -1
@@ -174,6 +176,7 @@ class Diagnostics:
             'queue wait ms max': f'{self._window_wait_ms:.2f}',
             'busy %': f'{100.0 * busy:.1f}',
             'lag s': f'{lag_s:.3f}',
+            'failed takes': str(self.failed_takes),
             IDLE_KEY: f'{time.monotonic() - self.last_input_s:.3f}',
         })  # fmt: skip
         problems: dict[str, str] = {}
@@ -184,6 +187,12 @@ class Diagnostics:
         if lost > self._last_lost:
             problems['lost'] = f'lost {lost - self._last_lost} {LOST_TEXT}'
         self._last_lost = lost
+        if self.failed_takes > self._last_failed_takes:
+            problems['failed takes'] = (
+                f'rclpy failed to take {self.failed_takes - self._last_failed_takes} '
+                'message(s), which are lost'
+            )
+        self._last_failed_takes = self.failed_takes
         if busy > BUSY_WARN and self.progress is None:  # paced: the player waits for it
             problems['busy'] = f'falling behind (busy {100.0 * busy:.0f} %)'
         self._log_change(problems, lost, dropped)

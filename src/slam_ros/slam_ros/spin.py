@@ -8,7 +8,8 @@ from collections.abc import Callable
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 from slam_core.blas import single_threaded_libraries
@@ -45,9 +46,11 @@ def spin_node(
     single_threaded_libraries()
     rclpy.init(args=[prog, *args])
     node = None
+    executor = None
     try:
         node = factory()
-        rclpy.spin(node)
+        executor = TakeSafeExecutor()
+        rclpy.spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         # rclpy's signal thread shuts the context down at a moment of its own: shut it down
         # here, so that the wind-down below always takes the console path, never a /rosout
@@ -67,8 +70,47 @@ def spin_node(
                 console = ConsoleLogger(node.get_logger().name)
                 node.get_logger = lambda: console  # type: ignore[method-assign]
             node.destroy_node()
+        if executor is not None:
+            executor.shutdown(timeout_sec=0.0)
         _shut_down()
     return 0
+
+
+class TakeSafeExecutor(SingleThreadedExecutor):
+    """A SingleThreadedExecutor that goes on when rclpy fails to take a message.
+
+    Under load, rclpy's take_message can raise RuntimeError (pybind11: "Unable to convert
+    call argument '0' to Python object"). Stock rclpy ends the spin with it, and the node.
+    Here that one message is lost: the subscription's node logs an error naming the topic and
+    counts it on /diagnostics ('failed takes'; the next message's sequence gap counts it lost).
+    """
+
+    def __init__(self, *, context: Context | None = None) -> None:
+        super().__init__(context=context)
+        self.failed_takes = 0
+
+    def _take_subscription(self, sub: Any) -> Any:
+        try:
+            return super()._take_subscription(sub)
+        except RuntimeError as err:
+            if not self.context.ok():
+                raise  # a race of Ctrl-C: spin_node's shutdown path
+            self.failed_takes += 1
+            node = next((n for n in self.get_nodes() if sub in n.subscriptions), None)
+            if node is not None:
+                _report_failed_take(node, sub.topic_name, err)
+            return None
+
+
+def _report_failed_take(node: Node, topic: str, error: Exception) -> None:
+    diagnostics = getattr(node, 'diagnostics', None)
+    count = getattr(diagnostics, 'failed_takes', None)
+    if isinstance(count, int):
+        diagnostics.failed_takes = count + 1  # type: ignore[union-attr]
+    node.get_logger().error(
+        f'{topic}: rclpy failed to take a message, which is lost ({type(error).__name__}: '
+        f'{error}); going on'
+    )
 
 
 class ConsoleLogger:

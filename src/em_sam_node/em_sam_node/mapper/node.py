@@ -176,6 +176,8 @@ class MapperBehaviour(Node):
             'observations': len(mapper.observations),
             'pending observations': len(mapper.pending),
             'dropped': mapper.dropped_increments + mapper.dropped_observations,
+            'dropped increments': mapper.dropped_increments,
+            'dropped observations': mapper.dropped_observations,
             'before first keyframe': mapper.before_start_observations,
             'already held': mapper.duplicate_increments + mapper.duplicate_observations,
             'solves': self.solves,
@@ -349,7 +351,7 @@ class MapperBehaviour(Node):
     def _on_observations(self, message: LandmarkObservationArray) -> None:
         for observation in observations_from_message(message):
             self.mapper.add_observation(observation)
-        self._dirty = True
+            self._dirty = True
 
     # -- solving and publishing -----------------------------------------------------------
     def _on_timer(self) -> None:

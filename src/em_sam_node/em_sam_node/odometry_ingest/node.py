@@ -1,11 +1,12 @@
 """odometry_ingest: wheel odometry in, keyframe-to-keyframe OdometryIncrement out.
 
 Makes a keyframe at every observation stamp (odometry interpolated there) and at motion
-thresholds; each increment carries the paper's eq. 2 motion (forward, side, angular) and a
-covariance that grows with the motion (``em_sam_node.odometry_ingest.processor``). Odometry resets,
-out-of-order stamps and NaN poses are dropped with a throttled warning. Held-back keyframes
-are emitted when a bag_player says its bag ended (/slam/end_of_input), or live when odometry
-stops for ``idle_flush_s``.
+thresholds; an empty observation array makes none, but says how far a lagging detector has
+got, and keyframes wait for it. Each increment carries the paper's eq. 2 motion (forward,
+side, angular) and a covariance that grows with the motion. Odometry resets, out-of-order
+stamps and NaN poses are dropped with a throttled warning. Held-back keyframes are emitted
+when a bag_player says its bag ended (/slam/end_of_input), or live when odometry stops for
+``idle_flush_s``.
 
 Topics:
   subscribes  odom (nav_msgs/Odometry, best effort, 1000), landmark_observations (stamps
@@ -116,6 +117,7 @@ class OdometryIngestNode(Node):
         return {
             'increments': self.published,
             'dropped': self.ingest.dropped_samples,
+            'observation stamps refused': self.ingest.refused_stamps,
             'resets': self.ingest.resets,
             'tf published': self.tf_published,
             'tf skipped': self.tf_skipped,
@@ -154,7 +156,8 @@ class OdometryIngestNode(Node):
         self.tf_published += 1
 
     def _on_observations(self, message: LandmarkObservationArray) -> None:
-        self._publish(self.ingest.add_observation_stamp(stamp_to_ns(message.header.stamp)))
+        stamp_ns = stamp_to_ns(message.header.stamp)
+        self._publish(self.ingest.add_observation_stamp(stamp_ns, seen=bool(message.observations)))
 
     def _flush_when_idle(self) -> None:
         """Flush once the odometry has been idle on two ticks in a row (no bag player running)."""

@@ -85,6 +85,10 @@ class _State:
     checked_ns: int | None = None
     hold_ended: str = ''  # how the startup hold ended; '' while it holds
     first_ns: int | None = None  # the first odometry stamp
+    # The observation stream's progress: its newest stamp, and the newest odometry stamp when
+    # that message came (how long ago, in odometry time, the stream last spoke).
+    progress_ns: int | None = None
+    progress_at_ns: int | None = None
 
 
 class OdometryIngest:
@@ -96,6 +100,7 @@ class OdometryIngest:
         self._state = _State()
         self.dropped_samples = 0
         self.resets = 0
+        self.refused_stamps = 0  # observation stamps refused a keyframe (warned)
 
     @property
     def hold_ended(self) -> str:
@@ -144,12 +149,23 @@ class OdometryIngest:
             if held_s < self.config.startup_hold_s:
                 return []
             state.hold_ended = f'after {held_s:.1f} s of odometry without a timely observation'
-        return self._emit(horizon_ns=stamp_ns - round(self.config.observation_delay_s * 1e9))
+        return self._emit(horizon_ns=self._horizon())
 
-    def add_observation_stamp(self, stamp_ns: int) -> list[Increment]:
-        """Ask for a keyframe at an observation stamp; return increments that became ready."""
+    def add_observation_stamp(self, stamp_ns: int, *, seen: bool = True) -> list[Increment]:
+        """Ask for a keyframe at an observation stamp; return increments that became ready.
+
+        ``seen=False``: the source handled this stamp and saw nothing (an empty array). It
+        makes no keyframe; it says how far the source has got, so that keyframes wait for a
+        source that lags but keeps publishing (docs/design/em_sam_nodes.md).
+        """
         state = self._state
+        if state.progress_ns is None or stamp_ns > state.progress_ns:
+            state.progress_ns = stamp_ns
+        state.progress_at_ns = state.samples[-1][0] if state.samples else None
+        if not seen:
+            return self._release(stamp_ns) if state.samples else []
         if state.first_ns is not None and stamp_ns < state.first_ns:
+            self.refused_stamps += 1
             self.warn(
                 f'observation stamp {stamp_ns} ns came before the first odometry (at '
                 f'{state.first_ns} ns); it gets no keyframe'
@@ -157,12 +173,16 @@ class OdometryIngest:
             return []
         if state.keyframe is not None and stamp_ns <= state.keyframe[0]:
             if stamp_ns != state.keyframe[0]:
+                self.refused_stamps += 1
                 self.warn(
                     f'observation stamp {stamp_ns} ns is older than the last keyframe '
-                    f'({state.keyframe[0]} ns); raise observation_delay_s to keep it'
+                    f'({state.keyframe[0]} ns): its source was silent for observation_delay_s '
+                    'or publishes only what it sees (no empty arrays); raise '
+                    'observation_delay_s to keep it'
                 )
             return []
         if state.rewound_until_ns is not None:
+            self.refused_stamps += 1
             self.warn(
                 f'observation at stamp {stamp_ns} ns came while the odometry clock is rewound '
                 f'(see the earlier warning); it gets no keyframe'
@@ -172,6 +192,7 @@ class OdometryIngest:
             self._hold_before_odometry(stamp_ns)
             return []
         if stamp_ns < state.samples[0][0]:
+            self.refused_stamps += 1
             self.warn(
                 f'observation stamp {stamp_ns} ns is older than the buffered odometry (from '
                 f'{state.samples[0][0]} ns); it gets no keyframe (raise max_buffer_s to keep it)'
@@ -180,13 +201,32 @@ class OdometryIngest:
         index = bisect.bisect_left(state.pending_stamps, stamp_ns)
         if index == len(state.pending_stamps) or state.pending_stamps[index] != stamp_ns:
             state.pending_stamps.insert(index, stamp_ns)
-        latest = state.samples[-1][0]
-        horizon = latest - round(self.config.observation_delay_s * 1e9)
+        return self._release(stamp_ns)
+
+    def _release(self, stamp_ns: int) -> list[Increment]:
+        """Emit what an observation message at ``stamp_ns`` makes final (none in the hold)."""
+        state = self._state
+        timely = state.samples[-1][0] - round(self.config.observation_delay_s * 1e9)
         if not state.hold_ended:
-            if stamp_ns < horizon:
+            if stamp_ns < timely:
                 return []  # history from before this node matched its publisher: more may come
             state.hold_ended = f'at the first timely observation ({stamp_ns} ns)'
-        return self._emit(horizon_ns=horizon)
+        return self._emit(horizon_ns=self._horizon())
+
+    def _horizon(self) -> int:
+        """The stamp up to which keyframes are final: the newest odometry less
+        observation_delay_s; while the observation stream has spoken within the last
+        observation_delay_s of odometry, no later than its newest stamp either (a source that
+        lags but keeps publishing is waited for, at most max_buffer_s)."""
+        state = self._state
+        latest = state.samples[-1][0]
+        delay = round(self.config.observation_delay_s * 1e9)
+        horizon = latest - delay
+        progress, spoke_at = state.progress_ns, state.progress_at_ns
+        if progress is not None and spoke_at is not None and latest - spoke_at < delay:
+            oldest = latest - round(self.config.max_buffer_s * 1e9)
+            horizon = max(min(horizon, progress), oldest)
+        return horizon
 
     def _hold_before_odometry(self, stamp_ns: int) -> None:
         """Keep an observation stamp that came before any odometry (at most max_buffer_s)."""
@@ -197,6 +237,7 @@ class OdometryIngest:
         old = [s for s in pending if s < horizon]
         if old:
             del pending[: len(old)]
+            self.refused_stamps += len(old)
             self.warn(
                 f'{len(old)} observation(s) held for odometry longer than max_buffer_s '
                 f'(from {old[0]} ns): no odometry came; they get no keyframe'
@@ -208,6 +249,7 @@ class OdometryIngest:
         early = [s for s in pending if s < first_ns]
         pending[:] = [s for s in pending if s > first_ns]
         if early:
+            self.refused_stamps += len(early)
             self.warn(
                 f'{len(early)} observation(s) from {early[0]} ns came before the first odometry '
                 f'(at {first_ns} ns); they get no keyframe'

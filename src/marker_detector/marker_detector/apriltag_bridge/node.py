@@ -8,8 +8,8 @@ tags' transforms; a tag without one, or of another family or id, is dropped and 
 Topics:
   subscribes  detections (apriltag_msgs/AprilTagDetectionArray, reliable, 100), /tf (the tag
               poses), /tf_static (the camera mount), camera/camera_info
-  publishes   landmark_observations (LandmarkObservationArray, base frame, reliable,
-              transient-local, 1000), /diagnostics
+  publishes   landmark_observations (LandmarkObservationArray, base frame, one per detection
+              array, empty when nothing passed, reliable, transient-local, 1000), /diagnostics
 All parameters are read-only. Next to apriltag_ros, in full: docs/design/marker_nodes.md
 """
 
@@ -134,10 +134,10 @@ class AprilTagBridgeNode(Node):
         for output in outputs:
             for lost in output.lost:
                 self._error(f'{lost.message} ({self.bridge.counts["dropped"]} dropped so far)')
-            if output.frame.observations:
-                message = LandmarkObservationArray()
-                fill_observations(output.frame, message, LandmarkObservation)
-                self.observations_publisher.publish(message)
+            # empty too: it tells odometry_ingest how far the bridge has got
+            message = LandmarkObservationArray()
+            fill_observations(output.frame, message, LandmarkObservation)
+            self.observations_publisher.publish(message)
 
     def _counts(self) -> dict[str, int]:
         """The counts on /diagnostics (the LOST_* reasons among them) and the arrays waiting."""

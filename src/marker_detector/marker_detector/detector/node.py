@@ -10,8 +10,9 @@ Topics:
   subscribes  camera/image_raw (Image) or camera/image_raw/compressed (CompressedImage), per
               image_transport; camera/camera_info; /tf_static (the camera mount), best effort
   publishes   fiducials (FiducialArray, camera optical frame, every image), landmark_
-              observations (LandmarkObservationArray, base frame, reliable, transient-local,
-              1000), ~/debug_image (with publish_debug_image), /diagnostics
+              observations (LandmarkObservationArray, base frame, every image, empty when
+              nothing is seen, reliable, transient-local, 1000), ~/debug_image (with
+              publish_debug_image), /diagnostics
 Detector settings change at run time (ros2 param set). In full: docs/design/marker_nodes.md
 """
 
@@ -258,6 +259,10 @@ class DetectorBehaviour(Node):
             empty.header.stamp = message.header.stamp
             empty.header.frame_id = self.processor.image_frame(message.header.frame_id)
             self.fiducials_publisher.publish(empty)
+            nothing = LandmarkObservationArray()  # says how far the detector has got
+            nothing.header.stamp = message.header.stamp
+            nothing.header.frame_id = self.processor.extrinsics.base_frame
+            self.observations_publisher.publish(nothing)
             self._report_status()
             return
         stamp_ns = stamp_to_ns(message.header.stamp)
@@ -272,10 +277,10 @@ class DetectorBehaviour(Node):
         self.fiducials_publisher.publish(
             fill_fiducials(output, FiducialArray(), FiducialDetection)
         )
-        if output.observations:
-            self.observations_publisher.publish(
-                fill_observations(output, LandmarkObservationArray(), LandmarkObservation)
-            )
+        # empty too: it tells odometry_ingest how far the detector has got
+        self.observations_publisher.publish(
+            fill_observations(output, LandmarkObservationArray(), LandmarkObservation)
+        )
         if self.debug_publisher is not None and self.debug_publisher.get_subscription_count():
             self.debug_publisher.publish(self._debug_image(image, output, message))
         self._report_status()

@@ -234,10 +234,10 @@ def _detect_one(
         stats.rejections[rejection.gate] += 1
     fiducials = fill_fiducials(output, FiducialArray(), FiducialDetection)
     writer.write(FIDUCIALS_TOPIC, message.timestamp_ns, serialize_message(fiducials))
-    if output.observations:
-        stats.images_with_markers += 1
-        observations = fill_observations(output, LandmarkObservationArray(), LandmarkObservation)
-        writer.write(OBSERVATIONS_TOPIC, message.timestamp_ns, serialize_message(observations))
+    stats.images_with_markers += bool(output.observations)
+    # empty too, as the node publishes them (odometry_ingest reads how far the detector got)
+    observations = fill_observations(output, LandmarkObservationArray(), LandmarkObservation)
+    writer.write(OBSERVATIONS_TOPIC, message.timestamp_ns, serialize_message(observations))
 
 
 @console_main(PROG)
