@@ -1,6 +1,6 @@
 """OdometryIngest with an observation source that lags behind the odometry: while it keeps
 publishing (empty arrays for images without sightings) its keyframes are waited for; once it
-is silent for observation_delay_s they are not."""
+is silent for observation_silence_s they are not."""
 
 from __future__ import annotations
 
@@ -25,12 +25,12 @@ def pose(step: int) -> np.ndarray:
 
 
 def run(
-    lag_steps: int, *, empty_arrays: bool, steps: int = 80
+    lag_steps: int, *, empty_arrays: bool, steps: int = 80, **config: float
 ) -> tuple[list[int], OdometryIngest]:
     """Feed odometry and the source's messages, ``lag_steps`` behind, as they would arrive;
     return the keyframe stamps (with the flush) and the ingest. The default startup hold
     keeps the first keyframes until the source has spoken."""
-    ingest = OdometryIngest(IngestConfig())
+    ingest = OdometryIngest(IngestConfig(**config))  # type: ignore[arg-type]
     out: list[Increment] = []
     for step in range(steps + lag_steps):
         if step < steps:
@@ -53,13 +53,22 @@ def test_a_lagging_source_that_says_its_empty_images_gets_every_keyframe_in_orde
     assert any(20 * STEP_NS < stamp < 40 * STEP_NS for stamp in lagging)
 
 
-def test_a_lagging_source_that_publishes_only_sightings_loses_those_after_a_gap() -> None:
-    """Without empty arrays the gap is silence: the keyframes of the gap go out after
-    observation_delay_s, ahead of the sightings that come 1.5 s late, which are refused and
-    counted."""
+def test_a_lagging_source_that_publishes_only_sightings_is_waited_for_through_a_short_gap() -> (
+    None
+):
+    """The 2 s without sightings are shorter than observation_silence_s: the source counts as
+    running, and its sightings after the gap keep their keyframes."""
+    timely, _ = run(0, empty_arrays=False)
     lagging, ingest = run(LAG_STEPS, empty_arrays=False)
+    assert lagging == timely and ingest.refused_stamps == 0
+
+
+def test_sightings_after_a_silence_longer_than_observation_silence_s_are_refused() -> None:
+    """With observation_silence_s 1 s the 2 s gap is a stopped source: the gap's keyframes go
+    out observation_delay_s behind the odometry, ahead of the sightings that come 1.5 s late,
+    which are refused and counted."""
+    lagging, ingest = run(LAG_STEPS, empty_arrays=False, observation_silence_s=1.0)
     wanted = {step * STEP_NS for step in range(80) if seen_at(step)}
-    assert wanted - set(lagging)
     # 40-48 come after the gap's last motion keyframe (at 49) went out; 44 is one of the gap's
     # motion keyframes, so the mapper still has a keyframe at that stamp
     assert ingest.refused_stamps == 9
@@ -67,7 +76,8 @@ def test_a_lagging_source_that_publishes_only_sightings_loses_those_after_a_gap(
 
 
 def test_keyframes_do_not_wait_for_a_silent_source() -> None:
-    """The source stops: motion keyframes follow the odometry observation_delay_s behind."""
+    """The source stops: observation_silence_s later, motion keyframes follow the odometry
+    observation_delay_s behind."""
     config = IngestConfig(startup_hold_s=0.0)
     ingest = OdometryIngest(config)
     out: list[Increment] = []
@@ -75,6 +85,8 @@ def test_keyframes_do_not_wait_for_a_silent_source() -> None:
         out += ingest.add_odometry(step * STEP_NS, pose(step))
         if step < 10:
             out += ingest.add_observation_stamp(step * STEP_NS, seen=False)
+        if step == 9 + round(config.observation_silence_s * 1e9) // STEP_NS - 1:
+            assert out[-1].stamp_to_ns <= 9 * STEP_NS  # still waiting for the source
     delay_ns = round(config.observation_delay_s * 1e9)
     assert out[-1].stamp_to_ns >= 99 * STEP_NS - delay_ns - round(0.5 / SPEED_M) * STEP_NS
 

@@ -24,6 +24,7 @@ class IngestConfig:
     keyframe_angle_rad: float = ruled(0.35, range=POSITIVE)
     keyframe_interval_s: float = ruled(5.0, range=POSITIVE)
     observation_delay_s: float = ruled(0.5, range=NON_NEGATIVE)
+    observation_silence_s: float = ruled(5.0, range=POSITIVE)
     noise_alphas: tuple[float, float, float, float] = ruled(
         (0.05, 0.001, 0.01, 0.001), range=NON_NEGATIVE, length=4
     )
@@ -176,9 +177,10 @@ class OdometryIngest:
                 self.refused_stamps += 1
                 self.warn(
                     f'observation stamp {stamp_ns} ns is older than the last keyframe '
-                    f'({state.keyframe[0]} ns): its source was silent for observation_delay_s '
-                    'or publishes only what it sees (no empty arrays); raise '
-                    'observation_delay_s to keep it'
+                    f'({state.keyframe[0]} ns): its source was silent for '
+                    'observation_silence_s, or lagged by more than max_buffer_s, or publishes '
+                    'only what it sees (no empty arrays) and lagged by more than '
+                    'observation_delay_s'
                 )
             return []
         if state.rewound_until_ns is not None:
@@ -215,15 +217,15 @@ class OdometryIngest:
 
     def _horizon(self) -> int:
         """The stamp up to which keyframes are final: the newest odometry less
-        observation_delay_s; while the observation stream has spoken within the last
-        observation_delay_s of odometry, no later than its newest stamp either (a source that
-        lags but keeps publishing is waited for, at most max_buffer_s)."""
+        observation_delay_s; while the observation source has spoken within the last
+        observation_silence_s of odometry, no later than its newest stamp either (a source
+        that lags but keeps publishing is waited for, at most max_buffer_s)."""
         state = self._state
         latest = state.samples[-1][0]
-        delay = round(self.config.observation_delay_s * 1e9)
-        horizon = latest - delay
+        horizon = latest - round(self.config.observation_delay_s * 1e9)
         progress, spoke_at = state.progress_ns, state.progress_at_ns
-        if progress is not None and spoke_at is not None and latest - spoke_at < delay:
+        silence = round(self.config.observation_silence_s * 1e9)
+        if progress is not None and spoke_at is not None and latest - spoke_at < silence:
             oldest = latest - round(self.config.max_buffer_s * 1e9)
             horizon = max(min(horizon, progress), oldest)
         return horizon

@@ -24,6 +24,12 @@ PARAMETERS = ParamTable(
             'observation_delay_s',
             'hold keyframes back this long for late observations, s (< max_buffer_s)',
         ),
+        config_param(
+            _DEFAULTS,
+            'observation_silence_s',
+            'keyframes wait for a lagging observation source while it has spoken within this '
+            'much odometry time (at most max_buffer_s), s',
+        ),
         config_param(_DEFAULTS, 'noise_alphas', 'motion noise alphas a1..a4'),
         config_param(
             _DEFAULTS,
