@@ -17,7 +17,7 @@ from types import FrameType
 
 import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
@@ -33,6 +33,7 @@ from slam_ros.bag.recording import AtomicBagWriter
 from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import check_parameter_files, declare_parameters
 from slam_ros.qos import matching_qos, recorded_from_profile
+from slam_ros.spin import TakeSafeExecutor
 from slam_ros.typesys import TypeRegistry, message_class
 
 PARAMETERS = ParamTable(
@@ -174,7 +175,7 @@ class BagRecorderNode(Node):
         super().destroy_node()
 
 
-def drain(executor: SingleThreadedExecutor, node: BagRecorderNode, timeout_s: float) -> None:
+def drain(executor: Executor, node: BagRecorderNode, timeout_s: float) -> None:
     """Execute callbacks until no new message arrives for one poll, or until timeout."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -224,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     check_parameter_files(argv, PARAMETERS)
     rclpy.init(args=['bag_recorder', *argv], signal_handler_options=SignalHandlerOptions.NO)
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    executor = SingleThreadedExecutor()
+    executor = TakeSafeExecutor()  # a message rclpy fails to take is counted, not fatal
     node = None
     try:
         node = BagRecorderNode(parameter_overrides=overrides)

@@ -15,6 +15,7 @@ from rclpy.node import Node
 from slam_core.blas import single_threaded_libraries
 from slam_core.cli import config_requested, help_requested, node_help
 from slam_core.params import ParamTable
+from slam_ros.diagnostics import Diagnostics
 from slam_ros.params import check_parameter_files
 
 
@@ -104,9 +105,8 @@ class TakeSafeExecutor(SingleThreadedExecutor):
 
 def _report_failed_take(node: Node, topic: str, error: Exception) -> None:
     diagnostics = getattr(node, 'diagnostics', None)
-    count = getattr(diagnostics, 'failed_takes', None)
-    if isinstance(count, int):
-        diagnostics.failed_takes = count + 1  # type: ignore[union-attr]
+    if isinstance(diagnostics, Diagnostics):
+        diagnostics.failed_takes += 1
     node.get_logger().error(
         f'{topic}: rclpy failed to take a message, which is lost ({type(error).__name__}: '
         f'{error}); going on'
