@@ -18,8 +18,9 @@ from slam_ros.qos import output_qos
 BUSY_WARN = 0.9
 """Busy above this share of the wall time, a node cannot keep up with a higher input rate."""
 IDLE_KEY = 'idle s'
-LOST_TEXT = 'messages before taking them'  # 'lost N <this>': a queue lost inputs
 """The value with the seconds since the node last took an input."""
+LOST_TEXT = 'messages before taking them'
+"""What a node logs after 'lost N' when its queues lost inputs (tests search for it)."""
 OK_AGAIN_REPORTS = 5
 """Reports in a row without a problem before the log says the node is OK again."""
 

@@ -8,7 +8,6 @@ from collections.abc import Callable
 from typing import Any
 
 import rclpy
-from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -86,17 +85,12 @@ class TakeSafeExecutor(SingleThreadedExecutor):
     counts it on /diagnostics ('failed takes'; the next message's sequence gap counts it lost).
     """
 
-    def __init__(self, *, context: Context | None = None) -> None:
-        super().__init__(context=context)
-        self.failed_takes = 0
-
     def _take_subscription(self, sub: Any) -> Any:
         try:
             return super()._take_subscription(sub)
         except RuntimeError as err:
             if not self.context.ok():
                 raise  # a race of Ctrl-C: spin_node's shutdown path
-            self.failed_takes += 1
             node = next((n for n in self.get_nodes() if sub in n.subscriptions), None)
             if node is not None:
                 _report_failed_take(node, sub.topic_name, err)
